@@ -1,0 +1,1 @@
+"""Calibration: recording sessions -> settled poses -> estimation -> report."""

@@ -1,0 +1,78 @@
+"""Settled poses: one row per command, markers averaged over the window where the stand was still.
+
+This is the hand-over between reading sessions (session.py, settle.py) and estimation: every
+estimator, diagnosis and `predict` take a :class:`PoseSet`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class PoseSet:
+    """N settled poses of one stand, seen by M markers.
+
+    Attributes (SI inside):
+        platform: stand name; description: description file or None (the stand's default).
+        controls: (N, n_u) in the stand's internal units (metres for 'm' controls).
+        markers: (N, M, 3) metres, motion-capture frame; NaN where a marker was not seen.
+        marker_names: M names. base_markers: optional (B, 3) m, markers fixed to the base.
+        t: (N,) seconds, the time each command was sent (NaN if unknown).
+        n_samples: (N, M) samples averaged per marker (0 for unseen), or None.
+        length_unit: the session's declared unit ('mm' or 'm'), used for reporting only.
+        moving_link: the link carrying the markers (URDF stands), or None.
+        source: where the data came from (a path, or 'simulated').
+        dropped: list of (row, reason) for commands that gave no pose.
+        extras: free-form per-pose arrays (e.g. 'direction' for history effects), length N.
+    """
+
+    platform: str
+    controls: np.ndarray
+    markers: np.ndarray
+    marker_names: list[str]
+    description: str | None = None
+    base_markers: np.ndarray | None = None
+    t: np.ndarray | None = None
+    n_samples: np.ndarray | None = None
+    length_unit: str = "mm"
+    moving_link: str | None = None
+    source: str = ""
+    dropped: list[tuple[int, str]] = field(default_factory=list)
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.controls = np.atleast_2d(np.asarray(self.controls, float))
+        self.markers = np.asarray(self.markers, float)
+        if self.markers.ndim != 3 or self.markers.shape[2] != 3:
+            raise ValueError(f"markers must be (N, M, 3), got {self.markers.shape}")
+        if self.markers.shape[0] != self.controls.shape[0]:
+            raise ValueError("controls and markers must have the same number of rows")
+        if len(self.marker_names) != self.markers.shape[1]:
+            raise ValueError("one marker name per marker column")
+        if self.t is None:
+            self.t = np.full(len(self.controls), np.nan)
+
+    @property
+    def n_poses(self) -> int:
+        return self.controls.shape[0]
+
+    @property
+    def n_markers(self) -> int:
+        return self.markers.shape[1]
+
+    def subset(self, rows) -> "PoseSet":
+        """The poses at ``rows`` (index array or boolean mask), in that order."""
+        rows = np.asarray(rows)
+        if rows.dtype == bool:
+            rows = np.nonzero(rows)[0]
+        return PoseSet(
+            platform=self.platform, controls=self.controls[rows], markers=self.markers[rows],
+            marker_names=list(self.marker_names), description=self.description,
+            base_markers=self.base_markers, t=None if self.t is None else self.t[rows],
+            n_samples=None if self.n_samples is None else self.n_samples[rows],
+            length_unit=self.length_unit, moving_link=self.moving_link, source=self.source,
+            dropped=[], extras={k: np.asarray(v)[rows] for k, v in self.extras.items()},
+        )

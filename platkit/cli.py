@@ -1,0 +1,55 @@
+"""The ``platkit`` command: parse, call the library, print. Exit 0 ok, 1 failed, 2 bad input."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import traceback
+
+from platkit.errors import PlatkitError
+
+#: verb modules under platkit.commands, in the order `platkit --help` lists them
+COMMANDS = ["plugins", "describe", "fk", "ik"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="platkit", description="Kinematics, calibration and diagnosis of motion platforms")
+    parser.add_argument("--debug", action="store_true", help="show the traceback on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMANDS:
+        module = importlib.import_module(f"platkit.commands.{name}")
+        p = module.add_parser(sub)
+        p.set_defaults(_run=module.run)
+        p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback on errors")
+    return parser
+
+
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse already printed one line; bad usage is bad input
+        return 2 if exc.code not in (0, None) else 0
+    debug = getattr(args, "debug", False)
+    try:
+        return int(args._run(args) or 0)
+    except PlatkitError as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"platkit: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("platkit: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an unexpected failure is a failed computation, said in one line
+        if debug:
+            traceback.print_exc()
+        print(f"platkit: error: {exc.__class__.__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

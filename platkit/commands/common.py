@@ -1,0 +1,61 @@
+"""Helpers shared by the CLI verbs: platform options, pose formatting, JSON printing."""
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+from platkit.errors import BadInput
+from platkit.geometry import rpy_from_quat
+from platkit.model import length_scale
+
+
+def add_platform_options(parser, required: bool = True) -> None:
+    parser.add_argument("--platform", required=required, help="stand name (see `platkit plugins`)")
+    parser.add_argument("--description", default=None, help="description file (default: the stand's own)")
+
+
+def add_unit_option(parser) -> None:
+    parser.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of lengths in and out (default mm)")
+
+
+def parse_vector(text: str, what: str, size: int | None = None) -> np.ndarray:
+    """'1,2,3' -> array; BadInput naming the option on anything else."""
+    try:
+        values = np.array([float(v) for v in text.replace(";", ",").split(",") if v.strip() != ""])
+    except ValueError:
+        raise BadInput(f"{what}: expected comma-separated numbers, got {text!r}") from None
+    if size is not None and values.size != size:
+        raise BadInput(f"{what}: expected {size} numbers, got {values.size}")
+    if not np.all(np.isfinite(values)):
+        raise BadInput(f"{what}: numbers must be finite")
+    return values
+
+
+def pose_dict(q, X, unit: str) -> dict:
+    """A pose as the spec's JSON: x, y, z (unit), qw..qz, roll, pitch, yaw (rad)."""
+    s = length_scale(unit)
+    q = np.asarray(q, float)
+    rpy = rpy_from_quat(q)
+    return {
+        "x": float(X[0] / s), "y": float(X[1] / s), "z": float(X[2] / s),
+        "qw": float(q[0]), "qx": float(q[1]), "qy": float(q[2]), "qz": float(q[3]),
+        "roll": float(rpy[0]), "pitch": float(rpy[1]), "yaw": float(rpy[2]),
+        "unit": unit,
+    }
+
+
+def print_json(obj) -> None:
+    json.dump(obj, sys.stdout, indent=2, default=_json_default)
+    sys.stdout.write("\n")
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    raise TypeError(type(o).__name__)

@@ -1,0 +1,61 @@
+"""platkit describe: controls, parameters (name, unit, nominal) and pose coordinates of a stand."""
+from __future__ import annotations
+
+import numpy as np
+
+from platkit.commands.common import add_platform_options, add_unit_option, print_json
+from platkit.model import length_scale
+from platkit.plugins import get_platform
+
+
+def add_parser(sub):
+    p = sub.add_parser("describe", help="controls, parameters and pose coordinates of a stand")
+    add_platform_options(p)
+    add_unit_option(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    return p
+
+
+def _shown(value: float, unit: str, length_unit: str) -> tuple[float, str]:
+    if unit == "m":
+        return value / length_scale(length_unit), length_unit
+    return value, unit
+
+
+def run(args) -> int:
+    spec = get_platform(args.platform, args.description)
+    controls = []
+    for c in spec.controls:
+        lo, unit = _shown(c.lower, c.unit, args.unit)
+        hi, _ = _shown(c.upper, c.unit, args.unit)
+        neutral, _ = _shown(c.neutral, c.unit, args.unit)
+        controls.append({"name": c.name, "unit": unit, "lower": lo, "upper": hi, "neutral": neutral})
+    params = []
+    for p in spec.parameters:
+        nominal, unit = _shown(p.nominal, p.unit, args.unit)
+        params.append({"name": p.name, "unit": unit, "nominal": nominal, "free": p.free, "group": p.group})
+    coords = []
+    for c in spec.coordinates:
+        neutral, unit = _shown(c.neutral, c.unit, args.unit)
+        coords.append({"name": c.name, "unit": unit, "neutral": neutral})
+    out = {
+        "platform": spec.name, "title": spec.title,
+        "description": str(spec.description_path) if spec.description_path else None,
+        "controls": controls, "parameters": params, "coordinates": coords,
+        "n_parameters": len(params),
+        "closed_form_inverse": spec.inverse is not None, "closed_form_forward": spec.forward is not None,
+    }
+    if args.json:
+        print_json(out)
+        return 0
+    print(f"{spec.name}: {spec.title}")
+    print(f"description: {out['description']}")
+    print(f"controls ({len(controls)}):")
+    for c in controls:
+        print(f"  {c['name']:<12} [{c['lower']:.6g}, {c['upper']:.6g}] {c['unit']}  neutral {c['neutral']:.6g}")
+    print(f"pose coordinates ({len(coords)}): " + ", ".join(f"{c['name']} [{c['unit']}]" for c in coords))
+    print(f"parameters ({len(params)}):")
+    for p in params:
+        flag = "" if p["free"] else "  (fixed)"
+        print(f"  {p['name']:<16} {p['nominal']:>14.6g} {p['unit']:<10} {p['group']}{flag}")
+    return 0

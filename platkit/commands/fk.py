@@ -1,0 +1,45 @@
+"""platkit fk: pose from controls."""
+from __future__ import annotations
+
+import numpy as np
+
+from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, pose_dict, print_json
+from platkit.kinematics import PlatformModel
+from platkit.model import controls_to_si, length_scale
+from platkit.plugins import get_platform
+
+
+def add_parser(sub):
+    p = sub.add_parser("fk", help="forward kinematics: pose from controls")
+    add_platform_options(p)
+    add_unit_option(p)
+    p.add_argument("--u", required=True, help="controls, comma separated ('m' controls in --unit)")
+    p.add_argument("--guess", default=None, help="starting pose coordinates, comma separated (lengths in --unit)")
+    p.add_argument("--allow-mirror", action="store_true", help="report a mirror solution instead of failing")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    return p
+
+
+def run(args) -> int:
+    spec = get_platform(args.platform, args.description)
+    model = PlatformModel(spec)
+    u = controls_to_si(spec, parse_vector(args.u, "--u", spec.n_u), args.unit)
+    guess = None
+    if args.guess:
+        guess = parse_vector(args.guess, "--guess", spec.n_p)
+        s = length_scale(args.unit)
+        guess = np.array([g * s if c.unit == "m" else g for g, c in zip(guess, spec.coordinates)])
+    res = model.forward(u, guess=guess, allow_mirror=args.allow_mirror)
+    out = pose_dict(res.q, res.X, args.unit)
+    out.update({"platform": spec.name, "iterations": res.iterations, "residual": res.residual,
+                "on_branch": res.on_branch})
+    s = length_scale(args.unit)
+    out["coordinates"] = {c.name: float(v / s if c.unit == "m" else v) for c, v in zip(spec.coordinates, res.p)}
+    if args.json:
+        print_json(out)
+        return 0
+    print(f"position  x={out['x']:.4f} y={out['y']:.4f} z={out['z']:.4f} {args.unit}")
+    print(f"rotation  roll={np.degrees(out['roll']):.5f} pitch={np.degrees(out['pitch']):.5f} yaw={np.degrees(out['yaw']):.5f} deg")
+    print(f"quaternion w={out['qw']:.9f} x={out['qx']:.9f} y={out['qy']:.9f} z={out['qz']:.9f}")
+    print(f"newton iterations {res.iterations}, residual {res.residual:.2e}" + ("" if res.on_branch else "  MIRROR POSE (not on the stand's branch)"))
+    return 0

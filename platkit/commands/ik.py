@@ -1,0 +1,54 @@
+"""platkit ik: controls from a pose."""
+from __future__ import annotations
+
+import numpy as np
+
+from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, print_json
+from platkit.errors import BadInput
+from platkit.geometry import quat_from_rpy, quat_normalize
+from platkit.kinematics import PlatformModel
+from platkit.model import controls_from_si, length_scale
+from platkit.plugins import get_platform
+
+
+def add_parser(sub):
+    p = sub.add_parser("ik", help="inverse kinematics: controls from a pose")
+    add_platform_options(p)
+    add_unit_option(p)
+    p.add_argument("--pose", required=True,
+                   help="x,y,z,roll,pitch,yaw (lengths in --unit, angles rad) or x,y,z,qw,qx,qy,qz; "
+                        "or the stand's own pose coordinates with --coordinates")
+    p.add_argument("--coordinates", action="store_true", help="--pose gives the stand's pose coordinates (see describe)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    return p
+
+
+def run(args) -> int:
+    spec = get_platform(args.platform, args.description)
+    model = PlatformModel(spec)
+    s = length_scale(args.unit)
+    if args.coordinates:
+        p = parse_vector(args.pose, "--pose", spec.n_p)
+        p = np.array([v * s if c.unit == "m" else v for v, c in zip(p, spec.coordinates)])
+        q, X = model.pose(p)
+    else:
+        v = parse_vector(args.pose, "--pose")
+        if v.size == 6:
+            q = quat_from_rpy(*v[3:6])
+        elif v.size == 7:
+            if np.linalg.norm(v[3:]) == 0:
+                raise BadInput("--pose: the quaternion is zero")
+            q = quat_normalize(v[3:])
+        else:
+            raise BadInput(f"--pose: expected 6 (x,y,z,roll,pitch,yaw) or 7 (x,y,z,qw,qx,qy,qz) numbers, got {v.size}")
+        X = v[:3] * s
+    u = model.inverse(q, X)
+    u_out = controls_from_si(spec, u, args.unit)
+    names = spec.control_names
+    units = [args.unit if c.unit == "m" else c.unit for c in spec.controls]
+    if args.json:
+        print_json({"platform": spec.name, "controls": dict(zip(names, u_out.tolist())), "units": dict(zip(names, units))})
+        return 0
+    for n, v, un in zip(names, u_out, units):
+        print(f"{n:<10} {v:.6f} {un}")
+    return 0

@@ -1,0 +1,87 @@
+"""Description files: safe YAML reading and where a stand's default description lives.
+
+YAML is read with ``yaml.safe_load`` only (no tags that construct objects); errors name the file
+and, where YAML gives one, the line.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from platkit.errors import BadDescription
+
+DESCRIPTIONS_ENV = "PLATKIT_DESCRIPTIONS"
+
+
+def load_yaml(path: str | Path, error=BadDescription) -> dict[str, Any]:
+    """Read a YAML mapping safely. Raises ``error`` (one line: file, line, problem)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{path}: cannot be read ({exc.__class__.__name__}: {exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{path}:{where} is not valid YAML ({problem})") from None
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
+    return data
+
+
+def default_description(filename: str, anchor: str | Path) -> Path:
+    """Locate a shipped description file.
+
+    Searched in order: the directories of the ``PLATKIT_DESCRIPTIONS`` variable (os.pathsep
+    separated), then every ``descriptions/`` folder found walking up from ``anchor`` (a plugin
+    module's ``__file__``), which is the repository's top-level ``descriptions/``.
+    """
+    candidates: list[Path] = []
+    for d in os.environ.get(DESCRIPTIONS_ENV, "").split(os.pathsep):
+        if d:
+            candidates.append(Path(d) / filename)
+    for parent in Path(anchor).resolve().parents:
+        candidates.append(parent / "descriptions" / filename)
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise BadDescription(f"default description {filename!r} not found (looked in descriptions/ above {anchor})")
+
+
+def require(data: dict, key: str, path: Path, kind: type | tuple = object, where: str = "") -> Any:
+    """``data[key]`` or a BadDescription naming the file and field."""
+    field = f"{where}.{key}" if where else key
+    if key not in data:
+        raise BadDescription(f"{path}: missing field {field!r}")
+    value = data[key]
+    if kind is not object and not isinstance(value, kind):
+        names = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
+        raise BadDescription(f"{path}: field {field!r} must be {names}, got {type(value).__name__}")
+    return value
+
+
+def number(data: dict, key: str, path: Path, where: str = "") -> float:
+    value = require(data, key, path, (int, float), where)
+    if isinstance(value, bool) or not np.isfinite(value):
+        raise BadDescription(f"{path}: field {where + '.' if where else ''}{key} must be a finite number")
+    return float(value)
+
+
+def vector(data: dict, key: str, path: Path, size: int, where: str = "") -> np.ndarray:
+    value = require(data, key, path, list, where)
+    field = f"{where}.{key}" if where else key
+    if len(value) != size or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        raise BadDescription(f"{path}: field {field!r} must be a list of {size} numbers")
+    arr = np.array(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise BadDescription(f"{path}: field {field!r} has a non-finite number")
+    return arr

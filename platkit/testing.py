@@ -1,0 +1,100 @@
+"""The conformance suite every stand passes, built-in or third-party.
+
+    from platkit.testing import check_platform
+    check_platform(spec)          # raises AssertionError naming the failed check
+
+Checks: the spec validates; F = 0 at the neutral pose; CasADi Jacobians of F against central
+finite differences; inverse-then-forward round trips at random poses near neutral; forward-then-
+inverse round trips at random controls; the closed-form inverse (if any) against the iterative one.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from platkit.errors import PlatkitError
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec, validate_spec
+
+
+def _fd_jacobian(f, x, h):
+    x = np.asarray(x, float)
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = h[i] if np.ndim(h) else h
+        cols.append((f(x + e) - f(x - e)) / (2 * e[i]))
+    return np.stack(cols, axis=1)
+
+
+def _random_controls(spec: PlatformSpec, model: PlatformModel, rng, n: int) -> list[np.ndarray]:
+    """Controls of random reachable poses: perturb neutral controls within 10% of each stroke."""
+    lo, hi = spec.control_bounds()
+    u0 = spec.neutral_u()
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    out = []
+    for _ in range(n):
+        u = np.clip(u0 + rng.uniform(-0.08, 0.08, spec.n_u) * span, lo, hi)
+        out.append(u)
+    return out
+
+
+def check_platform(spec: PlatformSpec, n_samples: int = 20, seed: int = 0, tol_pose: float = 1e-8) -> dict:
+    """Run the conformance checks on ``spec``; return a dict of figures; AssertionError on failure."""
+    rng = np.random.default_rng(seed)
+    validate_spec(spec)
+    model = PlatformModel(spec)
+    td = spec.nominal_td()
+    report: dict = {"platform": spec.name}
+
+    # 1. neutral pose satisfies the constraints under neutral controls
+    r0 = model.residual(spec.neutral_u(), spec.neutral_p(), td)
+    assert np.linalg.norm(r0) < 1e-6, f"{spec.name}: |F| = {np.linalg.norm(r0):.3g} at the neutral pose and neutral controls"
+
+    # 2. Jacobians against finite differences at random points near neutral
+    worst = 0.0
+    for u in _random_controls(spec, model, rng, 3):
+        p = spec.neutral_p() + rng.normal(0, 1e-3, spec.n_p)
+        r, Jp, Ju, Jtd = (np.asarray(a) for a in model.F_jac(u, td, p))
+        for J, f, x in (
+            (Jp, lambda x: model.residual(u, x, td), p),
+            (Ju, lambda x: model.residual(x, p, td), u),
+            (Jtd, lambda x: model.residual(u, p, x), td),
+        ):
+            h = 1e-6 * np.maximum(1.0, np.abs(x))
+            Jfd = _fd_jacobian(f, x, h)
+            err = np.max(np.abs(J - Jfd)) / max(1.0, np.max(np.abs(Jfd)))
+            worst = max(worst, err)
+            assert err < 1e-5, f"{spec.name}: CasADi Jacobian differs from finite differences by {err:.3g}"
+    report["jacobian_fd_error"] = worst
+
+    # 3. forward then inverse, and inverse then forward, round trips
+    worst_u = worst_pose = 0.0
+    n_ok = 0
+    for u in _random_controls(spec, model, rng, n_samples):
+        try:
+            fk = model.forward(u, td)
+        except PlatkitError as exc:
+            raise AssertionError(f"{spec.name}: forward kinematics failed at u={u.tolist()}: {exc}") from None
+        assert fk.on_branch, f"{spec.name}: forward kinematics from neutral left the stand's branch at u={u.tolist()}"
+        r = np.asarray(spec.residual(u, td, fk.q, fk.X)).ravel()
+        assert np.linalg.norm(r) < 1e-8, f"{spec.name}: |F| = {np.linalg.norm(r):.3g} at a forward solution"
+        u_back = model.inverse(fk.q, fk.X, td, strict=False, guess=u)
+        # redundant stands may return another u for the same pose: compare poses then
+        fk2 = model.forward(u_back, td, guess=fk.p if np.all(np.isfinite(fk.p)) else None, strict=False)
+        worst_pose = max(worst_pose, np.linalg.norm(fk2.X - fk.X), 1 - abs(float(np.dot(fk2.q, fk.q))))
+        if spec.n_u <= spec.n_p:
+            worst_u = max(worst_u, float(np.max(np.abs(u_back - u))))
+        n_ok += 1
+    assert worst_pose < tol_pose, f"{spec.name}: forward/inverse round trip misses the pose by {worst_pose:.3g}"
+    assert worst_u < 1e-7, f"{spec.name}: forward/inverse round trip misses the controls by {worst_u:.3g}"
+    report.update(round_trips=n_ok, round_trip_pose_error=worst_pose, round_trip_control_error=worst_u)
+
+    # 4. closed-form inverse agrees with the generic Newton route
+    if spec.inverse is not None:
+        u = _random_controls(spec, model, rng, 1)[0]
+        fk = model.forward(u, td)
+        u_newton = model._inverse_newton(fk.q, fk.X, td, spec.neutral_u())
+        err = float(np.max(np.abs(u_newton - u)))
+        assert err < 1e-7, f"{spec.name}: closed-form and Newton inverse kinematics differ by {err:.3g}"
+        report["closed_form_vs_newton"] = err
+    return report
