@@ -153,17 +153,20 @@ class PlatformSpec:
 class PlatformFactory:
     """What a plugin registers: a name and a way to build the spec from a description file.
 
-    ``build(path_or_None) -> PlatformSpec``; ``None`` means the plugin's default description.
+    ``build(path_or_None, options) -> PlatformSpec``; ``None`` means the plugin's default
+    description. ``options`` is a dict of stand-specific choices that come from a session or
+    the command line (e.g. ``{"moving_link": "tool0", "base_link": "base"}`` for URDF chains);
+    a stand rejects options it does not know with BadInput.
     ``description_suffixes``: the file types ``build`` accepts, e.g. ('.yaml',) or ('.urdf',).
     """
 
     name: str
     title: str
-    build: Callable[[Path | None], PlatformSpec]
+    build: Callable[[Path | None, dict], PlatformSpec]
     description_suffixes: tuple[str, ...] = (".yaml",)
     package: str = ""
 
-    def __call__(self, description: str | Path | None = None) -> PlatformSpec:
+    def __call__(self, description: str | Path | None = None, **options) -> PlatformSpec:
         path = None if description is None else Path(description)
         if path is not None:
             if not path.is_file():
@@ -172,7 +175,7 @@ class PlatformFactory:
                 raise BadDescription(
                     f"{path}: the {self.name} stand reads {', '.join(self.description_suffixes)} files"
                 )
-        spec = self.build(path)
+        spec = self.build(path, dict(options))
         validate_spec(spec)
         return spec
 

@@ -91,8 +91,8 @@ class PluginHost:
             raise UnknownPlatform(name, list(stands))
         return stands[name]
 
-    def build(self, name: str, description=None) -> PlatformSpec:
-        return self.factory(name)(description)
+    def build(self, name: str, description=None, **options) -> PlatformSpec:
+        return self.factory(name)(description, **options)
 
 
 @functools.lru_cache(maxsize=1)
@@ -101,14 +101,19 @@ def default_host() -> PluginHost:
     return PluginHost()
 
 
-def get_platform(name: str, description=None) -> PlatformSpec:
-    """Build the named stand's spec from ``description`` (None: the plugin's default)."""
-    return _cached_platform(name, None if description is None else str(description))
+def get_platform(name: str, description=None, **options) -> PlatformSpec:
+    """Build the named stand's spec from ``description`` (None: the plugin's default).
+
+    ``options``: stand-specific choices (e.g. ``moving_link="tool0"`` for URDF chains); values
+    must be hashable (strings, numbers, tuples). Specs are cached per (name, description, options).
+    """
+    key = tuple(sorted((k, v) for k, v in options.items() if v is not None))
+    return _cached_platform(name, None if description is None else str(description), key)
 
 
 @functools.lru_cache(maxsize=32)
-def _cached_platform(name: str, description: str | None) -> PlatformSpec:
-    return default_host().build(name, description)
+def _cached_platform(name: str, description: str | None, options: tuple) -> PlatformSpec:
+    return default_host().build(name, description, **dict(options))
 
 
 def list_platforms() -> dict[str, PlatformFactory]:

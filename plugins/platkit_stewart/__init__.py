@@ -12,7 +12,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from platkit.errors import BadDescription
+from platkit.errors import BadDescription, BadInput
 from platkit.geometry import ca_matrix_from_quat, matrix_from_rpy
 from platkit.hookspecs import hookimpl
 from platkit.io.description import default_description, load_yaml, number, require, vector
@@ -61,7 +61,9 @@ def leg_vectors(td, q, X):
     return ca.repmat(X, 1, 6) + ca.mtimes(R, P) - B
 
 
-def build(path: Path | None) -> PlatformSpec:
+def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
+    if options:
+        raise BadInput(f"the stewart stand takes no options, got {sorted(options)}")
     path = path or default_description("stewart.yaml", __file__)
     d = read_description(path)
     params = []

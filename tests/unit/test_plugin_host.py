@@ -10,7 +10,7 @@ def _plugin(name, title):
     class P:
         @hookimpl
         def platkit_register_platforms(self):
-            return [PlatformFactory(name, title, lambda path: None)]
+            return [PlatformFactory(name, title, lambda path, options: None)]
 
     return P()
 

@@ -1,0 +1,63 @@
+"""Model terms: physics added on top of the geometric model, each with its own parameters.
+
+The estimator (estimate.py) fits td, the base-to-mocap transform, the marker positions and the
+parameters ``theta`` of any number of terms together. Diagnosis (platkit/diagnose) builds terms
+from its effect library (backlash, compliance, thermal drift, ...) and refits with them; a
+calibration.yaml stores the accepted terms so that `predict` reproduces them.
+
+A term acts at up to three places, each a numpy function of theta and the pose set (per pose,
+so history- and time-dependent effects see the row order, ``poses.t`` and ``poses.extras``):
+
+- ``control_offset``: added to the controls before kinematics, (N, n_u) in internal units;
+- ``pose_offset``: a small motion of the moving frame after kinematics, (N, 6): translation
+  (m) then rotation vector (rad), both in the base frame, applied as X' = X + dX,
+  R' = exp(dtheta) R;
+- ``marker_offset``: added to the marker positions in the moving frame, (N, M, 3) m.
+
+Defaults are exact zeros (a term overrides the places where it acts). Jacobians with respect
+to theta are taken by the estimator (finite differences over theta: terms have few parameters).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from platkit.calibrate.poses import PoseSet
+
+
+@dataclass
+class ModelTerm:
+    """Base class: a named extra-physics term with parameters ``theta``.
+
+    Subclasses set ``effect`` (a diagnosis effect name such as 'backlash'), ``parameter_names``
+    (len K), ``initial`` (K,), ``units`` (K,), ``where`` (what it is attached to: an actuator,
+    marker, time span), and override one or more of the offset methods.
+    """
+
+    effect: str
+    parameter_names: list[str]
+    initial: np.ndarray
+    units: list[str] = field(default_factory=list)
+    where: dict[str, Any] = field(default_factory=dict)
+
+    def control_offset(self, theta: np.ndarray, poses: PoseSet, n_u: int) -> np.ndarray:
+        return np.zeros((poses.n_poses, n_u))
+
+    def pose_offset(self, theta: np.ndarray, poses: PoseSet, fk_q: np.ndarray, fk_X: np.ndarray) -> np.ndarray:
+        return np.zeros((poses.n_poses, 6))
+
+    def marker_offset(self, theta: np.ndarray, poses: PoseSet) -> np.ndarray:
+        return np.zeros((poses.n_poses, poses.n_markers, 3))
+
+    def to_dict(self, theta: np.ndarray, std: np.ndarray | None = None) -> dict:
+        """What calibration.yaml stores; ``from_dict`` of the effect rebuilds the term."""
+        return {
+            "effect": self.effect,
+            "where": self.where,
+            "parameters": {
+                n: {"value": float(v), "std": None if std is None else float(s), "unit": u}
+                for n, v, s, u in zip(self.parameter_names, theta, std if std is not None else theta, self.units or [""] * len(theta))
+            },
+        }
