@@ -1,0 +1,525 @@
+"""Serial chains from URDF files: safe reading, chain extraction, CasADi forward kinematics.
+
+The route every URDF-described stand takes (the ``urdf`` and ``rotary`` stands):
+
+1. :func:`read_urdf` parses the file safely (no DTD, no entities, no network, no meshes) and
+   checks the numbers of every joint, naming the joint and element on error.
+2. :func:`serial_chain` picks the joints from a base link to a moving link.
+3. :func:`chain_spec` turns the chain into a :class:`platkit.model.PlatformSpec` with a
+   closed-form ``forward(u, td) -> (q, X)``.
+
+Joint model, for every actuated joint j of the chain (revolute, continuous, prismatic)::
+
+    theta_j = scale_j * (c_j * u_j - offset_j)
+
+with ``c_j`` the control's unit conversion (1 for 'rad' and 'm', pi/180 for 'deg'), ``offset_j``
+in the joint's SI unit (rad or m) and ``scale_j`` dimensionless. A mimic joint follows its master:
+``theta = multiplier * theta_master + offset`` (URDF semantics; the master must be an actuated
+joint of the same chain). Each actuated or mimic joint's origin carries a small rigid error::
+
+    parent_from_child = origin_nominal * Trans(origin_x, origin_y, origin_z)
+                        * Rz(origin_rz) Ry(origin_ry) Rx(origin_rx) * motion(theta)
+
+so an error is expressed in the nominal joint frame (the frame the axis is written in). Errors of
+fixed joints are not separate parameters: a small error of a fixed joint between two actuated
+joints equals an error of the next actuated joint's origin, one before the first actuated joint is
+part of the base-to-mocap transform, one after the last is part of the marker positions.
+
+td layout: per actuated joint, in chain order, ``<joint>.offset``, ``<joint>.scale`` (actuated
+only), then ``<joint>.origin_x, _y, _z, _rx, _ry, _rz``. Nominal values: offset 0, scale 1,
+origin errors 0; the URDF's own numbers are kept in ``spec.extras['chain']``.
+"""
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from platkit.errors import BadDescription, BadInput
+from platkit.geometry import (
+    ca_matrix_from_quat,
+    ca_matrix_from_rpy,
+    ca_quat_from_rpy,
+    ca_quat_multiply,
+    matrix_from_rpy,
+    quat_from_matrix,
+    quat_normalize,
+)
+from platkit.model import Control, Parameter, PlatformSpec, six_dof_pose
+
+#: Largest URDF file read (bytes); real robot descriptions are well under 1 MB without meshes.
+MAX_URDF_BYTES = 32 * 1024 * 1024
+ACTUATED_TYPES = ("revolute", "continuous", "prismatic")
+KNOWN_TYPES = ACTUATED_TYPES + ("fixed", "floating", "planar")
+ORIGIN_FIELDS = ("origin_x", "origin_y", "origin_z", "origin_rx", "origin_ry", "origin_rz")
+CONTROL_UNIT_FACTORS = {"rad": 1.0, "m": 1.0, "deg": np.pi / 180.0}
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """One URDF joint, as read. ``origin``: 4x4 parent_from_joint; ``axis``: unit (3,)."""
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    origin: np.ndarray
+    axis: np.ndarray
+    lower: float
+    upper: float
+    mimic: tuple[str, float, float] | None = None  # (master, multiplier, offset)
+
+    @property
+    def actuated(self) -> bool:
+        return self.type in ACTUATED_TYPES and self.mimic is None
+
+    @property
+    def unit(self) -> str:
+        return "m" if self.type == "prismatic" else "rad"
+
+
+@dataclass
+class UrdfTree:
+    """The kinematic tree of a URDF file: links, joints by name, and the parent joint of links."""
+
+    path: Path
+    robot_name: str
+    links: list[str]
+    joints: dict[str, UrdfJoint]
+    parent_joint: dict[str, str]  # child link -> joint name
+
+    @property
+    def root(self) -> str:
+        roots = [l for l in self.links if l not in self.parent_joint]
+        if len(roots) != 1:
+            raise BadDescription(f"{self.path}: the URDF must have exactly one root link, found {sorted(roots)}")
+        return roots[0]
+
+    def children(self, link: str) -> list[str]:
+        return [j.child for j in self.joints.values() if j.parent == link]
+
+    def leaves(self, below: str) -> list[str]:
+        """Links with no child joint in the subtree under ``below`` (depth-first order)."""
+        out, stack = [], [below]
+        while stack:
+            link = stack.pop()
+            kids = self.children(link)
+            if not kids and link != below:
+                out.append(link)
+            stack.extend(reversed(kids))
+        return out
+
+
+def _floats(text: str | None, n: int, path: Path, where: str, default: str) -> np.ndarray:
+    raw = default if text is None else text
+    try:
+        values = np.array([float(v) for v in raw.split()], dtype=float)
+    except ValueError:
+        raise BadDescription(f"{path}: {where} must be {n} numbers, got {raw!r}") from None
+    if values.size != n or not np.all(np.isfinite(values)):
+        raise BadDescription(f"{path}: {where} must be {n} finite numbers, got {raw!r}")
+    return values
+
+
+def _optional_float(text: str | None, path: Path, where: str) -> float | None:
+    if text is None:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise BadDescription(f"{path}: {where} must be a number, got {text!r}") from None
+    if np.isnan(value):
+        raise BadDescription(f"{path}: {where} must be a number, got {text!r}")
+    return value
+
+
+def _parse_xml_safely(path: Path):
+    """lxml root of ``path``; no DTD, entities, network or huge trees; BadDescription otherwise."""
+    from lxml import etree
+
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise BadDescription(f"{path}: cannot be read ({exc.__class__.__name__}: {exc})") from None
+    if size > MAX_URDF_BYTES:
+        raise BadDescription(f"{path}: {size} bytes is larger than the {MAX_URDF_BYTES} bytes a URDF may have")
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise BadDescription(f"{path}: cannot be read ({exc.__class__.__name__}: {exc})") from None
+    for token in (b"<!DOCTYPE", b"<!ENTITY"):
+        at = data.find(token)
+        if at >= 0:
+            line = data.count(b"\n", 0, at) + 1
+            raise BadDescription(f"{path}: line {line}: DTDs and XML entities are not accepted in a URDF")
+    parser = etree.XMLParser(
+        resolve_entities=False, no_network=True, load_dtd=False, dtd_validation=False,
+        huge_tree=False, remove_comments=True, remove_pis=True,
+    )
+    try:
+        tree = etree.parse(io.BytesIO(data), parser)
+    except etree.XMLSyntaxError as exc:
+        line = f" line {exc.lineno}:" if getattr(exc, "lineno", None) else ""
+        raise BadDescription(f"{path}:{line} not well-formed XML ({exc.msg})") from None
+    # a DTD in another encoding (UTF-16) escapes the byte search above; lxml still reports it
+    if tree.docinfo.internalDTD is not None or tree.docinfo.doctype:
+        raise BadDescription(f"{path}: DTDs and XML entities are not accepted in a URDF")
+    for node in tree.iter():
+        if isinstance(node, etree._Entity):
+            raise BadDescription(f"{path}: line {node.sourceline}: XML entities are not accepted in a URDF")
+    root = tree.getroot()
+    if root.tag != "robot":
+        raise BadDescription(f"{path}: the top element must be <robot>, got <{root.tag}>")
+    return root, data
+
+
+def read_urdf(path: str | Path) -> UrdfTree:
+    """Read a URDF's kinematic tree safely: no DTD or entities, no network, meshes never loaded.
+
+    The XML is checked strictly with lxml first (every number of every joint, naming the joint
+    and element on error), then handed to yourdfpy for the tree. Raises BadDescription.
+    """
+    import yourdfpy
+
+    path = Path(path)
+    root, data = _parse_xml_safely(path)
+    names = []
+    for el in root.findall("joint"):
+        name = el.get("name")
+        if not name:
+            raise BadDescription(f"{path}: line {el.sourceline}: a <joint> has no name")
+        where = f"joint {name!r}"
+        jtype = el.get("type")
+        if jtype not in KNOWN_TYPES:
+            raise BadDescription(f"{path}: {where} has type {jtype!r}, expected one of {', '.join(KNOWN_TYPES)}")
+        for tag in ("parent", "child"):
+            sub = el.find(tag)
+            if sub is None or not sub.get("link"):
+                raise BadDescription(f"{path}: {where} has no <{tag} link=...>")
+        origin = el.find("origin")
+        if origin is not None:
+            _floats(origin.get("xyz"), 3, path, f"{where} <origin xyz>", "0 0 0")
+            _floats(origin.get("rpy"), 3, path, f"{where} <origin rpy>", "0 0 0")
+        axis = el.find("axis")
+        if axis is not None and jtype in ACTUATED_TYPES:
+            a = _floats(axis.get("xyz"), 3, path, f"{where} <axis xyz>", "1 0 0")
+            if np.linalg.norm(a) < 1e-9:
+                raise BadDescription(f"{path}: {where} <axis xyz> is the zero vector")
+        limit = el.find("limit")
+        if limit is not None:
+            for attr in ("lower", "upper"):
+                _optional_float(limit.get(attr), path, f"{where} <limit {attr}>")
+        mimic = el.find("mimic")
+        if mimic is not None:
+            if not mimic.get("joint"):
+                raise BadDescription(f"{path}: {where} <mimic> names no joint")
+            for attr in ("multiplier", "offset"):
+                v = _optional_float(mimic.get(attr), path, f"{where} <mimic {attr}>")
+                if v is not None and not np.isfinite(v):
+                    raise BadDescription(f"{path}: {where} <mimic {attr}> must be finite")
+        names.append(name)
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise BadDescription(f"{path}: joint names used twice: {dup}")
+    try:
+        model = yourdfpy.URDF.load(io.BytesIO(data), build_scene_graph=False, load_meshes=False,
+                                   build_collision_scene_graph=False, load_collision_meshes=False)
+    except Exception as exc:  # yourdfpy raises bare exceptions on malformed input
+        raise BadDescription(f"{path}: not a valid URDF ({exc.__class__.__name__}: {exc})") from None
+    robot = model.robot
+    links = [l.name for l in robot.links]
+    link_set = set(links)
+    joints: dict[str, UrdfJoint] = {}
+    parent_joint: dict[str, str] = {}
+    for j in robot.joints:
+        for end in (j.parent, j.child):
+            if end not in link_set:
+                raise BadDescription(f"{path}: joint {j.name!r} names link {end!r}, which the file does not define")
+        if j.child in parent_joint:
+            raise BadDescription(
+                f"{path}: link {j.child!r} is the child of two joints ({parent_joint[j.child]!r}, {j.name!r}); a URDF is a tree"
+            )
+        axis = np.asarray(j.axis if j.axis is not None else (1.0, 0.0, 0.0), float)
+        axis = axis / np.linalg.norm(axis) if np.linalg.norm(axis) > 0 else np.array([1.0, 0.0, 0.0])
+        lo = hi = None
+        if j.limit is not None:
+            lo, hi = j.limit.lower, j.limit.upper
+        if j.type == "continuous" or lo is None or hi is None or not lo < hi:
+            # continuous joints, and limits left out or given as lower == upper (the URDF
+            # defaults): the joint is unbounded
+            lo, hi = -np.inf, np.inf
+        mimic = None
+        if j.mimic is not None:
+            mimic = (str(j.mimic.joint), float(j.mimic.multiplier if j.mimic.multiplier is not None else 1.0),
+                     float(j.mimic.offset if j.mimic.offset is not None else 0.0))
+        origin = np.eye(4) if j.origin is None else np.asarray(j.origin, float)
+        joints[j.name] = UrdfJoint(j.name, j.type, j.parent, j.child, origin, axis, float(lo), float(hi), mimic)
+        parent_joint[j.child] = j.name
+    return UrdfTree(path, str(robot.name), links, joints, parent_joint)
+
+
+# ----------------------------------------------------------------------------- the chain
+
+
+@dataclass
+class SerialChain:
+    """The joints from ``base_link`` to ``moving_link``, base first (fixed joints included)."""
+
+    path: Path
+    robot_name: str
+    base_link: str
+    moving_link: str
+    joints: list[UrdfJoint]
+    tree: UrdfTree = field(repr=False)
+
+    @property
+    def actuated(self) -> list[UrdfJoint]:
+        """The actuated joints (revolute, continuous, prismatic, not mimic), base first."""
+        return [j for j in self.joints if j.actuated]
+
+    @property
+    def calibrated(self) -> list[UrdfJoint]:
+        """Joints that carry origin-error parameters: actuated and mimic joints."""
+        return [j for j in self.joints if j.type in ACTUATED_TYPES]
+
+
+def serial_chain(tree: UrdfTree, base_link: str | None = None, moving_link: str | None = None) -> SerialChain:
+    """The serial chain from ``base_link`` (default: the root link) to ``moving_link`` (default:
+    the single leaf below the base). BadInput naming the links on any inconsistency."""
+    path = tree.path
+    base = base_link if base_link is not None else tree.root
+    if base not in tree.links:
+        raise BadInput(f"{path}: base_link {base!r} is not a link of the URDF")
+    if moving_link is None:
+        leaves = tree.leaves(base)
+        if len(leaves) != 1:
+            shown = ", ".join(leaves[:25]) + (f" and {len(leaves) - 25} more" if len(leaves) > 25 else "")
+            raise BadInput(
+                f"{path}: the tree below {base!r} has {len(leaves)} leaf links; choose moving_link among: {shown}"
+            )
+        moving_link = leaves[0]
+    if moving_link not in tree.links:
+        raise BadInput(f"{path}: moving_link {moving_link!r} is not a link of the URDF")
+    if moving_link == base:
+        raise BadInput(f"{path}: moving_link and base_link are the same link {base!r}")
+    chain: list[UrdfJoint] = []
+    link = moving_link
+    while link != base:
+        if link not in tree.parent_joint:
+            raise BadInput(f"{path}: moving_link {moving_link!r} is not below base_link {base!r} in the tree")
+        joint = tree.joints[tree.parent_joint[link]]
+        chain.append(joint)
+        link = joint.parent
+        if len(chain) > len(tree.joints):
+            raise BadDescription(f"{path}: the joints form a loop through link {link!r}")
+    chain.reverse()
+    names = {j.name for j in chain}
+    for j in chain:
+        if j.type in ("floating", "planar"):
+            raise BadInput(f"{path}: joint {j.name!r} on the chain {base} -> {moving_link} is {j.type}; only revolute, continuous, prismatic and fixed joints can be controlled")
+        if j.mimic is not None:
+            master = tree.joints.get(j.mimic[0])
+            if master is None:
+                raise BadDescription(f"{path}: joint {j.name!r} <mimic joint={j.mimic[0]!r}> names no joint of the file")
+            if master.name not in names or not master.actuated:
+                raise BadInput(
+                    f"{path}: joint {j.name!r} mimics {master.name!r}, which is not an actuated joint of the chain {base} -> {moving_link}"
+                )
+            if j.type not in ACTUATED_TYPES:
+                raise BadDescription(f"{path}: joint {j.name!r} is {j.type} but has a <mimic>")
+    if not any(j.actuated for j in chain):
+        raise BadInput(f"{path}: the chain {base} -> {moving_link} has no actuated joint")
+    return SerialChain(path, tree.robot_name, base, moving_link, chain, tree)
+
+
+# ----------------------------------------------------------------------------- parameters
+
+
+def chain_parameters(chain: SerialChain, free_groups: tuple[str, ...] = ("offset", "origin")) -> list[Parameter]:
+    """The td list of a chain (layout in the module docstring). ``free_groups``: which of the
+    groups 'offset', 'scale', 'origin' start free (the estimator may fix unidentifiable ones)."""
+    params = []
+    src = str(chain.path)
+    for j in chain.calibrated:
+        if j.actuated:
+            params.append(Parameter(f"{j.name}.offset", j.unit, 0.0, free="offset" in free_groups, group="offset",
+                                    source=f"{src}: joint {j.name} zero (nominal: the URDF zero)"))
+            params.append(Parameter(f"{j.name}.scale", "1", 1.0, lower=0.0, free="scale" in free_groups, group="scale",
+                                    source=f"{src}: joint {j.name} (nominal: one joint unit per control unit)"))
+        for f in ORIGIN_FIELDS:
+            unit = "m" if f in ("origin_x", "origin_y", "origin_z") else "rad"
+            params.append(Parameter(f"{j.name}.{f}", unit, 0.0, free="origin" in free_groups, group="origin",
+                                    source=f"{src}: joint {j.name} <origin> error, in the joint frame"))
+    return params
+
+
+# ----------------------------------------------------------------------------- kinematics
+
+
+def _axis_rotation(axis: np.ndarray, theta):
+    """CasADi rotation matrix and quaternion of angle ``theta`` about the unit ``axis``."""
+    K = ca.DM(np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]))
+    R = ca.DM.eye(3) + ca.sin(theta) * K + (1 - ca.cos(theta)) * ca.mtimes(K, K)
+    q = ca.vertcat(ca.cos(theta / 2), ca.sin(theta / 2) * ca.DM(axis))
+    return R, q
+
+
+def chain_kinematics(chain: SerialChain, control_units: list[str], u, td):
+    """Symbolic forward kinematics of ``chain``: (R 3x3, q (4,), X (3,)) of the moving link in
+    the base link, for controls ``u`` (n_u,) in ``control_units`` and parameters ``td`` laid out
+    as :func:`chain_parameters`. Also returns ``theta``: the joint positions (n_u,) in SI."""
+    R_acc = ca.DM.eye(3)
+    q_acc = ca.DM([1.0, 0.0, 0.0, 0.0])
+    X_acc = ca.DM.zeros(3)
+    k = 0  # td cursor
+    i = 0  # control cursor
+    theta_of: dict[str, object] = {}
+    for j in chain.joints:
+        R0 = j.origin[:3, :3]
+        t0 = j.origin[:3, 3]
+        q0 = quat_from_matrix(R0)
+        if j.type == "fixed":
+            X_acc = X_acc + ca.mtimes(R_acc, ca.DM(t0))
+            R_acc = ca.mtimes(R_acc, ca.DM(R0))
+            q_acc = ca_quat_multiply(q_acc, ca.DM(q0))
+            continue
+        if j.actuated:
+            offset, scale = td[k], td[k + 1]
+            k += 2
+            c = CONTROL_UNIT_FACTORS[control_units[i]]
+            theta = scale * (c * u[i] - offset)
+            i += 1
+        else:
+            master, multiplier, mimic_offset = j.mimic
+            theta = multiplier * theta_of[master] + mimic_offset
+        theta_of[j.name] = theta
+        d = td[k:k + 3]
+        rx, ry, rz = td[k + 3], td[k + 4], td[k + 5]
+        k += 6
+        R_err = ca_matrix_from_rpy(rx, ry, rz)
+        q_err = ca_quat_from_rpy(rx, ry, rz)
+        # parent_from_child = origin * Trans(d) * R_err * motion(theta)
+        X_local = ca.DM(t0) + ca.mtimes(ca.DM(R0), d)
+        R_local = ca.mtimes(ca.DM(R0), R_err)
+        q_local = ca_quat_multiply(ca.DM(q0), q_err)
+        if j.type == "prismatic":
+            X_local = X_local + ca.mtimes(R_local, ca.DM(j.axis)) * theta
+        else:
+            R_joint, q_joint = _axis_rotation(j.axis, theta)
+            R_local = ca.mtimes(R_local, R_joint)
+            q_local = ca_quat_multiply(q_local, q_joint)
+        X_acc = X_acc + ca.mtimes(R_acc, X_local)
+        R_acc = ca.mtimes(R_acc, R_local)
+        q_acc = ca_quat_multiply(q_acc, q_local)
+    assert k == td.shape[0] and i == u.shape[0], "td or u does not match the chain"
+    return R_acc, q_acc, X_acc
+
+
+def orientation_error(q_model, q):
+    """Rotation vector (small-angle) taking q_model to q, sign-safe: 2 * vec(q_model^-1 q) * sign(w).
+
+    Zero exactly when q = +-q_model; ``q`` need not be unit."""
+    conj = ca.vertcat(q_model[0], -q_model[1], -q_model[2], -q_model[3])
+    d = ca_quat_multiply(conj, q)
+    return 2 * ca.if_else(d[0] < 0, -1, 1) * d[1:]
+
+
+def chain_spec(
+    chain: SerialChain,
+    *,
+    name: str,
+    title: str,
+    control_names: list[str] | None = None,
+    control_units: list[str] | None = None,
+    free_groups: tuple[str, ...] = ("offset", "origin"),
+    description: dict | None = None,
+    description_path: Path | None = None,
+) -> PlatformSpec:
+    """A PlatformSpec for a serial chain: closed-form forward, 6-row residual, six-dof pose.
+
+    Residual (6 rows): ``[X - X_fk(u, td); orientation_error(q_fk(u, td), q)]`` in metres and
+    radians. Controls default to the actuated joints' names in their URDF units (rad, m);
+    ``control_units`` may say 'deg' for revolute joints. Bounds are the URDF limits in the
+    control's unit at nominal scale; neutral controls are 0 clipped into the limits.
+    """
+    actuated = chain.actuated
+    n_u = len(actuated)
+    names = control_names or [j.name for j in actuated]
+    units = control_units or [j.unit for j in actuated]
+    if len(names) != n_u or len(units) != n_u:
+        raise BadInput(f"{chain.path}: {n_u} actuated joints on the chain but {len(names)} control names / {len(units)} units")
+    for j, unit in zip(actuated, units):
+        if unit not in CONTROL_UNIT_FACTORS or (unit == "deg" and j.type == "prismatic") or (
+            unit == "m" and j.type != "prismatic") or (unit == "rad" and j.type == "prismatic"):
+            raise BadInput(f"{chain.path}: joint {j.name!r} ({j.type}) cannot take controls in {unit!r}")
+    params = chain_parameters(chain, free_groups)
+    u = ca.SX.sym("u", n_u)
+    td = ca.SX.sym("td", len(params))
+    q = ca.SX.sym("q", 4)
+    X = ca.SX.sym("X", 3)
+    _, q_fk, X_fk = chain_kinematics(chain, units, u, td)
+    forward = ca.Function("forward", [u, td], [q_fk, X_fk], ["u", "td"], ["q", "X"])
+    residual = ca.Function("F", [u, td, q, X], [ca.vertcat(X - X_fk, orientation_error(q_fk, q))],
+                           ["u", "td", "q", "X"], ["r"])
+    controls = []
+    for j, n, unit in zip(actuated, names, units):
+        c = CONTROL_UNIT_FACTORS[unit]
+        lo, hi = j.lower / c, j.upper / c
+        controls.append(Control(n, unit, lo, hi, float(np.clip(0.0, lo, hi))))
+    u0 = np.array([c.neutral for c in controls])
+    td0 = np.array([p.nominal for p in params])
+    q0, X0 = (np.asarray(a).ravel() for a in forward(u0, td0))
+    from platkit.geometry import rpy_from_quat
+
+    coords, pose, from_pose = six_dof_pose(X0, rpy_from_quat(quat_normalize(q0)))
+    return PlatformSpec(
+        name=name,
+        title=title,
+        controls=controls,
+        parameters=params,
+        coordinates=coords,
+        residual=residual,
+        pose=pose,
+        coordinates_from_pose=from_pose,
+        forward=forward,
+        description=description if description is not None else {
+            "urdf": str(chain.path), "base_link": chain.base_link, "moving_link": chain.moving_link},
+        description_path=description_path if description_path is not None else chain.path,
+        moving_frame=chain.moving_link,
+        base_frame=chain.base_link,
+        extras={"chain": chain, "control_units": units, "urdf_path": chain.path},
+    )
+
+
+def frame_jacobian(spec: PlatformSpec) -> ca.Function:
+    """CasADi ``J(u, td) -> (J_lin (3, n_u), J_ang (3, n_u))``: the moving frame's origin velocity
+    and angular velocity, both in base-frame axes, per unit control rate (control units)."""
+    chain: SerialChain = spec.extras["chain"]
+    u = ca.SX.sym("u", spec.n_u)
+    td = ca.SX.sym("td", spec.n_td)
+    R, _, X = chain_kinematics(chain, spec.extras["control_units"], u, td)
+    J_lin = ca.jacobian(X, u)
+    cols = []
+    for i in range(spec.n_u):
+        W = ca.mtimes(ca.jacobian(ca.vec(R), u[i]).reshape((3, 3)), R.T)  # dR/du_i R^T = skew(w_i)
+        cols.append(ca.vertcat(W[2, 1], W[0, 2], W[1, 0]))
+    J_ang = ca.horzcat(*cols)
+    return ca.Function("frame_jacobian", [u, td], [J_lin, J_ang], ["u", "td"], ["J_lin", "J_ang"])
+
+
+def urdf_rpy(R: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) of a URDF <origin rpy> (R = Rz(yaw) Ry(pitch) Rx(roll)), accurate to
+    rounding also near pitch = +-pi/2: yaw is taken from what roll and pitch leave, so an error
+    of roll along the gimbal-lock direction is absorbed."""
+    R = np.asarray(R, float)
+    pitch = np.arctan2(-R[2, 0], np.hypot(R[0, 0], R[1, 0]))
+    roll = np.arctan2(R[2, 1], R[2, 2]) if np.hypot(R[2, 1], R[2, 2]) > 1e-12 else 0.0
+    rest = R @ matrix_from_rpy(roll, pitch, 0.0).T  # = Rz(yaw)
+    yaw = np.arctan2(rest[1, 0], rest[0, 0])
+    return np.array([roll, pitch, yaw])

@@ -1,0 +1,54 @@
+"""platkit stand ``rotary``: the two-stage rotary rig, built on the URDF route.
+
+Joint 1 (outer stage) turns about the base z axis, joint 2 (inner stage) about the outer
+stage's y axis 150 mm above joint 1 (descriptions/rotary.urdf). Controls ``u1``, ``u2`` are in
+degrees; joint angle ``q_j = k_j (u_j - u0_j)`` with nominal ``k = 1`` (degree per degree) and
+``u0 = 0``. In td (SI inside) this is ``theta_j = scale_j * (pi/180 * u_j - offset_j)``:
+``joint<j>.scale`` is k, ``joint<j>.offset`` is u0 in radians. Each joint's origin also carries
+six errors (``joint<j>.origin_x .. origin_rz``): axis offset (x, y, z), axis misalignment and
+non-perpendicularity (rx, ry, rz). All start free; the estimator reduces away what a session
+cannot identify (e.g. the rotation of joint 1's origin about its own axis equals its offset).
+
+The description is a URDF with exactly two actuated joints on the chain from the root link to
+the single leaf (the ``platform`` link the markers sit on).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from platkit.errors import BadDescription, BadInput
+from platkit.hookspecs import hookimpl
+from platkit.io.description import default_description
+from platkit.model import PlatformFactory, PlatformSpec
+from platkit.urdf import chain_spec, read_urdf, serial_chain
+
+TITLE = "Two-stage rotary rig (URDF)"
+
+
+def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
+    options = {k: v for k, v in (options or {}).items() if v is not None}
+    if options:
+        raise BadInput(f"the rotary stand takes no options, got {sorted(options)}")
+    path = path or default_description("rotary.urdf", __file__)
+    chain = serial_chain(read_urdf(path))
+    revolute = [j for j in chain.actuated if j.type in ("revolute", "continuous")]
+    if len(chain.actuated) != 2 or len(revolute) != 2:
+        raise BadDescription(
+            f"{path}: the rotary rig needs exactly two revolute joints from {chain.base_link} to "
+            f"{chain.moving_link}, found {[f'{j.name} ({j.type})' for j in chain.actuated]}"
+        )
+    return chain_spec(
+        chain,
+        name="rotary",
+        title=TITLE,
+        control_names=["u1", "u2"],
+        control_units=["deg", "deg"],
+        free_groups=("offset", "scale", "origin"),
+        description={"urdf": str(path), "base_link": chain.base_link, "moving_link": chain.moving_link},
+        description_path=path,
+    )
+
+
+@hookimpl
+def platkit_register_platforms():
+    return [PlatformFactory("rotary", TITLE, build, (".urdf",))]
