@@ -1,23 +1,49 @@
 """Generic kinematics of any registered stand, derived from its CasADi residual.
 
-Forward kinematics solves F(u, td, pose(p)) = 0 for the pose coordinates p by Newton's method
-(Gauss-Newton where the stand has more equations than coordinates); inverse kinematics uses the
-stand's closed form where it has one, else Gauss-Newton over u.
+Forward kinematics solves G(p) = F(u, td, pose(p)) = 0 for the pose coordinates p by Newton's
+method (Gauss-Newton where the stand has more equations than coordinates); inverse kinematics
+uses the stand's closed form where it has one, else Gauss-Newton over u.
+
+Velocities and accelerations come from differentiating the constraint along a motion:
+
+    G_u u' + G_p p' = 0                                  (first order)
+    G_u u'' + G_p p'' + c(u, p; u', p') = 0              (second order)
+
+where ``c = w'^T (d2G/dw2) w'`` with ``w = (u, p)`` is CasADi's ``jtimes`` applied twice. The
+twist form replaces p' by the twist (v, omega) of the moving frame in the base frame (v: velocity
+of its origin, omega: angular velocity, both in base coordinates), through q' = 1/2 (0, omega) q.
+
+Speed: the Newton loop runs in C when a C compiler is found. The stand's residual and its
+Jacobian are generated with CasADi's code generator, a generic Newton driver (nothing in it
+knows a stand) is appended, and the result is compiled once into a cache directory
+(``$PLATKIT_CACHE_DIR``, default ``~/.cache/platkit``) keyed by a hash of the source. Without a
+compiler, or with ``PLATKIT_COMPILE=0``, the same Newton iteration runs in numpy over CasADi
+evaluations of (r, J). ``PlatformModel.backend`` says which path is used.
 """
 from __future__ import annotations
 
+import ctypes
 import functools
+import hashlib
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
 from platkit.errors import BadInput, NoConvergence, OutOfWorkspace, WrongBranch
 from platkit.geometry import matrix_from_quat, quat_normalize, rpy_from_quat
-from platkit.model import PlatformSpec
+from platkit.model import PlatformSpec, length_scale
 
-#: Newton steps unrolled into one CasADi call; more are taken one at a time if needed.
-UNROLLED_STEPS = 6
+#: status codes of the Newton driver (C and numpy alike)
+CONVERGED, MAX_ITERATIONS, SINGULAR, NOT_FINITE = 0, 1, 2, 3
 
 
 @dataclass
@@ -53,13 +79,273 @@ class ForwardBatch:
     on_branch: np.ndarray  # (N,) bool
 
 
-class PlatformModel:
-    """Numeric solvers for one stand; all Jacobians come from the stand's CasADi functions."""
+@dataclass
+class Conditioning:
+    """How far a pose is from a (forward) singularity.
 
-    def __init__(self, spec: PlatformSpec, tol: float = 1e-10, max_iter: int = 30):
+    The matrix studied is the inverse velocity Jacobian ``J`` (control rates per unit motion):
+    u' = J t with t the twist (v, omega) for six-coordinate stands, else the coordinate rates
+    p'. Angular columns are divided by ``characteristic_length`` so that every column is a
+    rate per metre of motion (Angeles' characteristic length, chosen where the neutral pose is
+    best conditioned). At a forward singularity J loses rank: ``sigma_min`` -> 0.
+    """
+
+    condition_number: float  # sigma_max / sigma_min of the scaled J (1 = isotropic)
+    sigma_min: float  # smallest singular value (control units per metre)
+    sigma_max: float
+    inverse_condition: float  # sigma_min / sigma_max, in [0, 1]; 0 at a singularity
+    distance_to_singularity: float  # first-order estimate of the scaled pose distance (m) to sigma_min = 0
+    characteristic_length: float  # m
+    direction: np.ndarray  # (n,) the motion (scaled twist) that the controls feel least
+
+
+# ---------------------------------------------------------------------------- native Newton
+
+_DRIVER = r"""
+/* ---- platkit generic Newton driver: knows nothing about any stand ---- */
+#include <string.h>
+#include <math.h>
+
+static int pk_eval_rj(const double* u, const double* td, const double* p, double* r, double* J) {
+  const casadi_real* arg[PK_SZ_ARG_RJ + 1]; casadi_real* res[PK_SZ_RES_RJ + 1];
+  casadi_int iw[PK_SZ_IW_RJ + 1]; casadi_real w[PK_SZ_W_RJ + 1];
+  arg[0] = u; arg[1] = td; arg[2] = p; res[0] = r; res[1] = J;
+  return pk_rj(arg, res, iw, w, 0);
+}
+
+static int pk_eval_post(const double* u, const double* td, const double* p, double* q, double* X, double* g) {
+  const casadi_real* arg[PK_SZ_ARG_POST + 1]; casadi_real* res[PK_SZ_RES_POST + 1];
+  casadi_int iw[PK_SZ_IW_POST + 1]; casadi_real w[PK_SZ_W_POST + 1];
+  arg[0] = u; arg[1] = td; arg[2] = p; res[0] = q; res[1] = X; res[2] = g;
+  return pk_post(arg, res, iw, w, 0);
+}
+
+/* Solve A x = b in place (A n-by-n column major, destroyed; b becomes x). 0 ok, 1 singular. */
+static int pk_lu_solve(int n, double* A, double* b, double scale) {
+  int i, j, k, piv;
+  for (k = 0; k < n; ++k) {
+    double best = fabs(A[k + k * n]); piv = k;
+    for (i = k + 1; i < n; ++i) { double v = fabs(A[i + k * n]); if (v > best) { best = v; piv = i; } }
+    if (!(best > 1e-14 * scale)) return 1;
+    if (piv != k) {
+      for (j = 0; j < n; ++j) { double t = A[k + j * n]; A[k + j * n] = A[piv + j * n]; A[piv + j * n] = t; }
+      { double t = b[k]; b[k] = b[piv]; b[piv] = t; }
+    }
+    for (i = k + 1; i < n; ++i) {
+      double f = A[i + k * n] / A[k + k * n];
+      if (f != 0.0) { for (j = k + 1; j < n; ++j) A[i + j * n] -= f * A[k + j * n]; b[i] -= f * b[k]; }
+    }
+  }
+  for (k = n - 1; k >= 0; --k) {
+    double s = b[k];
+    for (j = k + 1; j < n; ++j) s -= A[k + j * n] * b[j];
+    b[k] = s / A[k + k * n];
+  }
+  return 0;
+}
+
+/* The Newton step: solve J dp = r (Gauss-Newton J^T J dp = J^T r when NR > NP) into b. */
+static int pk_step(const double* J, const double* r, double* A, double* b) {
+  int i, j, l; double scale = 0.0;
+  if (PK_NR == PK_NP) {
+    memcpy(A, J, sizeof(double) * PK_NP * PK_NP); memcpy(b, r, sizeof(double) * PK_NP);
+  } else {
+    for (i = 0; i < PK_NP; ++i) {
+      double bi = 0.0;
+      for (l = 0; l < PK_NR; ++l) bi += J[l + i * PK_NR] * r[l];
+      b[i] = bi;
+      for (j = 0; j < PK_NP; ++j) {
+        double a = 0.0;
+        for (l = 0; l < PK_NR; ++l) a += J[l + i * PK_NR] * J[l + j * PK_NR];
+        A[i + j * PK_NP] = a;
+      }
+    }
+  }
+  for (i = 0; i < PK_NP * PK_NP; ++i) { double v = fabs(A[i]); if (v > scale) scale = v; }
+  return pk_lu_solve(PK_NP, A, b, scale);
+}
+
+static double pk_norm(const double* r) {
+  double s = 0.0; int i;
+  for (i = 0; i < PK_NR; ++i) s += r[i] * r[i];
+  return sqrt(s);
+}
+
+/* Newton on r(p) = F(u, td, pose(p)) = 0 from p0. out: p (NP), q (4, unit, w >= 0), X (3),
+   g (NG), then iterations, |r|, status, on_branch. Once |r| <= tol one more step polishes the
+   solution (kept only if it lowers |r|); it is not counted as an iteration. */
+CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const double* p0,
+                                    double tol, int max_iter, double* out) {
+  double r[PK_NR + 1], J[PK_NR * PK_NP + 1], A[PK_NP * PK_NP + 1], b[PK_NP + 1], pt[PK_NP + 1];
+  double* p = out; double* q = out + PK_NP; double* X = q + 4; double* g = X + 3;
+  double* info = g + PK_NG;
+  double nrm = 0.0; int k, i, status = 0;
+  memcpy(p, p0, sizeof(double) * PK_NP);
+  for (k = 0;; ++k) {
+    pk_eval_rj(u, td, p, r, J);
+    nrm = pk_norm(r);
+    if (!isfinite(nrm)) { status = 3; break; }
+    if (nrm <= tol) {
+      if (nrm > 0.0 && !pk_step(J, r, A, b)) {
+        double nt;
+        for (i = 0; i < PK_NP; ++i) pt[i] = p[i] - b[i];
+        pk_eval_rj(u, td, pt, r, J);
+        nt = pk_norm(r);
+        if (nt <= nrm) { memcpy(p, pt, sizeof(double) * PK_NP); nrm = nt; }
+      }
+      status = 0; break;
+    }
+    if (k >= max_iter) { status = 1; break; }
+    if (pk_step(J, r, A, b)) { status = 2; break; }
+    for (i = 0; i < PK_NP; ++i) p[i] -= b[i];
+  }
+  pk_eval_post(u, td, p, q, X, g);
+  {
+    double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    double sgn = q[0] < 0 ? -1.0 : 1.0;
+    int on = 1;
+    for (i = 0; i < 4; ++i) q[i] *= sgn / qn;
+    for (i = 0; i < PK_NG; ++i) if (!(g[i] > 0)) on = 0;
+    info[0] = k; info[1] = nrm; info[2] = status; info[3] = on;
+  }
+}
+
+/* n problems: U (n, NU) row major, P0 (n, NP) or one row when p0_stride = 0, out (n, NOUT). */
+CASADI_SYMBOL_EXPORT void pk_newton_batch(int n, const double* U, const double* td, const double* P0,
+                                          int p0_stride, double tol, int max_iter, double* out) {
+  int i;
+  for (i = 0; i < n; ++i)
+    pk_newton(U + (long)i * PK_NU, td, P0 + (long)i * p0_stride, tol, max_iter, out + (long)i * PK_NOUT);
+}
+"""
+
+_native_lock = threading.Lock()
+_native_by_functions: dict = {}  # id-key -> (functions kept alive, _NativeNewton or failure reason)
+_native_by_hash: dict = {}
+
+
+def cache_dir() -> Path:
+    """Where compiled solvers are kept: $PLATKIT_CACHE_DIR, else $XDG_CACHE_HOME/platkit, else ~/.cache/platkit."""
+    env = os.environ.get("PLATKIT_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "platkit"
+
+
+def _find_compiler() -> str | None:
+    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return None
+    cc = os.environ.get("CC")
+    for cand in ([cc] if cc else []) + ["cc", "gcc", "clang"]:
+        path = shutil.which(cand)
+        if path:
+            return path
+    return None
+
+
+class _NativeNewton:
+    """ctypes handle on a compiled Newton solver for one stand's (residual, pose, branch)."""
+
+    def __init__(self, lib_path: Path, n_u: int, n_p: int, n_g: int):
+        self.path = lib_path
+        self.lib = ctypes.CDLL(str(lib_path))
+        self.n_out = n_p + 7 + n_g + 4
+        self.single = self.lib.pk_newton
+        self.single.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
+        self.single.restype = None
+        self.batch = self.lib.pk_newton_batch
+        self.batch.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
+                               ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
+        self.batch.restype = None
+
+
+def _newton_functions(spec: PlatformSpec) -> tuple[ca.Function, ca.Function, int]:
+    """(rj, post, n_g): rj(u, td, p) -> (r, dense J_p); post(u, td, p) -> (q, X, g)."""
+    u = ca.SX.sym("u", spec.n_u)
+    td = ca.SX.sym("td", spec.n_td)
+    p = ca.SX.sym("p", spec.n_p)
+    q, X = spec.pose(p)
+    r = spec.residual(u, td, q, X)
+    rj = ca.Function("pk_rj", [u, td, p], [r, ca.densify(ca.jacobian(r, p))], ["u", "td", "p"], ["r", "J"])
+    if spec.branch is not None:
+        g = spec.branch(u, td, q, X)
+    else:
+        g = ca.SX(0, 1)
+    post = ca.Function("pk_post", [u, td, p], [q, X, ca.densify(g)], ["u", "td", "p"], ["q", "X", "g"])
+    return rj, post, int(g.shape[0])
+
+
+def _build_native(spec: PlatformSpec, rj: ca.Function, post: ca.Function, n_g: int):
+    """Compile (or find in the cache) the C Newton solver; return _NativeNewton or a reason string."""
+    cc = _find_compiler()
+    if cc is None:
+        return "no C compiler (or PLATKIT_COMPILE=0)"
+    cg = ca.CodeGenerator("platkit_newton.c", {"with_header": False, "casadi_int": "int", "prefix": "pk_"})
+    cg.add(rj)
+    cg.add(post)
+    n_r = rj.size_out(0)[0]
+    defs = {
+        "PK_NU": spec.n_u, "PK_NP": spec.n_p, "PK_NR": n_r, "PK_NG": n_g, "PK_NOUT": spec.n_p + 7 + n_g + 4,
+        "PK_SZ_ARG_RJ": rj.sz_arg(), "PK_SZ_RES_RJ": rj.sz_res(), "PK_SZ_IW_RJ": rj.sz_iw(), "PK_SZ_W_RJ": rj.sz_w(),
+        "PK_SZ_ARG_POST": post.sz_arg(), "PK_SZ_RES_POST": post.sz_res(), "PK_SZ_IW_POST": post.sz_iw(),
+        "PK_SZ_W_POST": post.sz_w(),
+    }
+    source = cg.dump() + "\n" + "".join(f"#define {k} {v}\n" for k, v in defs.items()) + _DRIVER
+    flags = ["-O2", "-fPIC", "-shared"]
+    key = hashlib.sha256((source + cc + " ".join(flags) + sys.platform).encode()).hexdigest()[:24]
+    with _native_lock:
+        if key in _native_by_hash:
+            return _native_by_hash[key]
+        folder = cache_dir()
+        lib = folder / f"newton_{key}.so"
+        try:
+            if not lib.is_file():
+                folder.mkdir(parents=True, exist_ok=True)
+                with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
+                    src = Path(tmp) / "platkit_newton.c"
+                    src.write_text(source)
+                    out = Path(tmp) / lib.name
+                    proc = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True, timeout=300)
+                    if proc.returncode != 0:
+                        return f"the C compiler failed ({(proc.stderr.strip().splitlines() or ['?'])[-1]})"
+                    os.replace(out, lib)  # atomic: other processes see the whole library or none
+            native = _NativeNewton(lib, spec.n_u, spec.n_p, n_g)
+        except (OSError, subprocess.SubprocessError) as exc:
+            return f"compiling the solver failed ({exc.__class__.__name__}: {exc})"
+        _native_by_hash[key] = native
+        return native
+
+
+def _native_for(spec: PlatformSpec, rj, post, n_g):
+    key = (id(spec.residual), id(spec.pose), id(spec.branch), spec.n_td)
+    hit = _native_by_functions.get(key)
+    if hit is not None:
+        return hit[1]
+    native = _build_native(spec, rj, post, n_g)
+    _native_by_functions[key] = ((spec.residual, spec.pose, spec.branch), native)
+    return native
+
+
+# ---------------------------------------------------------------------------- the model
+
+
+class PlatformModel:
+    """Numeric solvers for one stand; all Jacobians come from the stand's CasADi functions.
+
+    ``length_unit`` is only the unit in which error messages show lengths ('mm' or 'm').
+    ``compile``: False forces the numpy/CasADi Newton (no C compiler involved).
+    Instances are not meant to be shared between threads.
+    """
+
+    def __init__(self, spec: PlatformSpec, tol: float = 1e-10, max_iter: int = 30, length_unit: str = "mm",
+                 compile: bool = True):
         self.spec = spec
         self.tol = tol
         self.max_iter = max_iter
+        self.length_unit = length_unit
+        self._display_scale = length_scale(length_unit)
+        self._compile = compile
         u = ca.SX.sym("u", spec.n_u)
         td = ca.SX.sym("td", spec.n_td)
         p = ca.SX.sym("p", spec.n_p)
@@ -73,50 +359,52 @@ class PlatformModel:
             ["u", "td", "p"], ["r", "F_p", "F_u", "F_td"],
         )
         self.pose_fn = spec.pose
-        # Newton steps, unrolled: p_{k+1} = p_k - J^-1 r (least squares if n_r > n_p).
-        p_k = p
-        norms = []
-        for _ in range(UNROLLED_STEPS):
-            qk, Xk = spec.pose(p_k)
-            rk = spec.residual(u, td, qk, Xk)
-            Jk = ca.substitute(Jp, p, p_k)
-            norms.append(ca.norm_2(rk))
-            if self.n_r == spec.n_p:
-                step = ca.solve(Jk, rk)
-            else:
-                step = ca.solve(ca.mtimes(Jk.T, Jk), ca.mtimes(Jk.T, rk))
-            p_k = p_k - step
-        qk, Xk = spec.pose(p_k)
-        norms.append(ca.norm_2(spec.residual(u, td, qk, Xk)))
-        self._newton = ca.Function("newton", [u, td, p], [p_k, ca.vertcat(*norms)], ["u", "td", "p0"], ["p", "norms"])
         self._branch = spec.branch
         self._td0 = spec.nominal_td()
         self._p0 = spec.neutral_p()
+        self._lo, self._hi = spec.control_bounds()
+        self._lo_tol = self._lo - 1e-12
+        self._hi_tol = self._hi + 1e-12
 
     # ------------------------------------------------------------------ helpers
     def _td(self, td) -> np.ndarray:
         return self._td0 if td is None else np.asarray(td, float)
 
+    def _show(self, value: float, unit: str) -> tuple[float, str]:
+        """A value in the unit a person reads: 'm' quantities in ``length_unit``."""
+        if unit == "m":
+            return value / self._display_scale, self.length_unit
+        return value, unit
+
     def check_controls(self, u, strict: bool = True) -> np.ndarray:
-        """Controls as an array (n_u,) or (N, n_u); BadInput for a wrong length, OutOfWorkspace
-        (strict) for a value outside its stroke."""
-        u = np.asarray(u, float)
+        """Controls as an array (n_u,) or (N, n_u); BadInput for a wrong length or a non-finite
+        value, OutOfWorkspace (strict) for a value outside its stroke. Messages show lengths in
+        the model's ``length_unit``."""
+        u = np.asarray(u, dtype=float)
         if u.shape[-1:] != (self.spec.n_u,):
+            got = u.shape[-1] if u.ndim else 1
             raise BadInput(
-                f"{self.spec.name} takes {self.spec.n_u} controls ({', '.join(self.spec.control_names)}), got {u.shape[-1] if u.ndim else 1}"
+                f"{self.spec.name} takes {self.spec.n_u} controls ({', '.join(self.spec.control_names)}), got {got}"
             )
-        if not np.all(np.isfinite(u)):
-            raise BadInput(f"{self.spec.name}: controls must be finite numbers")
+        # fast path: every value finite and inside its stroke
+        if strict and bool(((u >= self._lo_tol) & (u <= self._hi_tol)).all()):
+            return u
+        finite = np.isfinite(u)
+        if not finite.all():
+            i = int(np.argwhere(~finite)[0][-1])
+            raise BadInput(f"{self.spec.name}: control {self.spec.controls[i].name} is not a finite number")
         if strict:
-            lo, hi = self.spec.control_bounds()
-            bad = (u < lo - 1e-12) | (u > hi + 1e-12)
+            bad = (u < self._lo_tol) | (u > self._hi_tol)
             if np.any(bad):
                 idx = np.argwhere(bad)[0]
-                i = idx[-1]
-                c = self.spec.controls[i]
-                val = u[tuple(idx)]
+                c = self.spec.controls[int(idx[-1])]
+                val, unit = self._show(float(u[tuple(idx)]), c.unit)
+                lo, _ = self._show(c.lower, c.unit)
+                hi, _ = self._show(c.upper, c.unit)
+                row = f" (row {int(idx[0])})" if u.ndim > 1 else ""
                 raise OutOfWorkspace(
-                    f"control {c.name} = {val:.6g} {c.unit} is outside its range [{c.lower:.6g}, {c.upper:.6g}] {c.unit}"
+                    f"{self.spec.name}: control {c.name} = {val:.6g} {unit}{row} is outside its stroke "
+                    f"[{lo:.6g}, {hi:.6g}] {unit}"
                 )
         return u
 
@@ -133,67 +421,222 @@ class PlatformModel:
     def residual(self, u, p, td=None) -> np.ndarray:
         return np.asarray(self.F(np.asarray(u, float), self._td(td), np.asarray(p, float))).ravel()
 
+    # ------------------------------------------------------------------ Newton backends
+    @functools.cached_property
+    def _newton_fns(self):
+        return _newton_functions(self.spec)
+
+    @functools.cached_property
+    def _native(self):
+        rj, post, n_g = self._newton_fns
+        if not self._compile:
+            return "compilation switched off for this model"
+        return _native_for(self.spec, rj, post, n_g)
+
+    @property
+    def backend(self) -> str:
+        """Which forward solver runs: 'compiled C (<library>)' or 'casadi+numpy (<why>)'."""
+        if self.spec.forward is not None:
+            return "closed form (the stand's forward function)"
+        nat = self._native
+        if isinstance(nat, _NativeNewton):
+            return f"compiled C ({nat.path})"
+        return f"casadi+numpy ({nat})"
+
+    @functools.cached_property
+    def _single_buffers(self):
+        """Preallocated inputs and output of one forward solve, with their addresses."""
+        n_out = self.spec.n_p + 7 + self._newton_fns[2] + 4
+        bufs = {"u": np.zeros(self.spec.n_u), "td": np.zeros(self.spec.n_td), "p0": np.zeros(self.spec.n_p),
+                "td0": self._td0.copy(), "neutral": self._p0.copy(), "out": np.zeros(n_out)}
+        return bufs, {k: v.ctypes.data for k, v in bufs.items()}
+
+    def _solve_one(self, u: np.ndarray, td, p0) -> np.ndarray:
+        """One Newton solve; returns a fresh out row (see _solve)."""
+        nat = self._native
+        if not isinstance(nat, _NativeNewton):
+            td = self._td0 if td is None else td
+            return self._solve_numpy(u[None, :], td, (self._p0 if p0 is None else p0)[None, :])[0]
+        bufs, addr = self._single_buffers
+        bufs["u"][:] = u
+        if td is None:
+            td_addr = addr["td0"]
+        else:
+            bufs["td"][:] = td
+            td_addr = addr["td"]
+        if p0 is None:
+            p0_addr = addr["neutral"]
+        else:
+            bufs["p0"][:] = p0
+            p0_addr = addr["p0"]
+        nat.single(addr["u"], td_addr, p0_addr, self.tol, self.max_iter, addr["out"])
+        return bufs["out"].copy()
+
+    def _solve(self, u: np.ndarray, td: np.ndarray, P0: np.ndarray, stride: int) -> np.ndarray:
+        """Newton for N problems: u (N, n_u), P0 (N, n_p) or (1, n_p) with stride 0.
+        Returns out (N, n_p + 7 + n_g + 4): p, q, X, g, iterations, |r|, status, on_branch."""
+        nat = self._native
+        N = u.shape[0]
+        if isinstance(nat, _NativeNewton):
+            u = np.ascontiguousarray(u, dtype=float)
+            td = np.ascontiguousarray(td, dtype=float)
+            P0 = np.ascontiguousarray(P0, dtype=float)
+            out = np.empty((N, nat.n_out))
+            nat.batch(N, u.ctypes.data, td.ctypes.data, P0.ctypes.data, stride, self.tol, self.max_iter,
+                      out.ctypes.data)
+            return out
+        return self._solve_numpy(u, td, np.broadcast_to(P0, (N, self.spec.n_p)))
+
+    def _solve_numpy(self, U: np.ndarray, td: np.ndarray, P0: np.ndarray) -> np.ndarray:
+        """The same iteration as the C driver, vectorised over the N problems with numpy."""
+        rj, post, n_g = self._newton_fns
+        N, n_p = U.shape[0], self.spec.n_p
+        P = np.array(P0, dtype=float)
+        iters = np.zeros(N)
+        norms = np.full(N, np.inf)
+        status = np.full(N, -1.0)
+        active = np.arange(N)
+        for k in range(self.max_iter + 1):
+            if active.size == 0:
+                break
+            if active.size == 1:
+                r, J = self._rj_one(U[active[0]], td, P[active[0]])
+                r, J = r.reshape(1, -1), J.reshape(1, self.n_r, n_p)
+            else:
+                r, J = self._rj_map(active.size)(U[active].T, td, P[active].T)
+                r = np.asarray(r).T
+                J = np.asarray(J).reshape(self.n_r, active.size, n_p).transpose(1, 0, 2)
+            nrm = np.linalg.norm(r, axis=1)
+            norms[active] = nrm
+            iters[active] = k
+            done = ~np.isfinite(nrm)
+            status[active[done]] = NOT_FINITE
+            ok = np.isfinite(nrm) & (nrm <= self.tol)
+            status[active[ok]] = CONVERGED
+            for j in np.nonzero(ok & (nrm > 0))[0]:  # polish, as the C driver does
+                i = active[j]
+                try:
+                    step = self._lstsq(J[j], r[j]) if self.n_r == n_p else np.linalg.lstsq(J[j], r[j], rcond=None)[0]
+                except np.linalg.LinAlgError:
+                    continue
+                rt, _ = self._rj_one(U[i], td, P[i] - step)
+                if np.linalg.norm(rt) <= nrm[j]:
+                    P[i] -= step
+                    norms[i] = np.linalg.norm(rt)
+            keep = ~(done | ok)
+            if k >= self.max_iter:
+                status[active[keep]] = MAX_ITERATIONS
+                break
+            active, r, J = active[keep], r[keep], J[keep]
+            if active.size == 0:
+                break
+            if self.n_r != n_p:
+                Jt = J.transpose(0, 2, 1)
+                A, b = Jt @ J, (Jt @ r[..., None])[..., 0]
+            else:
+                A, b = J, r
+            try:
+                step = np.linalg.solve(A, b[..., None])[..., 0]
+                good = np.isfinite(step).all(axis=1)
+            except np.linalg.LinAlgError:
+                step = np.zeros_like(b)
+                good = np.zeros(active.size, bool)
+                for j in range(active.size):
+                    try:
+                        step[j] = np.linalg.solve(A[j], b[j])
+                        good[j] = np.isfinite(step[j]).all()
+                    except np.linalg.LinAlgError:
+                        pass
+            status[active[~good]] = SINGULAR
+            P[active[good]] -= step[good]
+            active = active[good]
+        if N == 1:
+            q, X, g = (np.asarray(a).reshape(1, -1) for a in post(U[0], td, P[0]))
+        else:
+            q, X, g = (np.asarray(a).T for a in self._post_map(N)(U.T, td, P.T))
+        q = quat_normalize(q)
+        on = np.all(g > 0, axis=1) if n_g else np.ones(N, bool)
+        return np.column_stack([P, q, X, g.reshape(N, n_g), iters, norms, status, on])
+
+    @functools.cached_property
+    def _rj_buffer(self):
+        """CasADi's low-overhead evaluation of (r, J) on fixed numpy buffers."""
+        rj = self._newton_fns[0]
+        arrays = [np.zeros(self.spec.n_u), np.zeros(self.spec.n_td), np.zeros(self.spec.n_p),
+                  np.zeros(self.n_r), np.zeros(self.n_r * self.spec.n_p)]
+        buf, evaluate = rj.buffer()
+        for i in range(3):
+            buf.set_arg(i, memoryview(arrays[i]))
+        for i in range(2):
+            buf.set_res(i, memoryview(arrays[3 + i]))
+        return buf, evaluate, arrays
+
+    def _rj_one(self, u, td, p) -> tuple[np.ndarray, np.ndarray]:
+        """(r (n_r,), J (n_r, n_p)) at one point, copies."""
+        _, evaluate, (ub, tdb, pb, rb, Jb) = self._rj_buffer
+        ub[:], tdb[:], pb[:] = u, td, p
+        evaluate()
+        return rb.copy(), Jb.reshape(self.spec.n_p, self.n_r).T.copy()
+
+    @functools.lru_cache(maxsize=16)
+    def _rj_map(self, n: int) -> ca.Function:
+        return self._newton_fns[0].map(n)
+
+    @functools.lru_cache(maxsize=16)
+    def _post_map(self, n: int) -> ca.Function:
+        return self._newton_fns[1].map(n)
+
     # ------------------------------------------------------------------ forward
+    def _mirror_error(self, X, g) -> WrongBranch:
+        s = self._display_scale
+        bad = int(np.sum(~(np.asarray(g) > 0)))
+        return WrongBranch(
+            f"{self.spec.name} forward kinematics converged to a mirror pose the stand cannot take: origin at "
+            f"({', '.join(f'{v / s:.1f}' for v in X)}) {self.length_unit}, {bad} of {len(g)} branch conditions "
+            f"violated; start from a guess on the stand's side (the default, neutral, start is)"
+        )
+
     def forward(self, u, td=None, guess=None, strict: bool = True, allow_mirror: bool = False) -> ForwardResult:
-        """Pose from controls. ``guess``: starting p (default: the neutral pose).
+        """Pose from controls ``u`` (n_u,). ``guess``: starting p (default: the neutral pose).
 
         Raises NoConvergence, OutOfWorkspace (controls outside their stroke, when ``strict``) or
         WrongBranch (converged to a mirror pose the stand cannot take; pass ``allow_mirror`` to
         get it flagged instead).
         """
         u = self.check_controls(u, strict=strict)
-        td = self._td(td)
+        if u.ndim != 1:
+            raise BadInput(f"{self.spec.name}: forward takes one control vector; use forward_batch for many")
         if self.spec.forward is not None:
+            td = self._td(td)
             q, X = self.spec.forward(u, td)
             q = quat_normalize(np.asarray(q).ravel())
             X = np.asarray(X).ravel()
             p = self.coordinates(q, X) if self.spec.coordinates_from_pose is not None else np.full(self.spec.n_p, np.nan)
             return ForwardResult(p, q, X, 0, 0.0, True)
-        p0 = self._p0 if guess is None else np.asarray(guess, float)
-        p_out, norms = self._newton(u, td, p0)
-        norms = np.asarray(norms).ravel()
-        p = np.asarray(p_out).ravel()
-        hit = np.nonzero(norms <= self.tol)[0]
-        if hit.size:
-            iterations = int(hit[0])
-            if iterations < UNROLLED_STEPS:
-                # the unrolled chain took extra steps past convergence; they are harmless
-                # (a Newton step at a root is ~0), so keep the final iterate.
-                pass
-            residual = float(norms[-1])
-        else:
-            iterations = UNROLLED_STEPS
-            residual = float(norms[-1])
-            while residual > self.tol and iterations < self.max_iter and np.isfinite(residual):
-                r, Jp, _, _ = self.F_jac(u, td, p)
-                r = np.asarray(r).ravel()
-                Jp = np.asarray(Jp)
-                step = np.linalg.lstsq(Jp, r, rcond=None)[0]
-                p = p - step
-                iterations += 1
-                residual = float(np.linalg.norm(self.residual(u, p, td)))
-            if not (residual <= self.tol):
-                raise NoConvergence(
-                    f"{self.spec.name} forward kinematics", iterations, residual,
-                    "the controls may have no assembly, or the start is too far; try another --guess",
-                )
-        q, X = self.pose(p)
-        branch = self.on_branch(u, td, q, X)
-        if not branch and not allow_mirror:
-            raise WrongBranch(
-                f"{self.spec.name} forward kinematics converged to a mirror pose the stand cannot take "
-                f"(position {np.round(X * 1000, 1).tolist()} mm); start from a guess on the stand's side"
-            )
-        return ForwardResult(p, q, X, iterations, residual, branch)
-
-    @functools.cached_property
-    def _newton_map_cache(self) -> dict:
-        return {}
+        p0 = None
+        if guess is not None:
+            p0 = np.asarray(guess, float)
+            if p0.shape != (self.spec.n_p,):
+                raise BadInput(f"{self.spec.name}: a guess has {self.spec.n_p} pose coordinates, got {p0.size}")
+        out = self._solve_one(u, None if td is None else np.asarray(td, float), p0)
+        n_p = self.spec.n_p
+        iterations, residual, status, on = out[-4:]
+        if status != CONVERGED:
+            why = {MAX_ITERATIONS: "the controls may have no assembly, or the start is too far; try another guess",
+                   SINGULAR: "the Jacobian became singular on the way (a singular pose, or a bad start)",
+                   NOT_FINITE: "the iteration left the domain of the model (not a number)"}[int(status)]
+            raise NoConvergence(f"{self.spec.name} forward kinematics", int(iterations), float(residual), why)
+        X = out[n_p + 4:n_p + 7]
+        if not on and not allow_mirror:
+            raise self._mirror_error(X, out[n_p + 7:-4])
+        return ForwardResult(out[:n_p], out[n_p:n_p + 4], X, int(iterations), float(residual), bool(on))
 
     def forward_batch(self, U, td=None, guess=None, strict: bool = True) -> ForwardBatch:
         """Forward kinematics of many control vectors. ``U``: (N, n_u) -> ForwardBatch (N, ...).
+        ``guess``: (n_p,) for all, or (N, n_p).
 
-        Poses that do not converge are flagged (``converged`` False), not raised.
+        Poses that do not converge are flagged (``converged`` False), not raised; mirror poses
+        are flagged by ``on_branch`` False.
         """
         U = self.check_controls(np.atleast_2d(U), strict=strict)
         N = U.shape[0]
@@ -208,36 +651,23 @@ class PlatformModel:
                 p = np.asarray(self.spec.coordinates_from_pose.map(N)(q.T, X.T)).T
             ones = np.ones(N, bool)
             return ForwardBatch(p, q, X, np.zeros(N, int), np.zeros(N), ones, ones)
-        P0 = np.broadcast_to(self._p0 if guess is None else np.asarray(guess, float), (N, self.spec.n_p))
-        newton_map = self._newton_map_cache.get(N)
-        if newton_map is None:
-            newton_map = self._newton.map(N)
-            self._newton_map_cache[N] = newton_map
-        P, norms = newton_map(U.T, td, P0.T)
-        P = np.asarray(P).T
-        norms = np.asarray(norms).T  # (N, steps+1)
-        ok = norms <= self.tol
-        iterations = np.where(ok.any(axis=1), ok.argmax(axis=1), UNROLLED_STEPS)
-        residual = norms[:, -1].copy()
-        converged = residual <= self.tol
-        for i in np.nonzero(~converged)[0]:
-            try:
-                res = self.forward(U[i], td, guess=P[i], strict=False, allow_mirror=True)
-            except NoConvergence:
-                continue
-            P[i] = res.p
-            iterations[i] = UNROLLED_STEPS + res.iterations
-            residual[i] = res.residual
-            converged[i] = True
-        q, X = self.pose_fn.map(N)(P.T)
-        q = quat_normalize(np.asarray(q).T)
-        X = np.asarray(X).T
-        if self._branch is not None:
-            g = np.asarray(self._branch.map(N)(U.T, td, q.T, X.T)).T
-            on_branch = np.all(g > 0, axis=1)
+        if guess is None:
+            P0, stride = self._p0[None, :], 0
         else:
-            on_branch = np.ones(N, bool)
-        return ForwardBatch(P, q, X, iterations, residual, converged, on_branch)
+            P0 = np.asarray(guess, float)
+            if P0.ndim == 1:
+                P0, stride = P0[None, :], 0
+            else:
+                stride = self.spec.n_p
+            if P0.shape[-1] != self.spec.n_p or (stride and P0.shape[0] != N):
+                raise BadInput(f"{self.spec.name}: guesses must be ({self.spec.n_p},) or ({N}, {self.spec.n_p})")
+        out = self._solve(U, td, P0, stride)
+        n_p = self.spec.n_p
+        status = out[:, -2]
+        return ForwardBatch(
+            out[:, :n_p], out[:, n_p:n_p + 4], out[:, n_p + 4:n_p + 7], out[:, -4].astype(int), out[:, -3].copy(),
+            status == CONVERGED, out[:, -1] > 0.5,
+        )
 
     # ------------------------------------------------------------------ inverse
     def coordinates(self, q, X) -> np.ndarray:
@@ -255,19 +685,23 @@ class PlatformModel:
         td = self._td(td)
         q = quat_normalize(np.asarray(q, float))
         X = np.asarray(X, float)
+        where = f"the pose at ({', '.join(f'{v / self._display_scale:.1f}' for v in X)}) {self.length_unit}"
         if self.spec.inverse is not None:
             u = np.asarray(self.spec.inverse(td, q, X)).ravel()
             if not np.all(np.isfinite(u)):
-                raise OutOfWorkspace(f"{self.spec.name}: the pose {np.round(X * 1000, 1).tolist()} mm has no real inverse solution")
+                raise OutOfWorkspace(f"{self.spec.name}: {where} has no real inverse solution")
         else:
             u = self._inverse_newton(q, X, td, guess)
         r = np.asarray(self.spec.residual(u, td, q, X)).ravel()
         if np.linalg.norm(r) > 1e-6:
             raise OutOfWorkspace(
-                f"{self.spec.name}: the pose cannot be reached (constraint residual {np.linalg.norm(r):.3g} after solving)"
+                f"{self.spec.name}: {where} cannot be reached (constraint residual {np.linalg.norm(r):.3g} after solving)"
             )
         if strict:
-            self.check_controls(u, strict=True)
+            try:
+                self.check_controls(u, strict=True)
+            except OutOfWorkspace as exc:
+                raise OutOfWorkspace(f"{where} is out of reach: {exc}") from None
         return u
 
     @functools.cached_property
@@ -291,3 +725,251 @@ class PlatformModel:
             A = J.T @ J + lam * np.eye(len(u))
             u = u - np.linalg.solve(A, J.T @ r)
         raise NoConvergence(f"{self.spec.name} inverse kinematics", 100, float(np.linalg.norm(r)), "the pose may be unreachable")
+
+    # ------------------------------------------------------------------ velocity and acceleration
+    @functools.cached_property
+    def _rate_fn(self) -> ca.Function:
+        """(u, td, p, ud, pd) -> (G_u, G_p, c): first-order blocks and the second-order term
+        c = w'^T G_ww w' of G(u, p) = F(u, td, pose(p)) along w' = (u', p')."""
+        s = self.spec
+        u, td, p = ca.SX.sym("u", s.n_u), ca.SX.sym("td", s.n_td), ca.SX.sym("p", s.n_p)
+        ud, pd = ca.SX.sym("ud", s.n_u), ca.SX.sym("pd", s.n_p)
+        q, X = s.pose(p)
+        G = s.residual(u, td, q, X)
+        w, wd = ca.vertcat(u, p), ca.vertcat(ud, pd)
+        c = ca.jtimes(ca.jtimes(G, w, wd), w, wd)
+        return ca.Function("rates", [u, td, p, ud, pd], [ca.densify(ca.jacobian(G, u)), ca.densify(ca.jacobian(G, p)), c],
+                           ["u", "td", "p", "ud", "pd"], ["G_u", "G_p", "c"])
+
+    @functools.cached_property
+    def _twist_fn(self) -> ca.Function:
+        """(u, td, q, X, ud, v, omega) -> (F_u, F_t, c): F_t = dF/d(v, omega) with q' = 1/2 (0, omega) q,
+        and c the second-order term of F along (u', q', X') plus F_q applied to 1/2 (0, omega) q'."""
+        from platkit.geometry import ca_quat_multiply
+
+        s = self.spec
+        u, td, q, X = ca.SX.sym("u", s.n_u), ca.SX.sym("td", s.n_td), ca.SX.sym("q", 4), ca.SX.sym("X", 3)
+        ud, v, om = ca.SX.sym("ud", s.n_u), ca.SX.sym("v", 3), ca.SX.sym("omega", 3)
+        F = s.residual(u, td, q, X)
+        qd = 0.5 * ca_quat_multiply(ca.vertcat(0, om), q)
+        qdd_from_omega = 0.5 * ca_quat_multiply(ca.vertcat(0, om), qd)  # the part of q'' not linear in alpha
+        w, wd = ca.vertcat(u, q, X), ca.vertcat(ud, qd, v)
+        F_q = ca.jacobian(F, q)
+        F_t = ca.horzcat(ca.jacobian(F, X), ca.jacobian(ca.mtimes(F_q, qd), om))
+        c = ca.jtimes(ca.jtimes(F, w, wd), w, wd) + ca.mtimes(F_q, qdd_from_omega)
+        return ca.Function("twist_rates", [u, td, q, X, ud, v, om],
+                           [ca.densify(ca.jacobian(F, u)), ca.densify(F_t), c],
+                           ["u", "td", "q", "X", "ud", "v", "omega"], ["F_u", "F_t", "c"])
+
+    @functools.cached_property
+    def _twist_of_rates_fn(self) -> ca.Function:
+        """(p, pd, pdd) -> (v, omega, a, alpha): the moving frame's twist and its derivative in
+        the base frame, from the pose coordinates and their rates."""
+        from platkit.geometry import ca_quat_multiply
+
+        s = self.spec
+        p, pd, pdd = ca.SX.sym("p", s.n_p), ca.SX.sym("pd", s.n_p), ca.SX.sym("pdd", s.n_p)
+        q, X = s.pose(p)
+        q = q / ca.norm_2(q)
+        v = ca.jtimes(X, p, pd)
+        qd = ca.jtimes(q, p, pd)
+        om = 2 * ca_quat_multiply(qd, q * ca.DM([1, -1, -1, -1]))[1:]
+        a = ca.jtimes(v, p, pd) + ca.jtimes(v, pd, pdd)
+        al = ca.jtimes(om, p, pd) + ca.jtimes(om, pd, pdd)
+        return ca.Function("twist_of_rates", [p, pd, pdd], [v, om, a, al], ["p", "pd", "pdd"], ["v", "omega", "a", "alpha"])
+
+    @staticmethod
+    def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if A.shape[0] == A.shape[1]:
+            return np.linalg.solve(A, b)
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+    def _controls_at(self, p, td, u):
+        if u is not None:
+            return np.asarray(u, float)
+        q, X = self.pose(p)
+        return self.inverse(q, X, td, strict=False)
+
+    def _pose_at(self, u, td, p):
+        if p is not None:
+            return np.asarray(p, float)
+        return self.forward(u, td, strict=False).p
+
+    def inverse_velocity(self, p, pdot, td=None, u=None) -> np.ndarray:
+        """Control rates u' (n_u,) from pose-coordinate rates p' (n_p,) at pose p (the paper's
+        eq. 5 for any stand). ``u``: the controls at p if known (else from inverse kinematics)."""
+        td = self._td(td)
+        p = np.asarray(p, float)
+        u = self._controls_at(p, td, u)
+        G_u, G_p, _ = self._rate_fn(u, td, p, np.zeros(self.spec.n_u), np.zeros(self.spec.n_p))
+        return self._lstsq(np.asarray(G_u), -np.asarray(G_p) @ np.asarray(pdot, float))
+
+    def inverse_acceleration(self, p, pdot, pddot, td=None, u=None) -> tuple[np.ndarray, np.ndarray]:
+        """(u', u'') from (p, p', p''): control rates and accelerations (the paper's eq. 8 for any stand)."""
+        td = self._td(td)
+        p, pdot, pddot = (np.asarray(a, float) for a in (p, pdot, pddot))
+        u = self._controls_at(p, td, u)
+        G_u, G_p, _ = (np.asarray(a) for a in self._rate_fn(u, td, p, np.zeros(self.spec.n_u), pdot))
+        udot = self._lstsq(G_u, -G_p @ pdot)
+        c = np.asarray(self._rate_fn(u, td, p, udot, pdot)[2]).ravel()
+        uddot = self._lstsq(G_u, -(G_p @ pddot + c))
+        return udot, uddot
+
+    def forward_velocity(self, u, udot, td=None, p=None) -> np.ndarray:
+        """Pose-coordinate rates p' (n_p,) from control rates u' (the paper's eq. 10 for any
+        stand). ``p``: the forward solution at u if known."""
+        td = self._td(td)
+        u = np.asarray(u, float)
+        p = self._pose_at(u, td, p)
+        G_u, G_p, _ = (np.asarray(a) for a in self._rate_fn(u, td, p, np.zeros(self.spec.n_u), np.zeros(self.spec.n_p)))
+        return self._lstsq(G_p, -G_u @ np.asarray(udot, float))
+
+    def forward_acceleration(self, u, udot, uddot, td=None, p=None) -> tuple[np.ndarray, np.ndarray]:
+        """(p', p'') from (u, u', u'') (the paper's eq. 11 for any stand)."""
+        td = self._td(td)
+        u, udot, uddot = (np.asarray(a, float) for a in (u, udot, uddot))
+        p = self._pose_at(u, td, p)
+        G_u, G_p, _ = (np.asarray(a) for a in self._rate_fn(u, td, p, udot, np.zeros(self.spec.n_p)))
+        pdot = self._lstsq(G_p, -G_u @ udot)
+        c = np.asarray(self._rate_fn(u, td, p, udot, pdot)[2]).ravel()
+        pddot = self._lstsq(G_p, -(G_u @ uddot + c))
+        return pdot, pddot
+
+    def inverse_velocity_twist(self, q, X, v, omega, td=None, u=None) -> np.ndarray:
+        """Control rates u' (n_u,) from the twist: v (3,) velocity of the moving origin and
+        omega (3,) angular velocity, both in the base frame (m/s, rad/s)."""
+        td = self._td(td)
+        q, X = quat_normalize(np.asarray(q, float)), np.asarray(X, float)
+        u = self.inverse(q, X, td, strict=False) if u is None else np.asarray(u, float)
+        F_u, F_t, _ = (np.asarray(a) for a in self._twist_fn(u, td, q, X, np.zeros(self.spec.n_u), v, omega))
+        return self._lstsq(F_u, -F_t @ np.concatenate([v, omega]))
+
+    def inverse_acceleration_twist(self, q, X, v, omega, a, alpha, td=None, u=None) -> tuple[np.ndarray, np.ndarray]:
+        """(u', u'') from the twist (v, omega) and its rate (a, alpha): a = X'' (m/s^2), alpha =
+        omega' (rad/s^2), base frame."""
+        td = self._td(td)
+        q, X = quat_normalize(np.asarray(q, float)), np.asarray(X, float)
+        v, omega, a, alpha = (np.asarray(x, float) for x in (v, omega, a, alpha))
+        u = self.inverse(q, X, td, strict=False) if u is None else np.asarray(u, float)
+        F_u, F_t, _ = (np.asarray(x) for x in self._twist_fn(u, td, q, X, np.zeros(self.spec.n_u), v, omega))
+        udot = self._lstsq(F_u, -F_t @ np.concatenate([v, omega]))
+        c = np.asarray(self._twist_fn(u, td, q, X, udot, v, omega)[2]).ravel()
+        uddot = self._lstsq(F_u, -(F_t @ np.concatenate([a, alpha]) + c))
+        return udot, uddot
+
+    def forward_velocity_twist(self, u, udot, td=None, p=None) -> tuple[np.ndarray, np.ndarray]:
+        """Twist (v, omega) of the moving frame in the base frame from control rates u'."""
+        td = self._td(td)
+        u = np.asarray(u, float)
+        p = self._pose_at(u, td, p)
+        pdot = self.forward_velocity(u, udot, td, p)
+        v, om, _, _ = self._twist_of_rates_fn(p, pdot, np.zeros(self.spec.n_p))
+        return np.asarray(v).ravel(), np.asarray(om).ravel()
+
+    def forward_acceleration_twist(self, u, udot, uddot, td=None, p=None):
+        """(v, omega, a, alpha) of the moving frame in the base frame from (u, u', u'')."""
+        td = self._td(td)
+        u = np.asarray(u, float)
+        p = self._pose_at(u, td, p)
+        pdot, pddot = self.forward_acceleration(u, udot, uddot, td, p)
+        return tuple(np.asarray(x).ravel() for x in self._twist_of_rates_fn(p, pdot, pddot))
+
+    # ------------------------------------------------------------------ conditioning
+    @property
+    def uses_twist(self) -> bool:
+        """Conditioning uses the twist (v, omega) for six-coordinate stands, else p'."""
+        return self.spec.n_p == 6
+
+    def _angular_columns(self) -> np.ndarray:
+        if self.uses_twist:
+            return np.array([False] * 3 + [True] * 3)
+        return np.array([c.unit == "rad" for c in self.spec.coordinates])
+
+    def velocity_jacobian(self, p, td=None, u=None) -> np.ndarray:
+        """Inverse velocity Jacobian J (n_u, 6 or n_p): u' = J t, t = (v, omega) for six-
+        coordinate stands (base frame), else t = p'."""
+        td = self._td(td)
+        p = np.asarray(p, float)
+        u = self._controls_at(p, td, u)
+        if self.uses_twist:
+            q, X = self.pose(p)
+            F_u, F_t, _ = (np.asarray(a) for a in self._twist_fn(u, td, q, X, np.zeros(self.spec.n_u), np.zeros(3), np.zeros(3)))
+        else:
+            F_u, F_t, _ = (np.asarray(a) for a in self._rate_fn(u, td, p, np.zeros(self.spec.n_u), np.zeros(self.spec.n_p)))
+        return -self._lstsq(F_u, F_t)
+
+    @functools.cached_property
+    def characteristic_length(self) -> float:
+        """Length (m) that makes angular and linear motion comparable: the one minimising the
+        condition number of the velocity Jacobian at the neutral pose (1 if there is no angle)."""
+        ang = self._angular_columns()
+        if not ang.any() or ang.all():
+            return 1.0
+        from scipy.optimize import minimize_scalar
+
+        J = self.velocity_jacobian(self._p0, u=self.spec.neutral_u())
+
+        def cond(log_L):
+            s = np.linalg.svd(J * np.where(ang, 1.0 / np.exp(log_L), 1.0), compute_uv=False)
+            return s[0] / s[-1] if s[-1] > 0 else np.inf
+
+        res = minimize_scalar(cond, bounds=(np.log(1e-3), np.log(1e3)), method="bounded", options={"xatol": 1e-4})
+        return float(np.exp(res.x))
+
+    def _scaled_svd(self, p, td, u):
+        J = self.velocity_jacobian(p, td, u)
+        L = self.characteristic_length
+        Js = J * np.where(self._angular_columns(), 1.0 / L, 1.0)
+        _, s, Vt = np.linalg.svd(Js)
+        return s, Vt
+
+    def conditioning(self, p, td=None, u=None) -> Conditioning:
+        """Condition number, smallest singular value and distance to the nearest forward
+        singularity at pose coordinates p (n_p,)."""
+        td = self._td(td)
+        p = np.asarray(p, float)
+        u = self._controls_at(p, td, u)
+        s, Vt = self._scaled_svd(p, td, u)
+        smin, smax = float(s[-1]), float(s[0])
+        # first-order distance: sigma_min / |grad sigma_min| over the scaled pose coordinates
+        L = self.characteristic_length
+        scale = np.array([L if c.unit == "rad" else 1.0 for c in self.spec.coordinates])
+        grad = np.zeros(self.spec.n_p)
+        h = 1e-6
+        for k in range(self.spec.n_p):
+            dp = np.zeros(self.spec.n_p)
+            dp[k] = h / scale[k]
+            vals = []
+            for sgn in (1.0, -1.0):
+                pk = p + sgn * dp
+                try:
+                    uk = self._controls_at(pk, td, None)
+                except Exception:  # noqa: BLE001 - a step off the stand's domain: one-sided below
+                    vals.append(np.nan)
+                    continue
+                vals.append(self._scaled_svd(pk, td, uk)[0][-1])
+            grad[k] = (vals[0] - vals[1]) / (2 * h)
+        g = float(np.linalg.norm(grad)) if np.all(np.isfinite(grad)) else np.nan
+        dist = smin / g if g and np.isfinite(g) and g > 0 else np.inf
+        return Conditioning(smax / smin if smin > 0 else np.inf, smin, smax, smin / smax if smax > 0 else 0.0,
+                            float(dist), L, Vt[-1])
+
+    def near_singular(self, P, td=None, threshold: float = 0.05) -> np.ndarray:
+        """Indices of the poses P (N, n_p) whose inverse condition number is below ``threshold``."""
+        td = self._td(td)
+        out = []
+        for i, p in enumerate(np.atleast_2d(P)):
+            s, _ = self._scaled_svd(p, td, None)
+            if not s[-1] / s[0] >= threshold:
+                out.append(i)
+        return np.array(out, dtype=int)
+
+    def inverse_condition_numbers(self, P, td=None, U=None) -> np.ndarray:
+        """sigma_min / sigma_max of the scaled velocity Jacobian at each pose P (N, n_p)."""
+        td = self._td(td)
+        P = np.atleast_2d(P)
+        out = np.empty(len(P))
+        for i, p in enumerate(P):
+            s, _ = self._scaled_svd(p, td, None if U is None else U[i])
+            out[i] = s[-1] / s[0] if s[0] > 0 else 0.0
+        return out
