@@ -4,7 +4,7 @@ import pytest
 from platkit import get_platform, list_platforms
 from platkit.testing import check_platform
 
-BUILT_IN = ["stewart", "rotary", "urdf"]
+BUILT_IN = ["stewart", "psvr", "rotary", "urdf"]
 
 
 def test_built_in_stands_are_installed():
