@@ -1,0 +1,406 @@
+"""Workspace of any stand: the corner envelope and the true translational envelope.
+
+- :func:`corner_envelope`: forward kinematics at the 2^n_u corners of the control box (every
+  control at its lower or upper stroke). For the Stewart platform these are the paper's 64
+  min/max leg combinations (Liu, Ma, Lin, table 4).
+- :func:`translational_envelope`: the extreme positions of the moving origin over every pose the
+  stand can take with its controls inside their strokes, by constrained optimisation (CasADi +
+  IPOPT): maximise / minimise x, y, z subject to lower <= u <= upper, the stand's branch, and
+  either the neutral orientation (``orientation="fixed"``) or any orientation within the
+  stand's coordinate bounds (``orientation="free"``). Controls come from the stand's closed-form
+  inverse where it has one; otherwise u is a variable held to F(u, td, pose(p)) = 0.
+- :func:`write_workspace`: the figures as JSON and CSV, and plots, written atomically.
+
+Lengths are metres inside; the writer converts to the requested unit.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from platkit.errors import BadInput, ComputationFailed
+from platkit.kinematics import PlatformModel
+from platkit.model import length_scale
+
+#: corners are enumerated up to this many controls (2^16 forward solves)
+MAX_CORNER_CONTROLS = 16
+AXES = ("x", "y", "z")
+
+
+@dataclass
+class CornerEnvelope:
+    """Forward kinematics at the corners of the control box. Arrays have a leading axis 2^n_u."""
+
+    U: np.ndarray  # (M, n_u) controls, each at a stroke end
+    P: np.ndarray  # (M, n_p) pose coordinates
+    X: np.ndarray  # (M, 3) origin positions, m
+    q: np.ndarray  # (M, 4)
+    converged: np.ndarray  # (M,) bool: solved and on the stand's branch
+    neutral_X: np.ndarray  # (3,) origin at the neutral pose, m
+
+    @property
+    def lower(self) -> np.ndarray:
+        """(3,) smallest origin coordinates over the converged corners, m."""
+        return self.X[self.converged].min(axis=0)
+
+    @property
+    def upper(self) -> np.ndarray:
+        return self.X[self.converged].max(axis=0)
+
+
+@dataclass
+class AxisExtreme:
+    """One extreme of the origin along an axis: the value and the pose that reaches it."""
+
+    axis: str
+    sense: str  # 'min' or 'max'
+    value: float  # m
+    p: np.ndarray  # (n_p,) pose coordinates
+    u: np.ndarray  # (n_u,) controls
+    active: list[str] = field(default_factory=list)  # controls at a stroke end there
+
+
+@dataclass
+class TranslationalEnvelope:
+    orientation: str  # 'fixed' or 'free'
+    extremes: list[AxisExtreme]
+    solver: str
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.array([self.get(a, "min").value for a in AXES])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.array([self.get(a, "max").value for a in AXES])
+
+    def get(self, axis: str, sense: str) -> AxisExtreme:
+        return next(e for e in self.extremes if e.axis == axis and e.sense == sense)
+
+
+def control_corners(model: PlatformModel) -> np.ndarray:
+    """(2^n_u, n_u) controls at every combination of stroke ends (bit i set: control i at its upper)."""
+    spec = model.spec
+    if spec.n_u > MAX_CORNER_CONTROLS:
+        raise BadInput(f"{spec.name}: {spec.n_u} controls give 2^{spec.n_u} corners; at most {MAX_CORNER_CONTROLS} controls")
+    lo, hi = spec.control_bounds()
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise BadInput(f"{spec.name}: every control needs a finite stroke for the corner envelope")
+    bits = np.array(list(itertools.product([0, 1], repeat=spec.n_u)), dtype=bool)[:, ::-1]
+    return np.where(bits, hi, lo)
+
+
+def corner_envelope(model: PlatformModel, td=None, continuation_steps: int = 8) -> CornerEnvelope:
+    """Forward kinematics from the neutral pose at every corner of the control box.
+
+    A corner that Newton cannot reach from neutral in one go (or that lands on a mirror pose) is
+    approached by continuation: the controls walk from neutral to the corner in
+    ``continuation_steps`` steps, each started from the previous solution.
+    """
+    spec = model.spec
+    U = control_corners(model)
+    batch = model.forward_batch(U, td)
+    ok = batch.converged & batch.on_branch
+    P, X, q = batch.p.copy(), batch.X.copy(), batch.q.copy()
+    u0 = spec.neutral_u()
+    for i in np.nonzero(~ok)[0]:
+        p = spec.neutral_p()
+        try:
+            for s in np.linspace(0, 1, continuation_steps + 1)[1:]:
+                res = model.forward(u0 + s * (U[i] - u0), td, guess=p)
+                p = res.p
+        except ComputationFailed:
+            continue
+        P[i], X[i], q[i], ok[i] = res.p, res.X, res.q, True
+    return CornerEnvelope(U, P, X, q, ok, model.pose(spec.neutral_p())[1])
+
+
+def _ipopt_options() -> dict:
+    return {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": 0, "ipopt.tol": 1e-10,
+            "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": 500}
+
+
+def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=None,
+                           starts: list[np.ndarray] | None = None) -> TranslationalEnvelope:
+    """Extreme origin positions over the reachable poses (see the module docstring).
+
+    ``starts``: extra starting pose coordinates (n_p,) tried besides the neutral pose; the best
+    feasible optimum is kept. Raises ComputationFailed if no start gives a feasible optimum.
+    """
+    if orientation not in ("fixed", "free"):
+        raise BadInput(f"orientation must be 'fixed' or 'free', got {orientation!r}")
+    spec = model.spec
+    td = model._td(td)
+    n_p, n_u = spec.n_p, spec.n_u
+    lo_u, hi_u = spec.control_bounds()
+    p = ca.SX.sym("p", n_p)
+    q, X = spec.pose(p)
+    lbx = np.array([c.lower for c in spec.coordinates], float)
+    ubx = np.array([c.upper for c in spec.coordinates], float)
+    p0 = spec.neutral_p()
+    if orientation == "fixed":
+        fixed = np.array([c.unit != "m" for c in spec.coordinates])
+        lbx[fixed] = ubx[fixed] = p0[fixed]
+    lbx = np.where(np.isfinite(lbx), lbx, -1e6)
+    ubx = np.where(np.isfinite(ubx), ubx, 1e6)
+    if spec.inverse is not None:
+        u = spec.inverse(td, q, X)
+        x = p
+        g = [u]
+        lbg, ubg = [lo_u], [hi_u]
+        x_lb, x_ub = lbx, ubx
+        solver_name = "IPOPT over the pose coordinates, controls by the closed-form inverse"
+    else:
+        u = ca.SX.sym("u", n_u)
+        x = ca.vertcat(p, u)
+        r = spec.residual(u, td, q, X)
+        g = [r]
+        lbg, ubg = [np.zeros(r.shape[0])], [np.zeros(r.shape[0])]
+        x_lb, x_ub = np.concatenate([lbx, lo_u]), np.concatenate([ubx, hi_u])
+        solver_name = "IPOPT over pose coordinates and controls held to F = 0"
+    if spec.branch is not None:
+        gb = spec.branch(u, td, q, X)
+        g.append(gb)
+        lbg.append(np.full(gb.shape[0], 1e-6))
+        ubg.append(np.full(gb.shape[0], np.inf))
+    G = ca.vertcat(*g)
+    lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
+    sense_sym = ca.SX.sym("sense", 4)  # (sign, e_x, e_y, e_z): minimise sign * e . X
+    objective = sense_sym[0] * ca.dot(sense_sym[1:], X)
+    solver = ca.nlpsol("envelope", "ipopt", {"x": x, "p": sense_sym, "f": objective, "g": G}, _ipopt_options())
+    u_of = ca.Function("u_of", [x], [u])
+    X_of = ca.Function("X_of", [x], [X])
+
+    def start_vector(pp):
+        pp = np.clip(np.asarray(pp, float), lbx, ubx)
+        if spec.inverse is not None:
+            return pp
+        qq, XX = model.pose(pp)
+        return np.concatenate([pp, model.inverse(qq, XX, td, strict=False)])
+
+    start_points = [p0] + [np.asarray(s, float) for s in (starts or [])]
+    extremes = []
+    for k, axis in enumerate(AXES):
+        for sense, sign in (("min", 1.0), ("max", -1.0)):
+            e = np.zeros(3)
+            e[k] = 1.0
+            best = None
+            for sp in start_points:
+                try:
+                    x0 = start_vector(sp)
+                except ComputationFailed:
+                    continue
+                sol = solver(x0=x0, p=np.concatenate([[sign], e]), lbx=x_lb, ubx=x_ub, lbg=lbg, ubg=ubg)
+                xs = np.asarray(sol["x"]).ravel()
+                gv = np.asarray(ca.Function("gv", [x], [G])(xs)).ravel()
+                viol = max(float(np.max(lbg - gv)), float(np.max(gv - ubg)), 0.0)
+                if viol > 1e-7 or not np.all(np.isfinite(xs)):
+                    continue
+                val = float(np.asarray(X_of(xs)).ravel()[k])
+                if best is None or sign * val < sign * best[0]:
+                    best = (val, xs)
+            if best is None:
+                raise ComputationFailed(f"{spec.name}: the {sense} of {axis} ({orientation} orientation) found no feasible optimum")
+            val, xs = best
+            uu = np.asarray(u_of(xs)).ravel()
+            span = np.maximum(hi_u - lo_u, 1e-12)
+            active = [c.name for c, a, l, h, sp in zip(spec.controls, uu, lo_u, hi_u, span) if min(a - l, h - a) < 1e-6 * sp]
+            extremes.append(AxisExtreme(axis, sense, val, xs[:n_p].copy(), uu, active))
+    return TranslationalEnvelope(orientation, extremes, solver_name)
+
+
+def fixed_orientation_section(model: PlatformModel, plane: str, level: float, bounds_m: tuple, n: int = 81, td=None):
+    """Reachability at the neutral orientation on a grid in a coordinate plane of the origin.
+
+    ``plane``: 'xy', 'xz' or 'yz'; ``level``: the third coordinate (m); ``bounds_m``: ((a0, a1),
+    (b0, b1)). Returns (A (n,), B (n,), reachable (n, n) bool, indexed [b, a]). Needs the stand's
+    closed-form inverse (a grid of Newton solves would be slow); None otherwise.
+    """
+    spec = model.spec
+    if spec.inverse is None:
+        return None
+    td = model._td(td)
+    ia, ib = "xyz".index(plane[0]), "xyz".index(plane[1])
+    ic = 3 - ia - ib
+    A = np.linspace(*bounds_m[0], n)
+    B = np.linspace(*bounds_m[1], n)
+    AA, BB = np.meshgrid(A, B)
+    Xs = np.zeros((n * n, 3))
+    Xs[:, ia], Xs[:, ib], Xs[:, ic] = AA.ravel(), BB.ravel(), level
+    q0, X0 = model.pose(spec.neutral_p())
+    qs = np.repeat(q0[None, :], n * n, axis=0)
+    U = np.asarray(spec.inverse.map(n * n)(td, qs.T, Xs.T)).T
+    lo, hi = spec.control_bounds()
+    ok = np.all(np.isfinite(U), axis=1) & np.all((U >= lo) & (U <= hi), axis=1)
+    if spec.branch is not None:
+        g = np.asarray(spec.branch.map(n * n)(U.T, td, qs.T, Xs.T)).T
+        ok &= np.all(g > 0, axis=1)
+    return A, B, ok.reshape(n, n)
+
+
+def workspace_figures(model: PlatformModel, td=None, conditioning_threshold: float = 0.05):
+    """Everything `platkit workspace` reports, in SI: (figures dict, corners, fixed, free)."""
+    spec = model.spec
+    corners = corner_envelope(model, td)
+    if not corners.converged.any():
+        raise ComputationFailed(f"{spec.name}: forward kinematics failed at every corner of the control box")
+    fixed = translational_envelope(model, "fixed", td)
+    free = translational_envelope(model, "free", td, starts=_extreme_corner_starts(corners))
+    inv_cond = model.inverse_condition_numbers(corners.P[corners.converged], td, corners.U[corners.converged])
+    neutral_cond = model.conditioning(spec.neutral_p(), td, spec.neutral_u())
+
+    def env(lo, hi):
+        return {a: {"min": float(l), "max": float(h), "range": float(h - l)} for a, l, h in zip(AXES, lo, hi)}
+
+    c_lo, c_hi = corners.lower - corners.neutral_X, corners.upper - corners.neutral_X
+    figures = {
+        "platform": spec.name,
+        "neutral_position": corners.neutral_X.tolist(),
+        "corners": {
+            "count": int(len(corners.U)), "converged": int(corners.converged.sum()),
+            "relative_to_neutral": env(c_lo, c_hi),
+        },
+        "true_envelope": {},
+        "conditioning": {
+            "characteristic_length": model.characteristic_length,
+            "uses_twist": model.uses_twist,
+            "neutral": {"condition_number": neutral_cond.condition_number, "sigma_min": neutral_cond.sigma_min,
+                        "distance_to_singularity": neutral_cond.distance_to_singularity},
+            "corners_min_inverse_condition": float(inv_cond.min()),
+            "threshold": conditioning_threshold,
+            "near_singular_corners": [int(i) for i in np.nonzero(corners.converged)[0][inv_cond < conditioning_threshold]],
+        },
+        "solver": {"forward": model.backend, "envelope": fixed.solver},
+    }
+    for env_obj in (fixed, free):
+        lo, hi = env_obj.lower - corners.neutral_X, env_obj.upper - corners.neutral_X
+        entry = env(lo, hi)
+        for a, cl, ch in zip(AXES, c_lo, c_hi):
+            entry[a]["larger_than_corners_min"] = float(cl - entry[a]["min"])
+            entry[a]["larger_than_corners_max"] = float(entry[a]["max"] - ch)
+            entry[a]["range_ratio_to_corners"] = float(entry[a]["range"] / (ch - cl)) if ch > cl else None
+        entry["poses"] = {f"{e.axis}_{e.sense}": {"p": e.p.tolist(), "u": e.u.tolist(), "active_controls": e.active}
+                          for e in env_obj.extremes}
+        figures["true_envelope"][env_obj.orientation + "_orientation"] = entry
+    return figures, corners, fixed, free
+
+
+def _extreme_corner_starts(corners: CornerEnvelope) -> list[np.ndarray]:
+    """Corner poses that are extreme along some axis: good starts for the free-orientation search."""
+    ok = np.nonzero(corners.converged)[0]
+    picks = set()
+    for k in range(3):
+        picks.add(int(ok[np.argmin(corners.X[ok, k])]))
+        picks.add(int(ok[np.argmax(corners.X[ok, k])]))
+    return [corners.P[i] for i in sorted(picks)]
+
+
+def _scale_lengths(obj, s: float, keys=("min", "max", "range", "larger_than_corners_min", "larger_than_corners_max")):
+    if isinstance(obj, dict):
+        return {k: (v / s if k in keys and isinstance(v, float) else _scale_lengths(v, s, keys)) for k, v in obj.items()}
+    return obj
+
+
+def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=None, plots: bool = True) -> dict:
+    """Compute the workspace figures and write, atomically, into ``out``:
+    workspace.json (figures, lengths in ``unit``), corners.csv (controls and poses of every
+    corner), envelope.csv (one row per axis and envelope) and workspace.png / sections.png."""
+    from platkit.io.atomic import atomic_output_dir
+    from platkit.model import controls_from_si
+
+    s = length_scale(unit)
+    figures, corners, fixed, free = workspace_figures(model, td)
+    spec = model.spec
+    shown = _scale_lengths(figures, s)
+    shown["neutral_position"] = [v / s for v in figures["neutral_position"]]
+    shown["conditioning"]["characteristic_length"] = figures["conditioning"]["characteristic_length"] / s
+    shown["conditioning"]["neutral"]["distance_to_singularity"] = figures["conditioning"]["neutral"]["distance_to_singularity"] / s
+    for env in shown["true_envelope"].values():
+        for pose in env["poses"].values():
+            pose["u"] = controls_from_si(spec, np.array(pose["u"]), unit).tolist()
+            pose["p"] = [v / s if c.unit == "m" else v for v, c in zip(pose["p"], spec.coordinates)]
+    shown["unit"] = unit
+    with atomic_output_dir(out) as tmp:
+        (tmp / "workspace.json").write_text(json.dumps(shown, indent=2) + "\n")
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        U_shown = controls_from_si(spec, corners.U, unit)
+        w.writerow(spec.control_names + ["x", "y", "z", "qw", "qx", "qy", "qz", "converged"])
+        for uu, XX, qq, ok in zip(U_shown, corners.X / s, corners.q, corners.converged):
+            w.writerow([f"{v:.6f}" for v in uu] + [f"{v:.6f}" for v in XX] + [f"{v:.9f}" for v in qq] + [int(ok)])
+        (tmp / "corners.csv").write_text(buf.getvalue())
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["envelope", "axis", "min", "max", "range"])
+        c = shown["corners"]["relative_to_neutral"]
+        for a in AXES:
+            w.writerow(["corners", a, f"{c[a]['min']:.4f}", f"{c[a]['max']:.4f}", f"{c[a]['range']:.4f}"])
+        for name, env in shown["true_envelope"].items():
+            for a in AXES:
+                w.writerow([name, a, f"{env[a]['min']:.4f}", f"{env[a]['max']:.4f}", f"{env[a]['range']:.4f}"])
+        (tmp / "envelope.csv").write_text(buf.getvalue())
+        if plots:
+            _plot(model, corners, fixed, free, unit, tmp, td)
+    return shown
+
+
+def _plot(model, corners, fixed, free, unit, folder: Path, td) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    s = length_scale(unit)
+    X0 = corners.neutral_X
+    Xc = (corners.X[corners.converged] - X0) / s
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    for ax, (i, j) in zip(axes, ((0, 1), (0, 2), (1, 2))):
+        ax.scatter(Xc[:, i], Xc[:, j], s=14, label=f"{len(Xc)} control-box corners")
+        for env, style in ((fixed, "--"), (free, ":")):
+            lo, hi = (env.lower - X0) / s, (env.upper - X0) / s
+            ax.add_patch(Rectangle((lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], fill=False, ls=style,
+                                   label=f"true envelope, {env.orientation} orientation"))
+        lo, hi = Xc.min(axis=0), Xc.max(axis=0)
+        ax.add_patch(Rectangle((lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], fill=False, color="C0", label="corner envelope"))
+        ax.set_xlabel(f"{AXES[i]} - neutral [{unit}]")
+        ax.set_ylabel(f"{AXES[j]} - neutral [{unit}]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8, loc="lower left")
+    fig.suptitle(f"{model.spec.name}: origin of the moving frame at the corners of the control box")
+    fig.tight_layout()
+    fig.savefig(folder / "workspace.png", dpi=110)
+    plt.close(fig)
+
+    lo, hi = fixed.lower, fixed.upper
+    pad = 0.1 * np.maximum(hi - lo, 1e-3)
+    sections = [("xy", X0[2]), ("xz", X0[1]), ("yz", X0[0])]
+    results = []
+    for plane, level in sections:
+        ia, ib = "xyz".index(plane[0]), "xyz".index(plane[1])
+        res = fixed_orientation_section(model, plane, level, ((lo[ia] - pad[ia], hi[ia] + pad[ia]),
+                                                              (lo[ib] - pad[ib], hi[ib] + pad[ib])), td=td)
+        if res is None:
+            return
+        results.append((plane, level, res))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    for ax, (plane, level, (A, B, ok)) in zip(axes, results):
+        ax.contourf(A / s, B / s, ok.astype(float), levels=[0.5, 1.5], colors=["C2"], alpha=0.5)
+        ax.contour(A / s, B / s, ok.astype(float), levels=[0.5], colors=["C2"])
+        ax.set_xlabel(f"{plane[0]} [{unit}]")
+        ax.set_ylabel(f"{plane[1]} [{unit}]")
+        third = "xyz".replace(plane[0], "").replace(plane[1], "")
+        ax.set_title(f"reachable at neutral orientation, {third} = {level / s:.0f} {unit}")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(folder / "sections.png", dpi=110)
+    plt.close(fig)
