@@ -1,0 +1,287 @@
+"""A calibration result and its file, ``calibration.yaml``.
+
+The file (spec/README.md section 2) holds: the platform and the description used; every
+parameter of the stand with ``value``, ``std`` and ``nominal`` (and ``unit``, ``status``:
+estimated / held_at_nominal / fixed); the base-to-mocap transform; the marker positions on the
+moving part; the residual RMS; the identifiability analysis; any model terms (ModelTerm.to_dict).
+
+Units in the file: lengths in the session's length unit (``length_unit``, 'mm' or 'm', stated at
+the top and beside every length), angles in radians, other parameters in their SI unit as the
+stand declares it (``unit`` beside each). Inside platkit everything is SI.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from platkit.errors import BadInput
+from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, rotvec_from_quat, transform
+from platkit.io.description import load_yaml
+from platkit.model import PlatformSpec, length_scale
+
+FORMAT = "platkit-calibration/1"
+
+
+@dataclass
+class Calibration:
+    """What an estimator found. SI inside (metres, radians).
+
+    td, td_std, td_nominal: (n_td,); std is NaN for held and fixed parameters; td_status: n_td of
+    'estimated', 'held_at_nominal' (the data cannot fix it) or 'fixed' (not free in this fit).
+    mocap_rotvec, mocap_translation: the base-to-mocap transform mocap_from_base (rotation
+    vector, rad; translation, m) and their std (6,). marker_positions: (M, 3) m in the moving
+    frame, marker_std (M, 3). terms/theta/theta_std: model terms and their parameters.
+    rms_before: point RMS (m) with nominal td after fitting only the transform and markers;
+    rms_after: point RMS (m) at the estimate (both over the observations kept by the robust loss).
+    """
+
+    platform: str
+    description: str | None
+    spec: PlatformSpec
+    td: np.ndarray
+    td_std: np.ndarray
+    td_nominal: np.ndarray
+    td_status: list[str]
+    mocap_rotvec: np.ndarray
+    mocap_translation: np.ndarray
+    mocap_std: np.ndarray
+    marker_names: list[str]
+    marker_positions: np.ndarray
+    marker_std: np.ndarray
+    rms_before: float
+    rms_after: float
+    length_unit: str = "mm"
+    platform_options: dict[str, Any] = field(default_factory=dict)
+    method: str = "lsq"
+    converged: bool = True
+    iterations: int = 0
+    n_poses: int = 0
+    n_markers: int = 0
+    n_observations: int = 0
+    n_rejected: int = 0
+    noise_sigma: float = float("nan")  # per-axis marker noise estimated from the residuals, m
+    identifiability: dict[str, Any] = field(default_factory=dict)
+    terms: list = field(default_factory=list)
+    theta: list = field(default_factory=list)
+    theta_std: list = field(default_factory=list)
+    heldout: dict[str, Any] = field(default_factory=dict)
+    time_s: float = 0.0
+    extras: dict[str, Any] = field(default_factory=dict)  # arrays for the report (not written)
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def mocap_from_base(self) -> np.ndarray:
+        """4x4 transform mapping base-frame coordinates to the motion-capture frame."""
+        return transform(matrix_from_rotvec(self.mocap_rotvec), self.mocap_translation)
+
+    def calibrated_spec(self) -> PlatformSpec:
+        """The stand with the estimated td as its nominal parameters."""
+        return self.spec.with_td(self.td)
+
+    # ------------------------------------------------------------------ file
+    def to_dict(self) -> dict:
+        s = length_scale(self.length_unit)
+        lu = self.length_unit
+
+        def shown(v, unit):
+            return (float(v) / s, lu) if unit == "m" else (float(v), unit)
+
+        params = {}
+        for p, v, sd, nom, st in zip(self.spec.parameters, self.td, self.td_std, self.td_nominal, self.td_status):
+            value, unit = shown(v, p.unit)
+            nominal, _ = shown(nom, p.unit)
+            std = None if not np.isfinite(sd) else shown(sd, p.unit)[0]
+            params[p.name] = {"value": value, "std": std, "nominal": nominal, "unit": unit,
+                              "group": p.group, "status": st}
+        R = matrix_from_rotvec(self.mocap_rotvec)
+        q = quat_from_rotvec(self.mocap_rotvec)
+        markers = {}
+        for name, pos, sd in zip(self.marker_names, self.marker_positions, self.marker_std):
+            markers[name] = {"position": [float(x / s) for x in pos],
+                             "std": [None if not np.isfinite(x) else float(x / s) for x in sd]}
+        out = {
+            "format": FORMAT,
+            "platform": self.platform,
+            "description": self.description,
+            "platform_options": dict(self.platform_options),
+            "method": self.method,
+            "length_unit": lu,
+            "units": {"length": lu, "angle": "rad",
+                      "note": f"lengths in {lu}; angles in rad; other parameters in the unit written beside them"},
+            "parameters": params,
+            "mocap_from_base": {
+                "rotation_vector": [float(x) for x in self.mocap_rotvec],
+                "quaternion_wxyz": [float(x) for x in q],
+                "rotation_matrix": [[float(x) for x in row] for row in R],
+                "translation": [float(x / s) for x in self.mocap_translation],
+                "std_rotation_vector": [None if not np.isfinite(x) else float(x) for x in self.mocap_std[:3]],
+                "std_translation": [None if not np.isfinite(x) else float(x / s) for x in self.mocap_std[3:]],
+                "note": "x_mocap = R x_base + translation",
+            },
+            "markers": markers,
+            "moving_frame": self.spec.moving_frame,
+            "residual": {
+                "rms_before": float(self.rms_before / s), "rms_after": float(self.rms_after / s),
+                "unit": lu, "noise_sigma_per_axis": float(self.noise_sigma / s),
+                "n_poses": int(self.n_poses), "n_markers": int(self.n_markers),
+                "n_observations": int(self.n_observations), "n_rejected_as_outliers": int(self.n_rejected),
+            },
+            "converged": bool(self.converged),
+            "iterations": int(self.iterations),
+            "identifiability": self.identifiability,
+            "terms": [t.to_dict(th, sd) for t, th, sd in zip(self.terms, self.theta, self.theta_std)],
+        }
+        if self.heldout:
+            out["heldout"] = self.heldout
+        return out
+
+    def to_yaml(self) -> str:
+        header = (f"# platkit calibration of the {self.platform} stand. Lengths in {self.length_unit}, "
+                  "angles in rad, other parameters in the unit beside them.\n")
+        return header + yaml.safe_dump(_plain(self.to_dict()), sort_keys=False, default_flow_style=None, width=120)
+
+
+def _plain(obj):
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def _field(data: dict, key: str, path: Path, kind=object):
+    if not isinstance(data, dict) or key not in data:
+        raise BadInput(f"{path}: missing field {key!r}")
+    v = data[key]
+    if kind is not object and not isinstance(v, kind):
+        raise BadInput(f"{path}: field {key!r} must be {kind.__name__}")
+    return v
+
+
+def _numbers(value, path: Path, where: str, size: int) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != size:
+        raise BadInput(f"{path}: field {where!r} must be a list of {size} numbers")
+    try:
+        arr = np.array([np.nan if v is None else float(v) for v in value])
+    except (TypeError, ValueError):
+        raise BadInput(f"{path}: field {where!r} must be a list of {size} numbers") from None
+    return arr
+
+
+def read_calibration(path: str | Path) -> Calibration:
+    """Read a calibration.yaml (as written by :meth:`Calibration.to_yaml`) and rebuild the stand.
+
+    Model terms are rebuilt by the diagnosis effect library when one is installed
+    (``platkit.diagnose.effects.term_from_dict``); BadInput names the file and field otherwise.
+    """
+    from platkit.plugins import get_platform
+
+    path = Path(path)
+    data = load_yaml(path, error=BadInput)
+    if data.get("format") != FORMAT:
+        raise BadInput(f"{path}: field 'format' must be {FORMAT!r} (is this a platkit calibration.yaml?)")
+    platform = _field(data, "platform", path, str)
+    description = data.get("description")
+    if description is not None and not Path(description).is_absolute():
+        candidate = (path.parent / description)
+        description = str(candidate) if candidate.is_file() else description
+    options = data.get("platform_options") or {}
+    if not isinstance(options, dict):
+        raise BadInput(f"{path}: field 'platform_options' must be a mapping")
+    spec = get_platform(platform, description, **{k: v for k, v in options.items()})
+    lu = _field(data, "length_unit", path, str)
+    s = length_scale(lu)
+    params = _field(data, "parameters", path, dict)
+    n = spec.n_td
+    td = spec.nominal_td().copy()
+    td_std = np.full(n, np.nan)
+    td_nom = spec.nominal_td().copy()
+    status = ["fixed"] * n
+    for i, p in enumerate(spec.parameters):
+        if p.name not in params:
+            raise BadInput(f"{path}: parameters has no entry for {p.name!r} of the {platform} stand")
+        entry = params[p.name]
+        k = s if p.unit == "m" else 1.0
+        try:
+            td[i] = float(entry["value"]) * k
+            td_nom[i] = float(entry.get("nominal", td_nom[i] / k)) * k
+            td_std[i] = np.nan if entry.get("std") is None else float(entry["std"]) * k
+        except (TypeError, ValueError, KeyError):
+            raise BadInput(f"{path}: parameters.{p.name} needs a numeric 'value'") from None
+        status[i] = str(entry.get("status", "estimated"))
+    mocap = _field(data, "mocap_from_base", path, dict)
+    rotvec = _numbers(mocap.get("rotation_vector"), path, "mocap_from_base.rotation_vector", 3)
+    trans = _numbers(mocap.get("translation"), path, "mocap_from_base.translation", 3) * s
+    std = np.concatenate([
+        _numbers(mocap.get("std_rotation_vector", [None] * 3), path, "mocap_from_base.std_rotation_vector", 3),
+        _numbers(mocap.get("std_translation", [None] * 3), path, "mocap_from_base.std_translation", 3) * s,
+    ])
+    markers = _field(data, "markers", path, dict)
+    names = list(markers)
+    if not names:
+        raise BadInput(f"{path}: field 'markers' lists no marker")
+    pos = np.array([_numbers(markers[m].get("position") if isinstance(markers[m], dict) else None, path,
+                             f"markers.{m}.position", 3) for m in names]) * s
+    mstd = np.array([_numbers(markers[m].get("std", [None] * 3), path, f"markers.{m}.std", 3) for m in names]) * s
+    res = data.get("residual") or {}
+    terms, theta, theta_std = [], [], []
+    for k, tdict in enumerate(data.get("terms") or []):
+        term, th, sd = _term_from_dict(tdict, path, k)
+        terms.append(term)
+        theta.append(th)
+        theta_std.append(sd)
+    return Calibration(
+        platform=platform, description=description, spec=spec, td=td, td_std=td_std, td_nominal=td_nom,
+        td_status=status, mocap_rotvec=rotvec, mocap_translation=trans, mocap_std=std, marker_names=names,
+        marker_positions=pos, marker_std=mstd,
+        rms_before=float(res.get("rms_before", np.nan) or np.nan) * s,
+        rms_after=float(res.get("rms_after", np.nan) or np.nan) * s,
+        length_unit=lu, platform_options=dict(options), method=str(data.get("method", "lsq")),
+        converged=bool(data.get("converged", True)), iterations=int(data.get("iterations", 0)),
+        n_poses=int(res.get("n_poses", 0)), n_markers=len(names),
+        identifiability=data.get("identifiability") or {}, terms=terms, theta=theta, theta_std=theta_std,
+        heldout=data.get("heldout") or {},
+    )
+
+
+def _term_from_dict(tdict, path: Path, k: int):
+    """Rebuild a model term through the effect that made it (the effect's ``from_dict``)."""
+    from platkit.plugins import default_host
+
+    if not isinstance(tdict, dict) or "effect" not in tdict or not isinstance(tdict.get("parameters"), dict):
+        raise BadInput(f"{path}: terms[{k}] must have 'effect' and 'parameters'")
+    effects = default_host().effects()
+    effect = effects.get(tdict["effect"])
+    if effect is None or not hasattr(effect, "from_dict"):
+        raise BadInput(f"{path}: terms[{k}] is a {tdict['effect']!r} term, which no installed effect rebuilds "
+                       f"(installed: {', '.join(sorted(effects)) or 'none'})")
+    term = effect.from_dict(tdict)
+    try:
+        theta = np.array([float(tdict["parameters"][n]["value"]) for n in term.parameter_names])
+        std = np.array([np.nan if tdict["parameters"][n].get("std") is None else float(tdict["parameters"][n]["std"])
+                        for n in term.parameter_names])
+    except (KeyError, TypeError, ValueError):
+        raise BadInput(f"{path}: terms[{k}].parameters must give a numeric value for each of {term.parameter_names}") from None
+    return term, theta, std
+
+
+def quat_of(cal: Calibration) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of mocap_from_base."""
+    return quat_from_rotvec(cal.mocap_rotvec)
+
+
+__all__ = ["Calibration", "read_calibration", "FORMAT", "rotvec_from_quat"]
