@@ -139,8 +139,9 @@ def _optional_float(text: str | None, path: Path, where: str) -> float | None:
     return value
 
 
-def _parse_xml_safely(path: Path):
-    """lxml root of ``path``; no DTD, entities, network or huge trees; BadDescription otherwise."""
+def parse_urdf_xml(path: Path, keep_comments: bool = False):
+    """(lxml tree, bytes) of ``path``; no DTD, entities, network or huge trees; BadDescription
+    otherwise. The top element must be <robot>."""
     from lxml import etree
 
     try:
@@ -160,7 +161,7 @@ def _parse_xml_safely(path: Path):
             raise BadDescription(f"{path}: line {line}: DTDs and XML entities are not accepted in a URDF")
     parser = etree.XMLParser(
         resolve_entities=False, no_network=True, load_dtd=False, dtd_validation=False,
-        huge_tree=False, remove_comments=True, remove_pis=True,
+        huge_tree=False, remove_comments=not keep_comments, remove_pis=True,
     )
     try:
         tree = etree.parse(io.BytesIO(data), parser)
@@ -176,7 +177,7 @@ def _parse_xml_safely(path: Path):
     root = tree.getroot()
     if root.tag != "robot":
         raise BadDescription(f"{path}: the top element must be <robot>, got <{root.tag}>")
-    return root, data
+    return tree, data
 
 
 def read_urdf(path: str | Path) -> UrdfTree:
@@ -188,7 +189,8 @@ def read_urdf(path: str | Path) -> UrdfTree:
     import yourdfpy
 
     path = Path(path)
-    root, data = _parse_xml_safely(path)
+    tree, data = parse_urdf_xml(path)
+    root = tree.getroot()
     names = []
     for el in root.findall("joint"):
         name = el.get("name")

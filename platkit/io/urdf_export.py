@@ -1,0 +1,111 @@
+"""Write a URDF with calibrated parameters folded in, for tools that read plain URDF.
+
+For every actuated or mimic joint j on the calibrated chain, the joint's ``<origin>`` becomes::
+
+    origin' = origin * Trans(origin_x, origin_y, origin_z) * Rz(origin_rz) Ry(origin_ry) Rx(origin_rx)
+              * motion(-offset_j)
+
+where ``motion`` is the rotation about the joint axis (revolute, continuous) or the translation
+along it (prismatic), and for a mimic joint ``offset = multiplier * offset_master``. Then the
+exported URDF at joint values ``v = c * u`` (the controls in the URDF's units: rad, m) puts every
+link where the calibrated model puts it at controls ``u``: the offsets become the URDF's zero, in
+the one place every URDF reader honours (the origin rpy/xyz), rather than in a ``<calibration>``
+element most tools ignore. A joint scale cannot be written into a URDF: exporting a model whose
+scales differ from 1 is refused, naming the joint.
+
+Everything else in the file (links, inertias, meshes, comments, other joints) is kept as it was.
+The file is written atomically.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadInput
+from platkit.geometry import matrix_from_rotvec, matrix_from_rpy
+from platkit.io.atomic import atomic_write_text
+from platkit.model import PlatformSpec
+from platkit.urdf import ORIGIN_FIELDS, SerialChain, parse_urdf_xml, urdf_rpy
+
+#: |scale - 1| above this cannot be folded into a URDF.
+SCALE_TOL = 1e-12
+
+
+def _number(value: float) -> str:
+    return format(float(value), ".17g")
+
+
+def calibrated_origins(spec: PlatformSpec, td) -> dict[str, np.ndarray]:
+    """Joint name -> the 4x4 parent_from_joint origin with ``td`` folded in (see the module
+    docstring), for every actuated or mimic joint of the spec's chain."""
+    chain: SerialChain | None = spec.extras.get("chain")
+    if chain is None:
+        raise BadInput(f"stand {spec.name!r} is not described by a URDF chain; it cannot be exported as a URDF")
+    td = np.asarray(td, float)
+    if td.shape != (spec.n_td,):
+        raise BadInput(f"{spec.name}: expected {spec.n_td} parameters, got {td.shape}")
+    value = dict(zip(spec.parameter_names, td))
+    offsets: dict[str, float] = {}
+    out: dict[str, np.ndarray] = {}
+    for j in chain.calibrated:
+        if j.actuated:
+            scale = value[f"{j.name}.scale"]
+            if abs(scale - 1.0) > SCALE_TOL:
+                raise BadInput(
+                    f"{j.name}.scale = {scale:.12g}: a URDF joint has no scale, so this calibration cannot be "
+                    "exported as a URDF; calibrate with the scales fixed at 1"
+                )
+            offset = value[f"{j.name}.offset"]
+        else:
+            master, multiplier, _ = j.mimic
+            offset = multiplier * offsets[master]
+        offsets[j.name] = offset
+        d = np.array([value[f"{j.name}.{f}"] for f in ORIGIN_FIELDS[:3]])
+        rx, ry, rz = (value[f"{j.name}.{f}"] for f in ORIGIN_FIELDS[3:])
+        error = np.eye(4)
+        error[:3, :3] = matrix_from_rpy(rx, ry, rz)
+        error[:3, 3] = d
+        motion = np.eye(4)
+        if j.type == "prismatic":
+            motion[:3, 3] = -offset * j.axis
+        else:
+            motion[:3, :3] = matrix_from_rotvec(-offset * j.axis)
+        out[j.name] = j.origin @ error @ motion
+    return out
+
+
+def export_calibrated_urdf(spec: PlatformSpec, td, out: str | Path) -> Path:
+    """Write the spec's URDF with ``td`` folded into its joint origins to ``out`` (atomically).
+
+    ``spec``: a stand built by the URDF route (``urdf``, ``rotary``); ``td`` (n_td,) in SI.
+    Raises BadInput for a stand without a URDF chain, a wrong ``td`` or a scale other than 1.
+    Returns the path written.
+    """
+    out = Path(out)
+    chain: SerialChain | None = spec.extras.get("chain")
+    origins = calibrated_origins(spec, td)
+    tree, _ = parse_urdf_xml(chain.path, keep_comments=True)
+    root = tree.getroot()
+    from lxml import etree
+
+    by_name = {el.get("name"): el for el in root.findall("joint")}
+    for name, T in origins.items():
+        el = by_name.get(name)
+        if el is None:
+            raise BadInput(f"{chain.path}: joint {name!r} is no longer in the file; rebuild the stand from it")
+        origin = el.find("origin")
+        if origin is None:
+            origin = etree.Element("origin")
+            el.insert(0, origin)
+        origin.set("xyz", " ".join(_number(v) for v in T[:3, 3]))
+        origin.set("rpy", " ".join(_number(v) for v in urdf_rpy(T[:3, :3])))
+    note = etree.Comment(
+        f" calibrated by platkit ({spec.name} stand, chain {chain.base_link} -> {chain.moving_link}): joint offsets "
+        f"and origin errors are folded into the <origin> of {', '.join(origins)}; source {chain.path.name} ".replace("--", "- -")
+    )
+    note.tail = root.text if root.text and not root.text.strip() else "\n  "
+    root.insert(0, note)
+    text = etree.tostring(tree, xml_declaration=True, encoding="utf-8").decode("utf-8")
+    atomic_write_text(out, text + ("" if text.endswith("\n") else "\n"))
+    return out
