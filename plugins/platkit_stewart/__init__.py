@@ -110,6 +110,53 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     )
 
 
+def leg_kinematics(spec: PlatformSpec, q, X, v=None, omega=None, a=None, alpha=None, td=None) -> dict:
+    """The paper's leg relations (Liu, Ma, Lin, eqs. 3-8), numerically, for one platform state.
+
+    ``q`` (4,), ``X`` (3,) m: the pose; ``v``, ``omega`` (3,): velocity of the platform origin
+    and angular velocity, ``a``, ``alpha`` (3,): their rates; all in the base frame (m, s, rad).
+    Returns a dict of arrays, legs along the last axis (6):
+        legs (3, 6)          eq. 3: leg vectors X + R P_i - B_i
+        lengths (6,)         |legs|, commanded lengths are these minus the offsets dL_i
+        directions (3, 6)    unit leg vectors n_i
+    and when a twist is given:
+        joint_velocities (3, 6)   eq. 4: V_i = v + omega x (R P_i)
+        rates (6,)                eq. 5: leg extension rate V_i . n_i
+        leg_angular_velocities (3, 6)  eq. 7: l_i x V_i / |l_i|^2 (the leg's spin about its own
+                                  axis is left out; the paper's printed V x l / |l| has the
+                                  wrong dimension and sign)
+    and when (a, alpha) are given too:
+        joint_accelerations (3, 6)  eq. 6: A_i = a + alpha x (R P_i) + omega x (omega x R P_i)
+        accelerations (6,)         eq. 8: A_i . n_i + |l_i| |omega_leg_i|^2. The paper prints a
+                                  minus sign before the last term; differentiating |l_i| twice
+                                  gives a plus (the centripetal part of eq. 2 points inward).
+    The paper writes omega x P_i with P_i in the platform frame; the joint lever is R P_i.
+    """
+    from platkit.geometry import matrix_from_quat
+
+    td = spec.nominal_td() if td is None else np.asarray(td, float)
+    B = td[0:18].reshape(6, 3).T
+    P = td[18:36].reshape(6, 3).T
+    R = matrix_from_quat(np.asarray(q, float))
+    lever = R @ P  # (3, 6)
+    legs = np.asarray(X, float)[:, None] + lever - B
+    lengths = np.linalg.norm(legs, axis=0)
+    n = legs / lengths
+    out = {"legs": legs, "lengths": lengths, "directions": n}
+    if v is None or omega is None:
+        return out
+    v, omega = np.asarray(v, float), np.asarray(omega, float)
+    V = v[:, None] + np.cross(omega, lever.T).T
+    w_leg = np.cross(legs.T, V.T).T / lengths**2
+    out.update(joint_velocities=V, rates=np.sum(V * n, axis=0), leg_angular_velocities=w_leg)
+    if a is None or alpha is None:
+        return out
+    a, alpha = np.asarray(a, float), np.asarray(alpha, float)
+    A = a[:, None] + np.cross(alpha, lever.T).T + np.cross(omega, np.cross(omega, lever.T)).T
+    out.update(joint_accelerations=A, accelerations=np.sum(A * n, axis=0) + lengths * np.sum(w_leg**2, axis=0))
+    return out
+
+
 @hookimpl
 def platkit_register_platforms():
     return [PlatformFactory("stewart", "6-UPS Stewart motion base (Liu, Ma, Lin)", build, (".yaml", ".yml"))]

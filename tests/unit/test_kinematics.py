@@ -1,0 +1,126 @@
+"""Forward/inverse kinematics of the core: both Newton backends, batching, input checks."""
+import shutil
+
+import numpy as np
+import pytest
+
+from platkit import get_platform
+from platkit.errors import BadInput, NoConvergence, OutOfWorkspace, WrongBranch
+from platkit.kinematics import PlatformModel
+
+STATES_MM = np.array([
+    [4795, 4795, 4795, 3295, 3295, 3295],
+    [3300, 3581, 4158, 4521, 3854, 4029],
+    [3500, 4795, 4500, 3600, 3800, 4300],
+], float)
+
+
+@pytest.fixture(scope="module")
+def spec():
+    return get_platform("stewart")
+
+
+@pytest.fixture(scope="module")
+def model(spec):
+    return PlatformModel(spec)
+
+
+@pytest.fixture(scope="module")
+def slow_model(spec):
+    return PlatformModel(spec, compile=False)
+
+
+def test_backend_is_compiled_where_a_compiler_exists(model, slow_model):
+    if shutil.which("cc") or shutil.which("gcc") or shutil.which("clang"):
+        assert model.backend.startswith("compiled C"), model.backend
+    else:
+        assert model.backend.startswith("casadi+numpy"), model.backend
+    assert slow_model.backend.startswith("casadi+numpy")
+
+
+def test_environment_switch_turns_compilation_off(spec, monkeypatch):
+    monkeypatch.setenv("PLATKIT_COMPILE", "0")
+    from platkit import kinematics
+
+    monkeypatch.setattr(kinematics, "_native_by_functions", {})
+    m = PlatformModel(spec)
+    assert "no C compiler" in m.backend
+    res = m.forward(STATES_MM[1] / 1000)
+    assert res.residual < 1e-10
+
+
+def test_compiled_and_numpy_backends_agree(model, slow_model):
+    rng = np.random.default_rng(3)
+    U = rng.uniform(3.4, 4.6, (40, 6))
+    a = model.forward_batch(U)
+    b = slow_model.forward_batch(U)
+    assert a.converged.all() and b.converged.all()
+    np.testing.assert_allclose(a.p, b.p, atol=1e-12)
+    np.testing.assert_array_equal(a.iterations, b.iterations)
+    for u in U[:5]:
+        ra, rb = model.forward(u), slow_model.forward(u)
+        np.testing.assert_allclose(ra.p, rb.p, atol=1e-12)
+        np.testing.assert_allclose(ra.q, rb.q, atol=1e-12)
+        assert ra.iterations == rb.iterations
+
+
+def test_forward_is_polished_to_machine_precision(model):
+    for u in STATES_MM / 1000:
+        res = model.forward(u)
+        assert res.residual < 1e-12
+        np.testing.assert_allclose(model.inverse(res.q, res.X), u, atol=1e-12)
+
+
+def test_batch_matches_single_and_flags_failures(model):
+    U = np.vstack([STATES_MM / 1000, [[1.0, 1.0, 1.0, 9.0, 9.0, 9.0]]])
+    batch = model.forward_batch(U, strict=False)
+    assert batch.converged[:3].all() and not batch.converged[3]
+    for i in range(3):
+        np.testing.assert_allclose(batch.p[i], model.forward(U[i]).p, atol=1e-13)
+    guesses = batch.p.copy()
+    guesses[3] = model.spec.neutral_p()
+    again = model.forward_batch(U[:3], guess=guesses[:3])
+    assert (again.iterations <= 1).all()
+
+
+def test_no_assembly_raises_no_convergence(model):
+    with pytest.raises(NoConvergence, match="did not converge after .* iterations"):
+        model.forward([1.0, 1.0, 1.0, 9.0, 9.0, 9.0], strict=False)
+
+
+def test_mirror_pose_is_refused_and_can_be_asked_for(model):
+    u = STATES_MM[1] / 1000
+    with pytest.raises(WrongBranch, match=r"mirror pose .* mm"):
+        model.forward(u, guess=[0, 0, -3.0, 0, 0, 0])
+    res = model.forward(u, guess=[0, 0, -3.0, 0, 0, 0], allow_mirror=True)
+    assert not res.on_branch and res.X[2] < 0
+
+
+def test_wrong_number_of_controls_is_bad_input(model):
+    with pytest.raises(BadInput, match="takes 6 controls .*got 5"):
+        model.forward([4.0] * 5)
+    with pytest.raises(BadInput, match="not a finite number"):
+        model.forward([4.0, 4.0, np.nan, 4.0, 4.0, 4.0])
+    with pytest.raises(BadInput, match="guess has 6 pose coordinates"):
+        model.forward([4.0] * 6, guess=[0, 0, 3])
+
+
+def test_stroke_messages_are_in_the_users_unit(spec, model):
+    with pytest.raises(OutOfWorkspace) as err:
+        model.forward([4.9, 4.0, 4.0, 4.0, 4.0, 4.0])
+    msg = str(err.value)
+    assert "L1 = 4900 mm" in msg and "[3295, 4795] mm" in msg and "\n" not in msg
+    metres = PlatformModel(spec, length_unit="m")
+    with pytest.raises(OutOfWorkspace, match=r"L1 = 4.9 m .*\[3.295, 4.795\] m"):
+        metres.forward([4.9, 4.0, 4.0, 4.0, 4.0, 4.0])
+    with pytest.raises(OutOfWorkspace, match=r"control L3 = 3000 mm \(row 1\)"):
+        model.forward_batch([[4.0] * 6, [4.0, 4.0, 3.0, 4.0, 4.0, 4.0]])
+
+
+def test_unreachable_pose_for_inverse(model):
+    from platkit.geometry import quat_from_rpy
+
+    with pytest.raises(OutOfWorkspace, match=r"pose at \(0.0, 0.0, 6000.0\) mm is out of reach: .*L1 = .* mm"):
+        model.inverse(quat_from_rpy(0, 0, 0), [0.0, 0.0, 6.0])
+    u = model.inverse(quat_from_rpy(0, 0, 0), [0.0, 0.0, 6.0], strict=False)
+    assert np.all(u > 4.795)
