@@ -1,0 +1,135 @@
+"""Where calibrated residuals are structured: along time, along each control, in one marker.
+
+Every residual component series (marker m, axis a: N numbers) is tested
+
+- along time: Ljung-Box (autocorrelation) and a runs test (neighbours alike) in command order;
+- along each control: a runs test with the poses sorted by that control (a smooth error in
+  the control shows as long runs);
+- per marker: a change point (a step in the marker's mean residual at one time), with a
+  permutation p-value (the maximum over split points has no closed-form law).
+
+All p-values are adjusted together (Holm by default, Benjamini-Hochberg on request): a
+structure is *located* only if it survives testing the whole family. Residuals from a correct
+model with white noise give no location in all but ``alpha`` of sessions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from platkit.calibrate.poses import PoseSet
+from platkit.diagnose.effects import history
+from platkit.diagnose.stats import benjamini_hochberg, holm, ljung_box, runs_test
+from platkit.model import PlatformSpec
+
+AXES = "xyz"
+
+
+@dataclass
+class Location:
+    """One located structure: ``test`` (what was tested), ``where`` (marker, axis, control,
+    time span, control region), the statistic, raw and adjusted p-values."""
+
+    test: str
+    where: dict[str, Any]
+    statistic: float
+    p: float
+    p_adjusted: float = 1.0
+    detail: dict[str, Any] = field(default_factory=dict)
+
+    def sentence(self, unit: str = "mm") -> str:
+        w = ", ".join(f"{k} {v}" for k, v in self.where.items())
+        return f"{self.test} ({w}): statistic {self.statistic:.3g}, adjusted p = {self.p_adjusted:.2g}"
+
+
+def _slip_statistic(x: np.ndarray) -> tuple[int, float]:
+    """Best split k of x (n, d) and the between-segment sum of squares it explains."""
+    n = len(x)
+    x = x - x.mean(axis=0)
+    c = np.cumsum(x, axis=0)
+    j = np.arange(3, n - 2)
+    if j.size == 0:
+        return -1, 0.0
+    e = np.sum(c[j - 1] ** 2, axis=1) * n / (j * (n - j))
+    b = int(np.argmax(e))
+    return int(j[b]), float(e[b] / max(np.sum(x**2), 1e-300))
+
+
+def change_point_test(x: np.ndarray, n_perm: int = 199, rng: np.random.Generator | None = None) -> tuple[int, float, float]:
+    """(k, fraction of variance the step explains, permutation p) for rows x (n, d) in time
+    order; rows with NaN dropped (k then indexes the kept rows)."""
+    x = x[np.all(np.isfinite(x), axis=1)]
+    if len(x) < 8:
+        return -1, 0.0, 1.0
+    rng = rng or np.random.default_rng(0)
+    k, s = _slip_statistic(x)
+    exceed = sum(_slip_statistic(x[rng.permutation(len(x))])[1] >= s for _ in range(n_perm))
+    return k, s, (1 + exceed) / (n_perm + 1)
+
+
+def _region(values: np.ndarray, resid: np.ndarray, bins: int = 4) -> str:
+    """The quarter of ``values`` where |mean residual| is largest, as 'lo..hi'."""
+    ok = np.isfinite(values) & np.isfinite(resid)
+    v, r = values[ok], resid[ok]
+    if v.size < bins:
+        return "all"
+    edges = np.quantile(v, np.linspace(0, 1, bins + 1))
+    which = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, bins - 1)
+    means = np.array([abs(np.mean(r[which == b])) if np.any(which == b) else 0.0 for b in range(bins)])
+    b = int(np.argmax(means))
+    return f"{edges[b]:.6g}..{edges[b + 1]:.6g}"
+
+
+def locate(residuals: np.ndarray, poses: PoseSet, spec: PlatformSpec, weights: np.ndarray | None = None,
+           alpha: float = 0.01, method: str = "holm", n_perm: int = 199) -> list[Location]:
+    """Test the residuals (N, M, 3) m of a fit of ``poses`` for structure; returns every test
+    with its adjusted p-value, most significant first (``located(result, alpha)`` filters).
+
+    ``weights`` (N, M): 0 marks observations the estimator rejected (treated as unseen).
+    """
+    r = np.array(residuals, float)
+    if weights is not None:
+        r[np.asarray(weights) <= 0] = np.nan
+    N, M, _ = r.shape
+    t = history(poses, "elapsed")
+    order_t = np.argsort(t, kind="stable")
+    tests: list[Location] = []
+    names = poses.marker_names
+    for m in range(M):
+        for a in range(3):
+            x = r[:, m, a]
+            if np.sum(np.isfinite(x)) < 8:
+                continue
+            base = {"marker": names[m], "axis": AXES[a]}
+            Q, p = ljung_box(x[order_t])
+            tests.append(Location("autocorrelation in time (Ljung-Box)", dict(base), Q, p,
+                                  detail={"order": "time"}))
+            z, p = runs_test(x[order_t])
+            tests.append(Location("runs along time", dict(base), z, p, detail={"order": "time"}))
+            for i, c in enumerate(spec.controls):
+                order = np.argsort(poses.controls[:, i], kind="stable")
+                z, p = runs_test(x[order])
+                where = dict(base, control=c.name, region=_region(poses.controls[:, i], x) + f" {c.unit}")
+                tests.append(Location(f"runs along {c.name}", where, z, p, detail={"order": c.name}))
+    rng = np.random.default_rng(12345)
+    for m in range(M):
+        x = r[order_t, m, :]
+        keep = np.all(np.isfinite(x), axis=1)
+        k, s, p = change_point_test(x, n_perm=n_perm, rng=rng)
+        if k > 0:
+            times = t[order_t][keep]
+            where = {"marker": names[m], "time_s": f"from {0.5 * (times[k - 1] + times[k]):.4g}"}
+            tests.append(Location("step in the marker's residual (change point)", where, s, p))
+    p = np.array([x.p for x in tests])
+    adj = holm(p) if method == "holm" else benjamini_hochberg(p)
+    for x, pa in zip(tests, adj):
+        x.p_adjusted = float(pa)
+    tests.sort(key=lambda x: (x.p_adjusted, x.p))
+    return tests
+
+
+def located(tests: list[Location], alpha: float = 0.01) -> list[Location]:
+    """The tests that survive the family-wise correction at ``alpha``."""
+    return [x for x in tests if x.p_adjusted < alpha]

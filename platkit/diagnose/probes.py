@@ -1,0 +1,72 @@
+"""Generic, deliberately unphysical terms that check a name.
+
+A named effect is accepted only if it predicts held-out poses about as well as a flexible
+model of the same kind of structure: when a probe predicts much better, the structure is real
+but the library's name would be wrong, and diagnosis reports it as ``unexplained`` with the
+probe's ``where``. Probes are never written to calibration.yaml.
+
+- :class:`TimeProbe`: the moving frame translated by a piecewise-constant offset over B equal
+  time bins (the first bin is the reference): any change with time.
+- :class:`SpaceProbe`: the moving frame translated by a quadratic function of its nominal
+  position (6 monomials per axis): any smooth error over the workspace.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.terms import ModelTerm
+from platkit.diagnose.effects import history
+
+
+@dataclass
+class TimeProbe(ModelTerm):
+    t_edges: np.ndarray | None = None
+
+    def pose_offset(self, theta, poses, fk_q, fk_X):
+        t = history(poses, "elapsed")
+        b = np.clip(np.searchsorted(self.t_edges, t, side="right") - 1, 0, len(self.t_edges) - 2)
+        table = np.vstack([np.zeros(3), np.asarray(theta).reshape(-1, 3)])
+        out = np.zeros((poses.n_poses, 6))
+        out[:, :3] = table[b]
+        return out
+
+
+def time_probe(poses: PoseSet, bins: int = 6) -> TimeProbe | None:
+    t = history(poses, "elapsed")
+    if np.ptp(t) <= 0 or poses.n_poses < 4 * bins:
+        return None
+    edges = np.linspace(t.min(), t.max(), bins + 1)
+    edges[-1] += 1e-9
+    names = [f"bin{b}_{a}" for b in range(1, bins) for a in "xyz"]
+    return TimeProbe("unexplained", names, np.zeros(3 * (bins - 1)), ["m"] * len(names),
+                     {"time": "piecewise constant over the session", "bins": bins}, t_edges=edges)
+
+
+@dataclass
+class SpaceProbe(ModelTerm):
+    center: np.ndarray | None = None
+    scale: float = 1.0
+
+    def pose_offset(self, theta, poses, fk_q, fk_X):
+        s = (np.asarray(fk_X) - self.center) / self.scale
+        x, y, z = s.T
+        mono = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1)  # (N, 6)
+        out = np.zeros((poses.n_poses, 6))
+        out[:, :3] = mono @ np.asarray(theta).reshape(6, 3)
+        return out
+
+
+def space_probe(fk_X: np.ndarray) -> SpaceProbe | None:
+    X = np.asarray(fk_X, float)
+    if len(X) < 30:
+        return None
+    scale = float(np.max(np.std(X, axis=0)))
+    if scale <= 0:
+        return None
+    names = [f"{m}_{a}" for m in ("xx", "yy", "zz", "xy", "xz", "yz") for a in "xyz"]
+    return SpaceProbe("unexplained", names, np.zeros(18), ["m"] * 18,
+                      {"region": "the workspace, quadratic in the moving frame's position"},
+                      center=X.mean(axis=0), scale=scale)

@@ -1,0 +1,442 @@
+"""Forward selection of effects: screen, refit with the shared estimator, accept on held-out proof.
+
+One round (repeated until nothing passes or ``max_effects`` are in):
+
+1. screen every candidate term of every effect (one per actuator, marker, period, ...) with a
+   score test on the current fit's residuals: the part of the term's Jacobian columns outside
+   the identification Jacobian's column space against the residual (Holm over all candidates).
+   A term with almost nothing outside that space (separability < ``min_separability``) cannot
+   be told from the geometry on this design: it is set aside with a warning, never accepted;
+2. refit the best few, each added to the model, together with td, the mocap transform and
+   the markers (the estimator's Levenberg-Marquardt, same observation weights);
+3. accept the candidate whose K-fold held-out prediction improves most, if the improvement is
+   significant (one-sided Wilcoxon on the per-pose held-out errors, Holm over the refits) AND
+   BIC falls; unless a generic probe (probes.py) predicts significantly better still, in which
+   case the structure is reported ``unexplained`` and not named.
+
+Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
+poses are predicted from a refit on the others, started from the full fit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors
+from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.result import Calibration
+from platkit.calibrate.terms import ModelTerm
+from platkit.diagnose.effects import Effect, effect_library, with_history
+from platkit.diagnose.locate import Location, located, locate
+from platkit.diagnose.probes import space_probe, time_probe
+from platkit.diagnose.stats import bic, holm, paired_improvement, score_test
+from platkit.model import PlatformSpec, length_scale
+
+
+@dataclass
+class Options:
+    """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""
+
+    alpha: float = 0.01  # family-wise level of every test
+    folds: int = 5
+    max_effects: int = 3
+    max_refits: int = 3  # candidates refit per round (the best screened)
+    min_separability: float = 0.05  # below: not separable from the geometry
+    warn_separability: float = 0.3  # below: accepted with a warning
+    min_relative_gain: float = 0.02  # held-out RMS must fall by at least this fraction
+    free: Sequence[str] | None = None  # td parameters to fit (None: the stand's free ones)
+    probes: bool = True
+    lm_iterations: int = 30
+
+
+@dataclass
+class Fit:
+    """One model fitted by the estimator: its terms, unknowns and residuals."""
+
+    terms: list[ModelTerm]
+    problem: CalibrationProblem
+    z: np.ndarray
+    active: np.ndarray
+    weights: np.ndarray  # (N, M)
+    r: np.ndarray  # (N, M, 3) m
+    rss: float
+    n_obs: int
+    n_params: int
+    cv: np.ndarray | None = None  # (N,) held-out mean squared marker error per pose, m^2
+
+    @property
+    def bic(self) -> float:
+        return bic(self.rss, self.n_obs, self.n_params)
+
+    @property
+    def cv_rms(self) -> float:
+        return float(np.sqrt(np.nanmean(self.cv))) if self.cv is not None else float("nan")
+
+    def theta(self, k: int) -> np.ndarray:
+        return self.problem.split(self.z)[4][k]
+
+
+@dataclass
+class Finding:
+    """One result of diagnosis (the fields of diagnosis.json's findings, plus what the report plots)."""
+
+    effect: str
+    where: dict[str, Any]
+    parameters: dict[str, dict[str, Any]]
+    heldout_rms_before: float  # m
+    heldout_rms_after: float  # m
+    evidence: str
+    p_heldout: float = 1.0
+    p_screen: float = 1.0
+    bic_change: float = 0.0
+    separability: float = 1.0
+    warnings: list[str] = field(default_factory=list)
+    term: ModelTerm | None = None
+    regressor: np.ndarray | None = None
+    regressor_label: str = ""
+    signature_before: np.ndarray | None = None  # (N,) residual along the term's signature, m
+    signature_after: np.ndarray | None = None
+    heldout_session_rms_before: float | None = None
+    heldout_session_rms_after: float | None = None
+
+
+@dataclass
+class Diagnosis:
+    findings: list[Finding]
+    verdict: str
+    calibration: Calibration  # the model with the accepted effects (what calibration.yaml holds)
+    base: Calibration  # the geometric model diagnosis started from
+    locations: list[Location]  # tests on the final residuals (most significant first)
+    locations_before: list[Location]
+    rounds: list[dict[str, Any]]
+    not_separable: list[dict[str, Any]]
+    unit: str
+    poses: PoseSet
+    heldout_session: dict[str, float] | None = None
+
+
+# ---------------------------------------------------------------------------- fitting
+def _obs(weights: np.ndarray, r: np.ndarray) -> np.ndarray:
+    return (weights > 0) & np.all(np.isfinite(r), axis=2)
+
+
+def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndarray, active0: np.ndarray,
+         weights: np.ndarray, iterations: int) -> Fit:
+    """Extend (z0, active0) with the new terms' theta (from their ``initial``) and refit."""
+    problem = CalibrationProblem(spec, poses, terms)
+    extra = problem.n_z - len(z0)
+    start = [t.initial for t in terms]
+    theta0 = np.concatenate(start)[len(np.concatenate(start)) - extra:] if extra else np.zeros(0)
+    z = np.concatenate([z0, theta0])
+    active = np.concatenate([active0, np.ones(extra, bool)])
+    res = levenberg_marquardt(problem, z, active, weights, max_iter=iterations)
+    keep = _obs(weights, res.state.r)
+    rss = float(np.sum(np.nan_to_num(res.state.r) ** 2 * keep[:, :, None]))
+    return Fit(list(terms), problem, res.z, active, weights, res.state.r, rss, 3 * int(keep.sum()), int(active.sum()))
+
+
+def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
+    """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds."""
+    N = poses.n_poses
+    fold = np.arange(N) % folds
+    out = np.full(N, np.nan)
+    for k in range(folds):
+        train, test = fold != k, fold == k
+        sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
+        res = levenberg_marquardt(sub, fit.z, fit.active, fit.weights[train], max_iter=iterations)
+        st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
+        d2 = np.sum(st.r**2, axis=2)
+        d2[fit.weights[test] <= 0] = np.nan
+        with np.errstate(invalid="ignore"):
+            out[test] = np.nanmean(d2, axis=1)
+    return out
+
+
+def _weighted_system(fit: Fit, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    keep = _obs(fit.weights, fit.r)
+    sw = np.sqrt(fit.weights)[:, :, None] * keep[:, :, None]
+    r = (np.nan_to_num(fit.r) * sw).reshape(-1)
+    Jw = (np.nan_to_num(J) * sw[..., None]).reshape(-1, J.shape[-1])
+    rows = np.repeat(keep.reshape(-1), 3)
+    return r[rows], Jw[rows]
+
+
+def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet, candidates: list[ModelTerm]) -> list[tuple[float, float, float, np.ndarray]]:
+    """Score test of each candidate at the current fit: [(F, p, separability, J columns (N, M, 3, k))]."""
+    if not candidates:
+        return []
+    problem = CalibrationProblem(spec, poses, fit.terms + list(candidates))
+    z = np.concatenate([fit.z, np.concatenate([np.asarray(c.initial, float) * 0 for c in candidates])])
+    st = problem.evaluate(z, with_jac=True)
+    n_base = len(fit.z)
+    r, J = _weighted_system(fit, st.J)
+    Jb = J[:, :n_base][:, fit.active]
+    dof = len(r) - int(fit.active.sum())
+    out, k = [], n_base
+    for c in candidates:
+        K = len(c.initial)
+        F, p, sep = score_test(r, Jb, J[:, k:k + K], dof)
+        out.append((F, p, sep, st.J[..., k:k + K]))
+        k += K
+    return out
+
+
+def _signature(J: np.ndarray, r: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+    """(N,) each pose's residual along the term's signature (m): the projection of r_n (M*3)
+    on J_n theta_hat (the direction the term moves that pose's markers)."""
+    N = J.shape[0]
+    Jn = np.nan_to_num(J.reshape(N, -1, J.shape[-1]))
+    d = Jn @ (theta if theta is not None and np.linalg.norm(theta) > 0 else np.ones(J.shape[-1]))
+    rn = np.nan_to_num(r.reshape(N, -1))
+    size = np.linalg.norm(d, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(size > 0, np.sum(rn * d, axis=1) / size, np.nan)
+
+
+def _same(a: ModelTerm, b: ModelTerm) -> bool:
+    return a.effect == b.effect and a.where == b.where
+
+
+def _params(term: ModelTerm, theta: np.ndarray, std: np.ndarray | None) -> dict[str, dict[str, Any]]:
+    d = term.to_dict(theta, std)["parameters"]
+    for v in d.values():
+        if v["std"] is not None and not np.isfinite(v["std"]):
+            v["std"] = None
+    return d
+
+
+def _fmt_rms(x: float, unit: str) -> str:
+    return f"{x / length_scale(unit):.3g} {unit}"
+
+
+def _where_text(where: dict) -> str:
+    keys = ("actuator", "marker", "time", "region", "frame", "period", "from_time_s")
+    parts = [f"{k} {where[k]}" for k in keys if k in where]
+    return ", ".join(parts) or "the whole model"
+
+
+# ---------------------------------------------------------------------------- the search
+def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
+             library: dict[str, Effect] | None = None, heldout: PoseSet | None = None,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """Find, name and model what the geometric calibration of ``poses`` leaves structured.
+
+    spec: the stand; poses: the session (SI); library: effect name -> Effect (default: every
+    installed effect); heldout: optionally another recording of the same stand in the same
+    mocap frame, scored before and after (never used to choose). Returns a :class:`Diagnosis`
+    whose ``calibration`` is the final model (calibration.yaml).
+    """
+    opt = options or Options()
+    library = effect_library() if library is None else library
+    say = progress or (lambda s: None)
+    poses = with_history(poses, spec)
+    unit = poses.length_unit
+    base_cal = calibrate(poses, spec, free=opt.free)
+    z0, active0 = base_cal.extras["z"], base_cal.extras["active"]
+    weights = base_cal.extras["weights"]
+    cur = _fit(spec, poses, [], z0, active0, weights, opt.lm_iterations)
+    cur.cv = _cv(cur, spec, poses, opt.folds, opt.lm_iterations)
+    say(f"geometric model: fit RMS {_fmt_rms(np.sqrt(cur.rss * 3 / cur.n_obs), unit)}, "
+        f"held-out RMS {_fmt_rms(cur.cv_rms, unit)}")
+    locations_before = locate(cur.r, poses, spec, weights, opt.alpha)
+    findings: list[Finding] = []
+    accepted_info: list[dict] = []
+    rounds: list[dict] = []
+    not_separable: dict[tuple, dict] = {}
+    stop_unexplained: Finding | None = None
+    while len(findings) < opt.max_effects:
+        cands: list[tuple[Effect, ModelTerm]] = []
+        for eff in library.values():
+            for term in eff.candidates(spec, poses, cur.r):
+                if not any(_same(term, t) for t in cur.terms):
+                    cands.append((eff, term))
+        scr = screen(cur, spec, poses, [t for _, t in cands])
+        p_adj = holm(np.array([s[1] for s in scr])) if scr else np.zeros(0)
+        table = []
+        for (eff, term), (F, p, sep, _), pa in zip(cands, scr, p_adj):
+            table.append({"effect": eff.name, "where": _where_text(term.where), "F": F, "p_adjusted": float(pa),
+                          "separability": sep})
+            if sep < opt.min_separability and pa < 1:
+                key = (eff.name, _where_text(term.where))
+                not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep}
+        order = [i for i in np.argsort([s[1] for s in scr])
+                 if p_adj[i] < opt.alpha and scr[i][2] >= opt.min_separability]
+        # one refit per effect kind and place: the best period / split of a kind first
+        chosen: list[int] = []
+        for i in order:
+            if len(chosen) >= opt.max_refits:
+                break
+            chosen.append(i)
+        rounds.append({"round": len(rounds) + 1, "screened": len(cands), "passed_screening": len(order),
+                       "refit": [f"{cands[i][0].name} ({_where_text(cands[i][1].where)})" for i in chosen],
+                       "top": sorted(table, key=lambda x: x["p_adjusted"])[:8]})
+        if not chosen:
+            break
+        trials = []
+        for i in chosen:
+            eff, term = cands[i]
+            f = _fit(spec, poses, cur.terms + [term], cur.z, cur.active, weights, opt.lm_iterations)
+            f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
+            trials.append((i, f, paired_improvement(cur.cv, f.cv)))
+            say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)}, "
+                f"BIC {f.bic - cur.bic:+.1f}")
+        p_hold = holm(np.array([t[2] for t in trials]))
+        good = [(t, ph) for t, ph in zip(trials, p_hold)
+                if ph < opt.alpha and t[1].bic < cur.bic and t[1].cv_rms < (1 - opt.min_relative_gain) * cur.cv_rms]
+        if not good:
+            break
+        (i, best, _), ph = min(good, key=lambda x: x[0][1].cv_rms)
+        eff, term = cands[i]
+        # naming check: a generic model of the same structure must not predict clearly better
+        if opt.probes:
+            probe_better = _probe_beats(spec, poses, cur, best, opt)
+            if probe_better is not None:
+                stop_unexplained = probe_better
+                break
+        F, p_s, sep, Jc = scr[i]
+        k = len(best.terms) - 1
+        theta = best.theta(k)
+        warn = []
+        if sep < opt.warn_separability:
+            warn.append(f"only {100 * sep:.0f}% of its signature lies outside the geometry's Jacobian: "
+                        "part of it is absorbed by the geometric parameters on this design")
+        reg = eff.regressor(term, spec, poses)
+        finding = Finding(
+            effect=eff.name, where=dict(term.where), parameters={}, heldout_rms_before=cur.cv_rms,
+            heldout_rms_after=best.cv_rms, evidence="", p_heldout=float(ph), p_screen=float(p_adj[i]),
+            bic_change=float(best.bic - cur.bic), separability=float(sep), warnings=warn, term=term,
+            regressor=reg, regressor_label=eff.regressor_label(term),
+            signature_before=_signature(Jc, cur.r, theta))
+        findings.append(finding)
+        accepted_info.append({"fit": best, "J": Jc})
+        say(f"accepted {eff.name} ({_where_text(term.where)})")
+        cur = best
+    # the final model through the estimator's full procedure (robust weights, covariance)
+    final_cal = calibrate(poses, spec, terms=cur.terms, free=opt.free) if cur.terms else base_cal
+    for k, (finding, info) in enumerate(zip(findings, accepted_info)):
+        theta, std = final_cal.theta[k], final_cal.theta_std[k]
+        finding.parameters = _params(finding.term, theta, std)
+        finding.signature_after = _signature(info["J"], final_cal.extras["residuals_after"], theta)
+        finding.evidence = _evidence(finding, poses, unit, folds=opt.folds)
+    locations = locate(final_cal.extras["residuals_after"], poses, spec, final_cal.extras["weights"], opt.alpha)
+    if stop_unexplained is None and opt.probes:
+        stop_unexplained = _probe_beats(spec, poses, cur, None, opt)
+    if stop_unexplained is not None:
+        findings.append(stop_unexplained)
+    else:
+        left = located(locations, opt.alpha * 0.1)
+        if left:
+            top = left[0]
+            findings.append(Finding(
+                effect="unexplained", where=dict(top.where), parameters={}, heldout_rms_before=cur.cv_rms,
+                heldout_rms_after=cur.cv_rms,
+                evidence=(f"{top.test} of the residual ({', '.join(f'{k} {v}' for k, v in top.where.items())}) "
+                          f"survives correction for {len(locations)} tests (adjusted p = {top.p_adjusted:.2g}); "
+                          "no effect in the library predicts held-out poses better"),
+                p_screen=float(top.p_adjusted)))
+    findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
+    heldout_info = None
+    if heldout is not None:
+        heldout_info = _score_heldout(base_cal, final_cal, heldout, spec, findings)
+    diag = Diagnosis(findings=findings, verdict="", calibration=final_cal, base=base_cal, locations=locations,
+                     locations_before=locations_before, rounds=rounds, not_separable=list(not_separable.values()),
+                     unit=unit, poses=poses, heldout_session=heldout_info)
+    diag.verdict = verdict(diag)
+    return diag
+
+
+def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Finding | None:
+    """A generic probe that predicts held-out poses significantly better than ``best`` (or, with
+    best None, than the current model) as an ``unexplained`` finding; else None."""
+    ref = best if best is not None else cur
+    fk_X = cur.problem.kinematics(cur.problem.split(cur.z)[0], poses.controls)[1]
+    probes = [p for p in (time_probe(poses), space_probe(fk_X)) if p is not None]
+    results = []
+    for probe in probes:
+        f = _fit(spec, poses, cur.terms + [probe], cur.z, cur.active, cur.weights, opt.lm_iterations)
+        f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
+        p = paired_improvement(ref.cv, f.cv)
+        p0 = paired_improvement(cur.cv, f.cv)
+        results.append((probe, f, p, p0))
+    for probe, f, p, p0 in sorted(results, key=lambda x: x[1].cv_rms):
+        gain_vs_ref = f.cv_rms < (1 - 2 * opt.min_relative_gain) * ref.cv_rms
+        if p < opt.alpha / max(len(probes), 1) and p0 < opt.alpha and f.bic < cur.bic and gain_vs_ref:
+            unit = poses.length_unit
+            what = "changes with time" if "time" in probe.where else "varies smoothly over the workspace"
+            named = "" if best is None else f" better than the best named effect ({best.terms[-1].effect}, " \
+                f"{_fmt_rms(best.cv_rms, unit)})"
+            return Finding(
+                effect="unexplained", where=dict(probe.where), parameters={}, heldout_rms_before=cur.cv_rms,
+                heldout_rms_after=f.cv_rms, p_heldout=p0, bic_change=float(f.bic - cur.bic),
+                evidence=(f"a generic model in which the pose error {what} predicts held-out poses at "
+                          f"{_fmt_rms(f.cv_rms, unit)} against {_fmt_rms(cur.cv_rms, unit)}{named} "
+                          f"(paired Wilcoxon p = {p:.2g}); no effect in the library matches it"))
+    return None
+
+
+def _evidence(f: Finding, poses: PoseSet, unit: str, folds: int) -> str:
+    first = next(iter(f.parameters.items()), None)
+    par = ""
+    if first is not None:
+        name, v = first
+        scale = length_scale(unit) if v["unit"] == "m" else 1.0
+        shown_unit = unit if v["unit"] == "m" else v["unit"]
+        std = "" if v["std"] is None else f" +- {v['std'] / scale:.2g}"
+        par = f"; fitted {name} = {v['value'] / scale:.3g}{std} {shown_unit}"
+    return (f"adding {f.effect} ({_where_text(f.where)}) cut the {folds}-fold held-out RMS from "
+            f"{_fmt_rms(f.heldout_rms_before, unit)} to {_fmt_rms(f.heldout_rms_after, unit)} over "
+            f"{poses.n_poses} poses (paired Wilcoxon p = {f.p_heldout:.2g}, BIC {f.bic_change:+.0f}; "
+            f"score test against the residual: Holm p = {f.p_screen:.2g}){par}")
+
+
+def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec: PlatformSpec,
+                   findings: list[Finding]) -> dict[str, float]:
+    ho = with_history(heldout, spec)
+    e0 = point_errors(base, ho)
+    e1 = point_errors(final, ho)
+    before = float(np.sqrt(np.nanmean(e0**2)))
+    after = float(np.sqrt(np.nanmean(e1**2)))
+    for f in findings:
+        f.heldout_session_rms_before, f.heldout_session_rms_after = before, after
+    per_marker = {n: (float(np.sqrt(np.nanmean(e0[:, m] ** 2))), float(np.sqrt(np.nanmean(e1[:, m] ** 2))))
+                  for m, n in enumerate(base.marker_names)}
+    return {"rms_before": before, "rms_after": after, "per_marker": per_marker,
+            "p_improvement": paired_improvement(np.nanmean(e0**2, axis=1), np.nanmean(e1**2, axis=1)),
+            "n_poses": heldout.n_poses}
+
+
+def verdict(d: Diagnosis) -> str:
+    """One paragraph for people."""
+    unit = d.unit
+    named = [f for f in d.findings if f.effect != "unexplained"]
+    unexpl = [f for f in d.findings if f.effect == "unexplained"]
+    base_rms = d.findings[0].heldout_rms_before if d.findings else None
+    parts = []
+    if not d.findings:
+        loc = located(d.locations, 0.01)
+        parts.append("No hidden effect found: no candidate effect improved held-out prediction significantly, "
+                     "and the residuals show no structure that survives correction for multiple testing"
+                     + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
+    if named:
+        first_before = max(f.heldout_rms_before for f in named)
+        last_after = min(f.heldout_rms_after for f in named)
+        names = ", ".join(f"{f.effect} ({_where_text(f.where)})" for f in named)
+        parts.append(f"The geometric model leaves out {names}. Modelling {'it' if len(named) == 1 else 'them'} "
+                     f"brings the held-out RMS from {_fmt_rms(first_before, unit)} to {_fmt_rms(last_after, unit)}.")
+    for f in unexpl:
+        parts.append(f"Structure remains that no known effect explains ({_where_text(f.where) or f.where}); "
+                     "it is reported as unexplained rather than given a wrong name.")
+    for f in named:
+        for w in f.warnings:
+            parts.append(f"Warning on {f.effect}: {w}.")
+    if d.not_separable:
+        parts.append("Not separable from the geometry on this design (not tested further): "
+                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in d.not_separable[:5]) + ".")
+    if d.heldout_session is not None:
+        h = d.heldout_session
+        parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
+                     f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
+    del base_rms
+    return " ".join(parts)
