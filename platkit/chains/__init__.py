@@ -1,0 +1,23 @@
+"""Serial and tree-shaped chains: velocity Jacobian from twists, inverse velocity, tracking servo.
+
+After Sorokin, "Tensor tracking system" (2017); see docs/chains.md.
+"""
+from platkit.chains.chain import Joint, KinematicChain, read_urdf_text
+from platkit.chains.servo import (
+    Servo,
+    ServoOptions,
+    ServoResult,
+    Task,
+    TrajectoryResult,
+    densify,
+    follow_trajectory,
+    parse_selection,
+    track,
+)
+from platkit.chains.solve import Damping, Level, solve_lp, solve_pinv
+
+__all__ = [
+    "Damping", "Joint", "KinematicChain", "Level", "Servo", "ServoOptions", "ServoResult", "Task",
+    "TrajectoryResult", "densify", "follow_trajectory", "parse_selection", "read_urdf_text",
+    "solve_lp", "solve_pinv", "track",
+]

@@ -1,0 +1,523 @@
+"""The tracking servo (Sorokin 2017, "building the tracking system") and the virtual servo that
+follows a dense Cartesian trajectory ("linear interpolation").
+
+For every controlled link (a *task*) the error is E = P^-1 U read as the 6-vector (r, rho):
+translation and rotation vector between the link's placement P and its set point U. The joint
+increments are chosen so that the link's twist is collinear with E (the inverse velocity
+problem of :mod:`platkit.chains.solve`); the step's length is a fraction of |E| (gain <= 1:
+aperiodic regulation, no overshoot), capped by the joints' rate limits without changing its
+direction. A step that would increase the error is halved, so the error decreases monotonically.
+
+Tasks may name a ``frame``: the set point is then given in the frame of another link, which may
+itself move (control in a moving local frame); several tasks with a shared trunk (both arms of a
+humanoid, the fingers of a hand) are solved jointly with a stacked Jacobian, by weight within a
+priority level and by strict priority between levels.
+
+Units: metres and radians; time in seconds (``dt`` is the virtual servo's period).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from platkit.chains.chain import KinematicChain
+from platkit.chains.solve import (
+    Damping,
+    Level,
+    joint_limit_gradient,
+    manipulability,
+    mid_range_gradient,
+    solve_lp,
+    solve_pinv,
+)
+from platkit.chains.transforms import interpolate_pose, invert, pose_error, rotation_action
+from platkit.errors import BadInput, OutOfWorkspace
+
+COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+SECONDARY_COSTS = ("none", "mid_range", "joint_limits", "manipulability")
+
+
+def parse_selection(text: str) -> np.ndarray:
+    """'xyz', 'x,y,rz', 'all' -> a 0/1 mask (6,) over (x, y, z, rx, ry, rz)."""
+    t = text.replace(",", "").replace(" ", "").lower()
+    if t in ("", "all"):
+        return np.ones(6)
+    mask = np.zeros(6)
+    i = 0
+    while i < len(t):
+        tok = t[i:i + 2] if t[i] == "r" else t[i]
+        if tok not in COMPONENTS:
+            raise BadInput(f"--select: unknown component {tok!r} in {text!r}; use x, y, z, rx, ry, rz (e.g. 'xyz' or 'xyzrz')")
+        mask[COMPONENTS.index(tok)] = 1.0
+        i += len(tok)
+    return mask
+
+
+@dataclass
+class Task:
+    """Drive ``link`` to ``target`` (4, 4), a placement given in ``frame`` ('world' or a link).
+
+    ``weights`` (6,) over (x, y, z, rx, ry, rz): 0 leaves a component free (selective control),
+    larger weights trade harder within a priority level. ``basis``: components read in the
+    ``frame``'s basis ('reference') or in the link's own ('local'). ``priority``: 0 first;
+    higher levels act only in the null space of lower ones.
+    """
+
+    link: str
+    target: np.ndarray
+    frame: str = "world"
+    weights: np.ndarray = field(default_factory=lambda: np.ones(6))
+    basis: str = "reference"
+    priority: int = 0
+
+    def __post_init__(self):
+        self.target = np.asarray(self.target, float)
+        self.weights = np.asarray(self.weights, float)
+        if self.target.shape != (4, 4):
+            raise BadInput(f"task {self.link!r}: target must be a 4x4 transform")
+        if self.weights.shape != (6,) or np.any(self.weights < 0) or not np.any(self.weights > 0):
+            raise BadInput(f"task {self.link!r}: weights must be 6 non-negative numbers, not all zero")
+        if self.basis not in ("reference", "local"):
+            raise BadInput(f"task {self.link!r}: basis must be 'reference' or 'local', got {self.basis!r}")
+
+
+@dataclass
+class ServoOptions:
+    """Tolerances, caps and the solver of the servo (SI units)."""
+
+    tol_position: float = 1e-6       # m
+    tol_rotation: float = 1e-6       # rad
+    max_iterations: int = 500
+    max_seconds: float = 30.0
+    gain: float = 1.0                # fraction of E commanded per step (<= 1: aperiodic)
+    max_linear_step: float = 0.1     # m per step of the commanded twist
+    max_angular_step: float = 0.5    # rad per step
+    dt: float = 0.1                  # s per step: rate limits become per-step limits rate * dt
+    use_rate_limits: bool = True
+    solver: str = "pinv"             # 'pinv' or 'lp'
+    secondary: str = "none"          # one of SECONDARY_COSTS
+    secondary_gain: float = 0.05
+    damping: Damping = field(default_factory=Damping)
+    joint_weights: np.ndarray | None = None
+    locked: Sequence[str] = ()
+    stall_iterations: int = 40       # stop when the error has not fallen 1e-3 in this many steps
+    restarts: int = 0                # after a failed attempt, start again from random configurations
+    seed: int = 0                    # of the restarts' random configurations
+
+    def check(self) -> None:
+        if self.solver not in ("pinv", "lp"):
+            raise BadInput(f"solver must be 'pinv' or 'lp', got {self.solver!r}")
+        if self.secondary not in SECONDARY_COSTS:
+            raise BadInput(f"secondary cost must be one of {', '.join(SECONDARY_COSTS)}, got {self.secondary!r}")
+        if not (0 < self.gain <= 1):
+            raise BadInput(f"gain must be in (0, 1], got {self.gain}")
+        for name in ("tol_position", "tol_rotation", "max_seconds", "max_linear_step", "max_angular_step", "dt"):
+            if not getattr(self, name) > 0:
+                raise BadInput(f"{name} must be positive, got {getattr(self, name)}")
+        if self.max_iterations < 1:
+            raise BadInput(f"max_iterations must be at least 1, got {self.max_iterations}")
+
+
+@dataclass
+class ServoResult:
+    """Outcome of the servo: the final configuration (n,), its path (k+1, n) over the steps,
+    per task the position error (m) and rotation error (rad) over the selected components,
+    and, when it failed, one sentence saying why."""
+
+    theta: np.ndarray
+    converged: bool
+    iterations: int
+    position_errors: list[float]
+    rotation_errors: list[float]
+    path: np.ndarray
+    merit_history: list[float]
+    reason: str = ""
+    best_position_errors: list[float] = field(default_factory=list)
+    best_rotation_errors: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    restarts: int = 0                # attempts made before this one's start; the path is this one's
+    iterations_total: int = 0        # over all attempts
+
+    @property
+    def position_error(self) -> float:
+        return max(self.position_errors)
+
+    @property
+    def rotation_error(self) -> float:
+        return max(self.rotation_errors)
+
+
+class Servo:
+    """The tracking servo over ``tasks`` of one chain; :meth:`run` from a configuration."""
+
+    def __init__(self, chain: KinematicChain, tasks: Sequence[Task], options: ServoOptions | None = None):
+        if not tasks:
+            raise BadInput("the servo needs at least one task (a link and its target)")
+        self.chain = chain
+        self.tasks = list(tasks)
+        self.options = options or ServoOptions()
+        self.options.check()
+        self.frame_ids = [chain.frame_id(t.link) for t in self.tasks]
+        self.ref_ids = [chain.frame_id(t.frame) for t in self.tasks]
+        for t, f, r in zip(self.tasks, self.frame_ids, self.ref_ids):
+            if f == r:
+                raise BadInput(f"task {t.link!r}: the link cannot be its own reference frame")
+        unknown = [n for n in self.options.locked if n not in chain.joint_names]
+        if unknown:
+            raise BadInput(f"locked joints not in the chain: {', '.join(unknown)}; joints: {', '.join(chain.joint_names)}")
+        active = np.zeros(chain.n, bool)
+        for f, r in zip(self.frame_ids, self.ref_ids):
+            for jt in chain.supporting_joints(f) + (chain.supporting_joints(r) if r else []):
+                active[jt.column] = True
+        for name in self.options.locked:
+            active[chain.joint_names.index(name)] = False
+        if not np.any(active):
+            raise BadInput("no joint moves the controlled link(s): " + ", ".join(t.link for t in self.tasks))
+        self.active = active
+        w = np.ones(chain.n) if self.options.joint_weights is None else np.asarray(self.options.joint_weights, float)
+        if w.shape != (chain.n,) or np.any(w <= 0):
+            raise BadInput(f"joint weights must be {chain.n} positive numbers")
+        self.joint_weights = w
+
+    # ------------------------------------------------------------------ errors and Jacobians
+
+    def task_error(self, theta: np.ndarray, k: int) -> np.ndarray:
+        """E (6,) of task k in its basis (m, rad)."""
+        task = self.tasks[k]
+        P = self.chain.relative_placement(theta, self.frame_ids[k], self.ref_ids[k])
+        return pose_error(P, task.target, "local" if task.basis == "local" else "reference")
+
+    def task_jacobian(self, theta: np.ndarray, k: int) -> np.ndarray:
+        """J (6, n) of task k in its basis."""
+        task = self.tasks[k]
+        J = self.chain.relative_jacobian(theta, self.frame_ids[k], self.ref_ids[k])
+        if task.basis == "local":
+            R = self.chain.relative_placement(theta, self.frame_ids[k], self.ref_ids[k])[:3, :3]
+            J = rotation_action(R.T) @ J
+        return J
+
+    def errors(self, theta: np.ndarray) -> list[np.ndarray]:
+        return [self.task_error(theta, k) for k in range(len(self.tasks))]
+
+    def merit(self, errors: list[np.ndarray]) -> float:
+        return float(sum(np.sum(t.weights * E**2) for t, E in zip(self.tasks, errors)))
+
+    def _norms(self, errors: list[np.ndarray]) -> tuple[list[float], list[float]]:
+        pos, rot = [], []
+        for t, E in zip(self.tasks, errors):
+            sel = t.weights > 0
+            pos.append(float(np.linalg.norm(E[:3][sel[:3]])))
+            rot.append(float(np.linalg.norm(E[3:][sel[3:]])))
+        return pos, rot
+
+    def _done(self, pos, rot) -> bool:
+        o = self.options
+        return all(p <= o.tol_position for p in pos) and all(r <= o.tol_rotation for r in rot)
+
+    # ------------------------------------------------------------------ one step
+
+    def _commanded(self, E: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """gain * E, shortened (direction kept) so the commanded twist respects the step caps."""
+        o = self.options
+        e = o.gain * E * (weights > 0)
+        lin = np.linalg.norm(e[:3])
+        ang = np.linalg.norm(e[3:])
+        scale = min(1.0, o.max_linear_step / lin if lin > 0 else np.inf, o.max_angular_step / ang if ang > 0 else np.inf)
+        return e * scale
+
+    def _secondary(self, theta: np.ndarray) -> np.ndarray | None:
+        o = self.options
+        c = self.chain
+        if o.secondary == "none":
+            return None
+        if o.secondary == "mid_range":
+            g = mid_range_gradient(theta, c.lower, c.upper)
+        elif o.secondary == "joint_limits":
+            g = joint_limit_gradient(theta, c.lower, c.upper)
+            g = g / max(1.0, float(np.max(np.abs(g))))
+        else:  # manipulability of the first task, by central differences over the active joints
+            sel = self.tasks[0].weights > 0
+            g = np.zeros(c.n)
+            h = 1e-6
+            for i in np.flatnonzero(self.active):
+                tp = theta.copy()
+                tm = theta.copy()
+                tp[i] += h
+                tm[i] -= h
+                g[i] = -(manipulability(self.task_jacobian(tp, 0)[sel]) - manipulability(self.task_jacobian(tm, 0)[sel])) / (2 * h)
+            g = g / max(1.0, float(np.max(np.abs(g))) / 1.0)
+        return -o.secondary_gain * g * self.active
+
+    def step(self, theta: np.ndarray, errors: list[np.ndarray]):
+        """Joint increments (n,) for one servo step, and the solver's StepInfo."""
+        o = self.options
+        c = self.chain
+        lower_step = np.where(self.active, c.lower - theta, 0.0)
+        upper_step = np.where(self.active, c.upper - theta, 0.0)
+        lower_step = np.minimum(lower_step, 0.0)
+        upper_step = np.maximum(upper_step, 0.0)
+        rate_step = None
+        if o.use_rate_limits:
+            rate_step = np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)
+        secondary = self._secondary(theta)
+        levels: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+        for k, task in enumerate(self.tasks):
+            e = self._commanded(errors[k], task.weights)
+            levels.setdefault(task.priority, []).append((self.task_jacobian(theta, k), e, task.weights))
+        stacked = []
+        for p in sorted(levels):
+            J = np.vstack([x[0] for x in levels[p]])
+            e = np.concatenate([x[1] for x in levels[p]])
+            w = np.concatenate([x[2] for x in levels[p]])
+            stacked.append(Level(J, e, w))
+        if o.solver == "lp":
+            # the LP takes one level: priorities become weights 10^-3 per level
+            J = np.vstack([lv.J for lv in stacked])
+            e = np.concatenate([lv.e for lv in stacked])
+            w = np.concatenate([lv.weights * 1e-3**i for i, lv in enumerate(stacked)])
+            return solve_lp(J, e, weights=w, lower_step=lower_step, upper_step=upper_step, rate_step=rate_step,
+                            joint_cost=self.joint_weights, secondary=None if secondary is None else -secondary,
+                            active=self.active)
+        return solve_pinv(stacked, lower_step=lower_step, upper_step=upper_step, rate_step=rate_step,
+                          joint_weights=self.joint_weights, damping=o.damping, secondary=secondary,
+                          active=self.active)
+
+    # ------------------------------------------------------------------ the loop
+
+    def run(self, theta0: np.ndarray) -> ServoResult:
+        """Servo from theta0 (n,); with ``options.restarts``, failed attempts are retried from
+        random configurations of the active joints (a seeded generator), within the same time
+        cap. The result is the first converged attempt, else the closest one."""
+        o = self.options
+        theta0 = self.chain.clip(self.chain.check_configuration(theta0, "starting configuration"))
+        start = time.perf_counter()
+        rng = np.random.default_rng(o.seed)
+        result = self._attempt(theta0, start)
+        best = result
+        total = result.iterations
+        for k in range(o.restarts):
+            if result.converged or result.reason.startswith("stopped at the time cap") or "reaches at most" in result.reason:
+                break
+            theta = np.where(self.active, self.chain.random(rng), theta0)
+            result = self._attempt(theta, start)
+            result.restarts = k + 1
+            total += result.iterations
+            if result.converged or (sum(result.best_position_errors) + sum(result.best_rotation_errors)
+                                    < sum(best.best_position_errors) + sum(best.best_rotation_errors)):
+                best = result
+        best.iterations_total = total
+        best.seconds = time.perf_counter() - start
+        return best
+
+    def _attempt(self, theta: np.ndarray, start: float) -> ServoResult:
+        o = self.options
+        c = self.chain
+        errors = self.errors(theta)
+        merit = self.merit(errors)
+        path = [theta.copy()]
+        history = [merit]
+        best = (merit, theta.copy(), errors)
+        stall_ref, stall_at = merit, 0
+        reason = ""
+        iterations = 0
+        pos, rot = self._norms(errors)
+        converged = self._done(pos, rot)
+        while not converged:
+            if iterations >= o.max_iterations:
+                reason = f"stopped at the iteration cap ({o.max_iterations})"
+                break
+            if time.perf_counter() - start > o.max_seconds:
+                reason = f"stopped at the time cap ({o.max_seconds:g} s)"
+                break
+            dq, _info = self.step(theta, errors)
+            accepted = False
+            alpha = 1.0
+            for _ in range(12):
+                trial = c.clip(theta + alpha * dq)
+                trial_errors = self.errors(trial)
+                trial_merit = self.merit(trial_errors)
+                if trial_merit < merit:
+                    accepted = True
+                    break
+                alpha *= 0.5
+            iterations += 1
+            if not accepted:
+                reason = self.diagnose(theta, errors, stalled=True)
+                break
+            theta, errors, merit = trial, trial_errors, trial_merit
+            path.append(theta.copy())
+            history.append(merit)
+            if merit < best[0]:
+                best = (merit, theta.copy(), errors)
+            pos, rot = self._norms(errors)
+            converged = self._done(pos, rot)
+            if merit < (1.0 - 1e-3) * stall_ref:
+                stall_ref, stall_at = merit, iterations
+            elif iterations - stall_at >= o.stall_iterations and not converged:
+                reason = self.diagnose(theta, errors, stalled=True)
+                break
+        if not converged and reason.startswith("stopped at"):
+            why = self.diagnose(theta, errors, stalled=False)
+            reason = reason + ("; " + why if why else "")
+        bpos, brot = self._norms(best[2])
+        pos, rot = self._norms(errors)
+        return ServoResult(theta=theta, converged=converged, iterations=iterations, position_errors=pos,
+                           rotation_errors=rot, path=np.array(path), merit_history=history, reason=reason,
+                           best_position_errors=bpos, best_rotation_errors=brot,
+                           seconds=time.perf_counter() - start)
+
+    # ------------------------------------------------------------------ why it failed
+
+    def diagnose(self, theta: np.ndarray, errors: list[np.ndarray], stalled: bool) -> str:
+        """One clause saying why the error stopped falling at ``theta``."""
+        c = self.chain
+        reasons = []
+        for k, (task, E) in enumerate(zip(self.tasks, errors)):
+            if task.frame != "world" or np.any(task.weights[:3] == 0):
+                continue
+            bound = c.reach_bound(theta, self.frame_ids[k])
+            if bound is None:
+                continue
+            reach, origin = bound
+            goal = (c.placement(theta, self.ref_ids[k]) @ task.target)[:3, 3]
+            dist = float(np.linalg.norm(goal - origin))
+            if dist > reach + 1e-9:
+                first = c.supporting_joints(self.frame_ids[k])[0].name
+                reasons.append(f"the target of {task.link!r} is {dist:.4g} m from {first!r} but the chain reaches at most {reach:.4g} m")
+        # the descent direction of the error in joint space: J^T W E
+        J = np.vstack([self.task_jacobian(theta, k) * (t.weights > 0)[:, None] for k, t in enumerate(self.tasks)])
+        W = np.concatenate([t.weights for t in self.tasks])
+        E = np.concatenate(errors)
+        d = J.T @ (W * E)
+        tol = 1e-9 * (1 + np.abs(theta))
+        at_upper = self.active & (theta >= c.upper - tol) & (d > 0)
+        at_lower = self.active & (theta <= c.lower + tol) & (d < 0)
+        held = [c.joint_names[i] for i in np.flatnonzero(at_upper | at_lower)]
+        Ja = J[:, self.active] * np.sqrt(W)[:, None]
+        s = np.linalg.svd(Ja, compute_uv=False)
+        rank_rows = min(Ja.shape)
+        sigma_min = float(s[rank_rows - 1]) if rank_rows else 0.0
+        if held:
+            reasons.append(f"held by the limits of {', '.join(held)}")
+        if not reasons:
+            # how much of the error the joints can still reduce (its projection on range(J))
+            U, s_full, _ = np.linalg.svd(Ja, full_matrices=False)
+            e = np.sqrt(W) * E
+            in_range = U[:, s_full > 1e-6 * max(1.0, s_full[0])] if s_full.size else U[:, :0]
+            frac = float(np.linalg.norm(in_range.T @ e) / max(np.linalg.norm(e), 1e-300))
+            if sigma_min < 1e-3 and frac < 0.5:
+                reasons.append(f"the chain is at a singular pose (smallest singular value {sigma_min:.2g}) "
+                               "and the remaining error points where no joint can move the link: the target is out of reach")
+            elif stalled:
+                reasons.append("the error stopped decreasing (a local minimum of the distance to the target, "
+                               "or a target outside the workspace)")
+        return "; ".join(reasons)
+
+
+def failure_message(tasks: Sequence[Task], result: ServoResult) -> str:
+    """One sentence: which link missed, how close it got, after how many steps, and why."""
+    k = int(np.argmax([p + r for p, r in zip(result.best_position_errors, result.best_rotation_errors)]))
+    return (f"link {tasks[k].link!r} did not reach its target: closest {result.best_position_errors[k]:.3g} m / "
+            f"{result.best_rotation_errors[k]:.3g} rad after {result.iterations} iterations; "
+            f"{result.reason or 'no reason found'}")
+
+
+def track(chain: KinematicChain, tasks: Sequence[Task] | Task, theta0: np.ndarray | None = None,
+          options: ServoOptions | None = None) -> ServoResult:
+    """Run the servo to the tasks' targets; OutOfWorkspace (one sentence) if they are not met."""
+    if isinstance(tasks, Task):
+        tasks = [tasks]
+    servo = Servo(chain, tasks, options)
+    result = servo.run(chain.neutral() if theta0 is None else theta0)
+    if not result.converged:
+        raise OutOfWorkspace(failure_message(tasks, result))
+    return result
+
+
+# ----------------------------------------------------------------------------- trajectories
+
+
+@dataclass
+class TrajectoryResult:
+    """Joint path along a trajectory: sample times (s,), configurations (s, n), and the pose
+    errors (m, rad) at each sample, plus the index of the waypoint segment of each sample."""
+
+    times: np.ndarray
+    thetas: np.ndarray
+    position_errors: np.ndarray
+    rotation_errors: np.ndarray
+    segment: np.ndarray
+    iterations: int
+
+
+def densify(times: np.ndarray, poses: np.ndarray, max_linear: float, max_angular: float):
+    """Samples between waypoints: linear in position, SLERP in rotation, each step at most
+    ``max_linear`` m and ``max_angular`` rad. ``times`` (k,), ``poses`` (k, 4, 4) ->
+    (times (s,), poses (s, 4, 4), segment index (s,))."""
+    from platkit.geometry import rotvec_from_matrix
+
+    out_t, out_p, seg = [float(times[0])], [poses[0]], [0]
+    for k in range(len(times) - 1):
+        a, b = poses[k], poses[k + 1]
+        dist = float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
+        ang = float(np.linalg.norm(rotvec_from_matrix(b[:3, :3] @ a[:3, :3].T)))
+        n = max(1, int(np.ceil(max(dist / max_linear, ang / max_angular))))
+        for i in range(1, n + 1):
+            s = i / n
+            out_t.append(float((1 - s) * times[k] + s * times[k + 1]))
+            out_p.append(interpolate_pose(a, b, s))
+            seg.append(k)
+    return np.array(out_t), np.array(out_p), np.array(seg)
+
+
+def follow_trajectory(chain: KinematicChain, link: str, times: np.ndarray, poses: np.ndarray, *,
+                      frame: str = "world", theta0: np.ndarray | None = None, weights: np.ndarray | None = None,
+                      basis: str = "reference", options: ServoOptions | None = None,
+                      moving_frame: Callable[[float], np.ndarray] | None = None,
+                      max_linear_step: float = 0.005, max_angular_step: float = 0.02,
+                      sample_iterations: int = 100) -> TrajectoryResult:
+    """Follow waypoints ``poses`` (k, 4, 4) at ``times`` (k,) by the virtual servo.
+
+    The trajectory is resampled densely (:func:`densify`); the servo runs to each sample from
+    the previous solution. ``frame``: the link the poses are given in (a moving local frame if
+    joints move it); ``moving_frame``: t -> frame_from_poses (4, 4), an extra, externally moving
+    frame (a conveyor, a head) whose placement at time t carries the poses into ``frame``.
+    Raises OutOfWorkspace naming the time and waypoint segment of the first missed sample.
+    """
+    times = np.asarray(times, float)
+    poses = np.asarray(poses, float)
+    if times.ndim != 1 or poses.shape != (times.size, 4, 4) or times.size < 1:
+        raise BadInput("trajectory: expected k times and k 4x4 poses")
+    if np.any(np.diff(times) < 0):
+        raise BadInput("trajectory: times must not decrease")
+    options = options or ServoOptions()
+    w = np.ones(6) if weights is None else np.asarray(weights, float)
+    st, sp, seg = densify(times, poses, max_linear_step, max_angular_step)
+    if moving_frame is not None:
+        sp = np.array([moving_frame(t) @ p for t, p in zip(st, sp)])
+    theta = chain.neutral() if theta0 is None else chain.check_configuration(theta0, "starting configuration")
+    first_opts = ServoOptions(**{**options.__dict__})
+    sample_opts = ServoOptions(**{**options.__dict__, "max_iterations": sample_iterations})
+    thetas, pos, rot = [], [], []
+    total = 0
+    for i, (t, P) in enumerate(zip(st, sp)):
+        task = Task(link, P, frame=frame, weights=w, basis=basis)
+        servo = Servo(chain, [task], first_opts if i == 0 else sample_opts)
+        res = servo.run(theta)
+        total += res.iterations
+        if not res.converged:
+            where = "the first waypoint" if i == 0 else f"t = {t:.6g} s (between waypoints {seg[i]} and {seg[i] + 1})"
+            raise OutOfWorkspace(f"trajectory not followed at {where}: " + failure_message([task], res))
+        theta = res.theta
+        thetas.append(theta.copy())
+        pos.append(res.position_error)
+        rot.append(res.rotation_error)
+    return TrajectoryResult(st, np.array(thetas), np.array(pos), np.array(rot), seg, total)
+
+
+def target_from_world(chain: KinematicChain, theta: np.ndarray, frame: str, world_from_target: np.ndarray) -> np.ndarray:
+    """A world placement re-expressed in ``frame`` at configuration theta (4, 4)."""
+    return invert(chain.placement(theta, frame)) @ world_from_target
