@@ -150,3 +150,32 @@ def test_cli_fk_takes_degrees(capsys):
     assert main(["fk", "--platform", "rotary", "--u", "90,0", "--json"]) == 0
     pose = json.loads(capsys.readouterr().out)
     assert abs(pose["yaw"] - np.pi / 2) < 1e-12 and abs(pose["z"] - 150.0) < 1e-9
+
+
+def test_identifiable_parameters_with_unknown_mocap_transform_and_markers(spec):
+    """From three markers on the platform, with the base-to-mocap transform and the markers'
+    positions unknown, exactly four combinations of td are identifiable: both scales, joint 2's
+    axis offset along x and its non-perpendicularity (rx); everything else is absorbed."""
+    import casadi as ca
+
+    from platkit.geometry import ca_matrix_from_quat, ca_matrix_from_rpy
+
+    u = ca.SX.sym("u", 2)
+    td = ca.SX.sym("td", spec.n_td)
+    markers = ca.SX.sym("m", 9)
+    mocap = ca.SX.sym("b", 6)
+    q, X = spec.forward(u, td)
+    R, Rb = ca_matrix_from_quat(q), ca_matrix_from_rpy(mocap[3], mocap[4], mocap[5])
+    y = ca.vertcat(*[ca.mtimes(Rb, X + ca.mtimes(R, markers[3 * i:3 * i + 3])) + mocap[:3] for i in range(3)])
+    jac = ca.Function("J", [u, td, markers, mocap], [ca.jacobian(y, td), ca.jacobian(y, ca.vertcat(markers, mocap))])
+    rng = np.random.default_rng(0)
+    m0 = np.array([0.1, 0, 0.02, 0, 0.1, 0.03, -0.08, -0.05, 0.01])
+    blocks = [jac(rng.uniform([-180, -90], [180, 90]), spec.nominal_td(), m0, np.zeros(6)) for _ in range(30)]
+    J_td = np.vstack([np.asarray(b[0]) for b in blocks])
+    J_nuisance = np.vstack([np.asarray(b[1]) for b in blocks])
+    J_td = J_td - J_nuisance @ np.linalg.lstsq(J_nuisance, J_td, rcond=None)[0]  # nuisance projected out
+    s = np.linalg.svd(J_td, compute_uv=False)
+    assert np.sum(s > 1e-9 * s[0]) == 4
+    names = spec.parameter_names
+    alone = [n for i, n in enumerate(names) if np.linalg.norm(J_td[:, i]) > 1e-9]
+    assert alone == ["joint1.scale", "joint2.scale", "joint2.origin_x", "joint2.origin_rx"]
