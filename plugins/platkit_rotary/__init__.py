@@ -9,8 +9,10 @@ six errors (``joint<j>.origin_x .. origin_rz``): axis offset (x, y, z), axis mis
 non-perpendicularity (rx, ry, rz). All start free; the estimator reduces away what a session
 cannot identify (e.g. the rotation of joint 1's origin about its own axis equals its offset).
 
-The description is a URDF with exactly two actuated joints on the chain from the root link to
-the single leaf (the ``platform`` link the markers sit on).
+The description is a URDF with exactly two revolute joints on the chain from the root link to
+the single leaf (the ``platform`` link the markers sit on). Like every URDF stand it takes the
+options ``base_link`` and ``moving_link`` (a session's ``moving_link:``), for a rig whose
+markers sit on another link; the chain must still hold exactly the two stages.
 """
 from __future__ import annotations
 
@@ -27,10 +29,11 @@ TITLE = "Two-stage rotary rig (URDF)"
 
 def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     options = {k: v for k, v in (options or {}).items() if v is not None}
-    if options:
-        raise BadInput(f"the rotary stand takes no options, got {sorted(options)}")
+    unknown = sorted(set(options) - {"base_link", "moving_link"})
+    if unknown:
+        raise BadInput(f"the rotary stand takes the options base_link, moving_link; unknown: {unknown}")
     path = path or default_description("rotary.urdf", __file__)
-    chain = serial_chain(read_urdf(path))
+    chain = serial_chain(read_urdf(path), options.get("base_link"), options.get("moving_link"))
     revolute = [j for j in chain.actuated if j.type in ("revolute", "continuous")]
     if len(chain.actuated) != 2 or len(revolute) != 2:
         raise BadDescription(

@@ -138,8 +138,12 @@ def test_description_errors(tmp_path):
         + "</robot>")
     with pytest.raises(BadDescription, match=r"three\.urdf: the rotary rig needs exactly two revolute joints"):
         get_platform("rotary", three)
-    with pytest.raises(BadInput, match="the rotary stand takes no options"):
-        default_host().build("rotary", None, moving_link="platform")
+    with pytest.raises(BadInput, match=r"the rotary stand takes the options base_link, moving_link; unknown: \['tool'\]"):
+        default_host().build("rotary", None, tool="platform")
+    # markers on the inner stage's own link: the same rig; on the outer stage: not a two-stage chain
+    assert default_host().build("rotary", None, moving_link="inner_stage").moving_frame == "inner_stage"
+    with pytest.raises(BadDescription, match=r"needs exactly two revolute joints from base to outer_stage"):
+        default_host().build("rotary", None, moving_link="outer_stage")
     yaml_file = tmp_path / "rig.yaml"
     yaml_file.write_text("a: 1\n")
     with pytest.raises(BadDescription, match=r"rig\.yaml: the rotary stand reads \.urdf files"):
