@@ -379,9 +379,24 @@ def chain_kinematics(chain: SerialChain, control_units: list[str], u, td):
     R_acc = ca.DM.eye(3)
     q_acc = ca.DM([1.0, 0.0, 0.0, 0.0])
     X_acc = ca.DM.zeros(3)
-    k = 0  # td cursor
-    i = 0  # control cursor
+    # joint values first: a mimic joint may sit before its master on the chain
     theta_of: dict[str, object] = {}
+    td_start: dict[str, int] = {}
+    k = 0
+    i = 0
+    for j in chain.calibrated:
+        td_start[j.name] = k
+        if j.actuated:
+            offset, scale = td[k], td[k + 1]
+            theta_of[j.name] = scale * (CONTROL_UNIT_FACTORS[control_units[i]] * u[i] - offset)
+            i += 1
+            k += 2
+        k += 6
+    assert k == td.shape[0] and i == u.shape[0], "td or u does not match the chain"
+    for j in chain.calibrated:
+        if not j.actuated:
+            master, multiplier, mimic_offset = j.mimic
+            theta_of[j.name] = multiplier * theta_of[master] + mimic_offset
     for j in chain.joints:
         R0 = j.origin[:3, :3]
         t0 = j.origin[:3, 3]
@@ -391,19 +406,10 @@ def chain_kinematics(chain: SerialChain, control_units: list[str], u, td):
             R_acc = ca.mtimes(R_acc, ca.DM(R0))
             q_acc = ca_quat_multiply(q_acc, ca.DM(q0))
             continue
-        if j.actuated:
-            offset, scale = td[k], td[k + 1]
-            k += 2
-            c = CONTROL_UNIT_FACTORS[control_units[i]]
-            theta = scale * (c * u[i] - offset)
-            i += 1
-        else:
-            master, multiplier, mimic_offset = j.mimic
-            theta = multiplier * theta_of[master] + mimic_offset
-        theta_of[j.name] = theta
+        theta = theta_of[j.name]
+        k = td_start[j.name] + (2 if j.actuated else 0)
         d = td[k:k + 3]
         rx, ry, rz = td[k + 3], td[k + 4], td[k + 5]
-        k += 6
         R_err = ca_matrix_from_rpy(rx, ry, rz)
         q_err = ca_quat_from_rpy(rx, ry, rz)
         # parent_from_child = origin * Trans(d) * R_err * motion(theta)
@@ -419,7 +425,6 @@ def chain_kinematics(chain: SerialChain, control_units: list[str], u, td):
         X_acc = X_acc + ca.mtimes(R_acc, X_local)
         R_acc = ca.mtimes(R_acc, R_local)
         q_acc = ca_quat_multiply(q_acc, q_local)
-    assert k == td.shape[0] and i == u.shape[0], "td or u does not match the chain"
     return R_acc, q_acc, X_acc
 
 

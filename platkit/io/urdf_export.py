@@ -46,21 +46,22 @@ def calibrated_origins(spec: PlatformSpec, td) -> dict[str, np.ndarray]:
     if td.shape != (spec.n_td,):
         raise BadInput(f"{spec.name}: expected {spec.n_td} parameters, got {td.shape}")
     value = dict(zip(spec.parameter_names, td))
-    offsets: dict[str, float] = {}
+    # offsets of the actuated joints first: a mimic joint may sit before its master
+    offsets = {j.name: value[f"{j.name}.offset"] for j in chain.actuated}
+    for j in chain.actuated:
+        scale = value[f"{j.name}.scale"]
+        if abs(scale - 1.0) > SCALE_TOL:
+            raise BadInput(
+                f"{j.name}.scale = {scale:.12g}: a URDF joint has no scale, so this calibration cannot be "
+                "exported as a URDF; calibrate with the scales fixed at 1"
+            )
     out: dict[str, np.ndarray] = {}
     for j in chain.calibrated:
         if j.actuated:
-            scale = value[f"{j.name}.scale"]
-            if abs(scale - 1.0) > SCALE_TOL:
-                raise BadInput(
-                    f"{j.name}.scale = {scale:.12g}: a URDF joint has no scale, so this calibration cannot be "
-                    "exported as a URDF; calibrate with the scales fixed at 1"
-                )
-            offset = value[f"{j.name}.offset"]
+            offset = offsets[j.name]
         else:
             master, multiplier, _ = j.mimic
             offset = multiplier * offsets[master]
-        offsets[j.name] = offset
         d = np.array([value[f"{j.name}.{f}"] for f in ORIGIN_FIELDS[:3]])
         rx, ry, rz = (value[f"{j.name}.{f}"] for f in ORIGIN_FIELDS[3:])
         error = np.eye(4)

@@ -5,6 +5,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
+import yourdfpy
 
 from platkit import get_platform
 from platkit.cli import main
@@ -331,3 +332,26 @@ def test_export_refuses_scales_and_writes_nothing(tmp_path):
     assert not target.exists() and list(tmp_path.iterdir()) == []
     with pytest.raises(BadInput, match="not described by a URDF chain"):
         export_calibrated_urdf(get_platform("stewart"), get_platform("stewart").nominal_td(), target)
+
+
+def test_mimic_joint_before_its_master(tmp_path):
+    text = """<robot name="m"><link name="a"/><link name="b"/><link name="c"/>
+  <joint name="first" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0.1 0 0.2" rpy="0 0.2 0"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/><mimic joint="second" multiplier="2" offset="-0.1"/></joint>
+  <joint name="second" type="revolute"><parent link="b"/><child link="c"/><origin xyz="0.3 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint></robot>"""
+    urdf = _write(tmp_path, text)
+    spec = get_platform("urdf", urdf)
+    assert spec.control_names == ["second"]
+    rng = np.random.default_rng(4)
+    td = _random_td(spec, rng)
+    out = export_calibrated_urdf(spec, td, tmp_path / "m_cal.urdf")
+    chain = spec.extras["chain"]
+    # pinocchio refuses a mimic before its master; yourdfpy's own forward kinematics is the reference
+    for path, params in ((urdf, spec.nominal_td()), (out, td)):
+        ref = yourdfpy.URDF.load(str(path), build_scene_graph=True, load_meshes=False)
+        for u in (np.array([0.7]), np.array([-1.3])):
+            ref.update_cfg({"second": float(u[0])})
+            T = ref.get_transform(frame_to=chain.moving_link, frame_from=chain.base_link)
+            q, X = (np.asarray(a).ravel() for a in spec.forward(u, params))
+            assert np.abs(X - T[:3, 3]).max() < 1e-12 and np.abs(matrix_from_quat(q) - T[:3, :3]).max() < 1e-12
