@@ -151,8 +151,10 @@ class KinematicChain:
 
     def mid_range(self) -> np.ndarray:
         """The middle of each joint's range (0 for unbounded joints) (n,)."""
-        mid = 0.5 * (self.lower + self.upper)
-        return np.where(np.isfinite(mid), mid, 0.0)
+        ok = np.isfinite(self.lower) & np.isfinite(self.upper)
+        mid = np.zeros(self.n)
+        mid[ok] = 0.5 * (self.lower[ok] + self.upper[ok])
+        return mid
 
     def random(self, rng: np.random.Generator, margin: float = 0.0) -> np.ndarray:
         """A uniformly random configuration within the limits shrunk by ``margin`` of each range

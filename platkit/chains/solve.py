@@ -79,13 +79,14 @@ def damped_pinv(A: np.ndarray, damping: Damping, error_norm: float = np.inf, ran
     if m == 0 or n == 0:
         return np.zeros((n, m)), np.eye(n), np.inf, 0.0
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
-    rank_full = min(m, n)
-    sigma_min = float(s[rank_full - 1]) if s.size else 0.0
-    lam2 = damping.factor(sigma_min, error_norm)
-    inv = s / (s * s + lam2)
-    inv[s <= rank_tol * max(1.0, s[0] if s.size else 0.0)] = 0.0
-    pinv = (Vt.T * inv) @ U.T
+    # directions with an exactly zero singular value (a structural rank deficit, e.g. a level
+    # solved inside the null space of another) are dropped, not damped
     keep = s > rank_tol * max(1.0, s[0] if s.size else 0.0)
+    sigma_min = float(s[keep][-1]) if np.any(keep) else 0.0
+    lam2 = damping.factor(sigma_min, error_norm)
+    inv = np.zeros_like(s)
+    inv[keep] = s[keep] / (s[keep] ** 2 + lam2)
+    pinv = (Vt.T * inv) @ U.T
     Vr = Vt[keep].T
     N = np.eye(n) - Vr @ Vr.T
     return pinv, N, sigma_min, lam2
@@ -239,8 +240,7 @@ def mid_range_gradient(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray) 
     span = upper - lower
     ok = np.isfinite(span) & (span > 0)
     g = np.zeros_like(theta)
-    mid = 0.5 * (upper + lower)
-    g[ok] = (theta[ok] - mid[ok]) / span[ok] ** 2
+    g[ok] = (theta[ok] - 0.5 * (upper[ok] + lower[ok])) / span[ok] ** 2
     return g
 
 
