@@ -698,10 +698,17 @@ class PlatformModel:
                 f"{self.spec.name}: {where} cannot be reached (constraint residual {np.linalg.norm(r):.3g} after solving)"
             )
         if strict:
-            try:
-                self.check_controls(u, strict=True)
-            except OutOfWorkspace as exc:
-                raise OutOfWorkspace(f"{where} is out of reach: {exc}") from None
+            bad = np.nonzero((u < self._lo_tol) | (u > self._hi_tol))[0]
+            if bad.size:
+                c = self.spec.controls[int(bad[0])]
+                val, unit = self._show(float(u[bad[0]]), c.unit)
+                lo, _ = self._show(c.lower, c.unit)
+                hi, _ = self._show(c.upper, c.unit)
+                raise OutOfWorkspace(
+                    f"{self.spec.name}: {where} is out of reach: control {c.name} would be {val:.6g} {unit}, "
+                    f"outside its stroke [{lo:.6g}, {hi:.6g}] {unit}"
+                    + (f" ({bad.size} controls out)" if bad.size > 1 else "")
+                )
         return u
 
     @functools.cached_property

@@ -22,7 +22,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     spec = get_platform(args.platform, args.description)
-    model = PlatformModel(spec)
+    model = PlatformModel(spec, length_unit=args.unit)
     u = controls_to_si(spec, parse_vector(args.u, "--u", spec.n_u), args.unit)
     guess = None
     if args.guess:

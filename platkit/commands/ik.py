@@ -25,7 +25,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     spec = get_platform(args.platform, args.description)
-    model = PlatformModel(spec)
+    model = PlatformModel(spec, length_unit=args.unit)
     s = length_scale(args.unit)
     if args.coordinates:
         p = parse_vector(args.pose, "--pose", spec.n_p)

@@ -25,7 +25,10 @@ def read_description(path: Path) -> dict:
     """Parse and check a stewart description; returns SI arrays (metres, radians)."""
     data = load_yaml(path)
     units = require(data, "units", path, dict)
-    scale = length_scale(str(units.get("length", "")))
+    unit = require(units, "length", path, str, "units")
+    if unit not in ("mm", "m"):
+        raise BadDescription(f"{path}: field 'units.length' must be 'mm' or 'm', got {unit!r}")
+    scale = length_scale(unit)
     legs = require(data, "legs", path, list)
     if len(legs) != N_LEGS:
         raise BadDescription(f"{path}: field 'legs' must list {N_LEGS} legs, got {len(legs)}")
@@ -42,6 +45,12 @@ def read_description(path: Path) -> dict:
         if not s[0] < s[1]:
             raise BadDescription(f"{path}: {where}.stroke must be [min, max] with min < max")
         stroke.append(s)
+    for i in range(N_LEGS):
+        for j in range(i):
+            if np.allclose(B[i], B[j]) and np.allclose(P[i], P[j]):
+                raise BadDescription(f"{path}: legs {names[j]} and {names[i]} have the same base and platform joints")
+    if len(set(names)) != N_LEGS:
+        raise BadDescription(f"{path}: leg names must differ, got {names}")
     neutral = require(data, "neutral_pose", path, dict)
     X0 = vector(neutral, "position", path, 3, "neutral_pose") * scale
     rpy0 = vector(neutral, "rpy", path, 3, "neutral_pose") if "rpy" in neutral else np.zeros(3)
@@ -49,6 +58,14 @@ def read_description(path: Path) -> dict:
     pmin = vector(limits, "position_min", path, 3, "workspace_limits") * scale if "position_min" in limits else None
     pmax = vector(limits, "position_max", path, 3, "workspace_limits") * scale if "position_max" in limits else None
     amax = number(limits, "angle_max", path, "workspace_limits") if "angle_max" in limits else np.pi / 2
+    R0 = matrix_from_rpy(*rpy0)
+    L0 = np.linalg.norm(X0 + np.array(P) @ R0.T - np.array(B), axis=1) - np.array(off)
+    for name, L, (lo, hi) in zip(names, L0, stroke):
+        if not lo <= L <= hi:
+            raise BadDescription(
+                f"{path}: leg {name} is {L / scale:.6g} {unit} long at the neutral pose, outside its stroke "
+                f"[{lo / scale:.6g}, {hi / scale:.6g}] {unit}"
+            )
     return dict(names=names, B=np.array(B), P=np.array(P), offset=np.array(off), stroke=np.array(stroke),
                 X0=X0, rpy0=rpy0, position_min=pmin, position_max=pmax, angle_max=amax, raw=data)
 

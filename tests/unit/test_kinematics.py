@@ -120,7 +120,7 @@ def test_stroke_messages_are_in_the_users_unit(spec, model):
 def test_unreachable_pose_for_inverse(model):
     from platkit.geometry import quat_from_rpy
 
-    with pytest.raises(OutOfWorkspace, match=r"pose at \(0.0, 0.0, 6000.0\) mm is out of reach: .*L1 = .* mm"):
+    with pytest.raises(OutOfWorkspace, match=r"stewart: the pose at \(0.0, 0.0, 6000.0\) mm is out of reach: control L1 would be 6515.96 mm"):
         model.inverse(quat_from_rpy(0, 0, 0), [0.0, 0.0, 6.0])
     u = model.inverse(quat_from_rpy(0, 0, 0), [0.0, 0.0, 6.0], strict=False)
     assert np.all(u > 4.795)
