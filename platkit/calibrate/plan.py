@@ -1,0 +1,451 @@
+"""Experiment design: which commands to send during a calibration session.
+
+Two plans, after Burlakov et al. (2018) and the optimal-design literature:
+
+- the paper's uniform grid over the control space, visited along a Hamiltonian path (the
+  boustrophedon or "snake" order: consecutive grid points differ by one step of one control),
+  with the points the stand cannot take dropped (forward kinematics fails or leaves the branch);
+- a D-optimal selection of N poses from M feasible candidates, maximising the determinant of
+  the information matrix of the identification Jacobian.
+
+The identification Jacobian of a pose is that of the marker positions seen by motion capture
+with respect to every parameter calibration estimates: the stand's free geometric parameters
+td, a small motion (translation, rotation vector) of the base-to-mocap transform, and the marker
+positions on the moving part. By the implicit-function theorem on F(u, td, pose(p)) = 0:
+
+    dp/dtd = -F_p^+ F_td,    d m_k / d td = (d m_k / d p) (dp/dtd),   m_k = X(p) + R(p) s_k.
+
+Some directions of parameter space are never identifiable from markers (e.g. moving the whole
+base rigidly is the same as moving the mocap frame); the design works in the identifiable
+subspace (the row space of the Jacobian stacked over all candidates) and reports its size.
+Predicted uncertainties are for a given marker noise ``sigma`` (per coordinate, of a settled
+pose): per-parameter standard deviations of the minimum-norm solution, and, gauge-free, the RMS
+uncertainty of the predicted marker positions over the candidate poses.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from platkit.errors import BadInput, NotIdentifiable
+from platkit.geometry import skew
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec, controls_from_si, length_scale
+
+
+@dataclass
+class Plan:
+    """A command plan: ``controls`` (N, n_u) internal units, in the order to visit them."""
+
+    controls: np.ndarray
+    kind: str
+    info: dict = field(default_factory=dict)
+    poses: np.ndarray | None = None  # (N, n_p) nominal pose coordinates, where known
+
+
+# ----------------------------------------------------------------------------- grids
+
+
+def control_box(spec: PlatformSpec, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """The control box [lo, hi] (n_u,) shrunk by ``margin`` of each stroke at both ends."""
+    lo, hi = spec.control_bounds()
+    if not np.all(np.isfinite(lo) & np.isfinite(hi)):
+        bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b))]
+        raise BadInput(f"{spec.name}: controls {bad} have no finite stroke; a grid needs one")
+    span = hi - lo
+    return lo + margin * span, hi - margin * span
+
+
+def snake_order(counts: list[int]) -> np.ndarray:
+    """Index tuples (prod(counts), d) of a grid in boustrophedon order: a Hamiltonian path on
+    the grid graph (consecutive tuples differ by 1 in exactly one index). The last index runs
+    fastest."""
+    if not counts:
+        return np.zeros((1, 0), int)
+    sub = snake_order(counts[1:])
+    blocks = []
+    for i in range(counts[0]):
+        block = sub if i % 2 == 0 else sub[::-1]
+        blocks.append(np.hstack([np.full((len(block), 1), i), block]))
+    return np.vstack(blocks)
+
+
+def grid_points(spec: PlatformSpec, points_per_control: int, margin: float = 0.1) -> np.ndarray:
+    """(k^n_u, n_u) uniform grid over the control box, in snake order."""
+    k = int(points_per_control)
+    if k < 2:
+        raise BadInput(f"--grid must be at least 2 points per control, got {k}")
+    if k ** spec.n_u > 2_000_000:
+        raise BadInput(f"--grid {k} gives {k ** spec.n_u} points for {spec.n_u} controls; choose fewer")
+    lo, hi = control_box(spec, margin)
+    axes = [np.linspace(a, b, k) for a, b in zip(lo, hi)]
+    idx = snake_order([k] * spec.n_u)
+    return np.stack([axes[j][idx[:, j]] for j in range(spec.n_u)], axis=1)
+
+
+def feasible(spec: PlatformSpec, U: np.ndarray, td=None, model: PlatformModel | None = None):
+    """Which control vectors (N, n_u) the stand takes: forward kinematics converges, on the
+    stand's branch, within the coordinate bounds. Returns (mask (N,), p (N, n_p)).
+
+    Points that fail from the neutral start are retried from the pose of the nearest success."""
+    model = model or PlatformModel(spec)
+    U = np.atleast_2d(np.asarray(U, float))
+    fb = model.forward_batch(U, td=td, strict=False)
+    ok = fb.converged & fb.on_branch
+    P = fb.p.copy()
+    if np.any(~ok) and np.any(ok):
+        good = np.nonzero(ok)[0]
+        bad = np.nonzero(~ok)[0]
+        lo, hi = spec.control_bounds()
+        span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+        d = np.linalg.norm((U[bad, None, :] - U[None, good, :]) / span, axis=2)
+        guess = P[good[np.argmin(d, axis=1)]]
+        fb2 = model.forward_batch(U[bad], td=td, guess=guess, strict=False)
+        ok2 = fb2.converged & fb2.on_branch
+        ok[bad] = ok2
+        P[bad[ok2]] = fb2.p[ok2]
+    plo = np.array([c.lower for c in spec.coordinates])
+    phi = np.array([c.upper for c in spec.coordinates])
+    with np.errstate(invalid="ignore"):
+        inside = np.all((P >= plo) & (P <= phi) | ~np.isfinite(P), axis=1)
+    return ok & inside & np.all(np.isfinite(U), axis=1), P
+
+
+def grid_plan(spec: PlatformSpec, points_per_control: int, margin: float = 0.1, td=None,
+              model: PlatformModel | None = None) -> Plan:
+    """The paper's plan: the uniform grid in snake order, infeasible points dropped."""
+    U = grid_points(spec, points_per_control, margin)
+    ok, P = feasible(spec, U, td, model)
+    if not np.any(ok):
+        raise NotIdentifiable(f"{spec.name}: no point of the {points_per_control}-per-control grid is reachable")
+    return Plan(U[ok], "grid", {"points_per_control": int(points_per_control), "grid_points": int(len(U)),
+                                "infeasible_dropped": int((~ok).sum()), "margin": margin}, P[ok])
+
+
+def grid_plan_for(spec: PlatformSpec, n_poses: int, margin: float = 0.1, td=None,
+                  model: PlatformModel | None = None) -> Plan:
+    """A snake-ordered grid plan of about ``n_poses`` poses: the coarsest grid with enough
+    feasible points, thinned evenly along its path."""
+    model = model or PlatformModel(spec)
+    k = 2
+    while True:
+        if k ** spec.n_u > 200_000:
+            raise NotIdentifiable(f"{spec.name}: no grid with {n_poses} reachable points was found")
+        if k ** spec.n_u >= n_poses:
+            plan = grid_plan(spec, k, margin, td, model)
+            if len(plan.controls) >= n_poses:
+                break
+        k += 1
+    keep = np.unique(np.round(np.linspace(0, len(plan.controls) - 1, n_poses)).astype(int))
+    plan.info["thinned_to"] = int(len(keep))
+    return Plan(plan.controls[keep], "grid", plan.info, plan.poses[keep])
+
+
+def random_candidates(spec: PlatformSpec, n: int, rng: np.random.Generator, margin: float = 0.1, td=None,
+                      model: PlatformModel | None = None) -> Plan:
+    """``n`` feasible controls drawn uniformly from the control box (rejection sampling)."""
+    model = model or PlatformModel(spec)
+    lo, hi = control_box(spec, margin)
+    U_out, P_out = [], []
+    tries = 0
+    while sum(len(u) for u in U_out) < n:
+        tries += 1
+        if tries > 50:
+            raise NotIdentifiable(f"{spec.name}: fewer than {n} random controls are reachable")
+        U = rng.uniform(lo, hi, size=(max(2 * n, 16), spec.n_u))
+        ok, P = feasible(spec, U, td, model)
+        U_out.append(U[ok])
+        P_out.append(P[ok])
+    U = np.vstack(U_out)[:n]
+    return Plan(U, "random", {"margin": margin}, np.vstack(P_out)[:n])
+
+
+def nearest_neighbour_order(U: np.ndarray, spec: PlatformSpec, start: np.ndarray | None = None) -> np.ndarray:
+    """An order visiting every row of U (N, n_u) by nearest neighbour in stroke-scaled control
+    space, starting nearest ``start`` (default: neutral controls). Returns indices (N,)."""
+    lo, hi = spec.control_bounds()
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    Z = U / span
+    cur = (spec.neutral_u() if start is None else start) / span
+    left = list(range(len(U)))
+    order = []
+    while left:
+        d = np.linalg.norm(Z[left] - cur, axis=1)
+        j = left.pop(int(np.argmin(d)))
+        order.append(j)
+        cur = Z[j]
+    return np.array(order, int)
+
+
+# ----------------------------------------------------------------------------- markers
+
+
+def stand_length_scale(spec: PlatformSpec) -> float:
+    """A characteristic size of the stand (m): 0.6 x the median magnitude of its nonzero
+    length parameters, clipped to [0.03, 2]. Used to place markers generically."""
+    vals = np.array([abs(p.nominal) for p in spec.parameters if p.unit == "m" and abs(p.nominal) > 1e-9])
+    size = float(np.median(vals)) if vals.size else 0.3
+    return float(np.clip(0.6 * size, 0.03, 2.0))
+
+
+def default_marker_layout(spec: PlatformSpec, n_markers: int, rng: np.random.Generator | None = None) -> np.ndarray:
+    """(M, 3) m marker positions on the moving part, in its frame: spread round the origin at
+    radius ~ :func:`stand_length_scale`, at different heights (never coplanar)."""
+    if n_markers < 3:
+        raise BadInput(f"at least 3 markers are needed to fix a pose, got {n_markers}")
+    rng = rng or np.random.default_rng(0)
+    rho = stand_length_scale(spec)
+    ang = 2 * np.pi * np.arange(n_markers) / n_markers + rng.uniform(-0.3, 0.3, n_markers)
+    rad = rho * rng.uniform(0.6, 1.0, n_markers)
+    z = rho * np.linspace(0.1, 0.4, n_markers)[rng.permutation(n_markers)]
+    return np.stack([rad * np.cos(ang), rad * np.sin(ang), z], axis=1)
+
+
+# ----------------------------------------------------------------------------- information
+
+
+_MARKER_FUNCTIONS: dict = {}
+
+
+def _marker_function(spec: PlatformSpec, n_markers: int) -> ca.Function:
+    """CasADi (p, s) -> (m, dm/dp, dm/ds): marker positions (3M,) in the base frame."""
+    key = (id(spec), n_markers)
+    hit = _MARKER_FUNCTIONS.get(key)
+    if hit is not None and hit[0] is spec:
+        return hit[1]
+    fn = _build_marker_function(spec, n_markers)
+    _MARKER_FUNCTIONS[key] = (spec, fn)
+    return fn
+
+
+def _build_marker_function(spec: PlatformSpec, n_markers: int) -> ca.Function:
+    p = ca.SX.sym("p", spec.n_p)
+    S = ca.SX.sym("S", 3, n_markers)
+    q, X = spec.pose(p)
+    from platkit.geometry import ca_matrix_from_quat
+
+    m = ca.repmat(X, 1, n_markers) + ca.mtimes(ca_matrix_from_quat(q), S)
+    m = ca.reshape(m, 3 * n_markers, 1)  # column-major: marker k at rows 3k..3k+2
+    return ca.Function("markers", [p, ca.reshape(S, 3 * n_markers, 1)],
+                       [m, ca.jacobian(m, p), ca.jacobian(m, ca.reshape(S, 3 * n_markers, 1))],
+                       ["p", "s"], ["m", "m_p", "m_s"])
+
+
+@dataclass
+class IdentificationJacobian:
+    """J (N, 3M, n_theta): d(marker positions in the base frame) / d theta, per pose.
+
+    theta = (free td, mocap translation (3), mocap rotation vector (3), marker positions (3M)),
+    named in ``names``, with ``units``.
+    """
+
+    J: np.ndarray
+    names: list[str]
+    units: list[str]
+    n_td: int
+
+
+def identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarray, td=None,
+                            P: np.ndarray | None = None, model: PlatformModel | None = None) -> IdentificationJacobian:
+    """The identification Jacobian at controls U (N, n_u) with markers (M, 3) m on the moving
+    part; ``P`` (N, n_p): the poses if already solved."""
+    model = model or PlatformModel(spec)
+    td = spec.nominal_td() if td is None else np.asarray(td, float)
+    U = np.atleast_2d(U)
+    if P is None:
+        ok, P = feasible(spec, U, td, model)
+        if not np.all(ok):
+            raise BadInput(f"{spec.name}: {(~ok).sum()} of the planned controls are not reachable")
+    M = len(markers)
+    free = np.array([p.free for p in spec.parameters])
+    mfun = _marker_function(spec, M)
+    s_flat = np.asarray(markers, float).reshape(-1)  # x,y,z per marker, matching the reshape above
+    N = len(U)
+    n_theta = int(free.sum()) + 6 + 3 * M
+    J = np.zeros((N, 3 * M, n_theta))
+    for i in range(N):
+        _, F_p, _, F_td = (np.asarray(a) for a in model.F_jac(U[i], td, P[i]))
+        dp_dtd = -np.linalg.pinv(F_p) @ F_td[:, free]
+        m, m_p, m_s = (np.asarray(a) for a in mfun(P[i], s_flat))
+        m = m.reshape(M, 3)
+        J[i, :, : free.sum()] = m_p @ dp_dtd
+        k = free.sum()
+        J[i, :, k:k + 3] = np.tile(np.eye(3), (M, 1))
+        J[i, :, k + 3:k + 6] = np.vstack([-skew(mk) for mk in m])
+        J[i, :, k + 6:] = m_s
+    names = [p.name for p in spec.parameters if p.free] + ["mocap_x", "mocap_y", "mocap_z", "mocap_rx", "mocap_ry", "mocap_rz"]
+    units = [p.unit for p in spec.parameters if p.free] + ["m"] * 3 + ["rad"] * 3
+    for k in range(M):
+        names += [f"marker{k + 1}_{a}" for a in "xyz"]
+        units += ["m"] * 3
+    return IdentificationJacobian(J, names, units, int(free.sum()))
+
+
+class _Subspace:
+    """Column scaling and the identifiable subspace of a stacked Jacobian."""
+
+    def __init__(self, J_all: np.ndarray, rtol: float = 1e-7):
+        A = J_all.reshape(-1, J_all.shape[-1])
+        self.scale = np.linalg.norm(A, axis=0)
+        self.scale[self.scale == 0] = 1.0
+        Rfac = np.linalg.qr(A / self.scale, mode="r")  # same singular values, far smaller
+        _, sv, Vt = np.linalg.svd(Rfac, full_matrices=False)
+        self.rank = int(np.sum(sv > rtol * sv[0]))
+        self.V = Vt[: self.rank].T  # (n_theta, r)
+        self.n_theta = A.shape[1]
+
+    def reduce(self, J: np.ndarray) -> np.ndarray:
+        """(N, rows, n_theta) -> (N, rows, r)."""
+        return (J / self.scale) @ self.V
+
+
+def _logdet(A):
+    sign, val = np.linalg.slogdet(A)
+    return val if sign > 0 else -np.inf
+
+
+def d_optimal(Jr: np.ndarray, n: int, exchange_passes: int = 2, ridge: float = 1e-8) -> np.ndarray:
+    """Indices of ``n`` of the candidates Jr (C, rows, r) maximising log det(sum Jr_i^T Jr_i):
+    greedy selection with a tiny ridge, then Fedorov exchange passes."""
+    C, rows, r = Jr.shape
+    if n > C:
+        raise BadInput(f"cannot select {n} poses from {C} candidates")
+    eps = ridge * float(np.sum(Jr**2)) / max(C * r, 1)
+    A = eps * np.eye(r)
+    chosen: list[int] = []
+    avail = np.ones(C, bool)
+
+    def gains(Ainv):
+        G = (Jr @ Ainv) @ Jr.transpose(0, 2, 1) + np.eye(rows)
+        sign, val = np.linalg.slogdet(G)
+        return np.where(sign > 0, val, -np.inf)
+
+    for _ in range(n):
+        g = gains(np.linalg.inv(A))
+        g[~avail] = -np.inf
+        j = int(np.argmax(g))
+        chosen.append(j)
+        avail[j] = False
+        A = A + Jr[j].T @ Jr[j]
+    for _ in range(exchange_passes):
+        improved = False
+        for pos in range(n):
+            j_out = chosen[pos]
+            A_minus = A - Jr[j_out].T @ Jr[j_out]
+            g = gains(np.linalg.inv(A_minus))
+            g[~avail] = -np.inf
+            j_in = int(np.argmax(g))
+            if g[j_in] > _logdet(A) - _logdet(A_minus) + 1e-9:
+                chosen[pos] = j_in
+                avail[j_in], avail[j_out] = False, True
+                A = A_minus + Jr[j_in].T @ Jr[j_in]
+                improved = True
+        if not improved:
+            break
+    return np.array(chosen, int)
+
+
+def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float, names: list[str],
+                     units: list[str], sub: _Subspace | None = None) -> dict:
+    """Predicted uncertainty of the parameters estimated from poses J_plan (N, 3M, n_theta)
+    with marker noise ``sigma`` (m per coordinate).
+
+    Returns: identifiable rank and the number of never-identifiable directions (over the
+    candidates J_candidates), the plan's own rank, log det of the scaled information, the
+    per-parameter std of the minimum-norm solution (SI units), and 'predicted_marker_rms_m':
+    the RMS std of the predicted marker positions over the candidate poses (gauge-free).
+    """
+    sub = sub or _Subspace(J_candidates)
+    Jr = sub.reduce(J_plan).reshape(-1, sub.rank)
+    info = Jr.T @ Jr
+    ev = np.linalg.eigvalsh(info)
+    plan_rank = int(np.sum(ev > 1e-9 * max(ev[-1], 1e-300)))
+    out = {
+        "n_poses": int(J_plan.shape[0]),
+        "n_parameters": int(sub.n_theta),
+        "identifiable_rank": sub.rank,
+        "never_identifiable": int(sub.n_theta - sub.rank),
+        "plan_rank": plan_rank,
+        "sigma_m": float(sigma),
+    }
+    if plan_rank < sub.rank:
+        out.update(logdet=None, predicted_marker_rms_m=None, parameter_std={}, identifiable=False)
+        return out
+    cov_r = sigma**2 * np.linalg.inv(info)
+    cov_s = sub.V @ cov_r @ sub.V.T
+    cov = cov_s / np.outer(sub.scale, sub.scale)
+    std = np.sqrt(np.maximum(np.diag(cov), 0))
+    Jc = J_candidates.reshape(-1, sub.n_theta)
+    pred_var = np.einsum("ij,jk,ik->i", Jc, cov, Jc)
+    out.update(
+        identifiable=True,
+        logdet=float(_logdet(info)),
+        geometric_mean_std_scaled=float(sigma * math.exp(-_logdet(info) / (2 * sub.rank))),
+        predicted_marker_rms_m=float(np.sqrt(np.mean(np.maximum(pred_var, 0)))),
+        predicted_marker_max_m=float(np.sqrt(np.max(np.maximum(pred_var, 0)))),
+        parameter_std={n: {"std": float(s), "unit": u} for n, s, u in zip(names, std, units)},
+    )
+    return out
+
+
+def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.Generator, sigma: float,
+                 n_markers: int = 5, markers: np.ndarray | None = None, candidates: Plan | None = None,
+                 margin: float = 0.1) -> tuple[Plan, dict]:
+    """A D-optimal plan of ``n`` poses from ``n_candidates`` random feasible candidates (or the
+    given ``candidates``), ordered by nearest neighbour. Returns the plan and, for comparison,
+    the uncertainty of ``n`` random candidates (first n, in drawing order)."""
+    model = PlatformModel(spec)
+    markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
+    cand = candidates or random_candidates(spec, n_candidates, rng, margin, model=model)
+    ij = identification_jacobian(spec, cand.controls, markers, P=cand.poses, model=model)
+    sub = _Subspace(ij.J)
+    sel = d_optimal(sub.reduce(ij.J), n)
+    sel = sel[nearest_neighbour_order(cand.controls[sel], spec)]
+    info = plan_uncertainty(ij.J[sel], ij.J, sigma, ij.names, ij.units, sub)
+    baseline = plan_uncertainty(ij.J[:n], ij.J, sigma, ij.names, ij.units, sub)
+    info.update(kind="d_optimal", candidates=int(len(cand.controls)))
+    return Plan(cand.controls[sel], "d_optimal", info, cand.poses[sel]), baseline
+
+
+def evaluate_plan(spec: PlatformSpec, plan: Plan, sigma: float, n_markers: int = 5, markers=None,
+                  reference: np.ndarray | None = None) -> dict:
+    """Predicted uncertainty of ``plan``; the identifiable subspace and the prediction RMS are
+    taken over ``reference`` controls (default: the plan itself)."""
+    model = PlatformModel(spec)
+    markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
+    ij = identification_jacobian(spec, plan.controls, markers, P=plan.poses, model=model)
+    J_ref = ij.J if reference is None else identification_jacobian(spec, reference, markers, model=model).J
+    return plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units)
+
+
+# ----------------------------------------------------------------------------- files
+
+
+def write_plan_csv(path: Path, spec: PlatformSpec, U: np.ndarray, length_unit: str) -> None:
+    """plan.csv: one row per command, the control columns in the file's units."""
+    V = controls_from_si(spec, U, length_unit)
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(spec.control_names)
+        for row in V:
+            w.writerow([f"{v:.9g}" for v in row])
+
+
+def read_plan_csv(path: str | Path, spec: PlatformSpec, length_unit: str) -> np.ndarray:
+    """Controls (N, n_u) internal units from a plan file with the control columns (a ``t``
+    column, as in commands.csv, is allowed and ignored). BadSession naming row and column."""
+    from platkit.errors import BadSession
+    from platkit.io.session import _check_controls, read_table
+
+    table = read_table(Path(path), "the command plan")
+    extra = [c for c in table.header if c not in ["t"] + spec.control_names]
+    if extra:
+        raise BadSession(f"{path}: column {extra[0]!r} is not a control of the {spec.name} stand; expected "
+                         f"{', '.join(spec.control_names)}")
+    length_scale(length_unit)
+    return _check_controls(table, spec, [], length_unit)

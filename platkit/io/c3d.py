@@ -1,0 +1,96 @@
+"""Motion-capture markers from C3D files (read with ezc3d).
+
+The point units come from the file's POINT:UNITS parameter (never guessed); labels are mapped
+to the session's marker names: an exact match, else the part after the last ':' (Vicon and
+Qualisys write ``Subject:M1``). Samples whose residual is negative are occluded (NaN).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadSession
+
+C3D_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2}
+
+
+def _ezc3d():
+    try:
+        import ezc3d
+    except ImportError:  # pragma: no cover - ezc3d is in the [mocap] and [dev] extras
+        raise BadSession("reading C3D files needs the ezc3d package: pip install 'platkit[mocap]'") from None
+    return ezc3d
+
+
+def _param(c, group: str, name: str, path: Path):
+    try:
+        return c["parameters"][group][name]["value"]
+    except KeyError:
+        raise BadSession(f"{path}: C3D parameter {group}:{name} is missing") from None
+
+
+def match_labels(labels: list[str], names: list[str], path: Path) -> list[int]:
+    """Index in ``labels`` of every name in ``names``; BadSession naming a missing or ambiguous one."""
+    labels = [str(lb).strip() for lb in labels]
+    out = []
+    for n in names:
+        exact = [i for i, lb in enumerate(labels) if lb == n]
+        if not exact:
+            exact = [i for i, lb in enumerate(labels) if lb.rsplit(":", 1)[-1] == n]
+        if not exact:
+            raise BadSession(f"{path}: no point labelled {n!r}; the file has {', '.join(labels) or 'no points'}")
+        if len(exact) > 1:
+            raise BadSession(f"{path}: marker {n!r} matches several point labels {[labels[i] for i in exact]}")
+        out.append(exact[0])
+    return out
+
+
+def read_c3d_markers(path: str | Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Markers ``names`` from a C3D file.
+
+    Returns ``t`` (K,) seconds from the file's first frame number and point rate, and ``xyz``
+    (K, len(names), 3) metres in the motion-capture frame, NaN where occluded.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise BadSession(f"{path}: file not found (the motion-capture markers)")
+    ezc3d = _ezc3d()
+    try:
+        c = ezc3d.c3d(str(path))
+    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on a bad file
+        raise BadSession(f"{path}: cannot be read as C3D ({exc})") from None
+    units = _param(c, "POINT", "UNITS", path)
+    unit = str(units[0] if isinstance(units, (list, tuple)) and units else units).strip().lower()
+    if unit not in C3D_UNITS:
+        raise BadSession(f"{path}: POINT:UNITS is {unit!r}; expected one of {', '.join(C3D_UNITS)}")
+    rate = float(np.asarray(_param(c, "POINT", "RATE", path), float).ravel()[0])
+    if not rate > 0:
+        raise BadSession(f"{path}: POINT:RATE is {rate}; expected a positive frame rate")
+    labels = list(_param(c, "POINT", "LABELS", path))
+    idx = match_labels(labels, names, path)
+    points = np.asarray(c["data"]["points"], float)  # (4, n_points, n_frames)
+    xyz = points[:3, idx, :].transpose(2, 1, 0) * C3D_UNITS[unit]
+    residuals = c["data"].get("meta_points", {}).get("residuals")
+    if residuals is not None:
+        res = np.asarray(residuals, float)[0][idx, :].T
+        xyz[res < 0] = np.nan
+    first = int(c["header"]["points"]["first_frame"])
+    t = (first + np.arange(xyz.shape[0])) / rate
+    return t, xyz
+
+
+def write_c3d_markers(path: str | Path, t: np.ndarray, xyz: np.ndarray, names: list[str], unit: str = "mm") -> None:
+    """Write markers (K, M, 3) metres sampled at a constant rate to a C3D file (for examples and
+    tests); occluded samples (NaN) get residual -1."""
+    ezc3d = _ezc3d()
+    t = np.asarray(t, float)
+    rate = 1.0 / float(np.median(np.diff(t)))
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [rate]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(names)
+    pts = np.ones((4, len(names), len(t)))
+    pts[:3] = np.asarray(xyz, float).transpose(2, 1, 0) / C3D_UNITS[unit]
+    c["data"]["points"] = pts
+    c.add_parameter("POINT", "UNITS", unit)
+    c.write(str(path))

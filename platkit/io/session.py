@@ -1,0 +1,519 @@
+"""Recording sessions: a folder with session.yaml, commands.csv, markers.csv (or poses.csv, or a
+C3D file) and optionally imu.csv. See docs/session-format.md.
+
+Units are declared in session.yaml, never guessed. Everything is converted to SI on reading:
+controls with :func:`platkit.model.controls_to_si`, marker coordinates to metres, times to
+seconds. Every problem is one :class:`~platkit.errors.BadSession` line naming the file, the row
+(1-based data row, with the file line) or column, and what was expected.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadSession, PlatkitError
+from platkit.io.description import load_yaml
+from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
+
+#: session.yaml keys platkit reads; any other key is a typo or a newer format, and an error.
+SESSION_KEYS = (
+    "platform", "description", "units", "markers", "base_markers", "mocap_rate_hz", "imu",
+    "moving_link", "notes", "markers_file", "markers_time_offset",
+)
+TIME_UNITS = {"s": 1.0, "ms": 1e-3}
+IMU_COLUMNS = ["t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"]
+AXES = ("x", "y", "z")
+
+
+@dataclass
+class Table:
+    """A numeric CSV table: ``header`` names, ``data`` (rows, columns) floats, NaN for empty
+    cells or 'nan'."""
+
+    path: Path
+    header: list[str]
+    data: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[:, self.header.index(name)]
+
+    def where(self, row: int, column: str | None = None) -> str:
+        """'file row r (line l)[ column c]' for messages; ``row`` is 0-based."""
+        text = f"{self.path} row {row + 1} (line {row + 2})"
+        return text + (f" column {column!r}" if column is not None else "")
+
+
+@dataclass
+class Session:
+    """A recording session read from its folder; SI units inside.
+
+    Attributes:
+        folder: the session folder. platform: stand name or None (IMU-only recording).
+        spec: the stand's PlatformSpec built with the session's description, or None.
+        description: the description file used (None: the stand's default).
+        length_unit, time_unit: as declared in session.yaml.
+        marker_names (M,), base_marker_names (B,): as declared.
+        mocap_rate_hz: declared rate or None. imu: the declared imu mapping or None.
+        moving_link: URDF link carrying the markers, or None. notes: free text.
+        command_t (N,) s; commands (N, n_u) internal units ('m' controls in metres).
+        marker_t (K,) s and markers (K, M, 3) m (NaN = occluded), base_markers (K, B, 3) m:
+            the raw motion-capture stream (from markers.csv or a C3D file), or None.
+        poses: the reduced table of poses.csv as a dict (controls (N, n_u), markers (N, M, 3) m,
+            n_samples (N, M) or None, t (N,) or None), or None.
+        imu_t (J,) s, imu_gyr (J, 3) rad/s, imu_acc (J, 3) m/s^2, or None.
+    """
+
+    folder: Path
+    platform: str | None
+    spec: PlatformSpec | None
+    description: Path | None
+    length_unit: str
+    time_unit: str
+    marker_names: list[str]
+    base_marker_names: list[str]
+    mocap_rate_hz: float | None
+    imu: dict | None
+    moving_link: str | None
+    notes: str
+    command_t: np.ndarray | None = None
+    commands: np.ndarray | None = None
+    marker_t: np.ndarray | None = None
+    markers: np.ndarray | None = None
+    base_markers: np.ndarray | None = None
+    poses: dict | None = None
+    imu_t: np.ndarray | None = None
+    imu_gyr: np.ndarray | None = None
+    imu_acc: np.ndarray | None = None
+    markers_source: Path | None = None
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def has_markers(self) -> bool:
+        return self.markers is not None or self.poses is not None
+
+
+# ----------------------------------------------------------------------------- CSV
+
+
+def read_table(path: Path, what: str = "") -> Table:
+    """Read a CSV table of numbers with a header row. Empty cells and 'nan' are NaN; anything
+    else that is not a finite number is a BadSession naming row and column."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadSession(f"{path}: file not found{' (' + what + ')' if what else ''}")
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
+    while rows and not any(c.strip() for c in rows[-1]):
+        rows.pop()
+    if not rows:
+        raise BadSession(f"{path}: the file is empty; expected a header row")
+    header = [h.strip() for h in rows[0]]
+    for j, h in enumerate(header):
+        if not h:
+            raise BadSession(f"{path}: header column {j + 1} is empty")
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise BadSession(f"{path}: header has duplicate columns {dup}")
+    body = rows[1:]
+    if not body:
+        raise BadSession(f"{path}: no data rows after the header")
+    data = np.empty((len(body), len(header)))
+    for r, row in enumerate(body):
+        if len(row) != len(header):
+            raise BadSession(
+                f"{path} row {r + 1} (line {r + 2}): {len(row)} cells, expected {len(header)} like the header"
+            )
+        for j, cell in enumerate(row):
+            cell = cell.strip()
+            if cell == "" or cell.lower() == "nan":
+                data[r, j] = math.nan
+                continue
+            try:
+                v = float(cell)
+            except ValueError:
+                raise BadSession(
+                    f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a number, got {cell!r}"
+                ) from None
+            if not math.isfinite(v):
+                raise BadSession(
+                    f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a finite number, got {cell!r}"
+                )
+            data[r, j] = v
+    return Table(path, header, data)
+
+
+def check_times(table: Table, t: np.ndarray, column: str = "t") -> None:
+    """Times must be present and strictly increasing: BadSession naming the row otherwise."""
+    bad = np.nonzero(~np.isfinite(t))[0]
+    if bad.size:
+        raise BadSession(f"{table.where(int(bad[0]), column)}: the time is empty; every row needs one")
+    d = np.diff(t)
+    if np.any(d <= 0):
+        r = int(np.nonzero(d <= 0)[0][0]) + 1
+        kind = "duplicated" if d[r - 1] == 0 else "earlier than the row before (times must increase)"
+        raise BadSession(f"{table.where(r, column)}: timestamp {t[r]:.9g} is {kind}")
+
+
+def marker_columns(name: str) -> list[str]:
+    return [f"{name}_{a}" for a in AXES]
+
+
+def _check_marker_header(table: Table, declared: list[str], leading: list[str], optional_suffixes=()) -> None:
+    """The header must be ``leading`` + x,y,z columns of every declared marker (+ optional
+    per-marker columns); name the first column that is missing or undeclared."""
+    allowed = set(leading)
+    for m in declared:
+        allowed.update(marker_columns(m))
+        allowed.update(f"{m}_{s}" for s in optional_suffixes)
+    for col in table.header:
+        if col not in allowed:
+            stem = col.rsplit("_", 1)[0]
+            if col.endswith(("_x", "_y", "_z")) and stem not in declared:
+                raise BadSession(
+                    f"{table.path}: column {col!r} is for a marker {stem!r} that session.yaml does not declare "
+                    f"(declared: {', '.join(declared) or 'none'})"
+                )
+            raise BadSession(
+                f"{table.path}: unexpected column {col!r}; expected {', '.join(leading)} then "
+                f"<marker>_x,_y,_z for {', '.join(declared)}"
+            )
+    for col in list(leading) + [c for m in declared for c in marker_columns(m)]:
+        if col not in table.header:
+            raise BadSession(f"{table.path}: missing column {col!r}")
+
+
+def _marker_block(table: Table, names: list[str], scale: float) -> np.ndarray:
+    """(rows, M, 3) metres from the x,y,z columns of ``names``."""
+    idx = [[table.header.index(c) for c in marker_columns(m)] for m in names]
+    if not idx:
+        return np.zeros((table.data.shape[0], 0, 3))
+    return table.data[:, np.array(idx)] * scale
+
+
+def _check_seen(markers: np.ndarray, names: list[str], path: Path) -> None:
+    seen = np.isfinite(markers).all(axis=2).any(axis=0)
+    for m, ok in zip(names, seen):
+        if not ok:
+            raise BadSession(f"{path}: marker {m!r} is never seen (every sample empty); remove it from session.yaml")
+    partial = np.isfinite(markers).any(axis=2) & ~np.isfinite(markers).all(axis=2)
+    if np.any(partial):
+        r, k = np.argwhere(partial)[0]
+        raise BadSession(
+            f"{path} row {r + 1} (line {r + 2}): marker {names[k]!r} has some of x,y,z empty; an occluded "
+            f"sample leaves all three empty"
+        )
+
+
+# ----------------------------------------------------------------------------- session.yaml
+
+
+def _names(value, key: str, path: Path) -> list[str]:
+    if value is None:
+        return []
+    if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
+        raise BadSession(f"{path}: field {key!r} must be a list of marker names")
+    names = [v.strip() for v in value]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise BadSession(f"{path}: field {key!r} names {dup} more than once")
+    for n in names:
+        if not all(ch.isalnum() or ch in "-." or ch == "_" for ch in n):
+            raise BadSession(f"{path}: field {key!r}: marker name {n!r} may hold only letters, digits, '_', '-', '.'")
+    return names
+
+
+def read_session_yaml(folder: Path) -> dict:
+    """session.yaml checked field by field; returns a dict of clean values."""
+    path = folder / "session.yaml"
+    if not folder.is_dir():
+        raise BadSession(f"{folder}: session folder not found")
+    if not path.is_file():
+        raise BadSession(f"{path}: file not found; a session folder needs session.yaml")
+    data = load_yaml(path, error=BadSession)
+    unknown = sorted(set(data) - set(SESSION_KEYS))
+    if unknown:
+        raise BadSession(f"{path}: unknown field {unknown[0]!r}; known fields: {', '.join(SESSION_KEYS)}")
+    out: dict = {}
+    platform = data.get("platform")
+    if platform is not None and (not isinstance(platform, str) or not platform.strip()):
+        raise BadSession(f"{path}: field 'platform' must be a stand name or null")
+    out["platform"] = platform.strip() if isinstance(platform, str) else None
+    desc = data.get("description")
+    if desc is not None and not isinstance(desc, str):
+        raise BadSession(f"{path}: field 'description' must be a file path relative to the folder, or null")
+    out["description"] = None
+    if desc:
+        dpath = (folder / desc) if not Path(desc).is_absolute() else Path(desc)
+        if not dpath.is_file():
+            raise BadSession(f"{path}: field 'description': file {dpath} not found")
+        out["description"] = dpath
+    units = data.get("units")
+    if units is None:
+        raise BadSession(f"{path}: missing field 'units'; declare e.g. units: {{length: mm, time: s}}")
+    if not isinstance(units, dict):
+        raise BadSession(f"{path}: field 'units' must be a mapping like {{length: mm, time: s}}")
+    extra = sorted(set(units) - {"length", "time"})
+    if extra:
+        raise BadSession(f"{path}: field 'units' has unknown key {extra[0]!r}; expected length and time")
+    length = units.get("length")
+    if length not in LENGTH_UNITS:
+        raise BadSession(
+            f"{path}: field 'units.length' must be one of {', '.join(sorted(LENGTH_UNITS))}, got {length!r}"
+        )
+    time = units.get("time")
+    if time not in TIME_UNITS:
+        raise BadSession(f"{path}: field 'units.time' must be one of {', '.join(TIME_UNITS)}, got {time!r}")
+    out["length_unit"], out["time_unit"] = length, time
+    out["markers"] = _names(data.get("markers"), "markers", path)
+    out["base_markers"] = _names(data.get("base_markers"), "base_markers", path)
+    both = sorted(set(out["markers"]) & set(out["base_markers"]))
+    if both:
+        raise BadSession(f"{path}: marker {both[0]!r} is listed in both 'markers' and 'base_markers'")
+    rate = data.get("mocap_rate_hz")
+    if rate is not None and (isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0 or not math.isfinite(rate)):
+        raise BadSession(f"{path}: field 'mocap_rate_hz' must be a positive number, got {rate!r}")
+    out["mocap_rate_hz"] = None if rate is None else float(rate)
+    imu = data.get("imu")
+    if imu is not None:
+        if not isinstance(imu, dict):
+            raise BadSession(f"{path}: field 'imu' must be null or a mapping like {{rate_hz: 200, frame: imu}}")
+        r = imu.get("rate_hz")
+        if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not r > 0):
+            raise BadSession(f"{path}: field 'imu.rate_hz' must be a positive number, got {r!r}")
+        if "frame" in imu and not isinstance(imu["frame"], str):
+            raise BadSession(f"{path}: field 'imu.frame' must be a frame name")
+    out["imu"] = imu
+    link = data.get("moving_link")
+    if link is not None and not isinstance(link, str):
+        raise BadSession(f"{path}: field 'moving_link' must be a link name or null")
+    out["moving_link"] = link
+    notes = data.get("notes")
+    out["notes"] = "" if notes is None else str(notes)
+    mfile = data.get("markers_file")
+    if mfile is not None and (not isinstance(mfile, str) or not mfile):
+        raise BadSession(f"{path}: field 'markers_file' must be a file name in the folder, e.g. markers.c3d")
+    out["markers_file"] = mfile
+    off = data.get("markers_time_offset", 0.0)
+    if isinstance(off, bool) or not isinstance(off, (int, float)) or not math.isfinite(off):
+        raise BadSession(f"{path}: field 'markers_time_offset' must be a number of seconds, got {off!r}")
+    out["markers_time_offset"] = float(off)
+    return out
+
+
+# ----------------------------------------------------------------------------- controls
+
+
+def _check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str) -> np.ndarray:
+    """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes."""
+    names = spec.control_names
+    expected = leading + names
+    missing = [c for c in expected if c not in table.header]
+    if missing:
+        raise BadSession(
+            f"{table.path}: missing column {missing[0]!r}; the {spec.name} stand expects columns "
+            f"{', '.join(expected)} (is this a session for another stand?)"
+        )
+    raw = table.data[:, [table.header.index(n) for n in names]]
+    for j, n in enumerate(names):
+        bad = np.nonzero(~np.isfinite(raw[:, j]))[0]
+        if bad.size:
+            raise BadSession(f"{table.where(int(bad[0]), n)}: empty; every command needs every control")
+    u = controls_to_si(spec, raw, length_unit)
+    for j, c in enumerate(spec.controls):
+        out = np.nonzero((u[:, j] < c.lower - 1e-9 * max(1.0, abs(c.lower))) | (u[:, j] > c.upper + 1e-9 * max(1.0, abs(c.upper))))[0]
+        if out.size:
+            r = int(out[0])
+            hint = ""
+            if c.unit == "m":
+                s_file = LENGTH_UNITS[length_unit]
+                lo, hi = c.lower / s_file, c.upper / s_file
+                for other, s in LENGTH_UNITS.items():
+                    if other != length_unit and c.lower <= raw[r, j] * s <= c.upper:
+                        hint = f"; the value fits the stroke in {other}, but session.yaml declares {length_unit}"
+            else:
+                lo, hi = c.lower, c.upper
+            unit = length_unit if c.unit == "m" else c.unit
+            raise BadSession(
+                f"{table.where(r, c.name)}: {raw[r, j]:.6g} is outside the stroke [{lo:.6g}, {hi:.6g}] {unit}{hint}"
+            )
+    return u
+
+
+# ----------------------------------------------------------------------------- loading
+
+
+def load_session(folder: str | Path, platform: str | None = None, description: str | Path | None = None,
+                 spec: PlatformSpec | None = None) -> Session:
+    """Read and check a session folder.
+
+    ``platform``: the stand to read it for (default: session.yaml's); a different name from
+    session.yaml's is an error. ``description``: overrides session.yaml's description file.
+    ``spec``: an already built stand (skips the plugin lookup; tests and simulation).
+    Raises BadSession (one line: file, row or column, what was expected).
+    """
+    folder = Path(folder)
+    y = read_session_yaml(folder)
+    ypath = folder / "session.yaml"
+    name = y["platform"]
+    if spec is not None:
+        platform = platform or spec.name
+    if platform is not None and name is not None and platform != name:
+        raise BadSession(f"{ypath}: the session is for the {name!r} stand, not {platform!r}")
+    name = name or platform
+    desc_path = Path(description) if description is not None else y["description"]
+    if spec is None and name is not None:
+        from platkit.plugins import get_platform
+
+        options = {"moving_link": y["moving_link"]} if y["moving_link"] else {}
+        try:
+            spec = get_platform(name, desc_path, **options)
+        except PlatkitError as exc:
+            raise type(exc)(f"{ypath}: {exc}") from None
+    s = Session(
+        folder=folder, platform=name, spec=spec, description=desc_path, length_unit=y["length_unit"],
+        time_unit=y["time_unit"], marker_names=y["markers"], base_marker_names=y["base_markers"],
+        mocap_rate_hz=y["mocap_rate_hz"], imu=y["imu"], moving_link=y["moving_link"], notes=y["notes"],
+    )
+    tscale = TIME_UNITS[s.time_unit]
+    lscale = LENGTH_UNITS[s.length_unit]
+
+    # commands
+    cpath = folder / "commands.csv"
+    poses_path = folder / "poses.csv"
+    if spec is not None and (cpath.is_file() or not poses_path.is_file()):
+        table = read_table(cpath, "the command log")
+        extra = [c for c in table.header if c not in ["t"] + spec.control_names]
+        if extra:
+            raise BadSession(
+                f"{cpath}: column {extra[0]!r} is not a control of the {spec.name} stand; expected columns "
+                f"t, {', '.join(spec.control_names)} (is this a session for another stand?)"
+            )
+        s.commands = _check_controls(table, spec, ["t"], s.length_unit)
+        t = table.column("t") * tscale
+        check_times(table, t)
+        s.command_t = t
+
+    # motion-capture markers: markers.csv, a C3D file, or the reduced poses.csv
+    if y["markers_file"]:
+        mpath = folder / y["markers_file"]
+        if mpath.suffix.lower() == ".c3d":
+            from platkit.io.c3d import read_c3d_markers
+
+            t, xyz = read_c3d_markers(mpath, s.marker_names + s.base_marker_names)
+            t = t + y["markers_time_offset"]
+            s.marker_t, s.markers_source = t, mpath
+            M = len(s.marker_names)
+            s.markers, s.base_markers = xyz[:, :M], xyz[:, M:]
+            _check_seen(xyz, s.marker_names + s.base_marker_names, mpath)
+        elif mpath.suffix.lower() == ".csv":
+            _read_markers_csv(s, mpath, lscale, tscale, y["markers_time_offset"])
+        else:
+            raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, got {y['markers_file']!r}")
+    elif (folder / "markers.csv").is_file():
+        _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"])
+    elif poses_path.is_file():
+        _read_poses_csv(s, poses_path, lscale, tscale)
+    if s.has_markers and not s.marker_names:
+        raise BadSession(f"{ypath}: field 'markers' must name the markers on the moving part")
+
+    imu_path = folder / "imu.csv"
+    if imu_path.is_file():
+        table = read_table(imu_path, "the inertial stream")
+        if table.header != IMU_COLUMNS:
+            missing = [c for c in IMU_COLUMNS if c not in table.header]
+            what = f"missing column {missing[0]!r}" if missing else f"columns {table.header}"
+            raise BadSession(f"{imu_path}: {what}; expected columns {', '.join(IMU_COLUMNS)} in that order")
+        t = table.column("t") * tscale
+        check_times(table, t)
+        for j, col in enumerate(IMU_COLUMNS[1:], start=1):
+            bad = np.nonzero(~np.isfinite(table.data[:, j]))[0]
+            if bad.size:
+                raise BadSession(f"{table.where(int(bad[0]), col)}: empty; expected a number")
+        s.imu_t, s.imu_gyr, s.imu_acc = t, table.data[:, 1:4], table.data[:, 4:7]
+    elif s.imu is not None:
+        raise BadSession(f"{ypath}: field 'imu' declares an inertial stream but {imu_path} is missing")
+    if s.commands is None and s.poses is None and s.imu_t is None:
+        raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
+    return s
+
+
+def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offset: float) -> None:
+    names = s.marker_names + s.base_marker_names
+    if not s.marker_names:
+        raise BadSession(f"{s.folder / 'session.yaml'}: field 'markers' must name the markers of {path.name}")
+    table = read_table(path, "the motion-capture stream")
+    _check_marker_header(table, names, ["t"])
+    t = table.column("t") * tscale + offset
+    check_times(table, t)
+    xyz = _marker_block(table, names, lscale)
+    _check_seen(xyz, names, path)
+    M = len(s.marker_names)
+    s.marker_t, s.markers, s.base_markers, s.markers_source = t, xyz[:, :M], xyz[:, M:], path
+
+
+def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> None:
+    if s.spec is None:
+        raise BadSession(f"{s.folder / 'session.yaml'}: field 'platform' must name the stand that {path.name} is for")
+    if not s.marker_names:
+        raise BadSession(f"{s.folder / 'session.yaml'}: field 'markers' must name the markers of {path.name}")
+    table = read_table(path, "the settled poses")
+    leading = (["t"] if "t" in table.header else []) + s.spec.control_names
+    names = s.marker_names + s.base_marker_names
+    _check_marker_header(table, names, leading, optional_suffixes=("n",))
+    controls = _check_controls(table, s.spec, leading[:1] if leading[:1] == ["t"] else [], s.length_unit)
+    t = None
+    if "t" in table.header:
+        t = table.column("t") * tscale
+        check_times(table, t)
+    xyz = _marker_block(table, names, lscale)
+    _check_seen(xyz, names, path)
+    n = None
+    if any(f"{m}_n" in table.header for m in s.marker_names):
+        n = np.zeros((len(table.data), len(s.marker_names)))
+        for k, m in enumerate(s.marker_names):
+            col = f"{m}_n"
+            if col not in table.header:
+                raise BadSession(f"{path}: missing column {col!r}; give <marker>_n for every marker or none")
+            v = table.column(col)
+            bad = np.nonzero(~np.isfinite(v) | (v < 0) | (v != np.round(v)))[0]
+            if bad.size:
+                raise BadSession(f"{table.where(int(bad[0]), col)}: expected a whole number of samples >= 0")
+            n[:, k] = v
+        seen = np.isfinite(xyz[:, : len(s.marker_names)]).all(axis=2)
+        clash = np.argwhere(seen != (n > 0))
+        if clash.size:
+            r, k = clash[0]
+            raise BadSession(
+                f"{table.where(int(r), s.marker_names[k] + '_n')}: {int(n[r, k])} samples but the position is "
+                f"{'given' if seen[r, k] else 'empty'}"
+            )
+    M = len(s.marker_names)
+    base = xyz[:, M:]
+    s.poses = {"controls": controls, "markers": xyz[:, :M], "n_samples": n, "t": t}
+    s.base_markers = base if base.shape[1] else None
+    s.markers_source = path
+    if s.command_t is not None and len(s.command_t) != len(controls):
+        raise BadSession(
+            f"{path}: {len(controls)} poses but commands.csv has {len(s.command_t)} rows; poses.csv has one row per command"
+        )
+    if t is None and s.command_t is not None:
+        s.poses["t"] = s.command_t
+
+
+def example_session(platform: str) -> Path:
+    """The example session shipped for ``platform``: examples/sessions/<platform>/ found walking up
+    from this package (the repository's top-level examples/). BadSession if there is none."""
+    tried = []
+    for parent in Path(__file__).resolve().parents:
+        cand = parent / "examples" / "sessions" / platform
+        tried.append(str(cand))
+        if (cand / "session.yaml").is_file():
+            return cand
+    raise BadSession(f"no example session for the {platform!r} stand (looked for examples/sessions/{platform}/ above {Path(__file__).parent})")

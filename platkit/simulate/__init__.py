@@ -1,0 +1,451 @@
+"""Simulated calibration sessions for any registered stand, with a known truth.
+
+A simulation draws a true stand near the nominal one (parameters perturbed by a few mm or mrad,
+seeded), a base-to-mocap transform and marker positions; it sends a command plan, moves the
+controls smoothly between commands (minimum-jerk profile), adds a settling transient (a damped
+oscillation after each arrival), solves forward kinematics with the true parameters at the
+motion-capture rate, and records every marker with Gaussian noise and bursts of occlusion.
+Hidden effects enter as model terms (platkit.calibrate.terms.ModelTerm) with their true
+parameters: ``terms=[(term, theta), ...]``.
+
+    sim = simulate(spec, seed=1, n_poses=60)           # in memory: sim.poses, sim.truth
+    simulate_session(spec, "out/session", seed=1)      # a session folder with truth.yaml
+
+Only the PlatformSpec / PlatformModel API is used: nothing here knows a particular stand.
+"""
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import yaml
+
+from platkit.calibrate.plan import (
+    Plan, default_marker_layout, feasible, grid_plan_for, random_candidates, read_plan_csv,
+)
+from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.settle import SettleOptions, direction_of_last_motion, last_step, settle
+from platkit.calibrate.terms import ModelTerm
+from platkit.errors import BadInput, NotIdentifiable
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, matrix_from_rpy, quat_from_matrix, transform
+from platkit.io.atomic import atomic_output_dir
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec, controls_from_si, length_scale
+
+__all__ = ["Truth", "Simulation", "Trajectory", "simulate", "simulate_session", "write_session", "perturb_parameters"]
+
+#: how hard the parameters of a true stand differ from nominal, by unit (1 sigma)
+PERTURBATION = {"m": 2e-3, "rad": 2e-3}
+RELATIVE_PERTURBATION = 1e-3  # other units: this fraction of the nominal value (or absolute if 0)
+
+
+@dataclass
+class Truth:
+    """What the simulated stand really was (SI units).
+
+    td (n_td,) true parameters; td_nominal (n_td,); mocap_from_base (4, 4); markers (M, 3) m
+    in the moving frame; terms [(ModelTerm, theta)]; noise_m marker noise per coordinate.
+    """
+
+    platform: str
+    parameter_names: list[str]
+    td: np.ndarray
+    td_nominal: np.ndarray
+    mocap_from_base: np.ndarray
+    marker_names: list[str]
+    markers: np.ndarray
+    terms: list[tuple[ModelTerm, np.ndarray]]
+    noise_m: float
+    occlusion: float
+    seed: int
+    description: str | None = None
+
+    def to_dict(self) -> dict:
+        """The truth.yaml mapping (SI: metres, radians)."""
+        return {
+            "platform": self.platform,
+            "description": self.description,
+            "seed": int(self.seed),
+            "units": {"length": "m", "angle": "rad"},
+            "parameters": {
+                n: {"value": float(v), "nominal": float(v0), "error": float(v - v0)}
+                for n, v, v0 in zip(self.parameter_names, self.td, self.td_nominal)
+            },
+            "mocap_from_base": [[float(x) for x in row] for row in self.mocap_from_base],
+            "markers": {n: [float(x) for x in s] for n, s in zip(self.marker_names, self.markers)},
+            "effects": [_plain(term.to_dict(theta)) for term, theta in self.terms],
+            "marker_noise_m": float(self.noise_m),
+            "occlusion": float(self.occlusion),
+        }
+
+
+def _plain(obj):
+    """numpy scalars and arrays -> Python, for safe YAML."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+@dataclass
+class Trajectory:
+    """The true motion: command times and controls, and a way to evaluate the true pose.
+
+    ``at(t)`` -> (q (K, 4), X (K, 3)) of the moving frame in the base frame at times t (K,),
+    effects included; used for the motion-capture stream and by IMU simulation.
+    """
+
+    command_t: np.ndarray
+    commands: np.ndarray
+    arrive_t: np.ndarray
+    end_t: float
+    evaluate: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]] = field(repr=False)
+
+    def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q, X, _ = self.evaluate(np.asarray(t, float))
+        return q, X
+
+
+@dataclass
+class Simulation:
+    """A simulated session in memory.
+
+    poses: the settled PoseSet (from the raw stream through settle() when raw, else drawn
+    directly); truth: Truth; command_t (N,), commands (N, n_u) internal units; marker_t (K,)
+    and markers (K, M, 3) m in the mocap frame (raw only); trajectory; imu: dict with t, gyr,
+    acc (and optionally 'entry' for session.yaml), or None.
+    """
+
+    spec: PlatformSpec
+    poses: PoseSet
+    truth: Truth
+    command_t: np.ndarray
+    commands: np.ndarray
+    marker_t: np.ndarray | None
+    markers: np.ndarray | None
+    trajectory: Trajectory | None
+    mocap_rate_hz: float
+    length_unit: str
+    imu: dict | None = None
+    plan_info: dict = field(default_factory=dict)
+
+
+def perturb_parameters(spec: PlatformSpec, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """True parameters: nominal + Gaussian errors (2 mm for lengths, 2 mrad for angles, 0.1%
+    of the value otherwise), fixed parameters untouched, clipped to the parameters' bounds."""
+    td = spec.nominal_td().copy()
+    for i, p in enumerate(spec.parameters):
+        if not p.free:
+            continue
+        sd = PERTURBATION.get(p.unit)
+        if sd is None:
+            sd = RELATIVE_PERTURBATION * (abs(p.nominal) if p.nominal != 0 else 1.0)
+        td[i] = np.clip(p.nominal + scale * sd * rng.normal(), p.lower, p.upper)
+    return td
+
+
+def random_mocap_from_base(rng: np.random.Generator, size_m: float) -> np.ndarray:
+    """A motion-capture frame: any heading, a few mrad of tilt, offset by about the stand's size."""
+    R = matrix_from_rpy(rng.normal(0, 3e-3), rng.normal(0, 3e-3), rng.uniform(-np.pi, np.pi))
+    t = rng.uniform(-1, 1, 3) * np.array([2.0, 2.0, 0.5]) * max(size_m, 0.2)
+    return transform(R, t)
+
+
+def _min_jerk(s):
+    s = np.clip(s, 0.0, 1.0)
+    return s**3 * (10 - 15 * s + 6 * s**2)
+
+
+def _occlusion_mask(rng, K: int, M: int, fraction: float, mean_burst: int) -> np.ndarray:
+    """(K, M) True where occluded: bursts of mean length ``mean_burst`` covering ~``fraction``."""
+    if fraction <= 0:
+        return np.zeros((K, M), bool)
+    p_end = 1.0 / max(mean_burst, 1)
+    p_start = fraction * p_end / max(1 - fraction, 1e-9)
+    out = np.zeros((K, M), bool)
+    for m in range(M):
+        u = rng.random(K)
+        state = False
+        col = out[:, m]
+        for k in range(K):
+            state = (u[k] >= p_end) if state else (u[k] < p_start)
+            col[k] = state
+    return out
+
+
+def _commands_poseset(spec, U, t, marker_names) -> PoseSet:
+    steps = last_step(U)
+    return PoseSet(platform=spec.name, controls=U, markers=np.zeros((len(U), len(marker_names), 3)),
+                   marker_names=list(marker_names), t=t, source="simulated",
+                   extras={"row": np.arange(len(U)), "direction": direction_of_last_motion(U), "last_step": steps,
+                           "elapsed": t - t[0]})
+
+
+def _apply_pose_offset(q, X, off):
+    """X' = X + dX, R' = exp(dtheta) R for (K, 4), (K, 3), (K, 6)."""
+    if not np.any(off):
+        return q, X
+    R = matrix_from_rotvec(off[:, 3:]) @ matrix_from_quat(q)
+    return quat_from_matrix(R), X + off[:, :3]
+
+
+def _make_plan(spec, plan, n_poses, rng, model, length_unit) -> tuple[np.ndarray, dict]:
+    if isinstance(plan, Plan):
+        return plan.controls, {"kind": plan.kind, **plan.info}
+    if isinstance(plan, np.ndarray):
+        return np.atleast_2d(plan).astype(float), {"kind": "given"}
+    if plan in (None, "grid"):
+        p = grid_plan_for(spec, n_poses, model=model)
+        return p.controls, {"kind": "grid", **p.info}
+    if plan == "random":
+        p = random_candidates(spec, n_poses, rng, model=model)
+        return p.controls, {"kind": "random"}
+    path = Path(str(plan))
+    return read_plan_csv(path, spec, length_unit), {"kind": "file", "file": str(path)}
+
+
+def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any = "grid", noise_mm: float = 0.2,
+             occlusion: float = 0.02, n_markers: int = 5, raw: bool = True, terms=(), effects=(),
+             mocap_rate_hz: float = 100.0, hold_s: float = 1.5, length_unit: str = "mm",
+             imu: Callable | None = None, perturbation: float = 1.0, markers: np.ndarray | None = None,
+             settle_options: SettleOptions | None = None, description: str | None = None) -> Simulation:
+    """Simulate a session of ``spec`` in memory.
+
+    plan: 'grid' (snake-ordered grid, about n_poses points), 'random', a plan.csv path, a
+        Plan, or an (N, n_u) array of controls in internal units.
+    noise_mm: marker noise per coordinate (mm); occlusion: fraction of samples occluded.
+    terms: [(ModelTerm, theta)] hidden effects; effects: [(name, size or None)] effects by name
+        (see platkit.simulate.effects), built on the plan's command rows.
+    raw: simulate the stream and settle it (realistic); False draws settled poses directly.
+    imu: optional callable ``imu(trajectory, rng) -> dict(t=(J,), gyr=(J, 3), acc=(J, 3)[, entry])``
+        that adds an inertial stream (raw only).
+    hold_s: time the stand holds each command after arriving (s).
+    """
+    from platkit.simulate.effects import simulation_term
+
+    length_scale(length_unit)
+    if noise_mm < 0 or not 0 <= occlusion < 0.5:
+        raise BadInput("noise must be >= 0 and occlusion in [0, 0.5)")
+    rng = np.random.default_rng(seed)
+    model = PlatformModel(spec)
+    U, plan_info = _make_plan(spec, plan, n_poses, rng, model, length_unit)
+    model.check_controls(U)
+    td_true = perturb_parameters(spec, rng, perturbation)
+    ok, P_true = feasible(spec, U, td_true, model)
+    if not np.all(ok):
+        plan_info["unreachable_with_true_geometry"] = int((~ok).sum())
+        U, P_true = U[ok], P_true[ok]
+    if len(U) < 3:
+        raise NotIdentifiable(f"{spec.name}: fewer than 3 planned poses are reachable")
+    names = [f"M{k + 1}" for k in range(n_markers)]
+    S = default_marker_layout(spec, n_markers, rng) if markers is None else np.asarray(markers, float)
+    from platkit.calibrate.plan import stand_length_scale
+
+    T = random_mocap_from_base(rng, stand_length_scale(spec) / 0.6)
+    noise = noise_mm * 1e-3
+    N = len(U)
+
+    # command times: move (min-jerk, duration from the largest stroke fraction), then hold
+    lo, hi = spec.control_bounds()
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    prev = np.vstack([spec.neutral_u()[None], U[:-1]])
+    move = np.clip(4.0 * np.max(np.abs(U - prev) / span, axis=1), 0.3, 3.0)
+    t_cmd = 0.5 + np.concatenate([[0.0], np.cumsum(move + hold_s)[:-1]])
+    t_arrive = t_cmd + move
+    t_end = float(t_arrive[-1] + hold_s)
+
+    commands = _commands_poseset(spec, U, t_cmd, names)
+    all_terms = list(terms) + [simulation_term(n, spec, s, rng, commands) for n, s in effects]
+    n_u = spec.n_u
+    c_off = np.zeros((N, n_u))
+    m_off = np.zeros((N, n_markers, 3))
+    for term, theta in all_terms:
+        c_off += term.control_offset(np.asarray(theta, float), commands, n_u)
+        m_off += term.marker_offset(np.asarray(theta, float), commands)
+    has_pose_off = any(type(t).pose_offset is not ModelTerm.pose_offset for t, _ in all_terms)
+    U_true = U + c_off
+
+    def pose_offsets(rows_ps: PoseSet, q, X):
+        off = np.zeros((len(q), 6))
+        for term, theta in all_terms:
+            off += term.pose_offset(np.asarray(theta, float), rows_ps, q, X)
+        return off
+
+    truth = Truth(spec.name, spec.parameter_names, td_true, spec.nominal_td(), T, names, S, all_terms,
+                  noise, occlusion, seed, description)
+
+    def markers_of(q, X, moff):
+        R = matrix_from_quat(q)
+        body = S[None] + moff  # (K, M, 3)
+        base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, body)
+        return base @ T[:3, :3].T + T[:3, 3]
+
+    if not raw:
+        fb = model.forward_batch(U_true, td=td_true, guess=P_true, strict=False)
+        if not np.all(fb.converged & fb.on_branch):
+            raise NotIdentifiable(f"{spec.name}: the effects push {int((~fb.converged).sum())} poses off the stand")
+        q, X = fb.q, fb.X
+        if has_pose_off:
+            q, X = _apply_pose_offset(q, X, pose_offsets(commands, q, X))
+        n_avg = max(1, int(0.5 * hold_s * mocap_rate_hz))
+        counts = rng.binomial(n_avg, 1 - occlusion, size=(N, n_markers)).astype(float)
+        Y = markers_of(q, X, m_off) + rng.normal(size=(N, n_markers, 3)) * noise / np.sqrt(np.maximum(counts, 1))[..., None]
+        Y[counts == 0] = np.nan
+        poses = PoseSet(platform=spec.name, controls=U, markers=Y, marker_names=names, description=description,
+                        t=t_cmd, n_samples=counts, length_unit=length_unit, source="simulated",
+                        extras={"row": np.arange(N), "direction": commands.extras["direction"],
+                                "last_step": commands.extras["last_step"], "elapsed": commands.extras["elapsed"],
+                                "settle_time": np.full(N, 0.5 * hold_s)})
+        return Simulation(spec, poses, truth, t_cmd, U, None, None, None, mocap_rate_hz, length_unit,
+                          plan_info=plan_info)
+
+    # raw stream: controls along the trajectory, with a damped transient after each arrival
+    prev_true = np.vstack([spec.neutral_u()[None], U_true[:-1]])
+    prev_moff = np.vstack([np.zeros((1, n_markers, 3)), m_off[:-1]])
+    tau, freq, overshoot = 0.12, 3.0, 0.05
+
+    def evaluate(t):
+        i = np.clip(np.searchsorted(t_cmd, t, side="right") - 1, 0, N - 1)
+        before = t < t_cmd[0]
+        s = _min_jerk((t - t_cmd[i]) / move[i])
+        s = np.where(before, 0.0, s)
+        delta = U_true[i] - prev_true[i]
+        after = np.maximum(t - t_arrive[i], 0.0)
+        wiggle = overshoot * np.exp(-after / tau) * np.sin(2 * np.pi * freq * after) * (t >= t_arrive[i])
+        u = prev_true[i] + (s + wiggle)[:, None] * delta
+        moff = prev_moff[i] + s[:, None, None] * (m_off[i] - prev_moff[i])
+        guess = np.where(before[:, None], spec.neutral_p(), P_true[i])
+        fb = model.forward_batch(u, td=td_true, guess=guess, strict=False)
+        if not np.all(fb.converged):
+            bad = int(np.nonzero(~fb.converged)[0][0])
+            raise NotIdentifiable(f"{spec.name}: forward kinematics failed along the path at t={t[bad]:.3f} s")
+        q, X = fb.q, fb.X
+        if has_pose_off:
+            rows = commands.subset(i)
+            off = pose_offsets(rows, q, X)
+            q, X = _apply_pose_offset(q, X, off * np.where(before, 0.0, 1.0)[:, None])
+        return q, X, moff
+
+    dt = 1.0 / mocap_rate_hz
+    tm = np.arange(0.0, t_end, dt)
+    q, X, moff = evaluate(tm)
+    Y = markers_of(q, X, moff) + rng.normal(size=(len(tm), n_markers, 3)) * noise
+    Y[_occlusion_mask(rng, len(tm), n_markers, occlusion, max(1, int(0.1 * mocap_rate_hz)))] = np.nan
+    # keep 1 um steps, as the files do, so in-memory and written sessions agree
+    Y = np.round(Y * 1e6) / 1e6
+    traj = Trajectory(t_cmd, U, t_arrive, t_end, evaluate)
+    imu_data = imu(traj, rng) if imu is not None else None
+
+    from platkit.io.session import Session
+
+    sess = Session(folder=Path("simulated"), platform=spec.name, spec=spec, description=None,
+                   length_unit=length_unit, time_unit="s", marker_names=names, base_marker_names=[],
+                   mocap_rate_hz=mocap_rate_hz, imu=None, moving_link=None, notes="",
+                   command_t=t_cmd, commands=U, marker_t=tm, markers=Y, markers_source=Path("simulated"))
+    poses, report = settle(sess, settle_options)
+    poses.source = "simulated"
+    poses.description = description
+    plan_info.update(settle_sigma_m=report.sigma_m, kept=report.n_kept, dropped=len(report.dropped))
+    return Simulation(spec, poses, truth, t_cmd, U, tm, Y, traj, mocap_rate_hz, length_unit, imu_data, plan_info)
+
+
+# ----------------------------------------------------------------------------- files
+
+
+def _fmt(v: float, digits: int) -> str:
+    return "" if not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+def _csv_text(header: list[str], rows) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, description: str | Path | None = None,
+                  notes: str = "") -> Path:
+    """Write a simulated session folder (session.yaml, commands.csv, markers.csv or poses.csv,
+    imu.csv if simulated, truth.yaml), whole or not at all. Returns the folder."""
+    spec = sim.spec
+    unit = sim.length_unit
+    s = length_scale(unit)
+    ldig = 3 if unit == "mm" else 6
+    names = sim.truth.marker_names
+    out = Path(out)
+    ctrl_digits = [ldig if c.unit == "m" else 9 for c in spec.controls]
+    V = controls_from_si(spec, sim.commands, unit)
+    with atomic_output_dir(out) as tmp:
+        entry: dict = {
+            "platform": spec.name,
+            "description": None,
+            "units": {"length": unit, "time": "s"},
+            "markers": names,
+            "base_markers": [],
+            "mocap_rate_hz": float(sim.mocap_rate_hz),
+            "imu": None,
+            "moving_link": None,
+            "notes": notes or f"simulated by platkit (seed {sim.truth.seed}); the true stand is in truth.yaml",
+        }
+        if description is not None:
+            desc = Path(description)
+            (tmp / desc.name).write_bytes(desc.read_bytes())
+            entry["description"] = desc.name
+        rows = [[f"{t:.4f}"] + [_fmt(v, d) for v, d in zip(row, ctrl_digits)] for t, row in zip(sim.command_t, V)]
+        (tmp / "commands.csv").write_text(_csv_text(["t"] + spec.control_names, rows), encoding="utf-8")
+        mcols = [f"{m}_{a}" for m in names for a in "xyz"]
+        if poses_only or sim.markers is None:
+            p = sim.poses
+            Vp = controls_from_si(spec, p.controls, unit)
+            if len(p.controls) != len(sim.commands):
+                raise BadInput("poses.csv needs one row per command; simulate with raw=False for --poses-only")
+            rows = []
+            for i in range(p.n_poses):
+                r = [_fmt(v, d) for v, d in zip(Vp[i], ctrl_digits)]
+                r += [_fmt(v / s, ldig) for v in p.markers[i].reshape(-1)]
+                r += [str(int(n)) for n in p.n_samples[i]]
+                rows.append(r)
+            header = spec.control_names + mcols + [f"{m}_n" for m in names]
+            (tmp / "poses.csv").write_text(_csv_text(header, rows), encoding="utf-8")
+        else:
+            Y = sim.markers.reshape(len(sim.marker_t), -1) / s
+            rows = [[f"{t:.4f}"] + [_fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
+            (tmp / "markers.csv").write_text(_csv_text(["t"] + mcols, rows), encoding="utf-8")
+        if sim.imu is not None:
+            imu = sim.imu
+            rows = [[f"{t:.6f}"] + [f"{v:.7g}" for v in np.concatenate([g, a])]
+                    for t, g, a in zip(imu["t"], imu["gyr"], imu["acc"])]
+            (tmp / "imu.csv").write_text(
+                _csv_text(["t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"], rows), encoding="utf-8")
+            entry["imu"] = _plain(imu.get("entry", {"rate_hz": float(1.0 / np.median(np.diff(imu["t"]))), "frame": "imu"}))
+        (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")
+        truth = sim.truth.to_dict()
+        truth["plan"] = _plain(sim.plan_info)
+        (tmp / "truth.yaml").write_text(
+            "# The true stand behind this simulated session (SI units). Calibration should recover it.\n"
+            + yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
+    return out
+
+
+def simulate_session(spec: PlatformSpec | str, out: str | Path, *, poses_only: bool = False,
+                     description: str | Path | None = None, **kwargs) -> Path:
+    """Simulate (see :func:`simulate`) and write a session folder; returns its path. ``spec``
+    may be a stand name (built with ``description``)."""
+    if isinstance(spec, str):
+        from platkit.plugins import get_platform
+
+        spec = get_platform(spec, description)
+    if poses_only:
+        kwargs["raw"] = False
+    sim = simulate(spec, description=None if description is None else Path(description).name, **kwargs)
+    return write_session(sim, out, poses_only=poses_only, description=description)
