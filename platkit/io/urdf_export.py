@@ -76,37 +76,116 @@ def calibrated_origins(spec: PlatformSpec, td) -> dict[str, np.ndarray]:
     return out
 
 
-def export_calibrated_urdf(spec: PlatformSpec, td, out: str | Path) -> Path:
+def _origin_element(etree, T: np.ndarray):
+    el = etree.Element("origin")
+    el.set("xyz", " ".join(_number(v) for v in T[:3, 3]))
+    el.set("rpy", " ".join(_number(v) for v in urdf_rpy(T[:3, :3])))
+    return el
+
+
+def _add_fixed_frame(etree, root, parent: str, link: str, parent_from_link: np.ndarray, taken: set, path: Path):
+    """Append ``<link name=link>`` and a fixed joint ``<link>_joint`` from ``parent``."""
+    joint = f"{link}_joint"
+    for name in (link, joint):
+        if name in taken:
+            raise BadInput(f"{path}: the URDF already has a link or joint named {name!r}; cannot add the calibrated frame")
+        taken.add(name)
+    etree.SubElement(root, "link", name=link)
+    el = etree.SubElement(root, "joint", name=joint, type="fixed")
+    etree.SubElement(el, "parent", link=parent)
+    etree.SubElement(el, "child", link=link)
+    el.append(_origin_element(etree, parent_from_link))
+
+
+def export_calibrated_urdf(spec: PlatformSpec, td, out: str | Path, markers: dict | None = None,
+                           mocap_from_base: np.ndarray | None = None) -> Path:
     """Write the spec's URDF with ``td`` folded into its joint origins to ``out`` (atomically).
 
     ``spec``: a stand built by the URDF route (``urdf``, ``rotary``); ``td`` (n_td,) in SI.
-    Raises BadInput for a stand without a URDF chain, a wrong ``td`` or a scale other than 1.
-    Returns the path written.
+    Optional, from a calibration: ``markers`` {name: (3,) m in the moving link} become links
+    ``marker_<name>`` fixed to the moving link; ``mocap_from_base`` (4x4) becomes a link ``mocap``
+    fixed to the base link (the frame the markers were measured in).
+    Raises BadInput for a stand without a URDF chain, a wrong ``td``, a scale other than 1 or a
+    name already taken. Returns the path written.
     """
+    from lxml import etree
+
     out = Path(out)
     chain: SerialChain | None = spec.extras.get("chain")
     origins = calibrated_origins(spec, td)
     tree, _ = parse_urdf_xml(chain.path, keep_comments=True)
     root = tree.getroot()
-    from lxml import etree
-
     by_name = {el.get("name"): el for el in root.findall("joint")}
     for name, T in origins.items():
         el = by_name.get(name)
         if el is None:
             raise BadInput(f"{chain.path}: joint {name!r} is no longer in the file; rebuild the stand from it")
-        origin = el.find("origin")
-        if origin is None:
-            origin = etree.Element("origin")
-            el.insert(0, origin)
-        origin.set("xyz", " ".join(_number(v) for v in T[:3, 3]))
-        origin.set("rpy", " ".join(_number(v) for v in urdf_rpy(T[:3, :3])))
+        old = el.find("origin")
+        new = _origin_element(etree, T)
+        if old is None:
+            el.insert(0, new)
+        else:
+            new.tail = old.tail
+            el.replace(old, new)
+    taken = {el.get("name") for el in root.findall("link")} | set(by_name)
+    added = []
+    for name, position in (markers or {}).items():
+        T = np.eye(4)
+        T[:3, 3] = np.asarray(position, float)
+        if T[:3, 3].shape != (3,) or not np.all(np.isfinite(T[:3, 3])):
+            raise BadInput(f"marker {name!r}: position must be 3 finite numbers (m)")
+        _add_fixed_frame(etree, root, chain.moving_link, f"marker_{name}", T, taken, chain.path)
+        added.append(f"marker_{name}")
+    if mocap_from_base is not None:
+        M = np.asarray(mocap_from_base, float)
+        if M.shape != (4, 4) or not np.all(np.isfinite(M)):
+            raise BadInput("mocap_from_base must be a finite 4x4 transform")
+        _add_fixed_frame(etree, root, chain.base_link, "mocap", np.linalg.inv(M), taken, chain.path)
+        added.append("mocap")
     note = etree.Comment(
-        f" calibrated by platkit ({spec.name} stand, chain {chain.base_link} -> {chain.moving_link}): joint offsets "
-        f"and origin errors are folded into the <origin> of {', '.join(origins)}; source {chain.path.name} ".replace("--", "- -")
+        (f" calibrated by platkit ({spec.name} stand, chain {chain.base_link} -> {chain.moving_link}): joint offsets "
+         f"and origin errors are folded into the <origin> of {', '.join(origins)}"
+         + (f"; added frames {', '.join(added)}" if added else "")
+         + f"; source {chain.path.name} ").replace("--", "- -")
     )
     note.tail = root.text if root.text and not root.text.strip() else "\n  "
     root.insert(0, note)
     text = etree.tostring(tree, xml_declaration=True, encoding="utf-8").decode("utf-8")
     atomic_write_text(out, text + ("" if text.endswith("\n") else "\n"))
     return out
+
+
+def export_calibration(calibration_yaml: str | Path, out: str | Path) -> Path:
+    """Write the URDF of a calibration.yaml (``platkit calibrate``'s output) for a URDF stand:
+    offsets and origin errors folded in, markers and the motion-capture frame added."""
+    from platkit.calibrate.result import read_calibration
+
+    cal = read_calibration(calibration_yaml)
+    if cal.spec.extras.get("chain") is None:
+        raise BadInput(f"{calibration_yaml}: the {cal.platform} stand is not described by a URDF; nothing to export")
+    markers = dict(zip(cal.marker_names, cal.marker_positions))
+    return export_calibrated_urdf(cal.spec, cal.td, out, markers=markers, mocap_from_base=cal.mocap_from_base)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m platkit.io.urdf_export CALIBRATION.yaml OUT.urdf``; exit 2 on bad input."""
+    import argparse
+    import sys
+
+    from platkit.errors import PlatkitError
+
+    parser = argparse.ArgumentParser(prog="python -m platkit.io.urdf_export", description=export_calibration.__doc__)
+    parser.add_argument("calibration", help="calibration.yaml written by platkit calibrate")
+    parser.add_argument("out", help="the URDF to write")
+    args = parser.parse_args(argv)
+    try:
+        path = export_calibration(args.calibration, args.out)
+    except PlatkitError as exc:
+        print(f"platkit: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    print(path)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

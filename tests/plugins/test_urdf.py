@@ -355,3 +355,43 @@ def test_mimic_joint_before_its_master(tmp_path):
             T = ref.get_transform(frame_to=chain.moving_link, frame_from=chain.base_link)
             q, X = (np.asarray(a).ravel() for a in spec.forward(u, params))
             assert np.abs(X - T[:3, 3]).max() < 1e-12 and np.abs(matrix_from_quat(q) - T[:3, :3]).max() < 1e-12
+
+
+def test_export_calibration_yaml_with_markers_and_mocap_frame(tmp_path):
+    """A calibration.yaml of the rotary rig -> URDF: marker links seen from the added mocap link
+    are where the calibrated model puts the markers in the motion-capture frame."""
+    from platkit.calibrate.result import Calibration
+    from platkit.geometry import matrix_from_rotvec
+    from platkit.io.urdf_export import main as export_main
+
+    spec = get_platform("rotary")
+    td = _random_td(spec, np.random.default_rng(8), offset=0.01, origin_m=0.002, origin_rad=0.005)
+    markers = np.array([[0.1, 0.0, 0.02], [0.0, 0.12, 0.03], [-0.08, -0.05, 0.01]])
+    cal = Calibration(
+        platform="rotary", description=None, spec=spec, td=td, td_std=np.full(spec.n_td, np.nan),
+        td_nominal=spec.nominal_td(), td_status=["estimated"] * spec.n_td,
+        mocap_rotvec=np.array([0.1, -0.2, 0.3]), mocap_translation=np.array([1.0, 2.0, 0.5]), mocap_std=np.full(6, np.nan),
+        marker_names=["M1", "M2", "M3"], marker_positions=markers, marker_std=np.full((3, 3), np.nan),
+        rms_before=1e-3, rms_after=1e-4,
+    )
+    cal_path = tmp_path / "calibration.yaml"
+    cal_path.write_text(cal.to_yaml())
+    out = tmp_path / "rotary_calibrated.urdf"
+    assert export_main([str(cal_path), str(out)]) == 0
+    model = pin.buildModelFromUrdf(str(out))
+    data = model.createData()
+    mocap_R = matrix_from_rotvec(cal.mocap_rotvec)
+    for u in ([30.0, -20.0], [-150.0, 75.0]):
+        pin.framesForwardKinematics(model, data, np.radians(u))
+        mocap = data.oMf[model.getFrameId("mocap", pin.BODY)]
+        q, X = (np.asarray(a).ravel() for a in spec.forward(np.array(u), td))
+        for name, m in zip(cal.marker_names, markers):
+            seen = (mocap.inverse() * data.oMf[model.getFrameId(f"marker_{name}", pin.BODY)]).translation
+            expected = mocap_R @ (X + matrix_from_quat(q) @ m) + cal.mocap_translation
+            assert np.abs(seen - expected).max() < 1e-12
+    assert export_main([str(tmp_path / "missing.yaml"), str(tmp_path / "x.urdf")]) == 2
+    # exporting the exported file again would add marker_M1 twice
+    again = get_platform("urdf", out, moving_link="platform")
+    with pytest.raises(BadInput, match=r"already has a link or joint named 'marker_M1'"):
+        export_calibrated_urdf(again, again.nominal_td(), tmp_path / "y.urdf", markers={"M1": [0, 0, 0]})
+    assert not (tmp_path / "y.urdf").exists()
