@@ -1,0 +1,274 @@
+"""platkit's orientation estimator: gyro strapdown, accelerometer fused in a near-inertial frame,
+gyro bias estimated at rest and in motion.
+
+The structure follows the best open gyro + accelerometer estimator, VQF (Laidig and Seel,
+"VQF: Highly accurate IMU orientation estimation with bias estimation and magnetic disturbance
+rejection", Information Fusion 91, 2023):
+
+1. strapdown: q_I_from_S integrates the bias-corrected gyro (the Poisson equation, exact for a
+   constant rate over a sample);
+2. the accelerometer is rotated into that near-inertial frame I and low-pass filtered there
+   (time constant ``tau_acc``): in I, accelerations that are not gravity average out (they
+   integrate to a bounded velocity), while gravity stays put; a correction rotation q_E_from_I
+   turns the filtered vector to the vertical;
+3. the gyro bias is a Kalman state: at rest (gyro and accelerometer steady for ``rest_min_s``)
+   it is measured directly by the low-passed gyro; in motion it is measured by the inclination
+   correction the accelerometer asks for, mapped back through the low-passed rotation.
+
+platkit adds shock rejection: samples whose specific force departs from |g| by more than
+``shock_threshold`` (a tap, a hard stop of the platform) enter the inertial-frame filter
+clamped to that bound, so one hit cannot swing the vertical; and rest detection feeds the
+paper's case A directly (a full alignment of the averaged accelerometer when a rest ends a
+long motion is not needed: the filter has already converged during the rest).
+
+Output: q_earth_from_sensor (N, 4), earth frame z up, heading relative to the start.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, asdict
+
+import numpy as np
+
+from platkit.errors import BadInput
+from platkit.inertial import quat as Q
+from platkit.inertial.filters import LowPass2, butter2_coefficients
+from platkit.inertial.stream import ImuStream
+
+GRAVITY = 9.80665  # m/s^2, only used as the scale of the shock bound
+
+
+@dataclass
+class PlatkitParams:
+    """Tuning of :func:`estimate_platkit`. Times in s, rates in rad/s, accelerations in m/s^2."""
+
+    tau_acc: float = 3.0              # time constant of the inertial-frame accelerometer filter
+    rest_tau: float = 0.5             # low pass used by rest detection
+    rest_min_s: float = 1.5           # how long the sensor must be steady to count as at rest
+    rest_gyr_threshold: float = math.radians(2.0)   # deviation of the gyro from its low pass
+    rest_acc_threshold: float = 0.5                 # deviation of the accel from its low pass
+    bias_sigma_init: float = math.radians(0.5)      # prior std of the gyro bias
+    bias_forgetting_s: float = 100.0                # the bias std grows by 0.1 deg/s in this time
+    bias_sigma_motion: float = math.radians(0.1)    # std of the bias measurement in motion
+    bias_vertical_factor: float = 1e-4              # how much less the vertical axis is trusted
+    bias_sigma_rest: float = math.radians(0.03)     # std of the bias measurement at rest
+    bias_clip: float = math.radians(2.0)            # bias and bias innovations are clipped to this
+    shock_threshold: float | None = None  # m/s^2 from |g| at which the accelerometer is clamped; None: off
+    estimate_bias: bool = True
+    initial_bias: tuple[float, float, float] | None = None  # rad/s, known from a calibration
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class OrientationEstimate:
+    """``t`` (N,) s; ``q`` (N, 4) q_earth_from_sensor; ``bias`` (N, 3) rad/s; ``rest`` (N,) bool;
+    ``info``: the method and its settings."""
+
+    t: np.ndarray
+    q: np.ndarray
+    bias: np.ndarray
+    rest: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def _filter_step(b, a, x, s0, s1):
+    y = b[0] * x + s0
+    return y, b[1] * x - a[0] * y + s1, b[2] * x - a[1] * y
+
+
+class _Lp:
+    """LowPass2 on plain float lists (the hot loop); same start-up as LowPass2."""
+
+    __slots__ = ("b", "a", "n_init", "count", "total", "s0", "s1", "y")
+
+    def __init__(self, tau, dt, size):
+        b, a = butter2_coefficients(tau, dt)
+        self.b, self.a = tuple(b), tuple(a)
+        self.n_init = max(1, int(math.ceil(tau / dt)))
+        self.count = 0
+        self.total = [0.0] * size
+        self.s0 = [0.0] * size
+        self.s1 = [0.0] * size
+        self.y = [0.0] * size
+
+    def step(self, x):
+        b, a = self.b, self.a
+        if self.count < self.n_init:
+            self.count += 1
+            c = self.count
+            self.total = [s + v for s, v in zip(self.total, x)]
+            self.y = [s / c for s in self.total]
+            if c == self.n_init:
+                self.s0 = [v * (1.0 - b[0]) for v in self.y]
+                self.s1 = [v * (b[2] - a[1]) for v in self.y]
+            return self.y
+        y = [b[0] * v + s for v, s in zip(x, self.s0)]
+        self.s0 = [b[1] * v - a[0] * yy + s for v, yy, s in zip(x, y, self.s1)]
+        self.s1 = [b[2] * v - a[1] * yy for v, yy in zip(x, y)]
+        self.y = y
+        return y
+
+
+def estimate_platkit(imu: ImuStream, params: PlatkitParams | None = None) -> OrientationEstimate:
+    """Run platkit's estimator over a stream. See the module docstring for the method."""
+    p = params or PlatkitParams()
+    if imu.n < 2:
+        raise BadInput("the IMU stream needs at least 2 samples")
+    dt = imu.dt
+    n = imu.n
+    gyr = imu.gyr.tolist()
+    acc = imu.acc.tolist()
+    sat_acc = imu.saturated[:, 3:].any(axis=1).tolist()
+
+    # Kalman filter of the bias, in units of 0.01 deg/s as VQF (keeps the numbers near 1)
+    unit = math.radians(0.01)
+    p0 = (p.bias_sigma_init / unit) ** 2
+    v_step = (0.1 / 0.01) ** 2 * dt / p.bias_forgetting_s
+    p_motion = (p.bias_sigma_motion / unit) ** 2
+    w_motion = p_motion ** 2 / v_step + p_motion
+    w_vertical = w_motion / max(p.bias_vertical_factor, 1e-10)
+    p_rest = (p.bias_sigma_rest / unit) ** 2
+    w_rest = p_rest ** 2 / v_step + p_rest
+    P = np.eye(3) * p0
+    bias = np.array(p.initial_bias if p.initial_bias is not None else (0.0, 0.0, 0.0), float)
+    if p.initial_bias is not None:
+        P = np.eye(3) * (p_rest * 4)
+    clip = p.bias_clip
+
+    q_gyr = (1.0, 0.0, 0.0, 0.0)      # q_I_from_S
+    q_acc = (1.0, 0.0, 0.0, 0.0)      # q_E_from_I (inclination corrections)
+    lp_acc_i = _Lp(p.tau_acc, dt, 3)
+    lp_rot = _Lp(p.tau_acc, dt, 9)
+    lp_biasr = _Lp(p.tau_acc, dt, 2)
+    lp_rest_g = _Lp(p.rest_tau, dt, 3)
+    lp_rest_a = _Lp(p.rest_tau, dt, 3)
+    rest_t = 0.0
+    rest = False
+    th_g2 = p.rest_gyr_threshold ** 2
+    th_a2 = p.rest_acc_threshold ** 2
+    shock = p.shock_threshold
+
+    out_q = np.empty((n, 4))
+    out_b = np.empty((n, 3))
+    out_rest = np.zeros(n, bool)
+    for k in range(n):
+        g = gyr[k]
+        a = acc[k]
+        # ---- rest detection, gyro part
+        if p.estimate_bias:
+            gl = lp_rest_g.step(g)
+            dev = (g[0] - gl[0]) ** 2 + (g[1] - gl[1]) ** 2 + (g[2] - gl[2]) ** 2
+            if dev >= th_g2 or abs(gl[0]) > clip or abs(gl[1]) > clip or abs(gl[2]) > clip:
+                rest_t = 0.0
+                rest = False
+        # ---- strapdown (Poisson equation, exact for a rate constant over the step)
+        b0, b1, b2 = bias[0], bias[1], bias[2]
+        q_gyr = Q.normalize(Q.mul(q_gyr, Q.from_rotvec((g[0] - b0) * dt, (g[1] - b1) * dt, (g[2] - b2) * dt)))
+        # ---- rest detection, accelerometer part
+        if p.estimate_bias:
+            al = lp_rest_a.step(a)
+            dev = (a[0] - al[0]) ** 2 + (a[1] - al[1]) ** 2 + (a[2] - al[2]) ** 2
+            if dev >= th_a2:
+                rest_t = 0.0
+                rest = False
+            else:
+                rest_t += dt
+                if rest_t >= p.rest_min_s:
+                    rest = True
+        # ---- accelerometer in the near-inertial frame
+        a_in = a
+        norm_a = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        if shock is not None and abs(norm_a - GRAVITY) > shock and norm_a > 0:
+            # a shock: keep its direction, clamp its size to the bound
+            s = (GRAVITY + math.copysign(shock, norm_a - GRAVITY)) / norm_a
+            a_in = (a[0] * s, a[1] * s, a[2] * s)
+        if sat_acc[k]:
+            a_in = lp_acc_i.y if lp_acc_i.count else a_in
+            a_i = a_in
+        else:
+            a_i = Q.rotate(q_gyr, a_in)
+        a_lp = lp_acc_i.step(a_i)
+        a_e = Q.rotate(q_acc, a_lp)
+        na = math.sqrt(a_e[0] ** 2 + a_e[1] ** 2 + a_e[2] ** 2)
+        if na > 0:
+            ex, ey, ez = a_e[0] / na, a_e[1] / na, a_e[2] / na
+            qw = math.sqrt(max((ez + 1.0) * 0.5, 0.0))
+            corr = (qw, 0.5 * ey / qw, -0.5 * ex / qw, 0.0) if qw > 1e-6 else (0.0, 1.0, 0.0, 0.0)
+            q_acc = Q.normalize(Q.mul(corr, q_acc))
+        else:
+            ex = ey = 0.0
+        # ---- bias: Kalman filter (measurement at rest or from the inclination correction)
+        q6 = Q.mul(q_acc, q_gyr)
+        if p.estimate_bias:
+            R = Q.matrix(q6)
+            rb = (R[0] * b0 + R[1] * b1 + R[2] * b2, R[3] * b0 + R[4] * b1 + R[5] * b2)
+            Rl = lp_rot.step(R)
+            bl = lp_biasr.step(rb)
+            P[0, 0] += v_step if P[0, 0] < p0 else 0.0
+            P[1, 1] += v_step if P[1, 1] < p0 else 0.0
+            P[2, 2] += v_step if P[2, 2] < p0 else 0.0
+            if rest:
+                gl = lp_rest_g.y
+                e = np.array([gl[0] - b0, gl[1] - b1, gl[2] - b2])
+                Rm = np.eye(3)
+                W = np.array([w_rest, w_rest, w_rest])
+            else:
+                Rm = np.array(Rl).reshape(3, 3)
+                Rb = Rm @ bias
+                e = np.array([-ey / dt + bl[0] - Rb[0], ex / dt + bl[1] - Rb[1], -Rb[2]])
+                W = np.array([w_motion, w_motion, w_vertical])
+            e = np.clip(e, -clip, clip) / unit
+            S = Rm @ P @ Rm.T + np.diag(W)
+            K = P @ Rm.T @ np.linalg.inv(S)
+            bias = np.clip(bias + (K @ e) * unit, -clip, clip)
+            P = P - K @ Rm @ P
+        out_q[k] = q6
+        out_b[k] = bias
+        out_rest[k] = rest
+    out_q *= np.where(out_q[:, :1] < 0, -1.0, 1.0)
+    return OrientationEstimate(imu.t.copy(), out_q, out_b, out_rest, {"method": "platkit", "params": p.as_dict()})
+
+
+def _vertical_in_sensor(q: np.ndarray) -> np.ndarray:
+    """The earth's up axis in sensor coordinates, (N, 3), for q_earth_from_sensor (N, 4)."""
+    w, x, y, z = q.T
+    return np.column_stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
+
+
+def smooth_two_pass(imu: ImuStream, params: PlatkitParams | None = None) -> OrientationEstimate:
+    """Offline: platkit's estimator run forward and backward in time, inclinations averaged.
+
+    The backward pass runs on the time-reversed stream with the gyro negated. Each pass lags
+    the truth in its own direction of time, so the mean of the two sensor-frame verticals
+    cancels most of the lag; the heading is the forward pass's. Within ``3 tau_acc`` of either
+    end the weight moves to the pass that has already converged there. Not causal: for files,
+    not for live tracking.
+    """
+    p = params or PlatkitParams()
+    fwd = estimate_platkit(imu, p)
+    # gyro sample k turns q_{k-1} into q_k, so backwards sample k+1 turns q_{k+1} into q_k
+    rev = ImuStream(imu.t[-1] - imu.t[::-1], -np.roll(imu.gyr[::-1], 1, axis=0), imu.acc[::-1], imu.saturated[::-1], [], imu.source)
+    bwd = estimate_platkit(rev, p)
+    z_f = _vertical_in_sensor(fwd.q)
+    z_b = _vertical_in_sensor(bwd.q[::-1])
+    ramp = 3.0 * p.tau_acc
+    t = imu.t - imu.t[0]
+    w_f = np.clip(t / ramp, 0.0, 1.0)
+    w_b = np.clip((t[-1] - t) / ramp, 0.0, 1.0)
+    w = (w_f / np.maximum(w_f + w_b, 1e-12))[:, None]
+    z = w * z_f + (1 - w) * z_b
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    # turn the forward estimate so that its sensor-frame vertical becomes z: q = q_f * r,
+    # r the shortest rotation (in sensor coordinates) taking z to z_f
+    c = np.cross(z, z_f)
+    d = np.sum(z * z_f, axis=1)
+    r = np.column_stack([1 + d, c])
+    r /= np.linalg.norm(r, axis=1, keepdims=True)
+    from platkit.geometry import quat_multiply, quat_normalize
+
+    q = quat_normalize(quat_multiply(fwd.q, r))
+    bias = w * fwd.bias + (1 - w) * (-bwd.bias[::-1])
+    info = {"method": "platkit-offline", "params": p.as_dict()}
+    return OrientationEstimate(imu.t.copy(), q, bias, fwd.rest | bwd.rest[::-1], info)
