@@ -263,6 +263,13 @@ def read_urdf(path: str | Path) -> UrdfTree:
         origin = np.eye(4) if j.origin is None else np.asarray(j.origin, float)
         joints[j.name] = UrdfJoint(j.name, j.type, j.parent, j.child, origin, axis, float(lo), float(hi), mimic)
         parent_joint[j.child] = j.name
+    for start in links:  # a tree has no cycle: walking up from any link ends at a root
+        link, steps = start, 0
+        while link in parent_joint:
+            link = joints[parent_joint[link]].parent
+            steps += 1
+            if steps > len(joints):
+                raise BadDescription(f"{path}: the joints form a cycle through link {start!r}; a URDF is a tree")
     return UrdfTree(path, str(robot.name), links, joints, parent_joint)
 
 
@@ -318,8 +325,6 @@ def serial_chain(tree: UrdfTree, base_link: str | None = None, moving_link: str 
         joint = tree.joints[tree.parent_joint[link]]
         chain.append(joint)
         link = joint.parent
-        if len(chain) > len(tree.joints):
-            raise BadDescription(f"{path}: the joints form a loop through link {link!r}")
     chain.reverse()
     names = {j.name for j in chain}
     for j in chain:

@@ -264,6 +264,11 @@ def test_malformed_files_fail_in_one_line(tmp_path):
         read_urdf(_write(tmp_path, '<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/><child link="c"/></joint></robot>'))
     with pytest.raises(BadDescription, match=r"joint 'j' has type 'hinge'"):
         read_urdf(_write(tmp_path, '<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="hinge"><parent link="a"/><child link="b"/></joint></robot>'))
+    cycle = ('<robot name="x"><link name="r"/><link name="a"/><link name="b"/>'
+             '<joint name="j1" type="fixed"><parent link="a"/><child link="b"/></joint>'
+             '<joint name="j2" type="fixed"><parent link="b"/><child link="a"/></joint></robot>')
+    with pytest.raises(BadDescription, match=r"the joints form a cycle through link 'a'"):
+        read_urdf(_write(tmp_path, cycle))
     floating = '<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="floating"><parent link="a"/><child link="b"/></joint></robot>'
     with pytest.raises(BadInput, match=r"joint 'j' on the chain a -> b is floating"):
         serial_chain(read_urdf(_write(tmp_path, floating)))
