@@ -106,7 +106,20 @@ class CalibrationProblem:
             np.full(6 + 3 * self.M, 1e-3), np.full(n_theta, 1e-3)])
         self.tiers = np.array([TD_TIER] * spec.n_td + [NUISANCE_TIER] * (6 + 3 * self.M) + [TERM_TIER] * n_theta)
         self._p_guess = np.broadcast_to(spec.neutral_p(), (self.N, spec.n_p)).copy()
+        self.prior_center = np.zeros(self.n_z)
+        self.prior_scale = np.zeros(self.n_z)  # rows prior_scale * (z - prior_center); 0 = none
         self._build()
+
+    def set_ridge(self, ridge_m: float, center) -> None:
+        """Shrink td towards ``center``: one typical correction (1 mm, 1 mrad) of a parameter costs
+        as much as a marker error of ``ridge_m`` metres. 0 removes the prior."""
+        self.prior_center = np.asarray(center, float).copy()
+        self.prior_scale = np.zeros(self.n_z)
+        if ridge_m > 0:
+            self.prior_scale[self.i_td] = ridge_m / self.scale[self.i_td]
+
+    def prior_rows(self, z):
+        return (np.asarray(z, float), self.prior_center, self.prior_scale) if np.any(self.prior_scale > 0) else None
 
     # ------------------------------------------------------------------ CasADi
     def _build(self) -> None:
@@ -375,7 +388,9 @@ class LMResult:
     cost: float
 
 
-def _weighted(state: FitState, weights, active):
+def _weighted(state: FitState, weights, active, prior=None):
+    """Weighted residual vector and Jacobian columns of the active unknowns; ``prior``: optional
+    (z, z_center, row_scale (n_z,)) adding rows row_scale * (z - z_center) (zero scale: no row)."""
     w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)  # (N, M)
     r = np.nan_to_num(state.r)
     sw = np.sqrt(w)[:, :, None]
@@ -383,6 +398,16 @@ def _weighted(state: FitState, weights, active):
     Jw = None
     if state.J is not None:
         Jw = (state.J[..., active] * sw[..., None]).reshape(-1, int(np.sum(active)))
+    if prior is not None:
+        z, zc, k = prior
+        rows = np.nonzero(active & (k > 0))[0]
+        if rows.size:
+            rw = np.concatenate([rw, k[rows] * (z[rows] - zc[rows])])
+            if Jw is not None:
+                P = np.zeros((rows.size, int(np.sum(active))))
+                cols = np.cumsum(active) - 1
+                P[np.arange(rows.size), cols[rows]] = k[rows]
+                Jw = np.vstack([Jw, P])
     return rw, Jw
 
 
@@ -392,7 +417,7 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
     z = np.array(z0, float)
     active = np.asarray(active, bool)
     st = problem.evaluate(z)
-    rw, Jw = _weighted(st, weights, active)
+    rw, Jw = _weighted(st, weights, active, problem.prior_rows(z))
     cost = 0.5 * rw @ rw
     lam = 1e-3
     converged = False
@@ -411,7 +436,7 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
             z_new = z.copy()
             z_new[active] += step
             st_new = problem.evaluate(z_new)
-            rw_new, Jw_new = _weighted(st_new, weights, active)
+            rw_new, Jw_new = _weighted(st_new, weights, active, problem.prior_rows(z_new))
             cost_new = 0.5 * rw_new @ rw_new
             if np.isfinite(cost_new) and cost_new <= cost:
                 accepted = True
@@ -497,12 +522,14 @@ def free_mask(spec: PlatformSpec, free: Sequence[str] | None) -> np.ndarray:
 def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (), free: Sequence[str] | None = None,
               robust: bool = True, folds: int = 0, rel_tol: float = DEFAULT_REL_TOL, max_iter: int = 60,
               progress: Progress | None = None, platform_options: dict | None = None,
-              td_start: np.ndarray | None = None) -> Calibration:
+              td_start: np.ndarray | None = None, ridge_m: float = 0.0) -> Calibration:
     """Estimate td, the base-to-mocap transform, marker positions and term parameters.
 
     poses: settled poses (SI); spec: the stand (its nominal td is the starting point and the value
     of every parameter held); terms: extra physics (ModelTerm); free: see :func:`free_mask`;
     folds: K > 1 adds K-fold held-out prediction errors to ``Calibration.heldout``.
+    ridge_m: optional shrinkage of td towards nominal (see CalibrationProblem.set_ridge); 0 (default)
+    is plain (robust) least squares.
     Raises NotIdentifiable when not even the transform and markers can be fixed, NoConvergence
     when forward kinematics fails on most poses.
     """
@@ -510,6 +537,7 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     problem = CalibrationProblem(spec, poses, terms)
     td0 = spec.nominal_td() if td_start is None else np.asarray(td_start, float)
     z = problem.initial_registration(td0)
+    problem.set_ridge(ridge_m, z)
     n_z = problem.n_z
     nuisance = np.zeros(n_z, bool)
     nuisance[problem.i_w] = nuisance[problem.i_t] = nuisance[problem.i_m] = True
@@ -555,6 +583,9 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     dof = max(1, n_obs - int(active.sum()))
     s2 = float(rw @ rw) / dof
     JtJ = Jw.T @ Jw
+    if problem.prior_rows(z) is not None:  # posterior covariance: the prior rows count as data
+        _, Jp = _weighted(st, weights, active, problem.prior_rows(z))
+        JtJ = Jp.T @ Jp
     try:
         cov = s2 * np.linalg.inv(JtJ)
     except np.linalg.LinAlgError:
@@ -600,7 +631,7 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
         "residuals_before": residuals_before, "residuals_after": st.r.copy(), "weights": weights.copy(),
         "weights_before": reg.weights.copy(), "singular_values": sv, "identifiability": ident,
         "controls": poses.controls.copy(), "active": active, "z": z.copy(), "names": list(problem.names),
-        "cov": cov, "problem": problem,
+        "cov": cov, "problem": problem, "ridge_m": ridge_m,
     })
     if folds and folds > 1:
         cal.heldout = kfold(problem, z, active, folds, robust, max_iter, progress)
@@ -629,6 +660,7 @@ def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = Tru
         train = poses.subset(fold_of != k)
         test = poses.subset(fold_of == k)
         sub = CalibrationProblem(problem.spec, train, problem.terms)
+        sub.prior_center, sub.prior_scale = problem.prior_center, problem.prior_scale
         fit = robust_fit(sub, z, active, robust, max_iter)
         st = sub.evaluate(fit.z, with_jac=False, poses=test)
         d = np.linalg.norm(st.r, axis=2)

@@ -1,0 +1,82 @@
+"""Predict markers and poses from a calibration for a file of commands (``platkit predict``).
+
+Input: a commands CSV with one column per control of the stand (named as the stand names them;
+an optional ``t`` column and other columns are allowed and used only by time- or history-
+dependent model terms). 'm' controls are in the calibration's length unit.
+Output: one row per command row: the control columns, every marker's ``<name>_x,_y,_z`` in the
+motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame;
+lengths in the calibration's length unit. Rows whose forward kinematics fails are written with
+empty cells and counted.
+"""
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+
+from platkit.calibrate.estimate import predict_markers
+from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.result import Calibration, read_calibration
+from platkit.errors import BadInput
+from platkit.io.atomic import atomic_write_text
+from platkit.model import controls_from_si, controls_to_si, length_scale
+
+
+def read_commands(path: str | Path, cal: Calibration) -> tuple[np.ndarray, np.ndarray | None]:
+    """Controls (N, n_u) in internal units and t (N,) or None from a commands CSV."""
+    from platkit.io.session import read_table
+
+    try:
+        table = read_table(Path(path), "commands")
+    except BadInput as exc:
+        raise BadInput(str(exc)) from None
+    spec = cal.spec
+    missing = [n for n in spec.control_names if n not in table.header]
+    if missing:
+        raise BadInput(f"{path}: missing control column {missing[0]!r}; the {spec.name} stand's controls are "
+                       f"{', '.join(spec.control_names)}")
+    U = np.column_stack([table.column(n) for n in spec.control_names])
+    bad = np.argwhere(~np.isfinite(U))
+    if bad.size:
+        r, c = bad[0]
+        raise BadInput(f"{table.where(int(r), spec.control_names[c])}: the control is empty; every row needs one")
+    t = table.column("t") if "t" in table.header else None
+    return controls_to_si(spec, U, cal.length_unit), t
+
+
+def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = None):
+    """(header, rows (N, cols), ok (N,)) of the predict output for controls U (N, n_u) SI."""
+    N = U.shape[0]
+    poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
+                    marker_names=list(cal.marker_names), t=t, length_unit=cal.length_unit)
+    if cal.terms:
+        from platkit.calibrate.settle import direction_of_last_motion
+
+        poses.extras = {"row": np.arange(N), "direction": direction_of_last_motion(U)}
+    markers, q, X, ok = predict_markers(cal, U, poses)
+    s = length_scale(cal.length_unit)
+    header = list(cal.spec.control_names)
+    header += [f"{m}_{a}" for m in cal.marker_names for a in "xyz"]
+    header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
+    rows = np.column_stack([controls_from_si(cal.spec, U, cal.length_unit), markers.reshape(N, -1) / s, X / s, q])
+    rows[~ok, cal.spec.n_u:] = np.nan
+    return header, rows, ok
+
+
+def predict_file(calibration: str | Path, commands: str | Path, out: str | Path) -> dict:
+    """Read a calibration.yaml and a commands CSV, write the prediction CSV atomically.
+
+    Returns {'rows': N, 'failed': number of rows without a solution, 'out': path}.
+    """
+    cal = read_calibration(calibration)
+    U, t = read_commands(commands, cal)
+    header, rows, ok = prediction_table(cal, U, t)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for r in rows:
+        w.writerow(["" if not np.isfinite(v) else format(float(v), ".10g") for v in r])
+    atomic_write_text(out, buf.getvalue())
+    return {"rows": int(len(rows)), "failed": int(np.sum(~ok)), "out": str(out)}

@@ -1,0 +1,308 @@
+"""The outputs of a calibration: calibration.yaml, report.json and report.html (spec section 2).
+
+``write_outputs(cal, poses, out_dir)`` writes the three files atomically (all or nothing), and for
+a stand built from a URDF also ``calibrated.urdf`` (the estimate folded into the joint origins).
+report.json: ``rms_before``, ``rms_after`` (the session's length unit), ``unit``, ``n_poses``,
+``n_markers``, ``converged``, and more (held-out errors, identifiability, per-marker RMS, outliers).
+report.html: one self-contained page, plots embedded as base64 PNG (matplotlib, Agg).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.result import Calibration
+from platkit.io.atomic import atomic_output_dir
+from platkit.model import length_scale
+
+
+def _finite_or_none(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def per_marker_rms(r: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """RMS (m) of the 3-D error per marker over the kept observations; r: (N, M, 3)."""
+    d2 = np.sum(r ** 2, axis=2)
+    keep = np.isfinite(d2) & (weights > 0 if weights is not None else True)
+    out = np.full(r.shape[1], np.nan)
+    for i in range(r.shape[1]):
+        if keep[:, i].any():
+            out[i] = np.sqrt(np.mean(d2[keep[:, i], i]))
+    return out
+
+
+def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
+    """report.json as a dict; lengths in the session's unit (``unit``)."""
+    s = length_scale(cal.length_unit)
+    ident = cal.identifiability or {}
+    out = {
+        "platform": cal.platform,
+        "description": cal.description,
+        "method": cal.method,
+        "unit": cal.length_unit,
+        "rms_before": _finite_or_none(cal.rms_before / s),
+        "rms_after": _finite_or_none(cal.rms_after / s),
+        "n_poses": int(cal.n_poses),
+        "n_markers": int(cal.n_markers),
+        "converged": bool(cal.converged),
+        "iterations": int(cal.iterations),
+        "n_observations": int(cal.n_observations),
+        "n_rejected_as_outliers": int(cal.n_rejected),
+        "noise_sigma_per_axis": _finite_or_none(cal.noise_sigma / s),
+        "time_s": float(cal.time_s),
+        "n_parameters_estimated": int(sum(1 for st in cal.td_status if st == "estimated")),
+        "held_at_nominal": [h["name"] for h in ident.get("held_at_nominal", [])],
+        "weakly_identified": list(ident.get("weakly_identified", [])),
+        "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
+                          "over the observations kept by the robust loss",
+    }
+    after = cal.extras.get("residuals_after")
+    if after is not None:
+        pm = per_marker_rms(after, cal.extras.get("weights"))
+        out["rms_after_per_marker"] = {n: _finite_or_none(v / s) for n, v in zip(cal.marker_names, pm)}
+        d = np.linalg.norm(after, axis=2)
+        out["max_error_after"] = _finite_or_none(np.nanmax(d) / s) if np.isfinite(d).any() else None
+    if cal.heldout:
+        h = dict(cal.heldout)
+        for k in ("rms", "rms_inliers"):
+            if k in h and h[k] is not None:
+                h[k] = _finite_or_none(h[k] / s)
+        if "rms_per_fold" in h:
+            h["rms_per_fold"] = [_finite_or_none(v / s) for v in h["rms_per_fold"]]
+        h["unit"] = cal.length_unit
+        out["heldout"] = h
+    if "paper" in cal.extras:
+        out["paper"] = cal.extras["paper"]
+    return out
+
+
+# ---------------------------------------------------------------------------- plots
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]]:
+    """(title, caption, base64 png) for every plot the data allow."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = length_scale(cal.length_unit)
+    lu = cal.length_unit
+    out = []
+    before, after = cal.extras.get("residuals_before"), cal.extras.get("residuals_after")
+    w_after = cal.extras.get("weights")
+    if before is not None and after is not None:
+        fig, ax = plt.subplots(figsize=(9, 3.2))
+        db = np.sqrt(np.nanmean(np.sum(before ** 2, axis=2), axis=1)) / s
+        da = np.sqrt(np.nanmean(np.sum(after ** 2, axis=2), axis=1)) / s
+        n = np.arange(len(db))
+        ax.plot(n, db, ".", ms=3, label=f"before (nominal td), RMS {cal.rms_before / s:.3g} {lu}", color="tab:red")
+        ax.plot(n, da, ".", ms=3, label=f"after, RMS {cal.rms_after / s:.3g} {lu}", color="tab:blue")
+        if w_after is not None:
+            rej = np.nonzero(((w_after == 0) & np.isfinite(after).all(axis=2)).any(axis=1))[0]
+            if rej.size:
+                ax.plot(rej, da[rej], "x", color="k", label="pose with a rejected marker")
+        ax.set_xlabel("pose (row)")
+        ax.set_ylabel(f"RMS marker error [{lu}]")
+        ax.set_yscale("log")
+        ax.legend(fontsize=8)
+        out.append(("Residuals per pose", "RMS over the markers of each pose, before and after calibration.", _png(fig)))
+
+        fig, ax = plt.subplots(figsize=(max(4, 0.7 * len(cal.marker_names) + 2), 3.2))
+        pb = per_marker_rms(before, cal.extras.get("weights_before")) / s
+        pa = per_marker_rms(after, w_after) / s
+        x = np.arange(len(cal.marker_names))
+        ax.bar(x - 0.2, pb, 0.4, label="before", color="tab:red")
+        ax.bar(x + 0.2, pa, 0.4, label="after", color="tab:blue")
+        ax.set_xticks(x, cal.marker_names)
+        ax.set_ylabel(f"RMS error [{lu}]")
+        ax.set_yscale("log")
+        ax.legend(fontsize=8)
+        out.append(("Residuals per marker", "RMS 3-D error of each marker over the poses.", _png(fig)))
+
+    est = [i for i, st in enumerate(cal.td_status) if st == "estimated" and np.isfinite(cal.td_std[i])]
+    if est:
+        groups = [("m", f"[{lu}]", 1 / s), ("rad", "[mrad]", 1e3)]
+        other = [i for i in est if cal.spec.parameters[i].unit not in ("m", "rad")]
+        panels = [(u, lab, k, [i for i in est if cal.spec.parameters[i].unit == u]) for u, lab, k in groups]
+        if other:
+            panels.append(("other", "[relative, x1e3]", None, other))
+        panels = [p for p in panels if p[3]]
+        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6, 0.22 * max(len(p[3]) for p in panels) + 2),
+                                                          2.8 * len(panels)), squeeze=False)
+        for ax, (u, lab, k, idx) in zip(axes[:, 0], panels):
+            if k is None:
+                nom = np.where(cal.td_nominal[idx] != 0, np.abs(cal.td_nominal[idx]), 1.0)
+                dev = (cal.td[idx] - cal.td_nominal[idx]) / nom * 1e3
+                err = cal.td_std[idx] / nom * 1e3
+            else:
+                dev = (cal.td[idx] - cal.td_nominal[idx]) * k
+                err = cal.td_std[idx] * k
+            x = np.arange(len(idx))
+            ax.errorbar(x, dev, yerr=2 * err, fmt="o", ms=3, capsize=2)
+            ax.axhline(0, color="0.6", lw=0.8)
+            ax.set_xticks(x, [cal.spec.parameters[i].name for i in idx], rotation=90, fontsize=7)
+            ax.set_ylabel(f"estimate - nominal {lab}")
+        out.append(("Parameter deviations", "Estimated minus nominal, with two-standard-deviation error bars "
+                    "(parameters held at nominal are not shown).", _png(fig)))
+
+    ident = cal.identifiability or {}
+    sv = ident.get("singular_values")
+    if sv:
+        fig, ax = plt.subplots(figsize=(7, 3))
+        sv = np.asarray(sv, float)
+        ax.semilogy(np.arange(1, len(sv) + 1), np.maximum(sv, 1e-300), "o-", ms=3)
+        n_id = ident.get("n_identifiable", len(sv))
+        ax.axvline(n_id + 0.5, color="tab:red", lw=1, label=f"{n_id} identifiable of {len(sv)}")
+        ax.set_xlabel("index")
+        ax.set_ylabel("singular value (scaled Jacobian)")
+        ax.legend(fontsize=8)
+        out.append(("Identifiability", "Singular values of the identification Jacobian, each column scaled "
+                    "by its parameter's typical correction (1 mm, 1 mrad). Values near zero are "
+                    "combinations the data cannot fix; they are held at nominal and listed below.", _png(fig)))
+
+    controls = cal.extras.get("controls")
+    if controls is not None and len(controls):
+        try:
+            from platkit.kinematics import PlatformModel
+
+            fb = PlatformModel(cal.calibrated_spec()).forward_batch(controls, cal.td, strict=False)
+            X = fb.X[fb.converged] / s
+            from platkit.geometry import rpy_from_quat
+
+            rpy = np.degrees(rpy_from_quat(fb.q[fb.converged]))
+            fig, axes = plt.subplots(1, 3, figsize=(11, 3.3))
+            axes[0].plot(X[:, 0], X[:, 1], ".", ms=3)
+            axes[0].set_xlabel(f"x [{lu}]"), axes[0].set_ylabel(f"y [{lu}]")
+            axes[1].plot(X[:, 0], X[:, 2], ".", ms=3)
+            axes[1].set_xlabel(f"x [{lu}]"), axes[1].set_ylabel(f"z [{lu}]")
+            axes[2].plot(rpy[:, 0], rpy[:, 1], ".", ms=3)
+            axes[2].set_xlabel("roll [deg]"), axes[2].set_ylabel("pitch [deg]")
+            for a in axes:
+                a.set_aspect("auto")
+            out.append(("Coverage of the workspace", "Where the plan took the moving frame (base frame, "
+                        "calibrated model): positions and tilts.", _png(fig)))
+            lo, hi = cal.spec.control_bounds()
+            span = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, np.ptp(controls, axis=0) + 1e-12)
+            base = np.where(np.isfinite(lo), lo, controls.min(axis=0))
+            frac = (controls - base) / span
+            fig, ax = plt.subplots(figsize=(max(5, 0.6 * cal.spec.n_u + 2), 3))
+            for j in range(cal.spec.n_u):
+                ax.plot(np.full(len(frac), j) + np.random.default_rng(j).uniform(-0.15, 0.15, len(frac)),
+                        frac[:, j], ".", ms=2)
+            ax.set_xticks(range(cal.spec.n_u), cal.spec.control_names, rotation=45)
+            ax.set_ylabel("fraction of the stroke")
+            ax.set_ylim(-0.05, 1.05)
+            out.append(("Coverage of the controls", "Each control's commanded values across its range.", _png(fig)))
+        except Exception:  # a coverage plot must never stop the report from being written
+            pass
+    return out
+
+
+def _table(rows, header) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
+    rep = report_dict(cal, poses)
+    s = length_scale(cal.length_unit)
+    lu = cal.length_unit
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>platkit calibration: {html.escape(cal.platform)}</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+        "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
+        "th{background:#eee}td:first-child{text-align:left}img{max-width:100%}</style></head><body>",
+        f"<h1>Calibration of the {html.escape(cal.platform)} stand</h1>",
+        f"<p>Method <b>{html.escape(cal.method)}</b>; description {html.escape(str(cal.description))}; "
+        f"{cal.n_poses} poses, {cal.n_markers} markers, {cal.n_observations} marker observations kept, "
+        f"{cal.n_rejected} rejected as outliers; {'converged' if cal.converged else '<b>NOT converged</b>'} "
+        f"after {cal.iterations} iterations in {cal.time_s:.2f} s.</p>",
+        f"<p>RMS marker error: <b>{cal.rms_before / s:.4g} {lu}</b> before (nominal parameters, only the "
+        f"base-to-mocap transform and the markers fitted), <b>{cal.rms_after / s:.4g} {lu}</b> after. "
+        f"Estimated noise per axis {cal.noise_sigma / s:.3g} {lu}.</p>",
+    ]
+    if "heldout" in rep:
+        h = rep["heldout"]
+        parts.append(f"<p>Held-out ({h.get('folds')}-fold) prediction RMS: <b>{h.get('rms'):.4g} {lu}</b> "
+                     f"(inliers {h.get('rms_inliers'):.4g} {lu}).</p>")
+    for title, caption, png in _plots(cal, poses):
+        parts.append(f"<h2>{html.escape(title)}</h2><p>{html.escape(caption)}</p>"
+                     f"<img alt='{html.escape(title)}' src='data:image/png;base64,{png}'>")
+    ident = cal.identifiability or {}
+    held = ident.get("held_at_nominal", [])
+    parts.append("<h2>Parameters the data cannot fix</h2>")
+    if held:
+        rows = [(h["name"], ", ".join(f"{v:+.3g} {k}" for k, v in h["combination"].items()), h["reason"]) for h in held]
+        parts.append("<p>Held at their nominal values (the combination shown, in scaled units, is invisible "
+                     "in the markers):</p>" + _table(rows, ["parameter", "unseen combination", "why"]))
+    else:
+        parts.append("<p>None: every free parameter is identifiable from these poses.</p>")
+    if ident.get("weakly_identified"):
+        parts.append("<p>Weakly identified (standard deviation over ten typical corrections): "
+                     + html.escape(", ".join(ident["weakly_identified"])) + "</p>")
+    rows = []
+    for p, v, sd, nom, st in zip(cal.spec.parameters, cal.td, cal.td_std, cal.td_nominal, cal.td_status):
+        k, unit = (1 / s, lu) if p.unit == "m" else (1.0, p.unit)
+        rows.append((p.name, f"{v * k:.6g}", "" if not np.isfinite(sd) else f"{sd * k:.3g}", f"{nom * k:.6g}",
+                     f"{(v - nom) * k:+.4g}", unit, st))
+    parts.append("<h2>Parameters</h2>" + _table(rows, ["name", "value", "std", "nominal", "deviation", "unit", "status"]))
+    rows = [(n, *(f"{x / s:.4f}" for x in pos), *("" if not np.isfinite(x) else f"{x / s:.3g}" for x in sd))
+            for n, pos, sd in zip(cal.marker_names, cal.marker_positions, cal.marker_std)]
+    parts.append(f"<h2>Markers on the moving part ({lu}, moving frame)</h2>"
+                 + _table(rows, ["marker", "x", "y", "z", "std x", "std y", "std z"]))
+    T = cal.mocap_from_base
+    parts.append(f"<h2>Base to motion capture</h2><pre>{html.escape(np.array2string(T[:3, :3], precision=6))}\n"
+                 f"translation {html.escape(np.array2string(T[:3, 3] / s, precision=4))} {lu}</pre>")
+    if cal.terms:
+        rows = []
+        for term, th, sd in zip(cal.terms, cal.theta, cal.theta_std):
+            for n, v, e, u in zip(term.parameter_names, th, sd if sd is not None else th, term.units or [""] * len(th)):
+                rows.append((f"{term.effect}.{n}", f"{v:.6g}", f"{e:.3g}", u))
+        parts.append("<h2>Model terms</h2>" + _table(rows, ["parameter", "value", "std", "unit"]))
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None = None) -> list[Path]:
+    """Write calibration.yaml, report.json, report.html (and calibrated.urdf for URDF stands) into
+    ``out_dir`` atomically. Returns the paths written."""
+    out_dir = Path(out_dir)
+    names = []
+    with atomic_output_dir(out_dir) as tmp:
+        names = ["calibration.yaml", "report.json", "report.html"]
+        if cal.spec.extras.get("chain") is not None:
+            from platkit.errors import BadInput
+            from platkit.io.urdf_export import export_calibrated_urdf
+
+            try:
+                export_calibrated_urdf(cal.spec, cal.td, tmp / "calibrated.urdf")
+                names.append("calibrated.urdf")
+                cal.extras["calibrated_urdf"] = "calibrated.urdf"
+            except BadInput as exc:  # e.g. a joint scale other than 1 has no place in a URDF
+                cal.extras["calibrated_urdf"] = f"not written: {exc}"
+        rep = report_dict(cal, poses)
+        if "calibrated_urdf" in cal.extras:
+            rep["calibrated_urdf"] = cal.extras["calibrated_urdf"]
+        (tmp / "calibration.yaml").write_text(cal.to_yaml(), encoding="utf-8")
+        (tmp / "report.json").write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
+        (tmp / "report.html").write_text(report_html(cal, poses), encoding="utf-8")
+    return [out_dir / n for n in names]

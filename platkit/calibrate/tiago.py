@@ -1,0 +1,270 @@
+"""Real data: the PAL TIAGo arm recorded by Qualisys (FIGAROH's example data, Apache-2.0,
+Thanh Nguyen, CNRS and Toward), turned into platkit sessions and scored like FIGAROH.
+
+Source: ``shared/data/real/tiago/`` (README.md there). Each row of a ``qualisys_*_static_postures``
+CSV is a settled pose: four points BL, BR, TR, TL of one rigid body on the hand (metres, in the
+frame of a rigid body fixed to the robot base) and the joints ``torso_lift_joint`` (m),
+``arm_1_joint .. arm_7_joint`` (rad).
+
+:func:`convert` writes a session folder (session.yaml for the ``urdf`` stand with the URDF copied
+beside it, moving link ``wrist_ft_tool_link``, units m; commands.csv; poses.csv).
+:func:`compare_with_figaroh` fits three model levels on the training day and scores point BL on
+the validation day (norm RMSE, mm), beside FIGAROH 1.0.2's published figures.
+
+Command line::
+
+    python -m platkit.calibrate.tiago convert CSV OUT_SESSION [--urdf FILE]
+    python -m platkit.calibrate.tiago compare [--data DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadInput, BadSession
+from platkit.io.atomic import atomic_output_dir
+
+MARKERS = ["BL", "BR", "TR", "TL"]
+JOINTS = ["torso_lift_joint"] + [f"arm_{k}_joint" for k in range(1, 8)]
+MOVING_LINK = "wrist_ft_tool_link"
+URDF_NAME = "tiago_48_schunk.urdf"
+TRAINING = "qualisys_2021-11-30_static_postures.csv"
+VALIDATION = "qualisys_2021-11-26_static_postures.csv"
+
+#: FIGAROH 1.0.2 on these files: norm RMSE of point BL, mm (shared/data/real/tiago/README.md)
+FIGAROH = {
+    "registration": {"parameters": 9, "training_mm": 3.37, "validation_mm": 4.87},
+    "joint_offsets": {"parameters": 14, "training_mm": 2.88, "validation_mm": 4.23},
+    "full_geometric": {"parameters": 30, "training_mm": 1.68, "validation_mm": 3.22},
+}
+#: which td groups each level fits (the urdf stand's groups)
+LEVELS = {"registration": [], "joint_offsets": ["offset"], "full_geometric": ["offset", "origin"]}
+
+
+def default_data_dir() -> Path:
+    """shared/data/real/tiago beside the checkout (walking up from this file)."""
+    for parent in Path(__file__).resolve().parents:
+        cand = parent / "shared" / "data" / "real" / "tiago"
+        if cand.is_dir():
+            return cand
+        cand = parent.parent / "shared" / "data" / "real" / "tiago"
+        if cand.is_dir():
+            return cand
+    raise BadInput("shared/data/real/tiago not found beside the checkout; pass --data DIR")
+
+
+def read_postures(path: str | Path) -> dict:
+    """The static-postures CSV: {'markers': (N, 4, 3) m, 'joints': (N, 8), 't': (N,) s from the first
+    row (window start, robot clock), 'std_mm': (N,)}. BadSession names row and column."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadSession(f"{path}: file not found")
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise BadSession(f"{path}: empty file")
+    header = [h.strip() for h in rows[0]]
+    need = [f"{a}{k}" for k in range(1, 5) for a in "xyz"] + JOINTS + ["t_start_robot"]
+    for c in need:
+        if c not in header:
+            raise BadSession(f"{path}: missing column {c!r}")
+    data = np.empty((len(rows) - 1, len(header)))
+    for r, row in enumerate(rows[1:]):
+        if len(row) != len(header):
+            raise BadSession(f"{path} row {r + 1}: {len(row)} cells, expected {len(header)}")
+        for j, cell in enumerate(row):
+            try:
+                data[r, j] = float(cell)
+            except ValueError:
+                raise BadSession(f"{path} row {r + 1} column {header[j]!r}: expected a number, got {cell!r}") from None
+    col = {h: data[:, j] for j, h in enumerate(header)}
+    markers = np.stack([np.column_stack([col[f"x{k}"], col[f"y{k}"], col[f"z{k}"]]) for k in range(1, 5)], axis=1)
+    joints = np.column_stack([col[j] for j in JOINTS])
+    t = col["t_start_robot"] - col["t_start_robot"][0]
+    std = col.get("marker_std_mm", np.full(len(t), np.nan))
+    return {"markers": markers, "joints": joints, "t": t, "std_mm": std}
+
+
+def convert(csv_path: str | Path, out_session: str | Path, urdf: str | Path | None = None) -> Path:
+    """Write a platkit session folder for one static-postures CSV (atomically).
+
+    session.yaml: platform urdf, description the URDF (copied into the folder), moving_link
+    wrist_ft_tool_link, units m and s, markers BL, BR, TR, TL. commands.csv: t and the 8 joints;
+    poses.csv: t, the joints and the markers (the rows are already settled plateaus).
+    """
+    csv_path = Path(csv_path)
+    urdf = Path(urdf) if urdf is not None else csv_path.parent / URDF_NAME
+    if not urdf.is_file():
+        raise BadInput(f"{urdf}: URDF not found (pass urdf=...)")
+    d = read_postures(csv_path)
+    order = np.argsort(d["t"], kind="stable")
+    t = d["t"][order]
+    if np.any(np.diff(t) <= 0):
+        raise BadSession(f"{csv_path}: two rows share a start time; cannot order the commands")
+    J = d["joints"][order]
+    Y = d["markers"][order]
+    yaml_text = (
+        "# Converted by platkit.calibrate.tiago from FIGAROH's example data (Apache-2.0; Thanh Nguyen, CNRS and Toward).\n"
+        f"# Source: {csv_path.name}\n"
+        "platform: urdf\n"
+        f"description: {URDF_NAME}\n"
+        "units: {length: m, time: s}\n"
+        f"markers: [{', '.join(MARKERS)}]\n"
+        "base_markers: []\n"
+        "mocap_rate_hz: null\n"
+        "imu: null\n"
+        f"moving_link: {MOVING_LINK}\n"
+        f"notes: PAL TIAGo arm, Qualisys static postures from {csv_path.name}; t is the start of each averaging "
+        "window on the robot clock, from the first row.\n"
+    )
+    cmd = io.StringIO()
+    w = csv.writer(cmd, lineterminator="\n")
+    w.writerow(["t"] + JOINTS)
+    for ti, row in zip(t, J):
+        w.writerow([format(ti, ".6f")] + [format(v, ".17g") for v in row])
+    poses = io.StringIO()
+    w = csv.writer(poses, lineterminator="\n")
+    w.writerow(["t"] + JOINTS + [f"{m}_{a}" for m in MARKERS for a in "xyz"])
+    for ti, row, ys in zip(t, J, Y):
+        w.writerow([format(ti, ".6f")] + [format(v, ".17g") for v in row] + [format(v, ".17g") for v in ys.ravel()])
+    out = Path(out_session)
+    with atomic_output_dir(out) as tmp:
+        (tmp / "session.yaml").write_text(yaml_text, encoding="utf-8")
+        (tmp / "commands.csv").write_text(cmd.getvalue(), encoding="utf-8")
+        (tmp / "poses.csv").write_text(poses.getvalue(), encoding="utf-8")
+        text, widened = widen_joint_limits(urdf.read_text(encoding="utf-8"), J.min(axis=0), J.max(axis=0))
+        (tmp / URDF_NAME).write_text(text, encoding="utf-8")
+    return out
+
+
+def widen_joint_limits(urdf_text: str, lowest: np.ndarray, highest: np.ndarray, margin: float = 1e-4):
+    """The URDF text with each chain joint's <limit> widened to cover the recorded values.
+
+    Real joint readings can pass a limit by a fraction of a millimetre (the torso reaches 0.35018 m
+    against 0.35); limits play no part in the kinematics, but the session reader checks commands
+    against them. Returns (text, [joint names widened]); a comment in the file says what changed.
+    """
+    import re
+
+    widened = []
+    for name, lo, hi in zip(JOINTS, lowest, highest):
+        m = re.search(r'<joint\s+name="%s"\s+type="[^"]+"\s*>(.*?)</joint>' % re.escape(name), urdf_text, re.S)
+        if m is None:
+            continue
+        block = m.group(0)
+        lim = re.search(r"<limit[^>]*/>", block)
+        if lim is None:
+            continue
+        tag = lim.group(0)
+        new = tag
+        lo_m = re.search(r'lower="([^"]+)"', tag)
+        hi_m = re.search(r'upper="([^"]+)"', tag)
+        changed = False
+        if lo_m and lo < float(lo_m.group(1)):
+            new = new.replace(lo_m.group(0), f'lower="{lo - margin:.6f}"')
+            changed = True
+        if hi_m and hi > float(hi_m.group(1)):
+            new = new.replace(hi_m.group(0), f'upper="{hi + margin:.6f}"')
+            changed = True
+        if changed:
+            note = (f"<!-- platkit.calibrate.tiago: limit widened to cover the recorded values "
+                    f"[{lo:.6f}, {hi:.6f}] (was {tag.strip()}) -->")
+            urdf_text = urdf_text.replace(block, block.replace(tag, note + new), 1)
+            widened.append(name)
+    return urdf_text, widened
+
+
+def bl_rmse_mm(cal, poses) -> float:
+    """Norm RMSE (mm) of point BL: sqrt(mean |predicted - measured|^2) over the poses where BL was seen."""
+    from platkit.calibrate.estimate import point_errors
+
+    d = point_errors(cal, poses)[:, poses.marker_names.index("BL")]
+    d = d[np.isfinite(d)]
+    return float(np.sqrt(np.mean(d ** 2)) * 1e3)
+
+
+def compare_with_figaroh(data_dir: str | Path | None = None, work: str | Path | None = None, robust: bool = False,
+                         progress=None) -> dict:
+    """Fit each model level on the training day, predict the validation day, score BL.
+
+    Returns {level: {'training_mm', 'validation_mm', 'n_estimated', 'held', 'figaroh': {...}}}.
+    ``robust``: False by default, as FIGAROH's plain least squares (the data have no gross outliers).
+    """
+    import tempfile
+
+    from platkit.calibrate.estimate import calibrate
+    from platkit.calibrate.settle import load_poses
+    from platkit.io.session import load_session
+
+    data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
+    tmpdir = None
+    if work is None:
+        tmpdir = tempfile.TemporaryDirectory(prefix="platkit-tiago-")
+        work = tmpdir.name
+    work = Path(work)
+    try:
+        sessions = {}
+        for role, name in (("training", TRAINING), ("validation", VALIDATION)):
+            folder = convert(data_dir / name, work / role)
+            s = load_session(folder)
+            sessions[role] = (load_poses(folder, spec=s.spec), s.spec)
+        train, spec = sessions["training"]
+        valid, _ = sessions["validation"]
+        out = {}
+        for level, groups in LEVELS.items():
+            cal = calibrate(train, spec, free=groups, robust=robust, progress=progress,
+                            platform_options={"moving_link": MOVING_LINK})
+            out[level] = {
+                "training_mm": bl_rmse_mm(cal, train),
+                "validation_mm": bl_rmse_mm(cal, valid),
+                "n_estimated": int(sum(st == "estimated" for st in cal.td_status)),
+                "n_unknowns": int(sum(st == "estimated" for st in cal.td_status)) + 6 + 3 * cal.n_markers,
+                "held": [h["name"] for h in cal.identifiability.get("held_at_nominal", [])],
+                "figaroh": FIGAROH[level],
+                "calibration": cal,
+            }
+        return out
+    finally:
+        if tmpdir is not None:
+            tmpdir.cleanup()
+
+
+def format_table(result: dict) -> str:
+    lines = [f"{'model':<16} {'td est.':>7} {'train BL mm':>12} {'valid BL mm':>12} {'FIGAROH train':>14} "
+             f"{'FIGAROH valid':>14}"]
+    for level, r in result.items():
+        f = r["figaroh"]
+        lines.append(f"{level:<16} {r['n_estimated']:>7d} {r['training_mm']:>12.2f} {r['validation_mm']:>12.2f} "
+                     f"{f['training_mm']:>14.2f} {f['validation_mm']:>14.2f}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m platkit.calibrate.tiago", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("convert", help="write a platkit session folder for one static-postures CSV")
+    c.add_argument("csv")
+    c.add_argument("out")
+    c.add_argument("--urdf", default=None)
+    k = sub.add_parser("compare", help="three model levels, BL on the validation day, beside FIGAROH")
+    k.add_argument("--data", default=None)
+    args = parser.parse_args(argv)
+    try:
+        if args.cmd == "convert":
+            print(f"wrote {convert(args.csv, args.out, args.urdf)}")
+        else:
+            print(format_table(compare_with_figaroh(args.data)))
+    except BadInput as exc:
+        print(f"platkit: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,94 @@
+"""platkit calibrate: estimate a stand's parameters from a recording session."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from platkit.errors import BadInput
+from platkit.model import length_scale
+
+
+def add_parser(sub):
+    p = sub.add_parser("calibrate", help="estimate a stand's parameters from a session (calibration.yaml, report)")
+    p.add_argument("session", nargs="?", default=None,
+                   help="session folder (default with --platform: the example session shipped for that stand)")
+    p.add_argument("--platform", default=None, help="stand name (default: the session's)")
+    p.add_argument("--description", default=None, help="description file (default: the session's, else the stand's)")
+    p.add_argument("--method", choices=["lsq", "paper"], default="lsq",
+                   help="lsq: one robust least-squares problem with exact Jacobians (default); "
+                        "paper: Burlakov et al. 2018 (Procrustes, FK, q_delta, Nelder-Mead)")
+    p.add_argument("--free", default=None,
+                   help="comma-separated parameter names or groups to fit (default: every free parameter); "
+                        "'none' fits only the base-to-mocap transform and the markers")
+    p.add_argument("--folds", type=int, default=0, help="K-fold held-out prediction error (K >= 2; default none)")
+    p.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier down-weighting)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--out", required=True, help="output folder (calibration.yaml, report.json, report.html)")
+    return p
+
+
+def progress_printer(unit: str, stream=sys.stderr):
+    """A progress callback that prints one line per event to ``stream``."""
+    s = length_scale(unit)
+
+    def show(stage: str, info: dict) -> None:
+        if stage in ("registration", "iteration"):
+            print(f"calibrate: {'registration' if stage == 'registration' else 'fit':<12} iteration {info['iteration']:>3}  rms {info['rms'] / s:.4g} {unit}",
+                  file=stream, flush=True)
+        elif stage == "identifiability":
+            held = info.get("held") or []
+            print(f"calibrate: {info['n_identifiable']} unknowns identifiable; held at nominal: "
+                  f"{', '.join(held) if held else 'none'}", file=stream, flush=True)
+        elif stage == "fold":
+            print(f"calibrate: fold {info['fold']}/{info['folds']}  held-out rms {info['rms'] / s:.4g} {unit}",
+                  file=stream, flush=True)
+        elif stage == "paper":
+            print(f"calibrate: nelder-mead evaluation {info['evaluations']:>5}  J {info['J']:.6g}",
+                  file=stream, flush=True)
+        elif stage == "done":
+            print(f"calibrate: rms {info['rms_before'] / s:.4g} -> {info['rms_after'] / s:.4g} {unit} "
+                  f"in {info['time_s']:.2f} s", file=stream, flush=True)
+
+    return show
+
+
+def load_for_calibration(session: str | None, platform: str | None, description: str | None):
+    """(poses, spec, platform_options) of a session folder, or of the stand's example session."""
+    from platkit.calibrate.settle import load_poses
+    from platkit.io.session import example_session, load_session
+
+    if session is None:
+        if platform is None:
+            raise BadInput("give a SESSION folder, or --platform NAME to run on that stand's example session")
+        session = example_session(platform)
+    folder = Path(session)
+    s = load_session(folder, platform=platform, description=description)
+    poses = load_poses(folder, platform=platform, description=description, spec=s.spec)
+    options = {"moving_link": s.moving_link} if s.moving_link else {}
+    return poses, s.spec, options
+
+
+def run(args) -> int:
+    from platkit.calibrate.report import write_outputs
+
+    if args.folds and args.folds < 2:
+        raise BadInput(f"--folds {args.folds}: use 2 or more (or leave it out)")
+    poses, spec, options = load_for_calibration(args.session, args.platform, args.description)
+    progress = None if args.quiet else progress_printer(poses.length_unit)
+    free = None
+    if args.free is not None:
+        free = [] if args.free.strip().lower() == "none" else [f.strip() for f in args.free.split(",") if f.strip()]
+    if args.method == "paper":
+        from platkit.calibrate.paper import calibrate_paper
+
+        cal = calibrate_paper(poses, spec, free=free, progress=progress, platform_options=options)
+    else:
+        from platkit.calibrate.estimate import calibrate
+
+        cal = calibrate(poses, spec, free=free, robust=not args.no_robust, folds=args.folds, progress=progress,
+                        platform_options=options)
+    written = write_outputs(cal, args.out, poses)
+    s = length_scale(cal.length_unit)
+    print(f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
+          f"({cal.n_poses} poses, {cal.n_markers} markers); wrote {', '.join(str(p) for p in written)}")
+    return 0
