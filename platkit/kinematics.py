@@ -455,8 +455,7 @@ class PlatformModel:
         """One Newton solve; returns a fresh out row (see _solve)."""
         nat = self._native
         if not isinstance(nat, _NativeNewton):
-            td = self._td0 if td is None else td
-            return self._solve_numpy(u[None, :], td, (self._p0 if p0 is None else p0)[None, :])[0]
+            return self._solve_numpy_one(u, self._td0 if td is None else td, self._p0 if p0 is None else p0)
         bufs, addr = self._single_buffers
         bufs["u"][:] = u
         if td is None:
@@ -486,6 +485,45 @@ class PlatformModel:
                       out.ctypes.data)
             return out
         return self._solve_numpy(u, td, np.broadcast_to(P0, (N, self.spec.n_p)))
+
+    def _solve_numpy_one(self, u: np.ndarray, td: np.ndarray, p0: np.ndarray) -> np.ndarray:
+        """One Newton solve with numpy over CasADi buffer evaluations; the C driver's out row."""
+        square = self.n_r == self.spec.n_p
+        p = np.array(p0, dtype=float)
+        status, k = CONVERGED, 0
+        while True:
+            r, J = self._rj_one(u, td, p)
+            nrm = math.sqrt(float(r @ r))
+            if not math.isfinite(nrm):
+                status = NOT_FINITE
+                break
+            if nrm <= self.tol:
+                if nrm > 0:  # polish, as the C driver does
+                    try:
+                        step = np.linalg.solve(J, r) if square else np.linalg.lstsq(J, r, rcond=None)[0]
+                        rt, _ = self._rj_one(u, td, p - step)
+                        nt = math.sqrt(float(rt @ rt))
+                        if nt <= nrm:
+                            p, nrm = p - step, nt
+                    except np.linalg.LinAlgError:
+                        pass
+                break
+            if k >= self.max_iter:
+                status = MAX_ITERATIONS
+                break
+            try:
+                step = np.linalg.solve(J, r) if square else np.linalg.lstsq(J, r, rcond=None)[0]
+            except np.linalg.LinAlgError:
+                status = SINGULAR
+                break
+            p = p - step
+            k += 1
+        q, X, g = self._post_one(u, td, p)
+        q = q / math.sqrt(float(q @ q))
+        if q[0] < 0:
+            q = -q
+        on = bool(np.all(g > 0))
+        return np.concatenate([p, q, X, g, [k, nrm, status, on]])
 
     def _solve_numpy(self, U: np.ndarray, td: np.ndarray, P0: np.ndarray) -> np.ndarray:
         """The same iteration as the C driver, vectorised over the N problems with numpy."""
@@ -551,7 +589,7 @@ class PlatformModel:
             P[active[good]] -= step[good]
             active = active[good]
         if N == 1:
-            q, X, g = (np.asarray(a).reshape(1, -1) for a in post(U[0], td, P[0]))
+            q, X, g = (a.reshape(1, -1) for a in self._post_one(U[0], td, P[0]))
         else:
             q, X, g = (np.asarray(a).T for a in self._post_map(N)(U.T, td, P.T))
         q = quat_normalize(q)
@@ -577,6 +615,25 @@ class PlatformModel:
         ub[:], tdb[:], pb[:] = u, td, p
         evaluate()
         return rb.copy(), Jb.reshape(self.spec.n_p, self.n_r).T.copy()
+
+    @functools.cached_property
+    def _post_buffer(self):
+        post, n_g = self._newton_fns[1], self._newton_fns[2]
+        arrays = [np.zeros(self.spec.n_u), np.zeros(self.spec.n_td), np.zeros(self.spec.n_p),
+                  np.zeros(4), np.zeros(3), np.zeros(n_g)]
+        buf, evaluate = post.buffer()
+        for i in range(3):
+            buf.set_arg(i, memoryview(arrays[i]))
+        for i in range(3):
+            buf.set_res(i, memoryview(arrays[3 + i]))
+        return buf, evaluate, arrays
+
+    def _post_one(self, u, td, p) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q (4,), X (3,), g (n_g,)) at one point, copies."""
+        _, evaluate, (ub, tdb, pb, qb, Xb, gb) = self._post_buffer
+        ub[:], tdb[:], pb[:] = u, td, p
+        evaluate()
+        return qb.copy(), Xb.copy(), gb.copy()
 
     @functools.lru_cache(maxsize=16)
     def _rj_map(self, n: int) -> ca.Function:
