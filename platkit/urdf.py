@@ -40,13 +40,13 @@ import numpy as np
 
 from platkit.errors import BadDescription, BadInput
 from platkit.geometry import (
-    ca_matrix_from_quat,
     ca_matrix_from_rpy,
     ca_quat_from_rpy,
     ca_quat_multiply,
     matrix_from_rpy,
     quat_from_matrix,
     quat_normalize,
+    rpy_from_quat,
 )
 from platkit.model import Control, Parameter, PlatformSpec, six_dof_pose
 
@@ -467,8 +467,7 @@ def chain_spec(
     if len(names) != n_u or len(units) != n_u:
         raise BadInput(f"{chain.path}: {n_u} actuated joints on the chain but {len(names)} control names / {len(units)} units")
     for j, unit in zip(actuated, units):
-        if unit not in CONTROL_UNIT_FACTORS or (unit == "deg" and j.type == "prismatic") or (
-            unit == "m" and j.type != "prismatic") or (unit == "rad" and j.type == "prismatic"):
+        if unit not in (("m",) if j.type == "prismatic" else ("rad", "deg")):
             raise BadInput(f"{chain.path}: joint {j.name!r} ({j.type}) cannot take controls in {unit!r}")
     params = chain_parameters(chain, free_groups)
     u = ca.SX.sym("u", n_u)
@@ -487,8 +486,6 @@ def chain_spec(
     u0 = np.array([c.neutral for c in controls])
     td0 = np.array([p.nominal for p in params])
     q0, X0 = (np.asarray(a).ravel() for a in forward(u0, td0))
-    from platkit.geometry import rpy_from_quat
-
     coords, pose, from_pose = six_dof_pose(X0, rpy_from_quat(quat_normalize(q0)))
     return PlatformSpec(
         name=name,
