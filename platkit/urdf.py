@@ -359,11 +359,24 @@ def chain_parameters(chain: SerialChain, free_groups: tuple[str, ...] = ("offset
                                     source=f"{src}: joint {j.name} zero (nominal: the URDF zero)"))
             params.append(Parameter(f"{j.name}.scale", "1", 1.0, lower=0.0, free="scale" in free_groups, group="scale",
                                     source=f"{src}: joint {j.name} (nominal: one joint unit per control unit)"))
+        xyz = " ".join(format(v + 0.0, ".9g") for v in j.origin[:3, 3])  # + 0.0: no '-0'
+        rpy = " ".join(format(v + 0.0, ".9g") for v in urdf_rpy(j.origin[:3, :3]))
         for f in ORIGIN_FIELDS:
             unit = "m" if f in ("origin_x", "origin_y", "origin_z") else "rad"
             params.append(Parameter(f"{j.name}.{f}", unit, 0.0, free="origin" in free_groups, group="origin",
-                                    source=f"{src}: joint {j.name} <origin> error, in the joint frame"))
+                                    source=f"{src}: error of joint {j.name} <origin xyz='{xyz}' rpy='{rpy}'>, in the joint frame"))
     return params
+
+
+def joint_origins(chain: SerialChain) -> dict[str, dict]:
+    """The URDF's nominal numbers of the chain's joints, plain (for reports):
+    {joint: {type, parent, child, xyz (m), rpy (rad), axis, lower, upper}}."""
+    return {
+        j.name: {"type": j.type, "parent": j.parent, "child": j.child,
+                 "xyz": j.origin[:3, 3].tolist(), "rpy": urdf_rpy(j.origin[:3, :3]).tolist(),
+                 "axis": j.axis.tolist(), "lower": j.lower, "upper": j.upper}
+        for j in chain.joints
+    }
 
 
 # ----------------------------------------------------------------------------- kinematics
@@ -502,7 +515,8 @@ def chain_spec(
         description_path=description_path if description_path is not None else chain.path,
         moving_frame=chain.moving_link,
         base_frame=chain.base_link,
-        extras={"chain": chain, "control_units": units, "urdf_path": chain.path},
+        extras={"chain": chain, "control_units": units, "urdf_path": chain.path,
+                "joint_origins": joint_origins(chain)},
     )
 
 

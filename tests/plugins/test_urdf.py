@@ -107,6 +107,10 @@ def test_tiago_arm_chain_controls_parameters_and_conformance():
     assert all(p.free == (p.group != "scale") for p in spec.parameters)
     assert next(p for p in spec.parameters if p.name == "torso_lift_joint.offset").unit == "m"
     assert next(p for p in spec.parameters if p.name == "arm_5_joint.origin_rx").unit == "rad"
+    # the URDF's nominal numbers are recorded
+    src = next(p for p in spec.parameters if p.name == "arm_2_joint.origin_x").source
+    assert "tiago_48_schunk.urdf: error of joint arm_2_joint <origin xyz='0.125 0.0195 -0.031' rpy='1.57079633 0 0'>" in src
+    assert spec.extras["joint_origins"]["torso_lift_joint"]["xyz"] == [0.0, 0.0, 0.597]
     check_platform(spec)
 
 
