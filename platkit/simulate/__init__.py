@@ -259,7 +259,7 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     prev = np.vstack([spec.neutral_u()[None], U[:-1]])
     move = np.clip(4.0 * np.max(np.abs(U - prev) / span, axis=1), 0.3, 3.0)
-    t_cmd = 0.5 + np.concatenate([[0.0], np.cumsum(move + hold_s)[:-1]])
+    t_cmd = np.round(0.5 + np.concatenate([[0.0], np.cumsum(move + hold_s)[:-1]]), 6)  # as written
     t_arrive = t_cmd + move
     t_end = float(t_arrive[-1] + hold_s)
 
@@ -336,7 +336,7 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         return q, X, moff
 
     dt = 1.0 / mocap_rate_hz
-    tm = np.arange(0.0, t_end, dt)
+    tm = np.round(np.arange(0.0, t_end, dt), 6)
     q, X, moff = evaluate(tm)
     Y = markers_of(q, X, moff) + rng.normal(size=(len(tm), n_markers, 3)) * noise
     Y[_occlusion_mask(rng, len(tm), n_markers, occlusion, max(1, int(0.1 * mocap_rate_hz)))] = np.nan
@@ -401,7 +401,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             desc = Path(description)
             (tmp / desc.name).write_bytes(desc.read_bytes())
             entry["description"] = desc.name
-        rows = [[f"{t:.4f}"] + [_fmt(v, d) for v, d in zip(row, ctrl_digits)] for t, row in zip(sim.command_t, V)]
+        rows = [[f"{t:.6f}"] + [_fmt(v, d) for v, d in zip(row, ctrl_digits)] for t, row in zip(sim.command_t, V)]
         (tmp / "commands.csv").write_text(_csv_text(["t"] + spec.control_names, rows), encoding="utf-8")
         mcols = [f"{m}_{a}" for m in names for a in "xyz"]
         if poses_only or sim.markers is None:
@@ -419,7 +419,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             (tmp / "poses.csv").write_text(_csv_text(header, rows), encoding="utf-8")
         else:
             Y = sim.markers.reshape(len(sim.marker_t), -1) / s
-            rows = [[f"{t:.4f}"] + [_fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
+            rows = [[f"{t:.6f}"] + [_fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
             (tmp / "markers.csv").write_text(_csv_text(["t"] + mcols, rows), encoding="utf-8")
         if sim.imu is not None:
             imu = sim.imu

@@ -1,0 +1,320 @@
+"""Reading session folders: every field checked, SI inside, one-line errors naming file/row/column."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from platkit.calibrate.settle import load_poses
+from platkit.cli import main
+from platkit.errors import BadSession
+from platkit.io.session import example_session, load_session, read_table
+from platkit.plugins import get_platform
+from platkit.simulate import simulate, write_session
+
+
+@pytest.fixture(scope="module")
+def stewart():
+    return get_platform("stewart")
+
+
+@pytest.fixture(scope="module")
+def session_dir(tmp_path_factory, stewart):
+    sim = simulate(stewart, seed=5, n_poses=8, mocap_rate_hz=30, hold_s=1.2)
+    return write_session(sim, tmp_path_factory.mktemp("s") / "session"), sim
+
+
+def _copy(src: Path, tmp_path: Path) -> Path:
+    dst = tmp_path / "copy"
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _edit(path: Path, old: str, new: str, count: int = 1) -> None:
+    text = path.read_text()
+    assert old in text, f"{old!r} not in {path}"
+    path.write_text(text.replace(old, new, count))
+
+
+def _lines(path: Path) -> list[str]:
+    return path.read_text().splitlines()
+
+
+def _error(folder, **kw) -> str:
+    with pytest.raises(BadSession) as info:
+        load_session(folder, **kw)
+    msg = str(info.value)
+    assert "\n" not in msg
+    return msg
+
+
+def test_round_trip_in_si(session_dir, stewart):
+    folder, sim = session_dir
+    s = load_session(folder)
+    assert s.platform == "stewart" and s.length_unit == "mm" and s.time_unit == "s"
+    np.testing.assert_allclose(s.commands, sim.commands, atol=1e-7)  # files keep 0.001 mm
+    assert np.all((s.commands > 3.2) & (s.commands < 4.9))  # metres inside
+    np.testing.assert_allclose(s.marker_t, sim.marker_t, atol=1e-6)
+    np.testing.assert_allclose(s.markers, sim.markers, atol=1e-9, equal_nan=True)
+    assert s.markers.shape == (len(sim.marker_t), 5, 3)
+    assert np.isnan(s.markers).any(), "the simulated stream has occluded samples"
+
+
+def test_metres_and_millimetres_read_the_same(tmp_path, stewart):
+    sim_m = simulate(stewart, seed=5, n_poses=4, raw=False, length_unit="m")
+    a = load_poses(write_session(sim_m, tmp_path / "m", poses_only=True))
+    sim_mm = simulate(stewart, seed=5, n_poses=4, raw=False, length_unit="mm")
+    b = load_poses(write_session(sim_mm, tmp_path / "mm", poses_only=True))
+    np.testing.assert_allclose(a.controls, b.controls, atol=2e-6)
+    np.testing.assert_allclose(a.markers, b.markers, atol=2e-6, equal_nan=True)
+    assert a.length_unit == "m" and b.length_unit == "mm"
+
+
+def test_missing_units_is_an_error(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "units:\n  length: mm\n  time: s\n", "")
+    assert "missing field 'units'" in _error(folder)
+
+
+@pytest.mark.parametrize("old,new,expect", [
+    ("length: mm", "length: cm", "units.length"),
+    ("time: s", "time: min", "units.time"),
+    ("mocap_rate_hz: 30.0", "mocap_rate_hz: fast", "mocap_rate_hz"),
+    ("notes:", "note:", "unknown field 'note'"),
+    ("markers:\n- M1", "markers:\n- M1\n- M1", "more than once"),
+])
+def test_session_yaml_fields_are_checked(session_dir, tmp_path, old, new, expect):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", old, new)
+    msg = _error(folder)
+    assert "session.yaml" in msg and expect in msg
+
+
+def test_missing_commands_file_is_named(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    (folder / "commands.csv").unlink()
+    msg = _error(folder)
+    assert "commands.csv" in msg and "not found" in msg
+
+
+def test_session_for_another_stand_names_the_expected_columns(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "commands.csv")
+    lines[0] = "t,A,B,C,L4,L5,L6"
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    msg = _error(folder)
+    assert "stewart" in msg and "L1" in msg and "'A'" in msg
+
+
+def test_missing_control_column(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    rows = [",".join(c for j, c in enumerate(line.split(",")) if j != 3) for line in _lines(folder / "commands.csv")]
+    (folder / "commands.csv").write_text("\n".join(rows) + "\n")
+    msg = _error(folder)
+    assert "missing column 'L3'" in msg and "t, L1, L2, L3, L4, L5, L6" in msg
+
+
+def test_command_outside_stroke_names_row_and_hints_the_unit(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "commands.csv")
+    cells = lines[3].split(",")
+    cells[2] = "4.0"  # metres in a millimetre file
+    lines[3] = ",".join(cells)
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    msg = _error(folder)
+    assert "commands.csv row 3 (line 4) column 'L2'" in msg
+    assert "outside the stroke [3295, 4795] mm" in msg and "fits the stroke in m" in msg
+
+
+@pytest.mark.parametrize("file", ["commands.csv", "markers.csv"])
+@pytest.mark.parametrize("kind", ["duplicated", "earlier"])
+def test_bad_timestamps_name_the_row(session_dir, tmp_path, file, kind):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / file)
+    t2 = lines[2].split(",")[0]
+    cells = lines[3].split(",")
+    cells[0] = t2 if kind == "duplicated" else str(float(t2) - 0.001)
+    lines[3] = ",".join(cells)
+    (folder / file).write_text("\n".join(lines) + "\n")
+    msg = _error(folder)
+    assert f"{file} row 3 (line 4) column 't'" in msg and kind in msg
+
+
+def test_non_numeric_cell_names_row_and_column(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "markers.csv")
+    cells = lines[5].split(",")
+    cells[4] = "12,5".replace(",", ";")
+    lines[5] = ",".join(cells)
+    (folder / "markers.csv").write_text("\n".join(lines) + "\n")
+    msg = _error(folder)
+    assert "markers.csv row 5 (line 6) column 'M2_x'" in msg and "'12;5'" in msg
+
+
+def test_ragged_row_is_named(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "markers.csv")
+    lines[7] = lines[7] + ",1.0"
+    (folder / "markers.csv").write_text("\n".join(lines) + "\n")
+    assert "markers.csv row 7 (line 8): 17 cells, expected 16" in _error(folder)
+
+
+def test_undeclared_marker_column(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "- M5\n", "")
+    msg = _error(folder)
+    assert "'M5_x'" in msg and "does not declare" in msg
+
+
+def test_declared_marker_without_columns(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "- M5\n", "- M5\n- M6\n")
+    assert "missing column 'M6_x'" in _error(folder)
+
+
+def test_marker_never_seen(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "markers.csv")
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        cells[7:10] = ["", "", ""]  # M3
+        out.append(",".join(cells))
+    (folder / "markers.csv").write_text("\n".join(out) + "\n")
+    msg = _error(folder)
+    assert "marker 'M3' is never seen" in msg
+
+
+def test_half_occluded_sample_is_an_error(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "markers.csv")
+    cells = lines[9].split(",")
+    cells[1] = "nan"
+    cells[2] = "1.0"
+    lines[9] = ",".join(cells)
+    (folder / "markers.csv").write_text("\n".join(lines) + "\n")
+    assert "row 9 (line 10): marker 'M1' has some of x,y,z empty" in _error(folder)
+
+
+def test_platform_mismatch(session_dir):
+    assert "for the 'stewart' stand, not 'psvr'" in _error(session_dir[0], platform="psvr")
+
+
+def test_poses_csv_session(tmp_path, stewart):
+    sim = simulate(stewart, seed=2, n_poses=6, raw=False, occlusion=0.3)
+    folder = write_session(sim, tmp_path / "p", poses_only=True)
+    assert (folder / "poses.csv").is_file() and not (folder / "markers.csv").exists()
+    poses = load_poses(folder)
+    np.testing.assert_allclose(poses.markers, sim.poses.markers, atol=1e-6, equal_nan=True)
+    np.testing.assert_array_equal(poses.n_samples, sim.poses.n_samples)
+    np.testing.assert_allclose(poses.t, sim.command_t, atol=1e-4)
+    # a sample count that contradicts the position
+    lines = _lines(folder / "poses.csv")
+    header = lines[0].split(",")
+    cells = lines[2].split(",")
+    cells[header.index("M2_n")] = "0"
+    cells[header.index("M2_x")] = "1.0"
+    lines[2] = ",".join(cells)
+    (folder / "poses.csv").write_text("\n".join(lines) + "\n")
+    msg = _error(folder)
+    assert "poses.csv row 2 (line 3) column 'M2_n'" in msg
+
+
+def test_no_markers_is_a_clear_error(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    (folder / "markers.csv").unlink()
+    with pytest.raises(BadSession, match="no markers"):
+        load_poses(folder)
+
+
+def _write_c3d(path: Path, t, xyz_m, labels, unit="mm", units_param=True):
+    import ezc3d
+
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [round(1.0 / float(np.median(np.diff(t))), 3)]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
+    scale = {"mm": 1e3, "m": 1.0}[unit]
+    pts = np.ones((4, xyz_m.shape[1], xyz_m.shape[0]))
+    pts[:3] = np.nan_to_num(xyz_m.transpose(2, 1, 0) * scale)
+    c["data"]["points"] = pts
+    if units_param:
+        c["parameters"]["POINT"]["UNITS"]["value"] = [unit]
+    c.write(str(path))
+    if not np.isnan(xyz_m).any():
+        return
+    # occluded samples: residual -1, as motion-capture software writes them
+    d = ezc3d.c3d(str(path))
+    d["data"]["points"] = pts
+    res = np.zeros((1, xyz_m.shape[1], xyz_m.shape[0]))
+    res[0][np.isnan(xyz_m).any(axis=2).T] = -1
+    d["data"]["meta_points"]["residuals"] = res
+    d.write(str(path))
+
+
+@pytest.mark.parametrize("unit", ["mm", "m"])
+def test_c3d_markers_round_trip(session_dir, tmp_path, unit):
+    folder = _copy(session_dir[0], tmp_path)
+    s = load_session(folder)
+    labels = ["Stand:" + m for m in s.marker_names] + ["Other:X9"]
+    xyz = np.concatenate([s.markers, np.zeros((len(s.marker_t), 1, 3))], axis=1)
+    _write_c3d(folder / "markers.c3d", s.marker_t, xyz, labels, unit=unit)
+    (folder / "markers.csv").unlink()
+    with open(folder / "session.yaml", "a") as fh:
+        fh.write(f"markers_file: markers.c3d\nmarkers_time_offset: {s.marker_t[0]}\n")
+    c = load_session(folder)
+    np.testing.assert_allclose(c.marker_t, s.marker_t, atol=1e-6)  # the CSV keeps microseconds
+    np.testing.assert_allclose(c.markers, s.markers, atol=1e-7, equal_nan=True)
+    assert np.isnan(c.markers).sum() == np.isnan(s.markers).sum()
+    poses = load_poses(folder)
+    assert poses.n_poses == len(s.commands)
+
+
+def test_c3d_missing_label_is_named(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    s = load_session(folder)
+    _write_c3d(folder / "m.c3d", s.marker_t, np.nan_to_num(s.markers[:, :4]), s.marker_names[:4])
+    with open(folder / "session.yaml", "a") as fh:
+        fh.write("markers_file: m.c3d\n")
+    msg = _error(folder)
+    assert "m.c3d" in msg and "no point labelled 'M5'" in msg
+
+
+def test_imu_stream_columns_and_times(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    t = np.arange(0, 2, 0.01)
+    rows = ["t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"] + [f"{x:.3f},0.1,0,0,0,0,9.81" for x in t]
+    (folder / "imu.csv").write_text("\n".join(rows) + "\n")
+    s = load_session(folder)
+    assert s.imu_gyr.shape == (200, 3) and np.allclose(s.imu_acc[:, 2], 9.81)
+    rows[0] = "t,gx,gy,gz,acc_x,acc_y,acc_z"
+    (folder / "imu.csv").write_text("\n".join(rows) + "\n")
+    assert "imu.csv: missing column 'gyr_x'" in _error(folder)
+
+
+def test_read_table_empty_cells_are_nan(tmp_path):
+    p = tmp_path / "x.csv"
+    p.write_text("a,b\n1,\n nan ,2\n")
+    t = read_table(p)
+    assert np.isnan(t.data[0, 1]) and np.isnan(t.data[1, 0]) and t.data[1, 1] == 2
+
+
+def test_example_sessions_ship_with_the_package():
+    folder = example_session("stewart")
+    assert (folder / "truth.yaml").is_file()
+    poses = load_poses(folder)
+    assert 60 <= poses.n_poses <= 120 and poses.n_markers == 5
+    assert sum(f.stat().st_size for f in folder.iterdir()) < 3e6
+    with pytest.raises(BadSession, match="no example session"):
+        example_session("no-such-stand")
+
+
+def test_cli_bad_plan_file_exits_2_with_one_line(tmp_path, capsys):
+    plan = tmp_path / "plan.csv"
+    plan.write_text("L1,L2,L3,L4,L5,L6\n4000,4000,4000,4000,4000,4000\n4000,4000,x,4000,4000,4000\n")
+    code = main(["simulate", "--platform", "stewart", "--out", str(tmp_path / "s"), "--plan", str(plan)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "plan.csv row 2 (line 3) column 'L3'" in err
+    assert not (tmp_path / "s").exists()
