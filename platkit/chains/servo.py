@@ -203,7 +203,28 @@ class Servo:
         return [self.task_error(theta, k) for k in range(len(self.tasks))]
 
     def merit(self, errors: list[np.ndarray]) -> float:
+        """The weighted squared error summed over all tasks (m^2 + rad^2)."""
         return float(sum(np.sum(t.weights * E**2) for t, E in zip(self.tasks, errors)))
+
+    def level_merits(self, errors: list[np.ndarray]) -> np.ndarray:
+        """The weighted squared error of each priority level, most important first."""
+        levels = sorted({t.priority for t in self.tasks})
+        out = np.zeros(len(levels))
+        for t, E in zip(self.tasks, errors):
+            out[levels.index(t.priority)] += np.sum(t.weights * E**2)
+        return out
+
+    def _better(self, trial: np.ndarray, current: np.ndarray) -> bool:
+        """Lexicographic progress over the priority levels: a level may not get worse (beyond a
+        hair under the tolerance) for the sake of a later one."""
+        o = self.options
+        floor = 1e-2 * (o.tol_position**2 + o.tol_rotation**2)
+        for a, b in zip(trial, current):
+            if a < b * (1.0 - 1e-12):
+                return True
+            if a > max(b * (1.0 + 1e-9), floor):
+                return False
+        return False
 
     def _norms(self, errors: list[np.ndarray]) -> tuple[list[float], list[float]]:
         pos, rot = [], []
@@ -320,7 +341,8 @@ class Servo:
         path = [theta.copy()]
         history = [merit]
         best = (merit, theta.copy(), errors)
-        stall_ref, stall_at = merit, 0
+        stall_ref, stall_at = self.level_merits(errors), 0
+        floor = 1e-2 * (o.tol_position**2 + o.tol_rotation**2)
         reason = ""
         iterations = 0
         pos, rot = self._norms(errors)
@@ -339,7 +361,7 @@ class Servo:
                 trial = c.clip(theta + alpha * dq)
                 trial_errors = self.errors(trial)
                 trial_merit = self.merit(trial_errors)
-                if trial_merit < merit:
+                if self._better(self.level_merits(trial_errors), self.level_merits(errors)):
                     accepted = True
                     break
                 alpha *= 0.5
@@ -354,8 +376,9 @@ class Servo:
                 best = (merit, theta.copy(), errors)
             pos, rot = self._norms(errors)
             converged = self._done(pos, rot)
-            if merit < (1.0 - 1e-3) * stall_ref:
-                stall_ref, stall_at = merit, iterations
+            levels_now = self.level_merits(errors)
+            if np.any((levels_now < (1.0 - 1e-3) * stall_ref) & (stall_ref > floor)):
+                stall_ref, stall_at = levels_now, iterations
             elif iterations - stall_at >= o.stall_iterations and not converged:
                 reason = self.diagnose(theta, errors, stalled=True)
                 break
@@ -406,7 +429,8 @@ class Servo:
             # how much of the error the joints can still reduce (its projection on range(J))
             U, s_full, _ = np.linalg.svd(Ja, full_matrices=False)
             e = np.sqrt(W) * E
-            in_range = U[:, s_full > 1e-6 * max(1.0, s_full[0])] if s_full.size else U[:, :0]
+            # directions a near-singular Jacobian barely moves (sigma < 1e-3) count as unreachable
+            in_range = U[:, s_full > 1e-3 * max(1.0, s_full[0])] if s_full.size else U[:, :0]
             frac = float(np.linalg.norm(in_range.T @ e) / max(np.linalg.norm(e), 1e-300))
             if sigma_min < 1e-3 and frac < 0.5:
                 reasons.append(f"the chain is at a singular pose (smallest singular value {sigma_min:.2g}) "
@@ -473,6 +497,27 @@ def densify(times: np.ndarray, poses: np.ndarray, max_linear: float, max_angular
     return np.array(out_t), np.array(out_p), np.array(seg)
 
 
+def _densify_moving(st, sp, seg, moving_frame, max_linear, max_angular):
+    """Carry local samples into the moving frame, adding samples where its own motion makes a
+    step longer than the limits (the frame may move between two equal local poses)."""
+    from platkit.geometry import rotvec_from_matrix
+
+    out_t, out_p, out_s = [st[0]], [moving_frame(st[0]) @ sp[0]], [seg[0]]
+    for k in range(1, len(st)):
+        a = moving_frame(st[k - 1]) @ sp[k - 1]
+        b = moving_frame(st[k]) @ sp[k]
+        dist = float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
+        ang = float(np.linalg.norm(rotvec_from_matrix(b[:3, :3] @ a[:3, :3].T)))
+        n = max(1, int(np.ceil(max(dist / max_linear, ang / max_angular))))
+        for i in range(1, n + 1):
+            s = i / n
+            t = (1 - s) * st[k - 1] + s * st[k]
+            out_t.append(t)
+            out_p.append(moving_frame(t) @ interpolate_pose(sp[k - 1], sp[k], s))
+            out_s.append(seg[k])
+    return np.array(out_t), np.array(out_p), np.array(out_s)
+
+
 def follow_trajectory(chain: KinematicChain, link: str, times: np.ndarray, poses: np.ndarray, *,
                       frame: str = "world", theta0: np.ndarray | None = None, weights: np.ndarray | None = None,
                       basis: str = "reference", options: ServoOptions | None = None,
@@ -497,7 +542,7 @@ def follow_trajectory(chain: KinematicChain, link: str, times: np.ndarray, poses
     w = np.ones(6) if weights is None else np.asarray(weights, float)
     st, sp, seg = densify(times, poses, max_linear_step, max_angular_step)
     if moving_frame is not None:
-        sp = np.array([moving_frame(t) @ p for t, p in zip(st, sp)])
+        st, sp, seg = _densify_moving(st, sp, seg, moving_frame, max_linear_step, max_angular_step)
     theta = chain.neutral() if theta0 is None else chain.check_configuration(theta0, "starting configuration")
     first_opts = ServoOptions(**{**options.__dict__})
     sample_opts = ServoOptions(**{**options.__dict__, "max_iterations": sample_iterations})

@@ -93,12 +93,14 @@ def damped_pinv(A: np.ndarray, damping: Damping, error_norm: float = np.inf, ran
 
 
 def _prioritized(levels: list[Level], cols: np.ndarray, wq_sqrt_inv: np.ndarray, damping: Damping,
-                 fixed_dq: np.ndarray, secondary: np.ndarray | None, info: StepInfo) -> np.ndarray:
-    """Solve the levels over the free columns ``cols``; joints outside move by ``fixed_dq``."""
+                 fixed_dq: np.ndarray, secondary: np.ndarray | None, info: StepInfo) -> list[np.ndarray]:
+    """Increments over the free columns ``cols`` (joints outside move by ``fixed_dq``): one per
+    level, each in the null space of the levels before it, then the secondary step's projection."""
     n_free = cols.size
     y = np.zeros(n_free)                     # scaled variables: dq_free = wq_sqrt_inv * y
     N = np.eye(n_free)
     first = True
+    increments = []
     for lev in levels:
         w = np.ones(len(lev.e)) if lev.weights is None else np.asarray(lev.weights, float)
         rows = w > 0
@@ -114,11 +116,23 @@ def _prioritized(levels: list[Level], cols: np.ndarray, wq_sqrt_inv: np.ndarray,
         if first:
             info.sigma_min, info.damping = sigma_min, float(np.sqrt(lam2))
             first = False
-        y = y + pinv @ r
+        dy = pinv @ r
+        y = y + dy
+        increments.append(wq_sqrt_inv * dy)
         N = N @ N_level
     if secondary is not None:
-        y = y + N @ (secondary[cols] / wq_sqrt_inv)
-    return wq_sqrt_inv * y
+        increments.append(wq_sqrt_inv * (N @ (secondary[cols] / wq_sqrt_inv)))
+    return increments
+
+
+def _fraction_within(dq: np.ndarray, delta: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """The largest beta in [0, 1] with lower <= dq + beta delta <= upper."""
+    beta = 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = np.where(delta > 0, (upper - dq) / delta, np.inf)
+        lo = np.where(delta < 0, (lower - dq) / delta, np.inf)
+    beta = min(beta, float(np.min(up)), float(np.min(lo)))
+    return max(0.0, beta)
 
 
 def solve_pinv(levels: list[Level] | Level, *, lower_step: np.ndarray | None = None,
@@ -128,7 +142,9 @@ def solve_pinv(levels: list[Level] | Level, *, lower_step: np.ndarray | None = N
     """dq (n,) for prioritised levels by the weighted damped pseudo-inverse, and a StepInfo.
 
     ``lower_step``/``upper_step`` (n,): how far each joint may move before a position limit
-    (lower <= 0 <= upper); joints that would cross are clamped there and the rest re-solved.
+    (lower <= 0 <= upper). For the first level, joints that would cross are clamped there and
+    the rest re-solved; the later levels' increments and the secondary step are shortened to fit
+    (never at the first level's expense).
     ``rate_step`` (n,): the most a joint may move in this step; dq is scaled uniformly to meet it.
     ``joint_weights`` (n,): a heavier joint moves less. ``secondary`` (n,): a joint-space step
     (e.g. minus a cost's gradient) added in the null space of all levels. ``active`` (n,) bool:
@@ -143,17 +159,21 @@ def solve_pinv(levels: list[Level] | Level, *, lower_step: np.ndarray | None = N
     wq = np.ones(n) if joint_weights is None else np.asarray(joint_weights, float)
     free = np.ones(n, bool) if active is None else np.asarray(active, bool).copy()
     info = StepInfo()
-    dq = np.zeros(n)
     fixed = np.zeros(n)
+    increments: list[np.ndarray] = []
+    cols = np.flatnonzero(free)
     for _ in range(n + 1):
         cols = np.flatnonzero(free)
         dq = fixed.copy()
+        increments = []
         if cols.size:
-            dq[cols] = _prioritized(levels, cols, 1.0 / np.sqrt(wq[cols]), damping, fixed, secondary, info)
+            increments = _prioritized(levels, cols, 1.0 / np.sqrt(wq[cols]), damping, fixed, secondary, info)
+            if increments:
+                dq[cols] += increments[0]
         over = free & ((dq > upper_step + 1e-15) | (dq < lower_step - 1e-15))
         if not np.any(over):
             break
-        # clamp the worst offender(s) at their limit and re-solve for the others
+        # clamp the worst offender at its limit and re-solve for the others
         excess = np.maximum(dq - upper_step, lower_step - dq)
         excess[~over] = -np.inf
         worst = int(np.argmax(excess))
@@ -161,14 +181,22 @@ def solve_pinv(levels: list[Level] | Level, *, lower_step: np.ndarray | None = N
         free[worst] = False
         info.clamped.append(worst)
     dq = np.clip(dq, lower_step, upper_step)
+    lo, hi = lower_step, upper_step
     if rate_step is not None:
+        # the first level's step scaled uniformly to the rate limits (its direction kept) ...
         rate_step = np.asarray(rate_step, float)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(np.abs(dq) > 0, rate_step / np.abs(dq), np.inf)
         scale = float(min(1.0, np.min(ratio))) if ratio.size else 1.0
         info.rate_scale = scale
         dq = dq * scale
-    return dq, info
+        lo, hi = np.maximum(lower_step, -rate_step), np.minimum(upper_step, rate_step)
+    # ... then the later levels and the secondary step, each shortened to what is left
+    for inc in increments[1:]:
+        delta = np.zeros(n)
+        delta[cols] = inc
+        dq = dq + _fraction_within(dq, delta, lo, hi) * delta
+    return np.clip(dq, lo, hi), info
 
 
 def solve_lp(J: np.ndarray, e: np.ndarray, *, weights: np.ndarray | None = None,
