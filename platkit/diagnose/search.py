@@ -9,9 +9,9 @@ One round (repeated until nothing passes or ``max_effects`` are in):
    be told from the geometry on this design: it is set aside with a warning, never accepted;
 2. refit the best few, each added to the model, together with td, the mocap transform and
    the markers (the estimator's Levenberg-Marquardt, same observation weights);
-3. accept the candidate whose K-fold held-out prediction improves most, if the improvement is
-   significant (one-sided Wilcoxon on the per-pose held-out errors, Holm over the refits) AND
-   BIC falls; unless a generic probe (probes.py) predicts significantly better still, in which
+3. among the candidates whose K-fold held-out prediction improves significantly (one-sided
+   Wilcoxon on the per-pose held-out errors, Holm over the refits) AND whose BIC falls, accept
+   the one with the lowest BIC; unless a generic probe (probes.py) predicts significantly better still, in which
    case the structure is reported ``unexplained`` and not named.
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
@@ -39,7 +39,8 @@ from platkit.model import PlatformSpec, length_scale
 class Options:
     """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""
 
-    alpha: float = 0.01  # family-wise level of every test
+    alpha: float = 0.01  # family-wise level of the screening and location tests
+    alpha_heldout: float = 0.05  # level of the held-out confirmation (Holm over the few refits of a round)
     folds: int = 5
     max_effects: int = 3
     max_refits: int = 3  # candidates refit per round (the best screened)
@@ -149,8 +150,8 @@ def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: in
         st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
         d2 = np.sum(st.r**2, axis=2)
         d2[fit.weights[test] <= 0] = np.nan
-        with np.errstate(invalid="ignore"):
-            out[test] = np.nanmean(d2, axis=1)
+        seen = np.isfinite(d2).sum(axis=1)
+        out[test] = np.where(seen > 0, np.nansum(d2, axis=1) / np.maximum(seen, 1), np.nan)
     return out
 
 
@@ -220,23 +221,31 @@ def _where_text(where: dict) -> str:
 # ---------------------------------------------------------------------------- the search
 def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
              library: dict[str, Effect] | None = None, heldout: PoseSet | None = None,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
+             progress: Callable[[str], None] | None = None, start: Calibration | None = None) -> Diagnosis:
     """Find, name and model what the geometric calibration of ``poses`` leaves structured.
 
     spec: the stand; poses: the session (SI); library: effect name -> Effect (default: every
     installed effect); heldout: optionally another recording of the same stand in the same
-    mocap frame, scored before and after (never used to choose). Returns a :class:`Diagnosis`
-    whose ``calibration`` is the final model (calibration.yaml).
+    mocap frame, scored before and after (never used to choose); start: the calibration being
+    diagnosed (its stand, its estimated parameters as the free set, its td as the start, its
+    terms kept). Returns a :class:`Diagnosis` whose ``calibration`` is the final model.
     """
     opt = options or Options()
     library = effect_library() if library is None else library
     say = progress or (lambda s: None)
     poses = with_history(poses, spec)
     unit = poses.length_unit
-    base_cal = calibrate(poses, spec, free=opt.free)
+    free, td_start, prior = opt.free, None, []
+    if start is not None:
+        spec = start.spec
+        if free is None:
+            free = [n for n, st in zip(spec.parameter_names, start.td_status) if st == "estimated"]
+        td_start, prior = start.td, list(start.terms)
+    base_cal = calibrate(poses, spec, terms=prior, free=free, td_start=td_start,
+                         platform_options=None if start is None else start.platform_options)
     z0, active0 = base_cal.extras["z"], base_cal.extras["active"]
     weights = base_cal.extras["weights"]
-    cur = _fit(spec, poses, [], z0, active0, weights, opt.lm_iterations)
+    cur = _fit(spec, poses, prior, z0, active0, weights, opt.lm_iterations)
     cur.cv = _cv(cur, spec, poses, opt.folds, opt.lm_iterations)
     say(f"geometric model: fit RMS {_fmt_rms(np.sqrt(cur.rss * 3 / cur.n_obs), unit)}, "
         f"held-out RMS {_fmt_rms(cur.cv_rms, unit)}")
@@ -280,14 +289,15 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             f = _fit(spec, poses, cur.terms + [term], cur.z, cur.active, weights, opt.lm_iterations)
             f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
             trials.append((i, f, paired_improvement(cur.cv, f.cv)))
-            say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)}, "
-                f"BIC {f.bic - cur.bic:+.1f}")
+            say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)} "
+                f"(paired p = {trials[-1][2]:.2g}), BIC {f.bic - cur.bic:+.1f}")
         p_hold = holm(np.array([t[2] for t in trials]))
         good = [(t, ph) for t, ph in zip(trials, p_hold)
-                if ph < opt.alpha and t[1].bic < cur.bic and t[1].cv_rms < (1 - opt.min_relative_gain) * cur.cv_rms]
+                if ph < opt.alpha_heldout and t[1].bic < cur.bic and t[1].cv_rms < (1 - opt.min_relative_gain) * cur.cv_rms]
         if not good:
             break
-        (i, best, _), ph = min(good, key=lambda x: x[0][1].cv_rms)
+        # among those proven held out, the one the information criterion prefers
+        (i, best, _), ph = min(good, key=lambda x: x[0][1].bic)
         eff, term = cands[i]
         # naming check: a generic model of the same structure must not predict clearly better
         if opt.probes:
@@ -314,8 +324,10 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         say(f"accepted {eff.name} ({_where_text(term.where)})")
         cur = best
     # the final model through the estimator's full procedure (robust weights, covariance)
-    final_cal = calibrate(poses, spec, terms=cur.terms, free=opt.free) if cur.terms else base_cal
-    for k, (finding, info) in enumerate(zip(findings, accepted_info)):
+    final_cal = base_cal if len(cur.terms) == len(prior) else calibrate(
+        poses, spec, terms=cur.terms, free=free, td_start=td_start,
+        platform_options=None if start is None else start.platform_options)
+    for k, (finding, info) in enumerate(zip(findings, accepted_info), start=len(prior)):
         theta, std = final_cal.theta[k], final_cal.theta_std[k]
         finding.parameters = _params(finding.term, theta, std)
         finding.signature_after = _signature(info["J"], final_cal.extras["residuals_after"], theta)
@@ -362,7 +374,7 @@ def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Findi
         results.append((probe, f, p, p0))
     for probe, f, p, p0 in sorted(results, key=lambda x: x[1].cv_rms):
         gain_vs_ref = f.cv_rms < (1 - 2 * opt.min_relative_gain) * ref.cv_rms
-        if p < opt.alpha / max(len(probes), 1) and p0 < opt.alpha and f.bic < cur.bic and gain_vs_ref:
+        if p < opt.alpha_heldout / max(len(probes), 1) and p0 < opt.alpha_heldout and f.bic < cur.bic and gain_vs_ref:
             unit = poses.length_unit
             what = "changes with time" if "time" in probe.where else "varies smoothly over the workspace"
             named = "" if best is None else f" better than the best named effect ({best.terms[-1].effect}, " \

@@ -1,0 +1,61 @@
+"""platkit diagnose: find the physics a calibration left out, model it, prove it held out."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from platkit.errors import BadInput
+
+
+def add_parser(sub):
+    p = sub.add_parser("diagnose", help="locate structured residuals, name and model the missing effect "
+                                        "(diagnosis.json, calibration.yaml, report.html)")
+    p.add_argument("session", help="session folder (the one the calibration was fitted on, or another)")
+    p.add_argument("--calibration", required=True, help="calibration.yaml to diagnose (from `platkit calibrate`)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--heldout", default=None, help="another session of the same stand and mocap frame, scored "
+                                                   "before and after (never used to choose)")
+    p.add_argument("--folds", type=int, default=5, help="K of the K-fold held-out test (default 5)")
+    p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
+    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    return p
+
+
+def run(args) -> int:
+    from platkit.calibrate.result import read_calibration
+    from platkit.calibrate.settle import load_poses
+    from platkit.diagnose.report import write_outputs
+    from platkit.diagnose.search import Options, diagnose
+    from platkit.io.session import read_session_yaml
+    from platkit.model import length_scale
+
+    if args.folds < 2:
+        raise BadInput(f"--folds {args.folds}: use 2 or more")
+    if not 0 < args.alpha < 1:
+        raise BadInput(f"--alpha {args.alpha}: must lie between 0 and 1")
+    if args.max_effects < 1:
+        raise BadInput(f"--max-effects {args.max_effects}: must be 1 or more")
+    if not Path(args.calibration).is_file():
+        raise BadInput(f"{args.calibration}: calibration file not found")
+    cal = read_calibration(args.calibration)
+
+    def poses_of(folder):
+        platform = read_session_yaml(Path(folder)).get("platform")
+        if platform is not None and platform != cal.platform:
+            raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
+        return load_poses(folder, spec=cal.spec)
+
+    poses = poses_of(args.session)
+    if poses.n_poses < 2 * args.folds:
+        raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
+    heldout = poses_of(args.heldout) if args.heldout else None
+    say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
+    d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects),
+                 heldout=heldout, progress=say, start=cal)
+    written = write_outputs(d, args.out)
+    s = length_scale(d.unit)
+    names = ", ".join(f.effect for f in d.findings) or "no finding"
+    print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {d.calibration.rms_after / s:.4g} {d.unit}; "
+          f"wrote {', '.join(str(p) for p in written)}")
+    return 0

@@ -1,0 +1,172 @@
+"""Diagnosis outputs: diagnosis.json, calibration.yaml (the model with the accepted effects) and
+report.html (each located mismatch shown as the residual against the regressor that exposed it,
+before and after), written whole or not at all."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from platkit.diagnose.search import Diagnosis, Finding
+from platkit.io.atomic import atomic_output_dir
+from platkit.model import length_scale
+
+FORMAT = "platkit-diagnosis/1"
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _plain(o):
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_plain(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return [_plain(v) for v in o.tolist()]
+    if isinstance(o, (np.floating, float)):
+        return _num(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
+    s = length_scale(unit)
+    params = {}
+    for name, v in f.parameters.items():
+        k = s if v.get("unit") == "m" else 1.0
+        params[name] = {"value": _num(v["value"] / k), "std": None if v["std"] is None else _num(v["std"] / k),
+                        "unit": unit if v.get("unit") == "m" else v.get("unit")}
+    out = {
+        "effect": f.effect,
+        "where": _plain(f.where),
+        "parameters": params,
+        "heldout_rms_before": _num(f.heldout_rms_before / s),
+        "heldout_rms_after": _num(f.heldout_rms_after / s),
+        "unit": unit,
+        "evidence": f.evidence,
+        "p_heldout": _num(f.p_heldout),
+        "p_screen": _num(f.p_screen),
+        "bic_change": _num(f.bic_change),
+        "separability": _num(f.separability),
+        "warnings": list(f.warnings),
+    }
+    if f.heldout_session_rms_before is not None:
+        out["heldout_session_rms_before"] = _num(f.heldout_session_rms_before / s)
+        out["heldout_session_rms_after"] = _num(f.heldout_session_rms_after / s)
+    return out
+
+
+def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
+    s = length_scale(d.unit)
+    out = {
+        "format": FORMAT,
+        "platform": d.calibration.platform,
+        "unit": d.unit,
+        "n_poses": d.poses.n_poses,
+        "n_markers": d.poses.n_markers,
+        "findings": [finding_dict(f, d.unit) for f in d.findings],
+        "verdict": d.verdict,
+        "rms_geometric": _num(d.base.rms_after / s),
+        "rms_final": _num(d.calibration.rms_after / s),
+        "located_before": [{"test": x.test, "where": _plain(x.where), "statistic": _num(x.statistic),
+                            "p_adjusted": _num(x.p_adjusted)} for x in d.locations_before if x.p_adjusted < 0.05][:20],
+        "located_after": [{"test": x.test, "where": _plain(x.where), "statistic": _num(x.statistic),
+                           "p_adjusted": _num(x.p_adjusted)} for x in d.locations if x.p_adjusted < 0.05][:20],
+        "not_separable": _plain(d.not_separable),
+        "rounds": _plain(d.rounds),
+        "method": ("forward selection: score-test screening (Holm), refit with the shared estimator, accepted when "
+                   "the K-fold held-out error falls significantly (one-sided Wilcoxon, Holm) and BIC falls, unless a "
+                   "generic probe predicts significantly better (then: unexplained)"),
+    }
+    if d.heldout_session is not None:
+        h = d.heldout_session
+        out["heldout_session"] = {"rms_before": _num(h["rms_before"] / s), "rms_after": _num(h["rms_after"] / s),
+                                  "p_improvement": _num(h["p_improvement"]), "n_poses": h["n_poses"],
+                                  "per_marker": {k: [_num(a / s), _num(b / s)] for k, (a, b) in h["per_marker"].items()}}
+    return out
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _plots(d: Diagnosis) -> list[tuple[str, str]]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = length_scale(d.unit)
+    out = []
+    for f in d.findings:
+        if f.regressor is None or f.signature_before is None:
+            continue
+        fig, ax = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+        for a, sig, title in ((ax[0], f.signature_before, "geometric model"), (ax[1], f.signature_after, f"with {f.effect}")):
+            if sig is None:
+                continue
+            a.plot(f.regressor, sig / s, "o", ms=4, alpha=0.7)
+            a.axhline(0, color="k", lw=0.5)
+            a.set_xlabel(f.regressor_label)
+            a.set_title(title)
+        ax[0].set_ylabel(f"residual along the effect's signature ({d.unit})")
+        out.append((f"{f.effect}: {html.escape(json.dumps(_plain(f.where)))}", _png(fig)))
+    # residual norm in time order, before and after
+    r0 = np.linalg.norm(d.base.extras["residuals_after"], axis=2)
+    r1 = np.linalg.norm(d.calibration.extras["residuals_after"], axis=2)
+    t = d.poses.extras.get("elapsed", np.arange(d.poses.n_poses))
+    fig, ax = plt.subplots(figsize=(10, 3.2))
+    for m, name in enumerate(d.poses.marker_names):
+        ax.plot(t, r0[:, m] / s, ".", alpha=0.4, label=f"{name} geometric")
+        ax.plot(t, r1[:, m] / s, "x", alpha=0.6, label=f"{name} final")
+    ax.set_xlabel("time since the first command (s)")
+    ax.set_ylabel(f"marker error ({d.unit})")
+    ax.legend(fontsize=7, ncol=4)
+    out.append(("marker errors along time, geometric model and final model", _png(fig)))
+    return out
+
+
+def report_html(d: Diagnosis) -> str:
+    rows = []
+    for f in d.findings:
+        fd = finding_dict(f, d.unit)
+        params = "; ".join(f"{k} = {v['value']:.4g}" + ("" if v["std"] is None else f" +- {v['std']:.2g}") + f" {v['unit']}"
+                           for k, v in fd["parameters"].items())
+        rows.append(f"<tr><td>{html.escape(f.effect)}</td><td>{html.escape(json.dumps(fd['where']))}</td>"
+                    f"<td>{html.escape(params)}</td><td>{fd['heldout_rms_before']:.4g}</td>"
+                    f"<td>{fd['heldout_rms_after']:.4g}</td><td>{html.escape(f.evidence)}</td></tr>")
+    table = ("<table border=1 cellpadding=4><tr><th>effect</th><th>where</th><th>parameters</th>"
+             f"<th>held-out RMS before ({d.unit})</th><th>after</th><th>evidence</th></tr>" + "".join(rows) + "</table>"
+             if rows else "<p>No findings.</p>")
+    imgs = "".join(f"<h3>{title}</h3><img alt='{title}' src='data:image/png;base64,{png}'>" for title, png in _plots(d))
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>platkit diagnosis</title></head><body>"
+            f"<h1>Diagnosis of the {html.escape(d.calibration.platform)} stand</h1>"
+            f"<p>{html.escape(d.verdict)}</p><h2>Findings</h2>{table}<h2>Where the residual was structured</h2>"
+            f"{imgs}</body></html>")
+
+
+def write_outputs(d: Diagnosis, out_dir: str | Path) -> list[Path]:
+    """diagnosis.json, calibration.yaml, report.html in ``out_dir``, atomically."""
+    with atomic_output_dir(out_dir) as tmp:
+        (tmp / "diagnosis.json").write_text(json.dumps(diagnosis_dict(d), indent=2) + "\n", encoding="utf-8")
+        (tmp / "calibration.yaml").write_text(d.calibration.to_yaml(), encoding="utf-8")
+        (tmp / "report.html").write_text(report_html(d), encoding="utf-8")
+    return [Path(out_dir) / n for n in ("diagnosis.json", "calibration.yaml", "report.html")]
