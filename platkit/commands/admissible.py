@@ -15,7 +15,7 @@ import json
 import numpy as np
 
 from platkit.admissible import admissible_grid, default_axes, plot_boundary, plot_slices
-from platkit.commands.common import add_platform_options, add_unit_option
+from platkit.commands.common import add_platform_options, add_unit_option, platform_from_args
 from platkit.errors import BadInput
 from platkit.io.atomic import atomic_output_dir
 from platkit.kinematics import PlatformModel
@@ -46,7 +46,7 @@ def _unit_product(units: list[str]) -> str:
 
 
 def run(args) -> int:
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     if args.axes:
         names = [a.strip() for a in args.axes.split(",") if a.strip()]
     elif spec.n_p <= 3:

@@ -14,6 +14,17 @@ from platkit.model import length_scale
 def add_platform_options(parser, required: bool = True) -> None:
     parser.add_argument("--platform", required=required, help="stand name (see `platkit plugins`)")
     parser.add_argument("--description", default=None, help="description file (default: the stand's own)")
+    parser.add_argument("--base-link", default=None, help="serial-chain stands: the link the chain starts from")
+    parser.add_argument("--moving-link", default=None, help="serial-chain stands: the link that moves (carries the markers)")
+
+
+def platform_from_args(args):
+    """The PlatformSpec named by --platform/--description and the stand options
+    (--base-link, --moving-link) where given."""
+    from platkit.plugins import get_platform
+
+    options = {k: getattr(args, k, None) for k in ("base_link", "moving_link")}
+    return get_platform(args.platform, args.description, **{k: v for k, v in options.items() if v is not None})
 
 
 def add_unit_option(parser) -> None:

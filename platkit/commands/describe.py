@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.commands.common import add_platform_options, add_unit_option, print_json
+from platkit.commands.common import add_platform_options, add_unit_option, print_json, platform_from_args
 from platkit.model import length_scale
 from platkit.plugins import get_platform
 
@@ -23,7 +23,7 @@ def _shown(value: float, unit: str, length_unit: str) -> tuple[float, str]:
 
 
 def run(args) -> int:
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     controls = []
     for c in spec.controls:
         lo, unit = _shown(c.lower, c.unit, args.unit)

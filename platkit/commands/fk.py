@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, pose_dict, print_json
+from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, pose_dict, print_json, platform_from_args
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_to_si, length_scale
 from platkit.plugins import get_platform
@@ -21,7 +21,7 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     model = PlatformModel(spec, length_unit=args.unit)
     u = controls_to_si(spec, parse_vector(args.u, "--u", spec.n_u), args.unit)
     guess = None

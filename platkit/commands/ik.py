@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, print_json
+from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, print_json, platform_from_args
 from platkit.errors import BadInput
 from platkit.geometry import quat_from_rpy, quat_normalize
 from platkit.kinematics import PlatformModel
@@ -24,7 +24,7 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     model = PlatformModel(spec, length_unit=args.unit)
     s = length_scale(args.unit)
     if args.coordinates:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.commands.common import add_platform_options
+from platkit.commands.common import add_platform_options, platform_from_args
 from platkit.errors import BadInput
 
 
@@ -44,7 +44,7 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name")
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     sigma = args.noise_mm * 1e-3
     rng = np.random.default_rng(args.seed)
     markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from platkit.commands.common import add_platform_options
+from platkit.commands.common import add_platform_options, platform_from_args
 from platkit.errors import BadInput
 from platkit.plugins import get_platform
 
@@ -43,7 +43,7 @@ def run(args) -> int:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
     if not args.rate_hz > 0 or not args.hold_s > 0:
         raise BadInput("--rate-hz and --hold-s must be positive")
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     plan = args.plan
     if plan not in ("grid", "random"):
         if not Path(plan).is_file():

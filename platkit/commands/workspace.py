@@ -1,7 +1,7 @@
 """platkit workspace: corner envelope, true translational envelope, conditioning, plots."""
 from __future__ import annotations
 
-from platkit.commands.common import add_platform_options, add_unit_option, print_json
+from platkit.commands.common import add_platform_options, add_unit_option, print_json, platform_from_args
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
 from platkit.workspace import AXES, write_workspace
@@ -18,7 +18,7 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    spec = get_platform(args.platform, args.description)
+    spec = platform_from_args(args)
     model = PlatformModel(spec, length_unit=args.unit)
     figures = write_workspace(model, args.out, unit=args.unit, plots=not args.no_plots)
     if args.json:
