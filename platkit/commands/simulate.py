@@ -9,9 +9,9 @@ from platkit.plugins import get_platform
 
 
 def add_parser(sub):
-    from platkit.simulate.effects import EFFECT_SIZES
+    from platkit.simulate.effects import size_help
 
-    sizes = "; ".join(f"{n}: {what} (default {d:g})" for n, (what, d) in EFFECT_SIZES.items())
+    sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help().items()))
     p = sub.add_parser("simulate", help="simulate a calibration session with a known true stand (truth.yaml)")
     add_platform_options(p)
     p.add_argument("--out", required=True, help="session folder to write")

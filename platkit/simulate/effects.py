@@ -27,7 +27,7 @@ from platkit.model import PlatformSpec
 EFFECT_SIZES = {
     "backlash": ("play of one actuator, full width, in mm for length controls (else the control's unit)", 1.0),
     "compliance": ("largest deflection of an actuator under the platform's weight, mm or the control's unit", 1.0),
-    "thermal_drift": ("drift of the moving frame along base z over one hour, mm", 2.0),
+    "thermal_drift": ("drift of the moving frame along base z, mm per hour", 2.0),
     "cyclic_error": ("amplitude of an error periodic in one actuator's travel, mm or the control's unit", 0.3),
     "scale_nonlinearity": ("largest deviation of one actuator from linear travel, mm or the control's unit", 1.0),
     "settling_lag": ("fraction of the last command step not yet reached when recorded", 0.003),
@@ -210,6 +210,19 @@ def builtin_term(name: str, spec: PlatformSpec, size: float | None, rng: np.rand
         raise BadInput(f"effect compliance: the {spec.name} stand carries no load along its actuators")
     jmax = int(np.argmax(np.max(np.abs(loads), axis=0)))
     return term, np.array([_control_size(spec, jmax, size) / peak])
+
+
+def size_help() -> dict[str, str]:
+    """Effect name -> what its size means: a registered effect's ``simulation_term`` docstring,
+    else the built-in one's."""
+    from platkit.plugins import default_host
+
+    out = {n: f"{what} (default {d:g})" for n, (what, d) in EFFECT_SIZES.items()}
+    for name, effect in default_host().effects().items():
+        doc = getattr(getattr(effect, "simulation_term", None), "__doc__", None)
+        if doc:
+            out[name] = " ".join(doc.split())
+    return out
 
 
 def simulation_term(name: str, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
