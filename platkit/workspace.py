@@ -7,8 +7,9 @@
   stand can take with its controls inside their strokes, by constrained optimisation (CasADi +
   IPOPT): maximise / minimise x, y, z subject to lower <= u <= upper, the stand's branch, and
   either the neutral orientation (``orientation="fixed"``) or any orientation within the
-  stand's coordinate bounds (``orientation="free"``). Controls come from the stand's closed-form
-  inverse where it has one; otherwise u is a variable held to F(u, td, pose(p)) = 0.
+  stand's coordinate bounds (``orientation="free"``). Serial chains (closed-form forward) search
+  over the controls; stands with a closed-form inverse over the pose coordinates; any other
+  stand over both, u held to F(u, td, pose(p)) = 0.
 - :func:`write_workspace`: the figures as JSON and CSV, and plots, written atomically.
 
 Lengths are metres inside; the writer converts to the requested unit.
@@ -150,7 +151,26 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
         lbx[fixed] = ubx[fixed] = p0[fixed]
     lbx = np.where(np.isfinite(lbx), lbx, -1e6)
     ubx = np.where(np.isfinite(ubx), ubx, 1e6)
-    if spec.inverse is not None:
+    if spec.forward is not None:
+        # serial chains: the controls are the variables, the pose follows from them
+        u = ca.SX.sym("u", n_u)
+        q, X = spec.forward(u, td)
+        x = u
+        g, lbg, ubg = [], [], []
+        if orientation == "fixed":
+            if spec.coordinates_from_pose is None:
+                raise BadInput(f"{spec.name}: a fixed orientation needs the stand's coordinates_from_pose")
+            angles = np.nonzero([c.unit != "m" for c in spec.coordinates])[0]
+            pc = spec.coordinates_from_pose(q, X)
+            # one scalar constraint: a chain with few joints keeps its orientation only on a
+            # subset of its motions, and as many equalities as angles would overconstrain it
+            g.append(ca.sumsqr(pc[[int(k) for k in angles]] - p0[angles]))
+            lbg.append([0.0])
+            ubg.append([1e-12])
+        x_lb, x_ub = lo_u, hi_u
+        p = spec.coordinates_from_pose(q, X) if spec.coordinates_from_pose is not None else ca.SX.zeros(n_p)
+        solver_name = "IPOPT over the controls, pose by the closed-form forward kinematics"
+    elif spec.inverse is not None:
         u = spec.inverse(td, q, X)
         x = p
         g = [u]
@@ -165,21 +185,27 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
         lbg, ubg = [np.zeros(r.shape[0])], [np.zeros(r.shape[0])]
         x_lb, x_ub = np.concatenate([lbx, lo_u]), np.concatenate([ubx, hi_u])
         solver_name = "IPOPT over pose coordinates and controls held to F = 0"
-    if spec.branch is not None:
+    if spec.branch is not None and spec.forward is None:
         gb = spec.branch(u, td, q, X)
         g.append(gb)
         lbg.append(np.full(gb.shape[0], 1e-6))
         ubg.append(np.full(gb.shape[0], np.inf))
-    G = ca.vertcat(*g)
-    lbg, ubg = np.concatenate(lbg), np.concatenate(ubg)
+    G = ca.vertcat(*g) if g else ca.SX(0, 1)
+    lbg = np.concatenate(lbg) if lbg else np.zeros(0)
+    ubg = np.concatenate(ubg) if ubg else np.zeros(0)
     sense_sym = ca.SX.sym("sense", 4)  # (sign, e_x, e_y, e_z): minimise sign * e . X
     objective = sense_sym[0] * ca.dot(sense_sym[1:], X)
     solver = ca.nlpsol("envelope", "ipopt", {"x": x, "p": sense_sym, "f": objective, "g": G}, _ipopt_options())
     u_of = ca.Function("u_of", [x], [u])
     X_of = ca.Function("X_of", [x], [X])
 
+    p_of = ca.Function("p_of", [x], [p])
+
     def start_vector(pp):
         pp = np.clip(np.asarray(pp, float), lbx, ubx)
+        if spec.forward is not None:
+            qq, XX = model.pose(pp)
+            return np.clip(model.inverse(qq, XX, td, strict=False), lo_u, hi_u)
         if spec.inverse is not None:
             return pp
         qq, XX = model.pose(pp)
@@ -200,7 +226,7 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
                 sol = solver(x0=x0, p=np.concatenate([[sign], e]), lbx=x_lb, ubx=x_ub, lbg=lbg, ubg=ubg)
                 xs = np.asarray(sol["x"]).ravel()
                 gv = np.asarray(ca.Function("gv", [x], [G])(xs)).ravel()
-                viol = max(float(np.max(lbg - gv)), float(np.max(gv - ubg)), 0.0)
+                viol = max(float(np.max(lbg - gv, initial=0.0)), float(np.max(gv - ubg, initial=0.0)))
                 if viol > 1e-7 or not np.all(np.isfinite(xs)):
                     continue
                 val = float(np.asarray(X_of(xs)).ravel()[k])
@@ -212,7 +238,7 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
             uu = np.asarray(u_of(xs)).ravel()
             span = np.maximum(hi_u - lo_u, 1e-12)
             active = [c.name for c, a, l, h, sp in zip(spec.controls, uu, lo_u, hi_u, span) if min(a - l, h - a) < 1e-6 * sp]
-            extremes.append(AxisExtreme(axis, sense, val, xs[:n_p].copy(), uu, active))
+            extremes.append(AxisExtreme(axis, sense, val, np.asarray(p_of(xs)).ravel(), uu, active))
     return TranslationalEnvelope(orientation, extremes, solver_name)
 
 
