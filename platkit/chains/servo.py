@@ -33,7 +33,7 @@ from platkit.chains.solve import (
     solve_lp,
     solve_pinv,
 )
-from platkit.chains.transforms import interpolate_pose, invert, pose_error, rotation_action
+from platkit.chains.transforms import interpolate_pose, pose_error, rotation_action
 from platkit.errors import BadInput, OutOfWorkspace
 
 COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
@@ -561,8 +561,3 @@ def follow_trajectory(chain: KinematicChain, link: str, times: np.ndarray, poses
         pos.append(res.position_error)
         rot.append(res.rotation_error)
     return TrajectoryResult(st, np.array(thetas), np.array(pos), np.array(rot), seg, total)
-
-
-def target_from_world(chain: KinematicChain, theta: np.ndarray, frame: str, world_from_target: np.ndarray) -> np.ndarray:
-    """A world placement re-expressed in ``frame`` at configuration theta (4, 4)."""
-    return invert(chain.placement(theta, frame)) @ world_from_target

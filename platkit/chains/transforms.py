@@ -17,7 +17,6 @@ import numpy as np
 
 from platkit.geometry import (
     matrix_from_quat,
-    matrix_from_rotvec,
     quat_conjugate,
     quat_from_matrix,
     quat_from_rotvec,
@@ -190,11 +189,3 @@ def pose_from_xyz_rpy(values: np.ndarray) -> np.ndarray:
     elif v.size != 3:
         raise ValueError(f"pose: expected 3, 6 or 7 numbers, got {v.size}")
     return H
-
-
-def pose_from_twist_step(H: np.ndarray, E: np.ndarray) -> np.ndarray:
-    """H moved by a (r, rho) step in the reference basis (translation r, rotation rho before H)."""
-    out = H.copy()
-    out[:3, 3] = H[:3, 3] + E[:3]
-    out[:3, :3] = matrix_from_rotvec(E[3:]) @ H[:3, :3]
-    return out
