@@ -364,7 +364,7 @@ def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float,
     Jr = sub.reduce(J_plan).reshape(-1, sub.rank)
     info = Jr.T @ Jr
     ev = np.linalg.eigvalsh(info)
-    plan_rank = int(np.sum(ev > 1e-9 * max(ev[-1], 1e-300)))
+    plan_rank = int(np.sum(ev > 1e-14 * max(ev[-1], 1e-300)))  # (1e-7)^2, as the subspace's own cut
     out = {
         "n_poses": int(J_plan.shape[0]),
         "n_parameters": int(sub.n_theta),
