@@ -124,3 +124,37 @@ def test_unreachable_pose_for_inverse(model):
         model.inverse(quat_from_rpy(0, 0, 0), [0.0, 0.0, 6.0])
     u = model.inverse(quat_from_rpy(0, 0, 0), [0.0, 0.0, 6.0], strict=False)
     assert np.all(u > 4.795)
+
+
+def test_gauss_newton_when_the_stand_has_more_equations(spec):
+    """A stand with more residual rows than pose coordinates (here every leg twice) solves by
+    Gauss-Newton on both backends."""
+    from dataclasses import replace
+
+    import casadi as ca
+
+    u, td, q, X = ca.SX.sym("u", 6), ca.SX.sym("td", 42), ca.SX.sym("q", 4), ca.SX.sym("X", 3)
+    r = spec.residual(u, td, q, X)
+    doubled = ca.Function("F", [u, td, q, X], [ca.vertcat(r, 2 * r)], ["u", "td", "q", "X"], ["r"])
+    tall = replace(spec, residual=doubled)
+    fast, slow = PlatformModel(tall), PlatformModel(tall, compile=False)
+    assert fast.n_r == 12
+    reference = PlatformModel(spec).forward(STATES_MM[2] / 1000)
+    for m in (fast, slow):
+        res = m.forward(STATES_MM[2] / 1000)
+        np.testing.assert_allclose(res.p, reference.p, atol=1e-11)
+        batch = m.forward_batch(STATES_MM / 1000)
+        assert batch.converged.all()
+
+
+def test_forward_with_other_parameters(spec, model, slow_model):
+    """Calibrated parameters go through the same compiled solver."""
+    td = spec.nominal_td().copy()
+    td[36:42] += [0.01, -0.02, 0.0, 0.005, 0.0, -0.01]  # leg offsets
+    u = STATES_MM[1] / 1000
+    a, b = model.forward(u, td), slow_model.forward(u, td)
+    np.testing.assert_allclose(a.p, b.p, atol=1e-12)
+    np.testing.assert_allclose(model.inverse(a.q, a.X, td), u, atol=1e-10)
+    assert np.linalg.norm(a.X - model.forward(u).X) > 1e-3
+    batch = model.forward_batch(STATES_MM / 1000, td)
+    np.testing.assert_allclose(batch.p[1], a.p, atol=1e-13)
