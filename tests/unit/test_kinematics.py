@@ -158,3 +158,23 @@ def test_forward_with_other_parameters(spec, model, slow_model):
     assert np.linalg.norm(a.X - model.forward(u).X) > 1e-3
     batch = model.forward_batch(STATES_MM / 1000, td)
     np.testing.assert_allclose(batch.p[1], a.p, atol=1e-13)
+
+
+def test_compiled_solver_is_cached_and_a_broken_compiler_falls_back(spec, monkeypatch, tmp_path):
+    from platkit import kinematics
+
+    if not (shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")):
+        assert PlatformModel(spec).backend.startswith("casadi+numpy")
+        return
+    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(kinematics, "_native_by_functions", {})
+    monkeypatch.setattr(kinematics, "_native_by_hash", {})
+    m = PlatformModel(spec)
+    assert m.backend.startswith(f"compiled C ({tmp_path / 'cache'}")
+    assert len(list((tmp_path / "cache").glob("newton_*.so"))) == 1
+    np.testing.assert_allclose(m.forward(STATES_MM[0] / 1000).p, PlatformModel(spec, compile=False).forward(STATES_MM[0] / 1000).p, atol=1e-12)
+    monkeypatch.setenv("CC", shutil.which("false") or "/bin/false")
+    monkeypatch.setattr(kinematics, "_native_by_functions", {})
+    broken = PlatformModel(spec)
+    assert broken.backend.startswith("casadi+numpy (the C compiler failed"), broken.backend
+    assert broken.forward(STATES_MM[0] / 1000).iterations <= 5
