@@ -174,3 +174,24 @@ def test_cli_simulate_poses_only(tmp_path, capsys):
     assert load_poses(out).n_poses == 7
     code = main(["simulate", "--platform", "psvr", "--out", str(tmp_path / "t"), "--effect", "x:y"])
     assert code == 2 and not (tmp_path / "t").exists()
+
+
+def test_imu_hook_writes_an_inertial_stream(tmp_path):
+    from platkit.io.session import load_session
+    from platkit.simulate import write_session
+
+    seen = {}
+
+    def imu(trajectory, rng):
+        t = np.arange(0.0, trajectory.end_t, 0.005)
+        q, X = trajectory.at(t)
+        seen["q"], seen["X"] = q, X
+        return {"t": t, "gyr": np.zeros((len(t), 3)), "acc": np.tile([0.0, 0.0, 9.81], (len(t), 1)),
+                "entry": {"rate_hz": 200.0, "frame": "imu"}}
+
+    spec = get_platform("psvr")
+    sim = simulate(spec, seed=3, n_poses=5, mocap_rate_hz=30, imu=imu)
+    assert seen["q"].shape[1] == 4 and np.allclose(np.linalg.norm(seen["q"], axis=1), 1)
+    s = load_session(write_session(sim, tmp_path / "imu"))
+    assert s.imu == {"rate_hz": 200.0, "frame": "imu"}
+    assert s.imu_t.shape[0] == len(sim.imu["t"]) and np.allclose(s.imu_acc[:, 2], 9.81)
