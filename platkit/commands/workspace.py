@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from platkit.commands.common import add_platform_options, add_unit_option, print_json, platform_from_args
 from platkit.kinematics import PlatformModel
-from platkit.plugins import get_platform
 from platkit.workspace import AXES, write_workspace
 
 
