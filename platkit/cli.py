@@ -9,7 +9,7 @@ import traceback
 from platkit.errors import PlatkitError
 
 #: verb modules under platkit.commands, in the order `platkit --help` lists them
-COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan"]
+COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -250,7 +250,10 @@ def smooth_two_pass(imu: ImuStream, params: PlatkitParams | None = None) -> Orie
     fwd = estimate_platkit(imu, p)
     # gyro sample k turns q_{k-1} into q_k, so backwards sample k+1 turns q_{k+1} into q_k
     rev = ImuStream(imu.t[-1] - imu.t[::-1], -np.roll(imu.gyr[::-1], 1, axis=0), imu.acc[::-1], imu.saturated[::-1], [], imu.source)
-    bwd = estimate_platkit(rev, p)
+    from dataclasses import replace
+
+    # the backward pass starts where the forward one ended: with its bias (negated in reversed time)
+    bwd = estimate_platkit(rev, replace(p, initial_bias=tuple(-fwd.bias[-1])))
     z_f = _vertical_in_sensor(fwd.q)
     z_b = _vertical_in_sensor(bwd.q[::-1])
     ramp = 3.0 * p.tau_acc

@@ -83,22 +83,25 @@ def lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, zero_phase: bool = 
 
 @dataclass
 class CutoffChoice:
-    """A cut-off found from a spectrum: frequency (Hz), the noise floor (unit^2/Hz) and the band
-    the floor was measured in (Hz)."""
+    """A cut-off found from a spectrum: frequency (Hz), the noise floor (unit^2/Hz), the band
+    the floor was measured in (Hz) and the upper edge of the motion's band (Hz)."""
 
     cutoff_hz: float
     noise_floor: float
     floor_band_hz: tuple[float, float]
+    signal_edge_hz: float
 
 
 def cutoff_from_spectrum(x: np.ndarray, rate_hz: float, margin: float = 4.0,
-                         min_hz: float = 1.0) -> CutoffChoice:
+                         min_hz: float = 10.0, headroom: float = 4.0) -> CutoffChoice:
     """Choose a low-pass cut-off where the motion's spectrum sinks into the sensor's noise floor.
 
     ``x`` (N,) or (N, k) (channels are summed). The noise floor is the median power spectral
     density (Welch) of the upper half of the band, where a platform's motion has no power; the
-    cut-off is the highest frequency below which the spectrum still exceeds ``margin`` times the
-    floor (never below ``min_hz``): what lies above it is noise.
+    signal band ends where the spectrum, rising from 0 Hz, last exceeds ``margin`` times the
+    floor. The cut-off is ``headroom`` times that edge (a causal filter delays what it passes by
+    about sqrt(2) / (2 pi f_c) s, so it must sit well above the motion), never below ``min_hz``
+    and at most 0.45 times the sampling rate.
     """
     x = np.asarray(x, float)
     if x.ndim == 1:
@@ -113,13 +116,13 @@ def cutoff_from_spectrum(x: np.ndarray, rate_hz: float, margin: float = 4.0,
     floor = float(np.median(psd[upper]))
     above = np.nonzero((psd > margin * floor) & (f > 0))[0]
     # the signal band: the longest run of "above the floor" bins starting at the low end
-    fc = min_hz
+    edge = 0.0
     if above.size:
         run_end = above[0]
         for k in above[1:]:
             if k - run_end > max(2, len(f) // 64):
                 break
             run_end = k
-        fc = max(min_hz, float(f[min(run_end + 1, len(f) - 1)]))
-    fc = min(fc, 0.45 * rate_hz)
-    return CutoffChoice(fc, floor, (rate_hz / 4, rate_hz / 2))
+        edge = float(f[min(run_end + 1, len(f) - 1)])
+    fc = min(max(min_hz, headroom * edge), 0.45 * rate_hz)
+    return CutoffChoice(fc, floor, (rate_hz / 4, rate_hz / 2), edge)

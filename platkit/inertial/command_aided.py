@@ -1,0 +1,218 @@
+"""What only a motion platform allows: the gyro fused with the orientation the calibrated model
+predicts from the logged commands.
+
+A command row says where the platform goes and holds. The calibrated model turns it into a pose
+(``PlatformModel.forward_batch`` on the commands, with the calibration's td): an absolute
+orientation with heading, free of drift, but only right once the platform has settled and only
+as good as the calibration. The gyro is right at high frequency and drifts. The fusion:
+
+1. the latency of the platform is measured: for every command that turns the platform, the
+   time from the command to the onset of the gyro's rotation and to the end of it (95 % of the
+   rotation angle); their medians are ``lag_s`` and ``settle_s``;
+2. between ``settle_s`` after a command and ``lag_s`` after the next, the platform holds the
+   commanded pose: there the model's orientation is a reference;
+3. a complementary filter on SO(3): the strapdown integration of the platform-frame rate,
+   pulled towards the reference with time constant ``tau_ref`` where it holds, and an integral
+   term (time constant ``tau_bias``) that estimates the gyro bias from the same pull.
+
+Also :func:`estimate_alignment_from_commands`: the IMU's misalignment R_SP (and the gyro bias)
+from the same session, by least squares between the rotations the model says the platform made
+between held poses and the rotations the gyro integrated over the same intervals.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from platkit.errors import BadInput, NotIdentifiable
+from platkit.geometry import quat_conjugate, quat_multiply, quat_normalize, rotvec_from_quat
+from platkit.inertial import quat as Q
+from platkit.inertial.calibration import fit_imu_alignment, integrate_gyro
+from platkit.inertial.estimator import OrientationEstimate
+from platkit.inertial.stream import ImuStream
+
+
+@dataclass
+class PlatformTiming:
+    """How the platform follows its commands: ``lag_s`` (command to start of motion),
+    ``settle_s`` (command to the end of motion), both medians over ``n_moves`` moves, and their
+    spreads (std, s)."""
+
+    lag_s: float
+    settle_s: float
+    n_moves: int
+    lag_std_s: float = float("nan")
+    settle_std_s: float = float("nan")
+
+
+def command_poses(model, U: np.ndarray, td=None) -> np.ndarray:
+    """Orientations q_base_from_platform (N, 4) of command rows U (N, n_u) (SI controls).
+
+    Raises ComputationFailed-family errors from forward kinematics for rows that do not
+    converge."""
+    from platkit.errors import NoConvergence
+
+    fb = model.forward_batch(U, td=td, strict=False)
+    if not np.all(fb.converged):
+        i = int(np.nonzero(~fb.converged)[0][0])
+        raise NoConvergence(f"forward kinematics of command row {i + 1}", int(fb.iterations[i]), float(fb.residual[i]))
+    return fb.q
+
+
+def _hold_index(t: np.ndarray, t_cmd: np.ndarray) -> np.ndarray:
+    return np.clip(np.searchsorted(t_cmd, t, side="right") - 1, 0, len(t_cmd) - 1)
+
+
+def estimate_timing(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, gyr_bias=None,
+                    min_angle: float = math.radians(0.5)) -> PlatformTiming:
+    """Latency and settling time of the platform from the gyro and the commands.
+
+    For each command whose predicted rotation exceeds ``min_angle``, the gyro's rotation angle
+    accumulated between this command and the next is found (rate above three times its median,
+    the noise of a platform that mostly holds); onset = 5 %, end = 95 % of it.
+    """
+    b = np.zeros(3) if gyr_bias is None else np.asarray(gyr_bias, float)
+    rate = np.linalg.norm(imu.gyr - b, axis=1)
+    # the platform holds most of the time: three times the median rate is above the noise, and
+    # only what exceeds it counts as motion (noise would otherwise smear the onset and the end)
+    rate = np.clip(rate - 3.0 * np.median(rate), 0.0, None)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(imu.t))])
+    steps = np.linalg.norm(rotvec_from_quat(quat_multiply(quat_conjugate(q_cmd[:-1]), q_cmd[1:])), axis=1)
+    lags, ends = [], []
+    for k in range(1, len(t_cmd)):
+        if steps[k - 1] < min_angle:
+            continue
+        t0 = t_cmd[k]
+        t1 = t_cmd[k + 1] if k + 1 < len(t_cmd) else imu.t[-1]
+        i0, i1 = np.searchsorted(imu.t, [t0, t1])
+        if i1 - i0 < 4:
+            continue
+        c = cum[i0:i1] - cum[i0]
+        total = c[-1]
+        if total < 0.5 * steps[k - 1]:
+            continue  # the gyro saw too little of this move (it ran into the next command)
+        lags.append(imu.t[i0 + np.searchsorted(c, 0.05 * total)] - t0)
+        ends.append(imu.t[min(i0 + np.searchsorted(c, 0.95 * total), i1 - 1)] - t0)
+    if not lags:
+        raise NotIdentifiable("platform latency: no command turned the platform enough to time it "
+                              f"(need steps above {math.degrees(min_angle):.2g} deg with the gyro recording)")
+    return PlatformTiming(float(np.median(lags)), float(np.median(ends)), len(lags),
+                          float(np.std(lags)), float(np.std(ends)))
+
+
+def held_mask(t: np.ndarray, t_cmd: np.ndarray, timing: PlatformTiming, margin_s: float = 0.05) -> np.ndarray:
+    """(N,) bool: samples where the platform holds the last command's pose: from ``settle_s``
+    (+ margin) after a command to ``lag_s`` after the next one."""
+    k = _hold_index(t, t_cmd)
+    since = t - t_cmd[k]
+    nxt = np.append(t_cmd[1:], np.inf)[k]
+    held = (since >= timing.settle_s + margin_s) & (t <= nxt + max(timing.lag_s - margin_s, 0.0))
+    held &= t >= t_cmd[0]
+    return held
+
+
+def estimate_alignment_from_commands(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray,
+                                     timing: PlatformTiming, fit_scale: bool = False, gyr_bias=None):
+    """R_SP, gyro bias and (optionally) gyro scales from a session with commands.
+
+    The gyro bias is the mean rate over the held samples; then for each pair of consecutive
+    held intervals the gyro's integrated rotation (sensor frame) is matched with the model's
+    rotation between the two commanded poses (platform frame) by least squares
+    (:func:`platkit.inertial.calibration.fit_imu_alignment`). Returns (AlignmentFit, bias (3,)).
+    """
+    held = held_mask(imu.t, t_cmd, timing)
+    if held.sum() < 10:
+        raise NotIdentifiable("IMU alignment: the platform never held a pose long enough to use")
+    bias = np.asarray(gyr_bias, float) if gyr_bias is not None else imu.gyr[held].mean(axis=0)
+    k = _hold_index(imu.t, t_cmd)
+    # the middle sample of each held interval, per command
+    mids = {}
+    for i in np.unique(k[held]):
+        idx = np.nonzero(held & (k == i))[0]
+        mids[int(i)] = int(idx[len(idx) // 2])
+    order = sorted(mids)
+    r_p, r_s = [], []
+    for a, b in zip(order[:-1], order[1:]):
+        rp = rotvec_from_quat(quat_multiply(quat_conjugate(q_cmd[a]), q_cmd[b]))
+        if np.linalg.norm(rp) < 1e-4:
+            continue
+        r_p.append(rp)
+        r_s.append(integrate_gyro(imu.gyr[mids[a] + 1:mids[b] + 1], imu.dt, bias))
+    if len(r_p) < 2:
+        raise NotIdentifiable("IMU alignment: fewer than two moves between held poses")
+    return fit_imu_alignment(np.array(r_p), np.array(r_s), fit_scale=fit_scale), bias
+
+
+@dataclass
+class CommandAidedParams:
+    """``tau_ref`` (s): how fast the estimate is pulled to the model's orientation where the
+    platform holds; ``tau_bias`` (s): the integral (bias) time constant; ``timing``: the
+    platform's latency (None: estimated from the data)."""
+
+    tau_ref: float = 0.5
+    tau_bias: float = 20.0
+    timing: PlatformTiming | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def estimate_command_aided(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray,
+                           sensor_from_platform: np.ndarray | None = None, gyr_bias=None,
+                           params: CommandAidedParams | None = None) -> OrientationEstimate:
+    """Complementary fusion of the gyro with the command-predicted orientation.
+
+    ``imu``: calibrated stream (scale removed; the bias is estimated on top of ``gyr_bias``);
+    ``t_cmd`` (M,) s and ``q_cmd`` (M, 4) q_base_from_platform of the command rows;
+    ``sensor_from_platform``: R_SP (3, 3). Returns q_base_from_platform (N, 4) in ``q``, the
+    bias in sensor axes in ``bias``, and ``rest`` = the samples where the reference was used.
+    """
+    p = params or CommandAidedParams()
+    t_cmd = np.asarray(t_cmd, float)
+    q_cmd = quat_normalize(np.asarray(q_cmd, float))
+    if len(t_cmd) != len(q_cmd) or len(t_cmd) < 2:
+        raise BadInput("command-aided orientation needs at least 2 command rows with their poses")
+    R_sp = np.eye(3) if sensor_from_platform is None else np.asarray(sensor_from_platform, float)
+    b0 = np.zeros(3) if gyr_bias is None else np.asarray(gyr_bias, float)
+    timing = p.timing or estimate_timing(imu, t_cmd, q_cmd, b0)
+    held = held_mask(imu.t, t_cmd, timing)
+    k_cmd = _hold_index(imu.t, t_cmd)
+    dt = imu.dt
+    g_ref = dt / p.tau_ref
+    g_bias = dt / p.tau_bias * g_ref
+    Rt = R_sp.T.tolist()
+    R = R_sp.tolist()
+    gyr = imu.gyr.tolist()
+    held_l = held.tolist()
+    kc = k_cmd.tolist()
+    qc = [tuple(x) for x in q_cmd.tolist()]
+    q = qc[kc[0]]
+    b = list(b0)
+    n = imu.n
+    out_q = np.empty((n, 4))
+    out_b = np.empty((n, 3))
+    for i in range(n):
+        g = gyr[i]
+        ws = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
+        wp = [Rt[r][0] * ws[0] + Rt[r][1] * ws[1] + Rt[r][2] * ws[2] for r in range(3)]
+        if i:
+            q = Q.normalize(Q.mul(q, Q.from_rotvec(wp[0] * dt, wp[1] * dt, wp[2] * dt)))
+        if held_l[i]:
+            # error rotation in the platform frame: q_ref = q * exp(e)
+            d = Q.mul(Q.conj(q), qc[kc[i]])
+            if d[0] < 0:
+                d = (-d[0], -d[1], -d[2], -d[3])
+            s = math.sqrt(d[1] ** 2 + d[2] ** 2 + d[3] ** 2)
+            ang = 2.0 * math.atan2(s, d[0])
+            f = ang / s if s > 1e-12 else 2.0
+            e = (d[1] * f, d[2] * f, d[3] * f)
+            q = Q.normalize(Q.mul(q, Q.from_rotvec(e[0] * g_ref, e[1] * g_ref, e[2] * g_ref)))
+            es = [R[r][0] * e[0] + R[r][1] * e[1] + R[r][2] * e[2] for r in range(3)]
+            b = [b[r] - g_bias * es[r] / dt for r in range(3)]
+        out_q[i] = q
+        out_b[i] = b
+    out_q *= np.where(out_q[:, :1] < 0, -1.0, 1.0)
+    info = {"method": "command-aided", "lag_s": timing.lag_s, "settle_s": timing.settle_s,
+            "timed_moves": timing.n_moves, "held_fraction": float(held.mean()),
+            "tau_ref": p.tau_ref, "tau_bias": p.tau_bias}
+    return OrientationEstimate(imu.t.copy(), out_q, out_b, held, info)

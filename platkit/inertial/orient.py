@@ -1,0 +1,283 @@
+"""``platkit orient``: a session's inertial stream to the platform's orientation, with a report.
+
+Inputs in the session folder: ``session.yaml``, ``imu.csv`` (required), ``commands.csv`` (when
+the session has a platform), and optionally the truth:
+
+- ``truth_orientation.csv``: ``t,qw,qx,qy,qz``, the platform frame in the base frame (times on
+  the session's clock, in its time unit), e.g. from motion capture or a simulation;
+- ``truth_imu.yaml``: the sensor's true errors, any of ``gyr_bias_rad_s`` (3), ``acc_bias_m_s2``
+  (3), ``gyr_scale`` (3), ``acc_scale`` (3), ``sensor_from_platform`` (3x3 rows).
+
+Frames: the base frame has z up. The IMU's own axes are turned to the platform's by R_SP,
+taken from ``--imu-calibration`` or, in a session with commands, estimated from it (rotations
+between held poses, least squares); otherwise the sensor axes are taken as the platform's.
+Without commands the heading is relative to the start; with them, the unaided estimators'
+heading is aligned to the commanded poses over the held intervals.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadInput, BadSession, NotIdentifiable
+from platkit.geometry import quat_conjugate, quat_from_matrix, quat_multiply, quat_normalize, rotvec_from_matrix
+from platkit.inertial.calibration import ImuCalibration, detect_rest, gyro_bias_at_rest, rest_segments
+from platkit.inertial.stream import ImuStream, read_imu_csv
+
+METHODS = ("platkit", "platkit-causal", "paper", "command-aided")
+
+
+@dataclass
+class OrientResult:
+    """``t`` (N,) s; ``q`` (N, 4) q_base_from_platform; ``report``: the report.json mapping;
+    ``truth``: (t (K,), q (K, 4)) or None; ``errors``: per-truth-sample arrays for plots."""
+
+    t: np.ndarray
+    q: np.ndarray
+    report: dict
+    truth: tuple | None = None
+    errors: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_truth_orientation(path: Path, time_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """truth_orientation.csv -> (t (K,) s, q (K, 4)); BadSession naming row and column."""
+    from platkit.io.session import check_times, read_table
+
+    table = read_table(path, "the true orientation")
+    cols = ["t", "qw", "qx", "qy", "qz"]
+    for c in cols:
+        if c not in table.header:
+            raise BadSession(f"{path}: missing column {c!r}; expected {','.join(cols)}")
+    t = table.column("t") * time_scale
+    check_times(table, t)
+    q = np.column_stack([table.column(c) for c in cols[1:]])
+    bad = np.argwhere(~np.isfinite(q))
+    if bad.size:
+        r, c = bad[0]
+        raise BadSession(f"{table.where(int(r), cols[1 + c])}: empty; expected a number")
+    n = np.linalg.norm(q, axis=1)
+    off = np.nonzero(np.abs(n - 1) > 1e-3)[0]
+    if off.size:
+        raise BadSession(f"{table.where(int(off[0]))}: the quaternion has norm {n[off[0]]:.6g}, expected 1")
+    return t, quat_normalize(q)
+
+
+def read_truth_imu(path: Path) -> dict:
+    from platkit.io.description import load_yaml
+
+    data = load_yaml(path, error=BadSession)
+    out = {}
+    shapes = {"gyr_bias_rad_s": (3,), "acc_bias_m_s2": (3,), "gyr_scale": (3,), "acc_scale": (3,),
+              "sensor_from_platform": (3, 3)}
+    for k, v in data.items():
+        if k not in shapes:
+            raise BadSession(f"{path}: unknown field {k!r}; known fields: {', '.join(shapes)}")
+        a = np.asarray(v, float)
+        if a.shape != shapes[k]:
+            raise BadSession(f"{path}: field {k!r} must have shape {shapes[k]}")
+        out[k] = a
+    return out
+
+
+def interpolate_quat(t_src: np.ndarray, q_src: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Orientation at times ``t`` by normalised linear interpolation of (N, 4) quaternions
+    (exact enough between samples of a dense stream); outside the range: the end values."""
+    q = q_src.copy()
+    # make consecutive quaternions agree in sign before interpolating
+    flip = np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))
+    q[1:] *= flip[:, None]
+    out = np.column_stack([np.interp(t, t_src, q[:, j]) for j in range(4)])
+    return quat_normalize(out)
+
+
+def _heading_offset(q_est: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
+    """The rotation about base z (4,) that best turns q_est onto q_ref (both (K, 4))."""
+    e = quat_multiply(q_ref, quat_conjugate(q_est))
+    psi = 2.0 * np.arctan2(e[:, 3], e[:, 0])
+    psi0 = np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi)))
+    return np.array([np.cos(psi0 / 2), 0.0, 0.0, np.sin(psi0 / 2)])
+
+
+def _session_commands(folder: Path, y: dict, calibration: str | Path | None, platform: str | None,
+                      description: str | Path | None):
+    """(spec, td, t_cmd (M,), U (M, n_u)) or None when the session has no platform/commands."""
+    from platkit.io.session import TIME_UNITS, check_times, read_table
+    from platkit.model import controls_to_si
+
+    name = platform or y["platform"]
+    cpath = folder / "commands.csv"
+    if name is None or not cpath.is_file():
+        return None
+    if calibration is not None:
+        from platkit.calibrate.result import read_calibration
+
+        cal = read_calibration(calibration)
+        if cal.platform != name:
+            raise BadInput(f"{calibration}: the calibration is for the {cal.platform!r} stand, the session for {name!r}")
+        spec = cal.calibrated_spec()
+        td = np.asarray(cal.td, float)
+    else:
+        from platkit.plugins import get_platform
+
+        options = {"moving_link": y["moving_link"]} if y.get("moving_link") else {}
+        spec = get_platform(name, description or y["description"], **options)
+        td = spec.nominal_td()
+    table = read_table(cpath, "the command log")
+    missing = [c for c in ["t"] + spec.control_names if c not in table.header]
+    if missing:
+        raise BadSession(f"{cpath}: missing column {missing[0]!r}; the {spec.name} stand expects t, {', '.join(spec.control_names)}")
+    raw = np.column_stack([table.column(c) for c in spec.control_names])
+    bad = np.argwhere(~np.isfinite(raw))
+    if bad.size:
+        r, c = bad[0]
+        raise BadSession(f"{table.where(int(r), spec.control_names[c])}: empty; every command needs every control")
+    t = table.column("t") * TIME_UNITS[y["time_unit"]]
+    check_times(table, t)
+    return spec, td, t, controls_to_si(spec, raw, y["length_unit"])
+
+
+def orient_session(folder: str | Path, method: str = "platkit", calibration: str | Path | None = None,
+                   imu_calibration: str | Path | None = None, platform: str | None = None,
+                   description: str | Path | None = None, max_repair_s: float = 0.05) -> OrientResult:
+    """Estimate the platform's orientation over a session (see the module docstring)."""
+    from platkit.inertial.command_aided import (command_poses, estimate_alignment_from_commands,
+                                                estimate_command_aided, estimate_timing, held_mask)
+    from platkit.inertial.estimator import estimate_platkit, smooth_two_pass, PlatkitParams
+    from platkit.inertial.paper import PaperParams, estimate_paper
+    from platkit.io.session import TIME_UNITS, read_session_yaml
+    from platkit.kinematics import PlatformModel
+
+    if method not in METHODS:
+        raise BadInput(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    folder = Path(folder)
+    y = read_session_yaml(folder)
+    tscale = TIME_UNITS[y["time_unit"]]
+    imu_decl = y["imu"] or {}
+    imu = read_imu_csv(folder / "imu.csv", max_repair_s=max_repair_s / tscale,
+                       gyr_range=imu_decl.get("gyr_range_rad_s"), acc_range=imu_decl.get("acc_range_m_s2"))
+    if tscale != 1.0:
+        imu = ImuStream(imu.t * tscale, imu.gyr, imu.acc, imu.saturated, imu.repairs, imu.source)
+    warnings = imu.warnings()
+    report: dict = {"session": str(folder), "method": method, "n_samples": imu.n, "rate_hz": imu.rate_hz,
+                    "duration_s": float(imu.t[-1] - imu.t[0])}
+
+    cal = ImuCalibration()
+    cal_given = imu_calibration is not None
+    if cal_given:
+        from platkit.io.description import load_yaml
+
+        cal = ImuCalibration.from_dict(load_yaml(imu_calibration, error=BadInput), str(imu_calibration))
+    imu_c = cal.apply(imu) if cal_given else imu
+
+    cmds = _session_commands(folder, y, calibration, platform, description)
+    if method == "command-aided" and cmds is None:
+        raise BadInput(f"{folder}: --method command-aided needs a session with a platform and commands.csv")
+
+    # the gyro bias at the start: from the calibration, else from the first rest of the recording
+    if cal_given:
+        bias0 = np.zeros(3)
+        report["gyr_bias_source"] = "imu calibration"
+    else:
+        try:
+            bias0 = gyro_bias_at_rest(imu_c, min_s=1.0)
+            report["gyr_bias_source"] = "first rest of the recording"
+        except NotIdentifiable as exc:
+            bias0 = np.zeros(3)
+            report["gyr_bias_source"] = "none (zero)"
+            warnings.append(str(exc))
+
+    q_sp = np.array([1.0, 0.0, 0.0, 0.0])
+    R_sp = cal.sensor_from_platform
+    q_cmd = t_cmd = timing = None
+    if cmds is not None:
+        spec, td, t_cmd, U = cmds
+        model = PlatformModel(spec)
+        q_cmd = command_poses(model, U, td)
+        timing = estimate_timing(imu_c, t_cmd, q_cmd, bias0)
+        report["timing"] = {"lag_s": timing.lag_s, "settle_s": timing.settle_s, "n_moves": timing.n_moves,
+                            "lag_std_s": timing.lag_std_s, "settle_std_s": timing.settle_std_s}
+        report["platform"] = spec.name
+        report["calibration"] = str(calibration) if calibration else None
+        if not cal_given:
+            fit, bias_held = estimate_alignment_from_commands(imu_c, t_cmd, q_cmd, timing)
+            R_sp = fit.sensor_from_platform
+            bias0 = bias_held
+            report["gyr_bias_source"] = "held poses of the session"
+            report["alignment"] = {"source": "estimated from the session's moves",
+                                   "rms_rad": fit.rms, "angle_std_rad": fit.angle_std}
+        else:
+            report["alignment"] = {"source": f"imu calibration {imu_calibration}"}
+    elif not cal_given:
+        warnings.append("no IMU calibration and no commands: the sensor axes are taken as the platform axes "
+                        "and the heading is relative to the start")
+        report["alignment"] = {"source": "none (identity)"}
+    q_sp = quat_from_matrix(R_sp)
+    report["sensor_from_platform"] = np.asarray(R_sp).tolist()
+    report["gyr_bias_start_rad_s"] = np.asarray(bias0).tolist()
+
+    if method == "command-aided":
+        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0)
+        q_bp = est.q
+        report["heading"] = "absolute (from the commanded poses)"
+    else:
+        if method == "paper":
+            est = estimate_paper(imu_c, PaperParams(gyro_bias=tuple(bias0)))
+        elif method == "platkit-causal":
+            est = estimate_platkit(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
+        else:
+            est = smooth_two_pass(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
+        q_bp = quat_normalize(quat_multiply(est.q, q_sp[None, :]))
+        if q_cmd is not None:
+            held = held_mask(imu.t, t_cmd, timing)
+            k = np.clip(np.searchsorted(t_cmd, imu.t, side="right") - 1, 0, len(t_cmd) - 1)
+            rot = _heading_offset(q_bp[held], q_cmd[k[held]])
+            q_bp = quat_normalize(quat_multiply(rot[None, :], q_bp))
+            report["heading"] = "aligned to the commanded poses over the held intervals"
+        else:
+            report["heading"] = "relative to the start (no magnetometer, no commands)"
+    report["estimator"] = {k: v for k, v in est.info.items() if k != "params"}
+    report["gyr_bias_end_rad_s"] = np.asarray(est.bias[-1]).tolist()
+
+    result = OrientResult(imu.t, q_bp, report, warnings=warnings)
+    tpath = folder / "truth_orientation.csv"
+    if tpath.is_file():
+        _score(result, *read_truth_orientation(tpath, tscale), absolute_heading=q_cmd is not None)
+    ipath = folder / "truth_imu.yaml"
+    if ipath.is_file():
+        truth = read_truth_imu(ipath)
+        cmp = {}
+        if "sensor_from_platform" in truth:
+            err = rotvec_from_matrix(np.asarray(R_sp) @ truth["sensor_from_platform"].T)
+            cmp["alignment_error_deg"] = float(np.degrees(np.linalg.norm(err)))
+        if "gyr_bias_rad_s" in truth:
+            # the bias at the end of the run, in sensor axes, against the true bias
+            cmp["gyr_bias_error_deg_s"] = np.degrees(np.asarray(est.bias[-1]) - truth["gyr_bias_rad_s"]).tolist()
+        report["truth_imu"] = cmp
+    report["warnings"] = warnings
+    return result
+
+
+def _score(result: OrientResult, t_true: np.ndarray, q_true: np.ndarray, absolute_heading: bool) -> None:
+    from platkit.inertial.metrics import heading_aligned_total_error, inclination_error, rmse, total_error
+
+    inside = (t_true >= result.t[0]) & (t_true <= result.t[-1])
+    if not inside.any():
+        raise BadSession("truth_orientation.csv: no truth sample falls within the IMU recording's time span")
+    t_true, q_true = t_true[inside], q_true[inside]
+    q_est = interpolate_quat(result.t, result.q, t_true)
+    inc = inclination_error(q_est, q_true)
+    tot = total_error(q_est, q_true)
+    tot_al = heading_aligned_total_error(q_est, q_true)
+    result.truth = (t_true, q_true)
+    result.errors = {"t": t_true, "inclination": inc, "total": tot, "total_heading_aligned": tot_al}
+    result.report["truth"] = {
+        "n_samples": int(len(t_true)),
+        "inclination_rmse_deg": float(np.degrees(rmse(inc))),
+        "inclination_max_deg": float(np.degrees(np.nanmax(inc))),
+        "total_rmse_deg": float(np.degrees(rmse(tot))),
+        "total_rmse_heading_aligned_deg": float(np.degrees(rmse(tot_al))),
+        "heading_reference": "absolute" if absolute_heading else "relative (see total_rmse_heading_aligned_deg)",
+    }

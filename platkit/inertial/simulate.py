@@ -1,0 +1,204 @@
+"""Simulated IMU samples from a known platform motion.
+
+The gyro sample k is the rotation from sample k-1 to k divided by dt (so that the strapdown
+integration of :mod:`platkit.inertial` reproduces the motion exactly when the sensor is perfect);
+the accelerometer measures the specific force f = a - g at the sensor's position (the platform
+origin plus ``lever_arm``), both in sensor axes. Base frame z up, g = (0, 0, -|g|).
+
+Sensor errors, applied as  y = scale * (A y_true) + bias(t) + noise  per axis, with A the axes'
+non-orthogonality (identity + small off-diagonal terms) and bias(t) = bias + a random walk of
+``bias_drift`` (rad/s/sqrt(s) for the gyro).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadInput
+from platkit.geometry import (matrix_from_quat, quat_conjugate, quat_from_matrix, quat_multiply,
+                              quat_normalize, rotvec_from_quat)
+from platkit.inertial.stream import write_imu_csv
+
+G_STANDARD = 9.80665
+
+
+def _six(value, default: float, what: str) -> np.ndarray:
+    if value is None:
+        return np.full(6, default)
+    v = np.asarray(value, float)
+    if v.shape == ():
+        return np.full(6, float(v))
+    if v.shape != (6,):
+        raise BadInput(f"{what}: expected one number or 6 (gyro x, y, z, accelerometer x, y, z), got shape {v.shape}")
+    return v
+
+
+def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=None, bias_drift: float = 0.0,
+                    scale=None, misalignment=None, noise=None, rng: np.random.Generator | None = None,
+                    lever_arm=None, gravity: float = G_STANDARD) -> dict:
+    """IMU samples of a sensor riding on the platform.
+
+    Args:
+        t: (N,) s, uniform.
+        q_base_from_platform: (N, 4) w x y z, the platform frame in the base frame (z up).
+        X: (N, 3) m, the platform origin in the base frame.
+        imu_from_platform: R_SP, (3, 3) matrix or (4,) quaternion (default identity).
+        bias: (6,) gyro rad/s then accelerometer m/s^2 (or one number; default 0).
+        bias_drift: gyro bias random walk, rad/s/sqrt(s).
+        scale: (6,) scale factors (default 1).
+        misalignment: (3, 3) axes non-orthogonality A, shared by both sensors (default identity).
+        noise: (2,) white-noise std per sample: gyro rad/s, accelerometer m/s^2 (default 0).
+        rng: numpy Generator (default: seed 0).
+        lever_arm: (3,) m, the sensor's position in the platform frame (default origin).
+    Returns a dict of arrays: ``t``, ``gyr`` (N, 3), ``acc`` (N, 3), ``gyr_true``, ``acc_true``
+    (error-free, sensor axes), ``gyr_bias`` (N, 3) the bias actually applied, and
+    ``q_earth_from_sensor`` (N, 4) the sensor's true orientation.
+    """
+    t = np.asarray(t, float)
+    n = len(t)
+    q = quat_normalize(np.asarray(q_base_from_platform, float))
+    X = np.asarray(X, float)
+    if q.shape != (n, 4) or X.shape != (n, 3):
+        raise BadInput(f"motion arrays must be q (N, 4) and X (N, 3) for N = {n} times, got {q.shape} and {X.shape}")
+    if n < 3:
+        raise BadInput("a motion needs at least 3 samples")
+    dt = np.diff(t)
+    if np.any(dt <= 0) or np.ptp(dt) > 1e-6 * np.mean(dt):
+        raise BadInput("simulated IMU times must be uniform and increasing")
+    dt = float(np.mean(dt))
+    rng = rng if rng is not None else np.random.default_rng(0)
+    if imu_from_platform is None:
+        R_sp = np.eye(3)
+    else:
+        m = np.asarray(imu_from_platform, float)
+        R_sp = matrix_from_quat(m) if m.shape == (4,) else m
+    A = np.eye(3) if misalignment is None else np.asarray(misalignment, float)
+    b = _six(bias, 0.0, "bias")
+    s = _six(scale, 1.0, "scale")
+    nz = np.zeros(2) if noise is None else np.broadcast_to(np.asarray(noise, float), (2,))
+    r = np.zeros(3) if lever_arm is None else np.asarray(lever_arm, float)
+
+    # rate: the rotation between consecutive samples, in the platform frame, over dt
+    w_p = np.empty((n, 3))
+    w_p[1:] = rotvec_from_quat(quat_multiply(quat_conjugate(q[:-1]), q[1:])) / dt
+    w_p[0] = w_p[1]
+    R_bp = matrix_from_quat(q)
+    pos = X + np.einsum("nij,j->ni", R_bp, r)
+    acc_b = np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0)
+    f_b = acc_b - np.array([0.0, 0.0, -gravity])
+    f_p = np.einsum("nji,nj->ni", R_bp, f_b)
+    gyr_true = w_p @ R_sp.T
+    acc_true = f_p @ R_sp.T
+    drift = np.zeros((n, 3))
+    if bias_drift > 0:
+        drift = np.cumsum(rng.normal(0.0, bias_drift * np.sqrt(dt), (n, 3)), axis=0)
+        drift -= drift[0]
+    gyr_bias = b[:3] + drift
+    gyr = s[:3] * (gyr_true @ A.T) + gyr_bias + rng.normal(0.0, nz[0], (n, 3))
+    acc = s[3:] * (acc_true @ A.T) + b[3:] + rng.normal(0.0, nz[1], (n, 3))
+    q_es = quat_normalize(quat_multiply(q, quat_conjugate(quat_from_matrix(R_sp))[None, :]))
+    return {"t": t, "gyr": gyr, "acc": acc, "gyr_true": gyr_true, "acc_true": acc_true,
+            "gyr_bias": gyr_bias, "q_earth_from_sensor": q_es}
+
+
+def write_imu(path: str | Path, sim: dict) -> None:
+    """Write the ``t``, ``gyr``, ``acc`` of :func:`imu_from_motion` as imu.csv (atomically)."""
+    write_imu_csv(path, sim["t"], sim["gyr"], sim["acc"])
+
+
+def smooth_motion_from_steps(t_cmd, q_cmd, X_cmd, rate_hz: float, move_s: float, lag_s: float = 0.0,
+                             t_end: float | None = None):
+    """A platform motion that follows step commands: after each command (lagging ``lag_s``)
+    the platform moves to the commanded pose along a minimum-jerk path of ``move_s`` seconds
+    (slerp in orientation), then holds. Returns (t (N,), q (N, 4), X (N, 3)) at ``rate_hz``.
+    """
+    t_cmd = np.asarray(t_cmd, float)
+    q_cmd = quat_normalize(np.asarray(q_cmd, float))
+    X_cmd = np.asarray(X_cmd, float)
+    t_end = t_end if t_end is not None else t_cmd[-1] + lag_s + move_s + 1.0
+    t = np.arange(t_cmd[0], t_end, 1.0 / rate_hz)
+    q = np.empty((len(t), 4))
+    X = np.empty((len(t), 3))
+    k = np.clip(np.searchsorted(t_cmd + lag_s, t, side="right") - 1, 0, None)
+    for i in range(len(t_cmd)):
+        sel = k == i
+        if not sel.any():
+            continue
+        prev = max(i - 1, 0)
+        s = np.clip((t[sel] - t_cmd[i] - lag_s) / move_s, 0.0, 1.0) if i else np.ones(sel.sum())
+        s = s**3 * (10 - 15 * s + 6 * s**2)
+        d = rotvec_from_quat(quat_multiply(quat_conjugate(q_cmd[prev]), q_cmd[i]))
+        from platkit.geometry import quat_from_rotvec
+
+        q[sel] = quat_multiply(q_cmd[prev][None, :], quat_from_rotvec(s[:, None] * d[None, :]))
+        X[sel] = X_cmd[prev] + s[:, None] * (X_cmd[i] - X_cmd[prev])
+    before = t < t_cmd[0] + lag_s
+    q[before] = q_cmd[0]
+    X[before] = X_cmd[0]
+    return t, quat_normalize(q), X
+
+
+def platform_imu_session(spec, td_true, td_model, rng: np.random.Generator, n_commands: int = 30,
+                         hold_s: float = 3.0, move_s: float = 1.0, lag_s: float = 0.08, rate_hz: float = 200.0,
+                         tilt_max: float = np.radians(8.0), yaw_max: float = np.radians(8.0),
+                         shift_max: float = 0.1, **imu_kw) -> dict:
+    """A simulated platform session with an IMU, for a stand ``spec``.
+
+    Desired poses are drawn around the neutral pose (roll, pitch within ``tilt_max``, yaw within
+    ``yaw_max``, position within ``shift_max`` m); the commands are their inverse kinematics with
+    the model parameters ``td_model`` (what a user's calibration knows); the platform really goes
+    to the forward kinematics with ``td_true``, lagging ``lag_s`` and moving for ``move_s`` after
+    each command (minimum jerk), holding ``hold_s`` between commands. ``imu_kw`` go to
+    :func:`imu_from_motion`. Returns a dict: ``t_cmd`` (M,), ``U`` (M, n_u) SI, ``q_cmd`` (M, 4)
+    (the model's poses), ``t``, ``q_true`` (N, 4) q_base_from_platform, ``X_true`` (N, 3), and
+    the IMU arrays of :func:`imu_from_motion`.
+    """
+    from platkit.geometry import quat_from_rpy
+    from platkit.kinematics import PlatformModel
+
+    model = PlatformModel(spec)
+    q0, X0 = model.pose(spec.neutral_p())
+    rpy = rng.uniform(-1, 1, (n_commands, 3)) * np.array([tilt_max, tilt_max, yaw_max])
+    rpy[0] = 0.0
+    dX = rng.uniform(-1, 1, (n_commands, 3)) * shift_max
+    dX[0] = 0.0
+    q_des = quat_multiply(q0[None, :], quat_from_rpy(rpy[:, 0], rpy[:, 1], rpy[:, 2]))
+    U = np.array([model.inverse(q_des[i], X0 + dX[i], td=td_model, strict=False) for i in range(n_commands)])
+    true = model.forward_batch(U, td=td_true, strict=False)
+    pred = model.forward_batch(U, td=td_model, strict=False)
+    t_cmd = 2.0 + hold_s * np.arange(n_commands)
+    t, q, X = smooth_motion_from_steps(t_cmd, true.q, true.X, rate_hz, move_s, lag_s, t_end=t_cmd[-1] + hold_s)
+    sim = imu_from_motion(t, q, X, rng=rng, **imu_kw)
+    sim.update({"t_cmd": t_cmd, "U": U, "q_cmd": pred.q, "q_true": q, "X_true": X})
+    return sim
+
+
+def write_platform_imu_session(sim: dict, spec, out: str | Path, truth_imu: dict | None = None,
+                               length_unit: str = "mm") -> Path:
+    """Write :func:`platform_imu_session`'s output as a session folder: session.yaml,
+    commands.csv, imu.csv, truth_orientation.csv, and truth_imu.yaml (``truth_imu``: the
+    sensor's true errors, keys as docs/inertial.md lists them). Written whole or not at all."""
+    import yaml
+
+    from platkit.io.atomic import atomic_output_dir
+    from platkit.model import controls_from_si
+
+    rate = 1.0 / float(np.mean(np.diff(sim["t"])))
+    with atomic_output_dir(out) as tmp:
+        (tmp / "session.yaml").write_text(yaml.safe_dump({
+            "platform": spec.name, "description": None, "units": {"length": length_unit, "time": "s"},
+            "markers": [], "imu": {"rate_hz": round(rate, 6), "frame": "imu"},
+            "notes": "simulated platform session with an IMU (platkit.inertial.simulate)"}, sort_keys=False))
+        U = controls_from_si(spec, sim["U"], length_unit)
+        lines = [",".join(["t"] + spec.control_names)]
+        lines += [",".join(f"{v:.10g}" for v in [t, *u]) for t, u in zip(sim["t_cmd"], U)]
+        (tmp / "commands.csv").write_text("\n".join(lines) + "\n")
+        write_imu_csv(tmp / "imu.csv", sim["t"], sim["gyr"], sim["acc"])
+        lines = ["t,qw,qx,qy,qz"] + [f"{t:.9g},{a:.10f},{b:.10f},{c:.10f},{d:.10f}"
+                                      for t, (a, b, c, d) in zip(sim["t"], sim["q_true"])]
+        (tmp / "truth_orientation.csv").write_text("\n".join(lines) + "\n")
+        if truth_imu:
+            plain = {k: np.asarray(v, float).tolist() for k, v in truth_imu.items()}
+            (tmp / "truth_imu.yaml").write_text(yaml.safe_dump(plain, sort_keys=False))
+    return Path(out)
