@@ -698,6 +698,10 @@ class PlatformModel:
         U = self.check_controls(np.atleast_2d(U), strict=strict)
         N = U.shape[0]
         td = self._td(td)
+        if N == 0:
+            n_p = self.spec.n_p
+            return ForwardBatch(np.zeros((0, n_p)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0, int),
+                                np.zeros(0), np.zeros(0, bool), np.zeros(0, bool))
         if self.spec.forward is not None:
             fmap = self.spec.forward.map(N)
             q, X = fmap(U.T, np.repeat(td[:, None], N, axis=1))

@@ -178,3 +178,9 @@ def test_compiled_solver_is_cached_and_a_broken_compiler_falls_back(spec, monkey
     broken = PlatformModel(spec)
     assert broken.backend.startswith("casadi+numpy (the C compiler failed"), broken.backend
     assert broken.forward(STATES_MM[0] / 1000).iterations <= 5
+
+
+def test_empty_batch(model, slow_model):
+    for m in (model, slow_model):
+        batch = m.forward_batch(np.zeros((0, 6)))
+        assert batch.p.shape == (0, 6) and batch.converged.shape == (0,)
