@@ -105,6 +105,8 @@ class ServoOptions:
     locked: Sequence[str] = ()
     stall_iterations: int = 40       # stop when the error has not fallen 1e-3 in this many steps
     restarts: int = 0                # after a failed attempt, start again from random configurations
+    refine_iterations: int = 100     # with a secondary cost: null-space steps after the targets are met
+    refine_step: float = 0.05        # rad (or m): largest null-space step while refining
     seed: int = 0                    # of the restarts' random configurations
 
     def check(self) -> None:
@@ -140,6 +142,9 @@ class ServoResult:
     seconds: float = 0.0
     restarts: int = 0                # attempts made before this one's start; the path is this one's
     iterations_total: int = 0        # over all attempts
+    refine_iterations: int = 0       # null-space steps taken after convergence (secondary cost)
+    secondary_cost: float | None = None  # H at the start of refinement and at the end: see refine
+    secondary_cost_before: float | None = None
 
     @property
     def position_error(self) -> float:
@@ -249,18 +254,31 @@ class Servo:
         scale = min(1.0, o.max_linear_step / lin if lin > 0 else np.inf, o.max_angular_step / ang if ang > 0 else np.inf)
         return e * scale
 
-    def _secondary(self, theta: np.ndarray) -> np.ndarray | None:
+    def secondary_value(self, theta: np.ndarray) -> float:
+        """The secondary cost H(theta) being minimised (the negated measure for manipulability)."""
         o = self.options
         c = self.chain
-        if o.secondary == "none":
-            return None
+        ok = self.active & np.isfinite(c.lower) & np.isfinite(c.upper) & (c.upper > c.lower)
+        span = c.upper[ok] - c.lower[ok]
+        if o.secondary == "mid_range":
+            return float(0.5 * np.sum(((theta[ok] - 0.5 * (c.upper[ok] + c.lower[ok])) / span) ** 2))
+        if o.secondary == "joint_limits":
+            a = np.maximum(c.upper[ok] - theta[ok], 1e-9 * span)
+            b = np.maximum(theta[ok] - c.lower[ok], 1e-9 * span)
+            return float(np.sum(span**2 / (4.0 * a * b)))
+        if o.secondary == "manipulability":
+            return -manipulability(self.task_jacobian(theta, 0)[self.tasks[0].weights > 0])
+        return 0.0
+
+    def secondary_gradient(self, theta: np.ndarray) -> np.ndarray:
+        """dH/dtheta (n,) over the active joints (zero elsewhere)."""
+        o = self.options
+        c = self.chain
         if o.secondary == "mid_range":
             g = mid_range_gradient(theta, c.lower, c.upper)
         elif o.secondary == "joint_limits":
             g = joint_limit_gradient(theta, c.lower, c.upper)
-            g = g / max(1.0, float(np.max(np.abs(g))))
-        else:  # manipulability of the first task, by central differences over the active joints
-            sel = self.tasks[0].weights > 0
+        elif o.secondary == "manipulability":  # central differences over the active joints
             g = np.zeros(c.n)
             h = 1e-6
             for i in np.flatnonzero(self.active):
@@ -268,12 +286,23 @@ class Servo:
                 tm = theta.copy()
                 tp[i] += h
                 tm[i] -= h
-                g[i] = -(manipulability(self.task_jacobian(tp, 0)[sel]) - manipulability(self.task_jacobian(tm, 0)[sel])) / (2 * h)
-            g = g / max(1.0, float(np.max(np.abs(g))) / 1.0)
-        return -o.secondary_gain * g * self.active
+                g[i] = (self.secondary_value(tp) - self.secondary_value(tm)) / (2 * h)
+        else:
+            g = np.zeros(c.n)
+        return g * self.active
 
-    def step(self, theta: np.ndarray, errors: list[np.ndarray]):
-        """Joint increments (n,) for one servo step, and the solver's StepInfo."""
+    def _secondary(self, theta: np.ndarray) -> np.ndarray | None:
+        """The null-space step during the approach: -gain * dH, at most ``secondary_gain`` rad."""
+        o = self.options
+        if o.secondary == "none":
+            return None
+        g = self.secondary_gradient(theta)
+        return -o.secondary_gain * g / max(1.0, float(np.max(np.abs(g))))
+
+    def step(self, theta: np.ndarray, errors: list[np.ndarray], secondary: np.ndarray | None = None,
+             solver: str | None = None):
+        """Joint increments (n,) for one servo step, and the solver's StepInfo. ``secondary``
+        (n,) replaces the null-space step of the secondary cost; ``solver`` the options' one."""
         o = self.options
         c = self.chain
         lower_step = np.where(self.active, c.lower - theta, 0.0)
@@ -283,7 +312,8 @@ class Servo:
         rate_step = None
         if o.use_rate_limits:
             rate_step = np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)
-        secondary = self._secondary(theta)
+        if secondary is None:
+            secondary = self._secondary(theta)
         levels: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
         for k, task in enumerate(self.tasks):
             e = self._commanded(errors[k], task.weights)
@@ -294,7 +324,7 @@ class Servo:
             e = np.concatenate([x[1] for x in levels[p]])
             w = np.concatenate([x[2] for x in levels[p]])
             stacked.append(Level(J, e, w))
-        if o.solver == "lp":
+        if (solver or o.solver) == "lp":
             # the LP takes one level: priorities become weights 10^-3 per level
             J = np.vstack([lv.J for lv in stacked])
             e = np.concatenate([lv.e for lv in stacked])
@@ -385,12 +415,58 @@ class Servo:
         if not converged and reason.startswith("stopped at"):
             why = self.diagnose(theta, errors, stalled=False)
             reason = reason + ("; " + why if why else "")
+        refined, H0, H1 = 0, None, None
+        if converged and o.secondary != "none" and o.refine_iterations > 0:
+            theta, errors, refined, H0, H1 = self._refine(theta, errors, path, history, start)
+            best = (self.merit(errors), theta.copy(), errors)
         bpos, brot = self._norms(best[2])
         pos, rot = self._norms(errors)
         return ServoResult(theta=theta, converged=converged, iterations=iterations, position_errors=pos,
                            rotation_errors=rot, path=np.array(path), merit_history=history, reason=reason,
                            best_position_errors=bpos, best_rotation_errors=brot,
-                           seconds=time.perf_counter() - start)
+                           seconds=time.perf_counter() - start, refine_iterations=refined,
+                           secondary_cost=H1, secondary_cost_before=H0)
+
+    def _refine(self, theta, errors, path, history, start):
+        """After the targets are met: steps along minus the secondary cost's gradient projected
+        into the tasks' null space (by the pseudo-inverse, whatever the solver), each followed by
+        a few servo steps that remove the second-order drift it causes; a step is kept only if
+        every target is again within tolerance and the cost fell."""
+        o = self.options
+        H = H0 = self.secondary_value(theta)
+        refined = 0
+        zero = np.zeros(self.chain.n)
+        for _ in range(o.refine_iterations):
+            if time.perf_counter() - start > o.max_seconds:
+                break
+            g = self.secondary_gradient(theta)
+            gmax = float(np.max(np.abs(g)))
+            if gmax == 0.0:
+                break
+            size = o.refine_step
+            accepted = False
+            for _ in range(8):
+                dq, _info = self.step(theta, errors, secondary=-g * (size / gmax), solver="pinv")
+                trial = self.chain.clip(theta + dq)
+                trial_errors = self.errors(trial)
+                for _ in range(10):
+                    if self._done(*self._norms(trial_errors)):
+                        break
+                    dq, _info = self.step(trial, trial_errors, secondary=zero, solver="pinv")
+                    trial = self.chain.clip(trial + dq)
+                    trial_errors = self.errors(trial)
+                H_trial = self.secondary_value(trial)
+                if self._done(*self._norms(trial_errors)) and H_trial < H - 1e-9 * max(1.0, abs(H)):
+                    accepted = True
+                    break
+                size *= 0.5
+            if not accepted:
+                break
+            theta, errors, H = trial, trial_errors, H_trial
+            path.append(theta.copy())
+            history.append(self.merit(errors))
+            refined += 1
+        return theta, errors, refined, H0, H
 
     # ------------------------------------------------------------------ why it failed
 
@@ -441,12 +517,23 @@ class Servo:
         return "; ".join(reasons)
 
 
-def failure_message(tasks: Sequence[Task], result: ServoResult) -> str:
-    """One sentence: which link missed, how close it got, after how many steps, and why."""
+def closest_text(task: Task, position: float, rotation: float, unit: str = "m", scale: float = 1.0) -> str:
+    """'0.123 m / 0.0456 rad' over the components the task controls."""
+    parts = []
+    if np.any(task.weights[:3] > 0):
+        parts.append(f"{position / scale:.3g} {unit}")
+    if np.any(task.weights[3:] > 0):
+        parts.append(f"{rotation:.3g} rad")
+    return " / ".join(parts)
+
+
+def failure_message(tasks: Sequence[Task], result: ServoResult, unit: str = "m", scale: float = 1.0) -> str:
+    """One sentence: which link missed, how close it got, after how many steps, and why.
+    Position errors are shown in ``unit`` (``scale`` metres each)."""
     k = int(np.argmax([p + r for p, r in zip(result.best_position_errors, result.best_rotation_errors)]))
-    return (f"link {tasks[k].link!r} did not reach its target: closest {result.best_position_errors[k]:.3g} m / "
-            f"{result.best_rotation_errors[k]:.3g} rad after {result.iterations} iterations; "
-            f"{result.reason or 'no reason found'}")
+    closest = closest_text(tasks[k], result.best_position_errors[k], result.best_rotation_errors[k], unit, scale)
+    return (f"link {tasks[k].link!r} did not reach its target: closest {closest} "
+            f"after {result.iterations} iterations; {result.reason or 'no reason found'}")
 
 
 def track(chain: KinematicChain, tasks: Sequence[Task] | Task, theta0: np.ndarray | None = None,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.chains import KinematicChain, ServoOptions, Task, follow_trajectory, parse_selection
-from platkit.chains.servo import SECONDARY_COSTS, Servo
+from platkit.chains.servo import SECONDARY_COSTS, Servo, failure_message
 from platkit.chains.transforms import pose_from_xyz_rpy
 from platkit.commands.common import parse_vector, print_json
 from platkit.errors import BadInput, OutOfWorkspace
@@ -250,7 +250,7 @@ def run(args) -> int:
     servo = Servo(chain, tasks, options)
     result = servo.run(theta0)
     if not result.converged:
-        raise OutOfWorkspace(_failure(tasks, result, s, args.unit))
+        raise OutOfWorkspace(failure_message(tasks, result, args.unit, s))
     atomic_write_text(args.out, _csv("step", np.arange(len(result.path)), result.path, chain, s))
     report.update({
         "converged": True, "iterations": int(result.iterations), "restarts": int(result.restarts),
@@ -266,13 +266,6 @@ def run(args) -> int:
     print(f"{result.iterations} iterations" + (f" after {result.restarts} restarts ({result.iterations_total} in all)" if result.restarts else ""))
     print(f"joint path ({len(result.path)} rows) written to {args.out}")
     return 0
-
-
-def _failure(tasks, result, s, unit) -> str:
-    k = int(np.argmax([p + r for p, r in zip(result.best_position_errors, result.best_rotation_errors)]))
-    return (f"link {tasks[k].link!r} did not reach its target: closest {result.best_position_errors[k] / s:.3g} {unit} / "
-            f"{result.best_rotation_errors[k]:.3g} rad after {result.iterations} iterations; "
-            f"{result.reason or 'no reason found'}")
 
 
 def _joints_dict(chain: KinematicChain, theta: np.ndarray, s: float) -> dict:

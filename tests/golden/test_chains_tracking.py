@@ -75,6 +75,7 @@ def test_unreachable_target_fails_with_a_clear_sentence(ur5):
     assert "\n" not in msg
     assert msg.startswith("link 'tool0' did not reach its target: closest ")
     assert "from 'shoulder_pan_joint' but the chain reaches at most" in msg
+    assert " rad" not in msg  # the rotation was left free
     closest = float(msg.split("closest ")[1].split(" m")[0])
     # UR5: shoulder at z = 0.089 m, arm length about 0.95 m; the target is 2.02 m from the shoulder
     assert 1.0 < closest < 1.1
@@ -102,7 +103,7 @@ def test_stretched_singular_pose_is_handled_without_blow_up(ur5):
     assert np.all(np.isfinite(result.path)) and np.all(np.abs(np.diff(result.path, axis=0)) <= rate_step + 1e-12)
     assert 0.1 < result.best_position_errors[0] <= 0.3
     assert result.reason.startswith("the chain is at a singular pose") and result.reason.endswith("out of reach")
-    with pytest.raises(OutOfWorkspace, match=r"^link 'tool0' did not reach its target: closest 0\.\d+ m / 0 rad after \d+ iterations; \w"):
+    with pytest.raises(OutOfWorkspace, match=r"^link 'tool0' did not reach its target: closest 0\.\d+ m after \d+ iterations; the chain is at a singular pose"):
         track(ur5, task, stretched)
 
 
@@ -245,3 +246,32 @@ def test_trajectory_in_an_externally_moving_frame(panda):
     for t, th in zip(res.times, res.thetas):
         goal = turntable(t) @ P0
         _check_reached(panda, th, "panda_hand", goal)
+
+
+@pytest.mark.parametrize("cost", ["mid_range", "manipulability", "joint_limits"])
+def test_secondary_cost_falls_in_the_null_space(panda, cost):
+    """Panda is redundant by one joint: after the target is met, the secondary cost keeps
+    falling along the self-motion while the target stays met."""
+    rng = np.random.default_rng(2)
+    fell = 0
+    for k in range(3):
+        goal = panda.placement(panda.random(rng, margin=0.1), "panda_hand")
+        options = ServoOptions(secondary=cost, refine_iterations=30, restarts=5, seed=k)
+        servo = Servo(panda, [Task("panda_hand", goal)], options)
+        result = servo.run(panda.mid_range())
+        assert result.converged
+        _check_reached(panda, result.theta, "panda_hand", goal)
+        assert result.secondary_cost <= result.secondary_cost_before
+        assert result.secondary_cost == pytest.approx(servo.secondary_value(result.theta))
+        fell += result.secondary_cost < result.secondary_cost_before - 1e-6
+    assert fell >= 2
+
+
+def test_caps_stop_the_servo_with_a_reason(ur5):
+    goal = ur5.placement(np.array([0.3, -1.0, 1.2, -0.5, 0.8, 0.1]), "tool0")
+    result = Servo(ur5, [Task("tool0", goal)], ServoOptions(max_iterations=3)).run(ur5.neutral())
+    assert not result.converged and result.iterations == 3
+    assert result.reason.startswith("stopped at the iteration cap (3)")
+    result = Servo(ur5, [Task("tool0", goal)], ServoOptions(max_seconds=1e-9)).run(ur5.neutral())
+    assert not result.converged and result.iterations <= 1
+    assert result.reason.startswith("stopped at the time cap")
