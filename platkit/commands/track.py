@@ -254,16 +254,32 @@ def run(args) -> int:
     atomic_write_text(args.out, _csv("step", np.arange(len(result.path)), result.path, chain, s))
     report.update({
         "converged": True, "iterations": int(result.iterations), "restarts": int(result.restarts),
-        "iterations_total": int(result.iterations_total),
+        "iterations_total": int(result.iterations_total), "refine_iterations": int(result.refine_iterations),
+        "secondary": args.secondary, "secondary_cost_before": result.secondary_cost_before,
+        "secondary_cost": result.secondary_cost,
         "position_errors": [e / s for e in result.position_errors], "rotation_errors": result.rotation_errors,
         "final_joints": _joints_dict(chain, result.theta, s),
     })
     if args.json:
         print_json(report)
         return 0
-    for link, pe, re in zip(links, result.position_errors, result.rotation_errors):
-        print(f"reached {link}: position error {pe / s:.3g} {args.unit}, rotation error {re:.3g} rad")
-    print(f"{result.iterations} iterations" + (f" after {result.restarts} restarts ({result.iterations_total} in all)" if result.restarts else ""))
+    for task, pe, re in zip(tasks, result.position_errors, result.rotation_errors):
+        parts = []
+        if np.any(task.weights[:3] > 0):
+            parts.append(f"position error {pe / s:.3g} {args.unit}")
+        if np.any(task.weights[3:] > 0):
+            parts.append(f"rotation error {re:.3g} rad")
+        print(f"reached {task.link}: " + ", ".join(parts))
+    line = f"{result.iterations} iterations"
+    if result.restarts:
+        line += f" after {result.restarts} restarts ({result.iterations_total} in all)"
+    if result.refine_iterations and args.secondary == "manipulability":
+        line += (f"; then {result.refine_iterations} null-space steps raised the manipulability "
+                 f"from {-result.secondary_cost_before:.6g} to {-result.secondary_cost:.6g}")
+    elif result.refine_iterations:
+        line += (f"; then {result.refine_iterations} null-space steps lowered the {args.secondary} cost "
+                 f"from {result.secondary_cost_before:.6g} to {result.secondary_cost:.6g}")
+    print(line)
     print(f"joint path ({len(result.path)} rows) written to {args.out}")
     return 0
 

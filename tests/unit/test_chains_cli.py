@@ -119,3 +119,29 @@ def test_two_arms_of_a_tree_at_once(tmp_path):
     for link, goal in (("gripper_left_base_link", [0.35, 0.25, 0.0]), ("gripper_right_base_link", [0.35, -0.25, 0.0])):
         rel = talos.relative_placement(theta, link, "torso_2_link")
         assert np.linalg.norm(rel[:3, 3] - goal) <= 1e-6
+
+
+def test_quaternion_trajectory_and_secondary_cost_report(tmp_path, ur5, capsys):
+    theta = np.array([0.2, -1.2, 1.4, -0.8, -1.5, 0.3])
+    P = ur5.placement(theta, "tool0")
+    from platkit.geometry import quat_from_matrix
+
+    q = quat_from_matrix(P[:3, :3])
+    x, y, z = P[:3, 3]
+    traj = tmp_path / "q.csv"
+    traj.write_text("t,x,y,z,qw,qx,qy,qz\n" f"0,{x},{y},{z},{q[0]},{q[1]},{q[2]},{q[3]}\n"
+                    f"0.5,{x},{y},{z + 0.02},{q[0]},{q[1]},{q[2]},{q[3]}\n")
+    out = tmp_path / "q_path.csv"
+    assert main(["track", "--urdf", UR5, "--link", "tool0", "--trajectory", str(traj), "--out", str(out),
+                 "--q0", ",".join(map(str, theta))]) == 0
+    _, rows = _read(out)
+    last = ur5.placement(rows[-1, 1:], "tool0")
+    assert np.linalg.norm(last[:3, 3] - [x, y, z + 0.02]) <= 1e-6
+    assert np.linalg.norm(rotvec_from_matrix(last[:3, :3] @ P[:3, :3].T)) <= 1e-6
+    capsys.readouterr()
+    # position only on a 6-joint arm leaves 3 free directions: manipulability rises in them
+    assert main(["track", "--urdf", UR5, "--link", "tool0", "--target", "0.3,0.2,0.4", "--secondary",
+                 "manipulability", "--out", str(tmp_path / "m.csv"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["refine_iterations"] > 0
+    assert report["secondary_cost"] < report["secondary_cost_before"]
