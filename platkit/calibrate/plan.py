@@ -393,12 +393,29 @@ def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float,
     return out
 
 
+#: the fixed set of poses over which predicted marker errors are averaged, so that plans of one
+#: stand are comparable between runs: this many random feasible poses from this seed
+REFERENCE_POSES, REFERENCE_SEED = 300, 20260
+_REFERENCE: dict = {}
+
+
+def reference_poses(spec: PlatformSpec, margin: float = 0.1, model: PlatformModel | None = None) -> Plan:
+    """The stand's reference poses (REFERENCE_POSES random feasible controls, fixed seed)."""
+    key = (id(spec), margin)
+    hit = _REFERENCE.get(key)
+    if hit is None or hit[0] is not spec:
+        plan = random_candidates(spec, REFERENCE_POSES, np.random.default_rng(REFERENCE_SEED), margin, model=model)
+        _REFERENCE[key] = hit = (spec, plan)
+    return hit[1]
+
+
 def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.Generator, sigma: float,
                  n_markers: int = 5, markers: np.ndarray | None = None, candidates: Plan | None = None,
                  margin: float = 0.1) -> tuple[Plan, dict]:
     """A D-optimal plan of ``n`` poses from ``n_candidates`` random feasible candidates (or the
     given ``candidates``), ordered by nearest neighbour. Returns the plan and, for comparison,
-    the uncertainty of ``n`` random candidates (first n, in drawing order)."""
+    the uncertainty of ``n`` random candidates (the first n drawn). Uncertainties are over the
+    stand's :func:`reference_poses`."""
     model = PlatformModel(spec)
     markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
     cand = candidates or random_candidates(spec, n_candidates, rng, margin, model=model)
@@ -406,20 +423,25 @@ def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.G
     sub = _Subspace(ij.J)
     sel = d_optimal(sub.reduce(ij.J), n)
     sel = sel[nearest_neighbour_order(cand.controls[sel], spec)]
-    info = plan_uncertainty(ij.J[sel], ij.J, sigma, ij.names, ij.units, sub)
-    baseline = plan_uncertainty(ij.J[:n], ij.J, sigma, ij.names, ij.units, sub)
+    ref = reference_poses(spec, margin, model)
+    J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
+    ref_sub = _Subspace(J_ref)
+    info = plan_uncertainty(ij.J[sel], J_ref, sigma, ij.names, ij.units, ref_sub)
+    first = np.arange(min(n, len(cand.controls))) if candidates is None else np.unique(
+        np.round(np.linspace(0, len(cand.controls) - 1, n)).astype(int))
+    baseline = plan_uncertainty(ij.J[first], J_ref, sigma, ij.names, ij.units, ref_sub)
     info.update(kind="d_optimal", candidates=int(len(cand.controls)))
     return Plan(cand.controls[sel], "d_optimal", info, cand.poses[sel]), baseline
 
 
 def evaluate_plan(spec: PlatformSpec, plan: Plan, sigma: float, n_markers: int = 5, markers=None,
-                  reference: np.ndarray | None = None) -> dict:
-    """Predicted uncertainty of ``plan``; the identifiable subspace and the prediction RMS are
-    taken over ``reference`` controls (default: the plan itself)."""
+                  margin: float = 0.1) -> dict:
+    """Predicted uncertainty of ``plan``, over the stand's :func:`reference_poses`."""
     model = PlatformModel(spec)
     markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
     ij = identification_jacobian(spec, plan.controls, markers, P=plan.poses, model=model)
-    J_ref = ij.J if reference is None else identification_jacobian(spec, reference, markers, model=model).J
+    ref = reference_poses(spec, margin, model)
+    J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
     return plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units)
 
 

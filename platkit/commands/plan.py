@@ -49,6 +49,8 @@ def run(args) -> int:
     rng = np.random.default_rng(args.seed)
     markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))
     report: dict = {"platform": spec.name, "noise_mm": args.noise_mm, "markers": args.markers,
+                    "reference": f"predicted errors are RMS over {pl.REFERENCE_POSES} random reachable poses "
+                                 f"(seed {pl.REFERENCE_SEED}), the same for every plan of this stand",
                     "marker_layout_m": markers.tolist(), "unit": args.unit}
     if args.optimal is not None:
         cands = pl.grid_plan(spec, args.grid, args.margin) if args.grid else None
@@ -57,11 +59,11 @@ def run(args) -> int:
         plan, baseline = pl.optimal_plan(spec, args.optimal, args.candidates, rng, sigma, markers=markers,
                                          candidates=cands, margin=args.margin)
         report["plan"] = plan.info
-        report["baseline"] = {"kind": "first N candidates" if cands is None else "first N grid points", **baseline}
+        report["baseline"] = {"kind": "first N random candidates" if cands is None else "N grid points evenly along the path", **baseline}
     else:
         plan = pl.grid_plan(spec, args.grid, args.margin)
         plan.info.update(kind="grid")
-        plan.info.update(pl.evaluate_plan(spec, plan, sigma, markers=markers))
+        plan.info.update(pl.evaluate_plan(spec, plan, sigma, markers=markers, margin=args.margin))
         report["plan"] = plan.info
     report["n_poses"] = int(len(plan.controls))
     with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
