@@ -197,6 +197,31 @@ def _marker_block(table: Table, names: list[str], scale: float) -> np.ndarray:
     return table.data[:, np.array(idx)] * scale
 
 
+#: no motion-capture volume is this large (m): coordinates beyond it are in another unit
+LARGEST_VOLUME_M = 100.0
+
+
+def _check_plausible_unit(table: Table, markers: np.ndarray, length_unit: str, names: list[str]) -> None:
+    """Marker coordinates that cannot be in the declared unit: BadSession naming the column.
+    Declared m but beyond 100 m: the file is in mm. Declared mm but every coordinate within
+    20 mm of the origin and the whole stream within 20 mm: the file is in m."""
+    with np.errstate(invalid="ignore"):
+        big = np.abs(markers) > LARGEST_VOLUME_M
+    if np.any(big):
+        r, k, a = np.argwhere(big)[0]
+        raise BadSession(
+            f"{table.where(int(r), f'{names[k]}_{AXES[a]}')}: {markers[r, k, a] / LENGTH_UNITS[length_unit]:.6g} "
+            f"{length_unit} is beyond any motion-capture volume; is the file in mm? session.yaml declares {length_unit}"
+        )
+    if length_unit == "mm" and markers.shape[0] > 1:
+        fin = markers[np.isfinite(markers)] / LENGTH_UNITS["mm"]
+        if fin.size and np.max(np.abs(fin)) < 20.0 and np.ptp(fin) < 20.0:
+            raise BadSession(
+                f"{table.path}: every marker coordinate is within 20 mm of the origin; the values look like "
+                f"metres but session.yaml declares mm"
+            )
+
+
 def _check_seen(markers: np.ndarray, names: list[str], path: Path) -> None:
     seen = np.isfinite(markers).all(axis=2).any(axis=0)
     for m, ok in zip(names, seen):
@@ -454,6 +479,7 @@ def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offs
     check_times(table, t)
     xyz = _marker_block(table, names, lscale)
     _check_seen(xyz, names, path)
+    _check_plausible_unit(table, xyz, s.length_unit, names)
     M = len(s.marker_names)
     s.marker_t, s.markers, s.base_markers, s.markers_source = t, xyz[:, :M], xyz[:, M:], path
 
@@ -474,6 +500,7 @@ def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> Non
         check_times(table, t)
     xyz = _marker_block(table, names, lscale)
     _check_seen(xyz, names, path)
+    _check_plausible_unit(table, xyz, s.length_unit, names)
     n = None
     if any(f"{m}_n" in table.header for m in s.marker_names):
         n = np.zeros((len(table.data), len(s.marker_names)))

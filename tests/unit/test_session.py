@@ -198,6 +198,27 @@ def test_half_occluded_sample_is_an_error(session_dir, tmp_path):
     assert "row 9 (line 10): marker 'M1' has some of x,y,z empty" in _error(folder)
 
 
+def test_markers_in_the_wrong_unit(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "length: mm", "length: m")
+    # commands are checked first: the leg lengths name the unit mix-up
+    assert "fits the stroke in mm" in _error(folder)
+    lines = _lines(folder / "commands.csv")
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        out.append(",".join([cells[0]] + [f"{float(c) / 1000:.6f}" for c in cells[1:]]))
+    (folder / "commands.csv").write_text("\n".join(out) + "\n")
+    msg = _error(folder)
+    assert "markers.csv row 1 (line 2) column 'M1_x'" in msg and "is the file in mm?" in msg
+    # and the other way round: metres in a file that declares mm
+    folder2 = tmp_path / "m"
+    sim = simulate(get_platform("psvr"), seed=1, n_poses=4, mocap_rate_hz=20, length_unit="m")
+    write_session(sim, folder2)
+    _edit(folder2 / "session.yaml", "length: m", "length: mm")
+    assert "look like metres" in _error(folder2)
+
+
 def test_platform_mismatch(session_dir):
     assert "for the 'stewart' stand, not 'psvr'" in _error(session_dir[0], platform="psvr")
 
