@@ -243,7 +243,7 @@ def solve_lp(J: np.ndarray, e: np.ndarray, *, weights: np.ndarray | None = None,
     bounds += [(0.0, None if not np.isfinite(-l) else -l) for l in lo]
     bounds += [(0.0, 1.0)]
     info = StepInfo()
-    res = linprog(cost, A_eq=A_eq, b_eq=np.zeros(A.shape[0]), bounds=bounds, method="highs")
+    res = linprog(cost, A_eq=A_eq, b_eq=np.zeros(A.shape[0]), bounds=bounds, method="highs", options={"time_limit": 5.0})
     if res.status == 0 and res.x[-1] > 1e-9:
         x = res.x
         info.fraction = float(x[-1])
@@ -253,7 +253,7 @@ def solve_lp(J: np.ndarray, e: np.ndarray, *, weights: np.ndarray | None = None,
     cost = np.concatenate([c + g, c - g, np.full(2 * k, big)])
     A_eq = np.hstack([A, -A, -np.eye(k), np.eye(k)])
     bounds = bounds[:2 * n] + [(0.0, None)] * (2 * k)
-    res = linprog(cost, A_eq=A_eq, b_eq=b, bounds=bounds, method="highs")
+    res = linprog(cost, A_eq=A_eq, b_eq=b, bounds=bounds, method="highs", options={"time_limit": 5.0})
     info.fraction = 0.0
     if res.status != 0:
         return np.zeros(n), info
