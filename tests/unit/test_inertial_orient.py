@@ -1,0 +1,114 @@
+"""platkit orient end to end on a simulated Stewart session with an IMU, and its bad inputs."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from platkit.cli import main
+from platkit.geometry import matrix_from_rpy
+from platkit.inertial.command_aided import estimate_timing
+from platkit.inertial.simulate import platform_imu_session, write_platform_imu_session
+from platkit.inertial.stream import ImuStream
+from platkit.plugins import get_platform
+from platkit.simulate import perturb_parameters
+
+LAG_S, MOVE_S = 0.08, 1.0
+R_SP = matrix_from_rpy(0.03, -0.02, 0.5)
+BIAS = [0.01, -0.005, 0.003, 0.05, -0.03, 0.02]
+
+
+@pytest.fixture(scope="module")
+def sim_session(tmp_path_factory):
+    spec = get_platform("stewart")
+    rng = np.random.default_rng(7)
+    td_true = perturb_parameters(spec, rng, 0.2)
+    sim = platform_imu_session(spec, td_true, spec.nominal_td(), rng, n_commands=16, rate_hz=100.0,
+                               move_s=MOVE_S, lag_s=LAG_S, imu_from_platform=R_SP, bias=BIAS,
+                               noise=[0.003, 0.03], lever_arm=[0.3, 0.2, 0.1])
+    folder = tmp_path_factory.mktemp("imu") / "session"
+    write_platform_imu_session(sim, spec, folder, {"gyr_bias_rad_s": BIAS[:3], "sensor_from_platform": R_SP})
+    return folder, sim
+
+
+def _copy(folder, tmp_path):
+    dst = tmp_path / "s"
+    shutil.copytree(folder, dst)
+    return dst
+
+
+def test_command_aided_beats_the_unaided_estimator(sim_session, tmp_path):
+    folder, _ = sim_session
+    reports = {}
+    for method in ("command-aided", "platkit", "paper"):
+        out = tmp_path / method
+        assert main(["orient", str(folder), "--method", method, "--out", str(out)]) == 0
+        reports[method] = json.loads((out / "report.json").read_text())
+        lines = (out / "orientation.csv").read_text().splitlines()
+        assert lines[0] == "t,qw,qx,qy,qz" and len(lines) == reports[method]["n_samples"] + 1
+        assert (out / "report.html").read_text().count("data:image/png;base64,") == 2
+    ca, pk = reports["command-aided"], reports["platkit"]
+    assert ca["truth"]["total_rmse_deg"] < 0.15
+    assert ca["truth"]["total_rmse_deg"] < 0.5 * pk["truth"]["total_rmse_deg"]
+    assert pk["truth"]["inclination_rmse_deg"] < 1.0
+    assert reports["paper"]["truth"]["inclination_rmse_deg"] < 2.0
+    # the misalignment and the bias the session itself gives
+    assert ca["truth_imu"]["alignment_error_deg"] < 0.2
+    assert np.max(np.abs(ca["truth_imu"]["gyr_bias_error_deg_s"])) < 0.02
+
+
+def test_latency_is_measured(sim_session):
+    folder, sim = sim_session
+    imu = ImuStream(sim["t"], sim["gyr"], sim["acc"])
+    timing = estimate_timing(imu, sim["t_cmd"], sim["q_cmd"], BIAS[:3])
+    # onset = 5 % and end = 95 % of a minimum-jerk move (at 0.2 and 0.8 of its duration) after the lag
+    assert timing.lag_s == pytest.approx(LAG_S + 0.21 * MOVE_S, abs=0.04)
+    assert timing.settle_s == pytest.approx(LAG_S + 0.79 * MOVE_S, abs=0.06)
+
+
+def test_bad_imu_cell_is_one_line_and_writes_nothing(sim_session, tmp_path, capsys):
+    folder = _copy(sim_session[0], tmp_path)
+    lines = (folder / "imu.csv").read_text().splitlines()
+    cells = lines[10].split(",")
+    cells[3] = "oops"
+    lines[10] = ",".join(cells)
+    (folder / "imu.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert main(["orient", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "line 11, column 'gyr_z': expected a number, got 'oops'" in err
+    assert not out.exists()
+
+
+def test_repairs_are_reported(sim_session, tmp_path):
+    folder = _copy(sim_session[0], tmp_path)
+    lines = (folder / "imu.csv").read_text().splitlines()
+    cells = lines[500].split(",")
+    cells[5] = ""
+    lines[500] = ",".join(cells)
+    (folder / "imu.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert main(["orient", str(folder), "--method", "platkit-causal", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert any("'acc_y': 1 missing values" in w and "line 501" in w for w in report["warnings"])
+
+
+def test_command_aided_needs_commands(sim_session, tmp_path, capsys):
+    folder = _copy(sim_session[0], tmp_path)
+    (folder / "commands.csv").unlink()
+    assert main(["orient", str(folder), "--method", "command-aided", "--out", str(tmp_path / "o")]) == 2
+    assert "needs a session with a platform and commands.csv" in capsys.readouterr().err
+
+
+def test_missing_imu_and_bad_truth(sim_session, tmp_path, capsys):
+    folder = _copy(sim_session[0], tmp_path)
+    truth = (folder / "truth_orientation.csv").read_text().splitlines()
+    truth[3] = truth[3].rsplit(",", 1)[0] + ",2.0"
+    (folder / "truth_orientation.csv").write_text("\n".join(truth) + "\n")
+    assert main(["orient", str(folder), "--method", "platkit-causal", "--out", str(tmp_path / "o")]) == 2
+    assert "truth_orientation.csv row 3 (line 4)" in capsys.readouterr().err
+    (folder / "imu.csv").unlink()
+    assert main(["orient", str(folder), "--out", str(tmp_path / "o")]) == 2
+    assert "imu.csv: file not found" in capsys.readouterr().err

@@ -1,0 +1,155 @@
+"""imu.csv reading: every bad input is one line naming file, line and column, or a stated repair."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from platkit.errors import BadSession
+from platkit.inertial.stream import IMU_COLUMNS, check_stream, read_imu_csv, saturation_mask, write_imu_csv
+
+HEADER = ",".join(IMU_COLUMNS)
+
+
+def _rows(n=50, dt=0.01):
+    t = np.arange(n) * dt
+    rng = np.random.default_rng(0)
+    gyr = rng.normal(0, 0.01, (n, 3))
+    acc = np.column_stack([rng.normal(0, 0.05, n), rng.normal(0, 0.05, n), 9.81 + rng.normal(0, 0.05, n)])
+    return t, gyr, acc
+
+
+def _write(tmp_path, lines):
+    p = tmp_path / "imu.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _lines(t, gyr, acc):
+    return [HEADER] + [",".join(f"{v:.9g}" for v in [a, *g, *c]) for a, g, c in zip(t, gyr, acc)]
+
+
+def test_round_trip(tmp_path):
+    t, gyr, acc = _rows()
+    write_imu_csv(tmp_path / "imu.csv", t, gyr, acc)
+    s = read_imu_csv(tmp_path / "imu.csv")
+    assert np.allclose(s.t, t) and np.allclose(s.gyr, gyr) and np.allclose(s.acc, acc)
+    assert s.repairs == [] and not s.saturated.any()
+    assert s.rate_hz == pytest.approx(100.0)
+
+
+def test_missing_column_names_it(tmp_path):
+    t, gyr, acc = _rows()
+    lines = _lines(t, gyr, acc)
+    lines = [",".join(c.split(",")[:6]) for c in lines]  # drop acc_z
+    with pytest.raises(BadSession, match=r"imu\.csv: line 1: missing column 'acc_z'") as exc:
+        read_imu_csv(_write(tmp_path, lines))
+    assert "\n" not in str(exc.value)
+
+
+def test_text_in_a_number_cell_names_line_and_column(tmp_path):
+    t, gyr, acc = _rows()
+    lines = _lines(t, gyr, acc)
+    cells = lines[3].split(",")
+    cells[4] = "abc"
+    lines[3] = ",".join(cells)
+    with pytest.raises(BadSession, match=r"line 4, column 'acc_x': expected a number, got 'abc'"):
+        read_imu_csv(_write(tmp_path, lines))
+
+
+def test_time_going_back_is_an_error(tmp_path):
+    t, gyr, acc = _rows()
+    t[10] = t[8]
+    with pytest.raises(BadSession, match=r"line 12, column 't': time goes back"):
+        read_imu_csv(_write(tmp_path, _lines(t, gyr, acc)))
+
+
+def test_repeated_time_is_an_error(tmp_path):
+    t, gyr, acc = _rows()
+    t[10] = t[9]
+    with pytest.raises(BadSession, match=r"line 12, column 't': time repeats"):
+        read_imu_csv(_write(tmp_path, _lines(t, gyr, acc)))
+
+
+def test_missing_time_is_an_error(tmp_path):
+    t, gyr, acc = _rows()
+    lines = _lines(t, gyr, acc)
+    lines[5] = "," + lines[5].split(",", 1)[1]
+    with pytest.raises(BadSession, match=r"line 6, column 't': missing time"):
+        read_imu_csv(_write(tmp_path, lines))
+
+
+def test_short_nan_run_is_interpolated_and_reported(tmp_path):
+    t, gyr, acc = _rows()
+    truth = gyr[20:23, 1].copy()
+    lines = _lines(t, gyr, acc)
+    for i in (21, 22):  # data rows 21, 22 -> lines 23, 24
+        cells = lines[i + 1].split(",")
+        cells[2] = "nan" if i == 21 else ""
+        lines[i + 1] = ",".join(cells)
+    s = read_imu_csv(_write(tmp_path, lines))
+    assert len(s.repairs) == 1 and "'gyr_y': 2 missing values" in s.repairs[0] and "line 23" in s.repairs[0]
+    expected = np.interp(t[21:23], [t[20], t[23]], [gyr[20, 1], gyr[23, 1]])
+    assert np.allclose(s.gyr[21:23, 1], expected)
+    assert s.gyr[20, 1] == pytest.approx(truth[0])
+
+
+def test_long_nan_run_is_an_error(tmp_path):
+    t, gyr, acc = _rows()
+    acc[10:20, 2] = np.nan
+    with pytest.raises(BadSession, match=r"line 12, column 'acc_z': 10 missing values"):
+        read_imu_csv(_write(tmp_path, _lines(t, gyr, acc)).__str__(), max_repair_s=0.05)
+
+
+def test_nan_at_the_start_cannot_be_interpolated(tmp_path):
+    t, gyr, acc = _rows()
+    gyr[0, 0] = np.nan
+    with pytest.raises(BadSession, match=r"line 2, column 'gyr_x': missing value at the start"):
+        read_imu_csv(_write(tmp_path, _lines(t, gyr, acc)))
+
+
+def test_short_gap_is_filled_and_reported(tmp_path):
+    t, gyr, acc = _rows()
+    keep = np.ones(len(t), bool)
+    keep[[30, 31]] = False
+    s = read_imu_csv(_write(tmp_path, _lines(t[keep], gyr[keep], acc[keep])))
+    assert s.n == len(t)
+    assert np.allclose(s.t, t)
+    assert any("short time gaps" in r and "2 linearly interpolated samples" in r for r in s.repairs)
+
+
+def test_long_gap_is_an_error(tmp_path):
+    t, gyr, acc = _rows()
+    keep = np.ones(len(t), bool)
+    keep[20:30] = False
+    with pytest.raises(BadSession, match=r"line 22, column 't': a gap of 0.11 s"):
+        read_imu_csv(_write(tmp_path, _lines(t[keep], gyr[keep], acc[keep])))
+
+
+def test_clipping_plateau_is_flagged_and_reported():
+    t, gyr, acc = _rows()
+    gyr[10:15, 0] = 8.7  # a plateau at the largest magnitude: clipping
+    s = check_stream(t, gyr, acc, "x.csv")
+    assert s.saturated[10:15, 0].all() and s.saturated[:, 0].sum() == 5
+    assert not s.saturated[:, 1:].any()
+    assert any("5 samples of gyr_x at the sensor's clipping limit" in w for w in s.warnings())
+
+
+def test_single_peak_is_not_saturation():
+    t, gyr, acc = _rows()
+    gyr[10, 0] = 8.7
+    assert not saturation_mask(np.column_stack([gyr, acc])).any()
+
+
+def test_declared_range_flags_samples():
+    t, gyr, acc = _rows()
+    acc[5, 2] = 16 * 9.81
+    mask = saturation_mask(np.column_stack([gyr, acc]), acc_range=16 * 9.81)
+    assert mask[5, 5] and mask.sum() == 1
+
+
+def test_missing_and_empty_files(tmp_path):
+    with pytest.raises(BadSession, match="file not found"):
+        read_imu_csv(tmp_path / "nope.csv")
+    (tmp_path / "e.csv").write_text("")
+    with pytest.raises(BadSession, match="empty file"):
+        read_imu_csv(tmp_path / "e.csv")
