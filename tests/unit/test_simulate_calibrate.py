@@ -1,0 +1,42 @@
+"""The hand-over end to end: the shipped example session -> settled poses -> calibration, whose
+model must predict markers at poses it never saw as the true stand (truth.yaml) places them."""
+from __future__ import annotations
+
+import numpy as np
+import yaml
+
+from platkit.calibrate.estimate import calibrate, predict_markers
+from platkit.calibrate.plan import random_candidates
+from platkit.calibrate.settle import load_poses
+from platkit.geometry import matrix_from_quat
+from platkit.io.session import example_session
+from platkit.kinematics import PlatformModel
+from platkit.plugins import get_platform
+
+
+def test_example_session_calibrates_to_its_truth():
+    folder = example_session("stewart")
+    spec = get_platform("stewart")
+    truth = yaml.safe_load((folder / "truth.yaml").read_text())
+    td = np.array([truth["parameters"][n]["value"] for n in spec.parameter_names])
+    T = np.array(truth["mocap_from_base"])
+    S = np.array([truth["markers"][m] for m in sorted(truth["markers"])])
+    model = PlatformModel(spec)
+
+    def true_markers(U):
+        fb = model.forward_batch(U, td=td, strict=False)
+        Y = fb.X[:, None] + np.einsum("kij,mj->kmi", matrix_from_quat(fb.q), S)
+        return Y @ T[:3, :3].T + T[:3, 3]
+
+    poses = load_poses(folder)
+    assert poses.marker_names == sorted(truth["markers"])
+    settled = np.linalg.norm(poses.markers - true_markers(poses.controls), axis=2)
+    # 0.2 mm noise per coordinate averaged over >= 20 samples: < 0.08 mm 3D RMS (measured 0.063)
+    assert np.sqrt(np.nanmean(settled**2)) < 0.08e-3
+    cal = calibrate(poses, spec)
+    fresh = random_candidates(spec, 40, np.random.default_rng(99))
+    pred, _, _, ok = predict_markers(cal, fresh.controls)
+    assert ok.all()
+    err = np.linalg.norm(pred - true_markers(fresh.controls), axis=2)
+    # the nominal stand is ~mm off; the calibrated one within a few hundredths (measured 0.013)
+    assert np.sqrt(np.mean(err**2)) < 0.04e-3
