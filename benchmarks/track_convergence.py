@@ -74,6 +74,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--robots", default="ur5,panda")
     ap.add_argument("--lp", type=int, default=30, help="targets also solved with the LP solver (slower)")
+    ap.add_argument("--trees", type=int, default=20, help="target sets for the tree-shaped chains (0: skip)")
     args = ap.parse_args()
     for robot in args.robots.split(","):
         urdf, link = ROBOTS[robot]
@@ -115,6 +116,38 @@ def main() -> None:
                 rot.append(r)
             summarize(name, ok, its, pos, rot, secs,
                       f"  converged within the joint limits {np.mean(within) * 100:.1f}%")
+    if args.trees:
+        trees(args.trees, args.seed)
+
+
+def trees(n: int, seed: int) -> None:
+    """Tree-shaped chains: both Talos grippers (6-D each, torso shared, legs and head locked) and
+    the four Allegro fingertips (positions), targets from FK of random configurations."""
+    cases = [
+        ("talos both grippers", "talos_data/robots/talos_reduced.urdf",
+         ["gripper_left_base_link", "gripper_right_base_link"], np.ones(6), ("arm", "torso")),
+        ("allegro 4 fingertips", "allegro_hand_description/urdf/allegro_right_hand.urdf",
+         ["link_3.0_tip", "link_7.0_tip", "link_11.0_tip", "link_15.0_tip"], np.array([1, 1, 1, 0, 0, 0.0]), ("joint",)),
+    ]
+    for name, urdf, links, weights, movable in cases:
+        chain = KinematicChain.from_urdf(example_robot_urdf(urdf))
+        locked = [j for j in chain.joint_names if not j.startswith(movable)]
+        free = np.array([j not in locked for j in chain.joint_names])
+        rng = np.random.default_rng(seed)
+        ok, its, pos, rot, secs = [], [], [], [], []
+        for k in range(n):
+            theta = np.where(free, chain.random(rng, margin=0.05), chain.mid_range())
+            tasks = [Task(link, chain.placement(theta, link), weights=weights) for link in links]
+            t0 = time.perf_counter()
+            r = Servo(chain, tasks, ServoOptions(locked=locked, restarts=10, seed=k)).run(chain.mid_range())
+            secs.append(time.perf_counter() - t0)
+            ok.append(r.converged)
+            its.append(r.iterations_total)
+            pos.append(r.position_error)
+            rot.append(r.rotation_error)
+        print(f"{name} ({int(free.sum())} joints move), {n} random reachable target sets, start at mid-range:")
+        summarize("platkit servo, pinv, 10 restarts", ok, its, pos, rot, secs)
+
 
 if __name__ == "__main__":
     main()
