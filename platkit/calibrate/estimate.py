@@ -26,6 +26,8 @@ Procedure (:func:`calibrate`):
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import time
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -372,6 +374,43 @@ class CalibrationProblem:
 # ---------------------------------------------------------------------------- solver
 
 
+@contextlib.contextmanager
+def blas_threads(n: int = 1):
+    """Limit OpenBLAS threads inside the block (restored after).
+
+    The estimator's matrices are small (thousands by tens); on a shared machine OpenBLAS worker
+    threads spin against other processes and make each product ten times slower. Works on the
+    OpenBLAS builds numpy and scipy ship (found through /proc/self/maps); elsewhere a no-op.
+    """
+    handles = []
+    try:
+        with open("/proc/self/maps", encoding="utf-8") as fh:
+            libs = sorted({line.split()[-1] for line in fh if "openblas" in line and ".so" in line})
+    except OSError:
+        libs = []
+    for path in libs:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for prefix in ("scipy_openblas_", "openblas_", ""):
+            for suffix in ("64_", ""):
+                get = getattr(lib, f"{prefix}get_num_threads{suffix}", None) if prefix else None
+                put = getattr(lib, f"{prefix}set_num_threads{suffix}", None) if prefix else None
+                if get is not None and put is not None:
+                    handles.append((put, int(get())))
+                    put(int(n))
+                    break
+            else:
+                continue
+            break
+    try:
+        yield
+    finally:
+        for put, old in handles:
+            put(old)
+
+
 def _robust_sigma(d: np.ndarray) -> float:
     """Per-axis noise sigma from 3-D error norms, robustly (median)."""
     d = d[np.isfinite(d)]
@@ -533,6 +572,13 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     Raises NotIdentifiable when not even the transform and markers can be fixed, NoConvergence
     when forward kinematics fails on most poses.
     """
+    with blas_threads(1):
+        return _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options,
+                          td_start, ridge_m)
+
+
+def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options, td_start,
+               ridge_m) -> Calibration:
     t0 = time.perf_counter()
     problem = CalibrationProblem(spec, poses, terms)
     td0 = spec.nominal_td() if td_start is None else np.asarray(td_start, float)
