@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.errors import BadSession, PlatkitError
+from platkit.errors import BadInput, BadSession
 from platkit.io.description import load_yaml
 from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
 
@@ -124,12 +124,20 @@ def read_table(path: Path, what: str = "") -> Table:
     body = rows[1:]
     if not body:
         raise BadSession(f"{path}: no data rows after the header")
-    data = np.empty((len(body), len(header)))
     for r, row in enumerate(body):
         if len(row) != len(header):
             raise BadSession(
                 f"{path} row {r + 1} (line {r + 2}): {len(row)} cells, expected {len(header)} like the header"
             )
+    nan = math.nan
+    try:  # fast path; any cell float() refuses sends us to the cell-by-cell check for the message
+        data = np.array([[float(c) if c.strip() else nan for c in row] for row in body], dtype=float)
+        if not np.isinf(data).any():
+            return Table(path, header, data)
+    except ValueError:
+        pass
+    data = np.empty((len(body), len(header)))
+    for r, row in enumerate(body):
         for j, cell in enumerate(row):
             cell = cell.strip()
             if cell == "" or cell.lower() == "nan":
@@ -399,8 +407,8 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         options = {"moving_link": y["moving_link"]} if y["moving_link"] else {}
         try:
             spec = get_platform(name, desc_path, **options)
-        except PlatkitError as exc:
-            raise type(exc)(f"{ypath}: {exc}") from None
+        except BadInput as exc:
+            raise BadSession(f"{ypath}: {exc}") from None
     s = Session(
         folder=folder, platform=name, spec=spec, description=desc_path, length_unit=y["length_unit"],
         time_unit=y["time_unit"], marker_names=y["markers"], base_marker_names=y["base_markers"],

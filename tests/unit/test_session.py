@@ -153,6 +153,23 @@ def test_non_numeric_cell_names_row_and_column(session_dir, tmp_path):
     assert "markers.csv row 5 (line 6) column 'M2_x'" in msg and "'12;5'" in msg
 
 
+def test_infinite_cell_is_named(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    lines = _lines(folder / "commands.csv")
+    cells = lines[2].split(",")
+    cells[6] = "inf"
+    lines[2] = ",".join(cells)
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    assert "commands.csv row 2 (line 3) column 'L6': expected a finite number, got 'inf'" in _error(folder)
+
+
+def test_unknown_stand_in_session_yaml(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "platform: stewart", "platform: hexapod9")
+    msg = _error(folder)
+    assert "session.yaml" in msg and "unknown platform 'hexapod9'" in msg and "stewart" in msg
+
+
 def test_ragged_row_is_named(session_dir, tmp_path):
     folder = _copy(session_dir[0], tmp_path)
     lines = _lines(folder / "markers.csv")
