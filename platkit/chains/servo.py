@@ -449,12 +449,14 @@ class Servo:
                 dq, _info = self.step(theta, errors, secondary=-g * (size / gmax), solver="pinv")
                 trial = self.chain.clip(theta + dq)
                 trial_errors = self.errors(trial)
+                pieces = [(trial, trial_errors)]  # every intermediate step goes into the path
                 for _ in range(10):
                     if self._done(*self._norms(trial_errors)):
                         break
                     dq, _info = self.step(trial, trial_errors, secondary=zero, solver="pinv")
                     trial = self.chain.clip(trial + dq)
                     trial_errors = self.errors(trial)
+                    pieces.append((trial, trial_errors))
                 H_trial = self.secondary_value(trial)
                 if self._done(*self._norms(trial_errors)) and H_trial < H - 1e-9 * max(1.0, abs(H)):
                     accepted = True
@@ -463,8 +465,9 @@ class Servo:
             if not accepted:
                 break
             theta, errors, H = trial, trial_errors, H_trial
-            path.append(theta.copy())
-            history.append(self.merit(errors))
+            for th, er in pieces:
+                path.append(th.copy())
+                history.append(self.merit(er))
             refined += 1
         return theta, errors, refined, H0, H
 

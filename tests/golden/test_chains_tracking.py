@@ -263,6 +263,9 @@ def test_secondary_cost_falls_in_the_null_space(panda, cost):
         _check_reached(panda, result.theta, "panda_hand", goal)
         assert result.secondary_cost <= result.secondary_cost_before
         assert result.secondary_cost == pytest.approx(servo.secondary_value(result.theta))
+        # the refining steps are servo steps too: within the rate limits, and in the path
+        assert np.all(np.abs(np.diff(result.path, axis=0)) <= panda.rate * options.dt + 1e-12)
+        assert len(result.path) >= result.iterations + result.refine_iterations + 1
         fell += result.secondary_cost < result.secondary_cost_before - 1e-6
     assert fell >= 2
 
