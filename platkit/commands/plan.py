@@ -33,7 +33,6 @@ def _summary(info: dict) -> dict:
 def run(args) -> int:
     from platkit.calibrate import plan as pl
     from platkit.io.atomic import atomic_output_dir
-    from platkit.plugins import get_platform
 
     if args.grid is None and args.optimal is None:
         raise BadInput("give --grid N or --optimal N (or both: the grid is then the candidate set)")

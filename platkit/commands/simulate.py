@@ -5,7 +5,6 @@ from pathlib import Path
 
 from platkit.commands.common import add_platform_options, platform_from_args
 from platkit.errors import BadInput
-from platkit.plugins import get_platform
 
 
 def add_parser(sub):
@@ -53,7 +52,8 @@ def run(args) -> int:
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
                    description=None if args.description is None else Path(args.description).name)
-    out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description)
+    out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
+                        moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"
     print(f"wrote {out}: {spec.name}, {len(sim.commands)} commands, {kind}, "
           f"{sim.poses.n_poses} settled poses; truth in {Path(out) / 'truth.yaml'}")

@@ -22,7 +22,7 @@ from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
 #: session.yaml keys platkit reads; any other key is a typo or a newer format, and an error.
 SESSION_KEYS = (
     "platform", "description", "units", "markers", "base_markers", "mocap_rate_hz", "imu",
-    "moving_link", "notes", "markers_file", "markers_time_offset",
+    "moving_link", "notes", "markers_file", "markers_time_offset", "base_link",
 )
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 IMU_COLUMNS = ["t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"]
@@ -323,10 +323,11 @@ def read_session_yaml(folder: Path) -> dict:
         if "frame" in imu and not isinstance(imu["frame"], str):
             raise BadSession(f"{path}: field 'imu.frame' must be a frame name")
     out["imu"] = imu
-    link = data.get("moving_link")
-    if link is not None and not isinstance(link, str):
-        raise BadSession(f"{path}: field 'moving_link' must be a link name or null")
-    out["moving_link"] = link
+    for key in ("moving_link", "base_link"):
+        link = data.get(key)
+        if link is not None and (not isinstance(link, str) or not link.strip()):
+            raise BadSession(f"{path}: field {key!r} must be a link name or null")
+        out[key] = link
     notes = data.get("notes")
     out["notes"] = "" if notes is None else str(notes)
     mfile = data.get("markers_file")
@@ -404,7 +405,7 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     if spec is None and name is not None:
         from platkit.plugins import get_platform
 
-        options = {"moving_link": y["moving_link"]} if y["moving_link"] else {}
+        options = {k: y[k] for k in ("moving_link", "base_link") if y[k]}
         try:
             spec = get_platform(name, desc_path, **options)
         except BadInput as exc:

@@ -374,9 +374,12 @@ def _csv_text(header: list[str], rows) -> str:
 
 
 def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, description: str | Path | None = None,
-                  notes: str = "") -> Path:
+                  notes: str = "", moving_link: str | None = None, base_link: str | None = None) -> Path:
     """Write a simulated session folder (session.yaml, commands.csv, markers.csv or poses.csv,
-    imu.csv if simulated, truth.yaml), whole or not at all. Returns the folder."""
+    imu.csv if simulated, truth.yaml), whole or not at all. Returns the folder.
+
+    ``description``: the description file the stand was built from (copied into the folder);
+    ``moving_link``, ``base_link``: the stand options it was built with (serial chains)."""
     spec = sim.spec
     unit = sim.length_unit
     s = length_scale(unit)
@@ -394,9 +397,11 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             "base_markers": [],
             "mocap_rate_hz": float(sim.mocap_rate_hz),
             "imu": None,
-            "moving_link": None,
+            "moving_link": moving_link,
             "notes": notes or f"simulated by platkit (seed {sim.truth.seed}); the true stand is in truth.yaml",
         }
+        if base_link is not None:
+            entry["base_link"] = base_link
         if description is not None:
             desc = Path(description)
             (tmp / desc.name).write_bytes(desc.read_bytes())
@@ -438,14 +443,17 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
 
 
 def simulate_session(spec: PlatformSpec | str, out: str | Path, *, poses_only: bool = False,
-                     description: str | Path | None = None, **kwargs) -> Path:
+                     description: str | Path | None = None, moving_link: str | None = None,
+                     base_link: str | None = None, **kwargs) -> Path:
     """Simulate (see :func:`simulate`) and write a session folder; returns its path. ``spec``
-    may be a stand name (built with ``description``)."""
+    may be a stand name (built with ``description`` and the link options)."""
     if isinstance(spec, str):
         from platkit.plugins import get_platform
 
-        spec = get_platform(spec, description)
+        options = {k: v for k, v in (("moving_link", moving_link), ("base_link", base_link)) if v is not None}
+        spec = get_platform(spec, description, **options)
     if poses_only:
         kwargs["raw"] = False
     sim = simulate(spec, description=None if description is None else Path(description).name, **kwargs)
-    return write_session(sim, out, poses_only=poses_only, description=description)
+    return write_session(sim, out, poses_only=poses_only, description=description, moving_link=moving_link,
+                         base_link=base_link)

@@ -195,3 +195,14 @@ def test_imu_hook_writes_an_inertial_stream(tmp_path):
     s = load_session(write_session(sim, tmp_path / "imu"))
     assert s.imu == {"rate_hz": 200.0, "frame": "imu"}
     assert s.imu_t.shape[0] == len(sim.imu["t"]) and np.allclose(s.imu_acc[:, 2], 9.81)
+
+
+def test_serial_chain_link_options_travel_with_the_session(tmp_path):
+    from platkit.io.session import load_session
+
+    folder = simulate_session("urdf", tmp_path / "arm", moving_link="forearm_link", seed=1, n_poses=6,
+                              mocap_rate_hz=30)
+    s = load_session(folder)
+    assert s.moving_link == "forearm_link" and s.spec.moving_frame == "forearm_link"
+    assert s.spec.n_u == 3
+    assert load_poses(folder).n_poses == 6
