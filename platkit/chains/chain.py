@@ -28,16 +28,17 @@ _UNBOUNDED = 1e10  # limits beyond this are "none" (URDF files write 1e16 and fr
 
 
 def read_urdf_text(path: str | Path) -> str:
-    """The URDF file's text, checked: UTF-8, no DOCTYPE or ENTITY, a <robot> root element."""
+    """The URDF file's text, read by the one safe URDF reader (platkit.urdf.parse_urdf_xml: no
+    DTD, entities or network; size-capped; a <robot> root element)."""
+    from lxml import etree
+
+    from platkit.urdf import parse_urdf_xml
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadInput(f"{path}: no such URDF file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise BadDescription(f"{path}: cannot read the URDF ({exc.__class__.__name__}: {exc})") from None
-    check_urdf_text(text, str(path))
-    return text
+    if not path.is_file():
+        raise BadInput(f"{path}: no such URDF file")
+    tree, _ = parse_urdf_xml(path)
+    return etree.tostring(tree, encoding="unicode")
 
 
 def check_urdf_text(text: str, source: str) -> None:

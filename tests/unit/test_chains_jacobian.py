@@ -149,11 +149,11 @@ def test_pose_error_and_slerp():
 def test_urdf_reader_refuses_entities_and_names_the_file(tmp_path):
     bad = tmp_path / "evil.urdf"
     bad.write_text('<?xml version="1.0"?><!DOCTYPE r [<!ENTITY a "aaaa">]><robot name="r">&a;</robot>')
-    with pytest.raises(BadDescription, match="evil.urdf.*DOCTYPE or ENTITY"):
+    with pytest.raises(BadDescription, match="evil.urdf.*DTDs and XML entities are not accepted"):
         KinematicChain.from_urdf(bad)
     notxml = tmp_path / "broken.urdf"
     notxml.write_text("<robot name='r'><link name='a'></robot>")
-    with pytest.raises(BadDescription, match="broken.urdf: not well-formed XML"):
+    with pytest.raises(BadDescription, match="broken.urdf:.*not well-formed XML"):
         KinematicChain.from_urdf(notxml)
     with pytest.raises(BadInput, match="no such URDF file"):
         KinematicChain.from_urdf(tmp_path / "missing.urdf")
