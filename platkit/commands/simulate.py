@@ -22,6 +22,7 @@ def add_parser(sub):
     p.add_argument("--noise-mm", type=float, default=0.2, help="marker noise per coordinate, mm (default 0.2)")
     p.add_argument("--occlusion", type=float, default=0.02, help="fraction of marker samples occluded (default 0.02)")
     p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
+    p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="motion-capture rate (default 100)")
     p.add_argument("--hold-s", type=float, default=1.5, help="time each command is held after arriving (default 1.5)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of the session files (default mm)")
@@ -38,6 +39,8 @@ def run(args) -> int:
 
     if args.poses < 3:
         raise BadInput(f"--poses must be at least 3, got {args.poses}")
+    if args.base_markers < 0:
+        raise BadInput(f"--base-markers must be 0 or more, got {args.base_markers}")
     if args.markers < 3:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
     if not args.rate_hz > 0 or not args.hold_s > 0:
@@ -51,7 +54,8 @@ def run(args) -> int:
     sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
-                   description=None if args.description is None else Path(args.description).name)
+                   description=None if args.description is None else Path(args.description).name,
+                   n_base_markers=args.base_markers)
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
                         moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"

@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from platkit.calibrate.plan import (
-    Plan, default_marker_layout, feasible, grid_plan_for, random_candidates, read_plan_csv,
+    Plan, default_marker_layout, feasible, grid_plan_for, random_candidates, read_plan_csv, stand_length_scale,
 )
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.settle import SettleOptions, direction_of_last_motion, last_step, settle
@@ -48,7 +48,8 @@ class Truth:
     """What the simulated stand really was (SI units).
 
     td (n_td,) true parameters; td_nominal (n_td,); mocap_from_base (4, 4); markers (M, 3) m
-    in the moving frame; terms [(ModelTerm, theta)]; noise_m marker noise per coordinate.
+    in the moving frame; terms [(ModelTerm, theta)]; noise_m marker noise per coordinate;
+    base_markers (B, 3) m in the base frame, or None.
     """
 
     platform: str
@@ -63,6 +64,8 @@ class Truth:
     occlusion: float
     seed: int
     description: str | None = None
+    base_marker_names: list[str] = field(default_factory=list)
+    base_markers: np.ndarray | None = None  # (B, 3) m in the base frame
 
     def to_dict(self) -> dict:
         """The truth.yaml mapping (SI: metres, radians)."""
@@ -77,6 +80,8 @@ class Truth:
             },
             "mocap_from_base": [[float(x) for x in row] for row in self.mocap_from_base],
             "markers": {n: [float(x) for x in s] for n, s in zip(self.marker_names, self.markers)},
+            "base_markers": {n: [float(x) for x in s] for n, s in zip(self.base_marker_names,
+                                                                     () if self.base_markers is None else self.base_markers)},
             "effects": [_plain(term.to_dict(theta)) for term, theta in self.terms],
             "marker_noise_m": float(self.noise_m),
             "occlusion": float(self.occlusion),
@@ -137,6 +142,7 @@ class Simulation:
     length_unit: str
     imu: dict | None = None
     plan_info: dict = field(default_factory=dict)
+    base_markers: np.ndarray | None = None  # (K, B, 3) m, mocap frame, the stream of markers on the base
 
 
 def perturb_parameters(spec: PlatformSpec, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
@@ -217,7 +223,8 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
              occlusion: float = 0.02, n_markers: int = 5, raw: bool = True, terms=(), effects=(),
              mocap_rate_hz: float = 100.0, hold_s: float = 1.5, length_unit: str = "mm",
              imu: Callable | None = None, perturbation: float = 1.0, markers: np.ndarray | None = None,
-             settle_options: SettleOptions | None = None, description: str | None = None) -> Simulation:
+             settle_options: SettleOptions | None = None, description: str | None = None,
+             n_base_markers: int = 0) -> Simulation:
     """Simulate a session of ``spec`` in memory.
 
     plan: 'grid' (snake-ordered grid, about n_poses points), 'random', a plan.csv path, a
@@ -229,6 +236,8 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     imu: optional callable ``imu(trajectory, rng) -> dict(t=(J,), gyr=(J, 3), acc=(J, 3)[, entry])``
         that adds an inertial stream (raw only).
     hold_s: time the stand holds each command after arriving (s).
+    n_base_markers: markers fixed on the base (B1, B2, ...), around the stand on the floor; they
+        pin the base-to-mocap transform.
     """
     from platkit.simulate.effects import simulation_term
 
@@ -248,11 +257,18 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         raise NotIdentifiable(f"{spec.name}: fewer than 3 planned poses are reachable")
     names = [f"M{k + 1}" for k in range(n_markers)]
     S = default_marker_layout(spec, n_markers, rng) if markers is None else np.asarray(markers, float)
-    from platkit.calibrate.plan import stand_length_scale
-
     T = random_mocap_from_base(rng, stand_length_scale(spec) / 0.6)
     noise = noise_mm * 1e-3
     N = len(U)
+    # base markers draw from their own stream, so adding them leaves everything else as it was
+    brng = np.random.default_rng([seed, 7])
+    base_names = [f"B{k + 1}" for k in range(n_base_markers)]
+    B = None
+    if n_base_markers:
+        rho = 1.5 * stand_length_scale(spec) / 0.6
+        ang = 2 * np.pi * np.arange(n_base_markers) / n_base_markers + brng.uniform(-0.3, 0.3, n_base_markers)
+        B = np.stack([rho * np.cos(ang), rho * np.sin(ang), brng.uniform(0, 0.05, n_base_markers) * rho], axis=1)
+    B_mocap = None if B is None else B @ T[:3, :3].T + T[:3, 3]
 
     # command times: move (min-jerk, duration from the largest stroke fraction), then hold
     lo, hi = spec.control_bounds()
@@ -281,7 +297,7 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         return off
 
     truth = Truth(spec.name, spec.parameter_names, td_true, spec.nominal_td(), T, names, S, all_terms,
-                  noise, occlusion, seed, description)
+                  noise, occlusion, seed, description, base_names, B)
 
     def markers_of(q, X, moff):
         R = matrix_from_quat(q)
@@ -300,8 +316,11 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         counts = rng.binomial(n_avg, 1 - occlusion, size=(N, n_markers)).astype(float)
         Y = markers_of(q, X, m_off) + rng.normal(size=(N, n_markers, 3)) * noise / np.sqrt(np.maximum(counts, 1))[..., None]
         Y[counts == 0] = np.nan
+        base_avg = None
+        if B_mocap is not None:
+            base_avg = B_mocap + brng.normal(size=B_mocap.shape) * noise / np.sqrt(n_avg * N)
         poses = PoseSet(platform=spec.name, controls=U, markers=Y, marker_names=names, description=description,
-                        t=t_cmd, n_samples=counts, length_unit=length_unit, source="simulated",
+                        base_markers=base_avg, t=t_cmd, n_samples=counts, length_unit=length_unit, source="simulated",
                         extras={"row": np.arange(N), "direction": commands.extras["direction"],
                                 "last_step": commands.extras["last_step"], "elapsed": commands.extras["elapsed"],
                                 "settle_time": np.full(N, 0.5 * hold_s)})
@@ -342,20 +361,27 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     Y[_occlusion_mask(rng, len(tm), n_markers, occlusion, max(1, int(0.1 * mocap_rate_hz)))] = np.nan
     # keep 1 um steps, as the files do, so in-memory and written sessions agree
     Y = np.round(Y * 1e6) / 1e6
+    YB = None
+    if B_mocap is not None:
+        YB = B_mocap[None] + brng.normal(size=(len(tm),) + B_mocap.shape) * noise
+        YB[_occlusion_mask(brng, len(tm), n_base_markers, occlusion, max(1, int(0.1 * mocap_rate_hz)))] = np.nan
+        YB = np.round(YB * 1e6) / 1e6
     traj = Trajectory(t_cmd, U, t_arrive, t_end, evaluate)
     imu_data = imu(traj, rng) if imu is not None else None
 
     from platkit.io.session import Session
 
     sess = Session(folder=Path("simulated"), platform=spec.name, spec=spec, description=None,
-                   length_unit=length_unit, time_unit="s", marker_names=names, base_marker_names=[],
+                   length_unit=length_unit, time_unit="s", marker_names=names, base_marker_names=base_names,
                    mocap_rate_hz=mocap_rate_hz, imu=None, moving_link=None, notes="",
-                   command_t=t_cmd, commands=U, marker_t=tm, markers=Y, markers_source=Path("simulated"))
+                   command_t=t_cmd, commands=U, marker_t=tm, markers=Y, base_markers=YB,
+                   markers_source=Path("simulated"))
     poses, report = settle(sess, settle_options)
     poses.source = "simulated"
     poses.description = description
     plan_info.update(settle_sigma_m=report.sigma_m, kept=report.n_kept, dropped=len(report.dropped))
-    return Simulation(spec, poses, truth, t_cmd, U, tm, Y, traj, mocap_rate_hz, length_unit, imu_data, plan_info)
+    return Simulation(spec, poses, truth, t_cmd, U, tm, Y, traj, mocap_rate_hz, length_unit, imu_data, plan_info,
+                      base_markers=YB)
 
 
 # ----------------------------------------------------------------------------- files
@@ -385,6 +411,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
     s = length_scale(unit)
     ldig = 3 if unit == "mm" else 6
     names = sim.truth.marker_names
+    bnames = sim.truth.base_marker_names
     out = Path(out)
     ctrl_digits = [ldig if c.unit == "m" else 9 for c in spec.controls]
     V = controls_from_si(spec, sim.commands, unit)
@@ -394,7 +421,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             "description": None,
             "units": {"length": unit, "time": "s"},
             "markers": names,
-            "base_markers": [],
+            "base_markers": list(bnames),
             "mocap_rate_hz": float(sim.mocap_rate_hz),
             "imu": None,
             "moving_link": moving_link,
@@ -408,7 +435,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             entry["description"] = desc.name
         rows = [[f"{t:.6f}"] + [_fmt(v, d) for v, d in zip(row, ctrl_digits)] for t, row in zip(sim.command_t, V)]
         (tmp / "commands.csv").write_text(_csv_text(["t"] + spec.control_names, rows), encoding="utf-8")
-        mcols = [f"{m}_{a}" for m in names for a in "xyz"]
+        mcols = [f"{m}_{a}" for m in names + bnames for a in "xyz"]
         if poses_only or sim.markers is None:
             p = sim.poses
             Vp = controls_from_si(spec, p.controls, unit)
@@ -418,12 +445,15 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             for i in range(p.n_poses):
                 r = [_fmt(v, d) for v, d in zip(Vp[i], ctrl_digits)]
                 r += [_fmt(v / s, ldig) for v in p.markers[i].reshape(-1)]
+                if bnames:
+                    r += [_fmt(v / s, ldig) for v in p.base_markers.reshape(-1)]
                 r += [str(int(n)) for n in p.n_samples[i]]
                 rows.append(r)
             header = spec.control_names + mcols + [f"{m}_n" for m in names]
             (tmp / "poses.csv").write_text(_csv_text(header, rows), encoding="utf-8")
         else:
-            Y = sim.markers.reshape(len(sim.marker_t), -1) / s
+            Y = sim.markers if sim.base_markers is None else np.concatenate([sim.markers, sim.base_markers], axis=1)
+            Y = Y.reshape(len(sim.marker_t), -1) / s
             rows = [[f"{t:.6f}"] + [_fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
             (tmp / "markers.csv").write_text(_csv_text(["t"] + mcols, rows), encoding="utf-8")
         if sim.imu is not None:

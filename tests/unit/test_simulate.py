@@ -206,3 +206,20 @@ def test_serial_chain_link_options_travel_with_the_session(tmp_path):
     assert s.moving_link == "forearm_link" and s.spec.moving_frame == "forearm_link"
     assert s.spec.n_u == 3
     assert load_poses(folder).n_poses == 6
+
+
+@pytest.mark.parametrize("poses_only", [False, True])
+def test_base_markers_are_recorded_and_pin_the_transform(tmp_path, poses_only):
+    spec = get_platform("psvr")
+    folder = simulate_session(spec, tmp_path / "b", seed=4, n_poses=6, mocap_rate_hz=30, n_base_markers=3,
+                              poses_only=poses_only)
+    truth = yaml.safe_load((folder / "truth.yaml").read_text())
+    B = np.array([truth["base_markers"][n] for n in ("B1", "B2", "B3")])
+    T = np.array(truth["mocap_from_base"])
+    poses = load_poses(folder)
+    assert poses.base_markers.shape == (3, 3)
+    np.testing.assert_allclose(poses.base_markers, B @ T[:3, :3].T + T[:3, 3], atol=0.05e-3)
+    # without base markers the rest of the simulation is unchanged
+    a = simulate(spec, seed=4, n_poses=6, raw=False)
+    b = simulate(spec, seed=4, n_poses=6, raw=False, n_base_markers=2)
+    np.testing.assert_array_equal(a.poses.markers, b.poses.markers)
