@@ -72,6 +72,21 @@ def test_metres_and_millimetres_read_the_same(tmp_path, stewart):
     assert a.length_unit == "m" and b.length_unit == "mm"
 
 
+def test_milliseconds_are_converted(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "time: s", "time: ms")
+    for name in ("commands.csv", "markers.csv"):
+        lines = _lines(folder / name)
+        out = [lines[0]]
+        for line in lines[1:]:
+            cells = line.split(",")
+            out.append(",".join([f"{float(cells[0]) * 1000:.3f}"] + cells[1:]))
+        (folder / name).write_text("\n".join(out) + "\n")
+    s = load_session(folder)
+    np.testing.assert_allclose(s.marker_t, session_dir[1].marker_t, atol=1e-6)
+    np.testing.assert_allclose(s.command_t, session_dir[1].command_t, atol=1e-6)
+
+
 def test_missing_units_is_an_error(session_dir, tmp_path):
     folder = _copy(session_dir[0], tmp_path)
     _edit(folder / "session.yaml", "units:\n  length: mm\n  time: s\n", "")
