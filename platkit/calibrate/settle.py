@@ -38,6 +38,8 @@ class SettleOptions:
     min_still_s: float = 0.25  # a pose needs the platform still at least this long
     false_alarm: float = 1e-4  # probability a still sample is called moving
     gap_samples: int = 2  # moving samples tolerated inside a still stretch
+    end_slack_s: float = 0.2  # the still stretch may end this long before the next command
+                              # (motion starting early: a clock offset between the two files)
     sigma_m: float | None = None  # marker noise per coordinate; None: estimated
 
 
@@ -169,9 +171,13 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
         seg = X[a:b]
         run = _last_still_run(still_mask(seg, n, sigma, opt.false_alarm), opt.gap_samples)
         length = 0 if run is None else run[1] - run[0]
-        if run is None or length < min_samples or run[1] < (b - a) - opt.gap_samples - 1:
-            held = 0.0 if run is None or run[1] < (b - a) - opt.gap_samples - 1 else length * dt
-            dropped.append((i, f"never settled: still for {held:.2f} s before the next command, "
+        slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * rate)))
+        if run is not None and length >= min_samples and run[1] < (b - a) - slack:
+            dropped.append((i, f"moved again {(b - a - run[1]) * dt:.2f} s before the next command "
+                               f"(after {length * dt:.2f} s still); the stand did not hold the command"))
+            continue
+        if run is None or length < min_samples:
+            dropped.append((i, f"never settled: still for {length * dt:.2f} s before the next command, "
                                f"{opt.min_still_s:.2f} s needed"))
             continue
         w = seg[run[0]:run[1]]

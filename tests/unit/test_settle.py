@@ -96,6 +96,20 @@ def test_a_command_that_never_settles_is_dropped_with_a_reason():
     np.testing.assert_array_equal(poses.extras["row"], [0, 1, 3, 4, 5])
 
 
+def test_motion_shortly_before_the_next_command_is_tolerated():
+    rng = np.random.default_rng(8)
+    targets = rng.uniform(-0.2, 0.2, size=(5, 3))
+    t_cmd, t, X, truth = _stream(targets, [1.5] * 5, rng)
+    # the motion-capture clock runs 0.1 s behind the command log: every move starts 0.1 s "early"
+    poses, _ = settle(_session(t_cmd + 0.1, t, X))
+    assert poses.n_poses == 5
+    assert np.max(np.abs(poses.markers[1:] - truth[1:])) < 0.15e-3
+    # 0.5 s early is not a clock offset: the stand left the command
+    poses, _ = settle(_session(t_cmd + 0.5, t, X))
+    assert [r for r, _ in poses.dropped] == [0, 1, 2, 3]
+    assert all("moved again" in why for _, why in poses.dropped)
+
+
 def test_a_recording_that_never_settles_is_an_error():
     rng = np.random.default_rng(4)
     t = np.arange(0, 10, 0.01)
