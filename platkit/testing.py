@@ -101,4 +101,34 @@ def check_platform(spec: PlatformSpec, n_samples: int = 20, seed: int = 0, tol_p
         err = float(np.max(np.abs(u_newton - u) / span))
         assert err < 1e-8, f"{spec.name}: closed-form and Newton inverse kinematics differ by {err:.3g} of a stroke"
         report["closed_form_vs_newton"] = err
+
+    # 5. velocity and acceleration kinematics against finite differences of forward kinematics
+    #    along the control path u(t) = u + t u' + t^2 u''/2
+    worst_v = worst_a = 0.0
+    for u in _random_controls(spec, model, rng, 3):
+        fk = model.forward(u, td)
+        udot = rng.normal(0, 0.02, spec.n_u) * span
+        uddot = rng.normal(0, 0.02, spec.n_u) * span
+        pdot, pddot = model.forward_acceleration(u, udot, uddot, td, p=fk.p)
+        pdot_only = model.forward_velocity(u, udot, td, p=fk.p)
+        h = 1e-4
+
+        def p_at(t):
+            return model.forward(u + t * udot + 0.5 * t * t * uddot, td, guess=fk.p, strict=False).p
+
+        p_plus, p_minus = p_at(h), p_at(-h)
+        fd_v = (p_plus - p_minus) / (2 * h)
+        fd_a = (p_plus - 2 * fk.p + p_minus) / h**2
+        scale_v = max(1.0, float(np.max(np.abs(fd_v))))
+        scale_a = max(1.0, float(np.max(np.abs(fd_a))))
+        worst_v = max(worst_v, float(np.max(np.abs(pdot - fd_v))) / scale_v, float(np.max(np.abs(pdot_only - fd_v))) / scale_v)
+        worst_a = max(worst_a, float(np.max(np.abs(pddot - fd_a))) / scale_a)
+        # and back: the inverse rate solution reproduces the control rates where u is determined
+        if spec.n_u <= spec.n_p:
+            udot_back, uddot_back = model.inverse_acceleration(fk.p, pdot, pddot, td, u=u)
+            worst_v = max(worst_v, float(np.max(np.abs(udot_back - udot) / span)))
+            worst_a = max(worst_a, float(np.max(np.abs(uddot_back - uddot) / span)))
+    assert worst_v < 1e-6, f"{spec.name}: velocity kinematics differ from finite differences by {worst_v:.3g}"
+    assert worst_a < 1e-4, f"{spec.name}: acceleration kinematics differ from finite differences by {worst_a:.3g}"
+    report.update(velocity_fd_error=worst_v, acceleration_fd_error=worst_a)
     return report
