@@ -450,7 +450,7 @@ def _weighted(state: FitState, weights, active, prior=None):
     return rw, Jw
 
 
-def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_iter=60, ftol=1e-12, xtol=1e-10,
+def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_iter=60, ftol=1e-10, xtol=1e-10,
                         progress: Progress | None = None, stage: str = "iteration", it0: int = 0) -> LMResult:
     """Minimise 1/2 sum_nm w_nm |r_nm(z)|^2 over z[active], from z0 (Marquardt-scaled LM)."""
     z = np.array(z0, float)
@@ -458,7 +458,7 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
     st = problem.evaluate(z)
     rw, Jw = _weighted(st, weights, active, problem.prior_rows(z))
     cost = 0.5 * rw @ rw
-    lam = 1e-3
+    lam = 1e-5
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
@@ -480,14 +480,14 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
             if np.isfinite(cost_new) and cost_new <= cost:
                 accepted = True
                 break
-            lam *= 5
+            lam *= 10
         if not accepted:
             converged = True  # no descent direction left: at a minimum to working precision
             break
         small_step = np.linalg.norm(step * np.sqrt(D)) <= xtol * (np.linalg.norm(rw) + xtol)
         small_gain = (cost - cost_new) <= ftol * max(cost, 1e-300)
         z, st, rw, Jw, cost = z_new, st_new, rw_new, Jw_new, cost_new
-        lam = max(lam / 4, 1e-12)
+        lam = max(lam / 10, 1e-12)
         if progress is not None:
             n_w = max(1.0, float(np.sum(weights * np.isfinite(st.r).all(axis=2))))
             progress(stage, {"iteration": it0 + it, "rms": float(np.sqrt(2 * cost / n_w)), "lambda": lam})
@@ -580,6 +580,7 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
 def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options, td_start,
                ridge_m) -> Calibration:
     t0 = time.perf_counter()
+    free_td = free_mask(spec, free)  # bad names are bad input before any work
     problem = CalibrationProblem(spec, poses, terms)
     td0 = spec.nominal_td() if td_start is None else np.asarray(td_start, float)
     z = problem.initial_registration(td0)

@@ -21,33 +21,36 @@ def add_parser(sub):
                    help="comma-separated parameter names or groups to fit (default: every free parameter); "
                         "'none' fits only the base-to-mocap transform and the markers")
     p.add_argument("--folds", type=int, default=0, help="K-fold held-out prediction error (K >= 2; default none)")
+    p.add_argument("--max-evaluations", type=int, default=None,
+                   help="--method paper: Nelder-Mead budget (default 200 per parameter)")
     p.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier down-weighting)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--out", required=True, help="output folder (calibration.yaml, report.json, report.html)")
     return p
 
 
-def progress_printer(unit: str, stream=sys.stderr):
-    """A progress callback that prints one line per event to ``stream``."""
+def progress_printer(unit: str, stream=None):
+    """A progress callback that prints one line per event to ``stream`` (default: stderr)."""
     s = length_scale(unit)
 
     def show(stage: str, info: dict) -> None:
+        out = stream if stream is not None else sys.stderr
         if stage in ("registration", "iteration"):
             print(f"calibrate: {'registration' if stage == 'registration' else 'fit':<12} iteration {info['iteration']:>3}  rms {info['rms'] / s:.4g} {unit}",
-                  file=stream, flush=True)
+                  file=out, flush=True)
         elif stage == "identifiability":
             held = info.get("held") or []
             print(f"calibrate: {info['n_identifiable']} unknowns identifiable; held at nominal: "
-                  f"{', '.join(held) if held else 'none'}", file=stream, flush=True)
+                  f"{', '.join(held) if held else 'none'}", file=out, flush=True)
         elif stage == "fold":
             print(f"calibrate: fold {info['fold']}/{info['folds']}  held-out rms {info['rms'] / s:.4g} {unit}",
-                  file=stream, flush=True)
+                  file=out, flush=True)
         elif stage == "paper":
             print(f"calibrate: nelder-mead evaluation {info['evaluations']:>5}  J {info['J']:.6g}",
-                  file=stream, flush=True)
+                  file=out, flush=True)
         elif stage == "done":
             print(f"calibrate: rms {info['rms_before'] / s:.4g} -> {info['rms_after'] / s:.4g} {unit} "
-                  f"in {info['time_s']:.2f} s", file=stream, flush=True)
+                  f"in {info['time_s']:.2f} s", file=out, flush=True)
 
     return show
 
@@ -81,7 +84,10 @@ def run(args) -> int:
     if args.method == "paper":
         from platkit.calibrate.paper import calibrate_paper
 
-        cal = calibrate_paper(poses, spec, free=free, progress=progress, platform_options=options)
+        if args.max_evaluations is not None and args.max_evaluations < 1:
+            raise BadInput(f"--max-evaluations {args.max_evaluations}: use a positive number")
+        cal = calibrate_paper(poses, spec, free=free, max_evaluations=args.max_evaluations, progress=progress,
+                              platform_options=options)
     else:
         from platkit.calibrate.estimate import calibrate
 
