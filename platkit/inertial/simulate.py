@@ -202,3 +202,30 @@ def write_platform_imu_session(sim: dict, spec, out: str | Path, truth_imu: dict
             plain = {k: np.asarray(v, float).tolist() for k, v in truth_imu.items()}
             (tmp / "truth_imu.yaml").write_text(yaml.safe_dump(plain, sort_keys=False))
     return Path(out)
+
+
+def imu_for_trajectory(rate_hz: float = 200.0, imu_from_platform=None, bias=None, bias_drift: float = 0.0,
+                       scale=None, misalignment=None, noise=(0.002, 0.02), lever_arm=None):
+    """A callable ``imu(trajectory, rng) -> dict`` for :func:`platkit.simulate.simulate`'s ``imu``
+    hook: it samples the true trajectory (``trajectory.at(t)`` -> q, X) at ``rate_hz`` from 0 to
+    ``trajectory.end_t`` and returns :func:`imu_from_motion`'s arrays plus ``entry`` (the
+    session.yaml ``imu`` mapping), ``q_base_from_platform`` (N, 4) (the truth for
+    truth_orientation.csv) and ``truth_imu`` (the sensor's true errors for truth_imu.yaml)."""
+
+    def imu(trajectory, rng):
+        t = np.arange(0.0, float(trajectory.end_t), 1.0 / rate_hz)
+        q, X = trajectory.at(t)
+        out = imu_from_motion(t, q, X, imu_from_platform, bias, bias_drift, scale, misalignment, noise, rng, lever_arm)
+        R = np.eye(3) if imu_from_platform is None else np.asarray(imu_from_platform, float)
+        if R.shape == (4,):
+            R = matrix_from_quat(R)
+        b = _six(bias, 0.0, "bias")
+        s = _six(scale, 1.0, "scale")
+        out["entry"] = {"rate_hz": float(rate_hz), "frame": "imu"}
+        out["q_base_from_platform"] = quat_normalize(q)
+        out["truth_imu"] = {"gyr_bias_rad_s": b[:3].tolist(), "acc_bias_m_s2": b[3:].tolist(),
+                            "gyr_scale": s[:3].tolist(), "acc_scale": s[3:].tolist(),
+                            "sensor_from_platform": R.tolist()}
+        return out
+
+    return imu
