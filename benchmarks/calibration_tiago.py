@@ -1,0 +1,58 @@
+"""Real data: PAL TIAGo arm (shared/data/real/tiago) beside FIGAROH 1.0.2.
+
+    .venv/bin/python benchmarks/calibration_tiago.py [--data DIR]
+
+Fits three model levels on the training day (2021-11-30, 37 postures) and predicts the validation
+day (2021-11-26, 62 postures); prints the norm RMSE of point BL in mm, as FIGAROH reports it.
+Two platkit rows per level: the four points of the hand body fitted together (platkit's way) and
+point BL alone (FIGAROH's way, a like-for-like check). Plain least squares (no outlier
+weighting), as FIGAROH.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.settle import load_poses
+from platkit.calibrate.tiago import FIGAROH, LEVELS, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir
+from platkit.io.session import load_session
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=None)
+    args = ap.parse_args(argv)
+    data = Path(args.data) if args.data else default_data_dir()
+    with tempfile.TemporaryDirectory() as work:
+        sets = {}
+        for role, name in (("training", TRAINING), ("validation", VALIDATION)):
+            folder = convert(data / name, Path(work) / role)
+            s = load_session(folder)
+            sets[role] = load_poses(folder, spec=s.spec)
+        spec = s.spec
+    bl = {k: PoseSet(p.platform, p.controls, p.markers[:, :1], ["BL"], length_unit="m") for k, p in sets.items()}
+    print("norm RMSE of point BL, mm (fit on 2021-11-30, validate on 2021-11-26)")
+    print(f"{'model':<16} {'fit on':<10} {'unknowns':>8} {'td est.':>7} {'train':>7} {'valid':>7} "
+          f"{'FIGAROH n':>9} {'train':>7} {'valid':>7} {'time s':>7}")
+    for level, groups in LEVELS.items():
+        f = FIGAROH[level]
+        for label, train, valid in (("4 points", sets["training"], sets["validation"]),
+                                    ("BL alone", bl["training"], bl["validation"])):
+            t = time.perf_counter()
+            cal = calibrate(train, spec, free=groups, robust=False)
+            dt = time.perf_counter() - t
+            n_td = sum(st == "estimated" for st in cal.td_status)
+            print(f"{level:<16} {label:<10} {n_td + 6 + 3 * cal.n_markers:>8d} {n_td:>7d} {bl_rmse_mm(cal, train):>7.2f} "
+                  f"{bl_rmse_mm(cal, valid):>7.2f} {f['parameters']:>9d} {f['training_mm']:>7.2f} "
+                  f"{f['validation_mm']:>7.2f} {dt:>7.2f}")
+    print("unknowns: joint parameters + 6 (base in mocap) + 3 per point; FIGAROH n: its parameter count")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
