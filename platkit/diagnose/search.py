@@ -31,7 +31,7 @@ from platkit.calibrate.terms import ModelTerm
 from platkit.diagnose.effects import Effect, effect_library, with_history
 from platkit.diagnose.locate import Location, located, locate
 from platkit.diagnose.probes import space_probe, time_probe
-from platkit.diagnose.stats import bic, holm, paired_improvement, score_test
+from platkit.diagnose.stats import bic, column_basis, holm, paired_improvement, score_test
 from platkit.model import PlatformSpec, length_scale
 
 
@@ -175,10 +175,11 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet, candidates: list[ModelT
     r, J = _weighted_system(fit, st.J)
     Jb = J[:, :n_base][:, fit.active]
     dof = len(r) - int(fit.active.sum())
+    basis = column_basis(Jb)
     out, k = [], n_base
     for c in candidates:
         K = len(c.initial)
-        F, p, sep = score_test(r, Jb, J[:, k:k + K], dof)
+        F, p, sep = score_test(r, Jb, J[:, k:k + K], dof, basis=basis)
         out.append((F, p, sep, st.J[..., k:k + K]))
         k += K
     return out
@@ -267,7 +268,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         for (eff, term), (F, p, sep, _), pa in zip(cands, scr, p_adj):
             table.append({"effect": eff.name, "where": _where_text(term.where), "F": F, "p_adjusted": float(pa),
                           "separability": sep})
-            if sep < opt.min_separability and pa < 1:
+            if sep < opt.min_separability:
                 key = (eff.name, _where_text(term.where))
                 not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep}
         order = [i for i in np.argsort([s[1] for s in scr])

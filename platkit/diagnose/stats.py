@@ -86,17 +86,24 @@ def paired_improvement(before: np.ndarray, after: np.ndarray) -> float:
     return float(stats.wilcoxon(d, alternative="greater").pvalue)
 
 
-def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int) -> tuple[float, float, float]:
+def column_basis(J: np.ndarray) -> np.ndarray:
+    """(n, rank) orthonormal basis of the column space of J (n, p)."""
+    U, sv, _ = np.linalg.svd(J, full_matrices=False)
+    return U[:, sv > sv[0] * 1e-10] if sv.size else U
+
+
+def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int,
+               basis: np.ndarray | None = None) -> tuple[float, float, float]:
     """Lagrange-multiplier test that columns ``J_new`` (n, k) would reduce the residual ``r``
     (n,) of a least-squares fit with Jacobian ``J_base`` (n, p) (all weighted alike).
+    ``basis``: column_basis(J_base), when many candidates are tested against one fit.
 
     Returns (F, p, separability): F = (|P r|^2 / k') / ((|r|^2 - |P r|^2) / (dof - k')) with P
     the projection on the part of J_new orthogonal to J_base and k' its rank; separability is the fraction of
     J_new's size outside J_base's column space (near 0: the term cannot be told apart from the
     geometry on this design).
     """
-    U, sv, _ = np.linalg.svd(J_base, full_matrices=False)
-    U = U[:, sv > sv[0] * 1e-10] if sv.size else U
+    U = column_basis(J_base) if basis is None else basis
     Jp = J_new - U @ (U.T @ J_new)
     size = np.linalg.norm(J_new, axis=0)
     sep = float(np.min(np.linalg.norm(Jp, axis=0) / np.maximum(size, 1e-300))) if J_new.size else 0.0

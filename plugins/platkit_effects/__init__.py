@@ -60,6 +60,12 @@ def _actuator_where(spec: PlatformSpec, i: int) -> dict:
     return {"actuator": spec.control_names[i], "actuator_index": i, "unit": spec.controls[i].unit}
 
 
+def _size(spec: PlatformSpec, i: int, size: float | None, default: float) -> float:
+    """A simulation size in SI for control i: mm -> m for length controls, else the control's unit."""
+    size = default if size is None else float(size)
+    return size * 1e-3 if spec.controls[i].unit == "m" else size
+
+
 def _number(where: dict, key: str, effect: str, positive: bool = False) -> float:
     v = where.get(key)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or (positive and not v > 0):
@@ -99,6 +105,11 @@ class Backlash(Effect):
     def from_dict(self, data, spec=None):
         i, name, unit = _actuator(spec, data, self.name)
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit})
+
+    def simulation_term(self, spec, size, rng, commands):
+        """(term, theta) for the simulator: ``size`` the full play (mm for length controls)."""
+        i = int(rng.integers(spec.n_u))
+        return self.term(i, _actuator_where(spec, i)), np.array([0.5 * _size(spec, i, size, 1.0)])
 
 
 # ---------------------------------------------------------------------------- compliance
@@ -282,6 +293,21 @@ class Compliance(Effect):
         i, _, _ = _actuator(spec, data, self.name)
         return self.term(spec, i)
 
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
+        loads = cached_loads(spec, commands.controls)
+        if _urdf_of(spec) is None:
+            term = self.term(spec, None)
+            j = int(np.argmax(np.max(np.abs(loads), axis=0)))
+        else:
+            span = np.ptp(loads, axis=0)
+            j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+            term = self.term(spec, j)
+        peak = float(np.max(np.abs(loads[:, j])))
+        if not peak > 0:
+            raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
+        return term, np.array([_size(spec, j, size, 1.0) / peak])
+
 
 # ---------------------------------------------------------------------------- thermal drift
 @dataclass
@@ -311,6 +337,12 @@ class ThermalDrift(Effect):
 
     def from_dict(self, data, spec=None):
         return self.term()
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: drift of the moving frame in mm per hour, in a random horizontal-ish direction."""
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        return self.term(), (2.0 if size is None else float(size)) * 1e-3 / 3600.0 * d
 
 
 # ---------------------------------------------------------------------------- cyclic error
@@ -364,6 +396,17 @@ class CyclicError(Effect):
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit},
                          _number(_where(data), "period", self.name, positive=True))
 
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: amplitude (mm for lengths); period: one of PERIODS the commands span."""
+        options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
+                   if np.ptp(commands.controls[:, i]) > P / 2]
+        if not options:
+            raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
+        i, P = options[int(rng.integers(len(options)))]
+        a = _size(spec, i, size, 0.3)
+        ph = rng.uniform(0, 2 * np.pi)
+        return self.term(i, _actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
+
 
 # ---------------------------------------------------------------------------- scale nonlinearity
 @dataclass
@@ -415,6 +458,14 @@ class ScaleNonlinearity(Effect):
             raise BadInput("effect 'scale_nonlinearity': where.travel must be [lower, upper] with lower < upper")
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit}, *travel)
 
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the largest deviation from linear travel, at the stroke ends (mm for lengths)."""
+        terms = self.candidates(spec, commands)
+        if not terms:
+            raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
+        t = terms[int(rng.integers(len(terms)))]
+        return t, np.array([_size(spec, t.index, size, 1.0), 0.0])
+
 
 # ---------------------------------------------------------------------------- settling lag
 @dataclass
@@ -444,6 +495,10 @@ class SettlingLag(Effect):
 
     def from_dict(self, data, spec=None):
         return self.term()
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the fraction of the last step not yet made."""
+        return self.term(), np.array([0.003 if size is None else float(size)])
 
 
 # ---------------------------------------------------------------------------- marker slip
@@ -511,6 +566,15 @@ class MarkerSlip(Effect):
             raise BadInput("effect 'marker_slip': where.marker_index must be an integer >= 0")
         return self.term(where.get("marker", m), m, _number(where, "from_time_s", self.name))
 
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the jump in mm, halfway through the session, of a random marker."""
+        m = int(rng.integers(commands.n_markers))
+        t = history(commands, "elapsed")
+        t_slip = 0.5 * (t[len(t) // 2 - 1] + t[len(t) // 2])
+        d = rng.normal(size=3)
+        d *= (2.0 if size is None else float(size)) * 1e-3 / np.linalg.norm(d)
+        return self.term(commands.marker_names[m], m, t_slip), d
+
 
 # ---------------------------------------------------------------------------- base tilt
 @dataclass
@@ -542,6 +606,11 @@ class BaseTilt(Effect):
 
     def from_dict(self, data, spec=None):
         return self.term()
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the tilt in mrad, about a random horizontal axis."""
+        a = rng.uniform(0, 2 * np.pi)
+        return self.term(), (2.0 if size is None else float(size)) * 1e-3 * np.array([np.cos(a), np.sin(a)])
 
 
 EFFECTS = [Backlash(), Compliance(), ThermalDrift(), CyclicError(), ScaleNonlinearity(), SettlingLag(), MarkerSlip(),
