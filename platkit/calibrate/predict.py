@@ -51,10 +51,10 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     N = U.shape[0]
     poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
                     marker_names=list(cal.marker_names), t=t, length_unit=cal.length_unit)
-    if cal.terms:
-        from platkit.calibrate.settle import direction_of_last_motion
+    if cal.terms:  # history- and time-dependent terms read the rows' order and times
+        from platkit.diagnose.effects import with_history
 
-        poses.extras = {"row": np.arange(N), "direction": direction_of_last_motion(U)}
+        poses = with_history(poses, cal.spec)
     markers, q, X, ok = predict_markers(cal, U, poses)
     s = length_scale(cal.length_unit)
     header = list(cal.spec.control_names)

@@ -240,7 +240,7 @@ def read_calibration(path: str | Path) -> Calibration:
     res = data.get("residual") or {}
     terms, theta, theta_std = [], [], []
     for k, tdict in enumerate(data.get("terms") or []):
-        term, th, sd = _term_from_dict(tdict, path, k)
+        term, th, sd = _term_from_dict(tdict, path, k, spec)
         terms.append(term)
         theta.append(th)
         theta_std.append(sd)
@@ -258,25 +258,16 @@ def read_calibration(path: str | Path) -> Calibration:
     )
 
 
-def _term_from_dict(tdict, path: Path, k: int):
-    """Rebuild a model term through the effect that made it (the effect's ``from_dict``)."""
-    from platkit.plugins import default_host
-
+def _term_from_dict(tdict, path: Path, k: int, spec: PlatformSpec):
+    """Rebuild a model term through the diagnosis effect library (the effect's ``from_dict``)."""
     if not isinstance(tdict, dict) or "effect" not in tdict or not isinstance(tdict.get("parameters"), dict):
         raise BadInput(f"{path}: terms[{k}] must have 'effect' and 'parameters'")
-    effects = default_host().effects()
-    effect = effects.get(tdict["effect"])
-    if effect is None or not hasattr(effect, "from_dict"):
-        raise BadInput(f"{path}: terms[{k}] is a {tdict['effect']!r} term, which no installed effect rebuilds "
-                       f"(installed: {', '.join(sorted(effects)) or 'none'})")
-    term = effect.from_dict(tdict)
-    try:
-        theta = np.array([float(tdict["parameters"][n]["value"]) for n in term.parameter_names])
-        std = np.array([np.nan if tdict["parameters"][n].get("std") is None else float(tdict["parameters"][n]["std"])
-                        for n in term.parameter_names])
-    except (KeyError, TypeError, ValueError):
-        raise BadInput(f"{path}: terms[{k}].parameters must give a numeric value for each of {term.parameter_names}") from None
-    return term, theta, std
+    from platkit.diagnose.effects import term_from_dict
+
+    term, theta = term_from_dict(tdict, spec, where=f"{path}: terms[{k}]")
+    std = np.array([np.nan if (tdict["parameters"].get(n) or {}).get("std") is None
+                    else float(tdict["parameters"][n]["std"]) for n in term.parameter_names])
+    return term, np.asarray(theta, float), std
 
 
 def quat_of(cal: Calibration) -> np.ndarray:

@@ -175,3 +175,27 @@ def test_example_session_recovers_the_simulated_truth(tmp_path, capsys):
         z.append((cal.td[i] - truth["parameters"][f"dL{k}"]["value"]) / cal.td_std[i])
     z = np.array(z)
     assert np.all(np.abs(z) < 4) and np.sum(z ** 2) < 22.5, z  # chi-square(6) 0.999 quantile 22.5
+
+
+def test_model_terms_survive_the_file_and_predict(stewart_session, tmp_path):
+    from platkit.calibrate.estimate import calibrate, predict_markers
+    from platkit.calibrate.report import write_outputs
+    from platkit.diagnose.effects import effect_library, with_history
+    from platkit.io.session import load_session
+    from platkit.calibrate.settle import load_poses
+
+    folder, _ = stewart_session
+    spec = get_platform("stewart")
+    poses = with_history(load_poses(folder, spec=load_session(folder).spec), spec)
+    term = effect_library()["backlash"].candidates(spec, poses)[0]
+    cal = calibrate(poses, spec, terms=[term])
+    write_outputs(cal, tmp_path / "cal", poses)
+    back = read_calibration(tmp_path / "cal" / "calibration.yaml")
+    assert [t.effect for t in back.terms] == ["backlash"] and back.terms[0].where == term.where
+    assert back.theta[0] == pytest.approx(cal.theta[0], rel=1e-9, abs=1e-15)
+    out = tmp_path / "pred.csv"
+    assert main(["predict", "--calibration", str(tmp_path / "cal" / "calibration.yaml"), "--commands",
+                 str(folder / "commands.csv"), "--out", str(out)]) == 0
+    pred = np.array([r for r in csv.reader(out.open())][1:], float)
+    expected, _, _, _ = predict_markers(cal, poses.controls, poses)
+    assert pred[:, 6:18] == pytest.approx(expected.reshape(len(expected), -1) * 1e3, abs=1e-6)
