@@ -109,7 +109,7 @@ def run_seed(seed: int, spec, workdir: Path) -> dict:
                                lag_s=LAG_S, rate_hz=RATE, **errors)
     out: dict = {"seed": seed}
     folder = write_platform_imu_session(sim, spec, workdir / f"s{seed}",
-                                        {"gyr_bias_rad_s": errors["bias"][:3],
+                                        {"gyr_bias_rad_s": sim["gyr_bias"][-1],  # drifted: the bias at the end
                                          "sensor_from_platform": errors["imu_from_platform"]})
     # a calibration file for the calibrated model: the model's td as a platkit calibration.yaml
     cal_path = write_calibration(spec, td_cal, workdir / f"cal{seed}")

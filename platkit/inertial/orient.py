@@ -5,8 +5,9 @@ the session has a platform), and optionally the truth:
 
 - ``truth_orientation.csv``: ``t,qw,qx,qy,qz``, the platform frame in the base frame (times on
   the session's clock, in its time unit), e.g. from motion capture or a simulation;
-- ``truth_imu.yaml``: the sensor's true errors, any of ``gyr_bias_rad_s`` (3), ``acc_bias_m_s2``
-  (3), ``gyr_scale`` (3), ``acc_scale`` (3), ``sensor_from_platform`` (3x3 rows).
+- ``truth_imu.yaml``: the sensor's true errors, any of ``gyr_bias_rad_s`` (3, the gyro bias at
+  the end of the recording, which the report compares with the estimate's last value),
+  ``acc_bias_m_s2`` (3), ``gyr_scale`` (3), ``acc_scale`` (3), ``sensor_from_platform`` (3x3 rows).
 
 Frames: the base frame has z up. The IMU's own axes are turned to the platform's by R_SP,
 taken from ``--imu-calibration`` or, in a session with commands, estimated from it (rotations
