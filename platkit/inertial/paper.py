@@ -40,13 +40,15 @@ class PaperParams:
     """Settings of :func:`estimate_paper`. None: found from the data (said in the result's info).
 
     ``window_s``: T of cases A and B. ``eps_omega`` (rad/s): the rest threshold on every gyro
-    component. ``axis_tolerance`` (rad): how far omega's direction may wander over T in case B.
+    component; found from the data it is capped at ``max_eps_omega`` (a recording that never
+    rests must not make slow motion count as rest). ``axis_tolerance`` (rad): how far omega's direction may wander over T in case B.
     ``min_rate_case_b`` (rad/s): below it the rotation axis is too noisy to use.
     ``gyr_cutoff_hz``/``acc_cutoff_hz``: the low-pass cut-offs.
     """
 
     window_s: float = 0.5
     eps_omega: float | None = None
+    max_eps_omega: float = math.radians(2.0)
     axis_tolerance: float = math.radians(3.0)
     min_rate_case_b: float = math.radians(10.0)
     gyr_cutoff_hz: float | None = None
@@ -104,7 +106,7 @@ def estimate_paper(imu: ImuStream, params: PaperParams | None = None) -> Orienta
     acc_fc = p.acc_cutoff_hz or cutoff_from_spectrum(imu.acc, rate).cutoff_hz
     gyr = lowpass(imu.gyr - np.asarray(p.gyro_bias, float), gyr_fc, rate)
     acc = lowpass(imu.acc, acc_fc, rate)
-    eps = p.eps_omega if p.eps_omega is not None else rest_threshold(imu.gyr - np.asarray(p.gyro_bias), rate)
+    eps = p.eps_omega if p.eps_omega is not None else min(rest_threshold(imu.gyr, rate), p.max_eps_omega)
     info.update(gyr_cutoff_hz=gyr_fc, acc_cutoff_hz=acc_fc, eps_omega=eps)
     k = max(2, int(round(p.window_s * rate)))
     acc_mean = _causal_mean(acc, k)

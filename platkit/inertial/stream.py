@@ -184,12 +184,16 @@ def check_stream(t, gyr, acc, source: str = "imu", max_repair_s: float = DEFAULT
             g = big[0]
             raise BadSession(f"{source}: line {_line(g + 1)}, column 't': a gap of {dts[g]:.4g} s in time "
                              f"(sampling interval {dt:.4g} s), more than the {max_repair_s:g} s that may be interpolated")
-        new_t = [t[:1]]
-        for k in range(len(dts)):
-            n_fill = int(round(dts[k] / dt)) - 1 if k in set(gaps.tolist()) else 0
+        pieces = []
+        prev = 0
+        for g in gaps:
+            n_fill = int(round(dts[g] / dt)) - 1
+            pieces.append(t[prev:g + 1])
             if n_fill > 0:
-                new_t.append(t[k] + dts[k] * np.arange(1, n_fill + 1) / (n_fill + 1))
-            new_t.append(t[k + 1:k + 2])
+                pieces.append(t[g] + dts[g] * np.arange(1, n_fill + 1) / (n_fill + 1))
+            prev = g + 1
+        pieces.append(t[prev:])
+        new_t = pieces
         t_full = np.concatenate(new_t)
         data = np.column_stack([np.interp(t_full, t, data[:, j]) for j in range(6)])
         repairs.append(f"{source}: {len(gaps)} short time gaps (longest {dts[gaps].max():.4g} s, first at line "

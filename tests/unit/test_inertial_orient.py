@@ -112,3 +112,33 @@ def test_missing_imu_and_bad_truth(sim_session, tmp_path, capsys):
     (folder / "imu.csv").unlink()
     assert main(["orient", str(folder), "--out", str(tmp_path / "o")]) == 2
     assert "imu.csv: file not found" in capsys.readouterr().err
+
+
+def test_imu_only_session_in_milliseconds(tmp_path):
+    """platform: null, time in ms: the sensor frame is the platform frame, heading relative."""
+    from platkit.geometry import quat_from_rpy
+    from platkit.inertial.simulate import imu_from_motion
+    from platkit.inertial.stream import write_imu_csv
+
+    t = np.arange(0, 40, 0.01)
+    on = t > 8
+    q = quat_from_rpy(0.2 * np.sin(0.9 * t) * on, 0.15 * np.sin(0.7 * t) * on, 0.3 * t * on)
+    sim = imu_from_motion(t, q, np.zeros((len(t), 3)), bias=[0.01, 0.0, -0.01, 0, 0, 0],
+                          noise=[0.002, 0.02], rng=np.random.default_rng(3))
+    folder = tmp_path / "s"
+    folder.mkdir()
+    (folder / "session.yaml").write_text("platform: null\nunits: {length: m, time: ms}\nimu: {rate_hz: 100}\n")
+    write_imu_csv(folder / "imu.csv", t * 1000.0, sim["gyr"], sim["acc"])
+    (folder / "truth_orientation.csv").write_text(
+        "t,qw,qx,qy,qz\n" + "\n".join(f"{ti * 1000:.6f},{a:.10f},{b:.10f},{c:.10f},{d:.10f}" for ti, (a, b, c, d) in zip(t, q)) + "\n")
+    out = tmp_path / "o"
+    assert main(["orient", str(folder), "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["rate_hz"] == pytest.approx(100.0)
+    assert report["truth"]["inclination_rmse_deg"] < 0.2
+    assert report["truth"]["total_rmse_heading_aligned_deg"] < 0.5
+    assert report["gyr_bias_source"] == "first rest of the recording"
+    assert any("sensor axes are taken as the platform axes" in w for w in report["warnings"])
+    rows = np.loadtxt(out / "orientation.csv", delimiter=",", skiprows=1)
+    assert rows[-1, 0] == pytest.approx(t[-1])  # seconds in the output
+    assert main(["orient", str(folder), "--method", "command-aided", "--out", str(out)]) == 2
