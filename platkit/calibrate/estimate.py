@@ -682,7 +682,6 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     })
     if folds and folds > 1:
         cal.heldout = kfold(problem, z, active, folds, robust, max_iter, progress)
-        cal.heldout["unit"] = "m"
     cal.time_s = time.perf_counter() - t0
     if progress is not None:
         progress("done", {"rms_before": rms_before, "rms_after": rms_after, "time_s": cal.time_s})
@@ -771,5 +770,20 @@ def point_errors(cal: Calibration, poses: PoseSet) -> np.ndarray:
     return np.linalg.norm(pred - poses.markers, axis=2)
 
 
-__all__ = ["calibrate", "kfold", "predict_markers", "point_errors", "free_mask", "CalibrationProblem",
+def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
+    """Held-out prediction of another session recorded in the same mocap frame: {'source',
+    'n_poses', 'rms' (m), 'rms_per_marker' {name: m}}. Markers are matched by name."""
+    missing = [m for m in cal.marker_names if m not in poses.marker_names]
+    if missing:
+        raise BadInput(f"{poses.source or 'validation session'}: has no marker {missing[0]!r} of the calibration")
+    order = [poses.marker_names.index(m) for m in cal.marker_names]
+    sub = PoseSet(poses.platform, poses.controls, poses.markers[:, order], list(cal.marker_names), t=poses.t,
+                  length_unit=poses.length_unit, source=poses.source, extras=dict(poses.extras))
+    d = point_errors(cal, sub)
+    per = {m: float(np.sqrt(np.nanmean(d[:, i] ** 2))) for i, m in enumerate(cal.marker_names)}
+    return {"source": poses.source, "n_poses": int(poses.n_poses), "rms": float(np.sqrt(np.nanmean(d ** 2))),
+            "rms_per_marker": per}
+
+
+__all__ = ["calibrate", "kfold", "predict_markers", "point_errors", "second_session_errors", "free_mask", "CalibrationProblem",
            "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]

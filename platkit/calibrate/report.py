@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.result import Calibration
+from platkit.calibrate.result import Calibration, heldout_in_unit
 from platkit.io.atomic import atomic_output_dir
 from platkit.model import length_scale
 
@@ -70,14 +70,7 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         d = np.linalg.norm(after, axis=2)
         out["max_error_after"] = _finite_or_none(np.nanmax(d) / s) if np.isfinite(d).any() else None
     if cal.heldout:
-        h = dict(cal.heldout)
-        for k in ("rms", "rms_inliers"):
-            if k in h and h[k] is not None:
-                h[k] = _finite_or_none(h[k] / s)
-        if "rms_per_fold" in h:
-            h["rms_per_fold"] = [_finite_or_none(v / s) for v in h["rms_per_fold"]]
-        h["unit"] = cal.length_unit
-        out["heldout"] = h
+        out["heldout"] = heldout_in_unit(cal.heldout, cal.length_unit)
     if "paper" in cal.extras:
         out["paper"] = cal.extras["paper"]
     return out
@@ -240,10 +233,14 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
         f"base-to-mocap transform and the markers fitted), <b>{cal.rms_after / s:.4g} {lu}</b> after. "
         f"Estimated noise per axis {cal.noise_sigma / s:.3g} {lu}.</p>",
     ]
-    if "heldout" in rep:
-        h = rep["heldout"]
-        parts.append(f"<p>Held-out ({h.get('folds')}-fold) prediction RMS: <b>{h.get('rms'):.4g} {lu}</b> "
-                     f"(inliers {h.get('rms_inliers'):.4g} {lu}).</p>")
+    h = rep.get("heldout") or {}
+    if h.get("folds"):
+        parts.append(f"<p>Held-out ({h['folds']}-fold) prediction RMS: <b>{h['rms']:.4g} {lu}</b> "
+                     f"(inliers {h['rms_inliers']:.4g} {lu}).</p>")
+    if h.get("second_session"):
+        v = h["second_session"]
+        parts.append(f"<p>Prediction of a second session ({html.escape(str(v['source']))}, {v['n_poses']} poses): "
+                     f"RMS <b>{v['rms']:.4g} {lu}</b>.</p>")
     for title, caption, png in _plots(cal, poses):
         parts.append(f"<h2>{html.escape(title)}</h2><p>{html.escape(caption)}</p>"
                      f"<img alt='{html.escape(title)}' src='data:image/png;base64,{png}'>")

@@ -136,13 +136,40 @@ class Calibration:
             "terms": [t.to_dict(th, sd) for t, th, sd in zip(self.terms, self.theta, self.theta_std)],
         }
         if self.heldout:
-            out["heldout"] = self.heldout
+            out["heldout"] = heldout_in_unit(self.heldout, self.length_unit)
         return out
 
     def to_yaml(self) -> str:
         header = (f"# platkit calibration of the {self.platform} stand. Lengths in {self.length_unit}, "
                   "angles in rad, other parameters in the unit beside them.\n")
         return header + yaml.safe_dump(_plain(self.to_dict()), sort_keys=False, default_flow_style=None, width=120)
+
+
+#: keys of Calibration.heldout (and of its 'second_session') that are lengths in metres
+HELDOUT_LENGTHS = ("rms", "rms_inliers", "rms_per_fold", "rms_per_marker")
+
+
+def heldout_in_unit(heldout: dict, unit: str) -> dict:
+    """Calibration.heldout with its lengths (metres inside) in ``unit``, and 'unit' stated."""
+    s = length_scale(unit)
+
+    def conv(v):
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [conv(x) for x in v]
+        return None if v is None or not np.isfinite(v) else float(v) / s
+
+    out = {}
+    for k, v in heldout.items():
+        if k in HELDOUT_LENGTHS:
+            out[k] = conv(v)
+        elif isinstance(v, dict):
+            out[k] = heldout_in_unit(v, unit)
+        else:
+            out[k] = v
+    out["unit"] = unit
+    return out
 
 
 def _plain(obj):
@@ -254,7 +281,7 @@ def read_calibration(path: str | Path) -> Calibration:
         converged=bool(data.get("converged", True)), iterations=int(data.get("iterations", 0)),
         n_poses=int(res.get("n_poses", 0)), n_markers=len(names),
         identifiability=data.get("identifiability") or {}, terms=terms, theta=theta, theta_std=theta_std,
-        heldout=data.get("heldout") or {},
+        heldout={},  # written for people in the file's unit; not read back
     )
 
 

@@ -21,6 +21,8 @@ def add_parser(sub):
                    help="comma-separated parameter names or groups to fit (default: every free parameter); "
                         "'none' fits only the base-to-mocap transform and the markers")
     p.add_argument("--folds", type=int, default=0, help="K-fold held-out prediction error (K >= 2; default none)")
+    p.add_argument("--validate", default=None, metavar="SESSION",
+                   help="a second session in the same motion-capture frame to predict (held-out error)")
     p.add_argument("--max-evaluations", type=int, default=None,
                    help="--method paper: Nelder-Mead budget (default 200 per parameter)")
     p.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier down-weighting)")
@@ -93,6 +95,11 @@ def run(args) -> int:
 
         cal = calibrate(poses, spec, free=free, robust=not args.no_robust, folds=args.folds, progress=progress,
                         platform_options=options)
+    if args.validate is not None:
+        from platkit.calibrate.estimate import second_session_errors
+
+        other, _, _ = load_for_calibration(args.validate, spec.name, args.description)
+        cal.heldout["second_session"] = second_session_errors(cal, other)
     written = write_outputs(cal, args.out, poses)
     s = length_scale(cal.length_unit)
     print(f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "

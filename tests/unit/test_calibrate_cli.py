@@ -199,3 +199,17 @@ def test_model_terms_survive_the_file_and_predict(stewart_session, tmp_path):
     pred = np.array([r for r in csv.reader(out.open())][1:], float)
     expected, _, _, _ = predict_markers(cal, poses.controls, poses)
     assert pred[:, 6:18] == pytest.approx(expected.reshape(len(expected), -1) * 1e3, abs=1e-6)
+
+
+def test_validate_on_a_second_session(stewart_session, tmp_path):
+    folder, truth = stewart_session
+    second = tmp_path / "second"
+    write_session(second, truth, 40, 1e-4)
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(folder), "--validate", str(second), "--quiet", "--out", str(out)]) == 0
+    h = json.loads((out / "report.json").read_text())["heldout"]["second_session"]
+    assert h["n_poses"] == 40 and h["unit"] == "mm"
+    assert 0.1 * np.sqrt(3) < h["rms"] < 1.5 * 0.1 * np.sqrt(3)  # mm: the second session's own noise
+    assert set(h["rms_per_marker"]) == {"M1", "M2", "M3", "M4"}
+    assert yaml.safe_load((out / "calibration.yaml").read_text())["heldout"]["second_session"]["rms"] == \
+        pytest.approx(h["rms"])
