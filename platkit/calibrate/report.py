@@ -138,7 +138,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
             panels.append(("other", "[relative, x1e3]", None, other))
         panels = [p for p in panels if p[3]]
         fig, axes = plt.subplots(len(panels), 1, figsize=(max(6, 0.22 * max(len(p[3]) for p in panels) + 2),
-                                                          2.8 * len(panels)), squeeze=False)
+                                                          3.4 * len(panels)), squeeze=False, layout="constrained")
         for ax, (u, lab, k, idx) in zip(axes[:, 0], panels):
             if k is None:
                 nom = np.where(cal.td_nominal[idx] != 0, np.abs(cal.td_nominal[idx]), 1.0)
