@@ -255,8 +255,14 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         U, P_true = U[ok], P_true[ok]
     if len(U) < 3:
         raise NotIdentifiable(f"{spec.name}: fewer than 3 planned poses are reachable")
+    if markers is not None:
+        S = np.asarray(markers, float)
+        if S.ndim != 2 or S.shape[1] != 3 or len(S) < 3:
+            raise BadInput(f"markers must be (M, 3) positions on the moving part with M >= 3, got shape {S.shape}")
+        n_markers = len(S)
+    else:
+        S = default_marker_layout(spec, n_markers, rng)
     names = [f"M{k + 1}" for k in range(n_markers)]
-    S = default_marker_layout(spec, n_markers, rng) if markers is None else np.asarray(markers, float)
     T = random_mocap_from_base(rng, stand_length_scale(spec) / 0.6)
     noise = noise_mm * 1e-3
     N = len(U)
