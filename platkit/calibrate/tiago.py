@@ -180,6 +180,14 @@ def widen_joint_limits(urdf_text: str, lowest: np.ndarray, highest: np.ndarray, 
     return urdf_text, widened
 
 
+def pivot_order(cal) -> list[str]:
+    """The stand's parameters a calibration estimated, strongest first (the order the pivoted
+    orthogonalisation chose them; the last ones are the least well fixed)."""
+    ident = cal.extras["identifiability"]
+    td = set(cal.spec.parameter_names)
+    return [ident.names[i] for i in ident.chosen if ident.names[i] in td]
+
+
 def bl_rmse_mm(cal, poses) -> float:
     """Norm RMSE (mm) of point BL: sqrt(mean |predicted - measured|^2) over the poses where BL was seen."""
     from platkit.calibrate.estimate import point_errors

@@ -5,6 +5,9 @@ Stated tolerances:
 - fitted on BL alone, the registration-only and joint-offset levels reproduce FIGAROH's training
   and validation figures within 0.03 mm (same data, same model: a check of the kinematics, the
   conversion and the estimator);
+- fitted on BL alone with FIGAROH's parameter count for the full geometric level (30: the three
+  parameters the pivoting fixes least well held at nominal, as FIGAROH's QR tolerance drops
+  them), at least as good as FIGAROH on the validation day (3.22 mm) and within 0.05 mm on training;
 - with all four points: joint offsets at least as good as FIGAROH on the validation day
   (4.23 mm); registration within 0.15 mm of FIGAROH (4.87: the one registration serves four points,
   not BL alone); full geometric under 3.70 mm (FIGAROH 3.22 with a model reduced by 3 more
@@ -23,7 +26,7 @@ from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.settle import load_poses
 from platkit.calibrate.tiago import (FIGAROH, LEVELS, MARKERS, TRAINING, VALIDATION, bl_rmse_mm, convert,
-                                     default_data_dir, read_postures)
+                                     default_data_dir, pivot_order, read_postures)
 from platkit.io.session import load_session
 
 
@@ -84,3 +87,18 @@ def test_three_levels_with_the_rigid_body(sessions):
     n_joint = sum(st == "estimated" for st in full.td_status)
     assert n_joint == 4 * 7 + 2 * 1 + 6 - 12 == 24
     assert all(h["combination"] for h in full.identifiability["held_at_nominal"])
+
+
+def test_full_geometric_with_figaroh_s_count_beats_it(sessions):
+    train, valid = _bl_only(sessions["training"]), _bl_only(sessions["validation"])
+    spec = sessions["spec"]
+    full = calibrate(train, spec, free=LEVELS["full_geometric"], robust=False)
+    order = pivot_order(full)
+    assert len(order) + 6 + 3 == 33  # complete model, a point measured: 4R + 2P + 6 - 3
+    cal = calibrate(train, spec, free=order[:-3], robust=False)
+    assert len(order[:-3]) + 6 + 3 == FIGAROH["full_geometric"]["parameters"]
+    assert bl_rmse_mm(cal, valid) <= FIGAROH["full_geometric"]["validation_mm"]
+    assert bl_rmse_mm(cal, train) <= FIGAROH["full_geometric"]["training_mm"] + 0.05
+    held = {h["name"] for h in cal.identifiability["held_at_nominal"]}
+    assert not held & set(order[-3:])  # held by choice are 'fixed', not claimed unidentifiable
+    assert all(cal.td_status[spec.parameter_names.index(n)] == "fixed" for n in order[-3:])
