@@ -23,6 +23,8 @@ def add_parser(sub):
     p.add_argument("--occlusion", type=float, default=0.02, help="fraction of marker samples occluded (default 0.02)")
     p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
+    p.add_argument("--imu-rate-hz", type=float, default=None,
+                   help="also simulate an IMU on the moving part at this rate (imu.csv; platkit.inertial)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="motion-capture rate (default 100)")
     p.add_argument("--hold-s", type=float, default=1.5, help="time each command is held after arriving (default 1.5)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of the session files (default mm)")
@@ -51,11 +53,18 @@ def run(args) -> int:
         if not Path(plan).is_file():
             raise BadInput(f"--plan: {plan!r} is neither grid, random nor a plan file")
     effects = [parse_effect(e) for e in args.effect]
+    imu = None
+    if args.imu_rate_hz is not None:
+        if not args.imu_rate_hz > 0 or args.poses_only:
+            raise BadInput("--imu-rate-hz must be positive and needs the raw stream (not --poses-only)")
+        from platkit.inertial.simulate import imu_for_trajectory
+
+        imu = imu_for_trajectory(rate_hz=args.imu_rate_hz)
     sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
                    description=None if args.description is None else Path(args.description).name,
-                   n_base_markers=args.base_markers)
+                   n_base_markers=args.base_markers, imu=imu)
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
                         moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"

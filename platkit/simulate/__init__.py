@@ -408,7 +408,8 @@ def _csv_text(header: list[str], rows) -> str:
 def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, description: str | Path | None = None,
                   notes: str = "", moving_link: str | None = None, base_link: str | None = None) -> Path:
     """Write a simulated session folder (session.yaml, commands.csv, markers.csv or poses.csv,
-    imu.csv if simulated, truth.yaml), whole or not at all. Returns the folder.
+    imu.csv and truth_orientation.csv if an IMU was simulated, truth.yaml), whole or not at all.
+    Returns the folder.
 
     ``description``: the description file the stand was built from (copied into the folder);
     ``moving_link``, ``base_link``: the stand options it was built with (serial chains)."""
@@ -469,9 +470,15 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             (tmp / "imu.csv").write_text(
                 _csv_text(["t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"], rows), encoding="utf-8")
             entry["imu"] = _plain(imu.get("entry", {"rate_hz": float(1.0 / np.median(np.diff(imu["t"]))), "frame": "imu"}))
+            if "q_base_from_platform" in imu:
+                q = np.asarray(imu["q_base_from_platform"], float)
+                rows = [[f"{t:.6f}"] + [f"{v:.9f}" for v in qq] for t, qq in zip(imu["t"], q)]
+                (tmp / "truth_orientation.csv").write_text(_csv_text(["t", "qw", "qx", "qy", "qz"], rows), encoding="utf-8")
         (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")
         truth = sim.truth.to_dict()
         truth["plan"] = _plain(sim.plan_info)
+        if sim.imu is not None and "truth_imu" in sim.imu:
+            truth["imu"] = _plain(sim.imu["truth_imu"])
         (tmp / "truth.yaml").write_text(
             "# The true stand behind this simulated session (SI units). Calibration should recover it.\n"
             + yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")

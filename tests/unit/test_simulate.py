@@ -223,3 +223,19 @@ def test_base_markers_are_recorded_and_pin_the_transform(tmp_path, poses_only):
     a = simulate(spec, seed=4, n_poses=6, raw=False)
     b = simulate(spec, seed=4, n_poses=6, raw=False, n_base_markers=2)
     np.testing.assert_array_equal(a.poses.markers, b.poses.markers)
+
+
+def test_cli_simulate_with_an_imu(tmp_path, capsys):
+    from platkit.io.session import load_session
+
+    out = tmp_path / "imu"
+    assert main(["simulate", "--platform", "psvr", "--out", str(out), "--poses", "4", "--rate-hz", "30",
+                 "--imu-rate-hz", "100"]) == 0, capsys.readouterr().err
+    s = load_session(out)
+    assert s.imu["rate_hz"] == 100.0 and s.imu_gyr.shape[1] == 3
+    assert (out / "truth_orientation.csv").is_file()
+    truth = yaml.safe_load((out / "truth.yaml").read_text())
+    assert "imu" in truth
+    # at rest before the first command the accelerometer reads gravity
+    rest = s.imu_t < 0.4
+    assert abs(np.linalg.norm(s.imu_acc[rest].mean(axis=0)) - 9.81) < 0.05
