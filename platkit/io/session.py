@@ -543,13 +543,22 @@ def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> Non
         s.poses["t"] = s.command_t
 
 
+#: directories (os.pathsep separated) searched first for examples/sessions/<platform>/ folders
+EXAMPLES_ENV = "PLATKIT_EXAMPLES"
+
+
 def example_session(platform: str) -> Path:
-    """The example session shipped for ``platform``: examples/sessions/<platform>/ found walking up
-    from this package (the repository's top-level examples/). BadSession if there is none."""
-    tried = []
-    for parent in Path(__file__).resolve().parents:
-        cand = parent / "examples" / "sessions" / platform
-        tried.append(str(cand))
+    """The example session shipped for ``platform``: ``<platform>/`` under the directories of the
+    ``PLATKIT_EXAMPLES`` variable, else examples/sessions/<platform>/ found walking up from this
+    package (the repository's top-level examples/). BadSession if there is none."""
+    import os
+
+    candidates = [Path(d) / platform for d in os.environ.get(EXAMPLES_ENV, "").split(os.pathsep) if d]
+    candidates += [parent / "examples" / "sessions" / platform for parent in Path(__file__).resolve().parents]
+    for cand in candidates:
         if (cand / "session.yaml").is_file():
             return cand
-    raise BadSession(f"no example session for the {platform!r} stand (looked for examples/sessions/{platform}/ above {Path(__file__).parent})")
+    raise BadSession(
+        f"no example session for the {platform!r} stand (looked in ${EXAMPLES_ENV} and for "
+        f"examples/sessions/{platform}/ above {Path(__file__).parent})"
+    )

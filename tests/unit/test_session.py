@@ -363,6 +363,12 @@ def test_example_sessions_ship_with_the_package():
         example_session("no-such-stand")
 
 
+def test_example_sessions_can_live_elsewhere(tmp_path, monkeypatch, session_dir):
+    shutil.copytree(session_dir[0], tmp_path / "stewart")
+    monkeypatch.setenv("PLATKIT_EXAMPLES", str(tmp_path))
+    assert example_session("stewart") == tmp_path / "stewart"
+
+
 def test_cli_bad_plan_file_exits_2_with_one_line(tmp_path, capsys):
     plan = tmp_path / "plan.csv"
     plan.write_text("L1,L2,L3,L4,L5,L6\n4000,4000,4000,4000,4000,4000\n4000,4000,x,4000,4000,4000\n")
