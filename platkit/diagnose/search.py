@@ -8,10 +8,11 @@ One round (repeated until nothing passes or ``max_effects`` are in):
    A term with almost nothing outside that space (separability < ``min_separability``) cannot
    be told from the geometry on this design: it is set aside with a warning, never accepted;
 2. refit the best few, each added to the model, together with td, the mocap transform and
-   the markers (the estimator's Levenberg-Marquardt, same observation weights);
-3. among the candidates whose K-fold held-out prediction improves significantly (one-sided
-   Wilcoxon on the per-pose held-out errors, Holm over the refits) AND whose BIC falls, accept
-   the one with the lowest BIC; unless a generic probe (probes.py) predicts significantly better still, in which
+   the markers (the estimator's robust fit); every model is scored on every seen observation;
+3. take the refit candidate with the lowest BIC; accept it if its BIC is below the current
+   model's AND its K-fold held-out prediction improves significantly (one-sided Wilcoxon on the
+   per-pose held-out errors at ``alpha_heldout``; one confirmatory test per round, in the order
+   BIC fixes: a fixed-sequence procedure, so no multiplicity correction is needed); unless a generic probe (probes.py) predicts significantly better still, in which
    case the structure is reported ``unexplained`` and not named.
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
@@ -24,7 +25,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors
+from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors, robust_fit
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.result import Calibration
 from platkit.calibrate.terms import ModelTerm
@@ -40,7 +41,7 @@ class Options:
     """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""
 
     alpha: float = 0.01  # family-wise level of the screening and location tests
-    alpha_heldout: float = 0.05  # level of the held-out confirmation (Holm over the few refits of a round)
+    alpha_heldout: float = 0.05  # level of the held-out confirmation (one test per round)
     folds: int = 5
     max_effects: int = 3
     max_refits: int = 3  # candidates refit per round (the best screened)
@@ -49,6 +50,10 @@ class Options:
     min_relative_gain: float = 0.02  # held-out RMS must fall by at least this fraction
     free: Sequence[str] | None = None  # td parameters to fit (None: the stand's free ones)
     probes: bool = True
+    # each model is fitted as the estimator calibrates (Huber weights, then rejection beyond
+    # 4.5 sigma), but scored on every seen observation: errors a model rejects as outliers (a
+    # slipped marker's later half) still count against it, so the model that explains them wins
+    robust: bool = True
     lm_iterations: int = 30
 
 
@@ -60,12 +65,13 @@ class Fit:
     problem: CalibrationProblem
     z: np.ndarray
     active: np.ndarray
-    weights: np.ndarray  # (N, M)
+    weights: np.ndarray  # (N, M) scoring weights: 1 for every seen observation
     r: np.ndarray  # (N, M, 3) m
     rss: float
     n_obs: int
     n_params: int
     cv: np.ndarray | None = None  # (N,) held-out mean squared marker error per pose, m^2
+    fit_weights: np.ndarray | None = None  # (N, M) the weights the fit itself used (robust)
 
     @property
     def bic(self) -> float:
@@ -124,18 +130,23 @@ def _obs(weights: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndarray, active0: np.ndarray,
-         weights: np.ndarray, iterations: int) -> Fit:
-    """Extend (z0, active0) with the new terms' theta (from their ``initial``) and refit."""
+         weights: np.ndarray, iterations: int, robust: bool = True) -> Fit:
+    """Extend (z0, active0) with the new terms' theta (from their ``initial``) and refit (the
+    estimator's robust_fit when ``robust``); ``weights`` (N, M) score the fit."""
     problem = CalibrationProblem(spec, poses, terms)
     extra = problem.n_z - len(z0)
     start = [t.initial for t in terms]
     theta0 = np.concatenate(start)[len(np.concatenate(start)) - extra:] if extra else np.zeros(0)
     z = np.concatenate([z0, theta0])
     active = np.concatenate([active0, np.ones(extra, bool)])
-    res = levenberg_marquardt(problem, z, active, weights, max_iter=iterations)
+    if robust:
+        res = robust_fit(problem, z, active, robust=True, max_iter=iterations)
+    else:
+        res = levenberg_marquardt(problem, z, active, weights, max_iter=iterations)
     keep = _obs(weights, res.state.r)
     rss = float(np.sum(np.nan_to_num(res.state.r) ** 2 * keep[:, :, None]))
-    return Fit(list(terms), problem, res.z, active, weights, res.state.r, rss, 3 * int(keep.sum()), int(active.sum()))
+    return Fit(list(terms), problem, res.z, active, weights, res.state.r, rss, 3 * int(keep.sum()), int(active.sum()),
+               fit_weights=res.weights)
 
 
 def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
@@ -146,7 +157,8 @@ def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: in
     for k in range(folds):
         train, test = fold != k, fold == k
         sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
-        res = levenberg_marquardt(sub, fit.z, fit.active, fit.weights[train], max_iter=iterations)
+        w = fit.weights if fit.fit_weights is None else fit.fit_weights
+        res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations)
         st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
         d2 = np.sum(st.r**2, axis=2)
         d2[fit.weights[test] <= 0] = np.nan
@@ -242,11 +254,11 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         if free is None:
             free = [n for n, st in zip(spec.parameter_names, start.td_status) if st == "estimated"]
         td_start, prior = start.td, list(start.terms)
-    base_cal = calibrate(poses, spec, terms=prior, free=free, td_start=td_start,
+    base_cal = calibrate(poses, spec, terms=prior, free=free, td_start=td_start, robust=opt.robust,
                          platform_options=None if start is None else start.platform_options)
     z0, active0 = base_cal.extras["z"], base_cal.extras["active"]
-    weights = base_cal.extras["weights"]
-    cur = _fit(spec, poses, prior, z0, active0, weights, opt.lm_iterations)
+    weights = np.all(np.isfinite(poses.markers), axis=2).astype(float)
+    cur = _fit(spec, poses, prior, z0, active0, weights, opt.lm_iterations, opt.robust)
     cur.cv = _cv(cur, spec, poses, opt.folds, opt.lm_iterations)
     say(f"geometric model: fit RMS {_fmt_rms(np.sqrt(cur.rss * 3 / cur.n_obs), unit)}, "
         f"held-out RMS {_fmt_rms(cur.cv_rms, unit)}")
@@ -287,18 +299,21 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         trials = []
         for i in chosen:
             eff, term = cands[i]
-            f = _fit(spec, poses, cur.terms + [term], cur.z, cur.active, weights, opt.lm_iterations)
+            f = _fit(spec, poses, cur.terms + [term], cur.z, cur.active, weights, opt.lm_iterations, opt.robust)
             f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
             trials.append((i, f, paired_improvement(cur.cv, f.cv)))
             say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)} "
                 f"(paired p = {trials[-1][2]:.2g}), BIC {f.bic - cur.bic:+.1f}")
-        p_hold = holm(np.array([t[2] for t in trials]))
-        good = [(t, ph) for t, ph in zip(trials, p_hold)
-                if ph < opt.alpha_heldout and t[1].bic < cur.bic and t[1].cv_rms < (1 - opt.min_relative_gain) * cur.cv_rms]
-        if not good:
+        # fixed-sequence confirmation: in the order the information criterion prefers, the first
+        # candidate must prove itself held out (its own test at alpha_heldout), else none does
+        good = None
+        for i, f, p_h in sorted(trials, key=lambda x: x[1].bic):
+            if f.bic < cur.bic and f.cv_rms < (1 - opt.min_relative_gain) * cur.cv_rms and p_h < opt.alpha_heldout:
+                good = (i, f, p_h)
             break
-        # among those proven held out, the one the information criterion prefers
-        (i, best, _), ph = min(good, key=lambda x: x[0][1].bic)
+        if good is None:
+            break
+        i, best, ph = good
         eff, term = cands[i]
         # naming check: a generic model of the same structure must not predict clearly better
         if opt.probes:
@@ -326,14 +341,14 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         cur = best
     # the final model through the estimator's full procedure (robust weights, covariance)
     final_cal = base_cal if len(cur.terms) == len(prior) else calibrate(
-        poses, spec, terms=cur.terms, free=free, td_start=td_start,
+        poses, spec, terms=cur.terms, free=free, td_start=td_start, robust=opt.robust,
         platform_options=None if start is None else start.platform_options)
     for k, (finding, info) in enumerate(zip(findings, accepted_info), start=len(prior)):
         theta, std = final_cal.theta[k], final_cal.theta_std[k]
         finding.parameters = _params(finding.term, theta, std)
         finding.signature_after = _signature(info["J"], final_cal.extras["residuals_after"], theta)
         finding.evidence = _evidence(finding, poses, unit, folds=opt.folds)
-    locations = locate(final_cal.extras["residuals_after"], poses, spec, final_cal.extras["weights"], opt.alpha)
+    locations = locate(final_cal.extras["residuals_after"], poses, spec, None, opt.alpha)
     if stop_unexplained is None and opt.probes:
         stop_unexplained = _probe_beats(spec, poses, cur, None, opt)
     if stop_unexplained is not None:
@@ -368,7 +383,7 @@ def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Findi
     probes = [p for p in (time_probe(poses), space_probe(fk_X)) if p is not None]
     results = []
     for probe in probes:
-        f = _fit(spec, poses, cur.terms + [probe], cur.z, cur.active, cur.weights, opt.lm_iterations)
+        f = _fit(spec, poses, cur.terms + [probe], cur.z, cur.active, cur.weights, opt.lm_iterations, opt.robust)
         f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
         p = paired_improvement(ref.cv, f.cv)
         p0 = paired_improvement(cur.cv, f.cv)
