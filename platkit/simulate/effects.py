@@ -221,7 +221,10 @@ def size_help() -> dict[str, str]:
     for name, effect in default_host().effects().items():
         doc = getattr(getattr(effect, "simulation_term", None), "__doc__", None)
         if doc:
-            out[name] = " ".join(doc.split())
+            text = " ".join(doc.split()).replace("``", "")
+            for prefix in ("(term, theta) for the simulator:", "size:", "size"):
+                text = text[len(prefix):].strip() if text.startswith(prefix) else text
+            out[name] = text.rstrip(".")
     return out
 
 
