@@ -4,8 +4,9 @@
 
 Fits three model levels on the training day (2021-11-30, 37 postures) and predicts the validation
 day (2021-11-26, 62 postures); prints the norm RMSE of point BL in mm, as FIGAROH reports it.
-Two platkit rows per level: the four points of the hand body fitted together (platkit's way) and
-point BL alone (FIGAROH's way, a like-for-like check). Plain least squares (no outlier
+Rows per level: the four points of the hand body fitted together (platkit's way), point BL alone
+(FIGAROH's way, a like-for-like check), and the paper's method (Burlakov et al., four points,
+Nelder-Mead budget --paper-evaluations). Plain least squares (no outlier
 weighting), as FIGAROH.
 """
 from __future__ import annotations
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 
 from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.paper import calibrate_paper
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.settle import load_poses
 from platkit.calibrate.tiago import (FIGAROH, LEVELS, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir,
@@ -27,6 +29,8 @@ from platkit.io.session import load_session
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=None)
+    ap.add_argument("--paper-evaluations", type=int, default=2000,
+                    help="Nelder-Mead budget of the paper's method (0: leave the paper's rows out)")
     args = ap.parse_args(argv)
     data = Path(args.data) if args.data else default_data_dir()
     with tempfile.TemporaryDirectory() as work:
@@ -42,10 +46,15 @@ def main(argv=None) -> int:
           f"{'FIGAROH n':>9} {'train':>7} {'valid':>7} {'time s':>7}")
     for level, groups in LEVELS.items():
         f = FIGAROH[level]
-        for label, train, valid in (("4 points", sets["training"], sets["validation"]),
-                                    ("BL alone", bl["training"], bl["validation"])):
+        runs = [("4 points", sets["training"], sets["validation"]), ("BL alone", bl["training"], bl["validation"])]
+        if args.paper_evaluations:
+            runs.append(("paper", sets["training"], sets["validation"]))
+        for label, train, valid in runs:
             t = time.perf_counter()
-            cal = calibrate(train, spec, free=groups, robust=False)
+            if label == "paper":
+                cal = calibrate_paper(train, spec, free=groups, max_evaluations=args.paper_evaluations)
+            else:
+                cal = calibrate(train, spec, free=groups, robust=False)
             dt = time.perf_counter() - t
             n_td = sum(st == "estimated" for st in cal.td_status)
             print(f"{level:<16} {label:<10} {n_td + 6 + 3 * cal.n_markers:>8d} {n_td:>7d} {bl_rmse_mm(cal, train):>7.2f} "

@@ -78,6 +78,10 @@ def run(args) -> int:
 
     if args.folds and args.folds < 2:
         raise BadInput(f"--folds {args.folds}: use 2 or more (or leave it out)")
+    if args.folds and args.method == "paper":
+        raise BadInput("--folds applies to --method lsq; use --validate SESSION to score the paper's method")
+    if args.max_evaluations is not None and args.method != "paper":
+        raise BadInput("--max-evaluations applies to --method paper")
     poses, spec, options = load_for_calibration(args.session, args.platform, args.description)
     progress = None if args.quiet else progress_printer(poses.length_unit)
     free = None
