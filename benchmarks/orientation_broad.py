@@ -4,7 +4,8 @@ Scored as the BROAD benchmark scores (README beside the data): inclination RMSE 
 with movement == 1, degrees, the truth's NaN samples skipped. Estimators:
 
   platkit          platkit's estimator, causal (platkit.inertial.estimator.estimate_platkit)
-  platkit-2pass    the same run forward and backward, inclinations averaged (offline)
+  platkit-offline  bias from a forward and a backward pass, inertial-frame accelerometer filtered
+                   with zero phase (offline; platkit.inertial.estimator.estimate_offline)
   paper            Burlakov et al. 2018: low pass, Poisson integration, case A and case B
                    corrections; gyro bias from the trial's initial rest
   paper-A          the same with case A only
@@ -27,7 +28,7 @@ import time
 import numpy as np
 
 from platkit.inertial.calibration import gyro_bias_at_rest
-from platkit.inertial.estimator import estimate_platkit, smooth_two_pass
+from platkit.inertial.estimator import estimate_platkit, estimate_offline
 from platkit.inertial.metrics import inclination_rmse_deg
 from platkit.inertial.paper import PaperParams, estimate_paper
 from platkit.inertial.stream import read_broad
@@ -61,7 +62,7 @@ def _paper(tr, **kw):
 
 ESTIMATORS = {
     "platkit": lambda tr: estimate_platkit(tr.imu).q,
-    "platkit-2pass": lambda tr: smooth_two_pass(tr.imu).q,
+    "platkit-offline": lambda tr: estimate_offline(tr.imu).q,
     "paper": lambda tr: _paper(tr),
     "paper-A": lambda tr: _paper(tr, case_b=False),
     "gyro-only": lambda tr: _paper(tr, case_a=False, case_b=False),

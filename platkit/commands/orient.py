@@ -15,7 +15,7 @@ def add_parser(sub):
                    help="YAML with the IMU's gyr_bias_rad_s, gyr_scale, acc_bias_m_s2, acc_scale, sensor_from_platform "
                         "(default: found from the session)")
     p.add_argument("--method", default="platkit", choices=METHODS,
-                   help="platkit (two-pass, offline), platkit-causal, paper (Burlakov et al. 2018), "
+                   help="platkit (offline: forward-backward bias, zero-phase filter), platkit-causal, paper (Burlakov et al. 2018), "
                         "command-aided (gyro fused with the calibrated model's poses)")
     p.add_argument("--platform", default=None, help="stand name (default: session.yaml's)")
     p.add_argument("--description", default=None, help="description file (default: session.yaml's or the stand's)")

@@ -6,7 +6,7 @@
 - :mod:`platkit.inertial.paper`: Burlakov et al. (2018): Poisson integration with the
   accelerometer corrections of case A (at rest) and case B (rotation about a fixed axis).
 - :mod:`platkit.inertial.estimator`: platkit's estimator (inertial-frame accelerometer filter,
-  gyro bias at rest and in motion), causal and two-pass offline.
+  gyro bias at rest and in motion), causal and offline.
 - :mod:`platkit.inertial.command_aided`: fusion of the gyro with the orientation the calibrated
   platform model predicts from the logged commands.
 - :mod:`platkit.inertial.simulate`: IMU samples from a known motion.

@@ -24,7 +24,7 @@ import numpy as np
 
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.geometry import quat_conjugate, quat_from_matrix, quat_multiply, quat_normalize, rotvec_from_matrix
-from platkit.inertial.calibration import ImuCalibration, detect_rest, gyro_bias_at_rest, rest_segments
+from platkit.inertial.calibration import ImuCalibration, gyro_bias_at_rest
 from platkit.inertial.stream import ImuStream, read_imu_csv
 
 METHODS = ("platkit", "platkit-causal", "paper", "command-aided")
@@ -146,7 +146,7 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     """Estimate the platform's orientation over a session (see the module docstring)."""
     from platkit.inertial.command_aided import (command_poses, estimate_alignment_from_commands,
                                                 estimate_command_aided, estimate_timing, held_mask)
-    from platkit.inertial.estimator import estimate_platkit, smooth_two_pass, PlatkitParams
+    from platkit.inertial.estimator import estimate_platkit, estimate_offline, PlatkitParams
     from platkit.inertial.paper import PaperParams, estimate_paper
     from platkit.io.session import TIME_UNITS, read_session_yaml
     from platkit.kinematics import PlatformModel
@@ -229,7 +229,7 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         elif method == "platkit-causal":
             est = estimate_platkit(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
         else:
-            est = smooth_two_pass(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
+            est = estimate_offline(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
         q_bp = quat_normalize(quat_multiply(est.q, q_sp[None, :]))
         if q_cmd is not None:
             held = held_mask(imu.t, t_cmd, timing)

@@ -24,7 +24,7 @@ Both corrections are applied in full whenever their condition holds, as in the p
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
 

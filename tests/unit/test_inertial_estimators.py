@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from platkit.errors import BadInput, NotIdentifiable
+from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rpy, quat_from_rpy, quat_from_rotvec, quat_multiply
 from platkit.inertial import quat as Q
-from platkit.inertial.estimator import PlatkitParams, estimate_platkit, smooth_two_pass
+from platkit.inertial.estimator import PlatkitParams, estimate_platkit, estimate_offline
 from platkit.inertial.metrics import heading_error, inclination_error, inclination_rmse_deg, rmse, total_error
 from platkit.inertial.paper import PaperParams, estimate_paper
 from platkit.inertial.simulate import imu_from_motion
@@ -70,7 +70,7 @@ def test_platkit_estimator_finds_the_gyro_bias_and_the_vertical():
     assert inclination_rmse_deg(est.q, sim["q_earth_from_sensor"], on) < 0.1
     assert np.allclose(est.bias[-1], bias, atol=np.radians(0.02))
     assert est.rest[int(8 * RATE)] and not est.rest[int(30 * RATE)]
-    two = smooth_two_pass(imu)
+    two = estimate_offline(imu)
     assert inclination_rmse_deg(two.q, sim["q_earth_from_sensor"], on) < 0.1
     # without bias estimation the same stream drifts: the bias estimate is doing the work
     raw = estimate_platkit(imu, PlatkitParams(estimate_bias=False))
