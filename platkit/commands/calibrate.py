@@ -83,6 +83,9 @@ def run(args) -> int:
     if args.max_evaluations is not None and args.method != "paper":
         raise BadInput("--max-evaluations applies to --method paper")
     poses, spec, options = load_for_calibration(args.session, args.platform, args.description)
+    other = None  # read before any work: a bad second session is bad input, found at once
+    if args.validate is not None:
+        other, _, _ = load_for_calibration(args.validate, spec.name, args.description)
     progress = None if args.quiet else progress_printer(poses.length_unit)
     free = None
     if args.free is not None:
@@ -99,10 +102,9 @@ def run(args) -> int:
 
         cal = calibrate(poses, spec, free=free, robust=not args.no_robust, folds=args.folds, progress=progress,
                         platform_options=options)
-    if args.validate is not None:
+    if other is not None:
         from platkit.calibrate.estimate import second_session_errors
 
-        other, _, _ = load_for_calibration(args.validate, spec.name, args.description)
         cal.heldout["second_session"] = second_session_errors(cal, other)
     written = write_outputs(cal, args.out, poses)
     s = length_scale(cal.length_unit)

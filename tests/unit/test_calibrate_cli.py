@@ -126,6 +126,8 @@ def test_bad_inputs_exit_2_in_one_line(stewart_session, tmp_path, capsys):
         ["calibrate", str(folder), "--free", "wheels", "--out", str(tmp_path / "o3")],
         ["calibrate", "--out", str(tmp_path / "o4")],
         ["calibrate", str(folder), "--method", "paper", "--max-evaluations", "0", "--out", str(tmp_path / "o5")],
+        ["calibrate", str(folder), "--method", "paper", "--folds", "3", "--out", str(tmp_path / "o6")],
+        ["calibrate", str(folder), "--validate", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o7")],
     ]
     for argv in cases:
         rc = main(argv)
