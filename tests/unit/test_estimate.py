@@ -69,7 +69,7 @@ def stewart():
     return get_platform("stewart")
 
 
-@pytest.mark.parametrize("name", ["stewart", "rotary", "psvr"])
+@pytest.mark.parametrize("name", ["stewart", "rotary", "psvr", "urdf"])
 def test_jacobian_matches_finite_differences(name):
     spec = get_platform(name)
     truth = Truth(spec, seed=1)
