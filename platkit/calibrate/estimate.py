@@ -603,8 +603,9 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     candidates[problem.i_theta] = True
     st = problem.evaluate(reg.z)
     cand_idx = np.nonzero(candidates)[0]
-    Jc = (st.J[..., cand_idx] * reg.weights[:, :, None, None]).reshape(-1, len(cand_idx))
-    Jc = Jc[np.isfinite(Jc).all(axis=1)]
+    used = (reg.weights > 0) & np.isfinite(st.r).all(axis=2)  # seen, solved, not rejected
+    Jc = (st.J[..., cand_idx] * np.sqrt(np.where(used, reg.weights, 0.0))[:, :, None, None])[used]
+    Jc = Jc.reshape(-1, len(cand_idx))
     ident = select_identifiable(Jc, [problem.names[i] for i in cand_idx], problem.scale[cand_idx],
                                 problem.tiers[cand_idx].tolist(), rel_tol)
     chosen = cand_idx[ident.chosen]
