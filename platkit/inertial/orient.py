@@ -109,6 +109,8 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
     from platkit.model import controls_to_si
 
     name = platform or y["platform"]
+    if isinstance(name, str) and name.lower() == "none":
+        name = None  # spec section 1: "none for an IMU-only recording"
     cpath = folder / "commands.csv"
     if name is None or not cpath.is_file():
         return None
@@ -144,7 +146,7 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
                    imu_calibration: str | Path | None = None, platform: str | None = None,
                    description: str | Path | None = None, max_repair_s: float = 0.05) -> OrientResult:
     """Estimate the platform's orientation over a session (see the module docstring)."""
-    from platkit.inertial.command_aided import (command_poses, estimate_alignment_from_commands,
+    from platkit.inertial.command_aided import (CommandAidedParams, command_poses, estimate_alignment_from_commands,
                                                 estimate_command_aided, estimate_timing, held_mask)
     from platkit.inertial.estimator import estimate_platkit, estimate_offline, PlatkitParams
     from platkit.inertial.paper import PaperParams, estimate_paper
@@ -197,20 +199,42 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         spec, td, t_cmd, U = cmds
         model = PlatformModel(spec)
         q_cmd = command_poses(model, U, td)
-        timing = estimate_timing(imu_c, t_cmd, q_cmd, bias0)
-        report["timing"] = {"lag_s": timing.lag_s, "settle_s": timing.settle_s, "n_moves": timing.n_moves,
-                            "lag_std_s": timing.lag_std_s, "settle_std_s": timing.settle_std_s}
+        try:
+            timing = estimate_timing(imu_c, t_cmd, q_cmd, bias0)
+            held_any = held_mask(imu_c.t, t_cmd, timing).any()
+        except NotIdentifiable as exc:
+            if method == "command-aided":
+                raise
+            warnings.append(f"{exc}; the commands are not used")
+            timing, held_any = None, False
+        if timing is not None:
+            report["timing"] = {"lag_s": timing.lag_s, "settle_s": timing.settle_s, "n_moves": timing.n_moves,
+                                "lag_std_s": timing.lag_std_s, "settle_std_s": timing.settle_std_s}
         report["platform"] = spec.name
         report["calibration"] = str(calibration) if calibration else None
-        if not cal_given:
-            fit, bias_held = estimate_alignment_from_commands(imu_c, t_cmd, q_cmd, timing)
-            R_sp = fit.sensor_from_platform
-            bias0 = bias_held
-            report["gyr_bias_source"] = "held poses of the session"
-            report["alignment"] = {"source": "estimated from the session's moves",
-                                   "rms_rad": fit.rms, "angle_std_rad": fit.angle_std}
-        else:
+        if cal_given:
             report["alignment"] = {"source": f"imu calibration {imu_calibration}"}
+        elif timing is not None:
+            try:
+                fit, bias_held = estimate_alignment_from_commands(imu_c, t_cmd, q_cmd, timing)
+            except NotIdentifiable as exc:
+                if method == "command-aided":
+                    raise
+                warnings.append(f"{exc}; the sensor axes are taken as the platform axes")
+                report["alignment"] = {"source": "none (identity)"}
+            else:
+                R_sp = fit.sensor_from_platform
+                bias0 = bias_held
+                report["gyr_bias_source"] = "held poses of the session"
+                report["alignment"] = {"source": "estimated from the session's moves",
+                                       "rms_rad": fit.rms, "angle_std_rad": fit.angle_std}
+        else:
+            report["alignment"] = {"source": "none (identity)"}
+        if not held_any:
+            if method == "command-aided":
+                raise NotIdentifiable(f"{folder}: the platform never holds a commanded pose long enough "
+                                      "for the command-aided estimator")
+            q_cmd = None  # nothing to align the heading with
     elif not cal_given:
         warnings.append("no IMU calibration and no commands: the sensor axes are taken as the platform axes "
                         "and the heading is relative to the start")
@@ -220,7 +244,7 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     report["gyr_bias_start_rad_s"] = np.asarray(bias0).tolist()
 
     if method == "command-aided":
-        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0)
+        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0, CommandAidedParams(timing=timing))
         q_bp = est.q
         report["heading"] = "absolute (from the commanded poses)"
     else:

@@ -142,3 +142,19 @@ def test_imu_only_session_in_milliseconds(tmp_path):
     rows = np.loadtxt(out / "orientation.csv", delimiter=",", skiprows=1)
     assert rows[-1, 0] == pytest.approx(t[-1])  # seconds in the output
     assert main(["orient", str(folder), "--method", "command-aided", "--out", str(out)]) == 2
+
+
+def test_commands_that_never_move_the_platform(sim_session, tmp_path, capsys):
+    """Unaided methods go on without the commands (and say so); command-aided fails (exit 1)."""
+    folder = _copy(sim_session[0], tmp_path)
+    lines = (folder / "commands.csv").read_text().splitlines()
+    first = lines[1].split(",", 1)[1]
+    lines = [lines[0]] + [f"{row.split(',', 1)[0]},{first}" for row in lines[1:]]
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "o"
+    assert main(["orient", str(folder), "--method", "platkit-causal", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert any("no command turned the platform enough" in w for w in report["warnings"])
+    assert report["heading"].startswith("relative")
+    assert main(["orient", str(folder), "--method", "command-aided", "--out", str(tmp_path / "o2")]) == 1
+    assert "no command turned the platform enough" in capsys.readouterr().err
