@@ -245,3 +245,61 @@ def sensor_axis_directions(omega_segments: list[np.ndarray]) -> np.ndarray:
             d = -d
         out.append(d)
     return np.array(out)
+
+
+def calibrate_static_test(imu: ImuStream, min_s: float = 1.0, gravity: float = G_STANDARD, **rest_kw) -> ImuCalibration:
+    """Biases and accelerometer scales from a static multi-position test.
+
+    The recording holds the sensor still in at least six positions (each axis up and down) with
+    moves between them. Accelerometer bias and scale: :func:`fit_accelerometer` on the mean of
+    every rest of ``min_s`` seconds; gyro bias: the mean rate over all those rests. The gyro
+    scales need known rotations (:func:`fit_imu_alignment` with ``fit_scale``) and stay 1 here;
+    R_SP stays identity (it needs the sensor on the platform).
+    """
+    segs = rest_segments(detect_rest(imu, **rest_kw), imu.t, min_s)
+    if not segs:
+        raise NotIdentifiable(f"static test: no rest of {min_s:g} s in {imu.source or 'the IMU stream'}")
+    means = np.array([imu.acc[a:b].mean(axis=0) for a, b in segs])
+    fit = fit_accelerometer(means, gravity)
+    idx = np.concatenate([np.arange(a, b) for a, b in segs])
+    gyr = imu.gyr[idx]
+    gyr_bias = gyr.mean(axis=0)
+    std = {"acc_bias_m_s2": fit.bias_std, "acc_scale": fit.scale_std,
+           "gyr_bias_rad_s": gyr.std(axis=0) / np.sqrt(len(gyr))}
+    return ImuCalibration(gyr_bias=gyr_bias, acc_bias=fit.bias, acc_scale=fit.scale, std=std)
+
+
+def write_imu_calibration(path, cal: ImuCalibration) -> None:
+    """The YAML that ``platkit orient --imu-calibration`` reads, written atomically."""
+    import yaml
+
+    from platkit.io.atomic import atomic_write_text
+
+    atomic_write_text(path, "# platkit IMU calibration (SI: rad/s, m/s^2; sensor_from_platform maps platform to "
+                            "sensor axes)\n" + yaml.safe_dump(cal.to_dict(), sort_keys=False))
+
+
+def main(argv=None) -> int:
+    """python -m platkit.inertial.calibration STATIC_IMU.csv OUT.yaml: a static multi-position test."""
+    import sys
+
+    from platkit.errors import PlatkitError
+    from platkit.inertial.stream import read_imu_csv
+
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 2:
+        print("usage: python -m platkit.inertial.calibration STATIC_IMU.csv OUT.yaml", file=sys.stderr)
+        return 2
+    try:
+        cal = calibrate_static_test(read_imu_csv(args[0]))
+    except PlatkitError as exc:
+        print(f"platkit: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    write_imu_calibration(args[1], cal)
+    print(f"accelerometer bias {np.round(cal.acc_bias, 4).tolist()} m/s^2, scale {np.round(cal.acc_scale, 5).tolist()}; "
+          f"gyro bias {np.round(np.degrees(cal.gyr_bias), 4).tolist()} deg/s -> {args[1]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -146,3 +146,37 @@ def test_lowpass_starts_in_steady_state_and_streaming_matches_its_mean():
     lp = LowPass2(0.1, 0.01, 2)
     ys = [lp.step(v) for v in x]
     assert np.allclose(ys, 3.0)
+
+
+def test_static_multi_position_test_end_to_end(tmp_path, capsys):
+    """Twelve static positions written as imu.csv; the module's entry point fits them and the
+    YAML it writes is what orient --imu-calibration reads."""
+    from platkit.geometry import matrix_from_rotvec, quat_from_matrix
+    from platkit.inertial.calibration import main as calibrate_main
+    from platkit.inertial.stream import write_imu_csv
+    from platkit.io.description import load_yaml
+
+    rng = np.random.default_rng(8)
+    dirs = np.vstack([np.eye(3), -np.eye(3), rng.normal(size=(6, 3))])
+    t = np.arange(0, 3.0 * len(dirs), 0.01)
+    q = np.empty((len(t), 4))
+    for i, d in enumerate(dirs):
+        d = d / np.linalg.norm(d)
+        v = np.cross(d, [0.0, 0.0, 1.0])
+        R = (matrix_from_rotvec(v / np.linalg.norm(v) * np.arccos(np.clip(d[2], -1, 1))) if np.linalg.norm(v) > 1e-9
+             else (np.eye(3) if d[2] > 0 else np.diag([1.0, -1.0, -1.0])))
+        q[(t >= 3.0 * i) & (t < 3.0 * (i + 1))] = quat_from_matrix(R)
+    bias = np.array([0.01, -0.02, 0.005, 0.1, -0.05, 0.08])
+    scale = np.array([1, 1, 1, 1.01, 0.99, 1.005])
+    sim = imu_from_motion(t, q, np.zeros((len(t), 3)), bias=bias, scale=scale, noise=[1e-3, 1e-2], rng=rng)
+    write_imu_csv(tmp_path / "static.csv", t, sim["gyr"], sim["acc"])
+    assert calibrate_main([str(tmp_path / "static.csv"), str(tmp_path / "imu_cal.yaml")]) == 0
+    cal = ImuCalibration.from_dict(load_yaml(tmp_path / "imu_cal.yaml"))
+    assert np.allclose(cal.acc_bias, bias[3:], atol=3e-3)
+    assert np.allclose(cal.acc_scale, scale[3:], atol=5e-4)
+    assert np.allclose(cal.gyr_bias, bias[:3], atol=2e-4)
+    # a recording that never rests is refused in one line
+    moving = ImuStream(t, sim["gyr"] + np.sin(t)[:, None], sim["acc"])
+    write_imu_csv(tmp_path / "moving.csv", moving.t, moving.gyr, moving.acc)
+    assert calibrate_main([str(tmp_path / "moving.csv"), str(tmp_path / "x.yaml")]) == 1
+    assert "static test: no rest" in capsys.readouterr().err
