@@ -299,11 +299,15 @@ class CalibrationProblem:
         Y = poses.markers
         vis = self.visible & ok[:, None]
         A = self._initial_rotation(R, Y, vis)
-        mk, b = self._markers_given_rotation(A, R, X, Y, vis)
-        for _ in range(5):  # alternate: Kabsch of the model points onto the measured ones, then markers
-            src = (X[:, None, :] + np.einsum("nab,mb->nma", R, mk))[vis]
-            A, b = rigid_fit(src, Y[vis])
-            mk, b = self._markers_given_rotation(A, R, X, Y, vis)
+        keep = vis.copy()
+        for _ in range(6):  # alternate: markers by least squares, then Kabsch; gross outliers left out
+            mk, b = self._markers_given_rotation(A, R, X, Y, keep)
+            pts = X[:, None, :] + np.einsum("nab,mb->nma", R, mk)
+            d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
+            sigma = _robust_sigma(d[vis])
+            keep = vis & (d <= max(REJECT_K * sigma, 1e-12))
+            A, b = rigid_fit(pts[keep], Y[keep])
+        mk, b = self._markers_given_rotation(A, R, X, Y, keep)
         z = np.zeros(self.n_z)
         z[self.i_td] = td
         z[self.i_w] = rotvec_from_matrix(A)
@@ -316,21 +320,37 @@ class CalibrationProblem:
         return z
 
     def _initial_rotation(self, R, Y, vis) -> np.ndarray:
-        """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB)."""
+        """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB).
+
+        Rm_n: the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
+        model's. A few references are tried and the one whose clouds fit best is kept, and pose
+        pairs whose clouds do not fit as a rigid body (a swapped or jumping marker) are left out.
+        """
+        N = len(R)
         counts = vis.sum(axis=1)
-        ref = int(np.argmax(counts))
-        rows = []
+        best_seen = np.nonzero(counts == counts.max())[0]
+        refs = best_seen[np.unique(np.linspace(0, len(best_seen) - 1, min(len(best_seen), 5)).astype(int))]
         # a few dozen well-seen poses fix a rotation; more only cost time
-        for n in np.unique(np.linspace(0, len(R) - 1, min(len(R), 60)).astype(int)):
-            common = vis[n] & vis[ref]
-            if n == ref or common.sum() < 3:
+        sample = np.unique(np.linspace(0, N - 1, min(N, 60)).astype(int))
+        best = None
+        for ref in refs:
+            rows, misfit = [], []
+            for n in sample:
+                common = vis[n] & vis[ref]
+                if n == ref or common.sum() < 3:
+                    continue
+                Rm, tm = rigid_fit(Y[ref, common], Y[n, common])
+                misfit.append(np.sqrt(np.mean(np.sum((Y[ref, common] @ Rm.T + tm - Y[n, common]) ** 2, axis=1))))
+                rows.append(np.kron(np.eye(3), Rm) - np.kron((R[n] @ R[ref].T).T, np.eye(3)))
+            if len(rows) < 2:
                 continue
-            Rm, _ = rigid_fit(Y[ref, common], Y[n, common])
-            B = R[n] @ R[ref].T
-            rows.append(np.kron(np.eye(3), Rm) - np.kron(B.T, np.eye(3)))
-        if rows:
-            K = np.vstack(rows)
-            _, s, Vt = np.linalg.svd(K)
+            misfit = np.array(misfit)
+            med = float(np.median(misfit))
+            good = misfit <= max(4.5 * med, 1e-12)
+            if best is None or med < best[0]:
+                best = (med, np.vstack([r for r, g in zip(rows, good) if g]))
+        if best is not None:
+            _, s, Vt = np.linalg.svd(best[1])
             if s[-2] > 10 * s[-1] and s[-2] > 1e-3:
                 A = Vt[-1].reshape(3, 3, order="F")
                 if np.linalg.det(A) < 0:

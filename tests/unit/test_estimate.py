@@ -210,3 +210,24 @@ def test_serial_chain_by_closed_form_forward():
     assert held, "a two-joint rig has origin errors that the base transform and markers absorb"
     errs = point_errors(cal, poses)
     assert errs.shape == (poses.n_poses, 3)
+
+
+def test_outliers_do_not_mislead_the_start():
+    # this session once sent the start (Kabsch of the marker clouds, then markers by least squares)
+    # to a wrong registration 25 cm off: outlier pose pairs and points are now left out of the start
+    spec = get_platform("rotary")
+    truth = Truth(spec, seed=1, n_markers=5, marker_spread=0.15)
+    poses = truth.poses(300, 2e-4, spread=0.45)
+    rng = np.random.default_rng(2)
+    Y = poses.markers.copy()
+    bad = rng.choice(poses.n_poses, 15, replace=False)
+    for k, n in enumerate(bad):
+        if k % 2:
+            i, j = rng.choice(5, 2, replace=False)
+            Y[n, [i, j]] = Y[n, [j, i]]
+        else:
+            Y[n, rng.integers(5)] += rng.normal(0, 0.03, 3)
+    clean = calibrate(poses, spec)
+    dirty = calibrate(PoseSet("rotary", poses.controls, Y, poses.marker_names), spec)
+    assert dirty.rms_after < 1.2 * clean.rms_after
+    assert prediction_error(dirty, truth) < 1.2 * prediction_error(clean, truth) + 1e-5
