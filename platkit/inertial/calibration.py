@@ -215,8 +215,10 @@ def fit_imu_alignment(r_platform: np.ndarray, r_sensor: np.ndarray, fit_scale: b
         raise NotIdentifiable("IMU misalignment: the platform rotated about fewer than two independent axes "
                               "(rotate it about two platform axes, e.g. roll then pitch)")
     if fit_scale:
-        if sv[2] < 1e-3 * sv[0]:
-            raise NotIdentifiable("gyro scale: the platform must rotate about three independent axes to fix three scales")
+        if sv[2] < 0.1 * sv[0]:
+            # a third axis turned ten times less than the first leaves its scale to the noise
+            raise NotIdentifiable("gyro scale: the platform must rotate about three independent axes to fix three scales "
+                                  f"(the rotations span {sv[2] / sv[0]:.2g} of their main axis in the third)")
         M = np.linalg.lstsq(rp, rs, rcond=None)[0].T
         s = np.linalg.norm(M, axis=1)
         U, _, Vt = np.linalg.svd(M / s[:, None])

@@ -142,14 +142,16 @@ def smooth_motion_from_steps(t_cmd, q_cmd, X_cmd, rate_hz: float, move_s: float,
 def platform_imu_session(spec, td_true, td_model, rng: np.random.Generator, n_commands: int = 30,
                          hold_s: float = 3.0, move_s: float = 1.0, lag_s: float = 0.08, rate_hz: float = 200.0,
                          tilt_max: float = np.radians(8.0), yaw_max: float = np.radians(8.0),
-                         shift_max: float = 0.1, **imu_kw) -> dict:
+                         shift_max: float = 0.1, controls_fraction: float | None = None, **imu_kw) -> dict:
     """A simulated platform session with an IMU, for a stand ``spec``.
 
     Desired poses are drawn around the neutral pose (roll, pitch within ``tilt_max``, yaw within
     ``yaw_max``, position within ``shift_max`` m); the commands are their inverse kinematics with
     the model parameters ``td_model`` (what a user's calibration knows); the platform really goes
     to the forward kinematics with ``td_true``, lagging ``lag_s`` and moving for ``move_s`` after
-    each command (minimum jerk), holding ``hold_s`` between commands. ``imu_kw`` go to
+    each command (minimum jerk), holding ``hold_s`` between commands. With ``controls_fraction``
+    the commands are drawn instead uniformly in control space, within that fraction of each
+    stroke around the neutral controls (any stand, e.g. one without yaw). ``imu_kw`` go to
     :func:`imu_from_motion`. Returns a dict: ``t_cmd`` (M,), ``U`` (M, n_u) SI, ``q_cmd`` (M, 4)
     (the model's poses), ``t``, ``q_true`` (N, 4) q_base_from_platform, ``X_true`` (N, 3), and
     the IMU arrays of :func:`imu_from_motion`.
@@ -158,13 +160,20 @@ def platform_imu_session(spec, td_true, td_model, rng: np.random.Generator, n_co
     from platkit.kinematics import PlatformModel
 
     model = PlatformModel(spec)
-    q0, X0 = model.pose(spec.neutral_p())
-    rpy = rng.uniform(-1, 1, (n_commands, 3)) * np.array([tilt_max, tilt_max, yaw_max])
-    rpy[0] = 0.0
-    dX = rng.uniform(-1, 1, (n_commands, 3)) * shift_max
-    dX[0] = 0.0
-    q_des = quat_multiply(q0[None, :], quat_from_rpy(rpy[:, 0], rpy[:, 1], rpy[:, 2]))
-    U = np.array([model.inverse(q_des[i], X0 + dX[i], td=td_model, strict=False) for i in range(n_commands)])
+    if controls_fraction is not None:
+        lo, hi = spec.control_bounds()
+        u0 = spec.neutral_u()
+        half = controls_fraction * np.minimum(hi - u0, u0 - lo)
+        U = u0 + rng.uniform(-1, 1, (n_commands, spec.n_u)) * half
+        U[0] = u0
+    else:
+        q0, X0 = model.pose(spec.neutral_p())
+        rpy = rng.uniform(-1, 1, (n_commands, 3)) * np.array([tilt_max, tilt_max, yaw_max])
+        rpy[0] = 0.0
+        dX = rng.uniform(-1, 1, (n_commands, 3)) * shift_max
+        dX[0] = 0.0
+        q_des = quat_multiply(q0[None, :], quat_from_rpy(rpy[:, 0], rpy[:, 1], rpy[:, 2]))
+        U = np.array([model.inverse(q_des[i], X0 + dX[i], td=td_model, strict=False) for i in range(n_commands)])
     true = model.forward_batch(U, td=td_true, strict=False)
     pred = model.forward_batch(U, td=td_model, strict=False)
     t_cmd = 2.0 + hold_s * np.arange(n_commands)
