@@ -35,11 +35,11 @@ from typing import Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from platkit.calibrate.identifiability import DEFAULT_REL_TOL, Identifiability, select_identifiable, singular_values
+from platkit.calibrate.identifiability import DEFAULT_REL_TOL, select_identifiable, singular_values
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.result import Calibration
 from platkit.calibrate.terms import ModelTerm
-from platkit.errors import BadInput, ComputationFailed, NoConvergence, NotIdentifiable
+from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import (ca_matrix_from_quat, ca_matrix_from_rotvec, matrix_from_quat, quat_normalize,
                               rigid_fit, rotvec_from_matrix, matrix_from_rotvec)
 from platkit.kinematics import PlatformModel
@@ -258,7 +258,6 @@ class CalibrationProblem:
             _, Y_td, Y_u, Y_w, Y_t, Y_m, Y_dpose = parts
         else:
             _, Y_p, Y_w, Y_t, Y_m, Y_dpose = parts
-            n_r = self.model.n_r
             Fall = outs[1].transpose(0, 2, 1)  # (N, n_r, cols)
             F_p, F_td, F_u = np.split(Fall, np.cumsum(self._fcols)[:-1], axis=2)
             if F_p.shape[1] == F_p.shape[2]:
@@ -298,7 +297,7 @@ class CalibrationProblem:
         R = matrix_from_quat(q)
         Y = poses.markers
         vis = self.visible & ok[:, None]
-        A = self._initial_rotation(R, Y, vis)
+        A = self._initial_rotation(R, X, Y, vis)
         keep = vis.copy()
         for _ in range(6):  # alternate: markers by least squares, then Kabsch; gross outliers left out
             mk, b = self._markers_given_rotation(A, R, X, Y, keep)
@@ -319,7 +318,7 @@ class CalibrationProblem:
             k += len(term.initial)
         return z
 
-    def _initial_rotation(self, R, Y, vis) -> np.ndarray:
+    def _initial_rotation(self, R, X, Y, vis) -> np.ndarray:
         """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB).
 
         Rm_n: the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
@@ -360,13 +359,9 @@ class CalibrationProblem:
         # too little rotation: align the moving frame's path with the markers' centroid path
         full = vis.all(axis=1)
         if full.sum() >= 3:
-            A, _ = rigid_fit(self._fk_origin_path(R, full), Y[full].mean(axis=1))
+            A, _ = rigid_fit(X[full], Y[full].mean(axis=1))
             return A
         return np.eye(3)
-
-    def _fk_origin_path(self, R, rows):
-        q, X, _, _ = self.kinematics(self.spec.nominal_td(), self.poses.controls)
-        return X[rows]
 
     @staticmethod
     def _markers_given_rotation(A, R, X, Y, vis):
