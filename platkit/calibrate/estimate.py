@@ -92,6 +92,12 @@ class CalibrationProblem:
         self.visible = np.all(np.isfinite(poses.markers), axis=2)  # (N, M)
         if not self.visible.any():
             raise BadInput(f"{poses.source or 'poses'}: no marker was seen in any pose")
+        # a marker position averaged over n samples has variance sigma^2 / n: weight it by n
+        # (relative to the median, so that sigma stays the noise of a typical pose)
+        self.base_weights = self.visible.astype(float)
+        n = None if poses.n_samples is None else np.asarray(poses.n_samples, float)
+        if n is not None and n.shape == self.visible.shape and np.all(n[self.visible] > 0):
+            self.base_weights = np.where(self.visible, n / np.median(n[self.visible]), 0.0)
         self.theta_sizes = [len(t.initial) for t in self.terms]
         n_theta = int(sum(self.theta_sizes))
         self.i_td = slice(0, spec.n_td)
@@ -514,34 +520,43 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
 
 def robust_fit(problem: CalibrationProblem, z0, active, robust: bool = True, max_iter: int = 60,
                progress: Progress | None = None, stage: str = "iteration") -> LMResult:
-    """LM with iteratively reweighted Huber weights, then hard rejection beyond REJECT_K sigma."""
+    """LM with iteratively reweighted Huber weights, then hard rejection beyond REJECT_K sigma.
+
+    Weights start from ``problem.base_weights`` (the samples averaged into each marker position,
+    relative to the median); errors are compared in units of their own expected size.
+    """
     vis = problem.visible
-    weights = vis.astype(float)
+    base = problem.base_weights
+    weights = base.copy()
     res = levenberg_marquardt(problem, z0, active, weights, max_iter, progress=progress, stage=stage)
     if not robust:
         return res
     total_it = res.iterations
+
+    def standardized(state):
+        return np.linalg.norm(state.r, axis=2) * np.sqrt(base)
+
     for _ in range(3):  # Huber rounds
-        d = np.linalg.norm(res.state.r, axis=2)
+        d = standardized(res.state)
         sigma = _robust_sigma(d[vis])
         if not np.isfinite(sigma) or sigma <= 0:
             break
         c = HUBER_K * sigma
-        new_w = np.where(vis & np.isfinite(d), np.minimum(1.0, c / np.maximum(d, 1e-300)), 0.0)
+        new_w = np.where(vis & np.isfinite(d), base * np.minimum(1.0, c / np.maximum(d, 1e-300)), 0.0)
         res = levenberg_marquardt(problem, res.z, active, new_w, max_iter, progress=progress, stage=stage, it0=total_it)
         total_it += res.iterations
-        if np.max(np.abs(new_w - weights)) < 0.05:
+        if np.max(np.abs(new_w - weights) / np.maximum(base, 1e-300)) < 0.05:
             weights = new_w
             break
         weights = new_w
     keep_prev = None
     for _ in range(3):  # hard rejection rounds: inliers get full weight (no efficiency lost)
-        d = np.linalg.norm(res.state.r, axis=2)
+        d = standardized(res.state)
         sigma = _robust_sigma(d[vis])
         keep = vis & np.isfinite(d) & (d <= REJECT_K * sigma)
         if keep_prev is not None and np.array_equal(keep, keep_prev):
             break
-        res = levenberg_marquardt(problem, res.z, active, keep.astype(float), max_iter, progress=progress,
+        res = levenberg_marquardt(problem, res.z, active, np.where(keep, base, 0.0), max_iter, progress=progress,
                                   stage=stage, it0=total_it)
         total_it += res.iterations
         keep_prev = keep

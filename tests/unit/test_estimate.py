@@ -231,3 +231,15 @@ def test_outliers_do_not_mislead_the_start():
     dirty = calibrate(PoseSet("rotary", poses.controls, Y, poses.marker_names), spec)
     assert dirty.rms_after < 1.2 * clean.rms_after
     assert prediction_error(dirty, truth) < 1.2 * prediction_error(clean, truth) + 1e-5
+
+
+def test_markers_averaged_over_more_samples_weigh_more(stewart):
+    truth = Truth(stewart, seed=13)
+    U, Y = truth.observe(truth.controls(120))
+    n = np.where(np.arange(len(U))[:, None] % 2 == 0, 1, 400) * np.ones((1, Y.shape[1]))
+    rng = np.random.default_rng(5)
+    noisy = Y + rng.normal(size=Y.shape) * (1e-3 / np.sqrt(n))[..., None]  # 1 mm for one sample
+    plain = calibrate(PoseSet("stewart", U, noisy, [f"M{i}" for i in range(4)]), stewart)
+    weighted = calibrate(PoseSet("stewart", U, noisy, [f"M{i}" for i in range(4)], n_samples=n), stewart)
+    assert prediction_error(weighted, truth) < 0.5 * prediction_error(plain, truth)
+    assert weighted.n_rejected == 0  # the one-sample poses are noisy, not outliers
