@@ -498,7 +498,9 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
             st_new = problem.evaluate(z_new)
             rw_new, Jw_new = _weighted(st_new, weights, active, problem.prior_rows(z_new))
             cost_new = 0.5 * rw_new @ rw_new
-            if np.isfinite(cost_new) and cost_new <= cost:
+            # a step that loses poses (forward kinematics fails there) only looks cheaper
+            lost = np.sum(st_new.converged) < np.sum(st.converged)
+            if np.isfinite(cost_new) and cost_new <= cost and not lost:
                 accepted = True
                 break
             lam *= 10
