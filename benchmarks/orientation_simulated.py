@@ -155,6 +155,10 @@ def run_seed(seed: int, spec, workdir: Path) -> dict:
     for method in ("platkit", "paper", "command-aided"):
         r = orient_session(folder, method, calibration=cal_path, imu_calibration=cal_file).report
         out[method + " (IMU calibrated)"] = (r["truth"]["total_rmse_deg"], r["truth"]["inclination_rmse_deg"])
+    r = orient_session(folder, "command-aided", imu_calibration=cal_file, level_base=True).report
+    out["command-aided-nominal (IMU calibrated, level base)"] = (r["truth"]["total_rmse_deg"], r["truth"]["inclination_rmse_deg"])
+    r = orient_session(folder, "command-aided", imu_calibration=cal_file).report
+    out["command-aided-nominal (IMU calibrated)"] = (r["truth"]["total_rmse_deg"], r["truth"]["inclination_rmse_deg"])
     return out
 
 
@@ -194,10 +198,11 @@ def main(argv=None) -> int:
 def report(rows) -> None:
     print("orientation error against the truth, deg (total RMSE / inclination RMSE)")
     for m in ("platkit", "paper", "command-aided", "command-aided-nominal", "platkit (IMU calibrated)",
-              "paper (IMU calibrated)", "command-aided (IMU calibrated)"):
+              "paper (IMU calibrated)", "command-aided (IMU calibrated)", "command-aided-nominal (IMU calibrated)",
+              "command-aided-nominal (IMU calibrated, level base)"):
         vals = np.array([r[m] for r in rows])
         per = "  ".join(f"{a:.3f}/{b:.3f}" for a, b in vals)
-        print(f"  {m:<31} {per}   mean {vals[:, 0].mean():.3f}/{vals[:, 1].mean():.3f}")
+        print(f"  {m:<52} {per}   mean {vals[:, 0].mean():.3f}/{vals[:, 1].mean():.3f}")
     print("what the session and a bench test recover (per seed)")
     for key, label in (("alignment_deg", "R_SP error from the session's moves, deg"),
                        ("paper_step2_deg", "R_SP error from single-axis rotations (paper), deg"),

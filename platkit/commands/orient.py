@@ -21,6 +21,9 @@ def add_parser(sub):
     p.add_argument("--description", default=None, help="description file (default: session.yaml's or the stand's)")
     p.add_argument("--max-repair-s", type=float, default=0.05,
                    help="missing IMU data and time gaps up to this long are interpolated (and reported); longer ones are errors")
+    p.add_argument("--level-base", action="store_true",
+                   help="command-aided: the base frame's z is vertical and the accelerometer calibrated, so the "
+                        "tilt comes from the accelerometer alone (default: its constant offset to the model is removed)")
     p.add_argument("--out", required=True, help="output folder")
     return p
 
@@ -30,7 +33,7 @@ def run(args) -> int:
     from platkit.inertial.report import write_outputs
 
     result = orient_session(args.session, args.method, args.calibration, args.imu_calibration,
-                            args.platform, args.description, args.max_repair_s)
+                            args.platform, args.description, args.max_repair_s, args.level_base)
     write_outputs(result, args.out)
     for w in result.warnings:
         print(f"platkit: warning: {w}", file=sys.stderr)

@@ -144,7 +144,8 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
 
 def orient_session(folder: str | Path, method: str = "platkit", calibration: str | Path | None = None,
                    imu_calibration: str | Path | None = None, platform: str | None = None,
-                   description: str | Path | None = None, max_repair_s: float = 0.05) -> OrientResult:
+                   description: str | Path | None = None, max_repair_s: float = 0.05,
+                   level_base: bool = False) -> OrientResult:
     """Estimate the platform's orientation over a session (see the module docstring)."""
     from platkit.inertial.command_aided import (CommandAidedParams, command_poses, estimate_alignment_from_commands,
                                                 estimate_command_aided, estimate_timing, held_mask)
@@ -244,7 +245,11 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     report["gyr_bias_start_rad_s"] = np.asarray(bias0).tolist()
 
     if method == "command-aided":
-        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0, CommandAidedParams(timing=timing))
+        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0, CommandAidedParams(timing=timing, tilt_from_accelerometer=cal_given or level_base,
+                                                        level_base=level_base))
+        if level_base and not cal_given:
+            warnings.append("--level-base without --imu-calibration: the accelerometer's bias and scale errors "
+                            "go straight into the tilt")
         q_bp = est.q
         report["heading"] = "absolute (from the commanded poses)"
     else:
