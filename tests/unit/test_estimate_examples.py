@@ -1,6 +1,6 @@
-"""The example sessions shipped with platkit (made by platkit.simulate, raw marker streams settled by
-platkit.calibrate.settle): calibration predicts the markers of the true stand (truth.yaml) to well
-under the marker noise, for every stand that ships one."""
+"""Sessions made by platkit.simulate (raw marker streams settled by platkit.calibrate.settle): the
+example sessions shipped with platkit, and fresh ones. Calibration predicts the markers of the
+true stand to well under the marker noise."""
 from __future__ import annotations
 
 import numpy as np
@@ -34,3 +34,21 @@ def test_example_session_predicts_the_true_markers(stand):
     assert cal.rms_after < cal.rms_before
     # the settled markers average many samples; the model error must sit well below one sample's noise
     assert err < 0.5 * noise, f"{stand}: prediction error {err * 1e3:.4f} mm against the truth (noise {noise * 1e3} mm)"
+
+
+@pytest.mark.parametrize("stand", ["urdf", "stewart"])
+def test_simulated_session_with_the_simulator(stand):
+    from platkit.plugins import get_platform
+    from platkit.simulate import simulate
+
+    spec = get_platform(stand)
+    sim = simulate(spec, seed=7, n_poses=60, plan="random", noise_mm=0.2)
+    poses, truth = sim.poses, sim.truth
+    cal = calibrate(poses, spec)
+    fb = PlatformModel(spec).forward_batch(poses.controls, truth.td, strict=False)
+    T = truth.mocap_from_base
+    true_markers = (fb.X[:, None] + np.einsum("nab,mb->nma", matrix_from_quat(fb.q), truth.markers)) @ T[:3, :3].T \
+        + T[:3, 3]
+    pred, _, _, ok = predict_markers(cal, poses.controls)
+    err = float(np.sqrt(np.mean(np.sum((pred[ok] - true_markers[ok]) ** 2, axis=2))))
+    assert ok.all() and err < 0.5 * truth.noise_m, f"{stand}: {err * 1e3:.4f} mm"
