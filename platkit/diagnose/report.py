@@ -127,7 +127,7 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
             a.axhline(0, color="k", lw=0.5)
             a.set_xlabel(f.regressor_label)
             a.set_title(title)
-        ax[0].set_ylabel(f"residual along the effect's signature ({d.unit})")
+        ax[0].set_ylabel(f"measured - model, along the effect ({d.unit})")
         out.append((f"{f.effect}: {html.escape(json.dumps(_plain(f.where)))}", _png(fig)))
     # residual norm in time order, before and after
     r0 = np.linalg.norm(d.base.extras["residuals_after"], axis=2)

@@ -200,16 +200,26 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet, candidates: list[ModelT
     return out
 
 
-def _signature(J: np.ndarray, r: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
-    """(N,) each pose's residual along the term's signature (m): the projection of r_n (M*3)
-    on J_n theta_hat (the direction the term moves that pose's markers)."""
+def _signature(J: np.ndarray, r: np.ndarray, theta: np.ndarray | None, sign: np.ndarray) -> np.ndarray:
+    """(N,) each pose's measured-minus-model error along the term's signature (m): r_n (M*3)
+    projected on J_n theta_hat, signed by the term's own offset at that pose (``sign``), so that
+    it follows the regressor (a backlash's two directions fall on two sides of zero)."""
     N = J.shape[0]
     Jn = np.nan_to_num(J.reshape(N, -1, J.shape[-1]))
     d = Jn @ (theta if theta is not None and np.linalg.norm(theta) > 0 else np.ones(J.shape[-1]))
     rn = np.nan_to_num(r.reshape(N, -1))
     size = np.linalg.norm(d, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(size > 0, np.sum(rn * d, axis=1) / size, np.nan)
+        return np.where(size > 0, -np.sum(rn * d, axis=1) / size * sign, np.nan)
+
+
+def _offset_sign(term: ModelTerm, theta: np.ndarray, fit: "Fit", poses: PoseSet) -> np.ndarray:
+    """(N,) sign of the term's offset at each pose, in its most varying component."""
+    q, X = fit.problem.kinematics(fit.problem.split(fit.z)[0], poses.controls)[:2]
+    parts = [term.control_offset(theta, poses, poses.controls.shape[1]), term.pose_offset(theta, poses, q, X),
+             term.marker_offset(theta, poses).reshape(poses.n_poses, -1)]
+    off = np.concatenate([np.nan_to_num(p) for p in parts], axis=1)
+    return np.sign(off[:, int(np.argmax(np.var(off, axis=0)))])
 
 
 def _same(a: ModelTerm, b: ModelTerm) -> bool:
@@ -288,12 +298,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                 not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep}
         order = [i for i in np.argsort([s[1] for s in scr])
                  if p_adj[i] < opt.alpha and scr[i][2] >= opt.min_separability]
-        # one refit per effect kind and place: the best period / split of a kind first
-        chosen: list[int] = []
-        for i in order:
-            if len(chosen) >= opt.max_refits:
-                break
-            chosen.append(i)
+        chosen = order[:opt.max_refits]
         rounds.append({"round": len(rounds) + 1, "screened": len(cands), "passed_screening": len(order),
                        "refit": [f"{cands[i][0].name} ({_where_text(cands[i][1].where)})" for i in chosen],
                        "top": sorted(table, key=lambda x: x["p_adjusted"])[:8]})
@@ -337,7 +342,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             heldout_rms_after=best.cv_rms, evidence="", p_heldout=float(ph), p_screen=float(p_adj[i]),
             bic_change=float(best.bic - cur.bic), separability=float(sep), warnings=warn, term=term,
             regressor=reg, regressor_label=eff.regressor_label(term),
-            signature_before=_signature(Jc, cur.r, theta))
+            signature_before=_signature(Jc, cur.r, theta, _offset_sign(term, theta, best, poses)))
         findings.append(finding)
         accepted_info.append({"fit": best, "J": Jc})
         say(f"accepted {eff.name} ({_where_text(term.where)})")
@@ -349,7 +354,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     for k, (finding, info) in enumerate(zip(findings, accepted_info), start=len(prior)):
         theta, std = final_cal.theta[k], final_cal.theta_std[k]
         finding.parameters = _params(finding.term, theta, std)
-        finding.signature_after = _signature(info["J"], final_cal.extras["residuals_after"], theta)
+        finding.signature_after = _signature(info["J"], final_cal.extras["residuals_after"], theta,
+                                             _offset_sign(finding.term, theta, info["fit"], poses))
         finding.evidence = _evidence(finding, poses, unit, folds=opt.folds)
     locations = locate(final_cal.extras["residuals_after"], poses, spec, None, opt.alpha)
     if stop_unexplained is None and opt.probes:
@@ -443,7 +449,6 @@ def verdict(d: Diagnosis) -> str:
     unit = d.unit
     named = [f for f in d.findings if f.effect != "unexplained"]
     unexpl = [f for f in d.findings if f.effect == "unexplained"]
-    base_rms = d.findings[0].heldout_rms_before if d.findings else None
     parts = []
     if not d.findings:
         loc = located(d.locations, 0.01)
@@ -469,5 +474,4 @@ def verdict(d: Diagnosis) -> str:
         h = d.heldout_session
         parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
                      f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
-    del base_rms
     return " ".join(parts)
