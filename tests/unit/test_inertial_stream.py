@@ -153,3 +153,26 @@ def test_missing_and_empty_files(tmp_path):
     (tmp_path / "e.csv").write_text("")
     with pytest.raises(BadSession, match="empty file"):
         read_imu_csv(tmp_path / "e.csv")
+
+
+def test_broad_reader_bad_files(tmp_path):
+    import h5py
+
+    from platkit.inertial.stream import read_broad
+
+    p = tmp_path / "t.hdf5"
+    with h5py.File(p, "w") as f:
+        f["imu_gyr"] = np.zeros((10, 3))
+        f["imu_acc"] = np.zeros((10, 3))
+        f["opt_quat"] = np.zeros((10, 4))
+        f.attrs["sampling_rate"] = 100.0
+    with pytest.raises(BadSession, match=r"t\.hdf5: missing dataset 'movement'"):
+        read_broad(p)
+    with h5py.File(p, "a") as f:
+        f["movement"] = np.zeros(10, bool)
+        f["imu_gyr"][3, 1] = np.nan
+    with pytest.raises(BadSession, match=r"dataset 'imu_gyr', sample 3, axis 1: not a finite number"):
+        read_broad(p)
+    (tmp_path / "x.hdf5").write_text("not hdf5")
+    with pytest.raises(BadSession, match="not an HDF5 file"):
+        read_broad(tmp_path / "x.hdf5")
