@@ -243,3 +243,25 @@ def test_markers_averaged_over_more_samples_weigh_more(stewart):
     weighted = calibrate(PoseSet("stewart", U, noisy, [f"M{i}" for i in range(4)], n_samples=n), stewart)
     assert prediction_error(weighted, truth) < 0.5 * prediction_error(plain, truth)
     assert weighted.n_rejected == 0  # the one-sample poses are noisy, not outliers
+
+
+def test_reported_std_matches_the_scatter_over_noise_draws():
+    spec = get_platform("rotary")
+    truth = Truth(spec, seed=3, n_markers=3, marker_spread=0.1)
+    U, Y = truth.observe(truth.controls(60, 0.45))
+    est, std = [], []
+    for k in range(30):
+        noisy = Y + np.random.default_rng(100 + k).normal(0, 1e-4, Y.shape)
+        cal = calibrate(PoseSet("rotary", U, noisy, ["a", "b", "c"]), spec)
+        est.append(cal.td)
+        std.append(cal.td_std)
+    est, std = np.array(est), np.array(std)
+    checked = 0
+    for i in range(spec.n_td):
+        if not np.isfinite(std[:, i]).all():
+            continue
+        ratio = est[:, i].std(ddof=1) / std[:, i].mean()
+        assert 0.7 < ratio < 1.45, (spec.parameter_names[i], ratio)  # 30 draws: the scatter's own error ~13%
+        assert abs(est[:, i].mean() - truth.td[i]) < 4 * std[:, i].mean() / np.sqrt(30)
+        checked += 1
+    assert checked >= 3
