@@ -37,15 +37,18 @@ from platkit.inertial.stream import ImuStream
 
 @dataclass
 class PlatformTiming:
-    """How the platform follows its commands: ``lag_s`` (command to start of motion),
-    ``settle_s`` (command to the end of motion), both medians over ``n_moves`` moves, and their
-    spreads (std, s)."""
+    """How the platform follows its commands: ``lag_s`` (command to 5 % of the move's rotation)
+    and ``settle_s`` (command to 95 %), medians over ``n_moves`` timed moves, their spreads
+    (std, s), and per command row ``lag_by_command``/``settle_by_command`` (M,) s, NaN where a
+    move could not be timed (moves of different sizes take different times)."""
 
     lag_s: float
     settle_s: float
     n_moves: int
     lag_std_s: float = float("nan")
     settle_std_s: float = float("nan")
+    lag_by_command: np.ndarray | None = None
+    settle_by_command: np.ndarray | None = None
 
 
 def command_poses(model, U: np.ndarray, td=None) -> np.ndarray:
@@ -71,17 +74,20 @@ def estimate_timing(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, gyr_bi
     """Latency and settling time of the platform from the gyro and the commands.
 
     For each command whose predicted rotation exceeds ``min_angle``, the gyro's rotation angle
-    accumulated between this command and the next is found (rate above three times its median,
-    the noise of a platform that mostly holds); onset = 5 %, end = 95 % of it.
+    accumulated between this command and the next is found (rate above three times its 20th
+    percentile: the noise, if the platform holds a fifth of the time); onset = 5 %, end = 95 %.
     """
     b = np.zeros(3) if gyr_bias is None else np.asarray(gyr_bias, float)
     rate = np.linalg.norm(imu.gyr - b, axis=1)
-    # the platform holds most of the time: three times the median rate is above the noise, and
-    # only what exceeds it counts as motion (noise would otherwise smear the onset and the end)
-    rate = np.clip(rate - 3.0 * np.median(rate), 0.0, None)
+    # the platform holds at least a fifth of the time: three times the 20th percentile of the
+    # rate is above the noise, and only what exceeds it counts as motion (noise would otherwise
+    # smear the onset and the end)
+    rate = np.clip(rate - 3.0 * np.percentile(rate, 20), 0.0, None)
     cum = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(imu.t))])
     steps = np.linalg.norm(rotvec_from_quat(quat_multiply(quat_conjugate(q_cmd[:-1]), q_cmd[1:])), axis=1)
     lags, ends = [], []
+    lag_k = np.full(len(t_cmd), np.nan)
+    end_k = np.full(len(t_cmd), np.nan)
     for k in range(1, len(t_cmd)):
         if steps[k - 1] < min_angle:
             continue
@@ -96,26 +102,34 @@ def estimate_timing(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, gyr_bi
             continue  # the gyro saw too little of this move (it ran into the next command)
         lags.append(imu.t[i0 + np.searchsorted(c, 0.05 * total)] - t0)
         ends.append(imu.t[min(i0 + np.searchsorted(c, 0.95 * total), i1 - 1)] - t0)
+        lag_k[k], end_k[k] = lags[-1], ends[-1]
     if not lags:
         raise NotIdentifiable("platform latency: no command turned the platform enough to time it "
                               f"(need steps above {math.degrees(min_angle):.2g} deg with the gyro recording)")
     return PlatformTiming(float(np.median(lags)), float(np.median(ends)), len(lags),
-                          float(np.std(lags)), float(np.std(ends)))
+                          float(np.std(lags)), float(np.std(ends)), lag_k, end_k)
 
 
 def held_mask(t: np.ndarray, t_cmd: np.ndarray, timing: PlatformTiming, margin_s: float = 0.05) -> np.ndarray:
     """(N,) bool: samples where the platform holds the last command's pose.
 
-    ``lag_s`` and ``settle_s`` mark 5 % and 95 % of a move; the motion's slow start and end lie
-    outside them, so the hold is taken from ``settle_s`` plus half the 5-95 % time (plus
-    ``margin_s``) after a command, to ``lag_s`` minus as much after the next one (never before
-    the next command). For a minimum-jerk move this is exactly its end and its start."""
+    ``lag`` and ``settle`` mark 5 % and 95 % of a move (per command where it was timed, else the
+    medians); the motion's slow start and end lie outside them, so the hold is taken from
+    ``settle`` plus half the 5-95 % time (plus ``margin_s``) after a command, to the next
+    command's ``lag`` minus as much (never before the next command). For a minimum-jerk move
+    this is exactly its end and its start."""
+    M = len(t_cmd)
+    lag = np.full(M, timing.lag_s)
+    settle = np.full(M, timing.settle_s)
+    if timing.lag_by_command is not None and len(timing.lag_by_command) == M:
+        known = np.isfinite(timing.lag_by_command) & np.isfinite(timing.settle_by_command)
+        lag[known] = timing.lag_by_command[known]
+        settle[known] = timing.settle_by_command[known]
+    tail = 0.5 * np.clip(settle - lag, 0.0, None) + margin_s
+    start = t_cmd + settle + tail                       # the hold of command k starts here
+    end = np.append(t_cmd[1:] + np.clip(lag[1:] - tail[1:], 0.0, None), np.inf)  # and ends here
     k = _hold_index(t, t_cmd)
-    since = t - t_cmd[k]
-    nxt = np.append(t_cmd[1:], np.inf)[k]
-    tail = 0.5 * max(timing.settle_s - timing.lag_s, 0.0) + margin_s
-    held = (since >= timing.settle_s + tail) & (t <= nxt + max(timing.lag_s - tail, 0.0))
-    held &= t >= t_cmd[0]
+    held = (t >= start[k]) & (t <= end[k]) & (t >= t_cmd[0])
     return held
 
 
