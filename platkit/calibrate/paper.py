@@ -68,16 +68,55 @@ def marker_frame(markers: np.ndarray, weights: np.ndarray | None = None, tol: fl
     return C, quat_from_matrix(R), S, it
 
 
-def _qdelta_residual(a, delta, q_real, q_model):
-    """(N, 4) residuals (q^a)^-1 o q^u o q^delta o (q_m^u)^-1 - (+-)q^e (sign of the nearer)."""
-    x = quat_multiply(quat_multiply(quat_multiply(quat_conjugate(a)[None], q_real), delta[None]), quat_conjugate(q_model))
+def _left(p: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) matrices L with L(p) q = p o q."""
+    w, x, y, z = np.moveaxis(np.asarray(p, float), -1, 0)
+    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1),
+                     np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], -2)
+
+
+def _right(q: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) matrices R with R(q) p = p o q."""
+    w, x, y, z = np.moveaxis(np.asarray(q, float), -1, 0)
+    return np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, z, -y], -1),
+                     np.stack([y, -z, w, x], -1), np.stack([z, y, -x, w], -1)], -2)
+
+
+def _mismatch_operator(q_real, q_model) -> np.ndarray:
+    """(N, 4, 4) M_n with q^u o d o (q_m^u)^-1 = M_n d: the functional is linear in q^delta."""
+    return np.einsum("nij,njk->nik", _left(q_real), _right(quat_conjugate(q_model)))
+
+
+def _residual_from(a, delta, M):
+    x = _left(quat_conjugate(a)) @ np.einsum("nij,j->ni", M, delta).T  # (4, N)
+    x = x.T
     sign = np.where(x[:, :1] < 0, -1.0, 1.0)
     return x - sign * np.array([1.0, 0, 0, 0])
+
+
+def _qdelta_residual(a, delta, q_real, q_model):
+    """(N, 4) residuals (q^a)^-1 o q^u o q^delta o (q_m^u)^-1 - (+-)q^e (sign of the nearer)."""
+    return _residual_from(a, delta, _mismatch_operator(q_real, q_model))
 
 
 def paper_J(a, delta, q_real, q_model) -> float:
     """The paper's functional: sum over poses of the norm of the quaternion mismatch."""
     return float(np.sum(np.linalg.norm(_qdelta_residual(a, delta, q_real, q_model), axis=1)))
+
+
+def qdelta_jacobian(a, d, M, fit_base: bool = True) -> np.ndarray:
+    """d r / d step (N*4, 3 or 6) of the step-3 residuals at step 0, steps q^delta o exp(s_d) and
+    q^a o exp(s_a). Exact: the functional is bilinear in (q^a)^-1 and q^delta, and the choice of
+    +-q^e in the residual is locally constant."""
+    ac = quat_conjugate(a)
+    Md = np.einsum("nij,j->ni", M, d)  # (N, 4)
+    pure = np.vstack([np.zeros(3), np.eye(3)])  # (4, 3): the pure quaternions (0, e_j) as columns
+    # d o exp(s) ~ d + (1/2) d o (0, s);  exp(s)^-1 o a^-1 ~ a^-1 - (1/2) (0, s) o a^-1
+    cols = [np.einsum("ij,njk,kl->nil", _left(ac), M, 0.5 * _left(d) @ pure)]  # (N, 4, 3)
+    if fit_base:
+        La = np.stack([_left(np.concatenate([[0.0], e])) for e in np.eye(3)])  # (3, 4, 4)
+        cols.append(-0.5 * np.einsum("jik,kl,nl->nij", La, _left(ac), Md))
+    return np.concatenate(cols, axis=2).reshape(-1, 6 if fit_base else 3)
 
 
 def fit_qdelta(q_real, q_model, a0=None, delta0=None, fit_base: bool = True, max_iter: int = 50, tol: float = 1e-14):
@@ -89,6 +128,7 @@ def fit_qdelta(q_real, q_model, a0=None, delta0=None, fit_base: bool = True, max
     a = np.array([1.0, 0, 0, 0]) if a0 is None else quat_normalize(np.asarray(a0, float))
     d = np.array([1.0, 0, 0, 0]) if delta0 is None else quat_normalize(np.asarray(delta0, float))
     k = 6 if fit_base else 3
+    M = _mismatch_operator(q_real, q_model)
 
     def apply(a, d, step):
         d2 = quat_normalize(quat_multiply(d, quat_from_rotvec(step[:3])))
@@ -96,18 +136,13 @@ def fit_qdelta(q_real, q_model, a0=None, delta0=None, fit_base: bool = True, max
         return a2, d2
 
     def res(a, d):
-        return _qdelta_residual(a, d, q_real, q_model).ravel()
+        return _residual_from(a, d, M).ravel()
 
     r = res(a, d)
     cost = r @ r
     lam = 1e-3
-    h = 1e-7
     for _ in range(max_iter):
-        J = np.empty((r.size, k))
-        for j in range(k):
-            e = np.zeros(k)
-            e[j] = h
-            J[:, j] = (res(*apply(a, d, e)) - r) / h
+        J = qdelta_jacobian(a, d, M, fit_base)
         g = J.T @ r
         A = J.T @ J
         improved = False

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.paper import calibrate_paper, fit_qdelta, marker_frame, paper_J
+from platkit.calibrate.paper import (_mismatch_operator, _residual_from, calibrate_paper, fit_qdelta, marker_frame,
+                                    paper_J, qdelta_jacobian)
 from platkit.calibrate.poses import PoseSet
 from platkit.geometry import matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize
 from platkit.plugins import get_platform
@@ -48,6 +49,22 @@ def test_step3_finds_q_delta_and_the_base_rotation_on_the_sphere():
     q_real0 = quat_multiply(q_model, quat_conjugate(delta)[None])
     _, d0 = fit_qdelta(q_real0, q_model, fit_base=False)
     assert _same_rotation(d0, delta, 1e-7)
+
+
+def test_step3_jacobian_is_exact():
+    rng = np.random.default_rng(2)
+    q_real, q_model = quat_normalize(rng.normal(size=(7, 4))), quat_normalize(rng.normal(size=(7, 4)))
+    a, d = quat_normalize(rng.normal(size=4)), quat_normalize(rng.normal(size=4))
+    M = _mismatch_operator(q_real, q_model)
+    r0 = _residual_from(a, d, M).ravel()
+    J = qdelta_jacobian(a, d, M)
+    for j in range(6):
+        e = np.zeros(3)
+        e[j % 3] = 1e-7
+        a2 = quat_normalize(quat_multiply(a, quat_from_rotvec(e))) if j >= 3 else a
+        d2 = quat_normalize(quat_multiply(d, quat_from_rotvec(e))) if j < 3 else d
+        fd = (_residual_from(a2, d2, M).ravel() - r0) / 1e-7
+        assert np.max(np.abs(fd - J[:, j])) < 1e-6
 
 
 def test_paper_lowers_its_functional_and_the_default_beats_it():
