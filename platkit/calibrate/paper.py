@@ -127,7 +127,6 @@ def fit_qdelta(q_real, q_model, a0=None, delta0=None, fit_base: bool = True, max
     """
     a = np.array([1.0, 0, 0, 0]) if a0 is None else quat_normalize(np.asarray(a0, float))
     d = np.array([1.0, 0, 0, 0]) if delta0 is None else quat_normalize(np.asarray(delta0, float))
-    k = 6 if fit_base else 3
     M = _mismatch_operator(q_real, q_model)
 
     def apply(a, d, step):
