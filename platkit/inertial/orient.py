@@ -242,11 +242,12 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         report["alignment"] = {"source": "none (identity)"}
     q_sp = quat_from_matrix(R_sp)
     report["sensor_from_platform"] = np.asarray(R_sp).tolist()
-    report["gyr_bias_start_rad_s"] = np.asarray(bias0).tolist()
+    report["gyr_bias_start_rad_s"] = (cal.gyr_bias + cal.gyr_scale * np.asarray(bias0)).tolist()
 
     if method == "command-aided":
-        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0, CommandAidedParams(timing=timing, tilt_from_accelerometer=cal_given or level_base,
-                                                        level_base=level_base))
+        params = CommandAidedParams(timing=timing, tilt_from_accelerometer=cal_given or level_base,
+                                    level_base=level_base)
+        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0, params)
         if level_base and not cal_given:
             warnings.append("--level-base without --imu-calibration: the accelerometer's bias and scale errors "
                             "go straight into the tilt")
@@ -269,7 +270,9 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         else:
             report["heading"] = "relative to the start (no magnetometer, no commands)"
     report["estimator"] = {k: v for k, v in est.info.items() if k != "params"}
-    report["gyr_bias_end_rad_s"] = np.asarray(est.bias[-1]).tolist()
+    # the estimators see the calibrated stream; in raw sensor units the bias is b_cal + s r
+    bias_end = cal.gyr_bias + cal.gyr_scale * np.asarray(est.bias[-1])
+    report["gyr_bias_end_rad_s"] = bias_end.tolist()
 
     result = OrientResult(imu.t, q_bp, report, warnings=warnings)
     tpath = folder / "truth_orientation.csv"
@@ -283,8 +286,8 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
             err = rotvec_from_matrix(np.asarray(R_sp) @ truth["sensor_from_platform"].T)
             cmp["alignment_error_deg"] = float(np.degrees(np.linalg.norm(err)))
         if "gyr_bias_rad_s" in truth:
-            # the bias at the end of the run, in sensor axes, against the true bias
-            cmp["gyr_bias_error_deg_s"] = np.degrees(np.asarray(est.bias[-1]) - truth["gyr_bias_rad_s"]).tolist()
+            # the bias at the end of the run, raw sensor axes, against the true bias
+            cmp["gyr_bias_error_deg_s"] = np.degrees(bias_end - truth["gyr_bias_rad_s"]).tolist()
         report["truth_imu"] = cmp
     report["warnings"] = warnings
     return result

@@ -184,6 +184,8 @@ def test_level_base_takes_the_tilt_from_a_calibrated_accelerometer(tmp_path):
         report = json.loads((out / "report.json").read_text())
         errs[bool(extra)] = report["truth"]["inclination_rmse_deg"]
         assert report["estimator"]["tilt_from_accelerometer"]["used"]
+        # the bias is reported in raw sensor units: the calibration's plus what the run found
+        assert np.allclose(report["gyr_bias_end_rad_s"], BIAS[:3], atol=np.radians(0.02))
     assert errs[True] < 0.5 * errs[False]
 
 
