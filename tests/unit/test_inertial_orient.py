@@ -208,3 +208,16 @@ def test_session_from_platkit_simulate_with_the_imu_hook(tmp_path):
         reports[method] = json.loads((tmp_path / method / "report.json").read_text())
     assert reports["command-aided"]["timing"]["n_moves"] >= len(sim.command_t) - 2
     assert reports["command-aided"]["truth"]["total_rmse_deg"] < 0.5 * reports["platkit"]["truth"]["total_rmse_deg"]
+
+
+def test_declared_full_scale_flags_saturation(sim_session, tmp_path):
+    import yaml
+
+    folder = _copy(sim_session[0], tmp_path)
+    y = yaml.safe_load((folder / "session.yaml").read_text())
+    y["imu"]["acc_range_m_s2"] = 9.9  # a sensor that clips just above 1 g
+    (folder / "session.yaml").write_text(yaml.safe_dump(y))
+    out = tmp_path / "o"
+    assert main(["orient", str(folder), "--method", "platkit-causal", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert any("of acc_z at the sensor's clipping limit" in w for w in report["warnings"])
