@@ -124,11 +124,12 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
 
 
 def singular_values(A: np.ndarray) -> np.ndarray:
-    """Singular values (descending) of a tall matrix, from the eigenvalues of A^T A (fast for
-    thousands of rows; relative accuracy of the smallest ~ eps * condition^2, enough to report)."""
+    """Singular values (descending) of a matrix: of its R factor (QR first, which is cheap for the
+    tall identification Jacobians), to full relative accuracy."""
     A = np.asarray(A, float)
-    ev = np.linalg.eigvalsh(A.T @ A)[::-1]
-    return np.sqrt(np.clip(ev, 0, None))
+    if A.shape[0] > 2 * A.shape[1]:
+        A = np.linalg.qr(A, mode="r")
+    return np.linalg.svd(A, compute_uv=False)
 
 
 def null_space_combinations(J: np.ndarray, names: list[str], scale: np.ndarray, rel_tol: float = 1e-8,

@@ -160,7 +160,8 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
     if sv:
         fig, ax = plt.subplots(figsize=(7, 3))
         sv = np.asarray(sv, float)
-        ax.semilogy(np.arange(1, len(sv) + 1), np.maximum(sv, 1e-300), "o-", ms=3)
+        floor = 1e-17 * max(float(sv.max()), 1e-300)  # below double precision: zero
+        ax.semilogy(np.arange(1, len(sv) + 1), np.maximum(sv, floor), "o-", ms=3)
         n_id = ident.get("n_identifiable", len(sv))
         ax.axvline(n_id + 0.5, color="tab:red", lw=1, label=f"{n_id} identifiable of {len(sv)}")
         ax.set_xlabel("index")
