@@ -140,6 +140,19 @@ def _fk_positions(spec, sim):
 
 
 def run_case(case: dict) -> dict:
+    """One session: simulate, diagnose, score. A case whose simulation or diagnosis raises a
+    PlatkitError is recorded with the message (and counted in the summary), not dropped."""
+    from platkit.errors import PlatkitError
+
+    try:
+        return _run_case(case)
+    except PlatkitError as exc:
+        return {**case, "named": [], "findings": [], "not_separable": [], "error": f"{type(exc).__name__}: {exc}",
+                "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
+                "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": 0.0}
+
+
+def _run_case(case: dict) -> dict:
     from platkit.calibrate.estimate import predict_markers
     from platkit.diagnose.search import Options, diagnose
     from platkit.plugins import get_platform
@@ -211,6 +224,11 @@ def plan_cases(stands, seeds, quick: bool) -> list[dict]:
 def summarise(results: list[dict]) -> dict:
     lines = []
     out: dict = {}
+    errors = [r for r in results if r.get("error")]
+    for r in errors:
+        lines.append(f"ERROR {r['stand']} {r['truth']} ({r['kind']}, seed {r['seed']}): {r['error']}")
+    out["errors"] = len(errors)
+    results = [r for r in results if not r.get("error")]
     singles = [r for r in results if r["kind"] in ("clear", "weak")]
     # confusion: true effect vs the top named effect (or 'none' / 'unexplained')
     confusion: dict[str, Counter] = defaultdict(Counter)
