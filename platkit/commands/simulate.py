@@ -3,8 +3,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from platkit.commands.common import add_platform_options, platform_from_args
+from platkit.commands.common import add_platform_options, parse_vector, platform_from_args
 from platkit.errors import BadInput
+
+#: IMU rate when --imu is given without --imu-rate-hz
+DEFAULT_IMU_RATE_HZ = 200.0
+DEFAULT_IMU_NOISE = (0.002, 0.02)
 
 
 def add_parser(sub):
@@ -23,8 +27,17 @@ def add_parser(sub):
     p.add_argument("--occlusion", type=float, default=0.02, help="fraction of marker samples occluded (default 0.02)")
     p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
+    p.add_argument("--imu", action="store_true",
+                   help="also simulate an IMU on the moving part: imu.csv, session.yaml's imu entry, and the truth "
+                        "files platkit orient scores against (truth_orientation.csv, truth_imu.yaml); any --imu-* "
+                        "option implies it")
     p.add_argument("--imu-rate-hz", type=float, default=None,
-                   help="also simulate an IMU on the moving part at this rate (imu.csv; platkit.inertial)")
+                   help=f"IMU sampling rate (default {DEFAULT_IMU_RATE_HZ:g})")
+    p.add_argument("--imu-bias", default=None, metavar="GX,GY,GZ,AX,AY,AZ",
+                   help="IMU biases: gyro rad/s, then accelerometer m/s^2 (one number for all six; default 0)")
+    p.add_argument("--imu-noise", default=None, metavar="GYR,ACC",
+                   help=f"IMU white noise per sample: gyro rad/s, accelerometer m/s^2 "
+                        f"(default {DEFAULT_IMU_NOISE[0]:g},{DEFAULT_IMU_NOISE[1]:g})")
     p.add_argument("--rate-hz", type=float, default=100.0, help="motion-capture rate (default 100)")
     p.add_argument("--hold-s", type=float, default=1.5, help="time each command is held after arriving (default 1.5)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of the session files (default mm)")
@@ -53,13 +66,7 @@ def run(args) -> int:
         if not Path(plan).is_file():
             raise BadInput(f"--plan: {plan!r} is neither grid, random nor a plan file")
     effects = [parse_effect(e) for e in args.effect]
-    imu = None
-    if args.imu_rate_hz is not None:
-        if not args.imu_rate_hz > 0 or args.poses_only:
-            raise BadInput("--imu-rate-hz must be positive and needs the raw stream (not --poses-only)")
-        from platkit.inertial.simulate import imu_for_trajectory
-
-        imu = imu_for_trajectory(rate_hz=args.imu_rate_hz)
+    imu = imu_hook(args)
     sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
@@ -68,8 +75,36 @@ def run(args) -> int:
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
                         moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"
+    if sim.imu is not None:
+        kind += f", {len(sim.imu['t'])} IMU samples"
     print(f"wrote {out}: {spec.name}, {len(sim.commands)} commands, {kind}, "
           f"{sim.poses.n_poses} settled poses; truth in {Path(out) / 'truth.yaml'}")
     for term, theta in sim.truth.terms:
         print(f"  hidden effect {term.effect} at {term.where}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(term.parameter_names, theta)))
     return 0
+
+
+def imu_hook(args):
+    """The ``imu=`` hook of platkit.simulate from the --imu options, or None without them."""
+    wanted = args.imu or any(v is not None for v in (args.imu_rate_hz, args.imu_bias, args.imu_noise))
+    if not wanted:
+        return None
+    if args.poses_only:
+        raise BadInput("--imu needs the simulated motion: leave out --poses-only")
+    rate = DEFAULT_IMU_RATE_HZ if args.imu_rate_hz is None else args.imu_rate_hz
+    if not (rate > 0 and rate < float("inf")):
+        raise BadInput(f"--imu-rate-hz must be a positive number, got {rate:g}")
+    bias = None
+    if args.imu_bias is not None:
+        bias = parse_vector(args.imu_bias, "--imu-bias")
+        if bias.size not in (1, 6):
+            raise BadInput(f"--imu-bias: expected 1 or 6 numbers (gyro x, y, z rad/s, accelerometer x, y, z m/s^2), "
+                           f"got {bias.size}")
+    noise = DEFAULT_IMU_NOISE
+    if args.imu_noise is not None:
+        noise = parse_vector(args.imu_noise, "--imu-noise", size=2)
+        if (noise < 0).any():
+            raise BadInput(f"--imu-noise: standard deviations must be 0 or more, got {args.imu_noise!r}")
+    from platkit.inertial.simulate import imu_for_trajectory
+
+    return imu_for_trajectory(rate_hz=rate, bias=bias, noise=tuple(noise))

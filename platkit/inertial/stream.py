@@ -1,7 +1,9 @@
 """The inertial stream: reading ``imu.csv`` with checks, writing it, and reading BROAD trials.
 
 ``imu.csv`` (spec section 1): ``t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z``, seconds, rad/s and m/s^2,
-in the sensor's own axes. Extra columns are ignored. Every problem is either a one-line
+in the sensor's own axes. Extra columns are ignored; a row with more or fewer cells than the
+header is an error (a cut line is not a missing sample). This is the one IMU reader:
+:func:`platkit.io.session.load_session` reads imu.csv through it. Every problem is either a one-line
 :class:`~platkit.errors.BadSession` naming the file, line and column, or a repair that is
 stated in :attr:`ImuStream.repairs` (short runs of missing cells and short time gaps are
 linearly interpolated; anything longer than ``max_repair_s`` is an error). Saturated samples are
@@ -84,8 +86,12 @@ def _line(row_index: int) -> int:
 
 
 def read_imu_csv(path: str | Path, max_repair_s: float = DEFAULT_MAX_REPAIR_S,
-                 gyr_range: float | None = None, acc_range: float | None = None) -> ImuStream:
+                 gyr_range: float | None = None, acc_range: float | None = None,
+                 time_scale: float = 1.0) -> ImuStream:
     """Read and check ``imu.csv``.
+
+    ``time_scale``: seconds per unit of the file's ``t`` (1e-3 for a session in ms); the stream,
+    ``max_repair_s`` and the messages about times are in seconds.
 
     ``gyr_range`` (rad/s) and ``acc_range`` (m/s^2): the sensor's full scale, if known; samples at
     99.9 % of it or beyond are flagged saturated. Without them, a run of SATURATION_RUN or more
@@ -94,49 +100,50 @@ def read_imu_csv(path: str | Path, max_repair_s: float = DEFAULT_MAX_REPAIR_S,
     number, time that does not increase, or missing data / gaps longer than ``max_repair_s``.
     """
     path = Path(path)
-    try:
-        fh = path.open(newline="", encoding="utf-8")
+    try:  # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first column's name
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            lines = list(csv.reader(fh))
     except FileNotFoundError:
         raise BadSession(f"{path}: file not found") from None
-    except OSError as exc:
-        raise BadSession(f"{path}: cannot be read ({exc})") from None
-    with fh:
-        reader = csv.reader(fh)
-        try:
-            header = next(reader)
-        except StopIteration:
-            raise BadSession(f"{path}: empty file, expected the header {','.join(IMU_COLUMNS)}") from None
-        header = [h.strip() for h in header]
-        index = {}
-        for name in IMU_COLUMNS:
-            if name not in header:
-                raise BadSession(f"{path}: line 1: missing column {name!r} (expected {','.join(IMU_COLUMNS)})")
-            index[name] = header.index(name)
-        cols = [index[n] for n in IMU_COLUMNS]
-        rows = []
-        for i, row in enumerate(reader):
-            if not row or all(not c.strip() for c in row):
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
+    if not lines:
+        raise BadSession(f"{path}: empty file, expected the header {','.join(IMU_COLUMNS)}")
+    header = [h.strip() for h in lines[0]]
+    index = {}
+    for name in IMU_COLUMNS:
+        if name not in header:
+            raise BadSession(f"{path}: line 1: missing column {name!r} (expected {','.join(IMU_COLUMNS)})")
+        if header.count(name) > 1:
+            raise BadSession(f"{path}: line 1: column {name!r} appears {header.count(name)} times")
+        index[name] = header.index(name)
+    cols = [index[n] for n in IMU_COLUMNS]
+    rows = []
+    for i, row in enumerate(lines[1:]):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):  # a cut or merged line, not a missing sample: never repaired
+            raise BadSession(f"{path}: line {_line(i)}: {len(row)} cells, expected {len(header)} like the header")
+        values = []
+        for name, c in zip(IMU_COLUMNS, cols):
+            cell = row[c].strip()
+            if cell == "" or cell.lower() == "nan":
+                if name == "t":
+                    raise BadSession(f"{path}: line {_line(i)}, column 't': missing time")
+                values.append(np.nan)
                 continue
-            values = []
-            for name, c in zip(IMU_COLUMNS, cols):
-                cell = row[c].strip() if c < len(row) else ""
-                if cell == "" or cell.lower() == "nan":
-                    if name == "t":
-                        raise BadSession(f"{path}: line {_line(i)}, column 't': missing time")
-                    values.append(np.nan)
-                    continue
-                try:
-                    v = float(cell)
-                except ValueError:
-                    raise BadSession(f"{path}: line {_line(i)}, column {name!r}: expected a number, got {cell!r}") from None
-                if not np.isfinite(v):
-                    raise BadSession(f"{path}: line {_line(i)}, column {name!r}: {cell!r} is not a finite number")
-                values.append(v)
-            rows.append(values)
+            try:
+                v = float(cell)
+            except ValueError:
+                raise BadSession(f"{path}: line {_line(i)}, column {name!r}: expected a number, got {cell!r}") from None
+            if not np.isfinite(v):
+                raise BadSession(f"{path}: line {_line(i)}, column {name!r}: {cell!r} is not a finite number")
+            values.append(v)
+        rows.append(values)
     if len(rows) < 2:
         raise BadSession(f"{path}: fewer than 2 data rows")
     data = np.array(rows, float)
-    return check_stream(data[:, 0], data[:, 1:4], data[:, 4:7], str(path), max_repair_s, gyr_range, acc_range)
+    return check_stream(data[:, 0] * time_scale, data[:, 1:4], data[:, 4:7], str(path), max_repair_s, gyr_range, acc_range)
 
 
 def check_stream(t, gyr, acc, source: str = "imu", max_repair_s: float = DEFAULT_MAX_REPAIR_S,

@@ -1,6 +1,11 @@
 """Recording sessions: a folder with session.yaml, commands.csv, markers.csv (or poses.csv, or a
 C3D file) and optionally imu.csv. See docs/session-format.md.
 
+``platform: none`` (or null) in session.yaml is an IMU-only recording: it has no stand, so nothing
+is checked against controls and commands.csv may be absent; imu.csv is then required. imu.csv is
+read by :func:`platkit.inertial.stream.read_imu_csv`, the one IMU reader, which repairs short gaps
+(and says so in ``Session.imu_notes``) and names the file, line and column of anything else.
+
 Units are declared in session.yaml, never guessed. Everything is converted to SI on reading:
 controls with :func:`platkit.model.controls_to_si`, marker coordinates to metres, times to
 seconds. Every problem is one :class:`~platkit.errors.BadSession` line naming the file, the row
@@ -16,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.errors import BadInput, BadSession
+from platkit.inertial.stream import DEFAULT_MAX_REPAIR_S, IMU_COLUMNS, ImuStream, read_imu_csv
 from platkit.io.description import load_yaml
 from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
 
@@ -25,7 +31,11 @@ SESSION_KEYS = (
     "moving_link", "notes", "markers_file", "markers_time_offset", "base_link",
 )
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
-IMU_COLUMNS = ["t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"]
+#: keys of session.yaml's ``imu`` mapping: the spec's rate_hz and frame, and (platkit) the
+#: sensor's full scale, which flags saturated samples (platkit.inertial.stream)
+IMU_KEYS = ("rate_hz", "frame", "gyr_range_rad_s", "acc_range_m_s2")
+#: session.yaml ``platform`` values that mean "no stand" (spec: "none for an IMU-only recording")
+NO_PLATFORM = ("none",)
 AXES = ("x", "y", "z")
 
 
@@ -52,19 +62,26 @@ class Session:
     """A recording session read from its folder; SI units inside.
 
     Attributes:
-        folder: the session folder. platform: stand name or None (IMU-only recording).
+        folder: the session folder. platform: stand name or None (``platform: none`` or null in
+            session.yaml, and none given: an IMU-only recording).
         spec: the stand's PlatformSpec built with the session's description, or None.
         description: the description file used (None: the stand's default).
         length_unit, time_unit: as declared in session.yaml.
         marker_names (M,), base_marker_names (B,): as declared.
         mocap_rate_hz: declared rate or None. imu: the declared imu mapping or None.
         moving_link: URDF link carrying the markers, or None. notes: free text.
-        command_t (N,) s; commands (N, n_u) internal units ('m' controls in metres).
+        command_t (N,) s; commands (N, n_u) internal units ('m' controls in metres), or None
+            without a stand (command_t is still read, and its times checked, if commands.csv
+            exists) or without commands.csv.
         marker_t (K,) s and markers (K, M, 3) m (NaN = occluded), base_markers (K, B, 3) m:
             the raw motion-capture stream (from markers.csv or a C3D file), or None.
         poses: the reduced table of poses.csv as a dict (controls (N, n_u), markers (N, M, 3) m,
             n_samples (N, M) or None, t (N,) or None), or None.
-        imu_t (J,) s, imu_gyr (J, 3) rad/s, imu_acc (J, 3) m/s^2, or None.
+        imu_stream: the inertial stream from imu.csv as read and repaired by
+            :func:`platkit.inertial.stream.read_imu_csv` (times in s), or None.
+        imu_t (J,) s, imu_gyr (J, 3) rad/s, imu_acc (J, 3) m/s^2: the same stream's arrays.
+        imu_notes: one sentence per repair made while reading imu.csv, and per axis with
+            saturated samples (empty: the file was used as it is).
     """
 
     folder: Path
@@ -88,6 +105,8 @@ class Session:
     imu_t: np.ndarray | None = None
     imu_gyr: np.ndarray | None = None
     imu_acc: np.ndarray | None = None
+    imu_stream: ImuStream | None = None
+    imu_notes: list[str] = field(default_factory=list)
     markers_source: Path | None = None
     extras: dict = field(default_factory=dict)
 
@@ -276,7 +295,9 @@ def read_session_yaml(folder: Path) -> dict:
     out: dict = {}
     platform = data.get("platform")
     if platform is not None and (not isinstance(platform, str) or not platform.strip()):
-        raise BadSession(f"{path}: field 'platform' must be a stand name or null")
+        raise BadSession(f"{path}: field 'platform' must be a stand name, or none for an IMU-only recording")
+    if isinstance(platform, str) and platform.strip().lower() in NO_PLATFORM:
+        platform = None  # YAML reads `none` as text; the spec means no stand
     out["platform"] = platform.strip() if isinstance(platform, str) else None
     desc = data.get("description")
     if desc is not None and not isinstance(desc, str):
@@ -317,9 +338,14 @@ def read_session_yaml(folder: Path) -> dict:
     if imu is not None:
         if not isinstance(imu, dict):
             raise BadSession(f"{path}: field 'imu' must be null or a mapping like {{rate_hz: 200, frame: imu}}")
-        r = imu.get("rate_hz")
-        if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not r > 0):
-            raise BadSession(f"{path}: field 'imu.rate_hz' must be a positive number, got {r!r}")
+        unknown = sorted(set(imu) - set(IMU_KEYS), key=str)
+        if unknown:
+            raise BadSession(f"{path}: field 'imu' has unknown key {unknown[0]!r}; known keys: {', '.join(IMU_KEYS)}")
+        for key in ("rate_hz", "gyr_range_rad_s", "acc_range_m_s2"):
+            r = imu.get(key)
+            if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not r > 0
+                                  or not math.isfinite(r)):
+                raise BadSession(f"{path}: field 'imu.{key}' must be a positive number, got {r!r}")
         if "frame" in imu and not isinstance(imu["frame"], str):
             raise BadSession(f"{path}: field 'imu.frame' must be a frame name")
     out["imu"] = imu
@@ -384,12 +410,16 @@ def _check_controls(table: Table, spec: PlatformSpec, leading: list[str], length
 
 
 def load_session(folder: str | Path, platform: str | None = None, description: str | Path | None = None,
-                 spec: PlatformSpec | None = None) -> Session:
+                 spec: PlatformSpec | None = None, imu_max_repair_s: float = DEFAULT_MAX_REPAIR_S) -> Session:
     """Read and check a session folder.
 
     ``platform``: the stand to read it for (default: session.yaml's); a different name from
     session.yaml's is an error. ``description``: overrides session.yaml's description file.
     ``spec``: an already built stand (skips the plugin lookup; tests and simulation).
+    ``imu_max_repair_s``: missing IMU cells and time gaps up to this long (s) are interpolated
+    and stated in ``imu_notes``; longer ones are errors.
+    A session without a stand (``platform: none`` and none given) needs no commands.csv, and
+    nothing in it is checked against controls; it needs imu.csv.
     Raises BadSession (one line: file, row or column, what was expected).
     """
     folder = Path(folder)
@@ -421,7 +451,14 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     # commands
     cpath = folder / "commands.csv"
     poses_path = folder / "poses.csv"
-    if spec is not None and (cpath.is_file() or not poses_path.is_file()):
+    if spec is not None and y["platform"] is None and not cpath.is_file() and not poses_path.is_file():
+        raise BadSession(
+            f"{cpath}: file not found; session.yaml declares no platform (an IMU-only recording), and reading "
+            f"it for the {spec.name} stand needs its command log"
+        )
+    if spec is None and cpath.is_file():
+        _read_commands_without_stand(s, cpath, tscale)
+    elif spec is not None and (cpath.is_file() or not poses_path.is_file()):
         table = read_table(cpath, "the command log")
         extra = [c for c in table.header if c not in ["t"] + spec.control_names]
         if extra:
@@ -459,23 +496,43 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
 
     imu_path = folder / "imu.csv"
     if imu_path.is_file():
-        table = read_table(imu_path, "the inertial stream")
-        if table.header != IMU_COLUMNS:
-            missing = [c for c in IMU_COLUMNS if c not in table.header]
-            what = f"missing column {missing[0]!r}" if missing else f"columns {table.header}"
-            raise BadSession(f"{imu_path}: {what}; expected columns {', '.join(IMU_COLUMNS)} in that order")
-        t = table.column("t") * tscale
-        check_times(table, t)
-        for j, col in enumerate(IMU_COLUMNS[1:], start=1):
-            bad = np.nonzero(~np.isfinite(table.data[:, j]))[0]
-            if bad.size:
-                raise BadSession(f"{table.where(int(bad[0]), col)}: empty; expected a number")
-        s.imu_t, s.imu_gyr, s.imu_acc = t, table.data[:, 1:4], table.data[:, 4:7]
+        _read_imu(s, imu_path, tscale, imu_max_repair_s)
     elif s.imu is not None:
         raise BadSession(f"{ypath}: field 'imu' declares an inertial stream but {imu_path} is missing")
+    elif spec is None:
+        raise BadSession(
+            f"{imu_path}: file not found; session.yaml declares no platform, so this is an IMU-only recording and "
+            f"needs its inertial stream (or name the stand in session.yaml's field 'platform')"
+        )
     if s.commands is None and s.poses is None and s.imu_t is None:
         raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
     return s
+
+
+def _read_imu(s: Session, path: Path, tscale: float, max_repair_s: float) -> None:
+    """imu.csv through the inertial reader (repairs stated, errors naming line and column);
+    times scaled to seconds. The declared full scale, if any, flags saturated samples."""
+    declared = s.imu or {}
+    stream = read_imu_csv(path, max_repair_s=max_repair_s, gyr_range=declared.get("gyr_range_rad_s"),
+                          acc_range=declared.get("acc_range_m_s2"), time_scale=tscale)
+    s.imu_stream, s.imu_notes = stream, stream.warnings()
+    s.imu_t, s.imu_gyr, s.imu_acc = stream.t, stream.gyr, stream.acc
+
+
+def _read_commands_without_stand(s: Session, path: Path, tscale: float) -> None:
+    """commands.csv of a session without a stand: its times are read and checked (the IMU's
+    tools may use them); the control columns cannot be interpreted, only required to be
+    present and numeric."""
+    table = read_table(path, "the command log")
+    if "t" not in table.header:
+        raise BadSession(f"{path}: missing column 't'; the command log starts with the command times")
+    t = table.column("t") * tscale
+    check_times(table, t)
+    for j, name in enumerate(table.header):
+        bad = np.nonzero(~np.isfinite(table.data[:, j]))[0]
+        if bad.size:
+            raise BadSession(f"{table.where(int(bad[0]), name)}: empty; every command needs every control")
+    s.command_t = t
 
 
 def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offset: float) -> None:

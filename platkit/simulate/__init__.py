@@ -234,7 +234,9 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         (see platkit.simulate.effects), built on the plan's command rows.
     raw: simulate the stream and settle it (realistic); False draws settled poses directly.
     imu: optional callable ``imu(trajectory, rng) -> dict(t=(J,), gyr=(J, 3), acc=(J, 3)[, entry])``
-        that adds an inertial stream (raw only).
+        that adds an inertial stream (raw only: with raw=False it is an error), e.g.
+        :func:`platkit.inertial.simulate.imu_for_trajectory`; its optional ``q_base_from_platform``
+        (J, 4) and ``truth_imu`` (a mapping) become the truth files of :func:`write_session`.
     hold_s: time the stand holds each command after arriving (s).
     n_base_markers: markers fixed on the base (B1, B2, ...), around the stand on the floor; they
         pin the base-to-mocap transform.
@@ -244,6 +246,8 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     length_scale(length_unit)
     if noise_mm < 0 or not 0 <= occlusion < 0.5:
         raise BadInput("noise must be >= 0 and occlusion in [0, 0.5)")
+    if imu is not None and not raw:
+        raise BadInput("an IMU stream needs the simulated motion: simulate with raw=True (not poses only)")
     rng = np.random.default_rng(seed)
     model = PlatformModel(spec)
     U, plan_info = _make_plan(spec, plan, n_poses, rng, model, length_unit)
@@ -408,8 +412,14 @@ def _csv_text(header: list[str], rows) -> str:
 def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, description: str | Path | None = None,
                   notes: str = "", moving_link: str | None = None, base_link: str | None = None) -> Path:
     """Write a simulated session folder (session.yaml, commands.csv, markers.csv or poses.csv,
-    imu.csv and truth_orientation.csv if an IMU was simulated, truth.yaml), whole or not at all.
-    Returns the folder.
+    truth.yaml), whole or not at all. Returns the folder.
+
+    With an IMU stream (``sim.imu``): imu.csv (:func:`platkit.inertial.simulate.write_imu`), the
+    session.yaml ``imu`` entry, and the truth files ``platkit orient`` scores against:
+    truth_orientation.csv (``t,qw,qx,qy,qz``, the platform in the base frame at every IMU
+    sample, from ``q_base_from_platform``) and truth_imu.yaml (from ``truth_imu``; the gyro
+    bias is the one at the end of the recording when the stream carries ``gyr_bias``, as
+    ``platkit orient`` compares it with its final estimate).
 
     ``description``: the description file the stand was built from (copied into the folder);
     ``moving_link``, ``base_link``: the stand options it was built with (serial chains)."""
@@ -464,25 +474,51 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             rows = [[f"{t:.6f}"] + [_fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
             (tmp / "markers.csv").write_text(_csv_text(["t"] + mcols, rows), encoding="utf-8")
         if sim.imu is not None:
-            imu = sim.imu
-            rows = [[f"{t:.6f}"] + [f"{v:.7g}" for v in np.concatenate([g, a])]
-                    for t, g, a in zip(imu["t"], imu["gyr"], imu["acc"])]
-            (tmp / "imu.csv").write_text(
-                _csv_text(["t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"], rows), encoding="utf-8")
-            entry["imu"] = _plain(imu.get("entry", {"rate_hz": float(1.0 / np.median(np.diff(imu["t"]))), "frame": "imu"}))
-            if "q_base_from_platform" in imu:
-                q = np.asarray(imu["q_base_from_platform"], float)
-                rows = [[f"{t:.6f}"] + [f"{v:.9f}" for v in qq] for t, qq in zip(imu["t"], q)]
-                (tmp / "truth_orientation.csv").write_text(_csv_text(["t", "qw", "qx", "qy", "qz"], rows), encoding="utf-8")
+            entry["imu"] = _write_imu_files(sim.imu, tmp)
         (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")
         truth = sim.truth.to_dict()
         truth["plan"] = _plain(sim.plan_info)
         if sim.imu is not None and "truth_imu" in sim.imu:
-            truth["imu"] = _plain(sim.imu["truth_imu"])
+            truth["imu"] = _truth_imu(sim.imu)
         (tmp / "truth.yaml").write_text(
             "# The true stand behind this simulated session (SI units). Calibration should recover it.\n"
             + yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
     return out
+
+
+def _truth_imu(imu: dict) -> dict:
+    """The sensor's true errors for truth_imu.yaml (keys of platkit.inertial.orient.read_truth_imu);
+    the gyro bias is its value at the last sample."""
+    truth = _plain(dict(imu["truth_imu"]))
+    if "gyr_bias" in imu:
+        truth["gyr_bias_rad_s"] = _plain(np.asarray(imu["gyr_bias"], float)[-1])
+    return truth
+
+
+def _write_imu_files(imu: dict, folder: Path) -> dict:
+    """imu.csv and the IMU truth files in ``folder``; returns the session.yaml ``imu`` entry."""
+    from platkit.inertial.simulate import write_imu
+
+    t = np.asarray(imu["t"], float)
+    n = len(t)
+    for key in ("gyr", "acc"):
+        if np.shape(imu[key]) != (n, 3):
+            raise BadInput(f"the imu hook returned {key!r} of shape {np.shape(imu[key])}, expected ({n}, 3)")
+    write_imu(folder / "imu.csv", imu)
+    rate = float(1.0 / np.median(np.diff(t)))
+    entry = _plain(imu.get("entry", {"rate_hz": rate, "frame": "imu"}))
+    if "q_base_from_platform" in imu:
+        q = np.asarray(imu["q_base_from_platform"], float)
+        if q.shape != (n, 4):
+            raise BadInput(f"the imu hook returned 'q_base_from_platform' of shape {q.shape}, expected ({n}, 4)")
+        # times formatted as format_imu_csv writes them: truth and stream share every timestamp
+        rows = [[f"{a:.9g}"] + [f"{v:.10f}" for v in qq] for a, qq in zip(t, q)]
+        (folder / "truth_orientation.csv").write_text(_csv_text(["t", "qw", "qx", "qy", "qz"], rows), encoding="utf-8")
+    if "truth_imu" in imu:
+        (folder / "truth_imu.yaml").write_text(
+            "# The simulated IMU's true errors (SI), as platkit orient compares them.\n"
+            + yaml.safe_dump(_truth_imu(imu), sort_keys=False), encoding="utf-8")
+    return entry
 
 
 def simulate_session(spec: PlatformSpec | str, out: str | Path, *, poses_only: bool = False,

@@ -341,9 +341,10 @@ def test_imu_stream_columns_and_times(session_dir, tmp_path):
     (folder / "imu.csv").write_text("\n".join(rows) + "\n")
     s = load_session(folder)
     assert s.imu_gyr.shape == (200, 3) and np.allclose(s.imu_acc[:, 2], 9.81)
+    assert s.imu_stream.rate_hz == pytest.approx(100.0, rel=1e-9)
     rows[0] = "t,gx,gy,gz,acc_x,acc_y,acc_z"
     (folder / "imu.csv").write_text("\n".join(rows) + "\n")
-    assert "imu.csv: missing column 'gyr_x'" in _error(folder)
+    assert "imu.csv: line 1: missing column 'gyr_x'" in _error(folder)
 
 
 def test_read_table_empty_cells_are_nan(tmp_path):
@@ -377,3 +378,162 @@ def test_cli_bad_plan_file_exits_2_with_one_line(tmp_path, capsys):
     assert code == 2 and len(err.splitlines()) == 1
     assert "plan.csv row 2 (line 3) column 'L3'" in err
     assert not (tmp_path / "s").exists()
+
+
+# ----------------------------------------------------------------------------- the inertial stream
+
+
+def _imu_rows(t, gyr_y=None):
+    """imu.csv lines of a sensor at rest (noisy: constant columns would look clipped)."""
+    rng = np.random.default_rng(0)
+    data = np.column_stack([rng.normal(0, 1e-3, (len(t), 3)), rng.normal(0, 5e-3, (len(t), 3))])
+    data[:, 5] += 9.81
+    if gyr_y is not None:
+        data[:, 1] = gyr_y
+    return ["t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"] + [
+        f"{x:.4f}," + ",".join(f"{v:.6f}" for v in row) for x, row in zip(t, data)]
+
+
+def test_imu_short_gaps_are_repaired_and_noted(session_dir, tmp_path):
+    """load_session reads imu.csv through the inertial reader: short runs of empty cells and
+    short time gaps are interpolated, and the Session says so."""
+    folder = _copy(session_dir[0], tmp_path)
+    t = np.arange(0, 2, 0.01)
+    rows = _imu_rows(t, gyr_y=0.5 * t)
+    cells = rows[11].split(",")
+    cells[2] = ""  # data row 11: gyr_y empty
+    rows[11] = ",".join(cells)
+    del rows[51:53]  # data rows 51, 52 missing: a 0.03 s gap in time
+    (folder / "imu.csv").write_text("\n".join(rows) + "\n")
+    s = load_session(folder)
+    np.testing.assert_allclose(s.imu_t, t, atol=1e-9)  # the gap is filled on the sampling grid
+    np.testing.assert_allclose(s.imu_gyr[:, 1], 0.5 * t, atol=1e-6)  # linear data: exact repair
+    assert s.imu_stream.t is s.imu_t and len(s.imu_notes) == 2
+    assert "'gyr_y': 1 missing values" in s.imu_notes[0] and "line 12" in s.imu_notes[0]
+    assert "1 short time gaps" in s.imu_notes[1] and "2 linearly interpolated samples" in s.imu_notes[1]
+
+
+def test_imu_long_gap_names_file_line_and_column(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    rows = _imu_rows(np.arange(0, 2, 0.01))
+    for i in range(31, 41):  # data rows 30..39: 0.1 s of acc_z missing
+        rows[i] = rows[i].rsplit(",", 1)[0] + ","
+    (folder / "imu.csv").write_text("\n".join(rows) + "\n")
+    msg = _error(folder)
+    assert "imu.csv: line 32, column 'acc_z': 10 missing values" in msg
+    assert load_session(folder, imu_max_repair_s=0.2).imu_notes  # a longer allowance repairs it
+
+
+def test_imu_ragged_row_is_an_error(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    rows = _imu_rows(np.arange(0, 1, 0.01))
+    rows[6] = rows[6].rsplit(",", 2)[0]  # a cut line: two cells short
+    (folder / "imu.csv").write_text("\n".join(rows) + "\n")
+    assert "imu.csv: line 7: 5 cells, expected 7 like the header" in _error(folder)
+
+
+def test_imu_times_in_milliseconds(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    for name in ("commands.csv", "markers.csv"):
+        (folder / name).unlink()
+    _edit(folder / "session.yaml", "platform: stewart", "platform: none")
+    _edit(folder / "session.yaml", "time: s", "time: ms")
+    t_ms = np.arange(0, 2000, 10.0)
+    rows = _imu_rows(t_ms)
+    del rows[101:104]  # a 40 ms gap: within the 0.05 s that may be repaired, once ms are seconds
+    (folder / "imu.csv").write_text("\n".join(rows) + "\n")
+    s = load_session(folder)
+    np.testing.assert_allclose(s.imu_t, t_ms / 1000.0, atol=1e-9)
+    assert s.imu_stream.rate_hz == pytest.approx(100.0, rel=1e-9) and len(s.imu_notes) == 1
+    assert "longest 0.04 s" in s.imu_notes[0]  # messages in seconds too
+
+
+@pytest.mark.parametrize("entry,expect", [
+    ("{rate_hz: 200, frame: imu, rate: 3}", "field 'imu' has unknown key 'rate'"),
+    ("{rate_hz: -200}", "field 'imu.rate_hz' must be a positive number"),
+    ("{rate_hz: 200, gyr_range_rad_s: 0}", "field 'imu.gyr_range_rad_s' must be a positive number"),
+    ("{rate_hz: 200, acc_range_m_s2: lots}", "field 'imu.acc_range_m_s2' must be a positive number"),
+])
+def test_imu_entry_is_checked(session_dir, tmp_path, entry, expect):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "imu: null", f"imu: {entry}")
+    (folder / "imu.csv").write_text("\n".join(_imu_rows(np.arange(0, 1, 0.01))) + "\n")
+    msg = _error(folder)
+    assert "session.yaml" in msg and expect in msg
+
+
+def test_imu_declared_full_scale_flags_saturation(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "imu: null", "imu: {rate_hz: 100, frame: imu, acc_range_m_s2: 9.8}")
+    (folder / "imu.csv").write_text("\n".join(_imu_rows(np.arange(0, 1, 0.01))) + "\n")
+    s = load_session(folder)
+    assert s.imu_stream.saturated[:, 5].all() and not s.imu_stream.saturated[:, :5].any()
+    assert len(s.imu_notes) == 1 and "100 samples of acc_z at the sensor's clipping limit" in s.imu_notes[0]
+
+
+def test_declared_imu_without_imu_csv(session_dir, tmp_path):
+    folder = _copy(session_dir[0], tmp_path)
+    _edit(folder / "session.yaml", "imu: null", "imu: {rate_hz: 100, frame: imu}")
+    assert "field 'imu' declares an inertial stream" in _error(folder)
+
+
+# ----------------------------------------------------------------------------- IMU-only recordings
+
+
+def _imu_only(session_dir, tmp_path, platform="none", keep_commands=False) -> Path:
+    """The simulated session turned into an IMU-only recording: platform none, no markers."""
+    folder = _copy(session_dir[0], tmp_path)
+    (folder / "markers.csv").unlink()
+    if not keep_commands:
+        (folder / "commands.csv").unlink()
+    _edit(folder / "session.yaml", "platform: stewart", f"platform: {platform}")
+    (folder / "imu.csv").write_text("\n".join(_imu_rows(np.arange(0, 1, 0.01))) + "\n")
+    return folder
+
+
+@pytest.mark.parametrize("platform", ["none", "None", "NONE", "null", "~"])
+def test_platform_none_is_an_imu_only_recording(session_dir, tmp_path, platform):
+    s = load_session(_imu_only(session_dir, tmp_path, platform))
+    assert s.platform is None and s.spec is None
+    assert s.commands is None and s.command_t is None and not s.has_markers
+    assert s.imu_gyr.shape == (100, 3)
+
+
+def test_imu_only_recording_keeps_the_command_times(session_dir, tmp_path):
+    """Without a stand the controls mean nothing to check, but the times are read and checked."""
+    folder = _imu_only(session_dir, tmp_path, keep_commands=True)
+    s = load_session(folder)
+    np.testing.assert_allclose(s.command_t, session_dir[1].command_t, atol=1e-6)
+    assert s.commands is None
+    lines = _lines(folder / "commands.csv")
+    lines[3] = lines[2]  # data row 3 repeats the time of row 2
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    assert "commands.csv row 3 (line 4) column 't'" in _error(folder)
+    shutil.copy(session_dir[0] / "commands.csv", folder / "commands.csv")
+    lines = _lines(folder / "commands.csv")
+    lines[2] = lines[2].rsplit(",", 1)[0] + ","
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    assert "commands.csv row 2 (line 3) column 'L6': empty" in _error(folder)
+
+
+def test_imu_only_recording_needs_its_imu_stream(session_dir, tmp_path):
+    folder = _imu_only(session_dir, tmp_path)
+    (folder / "imu.csv").unlink()
+    msg = _error(folder)
+    assert "imu.csv: file not found" in msg and "IMU-only recording" in msg
+
+
+def test_imu_only_recording_read_for_a_stand_names_the_missing_command_log(session_dir, tmp_path):
+    msg = _error(_imu_only(session_dir, tmp_path), platform="stewart")
+    assert "commands.csv: file not found" in msg and "declares no platform" in msg
+
+
+def test_calibrate_an_imu_only_recording_says_calibration_needs_a_stand(session_dir, tmp_path, capsys):
+    folder = _imu_only(session_dir, tmp_path)
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "cal")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "calibration needs a stand" in err
+    assert main(["calibrate", str(folder), "--platform", "stewart", "--out", str(tmp_path / "cal")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "declares no platform" in err
+    assert not (tmp_path / "cal").exists()
