@@ -248,7 +248,7 @@ def load_poses(folder: str | Path, platform: str | None = None, description: str
     or from poses.csv as they are. BadSession if the session has no markers."""
     session = load_session(folder, platform=platform, description=description, spec=spec)
     if session.spec is None:
-        raise BadSession(f"{Path(folder) / 'session.yaml'}: field 'platform' is null; calibration needs a stand")
+        raise BadSession(f"{Path(folder) / 'session.yaml'}: declares no platform (an IMU-only recording); calibration needs a stand")
     if session.markers is not None:
         return settle(session, options)[0]
     if session.poses is not None:
