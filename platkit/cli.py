@@ -41,6 +41,12 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"platkit: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:  # a path the system refused (permissions, a file where a folder must be)
+        if debug:
+            traceback.print_exc()
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"platkit: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("platkit: interrupted", file=sys.stderr)
         return 130

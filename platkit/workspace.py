@@ -125,7 +125,10 @@ def corner_envelope(model: PlatformModel, td=None, continuation_steps: int = 8) 
 
 def _ipopt_options() -> dict:
     return {"ipopt.print_level": 0, "ipopt.sb": "yes", "print_time": 0, "ipopt.tol": 1e-10,
-            "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": 500}
+            "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": 500,
+            # a NaN met on the way (a trial pose where the stand cannot assemble) is handled by
+            # IPOPT's line search; CasADi's warning about it would only clutter stderr
+            "show_eval_warnings": False}
 
 
 def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=None,

@@ -17,7 +17,7 @@ import numpy as np
 from platkit.admissible import admissible_grid, default_axes, plot_boundary, plot_slices
 from platkit.commands.common import add_platform_options, add_unit_option, platform_from_args
 from platkit.errors import BadInput
-from platkit.io.atomic import atomic_output_dir
+from platkit.io.atomic import atomic_output_dir, check_output_dir
 from platkit.kinematics import PlatformModel
 from platkit.model import length_scale
 from platkit.plugins import get_platform
@@ -46,6 +46,7 @@ def _unit_product(units: list[str]) -> str:
 
 
 def run(args) -> int:
+    check_output_dir(args.out)
     spec = platform_from_args(args)
     if args.axes:
         names = [a.strip() for a in args.axes.split(",") if a.strip()]

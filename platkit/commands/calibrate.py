@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from platkit.errors import BadInput
+from platkit.io.atomic import check_output_dir
 from platkit.model import length_scale
 
 
@@ -82,6 +83,7 @@ def run(args) -> int:
         raise BadInput("--folds applies to --method lsq; use --validate SESSION to score the paper's method")
     if args.max_evaluations is not None and args.method != "paper":
         raise BadInput("--max-evaluations applies to --method paper")
+    check_output_dir(args.out)
     poses, spec, options = load_for_calibration(args.session, args.platform, args.description)
     other = None  # read before any work: a bad second session is bad input, found at once
     if args.validate is not None:

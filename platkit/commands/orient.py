@@ -31,7 +31,9 @@ def add_parser(sub):
 def run(args) -> int:
     from platkit.inertial.orient import orient_session
     from platkit.inertial.report import write_outputs
+    from platkit.io.atomic import check_output_dir
 
+    check_output_dir(args.out)
     result = orient_session(args.session, args.method, args.calibration, args.imu_calibration,
                             args.platform, args.description, args.max_repair_s, args.level_base)
     write_outputs(result, args.out)

@@ -32,7 +32,7 @@ def _summary(info: dict) -> dict:
 
 def run(args) -> int:
     from platkit.calibrate import plan as pl
-    from platkit.io.atomic import atomic_output_dir
+    from platkit.io.atomic import atomic_output_dir, check_output_file
 
     if args.grid is None and args.optimal is None:
         raise BadInput("give --grid N or --optimal N (or both: the grid is then the candidate set)")
@@ -43,6 +43,7 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name")
+    check_output_file(out)
     spec = platform_from_args(args)
     sigma = args.noise_mm * 1e-3
     rng = np.random.default_rng(args.seed)

@@ -14,7 +14,9 @@ def add_parser(sub):
 
 def run(args) -> int:
     from platkit.calibrate.predict import predict_file
+    from platkit.io.atomic import check_output_file
 
+    check_output_file(args.out)
     res = predict_file(args.calibration, args.commands, args.out)
     if res["failed"]:
         print(f"platkit: warning: {res['failed']} of {res['rows']} rows have no forward-kinematics solution; "

@@ -12,7 +12,7 @@ from platkit.chains.servo import SECONDARY_COSTS, Servo, failure_message
 from platkit.chains.transforms import pose_from_xyz_rpy
 from platkit.commands.common import parse_vector, print_json
 from platkit.errors import BadInput, OutOfWorkspace
-from platkit.io.atomic import atomic_write_text
+from platkit.io.atomic import atomic_write_text, check_output_file
 from platkit.model import length_scale
 
 
@@ -192,6 +192,7 @@ def _csv(first: str, keys: np.ndarray, thetas: np.ndarray, chain: KinematicChain
 
 def run(args) -> int:
     s = length_scale(args.unit)
+    check_output_file(args.out)
     chain = KinematicChain.from_urdf(args.urdf)
     links = args.link
     for name in links + [args.base]:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from platkit.commands.common import add_platform_options, add_unit_option, print_json, platform_from_args
+from platkit.io.atomic import check_output_dir
 from platkit.kinematics import PlatformModel
 from platkit.workspace import AXES, write_workspace
 
@@ -11,12 +12,13 @@ def add_parser(sub):
     add_platform_options(p)
     add_unit_option(p)
     p.add_argument("--out", required=True, help="output folder (workspace.json, corners.csv, envelope.csv, plots)")
-    p.add_argument("--no-plots", action="store_true", help="write the figures only")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures (write the tables and workspace.json only)")
     p.add_argument("--json", action="store_true", help="print workspace.json as one JSON object")
     return p
 
 
 def run(args) -> int:
+    check_output_dir(args.out)
     spec = platform_from_args(args)
     model = PlatformModel(spec, length_unit=args.unit)
     figures = write_workspace(model, args.out, unit=args.unit, plots=not args.no_plots)

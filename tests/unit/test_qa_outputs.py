@@ -1,0 +1,97 @@
+"""Output paths from a user's point of view: a bad --out is bad input (exit 2, one line, found
+before any work), written files get ordinary permissions, and stderr carries no solver chatter."""
+import os
+import stat
+
+import pytest
+
+from platkit.cli import main
+from platkit.errors import BadInput
+from platkit.io.atomic import atomic_output_dir, atomic_write_text, check_output_dir, check_output_file
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("platkit: error: ")
+    assert "Traceback" not in err[0] and "Error:" not in err[0].split("error:", 1)[1]
+    return err[0]
+
+
+def test_atomic_write_text_gives_the_permissions_of_a_plain_open(tmp_path):
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "a.csv", "x\n")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "a.csv").stat().st_mode) == 0o644
+
+
+def test_output_checks_name_the_file_in_the_way(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    with pytest.raises(BadInput, match="is a file"):
+        check_output_dir(afile)
+    with pytest.raises(BadInput, match=r"afile is a file, so no folder"):
+        check_output_dir(afile / "sub")
+    with pytest.raises(BadInput, match="is a folder"):
+        check_output_file(tmp_path)
+    with pytest.raises(BadInput, match=r"afile is a file, so no folder"):
+        check_output_file(afile / "x.csv")
+    with pytest.raises(BadInput):
+        with atomic_output_dir(afile):
+            pass
+    assert afile.read_text() == "keep me"
+    assert check_output_dir(tmp_path / "new" / "dir") == tmp_path / "new" / "dir"
+
+
+def test_predict_into_a_folder_is_bad_input(tmp_path, capsys):
+    commands = tmp_path / "commands.csv"
+    commands.write_text("A,B,C\n2047.2,2047.2,2047.2\n")
+    rc = main(["predict", "--calibration", str(tmp_path / "missing.yaml"), "--commands", str(commands),
+               "--out", str(tmp_path)])
+    assert rc == 2
+    assert "is a folder; expected a file name" in _one_error_line(capsys)
+
+
+def test_calibrate_into_a_file_is_bad_input_and_leaves_the_file(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    rc = main(["calibrate", "--platform", "psvr", "--quiet", "--out", str(afile)])
+    assert rc == 2
+    assert "is a file; expected a folder" in _one_error_line(capsys)
+    assert afile.read_text() == "keep me"
+    rc = main(["calibrate", "--platform", "psvr", "--quiet", "--out", str(afile / "sub")])
+    assert rc == 2
+    assert "afile is a file" in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize("argv", [
+    ["workspace", "--platform", "psvr", "--no-plots", "--out", "{f}"],
+    ["admissible", "--platform", "psvr", "--out", "{f}"],
+    ["plan", "--platform", "psvr", "--grid", "3", "--out", "{f}/plan.csv"],
+])
+def test_other_verbs_refuse_a_file_as_output_folder(tmp_path, capsys, argv):
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    rc = main([a.replace("{f}", str(afile)) for a in argv])
+    assert rc == 2
+    assert "is a file" in _one_error_line(capsys)
+    assert afile.read_text() == "keep me"
+
+
+def test_an_os_error_is_one_line_and_exit_2(monkeypatch, capsys):
+    import platkit.commands.plugins as verb
+
+    def refuse(args):
+        raise PermissionError(13, "Permission denied", "/root/out.csv")
+
+    monkeypatch.setattr(verb, "run", refuse)
+    assert main(["plugins"]) == 2
+    assert _one_error_line(capsys) == "platkit: error: /root/out.csv: Permission denied"
+
+
+def test_workspace_of_psvr_keeps_stderr_clean(tmp_path, capfd):
+    assert main(["workspace", "--platform", "psvr", "--no-plots", "--out", str(tmp_path / "ws")]) == 0
+    err = capfd.readouterr().err
+    assert "CasADi" not in err and "WARNING" not in err, err
