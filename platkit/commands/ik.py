@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, print_json, platform_from_args
-from platkit.errors import BadInput
-from platkit.geometry import quat_from_rpy, quat_normalize
+from platkit.errors import BadInput, OutOfWorkspace
+from platkit.geometry import quat_conjugate, quat_from_rpy, quat_multiply, quat_normalize, rpy_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_from_si, length_scale
 from platkit.plugins import get_platform
@@ -42,6 +42,7 @@ def run(args) -> int:
         else:
             raise BadInput(f"--pose: expected 6 (x,y,z,roll,pitch,yaw) or 7 (x,y,z,qw,qx,qy,qz) numbers, got {v.size}")
         X = v[:3] * s
+        _check_pose_is_the_stands(model, q, X, args.unit)
     u = model.inverse(q, X)
     u_out = controls_from_si(spec, u, args.unit)
     names = spec.control_names
@@ -52,3 +53,25 @@ def run(args) -> int:
     for n, v, un in zip(names, u_out, units):
         print(f"{n:<10} {v:.6f} {un}")
     return 0
+
+
+def _check_pose_is_the_stands(model: PlatformModel, q, X, unit: str) -> None:
+    """A stand with fewer than six pose coordinates (psvr: alpha, beta, h) can take only some
+    poses; its residual may still be solvable at others (the rods reach a yawed platform), so
+    ik would print controls for a pose the stand never takes. Refuse such a pose, saying the
+    nearest one it can take."""
+    spec = model.spec
+    if spec.coordinates_from_pose is None:
+        return
+    q_near, X_near = model.pose(model.coordinates(q, X))
+    d = quat_multiply(quat_conjugate(q_near), q)
+    angle = 2.0 * np.arctan2(np.linalg.norm(d[1:]), abs(d[0]))
+    s = length_scale(unit)
+    # tolerances a pose typed back from printed numbers (9 significant digits) passes
+    if np.linalg.norm(X_near - X) <= 1e-7 * max(1.0, np.linalg.norm(X)) and angle <= 1e-7:
+        return
+    rpy = rpy_from_quat(q_near)
+    raise OutOfWorkspace(
+        f"{spec.name} cannot take this pose: its pose coordinates are only {', '.join(spec.coordinate_names)}; "
+        f"the nearest pose it takes is x,y,z = {', '.join(f'{v / s:.9g}' for v in X_near)} {unit}, "
+        f"roll,pitch,yaw = {', '.join(f'{v:.9g}' for v in rpy)} rad (or give --coordinates)")
