@@ -307,6 +307,9 @@ def serial_chain(tree: UrdfTree, base_link: str | None = None, moving_link: str 
         raise BadInput(f"{path}: base_link {base!r} is not a link of the URDF")
     if moving_link is None:
         leaves = tree.leaves(base)
+        if not leaves:
+            raise BadInput(f"{path}: base_link {base!r} is a leaf: no link moves below it; "
+                           f"choose a base_link above the moving part (the root is {tree.root!r})")
         if len(leaves) != 1:
             shown = ", ".join(leaves[:25]) + (f" and {len(leaves) - 25} more" if len(leaves) > 25 else "")
             raise BadInput(

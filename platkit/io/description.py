@@ -57,6 +57,14 @@ def default_description(filename: str, anchor: str | Path) -> Path:
     raise BadDescription(f"default description {filename!r} not found (looked in descriptions/ above {anchor})")
 
 
+def check_platform(data: dict, name: str, path: Path) -> None:
+    """A description may say which stand it describes (``platform: NAME``); a file written for
+    another stand is refused by name, before its fields are read as this stand's."""
+    declared = data.get("platform")
+    if declared is not None and str(declared) != name:
+        raise BadDescription(f"{path}: field 'platform' says this file describes {declared!r}, not the {name} stand")
+
+
 def require(data: dict, key: str, path: Path, kind: type | tuple = object, where: str = "") -> Any:
     """``data[key]`` or a BadDescription naming the file and field."""
     field = f"{where}.{key}" if where else key

@@ -30,7 +30,7 @@ import numpy as np
 from platkit.errors import BadDescription, BadInput
 from platkit.geometry import ca_matrix_from_quat
 from platkit.hookspecs import hookimpl
-from platkit.io.description import default_description, load_yaml, number, require, vector
+from platkit.io.description import check_platform, default_description, load_yaml, number, require, vector
 from platkit.model import Control, Coordinate, Parameter, PlatformFactory, PlatformSpec, length_scale
 
 MOTORS = ("A", "B", "C")
@@ -42,6 +42,7 @@ K, U0, V, S, ROD, CRANK = slice(0, 3), slice(3, 6), slice(6, 15), slice(15, 24),
 def read_description(path: Path) -> dict:
     """Parse and check a psvr description; returns SI values (metres, radians)."""
     data = load_yaml(path)
+    check_platform(data, "psvr", path)
     units = require(data, "units", path, dict)
     length = units.get("length")
     if length not in ("mm", "m"):

@@ -15,7 +15,7 @@ import numpy as np
 from platkit.errors import BadDescription, BadInput
 from platkit.geometry import ca_matrix_from_quat, matrix_from_rpy
 from platkit.hookspecs import hookimpl
-from platkit.io.description import default_description, load_yaml, number, require, vector
+from platkit.io.description import check_platform, default_description, load_yaml, number, require, vector
 from platkit.model import Control, Parameter, PlatformFactory, PlatformSpec, length_scale, six_dof_pose
 
 N_LEGS = 6
@@ -24,6 +24,7 @@ N_LEGS = 6
 def read_description(path: Path) -> dict:
     """Parse and check a stewart description; returns SI arrays (metres, radians)."""
     data = load_yaml(path)
+    check_platform(data, "stewart", path)
     units = require(data, "units", path, dict)
     unit = require(units, "length", path, str, "units")
     if unit not in ("mm", "m"):
