@@ -5,8 +5,9 @@ an optional ``t`` column and other columns are allowed and used only by time- or
 dependent model terms). 'm' controls are in the calibration's length unit.
 Output: one row per command row: the control columns, every marker's ``<name>_x,_y,_z`` in the
 motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame;
-lengths in the calibration's length unit. Rows whose forward kinematics fails are written with
-empty cells and counted.
+lengths in the calibration's length unit. A command outside its control's stroke, or a ``t``
+that decreases, is bad input; rows whose forward kinematics fails inside the strokes are written
+with empty cells and counted.
 """
 from __future__ import annotations
 
@@ -41,9 +42,42 @@ def read_commands(path: str | Path, cal: Calibration) -> tuple[np.ndarray, np.nd
     bad = np.argwhere(~np.isfinite(U))
     if bad.size:
         r, c = bad[0]
-        raise BadInput(f"{table.where(int(r), spec.control_names[c])}: the control is empty; every row needs one")
+        raise BadInput(f"{table.where(int(r), spec.control_names[c])}: the control is empty or nan; every row needs a number")
+    U_si = controls_to_si(spec, U, cal.length_unit)
+    _check_strokes(table, spec, U, U_si, cal.length_unit)
     t = table.column("t") if "t" in table.header else None
-    return controls_to_si(spec, U, cal.length_unit), t
+    if t is not None:
+        bad_t = np.nonzero(~np.isfinite(t))[0]
+        if bad_t.size:
+            raise BadInput(f"{table.where(int(bad_t[0]), 't')}: empty or nan; a t column needs a time in every row")
+        back = np.nonzero(np.diff(t) < 0)[0]
+        if back.size:
+            r = int(back[0]) + 1
+            raise BadInput(f"{table.where(r, 't')}: {t[r]:.6g} is earlier than the row before "
+                           "(times must not decrease: time- and history-dependent terms read the rows in order)")
+    return U_si, t
+
+
+def _check_strokes(table, spec, U_file: np.ndarray, U_si: np.ndarray, length_unit: str) -> None:
+    """A command outside a control's stroke is bad input, as in a session's commands.csv (most
+    often a length in the wrong unit, which the message then says)."""
+    for j, c in enumerate(spec.controls):
+        tol_lo, tol_hi = 1e-9 * max(1.0, abs(c.lower)), 1e-9 * max(1.0, abs(c.upper))
+        out = np.nonzero((U_si[:, j] < c.lower - tol_lo) | (U_si[:, j] > c.upper + tol_hi))[0]
+        if not out.size:
+            continue
+        r = int(out[0])
+        value = float(U_file[r, j])
+        hint = ""
+        if c.unit == "m":
+            s = length_scale(length_unit)
+            lo, hi, unit = c.lower / s, c.upper / s, length_unit
+            other = "m" if length_unit == "mm" else "mm"
+            if c.lower <= value * length_scale(other) <= c.upper:
+                hint = f"; the value fits the stroke in {other}, but the calibration's lengths are in {length_unit}"
+        else:
+            lo, hi, unit = c.lower, c.upper, c.unit
+        raise BadInput(f"{table.where(r, c.name)}: {value:.6g} is outside the stroke [{lo:.6g}, {hi:.6g}] {unit}{hint}")
 
 
 def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = None):

@@ -1,0 +1,43 @@
+"""`platkit predict` from a user's point of view: commands outside a stroke (a length in the
+wrong unit, a typo) and times that run backwards are bad input, named by row and column, as in a
+session's commands.csv; nothing is written."""
+import pytest
+
+from platkit.cli import main
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cal")
+    assert main(["calibrate", "--platform", "psvr", "--quiet", "--out", str(out)]) == 0
+    return str(out / "calibration.yaml")
+
+
+def _predict(calibration, tmp_path, text):
+    (tmp_path / "commands.csv").write_text(text)
+    out = tmp_path / "p.csv"
+    rc = main(["predict", "--calibration", calibration, "--commands", str(tmp_path / "commands.csv"), "--out", str(out)])
+    return rc, out
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("A,B,C\n2047.2,2047.2,9000\n", "row 1 (line 2) column 'C': 9000 is outside the stroke [1247.2, 2847.2] count"),
+    ("t,A,B,C\n1,2047.2,2047.2,2047.2\n0,2047.2,2047.2,2047.2\n", "row 2 (line 3) column 't': 0 is earlier than the row before"),
+    ("t,A,B,C\n0,2047.2,2047.2,2047.2\n,2047.2,2047.2,2047.2\n", "row 2 (line 3) column 't': empty or nan"),
+    ("A,B,C\n2047.2,nan,2047.2\n", "row 1 (line 2) column 'B': the control is empty or nan"),
+])
+def test_bad_commands_are_bad_input(calibration, tmp_path, capsys, text, expected):
+    rc, out = _predict(calibration, tmp_path, text)
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
+    assert not out.exists()
+
+
+def test_good_commands_give_one_row_each_in_the_spec_columns(calibration, tmp_path, capsys):
+    rc, out = _predict(calibration, tmp_path, "t,A,B,C\n0,2047.2,2047.2,2047.2\n1,1900,2100,2000\n")
+    assert rc == 0
+    lines = out.read_text().splitlines()
+    markers = [f"M{i}_{a}" for i in range(1, 6) for a in "xyz"]
+    assert lines[0].split(",") == ["A", "B", "C", *markers, "x", "y", "z", "qw", "qx", "qy", "qz"]
+    assert len(lines) == 3 and all("" not in line.split(",") for line in lines[1:])
