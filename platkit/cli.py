@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import traceback
 
@@ -41,6 +42,10 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"platkit: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except BrokenPipeError:  # the reader stopped early (`platkit describe ... | head`): not an error
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so the flush at exit does not complain again
+        return 0
     except OSError as exc:  # a path the system refused (permissions, a file where a folder must be)
         if debug:
             traceback.print_exc()

@@ -95,3 +95,14 @@ def test_workspace_of_psvr_keeps_stderr_clean(tmp_path, capfd):
     assert main(["workspace", "--platform", "psvr", "--no-plots", "--out", str(tmp_path / "ws")]) == 0
     err = capfd.readouterr().err
     assert "CasADi" not in err and "WARNING" not in err, err
+
+
+def test_a_reader_that_stops_early_is_no_error(monkeypatch, capfd):
+    import platkit.commands.plugins as verb
+
+    def reader_gone(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(verb, "run", reader_gone)
+    assert main(["plugins"]) == 0
+    assert capfd.readouterr().err == ""
