@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 
+from platkit.errors import BadInput
 from platkit.inertial.orient import METHODS
 
 
@@ -34,6 +35,8 @@ def run(args) -> int:
     from platkit.io.atomic import check_output_dir
 
     check_output_dir(args.out)
+    if not args.max_repair_s >= 0:
+        raise BadInput(f"--max-repair-s: must be 0 or more seconds, got {args.max_repair_s}")
     result = orient_session(args.session, args.method, args.calibration, args.imu_calibration,
                             args.platform, args.description, args.max_repair_s, args.level_base)
     write_outputs(result, args.out)

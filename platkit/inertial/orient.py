@@ -142,6 +142,10 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
     return spec, td, t, controls_to_si(spec, raw, y["length_unit"])
 
 
+#: fewest IMU samples orient takes (scipy's sosfiltfilt pads a second-order section by 9)
+MIN_SAMPLES = 10
+
+
 def orient_session(folder: str | Path, method: str = "platkit", calibration: str | Path | None = None,
                    imu_calibration: str | Path | None = None, platform: str | None = None,
                    description: str | Path | None = None, max_repair_s: float = 0.05,
@@ -162,6 +166,9 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     imu_decl = y["imu"] or {}
     imu = read_imu_csv(folder / "imu.csv", max_repair_s=max_repair_s / tscale,
                        gyr_range=imu_decl.get("gyr_range_rad_s"), acc_range=imu_decl.get("acc_range_m_s2"))
+    if imu.n < MIN_SAMPLES:
+        raise BadInput(f"{folder / 'imu.csv'}: {imu.n} samples are too few to estimate an orientation "
+                       f"(need at least {MIN_SAMPLES}: the offline estimator's zero-phase filter)")
     if tscale != 1.0:
         imu = ImuStream(imu.t * tscale, imu.gyr, imu.acc, imu.saturated, imu.repairs, imu.source)
     warnings = imu.warnings()
