@@ -188,6 +188,8 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         raise BadInput(f"{folder}: --method command-aided needs a session with a platform and commands.csv")
 
     # the gyro bias at the start: from the calibration, else from the first rest of the recording
+    # (replaced below by the held poses' bias when the commands give one)
+    rest_warning = None
     if cal_given:
         bias0 = np.zeros(3)
         report["gyr_bias_source"] = "imu calibration"
@@ -198,7 +200,7 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         except NotIdentifiable as exc:
             bias0 = np.zeros(3)
             report["gyr_bias_source"] = "none (zero)"
-            warnings.append(str(exc))
+            rest_warning = str(exc)
 
     q_sp = np.array([1.0, 0.0, 0.0, 0.0])
     R_sp = cal.sensor_from_platform
@@ -247,6 +249,8 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         warnings.append("no IMU calibration and no commands: the sensor axes are taken as the platform axes "
                         "and the heading is relative to the start")
         report["alignment"] = {"source": "none (identity)"}
+    if rest_warning is not None and report["gyr_bias_source"] == "none (zero)":
+        warnings.append(rest_warning)  # said only when no other source gave the bias
     q_sp = quat_from_matrix(R_sp)
     report["sensor_from_platform"] = np.asarray(R_sp).tolist()
     report["gyr_bias_start_rad_s"] = (cal.gyr_bias + cal.gyr_scale * np.asarray(bias0)).tolist()

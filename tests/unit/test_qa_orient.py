@@ -36,3 +36,16 @@ def test_a_negative_repair_span_is_bad_input(tmp_path, capsys):
     session = _imu_only_session(tmp_path / "s", 50)
     assert main(["orient", str(session), "--max-repair-s", "-1", "--out", str(tmp_path / "o")]) == 2
     assert "--max-repair-s" in _one_line(capsys)
+
+
+def test_no_rest_warning_when_the_held_poses_give_the_bias(tmp_path, capsys):
+    session = tmp_path / "sim"
+    assert main(["simulate", "--platform", "psvr", "--poses", "6", "--seed", "1", "--imu", "--out", str(session)]) == 0
+    capsys.readouterr()
+    assert main(["orient", str(session), "--out", str(tmp_path / "o")]) == 0
+    import json
+
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert report["gyr_bias_source"] == "held poses of the session"
+    assert not any("no rest" in w for w in report.get("warnings", []))
+    assert "no rest" not in capsys.readouterr().err
