@@ -547,10 +547,14 @@ class MarkerSlip(Effect):
         t = history(poses, "elapsed")
         order = np.argsort(t, kind="stable")
         out = []
+        ts = t[order]
         for m in range(poses.n_markers):
             k, _ = change_point(residuals[order, m, :])
-            if k > 0:
-                out.append(self.term(poses.marker_names[m], m, 0.5 * (t[order][k - 1] + t[order][k])))
+            # the geometry absorbs part of a step, which can move the residual's change point by
+            # a row: the neighbours are candidates too, and the score test picks among them
+            for j in (k - 1, k, k + 1):
+                if k > 0 and 1 <= j < len(ts):
+                    out.append(self.term(poses.marker_names[m], m, 0.5 * (ts[j - 1] + ts[j])))
         return out
 
     def regressor(self, term, spec, poses):
