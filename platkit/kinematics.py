@@ -742,6 +742,9 @@ class PlatformModel:
 
         Raises OutOfWorkspace when the pose cannot be reached (no real solution, or controls
         outside their stroke when ``strict``), NoConvergence when the iterative route fails.
+        With ``strict``, a stand without a closed-form inverse (a redundant chain) whose Newton
+        solution leaves the strokes is solved again by bounded least squares, so a solution
+        inside the strokes is found where one exists.
         """
         td = self._td(td)
         q = quat_normalize(np.asarray(q, float))
@@ -752,7 +755,20 @@ class PlatformModel:
             if not np.all(np.isfinite(u)):
                 raise OutOfWorkspace(f"{self.spec.name}: {where} has no real inverse solution")
         else:
-            u = self._inverse_newton(q, X, td, guess)
+            try:
+                u = self._inverse_newton(q, X, td, guess)
+            except NoConvergence:
+                if not strict:
+                    raise
+                u = self._inverse_in_strokes(q, X, td, guess)
+                if u is None:
+                    raise
+            if strict and np.any((u < self._lo_tol) | (u > self._hi_tol)):
+                # a redundant chain (or a revolute joint a turn away) has other solutions: look
+                # for one inside the strokes before calling the pose out of reach
+                inside = self._inverse_in_strokes(q, X, td, guess, u)
+                if inside is not None:
+                    u = inside
         r = np.asarray(self.spec.residual(u, td, q, X)).ravel()
         if np.linalg.norm(r) > 1e-6:
             raise OutOfWorkspace(
@@ -793,6 +809,38 @@ class PlatformModel:
             A = J.T @ J + lam * np.eye(len(u))
             u = u - np.linalg.solve(A, J.T @ r)
         raise NoConvergence(f"{self.spec.name} inverse kinematics", 100, float(np.linalg.norm(r)), "the pose may be unreachable")
+
+    def _inverse_in_strokes(self, q, X, td, guess, u_free=None) -> np.ndarray | None:
+        """Controls inside the strokes that solve the residual at (q, X), or None: bounded least
+        squares (trust-region reflective) from the neutral controls, the guess, the middle of the
+        strokes and the unconstrained solution pulled into them."""
+        from scipy.optimize import least_squares
+
+        lo, hi = self._lo, self._hi
+        span = np.where(np.isfinite(hi - lo), hi - lo, 2.0)
+        inner_lo = np.where(np.isfinite(lo), lo + 1e-9 * span, -np.inf)
+        inner_hi = np.where(np.isfinite(hi), hi - 1e-9 * span, np.inf)
+        starts = [self.spec.neutral_u()]
+        if guess is not None:
+            starts.append(np.asarray(guess, float))
+        starts.append(np.where(np.isfinite(lo) & np.isfinite(hi), 0.5 * (lo + hi), self.spec.neutral_u()))
+        if u_free is not None:
+            starts.append(np.asarray(u_free, float))
+
+        def fun(u):
+            return np.asarray(self._ik_functions(u, td, q, X)[0]).ravel()
+
+        def jac(u):
+            return np.asarray(self._ik_functions(u, td, q, X)[1])
+
+        for u0 in starts:
+            u0 = np.clip(u0, inner_lo, inner_hi)
+            sol = least_squares(fun, u0, jac=jac, bounds=(lo, hi), method="trf",
+                                xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+            u = np.clip(sol.x, lo, hi)
+            if np.linalg.norm(fun(u)) <= max(self.tol, 1e-9):
+                return u
+        return None
 
     # ------------------------------------------------------------------ velocity and acceleration
     @functools.cached_property
