@@ -99,11 +99,31 @@ def control_grid(spec: PlatformSpec, n: int) -> np.ndarray:
     return np.array(list(itertools.product(*values)), dtype=float)
 
 
+#: most control combinations pose_images solves: n**n_u grows past memory for long chains
+#: (TIAGo's 8 joints at 7 values: 5.8 million)
+MAX_CONTROL_SAMPLES = 20000
+
+
+def control_samples(spec: PlatformSpec, n: int, max_samples: int = MAX_CONTROL_SAMPLES, seed: int = 0) -> np.ndarray:
+    """The control grid with ``n`` values per control when it has at most ``max_samples`` rows;
+    else the finest grid that fits (at least 2 values per control: the box's corners), or, when
+    even the corners do not fit, ``max_samples`` seeded uniform draws over the box. (M, n_u)."""
+    if n ** spec.n_u <= max_samples:
+        return control_grid(spec, n)
+    n_fit = int(np.floor(max_samples ** (1.0 / spec.n_u) + 1e-9))
+    if n_fit >= 2:
+        return control_grid(spec, min(n, n_fit))
+    control_grid(spec, 2)  # the same checks of the strokes
+    lo, hi = spec.control_bounds()
+    return lo + (hi - lo) * np.random.default_rng(seed).random((max_samples, spec.n_u))
+
+
 def pose_images(spec: PlatformSpec, n: int = 9, td=None, model: PlatformModel | None = None) -> np.ndarray:
     """Pose coordinates (M, n_p) of the control grid's forward solutions that converge on the
-    stand's branch (started from the neutral pose). ``n``: values per control."""
+    stand's branch (started from the neutral pose). ``n``: values per control (fewer when the
+    grid would pass :data:`MAX_CONTROL_SAMPLES` rows; see :func:`control_samples`)."""
     model = model or PlatformModel(spec)
-    U = control_grid(spec, n)
+    U = control_samples(spec, n)
     fb = model.forward_batch(U, td=td)
     keep = fb.converged & fb.on_branch
     return np.asarray(fb.p)[keep]
