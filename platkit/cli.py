@@ -7,6 +7,7 @@ import os
 import sys
 import traceback
 
+from platkit import __version__
 from platkit.errors import PlatkitError
 
 #: verb modules under platkit.commands, in the order `platkit --help` lists them
@@ -16,6 +17,7 @@ COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calib
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="platkit", description="Kinematics, calibration and diagnosis of motion platforms")
     parser.add_argument("--debug", action="store_true", help="show the traceback on errors")
+    parser.add_argument("--version", action="version", version=f"platkit {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:

@@ -106,3 +106,10 @@ def test_a_reader_that_stops_early_is_no_error(monkeypatch, capfd):
     monkeypatch.setattr(verb, "run", reader_gone)
     assert main(["plugins"]) == 0
     assert capfd.readouterr().err == ""
+
+
+def test_version(capsys):
+    from platkit import __version__
+
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"platkit {__version__}"
