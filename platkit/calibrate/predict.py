@@ -5,8 +5,8 @@ an optional ``t`` column and other columns are allowed and used only by time- or
 dependent model terms). 'm' controls are in the calibration's length unit.
 Output: one row per command row: the control columns, every marker's ``<name>_x,_y,_z`` in the
 motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame;
-lengths in the calibration's length unit. A command outside its control's stroke, or a ``t``
-that decreases, is bad input; rows whose forward kinematics fails inside the strokes are written
+lengths in the calibration's length unit. A command outside its control's stroke, a ``t``
+that decreases, or no ``t`` for a model with time-dependent terms, is bad input; rows whose forward kinematics fails inside the strokes are written
 with empty cells and counted.
 """
 from __future__ import annotations
@@ -99,6 +99,35 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     return header, rows, ok
 
 
+def terms_reading_time(cal: Calibration, U: np.ndarray) -> list[str]:
+    """Effects of ``cal``'s model terms whose offsets at controls U (N, n_u) SI change with the
+    time since the first command (thermal drift, a marker slip): asked of each term through
+    ModelTerm's offsets under two different clocks, so any effect plugin is covered."""
+    if not cal.terms:
+        return []
+    from platkit.diagnose.effects import with_history
+
+    N, n_u = U.shape
+    blank = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
+                    marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+    clocks = []
+    for elapsed in (np.arange(N, dtype=float), 3.7 * np.arange(N, dtype=float) + 11.0):
+        poses = with_history(blank, cal.spec)
+        poses.extras = dict(poses.extras, elapsed=elapsed)
+        clocks.append(poses)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
+    X = np.zeros((N, 3))
+    names = []
+    for term, theta in zip(cal.terms, cal.theta):
+        theta = np.asarray(theta, float)
+        offsets = [(term.control_offset(theta, p, n_u), term.marker_offset(theta, p), term.pose_offset(theta, p, q, X))
+                   for p in clocks]
+        if any(not np.allclose(np.asarray(a, float), np.asarray(b, float), equal_nan=True)
+               for a, b in zip(*offsets)):
+            names.append(term.effect)
+    return names
+
+
 def predict_file(calibration: str | Path, commands: str | Path, out: str | Path) -> dict:
     """Read a calibration.yaml and a commands CSV, write the prediction CSV atomically.
 
@@ -106,6 +135,11 @@ def predict_file(calibration: str | Path, commands: str | Path, out: str | Path)
     """
     cal = read_calibration(calibration)
     U, t = read_commands(commands, cal)
+    if t is None:
+        timed = terms_reading_time(cal, U)
+        if timed:
+            raise BadInput(f"{commands}: no 't' column, but the calibration's model has time-dependent terms "
+                           f"({', '.join(timed)}); give t in seconds on the session's clock")
     header, rows, ok = prediction_table(cal, U, t)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")

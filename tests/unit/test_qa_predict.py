@@ -41,3 +41,43 @@ def test_good_commands_give_one_row_each_in_the_spec_columns(calibration, tmp_pa
     markers = [f"M{i}_{a}" for i in range(1, 6) for a in "xyz"]
     assert lines[0].split(",") == ["A", "B", "C", *markers, "x", "y", "z", "qw", "qx", "qy", "qz"]
     assert len(lines) == 3 and all("" not in line.split(",") for line in lines[1:])
+
+
+TERMS = """terms:
+- effect: backlash
+  where: {actuator: A, actuator_index: 0, unit: count}
+  parameters:
+    half_play: {value: 2.0, std: 0.1, unit: count}
+- effect: thermal_drift
+  where: {time: 'the whole session, linear in the time since its first command'}
+  parameters:
+    vx: {value: 1.0e-05, std: 1.0e-07, unit: m/s}
+    vy: {value: 0.0, std: 1.0e-07, unit: m/s}
+    vz: {value: 0.0, std: 1.0e-07, unit: m/s}
+"""
+
+
+def _with_terms(calibration, tmp_path, terms):
+    text = open(calibration).read()
+    assert "terms: []\n" in text
+    path = tmp_path / "calibration.yaml"
+    path.write_text(text.replace("terms: []\n", terms))
+    return str(path)
+
+
+def test_a_time_dependent_model_needs_t(calibration, tmp_path, capsys):
+    cal = _with_terms(calibration, tmp_path, TERMS)
+    rc, out = _predict(cal, tmp_path, "A,B,C\n2047.2,2047.2,2047.2\n1900,2100,2000\n")
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no 't' column" in err[0] and "(thermal_drift)" in err[0], err
+    assert not out.exists()
+    rc, out = _predict(cal, tmp_path, "t,A,B,C\n0,2047.2,2047.2,2047.2\n100,1900,2100,2000\n")
+    assert rc == 0
+
+
+def test_a_history_only_model_takes_rows_without_t(calibration, tmp_path, capsys):
+    backlash_only = TERMS.split("- effect: thermal_drift")[0]
+    cal = _with_terms(calibration, tmp_path, backlash_only)
+    rc, out = _predict(cal, tmp_path, "A,B,C\n2047.2,2047.2,2047.2\n1900,2100,2000\n")
+    assert rc == 0 and len(out.read_text().splitlines()) == 3
