@@ -123,6 +123,8 @@ def build_truth(spec, effects: list[tuple[str, str]], seed: int):
             term, theta = lib[name].simulation_term(spec, None, rng, commands)
         moved = _sim(spec, seed, terms=[(term, theta)], noise=0)
         raw = _marker_rms(moved.poses.markers, plain.poses.markers)
+        if raw < 1e-9:
+            raise BadInput(f"{name} does nothing on the {spec.name} stand's poses")
         # what the geometric model cannot absorb: the residual of a calibration on noise-free data
         left = calibrate(moved.poses, spec, robust=False).rms_after
         # an effect the geometry absorbs almost wholly is sized by its raw motion (at most 5 times
@@ -139,6 +141,10 @@ def _fk_positions(spec, sim):
     return PlatformModel(spec).forward_batch(sim.poses.controls, td=sim.truth.td, strict=False).X
 
 
+class NotApplicable(Exception):
+    """The concealed effect cannot exist on this stand (e.g. compliance without inertias)."""
+
+
 def run_case(case: dict) -> dict:
     """One session: simulate, diagnose, score. A case whose simulation or diagnosis raises a
     PlatkitError is recorded with the message (and counted in the summary), not dropped."""
@@ -146,6 +152,10 @@ def run_case(case: dict) -> dict:
 
     try:
         return _run_case(case)
+    except NotApplicable as exc:
+        return {**case, "named": [], "findings": [], "not_separable": [], "not_applicable": str(exc),
+                "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
+                "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": 0.0}
     except PlatkitError as exc:
         return {**case, "named": [], "findings": [], "not_separable": [], "error": f"{type(exc).__name__}: {exc}",
                 "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
@@ -160,7 +170,12 @@ def _run_case(case: dict) -> dict:
     t0 = time.perf_counter()
     spec = get_platform(case["stand"])
     seed = case["seed"]
-    built = build_truth(spec, case["effects"], seed) if case["effects"] else []
+    from platkit.errors import BadInput
+
+    try:
+        built = build_truth(spec, case["effects"], seed) if case["effects"] else []
+    except BadInput as exc:
+        raise NotApplicable(str(exc)) from None
     truth_terms = [(t, th) for t, th, _ in built]
     left_share = min([x for _, _, x in built], default=1.0)
     train = _sim(spec, seed, terms=truth_terms)
@@ -224,6 +239,10 @@ def plan_cases(stands, seeds, quick: bool) -> list[dict]:
 def summarise(results: list[dict]) -> dict:
     lines = []
     out: dict = {}
+    for r in results:
+        if r.get("not_applicable"):
+            lines.append(f"not applicable: {r['truth']} on {r['stand']} ({r['not_applicable']})")
+    results = [r for r in results if not r.get("not_applicable")]
     errors = [r for r in results if r.get("error")]
     for r in errors:
         lines.append(f"ERROR {r['stand']} {r['truth']} ({r['kind']}, seed {r['seed']}): {r['error']}")
