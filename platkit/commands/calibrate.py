@@ -110,6 +110,19 @@ def run(args) -> int:
         cal.heldout["second_session"] = second_session_errors(cal, other)
     written = write_outputs(cal, args.out, poses)
     s = length_scale(cal.length_unit)
-    print(f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
-          f"({cal.n_poses} poses, {cal.n_markers} markers); wrote {', '.join(str(p) for p in written)}")
+    line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
+            f"({cal.n_poses} poses, {cal.n_markers} markers)")
+    if args.folds and "rms" in cal.heldout:
+        line += f"; {args.folds}-fold held-out rms {cal.heldout['rms'] / s:.4g} {cal.length_unit}"
+    second = cal.heldout.get("second_session")
+    if second is not None:
+        line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / s:.4g} {cal.length_unit}"
+        if second["rms"] > SAME_FRAME_RATIO * max(cal.rms_after, 1e-12):
+            print(f"platkit: warning: the second session's rms is {second['rms'] / max(cal.rms_after, 1e-12):.0f} times "
+                  f"the fit's: was {args.validate} recorded in the same motion-capture frame?", file=sys.stderr)
+    print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+#: a second session this many times worse than the fit is most likely in another mocap frame
+SAME_FRAME_RATIO = 20.0
