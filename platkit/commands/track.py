@@ -150,6 +150,12 @@ def read_trajectory(path: str, s: float) -> tuple[np.ndarray, np.ndarray, bool]:
     quat = all(c in header for c in ("qw", "qx", "qy", "qz"))
     if rpy and quat:
         raise BadInput(f"{p}: give the rotation as roll,pitch,yaw or as qw,qx,qy,qz, not both")
+    for group, whole in ((("roll", "pitch", "yaw"), rpy), (("qw", "qx", "qy", "qz"), quat)):
+        partial = [c for c in group if c in header]
+        if partial and not whole:  # a rotation half given would be silently dropped
+            missing = [c for c in group if c not in header]
+            raise BadInput(f"{p}: column {partial[0]!r} without {', '.join(repr(c) for c in missing)}; "
+                           f"a rotation needs all of {','.join(group)}")
     cols = ["t", "x", "y", "z"] + (["roll", "pitch", "yaw"] if rpy else ["qw", "qx", "qy", "qz"] if quat else [])
     idx = [header.index(c) for c in cols]
     times, poses = [], []
