@@ -98,9 +98,12 @@ def convert(csv_path: str | Path, out_session: str | Path, urdf: str | Path | No
     poses.csv: t, the joints and the markers (the rows are already settled plateaus).
     """
     csv_path = Path(csv_path)
+    if not csv_path.is_file():
+        raise BadInput(f"{csv_path}: static-postures CSV not found")
     urdf = Path(urdf) if urdf is not None else csv_path.parent / URDF_NAME
     if not urdf.is_file():
-        raise BadInput(f"{urdf}: URDF not found (pass urdf=...)")
+        raise BadInput(f"{urdf}: URDF not found (it is looked for beside the CSV; give another with --urdf, "
+                       "or urdf= from Python)")
     d = read_postures(csv_path)
     order = np.argsort(d["t"], kind="stable")
     t = d["t"][order]
