@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 import traceback
 
@@ -30,8 +31,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 
+#: a value that starts like a negative number ("-10,20", "-.5", "-1e3")
+_NEGATIVE_VALUE = re.compile(r"^-(\d|\.\d)")
+
+
+def join_negative_values(argv: list[str]) -> list[str]:
+    """``--u -10,20`` -> ``--u=-10,20``: argparse takes a value that starts with '-' for an option
+    unless it is one plain number, so comma-separated vectors with a negative first entry
+    (controls, poses, targets) would fail with "expected one argument"."""
+    out, i = [], 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg.startswith("--") and "=" not in arg and i + 1 < len(argv) and _NEGATIVE_VALUE.match(argv[i + 1]):
+            out.append(f"{arg}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(arg)
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    argv = join_negative_values(list(sys.argv[1:] if argv is None else argv))
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse already printed one line; bad usage is bad input

@@ -113,3 +113,22 @@ def test_version(capsys):
 
     assert main(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"platkit {__version__}"
+
+
+def test_vectors_may_start_with_a_negative_number(capsys):
+    """`--u -10,20` (before: argparse's "expected one argument", exit 2)."""
+    import json
+
+    assert main(["fk", "--platform", "rotary", "--u", "-10,20", "--json"]) == 0
+    fk = json.loads(capsys.readouterr().out)
+    assert fk["yaw"] == pytest.approx(-0.17453292519943295) and fk["pitch"] == pytest.approx(0.3490658503988659)
+    assert main(["ik", "--platform", "stewart", "--pose", "-100,-5,3147,-0.1,0,0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["platform"] == "stewart"
+
+
+def test_join_negative_values_leaves_everything_else_alone():
+    from platkit.cli import join_negative_values
+
+    argv = ["fk", "--platform", "rotary", "--u", "-10,20", "--json", "--guess=-1,2", "--unit", "mm", "-h"]
+    assert join_negative_values(argv) == ["fk", "--platform", "rotary", "--u=-10,20", "--json", "--guess=-1,2",
+                                          "--unit", "mm", "-h"]
