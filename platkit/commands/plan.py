@@ -56,6 +56,8 @@ def run(args) -> int:
         cands = pl.grid_plan(spec, args.grid, args.margin) if args.grid else None
         if args.optimal < 1:
             raise BadInput("--optimal must be at least 1")
+        if cands is None and args.candidates < args.optimal:
+            raise BadInput(f"--candidates {args.candidates}: must be at least --optimal ({args.optimal})")
         plan, baseline = pl.optimal_plan(spec, args.optimal, args.candidates, rng, sigma, markers=markers,
                                          candidates=cands, margin=args.margin)
         report["plan"] = plan.info

@@ -1,0 +1,14 @@
+"""`platkit plan --optimal N --candidates M` with M < N is bad input in one line (before: M = 0
+gave 'ValueError: need at least one array to concatenate', exit 1)."""
+import pytest
+
+from platkit.cli import main
+
+
+@pytest.mark.parametrize("m", ["0", "-3", "5"])
+def test_too_few_candidates(tmp_path, capsys, m):
+    rc = main(["plan", "--platform", "psvr", "--optimal", "20", "--candidates", m, "--out", str(tmp_path / "p.csv")])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"platkit: error: --candidates {m}: must be at least --optimal (20)"]
+    assert not (tmp_path / "p.csv").exists()
