@@ -209,6 +209,10 @@ def run(args) -> int:
             raise BadInput(f"{name}: must be positive, got {value}")
     if args.restarts < 0:
         raise BadInput(f"--restarts: must be 0 or more, got {args.restarts}")
+    if args.seed < 0:
+        raise BadInput(f"--seed: must be 0 or more, got {args.seed}")
+    if args.max_iterations < 1:
+        raise BadInput(f"--max-iterations: must be 1 or more, got {args.max_iterations}")
     options = ServoOptions(
         tol_position=args.tol_pos * s, tol_rotation=args.tol_rot, max_iterations=args.max_iterations,
         max_seconds=args.max_seconds, dt=args.dt, use_rate_limits=not args.no_rate_limits, solver=args.solver,

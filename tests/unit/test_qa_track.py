@@ -22,3 +22,19 @@ def test_a_whole_rotation_is_read(tmp_path):
     path.write_text("t,x,y,z,roll,pitch,yaw\n0,0.3,0.2,0.4,0,0,0.5\n")
     times, poses, rotation = read_trajectory(str(path), 1.0)
     assert rotation and times.tolist() == [0.0] and poses.shape == (1, 4, 4)
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--seed", "-1", "--seed: must be 0 or more, got -1"),
+    ("--max-iterations", "0", "--max-iterations: must be 1 or more, got 0"),
+])
+def test_counts_out_of_range_name_the_option(tmp_path, capsys, option, value, message):
+    """(before: --seed -1 was 'ValueError: expected non-negative integer', exit 1)"""
+    from platkit.chains.robots import example_robot_urdf
+    from platkit.cli import main
+
+    urdf = example_robot_urdf("ur_description/urdf/ur5_robot.urdf")
+    rc = main(["track", "--urdf", str(urdf), "--link", "tool0", "--target", "0.3,0.2,0.4", "--restarts", "2",
+               f"{option}={value}", "--out", str(tmp_path / "j.csv")])
+    assert rc == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"platkit: error: {message}"]
