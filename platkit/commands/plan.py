@@ -40,6 +40,8 @@ def run(args) -> int:
         raise BadInput(f"--margin must be in [0, 0.5), got {args.margin}")
     if not args.noise_mm > 0:
         raise BadInput("--noise-mm must be positive")
+    if args.seed < 0:
+        raise BadInput(f"--seed: must be 0 or more, got {args.seed}")
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name")

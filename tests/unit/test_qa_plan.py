@@ -12,3 +12,10 @@ def test_too_few_candidates(tmp_path, capsys, m):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"platkit: error: --candidates {m}: must be at least --optimal (20)"]
     assert not (tmp_path / "p.csv").exists()
+
+
+def test_a_negative_seed(tmp_path, capsys):
+    """(before: 'ValueError: expected non-negative integer', exit 1)"""
+    rc = main(["plan", "--platform", "psvr", "--optimal", "5", "--seed=-1", "--out", str(tmp_path / "p.csv")])
+    assert rc == 2
+    assert capsys.readouterr().err.strip().splitlines() == ["platkit: error: --seed: must be 0 or more, got -1"]
