@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import io
 import itertools
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -356,8 +355,10 @@ def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=
             pose["u"] = controls_from_si(spec, np.array(pose["u"]), unit).tolist()
             pose["p"] = [v / s if c.unit == "m" else v for v, c in zip(pose["p"], spec.coordinates)]
     shown["unit"] = unit
+    from platkit.io import jsonout
+
     with atomic_output_dir(out) as tmp:
-        (tmp / "workspace.json").write_text(json.dumps(shown, indent=2) + "\n")
+        (tmp / "workspace.json").write_text(jsonout.dumps(shown, indent=2) + "\n")
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         U_shown = controls_from_si(spec, corners.U, unit)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.result import Calibration, heldout_in_unit
 from platkit.io.atomic import atomic_output_dir
 from platkit.model import length_scale
+from platkit.io import jsonout
 
 
 def _finite_or_none(x):
@@ -301,6 +301,6 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
         if "calibrated_urdf" in cal.extras:
             rep["calibrated_urdf"] = cal.extras["calibrated_urdf"]
         (tmp / "calibration.yaml").write_text(cal.to_yaml(), encoding="utf-8")
-        (tmp / "report.json").write_text(json.dumps(rep, indent=2) + "\n", encoding="utf-8")
+        (tmp / "report.json").write_text(jsonout.dumps(rep, indent=2) + "\n", encoding="utf-8")
         (tmp / "report.html").write_text(report_html(cal, poses), encoding="utf-8")
     return [out_dir / n for n in names]

@@ -10,7 +10,6 @@ Lengths in --unit, angles in radians in the files; the plots use mm and degrees.
 from __future__ import annotations
 
 import csv
-import json
 
 import numpy as np
 
@@ -21,6 +20,7 @@ from platkit.io.atomic import atomic_output_dir, check_output_dir
 from platkit.kinematics import PlatformModel
 from platkit.model import length_scale
 from platkit.plugins import get_platform
+from platkit.io import jsonout
 
 
 def add_parser(sub):
@@ -98,7 +98,7 @@ def run(args) -> int:
         if len(names) == 3:
             summary["slices"] = {grid.names[-1]: [shown(v, grid.units[-1]) for v in sliced]}
             summary["n_boundary_drawn"] = plot_boundary(grid, tmp / "admissible_boundary.png")
-        (tmp / "admissible.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+        (tmp / "admissible.json").write_text(jsonout.dumps(summary, indent=2) + "\n", encoding="utf-8")
     print(f"{spec.name}: {summary['n_admissible']} of {summary['n_grid']} grid poses admissible; "
           f"volume {summary['volume']:.6g} {summary['volume_unit']}")
     for n in grid.names:

@@ -1,7 +1,6 @@
 """Helpers shared by the CLI verbs: platform options, pose formatting, JSON printing."""
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
@@ -58,8 +57,9 @@ def pose_dict(q, X, unit: str) -> dict:
 
 
 def print_json(obj) -> None:
-    json.dump(obj, sys.stdout, indent=2, default=_json_default)
-    sys.stdout.write("\n")
+    from platkit.io.jsonout import dumps
+
+    sys.stdout.write(dumps(obj, indent=2, default=_json_default) + "\n")
 
 
 def _json_default(o):

@@ -1,7 +1,6 @@
 """platkit plan: which commands to send in a calibration session (grid or D-optimal)."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +31,7 @@ def _summary(info: dict) -> dict:
 
 def run(args) -> int:
     from platkit.calibrate import plan as pl
+    from platkit.io import jsonout
     from platkit.io.atomic import atomic_output_dir, check_output_file
 
     if args.grid is None and args.optimal is None:
@@ -72,7 +72,7 @@ def run(args) -> int:
     report["n_poses"] = int(len(plan.controls))
     with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
         pl.write_plan_csv(tmp / out.name, spec, plan.controls, args.unit)
-        (tmp / (out.stem + ".json")).write_text(json.dumps(report, indent=2, default=float) + "\n", encoding="utf-8")
+        (tmp / (out.stem + ".json")).write_text(jsonout.dumps(report, indent=2, default=float) + "\n", encoding="utf-8")
     _print(plan.info, report.get("baseline"), out, len(plan.controls))
     return 0
 

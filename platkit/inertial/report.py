@@ -18,6 +18,7 @@ import numpy as np
 from platkit.geometry import rpy_from_quat
 from platkit.inertial.orient import OrientResult
 from platkit.io.atomic import atomic_output_dir
+from platkit.io import jsonout
 
 
 def orientation_csv(t: np.ndarray, q: np.ndarray) -> str:
@@ -107,6 +108,6 @@ def write_outputs(result: OrientResult, out_dir: str | Path) -> list[Path]:
     names = ["orientation.csv", "report.json", "report.html"]
     with atomic_output_dir(out_dir) as tmp:
         (tmp / "orientation.csv").write_text(orientation_csv(result.t, result.q), encoding="utf-8")
-        (tmp / "report.json").write_text(json.dumps(result.report, indent=2, default=_json_default) + "\n", encoding="utf-8")
+        (tmp / "report.json").write_text(jsonout.dumps(result.report, indent=2, default=_json_default) + "\n", encoding="utf-8")
         (tmp / "report.html").write_text(report_html(result), encoding="utf-8")
     return [Path(out_dir) / n for n in names]
