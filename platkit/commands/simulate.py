@@ -58,13 +58,23 @@ def run(args) -> int:
         raise BadInput(f"--base-markers must be 0 or more, got {args.base_markers}")
     if args.markers < 3:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
-    if not args.rate_hz > 0 or not args.hold_s > 0:
-        raise BadInput("--rate-hz and --hold-s must be positive")
+    if args.seed < 0:
+        raise BadInput(f"--seed must be 0 or more, got {args.seed}")
+    if not args.noise_mm >= 0:
+        raise BadInput(f"--noise-mm must be 0 or more, got {args.noise_mm:g}")
+    if not 0 <= args.occlusion < 0.5:
+        raise BadInput(f"--occlusion must be a fraction in [0, 0.5), got {args.occlusion:g}")
+    if not args.rate_hz > 0:
+        raise BadInput(f"--rate-hz must be positive, got {args.rate_hz:g}")
+    if not args.hold_s > 0:
+        raise BadInput(f"--hold-s must be positive, got {args.hold_s:g}")
     spec = platform_from_args(args)
     plan = args.plan
     if plan not in ("grid", "random"):
+        if not Path(plan).exists():
+            raise BadInput(f"--plan: {plan}: file not found (give grid, random or a plan CSV file)")
         if not Path(plan).is_file():
-            raise BadInput(f"--plan: {plan!r} is neither grid, random nor a plan file")
+            raise BadInput(f"--plan: {plan} is a folder, expected grid, random or a plan CSV file")
     effects = [parse_effect(e) for e in args.effect]
     imu = imu_hook(args)
     sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,

@@ -252,6 +252,6 @@ def parse_effect(text: str) -> tuple[str, float | None]:
         value = float(size)
     except ValueError:
         raise BadInput(f"--effect {text!r}: the size after ':' must be a number") from None
-    if not np.isfinite(value):
-        raise BadInput(f"--effect {text!r}: the size must be finite")
+    if not np.isfinite(value) or value < 0:
+        raise BadInput(f"--effect {text!r}: the size must be a finite number, 0 or more (it is a magnitude)")
     return name, value
