@@ -284,6 +284,8 @@ def _names(value, key: str, path: Path) -> list[str]:
 def read_session_yaml(folder: Path) -> dict:
     """session.yaml checked field by field; returns a dict of clean values."""
     path = folder / "session.yaml"
+    if folder.is_file():
+        raise BadSession(f"{folder}: is a file; a session is a folder holding session.yaml")
     if not folder.is_dir():
         raise BadSession(f"{folder}: session folder not found")
     if not path.is_file():
@@ -384,7 +386,7 @@ def _check_controls(table: Table, spec: PlatformSpec, leading: list[str], length
     for j, n in enumerate(names):
         bad = np.nonzero(~np.isfinite(raw[:, j]))[0]
         if bad.size:
-            raise BadSession(f"{table.where(int(bad[0]), n)}: empty; every command needs every control")
+            raise BadSession(f"{table.where(int(bad[0]), n)}: empty or nan; every command needs every control")
     u = controls_to_si(spec, raw, length_unit)
     for j, c in enumerate(spec.controls):
         out = np.nonzero((u[:, j] < c.lower - 1e-9 * max(1.0, abs(c.lower))) | (u[:, j] > c.upper + 1e-9 * max(1.0, abs(c.upper))))[0]
@@ -531,7 +533,7 @@ def _read_commands_without_stand(s: Session, path: Path, tscale: float) -> None:
     for j, name in enumerate(table.header):
         bad = np.nonzero(~np.isfinite(table.data[:, j]))[0]
         if bad.size:
-            raise BadSession(f"{table.where(int(bad[0]), name)}: empty; every command needs every control")
+            raise BadSession(f"{table.where(int(bad[0]), name)}: empty or nan; every command needs every control")
     s.command_t = t
 
 
