@@ -37,6 +37,7 @@ import numpy as np
 
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.terms import ModelTerm
+from platkit.errors import BadInput, PlatkitError
 
 NOISE_MM = 0.2  # per mocap sample and coordinate; a settled pose averages ~75 samples: ~0.023 mm
 CLEAR_MM, WEAK_MM = 0.2, 0.06
@@ -148,15 +149,13 @@ class NotApplicable(Exception):
 def run_case(case: dict) -> dict:
     """One session: simulate, diagnose, score. A case whose simulation or diagnosis raises a
     PlatkitError is recorded with the message (and counted in the summary), not dropped."""
-    from platkit.errors import PlatkitError
-
     try:
         return _run_case(case)
     except NotApplicable as exc:
         return {**case, "named": [], "findings": [], "not_separable": [], "not_applicable": str(exc),
                 "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
                 "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": 0.0}
-    except PlatkitError as exc:
+    except (PlatkitError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         return {**case, "named": [], "findings": [], "not_separable": [], "error": f"{type(exc).__name__}: {exc}",
                 "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
                 "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": 0.0}
@@ -170,8 +169,6 @@ def _run_case(case: dict) -> dict:
     t0 = time.perf_counter()
     spec = get_platform(case["stand"])
     seed = case["seed"]
-    from platkit.errors import BadInput
-
     try:
         built = build_truth(spec, case["effects"], seed) if case["effects"] else []
     except BadInput as exc:
@@ -344,12 +341,12 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=None, help="seeds per case (default 3; 1 with --quick)")
     ap.add_argument("--effects", default=None, help="only these effects (comma-separated), for a focused run")
     ap.add_argument("--jobs", type=int, default=1, help="parallel processes")
-    ap.add_argument("--json", default=None, help="write every case's result here")
+    ap.add_argument("--json", default=None, help="write every case's result here (one JSON line per session, as it ends)")
     ap.add_argument("--summarise", default=None, metavar="JSON", help="only print the tables of a saved run")
     args = ap.parse_args(argv)
     if args.summarise:
         with open(args.summarise) as fh:
-            print(summarise(json.load(fh)["results"])["text"])
+            print(summarise([json.loads(line) for line in fh if line.strip()])["text"])
         return 0
     from platkit.plugins import list_platforms
 
@@ -362,26 +359,28 @@ def main(argv=None) -> int:
         cases = [c for c in cases if {e for e, _ in c["effects"]} & keep or (not c["effects"] and "none" in keep)]
     print(f"{len(cases)} sessions on {', '.join(stands)}, {seeds} seed(s)", flush=True)
     results = []
+    sink = open(args.json, "w") if args.json else None
+
+    def done(r):
+        results.append(r)
+        if sink is not None:
+            sink.write(json.dumps(r, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else str(o)) + "\n")
+            sink.flush()
+        print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':30s} "
+              f"held-out vs truth {r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm",
+              flush=True)
+
     if args.jobs > 1:
         from multiprocessing import get_context
 
         with get_context("spawn").Pool(args.jobs) as pool:
             for r in pool.imap_unordered(run_case, cases):
-                results.append(r)
-                print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':30s} "
-                      f"held-out vs truth {r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm",
-                      flush=True)
+                done(r)
     else:
         for c in cases:
-            r = run_case(c)
-            results.append(r)
-            print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':30s} "
-                  f"held-out vs truth {r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm",
-                  flush=True)
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump({"results": results}, fh, indent=1,
-                      default=lambda o: o.tolist() if isinstance(o, np.ndarray) else str(o))
+            done(run_case(c))
+    if sink is not None:
+        sink.close()
     summary = summarise(results)
     print(summary["text"])
     return 0
