@@ -41,8 +41,8 @@ class Effect:
 
     def candidates(self, spec: PlatformSpec, poses: PoseSet, residuals: np.ndarray | None = None) -> list[ModelTerm]:
         """Terms this effect could add on this stand and session. ``residuals``: (N, M, 3) m,
-        the current fit's marker residuals (effects that must locate something, like a
-        marker's slip time, use them)."""
+        the current fit's marker residuals in the moving frame (effects that must locate
+        something, like a marker's slip time, use them)."""
         raise NotImplementedError
 
     def regressor(self, term: ModelTerm, spec: PlatformSpec, poses: PoseSet) -> np.ndarray:

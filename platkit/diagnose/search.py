@@ -32,6 +32,7 @@ from platkit.calibrate.terms import ModelTerm
 from platkit.diagnose.effects import Effect, effect_library, with_history
 from platkit.diagnose.locate import Location, located, locate
 from platkit.diagnose.probes import space_probe, time_probe
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.diagnose.stats import bic, column_basis, holm, paired_improvement, score_test
 from platkit.model import PlatformSpec, length_scale
 
@@ -222,8 +223,20 @@ def _offset_sign(term: ModelTerm, theta: np.ndarray, fit: "Fit", poses: PoseSet)
     return np.sign(off[:, int(np.argmax(np.var(off, axis=0)))])
 
 
-def _same(a: ModelTerm, b: ModelTerm) -> bool:
-    return a.effect == b.effect and a.where == b.where
+def _body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
+    """(N, M, 3) the fit's residuals in the moving frame: a marker that slipped on the moving part
+    makes a step there, while in the mocap frame its error turns with the platform."""
+    td, w = fit.problem.split(fit.z)[:2]
+    q = fit.problem.kinematics(td, poses.controls)[0]
+    R = matrix_from_quat(q)  # (N, 3, 3) moving -> base
+    A = matrix_from_rotvec(w)  # base -> mocap
+    return np.einsum("nji,kj,nmk->nmi", R, A, fit.r)
+
+
+def _place(term: ModelTerm) -> tuple:
+    """(effect, actuator or marker): terms of one kind at one place compete, never add up."""
+    w = term.where
+    return term.effect, str(w.get("actuator", "")), str(w.get("marker", ""))
 
 
 def _params(term: ModelTerm, theta: np.ndarray, std: np.ndarray | None) -> dict[str, dict[str, Any]]:
@@ -283,9 +296,11 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     stop_unexplained: Finding | None = None
     while len(findings) < opt.max_effects:
         cands: list[tuple[Effect, ModelTerm]] = []
+        taken = {_place(t) for t in cur.terms}
+        body_r = _body_residuals(cur, poses)
         for eff in library.values():
-            for term in eff.candidates(spec, poses, cur.r):
-                if not any(_same(term, t) for t in cur.terms):
+            for term in eff.candidates(spec, poses, body_r):
+                if _place(term) not in taken:  # one term of a kind per actuator / marker
                     cands.append((eff, term))
         scr = screen(cur, spec, poses, [t for _, t in cands])
         p_adj = holm(np.array([s[1] for s in scr])) if scr else np.zeros(0)
@@ -298,7 +313,13 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                 not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep}
         order = [i for i in np.argsort([s[1] for s in scr])
                  if p_adj[i] < opt.alpha and scr[i][2] >= opt.min_separability]
-        chosen = order[:opt.max_refits]
+        # the best candidate of each kind and place (one split per marker, one period per
+        # actuator), so that neighbours of one located step do not crowd out the others
+        chosen, seen = [], set()
+        for i in order:
+            if _place(cands[i][1]) not in seen and len(chosen) < opt.max_refits:
+                chosen.append(i)
+                seen.add(_place(cands[i][1]))
         rounds.append({"round": len(rounds) + 1, "screened": len(cands), "passed_screening": len(order),
                        "refit": [f"{cands[i][0].name} ({_where_text(cands[i][1].where)})" for i in chosen],
                        "top": sorted(table, key=lambda x: x["p_adjusted"])[:8]})
