@@ -22,7 +22,8 @@ truth before and after diagnosis, and the goals (clear named right in >= 95% of 
 held-out error down >= 80%).
 
     .venv/bin/python benchmarks/diagnosis_proof.py --quick          # stewart, 1 seed (~10 min, 2 cores)
-    .venv/bin/python benchmarks/diagnosis_proof.py --jobs 2         # full: 3 stands, 3 seeds
+    .venv/bin/python benchmarks/diagnosis_proof.py --jobs 2 --json run.jsonl   # full: 3 stands, 3 seeds (207 sessions)
+    .venv/bin/python benchmarks/diagnosis_proof.py --summarise run.jsonl       # the tables again
 """
 from __future__ import annotations
 
