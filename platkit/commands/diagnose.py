@@ -30,6 +30,9 @@ def run(args) -> int:
     from platkit.io.session import read_session_yaml
     from platkit.model import length_scale
 
+    from platkit.io.atomic import check_output_dir
+
+    check_output_dir(args.out)
     if args.folds < 2:
         raise BadInput(f"--folds {args.folds}: use 2 or more")
     if not 0 < args.alpha < 1:

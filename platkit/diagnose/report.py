@@ -42,16 +42,28 @@ def _plain(o):
     return o
 
 
+def _length_unit(si_unit: str | None, unit: str) -> tuple[float, str | None]:
+    """(metres per shown unit, shown unit) for a parameter unit: lengths ('m', 'm/s', 'm/N', ...)
+    are shown in the session's length unit; anything else as it is."""
+    if si_unit == "m" or (si_unit or "").startswith("m/"):
+        return length_scale(unit), unit + si_unit[1:]
+    return 1.0, si_unit
+
+
 def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
     s = length_scale(unit)
     params = {}
     for name, v in f.parameters.items():
-        k = s if v.get("unit") == "m" else 1.0
+        k, shown = _length_unit(v.get("unit"), unit)
         params[name] = {"value": _num(v["value"] / k), "std": None if v["std"] is None else _num(v["std"] / k),
-                        "unit": unit if v.get("unit") == "m" else v.get("unit")}
+                        "unit": shown}
+    where = dict(_plain(f.where)) if isinstance(f.where, dict) else _plain(f.where)
+    if isinstance(where, dict) and "unit" in where:
+        # the unit the term's parameters are stored in (SI); the shown parameters carry theirs
+        where["stored_unit"] = where.pop("unit")
     out = {
         "effect": f.effect,
-        "where": _plain(f.where),
+        "where": where,
         "parameters": params,
         "heldout_rms_before": _num(f.heldout_rms_before / s),
         "heldout_rms_after": _num(f.heldout_rms_after / s),
