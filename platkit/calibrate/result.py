@@ -21,6 +21,7 @@ import yaml
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, rotvec_from_quat, transform
 from platkit.io.description import load_yaml
+from platkit.io.jsonout import strict
 from platkit.model import PlatformSpec, length_scale
 
 FORMAT = "platkit-calibration/1"
@@ -142,7 +143,7 @@ class Calibration:
     def to_yaml(self) -> str:
         header = (f"# platkit calibration of the {self.platform} stand. Lengths in {self.length_unit}, "
                   "angles in rad, other parameters in the unit beside them.\n")
-        return header + yaml.safe_dump(_plain(self.to_dict()), sort_keys=False, default_flow_style=None, width=120)
+        return header + yaml.safe_dump(strict(self.to_dict()), sort_keys=False, default_flow_style=None, width=120)
 
 
 #: keys of Calibration.heldout (and of its 'second_session') that are lengths in metres
@@ -170,24 +171,6 @@ def heldout_in_unit(heldout: dict, unit: str) -> dict:
             out[k] = v
     out["unit"] = unit
     return out
-
-
-def _plain(obj):
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, (np.floating,)):
-        return float(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 def _field(data: dict, key: str, path: Path, kind=object):

@@ -59,14 +59,5 @@ def pose_dict(q, X, unit: str) -> dict:
 def print_json(obj) -> None:
     from platkit.io.jsonout import dumps
 
-    sys.stdout.write(dumps(obj, indent=2, default=_json_default) + "\n")
+    sys.stdout.write(dumps(obj, indent=2) + "\n")
 
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.bool_):
-        return bool(o)
-    raise TypeError(type(o).__name__)

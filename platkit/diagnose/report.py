@@ -14,6 +14,7 @@ import numpy as np
 
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.jsonout import strict
 from platkit.model import length_scale
 
 FORMAT = "platkit-diagnosis/1"
@@ -24,22 +25,6 @@ def _num(x):
         return None
     x = float(x)
     return x if np.isfinite(x) else None
-
-
-def _plain(o):
-    if isinstance(o, dict):
-        return {str(k): _plain(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_plain(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return [_plain(v) for v in o.tolist()]
-    if isinstance(o, (np.floating, float)):
-        return _num(o)
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, np.bool_):
-        return bool(o)
-    return o
 
 
 def _length_unit(si_unit: str | None, unit: str) -> tuple[float, str | None]:
@@ -57,7 +42,7 @@ def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
         k, shown = _length_unit(v.get("unit"), unit)
         params[name] = {"value": _num(v["value"] / k), "std": None if v["std"] is None else _num(v["std"] / k),
                         "unit": shown}
-    where = dict(_plain(f.where)) if isinstance(f.where, dict) else _plain(f.where)
+    where = dict(strict(f.where)) if isinstance(f.where, dict) else strict(f.where)
     if isinstance(where, dict) and "unit" in where:
         # the unit the term's parameters are stored in (SI); the shown parameters carry theirs
         where["stored_unit"] = where.pop("unit")
@@ -93,12 +78,12 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
         "verdict": d.verdict,
         "rms_geometric": _num(d.base.rms_after / s),
         "rms_final": _num(d.calibration.rms_after / s),
-        "located_before": [{"test": x.test, "where": _plain(x.where), "statistic": _num(x.statistic),
+        "located_before": [{"test": x.test, "where": strict(x.where), "statistic": _num(x.statistic),
                             "p_adjusted": _num(x.p_adjusted)} for x in d.locations_before if x.p_adjusted < 0.05][:20],
-        "located_after": [{"test": x.test, "where": _plain(x.where), "statistic": _num(x.statistic),
+        "located_after": [{"test": x.test, "where": strict(x.where), "statistic": _num(x.statistic),
                            "p_adjusted": _num(x.p_adjusted)} for x in d.locations if x.p_adjusted < 0.05][:20],
-        "not_separable": _plain(d.not_separable),
-        "rounds": _plain(d.rounds),
+        "not_separable": strict(d.not_separable),
+        "rounds": strict(d.rounds),
         "method": ("forward selection: score-test screening (Holm), refit with the shared estimator, accepted when "
                    "the K-fold held-out error falls significantly (one-sided Wilcoxon, Holm) and BIC falls, unless a "
                    "generic probe predicts significantly better (then: unexplained)"),
@@ -140,7 +125,7 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
             a.set_xlabel(f.regressor_label)
             a.set_title(title)
         ax[0].set_ylabel(f"measured - model, along the effect ({d.unit})")
-        out.append((f"{f.effect}: {html.escape(json.dumps(_plain(f.where)))}", _png(fig)))
+        out.append((f"{f.effect}: {html.escape(json.dumps(strict(f.where)))}", _png(fig)))
     # residual norm in time order, before and after
     r0 = np.linalg.norm(d.base.extras["residuals_after"], axis=2)
     r1 = np.linalg.norm(d.calibration.extras["residuals_after"], axis=2)

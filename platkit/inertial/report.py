@@ -10,7 +10,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 from pathlib import Path
 
 import numpy as np
@@ -72,16 +71,6 @@ def _plots(result: OrientResult) -> list[tuple[str, str]]:
     return out
 
 
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.bool_):
-        return bool(o)
-    raise TypeError(type(o).__name__)
-
-
 def report_html(result: OrientResult) -> str:
     r = result.report
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>platkit orient</title>",
@@ -98,7 +87,7 @@ def report_html(result: OrientResult) -> str:
         parts.append("<h2>Warnings</h2><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in r["warnings"]) + "</ul>")
     for title, png in _plots(result):
         parts.append(f"<h2>{html.escape(title)}</h2><img alt='{html.escape(title)}' src='data:image/png;base64,{png}'>")
-    parts.append("<h2>report.json</h2><pre>" + html.escape(json.dumps(r, indent=2, default=_json_default)) + "</pre>")
+    parts.append("<h2>report.json</h2><pre>" + html.escape(jsonout.dumps(r, indent=2)) + "</pre>")
     parts.append("</body></html>")
     return "\n".join(parts)
 
@@ -108,6 +97,6 @@ def write_outputs(result: OrientResult, out_dir: str | Path) -> list[Path]:
     names = ["orientation.csv", "report.json", "report.html"]
     with atomic_output_dir(out_dir) as tmp:
         (tmp / "orientation.csv").write_text(orientation_csv(result.t, result.q), encoding="utf-8")
-        (tmp / "report.json").write_text(jsonout.dumps(result.report, indent=2, default=_json_default) + "\n", encoding="utf-8")
+        (tmp / "report.json").write_text(jsonout.dumps(result.report, indent=2) + "\n", encoding="utf-8")
         (tmp / "report.html").write_text(report_html(result), encoding="utf-8")
     return [Path(out_dir) / n for n in names]

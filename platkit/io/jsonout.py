@@ -11,25 +11,31 @@ from typing import Any
 import numpy as np
 
 
-def strict(obj: Any) -> Any:
-    """``obj`` with numpy values made Python ones and non-finite floats made None (recursively
-    through dicts, lists and tuples)."""
+def plain(obj: Any, finite_only: bool = False) -> Any:
+    """``obj`` with numpy values made Python ones, recursively through dicts (keys made str),
+    lists and tuples; paths made str. With ``finite_only`` a non-finite float becomes None.
+    What YAML and JSON writers are given."""
     if isinstance(obj, dict):
-        return {str(k) if not isinstance(k, str) else k: strict(v) for k, v in obj.items()}
+        return {str(k): plain(v, finite_only) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [strict(v) for v in obj]
+        return [plain(v, finite_only) for v in obj]
     if isinstance(obj, np.ndarray):
-        return strict(obj.tolist())
+        return plain(obj.tolist(), finite_only)
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)
     if isinstance(obj, (int, np.integer)):
         return int(obj)
     if isinstance(obj, (float, np.floating)):
         value = float(obj)
-        return value if math.isfinite(value) else None
+        return value if math.isfinite(value) or not finite_only else None
     if isinstance(obj, Path):
         return str(obj)
     return obj
+
+
+def strict(obj: Any) -> Any:
+    """:func:`plain` with non-finite floats made None: what strict JSON readers accept."""
+    return plain(obj, finite_only=True)
 
 
 def dumps(obj: Any, **kwargs) -> str:

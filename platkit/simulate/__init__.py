@@ -33,6 +33,7 @@ from platkit.calibrate.terms import ModelTerm
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, matrix_from_rpy, quat_from_matrix, transform
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.jsonout import plain
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, controls_from_si, length_scale
 
@@ -82,23 +83,10 @@ class Truth:
             "markers": {n: [float(x) for x in s] for n, s in zip(self.marker_names, self.markers)},
             "base_markers": {n: [float(x) for x in s] for n, s in zip(self.base_marker_names,
                                                                      () if self.base_markers is None else self.base_markers)},
-            "effects": [_plain(term.to_dict(theta)) for term, theta in self.terms],
+            "effects": [plain(term.to_dict(theta)) for term, theta in self.terms],
             "marker_noise_m": float(self.noise_m),
             "occlusion": float(self.occlusion),
         }
-
-
-def _plain(obj):
-    """numpy scalars and arrays -> Python, for safe YAML."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 @dataclass
@@ -477,7 +465,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             entry["imu"] = _write_imu_files(sim.imu, tmp)
         (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")
         truth = sim.truth.to_dict()
-        truth["plan"] = _plain(sim.plan_info)
+        truth["plan"] = plain(sim.plan_info)
         if sim.imu is not None and "truth_imu" in sim.imu:
             truth["imu"] = _truth_imu(sim.imu)
         (tmp / "truth.yaml").write_text(
@@ -489,9 +477,9 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
 def _truth_imu(imu: dict) -> dict:
     """The sensor's true errors for truth_imu.yaml (keys of platkit.inertial.orient.read_truth_imu);
     the gyro bias is its value at the last sample."""
-    truth = _plain(dict(imu["truth_imu"]))
+    truth = plain(dict(imu["truth_imu"]))
     if "gyr_bias" in imu:
-        truth["gyr_bias_rad_s"] = _plain(np.asarray(imu["gyr_bias"], float)[-1])
+        truth["gyr_bias_rad_s"] = plain(np.asarray(imu["gyr_bias"], float)[-1])
     return truth
 
 
@@ -506,7 +494,7 @@ def _write_imu_files(imu: dict, folder: Path) -> dict:
             raise BadInput(f"the imu hook returned {key!r} of shape {np.shape(imu[key])}, expected ({n}, 3)")
     write_imu(folder / "imu.csv", imu)
     rate = float(1.0 / np.median(np.diff(t)))
-    entry = _plain(imu.get("entry", {"rate_hz": rate, "frame": "imu"}))
+    entry = plain(imu.get("entry", {"rate_hz": rate, "frame": "imu"}))
     if "q_base_from_platform" in imu:
         q = np.asarray(imu["q_base_from_platform"], float)
         if q.shape != (n, 4):
