@@ -13,7 +13,7 @@ where ``c = w'^T (d2G/dw2) w'`` with ``w = (u, p)`` is CasADi's ``jtimes`` appli
 twist form replaces p' by the twist (v, omega) of the moving frame in the base frame (v: velocity
 of its origin, omega: angular velocity, both in base coordinates), through q' = 1/2 (0, omega) q.
 
-Speed: the Newton loop runs in C when a C compiler is found. The stand's residual and its
+Speed: the Newton loop runs in C (platkit/native.py) when a C compiler is found. The stand's residual and its
 Jacobian are generated with CasADi's code generator, a generic Newton driver (nothing in it
 knows a stand) is appended, and the result is compiled once into a cache directory
 (``$PLATKIT_CACHE_DIR``, default ``~/.cache/platkit``) keyed by a hash of the source. Without a
@@ -22,18 +22,9 @@ evaluations of (r, J). ``PlatformModel.backend`` says which path is used.
 """
 from __future__ import annotations
 
-import ctypes
 import functools
-import hashlib
 import math
-import os
-import shutil
-import subprocess
-import sys
-import tempfile
-import threading
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -41,9 +32,10 @@ import numpy as np
 from platkit.errors import BadInput, NoConvergence, OutOfWorkspace, WrongBranch
 from platkit.geometry import matrix_from_quat, quat_normalize, rpy_from_quat
 from platkit.model import PlatformSpec, length_scale
+from platkit.native import (
+    CONVERGED, MAX_ITERATIONS, NOT_FINITE, SINGULAR, _NativeNewton, _native_for, _newton_functions,
+)
 
-#: status codes of the Newton driver (C and numpy alike)
-CONVERGED, MAX_ITERATIONS, SINGULAR, NOT_FINITE = 0, 1, 2, 3
 
 
 @dataclass
@@ -97,234 +89,6 @@ class Conditioning:
     distance_to_singularity: float  # first-order estimate of the scaled pose distance (m) to sigma_min = 0
     characteristic_length: float  # m
     direction: np.ndarray  # (n,) the motion (scaled twist) that the controls feel least
-
-
-# ---------------------------------------------------------------------------- native Newton
-
-_DRIVER = r"""
-/* ---- platkit generic Newton driver: knows nothing about any stand ---- */
-#include <string.h>
-#include <math.h>
-
-static int pk_eval_rj(const double* u, const double* td, const double* p, double* r, double* J) {
-  const casadi_real* arg[PK_SZ_ARG_RJ + 1]; casadi_real* res[PK_SZ_RES_RJ + 1];
-  casadi_int iw[PK_SZ_IW_RJ + 1]; casadi_real w[PK_SZ_W_RJ + 1];
-  arg[0] = u; arg[1] = td; arg[2] = p; res[0] = r; res[1] = J;
-  return pk_rj(arg, res, iw, w, 0);
-}
-
-static int pk_eval_post(const double* u, const double* td, const double* p, double* q, double* X, double* g) {
-  const casadi_real* arg[PK_SZ_ARG_POST + 1]; casadi_real* res[PK_SZ_RES_POST + 1];
-  casadi_int iw[PK_SZ_IW_POST + 1]; casadi_real w[PK_SZ_W_POST + 1];
-  arg[0] = u; arg[1] = td; arg[2] = p; res[0] = q; res[1] = X; res[2] = g;
-  return pk_post(arg, res, iw, w, 0);
-}
-
-/* Solve A x = b in place (A n-by-n column major, destroyed; b becomes x). 0 ok, 1 singular. */
-static int pk_lu_solve(int n, double* A, double* b, double scale) {
-  int i, j, k, piv;
-  for (k = 0; k < n; ++k) {
-    double best = fabs(A[k + k * n]); piv = k;
-    for (i = k + 1; i < n; ++i) { double v = fabs(A[i + k * n]); if (v > best) { best = v; piv = i; } }
-    if (!(best > 1e-14 * scale)) return 1;
-    if (piv != k) {
-      for (j = 0; j < n; ++j) { double t = A[k + j * n]; A[k + j * n] = A[piv + j * n]; A[piv + j * n] = t; }
-      { double t = b[k]; b[k] = b[piv]; b[piv] = t; }
-    }
-    for (i = k + 1; i < n; ++i) {
-      double f = A[i + k * n] / A[k + k * n];
-      if (f != 0.0) { for (j = k + 1; j < n; ++j) A[i + j * n] -= f * A[k + j * n]; b[i] -= f * b[k]; }
-    }
-  }
-  for (k = n - 1; k >= 0; --k) {
-    double s = b[k];
-    for (j = k + 1; j < n; ++j) s -= A[k + j * n] * b[j];
-    b[k] = s / A[k + k * n];
-  }
-  return 0;
-}
-
-/* The Newton step: solve J dp = r (Gauss-Newton J^T J dp = J^T r when NR > NP) into b. */
-static int pk_step(const double* J, const double* r, double* A, double* b) {
-  int i, j, l; double scale = 0.0;
-  if (PK_NR == PK_NP) {
-    memcpy(A, J, sizeof(double) * PK_NP * PK_NP); memcpy(b, r, sizeof(double) * PK_NP);
-  } else {
-    for (i = 0; i < PK_NP; ++i) {
-      double bi = 0.0;
-      for (l = 0; l < PK_NR; ++l) bi += J[l + i * PK_NR] * r[l];
-      b[i] = bi;
-      for (j = 0; j < PK_NP; ++j) {
-        double a = 0.0;
-        for (l = 0; l < PK_NR; ++l) a += J[l + i * PK_NR] * J[l + j * PK_NR];
-        A[i + j * PK_NP] = a;
-      }
-    }
-  }
-  for (i = 0; i < PK_NP * PK_NP; ++i) { double v = fabs(A[i]); if (v > scale) scale = v; }
-  return pk_lu_solve(PK_NP, A, b, scale);
-}
-
-static double pk_norm(const double* r) {
-  double s = 0.0; int i;
-  for (i = 0; i < PK_NR; ++i) s += r[i] * r[i];
-  return sqrt(s);
-}
-
-/* Newton on r(p) = F(u, td, pose(p)) = 0 from p0. out: p (NP), q (4, unit, w >= 0), X (3),
-   g (NG), then iterations, |r|, status, on_branch. Once |r| <= tol one more step polishes the
-   solution (kept only if it lowers |r|); it is not counted as an iteration. */
-CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const double* p0,
-                                    double tol, int max_iter, double* out) {
-  double r[PK_NR + 1], J[PK_NR * PK_NP + 1], A[PK_NP * PK_NP + 1], b[PK_NP + 1], pt[PK_NP + 1];
-  double* p = out; double* q = out + PK_NP; double* X = q + 4; double* g = X + 3;
-  double* info = g + PK_NG;
-  double nrm = 0.0; int k, i, status = 0;
-  memcpy(p, p0, sizeof(double) * PK_NP);
-  for (k = 0;; ++k) {
-    pk_eval_rj(u, td, p, r, J);
-    nrm = pk_norm(r);
-    if (!isfinite(nrm)) { status = 3; break; }
-    if (nrm <= tol) {
-      if (nrm > 0.0 && !pk_step(J, r, A, b)) {
-        double nt;
-        for (i = 0; i < PK_NP; ++i) pt[i] = p[i] - b[i];
-        pk_eval_rj(u, td, pt, r, J);
-        nt = pk_norm(r);
-        if (nt <= nrm) { memcpy(p, pt, sizeof(double) * PK_NP); nrm = nt; }
-      }
-      status = 0; break;
-    }
-    if (k >= max_iter) { status = 1; break; }
-    if (pk_step(J, r, A, b)) { status = 2; break; }
-    for (i = 0; i < PK_NP; ++i) p[i] -= b[i];
-  }
-  pk_eval_post(u, td, p, q, X, g);
-  {
-    double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    double sgn = q[0] < 0 ? -1.0 : 1.0;
-    int on = 1;
-    for (i = 0; i < 4; ++i) q[i] *= sgn / qn;
-    for (i = 0; i < PK_NG; ++i) if (!(g[i] > 0)) on = 0;
-    info[0] = k; info[1] = nrm; info[2] = status; info[3] = on;
-  }
-}
-
-/* n problems: U (n, NU) row major, P0 (n, NP) or one row when p0_stride = 0, out (n, NOUT). */
-CASADI_SYMBOL_EXPORT void pk_newton_batch(int n, const double* U, const double* td, const double* P0,
-                                          int p0_stride, double tol, int max_iter, double* out) {
-  int i;
-  for (i = 0; i < n; ++i)
-    pk_newton(U + (long)i * PK_NU, td, P0 + (long)i * p0_stride, tol, max_iter, out + (long)i * PK_NOUT);
-}
-"""
-
-_native_lock = threading.Lock()
-_native_by_functions: dict = {}  # id-key -> (functions kept alive, _NativeNewton or failure reason)
-_native_by_hash: dict = {}
-
-
-def cache_dir() -> Path:
-    """Where compiled solvers are kept: $PLATKIT_CACHE_DIR, else $XDG_CACHE_HOME/platkit, else ~/.cache/platkit."""
-    env = os.environ.get("PLATKIT_CACHE_DIR")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "platkit"
-
-
-def _find_compiler() -> str | None:
-    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
-        return None
-    cc = os.environ.get("CC")
-    for cand in ([cc] if cc else []) + ["cc", "gcc", "clang"]:
-        path = shutil.which(cand)
-        if path:
-            return path
-    return None
-
-
-class _NativeNewton:
-    """ctypes handle on a compiled Newton solver for one stand's (residual, pose, branch)."""
-
-    def __init__(self, lib_path: Path, n_u: int, n_p: int, n_g: int):
-        self.path = lib_path
-        self.lib = ctypes.CDLL(str(lib_path))
-        self.n_out = n_p + 7 + n_g + 4
-        self.single = self.lib.pk_newton
-        self.single.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
-        self.single.restype = None
-        self.batch = self.lib.pk_newton_batch
-        self.batch.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
-                               ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
-        self.batch.restype = None
-
-
-def _newton_functions(spec: PlatformSpec) -> tuple[ca.Function, ca.Function, int]:
-    """(rj, post, n_g): rj(u, td, p) -> (r, dense J_p); post(u, td, p) -> (q, X, g)."""
-    u = ca.SX.sym("u", spec.n_u)
-    td = ca.SX.sym("td", spec.n_td)
-    p = ca.SX.sym("p", spec.n_p)
-    q, X = spec.pose(p)
-    r = spec.residual(u, td, q, X)
-    rj = ca.Function("pk_rj", [u, td, p], [r, ca.densify(ca.jacobian(r, p))], ["u", "td", "p"], ["r", "J"])
-    if spec.branch is not None:
-        g = spec.branch(u, td, q, X)
-    else:
-        g = ca.SX(0, 1)
-    post = ca.Function("pk_post", [u, td, p], [q, X, ca.densify(g)], ["u", "td", "p"], ["q", "X", "g"])
-    return rj, post, int(g.shape[0])
-
-
-def _build_native(spec: PlatformSpec, rj: ca.Function, post: ca.Function, n_g: int):
-    """Compile (or find in the cache) the C Newton solver; return _NativeNewton or a reason string."""
-    cc = _find_compiler()
-    if cc is None:
-        return "no C compiler (or PLATKIT_COMPILE=0)"
-    cg = ca.CodeGenerator("platkit_newton.c", {"with_header": False, "casadi_int": "int", "prefix": "pk_"})
-    cg.add(rj)
-    cg.add(post)
-    n_r = rj.size_out(0)[0]
-    defs = {
-        "PK_NU": spec.n_u, "PK_NP": spec.n_p, "PK_NR": n_r, "PK_NG": n_g, "PK_NOUT": spec.n_p + 7 + n_g + 4,
-        "PK_SZ_ARG_RJ": rj.sz_arg(), "PK_SZ_RES_RJ": rj.sz_res(), "PK_SZ_IW_RJ": rj.sz_iw(), "PK_SZ_W_RJ": rj.sz_w(),
-        "PK_SZ_ARG_POST": post.sz_arg(), "PK_SZ_RES_POST": post.sz_res(), "PK_SZ_IW_POST": post.sz_iw(),
-        "PK_SZ_W_POST": post.sz_w(),
-    }
-    source = cg.dump() + "\n" + "".join(f"#define {k} {v}\n" for k, v in defs.items()) + _DRIVER
-    flags = ["-O2", "-fPIC", "-shared"]
-    key = hashlib.sha256((source + cc + " ".join(flags) + sys.platform).encode()).hexdigest()[:24]
-    with _native_lock:
-        if key in _native_by_hash:
-            return _native_by_hash[key]
-        folder = cache_dir()
-        lib = folder / f"newton_{key}.so"
-        try:
-            if not lib.is_file():
-                folder.mkdir(parents=True, exist_ok=True)
-                with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
-                    src = Path(tmp) / "platkit_newton.c"
-                    src.write_text(source)
-                    out = Path(tmp) / lib.name
-                    proc = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True, timeout=300)
-                    if proc.returncode != 0:
-                        return f"the C compiler failed ({(proc.stderr.strip().splitlines() or ['?'])[-1]})"
-                    os.replace(out, lib)  # atomic: other processes see the whole library or none
-            native = _NativeNewton(lib, spec.n_u, spec.n_p, n_g)
-        except (OSError, subprocess.SubprocessError) as exc:
-            return f"compiling the solver failed ({exc.__class__.__name__}: {exc})"
-        _native_by_hash[key] = native
-        return native
-
-
-def _native_for(spec: PlatformSpec, rj, post, n_g):
-    key = (id(spec.residual), id(spec.pose), id(spec.branch), spec.n_td)
-    hit = _native_by_functions.get(key)
-    if hit is not None:
-        return hit[1]
-    native = _build_native(spec, rj, post, n_g)
-    _native_by_functions[key] = ((spec.residual, spec.pose, spec.branch), native)
-    return native
 
 
 # ---------------------------------------------------------------------------- the model

@@ -40,9 +40,9 @@ def test_backend_is_compiled_where_a_compiler_exists(model, slow_model):
 
 def test_environment_switch_turns_compilation_off(spec, monkeypatch):
     monkeypatch.setenv("PLATKIT_COMPILE", "0")
-    from platkit import kinematics
+    from platkit import native
 
-    monkeypatch.setattr(kinematics, "_native_by_functions", {})
+    monkeypatch.setattr(native, "_native_by_functions", {})
     m = PlatformModel(spec)
     assert "no C compiler" in m.backend
     res = m.forward(STATES_MM[1] / 1000)
@@ -161,20 +161,20 @@ def test_forward_with_other_parameters(spec, model, slow_model):
 
 
 def test_compiled_solver_is_cached_and_a_broken_compiler_falls_back(spec, monkeypatch, tmp_path):
-    from platkit import kinematics
+    from platkit import native
 
     if not (shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")):
         assert PlatformModel(spec).backend.startswith("casadi+numpy")
         return
     monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path / "cache"))
-    monkeypatch.setattr(kinematics, "_native_by_functions", {})
-    monkeypatch.setattr(kinematics, "_native_by_hash", {})
+    monkeypatch.setattr(native, "_native_by_functions", {})
+    monkeypatch.setattr(native, "_native_by_hash", {})
     m = PlatformModel(spec)
     assert m.backend.startswith(f"compiled C ({tmp_path / 'cache'}")
     assert len(list((tmp_path / "cache").glob("newton_*.so"))) == 1
     np.testing.assert_allclose(m.forward(STATES_MM[0] / 1000).p, PlatformModel(spec, compile=False).forward(STATES_MM[0] / 1000).p, atol=1e-12)
     monkeypatch.setenv("CC", shutil.which("false") or "/bin/false")
-    monkeypatch.setattr(kinematics, "_native_by_functions", {})
+    monkeypatch.setattr(native, "_native_by_functions", {})
     broken = PlatformModel(spec)
     assert broken.backend.startswith("casadi+numpy (the C compiler failed"), broken.backend
     assert broken.forward(STATES_MM[0] / 1000).iterations <= 5
