@@ -56,9 +56,30 @@ def run(args) -> int:
     say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects),
                  heldout=heldout, progress=say, start=cal)
+    if (Path(args.session) / "imu.csv").is_file():
+        d.imu = _diagnose_imu(args.session, d.calibration, say)
     written = write_outputs(d, args.out)
     s = length_scale(d.unit)
-    names = ", ".join(f.effect for f in d.findings) or "no finding"
+    names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
     print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {d.calibration.rms_after / s:.4g} {d.unit}; "
           f"wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _diagnose_imu(session, cal, say) -> dict:
+    """The gyro diagnosis of a session with imu.csv and commands (platkit.diagnose.imu), as the
+    mapping diagnosis.json holds; a session the gyro cannot be diagnosed on says why."""
+    from platkit.diagnose.imu import diagnose_imu, td_covariance
+    from platkit.errors import ComputationFailed
+    from platkit.io.session import load_session
+
+    s = load_session(session, platform=cal.platform)
+    if s.commands is None or s.imu_stream is None:
+        return {"findings": [], "verdict": "IMU not diagnosed: the session has no commands with its imu.csv."}
+    try:
+        r = diagnose_imu(cal.spec, cal.td, s.command_t, s.commands, s.imu_stream, td_cov=td_covariance(cal))
+    except ComputationFailed as exc:
+        return {"findings": [], "verdict": f"IMU not diagnosed: {exc}"}
+    if say:
+        say(r.verdict)
+    return r.to_dict()

@@ -88,6 +88,11 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
                    "the K-fold held-out error falls significantly (one-sided Wilcoxon, Holm) and BIC falls, unless a "
                    "generic probe predicts significantly better (then: unexplained)"),
     }
+    if d.imu is not None:
+        # IMU findings (platkit.diagnose.imu): rates in deg/s, each finding says its unit
+        out["findings"] += list(d.imu.get("findings", []))
+        out["imu"] = {k: v for k, v in d.imu.items() if k != "findings"}
+        out["verdict"] = (out["verdict"] + " " + d.imu.get("verdict", "")).strip()
     if d.heldout_session is not None:
         h = d.heldout_session
         out["heldout_session"] = {"rms_before": _num(h["rms_before"] / s), "rms_after": _num(h["rms_after"] / s),
@@ -150,13 +155,19 @@ def report_html(d: Diagnosis) -> str:
         rows.append(f"<tr><td>{html.escape(f.effect)}</td><td>{html.escape(json.dumps(fd['where']))}</td>"
                     f"<td>{html.escape(params)}</td><td>{fd['heldout_rms_before']:.4g}</td>"
                     f"<td>{fd['heldout_rms_after']:.4g}</td><td>{html.escape(f.evidence)}</td></tr>")
+    for fd in (d.imu or {}).get("findings", []):
+        params = "; ".join(f"{k} = {v['value']:.4g} +- {v['std']:.2g} {v['unit']}" for k, v in fd["parameters"].items())
+        rows.append(f"<tr><td>{html.escape(fd['effect'])}</td><td>{html.escape(json.dumps(fd['where']))}</td>"
+                    f"<td>{html.escape(params)}</td><td>{fd['heldout_rms_before']:.4g} deg/s</td>"
+                    f"<td>{fd['heldout_rms_after']:.4g} deg/s</td><td>{html.escape(fd['evidence'])}</td></tr>")
     table = ("<table border=1 cellpadding=4><tr><th>effect</th><th>where</th><th>parameters</th>"
              f"<th>held-out RMS before ({d.unit})</th><th>after</th><th>evidence</th></tr>" + "".join(rows) + "</table>"
              if rows else "<p>No findings.</p>")
     imgs = "".join(f"<h3>{title}</h3><img alt='{title}' src='data:image/png;base64,{png}'>" for title, png in _plots(d))
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>platkit diagnosis</title></head><body>"
             f"<h1>Diagnosis of the {html.escape(d.calibration.platform)} stand</h1>"
-            f"<p>{html.escape(d.verdict)}</p><h2>Findings</h2>{table}<h2>Where the residual was structured</h2>"
+            f"<p>{html.escape(d.verdict)}</p>" + (f"<p>{html.escape(d.imu.get('verdict', ''))}</p>" if d.imu else "")
+            + f"<h2>Findings</h2>{table}<h2>Where the residual was structured</h2>"
             f"{imgs}</body></html>")
 
 

@@ -126,6 +126,7 @@ class Diagnosis:
     unit: str
     poses: PoseSet
     heldout_session: dict[str, float] | None = None
+    imu: dict[str, Any] | None = None  # the gyro diagnosis (platkit.diagnose.imu), when the session has imu.csv
 
 
 # ---------------------------------------------------------------------------- fitting
