@@ -53,6 +53,10 @@ Progress = Callable[[str, dict], None]
 MAXWELL_MEDIAN = 1.5381722
 HUBER_K = 3.0  # Huber threshold on the 3-D error, in sigma
 REJECT_K = 4.5  # errors beyond this many sigma are outliers (P < 1e-3 for clean 3-D noise)
+#: td stays within nominal +- this many typical corrections (10 cm, 0.1 rad, 10%, 100 counts): a
+#: description is a drawing of the stand, not a guess; beyond, the fit pays a stiff hinge
+PLAUSIBLE_RANGE = 100.0
+PLAUSIBLE_STIFFNESS_M = 1e-3  # per typical correction beyond the range, as a marker error of 1 mm
 
 NUISANCE_TIER, TERM_TIER, TD_TIER = 0, 1, 2
 
@@ -116,7 +120,29 @@ class CalibrationProblem:
         self._p_guess = np.broadcast_to(spec.neutral_p(), (self.N, spec.n_p)).copy()
         self.prior_center = np.zeros(self.n_z)
         self.prior_scale = np.zeros(self.n_z)  # rows prior_scale * (z - prior_center); 0 = none
+        # the plausible range of td: nominal +- PLAUSIBLE_RANGE typical corrections (see set_plausible)
+        self.nominal = np.concatenate([spec.nominal_td(), np.zeros(self.n_z - spec.n_td)])
+        self.half_width = np.full(self.n_z, np.inf)
+        self.set_plausible(PLAUSIBLE_RANGE)
         self._build()
+
+    def set_plausible(self, corrections: float | None) -> None:
+        """Keep td within nominal +- ``corrections`` typical corrections (100: 10 cm, 0.1 rad, 10%).
+
+        Inside the range nothing changes; a parameter pushed beyond it pays, per typical
+        correction, as much as a marker error of PLAUSIBLE_STIFFNESS_M. Without it a weakly
+        identified direction of the geometry (a crank-rod stand's rod and crank centres) can
+        wander metres away while absorbing an unmodelled effect, and the fitted stand is then
+        another stand: its forward kinematics fails on new commands. None or inf removes it.
+        """
+        self.half_width = np.full(self.n_z, np.inf)
+        if corrections is not None and np.isfinite(corrections):
+            self.half_width[self.i_td] = float(corrections) * self.scale[self.i_td]
+
+    def beyond_plausible(self, z) -> list[str]:
+        """Names of the td entries of ``z`` outside their plausible range."""
+        d = np.abs(np.asarray(z, float) - self.nominal)
+        return [self.names[i] for i in np.nonzero(d > self.half_width * (1 + 1e-9))[0]]
 
     def set_ridge(self, ridge_m: float, center) -> None:
         """Shrink td towards ``center``: one typical correction (1 mm, 1 mrad) of a parameter costs
@@ -127,7 +153,21 @@ class CalibrationProblem:
             self.prior_scale[self.i_td] = ridge_m / self.scale[self.i_td]
 
     def prior_rows(self, z):
-        return (np.asarray(z, float), self.prior_center, self.prior_scale) if np.any(self.prior_scale > 0) else None
+        """(values (R,), indices (R,), slopes (R,)): the rows the priors add, each depending on one
+        unknown (the ridge, and the plausible range's hinge where z is beyond it), or None."""
+        z = np.asarray(z, float)
+        idx = [np.nonzero(self.prior_scale > 0)[0]]
+        val = [self.prior_scale[idx[0]] * (z[idx[0]] - self.prior_center[idx[0]])]
+        slope = [self.prior_scale[idx[0]]]
+        d = z - self.nominal
+        out = np.nonzero(np.abs(d) > self.half_width)[0]
+        if out.size:
+            k = PLAUSIBLE_STIFFNESS_M / self.scale[out]
+            idx.append(out)
+            val.append(k * np.sign(d[out]) * (np.abs(d[out]) - self.half_width[out]))
+            slope.append(k)
+        idx = np.concatenate(idx)
+        return None if idx.size == 0 else (np.concatenate(val), idx, np.concatenate(slope))
 
     # ------------------------------------------------------------------ CasADi
     def _build(self) -> None:
@@ -450,7 +490,7 @@ class LMResult:
 
 def _weighted(state: FitState, weights, active, prior=None):
     """Weighted residual vector and Jacobian columns of the active unknowns; ``prior``: optional
-    (z, z_center, row_scale (n_z,)) adding rows row_scale * (z - z_center) (zero scale: no row)."""
+    rows from :meth:`CalibrationProblem.prior_rows` (values, unknown index, slope)."""
     w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)  # (N, M)
     r = np.nan_to_num(state.r)
     sw = np.sqrt(w)[:, :, None]
@@ -459,14 +499,15 @@ def _weighted(state: FitState, weights, active, prior=None):
     if state.J is not None:
         Jw = (state.J[..., active] * sw[..., None]).reshape(-1, int(np.sum(active)))
     if prior is not None:
-        z, zc, k = prior
-        rows = np.nonzero(active & (k > 0))[0]
-        if rows.size:
-            rw = np.concatenate([rw, k[rows] * (z[rows] - zc[rows])])
+        val, idx, slope = prior
+        on = active[idx]  # a prior on a held unknown is a constant: no row
+        val, idx, slope = val[on], idx[on], slope[on]
+        if idx.size:
+            rw = np.concatenate([rw, val])
             if Jw is not None:
-                P = np.zeros((rows.size, int(np.sum(active))))
+                P = np.zeros((idx.size, int(np.sum(active))))
                 cols = np.cumsum(active) - 1
-                P[np.arange(rows.size), cols[rows]] = k[rows]
+                P[np.arange(idx.size), cols[idx]] = slope
                 Jw = np.vstack([Jw, P])
     return rw, Jw
 
@@ -593,7 +634,8 @@ def free_mask(spec: PlatformSpec, free: Sequence[str] | None) -> np.ndarray:
 def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (), free: Sequence[str] | None = None,
               robust: bool = True, folds: int = 0, rel_tol: float = DEFAULT_REL_TOL, max_iter: int = 60,
               progress: Progress | None = None, platform_options: dict | None = None,
-              td_start: np.ndarray | None = None, ridge_m: float = 0.0) -> Calibration:
+              td_start: np.ndarray | None = None, ridge_m: float = 0.0,
+              plausible: float | None = PLAUSIBLE_RANGE) -> Calibration:
     """Estimate td, the base-to-mocap transform, marker positions and term parameters.
 
     poses: settled poses (SI); spec: the stand (its nominal td is the starting point and the value
@@ -601,22 +643,26 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     folds: K > 1 adds K-fold held-out prediction errors to ``Calibration.heldout``.
     ridge_m: optional shrinkage of td towards nominal (see CalibrationProblem.set_ridge); 0 (default)
     is plain (robust) least squares.
+    plausible: td is kept within nominal +- this many typical corrections (see
+    CalibrationProblem.set_plausible; the names that reach the edge are in
+    ``identifiability['at_plausible_limit']``); None lets td go anywhere.
     Raises NotIdentifiable when not even the transform and markers can be fixed, NoConvergence
     when forward kinematics fails on most poses.
     """
     with blas_threads(1):
         return _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options,
-                          td_start, ridge_m)
+                          td_start, ridge_m, plausible)
 
 
 def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options, td_start,
-               ridge_m) -> Calibration:
+               ridge_m, plausible) -> Calibration:
     t0 = time.perf_counter()
     free_td = free_mask(spec, free)  # bad names are bad input before any work
     problem = CalibrationProblem(spec, poses, terms)
     td0 = spec.nominal_td() if td_start is None else np.asarray(td_start, float)
     z = problem.initial_registration(td0)
     problem.set_ridge(ridge_m, z)
+    problem.set_plausible(plausible)
     n_z = problem.n_z
     nuisance = np.zeros(n_z, bool)
     nuisance[problem.i_w] = nuisance[problem.i_t] = nuisance[problem.i_m] = True
@@ -635,8 +681,11 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     candidates[problem.i_theta] = True
     st = problem.evaluate(reg.z)
     cand_idx = np.nonzero(candidates)[0]
-    used = (reg.weights > 0) & np.isfinite(st.r).all(axis=2)  # seen, solved, not rejected
-    Jc = (st.J[..., cand_idx] * np.sqrt(np.where(used, reg.weights, 0.0))[:, :, None, None])[used]
+    # seen and solved; what the registration rejected counts too: the model terms may be what
+    # explains it (a slipped marker's later half is an outlier only to the geometry), and a
+    # Jacobian column does not depend on the measured value
+    used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
+    Jc = (st.J[..., cand_idx] * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
     Jc = Jc.reshape(-1, len(cand_idx))
     ident = select_identifiable(Jc, [problem.names[i] for i in cand_idx], problem.scale[cand_idx],
                                 problem.tiers[cand_idx].tolist(), rel_tol)
@@ -687,6 +736,8 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         "singular_values_at_estimate": [float(x) for x in sv],
         "scaled_by": "each parameter's typical correction: 1 mm for lengths, 1 mrad for angles, 1e-3 relative otherwise",
         "weakly_identified": weak,
+        "at_plausible_limit": [n for n in problem.beyond_plausible(z) if active[problem.names.index(n)]],
+        "plausible_range": None if plausible is None else f"nominal +- {plausible:g} typical corrections",
         "rel_tol": rel_tol,
     })
     td, w, t, m, theta = problem.split(z)
@@ -740,6 +791,7 @@ def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = Tru
         test = poses.subset(fold_of == k)
         sub = CalibrationProblem(problem.spec, train, problem.terms)
         sub.prior_center, sub.prior_scale = problem.prior_center, problem.prior_scale
+        sub.half_width = problem.half_width
         fit = robust_fit(sub, z, active, robust, max_iter)
         st = sub.evaluate(fit.z, with_jac=False, poses=test)
         d = np.linalg.norm(st.r, axis=2)

@@ -60,6 +60,7 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         "n_parameters_estimated": int(sum(1 for st in cal.td_status if st == "estimated")),
         "held_at_nominal": [h["name"] for h in ident.get("held_at_nominal", [])],
         "weakly_identified": list(ident.get("weakly_identified", [])),
+        "at_plausible_limit": list(ident.get("at_plausible_limit", [])),
         "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
                           "over the observations kept by the robust loss",
     }
@@ -257,6 +258,11 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
     if ident.get("weakly_identified"):
         parts.append("<p>Weakly identified (standard deviation over ten typical corrections): "
                      + html.escape(", ".join(ident["weakly_identified"])) + "</p>")
+    if ident.get("at_plausible_limit"):
+        parts.append("<p><b>At the edge of the plausible range</b> (nominal &plusmn; 100 typical corrections: 10 cm, "
+                     "0.1 rad, 10%): " + html.escape(", ".join(ident["at_plausible_limit"]))
+                     + ". The fit pushed these far from the drawing: the geometric model is absorbing something "
+                     "it does not describe; run <code>platkit diagnose</code>.</p>")
     rows = []
     for p, v, sd, nom, st in zip(cal.spec.parameters, cal.td, cal.td_std, cal.td_nominal, cal.td_status):
         k, unit = (1 / s, lu) if p.unit == "m" else (1.0, p.unit)

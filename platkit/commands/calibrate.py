@@ -120,6 +120,11 @@ def run(args) -> int:
         if second["rms"] > SAME_FRAME_RATIO * max(cal.rms_after, 1e-12):
             print(f"platkit: warning: the second session's rms is {second['rms'] / max(cal.rms_after, 1e-12):.0f} times "
                   f"the fit's: was {args.validate} recorded in the same motion-capture frame?", file=sys.stderr)
+    limit = cal.identifiability.get("at_plausible_limit") or []
+    if limit:
+        print(f"platkit: warning: {', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
+              "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose",
+              file=sys.stderr)
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
 
