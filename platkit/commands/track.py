@@ -131,18 +131,12 @@ def _target(text: str, s: float) -> tuple[np.ndarray, bool]:
 
 def read_trajectory(path: str, s: float) -> tuple[np.ndarray, np.ndarray, bool]:
     """(times (k,), poses (k, 4, 4), rotation given) from a trajectory CSV; BadInput naming the
-    file, row and column on anything malformed."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise BadInput(f"{p}: no such trajectory file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise BadInput(f"{p}: cannot read ({exc})") from None
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows:
-        raise BadInput(f"{p}: empty file; expected a header t,x,y,z[,roll,pitch,yaw | qw,qx,qy,qz]")
-    header = [h.strip() for h in rows[0]]
+    file, row and column on anything malformed (the numbers are read by the session reader,
+    :func:`platkit.io.session.read_table`, so every CSV of platkit words its errors alike)."""
+    from platkit.io.session import read_table
+
+    table = read_table(Path(path), "trajectory")
+    p, header = table.path, table.header
     for col in ("t", "x", "y", "z"):
         if col not in header:
             raise BadInput(f"{p}: missing column {col!r}; expected t,x,y,z[,roll,pitch,yaw | qw,qx,qy,qz]")
@@ -157,32 +151,22 @@ def read_trajectory(path: str, s: float) -> tuple[np.ndarray, np.ndarray, bool]:
             raise BadInput(f"{p}: column {partial[0]!r} without {', '.join(repr(c) for c in missing)}; "
                            f"a rotation needs all of {','.join(group)}")
     cols = ["t", "x", "y", "z"] + (["roll", "pitch", "yaw"] if rpy else ["qw", "qx", "qy", "qz"] if quat else [])
-    idx = [header.index(c) for c in cols]
-    times, poses = [], []
-    for r, row in enumerate(rows[1:], start=2):
-        if not any(cell.strip() for cell in row):
-            continue
-        values = []
-        for c, i in zip(cols, idx):
-            cell = row[i].strip() if i < len(row) else ""
-            try:
-                val = float(cell)
-            except ValueError:
-                raise BadInput(f"{p}: row {r}, column {c!r}: expected a number, got {cell!r}") from None
-            if not np.isfinite(val):
-                raise BadInput(f"{p}: row {r}, column {c!r}: expected a finite number, got {cell!r}")
-            values.append(val)
-        v = np.array(values[1:])
+    data = table.data[:, [header.index(c) for c in cols]]
+    bad = np.argwhere(~np.isfinite(data))
+    if bad.size:
+        r, j = bad[0]
+        raise BadInput(f"{table.where(int(r), cols[j])}: empty or nan; a trajectory needs every value")
+    times, poses = data[:, 0], []
+    for r, values in enumerate(data):
+        v = values[1:].copy()
         v[:3] *= s
         if quat and np.linalg.norm(v[3:]) == 0:
-            raise BadInput(f"{p}: row {r}: the quaternion is zero")
-        if times and values[0] < times[-1]:
-            raise BadInput(f"{p}: row {r}, column 't': times must not decrease ({values[0]} after {times[-1]})")
-        times.append(values[0])
+            raise BadInput(f"{p} row {r + 1} (line {r + 2}): the quaternion is zero")
+        if r and times[r] < times[r - 1]:
+            raise BadInput(f"{table.where(r, 't')}: times must not decrease "
+                           f"({times[r]} after {times[r - 1]})")
         poses.append(pose_from_xyz_rpy(v))
-    if not times:
-        raise BadInput(f"{p}: no data rows")
-    return np.array(times), np.array(poses), rpy or quat
+    return times.copy(), np.array(poses), rpy or quat
 
 
 def _csv(first: str, keys: np.ndarray, thetas: np.ndarray, chain: KinematicChain, s: float) -> str:

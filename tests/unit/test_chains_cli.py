@@ -103,7 +103,7 @@ def test_bad_trajectory_names_row_and_column(tmp_path, capsys):
     traj.write_text("t,x,y,z\n0,0.3,0.2,0.4\n1,0.3,oops,0.4\n")
     rc = main(["track", "--urdf", UR5, "--link", "tool0", "--trajectory", str(traj), "--out", str(tmp_path / "o.csv")])
     assert rc == 2
-    assert "traj.csv: row 3, column 'y': expected a number, got 'oops'" in capsys.readouterr().err
+    assert "traj.csv row 2 (line 3) column 'y': expected a number, got 'oops'" in capsys.readouterr().err
 
 
 def test_two_arms_of_a_tree_at_once(tmp_path):

@@ -24,6 +24,19 @@ def test_a_whole_rotation_is_read(tmp_path):
     assert rotation and times.tolist() == [0.0] and poses.shape == (1, 4, 4)
 
 
+@pytest.mark.parametrize("body, message", [
+    ("0,0.3,0.2,0.4\n1,0.3,,0.4\n", r"path.csv row 2 \(line 3\) column 'y': empty or nan"),
+    ("0,0.3,0.2,0.4\n1,0.3,inf,0.4\n", r"path.csv row 2 \(line 3\) column 'y': expected a finite number"),
+    ("1,0.3,0.2,0.4\n0.5,0.3,0.2,0.4\n", r"path.csv row 2 \(line 3\) column 't': times must not decrease"),
+    ("0,0.3,0.2\n", r"path.csv row 1 \(line 2\): 3 cells, expected 4"),
+])
+def test_a_malformed_trajectory_names_row_and_column_like_every_csv(tmp_path, body, message):
+    path = tmp_path / "path.csv"
+    path.write_text("t,x,y,z\n" + body)
+    with pytest.raises(BadInput, match=message):
+        read_trajectory(str(path), 1.0)
+
+
 @pytest.mark.parametrize("option, value, message", [
     ("--seed", "-1", "--seed: must be 0 or more, got -1"),
     ("--max-iterations", "0", "--max-iterations: must be 1 or more, got 0"),
