@@ -19,7 +19,9 @@ def add_parser(sub):
     add_platform_options(p)
     p.add_argument("--out", required=True, help="session folder to write")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
-                   help=f"hidden effect, repeatable. Sizes: {sizes}")
+                   help=f"hidden effect, repeatable (NAME:SIZE or NAME=SIZE). Sizes: {sizes}. A base_tilt turns the "
+                        "whole stand in the level world: the motion capture cannot see it, an --imu's accelerometer "
+                        "can (its truth also goes to truth_imu.yaml)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--poses", type=int, default=80, help="number of commands (default 80)")
     p.add_argument("--plan", default="grid", help="grid (snake-ordered grid), random, or a plan.csv file (default grid)")

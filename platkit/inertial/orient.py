@@ -7,7 +7,9 @@ the session has a platform), and optionally the truth:
   the session's clock, in its time unit), e.g. from motion capture or a simulation;
 - ``truth_imu.yaml``: the sensor's true errors, any of ``gyr_bias_rad_s`` (3, the gyro bias at
   the end of the recording, which the report compares with the estimate's last value),
-  ``acc_bias_m_s2`` (3), ``gyr_scale`` (3), ``acc_scale`` (3), ``sensor_from_platform`` (3x3 rows).
+  ``acc_bias_m_s2`` (3), ``gyr_scale`` (3), ``acc_scale`` (3), ``sensor_from_platform`` (3x3 rows),
+  ``base_tilt_rad`` (2, the base tilted against the level about its x and y axes),
+  ``gyr_bias_rate_rad_s2`` (3, a linear gyro bias drift); the last two are read, not compared.
 
 Frames: the base frame has z up. The IMU's own axes are turned to the platform's by R_SP,
 taken from ``--imu-calibration`` or, in a session with commands, estimated from it (rotations
@@ -72,7 +74,7 @@ def read_truth_imu(path: Path) -> dict:
     data = load_yaml(path, error=BadSession)
     out = {}
     shapes = {"gyr_bias_rad_s": (3,), "acc_bias_m_s2": (3,), "gyr_scale": (3,), "acc_scale": (3,),
-              "sensor_from_platform": (3, 3)}
+              "sensor_from_platform": (3, 3), "base_tilt_rad": (2,), "gyr_bias_rate_rad_s2": (3,)}
     for k, v in data.items():
         if k not in shapes:
             raise BadSession(f"{path}: unknown field {k!r}; known fields: {', '.join(shapes)}")

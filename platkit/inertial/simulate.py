@@ -3,11 +3,15 @@
 The gyro sample k is the rotation from sample k-1 to k divided by dt (so that the strapdown
 integration of :mod:`platkit.inertial` reproduces the motion exactly when the sensor is perfect);
 the accelerometer measures the specific force f = a - g at the sensor's position (the platform
-origin plus ``lever_arm``), both in sensor axes. Base frame z up, g = (0, 0, -|g|).
+origin plus ``lever_arm``), both in sensor axes. Base frame z up, g = (0, 0, -|g|); with a
+``base_tilt`` w (rad, about the base's x and y axes) the base is tilted against the level: the
+level frame is R_tilt = exp([w_x, w_y, 0]x) from the base, and gravity in the base frame is
+R_tilt^T (0, 0, -|g|). A platform holding still then reads f = R_SP R^T R_tilt^T (0, 0, |g|)
+(R = R_base_from_platform, R_SP the sensor's mounting) plus its bias.
 
 Sensor errors, applied as  y = scale * (A y_true) + bias(t) + noise  per axis, with A the axes'
-non-orthogonality (identity + small off-diagonal terms) and bias(t) = bias + a random walk of
-``bias_drift`` (rad/s/sqrt(s) for the gyro).
+non-orthogonality (identity + small off-diagonal terms) and bias(t) = bias + ``bias_rate`` (t - t_0)
++ a random walk of ``bias_drift`` (rad/s/sqrt(s)), the last two for the gyro only.
 """
 from __future__ import annotations
 
@@ -16,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from platkit.errors import BadInput
-from platkit.geometry import (matrix_from_quat, quat_conjugate, quat_from_matrix, quat_multiply,
-                              quat_normalize, rotvec_from_quat)
+from platkit.geometry import (matrix_from_quat, matrix_from_rotvec, quat_conjugate, quat_from_matrix,
+                              quat_multiply, quat_normalize, rotvec_from_quat)
 from platkit.inertial.stream import write_imu_csv
 
 G_STANDARD = 9.80665
@@ -34,9 +38,19 @@ def _six(value, default: float, what: str) -> np.ndarray:
     return v
 
 
+def _tilt(value) -> np.ndarray:
+    """A base tilt (2,) rad about the base's x and y axes (None: level)."""
+    if value is None:
+        return np.zeros(2)
+    w = np.asarray(value, float)
+    if w.shape != (2,) or not np.all(np.isfinite(w)):
+        raise BadInput(f"base_tilt: expected 2 finite numbers (rad about the base's x and y axes), got {value!r}")
+    return w
+
+
 def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=None, bias_drift: float = 0.0,
                     scale=None, misalignment=None, noise=None, rng: np.random.Generator | None = None,
-                    lever_arm=None, gravity: float = G_STANDARD) -> dict:
+                    lever_arm=None, gravity: float = G_STANDARD, base_tilt=None, bias_rate=None) -> dict:
     """IMU samples of a sensor riding on the platform.
 
     Args:
@@ -51,9 +65,11 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
         noise: (2,) white-noise std per sample: gyro rad/s, accelerometer m/s^2 (default 0).
         rng: numpy Generator (default: seed 0).
         lever_arm: (3,) m, the sensor's position in the platform frame (default origin).
+        base_tilt: (2,) rad, the base tilted against the level about its x and y axes (default 0).
+        bias_rate: (3,) rad/s per s, a gyro bias changing linearly from the first sample (default 0).
     Returns a dict of arrays: ``t``, ``gyr`` (N, 3), ``acc`` (N, 3), ``gyr_true``, ``acc_true``
     (error-free, sensor axes), ``gyr_bias`` (N, 3) the bias actually applied, and
-    ``q_earth_from_sensor`` (N, 4) the sensor's true orientation.
+    ``q_earth_from_sensor`` (N, 4) the sensor's true orientation (earth: the level frame).
     """
     t = np.asarray(t, float)
     n = len(t)
@@ -78,6 +94,10 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
     s = _six(scale, 1.0, "scale")
     nz = np.zeros(2) if noise is None else np.broadcast_to(np.asarray(noise, float), (2,))
     r = np.zeros(3) if lever_arm is None else np.asarray(lever_arm, float)
+    R_tilt = matrix_from_rotvec(np.append(_tilt(base_tilt), 0.0))
+    rate = np.zeros(3) if bias_rate is None else np.asarray(bias_rate, float)
+    if rate.shape != (3,):
+        raise BadInput(f"bias_rate: expected 3 numbers (gyro x, y, z rad/s per s), got shape {rate.shape}")
 
     # rate: the rotation between consecutive samples, in the platform frame, over dt
     w_p = np.empty((n, 3))
@@ -86,7 +106,7 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
     R_bp = matrix_from_quat(q)
     pos = X + np.einsum("nij,j->ni", R_bp, r)
     acc_b = np.gradient(np.gradient(pos, dt, axis=0), dt, axis=0)
-    f_b = acc_b - np.array([0.0, 0.0, -gravity])
+    f_b = acc_b - R_tilt.T @ np.array([0.0, 0.0, -gravity])
     f_p = np.einsum("nji,nj->ni", R_bp, f_b)
     gyr_true = w_p @ R_sp.T
     acc_true = f_p @ R_sp.T
@@ -94,10 +114,11 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
     if bias_drift > 0:
         drift = np.cumsum(rng.normal(0.0, bias_drift * np.sqrt(dt), (n, 3)), axis=0)
         drift -= drift[0]
-    gyr_bias = b[:3] + drift
+    gyr_bias = b[:3] + drift + (t - t[0])[:, None] * rate
     gyr = s[:3] * (gyr_true @ A.T) + gyr_bias + rng.normal(0.0, nz[0], (n, 3))
     acc = s[3:] * (acc_true @ A.T) + b[3:] + rng.normal(0.0, nz[1], (n, 3))
-    q_es = quat_normalize(quat_multiply(q, quat_conjugate(quat_from_matrix(R_sp))[None, :]))
+    q_es = quat_normalize(quat_multiply(quat_multiply(quat_from_matrix(R_tilt)[None, :], q),
+                                        quat_conjugate(quat_from_matrix(R_sp))[None, :]))
     return {"t": t, "gyr": gyr, "acc": acc, "gyr_true": gyr_true, "acc_true": acc_true,
             "gyr_bias": gyr_bias, "q_earth_from_sensor": q_es}
 
@@ -214,17 +235,23 @@ def write_platform_imu_session(sim: dict, spec, out: str | Path, truth_imu: dict
 
 
 def imu_for_trajectory(rate_hz: float = 200.0, imu_from_platform=None, bias=None, bias_drift: float = 0.0,
-                       scale=None, misalignment=None, noise=(0.002, 0.02), lever_arm=None):
+                       scale=None, misalignment=None, noise=(0.002, 0.02), lever_arm=None, base_tilt=None,
+                       bias_rate=None):
     """A callable ``imu(trajectory, rng) -> dict`` for :func:`platkit.simulate.simulate`'s ``imu``
     hook: it samples the true trajectory (``trajectory.at(t)`` -> q, X) at ``rate_hz`` from 0 to
     ``trajectory.end_t`` and returns :func:`imu_from_motion`'s arrays plus ``entry`` (the
     session.yaml ``imu`` mapping), ``q_base_from_platform`` (N, 4) (the truth for
-    truth_orientation.csv) and ``truth_imu`` (the sensor's true errors for truth_imu.yaml)."""
+    truth_orientation.csv) and ``truth_imu`` (the sensor's true errors for truth_imu.yaml).
+    Before the first command the platform rests where the trajectory has it at that command
+    (with any pose effects of the first row, e.g. a tilted base, already there)."""
+    tilt = None if base_tilt is None else _tilt(base_tilt)
 
     def imu(trajectory, rng):
         t = np.arange(0.0, float(trajectory.end_t), 1.0 / rate_hz)
-        q, X = trajectory.at(t)
-        out = imu_from_motion(t, q, X, imu_from_platform, bias, bias_drift, scale, misalignment, noise, rng, lever_arm)
+        t0 = float(trajectory.command_t[0]) if len(trajectory.command_t) else 0.0
+        q, X = trajectory.at(np.maximum(t, t0))
+        out = imu_from_motion(t, q, X, imu_from_platform, bias, bias_drift, scale, misalignment, noise, rng, lever_arm,
+                              base_tilt=tilt, bias_rate=bias_rate)
         R = np.eye(3) if imu_from_platform is None else np.asarray(imu_from_platform, float)
         if R.shape == (4,):
             R = matrix_from_quat(R)
@@ -235,6 +262,10 @@ def imu_for_trajectory(rate_hz: float = 200.0, imu_from_platform=None, bias=None
         out["truth_imu"] = {"gyr_bias_rad_s": b[:3].tolist(), "acc_bias_m_s2": b[3:].tolist(),
                             "gyr_scale": s[:3].tolist(), "acc_scale": s[3:].tolist(),
                             "sensor_from_platform": R.tolist()}
+        if tilt is not None:
+            out["truth_imu"]["base_tilt_rad"] = tilt.tolist()
+        if bias_rate is not None:
+            out["truth_imu"]["gyr_bias_rate_rad_s2"] = np.asarray(bias_rate, float).tolist()
         return out
 
     return imu

@@ -184,6 +184,17 @@ def _commands_poseset(spec, U, t, marker_names) -> PoseSet:
                            "elapsed": t - t[0]})
 
 
+def _imu_truth_of_terms(truth_imu: dict, terms) -> None:
+    """Add what pose effects do to an IMU's truth: a ``base_tilt`` term turns the whole stand
+    about the base's x and y axes in the level world (the mocap transform absorbs it, gravity in
+    the model's base frame turns with it), so the accelerometer sees a base tilted by its
+    (tilt_x, tilt_y); they add to a tilt the IMU hook was given (``base_tilt_rad``)."""
+    tilts = [np.asarray(theta, float)[:2] for term, theta in terms if term.effect == "base_tilt"]
+    if tilts:
+        truth_imu["base_tilt_rad"] = (np.asarray(truth_imu.get("base_tilt_rad", np.zeros(2)), float)
+                                      + np.sum(tilts, axis=0)).tolist()
+
+
 def _apply_pose_offset(q, X, off):
     """X' = X + dX, R' = exp(dtheta) R for (K, 4), (K, 3), (K, 6)."""
     if not np.any(off):
@@ -366,6 +377,8 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         YB = np.round(YB * 1e6) / 1e6
     traj = Trajectory(t_cmd, U, t_arrive, t_end, evaluate)
     imu_data = imu(traj, rng) if imu is not None else None
+    if imu_data is not None and "truth_imu" in imu_data:
+        _imu_truth_of_terms(imu_data["truth_imu"], all_terms)
 
     from platkit.io.session import Session
 

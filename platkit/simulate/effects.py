@@ -241,8 +241,8 @@ def simulation_term(name: str, spec: PlatformSpec, size: float | None, rng: np.r
 
 
 def parse_effect(text: str) -> tuple[str, float | None]:
-    """'backlash:1.5' -> ('backlash', 1.5); 'backlash' -> ('backlash', None)."""
-    name, _, size = text.partition(":")
+    """'backlash:1.5' (or 'backlash=1.5') -> ('backlash', 1.5); 'backlash' -> ('backlash', None)."""
+    name, _, size = text.partition(":" if ":" in text else "=")
     name = name.strip()
     if not name:
         raise BadInput(f"--effect {text!r}: expected NAME or NAME:SIZE")

@@ -145,3 +145,27 @@ def test_an_imu_only_copy_reads_without_a_stand_and_orients(imu_session, tmp_pat
     report = json.loads((out / "report.json").read_text())
     assert "platform" not in report and report["heading"].startswith("relative to the start")
     assert len(np.loadtxt(out / "orientation.csv", delimiter=",", skiprows=1)) == len(s.imu_t)
+
+
+def test_a_tilted_base_and_a_drifting_gyro_bias_reach_the_truth_files(tmp_path):
+    """--effect base_tilt=SIZE (mrad) with --imu: the accelerometer sees the tilt and truth_imu.yaml
+    carries it; a linear gyro bias drift (bias_rate) is applied and recorded; bad values named."""
+    out = tmp_path / "s"
+    assert main(["simulate", "--platform", "psvr", "--out", str(out), "--poses", "6", "--rate-hz", "30",
+                 "--effect", "base_tilt=3", "--imu"]) == 0
+    truth = read_truth_imu(out / "truth_imu.yaml")
+    effect = yaml.safe_load((out / "truth.yaml").read_text())["effects"][0]
+    assert effect["effect"] == "base_tilt"
+    w = [effect["parameters"]["tilt_x"]["value"], effect["parameters"]["tilt_y"]["value"]]
+    np.testing.assert_allclose(truth["base_tilt_rad"], w)
+    assert np.linalg.norm(w) == pytest.approx(3e-3)
+    spec = get_platform("psvr")
+    hook = imu_for_trajectory(bias=BIAS, bias_rate=[1e-5, 0.0, -2e-5], noise=(0.0, 0.0))
+    sim = simulate(spec, n_poses=4, mocap_rate_hz=30, imu=hook)
+    t, b = sim.imu["t"], sim.imu["gyr_bias"]
+    np.testing.assert_allclose(b, BIAS[:3] + (t - t[0])[:, None] * np.array([1e-5, 0.0, -2e-5]), atol=1e-12)
+    assert sim.imu["truth_imu"]["gyr_bias_rate_rad_s2"] == [1e-5, 0.0, -2e-5]
+    with pytest.raises(BadInput, match="base_tilt: expected 2 finite numbers"):
+        imu_for_trajectory(base_tilt=[0.1, 0.2, 0.0])
+    with pytest.raises(BadInput, match="bias_rate: expected 3 numbers"):
+        simulate(spec, n_poses=4, mocap_rate_hz=30, imu=imu_for_trajectory(bias_rate=[1e-5]))
