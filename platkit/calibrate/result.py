@@ -72,6 +72,7 @@ class Calibration:
     heldout: dict[str, Any] = field(default_factory=dict)
     time_s: float = 0.0
     extras: dict[str, Any] = field(default_factory=dict)  # arrays for the report (not written)
+    imu: dict[str, Any] = field(default_factory=dict)  # what an IMU diagnosis added (platkit.diagnose.imu), SI
 
     # ------------------------------------------------------------------ derived
     @property
@@ -138,6 +139,9 @@ class Calibration:
         }
         if self.heldout:
             out["heldout"] = heldout_in_unit(self.heldout, self.length_unit)
+        if self.imu:
+            # SI (rad, rad/s), whatever the length unit: platkit.diagnose.imu's calibration_entry
+            out["imu"] = strict(self.imu)
         return out
 
     def to_yaml(self) -> str:
@@ -248,6 +252,9 @@ def read_calibration(path: str | Path) -> Calibration:
                              f"markers.{m}.position", 3) for m in names]) * s
     mstd = np.array([_numbers(markers[m].get("std", [None] * 3), path, f"markers.{m}.std", 3) for m in names]) * s
     res = data.get("residual") or {}
+    imu = data.get("imu") or {}
+    if not isinstance(imu, dict):
+        raise BadInput(f"{path}: field 'imu' must be a mapping (what an IMU diagnosis added)")
     terms, theta, theta_std = [], [], []
     for k, tdict in enumerate(data.get("terms") or []):
         term, th, sd = _term_from_dict(tdict, path, k, spec)
@@ -265,6 +272,7 @@ def read_calibration(path: str | Path) -> Calibration:
         n_poses=int(res.get("n_poses", 0)), n_markers=len(names),
         identifiability=data.get("identifiability") or {}, terms=terms, theta=theta, theta_std=theta_std,
         heldout={},  # written for people in the file's unit; not read back
+        imu=dict(imu),
     )
 
 

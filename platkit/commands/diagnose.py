@@ -57,7 +57,8 @@ def run(args) -> int:
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects),
                  heldout=heldout, progress=say, start=cal)
     if (Path(args.session) / "imu.csv").is_file():
-        d.imu = _diagnose_imu(args.session, d.calibration, say)
+        # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
+        d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status)
     written = write_outputs(d, args.out)
     s = length_scale(d.unit)
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
@@ -66,20 +67,22 @@ def run(args) -> int:
     return 0
 
 
-def _diagnose_imu(session, cal, say) -> dict:
-    """The gyro diagnosis of a session with imu.csv and commands (platkit.diagnose.imu), as the
-    mapping diagnosis.json holds; a session the gyro cannot be diagnosed on says why."""
+def _diagnose_imu(session, cal, say, td_status=None) -> tuple[dict, dict]:
+    """The IMU diagnosis of a session with imu.csv and commands (platkit.diagnose.imu): the
+    mapping diagnosis.json holds (a session the IMU cannot be diagnosed on says why) and what
+    its accepted findings add to calibration.yaml (its ``imu`` mapping; empty without)."""
     from platkit.diagnose.imu import diagnose_imu, td_covariance
     from platkit.errors import ComputationFailed
     from platkit.io.session import load_session
 
     s = load_session(session, platform=cal.platform)
     if s.commands is None or s.imu_stream is None:
-        return {"findings": [], "verdict": "IMU not diagnosed: the session has no commands with its imu.csv."}
+        return {"findings": [], "verdict": "IMU not diagnosed: the session has no commands with its imu.csv."}, {}
     try:
-        r = diagnose_imu(cal.spec, cal.td, s.command_t, s.commands, s.imu_stream, td_cov=td_covariance(cal))
+        r = diagnose_imu(cal.spec, cal.td, s.command_t, s.commands, s.imu_stream, td_cov=td_covariance(cal),
+                         td_status=cal.td_status if td_status is None else td_status)
     except ComputationFailed as exc:
-        return {"findings": [], "verdict": f"IMU not diagnosed: {exc}"}
+        return {"findings": [], "verdict": f"IMU not diagnosed: {exc}"}, {}
     if say:
         say(r.verdict)
-    return r.to_dict()
+    return r.to_dict(), r.calibration_entry()

@@ -89,9 +89,10 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
                    "generic probe predicts significantly better (then: unexplained)"),
     }
     if d.imu is not None:
-        # IMU findings (platkit.diagnose.imu): rates in deg/s, each finding says its unit
-        out["findings"] += list(d.imu.get("findings", []))
-        out["imu"] = {k: v for k, v in d.imu.items() if k != "findings"}
+        # IMU findings (platkit.diagnose.imu): gyro in deg/s, accelerometer in m/s^2, each finding says its unit
+        out["findings"] += strict(list(d.imu.get("findings", [])))
+        out["not_separable"] += strict(list(d.imu.get("not_separable", [])))
+        out["imu"] = strict({k: v for k, v in d.imu.items() if k != "findings"})
         out["verdict"] = (out["verdict"] + " " + d.imu.get("verdict", "")).strip()
     if d.heldout_session is not None:
         h = d.heldout_session
@@ -158,8 +159,8 @@ def report_html(d: Diagnosis) -> str:
     for fd in (d.imu or {}).get("findings", []):
         params = "; ".join(f"{k} = {v['value']:.4g} +- {v['std']:.2g} {v['unit']}" for k, v in fd["parameters"].items())
         rows.append(f"<tr><td>{html.escape(fd['effect'])}</td><td>{html.escape(json.dumps(fd['where']))}</td>"
-                    f"<td>{html.escape(params)}</td><td>{fd['heldout_rms_before']:.4g} deg/s</td>"
-                    f"<td>{fd['heldout_rms_after']:.4g} deg/s</td><td>{html.escape(fd['evidence'])}</td></tr>")
+                    f"<td>{html.escape(params)}</td><td>{fd['heldout_rms_before']:.4g} {html.escape(fd['unit'])}</td>"
+                    f"<td>{fd['heldout_rms_after']:.4g} {html.escape(fd['unit'])}</td><td>{html.escape(fd['evidence'])}</td></tr>")
     table = ("<table border=1 cellpadding=4><tr><th>effect</th><th>where</th><th>parameters</th>"
              f"<th>held-out RMS before ({d.unit})</th><th>after</th><th>evidence</th></tr>" + "".join(rows) + "</table>"
              if rows else "<p>No findings.</p>")

@@ -36,7 +36,7 @@ def _diagnose(seed: int, **imu_kw):
     cal = calibrate(sim.poses, spec)
     im = sim.imu
     d = diagnose_imu(spec, cal.td, sim.command_t, sim.commands, ImuStream(im["t"], im["gyr"], im["acc"]),
-                     td_cov=td_covariance(cal))
+                     td_cov=td_covariance(cal), td_status=cal.td_status)
     return sim, d
 
 
@@ -88,9 +88,13 @@ def test_a_clean_imu_gives_no_finding(seed):
     assert "no gyro effect found" in d.verdict
     np.testing.assert_allclose(d.final.b0, BIAS[:3], atol=2e-4)
     rows = {r["effect"]: r for r in d.tests[0]["candidates"]}
+    assert set(rows) == {"gyro_bias_drift", "imu_misalignment", "base_tilt"}
     assert not any(r["accepted"] for r in rows.values())
     # what the gyro sees of the model's frame is below the floor (and far below a real misalignment)
     assert rows["imu_misalignment"]["size"] < MIN_ANGLE_DEG
+    # the accelerometer's tilt was tested (the platform turns enough) and is within what the frame allows
+    assert rows["base_tilt"]["separability"] > 0.05 and not rows["base_tilt"].get("not_separable")
+    assert "no base tilt" in d.verdict
 
 
 def test_too_few_holds_is_not_identifiable():
