@@ -95,7 +95,7 @@ G_STANDARD = 9.80665
 #: gyro can (0.06-0.08 deg in the simulated stewart sessions of tests/unit/test_diagnose_imu.py).
 #: How far held parameters a few mm off can turn it is in the Wald test (:func:`frame_gauge`):
 #: more than this floor on psvr (0.23 deg, 1 sigma, about y: a platform joint's height is held;
-#: clean psvr sessions show up to 0.5 deg) and rotary (0.16 deg).
+#: clean psvr sessions show 0.3-0.6 deg) and rotary (0.16 deg).
 MIN_ANGLE_DEG = 0.25
 
 #: a base tilt smaller than this (deg) is not named. Beyond the allowance of :func:`frame_gauge`
