@@ -312,7 +312,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                           "separability": sep})
             if sep < opt.min_separability:
                 key = (eff.name, _where_text(term.where))
-                not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep}
+                not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep,
+                                      "from": "motion capture"}
         order = [i for i in np.argsort([s[1] for s in scr])
                  if p_adj[i] < opt.alpha and scr[i][2] >= opt.min_separability]
         # the best candidate of each kind and place (one split per marker, one period per
