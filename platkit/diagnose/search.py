@@ -481,7 +481,8 @@ def verdict(d: Diagnosis) -> str:
     parts = []
     if not d.findings:
         loc = located(d.locations, 0.01)
-        parts.append("No hidden effect found: no candidate effect improved held-out prediction significantly, "
+        parts.append("The motion capture shows no hidden effect: no candidate effect improved held-out prediction "
+                     "significantly, "
                      "and the residuals show no structure that survives correction for multiple testing"
                      + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
     if named:
@@ -498,7 +499,11 @@ def verdict(d: Diagnosis) -> str:
             parts.append(f"Warning on {f.effect}: {w}.")
     if d.not_separable:
         parts.append("Not separable from the geometry on this design (not tested further): "
-                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in d.not_separable[:5]) + ".")
+                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in d.not_separable[:5])
+                     + (f" and {len(d.not_separable) - 5} more" if len(d.not_separable) > 5 else "") + ".")
+        if any(x["effect"] == "cyclic_error" for x in d.not_separable):
+            parts.append("A periodic error is invisible when every command sits at the same phase of its period "
+                         "(a grid whose steps are a multiple of it): record a random or dithered plan to test it.")
     if d.heldout_session is not None:
         h = d.heldout_session
         parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "

@@ -24,7 +24,7 @@ def _session(spec, seed, terms=(), effects=()):
 def test_clean_session_gives_no_finding(spec):
     d = diagnose(spec, _session(spec, 11).poses)
     assert d.findings == []
-    assert "No hidden effect" in d.verdict
+    assert "shows no hidden effect" in d.verdict
     assert d.calibration.terms == []
 
 
