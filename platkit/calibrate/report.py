@@ -8,9 +8,7 @@ report.html: one self-contained page, plots embedded as base64 PNG (matplotlib, 
 """
 from __future__ import annotations
 
-import base64
 import html
-import io
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +16,7 @@ import numpy as np
 from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.result import Calibration, heldout_in_unit
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.figures import png_base64 as _png
 from platkit.model import length_scale
 from platkit.io import jsonout
 
@@ -78,15 +77,6 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
 
 
 # ---------------------------------------------------------------------------- plots
-
-
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]]:

@@ -3,9 +3,7 @@ report.html (each located mismatch shown as the residual against the regressor t
 before and after), written whole or not at all."""
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 from pathlib import Path
 from typing import Any
@@ -14,6 +12,7 @@ import numpy as np
 
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.figures import png_base64 as _png
 from platkit.io.jsonout import strict
 from platkit.model import length_scale
 
@@ -100,15 +99,6 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
                                   "p_improvement": _num(h["p_improvement"]), "n_poses": h["n_poses"],
                                   "per_marker": {k: [_num(a / s), _num(b / s)] for k, (a, b) in h["per_marker"].items()}}
     return out
-
-
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _plots(d: Diagnosis) -> list[tuple[str, str]]:

@@ -7,9 +7,7 @@ with plots (orientation over time; errors over time when the truth is known).
 """
 from __future__ import annotations
 
-import base64
 import html
-import io
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ import numpy as np
 from platkit.geometry import rpy_from_quat
 from platkit.inertial.orient import OrientResult
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.figures import png_base64 as _png
 from platkit.io import jsonout
 
 
@@ -24,15 +23,6 @@ def orientation_csv(t: np.ndarray, q: np.ndarray) -> str:
     rows = ["t,qw,qx,qy,qz"]
     rows += [f"{ti:.9g},{a:.9f},{b:.9f},{c:.9f},{d:.9f}" for ti, (a, b, c, d) in zip(t, q)]
     return "\n".join(rows) + "\n"
-
-
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _plots(result: OrientResult) -> list[tuple[str, str]]:
