@@ -38,10 +38,14 @@ class BadSession(BadInput):
     """A recording session is malformed; the message names file, row or column."""
 
 
-class PluginConflict(PlatkitError):
-    """Two plugins registered the same name."""
+class BadPlugin(PlatkitError):
+    """A plugin cannot be loaded, or implements a hook platkit does not define."""
 
     exit_code = 2
+
+
+class PluginConflict(BadPlugin):
+    """Two plugins registered the same name."""
 
 
 class ComputationFailed(PlatkitError):

@@ -1,56 +1,124 @@
 """The plugin host: every stand and effect comes through the ``platkit`` hooks.
 
-Built-in stands are found exactly as outside ones are: through the ``platkit`` entry-point
-group of the installed distributions (platkit's own pyproject.toml lists its four).
+Two sources, registered through the same hooks (platkit/hookspecs.py):
+
+- the built-in plugins, :data:`BUILTIN_PLUGINS`, imported by module name: platkit's own stands and
+  effects are there in a source checkout or an editable install whatever the installed metadata
+  says, and a test can build a host with exactly these (``PluginHost(entry_points=False)``);
+- outside plugins, through the ``platkit`` entry-point group of the installed distributions. An
+  entry point naming a built-in module (the metadata of an older platkit) is skipped: a plugin is
+  registered once.
+
+Every plugin is checked when it registers: a hook name platkit does not define (a misspelling) or
+a stand or effect name already taken is one line naming the plugin (:class:`BadPlugin`,
+:class:`PluginConflict`).
 """
 from __future__ import annotations
 
 import functools
+import importlib
 from importlib import metadata
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 
-from platkit import hookspecs
-from platkit.errors import PluginConflict, UnknownPlatform
+from platkit import __version__, hookspecs
+from platkit.errors import BadPlugin, PluginConflict, UnknownPlatform
 from platkit.model import PlatformFactory, PlatformSpec
+
+if TYPE_CHECKING:
+    from platkit.effects import Effect
 
 ENTRY_POINT_GROUP = "platkit"
 
+#: platkit's own plugins (import names; the folders under plugins/ of the repository)
+BUILTIN_PLUGINS: tuple[str, ...] = ("platkit_stewart", "platkit_psvr", "platkit_rotary", "platkit_urdf",
+                                    "platkit_effects")
+#: what ``platkit plugins`` shows as the package of a built-in stand or effect
+BUILTIN_SOURCE = f"platkit {__version__}"
+
 
 class PluginHost:
-    """Holds a pluggy manager and the stands and effects registered through it."""
+    """Holds a pluggy manager and the stands and effects registered through it.
 
-    def __init__(self, load_entry_points: bool = True):
+    ``builtins``: register :data:`BUILTIN_PLUGINS`; ``entry_points``: register the outside plugins
+    of the ``platkit`` entry-point group. ``PluginHost(False, False)`` is an empty host.
+    """
+
+    def __init__(self, builtins: bool = True, entry_points: bool = True):
         self.pm = pluggy.PluginManager("platkit")
         self.pm.add_hookspecs(hookspecs)
         self._sources: dict[str, str] = {}
-        if load_entry_points:
-            self._load_entry_points()
+        if builtins:
+            self.load_builtins()
+        if entry_points:
+            self.load_entry_points()
 
-    def _load_entry_points(self) -> None:
+    def load_builtins(self) -> None:
+        """Import and register every module of :data:`BUILTIN_PLUGINS`."""
+        for module_name in BUILTIN_PLUGINS:
+            try:
+                module = importlib.import_module(module_name)
+            except ImportError as exc:
+                raise BadPlugin(
+                    f"built-in plugin {module_name} cannot be imported ({exc.__class__.__name__}: {exc}); "
+                    f"install platkit (pip install -e .) or put plugins/ on PYTHONPATH"
+                ) from None
+            self.register(module, name=module_name, source=BUILTIN_SOURCE)
+
+    def load_entry_points(self) -> None:
+        """Register the outside plugins of the ``platkit`` entry-point group."""
         for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-            module = ep.load()
-            dist = ep.dist.name if ep.dist is not None else "?"
-            version = ep.dist.version if ep.dist is not None else ""
-            self.register(module, name=ep.name, source=f"{dist} {version}".strip())
+            if ep.module in BUILTIN_PLUGINS:
+                continue
+            source = f"{ep.dist.name} {ep.dist.version}" if ep.dist is not None else ep.value
+            try:
+                module = ep.load()
+            except Exception as exc:  # an outside package's import error, whatever it is
+                raise BadPlugin(
+                    f"plugin {ep.name!r} ({ep.value}, from {source}) cannot be loaded: "
+                    f"{exc.__class__.__name__}: {exc}"
+                ) from None
+            self.register(module, name=ep.name, source=source)
 
     def register(self, plugin: ModuleType | Any, name: str | None = None, source: str = "") -> None:
-        """Register a plugin object; raise PluginConflict if it adds a stand name already taken."""
+        """Register a plugin object (a module, or any object with hook implementations).
+
+        Raises :class:`BadPlugin` if it implements a hook platkit does not define or a hook with
+        arguments the specification lacks, :class:`PluginConflict` if it adds a stand or effect
+        name already taken. The host is unchanged after either error.
+        """
         name = name or getattr(plugin, "__name__", repr(plugin))
         if self.pm.is_registered(plugin):
             return
-        before = self._factories_by_plugin()
-        self.pm.register(plugin, name=name)
+        label = f"{name} ({source})" if source and source != name else name
+        try:
+            self.pm.register(plugin, name=name)
+        except ValueError as exc:  # pluggy: the name is taken by another plugin object
+            raise PluginConflict(f"plugin name {name!r} is registered twice ({exc})") from None
+        except pluggy.PluginValidationError as exc:
+            raise BadPlugin(f"plugin {label}: {_one_line(exc)}") from None
         self._sources[name] = source or getattr(plugin, "__name__", name)
         try:
+            self._check_pending(plugin, label)
             self.platforms()
             self.effects()
-        except PluginConflict:
+        except (BadPlugin, PluginConflict):
             self.pm.unregister(plugin)
+            del self._sources[name]
             raise
-        del before
+
+    def _check_pending(self, plugin: Any, label: str) -> None:
+        try:
+            self.pm.check_pending()
+        except pluggy.PluginValidationError:
+            unknown = sorted(c.name for c in self.pm.get_hookcallers(plugin) or [] if not c.has_spec())
+            known = sorted(n for n in dir(hookspecs) if n.startswith("platkit_"))
+            raise BadPlugin(
+                f"plugin {label} implements {', '.join(map(repr, unknown))}, not a platkit hook "
+                f"(the hooks: {', '.join(known)})"
+            ) from None
 
     def _factories_by_plugin(self) -> dict[str, list[PlatformFactory]]:
         out: dict[str, list[PlatformFactory]] = {}
@@ -71,18 +139,19 @@ class PluginHost:
                 found[f.name] = f
         return found
 
-    def effects(self) -> dict[str, Any]:
-        """Effect name -> effect object from every plugin; duplicates are an error naming both."""
-        found: dict[str, Any] = {}
+    def effects(self) -> dict[str, Effect]:
+        """Effect name -> effect from every plugin; two plugins offering one name is an error naming both."""
+        found: dict[str, Effect] = {}
         owners: dict[str, str] = {}
         for impl in self.pm.hook.platkit_register_effects.get_hookimpls():
             for e in impl.function() or []:
+                owner = self._sources.get(impl.plugin_name, impl.plugin_name)
                 if e.name in found:
                     raise PluginConflict(
-                        f"effect name {e.name!r} is registered twice: by {owners[e.name]} and by {impl.plugin_name}"
+                        f"effect name {e.name!r} is registered twice: by {owners[e.name]} and by {owner}"
                     )
                 found[e.name] = e
-                owners[e.name] = self._sources.get(impl.plugin_name, impl.plugin_name)
+                owners[e.name] = owner
         return found
 
     def factory(self, name: str) -> PlatformFactory:
@@ -95,9 +164,13 @@ class PluginHost:
         return self.factory(name)(description, **options)
 
 
+def _one_line(exc: Exception) -> str:
+    return " ".join(str(exc).split())
+
+
 @functools.lru_cache(maxsize=1)
 def default_host() -> PluginHost:
-    """The process-wide host with every installed plugin."""
+    """The process-wide host: the built-in plugins and every installed outside plugin."""
     return PluginHost()
 
 

@@ -1,9 +1,20 @@
+"""The plugin host: built-ins by module name, outside plugins by entry point, each registered once,
+and a plugin that cannot work refused in one line naming it."""
+import sys
+import types
+from importlib import metadata
+
 import pytest
 
-from platkit.errors import PluginConflict, UnknownPlatform
+from platkit.errors import BadPlugin, PluginConflict, UnknownPlatform
 from platkit.hookspecs import hookimpl
 from platkit.model import PlatformFactory
-from platkit.plugins import PluginHost
+from platkit.plugins import BUILTIN_PLUGINS, BUILTIN_SOURCE, PluginHost
+
+STANDS = {"stewart", "psvr", "rotary", "urdf"}
+#: the effects the outer contract names (shared/spec/README.md section 3), less `unexplained`
+SPEC_EFFECTS = {"backlash", "compliance", "thermal_drift", "cyclic_error", "scale_nonlinearity",
+                "settling_lag", "marker_slip", "base_tilt"}
 
 
 def _plugin(name, title):
@@ -15,20 +26,109 @@ def _plugin(name, title):
     return P()
 
 
+def _entry_points(monkeypatch, *eps):
+    """Make the ``platkit`` entry-point group hold exactly ``eps`` (name, "module") pairs."""
+    listed = [metadata.EntryPoint(name, value, "platkit") for name, value in eps]
+
+    def entry_points(**kw):
+        return [ep for ep in listed if kw.get("group") in (None, "platkit")]
+
+    monkeypatch.setattr(metadata, "entry_points", entry_points)
+
+
+def test_the_builtin_list_alone_gives_the_four_stands_and_the_effects(builtin_host):
+    stands = builtin_host.platforms()
+    assert set(stands) == STANDS
+    assert {f.package for f in stands.values()} == {BUILTIN_SOURCE}
+    effects = builtin_host.effects()
+    assert SPEC_EFFECTS <= set(effects)
+    assert all(e.name == name for name, e in effects.items())
+
+
+def test_builtins_are_there_with_no_entry_point_at_all(monkeypatch):
+    _entry_points(monkeypatch)  # e.g. a source checkout that was never pip-installed
+    host = PluginHost()
+    assert set(host.platforms()) == STANDS
+    assert SPEC_EFFECTS <= set(host.effects())
+
+
+def test_an_empty_host_has_nothing():
+    host = PluginHost(builtins=False, entry_points=False)
+    assert host.platforms() == {} and host.effects() == {}
+
+
+def test_an_entry_point_naming_a_builtin_is_not_registered_twice(monkeypatch):
+    # the metadata of an older platkit listed its built-ins as entry points
+    _entry_points(monkeypatch, ("stewart", "platkit_stewart"), ("effects", "platkit_effects"))
+    host = PluginHost()
+    assert set(host.platforms()) == STANDS
+    assert len(host.pm.get_plugins()) == len(BUILTIN_PLUGINS)
+
+
+def test_an_outside_plugin_comes_through_its_entry_point(monkeypatch):
+    outside = types.ModuleType("outside_stand")
+    outside.platkit_register_platforms = hookimpl(lambda: [PlatformFactory("hexa", "outside", lambda p, o: None)])
+    monkeypatch.setitem(sys.modules, "outside_stand", outside)
+    _entry_points(monkeypatch, ("hexa", "outside_stand"))
+    assert set(PluginHost().platforms()) == STANDS | {"hexa"}
+    assert set(PluginHost(entry_points=False).platforms()) == STANDS
+
+
+def test_an_outside_plugin_that_fails_to_import_is_named(monkeypatch):
+    _entry_points(monkeypatch, ("broken", "no_such_module_platkit_test"))
+    with pytest.raises(BadPlugin, match=r"plugin 'broken' \(no_such_module_platkit_test.*ModuleNotFoundError"):
+        PluginHost()
+
+
 def test_duplicate_stand_name_is_an_error_naming_both():
-    host = PluginHost(load_entry_points=False)
+    host = PluginHost(builtins=False, entry_points=False)
     host.register(_plugin("hexa", "one"), name="first", source="pkg-one")
     with pytest.raises(PluginConflict, match="pkg-one.*pkg-two"):
         host.register(_plugin("hexa", "two"), name="second", source="pkg-two")
     assert list(host.platforms()) == ["hexa"]
+    assert [host.pm.get_name(p) for p in host.pm.get_plugins()] == ["first"]
 
 
-def test_unknown_stand_lists_the_known_ones():
-    host = PluginHost()
-    with pytest.raises(UnknownPlatform, match="stewart"):
-        host.factory("no-such-stand")
+def test_an_outside_effect_with_a_builtin_name_is_an_error_naming_both(builtin_host):
+    backlash = builtin_host.effects()["backlash"]
+
+    class Copy:
+        @hookimpl
+        def platkit_register_effects(self):
+            return [backlash]
+
+    with pytest.raises(PluginConflict, match=rf"effect name 'backlash'.*{BUILTIN_SOURCE}.*other-pkg 1\.0"):
+        builtin_host.register(Copy(), name="copy", source="other-pkg 1.0")
+    assert "copy" not in [builtin_host.pm.get_name(p) for p in builtin_host.pm.get_plugins()]
 
 
-def test_builtin_stand_comes_through_entry_points():
-    host = PluginHost()
-    assert host.factory("stewart").package.startswith("platkit")
+def test_a_misspelled_hook_is_one_line_naming_the_plugin(builtin_host):
+    class Typo:
+        @hookimpl
+        def platkit_register_platfroms(self):
+            return []
+
+    with pytest.raises(BadPlugin) as err:
+        builtin_host.register(Typo(), name="typo", source="typo-pkg 0.3")
+    message = str(err.value)
+    assert "\n" not in message
+    assert "typo (typo-pkg 0.3)" in message and "'platkit_register_platfroms'" in message
+    assert "platkit_register_platforms" in message.split("the hooks:")[1]
+    # refused whole: the host works on without it
+    assert not builtin_host.pm.has_plugin("typo")
+    builtin_host.pm.check_pending()
+
+
+def test_a_hook_with_arguments_the_specification_lacks_is_refused(builtin_host):
+    class Extra:
+        @hookimpl
+        def platkit_register_effects(self, spec):
+            return []
+
+    with pytest.raises(BadPlugin, match=r"plugin extra \(extra-pkg\).*spec"):
+        builtin_host.register(Extra(), name="extra", source="extra-pkg")
+
+
+def test_unknown_stand_lists_the_known_ones(builtin_host):
+    with pytest.raises(UnknownPlatform, match="psvr, rotary, stewart, urdf"):
+        builtin_host.factory("no-such-stand")
