@@ -4,14 +4,34 @@
     >>> spec = platkit.get_platform("stewart")
     >>> model = platkit.PlatformModel(spec)
     >>> pose = model.forward(spec.neutral_u())
+
+The names below are imported on first use (PEP 562), so that ``import platkit.cli`` (every
+``platkit`` command line, ``--version`` included) starts without CasADi and NumPy, and a
+Ctrl-C during start-up reaches the CLI's handler (issue 13).
 """
-from platkit.errors import PlatkitError
-from platkit.kinematics import PlatformModel
-from platkit.model import Control, Coordinate, Parameter, PlatformFactory, PlatformSpec
-from platkit.plugins import get_platform, list_platforms
+import importlib
 
 __version__ = "0.1.0"
-__all__ = [
-    "Control", "Coordinate", "Parameter", "PlatformFactory", "PlatformModel", "PlatformSpec",
-    "PlatkitError", "get_platform", "list_platforms",
-]
+
+#: public name -> the module that defines it
+_EXPORTS = {
+    "PlatkitError": "platkit.errors",
+    "PlatformModel": "platkit.kinematics",
+    "Control": "platkit.model", "Coordinate": "platkit.model", "Parameter": "platkit.model",
+    "PlatformFactory": "platkit.model", "PlatformSpec": "platkit.model",
+    "get_platform": "platkit.plugins", "list_platforms": "platkit.plugins",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'platkit' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

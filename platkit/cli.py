@@ -1,27 +1,60 @@
-"""The ``platkit`` command: parse, call the library, print. Exit 0 ok, 1 failed, 2 bad input."""
+"""The ``platkit`` command: parse, call the library, print. Exit 0 ok, 1 failed, 2 bad input,
+130 interrupted (Ctrl-C).
+
+Start-up cost is what a user waits for on every call, so only the chosen verb's module is
+imported (and with it only what that verb uses); the full list of verbs is built for
+``platkit --help`` and for a command line that names no known verb.
+"""
 from __future__ import annotations
 
-import argparse
-import importlib
-import os
-import re
+import signal
 import sys
-import traceback
 
-from platkit import __version__
-from platkit.errors import PlatkitError
+
+def _interrupted_while_starting(signum, frame):
+    """Ctrl-C before main() has its handlers in place (while the modules below load)."""
+    print("platkit: interrupted", file=sys.stderr)
+    raise SystemExit(130)
+
+
+# Started as the `platkit` command (the console script, or python -m platkit.cli): a Ctrl-C while
+# the modules below load ends in one line too. Imported as a library, the handler is left alone.
+if sys.argv and sys.argv[0].replace("\\", "/").rsplit("/", 1)[-1] in ("platkit", "cli.py"):
+    signal.signal(signal.SIGINT, _interrupted_while_starting)
+
+import argparse  # noqa: E402  (below the handler on purpose)
+import importlib  # noqa: E402
+import os  # noqa: E402
+import re  # noqa: E402
+import traceback  # noqa: E402
+
+from platkit import __version__  # noqa: E402
+from platkit.errors import PlatkitError  # noqa: E402
 
 #: verb modules under platkit.commands, in the order `platkit --help` lists them
-COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient"]
+COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient", "batch"]
+
+def chosen_verb(argv: list[str]) -> str | None:
+    """The verb a command line names: its first word that is not one of platkit's own options
+    (those take no value), or None. It may be a misspelt verb; the caller checks."""
+    for arg in argv:
+        if arg == "--":
+            return None
+        if arg.startswith("-"):
+            continue
+        return arg
+    return None
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verbs: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser with the sub-parsers of ``verbs`` (default: every verb in COMMANDS, which
+    imports every verb module; give just the chosen one to import only that)."""
     parser = argparse.ArgumentParser(prog="platkit", description="Kinematics, calibration and diagnosis of motion platforms")
     parser.add_argument("--debug", action="store_true", help="show the traceback on errors")
     parser.add_argument("--version", action="version", version=f"platkit {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMANDS:
+    for name in COMMANDS if verbs is None else verbs:
         module = importlib.import_module(f"platkit.commands.{name}")
         p = module.add_parser(sub)
         p.set_defaults(_run=module.run)
@@ -29,6 +62,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def parser_for(argv: list[str]) -> argparse.ArgumentParser:
+    """The parser a command line needs: the chosen verb's alone; none for a bare ``--version``;
+    every verb for ``--help``, for no verb, or for an unknown one (so the error lists them)."""
+    verb = chosen_verb(argv)
+    if verb in COMMANDS:
+        return build_parser([verb])
+    if verb is None and "--version" in argv and not {"-h", "--help"} & set(argv):
+        return build_parser([])
+    return build_parser()
 
 
 #: a value that starts like a negative number ("-10,20", "-.5", "-1e3")
@@ -52,14 +94,20 @@ def join_negative_values(argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    """Run one command line; the exit status. Ctrl-C at any point, start-up included, ends
+    with one line on stderr and 130."""
     argv = join_negative_values(list(sys.argv[1:] if argv is None else argv))
+    debug = "--debug" in argv
     try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse already printed one line; bad usage is bad input
-        return 2 if exc.code not in (0, None) else 0
-    debug = getattr(args, "debug", False)
-    try:
+        if signal.getsignal(signal.SIGINT) is _interrupted_while_starting:
+            # from here on a Ctrl-C is a KeyboardInterrupt, so that outputs being written are undone
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        try:
+            parser = parser_for(argv)
+            args = parser.parse_args(argv)
+        except SystemExit as exc:  # argparse already printed one line; bad usage is bad input
+            return 2 if exc.code not in (0, None) else 0
+        debug = getattr(args, "debug", False)
         return int(args._run(args) or 0)
     except PlatkitError as exc:
         if debug:
@@ -77,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"platkit: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if debug:
+            traceback.print_exc()
         print("platkit: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # an unexpected failure is a failed computation, said in one line

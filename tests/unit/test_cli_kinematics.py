@@ -150,3 +150,61 @@ def test_workspace_failure_writes_nothing(capsys, tmp_path):
     code, _, err = run(capsys, "workspace", "--platform", "stewart", "--description", str(bad), "--out", str(out))
     assert code == 2 and "missing field 'legs'" in one_line_error(err)
     assert not out.exists() or not any(out.iterdir())
+
+
+# ----------------------------------------------------------------------------- start-up (issue 13)
+
+
+def test_a_verb_imports_only_its_own_module():
+    """`platkit fk` builds the parser of fk alone: no other verb's module (and none of the
+    heavy libraries they pull in) is imported; `--version` imports no verb and no CasADi."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys; from platkit.cli import main; code = main(sys.argv[1:]); "
+        "print(sorted(m for m in sys.modules if m.startswith('platkit.commands.') and m != 'platkit.commands.common'), "
+        "'casadi' in sys.modules, 'scipy.stats' in sys.modules, code)"
+    )
+    fk = subprocess.run([sys.executable, "-c", probe, "fk", "--platform", "stewart", "--u", "4000,4000,4000,4000,4000,4000"],
+                        capture_output=True, text=True, check=True)
+    assert fk.stdout.strip().splitlines()[-1] == "['platkit.commands.fk'] True False 0"
+    version = subprocess.run([sys.executable, "-c", probe, "--version"], capture_output=True, text=True, check=True)
+    assert version.stdout.strip().splitlines() == ["platkit 0.1.0", "[] False False 0"]
+
+
+def test_help_lists_every_verb(capsys):
+    from platkit.cli import COMMANDS
+
+    code, out, _ = run(capsys, "--help")
+    assert code == 0
+    for name in COMMANDS:
+        assert f"    {name}" in out
+
+
+def test_an_unknown_verb_is_bad_input_naming_the_verbs(capsys):
+    code, _, err = run(capsys, "fx", "--platform", "stewart")
+    assert code == 2
+    assert "invalid choice: 'fx'" in err and "'fk'" in err and "'simulate'" in err
+
+
+def test_ctrl_c_while_a_verb_loads_is_one_line_and_130(capsys, monkeypatch):
+    import platkit.cli as cli
+
+    def interrupted(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli.importlib, "import_module", interrupted)
+    code, out, err = run(capsys, "fk", "--platform", "stewart", "--u", "4000,4000,4000,4000,4000,4000")
+    assert code == 130 and out == "" and err == "platkit: interrupted\n"
+
+
+def test_ctrl_c_during_a_run_is_one_line_and_130(capsys, monkeypatch):
+    import platkit.commands.fk as fk
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fk, "run", interrupted)
+    code, out, err = run(capsys, "fk", "--platform", "stewart", "--u", "4000,4000,4000,4000,4000,4000")
+    assert code == 130 and err == "platkit: interrupted\n"

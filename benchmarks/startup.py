@@ -1,0 +1,127 @@
+"""Start-up time of the ``platkit`` command beside importing its heavy dependencies.
+
+    .venv/bin/python benchmarks/startup.py [--repeat 7]
+
+Each row is a fresh process, timed by wall clock from spawn to exit; the rows are run in
+turns (one of each, then again) so that a busy machine slows them alike, and the table gives
+the minimum and the median of ``--repeat`` runs and the ratio of medians to the reference,
+``python -c "import casadi, numpy, scipy"`` (what any platkit verb needs at least in part).
+Goal (issue 13): ``platkit --version`` and ``platkit fk`` within 2x of the reference.
+
+Then Ctrl-C: ``platkit fk`` is sent SIGINT at several moments of its start-up and run; every
+one must end with one line on stderr and exit status 130 (the row says how many did).
+The last rows show which modules a verb imports (``python -X importtime``), the largest first.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+PYTHON = sys.executable
+#: the console script a user runs (python -m platkit.cli where it is not installed)
+SCRIPT = Path(PYTHON).parent / "platkit"
+PLATKIT = [str(SCRIPT)] if SCRIPT.is_file() else [PYTHON, "-m", "platkit.cli"]
+FK_ARGS = ["fk", "--platform", "stewart", "--u", "4000,4000,4000,4000,4000,4000"]
+
+CASES = [
+    ("reference: python -c 'import casadi, numpy, scipy'", [PYTHON, "-c", "import casadi, numpy, scipy"]),
+    ("python -c pass (the interpreter alone)", [PYTHON, "-c", "pass"]),
+    ("platkit --version", PLATKIT + ["--version"]),
+    ("platkit fk --platform stewart --u ...", PLATKIT + FK_ARGS),
+    ("platkit describe --platform stewart", PLATKIT + ["describe", "--platform", "stewart"]),
+    ("platkit simulate --help", PLATKIT + ["simulate", "--help"]),
+    ("platkit --help (every verb's parser)", PLATKIT + ["--help"]),
+]
+#: rows with a goal: within this many times the reference
+GOAL = {"platkit --version": 2.0, "platkit fk --platform stewart --u ...": 2.0}
+
+
+def wall_s(cmd: list[str]) -> float:
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    t = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}): {done.stderr.decode()[-500:]}")
+    return t
+
+
+def interrupt(delay_s: float) -> tuple[int, list[str]]:
+    """Start ``platkit fk``, send SIGINT after ``delay_s``; (exit status, stderr lines)."""
+    proc = subprocess.Popen(PLATKIT + FK_ARGS, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate()
+    return proc.returncode, err.decode().strip().splitlines()
+
+
+def top_imports(cmd_args: list[str], n: int = 6) -> list[tuple[float, str]]:
+    """The ``n`` top-level imports of a platkit command line that take longest (cumulative ms)."""
+    done = subprocess.run([PYTHON, "-X", "importtime", "-m", "platkit.cli"] + cmd_args,
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    rows = []
+    for line in done.stderr.splitlines():
+        if not line.startswith("import time:") or "|" not in line:
+            continue
+        _, cum, name = line[len("import time:"):].split("|")
+        if name.startswith(" ") and not name.startswith("  "):  # top level: one space of indent
+            try:
+                rows.append((int(cum) / 1e3, name.strip()))
+            except ValueError:
+                continue
+    return sorted(rows, reverse=True)[:n]
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=7, help="runs of each command line")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    for _, cmd in CASES:  # warm the file cache and the byte-code
+        wall_s(cmd)
+    times = {name: [] for name, _ in CASES}
+    for _ in range(args.repeat):
+        for name, cmd in CASES:
+            times[name].append(wall_s(cmd))
+    ref = statistics.median(times[CASES[0][0]])
+    width = max(len(n) for n, _ in CASES)
+    print(f"start-up on {os.cpu_count()} cores, {args.repeat} runs each, wall clock")
+    print(f"{'command line':<{width}}  {'min s':>6}  {'median s':>8}  {'x ref':>6}  goal")
+    for name, _ in CASES:
+        med = statistics.median(times[name])
+        goal = GOAL.get(name)
+        verdict = "" if goal is None else f"<= {goal:.0f}x: {'met' if med <= goal * ref else 'NOT MET'}"
+        print(f"{name:<{width}}  {min(times[name]):>6.3f}  {med:>8.3f}  {med / ref:>6.2f}  {verdict}")
+
+    print()
+    delays = [0.0, 0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.15, 0.2, 0.3, 0.5]
+    counts = {"one line, exit 130": 0, "finished first": 0, "in Python's own start-up": 0, "platkit's fault": 0}
+    for d in delays:
+        rc, lines = interrupt(d)
+        if rc == 130 and lines == ["platkit: interrupted"]:
+            counts["one line, exit 130"] += 1
+        elif rc == 0 and not lines:
+            counts["finished first"] += 1
+        elif not any("/platkit/" in line or "platkit.cli" in line for line in lines):
+            # before any platkit code ran (the interpreter, site, the editable-install finder):
+            # Python's own handler is still in place there
+            counts["in Python's own start-up"] += 1
+        else:
+            counts["platkit's fault"] += 1
+            print(f"  Ctrl-C after {d:.2f} s: exit {rc}, stderr {len(lines)} lines: {lines[-3:]}")
+    print(f"Ctrl-C during `platkit fk` at {len(delays)} moments ({', '.join(f'{d:g}' for d in delays)} s): "
+          + ", ".join(f"{k} {v}" for k, v in counts.items()))
+
+    print()
+    for label, cmd_args in (("platkit fk", FK_ARGS), ("platkit --version", ["--version"])):
+        top = ", ".join(f"{name} {ms:.0f} ms" for ms, name in top_imports(cmd_args))
+        print(f"largest imports of {label}: {top}")
+
+
+if __name__ == "__main__":
+    main()
