@@ -1,0 +1,145 @@
+"""Which sessions a batch covers, and its output folder: one sub-folder per finished session,
+written whole (a temporary sibling renamed into place), so a re-run skips what is done.
+
+    DIR/batch.json               the verb and its options (a re-run must use the same)
+    DIR/sessions/<name>/         the single verb's usual outputs, plus task.json (where, how long)
+    DIR/failed/<name>.json       why a session failed (removed when a re-run succeeds)
+"""
+from __future__ import annotations
+
+import glob
+import json
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from platkit.errors import BadInput
+from platkit.io.atomic import atomic_write_text, check_output_dir
+from platkit.io.jsonout import dumps
+
+__all__ = ["SessionRef", "find_sessions", "BatchFolder", "natural_key"]
+
+TASK_RECORD = "task.json"
+
+
+@dataclass(frozen=True)
+class SessionRef:
+    """A session folder matched by the pattern: ``name`` is unique in the batch (the path below
+    the matches' common folder, '/' written '__'); ``path`` the folder."""
+
+    name: str
+    path: Path
+
+
+def natural_key(text: str) -> list:
+    """Sort key in which 'month10' follows 'month9'."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", text)]
+
+
+def find_sessions(patterns: str | list[str]) -> list[SessionRef]:
+    """The session folders (holding session.yaml) matched by shell-style ``patterns``
+    (``fleet/*``, ``lab/**/month*``; a folder itself), in natural order of their paths. A matched
+    folder without session.yaml is skipped only if the pattern matched other things too, and the
+    skipped are counted in the error when nothing is left."""
+    patterns = [patterns] if isinstance(patterns, str) else list(patterns)
+    found: list[Path] = []
+    skipped = 0
+    for pattern in patterns:
+        matches = sorted(glob.glob(os.path.expanduser(pattern), recursive=True), key=natural_key)
+        for m in matches:
+            p = Path(m)
+            if (p / "session.yaml").is_file():
+                found.append(p.resolve())
+            elif p.is_dir():
+                skipped += 1
+    unique = list(dict.fromkeys(found))
+    if not unique:
+        extra = f" ({skipped} matched folders hold no session.yaml)" if skipped else ""
+        raise BadInput(f"{', '.join(patterns)}: no session folder (one holding session.yaml) matches{extra}")
+    if len(unique) == 1:
+        return [SessionRef(unique[0].name, unique[0])]
+    common = Path(os.path.commonpath([str(p) for p in unique]))
+    refs = [SessionRef(str(p.relative_to(common)).replace(os.sep, "__"), p) for p in unique]
+    return sorted(refs, key=lambda r: natural_key(r.name))
+
+
+class BatchFolder:
+    """The output folder of one batch (see the module docstring). ``verb`` and ``options`` (a
+    plain mapping of the verb's options) are recorded in batch.json; a folder that holds a batch
+    of another verb or other options is bad input, so results of two settings never mix."""
+
+    def __init__(self, out: str | Path, verb: str, options: dict):
+        self.out = check_output_dir(out)
+        self.sessions = self.out / "sessions"
+        self.failed = self.out / "failed"
+        record = {"verb": verb, "options": options}
+        path = self.out / "batch.json"
+        if path.is_file():
+            try:
+                before = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as exc:
+                raise BadInput(f"{path}: not a batch record ({exc}); use another --out") from None
+            if before != json.loads(dumps(record)):
+                raise BadInput(f"{path}: this folder holds a batch {before.get('verb')} with other options "
+                               f"({_difference(before.get('options', {}), options)}); use another --out")
+        self.sessions.mkdir(parents=True, exist_ok=True)
+        if not path.is_file():
+            atomic_write_text(path, dumps(record, indent=2) + "\n")
+
+    def done(self, name: str) -> bool:
+        """True when the session's outputs are there (a re-run skips it)."""
+        return (self.sessions / name / TASK_RECORD).is_file()
+
+    def write_session(self, name: str, files: dict[str, bytes], record: dict) -> Path:
+        """Write the session's files and its task.json into sessions/<name>/ at once: they are
+        written into a temporary sibling that is then renamed (the folder appears whole)."""
+        target = self.sessions / name
+        if target.exists():
+            raise BadInput(f"{target}: already holds results; a batch writes each session once")
+        tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=self.sessions))
+        try:
+            for rel, data in files.items():
+                dest = tmp / rel
+                if not dest.resolve().is_relative_to(tmp.resolve()):
+                    raise BadInput(f"{name}: output name {rel!r} leaves the session folder")
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                dest.write_bytes(data)
+            (tmp / TASK_RECORD).write_text(dumps(record, indent=2) + "\n", encoding="utf-8")
+            os.chmod(tmp, 0o777 & ~_umask())
+            os.rename(tmp, target)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        self.clear_failure(name)
+        return target
+
+    def write_failure(self, name: str, record: dict) -> Path:
+        path = self.failed / f"{name}.json"
+        atomic_write_text(path, dumps(record, indent=2) + "\n")
+        return path
+
+    def clear_failure(self, name: str) -> None:
+        path = self.failed / f"{name}.json"
+        if path.is_file():
+            path.unlink()
+
+    def record(self, name: str) -> dict | None:
+        """task.json of a finished session, or failed/<name>.json (with ``ok`` false), or None."""
+        for path in (self.sessions / name / TASK_RECORD, self.failed / f"{name}.json"):
+            if path.is_file():
+                return json.loads(path.read_text(encoding="utf-8"))
+        return None
+
+
+def _difference(before: dict, now: dict) -> str:
+    keys = sorted(set(before) | set(now))
+    diff = [f"{k}: {before.get(k)!r} then, {now.get(k)!r} now" for k in keys if before.get(k) != now.get(k)]
+    return "; ".join(diff[:3]) or "the same options in another form"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
