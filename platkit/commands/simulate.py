@@ -23,6 +23,9 @@ def add_parser(sub):
                         "whole stand in the level world: the motion capture cannot see it, an --imu's accelerometer "
                         "can (its truth also goes to truth_imu.yaml)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--perturbation", type=float, default=1.0, metavar="SCALE",
+                   help="how far the true stand lies from the description: SCALE times 2 mm, 2 mrad (0.1%% of other "
+                        "values) per parameter, drawn from the seed (default 1); 0: the description is the true stand")
     p.add_argument("--poses", type=int, default=80, help="number of commands (default 80)")
     p.add_argument("--plan", default="grid", help="grid (snake-ordered grid), random, or a plan.csv file (default grid)")
     p.add_argument("--noise-mm", type=float, default=0.2, help="marker noise per coordinate, mm (default 0.2)")
@@ -62,6 +65,8 @@ def run(args) -> int:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
     if args.seed < 0:
         raise BadInput(f"--seed must be 0 or more, got {args.seed}")
+    if not args.perturbation >= 0:
+        raise BadInput(f"--perturbation must be 0 or more, got {args.perturbation:g}")
     if not args.noise_mm >= 0:
         raise BadInput(f"--noise-mm must be 0 or more, got {args.noise_mm:g}")
     if not 0 <= args.occlusion < 0.5:
@@ -83,7 +88,7 @@ def run(args) -> int:
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
                    description=None if args.description is None else Path(args.description).name,
-                   n_base_markers=args.base_markers, imu=imu)
+                   n_base_markers=args.base_markers, imu=imu, perturbation=args.perturbation)
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
                         moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"
