@@ -13,6 +13,7 @@ import numpy as np
 import yaml
 
 from platkit.errors import BadDescription
+from platkit.io.shipped import shipped_dir
 
 DESCRIPTIONS_ENV = "PLATKIT_DESCRIPTIONS"
 
@@ -38,23 +39,21 @@ def load_yaml(path: str | Path, error=BadDescription) -> dict[str, Any]:
     return data
 
 
-def default_description(filename: str, anchor: str | Path) -> Path:
-    """Locate a shipped description file.
+def default_description(filename: str) -> Path:
+    """The shipped description ``filename`` (e.g. ``"stewart.yaml"``), a stand's default.
 
     Searched in order: the directories of the ``PLATKIT_DESCRIPTIONS`` variable (os.pathsep
-    separated), then every ``descriptions/`` folder found walking up from ``anchor`` (a plugin
-    module's ``__file__``), which is the repository's top-level ``descriptions/``.
+    separated), then the descriptions installed with platkit (the repository's top-level
+    descriptions/, found through the installed package ``platkit_data.descriptions``).
     """
-    candidates: list[Path] = []
-    for d in os.environ.get(DESCRIPTIONS_ENV, "").split(os.pathsep):
-        if d:
-            candidates.append(Path(d) / filename)
-    for parent in Path(anchor).resolve().parents:
-        candidates.append(parent / "descriptions" / filename)
-    for c in candidates:
-        if c.is_file():
-            return c
-    raise BadDescription(f"default description {filename!r} not found (looked in descriptions/ above {anchor})")
+    searched = [Path(d) for d in os.environ.get(DESCRIPTIONS_ENV, "").split(os.pathsep) if d]
+    searched.append(shipped_dir("descriptions"))
+    for folder in searched:
+        if (folder / filename).is_file():
+            return folder / filename
+    raise BadDescription(
+        f"default description {filename!r} not found (looked in {', '.join(str(d) for d in searched)})"
+    )
 
 
 def check_platform(data: dict, name: str, path: Path) -> None:

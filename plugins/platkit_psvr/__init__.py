@@ -153,7 +153,7 @@ def pose_functions(p0: np.ndarray) -> tuple[list[Coordinate], ca.Function, ca.Fu
 def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     if options:
         raise BadInput(f"the psvr stand takes no options, got {sorted(options)}")
-    path = path or default_description("psvr.yaml", __file__)
+    path = path or default_description("psvr.yaml")
     d = read_description(path)
     names = d["names"]
     e = np.stack([np.cos(d["azimuth"]), np.sin(d["azimuth"]), np.zeros(3)])  # column i: e_i

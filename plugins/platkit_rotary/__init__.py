@@ -32,7 +32,7 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     unknown = sorted(set(options) - {"base_link", "moving_link"})
     if unknown:
         raise BadInput(f"the rotary stand takes the options base_link, moving_link; unknown: {unknown}")
-    path = path or default_description("rotary.urdf", __file__)
+    path = path or default_description("rotary.urdf")
     chain = serial_chain(read_urdf(path), options.get("base_link"), options.get("moving_link"))
     revolute = [j for j in chain.actuated if j.type in ("revolute", "continuous")]
     if len(chain.actuated) != 2 or len(revolute) != 2:

@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 
 from platkit.errors import BadDescription, BadInput
-from platkit.geometry import ca_matrix_from_quat, matrix_from_rpy
+from platkit.geometry import ca_matrix_from_quat, matrix_from_quat, matrix_from_rpy
 from platkit.hookspecs import hookimpl
 from platkit.io.description import check_platform, default_description, load_yaml, number, require, vector
 from platkit.model import Control, Parameter, PlatformFactory, PlatformSpec, length_scale, six_dof_pose
@@ -82,7 +82,7 @@ def leg_vectors(td, q, X):
 def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     if options:
         raise BadInput(f"the stewart stand takes no options, got {sorted(options)}")
-    path = path or default_description("stewart.yaml", __file__)
+    path = path or default_description("stewart.yaml")
     d = read_description(path)
     params = []
     for i in range(N_LEGS):
@@ -150,7 +150,6 @@ def leg_kinematics(spec: PlatformSpec, q, X, v=None, omega=None, a=None, alpha=N
                                   gives a plus (the centripetal part of eq. 2 points inward).
     The paper writes omega x P_i with P_i in the platform frame; the joint lever is R P_i.
     """
-    from platkit.geometry import matrix_from_quat
 
     td = spec.nominal_td() if td is None else np.asarray(td, float)
     B = td[0:18].reshape(6, 3).T

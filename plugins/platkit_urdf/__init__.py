@@ -44,7 +44,7 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     for k, v in options.items():
         if not isinstance(v, str) or not v:
             raise BadInput(f"urdf stand option {k!r} must be a link name, got {v!r}")
-    path = path or default_description("urdf_default_arm.urdf", __file__)
+    path = path or default_description("urdf_default_arm.urdf")
     chosen: dict = {}
     description: dict
     if path.suffix.lower() in (".yaml", ".yml"):

@@ -1,0 +1,2 @@
+"""Example sessions shipped with platkit: installed as the package ``platkit_data.sessions``
+(see platkit/io/shipped.py); this file only makes the folder a regular package for importlib.resources."""
