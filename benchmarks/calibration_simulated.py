@@ -25,10 +25,10 @@ import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, parameter_scale, predict_markers
 from platkit.calibrate.paper import calibrate_paper
-from platkit.calibrate.poses import PoseSet
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
+from platkit.poses import PoseSet
 
 
 class Truth:

@@ -19,11 +19,19 @@ from pathlib import Path
 
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.paper import calibrate_paper
-from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.settle import load_poses
-from platkit.calibrate.tiago import (FIGAROH, LEVELS, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir,
-                                     pivot_order)
+from platkit.calibrate.tiago import (
+    FIGAROH,
+    LEVELS,
+    TRAINING,
+    VALIDATION,
+    bl_rmse_mm,
+    convert,
+    default_data_dir,
+    pivot_order,
+)
 from platkit.io.session import load_session
+from platkit.poses import PoseSet
 
 
 def main(argv=None) -> int:

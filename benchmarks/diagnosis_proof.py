@@ -36,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.terms import ModelTerm
 from platkit.errors import BadInput, PlatkitError
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 NOISE_MM = 0.2  # per mocap sample and coordinate; a settled pose averages ~75 samples: ~0.023 mm
 CLEAR_MM, WEAK_MM = 0.2, 0.06
@@ -108,7 +108,7 @@ def build_truth(spec, effects: list[tuple[str, str]], seed: int):
     """[(term, theta)] for effects [(name, 'clear'|'weak')], each scaled to move the markers by
     CLEAR_MM or WEAK_MM RMS on this session's commands."""
     from platkit.calibrate.estimate import calibrate
-    from platkit.diagnose.effects import effect_library, with_history
+    from platkit.effects import effect_library, with_history
 
     lib = effect_library()
     rng = np.random.default_rng(seed + 99)

@@ -92,7 +92,7 @@ def _session(spec, seed, plan, truth: dict, noise=NOISE):
 def _diagnose(spec, sim, cal=None):
     from platkit.calibrate.estimate import calibrate
     from platkit.diagnose.imu import diagnose_imu, td_covariance
-    from platkit.inertial.stream import ImuStream
+    from platkit.io.imu import ImuStream
 
     cal = cal or calibrate(sim.poses, spec)
     im = sim.imu
@@ -122,7 +122,7 @@ def _heldout(spec, cal, d, test) -> dict[str, list[float]]:
     from platkit.diagnose.imu import segments_from_session, up_in_sensor
     from platkit.geometry import matrix_from_rotvec
     from platkit.inertial.command_aided import command_poses
-    from platkit.inertial.stream import ImuStream
+    from platkit.io.imu import ImuStream
     from platkit.kinematics import PlatformModel
 
     im = test.imu

@@ -28,10 +28,10 @@ import time
 import numpy as np
 
 from platkit.inertial.calibration import gyro_bias_at_rest
-from platkit.inertial.estimator import estimate_platkit, estimate_offline
+from platkit.inertial.estimator import estimate_offline, estimate_platkit
 from platkit.inertial.metrics import inclination_rmse_deg
 from platkit.inertial.paper import PaperParams, estimate_paper
-from platkit.inertial.stream import read_broad
+from platkit.io.imu import read_broad
 
 DEFAULT_DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "real", "broad")
 

@@ -36,7 +36,7 @@ from platkit.inertial.calibration import fit_accelerometer, fit_imu_alignment, s
 from platkit.inertial.command_aided import estimate_alignment_from_commands, estimate_timing
 from platkit.inertial.orient import orient_session
 from platkit.inertial.simulate import imu_from_motion, platform_imu_session, write_platform_imu_session
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 from platkit.plugins import get_platform
 from platkit.simulate import perturb_parameters
 
@@ -163,8 +163,8 @@ def run_seed(seed: int, spec, workdir: Path) -> dict:
 
 
 def write_calibration(spec, td, folder: Path) -> Path:
-    """A minimal platkit calibration.yaml holding ``td`` (through platkit.calibrate.result)."""
-    from platkit.calibrate.result import Calibration
+    """A minimal platkit calibration.yaml holding ``td`` (through platkit.io.calibration)."""
+    from platkit.io.calibration import Calibration
 
     n = spec.n_td
     cal = Calibration(platform=spec.name, description=None, spec=spec, td=np.asarray(td), td_std=np.full(n, np.nan),

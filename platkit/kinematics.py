@@ -30,12 +30,17 @@ import casadi as ca
 import numpy as np
 
 from platkit.errors import BadInput, NoConvergence, OutOfWorkspace, WrongBranch
-from platkit.geometry import matrix_from_quat, quat_normalize, rpy_from_quat
+from platkit.geometry import ca_quat_multiply, matrix_from_quat, quat_normalize, rpy_from_quat
 from platkit.model import PlatformSpec, length_scale
 from platkit.native import (
-    CONVERGED, MAX_ITERATIONS, NOT_FINITE, SINGULAR, _NativeNewton, _native_for, _newton_functions,
+    CONVERGED,
+    MAX_ITERATIONS,
+    NOT_FINITE,
+    SINGULAR,
+    NativeNewton,
+    native_for,
+    newton_functions,
 )
-
 
 
 @dataclass
@@ -188,14 +193,14 @@ class PlatformModel:
     # ------------------------------------------------------------------ Newton backends
     @functools.cached_property
     def _newton_fns(self):
-        return _newton_functions(self.spec)
+        return newton_functions(self.spec)
 
     @functools.cached_property
     def _native(self):
         rj, post, n_g = self._newton_fns
         if not self._compile:
             return "compilation switched off for this model"
-        return _native_for(self.spec, rj, post, n_g)
+        return native_for(self.spec, rj, post, n_g)
 
     @property
     def backend(self) -> str:
@@ -203,7 +208,7 @@ class PlatformModel:
         if self.spec.forward is not None:
             return "closed form (the stand's forward function)"
         nat = self._native
-        if isinstance(nat, _NativeNewton):
+        if isinstance(nat, NativeNewton):
             return f"compiled C ({nat.path})"
         return f"casadi+numpy ({nat})"
 
@@ -218,7 +223,7 @@ class PlatformModel:
     def _solve_one(self, u: np.ndarray, td, p0) -> np.ndarray:
         """One Newton solve; returns a fresh out row (see _solve)."""
         nat = self._native
-        if not isinstance(nat, _NativeNewton):
+        if not isinstance(nat, NativeNewton):
             return self._solve_numpy_one(u, self._td0 if td is None else td, self._p0 if p0 is None else p0)
         bufs, addr = self._single_buffers
         bufs["u"][:] = u
@@ -240,7 +245,7 @@ class PlatformModel:
         Returns out (N, n_p + 7 + n_g + 4): p, q, X, g, iterations, |r|, status, on_branch."""
         nat = self._native
         N = u.shape[0]
-        if isinstance(nat, _NativeNewton):
+        if isinstance(nat, NativeNewton):
             u = np.ascontiguousarray(u, dtype=float)
             td = np.ascontiguousarray(td, dtype=float)
             P0 = np.ascontiguousarray(P0, dtype=float)
@@ -625,7 +630,6 @@ class PlatformModel:
     def _twist_fn(self) -> ca.Function:
         """(u, td, q, X, ud, v, omega) -> (F_u, F_t, c): F_t = dF/d(v, omega) with q' = 1/2 (0, omega) q,
         and c the second-order term of F along (u', q', X') plus F_q applied to 1/2 (0, omega) q'."""
-        from platkit.geometry import ca_quat_multiply
 
         s = self.spec
         u, td, q, X = ca.SX.sym("u", s.n_u), ca.SX.sym("td", s.n_td), ca.SX.sym("q", 4), ca.SX.sym("X", 3)
@@ -645,7 +649,6 @@ class PlatformModel:
     def _twist_of_rates_fn(self) -> ca.Function:
         """(p, pd, pdd) -> (v, omega, a, alpha): the moving frame's twist and its derivative in
         the base frame, from the pose coordinates and their rates."""
-        from platkit.geometry import ca_quat_multiply
 
         s = self.spec
         p, pd, pdd = ca.SX.sym("p", s.n_p), ca.SX.sym("pd", s.n_p), ca.SX.sym("pdd", s.n_p)

@@ -23,6 +23,7 @@ import casadi as ca
 import numpy as np
 
 from platkit.errors import BadDescription, BadInput
+from platkit.geometry import ca_quat_from_rpy
 
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 
@@ -260,7 +261,6 @@ def six_dof_pose(neutral_position_m, neutral_rpy=(0.0, 0.0, 0.0), position_min=N
     Returns (coordinates, pose, coordinates_from_pose) ready for a PlatformSpec, with
     R = Rz(yaw) Ry(pitch) Rx(roll). Positions in metres.
     """
-    from platkit.geometry import ca_quat_from_rpy
 
     lo = [-np.inf] * 3 if position_min is None else list(position_min)
     hi = [np.inf] * 3 if position_max is None else list(position_max)

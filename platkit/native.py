@@ -143,7 +143,7 @@ CASADI_SYMBOL_EXPORT void pk_newton_batch(int n, const double* U, const double* 
 """
 
 _native_lock = threading.Lock()
-_native_by_functions: dict = {}  # id-key -> (functions kept alive, _NativeNewton or failure reason)
+_native_by_functions: dict = {}  # id-key -> (functions kept alive, NativeNewton or failure reason)
 _native_by_hash: dict = {}
 
 
@@ -167,7 +167,7 @@ def _find_compiler() -> str | None:
     return None
 
 
-class _NativeNewton:
+class NativeNewton:
     """ctypes handle on a compiled Newton solver for one stand's (residual, pose, branch)."""
 
     def __init__(self, lib_path: Path, n_u: int, n_p: int, n_g: int):
@@ -183,7 +183,7 @@ class _NativeNewton:
         self.batch.restype = None
 
 
-def _newton_functions(spec: PlatformSpec) -> tuple[ca.Function, ca.Function, int]:
+def newton_functions(spec: PlatformSpec) -> tuple[ca.Function, ca.Function, int]:
     """(rj, post, n_g): rj(u, td, p) -> (r, dense J_p); post(u, td, p) -> (q, X, g)."""
     u = ca.SX.sym("u", spec.n_u)
     td = ca.SX.sym("td", spec.n_td)
@@ -200,7 +200,7 @@ def _newton_functions(spec: PlatformSpec) -> tuple[ca.Function, ca.Function, int
 
 
 def _build_native(spec: PlatformSpec, rj: ca.Function, post: ca.Function, n_g: int):
-    """Compile (or find in the cache) the C Newton solver; return _NativeNewton or a reason string."""
+    """Compile (or find in the cache) the C Newton solver; return NativeNewton or a reason string."""
     cc = _find_compiler()
     if cc is None:
         return "no C compiler (or PLATKIT_COMPILE=0)"
@@ -233,14 +233,14 @@ def _build_native(spec: PlatformSpec, rj: ca.Function, post: ca.Function, n_g: i
                     if proc.returncode != 0:
                         return f"the C compiler failed ({(proc.stderr.strip().splitlines() or ['?'])[-1]})"
                     os.replace(out, lib)  # atomic: other processes see the whole library or none
-            native = _NativeNewton(lib, spec.n_u, spec.n_p, n_g)
+            native = NativeNewton(lib, spec.n_u, spec.n_p, n_g)
         except (OSError, subprocess.SubprocessError) as exc:
             return f"compiling the solver failed ({exc.__class__.__name__}: {exc})"
         _native_by_hash[key] = native
         return native
 
 
-def _native_for(spec: PlatformSpec, rj, post, n_g):
+def native_for(spec: PlatformSpec, rj, post, n_g):
     key = (id(spec.residual), id(spec.pose), id(spec.branch), spec.n_td)
     hit = _native_by_functions.get(key)
     if hit is not None:

@@ -26,8 +26,10 @@ import casadi as ca
 import numpy as np
 
 from platkit.errors import BadInput, ComputationFailed
+from platkit.io import jsonout
+from platkit.io.atomic import atomic_output_dir
 from platkit.kinematics import PlatformModel
-from platkit.model import length_scale
+from platkit.model import controls_from_si, length_scale
 
 #: corners are enumerated up to this many controls (2^16 forward solves)
 MAX_CORNER_CONTROLS = 16
@@ -340,8 +342,6 @@ def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=
     """Compute the workspace figures and write, atomically, into ``out``:
     workspace.json (figures, lengths in ``unit``), corners.csv (controls and poses of every
     corner), envelope.csv (one row per axis and envelope) and workspace.png / sections.png."""
-    from platkit.io.atomic import atomic_output_dir
-    from platkit.model import controls_from_si
 
     s = length_scale(unit)
     figures, corners, fixed, free = workspace_figures(model, td)
@@ -355,7 +355,6 @@ def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=
             pose["u"] = controls_from_si(spec, np.array(pose["u"]), unit).tolist()
             pose["p"] = [v / s if c.unit == "m" else v for v, c in zip(pose["p"], spec.coordinates)]
     shown["unit"] = unit
-    from platkit.io import jsonout
 
     with atomic_output_dir(out) as tmp:
         (tmp / "workspace.json").write_text(jsonout.dumps(shown, indent=2) + "\n")

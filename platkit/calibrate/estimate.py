@@ -2,7 +2,7 @@
 
 Unknowns (all SI): the stand's free parameters td, the base-to-mocap transform mocap_from_base
 (rotation vector w and translation t: 6 numbers), the marker positions m_i on the moving part
-(3 per marker) and the parameters theta of any :class:`~platkit.calibrate.terms.ModelTerm`.
+(3 per marker) and the parameters theta of any :class:`~platkit.terms.ModelTerm`.
 The observation of marker i at pose n is
 
     y_ni = exp(w) (X_n + exp(dth_n) R(q_n) (m_i + dm_ni) + dX_n) + t
@@ -36,14 +36,22 @@ import casadi as ca
 import numpy as np
 
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL, select_identifiable, singular_values
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.result import Calibration
-from platkit.calibrate.terms import ModelTerm
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
-from platkit.geometry import (ca_matrix_from_quat, ca_matrix_from_rotvec, matrix_from_quat, quat_normalize,
-                              rigid_fit, rotvec_from_matrix, matrix_from_rotvec)
+from platkit.geometry import (
+    ca_matrix_from_quat,
+    ca_matrix_from_rotvec,
+    matrix_from_quat,
+    matrix_from_rotvec,
+    quat_from_matrix,
+    quat_normalize,
+    rigid_fit,
+    rotvec_from_matrix,
+)
+from platkit.io.calibration import Calibration
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 #: Progress callback: ``progress(stage, info)``; stage is 'registration', 'identifiability',
 #: 'iteration', 'robust', 'fold', 'done'; info carries 'iteration', 'rms' (m), ... as fitting.
@@ -841,7 +849,6 @@ def predict_markers(cal: Calibration, controls: np.ndarray, poses: PoseSet | Non
     A = matrix_from_rotvec(cal.mocap_rotvec)
     pts = X[:, None, :] + np.einsum("nab,nmb->nma", R, cal.marker_positions[None] + dm)
     markers = pts @ A.T + cal.mocap_translation
-    from platkit.geometry import quat_from_matrix
 
     q = quat_normalize(quat_from_matrix(R))
     ok = fb.converged & fb.on_branch

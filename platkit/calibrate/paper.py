@@ -32,13 +32,20 @@ import numpy as np
 from scipy.optimize import minimize
 
 from platkit.calibrate.estimate import CalibrationProblem, Progress, _rms, blas_threads, free_mask, parameter_scale
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.result import Calibration
 from platkit.errors import BadInput, NotIdentifiable
-from platkit.geometry import (matrix_from_quat, quat_conjugate, quat_from_matrix, quat_multiply, quat_normalize,
-                              quat_from_rotvec, rotvec_from_matrix)
+from platkit.geometry import (
+    matrix_from_quat,
+    quat_conjugate,
+    quat_from_matrix,
+    quat_from_rotvec,
+    quat_multiply,
+    quat_normalize,
+    rotvec_from_matrix,
+)
+from platkit.io.calibration import Calibration
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
 
 
 def marker_frame(markers: np.ndarray, weights: np.ndarray | None = None, tol: float = 1e-12, max_iter: int = 200):

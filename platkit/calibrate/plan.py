@@ -32,8 +32,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from platkit.errors import BadInput, NotIdentifiable
-from platkit.geometry import skew
+from platkit.errors import BadInput, BadSession, NotIdentifiable
+from platkit.geometry import ca_matrix_from_quat, skew
+from platkit.io.session import check_controls, read_table
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, controls_from_si, length_scale
 
@@ -227,7 +228,6 @@ def _build_marker_function(spec: PlatformSpec, n_markers: int) -> ca.Function:
     p = ca.SX.sym("p", spec.n_p)
     S = ca.SX.sym("S", 3, n_markers)
     q, X = spec.pose(p)
-    from platkit.geometry import ca_matrix_from_quat
 
     m = ca.repmat(X, 1, n_markers) + ca.mtimes(ca_matrix_from_quat(q), S)
     m = ca.reshape(m, 3 * n_markers, 1)  # column-major: marker k at rows 3k..3k+2
@@ -461,8 +461,6 @@ def write_plan_csv(path: Path, spec: PlatformSpec, U: np.ndarray, length_unit: s
 def read_plan_csv(path: str | Path, spec: PlatformSpec, length_unit: str) -> np.ndarray:
     """Controls (N, n_u) internal units from a plan file with the control columns (a ``t``
     column, as in commands.csv, is allowed and ignored). BadSession naming row and column."""
-    from platkit.errors import BadSession
-    from platkit.io.session import _check_controls, read_table
 
     table = read_table(Path(path), "the command plan")
     extra = [c for c in table.header if c not in ["t"] + spec.control_names]
@@ -470,4 +468,4 @@ def read_plan_csv(path: str | Path, spec: PlatformSpec, length_unit: str) -> np.
         raise BadSession(f"{path}: column {extra[0]!r} is not a control of the {spec.name} stand; expected "
                          f"{', '.join(spec.control_names)}")
     length_scale(length_unit)
-    return _check_controls(table, spec, [], length_unit)
+    return check_controls(table, spec, [], length_unit)

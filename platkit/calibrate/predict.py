@@ -18,16 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from platkit.calibrate.estimate import predict_markers
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.result import Calibration, read_calibration
+from platkit.effects import with_history
 from platkit.errors import BadInput
 from platkit.io.atomic import atomic_write_text
+from platkit.io.calibration import Calibration, read_calibration
+from platkit.io.session import read_table
 from platkit.model import controls_from_si, controls_to_si, length_scale
+from platkit.poses import PoseSet
 
 
 def read_commands(path: str | Path, cal: Calibration) -> tuple[np.ndarray, np.ndarray | None]:
     """Controls (N, n_u) in internal units and t (N,) or None from a commands CSV."""
-    from platkit.io.session import read_table
 
     try:
         table = read_table(Path(path), "commands")
@@ -86,7 +87,6 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
                     marker_names=list(cal.marker_names), t=t, length_unit=cal.length_unit)
     if cal.terms:  # history- and time-dependent terms read the rows' order and times
-        from platkit.diagnose.effects import with_history
 
         poses = with_history(poses, cal.spec)
     markers, q, X, ok = predict_markers(cal, U, poses)
@@ -105,7 +105,6 @@ def terms_reading_time(cal: Calibration, U: np.ndarray) -> list[str]:
     ModelTerm's offsets under two different clocks, so any effect plugin is covered."""
     if not cal.terms:
         return []
-    from platkit.diagnose.effects import with_history
 
     N, n_u = U.shape
     blank = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),

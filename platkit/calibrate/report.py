@@ -13,12 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.result import Calibration, heldout_in_unit
-from platkit.io.atomic import atomic_output_dir
-from platkit.io.figures import png_base64 as _png
-from platkit.model import length_scale
+from platkit.errors import BadInput
+from platkit.geometry import rpy_from_quat
 from platkit.io import jsonout
+from platkit.io.atomic import atomic_output_dir
+from platkit.io.calibration import Calibration, heldout_in_unit
+from platkit.io.figures import png_base64 as _png
+from platkit.io.urdf_export import export_calibrated_urdf
+from platkit.kinematics import PlatformModel
+from platkit.model import length_scale
+from platkit.poses import PoseSet
 
 
 def _finite_or_none(x):
@@ -165,11 +169,9 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
     controls = cal.extras.get("controls")
     if controls is not None and len(controls):
         try:
-            from platkit.kinematics import PlatformModel
 
             fb = PlatformModel(cal.calibrated_spec()).forward_batch(controls, cal.td, strict=False)
             X = fb.X[fb.converged] / s
-            from platkit.geometry import rpy_from_quat
 
             rpy = np.degrees(rpy_from_quat(fb.q[fb.converged]))
             fig, axes = plt.subplots(1, 3, figsize=(11, 3.3))
@@ -284,8 +286,6 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
     with atomic_output_dir(out_dir) as tmp:
         names = ["calibration.yaml", "report.json", "report.html"]
         if cal.spec.extras.get("chain") is not None:
-            from platkit.errors import BadInput
-            from platkit.io.urdf_export import export_calibrated_urdf
 
             try:
                 export_calibrated_urdf(cal.spec, cal.td, tmp / "calibrated.urdf")

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from platkit.calibrate.poses import PoseSet
 from platkit.errors import BadSession
 from platkit.io.session import Session, load_session
+from platkit.poses import PoseSet
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6

@@ -26,8 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from platkit.calibrate.estimate import calibrate, point_errors
+from platkit.calibrate.settle import load_poses
 from platkit.errors import BadInput, BadSession
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.session import load_session
 
 MARKERS = ["BL", "BR", "TR", "TL"]
 JOINTS = ["torso_lift_joint"] + [f"arm_{k}_joint" for k in range(1, 8)]
@@ -192,7 +195,6 @@ def pivot_order(cal) -> list[str]:
 
 def bl_rmse_mm(cal, poses) -> float:
     """Norm RMSE (mm) of point BL: sqrt(mean |predicted - measured|^2) over the poses where BL was seen."""
-    from platkit.calibrate.estimate import point_errors
 
     d = point_errors(cal, poses)[:, poses.marker_names.index("BL")]
     d = d[np.isfinite(d)]
@@ -208,9 +210,6 @@ def compare_with_figaroh(data_dir: str | Path | None = None, work: str | Path | 
     """
     import tempfile
 
-    from platkit.calibrate.estimate import calibrate
-    from platkit.calibrate.settle import load_poses
-    from platkit.io.session import load_session
 
     data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
     tmpdir = None

@@ -22,6 +22,7 @@ import pinocchio as pin
 
 from platkit.chains.transforms import rotation_action, transport_matrix, unit_twist
 from platkit.errors import BadDescription, BadInput
+from platkit.urdf import parse_urdf_xml
 
 _AXES = {"X": np.array([1.0, 0, 0]), "Y": np.array([0, 1.0, 0]), "Z": np.array([0, 0, 1.0])}
 _UNBOUNDED = 1e10  # limits beyond this are "none" (URDF files write 1e16 and friends)
@@ -32,7 +33,6 @@ def read_urdf_text(path: str | Path) -> str:
     DTD, entities or network; size-capped; a <robot> root element)."""
     from lxml import etree
 
-    from platkit.urdf import parse_urdf_xml
 
     path = Path(path)
     if not path.is_file():

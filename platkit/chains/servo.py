@@ -35,6 +35,7 @@ from platkit.chains.solve import (
 )
 from platkit.chains.transforms import interpolate_pose, pose_error, rotation_action
 from platkit.errors import BadInput, OutOfWorkspace
+from platkit.geometry import rotvec_from_matrix
 
 COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
 SECONDARY_COSTS = ("none", "mid_range", "joint_limits", "manipulability")
@@ -571,7 +572,6 @@ def densify(times: np.ndarray, poses: np.ndarray, max_linear: float, max_angular
     """Samples between waypoints: linear in position, SLERP in rotation, each step at most
     ``max_linear`` m and ``max_angular`` rad. ``times`` (k,), ``poses`` (k, 4, 4) ->
     (times (s,), poses (s, 4, 4), segment index (s,))."""
-    from platkit.geometry import rotvec_from_matrix
 
     out_t, out_p, seg = [float(times[0])], [poses[0]], [0]
     for k in range(len(times) - 1):
@@ -590,7 +590,6 @@ def densify(times: np.ndarray, poses: np.ndarray, max_linear: float, max_angular
 def _densify_moving(st, sp, seg, moving_frame, max_linear, max_angular):
     """Carry local samples into the moving frame, adding samples where its own motion makes a
     step longer than the limits (the frame may move between two equal local poses)."""
-    from platkit.geometry import rotvec_from_matrix
 
     out_t, out_p, out_s = [st[0]], [moving_frame(st[0]) @ sp[0]], [seg[0]]
     for k in range(1, len(st)):

@@ -17,6 +17,7 @@ import numpy as np
 
 from platkit.geometry import (
     matrix_from_quat,
+    matrix_from_rpy,
     quat_conjugate,
     quat_from_matrix,
     quat_from_rotvec,
@@ -177,7 +178,6 @@ def interpolate_pose(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
 
 def pose_from_xyz_rpy(values: np.ndarray) -> np.ndarray:
     """4x4 pose from x, y, z (m) and optionally roll, pitch, yaw (rad); R = Rz Ry Rx."""
-    from platkit.geometry import matrix_from_rpy
 
     v = np.asarray(values, float)
     H = np.eye(4)

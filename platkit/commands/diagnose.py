@@ -23,14 +23,13 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from platkit.calibrate.result import read_calibration
     from platkit.calibrate.settle import load_poses
     from platkit.diagnose.report import write_outputs
     from platkit.diagnose.search import Options, diagnose
+    from platkit.io.atomic import check_output_dir
+    from platkit.io.calibration import read_calibration
     from platkit.io.session import read_session_yaml
     from platkit.model import length_scale
-
-    from platkit.io.atomic import check_output_dir
 
     check_output_dir(args.out)
     if args.folds < 2:

@@ -76,12 +76,22 @@ import numpy as np
 from scipy import linalg as sla
 from scipy import stats
 
+from platkit.calibrate.plan import stand_length_scale
 from platkit.diagnose.stats import column_basis, holm, paired_improvement
 from platkit.errors import NotIdentifiable
-from platkit.geometry import (matrix_from_quat, matrix_from_rotvec, quat_conjugate, quat_multiply,
-                              rotvec_from_matrix, rotvec_from_quat, skew)
+from platkit.geometry import (
+    matrix_from_quat,
+    matrix_from_rotvec,
+    quat_conjugate,
+    quat_multiply,
+    rotvec_from_matrix,
+    rotvec_from_quat,
+    skew,
+)
 from platkit.inertial.calibration import integrate_gyro
-from platkit.inertial.stream import ImuStream
+from platkit.inertial.command_aided import command_poses, estimate_timing, held_mask, hold_index
+from platkit.io.imu import ImuStream
+from platkit.kinematics import PlatformModel
 
 GYRO_EFFECTS = ("gyro_bias_drift", "imu_misalignment")
 IMU_EFFECTS = GYRO_EFFECTS + ("base_tilt",)
@@ -276,11 +286,10 @@ class ImuDiagnosis:
 # ---------------------------------------------------------------------------- data
 def _held_intervals(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, timing=None) -> list[tuple[int, np.ndarray]]:
     """[(command row, sample indices)] of the holds with at least 10 held samples."""
-    from platkit.inertial.command_aided import _hold_index, estimate_timing, held_mask
 
     timing = timing or estimate_timing(imu, t_cmd, q_cmd)
     held = held_mask(imu.t, t_cmd, timing)
-    k = _hold_index(imu.t, t_cmd)
+    k = hold_index(imu.t, t_cmd)
     holds = []
     for i in np.unique(k[held]):
         idx = np.nonzero(held & (k == i))[0]
@@ -560,8 +569,6 @@ def frame_gauge(spec, td, U: np.ndarray, td_status, model=None) -> tuple[np.ndar
     the errors of :func:`held_parameter_std`, independent: C_base = sum s_j^2 b_j b_j^T and
     C_platform alike. Returns (C_base (3, 3), C_platform (3, 3)) rad^2 and the number of held
     parameters (0: both zero)."""
-    from platkit.calibrate.plan import stand_length_scale
-    from platkit.kinematics import PlatformModel
 
     status = list(td_status)
     held = [i for i, s in enumerate(status) if s == "held_at_nominal"]
@@ -847,8 +854,6 @@ def diagnose_imu(spec, td, t_cmd: np.ndarray, U: np.ndarray, imu: ImuStream, td_
     calibration's parameter statuses (None: its frames are taken as exact; else the parameters
     'held_at_nominal' make the allowance of :func:`frame_gauge`), ``t_cmd`` (M,) s and ``U``
     (M, n_u) SI the logged commands, ``imu`` the stream. See the module docstring."""
-    from platkit.inertial.command_aided import command_poses
-    from platkit.kinematics import PlatformModel
 
     model = PlatformModel(spec)
     U = np.asarray(U, float)

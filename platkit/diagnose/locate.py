@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
-from platkit.diagnose.effects import history
 from platkit.diagnose.stats import benjamini_hochberg, holm, ljung_box, runs_test
+from platkit.effects import history
 from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
 
 AXES = "xyz"
 

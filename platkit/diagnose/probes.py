@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.terms import ModelTerm
-from platkit.diagnose.effects import history
+from platkit.effects import history
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 
 @dataclass

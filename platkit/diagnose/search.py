@@ -26,15 +26,15 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors, robust_fit
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.result import Calibration
-from platkit.calibrate.terms import ModelTerm
-from platkit.diagnose.effects import Effect, effect_library, with_history
-from platkit.diagnose.locate import Location, located, locate
+from platkit.diagnose.locate import Location, locate, located
 from platkit.diagnose.probes import space_probe, time_probe
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.diagnose.stats import bic, column_basis, holm, paired_improvement, score_test
+from platkit.effects import Effect, effect_library, with_history
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec
+from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 
 @dataclass

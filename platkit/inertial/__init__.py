@@ -1,6 +1,6 @@
 """Inertial tracking: IMU streams, sensor calibration, filtering and orientation estimation.
 
-- :mod:`platkit.inertial.stream`: ``imu.csv`` reading with checks and stated repairs; BROAD HDF5.
+- :mod:`platkit.io.imu`: ``imu.csv`` reading with checks and stated repairs; BROAD HDF5.
 - :mod:`platkit.inertial.calibration`: biases, scale factors, the IMU-to-platform misalignment.
 - :mod:`platkit.inertial.filters`: low-pass filters, the cut-off from the spectrum's noise floor.
 - :mod:`platkit.inertial.paper`: Burlakov et al. (2018): Poisson integration with the

@@ -22,9 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from platkit.errors import BadInput, NotIdentifiable
+from platkit.errors import BadInput, NotIdentifiable, PlatkitError
 from platkit.geometry import quat_conjugate, quat_multiply, rotvec_from_quat
-from platkit.inertial.stream import ImuStream
+from platkit.inertial import quat as Q
+from platkit.io.atomic import atomic_write_text
+from platkit.io.imu import ImuStream, read_imu_csv
 
 G_STANDARD = 9.80665
 
@@ -170,7 +172,6 @@ def static_means(imu: ImuStream, min_s: float = 2.0, **rest_kw) -> np.ndarray:
 def integrate_gyro(gyr: np.ndarray, dt: float, bias=None) -> np.ndarray:
     """Rotation vector (3,) of the rotation the gyro measured over ``gyr`` (K, 3), expressed in
     the sensor frame at the start: log(prod_k exp(omega_k dt))."""
-    from platkit.inertial import quat as Q
 
     b = np.zeros(3) if bias is None else np.asarray(bias, float)
     q = (1.0, 0.0, 0.0, 0.0)
@@ -275,7 +276,6 @@ def write_imu_calibration(path, cal: ImuCalibration) -> None:
     """The YAML that ``platkit orient --imu-calibration`` reads, written atomically."""
     import yaml
 
-    from platkit.io.atomic import atomic_write_text
 
     atomic_write_text(path, "# platkit IMU calibration (SI: rad/s, m/s^2; sensor_from_platform maps platform to "
                             "sensor axes)\n" + yaml.safe_dump(cal.to_dict(), sort_keys=False))
@@ -285,8 +285,6 @@ def main(argv=None) -> int:
     """python -m platkit.inertial.calibration STATIC_IMU.csv OUT.yaml: a static multi-position test."""
     import sys
 
-    from platkit.errors import PlatkitError
-    from platkit.inertial.stream import read_imu_csv
 
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 2:

@@ -27,12 +27,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.errors import BadInput, NotIdentifiable
-from platkit.geometry import quat_conjugate, quat_multiply, quat_normalize, rotvec_from_quat
+from platkit.errors import BadInput, NoConvergence, NotIdentifiable
+from platkit.geometry import (
+    matrix_from_quat,
+    matrix_from_rotvec,
+    quat_conjugate,
+    quat_multiply,
+    quat_normalize,
+    rotvec_from_quat,
+    skew,
+)
 from platkit.inertial import quat as Q
 from platkit.inertial.calibration import fit_imu_alignment, integrate_gyro
 from platkit.inertial.estimator import OrientationEstimate
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 
 
 @dataclass
@@ -56,7 +64,6 @@ def command_poses(model, U: np.ndarray, td=None) -> np.ndarray:
 
     Raises ComputationFailed-family errors from forward kinematics for rows that do not
     converge."""
-    from platkit.errors import NoConvergence
 
     fb = model.forward_batch(U, td=td, strict=False)
     if not np.all(fb.converged):
@@ -65,7 +72,8 @@ def command_poses(model, U: np.ndarray, td=None) -> np.ndarray:
     return fb.q
 
 
-def _hold_index(t: np.ndarray, t_cmd: np.ndarray) -> np.ndarray:
+def hold_index(t: np.ndarray, t_cmd: np.ndarray) -> np.ndarray:
+    """(n,) index of the command row in force at each time ``t`` (the last row sent at or before it)."""
     return np.clip(np.searchsorted(t_cmd, t, side="right") - 1, 0, len(t_cmd) - 1)
 
 
@@ -128,7 +136,7 @@ def held_mask(t: np.ndarray, t_cmd: np.ndarray, timing: PlatformTiming, margin_s
     tail = 0.5 * np.clip(settle - lag, 0.0, None) + margin_s
     start = t_cmd + settle + tail                       # the hold of command k starts here
     end = np.append(t_cmd[1:] + np.clip(lag[1:] - tail[1:], 0.0, None), np.inf)  # and ends here
-    k = _hold_index(t, t_cmd)
+    k = hold_index(t, t_cmd)
     held = (t >= start[k]) & (t <= end[k]) & (t >= t_cmd[0])
     return held
 
@@ -146,7 +154,7 @@ def estimate_alignment_from_commands(imu: ImuStream, t_cmd: np.ndarray, q_cmd: n
     if held.sum() < 10:
         raise NotIdentifiable("IMU alignment: the platform never held a pose long enough to use")
     bias = np.asarray(gyr_bias, float) if gyr_bias is not None else imu.gyr[held].mean(axis=0)
-    k = _hold_index(imu.t, t_cmd)
+    k = hold_index(imu.t, t_cmd)
     # the middle sample of each held interval, per command
     mids = {}
     for i in np.unique(k[held]):
@@ -199,10 +207,9 @@ def accelerometer_tilt_references(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.n
     ``level_base``: the base frame's z is known to be vertical and the accelerometer calibrated;
     then the constant part is kept too, and the tilt is the accelerometer's alone.
     """
-    from platkit.geometry import matrix_from_quat, matrix_from_rotvec, skew
 
     R_sp = np.asarray(sensor_from_platform, float)
-    k = _hold_index(imu.t, t_cmd)
+    k = hold_index(imu.t, t_cmd)
     u_acc, u_cmd, which = [], [], []
     for i in np.unique(k[held]):
         sel = held & (k == i)
@@ -251,7 +258,7 @@ def estimate_command_aided(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray,
     tilt_info = {"used": False}
     if p.tilt_from_accelerometer:
         q_cmd, tilt_info = accelerometer_tilt_references(imu, t_cmd, q_cmd, held, R_sp, p.level_base)
-    k_cmd = _hold_index(imu.t, t_cmd)
+    k_cmd = hold_index(imu.t, t_cmd)
     dt = imu.dt
     g_ref = dt / p.tau_ref
     g_bias = dt / p.tau_bias * g_ref

@@ -31,14 +31,15 @@ Output: q_earth_from_sensor (N, 4), earth frame z up, heading relative to the st
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, asdict
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from platkit.errors import BadInput
+from platkit.geometry import matrix_from_quat, quat_multiply, quat_normalize
 from platkit.inertial import quat as Q
 from platkit.inertial.filters import butter2_coefficients
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 
 GRAVITY = 9.80665  # m/s^2, only used as the scale of the shock bound
 
@@ -281,7 +282,6 @@ def estimate_offline(imu: ImuStream, params: PlatkitParams | None = None) -> Ori
 
     from scipy import signal
 
-    from platkit.geometry import matrix_from_quat, quat_multiply, quat_normalize
 
     p = params or PlatkitParams()
     fwd = estimate_platkit(imu, p)

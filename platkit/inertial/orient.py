@@ -27,7 +27,24 @@ import numpy as np
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.geometry import quat_conjugate, quat_from_matrix, quat_multiply, quat_normalize, rotvec_from_matrix
 from platkit.inertial.calibration import ImuCalibration, gyro_bias_at_rest
-from platkit.inertial.stream import ImuStream, read_imu_csv
+from platkit.inertial.command_aided import (
+    CommandAidedParams,
+    command_poses,
+    estimate_alignment_from_commands,
+    estimate_command_aided,
+    estimate_timing,
+    held_mask,
+)
+from platkit.inertial.estimator import PlatkitParams, estimate_offline, estimate_platkit
+from platkit.inertial.metrics import heading_aligned_total_error, inclination_error, rmse, total_error
+from platkit.inertial.paper import PaperParams, estimate_paper
+from platkit.io.calibration import read_calibration
+from platkit.io.description import load_yaml
+from platkit.io.imu import ImuStream, read_imu_csv
+from platkit.io.session import TIME_UNITS, check_times, read_session_yaml, read_table
+from platkit.kinematics import PlatformModel
+from platkit.model import controls_to_si
+from platkit.plugins import get_platform
 
 METHODS = ("platkit", "platkit-causal", "paper", "command-aided")
 
@@ -47,7 +64,6 @@ class OrientResult:
 
 def read_truth_orientation(path: Path, time_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """truth_orientation.csv -> (t (K,) s, q (K, 4)); BadSession naming row and column."""
-    from platkit.io.session import check_times, read_table
 
     table = read_table(path, "the true orientation")
     cols = ["t", "qw", "qx", "qy", "qz"]
@@ -69,7 +85,6 @@ def read_truth_orientation(path: Path, time_scale: float = 1.0) -> tuple[np.ndar
 
 
 def read_truth_imu(path: Path) -> dict:
-    from platkit.io.description import load_yaml
 
     data = load_yaml(path, error=BadSession)
     out = {}
@@ -107,8 +122,6 @@ def _heading_offset(q_est: np.ndarray, q_ref: np.ndarray) -> np.ndarray:
 def _session_commands(folder: Path, y: dict, calibration: str | Path | None, platform: str | None,
                       description: str | Path | None):
     """(spec, td, t_cmd (M,), U (M, n_u)) or None when the session has no platform/commands."""
-    from platkit.io.session import TIME_UNITS, check_times, read_table
-    from platkit.model import controls_to_si
 
     name = platform or y["platform"]
     if isinstance(name, str) and name.lower() == "none":
@@ -117,7 +130,6 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
     if name is None or not cpath.is_file():
         return None
     if calibration is not None:
-        from platkit.calibrate.result import read_calibration
 
         cal = read_calibration(calibration)
         if cal.platform != name:
@@ -125,7 +137,6 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
         spec = cal.calibrated_spec()
         td = np.asarray(cal.td, float)
     else:
-        from platkit.plugins import get_platform
 
         options = {"moving_link": y["moving_link"]} if y.get("moving_link") else {}
         spec = get_platform(name, description or y["description"], **options)
@@ -153,13 +164,6 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
                    description: str | Path | None = None, max_repair_s: float = 0.05,
                    level_base: bool = False) -> OrientResult:
     """Estimate the platform's orientation over a session (see the module docstring)."""
-    from platkit.inertial.command_aided import (CommandAidedParams, command_poses, estimate_alignment_from_commands,
-                                                estimate_command_aided, estimate_timing, held_mask)
-    from platkit.inertial.estimator import estimate_platkit, estimate_offline, PlatkitParams
-    from platkit.inertial.paper import PaperParams, estimate_paper
-    from platkit.io.session import TIME_UNITS, read_session_yaml
-    from platkit.kinematics import PlatformModel
-
     if method not in METHODS:
         raise BadInput(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     folder = Path(folder)
@@ -180,7 +184,6 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     cal = ImuCalibration()
     cal_given = imu_calibration is not None
     if cal_given:
-        from platkit.io.description import load_yaml
 
         cal = ImuCalibration.from_dict(load_yaml(imu_calibration, error=BadInput), str(imu_calibration))
     imu_c = cal.apply(imu) if cal_given else imu
@@ -307,7 +310,6 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
 
 
 def _score(result: OrientResult, t_true: np.ndarray, q_true: np.ndarray, absolute_heading: bool) -> None:
-    from platkit.inertial.metrics import heading_aligned_total_error, inclination_error, rmse, total_error
 
     inside = (t_true >= result.t[0]) & (t_true <= result.t[-1])
     if not inside.any():

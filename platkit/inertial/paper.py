@@ -32,7 +32,7 @@ from platkit.errors import BadInput
 from platkit.inertial import quat as Q
 from platkit.inertial.estimator import OrientationEstimate
 from platkit.inertial.filters import cutoff_from_spectrum, lowpass
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 
 
 @dataclass

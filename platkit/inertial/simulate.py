@@ -20,9 +20,21 @@ from pathlib import Path
 import numpy as np
 
 from platkit.errors import BadInput
-from platkit.geometry import (matrix_from_quat, matrix_from_rotvec, quat_conjugate, quat_from_matrix,
-                              quat_multiply, quat_normalize, rotvec_from_quat)
-from platkit.inertial.stream import write_imu_csv
+from platkit.geometry import (
+    matrix_from_quat,
+    matrix_from_rotvec,
+    quat_conjugate,
+    quat_from_matrix,
+    quat_from_rotvec,
+    quat_from_rpy,
+    quat_multiply,
+    quat_normalize,
+    rotvec_from_quat,
+)
+from platkit.io.atomic import atomic_output_dir
+from platkit.io.imu import write_imu_csv
+from platkit.kinematics import PlatformModel
+from platkit.model import controls_from_si
 
 G_STANDARD = 9.80665
 
@@ -150,7 +162,6 @@ def smooth_motion_from_steps(t_cmd, q_cmd, X_cmd, rate_hz: float, move_s: float,
         s = np.clip((t[sel] - t_cmd[i] - lag_s) / move_s, 0.0, 1.0) if i else np.ones(sel.sum())
         s = s**3 * (10 - 15 * s + 6 * s**2)
         d = rotvec_from_quat(quat_multiply(quat_conjugate(q_cmd[prev]), q_cmd[i]))
-        from platkit.geometry import quat_from_rotvec
 
         q[sel] = quat_multiply(q_cmd[prev][None, :], quat_from_rotvec(s[:, None] * d[None, :]))
         X[sel] = X_cmd[prev] + s[:, None] * (X_cmd[i] - X_cmd[prev])
@@ -177,8 +188,6 @@ def platform_imu_session(spec, td_true, td_model, rng: np.random.Generator, n_co
     (the model's poses), ``t``, ``q_true`` (N, 4) q_base_from_platform, ``X_true`` (N, 3), and
     the IMU arrays of :func:`imu_from_motion`.
     """
-    from platkit.geometry import quat_from_rpy
-    from platkit.kinematics import PlatformModel
 
     model = PlatformModel(spec)
     if controls_fraction is not None:
@@ -211,8 +220,6 @@ def write_platform_imu_session(sim: dict, spec, out: str | Path, truth_imu: dict
     sensor's true errors, keys as docs/inertial.md lists them). Written whole or not at all."""
     import yaml
 
-    from platkit.io.atomic import atomic_output_dir
-    from platkit.model import controls_from_si
 
     rate = 1.0 / float(np.mean(np.diff(sim["t"])))
     with atomic_output_dir(out) as tmp:

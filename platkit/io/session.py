@@ -3,7 +3,7 @@ C3D file) and optionally imu.csv. See docs/session-format.md.
 
 ``platform: none`` (or null) in session.yaml is an IMU-only recording: it has no stand, so nothing
 is checked against controls and commands.csv may be absent; imu.csv is then required. imu.csv is
-read by :func:`platkit.inertial.stream.read_imu_csv`, the one IMU reader, which repairs short gaps
+read by :func:`platkit.io.imu.read_imu_csv`, the one IMU reader, which repairs short gaps
 (and says so in ``Session.imu_notes``) and names the file, line and column of anything else.
 
 Units are declared in session.yaml, never guessed. Everything is converted to SI on reading:
@@ -21,9 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from platkit.errors import BadInput, BadSession
-from platkit.inertial.stream import DEFAULT_MAX_REPAIR_S, IMU_COLUMNS, ImuStream, read_imu_csv
+from platkit.io.c3d import read_c3d_markers
 from platkit.io.description import load_yaml
+from platkit.io.imu import DEFAULT_MAX_REPAIR_S, IMU_COLUMNS, ImuStream, read_imu_csv
 from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
+from platkit.plugins import get_platform
 
 #: session.yaml keys platkit reads; any other key is a typo or a newer format, and an error.
 SESSION_KEYS = (
@@ -32,7 +34,7 @@ SESSION_KEYS = (
 )
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 #: keys of session.yaml's ``imu`` mapping: the spec's rate_hz and frame, and (platkit) the
-#: sensor's full scale, which flags saturated samples (platkit.inertial.stream)
+#: sensor's full scale, which flags saturated samples (platkit.io.imu)
 IMU_KEYS = ("rate_hz", "frame", "gyr_range_rad_s", "acc_range_m_s2")
 #: session.yaml ``platform`` values that mean "no stand" (spec: "none for an IMU-only recording")
 NO_PLATFORM = ("none",)
@@ -78,7 +80,7 @@ class Session:
         poses: the reduced table of poses.csv as a dict (controls (N, n_u), markers (N, M, 3) m,
             n_samples (N, M) or None, t (N,) or None), or None.
         imu_stream: the inertial stream from imu.csv as read and repaired by
-            :func:`platkit.inertial.stream.read_imu_csv` (times in s), or None.
+            :func:`platkit.io.imu.read_imu_csv` (times in s), or None.
         imu_t (J,) s, imu_gyr (J, 3) rad/s, imu_acc (J, 3) m/s^2: the same stream's arrays.
         imu_notes: one sentence per repair made while reading imu.csv, and per axis with
             saturated samples (empty: the file was used as it is).
@@ -372,7 +374,7 @@ def read_session_yaml(folder: Path) -> dict:
 # ----------------------------------------------------------------------------- controls
 
 
-def _check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str) -> np.ndarray:
+def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str) -> np.ndarray:
     """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes."""
     names = spec.control_names
     expected = leading + names
@@ -435,7 +437,6 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     name = name or platform
     desc_path = Path(description) if description is not None else y["description"]
     if spec is None and name is not None:
-        from platkit.plugins import get_platform
 
         options = {k: y[k] for k in ("moving_link", "base_link") if y[k]}
         try:
@@ -468,7 +469,7 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
                 f"{cpath}: column {extra[0]!r} is not a control of the {spec.name} stand; expected columns "
                 f"t, {', '.join(spec.control_names)} (is this a session for another stand?)"
             )
-        s.commands = _check_controls(table, spec, ["t"], s.length_unit)
+        s.commands = check_controls(table, spec, ["t"], s.length_unit)
         t = table.column("t") * tscale
         check_times(table, t)
         s.command_t = t
@@ -477,7 +478,6 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     if y["markers_file"]:
         mpath = folder / y["markers_file"]
         if mpath.suffix.lower() == ".c3d":
-            from platkit.io.c3d import read_c3d_markers
 
             t, xyz = read_c3d_markers(mpath, s.marker_names + s.base_marker_names)
             t = t + y["markers_time_offset"]
@@ -561,7 +561,7 @@ def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> Non
     leading = (["t"] if "t" in table.header else []) + s.spec.control_names
     names = s.marker_names + s.base_marker_names
     _check_marker_header(table, names, leading, optional_suffixes=("n",))
-    controls = _check_controls(table, s.spec, leading[:1] if leading[:1] == ["t"] else [], s.length_unit)
+    controls = check_controls(table, s.spec, leading[:1] if leading[:1] == ["t"] else [], s.length_unit)
     t = None
     if "t" in table.header:
         t = table.column("t") * tscale

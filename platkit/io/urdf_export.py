@@ -22,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.errors import BadInput
+from platkit.errors import BadInput, PlatkitError
 from platkit.geometry import matrix_from_rotvec, matrix_from_rpy
 from platkit.io.atomic import atomic_write_text
+from platkit.io.calibration import read_calibration
 from platkit.model import PlatformSpec
 from platkit.urdf import ORIGIN_FIELDS, SerialChain, parse_urdf_xml, urdf_rpy
 
@@ -158,7 +159,6 @@ def export_calibrated_urdf(spec: PlatformSpec, td, out: str | Path, markers: dic
 def export_calibration(calibration_yaml: str | Path, out: str | Path) -> Path:
     """Write the URDF of a calibration.yaml (``platkit calibrate``'s output) for a URDF stand:
     offsets and origin errors folded in, markers and the motion-capture frame added."""
-    from platkit.calibrate.result import read_calibration
 
     cal = read_calibration(calibration_yaml)
     if cal.spec.extras.get("chain") is None:
@@ -172,7 +172,6 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
 
-    from platkit.errors import PlatkitError
 
     parser = argparse.ArgumentParser(prog="python -m platkit.io.urdf_export", description=export_calibration.__doc__)
     parser.add_argument("calibration", help="calibration.yaml written by platkit calibrate")

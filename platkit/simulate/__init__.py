@@ -5,7 +5,7 @@ seeded), a base-to-mocap transform and marker positions; it sends a command plan
 controls smoothly between commands (minimum-jerk profile), adds a settling transient (a damped
 oscillation after each arrival), solves forward kinematics with the true parameters at the
 motion-capture rate, and records every marker with Gaussian noise and bursts of occlusion.
-Hidden effects enter as model terms (platkit.calibrate.terms.ModelTerm) with their true
+Hidden effects enter as model terms (platkit.terms.ModelTerm) with their true
 parameters: ``terms=[(term, theta), ...]``.
 
     sim = simulate(spec, seed=1, n_poses=60)           # in memory: sim.poses, sim.truth
@@ -25,17 +25,27 @@ import numpy as np
 import yaml
 
 from platkit.calibrate.plan import (
-    Plan, default_marker_layout, feasible, grid_plan_for, random_candidates, read_plan_csv, stand_length_scale,
+    Plan,
+    default_marker_layout,
+    feasible,
+    grid_plan_for,
+    random_candidates,
+    read_plan_csv,
+    stand_length_scale,
 )
-from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.settle import SettleOptions, direction_of_last_motion, last_step, settle
-from platkit.calibrate.terms import ModelTerm
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, matrix_from_rpy, quat_from_matrix, transform
+from platkit.inertial.simulate import write_imu
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.jsonout import plain
+from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, controls_from_si, length_scale
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+from platkit.simulate.effects import simulation_term
+from platkit.terms import ModelTerm
 
 __all__ = ["Truth", "Simulation", "Trajectory", "simulate", "simulate_session", "write_session", "perturb_parameters"]
 
@@ -240,7 +250,6 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     n_base_markers: markers fixed on the base (B1, B2, ...), around the stand on the floor; they
         pin the base-to-mocap transform.
     """
-    from platkit.simulate.effects import simulation_term
 
     length_scale(length_unit)
     if noise_mm < 0 or not 0 <= occlusion < 0.5:
@@ -380,7 +389,6 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     if imu_data is not None and "truth_imu" in imu_data:
         _imu_truth_of_terms(imu_data["truth_imu"], all_terms)
 
-    from platkit.io.session import Session
 
     sess = Session(folder=Path("simulated"), platform=spec.name, spec=spec, description=None,
                    length_unit=length_unit, time_unit="s", marker_names=names, base_marker_names=base_names,
@@ -498,7 +506,6 @@ def _truth_imu(imu: dict) -> dict:
 
 def _write_imu_files(imu: dict, folder: Path) -> dict:
     """imu.csv and the IMU truth files in ``folder``; returns the session.yaml ``imu`` entry."""
-    from platkit.inertial.simulate import write_imu
 
     t = np.asarray(imu["t"], float)
     n = len(t)
@@ -528,7 +535,6 @@ def simulate_session(spec: PlatformSpec | str, out: str | Path, *, poses_only: b
     """Simulate (see :func:`simulate`) and write a session folder; returns its path. ``spec``
     may be a stand name (built with ``description`` and the link options)."""
     if isinstance(spec, str):
-        from platkit.plugins import get_platform
 
         options = {k: v for k, v in (("moving_link", moving_link), ("base_link", base_link)) if v is not None}
         spec = get_platform(spec, description, **options)

@@ -1,4 +1,4 @@
-"""Hidden effects for simulated sessions, as model terms (platkit.calibrate.terms.ModelTerm).
+"""Hidden effects for simulated sessions, as model terms (platkit.terms.ModelTerm).
 
 An effect is put into a simulation as a pair (term, theta): the term's ``control_offset``,
 ``pose_offset`` and ``marker_offset`` are evaluated on the command rows (a PoseSet whose ``t`` is
@@ -17,11 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.terms import ModelTerm
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rotvec
+from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.plugins import default_host
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 #: effect -> (what ``size`` means, default size)
 EFFECT_SIZES = {
@@ -140,7 +142,6 @@ class Compliance(ModelTerm):
     _model: Any = field(default=None, repr=False)
 
     def loads(self, poses: PoseSet) -> np.ndarray:
-        from platkit.kinematics import PlatformModel
 
         if self._model is None:
             self._model = PlatformModel(self.spec)
@@ -215,7 +216,6 @@ def builtin_term(name: str, spec: PlatformSpec, size: float | None, rng: np.rand
 def size_help() -> dict[str, str]:
     """Effect name -> what its size means: a registered effect's ``simulation_term`` docstring,
     else the built-in one's."""
-    from platkit.plugins import default_host
 
     out = {n: f"{what} (default {d:g})" for n, (what, d) in EFFECT_SIZES.items()}
     for name, effect in default_host().effects().items():
@@ -232,7 +232,6 @@ def simulation_term(name: str, spec: PlatformSpec, size: float | None, rng: np.r
                     commands: PoseSet) -> tuple[ModelTerm, np.ndarray]:
     """An effect by name as (term, theta): a registered effect's own ``simulation_term`` if it
     has one, else the built-in simple version."""
-    from platkit.plugins import default_host
 
     registered = default_host().effects().get(name)
     if registered is not None and hasattr(registered, "simulation_term"):

@@ -1,8 +1,8 @@
 """platkit's built-in diagnosis effects, registered through ``platkit_register_effects`` exactly as
 an outside package registers its own.
 
-Each effect is an :class:`platkit.diagnose.effects.Effect`; its terms are
-:class:`platkit.calibrate.terms.ModelTerm` subclasses whose ``theta`` the estimator fits with the
+Each effect is an :class:`platkit.effects.Effect`; its terms are
+:class:`platkit.terms.ModelTerm` subclasses whose ``theta`` the estimator fits with the
 geometry. SI inside; a control offset is in the control's internal unit (m for 'm' controls,
 rad, deg or counts otherwise). Time is measured from the session's first command.
 
@@ -29,11 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.terms import ModelTerm
-from platkit.diagnose.effects import Effect, history
+from platkit.effects import Effect, history
 from platkit.errors import BadInput
 from platkit.hookspecs import hookimpl
+from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.plugins import get_platform
+from platkit.terms import ModelTerm
 
 
 def _where(data: dict) -> dict:
@@ -161,7 +163,6 @@ _MODELS: dict[int, tuple[PlatformSpec, Any]] = {}
 
 def _platform_model(spec: PlatformSpec):
     """One PlatformModel per spec object (building one compiles CasADi functions)."""
-    from platkit.kinematics import PlatformModel
 
     hit = _MODELS.get(id(spec))
     if hit is None or hit[0] is not spec:
@@ -222,7 +223,6 @@ class ComplianceTerm(ModelTerm):
 
     def stand(self) -> PlatformSpec:
         if self.spec is None:
-            from platkit.plugins import get_platform
 
             w = self.where
             self.spec = get_platform(w["platform"], w.get("description"), **(w.get("platform_options") or {}))
@@ -283,7 +283,6 @@ class Compliance(Effect):
     def from_dict(self, data, spec=None):
         where = _where(data)
         if spec is None:
-            from platkit.plugins import get_platform
 
             if not isinstance(where.get("platform"), str):
                 raise BadInput("effect 'compliance': where.platform must name the stand the loads come from")

@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 from platkit.inertial.calibration import gyro_bias_at_rest
-from platkit.inertial.estimator import estimate_platkit, estimate_offline
+from platkit.inertial.estimator import estimate_offline, estimate_platkit
 from platkit.inertial.metrics import inclination_rmse_deg
 from platkit.inertial.paper import PaperParams, estimate_paper
-from platkit.inertial.stream import read_broad
+from platkit.io.imu import read_broad
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "broad"
 

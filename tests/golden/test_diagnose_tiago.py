@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from platkit.calibrate import tiago
-from platkit.calibrate.result import read_calibration
 from platkit.calibrate.settle import load_poses
 from platkit.cli import main
+from platkit.io.calibration import read_calibration
+
 
 @pytest.fixture(scope="module")
 def diagnosed(tmp_path_factory):

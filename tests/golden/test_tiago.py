@@ -23,11 +23,21 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.poses import PoseSet
 from platkit.calibrate.settle import load_poses
-from platkit.calibrate.tiago import (FIGAROH, LEVELS, MARKERS, TRAINING, VALIDATION, bl_rmse_mm, convert,
-                                     default_data_dir, pivot_order, read_postures)
+from platkit.calibrate.tiago import (
+    FIGAROH,
+    LEVELS,
+    MARKERS,
+    TRAINING,
+    VALIDATION,
+    bl_rmse_mm,
+    convert,
+    default_data_dir,
+    pivot_order,
+    read_postures,
+)
 from platkit.io.session import load_session
+from platkit.poses import PoseSet
 
 
 @pytest.fixture(scope="module")

@@ -369,8 +369,8 @@ def test_mimic_joint_before_its_master(tmp_path):
 def test_export_calibration_yaml_with_markers_and_mocap_frame(tmp_path):
     """A calibration.yaml of the rotary rig -> URDF: marker links seen from the added mocap link
     are where the calibrated model puts the markers in the motion-capture frame."""
-    from platkit.calibrate.result import Calibration
     from platkit.geometry import matrix_from_rotvec
+    from platkit.io.calibration import Calibration
     from platkit.io.urdf_export import main as export_main
 
     spec = get_platform("rotary")

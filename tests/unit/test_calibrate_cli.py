@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from platkit.calibrate.result import read_calibration
-from platkit.cli import main
-from platkit.plugins import get_platform
 from test_estimate import Truth
+
+from platkit.cli import main
+from platkit.io.calibration import read_calibration
+from platkit.plugins import get_platform
 
 
 def write_session(folder: Path, truth: Truth, n: int, sigma: float, unit: str = "mm") -> tuple[np.ndarray, np.ndarray]:
@@ -182,9 +182,9 @@ def test_example_session_recovers_the_simulated_truth(tmp_path, capsys):
 def test_model_terms_survive_the_file_and_predict(stewart_session, tmp_path):
     from platkit.calibrate.estimate import calibrate, predict_markers
     from platkit.calibrate.report import write_outputs
-    from platkit.diagnose.effects import effect_library, with_history
-    from platkit.io.session import load_session
     from platkit.calibrate.settle import load_poses
+    from platkit.effects import effect_library, with_history
+    from platkit.io.session import load_session
 
     folder, _ = stewart_session
     spec = get_platform("stewart")

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from platkit.calibrate.poses import PoseSet
-from platkit.diagnose.effects import effect_library, move_direction, term_from_dict, with_history
+from platkit.effects import effect_library, move_direction, term_from_dict, with_history
 from platkit.errors import BadInput
 from platkit.plugins import get_platform
+from platkit.poses import PoseSet
 
 NAMES = ["backlash", "compliance", "thermal_drift", "cyclic_error", "scale_nonlinearity", "settling_lag",
          "marker_slip", "base_tilt"]
@@ -98,7 +98,6 @@ def test_parallel_compliance_load_is_the_static_force_balance(stewart):
 
 def test_serial_compliance_uses_the_urdf_gravity_torques():
     import pinocchio as pin
-
     from platkit_effects import serial_gravity_torques
 
     rotary = get_platform("rotary")

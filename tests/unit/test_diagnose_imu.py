@@ -14,7 +14,7 @@ from platkit.diagnose.imu import MIN_ANGLE_DEG, diagnose_imu, td_covariance
 from platkit.errors import NotIdentifiable
 from platkit.geometry import matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 from platkit.plugins import get_platform
 from platkit.simulate import simulate, write_session
 

@@ -12,12 +12,12 @@ import pytest
 import yaml
 
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.result import read_calibration
 from platkit.cli import main
 from platkit.diagnose.imu import DEG, MIN_TILT_SEPARABILITY, diagnose_imu, frame_gauge, td_covariance, up_in_sensor
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
-from platkit.inertial.stream import ImuStream
+from platkit.io.calibration import read_calibration
+from platkit.io.imu import ImuStream
 from platkit.plugins import default_host, get_platform
 from platkit.simulate import simulate
 

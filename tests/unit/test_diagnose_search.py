@@ -5,10 +5,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from platkit.calibrate.terms import ModelTerm
 from platkit.diagnose import Options, diagnose
 from platkit.plugins import get_platform
 from platkit.simulate import simulate
+from platkit.terms import ModelTerm
 
 
 @pytest.fixture(scope="module")

@@ -2,11 +2,10 @@
 import numpy as np
 import pytest
 
-from platkit.calibrate.poses import PoseSet
 from platkit.diagnose.locate import change_point_test, locate, located
-from platkit.diagnose.stats import (benjamini_hochberg, bic, holm, ljung_box, paired_improvement, runs_test,
-                                    score_test)
+from platkit.diagnose.stats import benjamini_hochberg, bic, holm, ljung_box, paired_improvement, runs_test, score_test
 from platkit.plugins import get_platform
+from platkit.poses import PoseSet
 
 
 def test_holm_and_bh_match_hand_computed_values():

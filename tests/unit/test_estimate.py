@@ -10,14 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from platkit.calibrate.estimate import (CalibrationProblem, calibrate, parameter_scale, point_errors,
-                                        predict_markers)
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.terms import ModelTerm
+from platkit.calibrate.estimate import CalibrationProblem, calibrate, parameter_scale, point_errors, predict_markers
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 
 class Truth:
@@ -272,7 +271,7 @@ def test_plausible_range_stops_the_geometry_wandering_off():
     geometry metres away (a rod of several metres fits the poses as well); the plausible range
     keeps td within 100 typical corrections and names what reached its edge; with the effect
     modelled nothing is near the edge and the amplitude is recovered."""
-    from platkit.diagnose.effects import effect_library, with_history
+    from platkit.effects import effect_library, with_history
     from platkit.simulate import simulate
 
     spec = get_platform("psvr")

@@ -3,14 +3,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_estimate import Truth, prediction_error
 
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.paper import (_mismatch_operator, _residual_from, calibrate_paper, fit_qdelta, marker_frame,
-                                    paper_J, qdelta_jacobian)
-from platkit.calibrate.poses import PoseSet
+from platkit.calibrate.paper import (
+    _mismatch_operator,
+    _residual_from,
+    calibrate_paper,
+    fit_qdelta,
+    marker_frame,
+    paper_J,
+    qdelta_jacobian,
+)
 from platkit.geometry import matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize
 from platkit.plugins import get_platform
-from test_estimate import Truth, prediction_error
+from platkit.poses import PoseSet
 
 
 def _same_rotation(a, b, atol):

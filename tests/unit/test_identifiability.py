@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_estimate import Truth
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate
 from platkit.calibrate.identifiability import null_space_combinations, select_identifiable, singular_values
-from platkit.calibrate.poses import PoseSet
 from platkit.errors import NotIdentifiable
 from platkit.plugins import get_platform
-from test_estimate import Truth
+from platkit.poses import PoseSet
 
 
 def test_a_column_that_is_a_sum_of_others_is_held_with_its_combination():

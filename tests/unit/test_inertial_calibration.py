@@ -6,12 +6,20 @@ import pytest
 
 from platkit.errors import NotIdentifiable
 from platkit.geometry import matrix_from_rotvec, quat_from_rpy, rotvec_from_matrix
-from platkit.inertial.calibration import (ImuCalibration, detect_rest, fit_accelerometer, fit_imu_alignment,
-                                          gyro_bias_at_rest, integrate_gyro, rest_segments, sensor_axis_directions,
-                                          static_means)
+from platkit.inertial.calibration import (
+    ImuCalibration,
+    detect_rest,
+    fit_accelerometer,
+    fit_imu_alignment,
+    gyro_bias_at_rest,
+    integrate_gyro,
+    rest_segments,
+    sensor_axis_directions,
+    static_means,
+)
 from platkit.inertial.filters import LowPass2, cutoff_from_spectrum, lowpass
 from platkit.inertial.simulate import imu_from_motion
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 
 G = 9.80665
 
@@ -153,8 +161,8 @@ def test_static_multi_position_test_end_to_end(tmp_path, capsys):
     YAML it writes is what orient --imu-calibration reads."""
     from platkit.geometry import matrix_from_rotvec, quat_from_matrix
     from platkit.inertial.calibration import main as calibrate_main
-    from platkit.inertial.stream import write_imu_csv
     from platkit.io.description import load_yaml
+    from platkit.io.imu import write_imu_csv
 
     rng = np.random.default_rng(8)
     dirs = np.vstack([np.eye(3), -np.eye(3), rng.normal(size=(6, 3))])

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from platkit.errors import BadInput
-from platkit.geometry import matrix_from_rpy, quat_from_rpy, quat_from_rotvec, quat_multiply
+from platkit.geometry import matrix_from_rpy, quat_from_rotvec, quat_from_rpy, quat_multiply
 from platkit.inertial import quat as Q
-from platkit.inertial.estimator import PlatkitParams, estimate_platkit, estimate_offline
+from platkit.inertial.estimator import PlatkitParams, estimate_offline, estimate_platkit
 from platkit.inertial.metrics import heading_error, inclination_error, inclination_rmse_deg, rmse, total_error
 from platkit.inertial.paper import PaperParams, estimate_paper
 from platkit.inertial.simulate import imu_from_motion
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 
 RATE = 200.0
 

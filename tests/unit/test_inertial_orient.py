@@ -11,7 +11,7 @@ from platkit.cli import main
 from platkit.geometry import matrix_from_rpy
 from platkit.inertial.command_aided import estimate_timing
 from platkit.inertial.simulate import platform_imu_session, write_platform_imu_session
-from platkit.inertial.stream import ImuStream
+from platkit.io.imu import ImuStream
 from platkit.plugins import get_platform
 from platkit.simulate import perturb_parameters
 
@@ -118,7 +118,7 @@ def test_imu_only_session_in_milliseconds(tmp_path):
     """platform: null, time in ms: the sensor frame is the platform frame, heading relative."""
     from platkit.geometry import quat_from_rpy
     from platkit.inertial.simulate import imu_from_motion
-    from platkit.inertial.stream import write_imu_csv
+    from platkit.io.imu import write_imu_csv
 
     t = np.arange(0, 40, 0.01)
     on = t > 8
@@ -193,8 +193,8 @@ def test_session_from_platkit_simulate_with_the_imu_hook(tmp_path):
     """platkit.simulate's imu hook takes imu_for_trajectory; its moves have different lengths
     and a settling wiggle, and the platform moves most of the time: every move is still timed
     and command aiding beats the unaided estimate."""
-    from platkit.simulate import simulate, write_session
     from platkit.inertial.simulate import imu_for_trajectory
+    from platkit.simulate import simulate, write_session
 
     sim = simulate(get_platform("stewart"), seed=2, n_poses=10,
                    imu=imu_for_trajectory(rate_hz=100.0, bias=[0.01, 0, 0, 0.05, 0, 0], noise=[0.002, 0.02]))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from platkit.errors import BadSession
-from platkit.inertial.stream import IMU_COLUMNS, check_stream, read_imu_csv, saturation_mask, write_imu_csv
+from platkit.io.imu import IMU_COLUMNS, check_stream, read_imu_csv, saturation_mask, write_imu_csv
 
 HEADER = ",".join(IMU_COLUMNS)
 
@@ -158,7 +158,7 @@ def test_missing_and_empty_files(tmp_path):
 def test_broad_reader_bad_files(tmp_path):
     import h5py
 
-    from platkit.inertial.stream import read_broad
+    from platkit.io.imu import read_broad
 
     p = tmp_path / "t.hdf5"
     with h5py.File(p, "w") as f:

@@ -6,15 +6,14 @@ import pytest
 import yaml
 
 from platkit.calibrate.settle import load_poses
-from platkit.calibrate.terms import ModelTerm
 from platkit.cli import main
 from platkit.errors import BadInput, BadSession
 from platkit.geometry import matrix_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform, list_platforms
-from platkit.simulate import simulate, simulate_session
-from platkit.simulate import _commands_poseset
+from platkit.simulate import _commands_poseset, simulate, simulate_session
 from platkit.simulate.effects import EFFECT_SIZES, Backlash, builtin_term, parse_effect, simulation_term
+from platkit.terms import ModelTerm
 
 
 def _true_markers(spec, truth, U, terms_offset=None):

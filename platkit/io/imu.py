@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.errors import BadSession
+from platkit.io.atomic import atomic_write_text
 
 IMU_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
 
@@ -242,7 +243,6 @@ def format_imu_csv(t, gyr, acc) -> str:
 
 def write_imu_csv(path: str | Path, t, gyr, acc) -> None:
     """Write ``imu.csv`` atomically (see :func:`format_imu_csv`)."""
-    from platkit.io.atomic import atomic_write_text
 
     atomic_write_text(path, format_imu_csv(t, gyr, acc))
 

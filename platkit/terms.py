@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
+from platkit.poses import PoseSet
 
 
 @dataclass

@@ -18,11 +18,13 @@ from typing import Any
 import numpy as np
 import yaml
 
+from platkit.effects import term_from_dict
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, rotvec_from_quat, transform
 from platkit.io.description import load_yaml
 from platkit.io.jsonout import strict
 from platkit.model import PlatformSpec, length_scale
+from platkit.plugins import get_platform
 
 FORMAT = "platkit-calibration/1"
 
@@ -200,9 +202,8 @@ def read_calibration(path: str | Path) -> Calibration:
     """Read a calibration.yaml (as written by :meth:`Calibration.to_yaml`) and rebuild the stand.
 
     Model terms are rebuilt by the diagnosis effect library when one is installed
-    (``platkit.diagnose.effects.term_from_dict``); BadInput names the file and field otherwise.
+    (``platkit.effects.term_from_dict``); BadInput names the file and field otherwise.
     """
-    from platkit.plugins import get_platform
 
     path = Path(path)
     data = load_yaml(path, error=BadInput)
@@ -280,7 +281,6 @@ def _term_from_dict(tdict, path: Path, k: int, spec: PlatformSpec):
     """Rebuild a model term through the diagnosis effect library (the effect's ``from_dict``)."""
     if not isinstance(tdict, dict) or "effect" not in tdict or not isinstance(tdict.get("parameters"), dict):
         raise BadInput(f"{path}: terms[{k}] must have 'effect' and 'parameters'")
-    from platkit.diagnose.effects import term_from_dict
 
     term, theta = term_from_dict(tdict, spec, where=f"{path}: terms[{k}]")
     std = np.array([np.nan if (tdict["parameters"].get(n) or {}).get("std") is None

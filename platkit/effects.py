@@ -4,7 +4,7 @@ An effect (registered through the ``platkit_register_effects`` hook, see
 plugins/platkit_effects for the built-in ones) knows three things:
 
 - ``candidates(spec, poses, residuals)``: the places it could act on this stand (one
-  :class:`~platkit.calibrate.terms.ModelTerm` per actuator, marker, period, ...), each with
+  :class:`~platkit.terms.ModelTerm` per actuator, marker, period, ...), each with
   its own ``where``;
 - ``regressor(term, spec, poses)``: one number per pose that a person can plot the residual
   against (the direction of the last move, the gravity torque, the time since the start);
@@ -21,10 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.poses import PoseSet
-from platkit.calibrate.terms import ModelTerm
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
+from platkit.plugins import default_host
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 #: relative size (of a control's stroke) below which a change of command is "no move"
 MOVE_TOLERANCE = 1e-6
@@ -61,7 +62,6 @@ class Effect:
 
 def effect_library() -> dict[str, Effect]:
     """Effect name -> effect, from every installed plugin (built-in and outside)."""
-    from platkit.plugins import default_host
 
     return default_host().effects()
 
