@@ -19,7 +19,7 @@ import functools
 import importlib
 from importlib import metadata
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import pluggy
 
@@ -89,7 +89,7 @@ class PluginHost:
         arguments the specification lacks, :class:`PluginConflict` if it adds a stand or effect
         name already taken. The host is unchanged after either error.
         """
-        name = name or getattr(plugin, "__name__", repr(plugin))
+        name = name or str(getattr(plugin, "__name__", repr(plugin)))
         if self.pm.is_registered(plugin):
             return
         label = f"{name} ({source})" if source and source != name else name
@@ -99,7 +99,7 @@ class PluginHost:
             raise PluginConflict(f"plugin name {name!r} is registered twice ({exc})") from None
         except pluggy.PluginValidationError as exc:
             raise BadPlugin(f"plugin {label}: {_one_line(exc)}") from None
-        self._sources[name] = source or getattr(plugin, "__name__", name)
+        self._sources[name] = source or name
         try:
             self._check_pending(plugin, label)
             self.platforms()
@@ -123,7 +123,7 @@ class PluginHost:
     def _factories_by_plugin(self) -> dict[str, list[PlatformFactory]]:
         out: dict[str, list[PlatformFactory]] = {}
         for impl in self.pm.hook.platkit_register_platforms.get_hookimpls():
-            out[impl.plugin_name] = list(impl.function() or [])
+            out[impl.plugin_name] = list(cast("list[PlatformFactory]", impl.function()) or [])
         return out
 
     def platforms(self) -> dict[str, PlatformFactory]:
@@ -144,7 +144,7 @@ class PluginHost:
         found: dict[str, Effect] = {}
         owners: dict[str, str] = {}
         for impl in self.pm.hook.platkit_register_effects.get_hookimpls():
-            for e in impl.function() or []:
+            for e in cast("list[Effect]", impl.function()) or []:
                 owner = self._sources.get(impl.plugin_name, impl.plugin_name)
                 if e.name in found:
                     raise PluginConflict(
