@@ -35,7 +35,9 @@ from typing import Callable, Sequence
 import casadi as ca
 import numpy as np
 
-from platkit.calibrate.identifiability import DEFAULT_REL_TOL, select_identifiable, singular_values
+from platkit.calibrate.identifiability import (DEFAULT_REL_TOL, apply_marker_convention, classify_held, nuisance_gauge,
+                                                select_identifiable, singular_values)
+from platkit.calibrate.plan import reference_poses_for
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import (
     ca_matrix_from_quat,
@@ -679,14 +681,20 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         raise NoConvergence(f"{spec.name} forward kinematics at the nominal parameters", 0, float("nan"),
                             f"{int(np.sum(~st.converged))} of {poses.n_poses} poses have no solution; "
                             "check the platform and the control units")
+    candidates = nuisance.copy()
+    candidates[problem.i_td] = free_mask(spec, free)
+    candidates[problem.i_theta] = True
+    # stage 0: gauge freedoms (what no set of poses fixes, told apart from what these poses do not
+    # excite on the stand's reference poses); the transform and marker coordinates that are gauges
+    # are held, and fixed by the stated convention after the fit
+    gauge = nuisance_gauge(problem, z, candidates, nuisance, reference_poses_for(spec, problem.model), rel_tol)
+    nuisance[gauge.held] = False
+    candidates[gauge.held] = False
     # stage 1: registration only (td held at its nominal), robustly
     reg = robust_fit(problem, z, nuisance, robust, max_iter, progress, "registration")
     rms_before = _rms(reg.state, reg.weights)
     residuals_before = reg.state.r.copy()
     # stage 2: identifiability at the registered start
-    candidates = nuisance.copy()
-    candidates[problem.i_td] = free_mask(spec, free)
-    candidates[problem.i_theta] = True
     st = problem.evaluate(reg.z)
     cand_idx = np.nonzero(candidates)[0]
     # seen and solved; what the registration rejected counts too: the model terms may be what
@@ -703,6 +711,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     if lost_nuisance:
         raise NotIdentifiable(f"the poses cannot fix {', '.join(lost_nuisance)}: the platform must rotate about "
                               "two axes or translate, and each marker be seen in several poses")
+    classify_held(ident, gauge, cand_idx, problem, rel_tol)
     if progress is not None:
         progress("identifiability", {"n_identifiable": len(chosen), "held": [h.name for h in ident.held]})
     active = np.zeros(n_z, bool)
@@ -729,6 +738,14 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         cov = s2 * np.linalg.pinv(JtJ)
     std_full = np.full(n_z, np.nan)
     std_full[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    z, gauge_map = apply_marker_convention(problem, z, gauge)
+    if gauge.held and not np.array_equal(gauge_map, np.eye(n_z)):  # the covariance in the convention's gauge
+        cov_full = np.zeros((n_z, n_z))
+        cov_full[np.ix_(active, active)] = cov
+        cov_full = gauge_map @ cov_full @ gauge_map.T
+        cov = cov_full[np.ix_(active, active)]
+        moved = active | np.any(gauge_map != np.eye(n_z), axis=1)
+        std_full[moved] = np.sqrt(np.clip(np.diag(cov_full)[moved], 0, None))
     sv = singular_values(Jw * problem.scale[active][None, :])
     # report
     free_td = free_mask(spec, free)
@@ -747,6 +764,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         "at_plausible_limit": [n for n in problem.beyond_plausible(z) if active[problem.names.index(n)]],
         "plausible_range": None if plausible is None else f"nominal +- {plausible:g} typical corrections",
         "rel_tol": rel_tol,
+        "gauge": gauge.to_dict(),
     })
     td, w, t, m, theta = problem.split(z)
     theta_std, k = [], problem.i_theta.start

@@ -16,6 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from platkit.errors import NotIdentifiable
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec
+from platkit.poses import PoseSet
+
 #: a column keeping less than this fraction of its norm outside the chosen span is not identifiable
 DEFAULT_REL_TOL = 1e-6
 
@@ -32,10 +36,16 @@ class HeldParameter:
     reason: str
     combination: dict[str, float] = field(default_factory=dict)
     remaining: float = 0.0  # fraction of the column's norm outside the chosen span
+    #: GAUGE (no set of poses the stand can take fixes it: a symmetry, fixed by a convention),
+    #: NOT_EXCITED (the stand's reach fixes it, these poses do not), or '' (not classified)
+    kind: str = ""
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "reason": self.reason, "remaining_fraction": float(self.remaining),
-                "combination": {k: float(v) for k, v in self.combination.items()}}
+        out = {"name": self.name, "reason": self.reason, "remaining_fraction": float(self.remaining),
+               "combination": {k: float(v) for k, v in self.combination.items()}}
+        if self.kind:
+            out["kind"] = self.kind
+        return out
 
 
 @dataclass
@@ -154,3 +164,210 @@ def null_space_combinations(J: np.ndarray, names: list[str], scale: np.ndarray, 
                 combo[names[j]] = float(v[j])
         out.append(combo)
     return out
+
+
+# ---------------------------------------------------------------------------- gauge freedoms
+#
+# A direction of the unknowns that changes no marker is either a *gauge*, a symmetry of the stand
+# and the measurement that no set of poses can break (shifting every marker by c and the mocap
+# frame by -A R c when the moving part never turns; a common shift of a hexapod's base joints and
+# the mocap frame), or a direction *these* poses fail to excite (the stand could turn about a
+# second axis, and did not). The two are told apart on the stand's reference poses, the fixed set
+# of random reachable poses `platkit plan` scores designs over: what is invisible there too is a
+# gauge. Gauges are fixed by a stated convention and reported; an unexcited transform or marker is
+# an error (nothing can be predicted without them), an unexcited stand parameter is held at
+# nominal and reported.
+
+GAUGE, NOT_EXCITED = "gauge", "not_excited"
+#: a marker shift c is invisible when R_n c is the same at every pose: the singular values of the
+#: stacked (R_n - R_0) below this are zero
+ROTATION_FIXED_TOL = 1e-9
+
+
+def rotation_fixed_directions(R: np.ndarray) -> np.ndarray:
+    """(3, k) orthonormal directions c of the moving frame with R_n c the same for every rotation
+    R (N, 3, 3): all three when the moving part never turns, its axis when it turns about one."""
+    R = np.asarray(R, float)
+    if len(R) < 2:
+        return np.eye(3)
+    D = (R[1:] - R[0]).reshape(-1, 3)
+    _, s, Vt = np.linalg.svd(D)
+    s_full = np.zeros(3)
+    s_full[: len(s)] = s
+    return Vt[s_full <= ROTATION_FIXED_TOL].T
+
+
+def _outside_span(A: np.ndarray, cols: list[int], j: int) -> float:
+    """Fraction of the norm of column j of A outside the span of columns ``cols``."""
+    v = A[:, j]
+    nv = np.linalg.norm(v)
+    if nv == 0:
+        return 0.0
+    if not cols:
+        return 1.0
+    Q, _ = np.linalg.qr(A[:, cols])
+    return float(np.linalg.norm(v - Q @ (Q.T @ v)) / nv)
+
+
+@dataclass
+class Gauge:
+    """The gauge analysis of one calibration problem (see :func:`nuisance_gauge`).
+
+    held: indices into the problem's unknowns z of the transform and marker coordinates held as
+    gauges; J_ref (rows, len(ref_idx)): scaled Jacobian over the reference poses of the unknowns
+    ``ref_idx`` (every candidate that is not a model term); shift: (3, k) marker-shift directions
+    of the moving frame (:func:`rotation_fixed_directions` of the reference poses)."""
+
+    held: list[int]
+    held_names: list[str]
+    ref_idx: np.ndarray
+    J_ref: np.ndarray
+    rank_ref: int
+    shift: np.ndarray
+    U_ref: np.ndarray  # (N, n_u) the reference poses' controls
+    P_ref: np.ndarray  # (N, n_p) and poses
+    conventions: list[str] = field(default_factory=list)
+    n_gauge: int = 0
+    n_not_excited: int = 0
+    labels: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"dimensions": int(self.n_gauge), "not_excited": int(self.n_not_excited),
+                "conventions": list(self.conventions),
+                "marker_shift_directions": [[float(x) for x in c] for c in self.shift.T],
+                "decided_on": f"the stand's {len(self.U_ref)} reference poses, those `platkit plan` scores designs over"}
+
+
+def _weighted_jacobian(problem, z, idx) -> np.ndarray:
+    """Scaled Jacobian (rows, len(idx)) of the problem's seen observations, weighted as the fit."""
+    st = problem.evaluate(z)
+    used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
+    J = (st.J[..., idx] * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
+    return J.reshape(-1, len(idx)) * problem.scale[idx][None, :]
+
+
+def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, reference: tuple[np.ndarray, np.ndarray],
+                   rel_tol: float = DEFAULT_REL_TOL) -> Gauge:
+    """Which transform and marker coordinates are gauges, at the start ``z`` of a calibration.
+
+    problem: a :class:`~platkit.calibrate.estimate.CalibrationProblem`; candidates, nuisance: (n_z,)
+    masks of the unknowns the fit may estimate and of the transform and markers among them;
+    reference: (controls (N, n_u), poses (N, n_p)) of the stand's reference poses
+    (:func:`platkit.calibrate.plan.reference_poses_for`). The Jacobian over the stand's reference poses comes from a term-free problem of the same
+    class and stand. Raises NotIdentifiable naming the transform or marker coordinates these
+    poses fail to fix where the reference poses fix them.
+    """
+    names = problem.names
+    n_td_theta = problem.i_theta.start
+    ref_idx = np.nonzero(candidates[:n_td_theta])[0]
+    U_ref, P_ref = reference
+    ref_poses = PoseSet(problem.spec.name, U_ref, np.zeros((len(U_ref), problem.M, 3)), list(problem.poses.marker_names),
+                        length_unit=problem.poses.length_unit, source="the stand's reference poses")
+    ref_problem = type(problem)(problem.spec, ref_poses)
+    st = ref_problem.evaluate(np.asarray(z, float)[:n_td_theta])
+    J_ref = (st.J[st.converged][..., ref_idx].reshape(-1, len(ref_idx))) * problem.scale[ref_idx][None, :]
+    tiers_ref = problem.tiers[ref_idx].tolist()
+    rank_ref = len(select_identifiable(J_ref, [names[i] for i in ref_idx], np.ones(len(ref_idx)), tiers_ref, rel_tol).chosen)
+    q_ref, _, _, ok = problem.kinematics(np.asarray(z, float)[problem.i_td], U_ref, P_ref)
+    R = matrix_from_quat(q_ref[ok])
+    shift = rotation_fixed_directions(R)
+    # the data's own view of the transform and markers
+    nuis_idx = np.nonzero(nuisance)[0]
+    Jn = _weighted_jacobian(problem, z, nuis_idx)
+    ident = select_identifiable(Jn, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)), [0] * len(nuis_idx), rel_tol)
+    pos = {int(i): k for k, i in enumerate(ref_idx)}
+    ref_cols = [pos[int(i)] for i in nuis_idx]
+    Jr = J_ref[:, ref_cols]
+    chosen = list(ident.chosen)
+    lost = [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen and _outside_span(Jr, chosen, k) >= rel_tol]
+    n_gauge_nuis = len(nuis_idx) - len(select_identifiable(Jr, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)),
+                                                           [0] * len(nuis_idx), rel_tol).chosen)
+    if lost or len(nuis_idx) - len(chosen) > n_gauge_nuis:
+        what = lost or [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen]
+        raise NotIdentifiable(
+            f"the poses cannot fix {', '.join(names[i] for i in what)}: the stand's reach would, these poses do not "
+            "(turn or move the platform more, and see each marker in several poses)")
+    held = [int(nuis_idx[k]) for k in range(len(nuis_idx)) if k not in chosen]
+    return Gauge(held, [names[i] for i in held], ref_idx, J_ref, rank_ref, shift, U_ref, P_ref)
+
+
+def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, problem, rel_tol: float = DEFAULT_REL_TOL) -> None:
+    """Label each held parameter of ``ident`` (chosen over ``cand_idx``, the gauge-held transform
+    and markers left out) GAUGE or NOT_EXCITED, add the gauge-held transform and marker
+    coordinates to ``ident.held``, count the gauge and unexcited directions and state the
+    conventions in ``gauge``. Model terms are not judged (the reference poses carry none)."""
+    pos = {int(i): k for k, i in enumerate(gauge.ref_idx)}
+    chosen_ref = [pos[int(cand_idx[k])] for k in ident.chosen if int(cand_idx[k]) in pos]
+    by_name = {problem.names[i]: i for i in cand_idx}
+    td_gauge, td_unexcited = [], []
+    for h in ident.held:
+        i = by_name.get(h.name)
+        if i is None or int(i) not in pos:
+            continue
+        if _outside_span(gauge.J_ref, chosen_ref, pos[int(i)]) < rel_tol:
+            h.kind = GAUGE
+            h.reason += "; no set of poses the stand can take fixes it (a symmetry): held at nominal by convention"
+            td_gauge.append(h.name)
+        else:
+            h.kind = NOT_EXCITED
+            h.reason += "; the stand's reach would fix it, these poses do not excite it: held at nominal"
+            td_unexcited.append(h.name)
+    for i in gauge.held:
+        ident.held.insert(0, HeldParameter(problem.names[i], "the transform and the markers trade against each other "
+                                           "the same way at every pose the stand can take (a gauge)", {}, 0.0, GAUGE))
+    n_nonterm_chosen = len(chosen_ref)
+    gauge.n_gauge = len(gauge.ref_idx) - gauge.rank_ref
+    gauge.n_not_excited = max(0, gauge.rank_ref - n_nonterm_chosen)
+    gauge.labels = {h.name: h.kind for h in ident.held if h.kind}
+    k = gauge.shift.shape[1]
+    if gauge.held:
+        if k == 3:
+            gauge.conventions.append(
+                "the moving part never turns: a common shift c of every marker and the shift -A R c of the motion-capture "
+                "frame change nothing; the markers' centroid is put at the moving frame's origin")
+        elif k == 1:
+            axis = ", ".join(f"{x:+.4f}" for x in gauge.shift[:, 0])
+            gauge.conventions.append(
+                f"the moving part turns about one axis only ({axis} in the moving frame): a common shift of every marker "
+                "along it and the opposite shift of the motion-capture frame change nothing; the markers' centroid is "
+                "put in the plane through the moving frame's origin normal to that axis")
+        rest = len(gauge.held) - k
+        if rest > 0:
+            gauge.conventions.append(
+                f"{rest} more direction(s) of the transform and markers no pose can fix (a turn of the motion-capture "
+                "frame with the markers about the only axis the stand turns about, or a plane it moves in): "
+                f"{', '.join(gauge.held_names)} held at the initial rigid registration, the others measured against them")
+    if td_gauge:
+        gauge.conventions.append(f"stand parameters in a symmetry held at nominal: {', '.join(td_gauge)}")
+
+
+def apply_marker_convention(problem, z, gauge: Gauge) -> tuple[np.ndarray, np.ndarray]:
+    """Move ``z`` along the marker-shift gauge so that the markers' centroid has no component
+    along ``gauge.shift`` (the stated convention). Returns (z', T) with z' = T z near z (T (n_z,
+    n_z), linear: for the covariance, cov' = T cov T^T). A no-op (T = I) when there is no shift
+    gauge, or when the shift would change a prediction (model terms that turn the moving frame)."""
+    z = np.asarray(z, float)
+    n_z, M = problem.n_z, problem.M
+    T = np.eye(n_z)
+    if not gauge.held or M == 0:
+        return z, T
+    # the moving frame's turns under the fitted td (its origin errors turn the fixed axis too)
+    q, _, _, ok = problem.kinematics(z[problem.i_td], gauge.U_ref, gauge.P_ref)
+    R = matrix_from_quat(q[ok])
+    C = gauge.shift = rotation_fixed_directions(R)
+    if C.shape[1] == 0 or len(R) == 0:
+        return z, T
+    A = matrix_from_rotvec(z[problem.i_w])
+    G = np.zeros((n_z, C.shape[1]))
+    G[problem.i_m] = np.tile(C, (M, 1))
+    G[problem.i_t] = -(A @ R[0] @ C)
+    K = np.zeros((C.shape[1], n_z))
+    K[:, problem.i_m] = -np.tile(C.T, (1, M)) / M
+    T = T + G @ K
+    z_new = z + G @ (K @ z)
+    before = problem.evaluate(z, with_jac=False).r
+    after = problem.evaluate(z_new, with_jac=False).r
+    change = np.nanmax(np.abs(after - before)) if np.isfinite(before).any() else 0.0
+    if not change <= 1e-9 * max(1.0, float(np.nanmax(np.abs(problem.poses.markers)))):
+        return z, np.eye(n_z)
+    return z_new, T

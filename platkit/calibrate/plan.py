@@ -32,6 +32,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from platkit.calibrate.identifiability import DEFAULT_REL_TOL, select_identifiable
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.geometry import ca_matrix_from_quat, skew
 from platkit.io.session import check_controls, read_table
@@ -409,6 +410,39 @@ def reference_poses(spec: PlatformSpec, margin: float = 0.1, model: PlatformMode
     return hit[1]
 
 
+def reference_poses_for(spec: PlatformSpec, model: PlatformModel | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(controls (N, n_u), poses (N, n_p)) of the stand's reference poses (:func:`reference_poses`),
+    over which calibration tells a gauge (invisible at every pose the stand takes) from a direction
+    a session's poses fail to excite. A stand with unbounded strokes (a continuous joint) is
+    sampled over one turn, or +- 1 unit, about its neutral controls, with the same seed."""
+    lo, hi = spec.control_bounds()
+    if np.all(np.isfinite(lo) & np.isfinite(hi)):
+        ref = reference_poses(spec, model=model)
+        return ref.controls, ref.poses
+    u0 = spec.neutral_u()
+    half = np.array([np.pi if c.unit == "rad" else 1.0 for c in spec.controls])
+    lo = np.where(np.isfinite(lo), lo, u0 - half)
+    hi = np.where(np.isfinite(hi), hi, u0 + half)
+    rng = np.random.default_rng(REFERENCE_SEED)
+    U = lo + (0.1 + 0.8 * rng.uniform(size=(2 * REFERENCE_POSES, spec.n_u))) * (hi - lo)
+    ok, P = feasible(spec, U, model=model)
+    return U[ok][:REFERENCE_POSES], P[ok][:REFERENCE_POSES]
+
+
+def gauge_counts(J_plan: np.ndarray, J_reference: np.ndarray, names: list[str], units: list[str], n_td: int,
+                 rel_tol: float = DEFAULT_REL_TOL) -> dict:
+    """What `platkit calibrate` will decide for these poses, by the same test
+    (:func:`platkit.calibrate.identifiability.select_identifiable`, the same tiers and scales):
+    'gauge_dimensions', the directions no set of poses fixes (fixed by its stated conventions,
+    docs/calibration.md), and 'not_excited', those the reference poses fix and these do not.
+    J_plan, J_reference: (N, 3M, n_theta) identification Jacobians; n_td: the stand's columns first."""
+    scale = np.array([1e-3 if u in ("m", "rad", "1", "") else 1.0 for u in units])
+    tiers = [1] * n_td + [0] * (len(names) - n_td)
+    rank_ref = len(select_identifiable(J_reference.reshape(-1, len(names)), names, scale, tiers, rel_tol).chosen)
+    rank_plan = len(select_identifiable(J_plan.reshape(-1, len(names)), names, scale, tiers, rel_tol).chosen)
+    return {"gauge_dimensions": int(len(names) - rank_ref), "not_excited": int(max(0, rank_ref - rank_plan))}
+
+
 def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.Generator, sigma: float,
                  n_markers: int = 5, markers: np.ndarray | None = None, candidates: Plan | None = None,
                  margin: float = 0.1) -> tuple[Plan, dict]:
@@ -431,6 +465,7 @@ def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.G
         np.round(np.linspace(0, len(cand.controls) - 1, n)).astype(int))
     baseline = plan_uncertainty(ij.J[first], J_ref, sigma, ij.names, ij.units, ref_sub)
     info.update(kind="d_optimal", candidates=int(len(cand.controls)))
+    info.update(gauge_counts(ij.J[sel], J_ref, ij.names, ij.units, ij.n_td))
     return Plan(cand.controls[sel], "d_optimal", info, cand.poses[sel]), baseline
 
 
@@ -442,7 +477,9 @@ def evaluate_plan(spec: PlatformSpec, plan: Plan, sigma: float, n_markers: int =
     ij = identification_jacobian(spec, plan.controls, markers, P=plan.poses, model=model)
     ref = reference_poses(spec, margin, model)
     J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
-    return plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units)
+    out = plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units)
+    out.update(gauge_counts(ij.J, J_ref, ij.names, ij.units, ij.n_td))
+    return out
 
 
 # ----------------------------------------------------------------------------- files

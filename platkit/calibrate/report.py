@@ -64,6 +64,7 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         "held_at_nominal": [h["name"] for h in ident.get("held_at_nominal", [])],
         "weakly_identified": list(ident.get("weakly_identified", [])),
         "at_plausible_limit": list(ident.get("at_plausible_limit", [])),
+        "gauge": ident.get("gauge"),  # what no pose fixes, the conventions that fix it (docs/calibration.md)
         "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
                           "over the observations kept by the robust loss",
     }

@@ -1,0 +1,157 @@
+"""Gauge freedoms: what no set of poses can fix is fixed by a stated convention and reported, never
+an error; what the poses fail to excite is told apart from it on the stand's reference poses, the
+same way `platkit plan` decides; the translation-only gantry and a turntable go through simulate,
+calibrate, predict and diagnose."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from test_estimate import Truth, prediction_error
+
+from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.identifiability import GAUGE, NOT_EXCITED, rotation_fixed_directions
+from platkit.calibrate.plan import Plan, evaluate_plan, feasible
+from platkit.cli import main
+from platkit.errors import NotIdentifiable
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec
+from platkit.kinematics import PlatformModel
+from platkit.plugins import get_platform
+
+REPO = Path(__file__).resolve().parents[2]
+GANTRY = REPO / "descriptions" / "gantry_xyz.urdf"
+TURNTABLE = """<?xml version="1.0"?>
+<robot name="turntable">
+  <link name="base"/><link name="table"/>
+  <joint name="spin" type="revolute"><parent link="base"/><child link="table"/>
+    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+def test_the_fixed_directions_of_a_set_of_rotations():
+    assert rotation_fixed_directions(np.repeat(np.eye(3)[None], 4, axis=0)).shape == (3, 3)
+    turns = matrix_from_rotvec(np.outer([0.1, -0.4, 0.9], [0.0, 0.6, 0.8]))  # about one axis
+    axis = rotation_fixed_directions(turns)
+    assert axis.shape == (3, 1) and abs(axis[:, 0] @ [0.0, 0.6, 0.8]) == pytest.approx(1.0)
+    assert rotation_fixed_directions(matrix_from_rotvec([[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0]])).shape == (3, 0)
+
+
+def test_a_translation_only_stand_calibrates_under_the_marker_centroid_convention():
+    spec = get_platform("urdf", GANTRY)
+    truth = Truth(spec, seed=3, n_markers=4, marker_spread=0.05)
+    cal = calibrate(truth.poses(50, 1e-4, spread=0.45), spec)
+    gauge = cal.identifiability["gauge"]
+    assert gauge["dimensions"] == 21 and gauge["not_excited"] == 0
+    assert "markers' centroid is put at the moving frame's origin" in gauge["conventions"][0]
+    # the convention holds, and costs nothing: the fit is at the noise floor
+    assert cal.marker_positions.mean(axis=0) == pytest.approx(np.zeros(3), abs=1e-12)
+    assert cal.rms_after < 2.2e-4  # 0.1 mm per axis: 0.17 mm 3-D
+    assert np.all(np.isfinite(cal.marker_std)) and np.all(cal.marker_std < 1e-4)
+    kinds = {h["name"]: h.get("kind") for h in cal.identifiability["held_at_nominal"]}
+    assert set(kinds.values()) == {GAUGE}
+    assert prediction_error(cal, truth) < 0.05e-3  # against the noise-free truth at new commands
+
+
+def test_plan_and_calibrate_agree_on_the_gantry_and_the_stewart():
+    for spec, seed in ((get_platform("urdf", GANTRY), 4), (get_platform("stewart"), 5)):
+        truth = Truth(spec, seed=seed, n_markers=4, marker_spread=0.05)
+        poses = truth.poses(40, 1e-4, spread=0.3)
+        cal = calibrate(poses, spec)
+        ok, P = feasible(spec, poses.controls)
+        planned = evaluate_plan(spec, Plan(poses.controls, "given", {}, P), 1e-4, n_markers=4)
+        assert planned["identifiable"] is True and planned["not_excited"] == 0 == cal.identifiability["gauge"]["not_excited"]
+        assert planned["never_identifiable"] == planned["gauge_dimensions"] == cal.identifiability["gauge"]["dimensions"]
+
+
+def test_poses_that_do_not_excite_the_markers_are_an_error_and_plan_says_so():
+    spec = get_platform("stewart")
+    truth = Truth(spec, seed=6)
+    poses = truth.poses(2, 1e-4)
+    with pytest.raises(NotIdentifiable, match="the poses cannot fix marker.*the stand's reach would"):
+        calibrate(poses, spec)
+    ok, P = feasible(spec, poses.controls)
+    planned = evaluate_plan(spec, Plan(poses.controls, "given", {}, P), 1e-4, n_markers=4)
+    assert planned["identifiable"] is False and planned["not_excited"] > 0
+
+
+def _poses_with_joints_held(spec, truth, held):
+    U = truth.controls(40, spread=0.3)
+    U[:, held] = spec.neutral_u()[held]
+    poses = truth.poses(1, 1e-4)
+    poses.controls, poses.markers = truth.observe(U, 1e-4)
+    ok, P = feasible(spec, poses.controls)
+    return poses, evaluate_plan(spec, Plan(poses.controls, "given", {}, P), 1e-4, n_markers=4)
+
+
+def test_stand_parameters_these_poses_do_not_excite_are_held_and_counted_as_plan_counts_them():
+    spec = get_platform("urdf")  # the default three-joint arm
+    poses, planned = _poses_with_joints_held(spec, Truth(spec, seed=7, n_markers=4, marker_spread=0.05), [2])
+    cal = calibrate(poses, spec)  # the elbow never moves: what it would show is held at nominal
+    gauge = cal.identifiability["gauge"]
+    assert planned["identifiable"] is False
+    assert (gauge["dimensions"], gauge["not_excited"]) == (planned["gauge_dimensions"], planned["not_excited"]) == (15, 4)
+    unexcited = [h for h in cal.identifiability["held_at_nominal"] if h.get("kind") == NOT_EXCITED]
+    assert unexcited and all("these poses do not excite it" in h["reason"] for h in unexcited)
+    # the base yaw never turning leaves the arm in one vertical plane: a marker is not fixed
+    poses, planned = _poses_with_joints_held(spec, Truth(spec, seed=7, n_markers=4, marker_spread=0.05), [0])
+    with pytest.raises(NotIdentifiable, match="the poses cannot fix marker.*the stand's reach would"):
+        calibrate(poses, spec)
+    assert planned["identifiable"] is False and planned["not_excited"] > 0
+
+
+def test_a_turntable_turns_about_one_axis_the_convention_is_along_it(tmp_path):
+    path = tmp_path / "turntable.urdf"
+    path.write_text(TURNTABLE, encoding="utf-8")
+    spec = get_platform("urdf", path)
+    truth = Truth(spec, seed=8, n_markers=4, marker_spread=0.05)
+    cal = calibrate(truth.poses(30, 1e-4, spread=0.45), spec)
+    gauge = cal.identifiability["gauge"]
+    assert gauge["not_excited"] == 0 and gauge["marker_shift_directions"] == [pytest.approx([0, 0, 1])]
+    assert "turns about one axis only" in gauge["conventions"][0]
+    assert any("initial rigid registration" in c for c in gauge["conventions"])  # the turn with the mocap frame
+    assert cal.marker_positions.mean(axis=0)[2] == pytest.approx(0.0, abs=1e-12)
+    assert prediction_error(cal, truth) < 0.05e-3
+
+
+def _true_markers(spec, truth: dict, U):
+    td = np.array([truth["parameters"].get(p.name, {"value": p.nominal})["value"] for p in spec.parameters])
+    fb = PlatformModel(spec).forward_batch(U, td=td, strict=False)
+    S = np.array([truth["markers"][m] for m in sorted(truth["markers"])])
+    T = np.array(truth["mocap_from_base"])
+    pts = fb.X[:, None] + np.einsum("nij,mj->nmi", matrix_from_quat(fb.q), S)
+    return pts @ T[:3, :3].T + T[:3, 3]
+
+
+def test_the_gantry_goes_through_simulate_calibrate_predict_and_diagnose(tmp_path, capsys):
+    session, out = tmp_path / "session", tmp_path / "cal"
+    assert main(["simulate", "--platform", "urdf", "--description", str(GANTRY), "--out", str(session), "--poses", "50",
+                 "--poses-only", "--seed", "11", "--noise-mm", "0.2"]) == 0
+    assert main(["calibrate", str(session), "--quiet", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["gauge"]["dimensions"] == 21 and report["gauge"]["conventions"]
+    spec = get_platform("urdf", GANTRY)
+    rng = np.random.default_rng(12)
+    lo, hi = spec.control_bounds()
+    U = lo + rng.uniform(0.05, 0.95, (30, 3)) * (hi - lo)
+    with open(tmp_path / "fresh.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(spec.control_names)
+        w.writerows((U * 1e3).tolist())  # the session's unit: mm
+    assert main(["predict", "--calibration", str(out / "calibration.yaml"), "--commands", str(tmp_path / "fresh.csv"),
+                 "--out", str(tmp_path / "pred.csv")]) == 0
+    with open(tmp_path / "pred.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    truth = yaml.safe_load((session / "truth.yaml").read_text())
+    names = sorted(truth["markers"])
+    pred = np.array([[[float(r[f"{m}_{a}"]) for a in "xyz"] for m in names] for r in rows]) * 1e-3
+    err = np.linalg.norm(pred - _true_markers(spec, truth, U), axis=2)
+    # 0.2 mm per axis, averaged over the settled window: the fit's own rms is ~0.04 mm
+    assert np.sqrt(np.mean(err**2)) < 0.06e-3, np.sqrt(np.mean(err**2))
+    assert main(["diagnose", str(session), "--calibration", str(out / "calibration.yaml"), "--out",
+                 str(tmp_path / "diag")]) == 0
+    assert json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["findings"] == []
