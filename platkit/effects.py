@@ -158,3 +158,135 @@ def history(poses: PoseSet, key: str, spec: PlatformSpec | None = None) -> np.nd
     if key == "row":
         return np.arange(poses.n_poses, dtype=float)
     raise KeyError(key)
+
+
+# ---------------------------------------------------------------------------- IMU effects
+class ImuEffect(Effect):
+    """An effect an IMU riding the moving part sees, registered through ``platkit_register_effects``
+    like a motion-capture effect. One implementation serves the IMU simulator
+    (:mod:`platkit.inertial.simulate`) and the IMU diagnosis (:mod:`platkit.diagnose.imu`).
+
+    The sensor model both use (S sensor axes, P platform, B the model's base, L the level frame,
+    SI throughout; ``theta_e`` each effect's parameters):
+
+        gyr(t) = R_SP w_P(t) + b_g + sum_e gyro_bias_e(theta_e, t - t_ref)
+        acc(t) = k * (R_SP R_BP(t)^T (a_B(t) - R_LB^T (0, 0, -g))) + b_a + sum_e accelerometer_bias_e(theta_e, t - t_ref)
+
+    R_SP = the product of every effect's :meth:`sensor_from_platform`, R_LB = the product of every
+    effect's :meth:`level_from_base` (identity unless an effect overrides them); the constant
+    biases b_g, b_a and the axes' gravity scales k are the sensor's own: the base model, never a
+    finding. ``t_ref`` is the caller's reference time (the simulator: the first sample; the
+    diagnosis: the middle of the session, where a constant bias is taken); an effect whose form
+    changes with it must say so.
+
+    Class attributes:
+
+    - ``sensor``: ``'gyro'`` (tested on the rotations between holds) or ``'accelerometer'``
+      (tested on the specific force at the holds);
+    - ``parameter_names`` (SI values in the order of ``theta``), ``display_unit`` and
+      ``display_scale`` (SI times this is what people read, e.g. rad -> deg);
+    - ``min_size``: an estimate smaller than this (display unit, :meth:`size`) is not named;
+    - ``nuisance``: fitted in every other gyro effect's test whether named or not (a sensor's
+      mounting is always there; a drift fitted without it takes what it leaves);
+    - ``min_separability``: tested only where at least this share of the effect's signature is
+      beyond what the base model (and the effects already in it) can mimic;
+    - ``reported_as``: the name its findings carry (the spec's name where the motion capture
+      knows the same physical effect, e.g. ``base_tilt``); default ``name``.
+
+    IMU effects add no motion-capture term: :meth:`candidates` is empty.
+    """
+
+    sensor: str = "gyro"
+    parameter_names: tuple[str, ...] = ()
+    display_unit: str = ""
+    display_scale: float = 1.0
+    min_size: float = 0.0
+    nuisance: bool = False
+    min_separability: float = 0.0
+    reported_as: str = ""
+
+    @property
+    def finding_name(self) -> str:
+        return self.reported_as or self.name
+
+    @property
+    def n_params(self) -> int:
+        return len(self.parameter_names)
+
+    def candidates(self, spec, poses, residuals=None) -> list[ModelTerm]:
+        return []
+
+    # --- the sensor model (one implementation for simulation and diagnosis)
+    def gyro_bias(self, theta: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(N, 3) rad/s added to the gyro at times ``t`` (N,) s from the reference time."""
+        return np.zeros((len(np.atleast_1d(t)), 3))
+
+    def accelerometer_bias(self, theta: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(N, 3) m/s^2 added to the accelerometer at times ``t`` (N,) s from the reference time."""
+        return np.zeros((len(np.atleast_1d(t)), 3))
+
+    def sensor_from_platform(self, theta: np.ndarray) -> np.ndarray:
+        """(3, 3) the rotation this effect turns the sensor's axes by against the platform's."""
+        return np.eye(3)
+
+    def level_from_base(self, theta: np.ndarray) -> np.ndarray:
+        """(3, 3) the rotation from the model's base frame to the level frame (gravity along -z)."""
+        return np.eye(3)
+
+    # --- how diagnosis judges and reports it
+    def size(self, theta: np.ndarray) -> float:
+        """The estimate's size in the display unit (default: the norm of theta)."""
+        return float(np.linalg.norm(theta)) * self.display_scale
+
+    def frame_covariance(self, theta: np.ndarray, frame_base: np.ndarray | None,
+                         frame_platform: np.ndarray | None) -> np.ndarray:
+        """(n, n) SI: how much of theta the model's own frames allow (their error against the real
+        stand's, ``frame_base`` / ``frame_platform`` (3, 3) rad^2 about base / platform axes, or
+        None); zero for an effect the frames cannot mimic."""
+        return np.zeros((self.n_params, self.n_params))
+
+    def report(self, theta: np.ndarray, cov: np.ndarray, context: dict[str, Any]) -> dict[str, Any]:
+        """``parameters`` (name -> value, std, unit in display units), ``where`` and ``evidence``
+        (one sentence) of a finding. ``cov`` (n, n) SI from every source; ``context``: ``sensor``,
+        ``n`` (segments or holds), ``span_s`` (first, last) s, ``t_ref`` s, ``b0`` (3) and
+        ``b0_std`` (3) the constant gyro bias (rad/s), ``heldout_before``/``heldout_after``
+        (deg/s or m/s^2), ``heldout_unit``, ``p_heldout``, ``p_screen``, ``separability``."""
+        sd = np.sqrt(np.clip(np.diag(cov), 0, None)) * self.display_scale
+        params = {n: {"value": float(v * self.display_scale), "std": float(s), "unit": self.display_unit}
+                  for n, v, s in zip(self.parameter_names, theta, sd)}
+        c = context
+        evidence = (f"{self.summary}: {self.size(theta):.3g} {self.display_unit}; modelling it predicts the held-out "
+                    f"{'segments' if self.sensor == 'gyro' else 'holds'} with RMS {c['heldout_before']:.3g} -> "
+                    f"{c['heldout_after']:.3g} {c['heldout_unit']} over {c['n']} of them (paired Wilcoxon p = "
+                    f"{c['p_heldout']:.2g}; F test Holm p = {c['p_screen']:.2g}).")
+        return {"parameters": params, "where": {"sensor": self.sensor}, "evidence": evidence}
+
+    def headline(self, parameters: dict[str, Any]) -> str:
+        """A few words for the verdict about an accepted finding's ``parameters``."""
+        return ", ".join(f"{n} {p['value']:.3g} +- {p['std']:.2g} {p['unit']}" for n, p in parameters.items())
+
+    def calibration_entry(self, theta: np.ndarray, cov: np.ndarray, context: dict[str, Any]) -> dict[str, Any]:
+        """What an accepted finding adds to calibration.yaml's ``imu`` mapping (key -> mapping, SI)."""
+        return {self.finding_name: {"parameters": dict(zip(self.parameter_names, np.asarray(theta, float).tolist())),
+                                    "std": np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(), "effect": self.name}}
+
+    def simulation_theta(self, size: float, rng: np.random.Generator) -> np.ndarray:
+        """SI parameters of a simulated effect of ``size`` (display unit) in a random direction."""
+        v = rng.normal(size=self.n_params)
+        return v / np.linalg.norm(v) * size / self.display_scale
+
+
+def imu_effects(library: dict[str, Effect] | None = None) -> dict[str, ImuEffect]:
+    """Name -> IMU effect, from ``library`` (default: every installed effect)."""
+    library = effect_library() if library is None else library
+    return {n: e for n, e in library.items() if isinstance(e, ImuEffect)}
+
+
+def imu_sensor_model(effects: list[tuple[ImuEffect, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """(R_SP (3, 3), R_LB (3, 3)): the rotations a list of (effect, theta) make together (products
+    in the list's order, each applied after the ones before it)."""
+    R_sp, R_lb = np.eye(3), np.eye(3)
+    for e, theta in effects:
+        R_sp = e.sensor_from_platform(np.asarray(theta, float)) @ R_sp
+        R_lb = e.level_from_base(np.asarray(theta, float)) @ R_lb
+    return R_sp, R_lb

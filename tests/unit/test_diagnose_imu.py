@@ -10,7 +10,8 @@ import pytest
 
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
-from platkit.diagnose.imu import MIN_ANGLE_DEG, diagnose_imu, td_covariance
+from platkit.diagnose.imu import diagnose_imu, td_covariance
+from platkit.effects import effect_library
 from platkit.errors import NotIdentifiable
 from platkit.geometry import matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
@@ -21,6 +22,8 @@ from platkit.simulate import simulate, write_session
 DEG = 180.0 / np.pi
 #: a constant gyro bias in every case (rad/s): normal, never a finding
 BIAS = [0.003, -0.002, 0.001, 0.0, 0.0, 0.0]
+#: the misalignment's floor: smaller is not named (the registered effect's own)
+MIN_ANGLE_DEG = effect_library()["imu_misalignment"].min_size
 #: the misaligned sensor: R_SP = exp([ROTVEC]x), 2.2 deg
 ROTVEC = np.array([0.02, -0.03, 0.015])
 

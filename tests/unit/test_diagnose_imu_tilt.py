@@ -13,7 +13,8 @@ import yaml
 
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
-from platkit.diagnose.imu import DEG, MIN_TILT_SEPARABILITY, diagnose_imu, frame_gauge, td_covariance, up_in_sensor
+from platkit.diagnose.imu import DEG, diagnose_imu, frame_gauge, td_covariance, up_in_sensor
+from platkit.effects import effect_library
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
 from platkit.io.calibration import read_calibration
@@ -26,6 +27,9 @@ BIAS = [0.003, -0.002, 0.001, 0.05, -0.03, 0.08]
 #: the tilted base: 0.34 deg about an axis 37 deg off base x (the level frame from the base)
 TILT = np.array([0.0048, 0.0036])
 ROTVEC = np.array([0.02, -0.03, 0.015])  # a misaligned IMU, 2.2 deg
+#: the registered IMU tilt effect: its level frame and its separability floor
+TILT_EFFECT = effect_library()["imu_base_tilt"]
+MIN_TILT_SEPARABILITY = TILT_EFFECT.min_separability
 
 
 def _tilt_term():
@@ -71,14 +75,15 @@ def test_the_accelerometer_reads_the_tilt_the_simulator_conceals():
     t = a.imu["t"]
     ends = np.searchsorted(t, np.append(a.command_t[1:], t[-1])) - 2
     R_model = matrix_from_quat(np.asarray(b.imu["q_base_from_platform"])[ends])
-    expected = 9.80665 * up_in_sensor(R_model, R_sp, TILT) + np.array(BIAS[3:])
+    expected = 9.80665 * up_in_sensor(R_model, R_sp, TILT_EFFECT.level_from_base(TILT)) + np.array(BIAS[3:])
     np.testing.assert_allclose(b.imu["acc"][ends], expected, atol=2e-3)
     # the pose-level tilt turns the poses themselves: undo it to get the model's orientation
     R_level = matrix_from_quat(np.asarray(a.imu["q_base_from_platform"])[ends])
     R_model_a = matrix_from_rotvec(np.array([TILT[0], TILT[1], 0.0])).T @ R_level
-    np.testing.assert_allclose(a.imu["acc"][ends], 9.80665 * up_in_sensor(R_model_a, R_sp, TILT) + np.array(BIAS[3:]),
+    R_lb = TILT_EFFECT.level_from_base(TILT)
+    np.testing.assert_allclose(a.imu["acc"][ends], 9.80665 * up_in_sensor(R_model_a, R_sp, R_lb) + np.array(BIAS[3:]),
                                atol=2e-3)
-    untilted = 9.80665 * up_in_sensor(R_model_a, R_sp, np.zeros(2)) + np.array(BIAS[3:])
+    untilted = 9.80665 * up_in_sensor(R_model_a, R_sp) + np.array(BIAS[3:])
     assert np.max(np.abs(a.imu["acc"][ends] - untilted)) > 0.03  # the tilt is there to see
 
 
