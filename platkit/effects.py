@@ -17,6 +17,7 @@ full session and stores it in ``poses.extras`` (subsets keep it row by row).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -58,6 +59,19 @@ class Effect:
         """The term back from a ``ModelTerm.to_dict`` mapping (its ``where`` says where it acts;
         ``spec``, when given, is checked against it). Theta is read by the caller."""
         raise NotImplementedError
+
+    def simulation_term(self, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
+                        commands: PoseSet) -> tuple[ModelTerm, np.ndarray] | None:
+        """(term, true theta) for the additive simulator: the effect as the model term diagnosis fits,
+        of ``size`` (None: the effect's default) on the command rows ``commands``; None when the
+        effect cannot be simulated that way."""
+        return None
+
+    def physics(self, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
+                plan: PhysicsPlan) -> EffectPhysics | None:
+        """The effect's physics in a session for the time-domain simulator (see the physics
+        section below), of ``size`` (None: the default); None when the effect has none."""
+        return None
 
 
 def effect_library() -> dict[str, Effect]:
@@ -158,6 +172,72 @@ def history(poses: PoseSet, key: str, spec: PlatformSpec | None = None) -> np.nd
     if key == "row":
         return np.arange(poses.n_poses, dtype=float)
     raise KeyError(key)
+
+
+# ---------------------------------------------------------------------------- physics
+# An effect may also carry its physics: what the time-domain simulator (platkit.simulate.physics)
+# plays out, where the additive model term is what diagnosis fits. ``Effect.physics(spec, size,
+# rng, plan)`` returns an :class:`EffectPhysics`; the simulator calls its stages in this order:
+# ``respond`` (the actuators' response), ``drive`` (from the position a drive reaches to the
+# travel or angle the kinematics sees), the kinematics with the true geometry, ``base_tilt``
+# (the base against the level world), ``marker_offsets`` (markers moving on the platform).
+
+
+@dataclass
+class PhysicsPlan:
+    """The session an effect's physics plays out in (internal units, seconds on the commands
+    clock): ``spec``; ``command_t`` (N,) when each command is sent; ``commands`` (N, n_u);
+    ``start`` (n_u,) where the stand rests before the first command; ``hold_s`` the typical
+    hold after arrival; ``end_s`` the end of the recording; ``marker_names`` (M,)."""
+
+    spec: PlatformSpec
+    command_t: np.ndarray
+    commands: np.ndarray
+    start: np.ndarray
+    hold_s: float
+    end_s: float
+    marker_names: list[str]
+
+
+@dataclass
+class PhysicsSeries:
+    """Actuator positions over time as a drive stage sees them: ``t`` (K,) s, sorted;
+    ``motor`` (K, n_u) the position reaching this stage (internal units); ``segment`` (K,) the
+    command in force (-1 before the first); ``rest`` True for the series in which every command
+    is reached at once, from which the simulator takes where the stand comes to rest."""
+
+    t: np.ndarray
+    motor: np.ndarray
+    segment: np.ndarray
+    rest: bool = False
+
+
+class EffectPhysics:
+    """The physics of one effect in a session, with its true parameters. Every stage defaults
+    to doing nothing; an effect overrides those where it acts. Stages are pure functions of
+    their arguments: the simulator calls ``drive`` on the stream and on the rest series."""
+
+    effect: str = ""
+
+    def parameters(self) -> dict[str, Any]:
+        """The true parameters and where they act, for truth.yaml (plain values, SI)."""
+        return {}
+
+    def respond(self, response: Any) -> None:
+        """Change the actuators' response in place: ``response`` has arrays (n_u,) ``tau_s``,
+        ``damping``, ``rate``, ``accel`` (platkit.simulate.actuator.ActuatorResponse)."""
+
+    def drive(self, series: PhysicsSeries, plan: PhysicsPlan) -> np.ndarray:
+        """(K, n_u) the positions after this stage of the drive (internal units)."""
+        return series.motor
+
+    def base_tilt(self) -> np.ndarray | None:
+        """(2,) rad: the base turned about its x and y axes against the level world, or None."""
+        return None
+
+    def marker_offsets(self, t: np.ndarray, plan: PhysicsPlan) -> np.ndarray | None:
+        """(K, M, 3) m: the markers moved on the moving part at times ``t`` (K,), or None."""
+        return None
 
 
 # ---------------------------------------------------------------------------- IMU effects

@@ -6,6 +6,11 @@ from pathlib import Path
 from platkit.commands.common import add_platform_options, parse_vector, platform_from_args
 from platkit.errors import BadInput
 
+#: the additive simulator's defaults for the nuisances --physics draws per session
+ADDITIVE_DEFAULTS = {"noise_mm": 0.2, "occlusion": 0.02, "hold_s": 1.5}
+#: options only the physical simulator reads
+PHYSICS_ONLY = ("latency_s", "clock_offset_s", "white_noise", "overshoot")
+
 #: IMU rate when --imu is given without --imu-rate-hz
 DEFAULT_IMU_RATE_HZ = 200.0
 DEFAULT_IMU_NOISE = (0.002, 0.02)
@@ -15,7 +20,14 @@ def add_parser(sub):
     from platkit.simulate.effects import size_help
 
     sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help().items()))
-    p = sub.add_parser("simulate", help="simulate a calibration session with a known true stand (truth.yaml)")
+    p = sub.add_parser(
+        "simulate", help="simulate a calibration session with a known true stand (truth.yaml)",
+        description="Two simulators. Default (additive, fast): the stand moves smoothly to each command, and hidden "
+                    "effects are added as the model terms diagnosis fits. --physics: a time-domain stand (each "
+                    "actuator follows its command through rate and acceleration limits and its own damped "
+                    "second-order response; effects act where their physics acts; hold, noise colour, occlusion, "
+                    "latency and clock offset drawn per session from the seed) with the true settled pose of every "
+                    "command in truth_settled.csv. See docs/simulation.md.")
     add_platform_options(p)
     p.add_argument("--out", required=True, help="session folder to write")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
@@ -28,8 +40,15 @@ def add_parser(sub):
                         "values) per parameter, drawn from the seed (default 1); 0: the description is the true stand")
     p.add_argument("--poses", type=int, default=80, help="number of commands (default 80)")
     p.add_argument("--plan", default="grid", help="grid (snake-ordered grid), random, or a plan.csv file (default grid)")
-    p.add_argument("--noise-mm", type=float, default=0.2, help="marker noise per coordinate, mm (default 0.2)")
-    p.add_argument("--occlusion", type=float, default=0.02, help="fraction of marker samples occluded (default 0.02)")
+    p.add_argument("--physics", action="store_true",
+                   help="simulate the stand's physics in time (platkit.simulate.physics) instead of adding model "
+                        "terms; writes truth_settled.csv, the true settled pose of every command")
+    p.add_argument("--noise-mm", type=float, default=None,
+                   help=f"white marker noise per coordinate and sample, mm (default {ADDITIVE_DEFAULTS['noise_mm']:g}; "
+                        "with --physics drawn per session)")
+    p.add_argument("--occlusion", type=float, default=None,
+                   help=f"fraction of marker samples occluded (default {ADDITIVE_DEFAULTS['occlusion']:g}; with "
+                        "--physics drawn per session, in bursts)")
     p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
     p.add_argument("--imu", action="store_true",
@@ -44,7 +63,17 @@ def add_parser(sub):
                    help=f"IMU white noise per sample: gyro rad/s, accelerometer m/s^2 "
                         f"(default {DEFAULT_IMU_NOISE[0]:g},{DEFAULT_IMU_NOISE[1]:g})")
     p.add_argument("--rate-hz", type=float, default=100.0, help="motion-capture rate (default 100)")
-    p.add_argument("--hold-s", type=float, default=1.5, help="time each command is held after arriving (default 1.5)")
+    p.add_argument("--hold-s", type=float, default=None,
+                   help=f"time each command is held after arriving (default {ADDITIVE_DEFAULTS['hold_s']:g}; with "
+                        "--physics drawn per session, 2 to 3 s)")
+    p.add_argument("--latency-s", type=float, default=None,
+                   help="--physics: the motion capture's latency, s (default drawn, 0 to 0.02)")
+    p.add_argument("--clock-offset-s", type=float, default=None,
+                   help="--physics: markers.csv's clock minus commands.csv's, s (default drawn, -0.15 to 0.15)")
+    p.add_argument("--white-noise", action="store_true",
+                   help="--physics: white marker noise only (default: white plus a correlated part)")
+    p.add_argument("--overshoot", action="store_true",
+                   help="--physics: drives tuned below critical damping, so they overshoot their commands")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of the session files (default mm)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--raw", dest="poses_only", action="store_false", help="write the raw markers.csv stream (default)")
@@ -54,8 +83,14 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from platkit.simulate import simulate, write_session
     from platkit.simulate.effects import parse_effect
+
+    if args.physics and args.poses_only:
+        raise BadInput("--physics simulates the raw stream: leave out --poses-only")
+    if not args.physics:
+        used = [f"--{k.replace('_', '-')}" for k in PHYSICS_ONLY if getattr(args, k) not in (None, False)]
+        if used:
+            raise BadInput(f"{', '.join(used)}: only with --physics")
 
     if args.poses < 3:
         raise BadInput(f"--poses must be at least 3, got {args.poses}")
@@ -67,14 +102,20 @@ def run(args) -> int:
         raise BadInput(f"--seed must be 0 or more, got {args.seed}")
     if not args.perturbation >= 0:
         raise BadInput(f"--perturbation must be 0 or more, got {args.perturbation:g}")
-    if not args.noise_mm >= 0:
+    if args.noise_mm is not None and not args.noise_mm >= 0:
         raise BadInput(f"--noise-mm must be 0 or more, got {args.noise_mm:g}")
-    if not 0 <= args.occlusion < 0.5:
+    if args.occlusion is not None and not 0 <= args.occlusion < 0.5:
         raise BadInput(f"--occlusion must be a fraction in [0, 0.5), got {args.occlusion:g}")
     if not args.rate_hz > 0:
         raise BadInput(f"--rate-hz must be positive, got {args.rate_hz:g}")
-    if not args.hold_s > 0:
+    if args.hold_s is not None and not args.hold_s > 0:
         raise BadInput(f"--hold-s must be positive, got {args.hold_s:g}")
+    for name in ("latency_s", "clock_offset_s"):
+        v = getattr(args, name)
+        if v is not None and not abs(v) < 60:
+            raise BadInput(f"--{name.replace('_', '-')} must be a finite number of seconds, got {v:g}")
+    if args.latency_s is not None and args.latency_s < 0:
+        raise BadInput(f"--latency-s must be 0 or more, got {args.latency_s:g}")
     spec = platform_from_args(args)
     plan = args.plan
     if plan not in ("grid", "random"):
@@ -83,6 +124,13 @@ def run(args) -> int:
         if not Path(plan).is_file():
             raise BadInput(f"--plan: {plan} is a folder, expected grid, random or a plan CSV file")
     effects = [parse_effect(e) for e in args.effect]
+    if args.physics:
+        return run_physics(args, spec, plan, effects)
+    from platkit.simulate import simulate, write_session
+
+    for key, value in ADDITIVE_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     imu = imu_hook(args)
     sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
@@ -99,6 +147,46 @@ def run(args) -> int:
     for term, theta in sim.truth.terms:
         print(f"  hidden effect {term.effect} at {term.where}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(term.parameter_names, theta)))
     return 0
+
+
+def run_physics(args, spec, plan, effects) -> int:
+    """``platkit simulate --physics``: the time-domain stand, written with its truth."""
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    sim = simulate_physics(spec, seed=args.seed, n_poses=args.poses, plan=plan, effects=effects,
+                           n_markers=args.markers, n_base_markers=args.base_markers, mocap_rate_hz=args.rate_hz,
+                           length_unit=args.unit, hold_s=args.hold_s, noise_mm=args.noise_mm,
+                           occlusion=args.occlusion, latency_s=args.latency_s, clock_offset_s=args.clock_offset_s,
+                           coloured=not args.white_noise, overshoot=args.overshoot, imu=imu_options(args),
+                           description=None if args.description is None else Path(args.description).name)
+    out = write_physical_session(sim, args.out, description=args.description,
+                                 moving_link=getattr(args, "moving_link", None),
+                                 base_link=getattr(args, "base_link", None))
+    kind = f"{len(sim.marker_t)} motion-capture samples"
+    if sim.imu is not None:
+        kind += f", {len(sim.imu['t'])} IMU samples"
+    n = sim.nuisances
+    print(f"wrote {out}: {spec.name} simulated in time, {len(sim.commands)} commands over "
+          f"{sim.hold_end_t[-1]:.0f} s, {kind}; truth in {Path(out) / 'truth.yaml'} and "
+          f"{Path(out) / 'truth_settled.csv'}")
+    print(f"  nuisances: hold {n.hold_s:.2f} s, noise {n.noise_m * 1e3:.3f} mm white + {n.coloured_m * 1e3:.3f} mm "
+          f"correlated ({n.correlation_s:.2f} s), occlusion {100 * n.occlusion:.1f}%, latency {n.latency_s * 1e3:.0f} ms, "
+          f"clock offset {n.clock_offset_s * 1e3:+.0f} ms")
+    for name, physics in sim.physics:
+        print(f"  hidden effect {name}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                                   for k, v in physics.parameters().items()))
+    return 0
+
+
+def imu_options(args) -> dict | None:
+    """The IMU options of platkit.inertial.simulate.imu_for_trajectory from the --imu options, or None."""
+    hook = imu_hook(args)
+    if hook is None:
+        return None
+    rate = DEFAULT_IMU_RATE_HZ if args.imu_rate_hz is None else args.imu_rate_hz
+    bias = None if args.imu_bias is None else parse_vector(args.imu_bias, "--imu-bias")
+    noise = DEFAULT_IMU_NOISE if args.imu_noise is None else tuple(parse_vector(args.imu_noise, "--imu-noise", size=2))
+    return {"rate_hz": rate, "bias": bias, "noise": tuple(noise)}
 
 
 def imu_hook(args):

@@ -35,8 +35,20 @@ from platkit.hookspecs import hookimpl
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
+from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 from platkit_effects.imu import IMU_EFFECTS
+from platkit_effects.physics import (
+    BacklashPhysics,
+    BaseTiltPhysics,
+    CompliancePhysics,
+    CyclicPhysics,
+    MarkerSlipPhysics,
+    ScalePhysics,
+    SlowActuator,
+    ThermalPhysics,
+    thermal_state,
+)
 
 
 def _where(data: dict) -> dict:
@@ -113,6 +125,11 @@ class Backlash(Effect):
         """(term, theta) for the simulator: ``size`` the full play (mm for length controls)."""
         i = int(rng.integers(spec.n_u))
         return self.term(i, _actuator_where(spec, i)), np.array([0.5 * _size(spec, i, size, 1.0)])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the full play (mm for length controls, else the control's unit), a deadband in the drive."""
+        i = int(rng.integers(spec.n_u))
+        return BacklashPhysics(i, spec.control_names[i], _size(spec, i, size, 1.0), spec.controls[i].unit)
 
 
 # ---------------------------------------------------------------------------- compliance
@@ -308,6 +325,21 @@ class Compliance(Effect):
             raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
         return term, np.array([_size(spec, j, size, 1.0) / peak])
 
+    def physics(self, spec, size, rng, plan):
+        """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
+        loads = cached_loads(spec, plan.commands)
+        start = actuator_loads(spec, plan.start[None])[0]
+        if _urdf_of(spec) is None:
+            j, index, where = int(np.argmax(np.max(np.abs(loads), axis=0))), None, {"actuator": "all"}
+        else:
+            span = np.ptp(loads, axis=0)
+            j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+            index, where = j, {"actuator": spec.control_names[j]}
+        peak = float(np.max(np.abs(loads[:, j])))
+        if not peak > 0:
+            raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
+        return CompliancePhysics(_size(spec, j, size, 1.0) / peak, loads, start, index, spec.controls[j].unit, where)
+
 
 # ---------------------------------------------------------------------------- thermal drift
 @dataclass
@@ -343,6 +375,21 @@ class ThermalDrift(Effect):
         d = rng.normal(size=3)
         d /= np.linalg.norm(d)
         return self.term(), (2.0 if size is None else float(size)) * 1e-3 / 3600.0 * d
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the largest lengthening of an actuator over the session (mm for lengths), from heat
+        that grows with the distance each actuator moves and cools with a time constant of 5 to 15 minutes."""
+        tau = float(rng.uniform(300.0, 900.0))
+        lo, hi = spec.control_bounds()
+        stroke = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, 1.0)
+        t = np.arange(0.0, plan.end_s, 0.1)
+        seg = np.searchsorted(plan.command_t, t, side="right") - 1
+        motor = np.where(seg[:, None] < 0, plan.start[None], plan.commands[np.maximum(seg, 0)])
+        peak = float(np.max(thermal_state(t, motor, stroke, tau)))
+        if not peak > 0:
+            raise BadInput("effect thermal_drift: the commands never move the stand, nothing heats")
+        largest = _size(spec, 0, size, 2.0)
+        return ThermalPhysics(largest / peak, tau, stroke, largest, spec.controls[0].unit)
 
 
 # ---------------------------------------------------------------------------- cyclic error
@@ -407,6 +454,17 @@ class CyclicError(Effect):
         ph = rng.uniform(0, 2 * np.pi)
         return self.term(i, _actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
 
+    def physics(self, spec, size, rng, plan):
+        """``size``: the amplitude (mm for lengths) of a gear's error periodic in the actuator's true position."""
+        options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
+                   if np.ptp(plan.commands[:, i]) > P / 2]
+        if not options:
+            raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
+        i, P = options[int(rng.integers(len(options)))]
+        a = _size(spec, i, size, 0.3)
+        ph = rng.uniform(0, 2 * np.pi)
+        return CyclicPhysics(i, spec.control_names[i], P, a * np.cos(ph), a * np.sin(ph), spec.controls[i].unit)
+
 
 # ---------------------------------------------------------------------------- scale nonlinearity
 @dataclass
@@ -466,6 +524,15 @@ class ScaleNonlinearity(Effect):
         t = terms[int(rng.integers(len(terms)))]
         return t, np.array([_size(spec, t.index, size, 1.0), 0.0])
 
+    def physics(self, spec, size, rng, plan):
+        """``size``: the largest deviation from linear travel, at the stroke ends (mm for lengths)."""
+        terms = [t for t in self.candidates(spec, PoseSet(spec.name, plan.commands, np.zeros((len(plan.commands), 0, 3)), []))]
+        if not terms:
+            raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
+        t = terms[int(rng.integers(len(terms)))]
+        return ScalePhysics(t.index, t.where["actuator"], t.lower, t.upper, _size(spec, t.index, size, 1.0), 0.0,
+                            t.where["unit"])
+
 
 # ---------------------------------------------------------------------------- settling lag
 @dataclass
@@ -499,6 +566,14 @@ class SettlingLag(Effect):
     def simulation_term(self, spec, size, rng, commands):
         """``size``: the fraction of the last step not yet made."""
         return self.term(), np.array([0.003 if size is None else float(size)])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the time constant of one slow actuator, as a share of the hold (default 0.5)."""
+        i = int(rng.integers(spec.n_u))
+        share = 0.5 if size is None else float(size)
+        if not share > 0:
+            raise BadInput("effect settling_lag: the slow actuator's time constant must be a positive share of the hold")
+        return SlowActuator(i, spec.control_names[i], share * plan.hold_s, share)
 
 
 # ---------------------------------------------------------------------------- marker slip
@@ -579,6 +654,15 @@ class MarkerSlip(Effect):
         d *= (2.0 if size is None else float(size)) * 1e-3 / np.linalg.norm(d)
         return self.term(commands.marker_names[m], m, t_slip), d
 
+    def physics(self, spec, size, rng, plan):
+        """``size``: the jump in mm of a random marker, at a random instant in the middle half of the session."""
+        m = int(rng.integers(len(plan.marker_names)))
+        t0 = float(plan.command_t[0])
+        t_s = float(rng.uniform(t0 + 0.25 * (plan.end_s - t0), t0 + 0.75 * (plan.end_s - t0)))
+        d = rng.normal(size=3)
+        d *= (2.0 if size is None else float(size)) * 1e-3 / np.linalg.norm(d)
+        return MarkerSlipPhysics(m, plan.marker_names[m], t_s, d)
+
 
 # ---------------------------------------------------------------------------- base tilt
 @dataclass
@@ -615,6 +699,11 @@ class BaseTilt(Effect):
         """``size``: the tilt in mrad, about a random horizontal axis."""
         a = rng.uniform(0, 2 * np.pi)
         return self.term(), (2.0 if size is None else float(size)) * 1e-3 * np.array([np.cos(a), np.sin(a)])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the tilt in mrad of the base against the level world, about a random horizontal axis."""
+        a = rng.uniform(0, 2 * np.pi)
+        return BaseTiltPhysics((2.0 if size is None else float(size)) * 1e-3 * np.array([np.cos(a), np.sin(a)]))
 
 
 EFFECTS = [Backlash(), Compliance(), ThermalDrift(), CyclicError(), ScaleNonlinearity(), SettlingLag(), MarkerSlip(),

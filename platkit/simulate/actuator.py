@@ -1,0 +1,139 @@
+"""How a stand's actuators follow their commands, in time: a rate- and acceleration-limited
+motion profile, followed by each actuator through its own damped second-order response.
+
+The drive of every actuator j plans a trapezoidal velocity profile (rate limit ``rate[j]``,
+acceleration limit ``accel[j]``) from where its profile stands to each new command, starting
+when the command is sent; the actuator then follows that profile as a damped second-order
+system
+
+    x'' + 2 zeta w x' + w^2 x = w^2 r(t),   w = 1 / tau_s
+
+(``tau_s`` its time constant, ``damping`` = zeta: 1 critically damped, below 1 an overshoot).
+The follow is integrated exactly for a profile held constant over each fine step (zero-order
+hold discretisation, scipy.signal), so the approach after the profile ends decays as
+(a + b t) exp(-t / tau_s) for zeta = 1: settling is an event in the stream, of the length the
+time constant says. Internal units throughout (m for length controls, the control's unit
+otherwise), times in seconds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from platkit.errors import BadInput
+
+__all__ = ["ActuatorResponse", "profile_duration", "motion_profile", "follow", "actuator_motion"]
+
+
+@dataclass
+class ActuatorResponse:
+    """Per-actuator response, arrays (n_u,): ``tau_s`` time constant 1/w of the second-order
+    approach (s); ``damping`` zeta; ``rate`` the profile's rate limit (control unit per s);
+    ``accel`` its acceleration limit (control unit per s^2)."""
+
+    tau_s: np.ndarray
+    damping: np.ndarray
+    rate: np.ndarray
+    accel: np.ndarray
+
+    def check(self) -> None:
+        for name in ("tau_s", "damping", "rate", "accel"):
+            v = np.asarray(getattr(self, name), float)
+            if not np.all(np.isfinite(v) & (v > 0)):
+                raise BadInput(f"actuator response: {name} must be positive and finite, got {v.tolist()}")
+
+    def to_dict(self, names: list[str]) -> dict:
+        """Per actuator name: tau_s, damping, rate, accel (plain floats, internal units)."""
+        return {n: {"tau_s": float(a), "damping": float(z), "rate_per_s": float(r), "accel_per_s2": float(c)}
+                for n, a, z, r, c in zip(names, self.tau_s, self.damping, self.rate, self.accel)}
+
+
+def profile_duration(distance: np.ndarray, rate: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """Duration (s) of a trapezoidal (or, for short moves, triangular) profile over
+    ``distance`` (>= 0) with the given rate and acceleration limits (broadcast)."""
+    d = np.abs(np.asarray(distance, float))
+    v, a = np.asarray(rate, float), np.asarray(accel, float)
+    triangular = d < v * v / a
+    return np.where(triangular, 2.0 * np.sqrt(d / a), d / v + v / a)
+
+
+def _trapezoid(s: np.ndarray, d: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Distance covered after time s (>= 0) by the profile over distance d >= 0 (broadcast)."""
+    tri = d < v * v / a
+    ta = np.where(tri, np.sqrt(d / a), v / a)  # end of the acceleration phase
+    vp = a * ta  # peak speed
+    T = np.where(tri, 2 * ta, d / v + v / a)
+    s = np.clip(s, 0.0, None)
+    acc = 0.5 * a * s**2
+    cruise = 0.5 * a * ta**2 + vp * (s - ta)
+    r = np.maximum(T - s, 0.0)
+    dec = d - 0.5 * a * r**2
+    return np.where(s <= ta, acc, np.where(s <= T - ta, cruise, np.where(s < T, dec, d)))
+
+
+def motion_profile(t: np.ndarray, command_t: np.ndarray, commands: np.ndarray, start: np.ndarray,
+                   response: ActuatorResponse) -> np.ndarray:
+    """(K, n_u) the planned profile r(t) at times ``t`` (K,), sorted.
+
+    ``command_t`` (N,) when each command (N, n_u) is sent; ``start`` (n_u,) where the stand rests
+    before the first. A profile that has not ended when the next command comes is cut there
+    and the next starts from where it stood (at rest: the planner does not blend moves).
+    """
+    N = len(command_t)
+    seg = np.searchsorted(command_t, t, side="right") - 1  # command in force at each t (-1: before)
+    origin = np.empty_like(commands)
+    pos = np.asarray(start, float).copy()
+    for i in range(N):
+        origin[i] = pos
+        d = commands[i] - pos
+        if i + 1 < N:
+            span = command_t[i + 1] - command_t[i]
+            done = _trapezoid(np.full_like(d, span), np.abs(d), response.rate, response.accel)
+            pos = pos + np.sign(d) * done
+    # most samples lie where a profile has ended (the holds): only the moving ones are evaluated
+    n_u = commands.shape[1]
+    dist = np.abs(commands - origin)
+    T = profile_duration(dist, response.rate[None], response.accel[None])  # (N, n_u)
+    segc = np.maximum(seg, 0)
+    out = np.where(seg[:, None] < 0, np.asarray(start, float)[None], commands[segc])
+    s = t - command_t[segc]
+    for j in range(n_u):
+        k = np.nonzero((seg >= 0) & (s < T[segc, j]))[0]
+        i = seg[k]
+        out[k, j] = origin[i, j] + np.sign(commands[i, j] - origin[i, j]) * _trapezoid(
+            s[k], dist[i, j], response.rate[j], response.accel[j])
+    return out
+
+
+def follow(reference: np.ndarray, dt: float, tau_s: np.ndarray, damping: np.ndarray) -> np.ndarray:
+    """(K, n_u) the actuators' positions following ``reference`` (K, n_u) sampled every ``dt``
+    seconds, each as the damped second-order system of its (tau_s, damping), at rest on the
+    reference's first value (exact for a reference held constant over each step)."""
+    out = np.empty_like(reference)
+    for j in range(reference.shape[1]):
+        w = 1.0 / float(tau_s[j])
+        z = float(damping[j])
+        num, den, _ = signal.cont2discrete(([w * w], [1.0, 2 * z * w, w * w]), dt, method="zoh")
+        num = np.ravel(num)
+        x0 = reference[0, j]
+        out[:, j] = x0 + signal.lfilter(num, den, reference[:, j] - x0)
+    return out
+
+
+def actuator_motion(t: np.ndarray, command_t: np.ndarray, commands: np.ndarray, start: np.ndarray,
+                    response: ActuatorResponse, fine_step_s: float = 1e-3) -> np.ndarray:
+    """(K, n_u) the actuators' true positions at times ``t`` (K,) sorted: the profile followed by
+    the second-order response, integrated every ``fine_step_s`` from 0 s and interpolated
+    linearly to ``t``."""
+    response.check()
+    t = np.asarray(t, float)
+    t_end = float(max(t[-1], command_t[-1])) + fine_step_s
+    fine = np.arange(0.0, t_end + fine_step_s, fine_step_s)
+    ref = motion_profile(fine, command_t, commands, start, response)
+    x = follow(ref, fine_step_s, response.tau_s, response.damping)
+    out = np.empty((len(t), commands.shape[1]))
+    for j in range(commands.shape[1]):
+        out[:, j] = np.interp(t, fine, x[:, j])
+    return out

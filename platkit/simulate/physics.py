@@ -1,0 +1,395 @@
+"""A physical calibration stand in the time domain, recorded only through the session format.
+
+Where the additive simulator (platkit.simulate.simulate) adds the model terms diagnosis fits,
+this one plays out physics in time, so that a proof of settling and diagnosis runs on data that
+platkit's model terms did not make:
+
+1. commands are sent on a schedule (the move's duration at the drives' limits, then a hold);
+2. each actuator follows its command (platkit.simulate.actuator): a rate- and
+   acceleration-limited profile through its own damped second-order response, integrated every
+   ``fine_step_s``, so every hold begins with an approach that settles in time;
+3. the effects' physics act where they act (platkit.effects.EffectPhysics, from each effect's
+   ``physics``): the actuators' response, the drive between the position reached and the
+   travel the kinematics sees (play, gear errors, heat, load), the base against the level
+   world, markers moving on the platform;
+4. forward kinematics of the true actuator positions with the true geometry
+   (PlatformModel.forward_batch), markers at their true places, through a true
+   mocap_from_base, sampled at the motion capture's rate with its latency and clock offset,
+   white and correlated noise and bursts of occlusion (platkit.simulate.nuisance, drawn per
+   session from the seed);
+5. the truth: the true stand, the effects' parameters, the nuisances, and the TRUE SETTLED
+   pose and markers of every command: the same physics driven by drives that reach each
+   command at once (every transient gone), at the end of its hold (slow states, such as a
+   leg's heat, as they are then).
+
+    sim = simulate_physics(spec, seed=3, n_poses=240, effects=[("backlash", 1.0)])
+    write_physical_session(sim, "out/session")   # session.yaml, commands.csv, markers.csv,
+                                                 # truth.yaml, truth_settled.csv [, imu.csv]
+
+Independent random streams (stand, plan, nuisances, each effect, noise, occlusion) come from
+the seed, so adding an effect leaves the stand and the nuisances as they were.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
+from platkit.effects import EffectPhysics, PhysicsPlan, PhysicsSeries, effect_library
+from platkit.errors import BadInput, NoConvergence, NotIdentifiable
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, transform
+from platkit.inertial.simulate import imu_for_trajectory
+from platkit.io.atomic import atomic_output_dir
+from platkit.io.jsonout import plain
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec, controls_from_si, length_scale
+from platkit.simulate.actuator import ActuatorResponse, actuator_motion, profile_duration
+from platkit.simulate.files import csv_text, fmt, write_imu_files
+from platkit.simulate.nuisance import Nuisances, coloured_noise, draw_nuisances, occlusion_mask
+from platkit.simulate.stand import make_plan, perturb_parameters
+
+__all__ = ["PhysicalSession", "simulate_physics", "write_physical_session", "physics_of"]
+
+#: seconds from the start of the recording to the first command
+LEAD_IN_S = 0.5
+
+
+@dataclass
+class PhysicalSession:
+    """A physically simulated session in memory (SI; internal control units).
+
+    command_t (N,) s and commands (N, n_u): the command log; marker_t (K,) s on the motion
+    capture's clock (offset and latency included) and markers (K, M, 3) m in the mocap frame
+    (NaN occluded); base_markers (K, B, 3) or None; settled_q (N, 4), settled_X (N, 3): the true
+    settled pose in the base frame; settled_markers (N, M, 3) m in the mocap frame; td (n_td,)
+    the true parameters; mocap_from_base (4, 4); marker_body (M, 3) m the markers' places on
+    the moving part at the start; physics [(name, EffectPhysics)]; nuisances; imu or None;
+    hold_end_t (N,) when each hold ends (commands clock); settled_controls (N, n_u) the true
+    actuator travel at rest (what the kinematics saw for the settled pose).
+    """
+
+    spec: PlatformSpec
+    seed: int
+    length_unit: str
+    mocap_rate_hz: float
+    command_t: np.ndarray
+    commands: np.ndarray
+    marker_names: list[str]
+    marker_t: np.ndarray
+    markers: np.ndarray
+    settled_q: np.ndarray
+    settled_X: np.ndarray
+    settled_markers: np.ndarray
+    td: np.ndarray
+    mocap_from_base: np.ndarray
+    marker_body: np.ndarray
+    physics: list[tuple[str, EffectPhysics]]
+    nuisances: Nuisances
+    response: ActuatorResponse
+    plan_info: dict = field(default_factory=dict)
+    base_marker_names: list[str] = field(default_factory=list)
+    base_markers: np.ndarray | None = None
+    base_marker_body: np.ndarray | None = None
+    imu: dict | None = None
+    description: str | None = None
+    hold_end_t: np.ndarray | None = None
+    settled_controls: np.ndarray | None = None
+
+    def truth(self) -> dict:
+        """The truth.yaml mapping (SI: metres, radians, seconds on the commands clock)."""
+        spec = self.spec
+        return {
+            "platform": spec.name,
+            "description": self.description,
+            "seed": int(self.seed),
+            "simulator": "physics",
+            "units": {"length": "m", "angle": "rad", "time": "s (commands clock)"},
+            "parameters": {n: {"value": float(v), "nominal": float(v0), "error": float(v - v0)}
+                           for n, v, v0 in zip(spec.parameter_names, self.td, spec.nominal_td())},
+            "mocap_from_base": [[float(x) for x in row] for row in self.mocap_from_base],
+            "markers": {n: [float(x) for x in s] for n, s in zip(self.marker_names, self.marker_body)},
+            "base_markers": {n: [float(x) for x in s] for n, s in zip(
+                self.base_marker_names, () if self.base_marker_body is None else self.base_marker_body)},
+            "effects": [{"effect": name, "physics": plain(p.parameters())} for name, p in self.physics],
+            "nuisances": self.nuisances.to_dict(),
+            "actuators_with_effects": self.response.to_dict(spec.control_names),
+            "settled": "truth_settled.csv: where the stand comes to rest for every command (no transient), at "
+                       "the end of its hold",
+        }
+
+
+def physics_of(name: str, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
+               plan: PhysicsPlan) -> EffectPhysics:
+    """An effect's physics by name, from the effect library (built-in and outside plugins)."""
+    library = effect_library()
+    effect = library.get(name)
+    if effect is None:
+        raise BadInput(f"--effect {name!r}: unknown effect; installed: {', '.join(sorted(library))}")
+    physics = effect.physics(spec, size, rng, plan) if hasattr(effect, "physics") else None
+    if physics is None:
+        raise BadInput(f"effect {name!r} has no physics for the time-domain simulator; leave out --physics "
+                       "to simulate it as its model term")
+    if not isinstance(physics, EffectPhysics):
+        raise BadInput(f"effect {name!r}: physics() returned {type(physics).__name__}, expected an EffectPhysics")
+    return physics
+
+
+def _schedule(U: np.ndarray, start: np.ndarray, nuisances: Nuisances, rng) -> tuple[np.ndarray, np.ndarray]:
+    """(command_t (N,), hold_end_t (N,)): each command sent when the previous hold ends; a hold
+    lasts the move's duration at the drives' limits (the slowest actuator) plus the hold."""
+    prev = np.vstack([start[None], U[:-1]])
+    r = nuisances.response
+    move = np.max(profile_duration(U - prev, r.rate[None], r.accel[None]), axis=1)
+    hold = nuisances.hold_s * (1 + nuisances.hold_jitter * rng.uniform(-1, 1, len(U)))
+    span = move + hold
+    t_cmd = np.round(LEAD_IN_S + np.concatenate([[0.0], np.cumsum(span)[:-1]]), 6)  # as written to commands.csv
+    return t_cmd, np.append(t_cmd[1:], t_cmd[-1] + span[-1])
+
+
+def _level_mocap(rng, size_m: float) -> np.ndarray:
+    """mocap_from_level (4, 4): the motion capture's vertical is the level world's; any heading,
+    offset by about the stand's size."""
+    c, s = np.cos(a := rng.uniform(-np.pi, np.pi)), np.sin(a)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return transform(R, rng.uniform(-1, 1, 3) * np.array([2.0, 2.0, 0.5]) * max(size_m, 0.2))
+
+
+class _Stand:
+    """The true stand's motion at any sorted times (commands clock): actuators, drive, kinematics."""
+
+    def __init__(self, spec, model, td, plan: PhysicsPlan, response, physics, P_rest, fine_step_s):
+        self.spec, self.model, self.td, self.plan = spec, model, td, plan
+        self.response, self.physics, self.P_rest, self.fine = response, physics, P_rest, fine_step_s
+
+    def controls(self, t: np.ndarray, rest: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(u (K, n_u) true actuator travel, segment (K,)) at times t."""
+        plan = self.plan
+        seg = np.searchsorted(plan.command_t, t, side="right") - 1
+        if rest:
+            motor = np.where(seg[:, None] < 0, plan.start[None], plan.commands[np.maximum(seg, 0)])
+        else:
+            motor = actuator_motion(t, plan.command_t, plan.commands, plan.start, self.response, self.fine)
+        for _, p in self.physics:
+            motor = np.asarray(p.drive(PhysicsSeries(t, motor, seg, rest), plan), float)
+        return motor, seg
+
+    def pose(self, u: np.ndarray, seg: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        guess = np.where(seg[:, None] < 0, self.spec.neutral_p(), self.P_rest[np.maximum(seg, 0)])
+        fb = self.model.forward_batch(u, td=self.td, guess=guess, strict=False)
+        bad = ~(fb.converged & fb.on_branch)
+        if np.any(bad):
+            k = int(np.nonzero(bad)[0][0])
+            raise NoConvergence(f"{self.spec.name}: forward kinematics of the true stand failed at t={t[k]:.3f} s "
+                                f"(controls {np.round(u[k], 6).tolist()}): an effect or the plan leaves the workspace")
+        return fb.q, fb.X
+
+    def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q (K, 4), X (K, 3)) of the moving frame in the base frame at times t (the IMU hook's
+        trajectory); before the first command the stand rests where it starts."""
+        t = np.asarray(t, float)
+        u, seg = self.controls(t)
+        return self.pose(u, seg, t)
+
+
+class _Trajectory:
+    """What an IMU hook reads (platkit.inertial.simulate.imu_for_trajectory)."""
+
+    def __init__(self, stand: _Stand, end_t: float):
+        self.stand, self.end_t, self.command_t = stand, end_t, stand.plan.command_t
+
+    def at(self, t):
+        return self.stand.at(t)
+
+
+def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, plan: Any = "grid",
+                     effects=(), n_markers: int = 5, n_base_markers: int = 0, mocap_rate_hz: float = 100.0,
+                     length_unit: str = "mm", hold_s: float | None = None, noise_mm: float | None = None,
+                     occlusion: float | None = None, latency_s: float | None = None,
+                     clock_offset_s: float | None = None, coloured: bool = True, overshoot: bool = False,
+                     imu: dict | None = None, perturbation: float = 1.0, description: str | None = None,
+                     fine_step_s: float = 2e-3) -> PhysicalSession:
+    """Simulate a session of ``spec`` in the time domain (see the module's docstring).
+
+    plan: 'grid', 'random', a plan.csv path, a Plan or an (N, n_u) array (internal units).
+    effects: [(name, size or None)], sizes as ``platkit simulate --help`` states them.
+    hold_s, noise_mm (white, per coordinate and sample), occlusion, latency_s, clock_offset_s:
+        fixed nuisances (None: drawn from the seed); coloured False: white noise only;
+        overshoot: drives tuned below critical damping.
+    imu: None, or the options of platkit.inertial.simulate.imu_for_trajectory (rate_hz, bias,
+        noise, ...): an IMU on the moving part, which feels a tilted base.
+    """
+    length_scale(length_unit)
+    if n_markers < 3:
+        raise BadInput(f"markers: at least 3 on the moving part, got {n_markers}")
+    if not mocap_rate_hz > 0:
+        raise BadInput(f"motion-capture rate must be positive, got {mocap_rate_hz:g}")
+    if not 0 < fine_step_s <= 0.01:
+        raise BadInput(f"fine_step_s must be in (0, 0.01] s, got {fine_step_s:g}")
+    rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
+    model = PlatformModel(spec)
+    U, plan_info = make_plan(spec, plan, n_poses, rng_plan, model, length_unit)
+    model.check_controls(U)
+    td = perturb_parameters(spec, rng_stand, perturbation)
+    ok, P_rest = feasible(spec, U, td, model)
+    if not np.all(ok):
+        plan_info["unreachable_with_true_geometry"] = int((~ok).sum())
+        U, P_rest = U[ok], P_rest[ok]
+    if len(U) < 3:
+        raise NotIdentifiable(f"{spec.name}: fewer than 3 planned poses are reachable")
+    S = default_marker_layout(spec, n_markers, rng_stand)
+    names = [f"M{k + 1}" for k in range(n_markers)]
+    size_m = stand_length_scale(spec) / 0.6
+    mocap_from_level = _level_mocap(rng_stand, size_m)
+    nuisances = draw_nuisances(spec, rng_nuis, hold_s=hold_s, noise_mm=noise_mm, occlusion=occlusion,
+                               overshoot=overshoot, latency_s=latency_s, clock_offset_s=clock_offset_s,
+                               coloured=coloured)
+    start = spec.neutral_u()
+    t_cmd, hold_end = _schedule(U, start, nuisances, rng_nuis)
+    end_t = float(hold_end[-1])
+    phys_plan = PhysicsPlan(spec, t_cmd, U, start, nuisances.hold_s, end_t, names)
+    physics = [(name, physics_of(name, spec, size, np.random.default_rng([seed, 100 + k]), phys_plan))
+               for k, (name, size) in enumerate(effects)]
+    r0 = nuisances.response
+    response = ActuatorResponse(np.array(r0.tau_s, float), np.array(r0.damping, float), np.array(r0.rate, float),
+                                np.array(r0.accel, float))
+    for _, p in physics:
+        p.respond(response)
+    response.check()
+
+    tilt = np.zeros(2)
+    for _, p in physics:
+        w = p.base_tilt()
+        if w is not None:
+            tilt = tilt + np.asarray(w, float)[:2]
+    level_from_base = transform(matrix_from_rotvec(np.array([tilt[0], tilt[1], 0.0])), np.zeros(3))
+    T = mocap_from_level @ level_from_base
+    stand = _Stand(spec, model, td, phys_plan, response, physics, P_rest, fine_step_s)
+
+    def marker_offsets(t):
+        off = np.zeros((len(t), n_markers, 3))
+        for _, p in physics:
+            o = p.marker_offsets(t, phys_plan)
+            if o is not None:
+                off = off + np.asarray(o, float)
+        return off
+
+    def to_mocap(q, X, off):
+        R = matrix_from_quat(q)
+        base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, S[None] + off)
+        return base @ T[:3, :3].T + T[:3, 3]
+
+    # the stream: exposures every 1/rate on the commands clock, stamped later by the latency and offset
+    t_exp = np.arange(0.0, end_t, 1.0 / mocap_rate_hz)
+    u, seg = stand.controls(t_exp)
+    q, X = stand.pose(u, seg, t_exp)
+    Y = to_mocap(q, X, marker_offsets(t_exp))
+    dt = 1.0 / mocap_rate_hz
+    Y = Y + rng_noise.normal(size=Y.shape) * nuisances.noise_m
+    Y = Y + coloured_noise(rng_noise, Y.shape, dt, nuisances.coloured_m, nuisances.correlation_s)
+    burst = max(1, int(round(nuisances.burst_s * mocap_rate_hz)))
+    Y[occlusion_mask(rng_occ, len(t_exp), n_markers, nuisances.occlusion, burst)] = np.nan
+    Y = np.round(Y * 1e6) / 1e6  # 1 um steps, as the files keep them
+    marker_t = np.round(t_exp + nuisances.time_shift_s, 6)
+
+    # the truth: the rest series at the end of every hold
+    # (on the stream's even grid, which slow states such as heat are integrated on; the last
+    # exposure before each hold ends)
+    last = np.clip(np.searchsorted(t_exp, hold_end, side="left") - 1, 0, len(t_exp) - 1)
+    u_rest, seg_rest = stand.controls(t_exp, rest=True)
+    t_rest = t_exp[last]
+    q_s, X_s = stand.pose(u_rest[last], seg_rest[last], t_rest)
+    settled_markers = to_mocap(q_s, X_s, marker_offsets(t_rest))
+
+    base_names = [f"B{k + 1}" for k in range(n_base_markers)]
+    B = YB = None
+    if n_base_markers:
+        rho = 1.5 * size_m
+        ang = 2 * np.pi * np.arange(n_base_markers) / n_base_markers + rng_base.uniform(-0.3, 0.3, n_base_markers)
+        B = np.stack([rho * np.cos(ang), rho * np.sin(ang), rng_base.uniform(0, 0.05, n_base_markers) * rho], axis=1)
+        YB = (B @ T[:3, :3].T + T[:3, 3])[None] + rng_base.normal(size=(len(t_exp), n_base_markers, 3)) * nuisances.noise_m
+        YB[occlusion_mask(rng_base, len(t_exp), n_base_markers, nuisances.occlusion, burst)] = np.nan
+        YB = np.round(YB * 1e6) / 1e6
+
+    imu_data = None
+    if imu is not None:
+        options = dict(imu)
+        if np.any(tilt):
+            options["base_tilt"] = tilt + np.asarray(options.get("base_tilt", np.zeros(2)), float)
+        imu_data = imu_for_trajectory(**options)(_Trajectory(stand, end_t), np.random.default_rng([seed, 8]))
+    plan_info.update(commands=int(len(U)))
+    return PhysicalSession(spec, seed, length_unit, mocap_rate_hz, t_cmd, U, names, marker_t, Y, q_s, X_s,
+                           settled_markers, td, T, S, physics, nuisances, response, plan_info, base_names, YB, B,
+                           imu_data, description, hold_end, u_rest[last])
+
+
+def settled_table(sim: PhysicalSession) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of truth_settled.csv: per command row ``row``, ``t`` (sent, commands
+    clock), ``t_rest`` (the hold's end), the control columns, every marker's ``_x,_y,_z`` in the
+    mocap frame, the pose ``x,y,z`` in the base frame (session length unit) and ``qw,qx,qy,qz``:
+    the columns of ``platkit predict`` after the first three."""
+    spec = sim.spec
+    s = length_scale(sim.length_unit)
+    ldig = 4 if sim.length_unit == "mm" else 7
+    V = controls_from_si(spec, sim.commands, sim.length_unit)
+    cdig = [ldig if c.unit == "m" else 9 for c in spec.controls]
+    header = ["row", "t", "t_rest"] + list(spec.control_names) + [f"{m}_{a}" for m in sim.marker_names for a in "xyz"]
+    header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
+    rows = []
+    for i in range(len(sim.commands)):
+        r = [str(i), f"{sim.command_t[i]:.6f}", f"{sim.hold_end_t[i]:.6f}"]
+        r += [fmt(v, d) for v, d in zip(V[i], cdig)]
+        r += [fmt(v / s, ldig) for v in sim.settled_markers[i].reshape(-1)]
+        r += [fmt(v / s, ldig) for v in sim.settled_X[i]] + [f"{v:.10f}" for v in sim.settled_q[i]]
+        rows.append(r)
+    return header, rows
+
+
+def write_physical_session(sim: PhysicalSession, out: str | Path, description: str | Path | None = None,
+                           notes: str = "", moving_link: str | None = None, base_link: str | None = None) -> Path:
+    """Write the session folder (session.yaml, commands.csv, markers.csv, imu.csv with its truth
+    files when simulated) and its truth (truth.yaml, truth_settled.csv), whole or not at all."""
+    spec = sim.spec
+    unit = sim.length_unit
+    s = length_scale(unit)
+    ldig = 3 if unit == "mm" else 6
+    out = Path(out)
+    with atomic_output_dir(out) as tmp:
+        entry: dict = {
+            "platform": spec.name, "description": None, "units": {"length": unit, "time": "s"},
+            "markers": list(sim.marker_names), "base_markers": list(sim.base_marker_names),
+            "mocap_rate_hz": float(sim.mocap_rate_hz), "imu": None, "moving_link": moving_link,
+            "notes": notes or f"simulated in the time domain by platkit (seed {sim.seed}); the truth is in "
+                              "truth.yaml and truth_settled.csv",
+        }
+        if base_link is not None:
+            entry["base_link"] = base_link
+        if description is not None:
+            desc = Path(description)
+            (tmp / desc.name).write_bytes(desc.read_bytes())
+            entry["description"] = desc.name
+        V = controls_from_si(spec, sim.commands, unit)
+        cdig = [ldig if c.unit == "m" else 9 for c in spec.controls]
+        rows = [[f"{t:.6f}"] + [fmt(v, d) for v, d in zip(row, cdig)] for t, row in zip(sim.command_t, V)]
+        (tmp / "commands.csv").write_text(csv_text(["t"] + list(spec.control_names), rows), encoding="utf-8")
+        Y = sim.markers if sim.base_markers is None else np.concatenate([sim.markers, sim.base_markers], axis=1)
+        Y = Y.reshape(len(sim.marker_t), -1) / s
+        cols = [f"{m}_{a}" for m in list(sim.marker_names) + list(sim.base_marker_names) for a in "xyz"]
+        # one format per row: the stream is long (an occluded sample is written 'nan', as the format allows)
+        line = "%.6f" + f",%.{ldig}f" * Y.shape[1]
+        text = "\n".join(line % tuple(r) for r in np.column_stack([sim.marker_t, Y]).tolist())
+        (tmp / "markers.csv").write_text(",".join(["t"] + cols) + "\n" + text + "\n", encoding="utf-8")
+        if sim.imu is not None:
+            entry["imu"] = write_imu_files(sim.imu, tmp)
+        (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")
+        truth = sim.truth()
+        truth["plan"] = plain(sim.plan_info)
+        (tmp / "truth.yaml").write_text(
+            "# The true stand behind this session, simulated in the time domain (SI units).\n"
+            + yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
+        header, rows = settled_table(sim)
+        (tmp / "truth_settled.csv").write_text(csv_text(header, rows), encoding="utf-8")
+    return out
