@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from platkit.effects import EffectPhysics, PhysicsPlan, PhysicsSeries
 
@@ -148,6 +147,10 @@ def thermal_state(t: np.ndarray, motor: np.ndarray, stroke: np.ndarray, tau_s: f
     if len(t) < 2:
         return np.zeros_like(motor)
     dt = float(np.median(np.diff(t)))
+    # imported here, not at the top: every stand lookup loads this plugin, and scipy.signal takes
+    # longer to import than all of `platkit fk` (issue 13)
+    from scipy.signal import lfilter
+
     heat = np.vstack([np.zeros((1, motor.shape[1])), np.abs(np.diff(motor, axis=0)) / stroke])
     return lfilter([1.0], [1.0, -np.exp(-dt / tau_s)], heat, axis=0)
 
