@@ -47,10 +47,12 @@ def default_description(filename: str) -> Path:
     descriptions/, found through the installed package ``platkit_data.descriptions``).
     """
     searched = [Path(d) for d in os.environ.get(DESCRIPTIONS_ENV, "").split(os.pathsep) if d]
-    searched.append(shipped_dir("descriptions"))
     for folder in searched:
         if (folder / filename).is_file():
             return folder / filename
+    searched.append(shipped_dir("descriptions"))
+    if (searched[-1] / filename).is_file():
+        return searched[-1] / filename
     raise BadDescription(
         f"default description {filename!r} not found (looked in {', '.join(str(d) for d in searched)})"
     )

@@ -15,6 +15,9 @@ from platkit.errors import PlatkitError
 
 #: shipped folder -> the import package that holds it
 PACKAGES = {"descriptions": "platkit_data.descriptions", "sessions": "platkit_data.sessions"}
+#: shipped folder -> the variable whose folders are searched before it (platkit.io.description,
+#: platkit.io.session)
+ENV = {"descriptions": "PLATKIT_DESCRIPTIONS", "sessions": "PLATKIT_EXAMPLES"}
 
 
 def shipped_dir(kind: str) -> Path:
@@ -29,7 +32,7 @@ def shipped_dir(kind: str) -> Path:
     except ModuleNotFoundError:
         raise PlatkitError(
             f"platkit's shipped {kind} (package {package}) are not installed: install platkit "
-            f"(pip install platkit, or pip install -e . in a checkout)"
+            f"(pip install -e . in a checkout), or name their folder in ${ENV[kind]}"
         ) from None
     if not isinstance(folder, Path):
         raise PlatkitError(f"platkit's shipped {kind} ({package}) are not files on disk ({folder}): install platkit unpacked")

@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 
 import platkit
+from platkit.errors import BadDescription, PlatkitError
+from platkit.io import shipped
 from platkit.io.description import default_description
 from platkit.io.session import example_session
 from platkit.plugins import BUILTIN_PLUGINS
@@ -124,3 +126,29 @@ def test_this_install_finds_the_shipped_files():
     assert default_description("stewart.yaml").read_text(encoding="utf-8") == \
         (REPO / "descriptions" / "stewart.yaml").read_text(encoding="utf-8")
     assert (example_session("rotary") / "markers.csv").is_file()
+
+
+def test_the_variables_folders_come_first(tmp_path, monkeypatch):
+    (tmp_path / "stewart.yaml").write_text("platform: stewart\n", encoding="utf-8")
+    (tmp_path / "psvr").mkdir()
+    (tmp_path / "psvr" / "session.yaml").write_text("platform: psvr\n", encoding="utf-8")
+    monkeypatch.setenv("PLATKIT_DESCRIPTIONS", str(tmp_path))
+    monkeypatch.setenv("PLATKIT_EXAMPLES", str(tmp_path))
+    assert default_description("stewart.yaml") == tmp_path / "stewart.yaml"
+    assert example_session("psvr") == tmp_path / "psvr"
+    # what the folders lack still comes from the installed package
+    assert default_description("psvr.yaml").parent != tmp_path
+    assert example_session("rotary").parent != tmp_path
+
+
+def test_missing_shipped_data_is_one_line_saying_what_to_do(monkeypatch):
+    monkeypatch.delenv("PLATKIT_DESCRIPTIONS", raising=False)
+    monkeypatch.setitem(shipped.PACKAGES, "descriptions", "platkit_data.not_installed")
+    with pytest.raises(PlatkitError, match=r"^platkit's shipped descriptions .* not installed: .*\$PLATKIT_DESCRIPTIONS$"):
+        default_description("stewart.yaml")
+
+
+def test_a_description_that_does_not_ship_is_bad_input_naming_where_it_looked(monkeypatch):
+    monkeypatch.delenv("PLATKIT_DESCRIPTIONS", raising=False)
+    with pytest.raises(BadDescription, match=r"'nothing\.yaml' not found \(looked in .*descriptions\)$"):
+        default_description("nothing.yaml")
