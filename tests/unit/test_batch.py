@@ -1,0 +1,150 @@
+"""platkit batch on a local Dask cluster of 2 worker processes (one for the whole module): the
+same results as the single verbs one by one, a re-run that skips what is done, a failed
+session that stops nothing, a worker killed in the middle, and dask missing."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from platkit.batch import engine
+from platkit.batch.store import find_sessions
+from platkit.cli import main
+from platkit.commands.batch import run_verb
+from platkit.simulate import simulate_session
+
+pytest.importorskip("dask.distributed", reason="platkit[batch] (dask.distributed) is part of the dev extra")
+
+N_SESSIONS = 3
+
+
+@pytest.fixture(scope="module")
+def client():
+    with engine.cluster(workers=2) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """N_SESSIONS simulated rotary sessions (settled poses) and each one's single-verb calibration."""
+    root = tmp_path_factory.mktemp("fleet")
+    singles = {}
+    for i in range(N_SESSIONS):
+        folder = simulate_session("rotary", root / "fleet" / f"unit{i + 1}", seed=10 + i, n_poses=30, poses_only=True)
+        out = root / "single" / f"unit{i + 1}"
+        assert main(["calibrate", str(folder), "--out", str(out), "--quiet"]) == 0
+        singles[f"unit{i + 1}"] = out
+    return root, singles
+
+
+def same_as_single(batch_session: Path, single: Path) -> None:
+    """calibration.yaml identical byte for byte; report.json identical but for the time taken."""
+    assert (batch_session / "calibration.yaml").read_bytes() == (single / "calibration.yaml").read_bytes()
+    a = json.loads((batch_session / "report.json").read_text())
+    b = json.loads((single / "report.json").read_text())
+    a.pop("time_s"), b.pop("time_s")
+    assert a == b
+
+
+def test_batch_equals_single_verbs_then_rerun_skips(fleet, client, capsys):
+    root, singles = fleet
+    out = root / "batch"
+    argv = ["batch", "calibrate", str(root / "fleet" / "*"), "--out", str(out), "--scheduler", client.scheduler.address]
+    assert main(argv) == 0
+    for name, single in singles.items():
+        same_as_single(out / "sessions" / name, single)
+    summary = json.loads((out / "summary.json").read_text())
+    assert [r["session"] for r in summary["sessions"]] == sorted(singles)
+    assert summary["counts"] == {"ok": N_SESSIONS, "failed": 0, "missing": 0}
+    rows = (out / "summary.csv").read_text().splitlines()
+    assert len(rows) == 1 + N_SESSIONS and all(",ok," in r for r in rows[1:])
+    assert "<img" in (out / "summary.html").read_text()
+    capsys.readouterr()
+    before = {n: (out / "sessions" / n / "task.json").stat().st_mtime_ns for n in singles}
+    assert main(argv) == 0
+    said = capsys.readouterr()
+    assert f"{N_SESSIONS} already done, 0 to run" in said.err
+    assert {n: (out / "sessions" / n / "task.json").stat().st_mtime_ns for n in singles} == before
+    # other options in the same folder would mix two settings: refused
+    assert main(argv + ["--folds", "3"]) == 2
+    assert "other options" in capsys.readouterr().err
+
+
+def test_failed_session_is_reported_and_the_others_stand(fleet, client, capsys):
+    root, singles = fleet
+    broken = root / "fleet" / "unit9"
+    broken.mkdir()
+    (broken / "session.yaml").write_text(yaml.safe_dump({"platform": "rotary", "units": {"length": "cm"}}))
+    try:
+        out = root / "batch"  # the folder of the test above: its sessions are done, only unit9 runs
+        code = main(["batch", "calibrate", str(root / "fleet" / "unit*"), "--out", str(out), "--scheduler",
+                     client.scheduler.address])
+        assert code == 1
+        err = capsys.readouterr().err
+        assert "unit9" in err and "units.length" in err
+        failure = json.loads((out / "failed" / "unit9.json").read_text())
+        assert not failure["ok"] and failure["kind"] == "bad input"
+        assert not (out / "sessions" / "unit9").exists()
+        for name, single in singles.items():
+            same_as_single(out / "sessions" / name, single)
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["counts"] == {"ok": N_SESSIONS, "failed": 1, "missing": 0}
+    finally:
+        (broken / "session.yaml").unlink()
+        broken.rmdir()
+
+
+def test_a_worker_killed_in_the_middle_still_gives_every_result_once(fleet, client):
+    root, singles = fleet
+    sessions = find_sessions(str(root / "fleet" / "*"))
+    pids = client.run(os.getpid)  # worker address -> pid
+    killed: list[tuple[str, tuple]] = []
+
+    def kill_one_busy_worker():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            busy = {w: keys for w, keys in client.processing().items() if keys}
+            if busy:
+                worker, keys = next(iter(busy.items()))
+                time.sleep(0.3)  # inside the task, not before it
+                os.kill(pids[worker], signal.SIGKILL)
+                killed.append((worker, keys))
+                return
+            time.sleep(0.05)
+
+    killer = threading.Thread(target=kill_one_busy_worker)
+    killer.start()
+    options = {"platform": None, "description": None, "method": "lsq", "free": None, "folds": 0, "validate": None,
+               "max_evaluations": None, "no_robust": False}
+    outcomes = engine.run_tasks(client, run_verb, [engine.Task(r.name, ("calibrate", options, str(r.path), r.name))
+                                                   for r in sessions])
+    killer.join()
+    assert killed, "no worker was busy to kill"
+    assert sorted(o.key for o in outcomes) == sorted(singles)  # every session, once
+    assert all(o.ok for o in outcomes), [o.error for o in outcomes if not o.ok]
+    for o in outcomes:
+        out = root / "killed" / o.key
+        out.mkdir(parents=True)
+        for rel, data in o.value["files"].items():
+            (out / rel).write_bytes(data)
+        same_as_single(out, singles[o.key])
+    client.wait_for_workers(2, timeout=60)  # the nanny restarted it, for the tests after this one
+
+
+def test_without_dask_batch_says_how_to_install(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(engine, "Client", None)
+    assert main(["batch", "calibrate", str(tmp_path / "*"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'pip install "platkit[batch]"' in err[0]
+
+
+def test_pattern_matching_nothing_is_bad_input(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["batch", "calibrate", str(tmp_path / "*"), "--out", str(tmp_path / "out")]) == 2
+    assert "no session folder" in capsys.readouterr().err
