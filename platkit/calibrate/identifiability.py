@@ -197,16 +197,14 @@ def rotation_fixed_directions(R: np.ndarray) -> np.ndarray:
     return Vt[s_full <= ROTATION_FIXED_TOL].T
 
 
-def _outside_span(A: np.ndarray, cols: list[int], j: int) -> float:
-    """Fraction of the norm of column j of A outside the span of columns ``cols``."""
-    v = A[:, j]
-    nv = np.linalg.norm(v)
-    if nv == 0:
-        return 0.0
-    if not cols:
-        return 1.0
-    Q, _ = np.linalg.qr(A[:, cols])
-    return float(np.linalg.norm(v - Q @ (Q.T @ v)) / nv)
+def _outside_span(A: np.ndarray, cols: list[int], js) -> np.ndarray:
+    """Fraction of the norm of each column ``js`` of A outside the span of columns ``cols``."""
+    V = A[:, list(js)]
+    nv = np.linalg.norm(V, axis=0)
+    if cols:
+        Q, _ = np.linalg.qr(A[:, cols])
+        V = V - Q @ (Q.T @ V)
+    return np.where(nv > 0, np.linalg.norm(V, axis=0) / np.where(nv > 0, nv, 1.0), 0.0)
 
 
 @dataclass
@@ -279,7 +277,9 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     ref_cols = [pos[int(i)] for i in nuis_idx]
     Jr = J_ref[:, ref_cols]
     chosen = list(ident.chosen)
-    lost = [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen and _outside_span(Jr, chosen, k) >= rel_tol]
+    unchosen = [k for k in range(len(nuis_idx)) if k not in chosen]
+    outside = _outside_span(Jr, chosen, unchosen) if unchosen else np.zeros(0)
+    lost = [nuis_idx[k] for k, f in zip(unchosen, outside) if f >= rel_tol]
     n_gauge_nuis = len(nuis_idx) - len(select_identifiable(Jr, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)),
                                                            [0] * len(nuis_idx), rel_tol).chosen)
     if lost or len(nuis_idx) - len(chosen) > n_gauge_nuis:
@@ -300,11 +300,10 @@ def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, pr
     chosen_ref = [pos[int(cand_idx[k])] for k in ident.chosen if int(cand_idx[k]) in pos]
     by_name = {problem.names[i]: i for i in cand_idx}
     td_gauge, td_unexcited = [], []
-    for h in ident.held:
-        i = by_name.get(h.name)
-        if i is None or int(i) not in pos:
-            continue
-        if _outside_span(gauge.J_ref, chosen_ref, pos[int(i)]) < rel_tol:
+    judged = [h for h in ident.held if h.name in by_name and int(by_name[h.name]) in pos]
+    outside = _outside_span(gauge.J_ref, chosen_ref, [pos[int(by_name[h.name])] for h in judged]) if judged else []
+    for h, frac in zip(judged, outside):
+        if frac < rel_tol:
             h.kind = GAUGE
             h.reason += "; no set of poses the stand can take fixes it (a symmetry): held at nominal by convention"
             td_gauge.append(h.name)

@@ -21,7 +21,8 @@ The paper's J sees orientations only; to predict markers the output also needs p
 after the fit the translation of the base in the mocap frame and the marker positions on the
 moving part are found by linear least squares given the rotations (not part of the paper's
 method, and not used to choose td). Poses where a marker is missing are left out (step 1 needs
-every marker). No covariance: std is not given.
+every marker). No covariance: std is not given. A stand whose moving part never turns, or turns
+about one axis only, on the given poses is refused before any work (:func:`refuse_unserved`).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from platkit.calibrate.estimate import CalibrationProblem, Progress, _rms, blas_threads, free_mask, parameter_scale
+from platkit.calibrate.identifiability import rotation_fixed_directions
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import (
     matrix_from_quat,
@@ -195,6 +197,21 @@ def _initial_rotations(q_real, q_model):
     return quat_from_matrix(A), quat_from_matrix(Dinv.T)
 
 
+def refuse_unserved(spec: PlatformSpec, model: PlatformModel, poses: PoseSet) -> None:
+    """BadInput (exit 2, before any work) where the paper's method cannot serve the stand on these
+    poses: its functional J sees only the moving part's orientation, and the base rotation q^a
+    (hand-eye, step 3) needs turns about two axes. A stand that never turns (a delta robot, a
+    gantry) or turns about one axis would leave every parameter where it started and report
+    the registration's error twice."""
+    fb = model.forward_batch(poses.controls, spec.nominal_td(), strict=False)
+    ok = fb.converged & fb.on_branch
+    fixed = rotation_fixed_directions(matrix_from_quat(fb.q[ok]))
+    if fixed.shape[1]:
+        how = "never turns" if fixed.shape[1] == 3 else "turns about one axis only"
+        raise BadInput(f"--method paper cannot serve the {spec.name} stand on these poses: the paper's functional sees only "
+                       f"the moving part's orientation, which here {how}; use the default --method lsq")
+
+
 def calibrate_paper(poses: PoseSet, spec: PlatformSpec, free: Sequence[str] | None = None, fit_base: bool = True,
                     max_evaluations: int | None = None, progress: Progress | None = None,
                     platform_options: dict | None = None) -> Calibration:
@@ -218,8 +235,9 @@ def _calibrate_paper(poses, spec, free, fit_base, max_evaluations, progress, pla
         raise NotIdentifiable("the paper's marker frame (step 1) needs at least 3 markers")
     used = poses.subset(full)
     model = PlatformModel(spec)
-    C, q_real, S, gpa_iterations = marker_frame(used.markers)
     mask = free_mask(spec, free)
+    refuse_unserved(spec, model, used)
+    C, q_real, S, gpa_iterations = marker_frame(used.markers)
     idx = np.nonzero(mask)[0]
     td_nom = spec.nominal_td()
     scale = np.array([parameter_scale(p.unit, p.nominal) for p in spec.parameters])[idx]

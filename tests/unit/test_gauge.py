@@ -15,9 +15,10 @@ from test_estimate import Truth, prediction_error
 
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.identifiability import GAUGE, NOT_EXCITED, rotation_fixed_directions
+from platkit.calibrate.paper import calibrate_paper
 from platkit.calibrate.plan import Plan, evaluate_plan, feasible
 from platkit.cli import main
-from platkit.errors import NotIdentifiable
+from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
@@ -116,6 +117,8 @@ def test_a_turntable_turns_about_one_axis_the_convention_is_along_it(tmp_path):
     assert any("initial rigid registration" in c for c in gauge["conventions"])  # the turn with the mocap frame
     assert cal.marker_positions.mean(axis=0)[2] == pytest.approx(0.0, abs=1e-12)
     assert prediction_error(cal, truth) < 0.05e-3
+    with pytest.raises(BadInput, match="--method paper cannot serve the urdf stand .* turns about one axis only"):
+        calibrate_paper(truth.poses(10, 1e-4), spec)
 
 
 def _true_markers(spec, truth: dict, U):
@@ -155,3 +158,9 @@ def test_the_gantry_goes_through_simulate_calibrate_predict_and_diagnose(tmp_pat
     assert main(["diagnose", str(session), "--calibration", str(out / "calibration.yaml"), "--out",
                  str(tmp_path / "diag")]) == 0
     assert json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["findings"] == []
+    # the paper's method sees orientations only: refused in one line, before any work, nothing written
+    capsys.readouterr()
+    assert main(["calibrate", str(session), "--method", "paper", "--quiet", "--out", str(tmp_path / "paper")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--method paper cannot serve the urdf stand" in err[0] and "never turns" in err[0]
+    assert not (tmp_path / "paper").exists()
