@@ -91,8 +91,13 @@ def read_truth_imu(path: Path) -> dict:
     shapes = {"gyr_bias_rad_s": (3,), "acc_bias_m_s2": (3,), "gyr_scale": (3,), "acc_scale": (3,),
               "sensor_from_platform": (3, 3), "base_tilt_rad": (2,), "gyr_bias_rate_rad_s2": (3,)}
     for k, v in data.items():
+        if k == "effects":  # IMU effects the simulator applied: effect name -> parameters (SI)
+            if not isinstance(v, dict) or not all(isinstance(p, list) for p in v.values()):
+                raise BadSession(f"{path}: field 'effects' must map effect names to lists of numbers")
+            out[k] = {name: np.asarray(p, float) for name, p in v.items()}
+            continue
         if k not in shapes:
-            raise BadSession(f"{path}: unknown field {k!r}; known fields: {', '.join(shapes)}")
+            raise BadSession(f"{path}: unknown field {k!r}; known fields: {', '.join(shapes)}, effects")
         a = np.asarray(v, float)
         if a.shape != shapes[k]:
             raise BadSession(f"{path}: field {k!r} must have shape {shapes[k]}")
@@ -144,7 +149,8 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
     table = read_table(cpath, "the command log")
     missing = [c for c in ["t"] + spec.control_names if c not in table.header]
     if missing:
-        raise BadSession(f"{cpath}: missing column {missing[0]!r}; the {spec.name} stand expects t, {', '.join(spec.control_names)}")
+        raise BadSession(f"{cpath}: missing column {missing[0]!r}; the {spec.name} stand expects "
+                         f"t, {', '.join(spec.control_names)}")
     raw = np.column_stack([table.column(c) for c in spec.control_names])
     bad = np.argwhere(~np.isfinite(raw))
     if bad.size:

@@ -10,8 +10,16 @@ R_tilt^T (0, 0, -|g|). A platform holding still then reads f = R_SP R^T R_tilt^T
 (R = R_base_from_platform, R_SP the sensor's mounting) plus its bias.
 
 Sensor errors, applied as  y = scale * (A y_true) + bias(t) + noise  per axis, with A the axes'
-non-orthogonality (identity + small off-diagonal terms) and bias(t) = bias + ``bias_rate`` (t - t_0)
-+ a random walk of ``bias_drift`` (rad/s/sqrt(s)), the last two for the gyro only.
+non-orthogonality (identity + small off-diagonal terms) and bias(t) = bias + a random walk of
+``bias_drift`` (rad/s/sqrt(s)) for the gyro.
+
+IMU effects (:class:`platkit.effects.ImuEffect`, registered plugins, e.g. ``gyro_bias_drift``,
+``imu_misalignment``, ``imu_base_tilt``) act through their own sensor model, the one the IMU
+diagnosis fits: ``effects=[(effect, theta), ...]`` turn the sensor (``sensor_from_platform``,
+after ``imu_from_platform``), tilt the base (``level_from_base``: R_tilt above) and add to the
+gyro's and the accelerometer's bias (``gyro_bias``, ``accelerometer_bias``, time from the first
+sample). ``base_tilt`` and ``bias_rate`` are the built-in ``imu_base_tilt`` and
+``gyro_bias_drift`` given by their parameters.
 """
 from __future__ import annotations
 
@@ -19,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from platkit.effects import ImuEffect, effect_library, imu_sensor_model
 from platkit.errors import BadInput
 from platkit.geometry import (
     matrix_from_quat,
-    matrix_from_rotvec,
     quat_conjugate,
     quat_from_matrix,
     quat_from_rotvec,
@@ -60,9 +68,41 @@ def _tilt(value) -> np.ndarray:
     return w
 
 
+def named_effects(base_tilt=None, bias_rate=None) -> list[tuple[ImuEffect, np.ndarray]]:
+    """The registered ``imu_base_tilt`` and ``gyro_bias_drift`` effects for a base tilt (2,) rad
+    about the base's x and y axes and a linear gyro bias drift (3,) rad/s per s (None: none)."""
+    out = []
+    if base_tilt is not None:
+        out.append((effect_library()["imu_base_tilt"], _tilt(base_tilt)))
+    if bias_rate is not None:
+        rate = np.asarray(bias_rate, float)
+        if rate.shape != (3,) or not np.all(np.isfinite(rate)):
+            raise BadInput(f"bias_rate: expected 3 numbers (gyro x, y, z rad/s per s), got shape {rate.shape}")
+        out.append((effect_library()["gyro_bias_drift"], rate))
+    return out
+
+
+def _check_effects(effects) -> list[tuple[ImuEffect, np.ndarray]]:
+    out = []
+    for item in effects or ():
+        try:
+            e, theta = item
+        except (TypeError, ValueError):
+            raise BadInput(f"IMU effects: expected (effect, theta) pairs, got {item!r}") from None
+        theta = np.asarray(theta, float)
+        if not isinstance(e, ImuEffect):
+            raise BadInput(f"IMU effects: {e!r} is not an IMU effect (platkit.effects.ImuEffect)")
+        if theta.shape != (e.n_params,) or not np.all(np.isfinite(theta)):
+            raise BadInput(f"IMU effect {e.name!r}: expected {e.n_params} finite parameters "
+                           f"({', '.join(e.parameter_names)}), got {theta.tolist()!r}")
+        out.append((e, theta))
+    return out
+
+
 def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=None, bias_drift: float = 0.0,
                     scale=None, misalignment=None, noise=None, rng: np.random.Generator | None = None,
-                    lever_arm=None, gravity: float = G_STANDARD, base_tilt=None, bias_rate=None) -> dict:
+                    lever_arm=None, gravity: float = G_STANDARD, base_tilt=None, bias_rate=None,
+                    effects=()) -> dict:
     """IMU samples of a sensor riding on the platform.
 
     Args:
@@ -79,6 +119,7 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
         lever_arm: (3,) m, the sensor's position in the platform frame (default origin).
         base_tilt: (2,) rad, the base tilted against the level about its x and y axes (default 0).
         bias_rate: (3,) rad/s per s, a gyro bias changing linearly from the first sample (default 0).
+        effects: [(ImuEffect, theta (n,) SI)], IMU effects through their own sensor model.
     Returns a dict of arrays: ``t``, ``gyr`` (N, 3), ``acc`` (N, 3), ``gyr_true``, ``acc_true``
     (error-free, sensor axes), ``gyr_bias`` (N, 3) the bias actually applied, and
     ``q_earth_from_sensor`` (N, 4) the sensor's true orientation (earth: the level frame).
@@ -106,10 +147,9 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
     s = _six(scale, 1.0, "scale")
     nz = np.zeros(2) if noise is None else np.broadcast_to(np.asarray(noise, float), (2,))
     r = np.zeros(3) if lever_arm is None else np.asarray(lever_arm, float)
-    R_tilt = matrix_from_rotvec(np.append(_tilt(base_tilt), 0.0))
-    rate = np.zeros(3) if bias_rate is None else np.asarray(bias_rate, float)
-    if rate.shape != (3,):
-        raise BadInput(f"bias_rate: expected 3 numbers (gyro x, y, z rad/s per s), got shape {rate.shape}")
+    active = named_effects(base_tilt, bias_rate) + _check_effects(effects)
+    R_eff, R_tilt = imu_sensor_model(active)
+    R_sp = R_eff @ R_sp
 
     # rate: the rotation between consecutive samples, in the platform frame, over dt
     w_p = np.empty((n, 3))
@@ -126,9 +166,11 @@ def imu_from_motion(t, q_base_from_platform, X, imu_from_platform=None, bias=Non
     if bias_drift > 0:
         drift = np.cumsum(rng.normal(0.0, bias_drift * np.sqrt(dt), (n, 3)), axis=0)
         drift -= drift[0]
-    gyr_bias = b[:3] + drift + (t - t[0])[:, None] * rate
+    tau = t - t[0]
+    gyr_bias = b[:3] + drift + sum((np.asarray(e.gyro_bias(th, tau), float) for e, th in active), np.zeros((n, 3)))
+    acc_bias = b[3:] + sum((np.asarray(e.accelerometer_bias(th, tau), float) for e, th in active), np.zeros((n, 3)))
     gyr = s[:3] * (gyr_true @ A.T) + gyr_bias + rng.normal(0.0, nz[0], (n, 3))
-    acc = s[3:] * (acc_true @ A.T) + b[3:] + rng.normal(0.0, nz[1], (n, 3))
+    acc = s[3:] * (acc_true @ A.T) + acc_bias + rng.normal(0.0, nz[1], (n, 3))
     q_es = quat_normalize(quat_multiply(quat_multiply(quat_from_matrix(R_tilt)[None, :], q),
                                         quat_conjugate(quat_from_matrix(R_sp))[None, :]))
     return {"t": t, "gyr": gyr, "acc": acc, "gyr_true": gyr_true, "acc_true": acc_true,
@@ -243,25 +285,29 @@ def write_platform_imu_session(sim: dict, spec, out: str | Path, truth_imu: dict
 
 def imu_for_trajectory(rate_hz: float = 200.0, imu_from_platform=None, bias=None, bias_drift: float = 0.0,
                        scale=None, misalignment=None, noise=(0.002, 0.02), lever_arm=None, base_tilt=None,
-                       bias_rate=None):
+                       bias_rate=None, effects=()):
     """A callable ``imu(trajectory, rng) -> dict`` for :func:`platkit.simulate.simulate`'s ``imu``
     hook: it samples the true trajectory (``trajectory.at(t)`` -> q, X) at ``rate_hz`` from 0 to
     ``trajectory.end_t`` and returns :func:`imu_from_motion`'s arrays plus ``entry`` (the
     session.yaml ``imu`` mapping), ``q_base_from_platform`` (N, 4) (the truth for
-    truth_orientation.csv) and ``truth_imu`` (the sensor's true errors for truth_imu.yaml).
+    truth_orientation.csv) and ``truth_imu`` (the sensor's true errors for truth_imu.yaml; IMU
+    ``effects`` [(ImuEffect, theta)] under ``effects``, name -> theta SI).
     Before the first command the platform rests where the trajectory has it at that command
     (with any pose effects of the first row, e.g. a tilted base, already there)."""
     tilt = None if base_tilt is None else _tilt(base_tilt)
+    extra = _check_effects(effects)
+    named_effects(tilt, bias_rate)  # bad values are named before any simulation
 
     def imu(trajectory, rng):
         t = np.arange(0.0, float(trajectory.end_t), 1.0 / rate_hz)
         t0 = float(trajectory.command_t[0]) if len(trajectory.command_t) else 0.0
         q, X = trajectory.at(np.maximum(t, t0))
         out = imu_from_motion(t, q, X, imu_from_platform, bias, bias_drift, scale, misalignment, noise, rng, lever_arm,
-                              base_tilt=tilt, bias_rate=bias_rate)
+                              base_tilt=tilt, bias_rate=bias_rate, effects=extra)
         R = np.eye(3) if imu_from_platform is None else np.asarray(imu_from_platform, float)
         if R.shape == (4,):
             R = matrix_from_quat(R)
+        R = imu_sensor_model(extra)[0] @ R
         b = _six(bias, 0.0, "bias")
         s = _six(scale, 1.0, "scale")
         out["entry"] = {"rate_hz": float(rate_hz), "frame": "imu"}
@@ -273,6 +319,8 @@ def imu_for_trajectory(rate_hz: float = 200.0, imu_from_platform=None, bias=None
             out["truth_imu"]["base_tilt_rad"] = tilt.tolist()
         if bias_rate is not None:
             out["truth_imu"]["gyr_bias_rate_rad_s2"] = np.asarray(bias_rate, float).tolist()
+        if extra:
+            out["truth_imu"]["effects"] = {e.name: th.tolist() for e, th in extra}
         return out
 
     return imu
