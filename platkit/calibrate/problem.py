@@ -1,0 +1,423 @@
+"""The observation model of a calibration: residuals and exact Jacobians of a pose set.
+
+Unknowns (all SI): the stand's free parameters td, the base-to-mocap transform mocap_from_base
+(rotation vector w and translation t: 6 numbers), the marker positions m_i on the moving part
+(3 per marker) and the parameters theta of any :class:`~platkit.terms.ModelTerm`.
+The observation of marker i at pose n is
+
+    y_ni = exp(w) (X_n + exp(dth_n) R(q_n) (m_i + dm_ni) + dX_n) + t
+
+with (q_n, X_n) the forward kinematics of u_n + du_n under td, and (du, dX, dth, dm) the terms'
+offsets. Jacobians come from CasADi: for a stand with a closed-form ``forward`` it is
+differentiated directly; otherwise through the Newton solution by the implicit-function theorem,
+dp/dtd = -F_p^+ F_td and dp/du = -F_p^+ F_u. Terms' offsets are differentiated in theta by
+finite differences (they are numpy functions with few parameters) and chained with the exact
+Jacobians. The solvers are in :mod:`platkit.calibrate.solve`, the procedure in
+:mod:`platkit.calibrate.estimate`.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from platkit.errors import BadInput
+from platkit.geometry import ca_matrix_from_quat, ca_matrix_from_rotvec, matrix_from_quat, rigid_fit, rotvec_from_matrix
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
+
+#: Progress callback: ``progress(stage, info)``; stage is 'registration', 'identifiability',
+#: 'iteration', 'robust', 'fold', 'done'; info carries 'iteration', 'rms' (m), ... as fitting.
+Progress = Callable[[str, dict], None]
+
+#: Median of the 3-D error norm of isotropic Gaussian noise, in units of the per-axis sigma.
+MAXWELL_MEDIAN = 1.5381722
+HUBER_K = 3.0  # Huber threshold on the 3-D error, in sigma
+REJECT_K = 4.5  # errors beyond this many sigma are outliers (P < 1e-3 for clean 3-D noise)
+#: td stays within nominal +- this many typical corrections (10 cm, 0.1 rad, 10%, 100 counts): a
+#: description is a drawing of the stand, not a guess; beyond, the fit pays a stiff hinge
+PLAUSIBLE_RANGE = 100.0
+PLAUSIBLE_STIFFNESS_M = 1e-3  # per typical correction beyond the range, as a marker error of 1 mm
+
+NUISANCE_TIER, TERM_TIER, TD_TIER = 0, 1, 2
+
+
+def parameter_scale(unit: str, nominal: float) -> float:
+    """Typical size of a calibration correction, SI: 1 mm, 1 mrad, 1e-3 relative for the rest."""
+    if unit in ("m", "rad", "1", ""):
+        return 1e-3
+    return 1e-3 * max(abs(nominal), 1e-6) if unit != "count" else 1.0
+
+
+@dataclass
+class FitState:
+    """One evaluation: residuals (N, M, 3) m (predicted minus measured, NaN where unseen) and the
+    Jacobian (N, M, 3, n_z) with respect to the full unknown vector."""
+
+    r: np.ndarray
+    J: np.ndarray | None
+    converged: np.ndarray  # (N,) forward kinematics converged
+
+
+class CalibrationProblem:
+    """The least-squares problem of one pose set on one stand; generic over PlatformSpec.
+
+    Full unknown vector z (n_z,) = [td (n_td), w (3), t (3), m (3 M), theta (sum K_k)].
+    """
+
+    def __init__(self, spec: PlatformSpec, poses: PoseSet, terms: Sequence[ModelTerm] = ()):
+        if poses.controls.shape[1] != spec.n_u:
+            raise BadInput(f"{poses.source or 'poses'}: {poses.controls.shape[1]} control columns, the {spec.name} "
+                           f"stand has {spec.n_u} ({', '.join(spec.control_names)})")
+        self.spec = spec
+        self.poses = poses
+        self.terms = list(terms)
+        self.model = PlatformModel(spec)
+        self.N, self.M = poses.n_poses, poses.n_markers
+        self.visible = np.all(np.isfinite(poses.markers), axis=2)  # (N, M)
+        if not self.visible.any():
+            raise BadInput(f"{poses.source or 'poses'}: no marker was seen in any pose")
+        # a marker position averaged over n samples has variance sigma^2 / n: weight it by n
+        # (relative to the median, so that sigma stays the noise of a typical pose)
+        self.base_weights = self.visible.astype(float)
+        n = None if poses.n_samples is None else np.asarray(poses.n_samples, float)
+        if n is not None and n.shape == self.visible.shape and np.all(n[self.visible] > 0):
+            self.base_weights = np.where(self.visible, n / np.median(n[self.visible]), 0.0)
+        self.theta_sizes = [len(t.initial) for t in self.terms]
+        n_theta = int(sum(self.theta_sizes))
+        self.i_td = slice(0, spec.n_td)
+        self.i_w = slice(spec.n_td, spec.n_td + 3)
+        self.i_t = slice(spec.n_td + 3, spec.n_td + 6)
+        self.i_m = slice(spec.n_td + 6, spec.n_td + 6 + 3 * self.M)
+        self.i_theta = slice(self.i_m.stop, self.i_m.stop + n_theta)
+        self.n_z = self.i_theta.stop
+        self.names = (spec.parameter_names + ["mocap.rx", "mocap.ry", "mocap.rz", "mocap.x", "mocap.y", "mocap.z"]
+                      + [f"marker.{m}.{a}" for m in poses.marker_names for a in "xyz"]
+                      + [f"term.{t.effect}.{n}" for t in self.terms for n in t.parameter_names])
+        self.scale = np.concatenate([
+            [parameter_scale(p.unit, p.nominal) for p in spec.parameters],
+            np.full(6 + 3 * self.M, 1e-3), np.full(n_theta, 1e-3)])
+        self.tiers = np.array([TD_TIER] * spec.n_td + [NUISANCE_TIER] * (6 + 3 * self.M) + [TERM_TIER] * n_theta)
+        self._p_guess = np.broadcast_to(spec.neutral_p(), (self.N, spec.n_p)).copy()
+        self.prior_center = np.zeros(self.n_z)
+        self.prior_scale = np.zeros(self.n_z)  # rows prior_scale * (z - prior_center); 0 = none
+        # the plausible range of td: nominal +- PLAUSIBLE_RANGE typical corrections (see set_plausible)
+        self.nominal = np.concatenate([spec.nominal_td(), np.zeros(self.n_z - spec.n_td)])
+        self.half_width = np.full(self.n_z, np.inf)
+        self.set_plausible(PLAUSIBLE_RANGE)
+        self._build()
+
+    def set_plausible(self, corrections: float | None) -> None:
+        """Keep td within nominal +- ``corrections`` typical corrections (100: 10 cm, 0.1 rad, 10%).
+
+        Inside the range nothing changes; a parameter pushed beyond it pays, per typical
+        correction, as much as a marker error of PLAUSIBLE_STIFFNESS_M. Without it a weakly
+        identified direction of the geometry (a crank-rod stand's rod and crank centres) can
+        wander metres away while absorbing an unmodelled effect, and the fitted stand is then
+        another stand: its forward kinematics fails on new commands. None or inf removes it.
+        """
+        self.half_width = np.full(self.n_z, np.inf)
+        if corrections is not None and np.isfinite(corrections):
+            self.half_width[self.i_td] = float(corrections) * self.scale[self.i_td]
+
+    def beyond_plausible(self, z) -> list[str]:
+        """Names of the td entries of ``z`` outside their plausible range."""
+        d = np.abs(np.asarray(z, float) - self.nominal)
+        return [self.names[i] for i in np.nonzero(d > self.half_width * (1 + 1e-9))[0]]
+
+    def set_ridge(self, ridge_m: float, center) -> None:
+        """Shrink td towards ``center``: one typical correction (1 mm, 1 mrad) of a parameter costs
+        as much as a marker error of ``ridge_m`` metres. 0 removes the prior."""
+        self.prior_center = np.asarray(center, float).copy()
+        self.prior_scale = np.zeros(self.n_z)
+        if ridge_m > 0:
+            self.prior_scale[self.i_td] = ridge_m / self.scale[self.i_td]
+
+    def prior_rows(self, z):
+        """(values (R,), indices (R,), slopes (R,)): the rows the priors add, each depending on one
+        unknown (the ridge, and the plausible range's hinge where z is beyond it), or None."""
+        z = np.asarray(z, float)
+        idx = [np.nonzero(self.prior_scale > 0)[0]]
+        val = [self.prior_scale[idx[0]] * (z[idx[0]] - self.prior_center[idx[0]])]
+        slope = [self.prior_scale[idx[0]]]
+        d = z - self.nominal
+        out = np.nonzero(np.abs(d) > self.half_width)[0]
+        if out.size:
+            k = PLAUSIBLE_STIFFNESS_M / self.scale[out]
+            idx.append(out)
+            val.append(k * np.sign(d[out]) * (np.abs(d[out]) - self.half_width[out]))
+            slope.append(k)
+        idx = np.concatenate(idx)
+        return None if idx.size == 0 else (np.concatenate(val), idx, np.concatenate(slope))
+
+    # ------------------------------------------------------------------ CasADi
+    def _build(self) -> None:
+        spec, M = self.spec, self.M
+        u = ca.SX.sym("u", spec.n_u)
+        td = ca.SX.sym("td", spec.n_td)
+        w = ca.SX.sym("w", 3)
+        t = ca.SX.sym("t", 3)
+        m = ca.SX.sym("m", 3 * M)
+        dpose = ca.SX.sym("dpose", 6)
+        dm = ca.SX.sym("dm", 3 * M)
+        A = ca_matrix_from_rotvec(w)
+
+        def observe(q, X):
+            R = ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q))
+            pts = [ca.mtimes(A, X + dpose[0:3] + ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t
+                   for i in range(M)]
+            return ca.vertcat(*pts)
+
+        if spec.forward is not None:
+            q, X = spec.forward(u, td)
+            y = observe(q, X)
+            self._G = ca.Function(
+                "observe_fwd", [u, td, w, t, m, dpose, dm],
+                [ca.densify(ca.horzcat(y, ca.jacobian(y, td), ca.jacobian(y, u), ca.jacobian(y, w), ca.jacobian(y, t),
+                                       ca.jacobian(y, m), ca.jacobian(y, dpose)))],
+                ["u", "td", "w", "t", "m", "dpose", "dm"], ["Y"])
+            self._cols = [1, spec.n_td, spec.n_u, 3, 3, 3 * M, 6]
+            self._Yonly = ca.Function("observe_fwd_y", [u, td, w, t, m, dpose, dm], [y])
+            self._pose_of = ca.Function("pose_fwd", [u, td], [q, X], ["u", "td"], ["q", "X"])
+        else:
+            p = ca.SX.sym("p", spec.n_p)
+            q, X = spec.pose(p)
+            y = observe(q, X)
+            r = spec.residual(u, td, q, X)
+            self._G = ca.Function(
+                "observe_ift", [u, td, p, w, t, m, dpose, dm],
+                [ca.densify(ca.horzcat(y, ca.jacobian(y, p), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m),
+                                       ca.jacobian(y, dpose))),
+                 ca.densify(ca.horzcat(ca.jacobian(r, p), ca.jacobian(r, td), ca.jacobian(r, u)))],
+                ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["Y", "F"])
+            self._cols = [1, spec.n_p, 3, 3, 3 * M, 6]
+            self._fcols = [spec.n_p, spec.n_td, spec.n_u]
+            self._Yonly = ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y])
+        self._maps: dict[int, ca.Function] = {}
+
+    def _call(self, n: int, with_jac: bool, args: list[np.ndarray]) -> list[np.ndarray]:
+        """Evaluate the observation function over n poses on preallocated buffers.
+
+        args: per-pose inputs as (n, size) C-ordered arrays (CasADi's column-major (size, n)),
+        shared inputs (td, w, t, m) as 1-D arrays. Returns the outputs as (n, cols, rows) arrays.
+        """
+        key = (n, with_jac)
+        entry = self._maps.get(key)
+        if entry is None:
+            f = self._G if with_jac else self._Yonly
+            shared = [1, 3, 4, 5] if self.spec.forward is None else [1, 2, 3, 4]
+            fmap = f.map(f"{f.name()}_{n}", "serial", n, shared, [])
+            buf, run = fmap.buffer()
+            ins = [np.zeros(fmap.nnz_in(i)) for i in range(fmap.n_in())]
+            outs = [np.zeros(fmap.nnz_out(i)) for i in range(fmap.n_out())]
+            for i, a in enumerate(ins):
+                buf.set_arg(i, memoryview(a))
+            for i, a in enumerate(outs):
+                buf.set_res(i, memoryview(a))
+            shapes = [(n, fmap.size_out(i)[1] // n, fmap.size_out(i)[0]) for i in range(fmap.n_out())]
+            entry = self._maps[key] = (buf, run, ins, outs, shapes)
+        buf, run, ins, outs, shapes = entry
+        for dst, src in zip(ins, args):
+            dst[:] = np.ravel(src)
+        run()
+        return [o.reshape(sh).copy() for o, sh in zip(outs, shapes)]
+
+    # ------------------------------------------------------------------ pieces
+    def split(self, z):
+        theta, k = [], self.i_theta.start
+        for size in self.theta_sizes:
+            theta.append(z[k:k + size])
+            k += size
+        return z[self.i_td], z[self.i_w], z[self.i_t], z[self.i_m].reshape(self.M, 3), theta
+
+    def _term_offsets(self, theta, fk_q, fk_X, poses: PoseSet):
+        N = poses.n_poses
+        du = np.zeros((N, self.spec.n_u))
+        dpose = np.zeros((N, 6))
+        dm = np.zeros((N, self.M, 3))
+        for term, th in zip(self.terms, theta):
+            du += term.control_offset(th, poses, self.spec.n_u)
+            dpose += term.pose_offset(th, poses, fk_q, fk_X)
+            dm += term.marker_offset(th, poses)
+        return du, dpose, dm
+
+    def kinematics(self, td, U, guess=None):
+        """Forward kinematics (q (N,4), X (N,3), p (N,n_p), converged (N,)) of controls U (N, n_u)."""
+        fb = self.model.forward_batch(U, td, guess=guess, strict=False)
+        return fb.q, fb.X, fb.p, fb.converged & fb.on_branch
+
+    def evaluate(self, z, with_jac: bool = True, poses: PoseSet | None = None) -> FitState:
+        """Residuals (and the Jacobian) at z. ``poses``: another pose set (held-out prediction)."""
+        own = poses is None
+        poses = self.poses if own else poses
+        N, M = poses.n_poses, self.M
+        td, w, t, m, theta = self.split(np.asarray(z, float))
+        U = poses.controls
+        guess = self._p_guess if own else None
+        if self.terms:
+            q0, X0, p0, _ = self.kinematics(td, U, guess)
+            du, dpose, dm = self._term_offsets(theta, q0, X0, poses)
+        else:
+            du, dpose, dm = np.zeros((N, self.spec.n_u)), np.zeros((N, 6)), np.zeros((N, M, 3))
+        Uo = U + du
+        if self.spec.forward is not None:
+            outs = self._call(N, with_jac, [Uo, td, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
+            ok = np.ones(N, bool)
+        else:
+            _, _, P, ok = self.kinematics(td, Uo, guess)
+            if own:
+                self._p_guess = np.where(ok[:, None], P, self._p_guess)
+            P = np.where(ok[:, None], P, self._p_guess if own else self.spec.neutral_p())
+            outs = self._call(N, with_jac, [Uo, td, P, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
+        nM3 = 3 * M
+        if not with_jac:
+            y = outs[0].reshape(N, M, 3)
+            r = y - poses.markers
+            r[~ok] = np.nan
+            return FitState(r, None, ok)
+        Yall = outs[0].transpose(0, 2, 1)  # (N, 3M, cols)
+        parts = np.split(Yall, np.cumsum(self._cols)[:-1], axis=2)
+        y = parts[0][:, :, 0].reshape(N, M, 3)
+        r = y - poses.markers
+        r[~ok] = np.nan
+        J = np.zeros((N, nM3, self.n_z))
+        if self.spec.forward is not None:
+            _, Y_td, Y_u, Y_w, Y_t, Y_m, Y_dpose = parts
+        else:
+            _, Y_p, Y_w, Y_t, Y_m, Y_dpose = parts
+            Fall = outs[1].transpose(0, 2, 1)  # (N, n_r, cols)
+            F_p, F_td, F_u = np.split(Fall, np.cumsum(self._fcols)[:-1], axis=2)
+            if F_p.shape[1] == F_p.shape[2]:
+                F_p_inv = np.linalg.inv(F_p)
+            else:
+                F_p_inv = np.linalg.pinv(F_p)  # (N, n_p, n_r)
+            Y_pinv = np.einsum("nap,npr->nar", Y_p, F_p_inv)
+            Y_td = -np.einsum("nar,nrk->nak", Y_pinv, F_td)
+            Y_u = -np.einsum("nar,nrk->nak", Y_pinv, F_u) if self.terms else None
+        J[:, :, self.i_td] = Y_td
+        J[:, :, self.i_w] = Y_w
+        J[:, :, self.i_t] = Y_t
+        J[:, :, self.i_m] = Y_m
+        if self.terms:
+            k = self.i_theta.start
+            for term, th in zip(self.terms, theta):
+                base = (term.control_offset(th, poses, self.spec.n_u), term.pose_offset(th, poses, q0, X0),
+                        term.marker_offset(th, poses))
+                for j in range(len(th)):
+                    h = 1e-6 * max(1.0, abs(th[j]))
+                    thp = np.array(th, float).copy()
+                    thp[j] += h
+                    d_u = (term.control_offset(thp, poses, self.spec.n_u) - base[0]) / h
+                    d_pose = (term.pose_offset(thp, poses, q0, X0) - base[1]) / h
+                    d_m = (term.marker_offset(thp, poses) - base[2]) / h
+                    col = (np.einsum("nak,nk->na", Y_u, d_u) + np.einsum("nak,nk->na", Y_dpose, d_pose)
+                           + np.einsum("nak,nk->na", Y_m, d_m.reshape(N, -1)))
+                    J[:, :, k] = col
+                    k += 1
+        return FitState(r, J.reshape(N, M, 3, self.n_z), ok)
+
+    # ------------------------------------------------------------------ initial values
+    def initial_registration(self, td) -> np.ndarray:
+        """Transform and markers by rigid alignment at nominal kinematics: z (n_z,)."""
+        poses = self.poses
+        q, X, _, ok = self.kinematics(td, poses.controls)
+        R = matrix_from_quat(q)
+        Y = poses.markers
+        vis = self.visible & ok[:, None]
+        A = self._initial_rotation(R, X, Y, vis)
+        keep = vis.copy()
+        for _ in range(6):  # alternate: markers by least squares, then Kabsch; gross outliers left out
+            mk, b = self._markers_given_rotation(A, R, X, Y, keep)
+            pts = X[:, None, :] + np.einsum("nab,mb->nma", R, mk)
+            d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
+            sigma = _robust_sigma(d[vis])
+            keep = vis & (d <= max(REJECT_K * sigma, 1e-12))
+            A, b = rigid_fit(pts[keep], Y[keep])
+        mk, b = self._markers_given_rotation(A, R, X, Y, keep)
+        z = np.zeros(self.n_z)
+        z[self.i_td] = td
+        z[self.i_w] = rotvec_from_matrix(A)
+        z[self.i_t] = b
+        z[self.i_m] = mk.ravel()
+        k = self.i_theta.start
+        for term in self.terms:
+            z[k:k + len(term.initial)] = term.initial
+            k += len(term.initial)
+        return z
+
+    def _initial_rotation(self, R, X, Y, vis) -> np.ndarray:
+        """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB).
+
+        Rm_n: the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
+        model's. A few references are tried and the one whose clouds fit best is kept, and pose
+        pairs whose clouds do not fit as a rigid body (a swapped or jumping marker) are left out.
+        """
+        N = len(R)
+        counts = vis.sum(axis=1)
+        best_seen = np.nonzero(counts == counts.max())[0]
+        refs = best_seen[np.unique(np.linspace(0, len(best_seen) - 1, min(len(best_seen), 5)).astype(int))]
+        # a few dozen well-seen poses fix a rotation; more only cost time
+        sample = np.unique(np.linspace(0, N - 1, min(N, 60)).astype(int))
+        best = None
+        for ref in refs:
+            rows, misfit = [], []
+            for n in sample:
+                common = vis[n] & vis[ref]
+                if n == ref or common.sum() < 3:
+                    continue
+                Rm, tm = rigid_fit(Y[ref, common], Y[n, common])
+                misfit.append(np.sqrt(np.mean(np.sum((Y[ref, common] @ Rm.T + tm - Y[n, common]) ** 2, axis=1))))
+                rows.append(np.kron(np.eye(3), Rm) - np.kron((R[n] @ R[ref].T).T, np.eye(3)))
+            if len(rows) < 2:
+                continue
+            misfit = np.array(misfit)
+            med = float(np.median(misfit))
+            good = misfit <= max(4.5 * med, 1e-12)
+            if best is None or med < best[0]:
+                best = (med, np.vstack([r for r, g in zip(rows, good) if g]))
+        if best is not None:
+            _, s, Vt = np.linalg.svd(best[1])
+            if s[-2] > 10 * s[-1] and s[-2] > 1e-3:
+                A = Vt[-1].reshape(3, 3, order="F")
+                if np.linalg.det(A) < 0:
+                    A = -A
+                U_, _, Vt_ = np.linalg.svd(A)
+                return U_ @ np.diag([1, 1, np.linalg.det(U_ @ Vt_)]) @ Vt_
+        # too little rotation: align the moving frame's path with the markers' centroid path
+        full = vis.all(axis=1)
+        if full.sum() >= 3:
+            A, _ = rigid_fit(X[full], Y[full].mean(axis=1))
+            return A
+        return np.eye(3)
+
+    @staticmethod
+    def _markers_given_rotation(A, R, X, Y, vis):
+        """Linear least squares for marker positions m (M, 3) and translation b given A
+        (normal equations; the blocks (A R_n)^T (A R_n) are identities)."""
+        N, M = vis.shape
+        H = np.zeros((3 * M + 3, 3 * M + 3))
+        g = np.zeros(3 * M + 3)
+        C = np.einsum("ab,nbc->nac", A, R)  # (N, 3, 3): d y / d m
+        res = Y - (X @ A.T)[:, None, :]  # (N, M, 3)
+        for i in range(M):
+            v = vis[:, i]
+            k = slice(3 * i, 3 * i + 3)
+            H[k, k] = v.sum() * np.eye(3)
+            Ct = C[v].sum(axis=0).T
+            H[k, 3 * M:] = Ct
+            H[3 * M:, k] = Ct.T
+            g[k] = np.einsum("nba,nb->a", C[v], res[v, i])
+            g[3 * M:] += res[v, i].sum(axis=0)
+        H[3 * M:, 3 * M:] = vis.sum() * np.eye(3)
+        sol = np.linalg.lstsq(H, g, rcond=None)[0]
+        return sol[:3 * M].reshape(M, 3), sol[3 * M:]
+
+
+def _robust_sigma(d: np.ndarray) -> float:
+    """Per-axis noise sigma from 3-D error norms, robustly (median)."""
+    d = d[np.isfinite(d)]
+    return float(np.median(d) / MAXWELL_MEDIAN) if d.size else float("nan")

@@ -1,0 +1,199 @@
+"""Solvers of the calibration problem: Levenberg-Marquardt, the robust fit, k-fold held-out errors.
+
+The problem (residuals, Jacobians, priors) is :class:`platkit.calibrate.problem.CalibrationProblem`.
+- :func:`levenberg_marquardt`: Marquardt-scaled LM over the active unknowns, with fixed weights;
+- :func:`robust_fit`: Huber weights on each marker's 3-D error (scale from the median error),
+  then outliers beyond REJECT_K sigma rejected outright and the fit repeated at full weight;
+- :func:`kfold`: K-fold held-out prediction error (refits on K-1 folds).
+"""
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from platkit.calibrate.problem import HUBER_K, MAXWELL_MEDIAN, REJECT_K, CalibrationProblem, FitState, Progress, _robust_sigma
+from platkit.errors import BadInput
+
+
+@contextlib.contextmanager
+def blas_threads(n: int = 1):
+    """Limit the BLAS threads (OpenBLAS, MKL, BLIS) to ``n`` inside the block (restored after).
+
+    The estimator's matrices are small (thousands by tens); on a shared machine BLAS worker
+    threads spin against other processes and make each product ten times slower.
+    """
+    with threadpool_limits(limits=n, user_api="blas"):
+        yield
+
+
+@dataclass
+class LMResult:
+    z: np.ndarray
+    state: FitState
+    weights: np.ndarray  # (N, M)
+    iterations: int
+    converged: bool
+    cost: float
+
+
+def _weighted(state: FitState, weights, active, prior=None):
+    """Weighted residual vector and Jacobian columns of the active unknowns; ``prior``: optional
+    rows from :meth:`CalibrationProblem.prior_rows` (values, unknown index, slope)."""
+    w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)  # (N, M)
+    r = np.nan_to_num(state.r)
+    sw = np.sqrt(w)[:, :, None]
+    rw = (r * sw).ravel()
+    Jw = None
+    if state.J is not None:
+        Jw = (state.J[..., active] * sw[..., None]).reshape(-1, int(np.sum(active)))
+    if prior is not None:
+        val, idx, slope = prior
+        on = active[idx]  # a prior on a held unknown is a constant: no row
+        val, idx, slope = val[on], idx[on], slope[on]
+        if idx.size:
+            rw = np.concatenate([rw, val])
+            if Jw is not None:
+                P = np.zeros((idx.size, int(np.sum(active))))
+                cols = np.cumsum(active) - 1
+                P[np.arange(idx.size), cols[idx]] = slope
+                Jw = np.vstack([Jw, P])
+    return rw, Jw
+
+
+def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_iter=60, ftol=1e-10, xtol=1e-10,
+                        progress: Progress | None = None, stage: str = "iteration", it0: int = 0) -> LMResult:
+    """Minimise 1/2 sum_nm w_nm |r_nm(z)|^2 over z[active], from z0 (Marquardt-scaled LM)."""
+    z = np.array(z0, float)
+    active = np.asarray(active, bool)
+    st = problem.evaluate(z)
+    rw, Jw = _weighted(st, weights, active, problem.prior_rows(z))
+    cost = 0.5 * rw @ rw
+    lam = 1e-5
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        g = Jw.T @ rw
+        H = Jw.T @ Jw
+        D = np.maximum(np.diag(H), 1e-12 * max(1.0, np.max(np.diag(H))))
+        accepted = False
+        while lam < 1e12:
+            try:
+                step = np.linalg.solve(H + lam * np.diag(D), -g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            z_new = z.copy()
+            z_new[active] += step
+            st_new = problem.evaluate(z_new)
+            rw_new, Jw_new = _weighted(st_new, weights, active, problem.prior_rows(z_new))
+            cost_new = 0.5 * rw_new @ rw_new
+            # a step that loses poses (forward kinematics fails there) only looks cheaper
+            lost = np.sum(st_new.converged) < np.sum(st.converged)
+            if np.isfinite(cost_new) and cost_new <= cost and not lost:
+                accepted = True
+                break
+            lam *= 10
+        if not accepted:
+            converged = True  # no descent direction left: at a minimum to working precision
+            break
+        small_step = np.linalg.norm(step * np.sqrt(D)) <= xtol * (np.linalg.norm(rw) + xtol)
+        small_gain = (cost - cost_new) <= ftol * max(cost, 1e-300)
+        z, st, rw, Jw, cost = z_new, st_new, rw_new, Jw_new, cost_new
+        lam = max(lam / 10, 1e-12)
+        if progress is not None:
+            n_w = max(1.0, float(np.sum(weights * np.isfinite(st.r).all(axis=2))))
+            progress(stage, {"iteration": it0 + it, "rms": float(np.sqrt(2 * cost / n_w)), "lambda": lam})
+        if small_step or small_gain:
+            converged = True
+            break
+    return LMResult(z, st, weights, it, converged, cost)
+
+
+def robust_fit(problem: CalibrationProblem, z0, active, robust: bool = True, max_iter: int = 60,
+               progress: Progress | None = None, stage: str = "iteration") -> LMResult:
+    """LM with iteratively reweighted Huber weights, then hard rejection beyond REJECT_K sigma.
+
+    Weights start from ``problem.base_weights`` (the samples averaged into each marker position,
+    relative to the median); errors are compared in units of their own expected size.
+    """
+    vis = problem.visible
+    base = problem.base_weights
+    weights = base.copy()
+    res = levenberg_marquardt(problem, z0, active, weights, max_iter, progress=progress, stage=stage)
+    if not robust:
+        return res
+    total_it = res.iterations
+
+    def standardized(state):
+        return np.linalg.norm(state.r, axis=2) * np.sqrt(base)
+
+    for _ in range(3):  # Huber rounds
+        d = standardized(res.state)
+        sigma = _robust_sigma(d[vis])
+        if not np.isfinite(sigma) or sigma <= 0:
+            break
+        c = HUBER_K * sigma
+        new_w = np.where(vis & np.isfinite(d), base * np.minimum(1.0, c / np.maximum(d, 1e-300)), 0.0)
+        res = levenberg_marquardt(problem, res.z, active, new_w, max_iter, progress=progress, stage=stage, it0=total_it)
+        total_it += res.iterations
+        if np.max(np.abs(new_w - weights) / np.maximum(base, 1e-300)) < 0.05:
+            weights = new_w
+            break
+        weights = new_w
+    keep_prev = None
+    for _ in range(3):  # hard rejection rounds: inliers get full weight (no efficiency lost)
+        d = standardized(res.state)
+        sigma = _robust_sigma(d[vis])
+        keep = vis & np.isfinite(d) & (d <= REJECT_K * sigma)
+        if keep_prev is not None and np.array_equal(keep, keep_prev):
+            break
+        res = levenberg_marquardt(problem, res.z, active, np.where(keep, base, 0.0), max_iter, progress=progress,
+                                  stage=stage, it0=total_it)
+        total_it += res.iterations
+        keep_prev = keep
+    res.iterations = total_it
+    return res
+
+
+def _rms(state: FitState, weights) -> float:
+    d2 = np.sum(np.nan_to_num(state.r) ** 2, axis=2)
+    keep = (weights > 0) & np.isfinite(state.r).all(axis=2)
+    return float(np.sqrt(np.mean(d2[keep]))) if keep.any() else float("nan")
+
+
+def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = True, max_iter: int = 60,
+          progress: Progress | None = None) -> dict:
+    """K-fold held-out point RMS (m): refit on K-1 folds from z, predict the left-out poses.
+
+    Poses are assigned to folds in an interleaved order (pose n to fold n mod K) so every fold
+    spans the session.
+    """
+    poses = problem.poses
+    N = poses.n_poses
+    if folds > N:
+        raise BadInput(f"--folds {folds} is more than the {N} poses")
+    fold_of = np.arange(N) % folds
+    errs = np.full((N, problem.M), np.nan)
+    per_fold = []
+    for k in range(folds):
+        train = poses.subset(fold_of != k)
+        test = poses.subset(fold_of == k)
+        sub = CalibrationProblem(problem.spec, train, problem.terms)
+        sub.prior_center, sub.prior_scale = problem.prior_center, problem.prior_scale
+        sub.half_width = problem.half_width
+        fit = robust_fit(sub, z, active, robust, max_iter)
+        st = sub.evaluate(fit.z, with_jac=False, poses=test)
+        d = np.linalg.norm(st.r, axis=2)
+        errs[fold_of == k] = d
+        per_fold.append(float(np.sqrt(np.nanmean(d ** 2))))
+        if progress is not None:
+            progress("fold", {"fold": k + 1, "folds": folds, "rms": per_fold[-1]})
+    d = errs[np.isfinite(errs)]
+    med = np.median(d) if d.size else np.nan
+    inl = d[d <= REJECT_K * med / MAXWELL_MEDIAN] if d.size else d
+    return {"folds": folds, "rms": float(np.sqrt(np.mean(d ** 2))) if d.size else float("nan"),
+            "rms_inliers": float(np.sqrt(np.mean(inl ** 2))) if inl.size else float("nan"),
+            "rms_per_fold": per_fold}
