@@ -69,11 +69,12 @@ def find_sessions(patterns: str | list[str]) -> list[SessionRef]:
 class BatchFolder:
     """The output folder of one batch (see the module docstring). ``verb`` and ``options`` (a
     plain mapping of the verb's options) are recorded in batch.json; a folder that holds a batch
-    of another verb or other options is bad input, so results of two settings never mix."""
+    of another verb or other options is bad input, so results of two settings never mix.
+    ``items`` names the sub-folder of the finished tasks (sessions, or draws of a Monte Carlo)."""
 
-    def __init__(self, out: str | Path, verb: str, options: dict):
+    def __init__(self, out: str | Path, verb: str, options: dict, items: str = "sessions"):
         self.out = check_output_dir(out)
-        self.sessions = self.out / "sessions"
+        self.sessions = self.out / items
         self.failed = self.out / "failed"
         record = {"verb": verb, "options": options}
         path = self.out / "batch.json"

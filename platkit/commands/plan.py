@@ -1,6 +1,7 @@
 """platkit plan: which commands to send in a calibration session (grid or D-optimal)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,18 @@ def add_parser(sub):
     p.add_argument("--margin", type=float, default=0.1, help="fraction of each stroke kept clear at both ends (default 0.1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of plan.csv (default mm)")
+    mc = p.add_argument_group("Monte-Carlo evaluation (needs platkit[batch]: dask.distributed)")
+    mc.add_argument("--monte-carlo", type=int, default=None, metavar="N",
+                    help="also score the plan on N true stands drawn around the description: each simulated, "
+                         "calibrated and scored on the stand's held-out reference poses (<out>.montecarlo.json)")
+    mc.add_argument("--compare", action="append", default=[], metavar="PLAN.csv",
+                    help="another plan (a plan.csv) scored on the same N true stands, side by side (repeatable)")
+    mc.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
+                    help="a hidden effect in every true stand, as platkit simulate --effect (repeatable)")
+    mc.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="an existing Dask scheduler (default: $PLATKIT_DASK_SCHEDULER, else a local cluster)")
+    mc.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster (default: one per core)")
+    mc.add_argument("--quiet", action="store_true", help="no progress on stderr")
     return p
 
 
@@ -46,6 +59,7 @@ def run(args) -> int:
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name")
     check_output_file(out)
+    study = _monte_carlo_inputs(args) if args.monte_carlo is not None or args.compare or args.effect else None
     spec = platform_from_args(args)
     sigma = args.noise_mm * 1e-3
     rng = np.random.default_rng(args.seed)
@@ -70,11 +84,83 @@ def run(args) -> int:
         plan.info.update(pl.evaluate_plan(spec, plan, sigma, markers=markers, margin=args.margin))
         report["plan"] = plan.info
     report["n_poses"] = int(len(plan.controls))
+    if study is not None:
+        report["monte_carlo"] = _monte_carlo(args, spec, plan, markers, out)
     with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
         pl.write_plan_csv(tmp / out.name, spec, plan.controls, args.unit)
         (tmp / (out.stem + ".json")).write_text(jsonout.dumps(report, indent=2, default=float) + "\n", encoding="utf-8")
     _print(plan.info, report.get("baseline"), out, len(plan.controls))
+    if study is not None:
+        _print_monte_carlo(report["monte_carlo"], report["plan"], out)
     return 0
+
+
+def _monte_carlo_inputs(args) -> bool:
+    """Check the Monte-Carlo options before any work (bad input, exit 2)."""
+    from platkit.batch.engine import require_dask
+
+    if args.monte_carlo is None:
+        raise BadInput("--compare and --effect apply to a Monte-Carlo study: add --monte-carlo N")
+    if args.monte_carlo < 2:
+        raise BadInput(f"--monte-carlo {args.monte_carlo}: use 2 or more draws")
+    if args.workers is not None and args.workers < 1:
+        raise BadInput(f"--workers {args.workers}: use 1 or more")
+    for c in args.compare:
+        if not Path(c).is_file():
+            raise BadInput(f"--compare {c}: plan file not found")
+    require_dask("platkit plan --monte-carlo")
+    return True
+
+
+def _monte_carlo(args, spec, plan, markers, out: Path) -> dict:
+    """Score the plan (and the --compare plans) on the same --monte-carlo true stands; the draws
+    are kept in <out stem>.montecarlo/ (a re-run skips them). Returns plan.json's monte_carlo."""
+    from platkit.batch.engine import progress_line
+    from platkit.batch.montecarlo import evaluate_plans
+    from platkit.calibrate import plan as pl
+    from platkit.simulate.effects import parse_effect
+
+    plans = {out.stem: plan.controls}
+    for c in args.compare:
+        name = Path(c).stem
+        if name in plans:
+            raise BadInput(f"--compare {c}: two plans are named {name!r}; give the files different names")
+        plans[name] = pl.read_plan_csv(Path(c), spec, args.unit)
+    effects = tuple(parse_effect(e) for e in args.effect)
+    options = {k: getattr(args, k) for k in ("base_link", "moving_link") if getattr(args, k, None) is not None}
+    description = None if args.description is None else str(Path(args.description).resolve())
+    folder = out.parent / f"{out.stem}.montecarlo"
+    if not args.quiet:
+        print(f"plan: {args.monte_carlo} Monte-Carlo draws of {len(plans)} plans ({folder})", file=sys.stderr)
+    result = evaluate_plans(spec.name, description, options, plans, markers, args.monte_carlo, args.noise_mm, effects,
+                            args.seed, folder, args.scheduler, args.workers,
+                            None if args.quiet else progress_line("plan"))
+    return {"n_draws": args.monte_carlo, "folder": str(folder), "effects": [list(e) for e in effects],
+            "definition": "held-out error: RMS of the 3-D distance between the calibrated model's and the true "
+                          "marker positions over the stand's reference poses (noise-free), per draw; parameter error: "
+                          "estimate - truth where estimated; every plan sees the same true stands",
+            "plans": result}
+
+
+def _print_monte_carlo(mc: dict, info: dict, out: Path) -> None:
+    print(f"Monte Carlo, {mc['n_draws']} true stands (the same for every plan): held-out marker RMS (3-D), mm")
+    names = list(mc["plans"])
+    width = max(len(n) for n in names) + 2
+    print(f"{'plan':<{width}}{'poses':>6}{'median':>9}{'p90':>9}{'p95':>9}{'max':>9}  " +
+          "".join(f"beats {o[:10]:<11}" for o in names[1:]))
+    for name, r in mc["plans"].items():
+        h = r["heldout_rms_mm"]
+        beats = "".join(f"{'' if o == name else format(r['beats'][o], '.0%'):<17}" for o in names[1:])
+        print(f"{name:<{width}}{r['n_poses']:>6}{h['median']:>9.4f}{h['p90']:>9.4f}{h['p95']:>9.4f}{h['max']:>9.4f}  {beats}")
+    if info.get("predicted_marker_rms_m"):
+        print(f"linear prediction for {names[0]}: {info['predicted_marker_rms_m'] * 1e3 * 3 ** 0.5:.4f} mm (3-D, "
+              f"sqrt(3) x the per-coordinate {info['predicted_marker_rms_m'] * 1e3:.4f} mm)")
+    worst = sorted(((k, v) for k, v in mc["plans"][names[0]]["parameter_error"].items() if v["p95_abs"] is not None),
+                   key=lambda kv: -kv[1]["p95_abs"])[:4]
+    if worst:
+        print(f"largest parameter errors of {names[0]} (95th percentile of |estimate - truth|): "
+              + ", ".join(f"{k} {v['p95_abs']:.3g} {v['unit']}" for k, v in worst))
+    print(f"wrote {out.with_suffix('.json')} (monte_carlo) and the draws in {mc['folder']}")
 
 
 def _print(info: dict, baseline: dict | None, out: Path, n: int) -> None:
