@@ -22,8 +22,9 @@ import sys
 import time
 import traceback
 import warnings as warnings_module
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 from platkit.errors import BadInput, PlatkitError
 
