@@ -31,6 +31,7 @@ from platkit.plugins import get_platform
 SESSION_KEYS = (
     "platform", "description", "units", "markers", "base_markers", "mocap_rate_hz", "imu",
     "moving_link", "notes", "markers_file", "markers_time_offset", "base_link",
+    "date",  # (platkit) when it was recorded, ISO 8601: orders a stand's history (platkit batch --history)
 )
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 #: keys of session.yaml's ``imu`` mapping: the spec's rate_hz and frame, and (platkit) the
