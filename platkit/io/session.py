@@ -14,16 +14,23 @@ seconds. Every problem is one :class:`~platkit.errors.BadSession` line naming th
 from __future__ import annotations
 
 import csv
+import io
 import math
+import os
+import sys
+import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas
 
 from platkit.errors import BadInput, BadSession
 from platkit.io.c3d import read_c3d_markers
 from platkit.io.description import load_yaml
 from platkit.io.imu import DEFAULT_MAX_REPAIR_S, IMU_COLUMNS, ImuStream, read_imu_csv
+from platkit.io.shipped import shipped_dir
 from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
 from platkit.plugins import get_platform
 
@@ -121,62 +128,251 @@ class Session:
 # ----------------------------------------------------------------------------- CSV
 
 
-def read_table(path: Path, what: str = "") -> Table:
+def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
     """Read a CSV table of numbers with a header row. Empty cells and 'nan' are NaN; anything
-    else that is not a finite number is a BadSession naming row and column."""
+    else that is not a finite number is a BadSession naming row and column.
+
+    The body is parsed by pandas' C reader, CHUNK_ROWS rows at a time, into one (rows, columns)
+    float64 array allocated once (peak memory: the table plus one chunk), so a stream of
+    millions of rows reads in seconds. Where that parse stops (a cell it cannot read) or
+    disagrees with the file's own count of lines and separators (a row with too few or too
+    many cells, a blank line, quoting), the rest is read cell by cell from the first row it
+    had not finished, and that reading names the file, row, line and column of the problem.
+    Files of PROGRESS_MIN_BYTES or more say on stderr how far the reading is, from its start
+    and about once a second, unless ``quiet``.
+    """
     path = Path(path)
     if not path.is_file():
         raise BadSession(f"{path}: file not found{' (' + what + ')' if what else ''}")
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            rows = list(csv.reader(fh))
+        header, body_start = _read_header(path)
+        n_lines, n_commas = _count_body(path, body_start)
+        if n_lines == 0:
+            raise BadSession(f"{path}: no data rows after the header")
+        progress = _Progress(path, n_lines, quiet)
+        data = np.empty((n_lines, len(header)))
+        done = _parse_fast(path, header, body_start, data, progress)
+        if done < n_lines:  # the rows the fast reader did fill must have their separators too
+            n_commas = _count_commas(path, body_start, _offset_of_row(path, body_start, done))
+        if n_commas != (len(header) - 1) * min(done, n_lines):
+            done = 0  # some row has too few or too many cells (or quotes): find it cell by cell
+        if done < n_lines:
+            try:
+                n_rows = _parse_exact(path, header, data, done, body_start, progress)
+            except BadSession:
+                _check_finite(path, header, data[:done], body_start)  # an earlier problem is told first
+                raise
+            data = data[:n_rows]
+        _check_finite(path, header, data, body_start)
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
-    while rows and not any(c.strip() for c in rows[-1]):
-        rows.pop()
-    if not rows:
-        raise BadSession(f"{path}: the file is empty; expected a header row")
-    header = [h.strip() for h in rows[0]]
+    progress.finish()
+    return Table(path, header, data)
+
+
+def _check_finite(path: Path, header: list[str], data: np.ndarray, body_start: int) -> None:
+    """BadSession for the first infinite cell of ``data`` (the fast reader takes 'inf' and
+    1e999 for numbers), worded by the cell-by-cell reading of that row."""
+    infinite = np.isinf(data)
+    if infinite.any():
+        r = int(np.argwhere(infinite)[0][0])
+        _parse_exact(path, header, data, r, body_start, _Progress(path, 0, quiet=True), stop=r + 1)
+
+
+#: files at least this large say on stderr how far their reading is (about once a second)
+PROGRESS_MIN_BYTES = 32 * 2**20
+#: rows the fast reader parses at a time: the peak memory beyond the table itself, and how far
+#: back the cell-by-cell reading starts when a chunk holds a cell the fast reader refuses
+CHUNK_ROWS = 50_000
+#: cells that the fast reader takes for NaN (the cell-by-cell reading: empty or 'nan' in any case)
+NAN_CELLS = ["", "nan", "NaN", "NAN", "-nan", "-NaN"]
+_BLOCK_BYTES = 16 * 2**20
+
+
+def _read_header(path: Path) -> tuple[list[str], int]:
+    """(header names, byte offset of the first data line); BadSession for an empty file or
+    an empty or duplicated column name."""
+    with path.open("rb") as fh:
+        first = fh.readline()
+        start = fh.tell()
+        if not first.strip():
+            if not fh.read().strip():
+                raise BadSession(f"{path}: the file is empty; expected a header row")
+            raise BadSession(f"{path}: header column 1 is empty")
+    header = [h.strip() for h in next(csv.reader([first.decode("utf-8-sig")]))]
     for j, h in enumerate(header):
         if not h:
             raise BadSession(f"{path}: header column {j + 1} is empty")
     dup = sorted({h for h in header if header.count(h) > 1})
     if dup:
         raise BadSession(f"{path}: header has duplicate columns {dup}")
-    body = rows[1:]
-    if not body:
-        raise BadSession(f"{path}: no data rows after the header")
-    for r, row in enumerate(body):
-        if len(row) != len(header):
-            raise BadSession(
-                f"{path} row {r + 1} (line {r + 2}): {len(row)} cells, expected {len(header)} like the header"
+    return header, start
+
+
+def _count_body(path: Path, start: int) -> tuple[int, int]:
+    """(lines, commas) of the file from byte ``start`` to its last non-blank character."""
+    lines = commas = 0
+    tail_newlines = 0  # newlines after the last non-blank character seen so far
+    any_text = False
+    with path.open("rb") as fh:
+        fh.seek(start)
+        while block := fh.read(_BLOCK_BYTES):
+            lines += _count_byte(block, b"\n")
+            commas += _count_byte(block, b",")
+            stripped = block.rstrip(b" \t\r\n")
+            if stripped:
+                any_text = True
+                tail_newlines = block.count(b"\n", len(stripped))
+            else:
+                tail_newlines += block.count(b"\n")
+    if not any_text:
+        return 0, 0
+    return lines - tail_newlines + 1, commas
+
+
+def _count_commas(path: Path, start: int, stop: int) -> int:
+    """Commas between byte offsets ``start`` and ``stop``."""
+    commas = 0
+    with path.open("rb") as fh:
+        fh.seek(start)
+        while start < stop and (block := fh.read(min(_BLOCK_BYTES, stop - start))):
+            commas += _count_byte(block, b",")
+            start += len(block)
+    return commas
+
+
+def _count_byte(block: bytes, byte: bytes) -> int:
+    """How often ``byte`` occurs in ``block`` (numpy: a few times faster than bytes.count)."""
+    return int(np.count_nonzero(np.frombuffer(block, np.uint8) == byte[0]))
+
+
+def _parse_fast(path: Path, header: list[str], body_start: int, data: np.ndarray, progress: "_Progress") -> int:
+    """Fill ``data`` chunk by chunk with pandas' C reader, one row per line (a blank line is a
+    row of NaN here, which the separator count catches); the number of rows filled before the
+    first chunk it could not read (all of them: ``len(data)``). Blank lines after the last row
+    are not rows."""
+    done = 0
+    with path.open("rb") as fh, warnings.catch_warnings():
+        fh.seek(body_start)
+        warnings.simplefilter("ignore")  # a row with extra cells: the separator count finds it
+        try:
+            chunks = pandas.read_csv(
+                fh, header=None, names=header, index_col=False, dtype=np.float64, engine="c",
+                keep_default_na=False, na_values=NAN_CELLS, chunksize=CHUNK_ROWS, encoding="utf-8",
+                skip_blank_lines=False,
             )
-    nan = math.nan
-    try:  # fast path; any cell float() refuses sends us to the cell-by-cell check for the message
-        data = np.array([[float(c) if c.strip() else nan for c in row] for row in body], dtype=float)
-        if not np.isinf(data).any():
-            return Table(path, header, data)
-    except ValueError:
-        pass
-    data = np.empty((len(body), len(header)))
-    for r, row in enumerate(body):
-        for j, cell in enumerate(row):
-            cell = cell.strip()
-            if cell == "" or cell.lower() == "nan":
-                data[r, j] = math.nan
+            for chunk in chunks:
+                rows = chunk.to_numpy(dtype=np.float64)
+                if rows.shape[1] != data.shape[1]:
+                    return done
+                fit = min(len(rows), len(data) - done)
+                if fit < len(rows) and not np.isnan(rows[fit:]).all():
+                    return done
+                data[done:done + fit] = rows[:fit]
+                done += fit
+                progress.update(done)
+        except (ValueError, pandas.errors.ParserError, UnicodeDecodeError):
+            pass
+    return done
+
+
+def _parse_exact(path: Path, header: list[str], data: np.ndarray, first: int, body_start: int,
+                 progress: "_Progress", stop: int | None = None) -> int:
+    """Read rows ``first``.. (0-based data rows) cell by cell into ``data``; the number of rows
+    of the table (trailing blank lines are not rows). BadSession naming the row, line and
+    column of the first cell that is not a finite number or NaN, and of a row whose cell count
+    differs from the header's. ``stop``: read no further than this row."""
+    n = len(header)
+    with path.open("rb") as raw:
+        raw.seek(_offset_of_row(path, body_start, first))
+        text = io.TextIOWrapper(raw, encoding="utf-8", newline="")
+        r = first
+        blank = None  # the first of a run of blank rows: an error only if a row follows
+        for row in csv.reader(text):
+            if stop is not None and r >= stop:
+                break
+            if not row or (len(row) == 1 and not row[0].strip()):  # a blank line
+                blank = (r, len(row)) if blank is None else blank
+                r += 1
                 continue
-            try:
-                v = float(cell)
-            except ValueError:
-                raise BadSession(
-                    f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a number, got {cell!r}"
-                ) from None
-            if not math.isfinite(v):
-                raise BadSession(
-                    f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a finite number, got {cell!r}"
-                )
-            data[r, j] = v
-    return Table(path, header, data)
+            if blank is not None:
+                br, cells = blank
+                raise BadSession(f"{path} row {br + 1} (line {br + 2}): {cells} cells, expected {n} like the header")
+            if len(row) != n:
+                raise BadSession(f"{path} row {r + 1} (line {r + 2}): {len(row)} cells, expected {n} like the header")
+            if r >= len(data):  # more rows than lines counted: a quoted cell spans lines
+                raise BadSession(f"{path} row {r + 1} (line {r + 2}): a cell spans lines; expected one row per line")
+            values = data[r]
+            for j, cell in enumerate(row):
+                cell = cell.strip()
+                if cell == "" or cell.lower() == "nan":
+                    values[j] = math.nan
+                    continue
+                try:
+                    v = float(cell)
+                except ValueError:
+                    raise BadSession(
+                        f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a number, got {cell!r}"
+                    ) from None
+                if not math.isfinite(v):
+                    raise BadSession(
+                        f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a finite number, got {cell!r}"
+                    )
+                values[j] = v
+            r += 1
+            if r % CHUNK_ROWS == 0:
+                progress.update(r)
+        text.detach()
+    if blank is not None:
+        r = blank[0]
+    if r == 0:
+        raise BadSession(f"{path}: no data rows after the header")
+    return r
+
+
+def _offset_of_row(path: Path, body_start: int, row: int) -> int:
+    """Byte offset of data row ``row`` (0-based), counting one row per line."""
+    offset, need = body_start, row
+    with path.open("rb") as fh:
+        fh.seek(body_start)
+        while need:
+            block = fh.read(_BLOCK_BYTES)
+            if not block:
+                break
+            k = block.count(b"\n")
+            if k < need:
+                need -= k
+                offset += len(block)
+                continue
+            pos = -1
+            for _ in range(need):
+                pos = block.index(b"\n", pos + 1)
+            return offset + pos + 1
+    return offset
+
+
+class _Progress:
+    """'reading FILE: N% (rows of total)' on stderr for large files, at the start and about
+    once a second; nothing for small files or when quiet."""
+
+    def __init__(self, path: Path, total_rows: int, quiet: bool):
+        self.path, self.total = path, total_rows
+        size = path.stat().st_size
+        self.on = not quiet and size >= PROGRESS_MIN_BYTES
+        self.t0 = self.last = time.monotonic()
+        if self.on:
+            print(f"reading {path}: {size / 1e6:.0f} MB, {total_rows:,} rows", file=sys.stderr, flush=True)
+
+    def update(self, done: int) -> None:
+        now = time.monotonic()
+        if self.on and now - self.last >= 1.0:
+            self.last = now
+            print(f"reading {self.path.name}: {100 * done / self.total:.0f}% ({done:,} of {self.total:,} rows, "
+                  f"{now - self.t0:.0f} s)", file=sys.stderr, flush=True)
+
+    def finish(self) -> None:
+        if self.on and time.monotonic() - self.t0 >= 1.0:
+            print(f"reading {self.path.name}: done in {time.monotonic() - self.t0:.1f} s", file=sys.stderr, flush=True)
 
 
 def check_times(table: Table, t: np.ndarray, column: str = "t") -> None:
@@ -219,12 +415,19 @@ def _check_marker_header(table: Table, declared: list[str], leading: list[str], 
             raise BadSession(f"{table.path}: missing column {col!r}")
 
 
-def _marker_block(table: Table, names: list[str], scale: float) -> np.ndarray:
-    """(rows, M, 3) metres from the x,y,z columns of ``names``."""
-    idx = [[table.header.index(c) for c in marker_columns(m)] for m in names]
-    if not idx:
+def _marker_block(table: Table, names: list[str], scale: float, in_place: bool = False) -> np.ndarray:
+    """(rows, M, 3) metres from the x,y,z columns of ``names``. ``in_place``: where those
+    columns stand side by side in that order (as a recorder writes them), the result is a view
+    of ``table.data`` scaled in place, so a stream of millions of rows is not copied."""
+    idx = np.array([[table.header.index(c) for c in marker_columns(m)] for m in names], dtype=int).reshape(-1, 3)
+    if not idx.size:
         return np.zeros((table.data.shape[0], 0, 3))
-    return table.data[:, np.array(idx)] * scale
+    first = int(idx[0, 0])
+    if in_place and np.array_equal(idx.ravel(), np.arange(first, first + idx.size)):
+        block = table.data[:, first:first + idx.size]
+        block *= scale
+        return block.reshape(len(block), len(names), 3)
+    return table.data[:, idx] * scale
 
 
 #: no motion-capture volume is this large (m): coordinates beyond it are in another unit
@@ -235,17 +438,20 @@ def _check_plausible_unit(table: Table, markers: np.ndarray, length_unit: str, n
     """Marker coordinates that cannot be in the declared unit: BadSession naming the column.
     Declared m but beyond 100 m: the file is in mm. Declared mm but every coordinate within
     20 mm of the origin and the whole stream within 20 mm: the file is in m."""
-    with np.errstate(invalid="ignore"):
-        big = np.abs(markers) > LARGEST_VOLUME_M
-    if np.any(big):
-        r, k, a = np.argwhere(big)[0]
+    if not markers.size or not np.isfinite(markers).any():
+        return
+    # fmax/fmin reductions skip NaN without copying the stream (millions of rows)
+    hi, lo = float(np.fmax.reduce(markers, axis=None)), float(np.fmin.reduce(markers, axis=None))
+    if max(hi, -lo) > LARGEST_VOLUME_M:
+        with np.errstate(invalid="ignore"):
+            r, k, a = np.argwhere(np.abs(markers) > LARGEST_VOLUME_M)[0]
         raise BadSession(
             f"{table.where(int(r), f'{names[k]}_{AXES[a]}')}: {markers[r, k, a] / LENGTH_UNITS[length_unit]:.6g} "
             f"{length_unit} is beyond any motion-capture volume; is the file in mm? session.yaml declares {length_unit}"
         )
     if length_unit == "mm" and markers.shape[0] > 1:
-        fin = markers[np.isfinite(markers)] / LENGTH_UNITS["mm"]
-        if fin.size and np.max(np.abs(fin)) < 20.0 and np.ptp(fin) < 20.0:
+        hi, lo = hi / LENGTH_UNITS["mm"], lo / LENGTH_UNITS["mm"]
+        if max(hi, -lo) < 20.0 and hi - lo < 20.0:
             raise BadSession(
                 f"{table.path}: every marker coordinate is within 20 mm of the origin; the values look like "
                 f"metres but session.yaml declares mm"
@@ -253,11 +459,13 @@ def _check_plausible_unit(table: Table, markers: np.ndarray, length_unit: str, n
 
 
 def _check_seen(markers: np.ndarray, names: list[str], path: Path) -> None:
-    seen = np.isfinite(markers).all(axis=2).any(axis=0)
+    finite = np.isfinite(markers)
+    whole = finite.all(axis=2)
+    seen = whole.any(axis=0)
     for m, ok in zip(names, seen):
         if not ok:
             raise BadSession(f"{path}: marker {m!r} is never seen (every sample empty); remove it from session.yaml")
-    partial = np.isfinite(markers).any(axis=2) & ~np.isfinite(markers).all(axis=2)
+    partial = finite.any(axis=2) & ~whole
     if np.any(partial):
         r, k = np.argwhere(partial)[0]
         raise BadSession(
@@ -415,14 +623,16 @@ def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_
 
 
 def load_session(folder: str | Path, platform: str | None = None, description: str | Path | None = None,
-                 spec: PlatformSpec | None = None, imu_max_repair_s: float = DEFAULT_MAX_REPAIR_S) -> Session:
+                 spec: PlatformSpec | None = None, imu_max_repair_s: float = DEFAULT_MAX_REPAIR_S,
+                 quiet: bool = False) -> Session:
     """Read and check a session folder.
 
     ``platform``: the stand to read it for (default: session.yaml's); a different name from
     session.yaml's is an error. ``description``: overrides session.yaml's description file.
     ``spec``: an already built stand (skips the plugin lookup; tests and simulation).
     ``imu_max_repair_s``: missing IMU cells and time gaps up to this long (s) are interpolated
-    and stated in ``imu_notes``; longer ones are errors.
+    and stated in ``imu_notes``; longer ones are errors. ``quiet``: no progress on stderr while a
+    large motion-capture stream is read (:func:`read_table`).
     A session without a stand (``platform: none`` and none given) needs no commands.csv, and
     nothing in it is checked against controls; it needs imu.csv.
     Raises BadSession (one line: file, row or column, what was expected).
@@ -487,11 +697,11 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
             s.markers, s.base_markers = xyz[:, :M], xyz[:, M:]
             _check_seen(xyz, s.marker_names + s.base_marker_names, mpath)
         elif mpath.suffix.lower() == ".csv":
-            _read_markers_csv(s, mpath, lscale, tscale, y["markers_time_offset"])
+            _read_markers_csv(s, mpath, lscale, tscale, y["markers_time_offset"], quiet)
         else:
             raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, got {y['markers_file']!r}")
     elif (folder / "markers.csv").is_file():
-        _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"])
+        _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
     elif poses_path.is_file():
         _read_poses_csv(s, poses_path, lscale, tscale)
     if s.has_markers and not s.marker_names:
@@ -538,15 +748,15 @@ def _read_commands_without_stand(s: Session, path: Path, tscale: float) -> None:
     s.command_t = t
 
 
-def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offset: float) -> None:
+def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offset: float, quiet: bool = False) -> None:
     names = s.marker_names + s.base_marker_names
     if not s.marker_names:
         raise BadSession(f"{s.folder / 'session.yaml'}: field 'markers' must name the markers of {path.name}")
-    table = read_table(path, "the motion-capture stream")
+    table = read_table(path, "the motion-capture stream", quiet=quiet)
     _check_marker_header(table, names, ["t"])
     t = table.column("t") * tscale + offset
     check_times(table, t)
-    xyz = _marker_block(table, names, lscale)
+    xyz = _marker_block(table, names, lscale, in_place=True)  # the table is not used after this
     _check_seen(xyz, names, path)
     _check_plausible_unit(table, xyz, s.length_unit, names)
     M = len(s.marker_names)
@@ -609,16 +819,16 @@ EXAMPLES_ENV = "PLATKIT_EXAMPLES"
 
 def example_session(platform: str) -> Path:
     """The example session shipped for ``platform``: ``<platform>/`` under the directories of the
-    ``PLATKIT_EXAMPLES`` variable, else examples/sessions/<platform>/ found walking up from this
-    package (the repository's top-level examples/). BadSession if there is none."""
-    import os
-
-    candidates = [Path(d) / platform for d in os.environ.get(EXAMPLES_ENV, "").split(os.pathsep) if d]
-    candidates += [parent / "examples" / "sessions" / platform for parent in Path(__file__).resolve().parents]
-    for cand in candidates:
-        if (cand / "session.yaml").is_file():
-            return cand
+    ``PLATKIT_EXAMPLES`` variable, else under the example sessions installed with platkit (the
+    repository's examples/sessions/, the package ``platkit_data.sessions``). BadSession if none."""
+    searched = [Path(d) for d in os.environ.get(EXAMPLES_ENV, "").split(os.pathsep) if d]
+    for folder in searched:
+        if (folder / platform / "session.yaml").is_file():
+            return folder / platform
+    searched.append(shipped_dir("sessions"))
+    if (searched[-1] / platform / "session.yaml").is_file():
+        return searched[-1] / platform
     raise BadSession(
-        f"no example session for the {platform!r} stand (looked in ${EXAMPLES_ENV} and for "
-        f"examples/sessions/{platform}/ above {Path(__file__).parent})"
+        f"no example session for the {platform!r} stand (looked for {platform}/session.yaml in "
+        f"{', '.join(str(d) for d in searched)})"
     )

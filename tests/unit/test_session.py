@@ -1,6 +1,7 @@
 """Reading session folders: every field checked, SI inside, one-line errors naming file/row/column."""
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -537,3 +538,119 @@ def test_calibrate_an_imu_only_recording_says_calibration_needs_a_stand(session_
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "declares no platform" in err
     assert not (tmp_path / "cal").exists()
+
+
+# ----------------------------------------------------------------------------- the fast reader (issue 13)
+
+
+def _table_text(rows: list[list[str]], header=("t", "a", "b")) -> str:
+    return ",".join(header) + "\n" + "\n".join(",".join(r) for r in rows) + "\n"
+
+
+@pytest.fixture
+def small_chunks(monkeypatch):
+    """Chunks of 4 rows, so that a few rows cross chunk boundaries as millions would."""
+    import platkit.io.session as session_module
+
+    monkeypatch.setattr(session_module, "CHUNK_ROWS", 4)
+
+
+@pytest.mark.parametrize("row", [0, 3, 4, 5, 10])
+@pytest.mark.parametrize("cell, expect", [
+    ("x", "column 'b': expected a number, got 'x'"),
+    ("inf", "column 'b': expected a finite number, got 'inf'"),
+    ("1e999", "column 'b': expected a finite number, got '1e999'"),
+    ("1;2", "column 'b': expected a number, got '1;2'"),
+])
+def test_a_bad_cell_is_named_wherever_the_chunks_fall(tmp_path, small_chunks, row, cell, expect):
+    rows = [[f"{i}", f"{i * 0.5:.3f}", "1.25"] for i in range(12)]
+    rows[row][2] = cell
+    p = tmp_path / "m.csv"
+    p.write_text(_table_text(rows))
+    with pytest.raises(BadSession) as err:
+        read_table(p)
+    assert str(err.value) == f"{p} row {row + 1} (line {row + 2}) {expect}"
+
+
+@pytest.mark.parametrize("row", [0, 3, 4, 8])  # not the last: a blank last line is no row
+@pytest.mark.parametrize("change, cells", [("drop", 2), ("add", 4), ("blank", 0)])
+def test_a_row_with_another_cell_count_is_named(tmp_path, small_chunks, row, change, cells):
+    rows = [[f"{i}", "1", "2"] for i in range(10)]
+    if change == "drop":
+        rows[row] = rows[row][:2]
+    elif change == "add":
+        rows[row] = rows[row] + ["3"]
+    else:
+        rows[row] = []
+    p = tmp_path / "m.csv"
+    p.write_text(_table_text(rows))
+    with pytest.raises(BadSession) as err:
+        read_table(p)
+    assert str(err.value) == f"{p} row {row + 1} (line {row + 2}): {cells} cells, expected 3 like the header"
+
+
+def test_the_first_problem_in_the_file_is_the_one_told(tmp_path, small_chunks):
+    rows = [[f"{i}", "1", "2"] for i in range(12)]
+    rows[2][1] = "inf"  # read by the fast parser (a number to it), before a chunk it refuses
+    rows[9][2] = "x"
+    p = tmp_path / "m.csv"
+    p.write_text(_table_text(rows))
+    with pytest.raises(BadSession, match=r"row 3 \(line 4\) column 'a': expected a finite number"):
+        read_table(p)
+
+
+def test_fast_reading_gives_what_the_cell_by_cell_reading_gives(tmp_path, small_chunks):
+    rng = np.random.default_rng(3)
+    values = rng.normal(scale=1e3, size=(11, 3))
+    rows = [[f"{v:.17g}" for v in r] for r in values]
+    rows[1][1], rows[5][2], rows[6][0], rows[7][1] = "", "nan", "NaN", " 2.5 "
+    p = tmp_path / "m.csv"
+    p.write_text(_table_text(rows) + "\n\n")  # blank lines at the end are not rows
+    t = read_table(p)
+    expect = values.copy()
+    expect[1, 1] = expect[5, 2] = expect[6, 0] = np.nan
+    expect[7, 1] = 2.5
+    assert t.header == ["t", "a", "b"] and t.data.shape == (11, 3)
+    np.testing.assert_array_equal(t.data, expect)  # bit for bit: both parse to the nearest double
+    rows[3][2] = "nAn"  # a spelling only the cell-by-cell reading takes: same table
+    p.write_text(_table_text(rows))
+    expect[3, 2] = np.nan
+    np.testing.assert_array_equal(read_table(p).data, expect)
+
+
+def test_empty_files_and_headers_are_named(tmp_path):
+    p = tmp_path / "m.csv"
+    for text, expect in [("", "the file is empty"), ("\n \n", "the file is empty"), ("t,a\n", "no data rows"),
+                         ("t,a\n\n\n", "no data rows"), ("t,,a\n1,2,3\n", "header column 2 is empty"),
+                         ("t,a,t\n1,2,3\n", "duplicate columns ['t']")]:
+        p.write_text(text)
+        with pytest.raises(BadSession, match=re.escape(expect)):
+            read_table(p)
+
+
+def test_large_files_show_progress_from_the_start(tmp_path, monkeypatch, capsys):
+    import platkit.io.session as session_module
+
+    p = tmp_path / "m.csv"
+    p.write_text(_table_text([[f"{i}", "1", "2"] for i in range(50)]))
+    read_table(p)
+    assert capsys.readouterr().err == ""  # small files read silently
+    monkeypatch.setattr(session_module, "PROGRESS_MIN_BYTES", 0)
+    read_table(p)
+    assert capsys.readouterr().err.splitlines()[0] == f"reading {p}: 0 MB, 50 rows"
+    read_table(p, quiet=True)
+    assert capsys.readouterr().err == ""
+
+
+def test_a_marker_stream_in_file_order_is_not_copied(tmp_path):
+    from platkit.io.session import Table, marker_columns
+    import platkit.io.session as session_module
+
+    header = ["t"] + [c for m in ("A", "B") for c in marker_columns(m)]
+    data = np.arange(3 * 7, dtype=float).reshape(3, 7)
+    table = Table(tmp_path / "m.csv", header, data.copy())
+    xyz = session_module._marker_block(table, ["A", "B"], 1e-3, in_place=True)
+    assert np.shares_memory(xyz, table.data)
+    np.testing.assert_allclose(xyz, data[:, 1:].reshape(3, 2, 3) * 1e-3)
+    swapped = session_module._marker_block(Table(table.path, header, data.copy()), ["B", "A"], 1e-3, in_place=True)
+    np.testing.assert_allclose(swapped, data[:, [4, 5, 6, 1, 2, 3]].reshape(3, 2, 3) * 1e-3)
