@@ -1,0 +1,366 @@
+"""Proof of settling and diagnosis on sessions platkit's model terms did not make.
+
+Every session comes from the time-domain simulator (platkit.simulate.physics): actuators that
+approach their commands through their own damped responses, effects played out where their
+physics acts, nuisances (hold, drive tuning, white and correlated noise, occlusion bursts,
+latency, clock offset) drawn per session. The session goes through platkit as a user runs it,
+in-process through the CLI: ``platkit calibrate``, ``platkit diagnose``, ``platkit predict``
+with the geometric and with the diagnosed calibration. Scored against the truth's settled poses
+(truth_settled.csv) of HELD-OUT commands: every fifth command (rows 2, 7, 12, ...) keeps its place in
+commands.csv (the history of the others is the real one) but its stretch of markers.csv is cut out
+(a gap in the recording), so neither calibration nor diagnosis sees it.
+
+Cells per stand: clean; each effect at a clear and a weak size; pairs. Sizes: the RMS a
+noise-free geometric calibration of the truth's settled poses leaves (what the geometry cannot
+absorb) is 0.2 mm (clear) or 0.06 mm (weak), at most 5 times that in raw marker motion (an
+effect left below 10% is 'absorbed'); a slow actuator (settling_lag) has a time constant of
+0.15 (clear) or 0.1 (weak) of the hold, which leaves the record short of rest by about 1e-4 to
+1e-3 of the last step. base_tilt turns everything rigidly: the motion capture alone cannot
+separate it from its own placement (no finding is the right answer).
+
+Per session one JSON line: what was hidden, what was named, held-out RMS against the truth
+before (geometric) and after (diagnosed), dropped holds, and the settle bias alone: platkit's
+settled markers minus the true settled markers, projected on the direction of the last step and
+averaged over markers, per pose; printed as its mean in units of its spread over the poses (the
+averaging noise of one settled pose), with the t statistic.
+
+Seeds: ``--seed-base`` (default 880000, a range no development run used); session k of a cell
+has seed base + 1000 * stand index + 10 * cell index + k.
+
+    .venv/bin/python benchmarks/diagnosis_proof_physical.py --smoke --jobs 1       # a few minutes
+    .venv/bin/python benchmarks/diagnosis_proof_physical.py --sessions-per-cell 3 --json run.jsonl
+    .venv/bin/python benchmarks/diagnosis_proof_physical.py --summarise run.jsonl
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import io
+import json
+import shutil
+import sys
+import tempfile
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.settle import settle
+from platkit.cli import main as platkit_main
+from platkit.effects import with_history
+from platkit.errors import PlatkitError
+from platkit.io.session import load_session
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+from platkit.simulate.physics import simulate_physics, write_physical_session
+
+EFFECTS = ["backlash", "compliance", "thermal_drift", "cyclic_error", "scale_nonlinearity", "settling_lag",
+           "marker_slip", "base_tilt"]
+PAIRS = [("backlash", "thermal_drift"), ("cyclic_error", "marker_slip"), ("scale_nonlinearity", "settling_lag")]
+STANDS = ["stewart", "psvr", "rotary"]
+CLEAR_MM, WEAK_MM = 0.2, 0.06
+#: a slow actuator's time constant as a share of the hold
+LAG_SHARE = {"clear": 0.15, "weak": 0.1}
+ABSORBED = 0.1
+UNSEPARABLE = {"base_tilt"}
+HELD_OUT_EVERY = 5
+
+
+def held_out_rows(n: int) -> np.ndarray:
+    return np.arange(2, n, HELD_OUT_EVERY)
+
+
+def _truth_poses(sim) -> PoseSet:
+    """The truth's settled poses as a PoseSet (noise-free)."""
+    return with_history(PoseSet(sim.spec.name, sim.commands, sim.settled_markers, list(sim.marker_names),
+                                t=sim.command_t, length_unit=sim.length_unit, source="truth"), sim.spec)
+
+
+def _rms_mm(a, b) -> float:
+    d = np.linalg.norm(np.asarray(a) - np.asarray(b), axis=-1)
+    return float(np.sqrt(np.nanmean(d**2)) * 1e3)
+
+
+def sized_effects(spec, seed: int, n: int, effects: list[tuple[str, str]]) -> tuple[list[tuple[str, float]], list]:
+    """[(name, size)] scaled so that each leaves CLEAR_MM / WEAK_MM after a noise-free geometric
+    calibration of the truth's settled poses; and per effect (left share, raw mm, left mm)."""
+    if not effects:
+        return [], []
+    base = simulate_physics(spec, seed=seed, n_poses=n, plan="random")
+    out, info = [], []
+    for name, strength in effects:
+        if name == "settling_lag":
+            out.append((name, LAG_SHARE[strength]))
+            info.append({"effect": name, "left_share": 1.0})
+            continue
+        unit = simulate_physics(spec, seed=seed, n_poses=n, plan="random", effects=[(name, 1.0)])
+        raw = _rms_mm(unit.settled_markers, base.settled_markers)
+        if raw < 1e-9:
+            raise PlatkitError(f"{name} does nothing on the {spec.name} stand's settled poses")
+        left = calibrate(_truth_poses(unit), spec, robust=False).rms_after * 1e3
+        target = CLEAR_MM if strength == "clear" else WEAK_MM
+        per_unit = max(left, raw / 5)
+        out.append((name, target / per_unit))
+        info.append({"effect": name, "left_share": left / raw, "raw_mm_per_unit": raw, "left_mm_per_unit": left})
+    return out, info
+
+
+def blank_held_out(folder: Path, sim, rows: np.ndarray) -> int:
+    """Cut the held-out commands' stretches (from the command to the next) out of markers.csv
+    (rewritten whole): the recording has a gap there. Returns the samples cut."""
+    te = sim.marker_t - sim.nuisances.time_shift_s
+    cut = np.zeros(len(te), bool)
+    for i in rows:
+        cut |= (te >= sim.command_t[i]) & (te < sim.hold_end_t[i])
+    path = folder / "markers.csv"
+    lines = path.read_text().splitlines()
+    keep = [lines[0]] + [line for line, c in zip(lines[1:], cut) if not c]
+    path.write_text("\n".join(keep) + "\n")
+    return int(cut.sum())
+
+
+def _cli(args: list[str]) -> tuple[int, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = platkit_main(args)
+    lines = [x for x in (err.getvalue() + out.getvalue()).splitlines() if x.strip()]
+    return rc, (lines[-1] if rc and lines else "")
+
+
+def _predicted_markers(path: Path, names: list[str]) -> np.ndarray:
+    rows = list(csv.DictReader(path.open()))
+    return np.array([[[float(r[f"{m}_{a}"] or "nan") for a in "xyz"] for m in names] for r in rows]) * 1e-3
+
+
+def settle_bias(folder: Path, sim) -> dict:
+    """platkit's settled markers against the truth's, along the last step, per pose (mm)."""
+    poses, report = settle(load_session(folder))
+    rows = np.asarray(poses.extras["row"], int)
+    truth = sim.settled_markers
+    prev = np.vstack([truth[:1], truth[:-1]])
+    step = truth - prev  # (N, M, 3)
+    unit = step / np.maximum(np.linalg.norm(step, axis=2, keepdims=True), 1e-15)
+    d = poses.markers - truth[rows]
+    moved = np.linalg.norm(step[rows], axis=2).min(axis=1) > 1e-5
+    proj = np.nanmean(np.sum(d * unit[rows], axis=2), axis=1)[moved] * 1e3
+    proj = proj[np.isfinite(proj)]
+    if proj.size < 3:
+        return {"n": int(proj.size)}
+    mean, sd = float(np.mean(proj)), float(np.std(proj, ddof=1))
+    return {"n": int(proj.size), "mean_mm": mean, "spread_mm": sd, "in_noise_units": mean / sd,
+            "t": mean / (sd / np.sqrt(proj.size)), "dropped": len(poses.dropped)}
+
+
+def run_case(case: dict) -> dict:
+    t0 = time.perf_counter()
+    try:
+        out = _run_case(case)
+    except (PlatkitError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+        out = {**case, "error": f"{type(exc).__name__}: {exc}"}
+    out["time_s"] = time.perf_counter() - t0
+    return out
+
+
+def _run_case(case: dict) -> dict:
+    spec = get_platform(case["stand"])
+    seed, n = case["seed"], case["commands"]
+    effects, info = sized_effects(spec, seed, n, [tuple(e) for e in case["effects"]])
+    sim = simulate_physics(spec, seed=seed, n_poses=n, plan="random", effects=effects, coloured=case["coloured"])
+    rows = held_out_rows(len(sim.commands))
+    work = Path(tempfile.mkdtemp(prefix="platkit-proof-"))
+    try:
+        sess = write_physical_session(sim, work / "session")
+        blanked = blank_held_out(sess, sim, rows)
+        result = {**case, "sizes": [[n_, float(s)] for n_, s in effects], "sizing": info,
+                  "left_share": min([x["left_share"] for x in info], default=1.0),
+                  "nuisances": sim.nuisances.to_dict(), "held_out": int(len(rows)), "blanked_samples": blanked}
+        result["absorbed"] = bool(case["effects"]) and result["left_share"] < ABSORBED
+        try:
+            result["settle"] = settle_bias(sess, sim)
+        except PlatkitError as exc:
+            result["settle"] = {"error": str(exc)}
+        rc, msg = _cli(["calibrate", str(sess), "--out", str(work / "cal")])
+        if rc:
+            return {**result, "error": f"calibrate exit {rc}: {msg}"}
+        report = json.loads((work / "cal" / "report.json").read_text())
+        result["calibrate"] = {k: report.get(k) for k in ("n_poses", "rms_after", "converged")}
+        result["calibrate"]["dropped"] = report.get("dropped") or report.get("n_dropped")
+        rc, msg = _cli(["diagnose", str(sess), "--calibration", str(work / "cal" / "calibration.yaml"),
+                        "--out", str(work / "diag")])
+        if rc:
+            return {**result, "error": f"diagnose exit {rc}: {msg}"}
+        diag = json.loads((work / "diag" / "diagnosis.json").read_text())
+        result["named"] = [f["effect"] for f in diag["findings"]]
+        result["findings"] = [{k: f.get(k) for k in ("effect", "where", "heldout_rms_before", "heldout_rms_after")}
+                              for f in diag["findings"]]
+        heldout = {}
+        for label, cal in (("before", work / "cal" / "calibration.yaml"), ("after", work / "diag" / "calibration.yaml")):
+            pred = work / f"pred_{label}.csv"
+            rc, msg = _cli(["predict", "--calibration", str(cal), "--commands", str(sess / "commands.csv"),
+                            "--out", str(pred)])
+            if rc:
+                return {**result, "error": f"predict ({label}) exit {rc}: {msg}"}
+            P = _predicted_markers(pred, sim.marker_names)
+            heldout[label] = _rms_mm(P[rows], sim.settled_markers[rows])
+        result["heldout_truth_rms_before_mm"] = heldout["before"]
+        result["heldout_truth_rms_after_mm"] = heldout["after"]
+        return result
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def plan_cases(stands, per_cell: int, seed_base: int, commands: int, kinds: set[str], only: set[str] | None,
+               coloured: bool = True):
+    cases = []
+    for s_i, stand in enumerate(stands):
+        cells = []
+        if "clean" in kinds:
+            cells.append(("clean", [], "none"))
+        for e in EFFECTS:
+            for strength in ("clear", "weak"):
+                if strength in kinds and (only is None or e in only):
+                    cells.append((strength, [(e, strength)], e))
+        if "pair" in kinds:
+            for a, b in PAIRS:
+                if only is None or {a, b} & only:
+                    cells.append(("pair", [(a, "clear"), (b, "clear")], f"{a}+{b}"))
+        for c_i, (kind, effects, truth) in enumerate(cells):
+            for k in range(per_cell):
+                cases.append({"stand": stand, "seed": seed_base + 1000 * s_i + 10 * c_i + k, "kind": kind,
+                              "effects": effects, "truth": truth, "commands": commands, "coloured": coloured})
+    return cases
+
+
+# ---------------------------------------------------------------------------- the tables
+def summarise(results: list[dict]) -> str:
+    lines = []
+    errors = [r for r in results if r.get("error")]
+    for r in errors:
+        lines.append(f"ERROR {r['stand']} {r['truth']} ({r['kind']}, seed {r['seed']}): {r['error'][:300]}")
+    ok = [r for r in results if not r.get("error")]
+    lines.append(f"{len(results)} sessions, {len(errors)} without a diagnosis (errors above)")
+
+    def right(r):
+        want = set(r["truth"].split("+")) if r["truth"] != "none" else set()
+        return set(r["named"]) == want
+
+    confusion: dict[str, Counter] = defaultdict(Counter)
+    for r in ok:
+        confusion[f"{r['truth']} ({r['kind']})"]["+".join(r["named"]) or "none"] += 1
+    lines.append("named (rows: truth; counts of what diagnosis named)")
+    for row in sorted(confusion):
+        lines.append(f"  {row:42s} " + ", ".join(f"{k}: {v}" for k, v in confusion[row].most_common()))
+    for kind in ("clear", "weak", "pair"):
+        rs = [r for r in ok if r["kind"] == kind and r["truth"] not in UNSEPARABLE and not r.get("absorbed")]
+        if rs:
+            lines.append(f"{kind}: named right {sum(map(right, rs))}/{len(rs)}")
+    tilt = [r for r in ok if r["truth"] in UNSEPARABLE]
+    if tilt:
+        lines.append(f"base_tilt (not separable from the mocap placement): no finding in "
+                     f"{sum(not r['named'] for r in tilt)}/{len(tilt)}")
+    absorbed = [r for r in ok if r.get("absorbed")]
+    if absorbed:
+        lines.append(f"absorbed by the geometry: no wrong name in "
+                     f"{sum(set(r['named']) <= {r['truth']} for r in absorbed)}/{len(absorbed)}")
+    clean = [r for r in ok if r["kind"] == "clean"]
+    if clean:
+        lines.append(f"clean sessions with a finding: {sum(bool(r['named']) for r in clean)}/{len(clean)}"
+                     + "".join(f"; {r['stand']} seed {r['seed']}: {'+'.join(r['named'])}" for r in clean if r["named"]))
+    worse = [r for r in ok if r["named"] and r["heldout_truth_rms_after_mm"] > r["heldout_truth_rms_before_mm"] * 1.01]
+    with_findings = [r for r in ok if r["named"]]
+    lines.append(f"sessions where the accepted findings made held-out worse (> 1%): {len(worse)}/{len(with_findings)}"
+                 + "".join(f"; {r['stand']} {r['truth']} -> {'+'.join(r['named'])} {r['heldout_truth_rms_before_mm']:.3f}"
+                           f"->{r['heldout_truth_rms_after_mm']:.3f} mm" for r in worse))
+    rs = [r for r in ok if r["kind"] in ("clear", "weak", "pair") and right(r) and r["truth"] not in UNSEPARABLE]
+    if rs:
+        b = np.array([r["heldout_truth_rms_before_mm"] for r in rs])
+        a = np.array([r["heldout_truth_rms_after_mm"] for r in rs])
+        lines.append(f"held-out RMS against the true settled markers, sessions named right: median {np.median(b):.3f} -> "
+                     f"{np.median(a):.3f} mm (median reduction {100 * np.median(1 - a / b):.0f}%)")
+    if clean:
+        b = np.array([r["heldout_truth_rms_before_mm"] for r in clean])
+        a = np.array([r["heldout_truth_rms_after_mm"] for r in clean])
+        lines.append(f"held-out RMS, clean sessions: median {np.median(b):.4f} (geometric) -> {np.median(a):.4f} mm "
+                     "(diagnosed)")
+    lines.append("settle bias along the last step (platkit's settled markers minus the true settled ones):")
+    for stand in sorted({r["stand"] for r in results}):
+        for label, pick in (("clean", lambda r: r["kind"] == "clean"),
+                            ("all but a slow actuator", lambda r: "settling_lag" not in r["truth"])):
+            ss = [r["settle"] for r in results if r["stand"] == stand and pick(r) and "mean_mm" in r.get("settle", {})]
+            if ss:
+                m = np.array([s["mean_mm"] for s in ss])
+                u = np.array([s["in_noise_units"] for s in ss])
+                t = np.array([s["t"] for s in ss])
+                lines.append(f"  {stand:8s} {label:24s} n={len(ss):3d}  mean {np.mean(m) * 1e3:+.2f} um  "
+                             f"= {np.mean(u):+.3f} averaging noise (range {u.min():+.2f}..{u.max():+.2f}); "
+                             f"t median {np.median(t):+.1f}")
+        fails = [r for r in results if r["stand"] == stand and "error" in r.get("settle", {})]
+        if fails:
+            lines.append(f"  {stand:8s} settle failed in {len(fails)} sessions: {fails[0]['settle']['error'][:200]}")
+    lines.append(f"time: {sum(r.get('time_s', 0) for r in results):.0f} s over {len(results)} sessions")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--stands", default=",".join(STANDS))
+    ap.add_argument("--sessions-per-cell", type=int, default=3)
+    ap.add_argument("--seed-base", type=int, default=880000, help="first seed (default 880000: never used in development)")
+    ap.add_argument("--commands", type=int, default=120, help="commands per session (default 120)")
+    ap.add_argument("--kinds", default="clean,clear,weak,pair", help="cells: clean, clear, weak, pair")
+    ap.add_argument("--effects", default=None, help="only cells with these effects (comma-separated)")
+    ap.add_argument("--smoke", action="store_true",
+                    help="a smoke run: one session per cell, 40 commands, the clean and the clear backlash cell of "
+                         "every stand")
+    ap.add_argument("--white-noise", action="store_true",
+                    help="marker noise white only (default: white plus a correlated part, drawn per session)")
+    ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--json", default=None, help="append one JSON line per session here")
+    ap.add_argument("--summarise", default=None, metavar="JSONL", help="only print the tables of a saved run")
+    args = ap.parse_args(argv)
+    if args.summarise:
+        with open(args.summarise) as fh:
+            print(summarise([json.loads(line) for line in fh if line.strip()]))
+        return 0
+    if args.smoke:
+        args.sessions_per_cell, args.commands, args.kinds, args.effects = 1, 40, "clean,clear", "backlash"
+    only = set(args.effects.split(",")) if args.effects else None
+    cases = plan_cases(args.stands.split(","), args.sessions_per_cell, args.seed_base, args.commands,
+                       set(args.kinds.split(",")), only, coloured=not args.white_noise)
+    print(f"{len(cases)} sessions, seeds from {args.seed_base}, {args.commands} commands each", flush=True)
+    sink = open(args.json, "a") if args.json else None
+    results = []
+
+    def done(r):
+        results.append(r)
+        if sink is not None:
+            sink.write(json.dumps(r) + "\n")
+            sink.flush()
+        if r.get("error"):
+            print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} ERROR {r['error'][:160]}", flush=True)
+            return
+        s = r.get("settle", {})
+        print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':28s} held-out "
+              f"{r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm; settle bias "
+              f"{s.get('in_noise_units', float('nan')):+.2f} noise ({r['time_s']:.0f} s)", flush=True)
+
+    if args.jobs > 1:
+        from multiprocessing import get_context
+
+        with get_context("spawn").Pool(args.jobs) as pool:
+            for r in pool.imap_unordered(run_case, cases):
+                done(r)
+    else:
+        for c in cases:
+            done(run_case(c))
+    if sink is not None:
+        sink.close()
+    print(summarise(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
