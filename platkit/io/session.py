@@ -460,12 +460,13 @@ def _check_plausible_unit(table: Table, markers: np.ndarray, length_unit: str, n
 
 def _check_seen(markers: np.ndarray, names: list[str], path: Path) -> None:
     finite = np.isfinite(markers)
-    whole = finite.all(axis=2)
+    fx, fy, fz = finite[..., 0], finite[..., 1], finite[..., 2]  # (reductions over an axis of 3 are slow)
+    whole = fx & fy & fz
     seen = whole.any(axis=0)
     for m, ok in zip(names, seen):
         if not ok:
             raise BadSession(f"{path}: marker {m!r} is never seen (every sample empty); remove it from session.yaml")
-    partial = finite.any(axis=2) & ~whole
+    partial = (fx | fy | fz) & ~whole
     if np.any(partial):
         r, k = np.argwhere(partial)[0]
         raise BadSession(
@@ -583,8 +584,19 @@ def read_session_yaml(folder: Path) -> dict:
 # ----------------------------------------------------------------------------- controls
 
 
-def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str) -> np.ndarray:
-    """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes."""
+#: a recorded control this fraction of its stroke past a limit is a reading (encoder noise, a soft
+#: limit), kept with a note; further out it is an error
+STROKE_TOLERANCE = 0.01
+
+
+def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str,
+                   notes: list[str] | None = None) -> np.ndarray:
+    """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes.
+
+    A value past a limit by at most STROKE_TOLERANCE of the stroke (a torso reading 0.350181 m
+    against 0.35) is kept, and one sentence per control naming the value and the limit is
+    appended to ``notes`` (default: a Python warning); further out is a BadSession.
+    """
     names = spec.control_names
     expected = leading + names
     missing = [c for c in expected if c not in table.header]
@@ -600,22 +612,36 @@ def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_
             raise BadSession(f"{table.where(int(bad[0]), n)}: empty or nan; every command needs every control")
     u = controls_to_si(spec, raw, length_unit)
     for j, c in enumerate(spec.controls):
-        out = np.nonzero((u[:, j] < c.lower - 1e-9 * max(1.0, abs(c.lower))) | (u[:, j] > c.upper + 1e-9 * max(1.0, abs(c.upper))))[0]
+        rounding_lo, rounding_hi = 1e-9 * max(1.0, abs(c.lower)), 1e-9 * max(1.0, abs(c.upper))
+        stroke = c.upper - c.lower
+        slack = STROKE_TOLERANCE * stroke if np.isfinite(stroke) and stroke > 0 else 0.0
+        past = (u[:, j] < c.lower - rounding_lo) | (u[:, j] > c.upper + rounding_hi)
+        out = np.nonzero((u[:, j] < c.lower - rounding_lo - slack) | (u[:, j] > c.upper + rounding_hi + slack))[0]
+        unit = length_unit if c.unit == "m" else c.unit
+        s_file = LENGTH_UNITS[length_unit] if c.unit == "m" else 1.0
+        lo, hi = c.lower / s_file, c.upper / s_file
         if out.size:
             r = int(out[0])
             hint = ""
             if c.unit == "m":
-                s_file = LENGTH_UNITS[length_unit]
-                lo, hi = c.lower / s_file, c.upper / s_file
                 for other, s in LENGTH_UNITS.items():
                     if other != length_unit and c.lower <= raw[r, j] * s <= c.upper:
                         hint = f"; the value fits the stroke in {other}, but session.yaml declares {length_unit}"
-            else:
-                lo, hi = c.lower, c.upper
-            unit = length_unit if c.unit == "m" else c.unit
             raise BadSession(
                 f"{table.where(r, c.name)}: {raw[r, j]:.6g} is outside the stroke [{lo:.6g}, {hi:.6g}] {unit}{hint}"
             )
+        if past.any():
+            rows = np.nonzero(past)[0]
+            r = int(rows[np.argmax(np.maximum(c.lower - u[rows, j], u[rows, j] - c.upper))])
+            limit = c.lower if u[r, j] < c.lower else c.upper
+            note = (f"{table.where(r, c.name)}: {raw[r, j]:.9g} is past the limit {limit / s_file:.9g} {unit}"
+                    + (f" ({rows.size} rows past a limit, this one the furthest)" if rows.size > 1 else "")
+                    + f"; kept as recorded: within {STROKE_TOLERANCE:.0%} of the stroke [{lo:.6g}, {hi:.6g}] "
+                    "(encoder noise or a soft limit)")
+            if notes is None:
+                warnings.warn(note, stacklevel=2)
+            else:
+                notes.append(note)
     return u
 
 
@@ -680,7 +706,7 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
                 f"{cpath}: column {extra[0]!r} is not a control of the {spec.name} stand; expected columns "
                 f"t, {', '.join(spec.control_names)} (is this a session for another stand?)"
             )
-        s.commands = check_controls(table, spec, ["t"], s.length_unit)
+        s.commands = check_controls(table, spec, ["t"], s.length_unit, s.extras.setdefault("control_notes", []))
         t = table.column("t") * tscale
         check_times(table, t)
         s.command_t = t
@@ -772,7 +798,8 @@ def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> Non
     leading = (["t"] if "t" in table.header else []) + s.spec.control_names
     names = s.marker_names + s.base_marker_names
     _check_marker_header(table, names, leading, optional_suffixes=("n",))
-    controls = check_controls(table, s.spec, leading[:1] if leading[:1] == ["t"] else [], s.length_unit)
+    controls = check_controls(table, s.spec, leading[:1] if leading[:1] == ["t"] else [], s.length_unit,
+                              s.extras.setdefault("control_notes", []))
     t = None
     if "t" in table.header:
         t = table.column("t") * tscale
