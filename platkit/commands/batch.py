@@ -70,6 +70,16 @@ def verb_options(args) -> dict:
     return options
 
 
+def default_options(verb: str, *argv: str) -> dict:
+    """The verb's options as its parser gives them for ``argv`` (default: none given), in the
+    form run_verb takes: what a library caller (a benchmark, a test) passes for one session."""
+    parser = argparse.ArgumentParser(prog="platkit")
+    sub = parser.add_subparsers(dest="command")
+    add_parser(sub)
+    extra = ["--out", "unused", "--calibration", "unused"] if verb == "diagnose" else ["--out", "unused"]
+    return verb_options(parser.parse_args(["batch", verb, "unused", *extra, *argv]))
+
+
 def session_options(options: dict, session: str, name: str) -> dict:
     """``options`` with {name}, {folder} and {session} filled in for one session (then made absolute)."""
     out = dict(options)

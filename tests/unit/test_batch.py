@@ -16,7 +16,7 @@ import yaml
 from platkit.batch import engine
 from platkit.batch.store import find_sessions
 from platkit.cli import main
-from platkit.commands.batch import run_verb
+from platkit.commands.batch import default_options, run_verb
 from platkit.simulate import simulate_session
 
 pytest.importorskip("dask.distributed", reason="platkit[batch] (dask.distributed) is part of the dev extra")
@@ -120,8 +120,7 @@ def test_a_worker_killed_in_the_middle_still_gives_every_result_once(fleet, clie
 
     killer = threading.Thread(target=kill_one_busy_worker)
     killer.start()
-    options = {"platform": None, "description": None, "method": "lsq", "free": None, "folds": 0, "validate": None,
-               "max_evaluations": None, "no_robust": False}
+    options = default_options("calibrate")
     outcomes = engine.run_tasks(client, run_verb, [engine.Task(r.name, ("calibrate", options, str(r.path), r.name))
                                                    for r in sessions])
     killer.join()

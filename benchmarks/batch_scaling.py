@@ -1,0 +1,102 @@
+"""platkit batch: a fleet calibration serial vs on the local Dask cluster, and the engine's
+per-task overhead against a bare loop.
+
+    .venv/bin/python benchmarks/batch_scaling.py [--sessions 200] [--platform stewart] [--poses 40]
+                                                 [--workers N] [--tiny 400]
+
+1. ``--sessions`` simulated sessions (settled poses, seeds 1..N) are calibrated twice with the
+   same task function platkit batch uses (platkit.commands.batch.run_verb, i.e. the calibrate
+   verb's own run): in a bare loop in this process (serial), and as Dask tasks on an embedded
+   LocalCluster of ``--workers`` processes (default: one per core). Wall times, their ratio
+   beside the ideal (the worker count), and the cluster's start-up time. Every session's
+   calibration.yaml must be the same both ways (checked).
+2. Per-task overhead: ``--tiny`` tasks that each do ~1 ms of numpy work, through the engine on a
+   one-worker cluster vs a bare loop: (engine - loop) / tasks.
+
+Wall times on a shared machine vary with what else runs; the load average is printed with them.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from platkit.batch.engine import Task, cluster, default_workers, guarded, run_tasks
+from platkit.batch.store import find_sessions
+from platkit.commands.batch import default_options, run_verb
+from platkit.simulate import simulate_session
+
+#: platkit calibrate's defaults, as its own parser gives them
+OPTIONS = default_options("calibrate")
+
+
+def tiny(i: int) -> float:
+    """About a millisecond of numpy work."""
+    a = np.random.default_rng(i).normal(size=(60, 60))
+    return float(np.linalg.eigvalsh(a + a.T)[0])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sessions", type=int, default=200)
+    ap.add_argument("--platform", default="stewart")
+    ap.add_argument("--poses", type=int, default=40)
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--tiny", type=int, default=400)
+    args = ap.parse_args()
+    workers = args.workers or default_workers()
+    with tempfile.TemporaryDirectory(prefix="platkit-batch-bench-") as tmp:
+        root = Path(tmp)
+        t0 = time.perf_counter()
+        for i in range(args.sessions):
+            simulate_session(args.platform, root / "fleet" / f"unit{i + 1:04d}", seed=i + 1, n_poses=args.poses,
+                             poses_only=True)
+        refs = find_sessions(str(root / "fleet" / "*"))
+        print(f"{args.sessions} {args.platform} sessions of {args.poses} settled poses simulated in "
+              f"{time.perf_counter() - t0:.1f} s; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+
+        t0 = time.perf_counter()
+        serial = {r.name: guarded(run_verb, "calibrate", OPTIONS, str(r.path), r.name) for r in refs}
+        t_serial = time.perf_counter() - t0
+        assert all(v["ok"] for v in serial.values()), [v["error"] for v in serial.values() if not v["ok"]][:3]
+
+        t0 = time.perf_counter()
+        with cluster(workers=workers) as client:
+            client.wait_for_workers(workers)
+            t_start = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            outcomes = run_tasks(client, run_verb, [Task(r.name, ("calibrate", OPTIONS, str(r.path), r.name))
+                                                    for r in refs])
+            t_cluster = time.perf_counter() - t1
+        assert all(o.ok for o in outcomes), [o.error for o in outcomes if not o.ok][:3]
+        for o in outcomes:
+            assert o.value["files"]["calibration.yaml"] == serial[o.key]["value"]["files"]["calibration.yaml"], o.key
+        print(f"\n1. batch calibration of {args.sessions} sessions (results identical both ways)")
+        print(f"   serial bare loop, one process        {t_serial:8.1f} s   {t_serial / args.sessions:.2f} s/session")
+        print(f"   Dask LocalCluster, {workers} workers x 1 thread {t_cluster:8.1f} s   (+ {t_start:.1f} s start-up)")
+        print(f"   ratio serial / cluster               {t_serial / t_cluster:8.2f}     (ideal {workers}; with start-up "
+              f"{t_serial / (t_cluster + t_start):.2f})")
+
+    n = args.tiny
+    t0 = time.perf_counter()
+    for i in range(n):
+        tiny(i)
+    t_loop = time.perf_counter() - t0
+    with cluster(workers=1) as client:
+        client.wait_for_workers(1)
+        run_tasks(client, tiny, [Task(f"warm{i}", (i,)) for i in range(5)])
+        t0 = time.perf_counter()
+        run_tasks(client, tiny, [Task(f"t{i}", (i,)) for i in range(n)])
+        t_engine = time.perf_counter() - t0
+    print(f"\n2. per-task overhead, {n} tasks of ~{t_loop / n * 1e3:.1f} ms on one worker")
+    print(f"   bare loop {t_loop:.2f} s, engine {t_engine:.2f} s: overhead {(t_engine - t_loop) / n * 1e3:.1f} ms per task "
+          f"({(t_engine - t_loop) / n / (t_serial / args.sessions):.1%} of one calibration above)")
+    print(f"   load average now {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()
