@@ -136,8 +136,11 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
                            starts: list[np.ndarray] | None = None) -> TranslationalEnvelope:
     """Extreme origin positions over the reachable poses (see the module docstring).
 
-    ``starts``: extra starting pose coordinates (n_p,) tried besides the neutral pose; the best
-    feasible optimum is kept. Raises ComputationFailed if no start gives a feasible optimum.
+    ``starts``: extra starting pose coordinates (n_p,) tried besides the neutral pose (at a fixed
+    orientation, with the orientation coordinates set to the neutral ones); the best feasible
+    optimum is kept, and a start that is itself feasible counts as a candidate, so the envelope
+    holds every feasible start (a corner of the control box it was given). Raises
+    ComputationFailed if no start gives a feasible optimum.
     """
     if orientation not in ("fixed", "free"):
         raise BadInput(f"orientation must be 'fixed' or 'free', got {orientation!r}")
@@ -216,6 +219,14 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
         return np.concatenate([pp, model.inverse(qq, XX, td, strict=False)])
 
     start_points = [p0] + [np.asarray(s, float) for s in (starts or [])]
+    G_of = ca.Function("G_of", [x], [G])
+
+    def feasible_point(xs) -> bool:
+        if not np.all(np.isfinite(xs)) or np.any(xs < x_lb - 1e-9) or np.any(xs > x_ub + 1e-9):
+            return False
+        gv = np.asarray(G_of(xs)).ravel()
+        return bool(np.all(np.isfinite(gv))) and max(float(np.max(lbg - gv, initial=0.0)),
+                                                     float(np.max(gv - ubg, initial=0.0))) <= 1e-7
     extremes = []
     for k, axis in enumerate(AXES):
         for sense, sign in (("min", 1.0), ("max", -1.0)):
@@ -228,14 +239,13 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
                 except ComputationFailed:
                     continue
                 sol = solver(x0=x0, p=np.concatenate([[sign], e]), lbx=x_lb, ubx=x_ub, lbg=lbg, ubg=ubg)
-                xs = np.asarray(sol["x"]).ravel()
-                gv = np.asarray(ca.Function("gv", [x], [G])(xs)).ravel()
-                viol = max(float(np.max(lbg - gv, initial=0.0)), float(np.max(gv - ubg, initial=0.0)))
-                if viol > 1e-7 or not np.all(np.isfinite(xs)):
-                    continue
-                val = float(np.asarray(X_of(xs)).ravel()[k])
-                if best is None or sign * val < sign * best[0]:
-                    best = (val, xs)
+                # IPOPT's local optimum, and the start itself where it is a feasible pose
+                for xs in (np.asarray(sol["x"]).ravel(), np.asarray(x0, float).ravel()):
+                    if not feasible_point(xs):
+                        continue
+                    val = float(np.asarray(X_of(xs)).ravel()[k])
+                    if best is None or sign * val < sign * best[0]:
+                        best = (val, xs)
             if best is None:
                 raise ComputationFailed(f"{spec.name}: the {sense} of {axis} ({orientation} orientation) found no feasible optimum")
             val, xs = best
@@ -281,7 +291,9 @@ def workspace_figures(model: PlatformModel, td=None, conditioning_threshold: flo
     corners = corner_envelope(model, td)
     if not corners.converged.any():
         raise ComputationFailed(f"{spec.name}: forward kinematics failed at every corner of the control box")
-    fixed = translational_envelope(model, "fixed", td)
+    # both searches start from the extreme corners too: a local optimum from neutral alone can be
+    # smaller than corner poses already found (a delta robot's z max at fixed orientation)
+    fixed = translational_envelope(model, "fixed", td, starts=_extreme_corner_starts(corners))
     free = translational_envelope(model, "free", td, starts=_extreme_corner_starts(corners))
     inv_cond = model.inverse_condition_numbers(corners.P[corners.converged], td, corners.U[corners.converged])
     neutral_cond = model.conditioning(spec.neutral_p(), td, spec.neutral_u())
@@ -323,7 +335,7 @@ def workspace_figures(model: PlatformModel, td=None, conditioning_threshold: flo
 
 
 def _extreme_corner_starts(corners: CornerEnvelope) -> list[np.ndarray]:
-    """Corner poses that are extreme along some axis: good starts for the free-orientation search."""
+    """Corner poses that are extreme along some axis: good starts for the envelope searches."""
     ok = np.nonzero(corners.converged)[0]
     picks = set()
     for k in range(3):

@@ -82,7 +82,9 @@ def test_simulate_calibrate_predict_diagnose(installed):
     assert res.returncode == 0, res.stderr
     report = json.loads((cal / "report.json").read_text())
     gauge = report["gauge"]
-    assert gauge["not_excited"] == 0 and gauge["dimensions"] == 16
+    # the markers' common shift at least (3); the stand's own symmetries depend on the groups the
+    # model selection frees (16 with every parameter free, as `platkit plan` counts)
+    assert gauge["not_excited"] == 0 and gauge["dimensions"] >= 3
     assert "markers' centroid is put at the moving frame's origin" in gauge["conventions"][0]
     written = yaml.safe_load((cal / "calibration.yaml").read_text())
     assert written["identifiability"]["gauge"] == gauge
@@ -112,3 +114,18 @@ def test_simulate_calibrate_predict_diagnose(installed):
     # the paper's method sees orientations only: refused in one line
     res = _platkit(env, "calibrate", str(session), "--method", "paper", "--out", str(tmp / "paper"))
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "never turns" in res.stderr
+
+
+def test_workspace_at_fixed_orientation_holds_the_corners(installed):
+    """The delta never turns: every corner of the control box is a pose at the fixed (neutral)
+    orientation, and the fixed-orientation envelope must hold them all (it once stopped at a
+    local optimum 4.5 mm below the highest corner)."""
+    tmp, env = installed
+    res = _platkit(env, "workspace", "--platform", "delta", "--out", str(tmp / "ws"))
+    assert res.returncode == 0, res.stderr
+    figures = json.loads((tmp / "ws" / "workspace.json").read_text())
+    corners = figures["corners"]["relative_to_neutral"]
+    fixed = figures["true_envelope"]["fixed_orientation"]
+    for a in "xyz":
+        assert fixed[a]["min"] <= corners[a]["min"] + 1e-6 and fixed[a]["max"] >= corners[a]["max"] - 1e-6, (a, fixed[a], corners[a])
+        assert fixed[a]["larger_than_corners_min"] >= -1e-6 and fixed[a]["larger_than_corners_max"] >= -1e-6
