@@ -18,15 +18,36 @@ def _blocking_file(path: Path) -> Path | None:
     return None
 
 
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its nearest ancestor that exists."""
+    for p in (path, *path.parents):
+        if p.exists():
+            return p
+    return Path(".")
+
+
+def _check_writable(out: Path, folder: Path) -> None:
+    """BadInput unless files can be made in ``folder`` (or, where it does not exist yet, in the
+    nearest folder above it that does): a read-only --out is found before any work."""
+    where = _nearest_existing(folder)
+    if where.is_dir() and not os.access(where, os.W_OK | os.X_OK):
+        raise BadInput(f"--out {out}: {where} is not writable (permissions or a read-only file system); "
+                       "choose another folder")
+
+
 def check_output_dir(out: str | Path) -> Path:
     """Raise :class:`BadInput` unless ``out`` can be an output folder (it is one, or it and the
-    folders above it can be created). Commands call this before they compute."""
+    folders above it can be created, and files can be written there and beside it, where the
+    outputs are assembled). Commands call this before they compute."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {out}: is a file; expected a folder to write into")
     blocker = _blocking_file(out)
     if blocker is not None:
         raise BadInput(f"--out {out}: {blocker} is a file, so no folder can be made under it")
+    _check_writable(out, out.parent if str(out.parent) else Path("."))
+    if out.is_dir():
+        _check_writable(out, out)
     return out
 
 
@@ -39,6 +60,7 @@ def check_output_file(path: str | Path) -> Path:
     blocker = _blocking_file(path)
     if blocker is not None:
         raise BadInput(f"--out {path}: {blocker} is a file, so no folder can be made under it")
+    _check_writable(path, path.parent if str(path.parent) else Path("."))
     return path
 
 

@@ -730,6 +730,11 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
     elif poses_path.is_file():
         _read_poses_csv(s, poses_path, lscale, tscale)
+    if s.markers is not None and poses_path.is_file():  # said, so that nobody believes the other file was used
+        name = s.markers_source.name if s.markers_source is not None else "the marker stream"
+        s.extras.setdefault("control_notes", []).append(
+            f"{folder} holds both {name} and poses.csv: {name} (the raw stream, settled by platkit) is used, "
+            "poses.csv is ignored; move one out to choose")
     if s.has_markers and not s.marker_names:
         raise BadSession(f"{ypath}: field 'markers' must name the markers on the moving part")
 

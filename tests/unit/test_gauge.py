@@ -164,3 +164,56 @@ def test_the_gantry_goes_through_simulate_calibrate_predict_and_diagnose(tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--method paper cannot serve the urdf stand" in err[0] and "never turns" in err[0]
     assert not (tmp_path / "paper").exists()
+
+
+# ---------------------------------------------------------------------------- bad input on the way
+
+
+def test_a_read_only_out_is_found_before_any_work(tmp_path, capsys, monkeypatch):
+    import os
+
+    from platkit.io.atomic import check_output_dir, check_output_file
+
+    session = tmp_path / "session"
+    assert main(["simulate", "--platform", "stewart", "--out", str(session), "--poses", "12", "--poses-only"]) == 0
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    if os.geteuid() == 0:  # root writes anywhere but on a read-only mount: that is what os.access reports then
+        real = os.access
+        monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == ro else real(p, mode))
+    capsys.readouterr()
+    for argv in (["calibrate", str(session), "--out", str(ro / "cal")],
+                 ["calibrate", str(session), "--out", str(ro / "deeper" / "cal")],
+                 ["plan", "--platform", "stewart", "--grid", "2", "--out", str(ro / "plan.csv")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{ro} is not writable" in err[0], err
+        assert not any(ln.startswith("calibrate:") for ln in err)  # no fitting began
+    # an existing output folder that is read-only itself, with a writable parent
+    out = tmp_path / "kept"
+    out.mkdir()
+    out.chmod(0o555)
+    if os.geteuid() == 0:
+        monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) in (ro, out) else real(p, mode))
+    with pytest.raises(BadInput, match="kept is not writable"):
+        check_output_dir(out)
+    check_output_dir(tmp_path / "new" / "folder")  # a folder that can be made is fine
+    check_output_file(tmp_path / "new" / "file.csv")
+
+
+def test_a_session_with_both_markers_and_poses_says_which_is_used(tmp_path, capsys):
+    session = tmp_path / "both"
+    assert main(["simulate", "--platform", "stewart", "--out", str(session), "--poses", "12", "--seed", "3"]) == 0
+    assert (session / "markers.csv").is_file() and not (session / "poses.csv").is_file()
+    other = tmp_path / "settled"
+    assert main(["simulate", "--platform", "stewart", "--out", str(other), "--poses", "12", "--seed", "3",
+                 "--poses-only"]) == 0
+    (session / "poses.csv").write_bytes((other / "poses.csv").read_bytes())
+    capsys.readouterr()
+    assert main(["calibrate", str(session), "--free", "none", "--quiet", "--out", str(tmp_path / "cal")]) == 0
+    err = capsys.readouterr().err
+    assert "holds both markers.csv and poses.csv: markers.csv (the raw stream, settled by platkit) is used, " \
+           "poses.csv is ignored" in err
+    report = json.loads((tmp_path / "cal" / "report.json").read_text())
+    assert any("poses.csv is ignored" in w for w in report.get("warnings", [])), report.get("warnings")
