@@ -139,6 +139,7 @@ def evaluate_plans(platform: str, description: str | None, options: dict, plans:
     if failed:
         raise ComputationFailed(f"{len(failed)} of {len(key)} Monte-Carlo draws failed (first: {failed[0].key}: "
                                 f"{failed[0].error}); listed in {store.failed}; run again to retry them")
+    store.start()
     results = {name: [json.loads((store.sessions / key[(name, d)] / "draw.json").read_text(encoding="utf-8"))
                       for d in range(n_draws)] for name in plans}
     out = {}

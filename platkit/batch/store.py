@@ -86,9 +86,18 @@ class BatchFolder:
             if before != json.loads(dumps(record)):
                 raise BadInput(f"{path}: this folder holds a batch {before.get('verb')} with other options "
                                f"({_difference(before.get('options', {}), options)}); use another --out")
+        self._record, self._started = record, False
+
+    def start(self) -> None:
+        """Create the folder and batch.json (at the first result: bad input found before any work,
+        such as an unreachable scheduler, leaves nothing behind)."""
+        if self._started:
+            return
         self.sessions.mkdir(parents=True, exist_ok=True)
+        path = self.out / "batch.json"
         if not path.is_file():
-            atomic_write_text(path, dumps(record, indent=2) + "\n")
+            atomic_write_text(path, dumps(self._record, indent=2) + "\n")
+        self._started = True
 
     def done(self, name: str) -> bool:
         """True when the session's outputs are there (a re-run skips it)."""
@@ -97,6 +106,7 @@ class BatchFolder:
     def write_session(self, name: str, files: dict[str, bytes], record: dict) -> Path:
         """Write the session's files and its task.json into sessions/<name>/ at once: they are
         written into a temporary sibling that is then renamed (the folder appears whole)."""
+        self.start()
         target = self.sessions / name
         if target.exists():
             raise BadInput(f"{target}: already holds results; a batch writes each session once")
@@ -117,6 +127,7 @@ class BatchFolder:
         return target
 
     def write_failure(self, name: str, record: dict) -> Path:
+        self.start()
         path = self.failed / f"{name}.json"
         atomic_write_text(path, dumps(record, indent=2) + "\n")
         return path

@@ -16,6 +16,7 @@ import argparse
 import contextlib
 import importlib
 import io
+import os
 import sys
 import tempfile
 import time
@@ -116,7 +117,7 @@ def run_verb(verb: str, options: dict, session: str, name: str) -> dict:
 
 
 def run(args) -> int:
-    from platkit.batch.engine import Task, cluster, progress_line, require_dask, run_tasks
+    from platkit.batch.engine import SCHEDULER_ENV, Task, cluster, progress_line, require_dask, run_tasks
     from platkit.batch.fleet import write_summary
     from platkit.batch.store import BatchFolder, find_sessions
     from platkit.io.atomic import check_output_dir
@@ -127,6 +128,9 @@ def run(args) -> int:
         raise BadInput(f"platkit batch {verb}: give SESSION, a pattern of session folders such as 'fleet/*'")
     if args.workers is not None and args.workers < 1:
         raise BadInput(f"--workers {args.workers}: use 1 or more")
+    if args.workers is not None and (args.scheduler or os.environ.get(SCHEDULER_ENV)):
+        raise BadInput(f"--workers applies to the embedded cluster; the scheduler at "
+                       f"{args.scheduler or os.environ.get(SCHEDULER_ENV)} has its own workers")
     check_output_dir(args.out)
     sessions = find_sessions(args.session)
     options = verb_options(args)
@@ -154,6 +158,7 @@ def run(args) -> int:
             outcomes = run_tasks(client, run_verb, [Task(r.name, (verb, options, str(r.path), r.name)) for r in todo],
                                  on_outcome=keep, progress=None if args.quiet else progress_line("batch", start=start))
         failed = [o for o in outcomes if not o.ok]
+    batch.start()
     summary, written = write_summary(verb, sessions, batch)
     if getattr(args, "history", False):
         from platkit.batch.history import write_history

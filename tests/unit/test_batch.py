@@ -147,3 +147,16 @@ def test_pattern_matching_nothing_is_bad_input(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(["batch", "calibrate", str(tmp_path / "*"), "--out", str(tmp_path / "out")]) == 2
     assert "no session folder" in capsys.readouterr().err
+
+
+def test_bad_options_are_bad_input_before_any_work(tmp_path, monkeypatch, capsys):
+    simulate_session("rotary", tmp_path / "fleet" / "a", seed=1, n_poses=10, poses_only=True)
+    out = tmp_path / "out"
+    pattern = str(tmp_path / "fleet" / "*")
+    assert main(["batch", "diagnose", pattern, "--calibration", "cal/{nam}/calibration.yaml", "--out", str(out)]) == 2
+    assert "{name}, {folder} or {session}" in capsys.readouterr().err
+    monkeypatch.setenv(engine.SCHEDULER_ENV, "tcp://127.0.0.1:1")
+    assert main(["batch", "calibrate", pattern, "--workers", "2", "--out", str(out)]) == 2
+    assert "--workers applies to the embedded cluster" in capsys.readouterr().err
+    assert main(["batch", "calibrate", pattern, "--workers", "0", "--out", str(out)]) == 2
+    assert not out.exists()
