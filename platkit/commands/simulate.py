@@ -20,6 +20,7 @@ def add_parser(sub):
     from platkit.simulate.effects import size_help
 
     sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help().items()))
+    physics_sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help(physics=True).items()))
     p = sub.add_parser(
         "simulate", help="simulate a calibration session with a known true stand (truth.yaml)",
         description="Two simulators. Default (additive, fast): the stand moves smoothly to each command, and hidden "
@@ -31,7 +32,8 @@ def add_parser(sub):
     add_platform_options(p)
     p.add_argument("--out", required=True, help="session folder to write")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
-                   help=f"hidden effect, repeatable (NAME:SIZE or NAME=SIZE). Sizes: {sizes}. A base_tilt turns the "
+                   help=f"hidden effect, repeatable (NAME:SIZE or NAME=SIZE). Sizes: {sizes}. With --physics: "
+                        f"{physics_sizes}. A base_tilt turns the "
                         "whole stand in the level world: the motion capture cannot see it, an --imu's accelerometer "
                         "can (its truth also goes to truth_imu.yaml)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -145,7 +147,8 @@ def run(args) -> int:
     print(f"wrote {out}: {spec.name}, {len(sim.commands)} commands, {kind}, "
           f"{sim.poses.n_poses} settled poses; truth in {Path(out) / 'truth.yaml'}")
     for term, theta in sim.truth.terms:
-        print(f"  hidden effect {term.effect} at {term.where}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(term.parameter_names, theta)))
+        values = ", ".join(f"{n}={v:.4g}" for n, v in zip(term.parameter_names, theta))
+        print(f"  hidden effect {term.effect} at {term.where}: {values}")
     return 0
 
 

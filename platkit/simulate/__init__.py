@@ -1,6 +1,12 @@
 """Simulated calibration sessions for any registered stand, with a known truth.
 
-A simulation draws a true stand near the nominal one (parameters perturbed by a few mm or mrad,
+Two simulators. This module's :func:`simulate` is the additive one (fast, the default of
+``platkit simulate``): hidden effects are the model terms diagnosis fits, added to the controls,
+the pose or the markers. :func:`platkit.simulate.physics.simulate_physics` (``--physics``) plays
+the stand's physics out in time instead (docs/simulation.md). Both take effects by name from the
+effect library (platkit.simulate.effects): one implementation per effect, its plugin's.
+
+The additive simulation draws a true stand near the nominal one (parameters perturbed by a few mm or mrad,
 seeded), a base-to-mocap transform and marker positions; it sends a command plan, moves the
 controls smoothly between commands (minimum-jerk profile), adds a settling transient (a damped
 oscillation after each arrival), solves forward kinematics with the true parameters at the
@@ -15,28 +21,18 @@ Only the PlatformSpec / PlatformModel API is used: nothing here knows a particul
 """
 from __future__ import annotations
 
-import csv
-import io
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import yaml
 
-from platkit.calibrate.plan import (
-    Plan,
-    default_marker_layout,
-    feasible,
-    grid_plan_for,
-    random_candidates,
-    read_plan_csv,
-    stand_length_scale,
-)
+from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
 from platkit.calibrate.settle import SettleOptions, direction_of_last_motion, last_step, settle
 from platkit.errors import BadInput, NotIdentifiable
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec, matrix_from_rpy, quat_from_matrix, transform
-from platkit.inertial.simulate import write_imu
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.jsonout import plain
 from platkit.io.session import Session
@@ -45,13 +41,14 @@ from platkit.model import PlatformSpec, controls_from_si, length_scale
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
 from platkit.simulate.effects import simulation_term
+from platkit.simulate.files import csv_text, fmt, truth_imu, write_imu_files
+from platkit.simulate.physics import PhysicalSession, simulate_physics, write_physical_session
+from platkit.simulate.stand import make_plan, perturb_parameters, random_mocap_from_base
 from platkit.terms import ModelTerm
 
-__all__ = ["Truth", "Simulation", "Trajectory", "simulate", "simulate_session", "write_session", "perturb_parameters"]
+__all__ = ["Truth", "Simulation", "Trajectory", "simulate", "simulate_session", "write_session", "perturb_parameters",
+           "random_mocap_from_base", "PhysicalSession", "simulate_physics", "write_physical_session"]
 
-#: how hard the parameters of a true stand differ from nominal, by unit (1 sigma)
-PERTURBATION = {"m": 2e-3, "rad": 2e-3}
-RELATIVE_PERTURBATION = 1e-3  # other units: this fraction of the nominal value (or absolute if 0)
 
 
 @dataclass
@@ -143,27 +140,6 @@ class Simulation:
     base_markers: np.ndarray | None = None  # (K, B, 3) m, mocap frame, the stream of markers on the base
 
 
-def perturb_parameters(spec: PlatformSpec, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
-    """True parameters: nominal + Gaussian errors (2 mm for lengths, 2 mrad for angles, 0.1%
-    of the value otherwise), fixed parameters untouched, clipped to the parameters' bounds."""
-    td = spec.nominal_td().copy()
-    for i, p in enumerate(spec.parameters):
-        if not p.free:
-            continue
-        sd = PERTURBATION.get(p.unit)
-        if sd is None:
-            sd = RELATIVE_PERTURBATION * (abs(p.nominal) if p.nominal != 0 else 1.0)
-        td[i] = np.clip(p.nominal + scale * sd * rng.normal(), p.lower, p.upper)
-    return td
-
-
-def random_mocap_from_base(rng: np.random.Generator, size_m: float) -> np.ndarray:
-    """A motion-capture frame: any heading, a few mrad of tilt, offset by about the stand's size."""
-    R = matrix_from_rpy(rng.normal(0, 3e-3), rng.normal(0, 3e-3), rng.uniform(-np.pi, np.pi))
-    t = rng.uniform(-1, 1, 3) * np.array([2.0, 2.0, 0.5]) * max(size_m, 0.2)
-    return transform(R, t)
-
-
 def _min_jerk(s):
     s = np.clip(s, 0.0, 1.0)
     return s**3 * (10 - 15 * s + 6 * s**2)
@@ -213,21 +189,6 @@ def _apply_pose_offset(q, X, off):
     return quat_from_matrix(R), X + off[:, :3]
 
 
-def _make_plan(spec, plan, n_poses, rng, model, length_unit) -> tuple[np.ndarray, dict]:
-    if isinstance(plan, Plan):
-        return plan.controls, {"kind": plan.kind, **plan.info}
-    if isinstance(plan, np.ndarray):
-        return np.atleast_2d(plan).astype(float), {"kind": "given"}
-    if plan in (None, "grid"):
-        p = grid_plan_for(spec, n_poses, model=model)
-        return p.controls, {"kind": "grid", **p.info}
-    if plan == "random":
-        p = random_candidates(spec, n_poses, rng, model=model)
-        return p.controls, {"kind": "random"}
-    path = Path(str(plan))
-    return read_plan_csv(path, spec, length_unit), {"kind": "file", "file": str(path)}
-
-
 def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any = "grid", noise_mm: float = 0.2,
              occlusion: float = 0.02, n_markers: int = 5, raw: bool = True, terms=(), effects=(),
              mocap_rate_hz: float = 100.0, hold_s: float = 1.5, length_unit: str = "mm",
@@ -258,7 +219,7 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         raise BadInput("an IMU stream needs the simulated motion: simulate with raw=True (not poses only)")
     rng = np.random.default_rng(seed)
     model = PlatformModel(spec)
-    U, plan_info = _make_plan(spec, plan, n_poses, rng, model, length_unit)
+    U, plan_info = make_plan(spec, plan, n_poses, rng, model, length_unit)
     model.check_controls(U)
     td_true = perturb_parameters(spec, rng, perturbation)
     ok, P_true = feasible(spec, U, td_true, model)
@@ -406,18 +367,6 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
 # ----------------------------------------------------------------------------- files
 
 
-def _fmt(v: float, digits: int) -> str:
-    return "" if not np.isfinite(v) else f"{v:.{digits}f}"
-
-
-def _csv_text(header: list[str], rows) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    w.writerows(rows)
-    return buf.getvalue()
-
-
 def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, description: str | Path | None = None,
                   notes: str = "", moving_link: str | None = None, base_link: str | None = None) -> Path:
     """Write a simulated session folder (session.yaml, commands.csv, markers.csv or poses.csv,
@@ -459,8 +408,8 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             desc = Path(description)
             (tmp / desc.name).write_bytes(desc.read_bytes())
             entry["description"] = desc.name
-        rows = [[f"{t:.6f}"] + [_fmt(v, d) for v, d in zip(row, ctrl_digits)] for t, row in zip(sim.command_t, V)]
-        (tmp / "commands.csv").write_text(_csv_text(["t"] + spec.control_names, rows), encoding="utf-8")
+        rows = [[f"{t:.6f}"] + [fmt(v, d) for v, d in zip(row, ctrl_digits)] for t, row in zip(sim.command_t, V)]
+        (tmp / "commands.csv").write_text(csv_text(["t"] + spec.control_names, rows), encoding="utf-8")
         mcols = [f"{m}_{a}" for m in names + bnames for a in "xyz"]
         if poses_only or sim.markers is None:
             p = sim.poses
@@ -469,64 +418,30 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
                 raise BadInput("poses.csv needs one row per command; simulate with raw=False for --poses-only")
             rows = []
             for i in range(p.n_poses):
-                r = [_fmt(v, d) for v, d in zip(Vp[i], ctrl_digits)]
-                r += [_fmt(v / s, ldig) for v in p.markers[i].reshape(-1)]
+                r = [fmt(v, d) for v, d in zip(Vp[i], ctrl_digits)]
+                r += [fmt(v / s, ldig) for v in p.markers[i].reshape(-1)]
                 if bnames:
-                    r += [_fmt(v / s, ldig) for v in p.base_markers.reshape(-1)]
+                    r += [fmt(v / s, ldig) for v in p.base_markers.reshape(-1)]
                 r += [str(int(n)) for n in p.n_samples[i]]
                 rows.append(r)
             header = spec.control_names + mcols + [f"{m}_n" for m in names]
-            (tmp / "poses.csv").write_text(_csv_text(header, rows), encoding="utf-8")
+            (tmp / "poses.csv").write_text(csv_text(header, rows), encoding="utf-8")
         else:
             Y = sim.markers if sim.base_markers is None else np.concatenate([sim.markers, sim.base_markers], axis=1)
             Y = Y.reshape(len(sim.marker_t), -1) / s
-            rows = [[f"{t:.6f}"] + [_fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
-            (tmp / "markers.csv").write_text(_csv_text(["t"] + mcols, rows), encoding="utf-8")
+            rows = [[f"{t:.6f}"] + [fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
+            (tmp / "markers.csv").write_text(csv_text(["t"] + mcols, rows), encoding="utf-8")
         if sim.imu is not None:
-            entry["imu"] = _write_imu_files(sim.imu, tmp)
+            entry["imu"] = write_imu_files(sim.imu, tmp)
         (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")
         truth = sim.truth.to_dict()
         truth["plan"] = plain(sim.plan_info)
         if sim.imu is not None and "truth_imu" in sim.imu:
-            truth["imu"] = _truth_imu(sim.imu)
+            truth["imu"] = truth_imu(sim.imu)
         (tmp / "truth.yaml").write_text(
             "# The true stand behind this simulated session (SI units). Calibration should recover it.\n"
             + yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
     return out
-
-
-def _truth_imu(imu: dict) -> dict:
-    """The sensor's true errors for truth_imu.yaml (keys of platkit.inertial.orient.read_truth_imu);
-    the gyro bias is its value at the last sample."""
-    truth = plain(dict(imu["truth_imu"]))
-    if "gyr_bias" in imu:
-        truth["gyr_bias_rad_s"] = plain(np.asarray(imu["gyr_bias"], float)[-1])
-    return truth
-
-
-def _write_imu_files(imu: dict, folder: Path) -> dict:
-    """imu.csv and the IMU truth files in ``folder``; returns the session.yaml ``imu`` entry."""
-
-    t = np.asarray(imu["t"], float)
-    n = len(t)
-    for key in ("gyr", "acc"):
-        if np.shape(imu[key]) != (n, 3):
-            raise BadInput(f"the imu hook returned {key!r} of shape {np.shape(imu[key])}, expected ({n}, 3)")
-    write_imu(folder / "imu.csv", imu)
-    rate = float(1.0 / np.median(np.diff(t)))
-    entry = plain(imu.get("entry", {"rate_hz": rate, "frame": "imu"}))
-    if "q_base_from_platform" in imu:
-        q = np.asarray(imu["q_base_from_platform"], float)
-        if q.shape != (n, 4):
-            raise BadInput(f"the imu hook returned 'q_base_from_platform' of shape {q.shape}, expected ({n}, 4)")
-        # times formatted as format_imu_csv writes them: truth and stream share every timestamp
-        rows = [[f"{a:.9g}"] + [f"{v:.10f}" for v in qq] for a, qq in zip(t, q)]
-        (folder / "truth_orientation.csv").write_text(_csv_text(["t", "qw", "qx", "qy", "qz"], rows), encoding="utf-8")
-    if "truth_imu" in imu:
-        (folder / "truth_imu.yaml").write_text(
-            "# The simulated IMU's true errors (SI), as platkit orient compares them.\n"
-            + yaml.safe_dump(_truth_imu(imu), sort_keys=False), encoding="utf-8")
-    return entry
 
 
 def simulate_session(spec: PlatformSpec | str, out: str | Path, *, poses_only: bool = False,

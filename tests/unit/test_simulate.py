@@ -12,8 +12,12 @@ from platkit.geometry import matrix_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform, list_platforms
 from platkit.simulate import _commands_poseset, simulate, simulate_session
-from platkit.simulate.effects import EFFECT_SIZES, Backlash, builtin_term, parse_effect, simulation_term
+from platkit.simulate.effects import parse_effect, simulation_term
 from platkit.terms import ModelTerm
+from platkit_effects import BacklashTerm
+
+EFFECTS = ["backlash", "compliance", "thermal_drift", "cyclic_error", "scale_nonlinearity", "settling_lag", "marker_slip",
+           "base_tilt"]
 
 
 def _true_markers(spec, truth, U, terms_offset=None):
@@ -60,11 +64,11 @@ def test_seed_fixes_everything():
 
 def test_a_term_acts_through_its_control_offset():
     spec = get_platform("stewart")
-    term = Backlash("backlash", ["width"], np.zeros(1), ["m"], {"actuator": "L2"}, actuator=1)
-    theta = np.array([4e-3])
+    term = BacklashTerm("backlash", ["half_play"], np.zeros(1), ["m"], {"actuator": "L2"}, index=1)
+    theta = np.array([2e-3])
     sim = simulate(spec, seed=6, n_poses=10, raw=False, noise_mm=0.0, occlusion=0.0, terms=[(term, theta)])
     off = np.zeros_like(sim.poses.controls)
-    off[:, 1] = 0.5 * theta[0] * sim.poses.extras["direction"][:, 1]
+    off[:, 1] = theta[0] * sim.poses.extras["direction"][:, 1]
     assert np.any(off != 0)
     np.testing.assert_allclose(sim.poses.markers, _true_markers(spec, sim.truth, sim.poses.controls, off), atol=1e-9)
     plain = _true_markers(spec, sim.truth, sim.poses.controls)
@@ -95,14 +99,15 @@ def test_a_custom_term_with_pose_and_marker_offsets():
     assert np.all(np.linalg.norm(shift[:, 0] @ R - np.array([0, 0, 3e-3]), axis=1) > 1.5e-3)
 
 
-@pytest.mark.parametrize("name", sorted(EFFECT_SIZES))
+@pytest.mark.parametrize("name", EFFECTS)
 def test_every_built_in_effect_changes_the_poses(name):
     spec = get_platform("stewart")
-    base = simulate(spec, seed=8, n_poses=16, raw=False, noise_mm=0.0, occlusion=0.0)
+    # a random plan: a grid's commands can sit at one phase of a screw's period
+    base = simulate(spec, seed=8, n_poses=16, raw=False, noise_mm=0.0, occlusion=0.0, plan="random")
     size = 100.0 if name == "thermal_drift" else None  # mm per hour: a 70 s session needs a fast one
     commands = _commands_poseset(spec, base.commands, base.command_t, base.truth.marker_names)
-    term = builtin_term(name, spec, size, np.random.default_rng(0), commands)
-    sim = simulate(spec, seed=8, n_poses=16, raw=False, noise_mm=0.0, occlusion=0.0, terms=[term])
+    term = simulation_term(name, spec, size, np.random.default_rng(0), commands)  # the plugin's own
+    sim = simulate(spec, seed=8, n_poses=16, raw=False, noise_mm=0.0, occlusion=0.0, terms=[term], plan="random")
     assert len(sim.truth.terms) == 1 and sim.truth.terms[0][0].effect == name
     diff = np.max(np.abs(sim.poses.markers - base.poses.markers))
     assert diff > 0.05e-3, f"{name} moved the markers by only {diff * 1e3:.4f} mm"
@@ -110,7 +115,7 @@ def test_every_built_in_effect_changes_the_poses(name):
     yaml.safe_dump(sim.truth.to_dict())  # the truth stays plain YAML
 
 
-def test_a_registered_effect_with_simulation_term_takes_precedence(monkeypatch):
+def test_the_additive_mode_takes_the_registered_effects_simulation_term_and_no_other(monkeypatch):
     from platkit.plugins import default_host
 
     class Wobble:
@@ -118,7 +123,7 @@ def test_a_registered_effect_with_simulation_term_takes_precedence(monkeypatch):
 
         def simulation_term(self, spec, size, rng, commands):
             """the wobble's size"""
-            return Backlash("backlash", ["width"], np.zeros(1), ["m"], {"actuator": "L6"}, actuator=5), np.array([size])
+            return BacklashTerm("backlash", ["half_play"], np.zeros(1), ["m"], {"actuator": "L6"}, index=5), np.array([size])
 
     host = default_host()
     monkeypatch.setattr(host, "effects", lambda: {"backlash": Wobble()})
@@ -127,9 +132,9 @@ def test_a_registered_effect_with_simulation_term_takes_precedence(monkeypatch):
     commands = _commands_poseset(spec, base.commands, base.command_t, base.truth.marker_names)
     term, theta = simulation_term("backlash", spec, 7.0, np.random.default_rng(0), commands)
     assert term.where == {"actuator": "L6"} and theta[0] == 7.0
-    # names no plugin registers fall back to the built-in ones
-    term, theta = simulation_term("base_tilt", spec, 1.0, np.random.default_rng(0), commands)
-    assert term.effect == "base_tilt" and np.isclose(np.linalg.norm(theta), 1e-3)
+    # no second implementation: a name no plugin registers is unknown
+    with pytest.raises(BadInput, match="unknown effect 'base_tilt'"):
+        simulation_term("base_tilt", spec, 1.0, np.random.default_rng(0), commands)
 
 
 def test_effect_option_parsing():
