@@ -4,7 +4,8 @@
 a stand built from a URDF also ``calibrated.urdf`` (the estimate folded into the joint origins).
 report.json: ``rms_before``, ``rms_after`` (the session's length unit), ``unit``, ``n_poses``,
 ``n_markers``, ``converged``, and more (held-out errors, identifiability, per-marker RMS, outliers).
-report.html: one self-contained page, plots embedded as base64 PNG (matplotlib, Agg).
+report.html: one self-contained page, plots embedded as base64 PNG (matplotlib figures drawn by
+Agg, without pyplot), or none with ``write_outputs(..., with_html=False)`` (``calibrate --no-report``).
 """
 from __future__ import annotations
 
@@ -12,13 +13,14 @@ import html
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from platkit.errors import BadInput
 from platkit.geometry import rpy_from_quat
 from platkit.io import jsonout
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.calibration import Calibration, heldout_in_unit
-from platkit.io.figures import png_base64 as _png
+from platkit.io.figures import png_base64
 from platkit.io.urdf_export import export_calibrated_urdf
 from platkit.kinematics import PlatformModel
 from platkit.model import length_scale
@@ -65,6 +67,8 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         "weakly_identified": list(ident.get("weakly_identified", [])),
         "at_plausible_limit": list(ident.get("at_plausible_limit", [])),
         "gauge": ident.get("gauge"),  # what no pose fixes, the conventions that fix it (docs/calibration.md)
+        "model_selection": ident.get("model_selection"),  # which groups were freed, chosen by held-out prediction
+        "warnings": list(cal.extras.get("warnings", [])),  # what to check before trusting the fit
         "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
                           "over the observations kept by the robust loss",
     }
@@ -84,20 +88,36 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
 # ---------------------------------------------------------------------------- plots
 
 
+def _subplots(nrows: int = 1, ncols: int = 1, figsize=(6.4, 4.8), squeeze: bool = True,
+              bottom_in: float = 0.55, left_in: float = 0.85, gap_in: float = 0.0):
+    """(figure, axes) like pyplot.subplots, without pyplot: a bare Figure (no global figure
+    registry, no GUI backend) with fixed margins in inches (``gap_in``: between rows and
+    columns, for rotated tick labels), so that saving it draws it once: no layout engine and
+    no tight bounding box, each of which costs a second drawing (issue 13: the report was most
+    of a small calibration's time)."""
+    w, h = figsize
+    fig = Figure(figsize=figsize)
+    top_in, right_in = 0.25, 0.2
+    axes_h = (h - bottom_in - top_in - (nrows - 1) * gap_in) / nrows
+    axes_w = (w - left_in - right_in - (ncols - 1) * max(gap_in, 0.6)) / ncols
+    fig.subplots_adjust(left=left_in / w, right=1 - right_in / w, bottom=bottom_in / h, top=1 - top_in / h,
+                        hspace=gap_in / axes_h if nrows > 1 else 0.2, wspace=max(gap_in, 0.6) / axes_w)
+    return fig, fig.subplots(nrows, ncols, squeeze=squeeze)
+
+
+def _png(fig) -> str:
+    return png_base64(fig, tight=False)
+
+
 def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]]:
     """(title, caption, base64 png) for every plot the data allow."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     s = length_scale(cal.length_unit)
     lu = cal.length_unit
     out = []
     before, after = cal.extras.get("residuals_before"), cal.extras.get("residuals_after")
     w_after = cal.extras.get("weights")
     if before is not None and after is not None:
-        fig, ax = plt.subplots(figsize=(9, 3.2))
+        fig, ax = _subplots(figsize=(9, 3.2))
         db = np.sqrt(np.nanmean(np.sum(before ** 2, axis=2), axis=1)) / s
         da = np.sqrt(np.nanmean(np.sum(after ** 2, axis=2), axis=1)) / s
         n = np.arange(len(db))
@@ -113,7 +133,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
         ax.legend(fontsize=8)
         out.append(("Residuals per pose", "RMS over the markers of each pose, before and after calibration.", _png(fig)))
 
-        fig, ax = plt.subplots(figsize=(max(4, 0.7 * len(cal.marker_names) + 2), 3.2))
+        fig, ax = _subplots(figsize=(max(4, 0.7 * len(cal.marker_names) + 2), 3.2))
         pb = per_marker_rms(before, cal.extras.get("weights_before")) / s
         pa = per_marker_rms(after, w_after) / s
         x = np.arange(len(cal.marker_names))
@@ -133,8 +153,8 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
         if other:
             panels.append(("other", "[relative, x1e3]", None, other))
         panels = [p for p in panels if p[3]]
-        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6, 0.22 * max(len(p[3]) for p in panels) + 2),
-                                                          3.4 * len(panels)), squeeze=False, layout="constrained")
+        fig, axes = _subplots(len(panels), 1, figsize=(max(6, 0.22 * max(len(p[3]) for p in panels) + 2),
+                                                       3.4 * len(panels)), squeeze=False, bottom_in=1.2, gap_in=1.2)
         for ax, (u, lab, k, idx) in zip(axes[:, 0], panels):
             if k is None:
                 nom = np.where(cal.td_nominal[idx] != 0, np.abs(cal.td_nominal[idx]), 1.0)
@@ -154,7 +174,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
     ident = cal.identifiability or {}
     sv = ident.get("singular_values")
     if sv:
-        fig, ax = plt.subplots(figsize=(7, 3))
+        fig, ax = _subplots(figsize=(7, 3))
         sv = np.asarray(sv, float)
         floor = 1e-17 * max(float(sv.max()), 1e-300)  # below double precision: zero
         ax.semilogy(np.arange(1, len(sv) + 1), np.maximum(sv, floor), "o-", ms=3)
@@ -175,7 +195,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
             X = fb.X[fb.converged] / s
 
             rpy = np.degrees(rpy_from_quat(fb.q[fb.converged]))
-            fig, axes = plt.subplots(1, 3, figsize=(11, 3.3))
+            fig, axes = _subplots(1, 3, figsize=(11, 3.3), gap_in=0.9)
             axes[0].plot(X[:, 0], X[:, 1], ".", ms=3)
             axes[0].set_xlabel(f"x [{lu}]"), axes[0].set_ylabel(f"y [{lu}]")
             axes[1].plot(X[:, 0], X[:, 2], ".", ms=3)
@@ -190,7 +210,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
             span = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, np.ptp(controls, axis=0) + 1e-12)
             base = np.where(np.isfinite(lo), lo, controls.min(axis=0))
             frac = (controls - base) / span
-            fig, ax = plt.subplots(figsize=(max(5, 0.6 * cal.spec.n_u + 2), 3))
+            fig, ax = _subplots(figsize=(max(5, 0.6 * cal.spec.n_u + 2), 3), bottom_in=0.75)
             for j in range(cal.spec.n_u):
                 ax.plot(np.full(len(frac), j) + np.random.default_rng(j).uniform(-0.15, 0.15, len(frac)),
                         frac[:, j], ".", ms=2)
@@ -236,6 +256,17 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
         v = h["second_session"]
         parts.append(f"<p>Prediction of a second session ({html.escape(str(v['source']))}, {v['n_poses']} poses): "
                      f"RMS <b>{v['rms']:.4g} {lu}</b>.</p>")
+    for w in cal.extras.get("warnings", []):
+        parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
+    sel = (cal.identifiability or {}).get("model_selection") or {}
+    if sel:
+        parts.append("<h2>Which parameters were freed</h2><p>" + html.escape(sel.get("reason", "")) + ".</p>")
+        if sel.get("candidates"):
+            rows = [(", ".join(c["free"]) or "none", str(c["n_parameters_estimated"]), f"{c['heldout_median']:.4g}",
+                     f"{c['heldout_rms']:.4g}", f"{c['fit_rms']:.4g}", "chosen" if c["free"] == sel["chosen"] else "")
+                    for c in sel["candidates"]]
+            parts.append(f"<p>Candidates, scored by the {html.escape(sel['criterion'])} ({lu}):</p>"
+                         + _table(rows, ["free groups", "estimated", "held-out median", "held-out RMS", "fit RMS", ""]))
     for title, caption, png in _plots(cal, poses):
         parts.append(f"<h2>{html.escape(title)}</h2><p>{html.escape(caption)}</p>"
                      f"<img alt='{html.escape(title)}' src='data:image/png;base64,{png}'>")
@@ -279,13 +310,14 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
     return "\n".join(parts)
 
 
-def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None = None) -> list[Path]:
+def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None = None, with_html: bool = True) -> list[Path]:
     """Write calibration.yaml, report.json, report.html (and calibrated.urdf for URDF stands) into
-    ``out_dir`` atomically. Returns the paths written."""
+    ``out_dir`` atomically. Returns the paths written. ``with_html=False``: no report.html (its
+    figures take longer than a small calibration; ``platkit calibrate --no-report``)."""
     out_dir = Path(out_dir)
     names = []
     with atomic_output_dir(out_dir) as tmp:
-        names = ["calibration.yaml", "report.json", "report.html"]
+        names = ["calibration.yaml", "report.json"] + (["report.html"] if with_html else [])
         if cal.spec.extras.get("chain") is not None:
 
             try:
@@ -299,5 +331,6 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
             rep["calibrated_urdf"] = cal.extras["calibrated_urdf"]
         (tmp / "calibration.yaml").write_text(cal.to_yaml(), encoding="utf-8")
         (tmp / "report.json").write_text(jsonout.dumps(rep, indent=2) + "\n", encoding="utf-8")
-        (tmp / "report.html").write_text(report_html(cal, poses), encoding="utf-8")
+        if with_html:
+            (tmp / "report.html").write_text(report_html(cal, poses), encoding="utf-8")
     return [out_dir / n for n in names]
