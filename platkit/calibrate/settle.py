@@ -12,22 +12,47 @@ freedom per marker, so the mean of its square over the m visible markers is chi^
 sample is still when that statistic is below its ``1 - false_alarm`` quantile. Sigma is
 estimated from the whole stream by the median absolute second difference, which smooth motion
 hardly touches.
+
+The neighbouring-halves test cannot see the slow tail of an approach (a stand creeping the last
+micrometres towards rest changes little over ``window_s``), and a window that starts in it lags
+the settled position along the last step. So the approach itself is fitted: from the end of the
+main motion (its speed below half its peak) to the end of the hold, every marker coordinate
+follows ``x_inf + (a + b s) exp(-s / tau)`` (s: time since the fit's start; first order and
+critically damped second order approaches are both of this form) with one ``tau`` per hold, and
+the window starts where the fitted tail's share of the window mean is at most ``tail_fraction``
+of the averaging noise (sigma / sqrt(n)). The trend is then tested over the whole window (a
+regression on time, chi-square over the markers): a window that still moves is no settled pose.
+
+A hold that never settles (no still stretch, or one that still trends, or a tail that does not
+die before the next command) is dropped, unless so many do (more than ``max_unsettled_fraction``
+of the commands) that the rest would be a remnant: then each is replaced by the fitted rest
+position ``x_inf`` (its uncertainty in ``n_samples`` as sigma^2 / var, so the estimator weights
+it) when its approach fits the stream, or the search stops with a ComputationFailed naming the
+actuators and markers still moving and their time constant.
 """
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.stats import chi2, f as f_dist, fisher_exact
 
-from platkit.errors import BadSession
+from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
 from platkit.poses import PoseSet
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6
+
+#: probability that a still stretch is fitted a significant approach tail
+TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
+
+#: the categories a dropped command's reason starts with (``category: detail``)
+DROP_CATEGORIES = ("no motion-capture samples", "too few samples", "moved again", "never settled",
+                   "every marker occluded")
 
 
 @dataclass
@@ -41,17 +66,81 @@ class SettleOptions:
     end_slack_s: float = 0.2  # the still stretch may end this long before the next command
                               # (motion starting early: a clock offset between the two files)
     sigma_m: float | None = None  # marker noise per coordinate; None: estimated
+    tail_fraction: float = 0.05  # the approach's tail may bias a window mean by this much of its noise
+    trend_false_alarm: float = 1e-3  # probability a still window is called trending
+    max_unsettled_fraction: float = 0.1  # beyond: unsettled holds are extrapolated to rest (or the search stops)
+    extrapolate: str = "auto"  # 'auto' (beyond max_unsettled_fraction), 'always', 'never'
+    # an approach is extrapolated to rest only this far (m): markers follow the actuators through
+    # the kinematics, and beyond about a millimetre the path to rest bends away from the fitted decay
+    max_extrapolation_m: float = 1e-3
+
+
+@dataclass
+class Approach:
+    """The fitted approach of one hold: x(s) = x_inf + (a + b s) exp(-s / tau), s = t - t0.
+
+    x_inf, a, b: (M, 3) m (NaN for a marker not seen); x_inf_std (M, 3) m; tau, t0 in s;
+    chi2_per_dof: the fit's residual against the stream noise (1 for a good fit);
+    remaining_m: (M,) distance still to go at the end of the hold, per marker.
+    """
+
+    tau: float
+    t0: float
+    x_inf: np.ndarray
+    x_inf_std: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    chi2_per_dof: float
+    remaining_m: np.ndarray
+    at_limit: bool  # tau at the top of the searched range: slower than the hold can show
+    significant: bool = True  # False: the stream shows no decay (a and b set to zero)
+
+    def tail(self, t: np.ndarray) -> np.ndarray:
+        """(K, M, 3) m, the part of the approach still to go at times t."""
+        s = np.maximum(np.asarray(t, float) - self.t0, 0.0)
+        e = np.exp(-s / self.tau)[:, None, None]
+        return (self.a[None] + self.b[None] * (s / self.tau)[:, None, None]) * e
+
+    @property
+    def good(self) -> bool:
+        """The fit describes the stream (residual near the noise, a finite rest position)."""
+        return (not self.at_limit and self.chi2_per_dof < 2.0 and bool(np.isfinite(self.x_inf_std).any()))
 
 
 @dataclass
 class SettleReport:
-    """What the settling search found, for the person reading the calibration report."""
+    """What the settling search found, for the person reading the calibration report.
+
+    dropped: (row, reason) of the commands that gave no pose; ``counts``: reason category -> count;
+    unsettled: a summary of the holds that never settled (empty when none), with ``sentence``.
+    """
 
     sigma_m: float
     n_commands: int
     n_kept: int
     dropped: list[tuple[int, str]]
     rate_hz: float
+    n_extrapolated: int = 0
+    unsettled: dict = field(default_factory=dict)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return dropped_by_reason(self.dropped)
+
+
+def dropped_by_reason(dropped: list[tuple[int, str]]) -> dict[str, int]:
+    """Reason category (the text before the first ':') -> number of dropped commands, largest first."""
+    c = Counter(str(why).split(":", 1)[0].strip() for _, why in dropped)
+    return dict(sorted(c.items(), key=lambda kv: -kv[1]))
+
+
+def dropped_sentence(dropped: list[tuple[int, str]], n_commands: int | None = None) -> str:
+    """One line: how many commands were dropped, by reason ('' when none)."""
+    if not dropped:
+        return ""
+    of = f" of {n_commands}" if n_commands is not None else ""
+    parts = ", ".join(f"{n} {why}" for why, n in dropped_by_reason(dropped).items())
+    return f"{len(dropped)}{of} commands gave no settled pose: {parts}"
 
 
 def estimate_noise(markers: np.ndarray) -> float:
@@ -94,20 +183,26 @@ def _window_sums(x: np.ndarray):
     return S, C
 
 
-def still_mask(markers: np.ndarray, n: int, sigma: float, false_alarm: float) -> np.ndarray:
-    """(K,) True where the markers (K, M, 3), one command's stretch, are still at sample k.
-
-    Windows are clipped to the stretch; the first sample (no past) is never still.
-    """
+def _halves(markers: np.ndarray, n: int):
+    """Means of the n samples before and from each sample k: (mb, ma (K, M, 3), nb, na (K, M))."""
     K = markers.shape[0]
     S, C = _window_sums(markers)
     k = np.arange(K)
     a = np.maximum(k - n, 0)
     b = np.minimum(k + n, K)
-    nb = C[k] - C[a]  # (K, M) samples before
+    nb = C[k] - C[a]
     na = C[b] - C[k]
     mb = (S[k] - S[a]) / np.maximum(nb, 1)[..., None]
     ma = (S[b] - S[k]) / np.maximum(na, 1)[..., None]
+    return mb, ma, nb, na
+
+
+def still_mask(markers: np.ndarray, n: int, sigma: float, false_alarm: float) -> np.ndarray:
+    """(K,) True where the markers (K, M, 3), one command's stretch, are still at sample k.
+
+    Windows are clipped to the stretch; the first sample (no past) is never still.
+    """
+    mb, ma, nb, na = _halves(markers, n)
     vis = (nb > 0) & (na > 0)
     scale2 = sigma**2 * (1.0 / np.maximum(nb, 1) + 1.0 / np.maximum(na, 1))
     z2 = np.where(vis, np.sum((ma - mb) ** 2, axis=2) / scale2, 0.0)
@@ -131,19 +226,336 @@ def _last_still_run(still: np.ndarray, gap: int) -> tuple[int, int] | None:
     return int(start), int(end)
 
 
+def approach_start(markers: np.ndarray, n: int, sigma: float) -> int | None:
+    """Index where the main motion of a hold's stretch (K, M, 3) has slowed to half its peak
+    speed (the approach's tail begins; the peak itself when it never slows that much), or None
+    when the stretch shows no motion beyond the noise."""
+    mb, ma, nb, na = _halves(markers, n)
+    vis = (nb > 0) & (na > 0)
+    d = np.sqrt(np.sum(np.where(vis[..., None], ma - mb, 0.0) ** 2, axis=(1, 2)) / np.maximum(vis.sum(axis=1), 1))
+    noise = sigma * np.sqrt(2.0 / n) * np.sqrt(3.0)
+    full = np.zeros(len(d), bool)
+    full[n:len(d) - n + 1] = True  # both halves whole: a clipped half sees less of the motion
+    if not full.any():
+        return None
+    d = np.where(full, d, 0.0)
+    k_peak = int(np.argmax(d))
+    if d[k_peak] < 10 * noise:
+        return None
+    below = np.nonzero(full[k_peak:] & (d[k_peak:] < 0.5 * d[k_peak]))[0]
+    # an approach slower than the hold never halves its speed: its decay is fitted from the peak
+    return k_peak if below.size == 0 else k_peak + int(below[0])
+
+
+def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float | None = None,
+                 tau: float | None = None) -> Approach | None:
+    """Fit x(s) = x_inf + (a + b s) exp(-s / tau) to a hold's tail, s = t - t[0].
+
+    t: (K,) s; markers: (K, M, 3) m (NaN: occluded); sigma: noise per coordinate (m); t_end:
+    the hold's end (default t[-1]), where ``remaining_m`` is evaluated. One tau for every marker,
+    searched on a log grid from two samples to three times the stretch (or ``tau`` given: the
+    session's); for each tau the rest is linear least squares (normal equations, per marker over
+    its visible samples). None when no marker has 8 samples in the stretch.
+    """
+    t = np.asarray(t, float)
+    K = len(t)
+    if K < 8:
+        return None
+    s = t - t[0]
+    span = max(s[-1], 1e-9)
+    dt = span / max(K - 1, 1)
+    ok = np.isfinite(markers).all(axis=2)  # (K, M)
+    if not np.any(ok.sum(axis=0) >= 8):
+        return None
+    seen = ok.sum(axis=0) >= 8
+    M = markers.shape[1]
+    # centred per marker: the sums below then hold the decay, not the marker's place (no cancellation)
+    mean = np.sum(np.where(ok[..., None], markers, 0.0), axis=0) / np.maximum(ok.sum(axis=0), 1)[:, None]
+    y = np.where(ok[..., None], markers - mean[None], 0.0)  # (K, M, 3)
+    w = ok.astype(float)
+    yty = np.sum(y**2, axis=(0, 2))  # (M,)
+
+    every = bool(ok.all())  # no occlusion: one design for every marker
+
+    def solve(taus):
+        E = np.exp(-s[None, :] / taus[:, None])  # (T, K)
+        G = np.stack([np.ones_like(E), E, (s[None, :] / taus[:, None]) * E], axis=2)  # (T, K, 3)
+        T = len(taus)
+        Gt = G.transpose(0, 2, 1)
+        if every:
+            GtG = np.broadcast_to((Gt @ G)[:, None], (T, M, 3, 3)).copy()
+        else:
+            GG = (G[..., :, None] * G[..., None, :]).reshape(T, K, 9)
+            GtG = np.moveaxis((GG.transpose(0, 2, 1) @ w).reshape(T, 3, 3, M), 3, 1)  # (T, M, 3, 3)
+        Gty = np.moveaxis((Gt @ y.reshape(K, -1)).reshape(T, 3, M, 3), 2, 1)  # (T, M, 3, 3)
+        GtG[:, ~seen] = np.eye(3)
+        GtG = GtG + np.eye(3) * 1e-12 * np.trace(GtG, axis1=2, axis2=3)[..., None, None]
+        coef = np.linalg.solve(GtG, Gty)  # (T, M, 3, 3): [param, coord]
+        rss = yty[None] - np.einsum("tmic,tmic->tm", coef, Gty)  # (T, M)
+        return np.sum(np.where(seen[None], rss, 0.0), axis=1), coef, GtG
+
+    if tau is not None:
+        taus = np.array([float(tau)])
+        rss_tot, coef, GtG = solve(taus)
+        j = 0
+    else:
+        # a coarse log grid, then twice a finer one around its best: a tail of millimetres
+        # needs its time constant to a fraction of a percent
+        # the residual over tau has a narrow valley when the tail is many noise levels deep, which a
+        # grid can step over: the recurrence of the sampled decay (Prony) points at it, and both
+        # the grid's best and Prony's are refined twice on finer grids; the lower wins
+        grid = np.geomspace(2 * dt, 3 * span, 80)
+        rss_g = solve(grid)[0]
+        j = int(np.argmin(rss_g))
+        at_top = j == len(grid) - 1
+        # every local minimum of the grid near the best: two time constants can fit a short
+        # stretch almost equally (a and b trade against tau), and only the finer search tells them apart
+        interior = (rss_g[1:-1] <= rss_g[:-2]) & (rss_g[1:-1] <= rss_g[2:])
+        minima = sorted({j} | {int(k) + 1 for k in np.nonzero(interior)[0] if rss_g[k + 1] <= 1.2 * rss_g[j]})
+        starts = [(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]) for k in minima[:4]]
+        tp = _prony_tau(y, ok, dt)
+        if tp is not None and 2 * dt <= tp <= 3 * span:
+            starts.append((tp / 1.2, tp * 1.2))
+        best = None
+        for lo, hi in starts:
+            for _ in range(3):
+                taus = np.geomspace(lo, hi, 12)
+                rss_tot, coef, GtG = solve(taus)
+                j = int(np.argmin(rss_tot))
+                lo, hi = taus[max(j - 1, 0)], taus[min(j + 1, len(taus) - 1)]
+            if best is None or rss_tot[j] < best[0][best[3]]:
+                best = (rss_tot, coef, GtG, j, taus)
+        rss_tot, coef, GtG, j, taus = best
+    c = coef[j]
+    n_obs = 3 * int(ok[:, seen].sum())
+    dof = max(n_obs - 9 * int(seen.sum()) - 1, 1)
+    chi = float(max(rss_tot[j], 0.0) / dof / sigma**2)
+    cov00 = np.linalg.inv(GtG[j])[:, 0, 0]  # (M,)
+    std = np.sqrt(np.maximum(cov00, 0.0) * max(chi, 1.0)) * sigma
+    x_inf = np.where(seen[:, None], mean + c[:, 0, :], np.nan)
+    a = np.where(seen[:, None], c[:, 1, :], 0.0)
+    b = np.where(seen[:, None], c[:, 2, :], 0.0)
+    fit = Approach(tau=float(taus[j]), t0=float(t[0]), x_inf=x_inf,
+                   x_inf_std=np.where(seen[:, None], std[:, None].repeat(3, axis=1), np.nan),
+                   a=a, b=b, chi2_per_dof=chi, remaining_m=np.zeros(M),
+                   at_limit=tau is None and at_top)
+    # a tail the stream does not show (F test of the decay against a constant, over every seen
+    # coordinate) is none: noise alone must not move a window or make a hold unsettled
+    rss0 = float(np.sum(yty[seen]))
+    extra = 2 * 3 * int(seen.sum()) + 1
+    F = ((rss0 - max(rss_tot[j], 0.0)) / extra) / max(rss_tot[j] / dof, 1e-300)
+    if not f_dist.sf(F, extra, dof) < TAIL_FALSE_ALARM:
+        fit.a, fit.b = np.zeros_like(a), np.zeros_like(b)
+        fit.x_inf = np.where(seen[:, None], mean, np.nan)
+        fit.significant = False
+    fit.remaining_m = np.linalg.norm(fit.tail(np.array([t[-1] if t_end is None else t_end]))[0], axis=1)
+    return fit
+
+
+def _fit_tail(ts: np.ndarray, seg: np.ndarray, k0: int, end: int, sigma: float) -> Approach | None:
+    """The approach of one hold fitted from k0, a quarter or half of the way to the end: the
+    earliest whose residual is within 15% of the best one's (per degree of freedom). The end
+    of the main motion (a minimum-jerk deceleration, several actuators with their own time
+    constants) is not one decay, and a fit that includes it mispredicts the tail; the noise
+    level of the stream (coloured noise, a sigma estimated a few percent off) is judged
+    against the stretch itself. None when the stretch is too short to fit."""
+    def at(f):
+        k = k0 + int(f * (end - k0))
+        return fit_approach(ts[k:end], seg[k:end], sigma, t_end=ts[end - 1]) if end - k >= 16 else None
+
+    late, first = at(0.5), at(0.0)
+    if first is None:
+        return late
+    if late is None or first.chi2_per_dof <= 1.15 * late.chi2_per_dof:
+        return first  # the decay from the end of the main motion on is one decay
+    fits = [f for f in (first, at(0.25), late) if f is not None]
+    floor = min(f.chi2_per_dof for f in fits)
+    return next(f for f in fits if f.chi2_per_dof <= 1.15 * floor)
+
+
+def _prony_tau(y: np.ndarray, ok: np.ndarray, dt: float) -> float | None:
+    """Time constant (s) of the slowest mode of a second-order recurrence fitted to y (K, M, 3):
+    block means (about 30 blocks, so that noise does not drown the differences), their
+    differences (which remove the rest position) shared by every seen coordinate. None when no
+    mode decays or too little is seen."""
+    K = len(y)
+    L = max(1, K // 30)
+    nb = K // L
+    if nb < 8:
+        return None
+    w = ok[: nb * L].reshape(nb, L, -1).astype(float)  # (nb, L, M)
+    ys = y[: nb * L].reshape(nb, L, *y.shape[1:])
+    cnt = w.sum(axis=1)  # (nb, M)
+    blocks = np.sum(ys * w[..., None], axis=1) / np.maximum(cnt, 1)[..., None]  # (nb, M, 3)
+    seen = np.all(cnt > 0, axis=0)
+    if not seen.any():
+        return None
+    d = np.diff(blocks[:, seen], axis=0).reshape(nb - 1, -1)  # (nb-1, 3m)
+    A = np.stack([d[1:-1], d[:-2]], axis=-1).reshape(-1, 2)
+    b = d[2:].reshape(-1)
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    r = float(np.max(np.abs(np.roots([1.0, -coef[0], -coef[1]]))))
+    if not 0 < r < 1:
+        return None
+    return -L * dt / np.log(r)
+
+
+def tail_free_window(approach: Approach, t: np.ndarray, start: int, end: int, sigma: float,
+                     fraction: float, min_samples: int) -> tuple[int, np.ndarray] | None:
+    """(s, correction): the window [s, end) to average and the fitted tail's share of its mean
+    ((M, 3) m, to subtract). s is the first index in [start, end - min_samples] at which that
+    share is at most ``fraction`` of the averaging noise sigma / sqrt(end - s) (its norm over
+    every marker coordinate: the bias along the tail's direction, where a pose's averaging noise
+    is sigma / sqrt(n)); the correction is then zero. When no window is that clean but one's share
+    stays below its averaging noise, that window and its share are returned (the mean is corrected
+    by a fraction of its noise); None when every window is biased more (the hold has not settled)."""
+    if end - start < min_samples:
+        return None
+    F = np.nan_to_num(approach.tail(t[start:end]))  # (L, M, 3)
+    cs = np.cumsum(F[::-1], axis=0)[::-1]  # sum from each index to the end
+    L = end - start
+    n = L - np.arange(L)
+    share = cs / n[:, None, None]
+    ratio = np.linalg.norm(share.reshape(L, -1), axis=1) / (sigma / np.sqrt(n))  # along the tail
+    ratio[n < min_samples] = np.inf
+    idx = np.nonzero(ratio <= fraction)[0]
+    if idx.size:
+        return start + int(idx[0]), np.zeros(F.shape[1:])
+    k = int(np.argmin(ratio))
+    if ratio[k] <= 1.0:
+        return start + k, share[k]
+    return None
+
+
+def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float, float]:
+    """Regression on time over a whole window: (p-value of "no trend", largest speed in m/s).
+    Chi-square of the slopes of every seen marker coordinate (3 per marker)."""
+    ok = np.isfinite(markers).all(axis=2)
+    stat, dof, vmax = 0.0, 0, 0.0
+    for m in range(markers.shape[1]):
+        sel = ok[:, m]
+        if sel.sum() < 4:
+            continue
+        tt = t[sel] - t[sel].mean()
+        sxx = float(np.sum(tt**2))
+        if sxx <= 0:
+            continue
+        slope = tt @ (markers[sel, m] - markers[sel, m].mean(axis=0)) / sxx  # (3,)
+        stat += float(np.sum(slope**2) * sxx / sigma**2)
+        dof += 3
+        vmax = max(vmax, float(np.linalg.norm(slope)))
+    if dof == 0:
+        return 1.0, 0.0
+    return float(chi2.sf(stat, dof)), vmax
+
+
+def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray, control_names: list[str],
+                       marker_names: list[str], hold_s: np.ndarray, n_commands: int,
+                       other_drops: set[int] | None = None) -> dict:
+    """Which actuators and markers are still moving in the holds ``rows`` that never settled, and
+    with what time constant; ``sentence`` says it in one line.
+
+    An actuator is named when the holds after it moved (by more than 5% of its travel in the
+    session) never settle significantly more often than the others (one-sided Fisher exact test,
+    Bonferroni over the actuators at 0.01), and its excess is at least 0.7 of the largest.
+    """
+    if not rows:
+        return {}
+    un = np.zeros(len(U), bool)
+    un[rows] = True
+    use = np.ones(len(U), bool)
+    if other_drops:
+        use[sorted(other_drops)] = False
+    steps = np.abs(last_step(U))
+    span = np.ptp(U, axis=0)
+    moved = steps / np.where(span > 0, span, 1.0) > 0.05
+    scored = []
+    for j, name in enumerate(control_names):
+        m = moved[:, j] & use
+        o = ~moved[:, j] & use
+        if m.sum() < 3 or o.sum() < 3:
+            continue
+        table = [[int((un & m).sum()), int((~un & m).sum())], [int((un & o).sum()), int((~un & o).sum())]]
+        p = fisher_exact(table, alternative="greater")[1]
+        excess = un[m].mean() - un[o].mean()
+        if p < 0.01 / len(control_names) and excess > 0:
+            scored.append((float(excess), j))
+    scored.sort(reverse=True)
+    named = [j for e, j in scored if e >= 0.7 * scored[0][0]] if scored else []
+    actuators = [control_names[j] for j in named]
+    which = [i for i in rows if i in fits and (not named or moved[i, named].any())] or [i for i in rows if i in fits]
+    taus = np.array([fits[i].tau for i in which])
+    rem = np.array([fits[i].remaining_m for i in rows if i in fits])
+    markers = []
+    if rem.size:
+        med = np.nanmedian(rem, axis=0)
+        markers = [marker_names[m] for m in np.argsort(-med) if med[m] >= 0.5 * np.nanmax(med)]
+    tau_med = float(np.median(taus)) if taus.size else float("nan")
+    tau_lo, tau_hi = (float(np.percentile(taus, 25)), float(np.percentile(taus, 75))) if taus.size else (np.nan, np.nan)
+    who = (f"actuator{'s' if len(actuators) > 1 else ''} {', '.join(actuators)}" if actuators
+           else "the stand (no one actuator stands out)")
+    tc = (f"approaching rest with a time constant of {tau_med:.3g} s (quartiles {tau_lo:.3g}-{tau_hi:.3g} s)"
+          if taus.size else "its approach not fitted")
+    sentence = (f"{len(rows)} of {n_commands} holds never settled: {who} still moving at the next command "
+                f"(markers {', '.join(markers) or 'all'}), {tc} against holds of {float(np.median(hold_s)):.3g} s")
+    return {"rows": list(rows), "n": len(rows), "n_commands": n_commands, "actuators": actuators, "markers": markers,
+            "time_constant_s": tau_med, "time_constant_quartiles_s": [tau_lo, tau_hi],
+            "hold_s": float(np.median(hold_s)),
+            "remaining_m": float(np.nanmedian(np.nanmax(rem, axis=1))) if rem.size else float("nan"),
+            "sentence": sentence}
+
+
+def extrapolation_checked(ts: np.ndarray, seg: np.ndarray, fit: Approach, end: int, sigma: float,
+                          false_alarm: float = 1e-3) -> bool:
+    """Whether the approach model predicts the hold's own future: refit without the last third
+    of the stretch the fit saw and compare its prediction of that third's mean with the
+    measured mean (chi-square over the seen markers' coordinates, with the prediction's and the
+    mean's noise). An approach whose shape the model misses (several time constants, a creep)
+    fails it, and is not extrapolated to rest."""
+    k = int(np.searchsorted(ts, fit.t0))
+    L = end - k
+    cut = end - L // 3
+    if cut - k < 16 or end - cut < 4:
+        return False
+    early = fit_approach(ts[k:cut], seg[k:cut], sigma, tau=fit.tau)
+    if early is None:
+        return False
+    w = seg[cut:end]
+    ok = np.isfinite(w).all(axis=2)
+    cnt = ok.sum(axis=0)
+    seen = (cnt > 0) & np.isfinite(early.x_inf).all(axis=1)
+    if not seen.any():
+        return False
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        meas = np.nanmean(np.where(ok[..., None], w, np.nan), axis=0)
+    pred = early.x_inf + np.mean(early.tail(ts[cut:end]), axis=0)
+    var = early.x_inf_std**2 + sigma**2 / np.maximum(cnt, 1)[:, None]
+    stat = float(np.sum(((meas - pred) ** 2 / var)[seen]))
+    return stat < chi2.ppf(1 - false_alarm, 3 * int(seen.sum()))
+
+
 def settle(session: Session, options: SettleOptions | None = None) -> tuple[PoseSet, SettleReport]:
     """Settled poses of a session with a raw marker stream (markers.csv or C3D).
 
     Returns the PoseSet (kept poses only; ``dropped`` lists (row, reason) of the others, rows
-    0-based in commands.csv order) and a SettleReport. ``extras``: 'row' (N,) command row,
+    0-based in commands.csv order, each reason ``category: detail`` with a category of
+    DROP_CATEGORIES) and a SettleReport. ``extras``: 'row' (N,) command row,
     'direction' (N, n_u) sign of the last change of each control, 'last_step' (N, n_u) the command
     step that led to the row (u_i - u_(i-1), internal units), 'elapsed' (N,) s since the first
-    command, 'settle_time' (N,) s from the
-    command to the start of the averaging window, 'window_start'/'window_end' (N,) s,
-    'marker_std' (N, M) m spread of each marker over its window.
-    Raises BadSession when no command settles.
+    command, 'settle_time' (N,) s from the command to the start of the averaging window,
+    'window_start'/'window_end' (N,) s, 'marker_std' (N, M) m spread of each marker over its
+    window, 'approach_tau_s' (N,) the fitted approach's time constant (NaN: no approach seen),
+    'remaining_m' (N,) m the distance the approach still had to go at the end of the hold (largest
+    over the markers), 'extrapolated' (N,) 1.0 where the pose is the fitted rest position of a hold
+    that never settled.
+    Raises BadSession when no command settles, ComputationFailed when more than
+    ``max_unsettled_fraction`` of the holds never settle and their approach cannot be extrapolated
+    (or extrapolation is off): the message names the actuators and markers still moving.
     """
     opt = options or SettleOptions()
+    if opt.extrapolate not in ("auto", "always", "never"):
+        raise ValueError(f"extrapolate must be 'auto', 'always' or 'never', not {opt.extrapolate!r}")
     if session.markers is None:
         raise BadSession(f"{session.folder}: the session has no motion-capture stream (markers.csv or a C3D file)")
     if session.commands is None:
@@ -159,68 +571,135 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     tc, U = session.command_t, session.commands
     N, M = U.shape[0], X.shape[1]
     direction = direction_of_last_motion(U)
-    kept, dropped = [], []
-    means, counts, stds, starts, ends = [], [], [], [], []
+    results: dict[int, dict] = {}  # row -> mean, cnt, std, start, end, tau, remaining, extrapolated
+    dropped: dict[int, str] = {}
+    fits: dict[int, Approach] = {}
+    unsettled: list[int] = []
+    segments: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # the stretches of the holds that never settled
+    hold_s = np.empty(N)
     for i in range(N):
         t_end = tc[i + 1] if i + 1 < N else t[-1] + dt / 2
+        hold_s[i] = t_end - tc[i]
         a, b = np.searchsorted(t, tc[i], side="left"), np.searchsorted(t, t_end, side="left")
         if b - a < min_samples:
-            why = "no motion-capture samples" if b == a else f"only {b - a} motion-capture samples"
-            dropped.append((i, f"{why} between t={tc[i]:.3f} s and t={t_end:.3f} s"))
+            if b == a:
+                dropped[i] = f"no motion-capture samples: none between t={tc[i]:.3f} s and t={t_end:.3f} s"
+            else:
+                dropped[i] = f"too few samples: only {b - a} between t={tc[i]:.3f} s and t={t_end:.3f} s"
             continue
-        seg = X[a:b]
+        seg, ts = X[a:b], t[a:b]
         run = _last_still_run(still_mask(seg, n, sigma, opt.false_alarm), opt.gap_samples)
         length = 0 if run is None else run[1] - run[0]
         slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * rate)))
         if run is not None and length >= min_samples and run[1] < (b - a) - slack:
-            dropped.append((i, f"moved again {(b - a - run[1]) * dt:.2f} s before the next command "
-                               f"(after {length * dt:.2f} s still); the stand did not hold the command"))
+            dropped[i] = (f"moved again: {(b - a - run[1]) * dt:.2f} s before the next command "
+                          f"(after {length * dt:.2f} s still); the stand did not hold the command")
             continue
+        end = (b - a) if run is None else run[1]
+        k0 = approach_start(seg[:end], n, sigma)
+        fit = None
+        if k0 is not None and end - k0 >= 8:
+            fit = _fit_tail(ts, seg, k0, end, sigma)
+        if fit is not None:
+            fits[i] = fit
+        why = None
+        start = None
+        correction = np.zeros((M, 3))
         if run is None or length < min_samples:
-            dropped.append((i, f"never settled: still for {length * dt:.2f} s before the next command, "
-                               f"{opt.min_still_s:.2f} s needed"))
+            why = (f"never settled: still for {length * dt:.2f} s before the next command, "
+                   f"{opt.min_still_s:.2f} s needed")
+        else:
+            start = run[0]
+            if fit is not None:
+                window = tail_free_window(fit, ts, run[0], end, sigma, opt.tail_fraction, min_samples)
+                start = None if window is None else window[0]
+                if window is not None:
+                    correction = window[1]
+                if start is None:
+                    why = (f"never settled: the approach (time constant {fit.tau:.3g} s) still had "
+                           f"{1e3 * float(np.nanmax(fit.remaining_m)):.3g} mm to go at the next command")
+            if start is not None:
+                p, v = trend_test(ts[start:end], seg[start:end], sigma)
+                if p < opt.trend_false_alarm:
+                    why = (f"never settled: still moving at {1e3 * v:.3g} mm/s across its "
+                           f"{(end - start) * dt:.2f} s window (trend p = {p:.2g})")
+        if why is not None:
+            dropped[i] = why
+            unsettled.append(i)
+            segments[i] = (ts[:end], seg[:end])
             continue
-        w = seg[run[0]:run[1]]
+        w = seg[start:end]
         ok = np.isfinite(w).all(axis=2)
         cnt = ok.sum(axis=0)
         if not np.any(cnt):
-            dropped.append((i, "every marker occluded in the settled window"))
+            dropped[i] = "every marker occluded: no sample in the settled window"
             continue
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a marker occluded all window long
             mean = np.nanmean(np.where(ok[..., None], w, np.nan), axis=0)
             std = np.sqrt(np.nanmean(np.sum((w - mean) ** 2, axis=2), axis=0) / 3)
+        mean = mean - correction  # the approach's share of the window mean (zero in a clean window)
         mean[cnt == 0] = np.nan
-        kept.append(i)
-        means.append(mean)
-        counts.append(cnt)
-        stds.append(std)
-        starts.append(t[a + run[0]])
-        ends.append(t[a + run[1] - 1])
+        results[i] = dict(mean=mean, cnt=cnt.astype(float), std=std, start=ts[start], end=ts[end - 1],
+                          tau=np.nan if fit is None else fit.tau,
+                          remaining=np.nan if fit is None else float(np.nanmax(fit.remaining_m)), extrapolated=0.0)
+    names = (list(session.spec.control_names) if session.spec is not None
+             else [f"u{j + 1}" for j in range(U.shape[1])])
+    summary = _unsettled_summary(unsettled, fits, U, names, list(session.marker_names), hold_s, N,
+                                 set(dropped) - set(unsettled))
+    many = len(unsettled) > opt.max_unsettled_fraction * N and len(unsettled) >= 2  # one of a few is no pattern
+    n_extrapolated = 0
+    if unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many)):
+        good = [i for i in unsettled if i in fits and fits[i].good
+                and float(np.nanmax(fits[i].remaining_m)) <= opt.max_extrapolation_m
+                and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], sigma)]
+        if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
+            if results:
+                raise ComputationFailed(
+                    f"{session.markers_source}: {summary['sentence']}; the approach of only {len(good)} of them "
+                    "fits the stream well enough to extrapolate to rest: record longer holds (or a slower plan)")
+            good = []  # nothing settled and little extrapolates: the recording never settles (below)
+        for i in good:
+            f = fits[i]
+            var = np.nanmax(f.x_inf_std, axis=1) ** 2
+            cnt = np.where(np.isfinite(var) & (var > 0), sigma**2 / np.where(var > 0, var, 1.0), 0.0)
+            results[i] = dict(mean=f.x_inf, cnt=cnt, std=np.full(M, np.nan), start=np.nan, end=np.nan,
+                              tau=f.tau, remaining=float(np.nanmax(f.remaining_m)), extrapolated=1.0)
+            dropped.pop(i)
+            n_extrapolated += 1
+    elif many and len(unsettled) > 0.5 * N and results:
+        raise ComputationFailed(
+            f"{session.markers_source}: {summary['sentence']}; calibrating from the {N - len(dropped)} that did "
+            "would fit a remnant: record longer holds, or settle with extrapolation to rest")
+    kept = sorted(results)
+    dropped_list = sorted(dropped.items())
     if not kept:
-        reason = dropped[0][1] if dropped else "no commands"
+        reason = dropped_list[0][1] if dropped_list else "no commands"
         raise BadSession(
             f"{session.markers_source}: the recording never settles: none of {N} commands gave a still window "
-            f"(first: row {dropped[0][0] + 1 if dropped else 0}: {reason})"
+            f"(first: row {dropped_list[0][0] + 1 if dropped_list else 0}: {reason})"
+            + (f"; {summary['sentence']}" if summary else "")
         )
     kept_a = np.array(kept)
+    col = lambda key: np.array([results[i][key] for i in kept])  # noqa: E731
     base = None
     if session.base_markers is not None and session.base_markers.shape[1]:
         with np.errstate(invalid="ignore"):
             base = np.nanmean(session.base_markers, axis=0)
     poses = PoseSet(
-        platform=session.platform, controls=U[kept_a], markers=np.array(means),
+        platform=session.platform, controls=U[kept_a], markers=col("mean"),
         marker_names=list(session.marker_names),
         description=None if session.description is None else str(session.description),
-        base_markers=base, t=tc[kept_a], n_samples=np.array(counts, float), length_unit=session.length_unit,
-        moving_link=session.moving_link, source=str(session.folder), dropped=dropped,
+        base_markers=base, t=tc[kept_a], n_samples=col("cnt"), length_unit=session.length_unit,
+        moving_link=session.moving_link, source=str(session.folder), dropped=dropped_list,
         extras={
             "row": kept_a, "direction": direction[kept_a], "last_step": last_step(U)[kept_a],
-            "elapsed": tc[kept_a] - tc[0], "settle_time": np.array(starts) - tc[kept_a],
-            "window_start": np.array(starts), "window_end": np.array(ends), "marker_std": np.array(stds),
+            "elapsed": tc[kept_a] - tc[0], "settle_time": col("start") - tc[kept_a],
+            "window_start": col("start"), "window_end": col("end"), "marker_std": col("std"),
+            "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
         },
     )
-    return poses, SettleReport(float(sigma), N, len(kept), dropped, float(rate))
+    return poses, SettleReport(float(sigma), N, len(kept), dropped_list, float(rate), n_extrapolated, summary)
 
 
 def poses_from_table(session: Session) -> PoseSet:
@@ -243,10 +722,12 @@ def poses_from_table(session: Session) -> PoseSet:
 
 
 def load_poses(folder: str | Path, platform: str | None = None, description: str | Path | None = None,
-               options: SettleOptions | None = None, spec=None) -> PoseSet:
+               options: SettleOptions | None = None, spec=None, session: Session | None = None) -> PoseSet:
     """Settled poses of a session folder: from markers.csv or a C3D file (through :func:`settle`)
-    or from poses.csv as they are. BadSession if the session has no markers."""
-    session = load_session(folder, platform=platform, description=description, spec=spec)
+    or from poses.csv as they are. BadSession if the session has no markers. ``session``: the
+    folder already read by :func:`load_session` (its streams are not read again)."""
+    if session is None:
+        session = load_session(folder, platform=platform, description=description, spec=spec)
     if session.spec is None:
         raise BadSession(f"{Path(folder) / 'session.yaml'}: declares no platform (an IMU-only recording); calibration needs a stand")
     if session.markers is not None:
