@@ -51,7 +51,7 @@ from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.settle import settle
 from platkit.cli import main as platkit_main
 from platkit.effects import with_history
-from platkit.errors import PlatkitError
+from platkit.errors import BadInput, PlatkitError
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
@@ -167,7 +167,10 @@ def run_case(case: dict) -> dict:
 def _run_case(case: dict) -> dict:
     spec = get_platform(case["stand"])
     seed, n = case["seed"], case["commands"]
-    effects, info = sized_effects(spec, seed, n, [tuple(e) for e in case["effects"]])
+    try:
+        effects, info = sized_effects(spec, seed, n, [tuple(e) for e in case["effects"]])
+    except BadInput as exc:  # the effect cannot exist on this stand (compliance without a load)
+        return {**case, "not_applicable": str(exc)}
     sim = simulate_physics(spec, seed=seed, n_poses=n, plan="random", effects=effects, coloured=case["coloured"])
     rows = held_out_rows(len(sim.commands))
     work = Path(tempfile.mkdtemp(prefix="platkit-proof-"))
@@ -236,7 +239,9 @@ def plan_cases(stands, per_cell: int, seed_base: int, commands: int, kinds: set[
 
 # ---------------------------------------------------------------------------- the tables
 def summarise(results: list[dict]) -> str:
-    lines = []
+    lines = [f"not applicable: {r['truth']} on {r['stand']} ({r['not_applicable']})"
+             for r in results if r.get("not_applicable")]
+    results = [r for r in results if not r.get("not_applicable")]
     errors = [r for r in results if r.get("error")]
     for r in errors:
         lines.append(f"ERROR {r['stand']} {r['truth']} ({r['kind']}, seed {r['seed']}): {r['error'][:300]}")
@@ -339,6 +344,9 @@ def main(argv=None) -> int:
         if sink is not None:
             sink.write(json.dumps(r) + "\n")
             sink.flush()
+        if r.get("not_applicable"):
+            print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} not applicable: {r['not_applicable'][:120]}")
+            return
         if r.get("error"):
             print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} ERROR {r['error'][:160]}", flush=True)
             return

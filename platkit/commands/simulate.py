@@ -161,6 +161,7 @@ def run_physics(args, spec, plan, effects) -> int:
                            length_unit=args.unit, hold_s=args.hold_s, noise_mm=args.noise_mm,
                            occlusion=args.occlusion, latency_s=args.latency_s, clock_offset_s=args.clock_offset_s,
                            coloured=not args.white_noise, overshoot=args.overshoot, imu=imu_options(args),
+                           perturbation=args.perturbation,
                            description=None if args.description is None else Path(args.description).name)
     out = write_physical_session(sim, args.out, description=args.description,
                                  moving_link=getattr(args, "moving_link", None),
