@@ -22,6 +22,7 @@ evaluations of (r, J). ``PlatformModel.backend`` says which path is used.
 """
 from __future__ import annotations
 
+import ctypes
 import functools
 import math
 from dataclasses import dataclass
@@ -37,8 +38,8 @@ from platkit.native import (
     MAX_ITERATIONS,
     NOT_FINITE,
     SINGULAR,
-    NativeNewton,
     native_for,
+    NativeNewton,
     newton_functions,
 )
 
@@ -134,6 +135,8 @@ class PlatformModel:
         self._lo, self._hi = spec.control_bounds()
         self._lo_tol = self._lo - 1e-12
         self._hi_tol = self._hi + 1e-12
+        # the same bounds as Python floats: one control vector is checked faster without numpy
+        self._strokes = tuple(zip(self._lo_tol.tolist(), self._hi_tol.tolist()))
 
     # ------------------------------------------------------------------ helpers
     def _td(self, td) -> np.ndarray:
@@ -155,9 +158,13 @@ class PlatformModel:
             raise BadInput(
                 f"{self.spec.name} takes {self.spec.n_u} controls ({', '.join(self.spec.control_names)}), got {got}"
             )
-        # fast path: every value finite and inside its stroke
-        if strict and bool(((u >= self._lo_tol) & (u <= self._hi_tol)).all()):
-            return u
+        # fast path: every value finite and inside its stroke (NaN fails every comparison)
+        if strict:
+            if u.ndim == 1:
+                if all(lo <= v <= hi for (lo, hi), v in zip(self._strokes, u.tolist())):
+                    return u
+            elif bool(((u >= self._lo_tol) & (u <= self._hi_tol)).all()):
+                return u
         finite = np.isfinite(u)
         if not finite.all():
             i = int(np.argwhere(~finite)[0][-1])
@@ -219,6 +226,23 @@ class PlatformModel:
         bufs = {"u": np.zeros(self.spec.n_u), "td": np.zeros(self.spec.n_td), "p0": np.zeros(self.spec.n_p),
                 "td0": self._td0.copy(), "neutral": self._p0.copy(), "out": np.zeros(n_out)}
         return bufs, {k: v.ctypes.data for k, v in bufs.items()}
+
+    @functools.cached_property
+    def _default_call(self):
+        """(u buffer, out buffer, the compiled checked solve, its ctypes arguments, (tol,
+        max_iter) they were built with) of a solve with the nominal td from the neutral pose
+        that first checks the strokes; arguments built once, not converted on every call (a
+        warm forward call is a few microseconds, issue 13). None without the compiled solver."""
+        nat = self._native
+        if not isinstance(nat, NativeNewton) or self.spec.forward is not None:
+            return None
+        bufs, addr = self._single_buffers
+        bounds = np.ascontiguousarray(np.stack([self._lo_tol, self._hi_tol]), dtype=float)
+        args = (ctypes.c_void_p(addr["u"]), ctypes.c_void_p(bounds.ctypes.data),
+                ctypes.c_void_p(bounds.ctypes.data + bounds.strides[0]), ctypes.c_void_p(addr["td0"]),
+                ctypes.c_void_p(addr["neutral"]), ctypes.c_double(self.tol), ctypes.c_int(self.max_iter),
+                ctypes.c_void_p(addr["out"]))
+        return bufs["u"], bufs["out"], nat.checked, args, (self.tol, self.max_iter), bounds
 
     def _solve_one(self, u: np.ndarray, td, p0) -> np.ndarray:
         """One Newton solve; returns a fresh out row (see _solve)."""
@@ -429,6 +453,12 @@ class PlatformModel:
         WrongBranch (converged to a mirror pose the stand cannot take; pass ``allow_mirror`` to
         get it flagged instead).
         """
+        fast = self._default_call
+        if (fast is not None and td is None and guess is None and strict and type(u) is np.ndarray
+                and u.shape == fast[0].shape and u.dtype == np.float64 and fast[4] == (self.tol, self.max_iter)):
+            fast[0][:] = u
+            if fast[2](*fast[3]) == 0:  # within the strokes: solved
+                return self._forward_result(fast[1].copy(), allow_mirror)
         u = self.check_controls(u, strict=strict)
         if u.ndim != 1:
             raise BadInput(f"{self.spec.name}: forward takes one control vector; use forward_batch for many")
@@ -444,9 +474,12 @@ class PlatformModel:
             p0 = np.asarray(guess, float)
             if p0.shape != (self.spec.n_p,):
                 raise BadInput(f"{self.spec.name}: a guess has {self.spec.n_p} pose coordinates, got {p0.size}")
-        out = self._solve_one(u, None if td is None else np.asarray(td, float), p0)
+        return self._forward_result(self._solve_one(u, None if td is None else np.asarray(td, float), p0), allow_mirror)
+
+    def _forward_result(self, out: np.ndarray, allow_mirror: bool) -> ForwardResult:
+        """The ForwardResult of one out row of the Newton driver; NoConvergence or WrongBranch."""
         n_p = self.spec.n_p
-        iterations, residual, status, on = out[-4:]
+        iterations, residual, status, on = out[-4:].tolist()
         if status != CONVERGED:
             why = {MAX_ITERATIONS: "the controls may have no assembly, or the start is too far; try another guess",
                    SINGULAR: "the Jacobian became singular on the way (a singular pose, or a bad start)",
@@ -455,7 +488,7 @@ class PlatformModel:
         X = out[n_p + 4:n_p + 7]
         if not on and not allow_mirror:
             raise self._mirror_error(X, out[n_p + 7:-4])
-        return ForwardResult(out[:n_p], out[n_p:n_p + 4], X, int(iterations), float(residual), bool(on))
+        return ForwardResult(out[:n_p], out[n_p:n_p + 4], X, int(iterations), residual, bool(on))
 
     def forward_batch(self, U, td=None, guess=None, strict: bool = True) -> ForwardBatch:
         """Forward kinematics of many control vectors. ``U``: (N, n_u) -> ForwardBatch (N, ...).

@@ -133,6 +133,17 @@ CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const dou
   }
 }
 
+/* pk_newton for one control vector inside [lo, hi] (NaN is outside); 1 and nothing solved when
+   outside (the caller words the error), 0 otherwise. The check costs nothing here and a
+   microsecond in Python, a fifth of a warm forward call. */
+CASADI_SYMBOL_EXPORT int pk_newton_checked(const double* u, const double* lo, const double* hi, const double* td,
+                                           const double* p0, double tol, int max_iter, double* out) {
+  int i;
+  for (i = 0; i < PK_NU; ++i) if (!(u[i] >= lo[i] && u[i] <= hi[i])) return 1;
+  pk_newton(u, td, p0, tol, max_iter, out);
+  return 0;
+}
+
 /* n problems: U (n, NU) row major, P0 (n, NP) or one row when p0_stride = 0, out (n, NOUT). */
 CASADI_SYMBOL_EXPORT void pk_newton_batch(int n, const double* U, const double* td, const double* P0,
                                           int p0_stride, double tol, int max_iter, double* out) {
@@ -177,6 +188,9 @@ class NativeNewton:
         self.single = self.lib.pk_newton
         self.single.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
         self.single.restype = None
+        self.checked = self.lib.pk_newton_checked
+        self.checked.argtypes = [ctypes.c_void_p] * 5 + [ctypes.c_double, ctypes.c_int, ctypes.c_void_p]
+        self.checked.restype = ctypes.c_int
         self.batch = self.lib.pk_newton_batch
         self.batch.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
                                ctypes.c_double, ctypes.c_int, ctypes.c_void_p]

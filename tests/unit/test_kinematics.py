@@ -184,3 +184,30 @@ def test_empty_batch(model, slow_model):
     for m in (model, slow_model):
         batch = m.forward_batch(np.zeros((0, 6)))
         assert batch.p.shape == (0, 6) and batch.converged.shape == (0,)
+
+
+def test_the_warm_single_call_agrees_with_the_general_path():
+    """forward(u) takes a path with the strokes checked in C (issue 13); it must give what the
+    general path gives (a guess at the neutral pose goes that way) and the same errors."""
+    spec = get_platform("stewart")
+    model = PlatformModel(spec)
+    rng = np.random.default_rng(4)
+    lo, hi = spec.control_bounds()
+    for u in rng.uniform(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo), (20, spec.n_u)):
+        fast, general = model.forward(u), model.forward(u, guess=spec.neutral_p())
+        np.testing.assert_array_equal(fast.p, general.p)
+        np.testing.assert_array_equal(fast.q, general.q)
+        assert fast.iterations == general.iterations and fast.on_branch
+    first = model.forward(u)
+    assert model.forward(u).p is not first.p  # every call its own arrays
+    outside = u.copy()
+    outside[2] = hi[2] + 0.01
+    with pytest.raises(OutOfWorkspace, match="control L3 = .* is outside its stroke"):
+        model.forward(outside)
+    with pytest.raises(BadInput, match="not a finite number"):
+        model.forward(np.full(spec.n_u, np.nan))
+    with pytest.raises(BadInput, match="takes 6 controls"):
+        model.forward(u[:5])
+    model.max_iter = 1  # settings changed after the first call are honoured
+    with pytest.raises(NoConvergence):
+        model.forward(u)
