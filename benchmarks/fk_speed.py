@@ -117,6 +117,12 @@ def main(argv=None) -> None:
     print(f"{'forward kinematics, stewart':<{width}}  {'us/pose':>10}  notes")
     for name, us, note in rows:
         print(f"{name:<{width}}  {us:>10.2f}  {note}")
+    single = dict((name, us) for name, us, _ in rows)
+    ref_call = single.get("hand-written C Newton, per ctypes call")
+    if ref_call:
+        ratio = single["platkit forward, single warm call"] / ref_call
+        print(f"single warm call / hand-written C per ctypes call: {ratio:.2f}x "
+              f"(goal, issue 13: within 2x: {'met' if ratio <= 2 else 'NOT MET'})")
     print()
     print("the paper's three leg states, Newton from neutral (tolerance |F| <= 1e-10 m):")
     print(f"{'state (mm)':<40} {'platkit it':>10} {'|F| m':>10} {'C ref it':>9} {'|F| m':>10}")
