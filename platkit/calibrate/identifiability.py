@@ -78,7 +78,7 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
     """
     J = np.asarray(J, float)
     scale = np.asarray(scale, float)
-    Js = J * scale[None, :]
+    Js = _compress(J * scale[None, :])  # inner products, hence everything below, unchanged
     n = Js.shape[1]
     norms = np.linalg.norm(Js, axis=0)
     basis: list[np.ndarray] = []  # orthonormal vectors spanning the chosen columns
@@ -212,8 +212,8 @@ class Gauge:
     """The gauge analysis of one calibration problem (see :func:`nuisance_gauge`).
 
     held: indices into the problem's unknowns z of the transform and marker coordinates held as
-    gauges; J_ref (rows, len(ref_idx)): scaled Jacobian over the reference poses of the unknowns
-    ``ref_idx`` (every candidate that is not a model term); shift: (3, k) marker-shift directions
+    gauges; J_ref (n, n), n = len(ref_idx): the R factor of the scaled Jacobian over the reference
+    poses of the unknowns ``ref_idx`` (every candidate that is not a model term); shift: (3, k) marker-shift directions
     of the moving frame (:func:`rotation_fixed_directions` of the reference poses)."""
 
     held: list[int]
@@ -244,6 +244,31 @@ def _weighted_jacobian(problem, z, idx) -> np.ndarray:
     return J.reshape(-1, len(idx)) * problem.scale[idx][None, :]
 
 
+def _compress(A: np.ndarray) -> np.ndarray:
+    """The R factor of a tall A (n, n): the same inner products between columns, so the same
+    span, ranks and pivoting, at a fraction of the rows."""
+    return np.linalg.qr(A, mode="r") if A.shape[0] > A.shape[1] else A
+
+
+_REFERENCE_PROBLEMS: dict = {}
+
+
+def _reference_problem(problem, U_ref: np.ndarray):
+    """A term-free problem of the same class over the reference controls, with the problem's
+    marker count (kept per stand object: a model selection fits one stand many times)."""
+    key = (id(problem.spec), problem.M, type(problem))
+    hit = _REFERENCE_PROBLEMS.get(key)
+    if hit is not None and hit[0] is problem.spec and hit[1] is U_ref:
+        return hit[2]
+    ref_poses = PoseSet(problem.spec.name, U_ref, np.zeros((len(U_ref), problem.M, 3)), list(problem.poses.marker_names),
+                        length_unit=problem.poses.length_unit, source="the stand's reference poses")
+    ref_problem = type(problem)(problem.spec, ref_poses)
+    if len(_REFERENCE_PROBLEMS) > 16:
+        _REFERENCE_PROBLEMS.clear()
+    _REFERENCE_PROBLEMS[key] = (problem.spec, U_ref, ref_problem)
+    return ref_problem
+
+
 def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, reference: tuple[np.ndarray, np.ndarray],
                    rel_tol: float = DEFAULT_REL_TOL) -> Gauge:
     """Which transform and marker coordinates are gauges, at the start ``z`` of a calibration.
@@ -251,19 +276,17 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     problem: a :class:`~platkit.calibrate.estimate.CalibrationProblem`; candidates, nuisance: (n_z,)
     masks of the unknowns the fit may estimate and of the transform and markers among them;
     reference: (controls (N, n_u), poses (N, n_p)) of the stand's reference poses
-    (:func:`platkit.calibrate.plan.reference_poses_for`). The Jacobian over the stand's reference poses comes from a term-free problem of the same
-    class and stand. Raises NotIdentifiable naming the transform or marker coordinates these
+    (:func:`platkit.calibrate.plan.reference_poses_for`). The Jacobian over the reference poses
+    comes from a term-free problem of the same class and stand. Raises NotIdentifiable naming the transform or marker coordinates these
     poses fail to fix where the reference poses fix them.
     """
     names = problem.names
     n_td_theta = problem.i_theta.start
     ref_idx = np.nonzero(candidates[:n_td_theta])[0]
     U_ref, P_ref = reference
-    ref_poses = PoseSet(problem.spec.name, U_ref, np.zeros((len(U_ref), problem.M, 3)), list(problem.poses.marker_names),
-                        length_unit=problem.poses.length_unit, source="the stand's reference poses")
-    ref_problem = type(problem)(problem.spec, ref_poses)
+    ref_problem = _reference_problem(problem, U_ref)
     st = ref_problem.evaluate(np.asarray(z, float)[:n_td_theta])
-    J_ref = (st.J[st.converged][..., ref_idx].reshape(-1, len(ref_idx))) * problem.scale[ref_idx][None, :]
+    J_ref = _compress((st.J[st.converged][..., ref_idx].reshape(-1, len(ref_idx))) * problem.scale[ref_idx][None, :])
     tiers_ref = problem.tiers[ref_idx].tolist()
     rank_ref = len(select_identifiable(J_ref, [names[i] for i in ref_idx], np.ones(len(ref_idx)), tiers_ref, rel_tol).chosen)
     q_ref, _, _, ok = problem.kinematics(np.asarray(z, float)[problem.i_td], U_ref, P_ref)
@@ -271,7 +294,7 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     shift = rotation_fixed_directions(R)
     # the data's own view of the transform and markers
     nuis_idx = np.nonzero(nuisance)[0]
-    Jn = _weighted_jacobian(problem, z, nuis_idx)
+    Jn = _compress(_weighted_jacobian(problem, z, nuis_idx))
     ident = select_identifiable(Jn, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)), [0] * len(nuis_idx), rel_tol)
     pos = {int(i): k for k, i in enumerate(ref_idx)}
     ref_cols = [pos[int(i)] for i in nuis_idx]

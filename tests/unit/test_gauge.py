@@ -136,7 +136,9 @@ def test_the_gantry_goes_through_simulate_calibrate_predict_and_diagnose(tmp_pat
                  "--poses-only", "--seed", "11", "--noise-mm", "0.2"]) == 0
     assert main(["calibrate", str(session), "--quiet", "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
-    assert report["gauge"]["dimensions"] == 21 and report["gauge"]["conventions"]
+    # the markers' common shift at least; the rest depends on the groups the model selection frees
+    assert report["gauge"]["dimensions"] >= 3 and report["gauge"]["not_excited"] == 0
+    assert "markers' centroid is put at the moving frame's origin" in report["gauge"]["conventions"][0]
     spec = get_platform("urdf", GANTRY)
     rng = np.random.default_rng(12)
     lo, hi = spec.control_bounds()
