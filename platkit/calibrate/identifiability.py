@@ -233,6 +233,7 @@ class Gauge:
         return {"dimensions": int(self.n_gauge), "not_excited": int(self.n_not_excited),
                 "conventions": list(self.conventions),
                 "marker_shift_directions": [[float(x) for x in c] for c in self.shift.T],
+                "held_during_the_fit": list(self.held_names),
                 "decided_on": f"the stand's {len(self.U_ref)} reference poses, those `platkit plan` scores designs over"}
 
 
@@ -316,9 +317,9 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
 
 def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, problem, rel_tol: float = DEFAULT_REL_TOL) -> None:
     """Label each held parameter of ``ident`` (chosen over ``cand_idx``, the gauge-held transform
-    and markers left out) GAUGE or NOT_EXCITED, add the gauge-held transform and marker
-    coordinates to ``ident.held``, count the gauge and unexcited directions and state the
-    conventions in ``gauge``. Model terms are not judged (the reference poses carry none)."""
+    and markers left out: they are no parameter held at nominal, the convention places them) GAUGE
+    or NOT_EXCITED, count the gauge and unexcited directions and state the conventions in
+    ``gauge``. Model terms are not judged (the reference poses carry none)."""
     pos = {int(i): k for k, i in enumerate(gauge.ref_idx)}
     chosen_ref = [pos[int(cand_idx[k])] for k in ident.chosen if int(cand_idx[k]) in pos]
     by_name = {problem.names[i]: i for i in cand_idx}
@@ -334,9 +335,6 @@ def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, pr
             h.kind = NOT_EXCITED
             h.reason += "; the stand's reach would fix it, these poses do not excite it: held at nominal"
             td_unexcited.append(h.name)
-    for i in gauge.held:
-        ident.held.insert(0, HeldParameter(problem.names[i], "the transform and the markers trade against each other "
-                                           "the same way at every pose the stand can take (a gauge)", {}, 0.0, GAUGE))
     n_nonterm_chosen = len(chosen_ref)
     gauge.n_gauge = len(gauge.ref_idx) - gauge.rank_ref
     gauge.n_not_excited = max(0, gauge.rank_ref - n_nonterm_chosen)

@@ -54,7 +54,8 @@ def test_a_translation_only_stand_calibrates_under_the_marker_centroid_conventio
     assert cal.rms_after < 2.2e-4  # 0.1 mm per axis: 0.17 mm 3-D
     assert np.all(np.isfinite(cal.marker_std)) and np.all(cal.marker_std < 1e-4)
     kinds = {h["name"]: h.get("kind") for h in cal.identifiability["held_at_nominal"]}
-    assert set(kinds.values()) == {GAUGE}
+    assert set(kinds.values()) == {GAUGE} and len(kinds) == 18  # the stand's: no marker is "held at nominal"
+    assert len(gauge["held_during_the_fit"]) == 3 and all(n.startswith("marker.") for n in gauge["held_during_the_fit"])
     assert prediction_error(cal, truth) < 0.05e-3  # against the noise-free truth at new commands
 
 
