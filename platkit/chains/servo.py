@@ -17,16 +17,19 @@ Units: metres and radians; time in seconds (``dt`` is the virtual servo's period
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
+import pinocchio as pin
 
 from platkit.chains.chain import KinematicChain
 from platkit.chains.solve import (
     Damping,
     Level,
+    StepInfo,
     joint_limit_gradient,
     manipulability,
     mid_range_gradient,
@@ -187,17 +190,112 @@ class Servo:
         if w.shape != (chain.n,) or np.any(w <= 0):
             raise BadInput(f"joint weights must be {chain.n} positive numbers")
         self.joint_weights = w
+        self._fast = None
+        self._fast = self._fast_case()
+
+    # ------------------------------------------------------------------ one world target, fast
+
+    def _fast_case(self) -> dict | None:
+        """What the common case needs, or None: one task in the world frame and basis, the
+        pseudo-inverse solver, no secondary cost, equal joint weights. Then the placement, the
+        error and the Jacobian come from pinocchio in one call each (the same quantities as
+        :meth:`KinematicChain.relative_placement` / ``relative_jacobian``, which assemble them
+        joint by joint in Python), and a step that hits no position limit is the damped
+        pseudo-inverse of that one level directly (issue 13: a target took 15-60 times
+        pinocchio's own damped least squares)."""
+        o, c = self.options, self.chain
+        if (len(self.tasks) != 1 or self.ref_ids[0] != 0 or self.tasks[0].basis != "reference" or o.solver != "pinv"
+                or o.secondary != "none" or np.any(self.joint_weights != 1.0)):
+            return None
+        model = c.model
+        # pinocchio's q is theta itself unless a continuous joint is stored as (cos, sin)
+        direct = model.nq == model.nv and all(model.joints[jt.index].idx_q == jt.column for jt in c.joints)
+        task = self.tasks[0]
+        rows = task.weights > 0
+        return {"model": model, "data": model.createData(), "fid": self.frame_ids[0], "direct": direct,
+                "target_t": task.target[:3, 3].copy(), "target_R": task.target[:3, :3].copy(),
+                "rows": rows, "sw": np.sqrt(task.weights[rows]),
+                "rate_step": np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)}
+
+    def _fast_q(self, theta: np.ndarray) -> np.ndarray:
+        return theta if self._fast["direct"] else self.chain.pin_configuration(theta)
+
+    def _fast_error(self, theta: np.ndarray) -> np.ndarray:
+        """E (6,) = (t_U - t_P, rotvec(R_U R_P^T)) as :func:`pose_error` in the reference basis."""
+        f = self._fast
+        pin.forwardKinematics(f["model"], f["data"], self._fast_q(theta))
+        M = pin.updateFramePlacement(f["model"], f["data"], f["fid"])
+        E = np.empty(6)
+        E[:3] = f["target_t"] - M.translation
+        E[3:] = pin.log3(f["target_R"] @ M.rotation.T)
+        return E
+
+    def _fast_jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """J (6, n): the frame origin's twist (v, omega) in world axes (LOCAL_WORLD_ALIGNED)."""
+        f = self._fast
+        return pin.computeFrameJacobian(f["model"], f["data"], self._fast_q(theta), f["fid"], pin.LOCAL_WORLD_ALIGNED)
+
+    def _fast_step(self, theta: np.ndarray, E: np.ndarray):
+        """:func:`solve_pinv`'s step for this one level, without its generality (levels, joint
+        weights, a secondary step): the damped pseudo-inverse by SVD, a joint that would cross
+        a position limit clamped there and the rest re-solved, then the uniform scaling to the
+        rate limits. Returns (dq (n,), StepInfo)."""
+        o, c, f = self.options, self.chain, self._fast
+        task = self.tasks[0]
+        e = self._commanded(E, task.weights)
+        Jw = self._fast_jacobian(theta)[f["rows"]] * f["sw"][:, None]
+        ew = f["sw"] * e[f["rows"]]
+        lower_step = np.minimum(np.where(self.active, c.lower - theta, 0.0), 0.0)
+        upper_step = np.maximum(np.where(self.active, c.upper - theta, 0.0), 0.0)
+        free = self.active.copy()
+        fixed = np.zeros(c.n)
+        info = StepInfo()
+        for _ in range(c.n + 1):
+            cols = np.flatnonzero(free)
+            dq = fixed.copy()
+            if cols.size:
+                r = ew - Jw @ fixed
+                U, sv, Vt = np.linalg.svd(Jw[:, cols], full_matrices=False)
+                keep = sv > 1e-10 * max(1.0, sv[0] if sv.size else 0.0)
+                info.sigma_min = float(sv[keep][-1]) if np.any(keep) else 0.0
+                lam2 = o.damping.factor(info.sigma_min, float(np.linalg.norm(r)))
+                info.damping = float(np.sqrt(lam2))
+                inv = np.zeros_like(sv)
+                inv[keep] = sv[keep] / (sv[keep] ** 2 + lam2)
+                dq[cols] += Vt.T @ (inv * (U.T @ r))
+            over = free & ((dq > upper_step + 1e-15) | (dq < lower_step - 1e-15))
+            if not np.any(over):
+                break
+            excess = np.maximum(dq - upper_step, lower_step - dq)
+            excess[~over] = -np.inf
+            worst = int(np.argmax(excess))
+            fixed[worst] = np.clip(dq[worst], lower_step[worst], upper_step[worst])
+            free[worst] = False
+            info.clamped.append(worst)
+        dq = np.clip(dq, lower_step, upper_step)
+        lo, hi = lower_step, upper_step
+        if o.use_rate_limits:
+            rate_step = f["rate_step"]
+            # a joint that does not move allows any scale (rate / 1e-300 is beyond 1)
+            info.rate_scale = min(1.0, float(np.min(rate_step / np.maximum(np.abs(dq), 1e-300)))) if dq.size else 1.0
+            dq = dq * info.rate_scale
+            lo, hi = np.maximum(lower_step, -rate_step), np.minimum(upper_step, rate_step)
+        return np.clip(dq, lo, hi), info
 
     # ------------------------------------------------------------------ errors and Jacobians
 
     def task_error(self, theta: np.ndarray, k: int) -> np.ndarray:
         """E (6,) of task k in its basis (m, rad)."""
+        if self._fast is not None:
+            return self._fast_error(theta)
         task = self.tasks[k]
         P = self.chain.relative_placement(theta, self.frame_ids[k], self.ref_ids[k])
         return pose_error(P, task.target, "local" if task.basis == "local" else "reference")
 
     def task_jacobian(self, theta: np.ndarray, k: int) -> np.ndarray:
         """J (6, n) of task k in its basis."""
+        if self._fast is not None:
+            return self._fast_jacobian(theta)
         task = self.tasks[k]
         J = self.chain.relative_jacobian(theta, self.frame_ids[k], self.ref_ids[k])
         if task.basis == "local":
@@ -206,14 +304,20 @@ class Servo:
         return J
 
     def errors(self, theta: np.ndarray) -> list[np.ndarray]:
+        if self._fast is not None:
+            return [self._fast_error(theta)]
         return [self.task_error(theta, k) for k in range(len(self.tasks))]
 
     def merit(self, errors: list[np.ndarray]) -> float:
         """The weighted squared error summed over all tasks (m^2 + rad^2)."""
+        if len(self.tasks) == 1:
+            return float(np.dot(self.tasks[0].weights, errors[0] ** 2))
         return float(sum(np.sum(t.weights * E**2) for t, E in zip(self.tasks, errors)))
 
     def level_merits(self, errors: list[np.ndarray]) -> np.ndarray:
         """The weighted squared error of each priority level, most important first."""
+        if len(self.tasks) == 1:
+            return np.array([float(np.dot(self.tasks[0].weights, errors[0] ** 2))])
         levels = sorted({t.priority for t in self.tasks})
         out = np.zeros(len(levels))
         for t, E in zip(self.tasks, errors):
@@ -233,6 +337,9 @@ class Servo:
         return False
 
     def _norms(self, errors: list[np.ndarray]) -> tuple[list[float], list[float]]:
+        if len(self.tasks) == 1 and np.all(self.tasks[0].weights > 0):
+            E = errors[0]
+            return [math.sqrt(E[0] ** 2 + E[1] ** 2 + E[2] ** 2)], [math.sqrt(E[3] ** 2 + E[4] ** 2 + E[5] ** 2)]
         pos, rot = [], []
         for t, E in zip(self.tasks, errors):
             sel = t.weights > 0
@@ -306,6 +413,8 @@ class Servo:
         (n,) replaces the null-space step of the secondary cost; ``solver`` the options' one."""
         o = self.options
         c = self.chain
+        if self._fast is not None and secondary is None and (solver or o.solver) == "pinv":
+            return self._fast_step(theta, errors[0])
         lower_step = np.where(self.active, c.lower - theta, 0.0)
         upper_step = np.where(self.active, c.upper - theta, 0.0)
         lower_step = np.minimum(lower_step, 0.0)
@@ -388,11 +497,13 @@ class Servo:
             dq, _info = self.step(theta, errors)
             accepted = False
             alpha = 1.0
+            current_levels = self.level_merits(errors)
             for _ in range(12):
                 trial = c.clip(theta + alpha * dq)
                 trial_errors = self.errors(trial)
                 trial_merit = self.merit(trial_errors)
-                if self._better(self.level_merits(trial_errors), self.level_merits(errors)):
+                trial_levels = self.level_merits(trial_errors)
+                if self._better(trial_levels, current_levels):
                     accepted = True
                     break
                 alpha *= 0.5
@@ -407,7 +518,7 @@ class Servo:
                 best = (merit, theta.copy(), errors)
             pos, rot = self._norms(errors)
             converged = self._done(pos, rot)
-            levels_now = self.level_merits(errors)
+            levels_now = trial_levels
             if np.any((levels_now < (1.0 - 1e-3) * stall_ref) & (stall_ref > floor)):
                 stall_ref, stall_at = levels_now, iterations
             elif iterations - stall_at >= o.stall_iterations and not converged:

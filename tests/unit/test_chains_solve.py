@@ -157,3 +157,47 @@ def test_secondary_gradients_match_finite_differences():
         assert g[3] == 0.0
     assert manipulability(np.eye(3)) == pytest.approx(1.0)
     assert manipulability(np.diag([1.0, 2.0, 0.0])) == 0.0
+
+
+# ----------------------------------------------------------------------------- the servo's fast case (issue 13)
+
+
+@pytest.mark.parametrize("urdf, link, clamps", [("ur_description/urdf/ur5_robot.urdf", "tool0", False),
+                                                ("panda_description/urdf/panda.urdf", "panda_hand", True)])
+def test_one_world_target_takes_the_same_steps_as_the_general_servo(urdf, link, clamps):
+    """One task in the world frame goes through pinocchio's placement and Jacobian and a
+    one-level step (Servo._fast_case); the general path (the chain's own Jacobian, solve_pinv)
+    must take the same steps: same path, same outcome, limits kept."""
+    from platkit.chains import KinematicChain, Servo, ServoOptions, Task
+    from platkit.chains.robots import example_robot_urdf
+
+    chain = KinematicChain.from_urdf(example_robot_urdf(urdf))
+    rng = np.random.default_rng(7)
+    theta0 = chain.mid_range()
+    clamped = 0
+    for _ in range(6):
+        target = chain.placement(chain.random(rng), link)
+        fast = Servo(chain, [Task(link, target)], ServoOptions())
+        assert fast._fast is not None
+        general = Servo(chain, [Task(link, target)], ServoOptions())
+        general._fast = None
+        np.testing.assert_allclose(fast.task_jacobian(theta0, 0), chain.relative_jacobian(theta0, fast.frame_ids[0], 0),
+                                   atol=1e-12)
+        a, b = fast.run(theta0), general.run(theta0)
+        assert a.converged == b.converged and a.iterations == b.iterations
+        np.testing.assert_allclose(a.path, b.path, atol=1e-9)
+        assert np.all(a.theta >= chain.lower - 1e-12) and np.all(a.theta <= chain.upper + 1e-12)
+        clamped += any(len(fast.step(th, fast.errors(th))[1].clamped) > 0 for th in a.path[:-1])
+    assert bool(clamped) == clamps  # the panda's limits exercise the fast step's clamping
+
+
+def test_other_tasks_keep_the_general_servo():
+    from platkit.chains import KinematicChain, Servo, ServoOptions, Task
+    from platkit.chains.robots import example_robot_urdf
+
+    chain = KinematicChain.from_urdf(example_robot_urdf("ur_description/urdf/ur5_robot.urdf"))
+    T = chain.placement(chain.mid_range(), "tool0")
+    assert Servo(chain, [Task("tool0", T, frame="base_link")])._fast is None
+    assert Servo(chain, [Task("tool0", T, basis="local")])._fast is None
+    assert Servo(chain, [Task("tool0", T)], ServoOptions(secondary="mid_range"))._fast is None
+    assert Servo(chain, [Task("tool0", T)], ServoOptions(solver="lp"))._fast is None

@@ -1,0 +1,100 @@
+"""Time per target of platkit's tracking servo beside pinocchio's damped least squares.
+
+    .venv/bin/python benchmarks/track_speed.py [--n 50] [--seed 0] [--robots ur5,panda] [--profile]
+
+What `platkit track` does for one target (a Servo with the default ServoOptions: tolerance
+1e-6 m and 1e-6 rad, joint limits kept, rate limits over dt = 0.1 s), on random reachable
+targets (forward kinematics of uniformly random configurations within the limits) from the
+middle of the joint ranges, beside pinocchio's documented damped-least-squares IK at the same
+tolerance (benchmarks/track_convergence.py: dt = 1, damping 1e-6, at most 1000 iterations),
+which ignores the joint limits, and the same with q clipped to the limits after each step. The
+solvers run in turns, target by target, so that a busy machine slows them alike; the table
+gives the mean time per target, the success rate (and for the references how many of their
+solutions are within the limits), the median iterations and the ratio of mean times to the
+plain reference. Goal (issue 13): platkit at or below the reference per target.
+
+``--profile``: where platkit's time goes (cProfile, the ten largest own times).
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import pstats
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from track_convergence import ROBOTS, reference_dls  # noqa: E402
+
+from platkit.chains import KinematicChain, Servo, ServoOptions, Task  # noqa: E402
+from platkit.chains.robots import example_robot_urdf  # noqa: E402
+
+
+def platkit_solve(chain, link, target, theta0):
+    r = Servo(chain, [Task(link, target)], ServoOptions()).run(theta0)
+    within = bool(np.all(r.theta >= chain.lower - 1e-9) and np.all(r.theta <= chain.upper + 1e-9))
+    return r.converged, within, r.iterations_total
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=50, help="random targets per robot")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--robots", default="ur5,panda")
+    ap.add_argument("--profile", action="store_true")
+    args = ap.parse_args(argv)
+    for robot in args.robots.split(","):
+        urdf, link = ROBOTS[robot]
+        chain = KinematicChain.from_urdf(example_robot_urdf(urdf))
+        fid = chain.frame_id(link)
+        rng = np.random.default_rng(args.seed)
+        targets = [chain.placement(chain.random(rng), link) for _ in range(args.n)]
+        theta0 = chain.mid_range()
+        solvers = {
+            "platkit servo (platkit track)": lambda T: platkit_solve(chain, link, T, theta0),
+            "pinocchio DLS (reference)": lambda T: reference_dls(chain, fid, T, theta0)[:3],
+            "pinocchio DLS, clipped to limits": lambda T: reference_dls(chain, fid, T, theta0, clip=True)[:3],
+        }
+        for solve in solvers.values():  # warm up
+            solve(targets[0])
+        stats = {name: {"s": [], "ok": [], "within": [], "it": []} for name in solvers}
+        for T in targets:
+            for name, solve in solvers.items():
+                t0 = time.perf_counter()
+                ok, within, it = solve(T)
+                stats[name]["s"].append(time.perf_counter() - t0)
+                stats[name]["ok"].append(ok)
+                stats[name]["within"].append(ok and within)
+                stats[name]["it"].append(it)
+        ref = np.mean(stats["pinocchio DLS (reference)"]["s"])
+        print(f"{robot} ({link}, {chain.n} joints), {args.n} random reachable targets from mid-range, tolerance 1e-6 m / 1e-6 rad:")
+        width = max(len(n) for n in solvers)
+        print(f"  {'solver':<{width}}  {'ms/target':>9}  {'x ref':>6}  {'success':>7}  {'within limits':>13}  {'iterations (median)':>19}")
+        for name, st in stats.items():
+            mean = np.mean(st["s"])
+            print(f"  {name:<{width}}  {mean * 1e3:>9.2f}  {mean / ref:>6.2f}  {np.mean(st['ok']) * 100:>6.0f}%  "
+                  f"{np.mean(st['within']) * 100:>12.0f}%  {np.median(st['it']):>19.0f}")
+        mine = np.mean(stats["platkit servo (platkit track)"]["s"])
+        print(f"  goal, platkit at or below the reference per target: {'met' if mine <= ref else 'NOT MET'} "
+              f"({mine / ref:.2f}x)")
+        if args.profile:
+            prof = cProfile.Profile()
+            prof.enable()
+            for T in targets[:20]:
+                platkit_solve(chain, link, T, theta0)
+            prof.disable()
+            buf = io.StringIO()
+            pstats.Stats(prof, stream=buf).sort_stats("tottime").print_stats(10)
+            print("  profile of platkit on 20 targets (own time):")
+            for line in buf.getvalue().splitlines():
+                if line.strip() and ("/" in line or "{" in line):
+                    print("   ", line.strip()[:150])
+        print()
+
+
+if __name__ == "__main__":
+    main()
