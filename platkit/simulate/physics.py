@@ -153,7 +153,8 @@ def _schedule(U: np.ndarray, start: np.ndarray, nuisances: Nuisances, rng) -> tu
 def _level_mocap(rng, size_m: float) -> np.ndarray:
     """mocap_from_level (4, 4): the motion capture's vertical is the level world's; any heading,
     offset by about the stand's size."""
-    c, s = np.cos(a := rng.uniform(-np.pi, np.pi)), np.sin(a)
+    heading = rng.uniform(-np.pi, np.pi)
+    c, s = np.cos(heading), np.sin(heading)
     R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return transform(R, rng.uniform(-1, 1, 3) * np.array([2.0, 2.0, 0.5]) * max(size_m, 0.2))
 
