@@ -120,6 +120,7 @@ def _heldout(spec, cal, d, test) -> dict[str, list[float]]:
     """RMS on the noise-free held-out recording ``test`` before (base model) and after (the named
     parameters), nuisances refitted: 'gyro' deg/s of the mean rates, 'accelerometer' m/s^2."""
     from platkit.diagnose.imu import segments_from_session, up_in_sensor
+    from platkit.effects import effect_library
     from platkit.geometry import matrix_from_rotvec
     from platkit.inertial.command_aided import command_poses
     from platkit.io.imu import ImuStream
@@ -135,16 +136,18 @@ def _heldout(spec, cal, d, test) -> dict[str, list[float]]:
         r = r - np.average(r, axis=0, weights=seg.dt)
         return float(np.sqrt(np.mean(r**2))) * DEG
 
+    tilt_effect = effect_library()["imu_base_tilt"]
+
     def acc_rms(w):
-        u = up_in_sensor(seg.holds.R, matrix_from_rotvec(d.acc_final.theta), w)
+        u = up_in_sensor(seg.holds.R, matrix_from_rotvec(d.acc_final.sensor_rotation), tilt_effect.level_from_base(w))
         r = np.empty_like(u)
         for j in range(3):
             A = np.stack([u[:, j], np.ones(len(u))], axis=1)
             r[:, j] = seg.holds.f[:, j] - A @ np.linalg.lstsq(A, seg.holds.f[:, j], rcond=None)[0]
         return float(np.sqrt(np.mean(r**2)))
 
-    theta = d.final.theta if "imu_misalignment" in named else np.zeros(3)
-    w = d.acc_final.w if "base_tilt" in named else np.zeros(2)
+    theta = d.final.theta("imu_misalignment") if "imu_misalignment" in named else np.zeros(3)
+    w = d.acc_final.theta("imu_base_tilt") if "base_tilt" in named else np.zeros(2)
     return {"gyro": [gyro_rms(np.zeros(3)), gyro_rms(theta)], "accelerometer": [acc_rms(np.zeros(2)), acc_rms(w)]}
 
 

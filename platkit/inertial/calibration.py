@@ -23,8 +23,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from platkit.errors import BadInput, NotIdentifiable, PlatkitError
-from platkit.geometry import quat_conjugate, quat_multiply, rotvec_from_quat
-from platkit.inertial import quat as Q
+from platkit.geometry import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, rotvec_from_quat
 from platkit.io.atomic import atomic_write_text
 from platkit.io.imu import ImuStream, read_imu_csv
 
@@ -62,7 +61,7 @@ class ImuCalibration:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "imu calibration") -> "ImuCalibration":
+    def from_dict(cls, d: dict, source: str = "imu calibration") -> ImuCalibration:
         def arr(key, shape, default):
             if key not in d:
                 return default
@@ -174,10 +173,15 @@ def integrate_gyro(gyr: np.ndarray, dt: float, bias=None) -> np.ndarray:
     the sensor frame at the start: log(prod_k exp(omega_k dt))."""
 
     b = np.zeros(3) if bias is None else np.asarray(bias, float)
-    q = (1.0, 0.0, 0.0, 0.0)
-    for w in (np.asarray(gyr, float) - b).tolist():
-        q = Q.mul(q, Q.from_rotvec(w[0] * dt, w[1] * dt, w[2] * dt))
-    return rotvec_from_quat(np.array(Q.normalize(q)))
+    q = quat_from_rotvec((np.asarray(gyr, float).reshape(-1, 3) - b) * dt)
+    if len(q) == 0:
+        return np.zeros(3)
+    # the ordered product q_0 q_1 ... q_K-1, pairwise (log2 K batched steps, not K scalar ones)
+    while len(q) > 1:
+        if len(q) % 2:
+            q = np.vstack([q, [1.0, 0.0, 0.0, 0.0]])
+        q = quat_multiply(q[0::2], q[1::2])
+    return rotvec_from_quat(quat_normalize(q[0]))
 
 
 def rotation_increments(q_base_from_platform: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ from platkit.inertial.metrics import heading_aligned_total_error, inclination_er
 from platkit.inertial.paper import PaperParams, estimate_paper
 from platkit.io.calibration import read_calibration
 from platkit.io.description import load_yaml
-from platkit.io.imu import ImuStream, read_imu_csv
+from platkit.io.imu import read_imu_csv
 from platkit.io.session import TIME_UNITS, check_times, read_session_yaml, read_table
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_to_si
@@ -176,13 +176,12 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     y = read_session_yaml(folder)
     tscale = TIME_UNITS[y["time_unit"]]
     imu_decl = y["imu"] or {}
-    imu = read_imu_csv(folder / "imu.csv", max_repair_s=max_repair_s / tscale,
-                       gyr_range=imu_decl.get("gyr_range_rad_s"), acc_range=imu_decl.get("acc_range_m_s2"))
+    imu = read_imu_csv(folder / "imu.csv", max_repair_s=max_repair_s, gyr_range=imu_decl.get("gyr_range_rad_s"),
+                       acc_range=imu_decl.get("acc_range_m_s2"), time_scale=tscale,
+                       declared_rate_hz=imu_decl.get("rate_hz"))
     if imu.n < MIN_SAMPLES:
         raise BadInput(f"{folder / 'imu.csv'}: {imu.n} samples are too few to estimate an orientation "
                        f"(need at least {MIN_SAMPLES}: the offline estimator's zero-phase filter)")
-    if tscale != 1.0:
-        imu = ImuStream(imu.t * tscale, imu.gyr, imu.acc, imu.saturated, imu.repairs, imu.source)
     warnings = imu.warnings()
     report: dict = {"session": str(folder), "method": method, "n_samples": imu.n, "rate_hz": imu.rate_hz,
                     "duration_s": float(imu.t[-1] - imu.t[0])}

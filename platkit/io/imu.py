@@ -1,4 +1,4 @@
-"""The inertial stream: reading ``imu.csv`` with checks, writing it, and reading BROAD trials.
+"""The inertial stream: reading ``imu.csv`` with checks, and writing it.
 
 ``imu.csv`` (spec section 1): ``t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z``, seconds, rad/s and m/s^2,
 in the sensor's own axes. Extra columns are ignored; a row with more or fewer cells than the
@@ -7,15 +7,20 @@ header is an error (a cut line is not a missing sample). This is the one IMU rea
 :class:`~platkit.errors.BadSession` naming the file, line and column, or a repair that is
 stated in :attr:`ImuStream.repairs` (short runs of missing cells and short time gaps are
 linearly interpolated; anything longer than ``max_repair_s`` is an error). Saturated samples are
-never repaired: they are flagged in :attr:`ImuStream.saturated` and reported.
+never repaired: they are flagged in :attr:`ImuStream.saturated` and reported. A stream plainly
+not in the spec's units (an accelerometer in g, a gyro in deg/s, times in ms) is refused by
+:func:`check_units`, naming the file and column and what was expected.
 """
 from __future__ import annotations
 
 import csv
+import io
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas
 
 from platkit.errors import BadSession
 from platkit.io.atomic import atomic_write_text
@@ -27,6 +32,8 @@ DEFAULT_MAX_REPAIR_S = 0.05
 
 #: a run of at least this many equal samples at a column's extreme value is a clipping plateau
 SATURATION_RUN = 3
+
+G_STANDARD = 9.80665  # m/s^2
 
 
 @dataclass
@@ -76,7 +83,7 @@ class ImuStream:
                            f"({np.abs(self.gyr if j < 3 else self.acc)[:, j % 3].max():.4g}); they are kept as measured")
         return out
 
-    def slice(self, start: int, stop: int) -> "ImuStream":
+    def slice(self, start: int, stop: int) -> ImuStream:
         return ImuStream(self.t[start:stop], self.gyr[start:stop], self.acc[start:stop],
                          self.saturated[start:stop], list(self.repairs), self.source)
 
@@ -86,41 +93,38 @@ def _line(row_index: int) -> int:
     return row_index + 2
 
 
-def read_imu_csv(path: str | Path, max_repair_s: float = DEFAULT_MAX_REPAIR_S,
-                 gyr_range: float | None = None, acc_range: float | None = None,
-                 time_scale: float = 1.0) -> ImuStream:
-    """Read and check ``imu.csv``.
+def _fast_rows(body: str, n_columns: int, cols: list[int]) -> np.ndarray | None:
+    """(N, 7) the IMU columns of a clean file's data rows, parsed by pandas' C reader; None where a
+    line has another number of cells than the header (or is blank), a cell is not a plain number
+    (NaN only as an empty or 'nan' cell outside ``t``), or anything else the cell-by-cell reader
+    must name or repair."""
+    raw = np.frombuffer(body.encode("utf-8"), np.uint8)
+    if raw.size == 0:
+        return np.zeros((0, len(cols)))
+    ends = np.flatnonzero(raw == ord("\n"))
+    if raw[-1] != ord("\n"):
+        ends = np.append(ends, raw.size)
+    commas = np.concatenate([[0], np.cumsum(raw == ord(","))])[ends]
+    if np.any(np.diff(np.concatenate([[0], commas])) != n_columns - 1):
+        return None
+    try:
+        data = pandas.read_csv(io.StringIO(body), header=None, dtype=float, engine="c", keep_default_na=False,
+                               na_values=["", "nan", "NaN", "NAN"], skip_blank_lines=False).to_numpy()
+    except (ValueError, pandas.errors.ParserError):
+        return None
+    if data.ndim != 2 or data.shape[1] != n_columns:
+        return None
+    data = data[:, cols]
+    if np.isinf(data).any() or np.isnan(data[:, 0]).any():
+        return None
+    return data
 
-    ``time_scale``: seconds per unit of the file's ``t`` (1e-3 for a session in ms); the stream,
-    ``max_repair_s`` and the messages about times are in seconds.
 
-    ``gyr_range`` (rad/s) and ``acc_range`` (m/s^2): the sensor's full scale, if known; samples at
-    99.9 % of it or beyond are flagged saturated. Without them, a run of SATURATION_RUN or more
-    equal samples at a column's largest magnitude is flagged.
-    Raises BadSession (file, line, column) for a missing file or column, text that is not a
-    number, time that does not increase, or missing data / gaps longer than ``max_repair_s``.
-    """
-    path = Path(path)
-    try:  # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first column's name
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            lines = list(csv.reader(fh))
-    except FileNotFoundError:
-        raise BadSession(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
-    if not lines:
-        raise BadSession(f"{path}: empty file, expected the header {','.join(IMU_COLUMNS)}")
-    header = [h.strip() for h in lines[0]]
-    index = {}
-    for name in IMU_COLUMNS:
-        if name not in header:
-            raise BadSession(f"{path}: line 1: missing column {name!r} (expected {','.join(IMU_COLUMNS)})")
-        if header.count(name) > 1:
-            raise BadSession(f"{path}: line 1: column {name!r} appears {header.count(name)} times")
-        index[name] = header.index(name)
-    cols = [index[n] for n in IMU_COLUMNS]
+def _checked_rows(path: Path, lines: list[list[str]], header: list[str], cols: list[int]) -> list[list[float]]:
+    """The IMU columns of every data row (``lines``: the rows after the header), cell by cell: a
+    BadSession names the line and column of the first cell that is not a number."""
     rows = []
-    for i, row in enumerate(lines[1:]):
+    for i, row in enumerate(lines):
         if not row or all(not c.strip() for c in row):
             continue
         if len(row) != len(header):  # a cut or merged line, not a missing sample: never repaired
@@ -141,10 +145,62 @@ def read_imu_csv(path: str | Path, max_repair_s: float = DEFAULT_MAX_REPAIR_S,
                 raise BadSession(f"{path}: line {_line(i)}, column {name!r}: {cell!r} is not a finite number")
             values.append(v)
         rows.append(values)
+    return rows
+
+
+def read_imu_csv(path: str | Path, max_repair_s: float = DEFAULT_MAX_REPAIR_S,
+                 gyr_range: float | None = None, acc_range: float | None = None,
+                 time_scale: float = 1.0, declared_rate_hz: float | None = None) -> ImuStream:
+    """Read and check ``imu.csv``.
+
+    ``time_scale``: seconds per unit of the file's ``t`` (1e-3 for a session in ms); the stream,
+    ``max_repair_s`` and the messages about times are in seconds.
+
+    ``gyr_range`` (rad/s) and ``acc_range`` (m/s^2): the sensor's full scale, if known; samples at
+    99.9 % of it or beyond are flagged saturated. Without them, a run of SATURATION_RUN or more
+    equal samples at a column's largest magnitude is flagged.
+    Raises BadSession (file, line, column) for a missing file or column, text that is not a
+    number, time that does not increase, or missing data / gaps longer than ``max_repair_s``,
+    and (:func:`check_units`) for a stream plainly not in s, rad/s and m/s^2; ``declared_rate_hz``:
+    the rate session.yaml declares for the IMU, if any.
+    """
+    path = Path(path)
+    try:  # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first column's name
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise BadSession(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
+    first, _, body = text.partition("\n")
+    try:
+        header = [h.strip() for h in next(csv.reader([first]), [])]
+    except csv.Error as exc:
+        raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
+    if not text.strip():
+        raise BadSession(f"{path}: empty file, expected the header {','.join(IMU_COLUMNS)}")
+    index = {}
+    for name in IMU_COLUMNS:
+        if name not in header:
+            raise BadSession(f"{path}: line 1: missing column {name!r} (expected {','.join(IMU_COLUMNS)})")
+        if header.count(name) > 1:
+            raise BadSession(f"{path}: line 1: column {name!r} appears {header.count(name)} times")
+        index[name] = header.index(name)
+    cols = [index[n] for n in IMU_COLUMNS]
+    data = _fast_rows(body, len(header), cols)
+    rows = [] if data is None else data
+    if data is None:  # something to name or repair: the cell-by-cell reader says where
+        try:
+            lines = list(csv.reader(io.StringIO(body, newline="")))
+        except csv.Error as exc:
+            raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
+        rows = _checked_rows(path, lines, header, cols)
     if len(rows) < 2:
         raise BadSession(f"{path}: fewer than 2 data rows")
-    data = np.array(rows, float)
-    return check_stream(data[:, 0] * time_scale, data[:, 1:4], data[:, 4:7], str(path), max_repair_s, gyr_range, acc_range)
+    data = np.asarray(rows, float)
+    stream = check_stream(data[:, 0] * time_scale, data[:, 1:4], data[:, 4:7], str(path), max_repair_s, gyr_range,
+                          acc_range)
+    check_units(stream, str(path), declared_rate_hz)
+    return stream
 
 
 def check_stream(t, gyr, acc, source: str = "imu", max_repair_s: float = DEFAULT_MAX_REPAIR_S,
@@ -247,50 +303,89 @@ def write_imu_csv(path: str | Path, t, gyr, acc) -> None:
     atomic_write_text(path, format_imu_csv(t, gyr, acc))
 
 
-@dataclass
-class BroadTrial:
-    """One BROAD trial: the IMU stream, the optical truth and the scoring mask.
+# ---------------------------------------------------------------------------- units
+#: the accelerometer's median magnitude (m/s^2) an IMU on earth reads: about g (9.81) at rest, and
+#: the specific force of a platform's motion averages out around it
+ACC_NORM_RANGE = (0.5 * G_STANDARD, 2.0 * G_STANDARD)
+#: fastest rotation a gyro's full scale reaches (rad/s): 2000 deg/s, the largest common range
+GYRO_MAX_RAD_S = math.radians(2000.0)
+#: a gyro in deg/s turns the accelerometer's gravity pi/180 as fast as the rad/s it claims: the
+#: fitted ratio within this factor of pi/180 is taken for deg/s
+DEG_RATIO_TOLERANCE = 2.0
+#: the rotation (rad, in the file's gyro units) the tilting needs to sum to before the ratio is judged
+MIN_TILT_FOR_RATIO = 0.3
+#: sampling rates (Hz) outside which an IMU's times are implausible
+MIN_RATE_HZ = 1.0
+MAX_RATE_HZ = 1e5
 
-    ``q_earth_from_imu`` (N, 4) w x y z in ENU, NaN where the optical system lost the body;
-    ``movement`` (N,) bool: the samples the benchmark scores.
+
+def gravity_turn_ratio(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, window_s: float = 0.5) -> tuple[float, float]:
+    """(k, tilt): how fast the gyro turns the accelerometer's gravity direction, as a ratio.
+
+    The stream is cut into windows of ``window_s``; between consecutive windows the mean
+    accelerometer direction u changes by du ~ -k r x u, r the rotation the gyro integrated
+    between the windows' middles (sensor axes). k is 1 for a gyro in rad/s (pi/180 for one in
+    deg/s); ``tilt`` (rad in the gyro's units) is the rotation that could turn gravity, which
+    must be large enough (:data:`MIN_TILT_FOR_RATIO`) for k to mean anything (nan otherwise).
     """
+    n = len(t)
+    dt = float(np.median(np.diff(t)))
+    k = max(2, int(round(window_s / dt)))
+    m = n // k
+    if m < 3:
+        return float("nan"), 0.0
+    u = acc[:m * k].reshape(m, k, 3).mean(axis=1)
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(gyr[1:m * k] * np.diff(t[:m * k])[:, None], axis=0)])
+    mid = cum[np.arange(m) * k + k // 2]
+    r = np.diff(mid, axis=0)
+    a = np.cross(r, u[:-1])
+    du = np.diff(u, axis=0)
+    s = float(np.sum(a * a))
+    tilt = math.sqrt(s)
+    if tilt < MIN_TILT_FOR_RATIO:
+        return float("nan"), tilt
+    return float(-np.sum(du * a) / s), tilt
 
-    name: str
-    imu: ImuStream
-    q_earth_from_imu: np.ndarray
-    movement: np.ndarray
-    rate_hz: float
 
-
-def read_broad(path: str | Path) -> BroadTrial:
-    """Read a BROAD HDF5 trial (fields imu_gyr, imu_acc, opt_quat, movement, attribute sampling_rate)."""
-    import h5py
-
-    path = Path(path)
-    if not path.is_file():
-        raise BadSession(f"{path}: file not found")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise BadSession(f"{path}: not an HDF5 file ({exc})") from None
-    with f:
-        for key in ("imu_gyr", "imu_acc", "opt_quat", "movement"):
-            if key not in f:
-                raise BadSession(f"{path}: missing dataset {key!r}")
-        if "sampling_rate" not in f.attrs:
-            raise BadSession(f"{path}: missing attribute 'sampling_rate'")
-        rate = float(f.attrs["sampling_rate"])
-        gyr = np.asarray(f["imu_gyr"], float)
-        acc = np.asarray(f["imu_acc"], float)
-        quat = np.asarray(f["opt_quat"], float)
-        movement = np.asarray(f["movement"]).astype(bool)
-    n = len(gyr)
-    if not (acc.shape == gyr.shape == (n, 3) and quat.shape == (n, 4) and movement.shape == (n,)):
-        raise BadSession(f"{path}: datasets have inconsistent shapes")
-    for key, arr in (("imu_gyr", gyr), ("imu_acc", acc)):
-        bad = np.argwhere(~np.isfinite(arr))
-        if bad.size:
-            raise BadSession(f"{path}: dataset {key!r}, sample {bad[0][0]}, axis {bad[0][1]}: not a finite number")
-    t = np.arange(n) / rate
-    imu = ImuStream(t, gyr, acc, saturation_mask(np.column_stack([gyr, acc])), [], str(path))
-    return BroadTrial(path.stem, imu, quat, movement, rate)
+def check_units(stream: ImuStream, source: str, declared_rate_hz: float | None = None) -> None:
+    """Stop with one line naming the file and column where the stream is plainly not in the
+    spec's units (seconds, rad/s, m/s^2): an accelerometer in g (median magnitude about 1), a gyro
+    in deg/s (faster than any gyro's full scale, or turning gravity pi/180 as fast as it claims),
+    times in ms (steps 1000 times the declared ``rate_hz``, or an implausibly slow rate)."""
+    dt = stream.dt
+    rate = 1.0 / dt
+    if declared_rate_hz is not None and declared_rate_hz > 0:
+        ratio = declared_rate_hz / rate
+        if not 0.2 <= ratio <= 5.0:
+            hint = ""
+            if 300 <= ratio <= 3000:
+                hint = "; the times look like milliseconds: write seconds, or declare units: {time: ms} in session.yaml"
+            elif 1 / 3000 <= ratio <= 1 / 300:
+                hint = "; the times look like seconds in a session declared in milliseconds"
+            raise BadSession(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.4g} Hz) but session.yaml "
+                             f"declares the IMU at rate_hz {declared_rate_hz:g}; expected times in seconds at that "
+                             f"rate{hint}")
+    elif rate < MIN_RATE_HZ:
+        raise BadSession(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.3g} Hz), expected seconds "
+                         f"at an IMU's rate (at least {MIN_RATE_HZ:g} Hz); times in milliseconds? write seconds, or "
+                         "declare units: {time: ms} in session.yaml")
+    elif rate > MAX_RATE_HZ:
+        raise BadSession(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.3g} Hz), faster than an "
+                         f"IMU samples (at most {MAX_RATE_HZ:g} Hz); seconds in a session declared in milliseconds?")
+    norm = float(np.median(np.linalg.norm(stream.acc, axis=1)))
+    if not ACC_NORM_RANGE[0] <= norm <= ACC_NORM_RANGE[1]:
+        what = " (that is g: multiply by 9.80665)" if 0.5 <= norm <= 2.0 else ""
+        raise BadSession(f"{source}: columns 'acc_x', 'acc_y', 'acc_z': the accelerometer's median magnitude is "
+                         f"{norm:.4g}{what}; expected m/s^2, about 9.81 at rest")
+    # the 99th percentile: a few samples of a step in a synthetic stream are not a gyro's range
+    peak = float(np.percentile(np.linalg.norm(stream.gyr, axis=1), 99.0))
+    if peak > GYRO_MAX_RAD_S:
+        raise BadSession(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro reads up to {peak:.4g}, faster than "
+                         f"any gyro's range in rad/s ({GYRO_MAX_RAD_S:.3g} rad/s = 2000 deg/s); expected rad/s (deg/s? "
+                         "multiply by pi/180)")
+    k, _ = gravity_turn_ratio(stream.t, stream.gyr, stream.acc)
+    deg = math.pi / 180.0
+    if np.isfinite(k) and deg / DEG_RATIO_TOLERANCE <= k <= deg * DEG_RATIO_TOLERANCE:
+        raise BadSession(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro turns the accelerometer's gravity "
+                         f"{1 / k:.3g} times too fast for rad/s (that is deg/s: multiply by pi/180); expected rad/s")

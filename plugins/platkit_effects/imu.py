@@ -13,12 +13,12 @@ benchmarks/diagnosis_proof_imu.py and tests/unit/test_diagnose_imu*.py).
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from platkit.effects import ImuEffect
-from platkit.geometry import matrix_from_rotvec
 
 DEG = 180.0 / np.pi
 
@@ -53,6 +53,21 @@ MIN_TILT_SEPARABILITY = 0.02
 
 _SEGMENTS = "segments' mean rate"
 _HOLDS = "holds' specific force"
+
+
+def matrix_from_rotvec(v) -> np.ndarray:
+    """Rodrigues for one rotation vector (3,) rad -> (3, 3) (the diagnosis evaluates it thousands
+    of times: a closed form on floats, not the batched one)."""
+    x, y, z = (float(a) for a in v)
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-16:
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    return np.array([[1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+                     [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+                     [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)]])
 
 
 def _rms_sentence(c: dict[str, Any], what: str) -> str:

@@ -156,9 +156,14 @@ def test_missing_and_empty_files(tmp_path):
 
 
 def test_broad_reader_bad_files(tmp_path):
+    """The BROAD reader lives with the benchmarks (it needs h5py, which platkit does not)."""
+    import sys
+    from pathlib import Path
+
     import h5py
 
-    from platkit.io.imu import read_broad
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks.datasets
+    from benchmarks.datasets.broad import read_broad
 
     p = tmp_path / "t.hdf5"
     with h5py.File(p, "w") as f:
@@ -176,3 +181,81 @@ def test_broad_reader_bad_files(tmp_path):
     (tmp_path / "x.hdf5").write_text("not hdf5")
     with pytest.raises(BadSession, match="not an HDF5 file"):
         read_broad(tmp_path / "x.hdf5")
+    import platkit.io.imu
+
+    assert not hasattr(platkit.io.imu, "read_broad")
+
+
+# ---------------------------------------------------------------------------- units (issue 11 item 6)
+def _tilting(seconds=40.0, rate=100.0, seed=0):
+    """A sensor tilting +-10 deg about x and y, at rest for the first 5 s: (t, gyr rad/s, acc m/s^2)."""
+    from platkit.geometry import quat_from_rpy
+    from platkit.inertial.simulate import imu_from_motion
+
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    on = t > 5.0
+    q = quat_from_rpy(0.17 * np.sin(2 * np.pi * 0.1 * t) * on, 0.17 * np.sin(2 * np.pi * 0.07 * t) * on, 0.0 * t)
+    sim = imu_from_motion(t, q, np.zeros((len(t), 3)), bias=[0.002, -0.001, 0.0, 0.05, 0.0, -0.03],
+                          noise=(0.002, 0.02), rng=np.random.default_rng(seed))
+    return t, sim["gyr"], sim["acc"]
+
+
+def test_a_stream_in_the_spec_units_is_read(tmp_path):
+    t, gyr, acc = _tilting()
+    s = read_imu_csv(_write(tmp_path, _lines(t, gyr, acc)), declared_rate_hz=100.0)
+    assert s.n == len(t) and s.repairs == []
+
+
+def test_a_gyro_in_deg_per_s_is_refused(tmp_path):
+    t, gyr, acc = _tilting()
+    with pytest.raises(BadSession, match=r"imu\.csv: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro turns the accelerometer's "
+                                         r"gravity 5\d\.?\d* times too fast for rad/s \(that is deg/s"):
+        read_imu_csv(_write(tmp_path, _lines(t, np.degrees(gyr), acc)))
+    # faster than any gyro's range in rad/s: named without the accelerometer
+    gyr2 = gyr.copy()
+    gyr2[100:200, 2] = 50.0
+    with pytest.raises(BadSession, match=r"columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro reads up to 50.*expected rad/s"):
+        read_imu_csv(_write(tmp_path, _lines(t, gyr2, acc)))
+
+
+def test_an_accelerometer_in_g_is_refused(tmp_path):
+    t, gyr, acc = _tilting()
+    with pytest.raises(BadSession, match=r"imu\.csv: columns 'acc_x', 'acc_y', 'acc_z': the accelerometer's median "
+                                         r"magnitude is 0\.99\d* \(that is g: multiply by 9\.80665\); expected m/s\^2"):
+        read_imu_csv(_write(tmp_path, _lines(t, gyr, acc / 9.80665)))
+
+
+def test_times_in_ms_declared_s_are_refused(tmp_path):
+    t, gyr, acc = _tilting()
+    path = _write(tmp_path, _lines(t * 1000.0, gyr, acc))
+    with pytest.raises(BadSession, match=r"imu\.csv: column 't': the median time step is 10 s \(0\.1 Hz\) but session\.yaml "
+                                         r"declares the IMU at rate_hz 100.*look like milliseconds"):
+        read_imu_csv(path, declared_rate_hz=100.0)
+    with pytest.raises(BadSession, match=r"column 't': the median time step is 10 s \(0\.1 Hz\), expected seconds"):
+        read_imu_csv(path)
+    # declared in ms, the same file is right
+    assert read_imu_csv(path, time_scale=1e-3, declared_rate_hz=100.0).rate_hz == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize("what", ["deg/s", "g", "ms"])
+def test_orient_stops_with_one_line_on_wrong_units(tmp_path, capsys, what):
+    """Today's failure: exit 0 and an all-NaN orientation.csv. Now exit 2, one line, nothing written."""
+    from platkit.cli import main
+
+    t, gyr, acc = _tilting(seconds=20.0)
+    folder = tmp_path / "s"
+    folder.mkdir()
+    (folder / "session.yaml").write_text("platform: none\nunits: {length: m, time: s}\nmarkers: []\n"
+                                         "imu: {rate_hz: 100, frame: imu}\n")
+    if what == "deg/s":
+        gyr = np.degrees(gyr)
+    elif what == "g":
+        acc = acc / 9.80665
+    else:
+        t = t * 1000.0
+    (folder / "imu.csv").write_text("\n".join(_lines(t, gyr, acc)) + "\n")
+    assert main(["orient", str(folder), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "imu.csv" in err[0]
+    assert {"deg/s": "gyr_x", "g": "acc_x", "ms": "column 't'"}[what] in err[0]
+    assert not (tmp_path / "o").exists()

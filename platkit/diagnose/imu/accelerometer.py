@@ -104,15 +104,17 @@ def acc_model(holds: Holds, t_c: float, R_sp: np.ndarray, effects: tuple[ImuEffe
     R_lb = imu_sensor_model(list(zip(effects, thetas)))[1]
     out = up_in_sensor(R, R_sp, R_lb) * x[:3] + x[3:6]
     for e, th in zip(effects, thetas):
-        out = out + np.asarray(e.accelerometer_bias(th, holds.t - t_c), float)
+        if type(e).accelerometer_bias is not ImuEffect.accelerometer_bias:
+            out = out + np.asarray(e.accelerometer_bias(th, holds.t - t_c), float)
     return out
 
 
 def fit_acc(holds: Holds, t_c: float, R_sp: np.ndarray, effects: tuple[ImuEffect, ...], rows: np.ndarray | None = None,
-            R: np.ndarray | None = None) -> AccFit:
+            R: np.ndarray | None = None, separable: bool = False) -> AccFit:
     """Weighted least squares (weight: the samples averaged) of the accelerometer model on the
     holds ``rows`` (default all); residuals on all holds. ``R``: other model orientations of the
-    holds (H, 3, 3) (default the holds' own)."""
+    holds (H, 3, 3) (default the holds' own); ``separable``: each effect's separability from the
+    rest of the model too."""
     H = len(holds.rows)
     rows = np.ones(H, bool) if rows is None else rows
     Rh = holds.R if R is None else R
@@ -138,7 +140,7 @@ def fit_acc(holds: Holds, t_c: float, R_sp: np.ndarray, effects: tuple[ImuEffect
     cov = covariance(Aw, rss, 3 * int(rows.sum()) - rank)
     sep = {}
     i = 6
-    for e in effects:
+    for e in effects if separable else ():
         cols = np.zeros(n, bool)
         cols[i:i + e.n_params] = True
         sep[e.name] = separability(Aw, cols)
@@ -164,7 +166,7 @@ def acc_state(seg: Segments, gyro_effects: tuple[ImuEffect, ...], effects: tuple
     by source (see the module docstring)."""
     holds, t_c = seg.holds, seg.t_c
     R_sp, C_rot = sensor_rotation(seg, gyro_effects)
-    a = fit_acc(holds, t_c, R_sp, effects)
+    a = fit_acc(holds, t_c, R_sp, effects, separable=True)
     a.cv = acc_cv(holds, t_c, R_sp, effects, block)
     if not effects or not sources:
         return a

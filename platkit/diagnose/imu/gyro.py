@@ -82,15 +82,18 @@ def gyro_model(seg: Segments, effects: tuple[ImuEffect, ...], x: np.ndarray, p: 
         K = len(seg.dt)
         t = (seg.t_mid - seg.t_c)[:, None] + 0.5 * seg.dt[:, None] * _GL_X[None, :]  # (K, 5)
         for e, th in zip(effects, thetas):
+            if type(e).gyro_bias is ImuEffect.gyro_bias:
+                continue  # acts through another part of the sensor model
             b = np.asarray(e.gyro_bias(th, t.ravel()), float).reshape(K, len(_GL_X), 3)
             out = out + 0.5 * np.einsum("g,kgj->kj", _GL_W, b)
     return out
 
 
 def fit_gyro(seg: Segments, effects: tuple[ImuEffect, ...], rows: np.ndarray | None = None,
-             p: np.ndarray | None = None) -> GyroFit:
+             p: np.ndarray | None = None, separable: bool = False) -> GyroFit:
     """The gyro model with ``effects`` fitted on the segments ``rows`` (default all); residuals
-    on all segments. ``p``: other model rates (K, 3) (default the segments' own)."""
+    on all segments. ``p``: other model rates (K, 3) (default the segments' own); ``separable``:
+    each effect's separability from the rest of the model too."""
     K = len(seg.dt)
     rows = np.ones(K, bool) if rows is None else rows
     n = 3 + sum(e.n_params for e in effects)
@@ -111,7 +114,7 @@ def fit_gyro(seg: Segments, effects: tuple[ImuEffect, ...], rows: np.ndarray | N
     cov = covariance(Aw, rss, 3 * int(rows.sum()) - n)
     sep = {}
     i = 3
-    for e in effects:
+    for e in effects if separable else ():
         cols = np.zeros(n, bool)
         cols[i:i + e.n_params] = True
         sep[e.name] = separability(Aw, cols)
@@ -142,7 +145,7 @@ def gyro_model_cov(seg: Segments, effects: tuple[ImuEffect, ...], p_draws: list[
 
 def full_fit(seg: Segments, effects: tuple[ImuEffect, ...], block: int, p_draws=None) -> GyroFit:
     """A fit with its held-out errors and (``p_draws``) its model covariance."""
-    f = fit_gyro(seg, effects)
+    f = fit_gyro(seg, effects, separable=True)
     f.cv = gyro_cv(seg, effects, block)
     if p_draws is not None:
         f.model_cov = gyro_model_cov(seg, effects, p_draws)
