@@ -174,8 +174,11 @@ class _Stand:
             motor = np.where(seg[:, None] < 0, plan.start[None], plan.commands[np.maximum(seg, 0)])
         else:
             motor = actuator_motion(t, plan.command_t, plan.commands, plan.start, self.response, self.fine)
-        for _, p in self.physics:
-            motor = np.asarray(p.drive(PhysicsSeries(t, motor, seg, rest), plan), float)
+        for name, p in self.physics:
+            out = np.asarray(p.drive(PhysicsSeries(t, motor, seg, rest), plan), float)
+            if out.shape != motor.shape:
+                raise BadInput(f"effect {name!r}: its physics' drive returned shape {out.shape}, expected {motor.shape}")
+            motor = out
         return motor, seg
 
     def pose(self, u: np.ndarray, seg: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
