@@ -367,6 +367,8 @@ def imu_sensor_model(effects: list[tuple[ImuEffect, np.ndarray]]) -> tuple[np.nd
     in the list's order, each applied after the ones before it)."""
     R_sp, R_lb = np.eye(3), np.eye(3)
     for e, theta in effects:
-        R_sp = e.sensor_from_platform(np.asarray(theta, float)) @ R_sp
-        R_lb = e.level_from_base(np.asarray(theta, float)) @ R_lb
+        if type(e).sensor_from_platform is not ImuEffect.sensor_from_platform:
+            R_sp = e.sensor_from_platform(np.asarray(theta, float)) @ R_sp
+        if type(e).level_from_base is not ImuEffect.level_from_base:
+            R_lb = e.level_from_base(np.asarray(theta, float)) @ R_lb
     return R_sp, R_lb
