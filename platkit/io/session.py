@@ -758,7 +758,8 @@ def _read_imu(s: Session, path: Path, tscale: float, max_repair_s: float) -> Non
     times scaled to seconds. The declared full scale, if any, flags saturated samples."""
     declared = s.imu or {}
     stream = read_imu_csv(path, max_repair_s=max_repair_s, gyr_range=declared.get("gyr_range_rad_s"),
-                          acc_range=declared.get("acc_range_m_s2"), time_scale=tscale)
+                          acc_range=declared.get("acc_range_m_s2"), time_scale=tscale,
+                          declared_rate_hz=declared.get("rate_hz"))
     s.imu_stream, s.imu_notes = stream, stream.warnings()
     s.imu_t, s.imu_gyr, s.imu_acc = stream.t, stream.gyr, stream.acc
 
