@@ -26,6 +26,9 @@ class PoseSet:
         moving_link: the link carrying the markers (URDF stands), or None.
         source: where the data came from (a path, or 'simulated').
         dropped: list of (row, reason) for commands that gave no pose.
+        settling: what the settling search found over the whole session (sigma_m, n_commands,
+            n_extrapolated, unsettled: which actuators and markers never settled, their time
+            constant, a sentence); empty for poses read as they are.
         extras: free-form per-pose arrays (e.g. 'direction' for history effects), length N.
     """
 
@@ -42,6 +45,7 @@ class PoseSet:
     source: str = ""
     dropped: list[tuple[int, str]] = field(default_factory=list)
     extras: dict[str, np.ndarray] = field(default_factory=dict)
+    settling: dict = field(default_factory=dict)  # what the settling search found (calibrate.settle), session-wide
 
     def __post_init__(self):
         self.controls = np.atleast_2d(np.asarray(self.controls, float))
@@ -74,5 +78,5 @@ class PoseSet:
             base_markers=self.base_markers, t=None if self.t is None else self.t[rows],
             n_samples=None if self.n_samples is None else self.n_samples[rows],
             length_unit=self.length_unit, moving_link=self.moving_link, source=self.source,
-            dropped=[], extras={k: np.asarray(v)[rows] for k, v in self.extras.items()},
+            dropped=[], extras={k: np.asarray(v)[rows] for k, v in self.extras.items()}, settling=dict(self.settling),
         )

@@ -42,6 +42,7 @@ from scipy.stats import chi2, f as f_dist, fisher_exact
 
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
+from platkit.model import length_scale
 from platkit.poses import PoseSet
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
@@ -94,6 +95,16 @@ class Approach:
     remaining_m: np.ndarray
     at_limit: bool  # tau at the top of the searched range: slower than the hold can show
     significant: bool = True  # False: the stream shows no decay (a and b set to zero)
+    cov_ab: np.ndarray | None = None  # (M, 2, 2) covariance of (a, b) per coordinate, m^2 (tau held)
+
+    def tail_std(self, t: np.ndarray) -> np.ndarray:
+        """(K, M) m, the standard error of :meth:`tail` per coordinate (tau taken as known)."""
+        s = np.maximum(np.asarray(t, float) - self.t0, 0.0)
+        e = np.exp(-s / self.tau)
+        g = np.stack([e, (s / self.tau) * e], axis=1)  # (K, 2)
+        if self.cov_ab is None:
+            return np.zeros((len(s), self.a.shape[0]))
+        return np.sqrt(np.maximum(np.einsum("ki,mij,kj->km", g, self.cov_ab, g), 0.0))
 
     def tail(self, t: np.ndarray) -> np.ndarray:
         """(K, M, 3) m, the part of the approach still to go at times t."""
@@ -141,6 +152,33 @@ def dropped_sentence(dropped: list[tuple[int, str]], n_commands: int | None = No
     of = f" of {n_commands}" if n_commands is not None else ""
     parts = ", ".join(f"{n} {why}" for why, n in dropped_by_reason(dropped).items())
     return f"{len(dropped)}{of} commands gave no settled pose: {parts}"
+
+
+def settling_summary(poses: PoseSet, unit: str | None = None) -> dict:
+    """What became of every command of a session, for report.json (lengths in ``unit``, default
+    the session's): n_commands, n_poses, n_dropped, dropped_by_reason, dropped (row: 1-based data
+    row of commands.csv, reason), n_extrapolated and, when holds never settled, ``unsettled``
+    (sentence, actuators, markers, time_constant_s, hold_s, remaining)."""
+    scale = length_scale(unit or poses.length_unit)
+    info = poses.settling or {}
+    n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
+    out = {"n_commands": n_commands, "n_poses": int(poses.n_poses), "n_dropped": len(poses.dropped),
+           "dropped_by_reason": dropped_by_reason(poses.dropped),
+           "dropped": [{"row": int(r) + 1, "reason": str(why)} for r, why in poses.dropped],
+           "n_extrapolated": int(info.get("n_extrapolated", 0))}
+    un = info.get("unsettled") or {}
+    if un:
+        out["unsettled"] = {"sentence": un["sentence"], "n": int(un["n"]), "actuators": list(un["actuators"]),
+                            "markers": list(un["markers"]),
+                            "time_constant_s": _finite(un["time_constant_s"]),
+                            "time_constant_quartiles_s": [_finite(v) for v in un["time_constant_quartiles_s"]],
+                            "hold_s": _finite(un["hold_s"]), "remaining": _finite(un["remaining_m"] / scale)}
+    return out
+
+
+def _finite(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
 
 
 def estimate_noise(markers: np.ndarray) -> float:
@@ -330,7 +368,8 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
     n_obs = 3 * int(ok[:, seen].sum())
     dof = max(n_obs - 9 * int(seen.sum()) - 1, 1)
     chi = float(max(rss_tot[j], 0.0) / dof / sigma**2)
-    cov00 = np.linalg.inv(GtG[j])[:, 0, 0]  # (M,)
+    inv = np.linalg.inv(GtG[j])  # (M, 3, 3)
+    cov00 = inv[:, 0, 0]  # (M,)
     std = np.sqrt(np.maximum(cov00, 0.0) * max(chi, 1.0)) * sigma
     x_inf = np.where(seen[:, None], mean + c[:, 0, :], np.nan)
     a = np.where(seen[:, None], c[:, 1, :], 0.0)
@@ -338,7 +377,8 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
     fit = Approach(tau=float(taus[j]), t0=float(t[0]), x_inf=x_inf,
                    x_inf_std=np.where(seen[:, None], std[:, None].repeat(3, axis=1), np.nan),
                    a=a, b=b, chi2_per_dof=chi, remaining_m=np.zeros(M),
-                   at_limit=tau is None and at_top)
+                   at_limit=tau is None and at_top,
+                   cov_ab=np.where(seen[:, None, None], inv[:, 1:, 1:] * max(chi, 1.0) * sigma**2, 0.0))
     # a tail the stream does not show (F test of the decay against a constant, over every seen
     # coordinate) is none: noise alone must not move a window or make a hold unsettled
     rss0 = float(np.sum(yty[seen]))
@@ -425,6 +465,42 @@ def tail_free_window(approach: Approach, t: np.ndarray, start: int, end: int, si
     if ratio[k] <= 1.0:
         return start + k, share[k]
     return None
+
+
+def tail_established(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float) -> bool:
+    """Whether the fitted tail is to be believed over a still stretch (t (L,), markers (L, M, 3)):
+    at its start the tail stands out of its own standard error (three times, over every marker
+    coordinate together), and the stretch bears it out (:func:`tail_seen_in_window`). A decay
+    fitted to a few hundred milliseconds of ringing extrapolates a tail that neither supports."""
+    F = approach.tail(t[:1])[0]
+    sd = approach.tail_std(t[:1])[0]  # (M,)
+    if np.linalg.norm(F) < 3.0 * np.sqrt(3.0) * np.linalg.norm(sd):
+        return False
+    return tail_seen_in_window(approach, t, markers, sigma)
+
+
+def tail_seen_in_window(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float,
+                        z_limit: float = 4.0) -> bool:
+    """Whether a still stretch (t (L,), markers (L, M, 3)) bears out the fitted tail: the data,
+    centred, regressed on the tail's own shape over the stretch, scale kappa. False when kappa
+    is more than ``z_limit`` standard errors from 1 (the stretch is flatter, or steeper, than the
+    fit says: a decay fitted to a ringing or to the end of a minimum-jerk move); True otherwise,
+    also when the tail is too small to tell."""
+    F = approach.tail(t)
+    ok = np.isfinite(markers).all(axis=2)
+    num = den = 0.0
+    for m in range(markers.shape[1]):
+        sel = ok[:, m]
+        if sel.sum() < 4:
+            continue
+        g = F[sel, m] - F[sel, m].mean(axis=0)
+        y = markers[sel, m] - markers[sel, m].mean(axis=0)
+        num += float(np.sum(g * y))
+        den += float(np.sum(g * g))
+    if den <= 0:
+        return True
+    kappa, se = num / den, sigma / np.sqrt(den)
+    return abs(kappa - 1.0) <= z_limit * se
 
 
 def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float, float]:
@@ -548,7 +624,8 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     window, 'approach_tau_s' (N,) the fitted approach's time constant (NaN: no approach seen),
     'remaining_m' (N,) m the distance the approach still had to go at the end of the hold (largest
     over the markers), 'extrapolated' (N,) 1.0 where the pose is the fitted rest position of a hold
-    that never settled.
+    that never settled. ``settling``: sigma_m, n_commands, n_kept, n_extrapolated and
+    ``unsettled`` (the holds that never settled: rows, actuators, markers, time_constant_s, sentence).
     Raises BadSession when no command settles, ComputationFailed when more than
     ``max_unsettled_fraction`` of the holds never settle and their approach cannot be extrapolated
     (or extrapolation is off): the message names the actuators and markers still moving.
@@ -610,6 +687,10 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                    f"{opt.min_still_s:.2f} s needed")
         else:
             start = run[0]
+            if fit is not None and fit.significant and not tail_established(fit, ts[run[0]:end], seg[run[0]:end], sigma):
+                fit.a, fit.b = np.zeros_like(fit.a), np.zeros_like(fit.b)  # not there: the still stretch is flat
+                fit.significant = False
+                fit.remaining_m = np.zeros_like(fit.remaining_m)
             if fit is not None:
                 window = tail_free_window(fit, ts, run[0], end, sigma, opt.tail_fraction, min_samples)
                 start = None if window is None else window[0]
@@ -698,6 +779,8 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             "window_start": col("start"), "window_end": col("end"), "marker_std": col("std"),
             "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
         },
+        settling={"sigma_m": float(sigma), "n_commands": N, "n_kept": len(kept), "n_extrapolated": n_extrapolated,
+                  "unsettled": summary},
     )
     return poses, SettleReport(float(sigma), N, len(kept), dropped_list, float(rate), n_extrapolated, summary)
 
