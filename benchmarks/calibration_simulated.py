@@ -25,6 +25,7 @@ import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, parameter_scale, predict_markers
 from platkit.calibrate.paper import calibrate_paper
+from platkit.calibrate.selection import select_model
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
@@ -105,20 +106,21 @@ def with_outliers(poses, rng, fraction=0.05, jump=0.03):
     return PoseSet(poses.platform, poses.controls, Y, poses.marker_names, length_unit=poses.length_unit)
 
 
-def run(stand, n_poses, n_markers, sigma, paper_evaluations, seed):
+def run(stand, n_poses, n_markers, sigma, paper_evaluations, seed, selection=False):
     spec = get_platform(stand)
     spread = 0.45 if spec.forward is not None else 0.3
     truth = Truth(spec, seed, n_markers, marker_spread=0.3 if stand == "stewart" else 0.15)
     U, Y = truth.observe(truth.controls(n_poses, spread), sigma)
     poses = PoseSet(stand, U, Y, [f"M{i + 1}" for i in range(n_markers)], length_unit="mm", source="simulated")
     U_new, Y_new = truth.observe(truth.controls(200, spread))
-    cal = calibrate(poses, spec)
+    cal = select_model(poses, spec) if selection else calibrate(poses, spec)
     err = heldout_error(cal, U_new, Y_new)
     free_td = np.array([st != "fixed" for st in cal.td_status])
     crb, std, gauge_free = cramer_rao(truth, poses, U_new, sigma, free_td)
     sel = gauge_free & free_td & np.isfinite(std) & (std > 0)
     z_param = float(np.sqrt(np.mean(((cal.td - truth.td)[sel] / std[sel]) ** 2))) if sel.any() else float("nan")
-    dirty = calibrate(with_outliers(poses, np.random.default_rng(seed + 1)), spec)
+    dirty_poses = with_outliers(poses, np.random.default_rng(seed + 1))
+    dirty = select_model(dirty_poses, spec) if selection else calibrate(dirty_poses, spec)
     err_dirty = heldout_error(dirty, U_new, Y_new)
     t = time.perf_counter()
     pap = calibrate_paper(poses, spec, max_evaluations=paper_evaluations)
@@ -130,6 +132,7 @@ def run(stand, n_poses, n_markers, sigma, paper_evaluations, seed):
         "ratio": err / crb, "param_z": z_param, "n_gauge_free": int(sel.sum()), "err_dirty": err_dirty,
         "dirty_ratio": err_dirty / err, "rejected": dirty.n_rejected, "paper_time": t_paper, "paper_err": err_paper,
         "paper_evals": pap.extras["paper"]["evaluations"],
+        "chosen": (cal.identifiability.get("model_selection") or {}).get("chosen"),
     }
 
 
@@ -141,6 +144,9 @@ def main(argv=None):
     ap.add_argument("--sigma-mm", type=float, default=0.2)
     ap.add_argument("--paper-evaluations", type=int, default=3000)
     ap.add_argument("--seeds", default="0", help="comma-separated seeds; with several, a summary per stand")
+    ap.add_argument("--selection", action="store_true",
+                    help="calibrate as `platkit calibrate` does by default: the parameter groups chosen by held-out "
+                         "prediction (platkit.calibrate.selection); the CRB is then that of the chosen model")
     args = ap.parse_args(argv)
     sigma = args.sigma_mm * 1e-3
     print(f"noise {args.sigma_mm} mm per axis; errors: held-out marker RMS against the noise-free truth, mm")
@@ -152,11 +158,12 @@ def main(argv=None):
     for stand in args.stands.split(","):
         rows = []
         for seed in seeds:
-            r = run(stand.strip(), args.poses, args.markers, sigma, args.paper_evaluations, seed)
+            r = run(stand.strip(), args.poses, args.markers, sigma, args.paper_evaluations, seed, args.selection)
             rows.append(r)
             print(f"{r['stand']:<8} {r['poses']:>5} {r['td']:>3} {r['held']:>4} {r['time']:>6.2f} {r['err'] * 1e3:>7.4f} "
                   f"{r['crb'] * 1e3:>7.4f} {r['ratio']:>7.2f} {r['param_z']:>6.2f} {r['err_dirty'] * 1e3:>8.4f} "
-                  f"{r['dirty_ratio']:>10.2f} {r['paper_time']:>8.1f} {r['paper_err'] * 1e3:>9.4f}", flush=True)
+                  f"{r['dirty_ratio']:>10.2f} {r['paper_time']:>8.1f} {r['paper_err'] * 1e3:>9.4f}"
+                  + (f"  free: {', '.join(r['chosen'])}" if r["chosen"] else ""), flush=True)
         if len(rows) > 1:
             rms = lambda k: float(np.sqrt(np.mean([x[k] ** 2 for x in rows])))  # noqa: E731
             summary.append(f"{stand:<8} over {len(rows)} seeds: err/CRB {rms('err') / rms('crb'):.2f}, "

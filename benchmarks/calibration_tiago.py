@@ -1,9 +1,11 @@
 """Real data: PAL TIAGo arm (shared/data/real/tiago) beside FIGAROH 1.0.2.
 
-    .venv/bin/python benchmarks/calibration_tiago.py [--data DIR]
+    .venv/bin/python benchmarks/calibration_tiago.py [--data DIR] [--paper-evaluations N]
 
-Fits three model levels on the training day (2021-11-30, 37 postures) and predicts the validation
-day (2021-11-26, 62 postures); prints the norm RMSE of point BL in mm, as FIGAROH reports it.
+First the default of ``platkit calibrate`` (no options: robust loss, the parameter groups chosen by
+held-out prediction on the training day), then three fixed model levels. Fitted on the training
+day (2021-11-30, 37 postures), scored on the validation day (2021-11-26, 62 postures): the norm
+RMSE of point BL in mm, as FIGAROH reports it, beside FIGAROH's three levels.
 Rows per level: the four points of the hand body fitted together (platkit's way), point BL alone
 (FIGAROH's way, a like-for-like check), and the paper's method (Burlakov et al., four points,
 Nelder-Mead budget --paper-evaluations). Plain least squares (no outlier
@@ -17,21 +19,15 @@ import tempfile
 import time
 from pathlib import Path
 
-from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.paper import calibrate_paper
-from platkit.calibrate.settle import load_poses
-from platkit.calibrate.tiago import (
-    FIGAROH,
-    LEVELS,
-    TRAINING,
-    VALIDATION,
-    bl_rmse_mm,
-    convert,
-    default_data_dir,
-    pivot_order,
-)
-from platkit.io.session import load_session
-from platkit.poses import PoseSet
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.datasets
+
+from benchmarks.datasets.tiago import FIGAROH, LEVELS, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir, pivot_order  # noqa: E402
+from platkit.calibrate.estimate import calibrate  # noqa: E402
+from platkit.calibrate.paper import calibrate_paper  # noqa: E402
+from platkit.calibrate.selection import select_model  # noqa: E402
+from platkit.calibrate.settle import load_poses  # noqa: E402
+from platkit.io.session import load_session  # noqa: E402
+from platkit.poses import PoseSet  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -49,6 +45,19 @@ def main(argv=None) -> int:
             sets[role] = load_poses(folder, spec=s.spec)
         spec = s.spec
     bl = {k: PoseSet(p.platform, p.controls, p.markers[:, :1], ["BL"], length_unit="m") for k, p in sets.items()}
+    t = time.perf_counter()
+    cal = select_model(sets["training"], spec, platform_options={"moving_link": spec.moving_frame})
+    dt = time.perf_counter() - t
+    sel = cal.identifiability["model_selection"]
+    print("platkit calibrate, no options (4 points, robust, groups chosen by held-out prediction):")
+    print(f"  chose {', '.join(sel['chosen'])} (held: {', '.join(sel['held']) or 'none'}); "
+          f"{sum(st == 'estimated' for st in cal.td_status)} joint parameters estimated; {dt:.1f} s")
+    for c in sel["candidates"]:
+        print(f"    candidate {'+'.join(c['free']):<22} held-out median {c['heldout_median'] * 1e3:5.2f} mm, "
+              f"RMS {c['heldout_rms'] * 1e3:5.2f} mm")
+    print(f"  BL norm RMSE, mm: train {bl_rmse_mm(cal, sets['training']):.2f}  valid {bl_rmse_mm(cal, sets['validation']):.2f}"
+          "   | FIGAROH valid: " + ", ".join(f"{k} {v['validation_mm']:.2f}" for k, v in FIGAROH.items()))
+    print()
     print("norm RMSE of point BL, mm (fit on 2021-11-30, validate on 2021-11-26)")
     print(f"{'model':<16} {'fit on':<10} {'unknowns':>8} {'td est.':>7} {'train':>7} {'valid':>7} "
           f"{'FIGAROH n':>9} {'train':>7} {'valid':>7} {'time s':>7}")

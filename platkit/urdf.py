@@ -215,8 +215,11 @@ def read_urdf(path: str | Path) -> UrdfTree:
                 raise BadDescription(f"{path}: {where} <axis xyz> is the zero vector")
         limit = el.find("limit")
         if limit is not None:
-            for attr in ("lower", "upper"):
-                _optional_float(limit.get(attr), path, f"{where} <limit {attr}>")
+            lo, hi = (_optional_float(limit.get(attr), path, f"{where} <limit {attr}>") for attr in ("lower", "upper"))
+            # lower == upper (both left out: 0 0) is the URDF's 'no limit'; lower > upper is a typo
+            if jtype in ("revolute", "prismatic") and lo is not None and hi is not None and lo > hi:
+                raise BadDescription(f"{path}: {where} <limit lower='{limit.get('lower')}' upper='{limit.get('upper')}'>: "
+                                     "lower is above upper")
         mimic = el.find("mimic")
         if mimic is not None:
             if not mimic.get("joint"):
@@ -254,7 +257,7 @@ def read_urdf(path: str | Path) -> UrdfTree:
             lo, hi = j.limit.lower, j.limit.upper
         if j.type == "continuous" or lo is None or hi is None or not lo < hi:
             # continuous joints, and limits left out or given as lower == upper (the URDF
-            # defaults): the joint is unbounded
+            # defaults): the joint is unbounded (lower > upper was refused above)
             lo, hi = -np.inf, np.inf
         mimic = None
         if j.mimic is not None:

@@ -37,7 +37,7 @@ from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
 from platkit.io.calibration import Calibration
 from platkit.kinematics import PlatformModel
-from platkit.model import PlatformSpec
+from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
@@ -78,8 +78,61 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     when forward kinematics fails on most poses.
     """
     with blas_threads(1):
-        return _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options,
-                          td_start, ridge_m, plausible)
+        cal = _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options,
+                         td_start, ridge_m, plausible)
+    cal.extras["warnings"] = fit_warnings(cal, poses)
+    return cal
+
+
+#: a fit whose RMS is this many times the markers' own noise does not describe the data
+MISFIT_RATIO = 10.0
+#: ... nor one above this (m), whatever the noise: a marker error of centimetres is no calibration
+#: (and points derived from one tracked rigid body keep their distances exactly: no noise floor)
+MISFIT_ABSOLUTE_M = 0.005
+
+
+def marker_noise_floor(poses: PoseSet) -> float:
+    """The markers' own noise per axis (m), from the poses alone, without any model of the stand.
+
+    The markers ride one rigid part, so the distance between two of them is the same in every
+    pose; its spread (1.4826 MAD over the poses where both were seen) is sqrt(2) sigma for
+    isotropic noise sigma per axis. Median over the marker pairs; NaN with fewer than two markers
+    or three poses seen together. Points computed from one tracked rigid body give about 0.
+    """
+    Y = poses.markers
+    vis = np.all(np.isfinite(Y), axis=2)
+    per_pair = []
+    for i in range(poses.n_markers):
+        for j in range(i + 1, poses.n_markers):
+            both = vis[:, i] & vis[:, j]
+            if both.sum() < 3:
+                continue
+            d = np.linalg.norm(Y[both, i] - Y[both, j], axis=1)
+            per_pair.append(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2))
+    return float(np.median(per_pair)) if per_pair else float("nan")
+
+
+def fit_warnings(cal: Calibration, poses: PoseSet) -> list[str]:
+    """One sentence per thing a user should check before trusting ``cal`` (empty: nothing found).
+
+    A fit can converge (the iterations stop) and still not describe the data: an RMS after the fit
+    above MISFIT_RATIO times the markers' own 3-D noise (:func:`marker_noise_floor`) and above
+    MISFIT_ABSOLUTE_M is said, with what usually causes it.
+    """
+    out = []
+    lu = cal.length_unit
+    s = length_scale(lu)
+    floor_3d = np.sqrt(3) * marker_noise_floor(poses)
+    limit = max(MISFIT_RATIO * floor_3d, MISFIT_ABSOLUTE_M) if np.isfinite(floor_3d) else MISFIT_ABSOLUTE_M
+    if np.isfinite(cal.rms_after) and cal.rms_after > limit:
+        noise = (f"{cal.rms_after / floor_3d:.0f} times the markers' own noise, {floor_3d / s:.3g} {lu} RMS from how "
+                 "much the distances between markers vary over the poses" if limit > MISFIT_ABSOLUTE_M
+                 else f"more than {MISFIT_ABSOLUTE_M / s:g} {lu}")
+        out.append(f"rms_after {cal.rms_after / s:.4g} {lu} is far above any measurement noise ({noise}): the fit "
+                   "stopped, but the model does not describe these data. Check that the session is for this stand "
+                   "and description, that the control columns are in the stand's order and units (session.yaml "
+                   "units), that no marker columns are swapped, then run platkit diagnose")
+    return out
 
 
 def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options, td_start,

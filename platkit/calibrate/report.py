@@ -69,6 +69,8 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         "gauge": ident.get("gauge"),  # what no pose fixes, the conventions that fix it (docs/calibration.md)
         "model_selection": ident.get("model_selection"),  # which groups were freed, chosen by held-out prediction
         "warnings": list(cal.extras.get("warnings", [])),  # what to check before trusting the fit
+        "model_selection": ident.get("model_selection"),  # which groups were freed, chosen by held-out prediction
+        "warnings": list(cal.extras.get("warnings", [])),  # what to check before trusting the fit
         "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
                           "over the observations kept by the robust loss",
     }
@@ -256,6 +258,17 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
         v = h["second_session"]
         parts.append(f"<p>Prediction of a second session ({html.escape(str(v['source']))}, {v['n_poses']} poses): "
                      f"RMS <b>{v['rms']:.4g} {lu}</b>.</p>")
+    for w in cal.extras.get("warnings", []):
+        parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
+    sel = (cal.identifiability or {}).get("model_selection") or {}
+    if sel:
+        parts.append("<h2>Which parameters were freed</h2><p>" + html.escape(sel.get("reason", "")) + ".</p>")
+        if sel.get("candidates"):
+            rows = [(", ".join(c["free"]) or "none", str(c["n_parameters_estimated"]), f"{c['heldout_median']:.4g}",
+                     f"{c['heldout_rms']:.4g}", f"{c['fit_rms']:.4g}", "chosen" if c["free"] == sel["chosen"] else "")
+                    for c in sel["candidates"]]
+            parts.append(f"<p>Candidates, scored by the {html.escape(sel['criterion'])} ({lu}):</p>"
+                         + _table(rows, ["free groups", "estimated", "held-out median", "held-out RMS", "fit RMS", ""]))
     for w in cal.extras.get("warnings", []):
         parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
     sel = (cal.identifiability or {}).get("model_selection") or {}

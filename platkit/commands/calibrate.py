@@ -1,6 +1,7 @@
 """platkit calibrate: estimate a stand's parameters from a recording session."""
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -19,8 +20,13 @@ def add_parser(sub):
                    help="lsq: one robust least-squares problem with exact Jacobians (default); "
                         "paper: Burlakov et al. 2018 (Procrustes, FK, q_delta, Nelder-Mead)")
     p.add_argument("--free", default=None,
-                   help="comma-separated parameter names or groups to fit (default: every free parameter); "
-                        "'none' fits only the base-to-mocap transform and the markers")
+                   help="comma-separated parameter names or groups to fit, and no selection (default: the groups "
+                        "chosen by held-out prediction); 'none' fits only the base-to-mocap transform and the markers")
+    p.add_argument("--no-selection", action="store_true",
+                   help="fit the stand's default free parameters instead of choosing the groups by held-out prediction")
+    p.add_argument("--prior-strength", type=float, default=None, metavar="LENGTH",
+                   help="shrink the stand's parameters towards nominal: one typical correction (1 mm, 1 mrad, 1e-3) "
+                        "costs as much as a marker error of LENGTH (session unit); default none")
     p.add_argument("--folds", type=int, default=0, help="K-fold held-out prediction error (K >= 2; default none)")
     p.add_argument("--validate", default=None, metavar="SESSION",
                    help="a second session in the same motion-capture frame to predict (held-out error)")
@@ -48,6 +54,8 @@ def progress_printer(unit: str, stream=None):
         elif stage == "fold":
             print(f"calibrate: fold {info['fold']}/{info['folds']}  held-out rms {info['rms'] / s:.4g} {unit}",
                   file=out, flush=True)
+        elif stage == "selection":
+            print(f"calibrate: selection: {info['text']}", file=out, flush=True)
         elif stage == "paper":
             print(f"calibrate: nelder-mead evaluation {info['evaluations']:>5}  J {info['J']:.6g}",
                   file=out, flush=True)
@@ -58,8 +66,10 @@ def progress_printer(unit: str, stream=None):
     return show
 
 
-def load_for_calibration(session: str | None, platform: str | None, description: str | None):
-    """(poses, spec, platform_options) of a session folder, or of the stand's example session."""
+def load_for_calibration(session: str | None, platform: str | None, description: str | None,
+                         notes: list[str] | None = None):
+    """(poses, spec, platform_options) of a session folder, or of the stand's example session.
+    What the reading kept with a warning is said on stderr and appended to ``notes``."""
     from platkit.calibrate.settle import load_poses
     from platkit.io.session import example_session, load_session
 
@@ -71,6 +81,10 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     s = load_session(folder, platform=platform, description=description)
     poses = load_poses(folder, platform=platform, description=description, spec=s.spec)
     options = {"moving_link": s.moving_link} if s.moving_link else {}
+    for note in s.extras.get("control_notes", []):  # readings a fraction past a limit, kept
+        print(f"platkit: warning: {note}", file=sys.stderr)
+        if notes is not None:
+            notes.append(note)
     return poses, s.spec, options
 
 
@@ -83,8 +97,15 @@ def run(args) -> int:
         raise BadInput("--folds applies to --method lsq; use --validate SESSION to score the paper's method")
     if args.max_evaluations is not None and args.method != "paper":
         raise BadInput("--max-evaluations applies to --method paper")
+    if args.method == "paper" and (args.no_selection or args.prior_strength is not None):
+        raise BadInput("--no-selection and --prior-strength apply to --method lsq")
+    if args.free is not None and args.no_selection:
+        raise BadInput("--free already fits the groups named, without selection: leave out --no-selection")
+    if args.prior_strength is not None and not (args.prior_strength > 0 and math.isfinite(args.prior_strength)):
+        raise BadInput(f"--prior-strength {args.prior_strength}: use a positive length in the session's unit")
     check_output_dir(args.out)
-    poses, spec, options = load_for_calibration(args.session, args.platform, args.description)
+    notes: list[str] = []
+    poses, spec, options = load_for_calibration(args.session, args.platform, args.description, notes=notes)
     other = None  # read before any work: a bad second session is bad input, found at once
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, spec.name, args.description)
@@ -101,13 +122,21 @@ def run(args) -> int:
                               platform_options=options)
     else:
         from platkit.calibrate.estimate import calibrate
+        from platkit.calibrate.selection import select_model
 
-        cal = calibrate(poses, spec, free=free, robust=not args.no_robust, folds=args.folds, progress=progress,
-                        platform_options=options)
+        ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(poses.length_unit)
+        if free is None and not args.no_selection:
+            cal = select_model(poses, spec, robust=not args.no_robust, folds=args.folds, progress=progress,
+                               platform_options=options, ridge_m=ridge_m)
+        else:
+            cal = calibrate(poses, spec, free=free, robust=not args.no_robust, folds=args.folds, progress=progress,
+                            platform_options=options, ridge_m=ridge_m)
     if other is not None:
         from platkit.calibrate.estimate import second_session_errors
 
         cal.heldout["second_session"] = second_session_errors(cal, other)
+    fit_notes = list(cal.extras.get("warnings", []))
+    cal.extras["warnings"] = notes + fit_notes  # the report says both
     written = write_outputs(cal, args.out, poses)
     s = length_scale(cal.length_unit)
     line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
@@ -125,6 +154,13 @@ def run(args) -> int:
         print(f"platkit: warning: {', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
               "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose",
               file=sys.stderr)
+    chosen = cal.identifiability.get("model_selection") or {}
+    if chosen.get("candidates"):
+        held = chosen.get("held") or []
+        line += (f"; free: {', '.join(chosen['chosen'])} (chosen by held-out prediction"
+                 + (f"; held: {', '.join(held)})" if held else ")"))
+    for w in fit_notes:  # the control notes were said when the session was read
+        print(f"platkit: warning: {w}", file=sys.stderr)
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
 

@@ -141,6 +141,8 @@ class Calibration:
         }
         if self.heldout:
             out["heldout"] = heldout_in_unit(self.heldout, self.length_unit)
+        if self.extras.get("warnings"):
+            out["warnings"] = [str(w) for w in self.extras["warnings"]]
         if self.imu:
             # SI (rad, rad/s), whatever the length unit: platkit.diagnose.imu's calibration_entry
             out["imu"] = strict(self.imu)

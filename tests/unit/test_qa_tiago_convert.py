@@ -1,8 +1,8 @@
-"""`python -m platkit.calibrate.tiago convert`: a missing CSV is named as such (before: 'URDF not
+"""`benchmarks/datasets/tiago.py convert`: a missing CSV is named as such (before: 'URDF not
 found (pass urdf=...)', about a file the user never gave)."""
 import pytest
 
-from platkit.calibrate import tiago
+from benchmarks.datasets import tiago
 from platkit.errors import BadInput
 
 

@@ -1,20 +1,25 @@
 """Real data: the PAL TIAGo arm recorded by Qualisys (FIGAROH's example data, Apache-2.0,
 Thanh Nguyen, CNRS and Toward), turned into platkit sessions and scored like FIGAROH.
 
+A dataset converter, not the core (../../shared/STYLE.md): a user's own robot gets no special
+case in platkit, and this one needs none. The URDF is copied into the session byte for byte; the
+torso's recorded 0.350181 m against the URDF's 0.35 m limit is a reading the session reader keeps
+with a warning (platkit.io.session.check_controls).
+
 Source: ``shared/data/real/tiago/`` (README.md there). Each row of a ``qualisys_*_static_postures``
 CSV is a settled pose: four points BL, BR, TR, TL of one rigid body on the hand (metres, in the
 frame of a rigid body fixed to the robot base) and the joints ``torso_lift_joint`` (m),
 ``arm_1_joint .. arm_7_joint`` (rad).
 
 :func:`convert` writes a session folder (session.yaml for the ``urdf`` stand with the URDF copied
-beside it, moving link ``wrist_ft_tool_link``, units m; commands.csv; poses.csv).
+beside it unchanged, moving link ``wrist_ft_tool_link``, units m; commands.csv; poses.csv).
 :func:`compare_with_figaroh` fits three model levels on the training day and scores point BL on
 the validation day (norm RMSE, mm), beside FIGAROH 1.0.2's published figures.
 
 Command line::
 
-    python -m platkit.calibrate.tiago convert CSV OUT_SESSION [--urdf FILE]
-    python -m platkit.calibrate.tiago compare [--data DIR]
+    .venv/bin/python benchmarks/datasets/tiago.py convert CSV OUT_SESSION [--urdf FILE]
+    .venv/bin/python benchmarks/datasets/tiago.py compare [--data DIR]
 """
 from __future__ import annotations
 
@@ -115,7 +120,7 @@ def convert(csv_path: str | Path, out_session: str | Path, urdf: str | Path | No
     J = d["joints"][order]
     Y = d["markers"][order]
     yaml_text = (
-        "# Converted by platkit.calibrate.tiago from FIGAROH's example data (Apache-2.0; Thanh Nguyen, CNRS and Toward).\n"
+        "# Converted by benchmarks/datasets/tiago.py from FIGAROH's example data (Apache-2.0; Thanh Nguyen, CNRS and Toward).\n"
         f"# Source: {csv_path.name}\n"
         "platform: urdf\n"
         f"description: {URDF_NAME}\n"
@@ -143,46 +148,8 @@ def convert(csv_path: str | Path, out_session: str | Path, urdf: str | Path | No
         (tmp / "session.yaml").write_text(yaml_text, encoding="utf-8")
         (tmp / "commands.csv").write_text(cmd.getvalue(), encoding="utf-8")
         (tmp / "poses.csv").write_text(poses.getvalue(), encoding="utf-8")
-        text, widened = widen_joint_limits(urdf.read_text(encoding="utf-8"), J.min(axis=0), J.max(axis=0))
-        (tmp / URDF_NAME).write_text(text, encoding="utf-8")
+        (tmp / URDF_NAME).write_bytes(urdf.read_bytes())
     return out
-
-
-def widen_joint_limits(urdf_text: str, lowest: np.ndarray, highest: np.ndarray, margin: float = 1e-4):
-    """The URDF text with each chain joint's <limit> widened to cover the recorded values.
-
-    Real joint readings can pass a limit by a fraction of a millimetre (the torso reaches 0.35018 m
-    against 0.35); limits play no part in the kinematics, but the session reader checks commands
-    against them. Returns (text, [joint names widened]); a comment in the file says what changed.
-    """
-    import re
-
-    widened = []
-    for name, lo, hi in zip(JOINTS, lowest, highest):
-        m = re.search(r'<joint\s+name="%s"\s+type="[^"]+"\s*>(.*?)</joint>' % re.escape(name), urdf_text, re.S)
-        if m is None:
-            continue
-        block = m.group(0)
-        lim = re.search(r"<limit[^>]*/>", block)
-        if lim is None:
-            continue
-        tag = lim.group(0)
-        new = tag
-        lo_m = re.search(r'lower="([^"]+)"', tag)
-        hi_m = re.search(r'upper="([^"]+)"', tag)
-        changed = False
-        if lo_m and lo < float(lo_m.group(1)):
-            new = new.replace(lo_m.group(0), f'lower="{lo - margin:.6f}"')
-            changed = True
-        if hi_m and hi > float(hi_m.group(1)):
-            new = new.replace(hi_m.group(0), f'upper="{hi + margin:.6f}"')
-            changed = True
-        if changed:
-            note = (f"<!-- platkit.calibrate.tiago: limit widened to cover the recorded values "
-                    f"[{lo:.6f}, {hi:.6f}] (was {tag.strip()}) -->")
-            urdf_text = urdf_text.replace(block, block.replace(tag, note + new), 1)
-            widened.append(name)
-    return urdf_text, widened
 
 
 def pivot_order(cal) -> list[str]:
@@ -255,7 +222,7 @@ def format_table(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m platkit.calibrate.tiago", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="benchmarks/datasets/tiago.py", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("convert", help="write a platkit session folder for one static-postures CSV")
     c.add_argument("csv")
