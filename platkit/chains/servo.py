@@ -338,8 +338,8 @@ class Servo:
 
     def _norms(self, errors: list[np.ndarray]) -> tuple[list[float], list[float]]:
         if len(self.tasks) == 1 and np.all(self.tasks[0].weights > 0):
-            E = errors[0]
-            return [math.sqrt(E[0] ** 2 + E[1] ** 2 + E[2] ** 2)], [math.sqrt(E[3] ** 2 + E[4] ** 2 + E[5] ** 2)]
+            x, y, z, rx, ry, rz = errors[0].tolist()
+            return [math.sqrt(x * x + y * y + z * z)], [math.sqrt(rx * rx + ry * ry + rz * rz)]
         pos, rot = [], []
         for t, E in zip(self.tasks, errors):
             sel = t.weights > 0
@@ -357,9 +357,10 @@ class Servo:
         """gain * E, shortened (direction kept) so the commanded twist respects the step caps."""
         o = self.options
         e = o.gain * E * (weights > 0)
-        lin = np.linalg.norm(e[:3])
-        ang = np.linalg.norm(e[3:])
-        scale = min(1.0, o.max_linear_step / lin if lin > 0 else np.inf, o.max_angular_step / ang if ang > 0 else np.inf)
+        x, y, z, rx, ry, rz = e.tolist()  # six numbers: plain floats are faster than numpy here
+        lin = math.sqrt(x * x + y * y + z * z)
+        ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+        scale = min(1.0, o.max_linear_step / lin if lin > 0 else math.inf, o.max_angular_step / ang if ang > 0 else math.inf)
         return e * scale
 
     def secondary_value(self, theta: np.ndarray) -> float:
