@@ -278,8 +278,8 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     masks of the unknowns the fit may estimate and of the transform and markers among them;
     reference: (controls (N, n_u), poses (N, n_p)) of the stand's reference poses
     (:func:`platkit.calibrate.plan.reference_poses_for`). The Jacobian over the reference poses
-    comes from a term-free problem of the same class and stand. Raises NotIdentifiable naming the transform or marker coordinates these
-    poses fail to fix where the reference poses fix them.
+    comes from a term-free problem of the same class and stand. Raises NotIdentifiable naming
+    the transform or marker coordinates these poses fail to fix where the reference poses fix them.
     """
     names = problem.names
     n_td_theta = problem.i_theta.start

@@ -127,5 +127,6 @@ def test_workspace_at_fixed_orientation_holds_the_corners(installed):
     corners = figures["corners"]["relative_to_neutral"]
     fixed = figures["true_envelope"]["fixed_orientation"]
     for a in "xyz":
-        assert fixed[a]["min"] <= corners[a]["min"] + 1e-6 and fixed[a]["max"] >= corners[a]["max"] - 1e-6, (a, fixed[a], corners[a])
+        assert fixed[a]["min"] <= corners[a]["min"] + 1e-6, (a, fixed[a], corners[a])
+        assert fixed[a]["max"] >= corners[a]["max"] - 1e-6, (a, fixed[a], corners[a])
         assert fixed[a]["larger_than_corners_min"] >= -1e-6 and fixed[a]["larger_than_corners_max"] >= -1e-6
