@@ -282,15 +282,24 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     the transform or marker coordinates these poses fail to fix where the reference poses fix them.
     """
     names = problem.names
-    n_td_theta = problem.i_theta.start
-    ref_idx = np.nonzero(candidates[:n_td_theta])[0]
+    z = np.asarray(z, float)
     U_ref, P_ref = reference
+    # the reference problem knows the stand, the transform and the markers (no model terms, nor
+    # anything else a session may add): unknowns are matched by name
     ref_problem = _reference_problem(problem, U_ref)
-    st = ref_problem.evaluate(np.asarray(z, float)[:n_td_theta])
-    J_ref = _compress((st.J[st.converged][..., ref_idx].reshape(-1, len(ref_idx))) * problem.scale[ref_idx][None, :])
+    at = {n: k for k, n in enumerate(ref_problem.names)}
+    idx_of = {n: i for i, n in enumerate(names)}
+    z_ref = np.zeros(ref_problem.n_z)
+    for n, k in at.items():
+        if n in idx_of:
+            z_ref[k] = z[idx_of[n]]
+    ref_idx = np.array([i for i in np.nonzero(candidates)[0] if names[i] in at], int)
+    st = ref_problem.evaluate(z_ref)
+    cols = [at[names[i]] for i in ref_idx]
+    J_ref = _compress(st.J[st.converged][..., cols].reshape(-1, len(cols)) * problem.scale[ref_idx][None, :])
     tiers_ref = problem.tiers[ref_idx].tolist()
     rank_ref = len(select_identifiable(J_ref, [names[i] for i in ref_idx], np.ones(len(ref_idx)), tiers_ref, rel_tol).chosen)
-    q_ref, _, _, ok = problem.kinematics(np.asarray(z, float)[problem.i_td], U_ref, P_ref)
+    q_ref, _, _, ok = problem.kinematics(z[problem.i_td], U_ref, P_ref)
     R = matrix_from_quat(q_ref[ok])
     shift = rotation_fixed_directions(R)
     # the data's own view of the transform and markers
@@ -298,15 +307,17 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     Jn = _compress(_weighted_jacobian(problem, z, nuis_idx))
     ident = select_identifiable(Jn, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)), [0] * len(nuis_idx), rel_tol)
     pos = {int(i): k for k, i in enumerate(ref_idx)}
-    ref_cols = [pos[int(i)] for i in nuis_idx]
-    Jr = J_ref[:, ref_cols]
-    chosen = list(ident.chosen)
-    unchosen = [k for k in range(len(nuis_idx)) if k not in chosen]
-    outside = _outside_span(Jr, chosen, unchosen) if unchosen else np.zeros(0)
-    lost = [nuis_idx[k] for k, f in zip(unchosen, outside) if f >= rel_tol]
-    n_gauge_nuis = len(nuis_idx) - len(select_identifiable(Jr, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)),
-                                                           [0] * len(nuis_idx), rel_tol).chosen)
-    if lost or len(nuis_idx) - len(chosen) > n_gauge_nuis:
+    known = [k for k, i in enumerate(nuis_idx) if int(i) in pos]  # judged on the reference poses
+    Jr = J_ref[:, [pos[int(nuis_idx[k])] for k in known]]
+    chosen = set(ident.chosen)
+    chosen_known = [j for j, k in enumerate(known) if k in chosen]
+    unchosen_known = [j for j, k in enumerate(known) if k not in chosen]
+    outside = _outside_span(Jr, chosen_known, unchosen_known) if unchosen_known else np.zeros(0)
+    lost = [nuis_idx[known[j]] for j, f in zip(unchosen_known, outside) if f >= rel_tol]
+    lost += [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen and int(nuis_idx[k]) not in pos]
+    n_gauge_nuis = len(known) - len(select_identifiable(Jr, [names[nuis_idx[k]] for k in known], np.ones(len(known)),
+                                                        [0] * len(known), rel_tol).chosen)
+    if lost or len(unchosen_known) > n_gauge_nuis:
         what = lost or [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen]
         raise NotIdentifiable(
             f"the poses cannot fix {', '.join(names[i] for i in what)}: the stand's reach would, these poses do not "
