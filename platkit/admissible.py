@@ -251,10 +251,7 @@ def plot_slices(grid: AdmissibleGrid, path, n_slices: int = 6) -> list[float]:
     """Draw the admissible set of a 3-coordinate grid as 2-D slices of its first two coordinates at
     ``n_slices`` values of the third (or the one slice of a 2-coordinate grid). Writes a PNG to
     ``path`` (angles in degrees, lengths in mm); returns the sliced values (SI)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # bare Figures: no pyplot state; matplotlib only when drawing
 
     if grid.inside.ndim not in (2, 3):
         raise BadInput(f"slices need 2 or 3 swept coordinates, got {grid.inside.ndim}")
@@ -270,7 +267,8 @@ def plot_slices(grid: AdmissibleGrid, path, n_slices: int = 6) -> list[float]:
     y, yu = _display(grid.axes[1], grid.units[1])
     cols = min(3, len(picks))
     rows = int(np.ceil(len(picks) / cols))
-    fig, axs = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
+    fig = Figure(figsize=(4.2 * cols, 3.8 * rows))
+    axs = fig.subplots(rows, cols, squeeze=False)
     for ax in axs.ravel()[len(picks):]:
         ax.set_visible(False)
     for ax, k in zip(axs.ravel(), picks):
@@ -287,24 +285,20 @@ def plot_slices(grid: AdmissibleGrid, path, n_slices: int = 6) -> list[float]:
     fig.suptitle(f"{grid.platform}: admissible poses")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return [float(third[k]) for k in picks]
 
 
 def plot_boundary(grid: AdmissibleGrid, path) -> int:
     """3-D scatter of the boundary cells of a 3-coordinate grid, coloured by the third coordinate.
     Writes a PNG to ``path``; returns the number of points drawn."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # bare Figures: no pyplot state; matplotlib only when drawing
 
     if grid.inside.ndim != 3:
         raise BadInput(f"a 3-D view needs 3 swept coordinates, got {grid.inside.ndim}")
     mesh = np.meshgrid(*grid.axes, indexing="ij")
     edge = grid.boundary()
     pts = [_display(m[edge], u) for m, u in zip(mesh, grid.units)]
-    fig = plt.figure(figsize=(7, 6))
+    fig = Figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
     sc = ax.scatter(pts[0][0], pts[1][0], pts[2][0], c=pts[2][0], s=4, cmap="viridis", depthshade=False)
     ax.set_xlabel(f"{grid.names[0]} [{pts[0][1]}]")
@@ -314,5 +308,4 @@ def plot_boundary(grid: AdmissibleGrid, path) -> int:
     ax.set_title(f"{grid.platform}: boundary of the admissible set")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return int(edge.sum())

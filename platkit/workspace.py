@@ -393,16 +393,15 @@ def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=
 
 
 def _plot(model, corners, fixed, free, unit, folder: Path, td) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # bare matplotlib Figures: no pyplot state, the user's backend untouched; matplotlib only when drawing
+    from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 
     s = length_scale(unit)
     X0 = corners.neutral_X
     Xc = (corners.X[corners.converged] - X0) / s
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    fig = Figure(figsize=(15, 5))
+    axes = fig.subplots(1, 3)
     for ax, (i, j) in zip(axes, ((0, 1), (0, 2), (1, 2))):
         ax.scatter(Xc[:, i], Xc[:, j], s=14, label=f"{len(Xc)} control-box corners")
         for env, style in ((fixed, "--"), (free, ":")):
@@ -419,7 +418,6 @@ def _plot(model, corners, fixed, free, unit, folder: Path, td) -> None:
     fig.suptitle(f"{model.spec.name}: origin of the moving frame at the corners of the control box")
     fig.tight_layout()
     fig.savefig(folder / "workspace.png", dpi=110)
-    plt.close(fig)
 
     lo, hi = fixed.lower, fixed.upper
     pad = 0.1 * np.maximum(hi - lo, 1e-3)
@@ -432,7 +430,8 @@ def _plot(model, corners, fixed, free, unit, folder: Path, td) -> None:
         if res is None:
             return
         results.append((plane, level, res))
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5))
+    fig = Figure(figsize=(15, 5))
+    axes = fig.subplots(1, 3)
     for ax, (plane, level, (A, B, ok)) in zip(axes, results):
         ax.contourf(A / s, B / s, ok.astype(float), levels=[0.5, 1.5], colors=["C2"], alpha=0.5)
         ax.contour(A / s, B / s, ok.astype(float), levels=[0.5], colors=["C2"])
@@ -444,4 +443,3 @@ def _plot(model, corners, fixed, free, unit, folder: Path, td) -> None:
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(folder / "sections.png", dpi=110)
-    plt.close(fig)

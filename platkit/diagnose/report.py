@@ -102,17 +102,17 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
 
 
 def _plots(d: Diagnosis) -> list[tuple[str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """(title, base64 PNG) of each plot; bare matplotlib Figures (no pyplot state, the user's
+    backend untouched)."""
+    from matplotlib.figure import Figure  # matplotlib only when drawing: start-up of the other verbs
 
     s = length_scale(d.unit)
     out = []
     for f in d.findings:
         if f.regressor is None or f.signature_before is None:
             continue
-        fig, ax = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+        fig = Figure(figsize=(10, 3.6))
+        ax = fig.subplots(1, 2, sharey=True)
         for a, sig, title in ((ax[0], f.signature_before, "geometric model"), (ax[1], f.signature_after, f"with {f.effect}")):
             if sig is None:
                 continue
@@ -126,7 +126,8 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
     r0 = np.linalg.norm(d.base.extras["residuals_after"], axis=2)
     r1 = np.linalg.norm(d.calibration.extras["residuals_after"], axis=2)
     t = d.poses.extras.get("elapsed", np.arange(d.poses.n_poses))
-    fig, ax = plt.subplots(figsize=(10, 3.2))
+    fig = Figure(figsize=(10, 3.2))
+    ax = fig.subplots()
     for m, name in enumerate(d.poses.marker_names):
         ax.plot(t, r0[:, m] / s, ".", alpha=0.4, label=f"{name} geometric")
         ax.plot(t, r1[:, m] / s, "x", alpha=0.6, label=f"{name} final")
