@@ -14,9 +14,9 @@ import numpy as np
 
 from platkit.geometry import rpy_from_quat
 from platkit.inertial.orient import OrientResult
+from platkit.io import jsonout
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.figures import png_base64 as _png
-from platkit.io import jsonout
 
 
 def orientation_csv(t: np.ndarray, q: np.ndarray) -> str:
@@ -26,15 +26,15 @@ def orientation_csv(t: np.ndarray, q: np.ndarray) -> str:
 
 
 def _plots(result: OrientResult) -> list[tuple[str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """(title, base64 PNG) of each plot; bare matplotlib Figures (no pyplot state, the user's
+    backend untouched)."""
+    from matplotlib.figure import Figure  # matplotlib only when drawing: the verb's start-up
 
     out = []
     step = max(1, len(result.t) // 4000)
     rpy = np.degrees(rpy_from_quat(result.q[::step]))
-    fig, ax = plt.subplots(figsize=(9, 3.2))
+    fig = Figure(figsize=(9, 3.2))
+    ax = fig.subplots()
     for j, name in enumerate(("roll", "pitch", "yaw")):
         ax.plot(result.t[::step], rpy[:, j], lw=0.8, label=name)
     if result.truth is not None:
@@ -50,7 +50,8 @@ def _plots(result: OrientResult) -> list[tuple[str, str]]:
     if result.errors:
         e = result.errors
         s2 = max(1, len(e["t"]) // 4000)
-        fig, ax = plt.subplots(figsize=(9, 3.2))
+        fig = Figure(figsize=(9, 3.2))
+        ax = fig.subplots()
         ax.plot(e["t"][::s2], np.degrees(e["inclination"][::s2]), lw=0.8, label="inclination")
         ax.plot(e["t"][::s2], np.degrees(e["total"][::s2]), lw=0.8, label="total")
         ax.plot(e["t"][::s2], np.degrees(e["total_heading_aligned"][::s2]), lw=0.8, label="total, heading aligned")
@@ -72,7 +73,8 @@ def report_html(result: OrientResult) -> str:
         t = r["truth"]
         parts.append(f"<p>Against the truth ({t['n_samples']} samples): inclination RMSE "
                      f"<b>{t['inclination_rmse_deg']:.3f} deg</b> (max {t['inclination_max_deg']:.3f}), total RMSE "
-                     f"{t['total_rmse_deg']:.3f} deg, with the heading aligned {t['total_rmse_heading_aligned_deg']:.3f} deg.</p>")
+                     f"{t['total_rmse_deg']:.3f} deg, with the heading aligned "
+                     f"{t['total_rmse_heading_aligned_deg']:.3f} deg.</p>")
     if r.get("warnings"):
         parts.append("<h2>Warnings</h2><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in r["warnings"]) + "</ul>")
     for title, png in _plots(result):
