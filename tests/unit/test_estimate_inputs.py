@@ -84,7 +84,8 @@ def test_a_reading_far_past_a_limit_stays_an_error(tmp_path):
     lifts = _lifts()
     lifts[7] = 0.35 + 2 * STROKE_TOLERANCE * 0.35
     folder = _session(tmp_path / "s", URDF.format(lower=0, upper=0.35), lifts)
-    with pytest.raises(BadSession, match=r"poses\.csv row 8 \(line 9\) column 'lift': 0\.357 is outside the stroke \[0, 0\.35\] m"):
+    where = r"poses\.csv row 8 \(line 9\) column 'lift'"
+    with pytest.raises(BadSession, match=where + r": 0\.357 is outside the stroke \[0, 0\.35\] m"):
         load_session(folder)
 
 
