@@ -52,6 +52,7 @@ from platkit.calibrate.settle import settle
 from platkit.cli import main as platkit_main
 from platkit.effects import with_history
 from platkit.errors import BadInput, PlatkitError
+from platkit.io.jsonout import plain
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
@@ -178,6 +179,7 @@ def _run_case(case: dict) -> dict:
         sess = write_physical_session(sim, work / "session")
         blanked = blank_held_out(sess, sim, rows)
         result = {**case, "sizes": [[n_, float(s)] for n_, s in effects], "sizing": info,
+                  "truth_physics": [{"effect": name, **plain(p.parameters())} for name, p in sim.physics],
                   "left_share": min([x["left_share"] for x in info], default=1.0),
                   "nuisances": sim.nuisances.to_dict(), "held_out": int(len(rows)), "blanked_samples": blanked}
         result["absorbed"] = bool(case["effects"]) and result["left_share"] < ABSORBED
@@ -247,6 +249,14 @@ def summarise(results: list[dict]) -> str:
         lines.append(f"ERROR {r['stand']} {r['truth']} ({r['kind']}, seed {r['seed']}): {r['error'][:300]}")
     ok = [r for r in results if not r.get("error")]
     lines.append(f"{len(results)} sessions, {len(errors)} without a diagnosis (errors above)")
+    # a slow actuator may stop calibration: right when the refusal names it
+    lag = [r for r in errors if "settling_lag" in r["truth"] and r.get("truth_physics")]
+    for r in lag:
+        slow = [p["actuator"] for p in r["truth_physics"] if p["effect"] == "settling_lag"]
+        r["refusal_names_slow_actuator"] = bool(slow) and f"actuator {slow[0]} still moving" in r["error"]
+    if lag:
+        lines.append(f"slow actuator (settling_lag) refused by calibrate, naming it: "
+                     f"{sum(r['refusal_names_slow_actuator'] for r in lag)}/{len(lag)}")
 
     def right(r):
         want = set(r["truth"].split("+")) if r["truth"] != "none" else set()
