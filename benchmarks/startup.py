@@ -10,16 +10,19 @@ Goal (issue 13): ``platkit --version`` and ``platkit fk`` within 2x of the refer
 
 Then Ctrl-C: ``platkit fk`` is sent SIGINT at several moments of its start-up and run; every
 one must end with one line on stderr and exit status 130 (the row says how many did).
-The last rows show which modules a verb imports (``python -X importtime``), the largest first.
+Then a 100-pose calibration with and without its HTML report, beside its estimation time plus
+its start-up (goal: within 1.5x). The last rows show which modules a verb imports (``python -X importtime``), the largest first.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -77,9 +80,42 @@ def top_imports(cmd_args: list[str], n: int = 6) -> list[tuple[float, str]]:
     return sorted(rows, reverse=True)[:n]
 
 
+#: what `platkit calibrate` imports to do its work: its start-up, beside the estimation itself
+CALIBRATE_IMPORTS = ("import platkit.commands.calibrate, platkit.calibrate.estimate, platkit.calibrate.selection, "
+                     "platkit.calibrate.settle, platkit.calibrate.report, platkit.io.session")
+
+
+def calibration(repeat: int) -> None:
+    """A 100-pose calibration (simulated settled poses of the stewart stand): wall time with
+    and without the HTML report, beside its estimation time (report.json time_s) plus its
+    start-up (importing what it uses). Goal: within 1.5x of estimation + start-up."""
+    with tempfile.TemporaryDirectory() as tmp:
+        session = Path(tmp) / "s100"
+        subprocess.run(PLATKIT + ["simulate", "--platform", "stewart", "--poses", "100", "--poses-only", "--seed", "1",
+                                  "--out", str(session)], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        rows = {"report": [], "no-report": [], "estimation": [], "start-up": []}
+        for k in range(max(3, repeat // 2)):
+            for label, extra in (("report", []), ("no-report", ["--no-report"])):
+                out = Path(tmp) / f"c{k}{label}"
+                rows[label].append(wall_s(PLATKIT + ["calibrate", str(session), "--quiet", "--out", str(out)] + extra))
+                rows["estimation"].append(json.loads((out / "report.json").read_text())["time_s"])
+            rows["start-up"].append(wall_s([PYTHON, "-c", CALIBRATE_IMPORTS]))
+        est, start = statistics.median(rows["estimation"]), statistics.median(rows["start-up"])
+        budget = 1.5 * (est + start)
+        print(f"calibrate, 100 settled poses (stewart), {len(rows['report'])} runs each: estimation {est:.2f} s "
+              f"(report.json time_s), start-up {start:.2f} s (importing what it uses); goal: wall <= 1.5 x their "
+              f"sum = {budget:.2f} s")
+        for label in ("report", "no-report"):
+            med = statistics.median(rows[label])
+            print(f"  platkit calibrate{' --no-report' if label == 'no-report' else ''}: wall {med:.2f} s "
+                  f"({med / (est + start):.2f} x estimation + start-up): {'met' if med <= budget else 'NOT MET'}")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=7, help="runs of each command line")
+    ap.add_argument("--no-calibrate", dest="calibrate", action="store_false",
+                    help="leave out the 100-pose calibration")
     args = ap.parse_args(argv)
     os.environ.setdefault("MPLBACKEND", "Agg")
     for _, cmd in CASES:  # warm the file cache and the byte-code
@@ -118,6 +154,9 @@ def main(argv=None) -> None:
           + ", ".join(f"{k} {v}" for k, v in counts.items()))
 
     print()
+    if args.calibrate:
+        calibration(args.repeat)
+        print()
     for label, cmd_args in (("platkit fk", FK_ARGS), ("platkit --version", ["--version"])):
         top = ", ".join(f"{name} {ms:.0f} ms" for ms, name in top_imports(cmd_args))
         print(f"largest imports of {label}: {top}")

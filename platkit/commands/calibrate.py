@@ -34,6 +34,9 @@ def add_parser(sub):
                    help="--method paper: Nelder-Mead budget (default 200 per parameter)")
     p.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier down-weighting)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-report", action="store_true",
+                   help="write calibration.yaml and report.json only, not report.html (its figures take longer "
+                        "than a small calibration)")
     p.add_argument("--out", required=True, help="output folder (calibration.yaml, report.json, report.html)")
     return p
 
@@ -66,10 +69,11 @@ def progress_printer(unit: str, stream=None):
     return show
 
 
-def load_for_calibration(session: str | None, platform: str | None, description: str | None,
+def load_for_calibration(session: str | None, platform: str | None, description: str | None, quiet: bool = False,
                          notes: list[str] | None = None):
     """(poses, spec, platform_options) of a session folder, or of the stand's example session.
-    What the reading kept with a warning is said on stderr and appended to ``notes``."""
+    The folder's streams are read once; ``quiet``: no reading progress on stderr. What the reading
+    kept with a warning is said on stderr and appended to ``notes``."""
     from platkit.calibrate.settle import load_poses
     from platkit.io.session import example_session, load_session
 
@@ -78,14 +82,36 @@ def load_for_calibration(session: str | None, platform: str | None, description:
             raise BadInput("give a SESSION folder, or --platform NAME to run on that stand's example session")
         session = example_session(platform)
     folder = Path(session)
-    s = load_session(folder, platform=platform, description=description)
-    poses = load_poses(folder, platform=platform, description=description, spec=s.spec)
+    s = load_session(folder, platform=platform, description=description, quiet=quiet)
+    poses = load_poses(folder, spec=s.spec, session=s)
     options = {"moving_link": s.moving_link} if s.moving_link else {}
-    for note in s.extras.get("control_notes", []):  # readings a fraction past a limit, kept
+    for note in s.extras.get("control_notes", []) + settling_notes(poses, folder):  # kept with a warning
         print(f"platkit: warning: {note}", file=sys.stderr)
         if notes is not None:
             notes.append(note)
     return poses, s.spec, options
+
+
+def settling_notes(poses, folder) -> list[str]:
+    """What settling dropped (counted by reason) and extrapolated, one line each; ComputationFailed
+    when fewer than half the commands gave a pose (a fit to the remnant would look converged)."""
+    from platkit.calibrate.settle import dropped_sentence
+    from platkit.errors import ComputationFailed
+
+    info = poses.settling or {}
+    n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
+    said = dropped_sentence(poses.dropped, n_commands)
+    if poses.n_poses < 0.5 * n_commands:
+        raise ComputationFailed(f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant "
+                                "of the session: see the reasons (platkit calibrate counts them) and record again")
+    out = [said] if said else []
+    un = info.get("unsettled") or {}
+    if info.get("n_extrapolated"):
+        out.append(f"{un.get('sentence', 'holds never settled')}; {info['n_extrapolated']} of them extrapolated to "
+                   "rest from their approach (weighted by its uncertainty)")
+    elif un:
+        out.append(un["sentence"])
+    return out
 
 
 def run(args) -> int:
@@ -105,10 +131,11 @@ def run(args) -> int:
         raise BadInput(f"--prior-strength {args.prior_strength}: use a positive length in the session's unit")
     check_output_dir(args.out)
     notes: list[str] = []
-    poses, spec, options = load_for_calibration(args.session, args.platform, args.description, notes=notes)
+    poses, spec, options = load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet,
+                                                notes=notes)
     other = None  # read before any work: a bad second session is bad input, found at once
     if args.validate is not None:
-        other, _, _ = load_for_calibration(args.validate, spec.name, args.description)
+        other, _, _ = load_for_calibration(args.validate, spec.name, args.description, quiet=args.quiet)
     progress = None if args.quiet else progress_printer(poses.length_unit)
     free = None
     if args.free is not None:
@@ -137,7 +164,7 @@ def run(args) -> int:
         cal.heldout["second_session"] = second_session_errors(cal, other)
     fit_notes = list(cal.extras.get("warnings", []))
     cal.extras["warnings"] = notes + fit_notes  # the report says both
-    written = write_outputs(cal, args.out, poses)
+    written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     s = length_scale(cal.length_unit)
     line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
             f"({cal.n_poses} poses, {cal.n_markers} markers)")

@@ -215,3 +215,21 @@ def test_validate_on_a_second_session(stewart_session, tmp_path):
     assert set(h["rms_per_marker"]) == {"M1", "M2", "M3", "M4"}
     assert yaml.safe_load((out / "calibration.yaml").read_text())["heldout"]["second_session"]["rms"] == \
         pytest.approx(h["rms"])
+
+
+def test_no_report_skips_only_the_html_and_figures_need_no_pyplot(stewart_session, tmp_path):
+    """`--no-report`: calibration.yaml and report.json as always, no report.html (issue 13: its
+    figures take longer than a small calibration); the figures of the report are bare matplotlib
+    Figures, so rendering it leaves pyplot's figure registry empty."""
+    import sys
+
+    folder, _ = stewart_session
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--no-selection", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.yaml", "report.json"]
+    assert json.loads((out / "report.json").read_text())["n_poses"] == 120
+    out2 = tmp_path / "cal2"
+    assert main(["calibrate", str(folder), "--quiet", "--no-selection", "--out", str(out2)]) == 0
+    assert (out2 / "report.html").read_text().count("data:image/png;base64,") >= 5
+    if "matplotlib.pyplot" in sys.modules:
+        assert sys.modules["matplotlib.pyplot"].get_fignums() == []

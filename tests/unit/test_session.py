@@ -642,6 +642,23 @@ def test_large_files_show_progress_from_the_start(tmp_path, monkeypatch, capsys)
     assert capsys.readouterr().err == ""
 
 
+def test_calibrate_reads_the_motion_capture_stream_once(monkeypatch):
+    import platkit.io.session as session_module
+    from platkit.commands.calibrate import load_for_calibration
+
+    reads = []
+    real = session_module.read_table
+
+    def counting(path, *args, **kwargs):
+        reads.append(Path(path).name)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(session_module, "read_table", counting)
+    poses, spec, _ = load_for_calibration(None, "stewart", None)
+    assert reads.count("markers.csv") == 1 and reads.count("commands.csv") == 1
+    assert spec.name == "stewart" and len(poses.controls) > 10
+
+
 def test_a_marker_stream_in_file_order_is_not_copied(tmp_path):
     from platkit.io.session import Table, marker_columns
     import platkit.io.session as session_module
