@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from platkit.calibrate.settle import settling_summary
 from platkit.errors import BadInput
 from platkit.geometry import rpy_from_quat
 from platkit.io import jsonout
@@ -69,11 +70,11 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         "gauge": ident.get("gauge"),  # what no pose fixes, the conventions that fix it (docs/calibration.md)
         "model_selection": ident.get("model_selection"),  # which groups were freed, chosen by held-out prediction
         "warnings": list(cal.extras.get("warnings", [])),  # what to check before trusting the fit
-        "model_selection": ident.get("model_selection"),  # which groups were freed, chosen by held-out prediction
-        "warnings": list(cal.extras.get("warnings", [])),  # what to check before trusting the fit
         "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
                           "over the observations kept by the robust loss",
     }
+    if poses is not None:
+        out["settling"] = settling_summary(poses, cal.length_unit)  # every command: kept, extrapolated, or dropped and why
     after = cal.extras.get("residuals_after")
     if after is not None:
         pm = per_marker_rms(after, cal.extras.get("weights"))
@@ -231,6 +232,22 @@ def _table(rows, header) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
+def _settling_html(st: dict) -> str:
+    """What became of every command: settled, extrapolated to rest, dropped (counted by reason, then listed)."""
+    text = (f"{st['n_commands']} commands: {st['n_poses']} settled poses"
+            + (f" ({st['n_extrapolated']} of them extrapolated to rest from their approach)" if st["n_extrapolated"] else "")
+            + (f"; {st['n_dropped']} dropped: " + ", ".join(f"{n} {why}" for why, n in st["dropped_by_reason"].items())
+               if st["n_dropped"] else "; none dropped") + ".")
+    out = f"<h2>Settling</h2><p>{html.escape(text)}</p>"
+    if st.get("unsettled"):
+        out += f"<p>{html.escape(st['unsettled']['sentence'])}.</p>"
+    if st["dropped"]:
+        rows = [(d["row"], d["reason"]) for d in st["dropped"][:200]]
+        more = len(st["dropped"]) - len(rows)
+        out += _table(rows, ["commands.csv row", "why no pose"]) + (f"<p>and {more} more (report.json)</p>" if more > 0 else "")
+    return out
+
+
 def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
     rep = report_dict(cal, poses)
     s = length_scale(cal.length_unit)
@@ -260,17 +277,8 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
                      f"RMS <b>{v['rms']:.4g} {lu}</b>.</p>")
     for w in cal.extras.get("warnings", []):
         parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
-    sel = (cal.identifiability or {}).get("model_selection") or {}
-    if sel:
-        parts.append("<h2>Which parameters were freed</h2><p>" + html.escape(sel.get("reason", "")) + ".</p>")
-        if sel.get("candidates"):
-            rows = [(", ".join(c["free"]) or "none", str(c["n_parameters_estimated"]), f"{c['heldout_median']:.4g}",
-                     f"{c['heldout_rms']:.4g}", f"{c['fit_rms']:.4g}", "chosen" if c["free"] == sel["chosen"] else "")
-                    for c in sel["candidates"]]
-            parts.append(f"<p>Candidates, scored by the {html.escape(sel['criterion'])} ({lu}):</p>"
-                         + _table(rows, ["free groups", "estimated", "held-out median", "held-out RMS", "fit RMS", ""]))
-    for w in cal.extras.get("warnings", []):
-        parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
+    if poses is not None:
+        parts.append(_settling_html(rep["settling"]))
     sel = (cal.identifiability or {}).get("model_selection") or {}
     if sel:
         parts.append("<h2>Which parameters were freed</h2><p>" + html.escape(sel.get("reason", "")) + ".</p>")
