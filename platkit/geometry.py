@@ -56,24 +56,16 @@ def matrix_from_quat(q: np.ndarray) -> np.ndarray:
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4), w >= 0, from rotation matrices (..., 3, 3) (Shepperd)."""
+    """Unit quaternions (..., 4), w >= 0, from rotation matrices (..., 3, 3) (scipy's batched
+    conversion; a matrix a little off orthonormal is taken as its nearest rotation)."""
+    # here, not at the top: scipy.spatial costs every verb's start-up a noticeable share
+    from scipy.spatial.transform import Rotation
+
     R = np.asarray(R, float)
     flat = R.reshape(-1, 3, 3)
-    out = np.empty((flat.shape[0], 4))
-    for i, m in enumerate(flat):
-        tr = m[0, 0] + m[1, 1] + m[2, 2]
-        if tr > 0:
-            s = 2.0 * np.sqrt(tr + 1.0)
-            out[i] = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-        elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-            out[i] = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-        elif m[1, 1] > m[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-            out[i] = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-        else:
-            s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-            out[i] = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    if flat.shape[0] == 0:
+        return np.zeros(R.shape[:-2] + (4,))
+    out = Rotation.from_matrix(flat).as_quat(canonical=True, scalar_first=True)
     return quat_normalize(out.reshape(R.shape[:-2] + (4,)))
 
 

@@ -24,17 +24,12 @@ def holm(p: np.ndarray) -> np.ndarray:
 
 
 def benjamini_hochberg(p: np.ndarray) -> np.ndarray:
-    """Benjamini-Hochberg adjusted p-values (false discovery rate), same order as ``p``."""
+    """Benjamini-Hochberg adjusted p-values (false discovery rate), same order as ``p``
+    (scipy.stats.false_discovery_control)."""
     p = np.asarray(p, float)
-    n = p.size
-    if n == 0:
+    if p.size == 0:
         return p
-    order = np.argsort(p)
-    ranked = p[order] * n / np.arange(1, n + 1)
-    adj = np.minimum(1.0, np.minimum.accumulate(ranked[::-1])[::-1])
-    out = np.empty(n)
-    out[order] = adj
-    return out
+    return stats.false_discovery_control(p, method="bh")
 
 
 def runs_test(x: np.ndarray) -> tuple[float, float]:
