@@ -182,6 +182,8 @@ GAUGE, NOT_EXCITED = "gauge", "not_excited"
 #: a marker shift c is invisible when R_n c is the same at every pose: the singular values of the
 #: stacked (R_n - R_0) below this are zero
 ROTATION_FIXED_TOL = 1e-9
+#: fewer reachable reference poses than this tell nothing about the stand's symmetries
+MIN_REFERENCE_POSES = 10
 
 
 def rotation_fixed_directions(R: np.ndarray) -> np.ndarray:
@@ -228,8 +230,11 @@ class Gauge:
     n_gauge: int = 0
     n_not_excited: int = 0
     labels: dict[str, str] = field(default_factory=dict)
+    unclassified: str = ""  # why nothing was classified (no reference poses), or ''
 
     def to_dict(self) -> dict:
+        if self.unclassified:
+            return {"dimensions": None, "not_excited": None, "conventions": list(self.conventions)}
         return {"dimensions": int(self.n_gauge), "not_excited": int(self.n_not_excited),
                 "conventions": list(self.conventions),
                 "marker_shift_directions": [[float(x) for x in c] for c in self.shift.T],
@@ -286,21 +291,31 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     U_ref, P_ref = reference
     # the reference problem knows the stand, the transform and the markers (no model terms, nor
     # anything else a session may add): unknowns are matched by name
-    ref_problem = _reference_problem(problem, U_ref)
-    at = {n: k for k, n in enumerate(ref_problem.names)}
     idx_of = {n: i for i, n in enumerate(names)}
-    z_ref = np.zeros(ref_problem.n_z)
-    for n, k in at.items():
-        if n in idx_of:
-            z_ref[k] = z[idx_of[n]]
+    lacking = len(U_ref) < MIN_REFERENCE_POSES
+    if not lacking:
+        ref_problem = _reference_problem(problem, U_ref)
+        at = {n: k for k, n in enumerate(ref_problem.names)}
+        z_ref = np.zeros(ref_problem.n_z)
+        for n, k in at.items():
+            if n in idx_of:
+                z_ref[k] = z[idx_of[n]]
+        st = ref_problem.evaluate(z_ref)
+        lacking = st.converged.sum() < MIN_REFERENCE_POSES
+    if lacking:
+        # nothing to tell a gauge from a gap in the plan: every direction the data cannot fix is
+        # judged as before (transform and markers: an error; stand parameters: held, unclassified)
+        at, st = idx_of, problem.evaluate(z)
     ref_idx = np.array([i for i in np.nonzero(candidates)[0] if names[i] in at], int)
-    st = ref_problem.evaluate(z_ref)
     cols = [at[names[i]] for i in ref_idx]
     J_ref = _compress(st.J[st.converged][..., cols].reshape(-1, len(cols)) * problem.scale[ref_idx][None, :])
     tiers_ref = problem.tiers[ref_idx].tolist()
     rank_ref = len(select_identifiable(J_ref, [names[i] for i in ref_idx], np.ones(len(ref_idx)), tiers_ref, rel_tol).chosen)
-    q_ref, _, _, ok = problem.kinematics(z[problem.i_td], U_ref, P_ref)
-    R = matrix_from_quat(q_ref[ok])
+    if len(U_ref):
+        q_ref, _, _, ok = problem.kinematics(z[problem.i_td], U_ref, P_ref)
+        R = matrix_from_quat(q_ref[ok])
+    else:
+        R = np.zeros((0, 3, 3))
     shift = rotation_fixed_directions(R)
     # the data's own view of the transform and markers
     nuis_idx = np.nonzero(nuisance)[0]
@@ -317,13 +332,19 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     lost += [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen and int(nuis_idx[k]) not in pos]
     n_gauge_nuis = len(known) - len(select_identifiable(Jr, [names[nuis_idx[k]] for k in known], np.ones(len(known)),
                                                         [0] * len(known), rel_tol).chosen)
+    if lacking and unchosen_known:
+        lost = [nuis_idx[k] for k in unchosen_known] + lost
     if lost or len(unchosen_known) > n_gauge_nuis:
         what = lost or [nuis_idx[k] for k in range(len(nuis_idx)) if k not in chosen]
         raise NotIdentifiable(
             f"the poses cannot fix {', '.join(names[i] for i in what)}: the stand's reach would, these poses do not "
             "(turn or move the platform more, and see each marker in several poses)")
     held = [int(nuis_idx[k]) for k in range(len(nuis_idx)) if k not in chosen]
-    return Gauge(held, [names[i] for i in held], ref_idx, J_ref, rank_ref, shift, U_ref, P_ref)
+    gauge = Gauge(held, [names[i] for i in held], ref_idx, J_ref, rank_ref, shift, U_ref, P_ref)
+    if lacking:
+        gauge.unclassified = (f"fewer than {MIN_REFERENCE_POSES} of the stand's random reference commands are "
+                              "reachable: what the data cannot fix is held, not classified as gauge or not excited")
+    return gauge
 
 
 def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, problem, rel_tol: float = DEFAULT_REL_TOL) -> None:
@@ -331,6 +352,9 @@ def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, pr
     and markers left out: they are no parameter held at nominal, the convention places them) GAUGE
     or NOT_EXCITED, count the gauge and unexcited directions and state the conventions in
     ``gauge``. Model terms are not judged (the reference poses carry none)."""
+    if gauge.unclassified:
+        gauge.conventions.append(gauge.unclassified)
+        return
     pos = {int(i): k for k, i in enumerate(gauge.ref_idx)}
     chosen_ref = [pos[int(cand_idx[k])] for k in ident.chosen if int(cand_idx[k]) in pos]
     by_name = {problem.names[i]: i for i in cand_idx}
