@@ -4,7 +4,10 @@ from __future__ import annotations
 import sys
 
 from platkit.errors import BadInput
-from platkit.inertial.orient import METHODS
+
+#: the estimators of platkit.inertial.orient.METHODS (a test keeps the two equal): importing that
+#: module to build the parser would load every filter and scipy.signal (seconds, issue 13)
+METHODS = ("platkit", "platkit-causal", "paper", "command-aided")
 
 
 def add_parser(sub):

@@ -16,11 +16,19 @@ DEFAULT_IMU_RATE_HZ = 200.0
 DEFAULT_IMU_NOISE = (0.002, 0.02)
 
 
-def add_parser(sub):
+def effect_help() -> str:
+    """The --effect help: what SIZE means for every installed effect, in both simulators (from
+    the effects' docstrings; reading them imports the simulator, so only when help is shown)."""
     from platkit.simulate.effects import size_help
 
     sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help().items()))
     physics_sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help(physics=True).items()))
+    return (f"hidden effect, repeatable (NAME:SIZE or NAME=SIZE). Sizes: {sizes}. With --physics: "
+            f"{physics_sizes}. A base_tilt turns the whole stand in the level world: the motion capture cannot see "
+            "it, an --imu's accelerometer can (its truth also goes to truth_imu.yaml)")
+
+
+def add_parser(sub):
     p = sub.add_parser(
         "simulate", help="simulate a calibration session with a known true stand (truth.yaml)",
         description="Two simulators. Default (additive, fast): the stand moves smoothly to each command, and hidden "
@@ -31,11 +39,16 @@ def add_parser(sub):
                     "command in truth_settled.csv. See docs/simulation.md.")
     add_platform_options(p)
     p.add_argument("--out", required=True, help="session folder to write")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
-                   help=f"hidden effect, repeatable (NAME:SIZE or NAME=SIZE). Sizes: {sizes}. With --physics: "
-                        f"{physics_sizes}. A base_tilt turns the "
-                        "whole stand in the level world: the motion capture cannot see it, an --imu's accelerometer "
-                        "can (its truth also goes to truth_imu.yaml)")
+    effect = p.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
+                            help="hidden effect, repeatable (NAME:SIZE or NAME=SIZE); the sizes are listed by "
+                                 "platkit simulate --help")
+    plain_help = p.format_help
+
+    def format_help() -> str:  # issue 13: building the parser must not import the simulator
+        effect.help = effect_help()
+        return plain_help()
+
+    p.format_help = format_help
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--perturbation", type=float, default=1.0, metavar="SCALE",
                    help="how far the true stand lies from the description: SCALE times 2 mm, 2 mrad (0.1%% of other "

@@ -208,3 +208,25 @@ def test_ctrl_c_during_a_run_is_one_line_and_130(capsys, monkeypatch):
     monkeypatch.setattr(fk, "run", interrupted)
     code, out, err = run(capsys, "fk", "--platform", "stewart", "--u", "4000,4000,4000,4000,4000,4000")
     assert code == 130 and err == "platkit: interrupted\n"
+
+
+def test_parsers_keep_the_library_lists_they_copy():
+    """Verbs whose parser would otherwise import a heavy module keep a copy of its choices."""
+    import platkit.commands.orient as orient_command
+    import platkit.inertial.orient as orient_library
+
+    assert orient_command.METHODS == orient_library.METHODS
+
+
+def test_simulate_parser_imports_no_simulator_until_help_is_shown(capsys):
+    """Building `platkit simulate`'s parser reads no effect docstrings (that imports the
+    simulator and scipy.stats); `platkit simulate --help` still lists every effect's size."""
+    import subprocess
+    import sys
+
+    probe = ("import sys, argparse; import platkit.commands.simulate as m; p = argparse.ArgumentParser(); "
+             "m.add_parser(p.add_subparsers()); print('platkit.simulate' in sys.modules, 'scipy.stats' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["False", "False"]
+    code, out, _ = run(capsys, "simulate", "--help")
+    assert code == 0 and "Sizes: backlash:" in " ".join(out.split())
