@@ -59,7 +59,7 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4), w >= 0, from rotation matrices (..., 3, 3) (scipy's batched
     conversion; a matrix a little off orthonormal is taken as its nearest rotation)."""
     # here, not at the top: scipy.spatial costs every verb's start-up a noticeable share
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
     R = np.asarray(R, float)
     flat = R.reshape(-1, 3, 3)
