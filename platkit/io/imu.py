@@ -186,9 +186,8 @@ def read_imu_csv(path: str | Path, max_repair_s: float = DEFAULT_MAX_REPAIR_S,
             raise BadSession(f"{path}: line 1: column {name!r} appears {header.count(name)} times")
         index[name] = header.index(name)
     cols = [index[n] for n in IMU_COLUMNS]
-    data = _fast_rows(body, len(header), cols)
-    rows = [] if data is None else data
-    if data is None:  # something to name or repair: the cell-by-cell reader says where
+    rows: np.ndarray | list[list[float]] | None = _fast_rows(body, len(header), cols)
+    if rows is None:  # something to name or repair: the cell-by-cell reader says where
         try:
             lines = list(csv.reader(io.StringIO(body, newline="")))
         except csv.Error as exc:
