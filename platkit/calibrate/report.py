@@ -300,6 +300,11 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
                      "in the markers):</p>" + _table(rows, ["parameter", "unseen combination", "why"]))
     else:
         parts.append("<p>None: every free parameter is identifiable from these poses.</p>")
+    gauge = ident.get("gauge") or {}
+    if gauge.get("conventions"):  # what no pose fixes, and how it is fixed (docs/calibration.md)
+        parts.append(f"<p>Gauge freedoms ({gauge.get('dimensions')} directions no set of poses can fix, "
+                     f"{gauge.get('not_excited')} these poses do not excite), fixed by convention:</p><ul>"
+                     + "".join(f"<li>{html.escape(c)}</li>" for c in gauge["conventions"]) + "</ul>")
     if ident.get("weakly_identified"):
         parts.append("<p>Weakly identified (standard deviation over ten typical corrections): "
                      + html.escape(", ".join(ident["weakly_identified"])) + "</p>")
