@@ -129,10 +129,7 @@ def _csv(rows: list[dict]) -> str:
 
 
 def _plots(summary: dict) -> list[tuple[str, str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # bare Figures: no pyplot state, the user's backend untouched
 
     rows = [r for r in summary["sessions"] if r["status"] == "ok"]
     out = []
@@ -142,7 +139,8 @@ def _plots(summary: dict) -> list[tuple[str, str, str]]:
     x = np.arange(len(rows))
     if any(r.get("rms_after") is not None for r in rows):
         unit = rows[0].get("unit", "")
-        fig, ax = plt.subplots(figsize=(max(6, 0.25 * len(rows) + 3), 3.2))
+        fig = Figure(figsize=(max(6, 0.25 * len(rows) + 3), 3.2))
+        ax = fig.subplots()
         w = 0.4
         ax.bar(x - w / 2, [r.get("rms_before") or 0 for r in rows], w, label="before (nominal)", color="#bbb")
         ax.bar(x + w / 2, [r.get("rms_after") or 0 for r in rows], w, label="after", color="#1f77b4")
@@ -164,7 +162,8 @@ def _plots(summary: dict) -> list[tuple[str, str, str]]:
                 p = (r.get("parameters") or {}).get(n)
                 if p and p.get("std"):
                     Z[i, j] = (p["value"] - p["nominal"]) / p["std"]
-        fig, ax = plt.subplots(figsize=(max(6, 0.22 * len(pnames) + 2), max(2.5, 0.22 * len(rows) + 1.5)))
+        fig = Figure(figsize=(max(6, 0.22 * len(pnames) + 2), max(2.5, 0.22 * len(rows) + 1.5)))
+        ax = fig.subplots()
         im = ax.imshow(np.clip(Z, -10, 10), cmap="coolwarm", vmin=-10, vmax=10, aspect="auto", interpolation="nearest")
         moved = np.abs(Z) > MOVED_SIGMA
         for i, j in zip(*np.nonzero(moved)):
@@ -180,13 +179,15 @@ def _plots(summary: dict) -> list[tuple[str, str, str]]:
         for e in (r.get("findings") or "").split():
             effects[e] = effects.get(e, 0) + 1
     if effects:
-        fig, ax = plt.subplots(figsize=(6, 3))
+        fig = Figure(figsize=(6, 3))
+        ax = fig.subplots()
         ax.barh(list(effects), list(effects.values()), color="#d62728")
         ax.set_xlabel("sessions")
         out.append(("Findings over the fleet", "How many sessions each effect was found in (held-out proven).",
                     png_base64(fig)))
     if any(r.get("total_rmse_deg") is not None for r in rows):
-        fig, ax = plt.subplots(figsize=(max(6, 0.25 * len(rows) + 3), 3))
+        fig = Figure(figsize=(max(6, 0.25 * len(rows) + 3), 3))
+        ax = fig.subplots()
         ax.bar(x, [r.get("total_rmse_deg") or 0 for r in rows])
         ax.set_ylabel("orientation RMSE against the truth (deg)")
         ax.set_xticks(x, names, rotation=90, fontsize=7)

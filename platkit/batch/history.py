@@ -134,10 +134,7 @@ def stand_history(names: list[str], tables: list[dict[str, dict]], dates: list[d
 
 
 def _plots(h: dict) -> list[tuple[str, str, str]]:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # bare Figures: no pyplot state, the user's backend untouched
 
     out = []
     names, t = h["sessions"], np.array(h["time"])
@@ -146,7 +143,8 @@ def _plots(h: dict) -> list[tuple[str, str, str]]:
                     key=lambda p: -abs(h["parameters"][p]["trend_per_step"]) / h["parameters"][p]["trend_std"])
     shown = (flagged + [p for p in ranked if p not in flagged])[:6]
     if shown:
-        fig, axes = plt.subplots(len(shown), 1, figsize=(8, 1.9 * len(shown) + 0.6), sharex=True, squeeze=False)
+        fig = Figure(figsize=(8, 1.9 * len(shown) + 0.6))
+        axes = fig.subplots(len(shown), 1, sharex=True, squeeze=False)
         for ax, p in zip(axes[:, 0], shown):
             e = h["parameters"][p]
             v = np.array([np.nan if x is None else x for x in e["value"]])
@@ -165,7 +163,8 @@ def _plots(h: dict) -> list[tuple[str, str, str]]:
                     "the steepest trends.", png_base64(fig)))
     Z = np.array([[np.nan if x is None else x for x in row] for row in h["z"]], float)
     if Z.size and np.isfinite(Z).any():
-        fig, ax = plt.subplots(figsize=(max(6, 0.2 * Z.shape[1] + 2), max(2.5, 0.25 * Z.shape[0] + 1.2)))
+        fig = Figure(figsize=(max(6, 0.2 * Z.shape[1] + 2), max(2.5, 0.25 * Z.shape[0] + 1.2)))
+        ax = fig.subplots()
         im = ax.imshow(np.abs(Z), cmap="Reds", vmin=0, vmax=max(h["z_critical"] * 1.5, 1), aspect="auto",
                        interpolation="nearest")
         for i, j in zip(*np.nonzero(np.abs(np.nan_to_num(Z)) > h["z_critical"])):
