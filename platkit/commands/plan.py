@@ -167,9 +167,11 @@ def _print(info: dict, baseline: dict | None, out: Path, n: int) -> None:
     def line(name, d):
         if not d.get("identifiable"):
             return (f"{name}: {d['n_poses']} poses do not identify the {d['identifiable_rank']} identifiable "
-                    f"directions (rank {d['plan_rank']})")
+                    f"directions (rank {d['plan_rank']}; calibrate would find {d.get('not_excited', '?')} not excited: "
+                    "a stand parameter is then held at nominal, a marker or the mocap frame is an error)")
         return (f"{name}: {d['n_poses']} poses; {d['identifiable_rank']} of {d['n_parameters']} parameter directions "
-                f"identifiable ({d['never_identifiable']} never are from markers alone); predicted marker RMS "
+                f"identifiable ({d['never_identifiable']} never are from markers alone: gauges, which calibrate fixes "
+                f"by its stated conventions); predicted marker RMS "
                 f"{d['predicted_marker_rms_m'] * 1e3:.4f} mm (max {d['predicted_marker_max_m'] * 1e3:.4f} mm); "
                 f"log det {d['logdet']:.2f}")
 
