@@ -80,6 +80,20 @@ def effect_library() -> dict[str, Effect]:
     return default_host().effects()
 
 
+def size_docs(method: str) -> dict[str, str]:
+    """Effect name -> what a size means for ``method`` ('simulation_term' or 'physics'): the
+    method's docstring, for every installed effect that has one (the simulators' --effect help)."""
+    out = {}
+    for name, effect in effect_library().items():
+        doc = getattr(getattr(effect, method, None), "__doc__", None)
+        if doc:
+            text = " ".join(doc.split()).replace("``", "")
+            for prefix in ("(term, theta) for the simulator:", "size:", "size"):
+                text = text[len(prefix):].strip() if text.startswith(prefix) else text
+            out[name] = text.rstrip(".")
+    return out
+
+
 def term_from_dict(data: dict[str, Any], spec: PlatformSpec | None = None,
                    where: str = "calibration") -> tuple[ModelTerm, np.ndarray]:
     """(term, theta) from a stored mapping, through the effect library; BadInput names an

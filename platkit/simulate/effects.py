@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.effects import effect_library
+from platkit.effects import effect_library, size_docs
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -38,15 +38,7 @@ def simulation_term(name: str, spec: PlatformSpec, size: float | None, rng: np.r
 
 
 def _docstring_sizes(method: str) -> dict[str, str]:
-    out = {}
-    for name, effect in effect_library().items():
-        doc = getattr(getattr(effect, method, None), "__doc__", None)
-        if doc:
-            text = " ".join(doc.split()).replace("``", "")
-            for prefix in ("(term, theta) for the simulator:", "size:", "size"):
-                text = text[len(prefix):].strip() if text.startswith(prefix) else text
-            out[name] = text.rstrip(".")
-    return out
+    return size_docs(method)
 
 
 def size_help(physics: bool = False) -> dict[str, str]:
