@@ -11,17 +11,18 @@ what a user wants from a calibration, prediction of poses it was not fitted on:
    outliers are left out of every later comparison, so that all candidates are judged on the same
    observations;
 2. backward elimination over the groups: each candidate (the current set less one group) is
-   fitted and scored by its leave-one-pose-out prediction error (:func:`heldout_errors`); the
-   group whose removal predicts best is dropped while that is no worse than keeping it (within
-   rounding: a group the others make redundant ties, and goes);
+   fitted and scored by its leave-one-pose-out prediction errors (:func:`heldout_errors`); a group
+   is dropped only if that leaves both their median and their RMS no worse (within rounding: a
+   group the others make redundant ties, and goes); of several, the lowest median goes first;
 3. the chosen groups are fitted once more on the whole session with the user's loss.
 
-Score: the median of the held-out 3-D marker errors (every kept observation of every pose, each
-predicted from a fit without its pose). The median is the typical error of a new pose; the RMS
-is reported beside it. On real data a few poses that no other pose resembles dominate the RMS
-(each is predicted by extrapolation, badly by every model), and the RMS then picks the stiffest
-model whatever it costs on the other poses; on the TIAGo training day (37 poses) it would hold
-the joint scales and predict the other day worse (docs/calibration.md).
+Scores: the median and the RMS of the held-out 3-D marker errors (every kept observation of every
+pose, each predicted from a fit without its pose). A group goes only when neither says it helps:
+the median is the typical error of a new pose, the RMS weighs every pose (with Gaussian noise the
+RMS is the sharper of the two: on a simulated stewart the median could not tell the leg offsets
+from the joint positions, the RMS could). On real data a few poses that no other pose resembles
+dominate the RMS (each is predicted by extrapolation, badly by every model); the RMS alone would
+then hold the TIAGo arm's joint scales and predict the other day worse (docs/calibration.md).
 
 Leave-one-pose-out errors come from one fit per candidate: at the least-squares solution, the
 solution without pose n's rows is the Gauss-Newton step ``dz = (A - J_n^T W_n J_n)^-1 J_n^T W_n r_n``
@@ -131,8 +132,9 @@ class Selection:
     def to_dict(self, unit: str) -> dict:
         return {
             "method": "backward elimination over parameter groups, scored by leave-one-pose-out prediction",
-            "criterion": "median held-out 3-D marker error (each pose predicted by a fit without it)",
-            "rule": "a group is dropped while dropping it leaves the criterion no worse (within rounding)",
+            "criterion": "median and RMS of the held-out 3-D marker errors (each pose predicted by a fit without it)",
+            "rule": "a group is dropped while dropping it leaves both the median and the RMS of the held-out errors "
+                    "no worse (within rounding); among such groups, the one whose removal gives the lowest median",
             "unit": unit,
             "groups": list(self.groups),
             "chosen": list(self.chosen),
@@ -195,21 +197,27 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     fits: dict[tuple[str, ...], Calibration] = {tuple(labels): reference}
     scores: dict[tuple[str, ...], Candidate] = {tuple(labels): _score(reference, tuple(labels))}
     current = tuple(labels)
-    note(f"every group: held-out median {scores[current].heldout_median / s:.4g} {unit}")
-    dropped: list[tuple[str, float, float]] = []  # (group, score without, score with)
+    note(f"every group: held-out median {scores[current].heldout_median / s:.4g} {unit}, "
+         f"RMS {scores[current].heldout_rms / s:.4g} {unit}")
+    dropped: list[tuple[str, Candidate, Candidate]] = []  # (group, without it, with it)
     while len(current) > 1:
+        cur = scores[current]
         trials = []
         for g in current:
             trial = tuple(x for x in current if x != g)
             if trial not in scores:
                 cal = calibrate(clean, spec, free=_names(groups, trial), robust=False, **common)
                 fits[trial], scores[trial] = cal, _score(cal, trial)
-                note(f"without {g}: held-out median {scores[trial].heldout_median / s:.4g} {unit}")
-            trials.append((scores[trial].heldout_median, g, trial))
-        best, g, trial = min(trials)
-        if best > scores[current].heldout_median * (1 + tolerance):
+                note(f"without {g}: held-out median {scores[trial].heldout_median / s:.4g} {unit}, "
+                     f"RMS {scores[trial].heldout_rms / s:.4g} {unit}")
+            c = scores[trial]
+            if (c.heldout_median <= cur.heldout_median * (1 + tolerance)
+                    and c.heldout_rms <= cur.heldout_rms * (1 + tolerance)):
+                trials.append((c.heldout_median, g, trial))
+        if not trials:
             break
-        dropped.append((g, best, scores[current].heldout_median))
+        _, g, trial = min(trials)
+        dropped.append((g, scores[trial], cur))
         current = trial
     chosen = list(current)
     held = [g for g in labels if g not in chosen]
@@ -217,11 +225,13 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     parts = [f"freeing {', '.join(chosen)} predicts held-out poses best (median error {cur.heldout_median / s:.3g} "
              f"{unit}, RMS {cur.heldout_rms / s:.3g} {unit})"]
     for g, without, with_ in dropped:
-        parts.append(f"{g} held: without it {without / s:.3g} {unit} against {with_ / s:.3g} with it")
+        parts.append(f"{g} held: without it {without.heldout_median / s:.3g} / {without.heldout_rms / s:.3g} {unit} "
+                     f"(median / RMS) against {with_.heldout_median / s:.3g} / {with_.heldout_rms / s:.3g} with it")
     for g in chosen:
         other = tuple(x for x in current if x != g)
         if other in scores:
-            parts.append(f"{g} kept: without it {scores[other].heldout_median / s:.3g} {unit}")
+            parts.append(f"{g} kept: without it {scores[other].heldout_median / s:.3g} / "
+                         f"{scores[other].heldout_rms / s:.3g} {unit}")
     reason = "; ".join(parts)
     if current == tuple(labels):
         cal = reference
