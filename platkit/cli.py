@@ -66,7 +66,8 @@ def parser_for(argv: list[str]) -> argparse.ArgumentParser:
     """The parser a command line needs: the chosen verb's alone; none for a bare ``--version``;
     every verb for ``--help``, for no verb, or for an unknown one (so the error lists them)."""
     verb = chosen_verb(argv)
-    if verb in COMMANDS:
+    before_verb = argv[:argv.index(verb)] if verb is not None else argv
+    if verb in COMMANDS and not {"-h", "--help"} & set(before_verb):  # `platkit -h fk`: the list of verbs
         return build_parser([verb])
     if verb is None and "--version" in argv and not {"-h", "--help"} & set(argv):
         return build_parser([])
