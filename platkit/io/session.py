@@ -146,10 +146,11 @@ def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
         raise BadSession(f"{path}: file not found{' (' + what + ')' if what else ''}")
     try:
         header, body_start = _read_header(path)
+        progress = _Progress(path, quiet)  # says so at once for a large file, before counting its lines
         n_lines, n_commas = _count_body(path, body_start)
         if n_lines == 0:
             raise BadSession(f"{path}: no data rows after the header")
-        progress = _Progress(path, n_lines, quiet)
+        progress.total = n_lines
         data = np.empty((n_lines, len(header)))
         done = _parse_fast(path, header, body_start, data, progress)
         if done < n_lines:  # the rows the fast reader did fill must have their separators too
@@ -176,7 +177,7 @@ def _check_finite(path: Path, header: list[str], data: np.ndarray, body_start: i
     infinite = np.isinf(data)
     if infinite.any():
         r = int(np.argwhere(infinite)[0][0])
-        _parse_exact(path, header, data, r, body_start, _Progress(path, 0, quiet=True), stop=r + 1)
+        _parse_exact(path, header, data, r, body_start, _Progress(path, quiet=True), stop=r + 1)
 
 
 #: files at least this large say on stderr how far their reading is (about once a second)
@@ -355,19 +356,19 @@ class _Progress:
     """'reading FILE: N% (rows of total)' on stderr for large files, at the start and about
     once a second; nothing for small files or when quiet."""
 
-    def __init__(self, path: Path, total_rows: int, quiet: bool):
+    def __init__(self, path: Path, quiet: bool, total_rows: int = 0):
         self.path, self.total = path, total_rows
         size = path.stat().st_size
         self.on = not quiet and size >= PROGRESS_MIN_BYTES
         self.t0 = self.last = time.monotonic()
         if self.on:
-            print(f"reading {path}: {size / 1e6:.0f} MB, {total_rows:,} rows", file=sys.stderr, flush=True)
+            print(f"reading {path}: {size / 1e6:.0f} MB", file=sys.stderr, flush=True)
 
     def update(self, done: int) -> None:
         now = time.monotonic()
         if self.on and now - self.last >= 1.0:
             self.last = now
-            print(f"reading {self.path.name}: {100 * done / self.total:.0f}% ({done:,} of {self.total:,} rows, "
+            print(f"reading {self.path.name}: {100 * done / max(self.total, 1):.0f}% ({done:,} of {self.total:,} rows, "
                   f"{now - self.t0:.0f} s)", file=sys.stderr, flush=True)
 
     def finish(self) -> None:
