@@ -259,3 +259,20 @@ def test_orient_stops_with_one_line_on_wrong_units(tmp_path, capsys, what):
     assert len(err) == 1 and "imu.csv" in err[0]
     assert {"deg/s": "gyr_x", "g": "acc_x", "ms": "column 't'"}[what] in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_a_cut_or_merged_line_is_named_and_a_blank_line_skipped(tmp_path):
+    """The fast reader hands anything irregular to the cell-by-cell one, which names the line."""
+    t, gyr, acc = _rows()
+    lines = _lines(t, gyr, acc)
+    cut = list(lines)
+    cut[5] = ",".join(cut[5].split(",")[:6])
+    with pytest.raises(BadSession, match=r"imu\.csv: line 6: 6 cells, expected 7 like the header"):
+        read_imu_csv(_write(tmp_path, cut))
+    merged = list(lines)
+    merged[7] = merged[7] + ",1.0"
+    with pytest.raises(BadSession, match=r"imu\.csv: line 8: 8 cells, expected 7 like the header"):
+        read_imu_csv(_write(tmp_path, merged))
+    blank = lines[:10] + [""] + lines[10:]
+    s = read_imu_csv(_write(tmp_path, blank))
+    assert s.n == len(t) and np.allclose(s.acc, acc)
