@@ -13,12 +13,15 @@ per-task overhead against a bare loop.
 2. Per-task overhead: ``--tiny`` tasks that each do ~1 ms of numpy work, through the engine on a
    one-worker cluster vs a bare loop: (engine - loop) / tasks.
 
-Wall times on a shared machine vary with what else runs; the load average is printed with them.
+Wall times on a shared machine vary with what else runs; the load average is printed with them,
+and CPU seconds (this process: the serial loop, or the scheduler and client; the workers' summed)
+beside the wall times, which load does not inflate the same way.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -42,6 +45,17 @@ def untimed(obj):
     if isinstance(obj, list):
         return [untimed(v) for v in obj]
     return obj
+
+
+def cpu_s() -> float:
+    """CPU seconds (user + system) this process has used, all its threads."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def workers_cpu_s(client) -> float:
+    """CPU seconds the cluster's worker processes have used, summed."""
+    return sum(client.run(cpu_s).values())
 
 
 def tiny(i: int) -> float:
@@ -69,19 +83,20 @@ def main() -> None:
         print(f"{args.sessions} {args.platform} sessions of {args.poses} settled poses simulated in "
               f"{time.perf_counter() - t0:.1f} s; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu_s()
         serial = {r.name: guarded(run_verb, "calibrate", OPTIONS, str(r.path), r.name) for r in refs}
-        t_serial = time.perf_counter() - t0
+        t_serial, c_serial = time.perf_counter() - t0, cpu_s() - c0
         assert all(v["ok"] for v in serial.values()), [v["error"] for v in serial.values() if not v["ok"]][:3]
 
         t0 = time.perf_counter()
         with cluster(workers=workers) as client:
             client.wait_for_workers(workers)
             t_start = time.perf_counter() - t0
-            t1 = time.perf_counter()
+            t1, c1, w1 = time.perf_counter(), cpu_s(), workers_cpu_s(client)
             outcomes = run_tasks(client, run_verb, [Task(r.name, ("calibrate", OPTIONS, str(r.path), r.name))
                                                     for r in refs])
             t_cluster = time.perf_counter() - t1
+            c_here, c_workers = cpu_s() - c1, workers_cpu_s(client) - w1
         assert all(o.ok for o in outcomes), [o.error for o in outcomes if not o.ok][:3]
         for o in outcomes:
             assert untimed(yaml.safe_load(o.value["files"]["calibration.yaml"])) == \
@@ -92,21 +107,26 @@ def main() -> None:
         print(f"   Dask LocalCluster, {workers} workers x 1 thread {t_cluster:8.1f} s   (+ {t_start:.1f} s start-up)")
         print(f"   ratio serial / cluster               {t_serial / t_cluster:8.2f}     (ideal {workers}; with start-up "
               f"{t_serial / (t_cluster + t_start):.2f})")
+        print(f"   CPU per session: serial {c_serial / args.sessions:.2f} s; cluster workers "
+              f"{c_workers / args.sessions:.2f} s + scheduler and client {c_here / args.sessions * 1e3:.0f} ms")
 
     n = args.tiny
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_s()
     for i in range(n):
         tiny(i)
-    t_loop = time.perf_counter() - t0
+    t_loop, c_loop = time.perf_counter() - t0, cpu_s() - c0
     with cluster(workers=1) as client:
         client.wait_for_workers(1)
         run_tasks(client, tiny, [Task(f"warm{i}", (i,)) for i in range(5)])
-        t0 = time.perf_counter()
+        t0, c0, w0 = time.perf_counter(), cpu_s(), workers_cpu_s(client)
         run_tasks(client, tiny, [Task(f"t{i}", (i,)) for i in range(n)])
         t_engine = time.perf_counter() - t0
+        c_here, c_worker = cpu_s() - c0, workers_cpu_s(client) - w0
     print(f"\n2. per-task overhead, {n} tasks of ~{t_loop / n * 1e3:.1f} ms on one worker")
     print(f"   bare loop {t_loop:.2f} s, engine {t_engine:.2f} s: overhead {(t_engine - t_loop) / n * 1e3:.1f} ms per task "
           f"({(t_engine - t_loop) / n / (t_serial / args.sessions):.1%} of one calibration above)")
+    print(f"   CPU per task: bare loop {c_loop / n * 1e3:.1f} ms; engine: worker {c_worker / n * 1e3:.1f} ms + scheduler and "
+          f"client {c_here / n * 1e3:.1f} ms")
     print(f"   load average now {os.getloadavg()[0]:.1f}")
 
 
