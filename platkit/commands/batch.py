@@ -35,7 +35,7 @@ PATH_KEYS = ("calibration", "imu_calibration", "description", "heldout", "valida
 def add_parser(sub):
     p = sub.add_parser("batch", help="calibrate, diagnose or orient every session a pattern matches, on a local or "
                                      "remote Dask cluster (fleet summary, history of a stand)",
-                       description=__doc__.split("\n\n")[1], formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description="\n\n".join(__doc__.split("\n\n")[1:3]), formatter_class=argparse.RawDescriptionHelpFormatter)
     verbs = p.add_subparsers(dest="batch_verb", metavar="VERB")
     verbs.required = True
     for verb in VERBS:
