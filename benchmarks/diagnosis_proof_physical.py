@@ -22,7 +22,8 @@ Per session one JSON line: what was hidden, what was named, held-out RMS against
 before (geometric) and after (diagnosed), dropped holds, and the settle bias alone: platkit's
 settled markers minus the true settled markers, projected on the direction of the last step and
 averaged over markers, per pose; printed as its mean in units of its spread over the poses (the
-averaging noise of one settled pose), with the t statistic.
+averaging noise of one settled pose), with the t statistic, beside a reference that knows nothing of
+settling (the mean of the last second of each hold, timed by the truth).
 
 Seeds: ``--seed-base`` (default 880000, a range no development run used); session k of a cell
 has seed base + 1000 * stand index + 10 * cell index + k.
@@ -42,6 +43,7 @@ import shutil
 import sys
 import tempfile
 import time
+import warnings
 from collections import Counter, defaultdict
 from pathlib import Path
 
@@ -136,23 +138,38 @@ def _predicted_markers(path: Path, names: list[str]) -> np.ndarray:
     return np.array([[[float(r[f"{m}_{a}"] or "nan") for a in "xyz"] for m in names] for r in rows]) * 1e-3
 
 
-def settle_bias(folder: Path, sim) -> dict:
-    """platkit's settled markers against the truth's, along the last step, per pose (mm)."""
-    poses, report = settle(load_session(folder))
-    rows = np.asarray(poses.extras["row"], int)
-    truth = sim.settled_markers
+def _along_last_step(markers: np.ndarray, rows: np.ndarray, truth: np.ndarray) -> dict:
+    """Settled markers (n, M, 3) of command ``rows`` minus the truth's, projected on the
+    direction of each marker's last step and averaged over the markers: mean, spread (mm)."""
     prev = np.vstack([truth[:1], truth[:-1]])
     step = truth - prev  # (N, M, 3)
     unit = step / np.maximum(np.linalg.norm(step, axis=2, keepdims=True), 1e-15)
-    d = poses.markers - truth[rows]
     moved = np.linalg.norm(step[rows], axis=2).min(axis=1) > 1e-5
-    proj = np.nanmean(np.sum(d * unit[rows], axis=2), axis=1)[moved] * 1e3
+    proj = np.nanmean(np.sum((markers - truth[rows]) * unit[rows], axis=2), axis=1)[moved] * 1e3
     proj = proj[np.isfinite(proj)]
     if proj.size < 3:
         return {"n": int(proj.size)}
     mean, sd = float(np.mean(proj)), float(np.std(proj, ddof=1))
     return {"n": int(proj.size), "mean_mm": mean, "spread_mm": sd, "in_noise_units": mean / sd,
-            "t": mean / (sd / np.sqrt(proj.size)), "dropped": len(poses.dropped)}
+            "t": mean / (sd / np.sqrt(proj.size))}
+
+
+def settle_bias(folder: Path, sim) -> dict:
+    """platkit's settled markers against the truth's along the last step (see _along_last_step),
+    beside a reference that knows nothing of settling: the mean of the last second of each hold."""
+    te = sim.marker_t - sim.nuisances.time_shift_s
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a hold cut out for held-out has no samples
+        last = np.array([np.nanmean(sim.markers[(te >= e - 1.0) & (te < e)], axis=0) for e in sim.hold_end_t])
+    kept = np.setdiff1d(np.arange(len(sim.commands)), held_out_rows(len(sim.commands)))
+    reference = _along_last_step(last[kept], kept, sim.settled_markers)
+    try:
+        poses, _ = settle(load_session(folder))
+    except PlatkitError as exc:
+        return {"error": str(exc), "reference_last_second": reference}
+    rows = np.asarray(poses.extras["row"], int)
+    return {**_along_last_step(poses.markers, rows, sim.settled_markers), "dropped": len(poses.dropped),
+            "reference_last_second": reference}
 
 
 def run_case(case: dict) -> dict:
@@ -183,10 +200,7 @@ def _run_case(case: dict) -> dict:
                   "left_share": min([x["left_share"] for x in info], default=1.0),
                   "nuisances": sim.nuisances.to_dict(), "held_out": int(len(rows)), "blanked_samples": blanked}
         result["absorbed"] = bool(case["effects"]) and result["left_share"] < ABSORBED
-        try:
-            result["settle"] = settle_bias(sess, sim)
-        except PlatkitError as exc:
-            result["settle"] = {"error": str(exc)}
+        result["settle"] = settle_bias(sess, sim)
         rc, msg = _cli(["calibrate", str(sess), "--out", str(work / "cal")])
         if rc:
             return {**result, "error": f"calibrate exit {rc}: {msg}"}
@@ -309,9 +323,12 @@ def summarise(results: list[dict]) -> str:
                 m = np.array([s["mean_mm"] for s in ss])
                 u = np.array([s["in_noise_units"] for s in ss])
                 t = np.array([s["t"] for s in ss])
+                ref = [s["reference_last_second"] for s in ss if "in_noise_units" in s.get("reference_last_second", {})]
+                ref_text = (f"; reference (mean of each hold's last second) {np.mean([x['in_noise_units'] for x in ref]):+.3f}"
+                            if ref else "")
                 lines.append(f"  {stand:8s} {label:24s} n={len(ss):3d}  mean {np.mean(m) * 1e3:+.2f} um  "
                              f"= {np.mean(u):+.3f} averaging noise (range {u.min():+.2f}..{u.max():+.2f}); "
-                             f"t median {np.median(t):+.1f}")
+                             f"t median {np.median(t):+.1f}{ref_text}")
         fails = [r for r in results if r["stand"] == stand and "error" in r.get("settle", {})]
         if fails:
             lines.append(f"  {stand:8s} settle failed in {len(fails)} sessions: {fails[0]['settle']['error'][:200]}")
