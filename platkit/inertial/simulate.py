@@ -82,6 +82,26 @@ def named_effects(base_tilt=None, bias_rate=None) -> list[tuple[ImuEffect, np.nd
     return out
 
 
+def split_imu_effects(effects: list[tuple[str, float | None]], seed: int = 0,
+                      library=None) -> tuple[list[tuple[ImuEffect, np.ndarray]], list[tuple[str, float | None]]]:
+    """``platkit simulate --effect NAME=SIZE`` for IMU effects: (the IMU effects among ``effects``
+    as (effect, theta) in a random direction (from ``seed``) of ``SIZE`` in the effect's display
+    unit, the other effects as given). ``library``: effect name -> effect (default: every
+    installed one)."""
+    lib = effect_library() if library is None else library
+    rng = np.random.default_rng([seed, 7])
+    imu, rest = [], []
+    for name, size in effects:
+        e = lib.get(name)
+        if not isinstance(e, ImuEffect):
+            rest.append((name, size))
+            continue
+        if size is None or not size > 0:
+            raise BadInput(f"--effect {name}: an IMU effect needs its size, {name}=SIZE in {e.display_unit}")
+        imu.append((e, e.simulation_theta(size, rng)))
+    return imu, rest
+
+
 def _check_effects(effects) -> list[tuple[ImuEffect, np.ndarray]]:
     out = []
     for item in effects or ():

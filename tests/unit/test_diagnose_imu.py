@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
@@ -17,7 +18,7 @@ from platkit.geometry import matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
 from platkit.io.imu import ImuStream
 from platkit.plugins import get_platform
-from platkit.simulate import simulate, write_session
+from platkit.simulate import simulate
 
 DEG = 180.0 / np.pi
 #: a constant gyro bias in every case (rad/s): normal, never a finding
@@ -108,8 +109,13 @@ def test_too_few_holds_is_not_identifiable():
 
 
 def test_platkit_diagnose_adds_the_imu_findings_to_diagnosis_json(tmp_path):
-    _, sim = _session(1, n_poses=40, imu_from_platform=matrix_from_rotvec(ROTVEC))
-    write_session(sim, tmp_path / "s")
+    """`platkit simulate --effect imu_misalignment=2.2 --imu` hides the IMU effect through its
+    plugin; `platkit diagnose` names it in diagnosis.json and report.html."""
+    assert main(["simulate", "--platform", "stewart", "--out", str(tmp_path / "s"), "--effect", "imu_misalignment=2.2",
+                 "--imu", "--poses", "40", "--plan", "random", "--seed", "1",
+                 "--imu-bias", ",".join(str(b) for b in BIAS)]) == 0
+    truth = yaml.safe_load((tmp_path / "s" / "truth_imu.yaml").read_text())["effects"]["imu_misalignment"]
+    assert np.linalg.norm(truth) * DEG == pytest.approx(2.2)
     assert main(["calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "cal"), "--quiet"]) == 0
     assert main(["diagnose", str(tmp_path / "s"), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
                  "--out", str(tmp_path / "d"), "--quiet"]) == 0
