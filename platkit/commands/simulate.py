@@ -141,12 +141,17 @@ def run(args) -> int:
     effects = [parse_effect(e) for e in args.effect]
     if args.physics:
         return run_physics(args, spec, plan, effects)
+    from platkit.inertial.simulate import split_imu_effects
     from platkit.simulate import simulate, write_session
 
     for key, value in ADDITIVE_DEFAULTS.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
-    imu = imu_hook(args)
+    # IMU effects act on the IMU's samples through their own sensor model, not as model terms
+    imu_effects, effects = split_imu_effects(effects, args.seed)
+    if imu_effects and not args.imu:
+        raise BadInput(f"--effect {imu_effects[0][0].name}: an IMU effect needs --imu")
+    imu = imu_hook(args, imu_effects)
     sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
@@ -162,6 +167,8 @@ def run(args) -> int:
     for term, theta in sim.truth.terms:
         values = ", ".join(f"{n}={v:.4g}" for n, v in zip(term.parameter_names, theta))
         print(f"  hidden effect {term.effect} at {term.where}: {values}")
+    for e, theta in imu_effects:
+        print(f"  hidden IMU effect {e.name}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(e.parameter_names, theta)))
     return 0
 
 
@@ -206,8 +213,9 @@ def imu_options(args) -> dict | None:
     return {"rate_hz": rate, "bias": bias, "noise": tuple(noise)}
 
 
-def imu_hook(args):
-    """The ``imu=`` hook of platkit.simulate from the --imu options, or None without them."""
+def imu_hook(args, imu_effects=()):
+    """The ``imu=`` hook of platkit.simulate from the --imu options (and the IMU effects of
+    --effect, as (effect, theta)), or None without them."""
     wanted = args.imu or any(v is not None for v in (args.imu_rate_hz, args.imu_bias, args.imu_noise))
     if not wanted:
         return None
@@ -229,4 +237,4 @@ def imu_hook(args):
             raise BadInput(f"--imu-noise: standard deviations must be 0 or more, got {args.imu_noise!r}")
     from platkit.inertial.simulate import imu_for_trajectory
 
-    return imu_for_trajectory(rate_hz=rate, bias=bias, noise=tuple(noise))
+    return imu_for_trajectory(rate_hz=rate, bias=bias, noise=tuple(noise), effects=list(imu_effects))
