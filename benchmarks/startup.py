@@ -98,12 +98,14 @@ def calibration(repeat: int) -> None:
             for label, extra in (("report", []), ("no-report", ["--no-report"])):
                 out = Path(tmp) / f"c{k}{label}"
                 rows[label].append(wall_s(PLATKIT + ["calibrate", str(session), "--quiet", "--out", str(out)] + extra))
-                rows["estimation"].append(json.loads((out / "report.json").read_text())["time_s"])
+                rep = json.loads((out / "report.json").read_text())
+                # the estimation: the fit, or the model selection around it (its time includes the fit)
+                rows["estimation"].append(max(rep["time_s"], (rep.get("model_selection") or {}).get("time_s") or 0.0))
             rows["start-up"].append(wall_s([PYTHON, "-c", CALIBRATE_IMPORTS]))
         est, start = statistics.median(rows["estimation"]), statistics.median(rows["start-up"])
         budget = 1.5 * (est + start)
         print(f"calibrate, 100 settled poses (stewart), {len(rows['report'])} runs each: estimation {est:.2f} s "
-              f"(report.json time_s), start-up {start:.2f} s (importing what it uses); goal: wall <= 1.5 x their "
+              f"(report.json: the fit with its model selection), start-up {start:.2f} s (importing what it uses); goal: wall <= 1.5 x their "
               f"sum = {budget:.2f} s")
         for label in ("report", "no-report"):
             med = statistics.median(rows[label])

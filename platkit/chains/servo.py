@@ -212,10 +212,15 @@ class Servo:
         direct = model.nq == model.nv and all(model.joints[jt.index].idx_q == jt.column for jt in c.joints)
         task = self.tasks[0]
         rows = task.weights > 0
+        rate_step = np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)
         return {"model": model, "data": model.createData(), "fid": self.frame_ids[0], "direct": direct,
                 "target_t": task.target[:3, 3].copy(), "target_R": task.target[:3, :3].copy(),
-                "rows": rows, "sw": np.sqrt(task.weights[rows]),
-                "rate_step": np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)}
+                "rows": rows, "sw": np.sqrt(task.weights[rows]), "unit_weights": bool(np.all(task.weights == 1.0)),
+                "cols": np.flatnonzero(self.active),
+                # lower_active - theta: the room below for an active joint, +inf (then 0) for a locked one
+                "lower_active": np.where(self.active, c.lower, np.inf),
+                "upper_active": np.where(self.active, c.upper, -np.inf),
+                "rate_step": rate_step, "minus_rate_step": -rate_step}
 
     def _fast_q(self, theta: np.ndarray) -> np.ndarray:
         return theta if self._fast["direct"] else self.chain.pin_configuration(theta)
@@ -239,48 +244,66 @@ class Servo:
         """:func:`solve_pinv`'s step for this one level, without its generality (levels, joint
         weights, a secondary step): the damped pseudo-inverse by SVD, a joint that would cross
         a position limit clamped there and the rest re-solved, then the uniform scaling to the
-        rate limits. Returns (dq (n,), StepInfo)."""
+        rate limits. Returns (dq (n,), StepInfo). Each numpy call on these small arrays costs
+        microseconds, so the bounds are prepared once (:meth:`_fast_case`) and the common case
+        (every component weighted 1, no joint at a limit) skips what it does not need."""
         o, c, f = self.options, self.chain, self._fast
-        task = self.tasks[0]
-        e = self._commanded(E, task.weights)
-        Jw = self._fast_jacobian(theta)[f["rows"]] * f["sw"][:, None]
-        ew = f["sw"] * e[f["rows"]]
-        lower_step = np.minimum(np.where(self.active, c.lower - theta, 0.0), 0.0)
-        upper_step = np.maximum(np.where(self.active, c.upper - theta, 0.0), 0.0)
-        free = self.active.copy()
-        fixed = np.zeros(c.n)
+        e = self._commanded(E, self.tasks[0].weights)
+        J = self._fast_jacobian(theta)
+        if f["unit_weights"]:
+            Jw, ew = J, e
+        else:
+            Jw = J[f["rows"]] * f["sw"][:, None]
+            ew = f["sw"] * e[f["rows"]]
+        lower_step = np.minimum(f["lower_active"] - theta, 0.0)  # 0 for a joint that may not move
+        upper_step = np.maximum(f["upper_active"] - theta, 0.0)
+        free = None
+        fixed = None
         info = StepInfo()
         for _ in range(c.n + 1):
-            cols = np.flatnonzero(free)
-            dq = fixed.copy()
-            if cols.size:
+            if free is None:  # first pass: every active joint free, nothing fixed
+                cols, r = f["cols"], ew
+                dq = np.zeros(c.n)
+            else:
+                cols = np.flatnonzero(free)
+                dq = fixed.copy()
                 r = ew - Jw @ fixed
+            if cols.size:
                 U, sv, Vt = np.linalg.svd(Jw[:, cols], full_matrices=False)
-                keep = sv > 1e-10 * max(1.0, sv[0] if sv.size else 0.0)
-                info.sigma_min = float(sv[keep][-1]) if np.any(keep) else 0.0
+                keep = sv > 1e-10 * max(1.0, float(sv[0]) if sv.size else 0.0)
+                everything = bool(keep.all())
+                info.sigma_min = float(sv[-1]) if everything else (float(sv[keep][-1]) if keep.any() else 0.0)
                 lam2 = o.damping.factor(info.sigma_min, float(np.linalg.norm(r)))
-                info.damping = float(np.sqrt(lam2))
-                inv = np.zeros_like(sv)
-                inv[keep] = sv[keep] / (sv[keep] ** 2 + lam2)
+                info.damping = math.sqrt(lam2)
+                if everything:
+                    inv = sv / (sv * sv + lam2)
+                else:
+                    inv = np.zeros_like(sv)
+                    inv[keep] = sv[keep] / (sv[keep] ** 2 + lam2)
                 dq[cols] += Vt.T @ (inv * (U.T @ r))
-            over = free & ((dq > upper_step + 1e-15) | (dq < lower_step - 1e-15))
-            if not np.any(over):
+            high, low = dq > upper_step + 1e-15, dq < lower_step - 1e-15
+            if not (high.any() or low.any()):
+                break
+            if free is None:
+                free, fixed = self.active.copy(), np.zeros(c.n)
+            over = free & (high | low)
+            if not over.any():
                 break
             excess = np.maximum(dq - upper_step, lower_step - dq)
             excess[~over] = -np.inf
             worst = int(np.argmax(excess))
-            fixed[worst] = np.clip(dq[worst], lower_step[worst], upper_step[worst])
+            fixed[worst] = min(max(dq[worst], lower_step[worst]), upper_step[worst])
             free[worst] = False
             info.clamped.append(worst)
         dq = np.clip(dq, lower_step, upper_step)
-        lo, hi = lower_step, upper_step
-        if o.use_rate_limits:
-            rate_step = f["rate_step"]
-            # a joint that does not move allows any scale (rate / 1e-300 is beyond 1)
-            info.rate_scale = min(1.0, float(np.min(rate_step / np.maximum(np.abs(dq), 1e-300)))) if dq.size else 1.0
+        if not o.use_rate_limits:
+            return dq, info
+        rate_step = f["rate_step"]
+        # a joint that does not move allows any scale (rate / 1e-300 is beyond 1)
+        info.rate_scale = min(1.0, float(np.min(rate_step / np.maximum(np.abs(dq), 1e-300)))) if dq.size else 1.0
+        if info.rate_scale < 1.0:
             dq = dq * info.rate_scale
-            lo, hi = np.maximum(lower_step, -rate_step), np.minimum(upper_step, rate_step)
-        return np.clip(dq, lo, hi), info
+        return np.clip(dq, np.maximum(lower_step, f["minus_rate_step"]), np.minimum(upper_step, rate_step)), info
 
     # ------------------------------------------------------------------ errors and Jacobians
 
