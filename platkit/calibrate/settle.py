@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2, f as f_dist, fisher_exact
+from scipy.stats import chi2, fisher_exact
 
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
@@ -50,6 +50,13 @@ SIGMA_FLOOR_M = 1e-6
 
 #: probability that a still stretch is fitted a significant approach tail
 TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
+
+#: coloured noise is believed up to this many times white noise's variance of a mean; beyond, the
+#: "noise" is motion (a recording that never rests)
+MAX_INFLATION = 30.0
+
+#: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
+SLOW_SCALE_S = 0.4
 
 #: the categories a dropped command's reason starts with (``category: detail``)
 DROP_CATEGORIES = ("no motion-capture samples", "too few samples", "moved again", "never settled",
@@ -191,6 +198,54 @@ def estimate_noise(markers: np.ndarray) -> float:
         return SIGMA_FLOOR_M
     mad = np.median(np.abs(dd - np.median(dd)))
     return max(1.4826 * mad / np.sqrt(6.0), SIGMA_FLOOR_M)
+
+
+def noise_inflation(stretches: list[np.ndarray], sigma: float, L: int) -> float:
+    """How much more a mean over L samples varies than white noise of ``sigma`` says (1 to
+    MAX_INFLATION): the marker noise of motion capture is often coloured (vibration, air, the
+    fit of the markers' images), and tests of slow things (a trend over a window, a decay) must
+    use its slow part.
+
+    ``stretches``: (K, M, 3) pieces of the stream where the stand is at rest or nearly. From
+    consecutive triples of L-sample blocks, the second difference of their means squared (a
+    steady creep cancels), over its white-noise variance; the lower quartile over every triple
+    and coordinate, over that of chi-square(1) (a stretch still moving pushes only the upper
+    part). 1 when fewer than 10 triples are found."""
+    q = []
+    for seg in stretches:
+        for k in range(0, len(seg) - 3 * L + 1, 3 * L):
+            blocks = [seg[k + j * L:k + (j + 1) * L] for j in range(3)]
+            oks = [np.isfinite(x).all(axis=2) for x in blocks]
+            ns = [o.sum(axis=0) for o in oks]
+            use = np.all([nn >= L // 2 + 1 for nn in ns], axis=0)
+            if not use.any():
+                continue
+            ms = [np.sum(np.where(o[..., None], x, 0.0), axis=0) / np.maximum(nn, 1)[:, None]
+                  for x, o, nn in zip(blocks, oks, ns)]
+            var = sigma**2 * (1.0 / np.maximum(ns[0], 1) + 4.0 / np.maximum(ns[1], 1) + 1.0 / np.maximum(ns[2], 1))
+            q.append((((ms[0] - 2 * ms[1] + ms[2]) ** 2) / var[:, None])[use].ravel())
+    if len(q) < 10:
+        return 1.0
+    return float(np.clip(np.percentile(np.concatenate(q), 25) / chi2.ppf(0.25, 1), 1.0, MAX_INFLATION))
+
+
+def _quiet_stretches(t: np.ndarray, markers: np.ndarray, command_t: np.ndarray, n: int, sigma: float,
+                     gap: int) -> list[np.ndarray]:
+    """The last still stretch of every hold by the still test at white ``sigma`` (a strict test
+    under coloured noise, but what it calls still is still); the 50-90% part of every hold when
+    that finds too little (strongly coloured noise)."""
+    ends = np.append(command_t[1:], t[-1] + 1e-9)
+    out, fallback = [], []
+    for t0, t1 in zip(command_t, ends):
+        a, b = np.searchsorted(t, t0), np.searchsorted(t, t1)
+        seg = markers[a:b]
+        if len(seg) < 2 * n:
+            continue
+        run = _last_still_run(still_mask(seg, n, sigma, 1e-4), gap)
+        if run is not None and run[1] - run[0] >= 6 * n:
+            out.append(seg[run[0]:run[1]])
+        fallback.append(seg[int(0.5 * len(seg)):int(0.9 * len(seg))])
+    return out if len(out) >= max(3, len(command_t) // 4) else fallback
 
 
 def direction_of_last_motion(controls: np.ndarray) -> np.ndarray:
@@ -379,12 +434,12 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
                    a=a, b=b, chi2_per_dof=chi, remaining_m=np.zeros(M),
                    at_limit=tau is None and at_top,
                    cov_ab=np.where(seen[:, None, None], inv[:, 1:, 1:] * max(chi, 1.0) * sigma**2, 0.0))
-    # a tail the stream does not show (F test of the decay against a constant, over every seen
-    # coordinate) is none: noise alone must not move a window or make a hold unsettled
+    # a tail the stream does not show (chi-square of what the decay explains, over every seen
+    # coordinate, against sigma: the slow noise's when the caller passes it) is none: noise alone
+    # must not move a window or make a hold unsettled
     rss0 = float(np.sum(yty[seen]))
     extra = 2 * 3 * int(seen.sum()) + 1
-    F = ((rss0 - max(rss_tot[j], 0.0)) / extra) / max(rss_tot[j] / dof, 1e-300)
-    if not f_dist.sf(F, extra, dof) < TAIL_FALSE_ALARM:
+    if not chi2.sf((rss0 - max(rss_tot[j], 0.0)) / sigma**2, extra) < TAIL_FALSE_ALARM:
         fit.a, fit.b = np.zeros_like(a), np.zeros_like(b)
         fit.x_inf = np.where(seen[:, None], mean, np.nan)
         fit.significant = False
@@ -611,6 +666,90 @@ def extrapolation_checked(ts: np.ndarray, seg: np.ndarray, fit: Approach, end: i
     return stat < chi2.ppf(1 - false_alarm, 3 * int(seen.sum()))
 
 
+def _window_result(ts: np.ndarray, seg: np.ndarray, start: int, end: int, correction: np.ndarray,
+                   fit: Approach | None) -> dict | None:
+    """The averaged pose of window [start, end) of a hold's stretch (NaN-aware), less
+    ``correction`` (M, 3); None when every marker is occluded all window long."""
+    w = seg[start:end]
+    ok = np.isfinite(w).all(axis=2)
+    cnt = ok.sum(axis=0)
+    if not np.any(cnt):
+        return None
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a marker occluded all window long
+        mean = np.nanmean(np.where(ok[..., None], w, np.nan), axis=0)
+        std = np.sqrt(np.nanmean(np.sum((w - mean) ** 2, axis=2), axis=0) / 3)
+    held = mean.copy()
+    mean = mean - correction  # the approach's share of the window mean (zero in a clean window)
+    mean[cnt == 0] = np.nan
+    held[cnt == 0] = np.nan
+    return dict(mean=mean, held=held, cnt=cnt.astype(float), std=std, start=ts[start], end=ts[end - 1],
+                tau=np.nan if fit is None else fit.tau,
+                remaining=np.nan if fit is None else float(np.nanmax(fit.remaining_m)), extrapolated=0.0)
+
+
+def shared_tail(windows: dict[int, tuple], results: dict[int, dict], sigma: float, n: int) -> tuple | None:
+    """The approach's tail as the holds share it: h(s), the part of its step a hold still has to
+    go s seconds after its approach began (the speed at half its peak), pooled over every settled
+    hold by least squares, x(s) - x_rest = -step h(s), in bins of ``n`` samples' time.
+
+    windows: row -> (t, stretch, approach start, window start, end); results: row -> its settled
+    'mean' (M, 3), to which the step (this rest minus the previous hold's, over every marker
+    coordinate) is added as 'step'. Returns (bin edges (B+1,) s, h (B,), its standard error
+    (B,)), or None when fewer than 5 holds have a step above 20 sigma."""
+    rows = sorted(windows)
+    for prev, i in zip([None] + rows[:-1], rows):
+        results[i]["step"] = None if prev is None or prev != i - 1 else results[i]["mean"] - results[prev]["mean"]
+    use = [i for i in rows if results[i]["step"] is not None and np.all(np.isfinite(results[i]["step"]))
+           and np.linalg.norm(results[i]["step"]) > 20 * sigma and windows[i][2] is not None]
+    if len(use) < 5:
+        return None
+    dt = float(np.median(np.diff(windows[use[0]][0])))
+    span = max(windows[i][0][windows[i][4] - 1] - windows[i][0][windows[i][2]] for i in use)
+    edges = np.arange(0.0, span + n * dt, n * dt)
+    num = np.zeros(len(edges) - 1)
+    den = np.zeros(len(edges) - 1)
+    cnt = np.zeros(len(edges) - 1)
+    for i in use:
+        ts, seg, k0, start, end = windows[i]
+        step = results[i]["step"]
+        d = seg[k0:end] - results[i]["mean"][None]  # (L, M, 3)
+        ok = np.isfinite(d).all(axis=2) & np.isfinite(step).all(axis=1)[None]
+        proj = np.sum(np.where(ok[..., None], d * step[None], 0.0), axis=(1, 2))  # (L,)
+        norm2 = np.sum(np.where(ok[..., None], step[None] ** 2, 0.0), axis=(1, 2))
+        b = np.searchsorted(edges, ts[k0:end] - ts[k0], side="right") - 1
+        keep = (b >= 0) & (b < len(num))
+        np.add.at(num, b[keep], -proj[keep])
+        np.add.at(den, b[keep], norm2[keep])
+        np.add.at(cnt, b[keep], 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = np.where(den > 0, num / den, 0.0)
+        se = np.where(den > 0, sigma / np.sqrt(den), np.inf)
+    return edges, h, se
+
+
+def profile_start(profile: tuple, step: np.ndarray | None, ts: np.ndarray, k0: int | None, start: int, end: int,
+                  sigma: float, fraction: float, min_samples: int) -> int | None:
+    """The first index s >= start at which the shared tail (:func:`shared_tail`), scaled by this
+    hold's step, biases the mean over [s, end) by at most ``fraction`` of its averaging noise
+    sigma / sqrt(end - s); bins where the profile is within two standard errors of zero count
+    as no tail (the pooled noise must not push every window late). None when no window of at least
+    ``min_samples`` qualifies or the hold has no step or approach start."""
+    if step is None or k0 is None or not np.all(np.isfinite(step)) or end - start < min_samples:
+        return None
+    edges, h, se = profile
+    size = float(np.linalg.norm(step))
+    s = ts[start:end] - ts[k0]
+    b = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, len(h) - 1)
+    hs = np.where(np.abs(h[b]) > 2 * se[b], h[b], 0.0)  # bins whose tail is not resolved count as none
+    L = end - start
+    nrem = L - np.arange(L)
+    share = np.abs(np.cumsum(hs[::-1])[::-1]) / nrem * size
+    okay = (share <= fraction * sigma / np.sqrt(nrem)) & (nrem >= min_samples)
+    idx = np.nonzero(okay)[0]
+    return None if idx.size == 0 else start + int(idx[0])
+
+
 def settle(session: Session, options: SettleOptions | None = None) -> tuple[PoseSet, SettleReport]:
     """Settled poses of a session with a raw marker stream (markers.csv or C3D).
 
@@ -624,7 +763,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     window, 'approach_tau_s' (N,) the fitted approach's time constant (NaN: no approach seen),
     'remaining_m' (N,) m the distance the approach still had to go at the end of the hold (largest
     over the markers), 'extrapolated' (N,) 1.0 where the pose is the fitted rest position of a hold
-    that never settled. ``settling``: sigma_m, n_commands, n_kept, n_extrapolated and
+    that never settled, 'held_markers' (N, M, 3) m where the stream was at the end of each hold
+    (the window mean before any tail correction; the last ``min_still_s`` of a hold that never
+    settled): what a search that took the stream as it came would have averaged. ``settling``: sigma_m, n_commands, n_kept, n_extrapolated and
     ``unsettled`` (the holds that never settled: rows, actuators, markers, time_constant_s, sentence).
     Raises BadSession when no command settles, ComputationFailed when more than
     ``max_unsettled_fraction`` of the holds never settle and their approach cannot be extrapolated
@@ -646,6 +787,12 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     n = max(2, int(round(opt.window_s * rate)))
     min_samples = max(3, int(np.ceil(opt.min_still_s * rate)))
     tc, U = session.command_t, session.commands
+    # the noise at the scales the tests look at: the still test's halves (fast) and a few tenths
+    # of a second (slow: trends, decays, window means); white noise gives sigma at both
+    quiet = _quiet_stretches(t, X, tc, n, sigma, opt.gap_samples)
+    sig_fast = sigma * np.sqrt(noise_inflation(quiet, sigma, n))
+    slow_inflation = noise_inflation(quiet, sigma, max(n, int(round(SLOW_SCALE_S * rate))))
+    sig_slow = sigma * np.sqrt(slow_inflation)
     N, M = U.shape[0], X.shape[1]
     direction = direction_of_last_motion(U)
     results: dict[int, dict] = {}  # row -> mean, cnt, std, start, end, tau, remaining, extrapolated
@@ -653,6 +800,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     fits: dict[int, Approach] = {}
     unsettled: list[int] = []
     segments: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # the stretches of the holds that never settled
+    windows: dict[int, tuple] = {}  # settled holds: (t, stretch, approach start, window start, end)
     hold_s = np.empty(N)
     for i in range(N):
         t_end = tc[i + 1] if i + 1 < N else t[-1] + dt / 2
@@ -665,7 +813,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                 dropped[i] = f"too few samples: only {b - a} between t={tc[i]:.3f} s and t={t_end:.3f} s"
             continue
         seg, ts = X[a:b], t[a:b]
-        run = _last_still_run(still_mask(seg, n, sigma, opt.false_alarm), opt.gap_samples)
+        run = _last_still_run(still_mask(seg, n, sig_fast, opt.false_alarm), opt.gap_samples)
         length = 0 if run is None else run[1] - run[0]
         slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * rate)))
         if run is not None and length >= min_samples and run[1] < (b - a) - slack:
@@ -673,10 +821,17 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                           f"(after {length * dt:.2f} s still); the stand did not hold the command")
             continue
         end = (b - a) if run is None else run[1]
-        k0 = approach_start(seg[:end], n, sigma)
+        if run is not None and length - n >= min_samples:
+            # the next move starts smoothly (from rest, under an acceleration limit) and the still
+            # test sees it up to one half-window late; a clock offset between the files moves it
+            # into the hold: its first samples, drawn towards the next command, are left out
+            end -= n
+            run = (run[0], end)
+            length = end - run[0]
+        k0 = approach_start(seg[:end], n, sig_fast)
         fit = None
         if k0 is not None and end - k0 >= 8:
-            fit = _fit_tail(ts, seg, k0, end, sigma)
+            fit = _fit_tail(ts, seg, k0, end, sig_slow)
         if fit is not None:
             fits[i] = fit
         why = None
@@ -687,12 +842,12 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                    f"{opt.min_still_s:.2f} s needed")
         else:
             start = run[0]
-            if fit is not None and fit.significant and not tail_established(fit, ts[run[0]:end], seg[run[0]:end], sigma):
+            if fit is not None and fit.significant and not tail_established(fit, ts[run[0]:end], seg[run[0]:end], sig_slow):
                 fit.a, fit.b = np.zeros_like(fit.a), np.zeros_like(fit.b)  # not there: the still stretch is flat
                 fit.significant = False
                 fit.remaining_m = np.zeros_like(fit.remaining_m)
             if fit is not None:
-                window = tail_free_window(fit, ts, run[0], end, sigma, opt.tail_fraction, min_samples)
+                window = tail_free_window(fit, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples)
                 start = None if window is None else window[0]
                 if window is not None:
                     correction = window[1]
@@ -700,7 +855,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                     why = (f"never settled: the approach (time constant {fit.tau:.3g} s) still had "
                            f"{1e3 * float(np.nanmax(fit.remaining_m)):.3g} mm to go at the next command")
             if start is not None:
-                p, v = trend_test(ts[start:end], seg[start:end], sigma)
+                p, v = trend_test(ts[start:end], seg[start:end], sig_slow)
                 if p < opt.trend_false_alarm:
                     why = (f"never settled: still moving at {1e3 * v:.3g} mm/s across its "
                            f"{(end - start) * dt:.2f} s window (trend p = {p:.2g})")
@@ -709,21 +864,24 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             unsettled.append(i)
             segments[i] = (ts[:end], seg[:end])
             continue
-        w = seg[start:end]
-        ok = np.isfinite(w).all(axis=2)
-        cnt = ok.sum(axis=0)
-        if not np.any(cnt):
+        r = _window_result(ts, seg, start, end, correction, fit)
+        if r is None:
             dropped[i] = "every marker occluded: no sample in the settled window"
             continue
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a marker occluded all window long
-            mean = np.nanmean(np.where(ok[..., None], w, np.nan), axis=0)
-            std = np.sqrt(np.nanmean(np.sum((w - mean) ** 2, axis=2), axis=0) / 3)
-        mean = mean - correction  # the approach's share of the window mean (zero in a clean window)
-        mean[cnt == 0] = np.nan
-        results[i] = dict(mean=mean, cnt=cnt.astype(float), std=std, start=ts[start], end=ts[end - 1],
-                          tau=np.nan if fit is None else fit.tau,
-                          remaining=np.nan if fit is None else float(np.nanmax(fit.remaining_m)), extrapolated=0.0)
+        results[i] = r
+        windows[i] = (ts, seg, k0, start, end)
+    # the tail the holds share: a start each hold could not justify alone (its tail below its
+    # own noise) still biases every pose the same way, along its step
+    profile = shared_tail(windows, results, sig_slow, n)
+    if profile is not None:
+        for i, (ts, seg, k0, start, end) in windows.items():
+            later = profile_start(profile, results[i]["step"], ts, k0, start, end, sig_slow, opt.tail_fraction,
+                                  min_samples)
+            if later is not None and later > start:
+                r = _window_result(ts, seg, later, end, np.zeros((M, 3)), fits.get(i))
+                if r is not None:
+                    r["step"] = results[i]["step"]
+                    results[i] = r
     names = (list(session.spec.control_names) if session.spec is not None
              else [f"u{j + 1}" for j in range(U.shape[1])])
     summary = _unsettled_summary(unsettled, fits, U, names, list(session.marker_names), hold_s, N,
@@ -733,7 +891,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     if unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many)):
         good = [i for i in unsettled if i in fits and fits[i].good
                 and float(np.nanmax(fits[i].remaining_m)) <= opt.max_extrapolation_m
-                and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], sigma)]
+                and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], sig_slow)]
         if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
             if results:
                 raise ComputationFailed(
@@ -743,8 +901,14 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
         for i in good:
             f = fits[i]
             var = np.nanmax(f.x_inf_std, axis=1) ** 2
-            cnt = np.where(np.isfinite(var) & (var > 0), sigma**2 / np.where(var > 0, var, 1.0), 0.0)
-            results[i] = dict(mean=f.x_inf, cnt=cnt, std=np.full(M, np.nan), start=np.nan, end=np.nan,
+            # as many samples as would average to that variance (window means vary as sig_slow^2 / n)
+            cnt = np.where(np.isfinite(var) & (var > 0), sig_slow**2 / np.where(var > 0, var, 1.0), 0.0)
+            tail_t, tail_x = segments[i]
+            last = tail_x[-min_samples:]
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                held = np.nanmean(np.where(np.isfinite(last).all(axis=2)[..., None], last, np.nan), axis=0)
+            results[i] = dict(mean=f.x_inf, held=held, cnt=cnt, std=np.full(M, np.nan), start=np.nan, end=np.nan,
                               tau=f.tau, remaining=float(np.nanmax(f.remaining_m)), extrapolated=1.0)
             dropped.pop(i)
             n_extrapolated += 1
@@ -778,8 +942,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             "elapsed": tc[kept_a] - tc[0], "settle_time": col("start") - tc[kept_a],
             "window_start": col("start"), "window_end": col("end"), "marker_std": col("std"),
             "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
+            "held_markers": col("held"),
         },
-        settling={"sigma_m": float(sigma), "n_commands": N, "n_kept": len(kept), "n_extrapolated": n_extrapolated,
+        settling={"sigma_m": float(sigma), "slow_noise_inflation": float(slow_inflation), "n_commands": N, "n_kept": len(kept), "n_extrapolated": n_extrapolated,
                   "unsettled": summary},
     )
     return poses, SettleReport(float(sigma), N, len(kept), dropped_list, float(rate), n_extrapolated, summary)
