@@ -30,6 +30,12 @@ class PoseSet:
             n_extrapolated, unsettled: which actuators and markers never settled, their time
             constant, a sentence); empty for poses read as they are.
         extras: free-form per-pose arrays (e.g. 'direction' for history effects), length N.
+        bodies: (N, B, 7) rigid bodies measured in 6 DOF: origin x, y, z (m) and orientation
+            qw, qx, qy, qz (unit quaternion), both in the motion-capture frame; all seven NaN
+            where the body was not seen. body_names: B names. n_body_samples: (N, B) samples
+            averaged per body (0 for unseen), or None.
+        body_noise: declared noise of the bodies ({'position_m', 'rotation_rad'}: per-axis
+            sigmas), or empty: the estimator then estimates their ratio from the data.
     """
 
     platform: str
@@ -46,6 +52,10 @@ class PoseSet:
     dropped: list[tuple[int, str]] = field(default_factory=list)
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     settling: dict = field(default_factory=dict)  # what the settling search found (calibrate.settle), session-wide
+    bodies: np.ndarray | None = None
+    body_names: list[str] = field(default_factory=list)
+    n_body_samples: np.ndarray | None = None
+    body_noise: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.controls = np.atleast_2d(np.asarray(self.controls, float))
@@ -58,6 +68,13 @@ class PoseSet:
             raise ValueError("one marker name per marker column")
         if self.t is None:
             self.t = np.full(len(self.controls), np.nan)
+        if self.bodies is None:
+            self.bodies = np.zeros((self.markers.shape[0], len(self.body_names), 7))
+        self.bodies = np.asarray(self.bodies, float)
+        if self.bodies.ndim != 3 or self.bodies.shape[2] != 7 or self.bodies.shape[0] != self.markers.shape[0]:
+            raise ValueError(f"bodies must be (N, B, 7) with N = {self.markers.shape[0]}, got {self.bodies.shape}")
+        if len(self.body_names) != self.bodies.shape[1]:
+            raise ValueError("one body name per body")
 
     @property
     def n_poses(self) -> int:
@@ -66,6 +83,10 @@ class PoseSet:
     @property
     def n_markers(self) -> int:
         return self.markers.shape[1]
+
+    @property
+    def n_bodies(self) -> int:
+        return len(self.body_names)
 
     def subset(self, rows) -> "PoseSet":
         """The poses at ``rows`` (index array or boolean mask), in that order."""
@@ -79,4 +100,7 @@ class PoseSet:
             n_samples=None if self.n_samples is None else self.n_samples[rows],
             length_unit=self.length_unit, moving_link=self.moving_link, source=self.source,
             dropped=[], extras={k: np.asarray(v)[rows] for k, v in self.extras.items()}, settling=dict(self.settling),
+            bodies=self.bodies[rows], body_names=list(self.body_names),
+            n_body_samples=None if self.n_body_samples is None else self.n_body_samples[rows],
+            body_noise=dict(self.body_noise),
         )
