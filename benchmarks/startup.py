@@ -41,6 +41,8 @@ CASES = [
     ("platkit simulate --help", PLATKIT + ["simulate", "--help"]),
     ("platkit --help (every verb's parser)", PLATKIT + ["--help"]),
 ]
+#: platkit's package folder: a traceback frame in it is platkit's own code
+PACKAGE = str(Path(__file__).resolve().parent.parent / "platkit") + "/"
 #: rows with a goal: within this many times the reference
 GOAL = {"platkit --version": 2.0, "platkit fk --platform stewart --u ...": 2.0}
 
@@ -145,9 +147,9 @@ def main(argv=None) -> None:
             counts["one line, exit 130"] += 1
         elif rc == 0 and not lines:
             counts["finished first"] += 1
-        elif not any("/platkit/" in line or "platkit.cli" in line for line in lines):
-            # before any platkit code ran (the interpreter, site, the editable-install finder):
-            # Python's own handler is still in place there
+        elif not any(f'File "{PACKAGE}' in line for line in lines):
+            # before any of platkit's own code ran (the interpreter, site, the editable-install
+            # finder, the console script importing platkit.cli): Python's handler is still in place
             counts["in Python's own start-up"] += 1
         else:
             counts["platkit's fault"] += 1
