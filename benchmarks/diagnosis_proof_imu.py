@@ -19,7 +19,7 @@ an accelerometer bias (0.05, -0.03, 0.08) m/s^2 and accelerometer scale errors (
 
 Sizes are set by what the measurement can see: the same session without the effect (same true
 stand, plan and sensor) is diagnosed first, and its smallest detectable size for the effect (the
-larger of the floor, MIN_ANGLE_DEG or MIN_TILT_DEG, and the size the Wald test lets through in its
+larger of the effect's floor (its min_size) and the size the Wald test lets through in its
 worst direction with every covariance: the noise, the calibration's uncertainty, the frames its
 held parameters leave open; `detectable_size` in the tests) makes 'clear' 3 times and 'weak' 1.5
 times that.
