@@ -582,13 +582,16 @@ def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float,
 
 def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray, control_names: list[str],
                        marker_names: list[str], hold_s: np.ndarray, n_commands: int,
-                       other_drops: set[int] | None = None) -> dict:
+                       other_drops: set[int] | None = None, slow_taus: dict[int, float] | None = None,
+                       slow_left: dict[int, float] | None = None) -> dict:
     """Which actuators and markers are still moving in the holds ``rows`` that never settled, and
     with what time constant; ``sentence`` says it in one line.
 
     An actuator is named when the holds after it moved (by more than 5% of its travel in the
     session) never settle significantly more often than the others (one-sided Fisher exact test,
-    Bonferroni over the actuators at 0.01), and its excess is at least 0.7 of the largest.
+    Bonferroni over the actuators at 0.01), and its excess is at least 0.7 of the largest; when
+    none is (every hold unsettled: no contrast), when the distance left at the end of the holds
+    grows with its step (a regression on every actuator's step, t > 4, at least half the largest).
     """
     if not rows:
         return {}
@@ -613,9 +616,25 @@ def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray
             scored.append((float(excess), j))
     scored.sort(reverse=True)
     named = [j for e, j in scored if e >= 0.7 * scored[0][0]] if scored else []
+    rem_of = dict(slow_left) if slow_left else {i: float(np.nanmax(fits[i].remaining_m)) for i in rows if i in fits}
+    if not named and len(rem_of) >= 2 * U.shape[1] + 4:
+        # every hold unsettled, no contrast: the distance left at the end grows with the slow
+        # actuator's step, whatever the others (correlated in most plans) do
+        idx = sorted(rem_of)
+        A = np.column_stack([np.ones(len(idx)), steps[idx] / np.where(span > 0, span, 1.0)])
+        y = np.array([rem_of[i] for i in idx])
+        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+        s2 = float(np.sum((y - A @ coef) ** 2)) / max(len(y) - A.shape[1], 1)
+        se = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(A.T @ A))[1:], 1e-300))
+        strong = [j for j in range(U.shape[1]) if coef[1 + j] > 0 and coef[1 + j] / se[j] > 4.0]
+        if strong:
+            top = max(coef[1 + j] for j in strong)
+            named = [j for j in sorted(strong, key=lambda j: -coef[1 + j]) if coef[1 + j] >= 0.5 * top]
     actuators = [control_names[j] for j in named]
-    which = [i for i in rows if i in fits and (not named or moved[i, named].any())] or [i for i in rows if i in fits]
-    taus = np.array([fits[i].tau for i in which])
+    # the end of the approach, where the slowest actuator is alone, when it was seen; else the fits
+    tau_of = dict(slow_taus) if slow_taus else {i: fits[i].tau for i in rows if i in fits}
+    which = [i for i in rows if i in tau_of and (not named or moved[i, named].any())] or [i for i in rows if i in tau_of]
+    taus = np.array([tau_of[i] for i in which])
     rem = np.array([fits[i].remaining_m for i in rows if i in fits])
     markers = []
     if rem.size:
@@ -801,6 +820,8 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     unsettled: list[int] = []
     segments: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # the stretches of the holds that never settled
     windows: dict[int, tuple] = {}  # settled holds: (t, stretch, approach start, window start, end)
+    slow_taus: dict[int, float] = {}  # holds that never settled: the time constant of the end of their approach
+    slow_left: dict[int, float] = {}  # ... and the distance it still had to go (m)
     hold_s = np.empty(N)
     for i in range(N):
         t_end = tc[i + 1] if i + 1 < N else t[-1] + dt / 2
@@ -863,6 +884,14 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             dropped[i] = why
             unsettled.append(i)
             segments[i] = (ts[:end], seg[:end])
+            if k0 is not None:
+                # the slowest actuator's time constant shows once the others have arrived: the
+                # second half of what is left of the hold
+                k = k0 + (end - k0) // 2
+                late = fit_approach(ts[k:end], seg[k:end], sig_slow, t_end=ts[end - 1]) if end - k >= 16 else None
+                if late is not None and late.significant:
+                    slow_taus[i] = late.tau
+                    slow_left[i] = float(np.nanmax(late.remaining_m))
             continue
         r = _window_result(ts, seg, start, end, correction, fit)
         if r is None:
@@ -885,7 +914,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     names = (list(session.spec.control_names) if session.spec is not None
              else [f"u{j + 1}" for j in range(U.shape[1])])
     summary = _unsettled_summary(unsettled, fits, U, names, list(session.marker_names), hold_s, N,
-                                 set(dropped) - set(unsettled))
+                                 set(dropped) - set(unsettled), slow_taus, slow_left)
     many = len(unsettled) > opt.max_unsettled_fraction * N and len(unsettled) >= 2  # one of a few is no pattern
     n_extrapolated = 0
     if unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many)):
