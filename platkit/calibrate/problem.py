@@ -14,6 +14,14 @@ dp/dtd = -F_p^+ F_td and dp/du = -F_p^+ F_u. Terms' offsets are differentiated i
 finite differences (they are numpy functions with few parameters) and chained with the exact
 Jacobians. The solvers are in :mod:`platkit.calibrate.solve`, the procedure in
 :mod:`platkit.calibrate.estimate`.
+
+Rigid bodies measured in 6 DOF (:mod:`platkit.calibrate.bodies`): body b has an unknown placement
+(origin p_b, m, and rotation vector phi_b, rad, on the moving part) and two residual channels
+after the M markers': its origin, observed like a marker at p_b (channel M + b), and
+rho * log(R_meas^T R_pred) with R_pred = exp(w) exp(dth_n) R(q_n) exp(phi_b) (channel M + B + b),
+rho = sigma_position / sigma_rotation (m/rad) so that every channel is metres of equal noise.
+Its exact Jacobian is J_r^-1(e) R_b^T vee(Q^T dQ) for Q = exp(w) exp(dth_n) R(q_n) (CasADi) and
+J_r^-1(e) J_r(phi_b) for phi_b.
 """
 from __future__ import annotations
 
@@ -23,8 +31,26 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from platkit.calibrate.bodies import (
+    DEFAULT_RHO_M_PER_RAD,
+    body_frame_points,
+    declared_rho,
+    log_so3,
+    placement_from_frame_points,
+    quat_mean,
+    right_jacobian,
+    right_jacobian_inv,
+)
 from platkit.errors import BadInput
-from platkit.geometry import ca_matrix_from_quat, ca_matrix_from_rotvec, matrix_from_quat, rigid_fit, rotvec_from_matrix
+from platkit.geometry import (
+    ca_matrix_from_quat,
+    ca_matrix_from_rotvec,
+    matrix_from_quat,
+    matrix_from_rotvec,
+    quat_from_matrix,
+    rigid_fit,
+    rotvec_from_matrix,
+)
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -55,8 +81,9 @@ def parameter_scale(unit: str, nominal: float) -> float:
 
 @dataclass
 class FitState:
-    """One evaluation: residuals (N, M, 3) m (predicted minus measured, NaN where unseen) and the
-    Jacobian (N, M, 3, n_z) with respect to the full unknown vector."""
+    """One evaluation: residuals (N, C, 3) m (predicted minus measured, NaN where unseen) and the
+    Jacobian (N, C, 3, n_z) with respect to the full unknown vector. C = M + 2 B channels: the
+    markers, then each body's origin, then each body's scaled rotation error."""
 
     r: np.ndarray
     J: np.ndarray | None
@@ -66,7 +93,9 @@ class FitState:
 class CalibrationProblem:
     """The least-squares problem of one pose set on one stand; generic over PlatformSpec.
 
-    Full unknown vector z (n_z,) = [td (n_td), w (3), t (3), m (3 M), theta (sum K_k)].
+    Full unknown vector z (n_z,) = [td (n_td), w (3), t (3), m (3 M), theta (sum K_k), body origins
+    (3 B), body rotation vectors (3 B)]. ``body_rho`` (m/rad) weighs the bodies' rotation channels;
+    ``rho_source`` says where it came from ('declared', 'default', 'estimated').
     """
 
     def __init__(self, spec: PlatformSpec, poses: PoseSet, terms: Sequence[ModelTerm] = ()):
@@ -78,13 +107,26 @@ class CalibrationProblem:
         self.terms = list(terms)
         self.model = PlatformModel(spec)
         self.N, self.M = poses.n_poses, poses.n_markers
-        self.visible = np.all(np.isfinite(poses.markers), axis=2)  # (N, M)
+        self.B = poses.n_bodies
+        rho = declared_rho(poses.body_noise)
+        self.body_rho = DEFAULT_RHO_M_PER_RAD if rho is None else rho
+        self.rho_source = "default" if rho is None else "declared"
+        body_seen = np.all(np.isfinite(poses.bodies), axis=2)  # (N, B)
+        self.visible = np.concatenate([np.all(np.isfinite(poses.markers), axis=2), body_seen, body_seen], axis=1)
         if not self.visible.any():
-            raise BadInput(f"{poses.source or 'poses'}: no marker was seen in any pose")
+            raise BadInput(f"{poses.source or 'poses'}: no marker or rigid body was seen in any pose")
         # a marker position averaged over n samples has variance sigma^2 / n: weight it by n
         # (relative to the median, so that sigma stays the noise of a typical pose)
         self.base_weights = self.visible.astype(float)
         n = None if poses.n_samples is None else np.asarray(poses.n_samples, float)
+        if self.B:
+            nb = poses.n_body_samples
+            if nb is None and n is None:
+                n = None
+            else:
+                n_m = np.ones((self.N, self.M)) if n is None else n
+                n_b = np.ones((self.N, self.B)) if nb is None else np.asarray(nb, float)
+                n = np.concatenate([n_m, n_b, n_b], axis=1)
         if n is not None and n.shape == self.visible.shape and np.all(n[self.visible] > 0):
             self.base_weights = np.where(self.visible, n / np.median(n[self.visible]), 0.0)
         self.theta_sizes = [len(t.initial) for t in self.terms]
@@ -94,14 +136,19 @@ class CalibrationProblem:
         self.i_t = slice(spec.n_td + 3, spec.n_td + 6)
         self.i_m = slice(spec.n_td + 6, spec.n_td + 6 + 3 * self.M)
         self.i_theta = slice(self.i_m.stop, self.i_m.stop + n_theta)
-        self.n_z = self.i_theta.stop
+        self.i_body_pos = slice(self.i_theta.stop, self.i_theta.stop + 3 * self.B)
+        self.i_body_rot = slice(self.i_body_pos.stop, self.i_body_pos.stop + 3 * self.B)
+        self.n_z = self.i_body_rot.stop
         self.names = (spec.parameter_names + ["mocap.rx", "mocap.ry", "mocap.rz", "mocap.x", "mocap.y", "mocap.z"]
                       + [f"marker.{m}.{a}" for m in poses.marker_names for a in "xyz"]
-                      + [f"term.{t.effect}.{n}" for t in self.terms for n in t.parameter_names])
+                      + [f"term.{t.effect}.{n}" for t in self.terms for n in t.parameter_names]
+                      + [f"body.{b}.{a}" for b in poses.body_names for a in "xyz"]
+                      + [f"body.{b}.{a}" for b in poses.body_names for a in ("rx", "ry", "rz")])
         self.scale = np.concatenate([
             [parameter_scale(p.unit, p.nominal) for p in spec.parameters],
-            np.full(6 + 3 * self.M, 1e-3), np.full(n_theta, 1e-3)])
-        self.tiers = np.array([TD_TIER] * spec.n_td + [NUISANCE_TIER] * (6 + 3 * self.M) + [TERM_TIER] * n_theta)
+            np.full(6 + 3 * self.M, 1e-3), np.full(n_theta, 1e-3), np.full(6 * self.B, 1e-3)])
+        self.tiers = np.array([TD_TIER] * spec.n_td + [NUISANCE_TIER] * (6 + 3 * self.M) + [TERM_TIER] * n_theta
+                              + [NUISANCE_TIER] * (6 * self.B))
         self._p_guess = np.broadcast_to(spec.neutral_p(), (self.N, spec.n_p)).copy()
         self.prior_center = np.zeros(self.n_z)
         self.prior_scale = np.zeros(self.n_z)  # rows prior_scale * (z - prior_center); 0 = none
@@ -156,7 +203,7 @@ class CalibrationProblem:
 
     # ------------------------------------------------------------------ CasADi
     def _build(self) -> None:
-        spec, M = self.spec, self.M
+        spec, M = self.spec, self.M + self.B  # the bodies' origins are observed like markers
         u = ca.SX.sym("u", spec.n_u)
         td = ca.SX.sym("td", spec.n_td)
         w = ca.SX.sym("w", 3)
@@ -170,6 +217,9 @@ class CalibrationProblem:
             R = ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q))
             pts = [ca.mtimes(A, X + dpose[0:3] + ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t
                    for i in range(M)]
+            if self.B:  # Q = mocap_from_moving rotation, row by row, for the bodies' orientations
+                Q = ca.mtimes(A, R)
+                pts += [Q[i, j] for i in range(3) for j in range(3)]
             return ca.vertcat(*pts)
 
         if spec.forward is not None:
@@ -234,6 +284,10 @@ class CalibrationProblem:
             k += size
         return z[self.i_td], z[self.i_w], z[self.i_t], z[self.i_m].reshape(self.M, 3), theta
 
+    def split_bodies(self, z):
+        """Body placements in z: origins (B, 3) m and rotation vectors (B, 3) rad, in the moving frame."""
+        return z[self.i_body_pos].reshape(self.B, 3), z[self.i_body_rot].reshape(self.B, 3)
+
     def _term_offsets(self, theta, fk_q, fk_X, poses: PoseSet):
         N = poses.n_poses
         du = np.zeros((N, self.spec.n_u))
@@ -254,8 +308,10 @@ class CalibrationProblem:
         """Residuals (and the Jacobian) at z. ``poses``: another pose set (held-out prediction)."""
         own = poses is None
         poses = self.poses if own else poses
-        N, M = poses.n_poses, self.M
+        N, M, B = poses.n_poses, self.M, self.B
         td, w, t, m, theta = self.split(np.asarray(z, float))
+        p_body, phi_body = self.split_bodies(np.asarray(z, float))
+        m = np.concatenate([m, p_body])  # the bodies' origins ride as points after the markers
         U = poses.controls
         guess = self._p_guess if own else None
         if self.terms:
@@ -264,6 +320,8 @@ class CalibrationProblem:
         else:
             du, dpose, dm = np.zeros((N, self.spec.n_u)), np.zeros((N, 6)), np.zeros((N, M, 3))
         Uo = U + du
+        if B:
+            dm = np.concatenate([dm, np.zeros((N, B, 3))], axis=1)
         if self.spec.forward is not None:
             outs = self._call(N, with_jac, [Uo, td, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
             ok = np.ones(N, bool)
@@ -273,18 +331,21 @@ class CalibrationProblem:
                 self._p_guess = np.where(ok[:, None], P, self._p_guess)
             P = np.where(ok[:, None], P, self._p_guess if own else self.spec.neutral_p())
             outs = self._call(N, with_jac, [Uo, td, P, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
-        nM3 = 3 * M
+        nP3 = 3 * (M + B)
+        measured = np.concatenate([poses.markers, poses.bodies[..., :3]], axis=1)
         if not with_jac:
-            y = outs[0].reshape(N, M, 3)
-            r = y - poses.markers
+            y = outs[0].reshape(N, -1)
+            r = y[:, :nP3].reshape(N, M + B, 3) - measured
+            if B:
+                e = self._body_rotation_errors(y[:, nP3:].reshape(N, 3, 3), phi_body, poses)
+                r = np.concatenate([r, self.body_rho * e], axis=1)
             r[~ok] = np.nan
             return FitState(r, None, ok)
-        Yall = outs[0].transpose(0, 2, 1)  # (N, 3M, cols)
+        Yall = outs[0].transpose(0, 2, 1)  # (N, 3 (M + B) [+ 9], cols)
         parts = np.split(Yall, np.cumsum(self._cols)[:-1], axis=2)
-        y = parts[0][:, :, 0].reshape(N, M, 3)
-        r = y - poses.markers
-        r[~ok] = np.nan
-        J = np.zeros((N, nM3, self.n_z))
+        y = parts[0][:, :, 0]
+        r = y[:, :nP3].reshape(N, M + B, 3) - measured
+        J = np.zeros((N, y.shape[1], self.n_z))
         if self.spec.forward is not None:
             _, Y_td, Y_u, Y_w, Y_t, Y_m, Y_dpose = parts
         else:
@@ -301,7 +362,8 @@ class CalibrationProblem:
         J[:, :, self.i_td] = Y_td
         J[:, :, self.i_w] = Y_w
         J[:, :, self.i_t] = Y_t
-        J[:, :, self.i_m] = Y_m
+        J[:, :, self.i_m] = Y_m[:, :, :3 * M]
+        J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
         if self.terms:
             k = self.i_theta.start
             for term, th in zip(self.terms, theta):
@@ -314,20 +376,56 @@ class CalibrationProblem:
                     d_u = (term.control_offset(thp, poses, self.spec.n_u) - base[0]) / h
                     d_pose = (term.pose_offset(thp, poses, q0, X0) - base[1]) / h
                     d_m = (term.marker_offset(thp, poses) - base[2]) / h
+                    if B:
+                        d_m = np.concatenate([d_m, np.zeros((N, B, 3))], axis=1)
                     col = (np.einsum("nak,nk->na", Y_u, d_u) + np.einsum("nak,nk->na", Y_dpose, d_pose)
                            + np.einsum("nak,nk->na", Y_m, d_m.reshape(N, -1)))
                     J[:, :, k] = col
                     k += 1
-        return FitState(r, J.reshape(N, M, 3, self.n_z), ok)
+        J_pts = J[:, :nP3].reshape(N, M + B, 3, self.n_z)
+        if B:
+            e, J_rot = self._body_rotation_errors(y[:, nP3:].reshape(N, 3, 3), phi_body, poses,
+                                                  J[:, nP3:].reshape(N, 3, 3, self.n_z))
+            r = np.concatenate([r, self.body_rho * e], axis=1)
+            J_pts = np.concatenate([J_pts, self.body_rho * J_rot], axis=1)
+        r[~ok] = np.nan
+        return FitState(r, J_pts, ok)
+
+    def _body_rotation_errors(self, Q, phi_body, poses: PoseSet, dQ=None):
+        """Each body's orientation error e = log(R_meas^T Q exp(phi_b)) (N, B, 3) rad (NaN unseen) and,
+        with dQ (N, 3, 3, n_z) the derivatives of Q = mocap_from_moving rotation, de/dz (N, B, 3, n_z)."""
+        N, B = Q.shape[0], self.B
+        Rb = matrix_from_rotvec(phi_body)  # (B, 3, 3)
+        seen = np.all(np.isfinite(poses.bodies), axis=2)
+        Rm = matrix_from_quat(np.where(seen[..., None], poses.bodies[..., 3:], np.array([1.0, 0, 0, 0])))
+        pred = np.einsum("nab,kbc->nkac", Q, Rb)
+        e = log_so3(np.einsum("nkba,nkbc->nkac", Rm, pred))  # (N, B, 3)
+        e[~seen] = np.nan
+        if dQ is None:
+            return e
+        S = np.einsum("nba,nbck->nack", Q, dQ)  # Q^T dQ: skew, the moving frame's angular rates
+        v = 0.5 * np.stack([S[:, 2, 1] - S[:, 1, 2], S[:, 0, 2] - S[:, 2, 0], S[:, 1, 0] - S[:, 0, 1]], axis=1)
+        Jinv = right_jacobian_inv(np.nan_to_num(e))  # (N, B, 3, 3)
+        de = np.einsum("nkab,kcb,ncz->nkaz", Jinv, Rb, v)
+        for b in range(B):
+            cols = slice(self.i_body_rot.start + 3 * b, self.i_body_rot.start + 3 * b + 3)
+            de[:, b, :, cols] = Jinv[:, b] @ right_jacobian(phi_body[b])
+        return e, de
 
     # ------------------------------------------------------------------ initial values
     def initial_registration(self, td) -> np.ndarray:
-        """Transform and markers by rigid alignment at nominal kinematics: z (n_z,)."""
+        """Transform and markers by rigid alignment at nominal kinematics: z (n_z,).
+
+        A rigid body enters as three points of its frame (origin and two axis tips,
+        :func:`~platkit.calibrate.bodies.body_frame_points`); its placement is read back from them.
+        """
         poses = self.poses
         q, X, _, ok = self.kinematics(td, poses.controls)
         R = matrix_from_quat(q)
-        Y = poses.markers
-        vis = self.visible & ok[:, None]
+        M, B = self.M, self.B
+        Y = np.concatenate([poses.markers, body_frame_points(poses.bodies)], axis=1)
+        vis = np.concatenate([self.visible[:, :M], np.repeat(self.visible[:, M:M + B], 3, axis=1)], axis=1)
+        vis &= ok[:, None]
         A = self._initial_rotation(R, X, Y, vis)
         keep = vis.copy()
         for _ in range(6):  # alternate: markers by least squares, then Kabsch; gross outliers left out
@@ -342,7 +440,11 @@ class CalibrationProblem:
         z[self.i_td] = td
         z[self.i_w] = rotvec_from_matrix(A)
         z[self.i_t] = b
-        z[self.i_m] = mk.ravel()
+        z[self.i_m] = mk[:M].ravel()
+        if B:
+            origin, Rb = placement_from_frame_points(mk[M:].reshape(B, 3, 3))
+            z[self.i_body_pos] = origin.ravel()
+            z[self.i_body_rot] = rotvec_from_matrix(Rb).ravel()
         k = self.i_theta.start
         for term in self.terms:
             z[k:k + len(term.initial)] = term.initial
