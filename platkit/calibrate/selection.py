@@ -11,18 +11,21 @@ what a user wants from a calibration, prediction of poses it was not fitted on:
    outliers are left out of every later comparison, so that all candidates are judged on the same
    observations;
 2. backward elimination over the groups: each candidate (the current set less one group) is
-   fitted and scored by its leave-one-pose-out prediction errors (:func:`heldout_errors`); a group
-   is dropped only if that leaves both their median and their RMS no worse (within rounding: a
-   group the others make redundant ties, and goes); of several, the lowest median goes first;
+   fitted and its leave-one-pose-out prediction errors (:func:`heldout_errors`) compared with the
+   current model's, pose by pose (:func:`heldout_evidence`). A group is kept when prediction is
+   clearly worse without it (the RMS or the median, by more than Z_CLEAR standard errors); where
+   held-out prediction cannot tell (the measurement noise of the held-out marker hides what a few
+   parameters change), it is kept if the fit without it is worse beyond the noise (likelihood
+   ratio at FIT_LEVEL, :func:`group_significance`), and dropped otherwise. A group that the others
+   make redundant (same held-out errors) is dropped, after the others. One group per round, the
+   least supported;
 3. the chosen groups are fitted once more on the whole session with the user's loss.
 
 Scores: the median and the RMS of the held-out 3-D marker errors (every kept observation of every
-pose, each predicted from a fit without its pose). A group goes only when neither says it helps:
-the median is the typical error of a new pose, the RMS weighs every pose (with Gaussian noise the
-RMS is the sharper of the two: on a simulated stewart the median could not tell the leg offsets
-from the joint positions, the RMS could). On real data a few poses that no other pose resembles
-dominate the RMS (each is predicted by extrapolation, badly by every model); the RMS alone would
-then hold the TIAGo arm's joint scales and predict the other day worse (docs/calibration.md).
+pose, each predicted from a fit without its pose). The median is the typical error of a new pose;
+the RMS weighs every pose. On real data a few poses that no other pose resembles dominate the RMS
+(each is predicted by extrapolation, badly by every model): on the TIAGo training day the RMS
+favours holding the joint scales, the median freeing them, neither clearly (docs/calibration.md).
 
 Leave-one-pose-out errors come from one fit per candidate: at the least-squares solution, the
 solution without pose n's rows is the Gauss-Newton step ``dz = (A - J_n^T W_n J_n)^-1 J_n^T W_n r_n``
@@ -42,9 +45,13 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 
-#: a group is dropped when that leaves the held-out score no worse than this fraction (rounding:
-#: groups that the others make redundant, as a joint offset beside its origin's rotation, tie)
+#: two candidates whose held-out median and RMS agree to this fraction describe the same (a joint
+#: offset beside its origin's rotation): the group between them is redundant
 TOLERANCE = 1e-6
+#: held-out prediction says clearly that a group helps beyond this many standard errors
+Z_CLEAR = 2.0
+#: where held-out prediction cannot tell, a group is kept if the fit without it is worse at this level
+FIT_LEVEL = 0.01
 #: fewer poses than this: nothing is selected (the stand's default free set is fitted)
 MIN_POSES = 8
 UNGROUPED = "(ungrouped)"
@@ -109,6 +116,7 @@ class Candidate:
     heldout_median: float
     heldout_rms: float
     n_heldout: int
+    errors: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))  # (N, M) m, NaN unseen
 
     def as_dict(self, unit: str) -> dict:
         s = length_scale(unit)
@@ -133,8 +141,9 @@ class Selection:
         return {
             "method": "backward elimination over parameter groups, scored by leave-one-pose-out prediction",
             "criterion": "median and RMS of the held-out 3-D marker errors (each pose predicted by a fit without it)",
-            "rule": "a group is dropped while dropping it leaves both the median and the RMS of the held-out errors "
-                    "no worse (within rounding); among such groups, the one whose removal gives the lowest median",
+            "rule": (f"a group is kept when held-out prediction is clearly worse without it (median or RMS, more than "
+                     f"{Z_CLEAR:g} standard errors), or, where held-out prediction cannot tell, when the fit without "
+                     f"it is worse beyond the noise (likelihood ratio, p < {FIT_LEVEL:g}); otherwise it is held"),
             "unit": unit,
             "groups": list(self.groups),
             "chosen": list(self.chosen),
@@ -152,11 +161,54 @@ def _names(groups: dict[str, list[str]], chosen: Sequence[str]) -> list[str]:
 
 
 def _score(cal: Calibration, groups: tuple[str, ...]) -> Candidate:
-    d = heldout_errors(cal)
-    d = d[np.isfinite(d)]
+    E = heldout_errors(cal)
+    d = E[np.isfinite(E)]
     return Candidate(groups, int(sum(st == "estimated" for st in cal.td_status)), float(cal.rms_after),
                      float(np.median(d)) if d.size else float("inf"),
-                     float(np.sqrt(np.mean(d ** 2))) if d.size else float("inf"), int(d.size))
+                     float(np.sqrt(np.mean(d ** 2))) if d.size else float("inf"), int(d.size), E)
+
+
+def heldout_evidence(with_g: Candidate, without_g: Candidate) -> tuple[float, float]:
+    """How clearly a group helps held-out prediction: (z of the RMS, z of the median), positive
+    when the model without the group predicts worse.
+
+    RMS: the per-pose mean of (error without)^2 - (error with)^2, its mean over the poses in
+    standard errors (a pose's markers share its errors, so poses are the independent units).
+    Median: the sign test, observations predicted worse without the group against half of them.
+    """
+    a, b = without_g.errors, with_g.errors
+    both = np.isfinite(a) & np.isfinite(b)
+    per_pose = np.array([np.mean(a[n, both[n]] ** 2 - b[n, both[n]] ** 2) for n in range(len(a)) if both[n].any()])
+    z_rms = 0.0
+    if per_pose.size > 1 and np.std(per_pose) > 0:
+        z_rms = float(np.mean(per_pose) / (np.std(per_pose, ddof=1) / np.sqrt(per_pose.size)))
+    n = int(both.sum())
+    z_median = float((np.sum(a[both] > b[both]) - n / 2) / np.sqrt(n / 4)) if n else 0.0
+    return z_rms, z_median
+
+
+def group_significance(with_g: Calibration, without_g: Calibration) -> tuple[float, int]:
+    """(p-value, dof) of the likelihood-ratio test that a group's parameters are not needed: the fit
+    without it against the fit with it, on the same observations.
+
+    chi^2 = (RSS without - RSS with) / sigma^2 (sigma^2 per axis from the fit with it), with as many
+    degrees of freedom as the fit with it estimates more unknowns; what the other groups describe
+    as well (a joint offset beside its origin's rotation) adds none. (1.0, 0) when it adds none.
+    """
+    from scipy.stats import chi2
+
+    def rss_dof(cal):
+        n_active = int(np.sum(cal.extras["active"]))
+        dof = max(1, 3 * int(cal.n_observations) - n_active)
+        return cal.noise_sigma ** 2 * dof, dof, n_active
+
+    rss1, dof1, n1 = rss_dof(with_g)
+    rss0, _, n0 = rss_dof(without_g)
+    k = n1 - n0
+    if k <= 0 or not rss1 > 0:
+        return 1.0, max(k, 0)
+    stat = max(0.0, (rss0 - rss1) / (rss1 / dof1))
+    return float(chi2.sf(stat, k)), k
 
 
 def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progress: Progress | None = None,
@@ -199,7 +251,8 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     current = tuple(labels)
     note(f"every group: held-out median {scores[current].heldout_median / s:.4g} {unit}, "
          f"RMS {scores[current].heldout_rms / s:.4g} {unit}")
-    dropped: list[tuple[str, Candidate, Candidate]] = []  # (group, without it, with it)
+    dropped: list[tuple[str, str]] = []  # (group, why)
+    kept_why: dict[str, str] = {}
     while len(current) > 1:
         cur = scores[current]
         trials = []
@@ -211,27 +264,40 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
                 note(f"without {g}: held-out median {scores[trial].heldout_median / s:.4g} {unit}, "
                      f"RMS {scores[trial].heldout_rms / s:.4g} {unit}")
             c = scores[trial]
-            if (c.heldout_median <= cur.heldout_median * (1 + tolerance)
-                    and c.heldout_rms <= cur.heldout_rms * (1 + tolerance)):
-                trials.append((c.heldout_median, g, trial))
+            numbers = (f"held-out median / RMS {c.heldout_median / s:.3g} / {c.heldout_rms / s:.3g} {unit} without it, "
+                       f"{cur.heldout_median / s:.3g} / {cur.heldout_rms / s:.3g} with it")
+            if (abs(c.heldout_median - cur.heldout_median) <= tolerance * cur.heldout_median
+                    and abs(c.heldout_rms - cur.heldout_rms) <= tolerance * cur.heldout_rms):
+                # last in line: of two groups that describe the same, the other may be dropped instead
+                trials.append(((1, 0.0), g, trial, f"{g} held: the other groups describe the same ({numbers})"))
+                continue
+            z_rms, z_med = heldout_evidence(cur, c)
+            if max(z_rms, z_med) > Z_CLEAR:
+                kept_why[g] = (f"{g} kept: held-out prediction is clearly worse without it ({numbers}; "
+                               f"z {z_rms:.1f} for the RMS, {z_med:.1f} for the median)")
+                continue
+            p, dof = group_significance(fits[current], fits[trial])
+            if p < FIT_LEVEL:
+                kept_why[g] = (f"{g} kept: held-out prediction cannot tell ({numbers}; z {z_rms:.1f}, {z_med:.1f}), "
+                               f"and the fit without it is worse beyond the noise (likelihood ratio, {dof} unknowns, "
+                               f"p = {p:.2g})")
+                continue
+            trials.append(((0, max(z_rms, z_med)), g, trial,
+                           f"{g} held: held-out prediction is no clearly better with it ({numbers}; z {z_rms:.1f}, "
+                           f"{z_med:.1f}), nor the fit beyond the noise (likelihood ratio, {dof} unknowns, p = {p:.2g})"))
         if not trials:
             break
-        _, g, trial = min(trials)
-        dropped.append((g, scores[trial], cur))
+        _, g, trial, why = min(trials, key=lambda x: x[0])
+        dropped.append((g, why))
+        kept_why.pop(g, None)
         current = trial
     chosen = list(current)
     held = [g for g in labels if g not in chosen]
     cur = scores[current]
-    parts = [f"freeing {', '.join(chosen)} predicts held-out poses best (median error {cur.heldout_median / s:.3g} "
-             f"{unit}, RMS {cur.heldout_rms / s:.3g} {unit})"]
-    for g, without, with_ in dropped:
-        parts.append(f"{g} held: without it {without.heldout_median / s:.3g} / {without.heldout_rms / s:.3g} {unit} "
-                     f"(median / RMS) against {with_.heldout_median / s:.3g} / {with_.heldout_rms / s:.3g} with it")
-    for g in chosen:
-        other = tuple(x for x in current if x != g)
-        if other in scores:
-            parts.append(f"{g} kept: without it {scores[other].heldout_median / s:.3g} / "
-                         f"{scores[other].heldout_rms / s:.3g} {unit}")
+    parts = [f"free {', '.join(chosen)} (held-out median {cur.heldout_median / s:.3g} {unit}, "
+             f"RMS {cur.heldout_rms / s:.3g} {unit})"]
+    parts += [why for _, why in dropped]
+    parts += [kept_why[g] for g in chosen if g in kept_why]
     reason = "; ".join(parts)
     if current == tuple(labels):
         cal = reference

@@ -92,7 +92,7 @@ def test_a_joint_scale_the_data_fix_is_freed_on_a_urdf_stand(arm):
     err, err_default = truth_error(cal, arm, truth), truth_error(default, arm, truth)
     assert err < SIGMA < 0.2 * err_default  # the stand's default is off by the scale error
     assert sel["candidates"][0]["free"] == sel["chosen"]
-    assert "kept: without it" in sel["reason"]
+    assert "scale kept: held-out prediction is clearly worse without it" in sel["reason"]
 
 
 def test_a_group_the_data_do_not_need_is_held(arm):
