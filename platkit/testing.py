@@ -2,6 +2,7 @@
 
     from platkit.testing import check_platform
     check_platform(spec)          # raises AssertionError naming the failed check
+    check_imu_effect(effect)      # the same for an IMU effect (platkit.effects.ImuEffect)
 
 Checks: the spec validates; F = 0 at the neutral pose; CasADi Jacobians of F against central
 finite differences; inverse-then-forward round trips at random poses near neutral; forward-then-
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from platkit.effects import ImuEffect
 from platkit.errors import PlatkitError
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, validate_spec
@@ -132,3 +134,67 @@ def check_platform(spec: PlatformSpec, n_samples: int = 20, seed: int = 0, tol_p
     assert worst_a < 1e-4, f"{spec.name}: acceleration kinematics differ from finite differences by {worst_a:.3g}"
     report.update(velocity_fd_error=worst_v, acceleration_fd_error=worst_a)
     return report
+
+
+def check_imu_effect(effect, seed: int = 0) -> dict:
+    """The conformance checks of an IMU effect (:class:`platkit.effects.ImuEffect`), built-in or
+    outside: what the simulator and the diagnosis rely on. Returns a dict of figures;
+    AssertionError naming the effect and the check on failure.
+
+    Checks: its name, sensor, parameter names, display scale and floor; theta = 0 is no effect
+    (the diagnosis nests every model in the one without it); the sensor model's outputs have the
+    documented shapes and are finite, its rotations are rotations; its reports, size and
+    calibration entry are what a finding and calibration.yaml take.
+    """
+    name = getattr(effect, "name", None)
+    assert isinstance(effect, ImuEffect), f"{effect!r}: not a platkit.effects.ImuEffect"
+    assert isinstance(name, str) and name, f"{effect!r}: an IMU effect needs a name"
+    assert effect.sensor in ("gyro", "accelerometer"), f"{name}: sensor {effect.sensor!r}, expected gyro or accelerometer"
+    n = effect.n_params
+    assert n > 0 and all(isinstance(p, str) and p for p in effect.parameter_names), \
+        f"{name}: parameter_names must name each parameter"
+    assert effect.display_scale > 0 and effect.min_size >= 0 and effect.min_separability >= 0, \
+        f"{name}: display_scale must be positive, min_size and min_separability 0 or more"
+    rng = np.random.default_rng(seed)
+    t = np.linspace(-60.0, 60.0, 11)
+    zero = np.zeros(n)
+    for label, out, shape in (("gyro_bias", effect.gyro_bias(zero, t), (len(t), 3)),
+                              ("accelerometer_bias", effect.accelerometer_bias(zero, t), (len(t), 3)),
+                              ("sensor_from_platform", effect.sensor_from_platform(zero), (3, 3)),
+                              ("level_from_base", effect.level_from_base(zero), (3, 3))):
+        out = np.asarray(out, float)
+        assert out.shape == shape, f"{name}: {label} has shape {out.shape}, expected {shape}"
+        expected = np.eye(3) if shape == (3, 3) else np.zeros(shape)
+        assert np.allclose(out, expected, atol=1e-12), f"{name}: {label} at theta = 0 is not 'no effect'"
+    size = 3.0 * max(effect.min_size, 1e-3)
+    theta = effect.simulation_theta(size, rng)
+    assert np.shape(theta) == (n,) and np.all(np.isfinite(theta)), f"{name}: simulation_theta gives {theta!r}"
+    assert abs(effect.size(theta) - size) <= 1e-6 * size, \
+        f"{name}: size(simulation_theta({size:g})) = {effect.size(theta):.6g}, expected {size:g}"
+    for label in ("gyro_bias", "accelerometer_bias"):
+        out = np.asarray(getattr(effect, label)(theta, t), float)
+        assert out.shape == (len(t), 3) and np.all(np.isfinite(out)), f"{name}: {label} is not (N, 3) finite numbers"
+    for label in ("sensor_from_platform", "level_from_base"):
+        R = np.asarray(getattr(effect, label)(theta), float)
+        assert R.shape == (3, 3) and np.allclose(R @ R.T, np.eye(3), atol=1e-9) and np.linalg.det(R) > 0, \
+            f"{name}: {label} is not a rotation matrix"
+    C = np.asarray(effect.frame_covariance(theta, np.eye(3) * 1e-6, np.eye(3) * 1e-6), float)
+    assert C.shape == (n, n) and np.allclose(C, C.T) and np.all(np.linalg.eigvalsh(C) > -1e-15), \
+        f"{name}: frame_covariance must be a symmetric ({n}, {n}) covariance"
+    cov = np.eye(n) * (0.1 * float(np.max(np.abs(theta))) + 1e-12) ** 2
+    context = {"sensor": effect.sensor, "n": 40, "span_s": (0.0, 200.0), "t_ref": 100.0, "b0": np.zeros(3),
+               "b0_std": np.zeros(3), "heldout_before": 2.0, "heldout_after": 1.0,
+               "heldout_unit": "deg/s" if effect.sensor == "gyro" else "m/s^2", "p_heldout": 1e-4, "p_screen": 1e-5,
+               "separability": 0.5}
+    rep = effect.report(theta, cov, context)
+    assert isinstance(rep, dict) and {"parameters", "where", "evidence"} <= set(rep), \
+        f"{name}: report must give parameters, where and evidence"
+    for pname, p in rep["parameters"].items():
+        assert {"value", "std", "unit"} <= set(p) and np.isfinite(p["value"]) and p["std"] >= 0, \
+            f"{name}: report's parameter {pname!r} needs a finite value, a std and a unit"
+    assert isinstance(rep["evidence"], str) and rep["evidence"], f"{name}: report's evidence must be a sentence"
+    entry = effect.calibration_entry(theta, cov, context)
+    assert isinstance(entry, dict) and entry, f"{name}: calibration_entry must give a mapping for calibration.yaml"
+    assert isinstance(effect.headline(rep["parameters"]), str), f"{name}: headline must be a few words"
+    assert effect.candidates(None, None) == [], f"{name}: an IMU effect adds no motion-capture term"
+    return {"effect": name, "sensor": effect.sensor, "n_params": n, "reported_as": effect.finding_name}
