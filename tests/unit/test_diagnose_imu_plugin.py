@@ -96,3 +96,22 @@ def test_diagnosis_names_the_outside_effect(host):
     assert f["heldout_rms_after"] < 0.8 * f["heldout_rms_before"] and "gyro_bias_cycle" in d.verdict
     # calibration.yaml's imu mapping gets the effect's default entry
     assert d.calibration_entry()["gyro_bias_cycle"]["effect"] == "gyro_bias_cycle"
+
+
+def test_every_imu_effect_passes_the_conformance_checks(host):
+    """platkit.testing.check_imu_effect: the built-in IMU effects and the outside one; a broken
+    effect is named with what is wrong."""
+    from platkit.testing import check_imu_effect
+
+    lib = host.effects()
+    names = [check_imu_effect(e)["effect"] for e in lib.values() if isinstance(e, ImuEffect)]
+    assert sorted(names) == ["gyro_bias_cycle", "gyro_bias_drift", "imu_base_tilt", "imu_misalignment"]
+
+    class AlwaysOn(GyroBiasCycle):
+        name = "always_on"
+
+        def gyro_bias(self, theta, t):
+            return super().gyro_bias(theta, t) + 1e-3  # an offset even at theta = 0
+
+    with pytest.raises(AssertionError, match="always_on: gyro_bias at theta = 0 is not 'no effect'"):
+        check_imu_effect(AlwaysOn())
