@@ -310,6 +310,16 @@ class ImuEffect(Effect):
     def candidates(self, spec, poses, residuals=None) -> list[ModelTerm]:
         return []
 
+    def simulation_term(self, spec, size, rng, commands):
+        """size: in the effect's display unit, with --imu (an IMU effect acts on the simulated
+        IMU's samples through its sensor model, platkit.inertial.simulate, not as a model term)."""
+        return None
+
+    def physics(self, spec, size, rng, plan):
+        """size: in the effect's display unit, with --imu (an IMU effect acts on the simulated
+        IMU's samples through its sensor model, not in the stand's physics)."""
+        return None
+
     # --- the sensor model (one implementation for simulation and diagnosis)
     def gyro_bias(self, theta: np.ndarray, t: np.ndarray) -> np.ndarray:
         """(N, 3) rad/s added to the gyro at times ``t`` (N,) s from the reference time."""
