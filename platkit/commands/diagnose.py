@@ -49,6 +49,10 @@ def run(args) -> int:
         return load_poses(folder, spec=cal.spec)
 
     poses = poses_of(args.session)
+    from platkit.commands.calibrate import settling_notes
+
+    for note in settling_notes(poses, args.session):  # dropped commands by reason, holds extrapolated to rest
+        print(f"platkit: warning: {note}", file=sys.stderr)
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from platkit.calibrate.settle import settling_summary
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.figures import png_base64 as _png
@@ -59,6 +60,8 @@ def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
         "separability": _num(f.separability),
         "warnings": list(f.warnings),
     }
+    if f.corrected:  # a recording artefact: how calibration.yaml leaves it out
+        out["corrected"] = f.corrected
     if f.heldout_session_rms_before is not None:
         out["heldout_session_rms_before"] = _num(f.heldout_session_rms_before / s)
         out["heldout_session_rms_after"] = _num(f.heldout_session_rms_after / s)
@@ -77,10 +80,14 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
         "verdict": d.verdict,
         "rms_geometric": _num(d.base.rms_after / s),
         "rms_final": _num(d.calibration.rms_after / s),
+        "heldout_rms_geometric": None if d.heldout_geometric is None else _num(d.heldout_geometric / s),
+        "noise_floor": None if d.noise_floor is None else _num(d.noise_floor / s),  # held-out RMS from marker noise alone
+        "at_noise_floor": bool(d.at_noise_floor),  # then nothing is named: no effect can predict better
         "located_before": [{"test": x.test, "where": strict(x.where), "statistic": _num(x.statistic),
                             "p_adjusted": _num(x.p_adjusted)} for x in d.locations_before if x.p_adjusted < 0.05][:20],
         "located_after": [{"test": x.test, "where": strict(x.where), "statistic": _num(x.statistic),
                            "p_adjusted": _num(x.p_adjusted)} for x in d.locations if x.p_adjusted < 0.05][:20],
+        "settling": strict(settling_summary(d.poses, d.unit)),  # every command: kept, extrapolated, dropped and why
         "not_separable": strict(d.not_separable),
         "rounds": strict(d.rounds),
         "method": ("forward selection: score-test screening (Holm), refit with the shared estimator, accepted when "

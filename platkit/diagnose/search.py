@@ -17,10 +17,23 @@ One round (repeated until nothing passes or ``max_effects`` are in):
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
+
+Two effects describe the recording, not the stand (RECORDING_EFFECTS: settling_lag, marker_slip):
+they are fitted like the others, so that the geometry is estimated from corrected data, but the
+calibration diagnosis writes predicts where the stand settles: without the lag, with a slipped
+marker at its new place (:func:`stand_calibration`). Holds that never settled are found in the
+raw stream by the settling search (platkit.calibrate.settle); when it extrapolated them to rest,
+the ``settling_lag`` finding says which actuators lag and with what time constant, and is
+accepted only if the calibration from the extrapolated poses predicts the held-out *settled*
+poses better than one from where the stream was at the end of those holds.
+
+Nothing is named when the geometric model already predicts held-out poses at the noise floor
+(the averaging noise of the settled poses, from the stream's noise and the samples averaged):
+an effect of any shape the geometry absorbs on this plan leaves nothing to find.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -35,6 +48,10 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
+
+
+#: effects that describe the recording, not the stand: corrected in the data, never predicted
+RECORDING_EFFECTS = ("settling_lag", "marker_slip")
 
 
 @dataclass
@@ -60,6 +77,9 @@ class Options:
     # slipped marker's later half) still count against it, so the model that explains them wins
     robust: bool = True
     lm_iterations: int = 30
+    # the geometric model's held-out RMS within this factor of the noise floor (or within three
+    # standard errors of its estimate over the observations, if more): nothing to find
+    noise_floor_factor: float = 1.03
 
 
 @dataclass
@@ -112,6 +132,7 @@ class Finding:
     signature_after: np.ndarray | None = None
     heldout_session_rms_before: float | None = None
     heldout_session_rms_after: float | None = None
+    corrected: str = ""  # for a recording artefact: how calibration.yaml leaves it out ('' for the stand's physics)
 
 
 @dataclass
@@ -128,6 +149,11 @@ class Diagnosis:
     poses: PoseSet
     heldout_session: dict[str, float] | None = None
     imu: dict[str, Any] | None = None  # the gyro diagnosis (platkit.diagnose.imu), when the session has imu.csv
+    fitted: Calibration | None = None  # the model fitted to the data, recording artefacts included
+    noise_floor: float | None = None  # m, the held-out RMS that marker noise alone gives (None: unknown)
+    heldout_geometric: float | None = None  # m, the geometric model's held-out RMS
+    at_noise_floor: bool = False  # the geometric model predicts held-out poses as well as the noise allows
+    too_few_settled: bool = False  # most poses extrapolated: the stand's physics not tested (no settled poses to judge on)
 
 
 # ---------------------------------------------------------------------------- fitting
@@ -296,7 +322,28 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     rounds: list[dict] = []
     not_separable: dict[tuple, dict] = {}
     stop_unexplained: Finding | None = None
-    while len(findings) < opt.max_effects:
+    first_cv = cur.cv_rms
+    floor = noise_floor(poses, int(cur.active.sum()))
+    n_seen = int(np.all(np.isfinite(poses.markers), axis=2).sum())
+    factor = max(opt.noise_floor_factor, 1.0 + 1.5 * np.sqrt(2.0 / (3.0 * max(n_seen, 1))))
+    at_floor = floor is not None and cur.cv_rms <= factor * floor
+    if floor is not None:
+        say(f"noise floor of held-out prediction: {_fmt_rms(floor, unit)}"
+            + (" (the geometric model is at it: nothing left to find)" if at_floor else ""))
+    settled = _settling_finding(spec, poses, cur, weights, opt, say)
+    if settled is not None:
+        findings.append(settled)
+    # held-out proof on poses where the stand settled: an extrapolated pose carries what its
+    # approach model missed, along the last move (a backlash's signature); with too few settled
+    # poses to judge on, the stand's physics is not named (a recording that never settles)
+    judged = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float) == 0
+    too_few_settled = judged.sum() < 4 * opt.folds and not judged.all()
+    if too_few_settled:
+        say(f"only {int(judged.sum())} holds settled: too few to prove an effect of the stand on")
+    if judged.sum() < 4 * opt.folds:
+        judged = np.ones(poses.n_poses, bool)
+    stop = at_floor or too_few_settled
+    while len(findings) < opt.max_effects and not stop:
         cands: list[tuple[Effect, ModelTerm]] = []
         taken = {_place(t) for t in cur.terms}
         body_r = _body_residuals(cur, poses)
@@ -333,7 +380,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             eff, term = cands[i]
             f = _fit(spec, poses, cur.terms + [term], cur.z, cur.active, weights, opt.lm_iterations, opt.robust)
             f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
-            trials.append((i, f, paired_improvement(cur.cv, f.cv)))
+            trials.append((i, f, paired_improvement(cur.cv[judged], f.cv[judged])))
             say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)} "
                 f"(paired p = {trials[-1][2]:.2g}), BIC {f.bic - cur.bic:+.1f}")
         # fixed-sequence confirmation: in the order the information criterion prefers, the first
@@ -345,7 +392,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             # stricter level (real ones pass at p < 1e-4 in the proof benchmark; chance ones at 0.02)
             sep_i = scr[i][2]
             level = opt.alpha_heldout if sep_i >= opt.warn_separability else opt.alpha_heldout * opt.weak_separability_factor
-            if f.bic < cur.bic and f.cv_rms < (1 - opt.min_relative_gain) * cur.cv_rms and p_h < level:
+            gain = _rms(f.cv, judged) < (1 - opt.min_relative_gain) * _rms(cur.cv, judged)
+            if f.bic < cur.bic and gain and p_h < level:
                 good = (i, f, p_h)
             break
         if good is None:
@@ -380,18 +428,19 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     final_cal = base_cal if len(cur.terms) == len(prior) else calibrate(
         poses, spec, terms=cur.terms, free=free, td_start=td_start, robust=opt.robust,
         platform_options=None if start is None else start.platform_options)
-    for k, (finding, info) in enumerate(zip(findings, accepted_info), start=len(prior)):
+    modelled = [f for f in findings if f.term is not None]
+    for k, (finding, info) in enumerate(zip(modelled, accepted_info), start=len(prior)):
         theta, std = final_cal.theta[k], final_cal.theta_std[k]
         finding.parameters = _params(finding.term, theta, std)
         finding.signature_after = _signature(info["J"], final_cal.extras["residuals_after"], theta,
                                              _offset_sign(finding.term, theta, info["fit"], poses))
         finding.evidence = _evidence(finding, poses, unit, folds=opt.folds)
     locations = locate(final_cal.extras["residuals_after"], poses, spec, None, opt.alpha)
-    if stop_unexplained is None and opt.probes:
+    if stop_unexplained is None and opt.probes and not stop:
         stop_unexplained = _probe_beats(spec, poses, cur, None, opt)
     if stop_unexplained is not None:
         findings.append(stop_unexplained)
-    else:
+    elif not stop:
         left = located(locations, opt.alpha * 0.1)
         if left:
             top = left[0]
@@ -403,14 +452,115 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                           "no effect in the library predicts held-out poses better"),
                 p_screen=float(top.p_adjusted)))
     findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
+    stand = stand_calibration(final_cal)
+    for f in findings:
+        if f.effect == "settling_lag" and f.term is not None:
+            f.corrected = ("in the data: the lag is fitted so that the geometry sees where the stand settles; "
+                           "calibration.yaml leaves it out (predict gives the settled pose)")
+        elif f.effect == "marker_slip":
+            f.corrected = (f"in the data: marker {f.where.get('marker')} is fitted at both places; calibration.yaml "
+                           "holds its place after the slip")
     heldout_info = None
     if heldout is not None:
-        heldout_info = _score_heldout(base_cal, final_cal, heldout, spec, findings)
-    diag = Diagnosis(findings=findings, verdict="", calibration=final_cal, base=base_cal, locations=locations,
+        heldout_info = _score_heldout(base_cal, stand, heldout, spec, findings)
+    diag = Diagnosis(findings=findings, verdict="", calibration=stand, base=base_cal, locations=locations,
                      locations_before=locations_before, rounds=rounds, not_separable=list(not_separable.values()),
-                     unit=unit, poses=poses, heldout_session=heldout_info)
+                     unit=unit, poses=poses, heldout_session=heldout_info, fitted=final_cal, noise_floor=floor,
+                     heldout_geometric=first_cv, at_noise_floor=at_floor, too_few_settled=bool(too_few_settled))
     diag.verdict = verdict(diag)
     return diag
+
+
+def _rms(cv: np.ndarray, mask: np.ndarray) -> float:
+    """RMS (m) of the held-out errors ``cv`` (N,) (mean squares per pose) over the poses in ``mask``."""
+    return float(np.sqrt(np.nanmean(cv[mask])))
+
+
+def stand_calibration(cal: Calibration) -> Calibration:
+    """The calibration of the stand from one fitted with recording artefacts: settling_lag terms
+    left out (the stand is predicted where it settles), a slipped marker placed where it was after
+    the slip (its offset added to its position, the stds combined). Other terms stay."""
+    keep = [k for k, t in enumerate(cal.terms) if t.effect not in RECORDING_EFFECTS]
+    markers = np.array(cal.marker_positions, float, copy=True)
+    mstd = np.array(cal.marker_std, float, copy=True)
+    for t, theta, std in zip(cal.terms, cal.theta, cal.theta_std):
+        if t.effect == "marker_slip":
+            m = int(t.where["marker_index"])
+            markers[m] = markers[m] + np.asarray(theta, float)[:3]
+            sd = np.asarray(std, float)[:3] if std is not None else np.full(3, np.nan)
+            mstd[m] = np.sqrt(mstd[m] ** 2 + sd**2)
+    if len(keep) == len(cal.terms):
+        return cal
+    return replace(cal, terms=[cal.terms[k] for k in keep], theta=[cal.theta[k] for k in keep],
+                   theta_std=[cal.theta_std[k] for k in keep], marker_positions=markers, marker_std=mstd)
+
+
+def noise_floor(poses: PoseSet, n_params: int) -> float | None:
+    """The held-out RMS (m, of the 3-D marker error) that marker noise alone gives: each settled
+    marker averages n samples of noise sigma per coordinate (sigma from the settling search), and
+    a refit on the other folds adds its own error (about n_params / n_observations of it); a
+    coloured noise averages less (its slow part, ``slow_noise_inflation`` of settle). None
+    when the poses did not come from a stream (no sigma) or carry no sample counts."""
+    sigma = (poses.settling or {}).get("sigma_m")
+    if sigma is None or poses.n_samples is None:
+        return None
+    sigma = sigma * np.sqrt((poses.settling or {}).get("slow_noise_inflation", 1.0))  # coloured noise averages less
+    n = np.asarray(poses.n_samples, float)
+    seen = np.all(np.isfinite(poses.markers), axis=2) & (n > 0)
+    if not seen.any():
+        return None
+    ms = float(np.mean(3.0 * sigma**2 / n[seen]))
+    return float(np.sqrt(ms * (1.0 + n_params / (3.0 * seen.sum()))))
+
+
+def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.ndarray, opt: Options,
+                      say: Callable[[str], None]) -> Finding | None:
+    """The ``settling_lag`` finding of holds that never settled and were extrapolated to rest by
+    the settling search, or None. It is tested where it matters: the model fitted to the poses as
+    extrapolated (``cur``) and one fitted with those holds where the stream was at their end
+    ('held_markers') predict the held-out *settled* poses (the same data in both); accepted when
+    the extrapolated one predicts them significantly better."""
+    info = poses.settling or {}
+    un = info.get("unsettled") or {}
+    if not un or not info.get("n_extrapolated") or "held_markers" not in poses.extras or cur.cv is None:
+        return None
+    ex = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses))) > 0
+    if ex.sum() == 0 or (~ex).sum() < 2 * opt.folds:
+        say(f"{un['sentence']}; too few held-out settled poses ({int((~ex).sum())}) to test the extrapolation")
+        return None
+    naive = poses.subset(np.arange(poses.n_poses))
+    naive.markers = np.where(ex[:, None, None], np.asarray(poses.extras["held_markers"], float), poses.markers)
+    if naive.n_samples is not None:
+        n = np.array(naive.n_samples, float, copy=True)
+        n[ex] = np.median(n[~ex])  # a window of the stream, as a plain search would have averaged
+        naive.n_samples = n
+    w = np.all(np.isfinite(naive.markers), axis=2).astype(float)
+    base = _fit(spec, naive, cur.terms, cur.z, cur.active, w, opt.lm_iterations, opt.robust)
+    base.cv = _cv(base, spec, naive, opt.folds, opt.lm_iterations)
+    before = float(np.sqrt(np.nanmean(base.cv[~ex])))
+    after = float(np.sqrt(np.nanmean(cur.cv[~ex])))
+    p = paired_improvement(base.cv[~ex], cur.cv[~ex])
+    unit = poses.length_unit
+    say(f"settling_lag (from the stream): held-out settled poses {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} "
+        f"(paired p = {p:.2g})")
+    if not (after < before and p < opt.alpha_heldout):
+        return None
+    tau = un.get("time_constant_s")
+    q = un.get("time_constant_quartiles_s") or [np.nan, np.nan]
+    spread = (q[1] - q[0]) / 1.349 if np.all(np.isfinite(q)) else None
+    where = {"actuator": ", ".join(un.get("actuators") or []) or "all", "markers": list(un.get("markers") or []),
+             "holds": int(un.get("n", 0)), "of_commands": int(info.get("n_commands", poses.n_poses))}
+    return Finding(
+        effect="settling_lag", where=where,
+        parameters={"time_constant": {"value": tau, "std": spread, "unit": "s"},
+                    "hold": {"value": un.get("hold_s"), "std": None, "unit": "s"}},
+        heldout_rms_before=before, heldout_rms_after=after, p_heldout=float(p),
+        evidence=(f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their fitted "
+                  f"approach, instead of taken where the stream was at the end of the hold, predict the "
+                  f"{int((~ex).sum())} held-out settled poses at {_fmt_rms(after, unit)} against "
+                  f"{_fmt_rms(before, unit)} ({opt.folds}-fold, paired Wilcoxon p = {p:.2g})"),
+        corrected=("in the data: those holds enter as the rest position of their approach, weighted by its "
+                   "uncertainty; calibration.yaml predicts where the stand settles"))
 
 
 def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Finding | None:
@@ -479,7 +629,12 @@ def verdict(d: Diagnosis) -> str:
     named = [f for f in d.findings if f.effect != "unexplained"]
     unexpl = [f for f in d.findings if f.effect == "unexplained"]
     parts = []
-    if not d.findings:
+    if not d.findings and d.at_noise_floor:
+        parts.append(f"The motion capture shows no hidden effect: the geometric model predicts held-out poses at "
+                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these settled poses "
+                     f"({_fmt_rms(d.noise_floor, unit)} from the marker noise and the samples averaged), so no "
+                     "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
+    elif not d.findings and not d.too_few_settled:
         loc = located(d.locations, 0.01)
         parts.append("The motion capture shows no hidden effect: no candidate effect improved held-out prediction "
                      "significantly, "
@@ -491,6 +646,18 @@ def verdict(d: Diagnosis) -> str:
         names = ", ".join(f"{f.effect} ({_where_text(f.where)})" for f in named)
         parts.append(f"The geometric model leaves out {names}. Modelling {'it' if len(named) == 1 else 'them'} "
                      f"brings the held-out RMS from {_fmt_rms(first_before, unit)} to {_fmt_rms(last_after, unit)}.")
+    corrected = [f for f in named if f.corrected]
+    if corrected:
+        parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
+                     "the recording, not the stand: corrected in the data, and calibration.yaml predicts where the "
+                     "stand settles.")
+    un = (d.poses.settling or {}).get("unsettled") or {}
+    if un and not any(f.effect == "settling_lag" and f.term is None for f in named):
+        parts.append(f"Settling: {un['sentence']}.")
+    if d.too_few_settled:
+        parts.append("Most holds never settled: the stand's physics was not tested, for lack of settled poses to "
+                     "prove it on (extrapolated poses carry what their approach model missed, along the last move); "
+                     "record longer holds to test it.")
     for f in unexpl:
         parts.append(f"Structure remains that no known effect explains ({_where_text(f.where) or f.where}); "
                      "it is reported as unexplained rather than given a wrong name.")
