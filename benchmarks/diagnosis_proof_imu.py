@@ -283,8 +283,8 @@ def summarise(results: list[dict]) -> dict:
     clean = [r for r in results if r["kind"] == "clean"]
     fp = [r for r in clean if r["named"]]
     out["clean_with_a_finding"] = len(fp) / max(len(clean), 1)
-    lines.append(f"clean sessions with any finding: {len(fp)}/{len(clean)}"
-                 + ("" if not fp else " (" + ", ".join(f"{r['stand']} seed {r['seed']}: {'+'.join(r['named'])}" for r in fp) + ")"))
+    which = ", ".join(f"{r['stand']} seed {r['seed']}: {'+'.join(r['named'])}" for r in fp)
+    lines.append(f"clean sessions with any finding: {len(fp)}/{len(clean)}" + (f" ({which})" if fp else ""))
     # what clean sessions show: the largest estimate of each effect against its detectable size
     for e in EFFECTS:
         for st in stands:
@@ -333,8 +333,10 @@ def summarise(results: list[dict]) -> dict:
                          f"(largest after {np.max(a):.3g}; {len(rs)} sessions)")
     cl = [r for r in clean if not r["named"]]
     if cl:
-        lines.append("  clean sessions, nothing named: gyro {:.3g} deg/s, accelerometer {:.3g} m/s^2 (median, before = after)".format(
-            np.median([r["heldout"]["gyro"][0] for r in cl]), np.median([r["heldout"]["accelerometer"][0] for r in cl])))
+        gyro = np.median([r["heldout"]["gyro"][0] for r in cl])
+        acc = np.median([r["heldout"]["accelerometer"][0] for r in cl])
+        lines.append(f"  clean sessions, nothing named: gyro {gyro:.3g} deg/s, accelerometer {acc:.3g} m/s^2 "
+                     "(median, before = after)")
     lines.append("stands: stewart, psvr and rotary all carry an IMU on their moving frame; the psvr never yaws, so a "
                  "tilt shows only through its roll and pitch (the z axis), where the gyro's misalignment estimate "
                  "weighs in as much as the accelerometer's noise")

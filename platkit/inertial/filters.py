@@ -71,7 +71,8 @@ def lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, zero_phase: bool = 
     """
     x = np.asarray(x, float)
     if not 0 < cutoff_hz < rate_hz / 2:
-        raise BadInput(f"low-pass cut-off {cutoff_hz:.4g} Hz must lie between 0 and half the sampling rate ({rate_hz / 2:.4g} Hz)")
+        raise BadInput(f"low-pass cut-off {cutoff_hz:.4g} Hz must lie between 0 and half the sampling rate "
+                       f"({rate_hz / 2:.4g} Hz)")
     sos = signal.butter(order, cutoff_hz, fs=rate_hz, output="sos")
     if zero_phase:
         return signal.sosfiltfilt(sos, x, axis=0)

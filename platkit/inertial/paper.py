@@ -41,7 +41,8 @@ class PaperParams:
 
     ``window_s``: T of cases A and B. ``eps_omega`` (rad/s): the rest threshold on every gyro
     component; found from the data it is capped at ``max_eps_omega`` (a recording that never
-    rests must not make slow motion count as rest). ``axis_tolerance`` (rad): how far omega's direction may wander over T in case B.
+    rests must not make slow motion count as rest). ``axis_tolerance`` (rad): how far omega's
+    direction may wander over T in case B.
     ``min_rate_case_b`` (rad/s): below it the rotation axis is too noisy to use.
     ``gyr_cutoff_hz``/``acc_cutoff_hz``: the low-pass cut-offs.
     """

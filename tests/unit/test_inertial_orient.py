@@ -130,7 +130,8 @@ def test_imu_only_session_in_milliseconds(tmp_path):
     (folder / "session.yaml").write_text("platform: null\nunits: {length: m, time: ms}\nimu: {rate_hz: 100}\n")
     write_imu_csv(folder / "imu.csv", t * 1000.0, sim["gyr"], sim["acc"])
     (folder / "truth_orientation.csv").write_text(
-        "t,qw,qx,qy,qz\n" + "\n".join(f"{ti * 1000:.6f},{a:.10f},{b:.10f},{c:.10f},{d:.10f}" for ti, (a, b, c, d) in zip(t, q)) + "\n")
+        "t,qw,qx,qy,qz\n" + "\n".join(f"{ti * 1000:.6f},{a:.10f},{b:.10f},{c:.10f},{d:.10f}"
+                                        for ti, (a, b, c, d) in zip(t, q)) + "\n")
     out = tmp_path / "o"
     assert main(["orient", str(folder), "--out", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
