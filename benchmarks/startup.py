@@ -122,6 +122,9 @@ def main(argv=None) -> None:
                     help="leave out the 100-pose calibration")
     args = ap.parse_args(argv)
     os.environ.setdefault("MPLBACKEND", "Agg")
+    # as installed for a user: byte-code is cached (PYTHONDONTWRITEBYTECODE, set on some
+    # development machines, makes every start compile platkit's modules again: ~0.1 s)
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     for _, cmd in CASES:  # warm the file cache and the byte-code
         wall_s(cmd)
     times = {name: [] for name, _ in CASES}
