@@ -22,6 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from platkit.calibrate.bodies import estimate_rho
 from platkit.calibrate.identifiability import (
     DEFAULT_REL_TOL,
     apply_marker_convention,
@@ -147,6 +148,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     n_z = problem.n_z
     nuisance = np.zeros(n_z, bool)
     nuisance[problem.i_w] = nuisance[problem.i_t] = nuisance[problem.i_m] = True
+    nuisance[problem.i_body_pos] = nuisance[problem.i_body_rot] = True  # rigid bodies' placements
     st = problem.evaluate(z, with_jac=False)
     if np.mean(st.converged) < 0.5:
         raise NoConvergence(f"{spec.name} forward kinematics at the nominal parameters", 0, float("nan"),
@@ -178,7 +180,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
                                 problem.tiers[cand_idx].tolist(), rel_tol)
     chosen = cand_idx[ident.chosen]
     lost_nuisance = [h.name for h in ident.held if not h.name.startswith(("term.",)) and
-                     (h.name.startswith("mocap.") or h.name.startswith("marker."))]
+                     (h.name.startswith(("mocap.", "marker.", "body.")))]
     if lost_nuisance:
         raise NotIdentifiable(f"the poses cannot fix {', '.join(lost_nuisance)}: the platform must rotate about "
                               "two axes or translate, and each marker be seen in several poses")
@@ -189,6 +191,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     active[chosen] = True
     # stage 3: the full robust fit
     fit = robust_fit(problem, reg.z, active, robust, max_iter, progress, "iteration")
+    fit = refit_body_rho(problem, fit, active, robust, max_iter, progress)
     z = fit.z
     st = problem.evaluate(z)
     weights = fit.weights
@@ -261,12 +264,44 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         "controls": poses.controls.copy(), "active": active, "z": z.copy(), "names": list(problem.names),
         "cov": cov, "problem": problem, "ridge_m": ridge_m,
     })
+    if problem.B:
+        set_body_placements(cal, problem, z, std_full)
     if folds and folds > 1:
         cal.heldout = kfold(problem, z, active, folds, robust, max_iter, progress)
     cal.time_s = time.perf_counter() - t0
     if progress is not None:
         progress("done", {"rms_before": rms_before, "rms_after": rms_after, "time_s": cal.time_s})
     return cal
+
+
+def refit_body_rho(problem: CalibrationProblem, fit, active, robust: bool, max_iter: int, progress: Progress | None):
+    """With rigid bodies and no declared noise: rho = sigma_position / sigma_rotation (m/rad) from the
+    bodies' residuals of ``fit`` (:func:`platkit.calibrate.bodies.estimate_rho`), and the fit repeated
+    with it; twice, as rho moves little after the first. Returns the last fit (``fit`` unchanged
+    without bodies, with declared noise, or when the residuals say nothing)."""
+    if not problem.B or problem.rho_source == "declared":
+        return fit
+    M, B = problem.M, problem.B
+    for _ in range(2):
+        keep = (fit.weights > 0) & np.isfinite(fit.state.r).all(axis=2)
+        rho = estimate_rho(fit.state.r[:, M:M + B][keep[:, M:M + B]],
+                           fit.state.r[:, M + B:][keep[:, M + B:]] / problem.body_rho)
+        if rho is None:
+            break
+        problem.body_rho, problem.rho_source = rho, "estimated"
+        fit = robust_fit(problem, fit.z, active, robust, max_iter, progress, "iteration")
+    return fit
+
+
+def set_body_placements(cal: Calibration, problem: CalibrationProblem, z: np.ndarray, std_full: np.ndarray) -> None:
+    """The rigid bodies' placements on the moving part (origin m, rotation vector rad), their std
+    (B, 6) and the weight rho (m/rad) of their rotation channel, from ``z`` into ``cal``."""
+    pos, rot = problem.split_bodies(z)
+    cal.body_names = list(problem.poses.body_names)
+    cal.body_positions, cal.body_rotvecs = pos.copy(), rot.copy()
+    cal.body_std = np.concatenate([std_full[problem.i_body_pos].reshape(-1, 3),
+                                   std_full[problem.i_body_rot].reshape(-1, 3)], axis=1)
+    cal.body_rho, cal.body_rho_source = float(problem.body_rho), problem.rho_source
 
 
 # ---------------------------------------------------------------------------- prediction

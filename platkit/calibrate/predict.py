@@ -4,7 +4,8 @@ Input: a commands CSV with one column per control of the stand (named as the sta
 an optional ``t`` column and other columns are allowed and used only by time- or history-
 dependent model terms). 'm' controls are in the calibration's length unit.
 Output: one row per command row: the control columns, every marker's ``<name>_x,_y,_z`` in the
-motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame;
+motion-capture frame, every rigid body's ``<T>_x,_y,_z,_qw,_qx,_qy,_qz`` (origin and unit
+quaternion, qw >= 0) in the motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame;
 lengths in the calibration's length unit. A command outside its control's stroke, a ``t``
 that decreases, or no ``t`` for a model with time-dependent terms, is bad input; rows whose forward kinematics fails inside the strokes are written
 with empty cells and counted.
@@ -20,6 +21,7 @@ import numpy as np
 from platkit.calibrate.estimate import predict_markers
 from platkit.effects import with_history
 from platkit.errors import BadInput
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.atomic import atomic_write_text
 from platkit.io.calibration import Calibration, read_calibration
 from platkit.io.session import read_table
@@ -93,10 +95,29 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     s = length_scale(cal.length_unit)
     header = list(cal.spec.control_names)
     header += [f"{m}_{a}" for m in cal.marker_names for a in "xyz"]
+    header += [f"{b}_{a}" for b in cal.body_names for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
-    rows = np.column_stack([controls_from_si(cal.spec, U, cal.length_unit), markers.reshape(N, -1) / s, X / s, q])
+    bodies = predict_bodies(cal, q, X)
+    bodies[..., :3] /= s
+    rows = np.column_stack([controls_from_si(cal.spec, U, cal.length_unit), markers.reshape(N, -1) / s,
+                            bodies.reshape(N, -1), X / s, q])
     rows[~ok, cal.spec.n_u:] = np.nan
     return header, rows, ok
+
+
+def predict_bodies(cal: Calibration, q: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """The calibration's rigid bodies (N, B, 7) in the motion-capture frame: origin (m) and unit quaternion
+    (qw >= 0), from the moving frame's pose in the base frame, q (N, 4) and X (N, 3) m (as
+    :func:`~platkit.calibrate.estimate.predict_markers` returns them)."""
+    N, B = len(q), len(cal.body_names)
+    if B == 0:
+        return np.zeros((N, 0, 7))
+    A = matrix_from_rotvec(cal.mocap_rotvec)
+    R = np.einsum("ab,nbc->nac", A, matrix_from_quat(q))  # mocap_from_moving rotation
+    origin = (X @ A.T + cal.mocap_translation)[:, None, :] + np.einsum("nab,kb->nka", R, cal.body_positions)
+    quat = quat_from_matrix(np.einsum("nab,kbc->nkac", R, matrix_from_rotvec(cal.body_rotvecs)))
+    quat = np.where(quat[..., :1] < 0, -quat, quat)
+    return np.concatenate([origin, quat], axis=2)
 
 
 def terms_reading_time(cal: Calibration, U: np.ndarray) -> list[str]:

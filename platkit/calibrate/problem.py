@@ -111,7 +111,7 @@ class CalibrationProblem:
         rho = declared_rho(poses.body_noise)
         self.body_rho = DEFAULT_RHO_M_PER_RAD if rho is None else rho
         self.rho_source = "default" if rho is None else "declared"
-        body_seen = np.all(np.isfinite(poses.bodies), axis=2)  # (N, B)
+        body_seen = np.all(np.isfinite(_bodies(poses)), axis=2)  # (N, B)
         self.visible = np.concatenate([np.all(np.isfinite(poses.markers), axis=2), body_seen, body_seen], axis=1)
         if not self.visible.any():
             raise BadInput(f"{poses.source or 'poses'}: no marker or rigid body was seen in any pose")
@@ -332,7 +332,7 @@ class CalibrationProblem:
             P = np.where(ok[:, None], P, self._p_guess if own else self.spec.neutral_p())
             outs = self._call(N, with_jac, [Uo, td, P, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
         nP3 = 3 * (M + B)
-        measured = np.concatenate([poses.markers, poses.bodies[..., :3]], axis=1)
+        measured = np.concatenate([poses.markers, _bodies(poses)[..., :3]], axis=1)
         if not with_jac:
             y = outs[0].reshape(N, -1)
             r = y[:, :nP3].reshape(N, M + B, 3) - measured
@@ -423,7 +423,7 @@ class CalibrationProblem:
         q, X, _, ok = self.kinematics(td, poses.controls)
         R = matrix_from_quat(q)
         M, B = self.M, self.B
-        Y = np.concatenate([poses.markers, body_frame_points(poses.bodies)], axis=1)
+        Y = np.concatenate([poses.markers, body_frame_points(_bodies(poses))], axis=1)
         vis = np.concatenate([self.visible[:, :M], np.repeat(self.visible[:, M:M + B], 3, axis=1)], axis=1)
         vis &= ok[:, None]
         A = self._initial_rotation(R, X, Y, vis)
@@ -517,6 +517,12 @@ class CalibrationProblem:
         H[3 * M:, 3 * M:] = vis.sum() * np.eye(3)
         sol = np.linalg.lstsq(H, g, rcond=None)[0]
         return sol[:3 * M].reshape(M, 3), sol[3 * M:]
+
+
+def _bodies(poses: PoseSet) -> np.ndarray:
+    """poses.bodies (N, B, 7); (N, 0, 7) for a pose set without bodies whatever its rows were
+    changed to after it was made (controls and markers reassigned in place)."""
+    return poses.bodies if poses.n_bodies else np.zeros((poses.n_poses, 0, 7))
 
 
 def _robust_sigma(d: np.ndarray) -> float:

@@ -176,7 +176,7 @@ def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = Tru
     if folds > N:
         raise BadInput(f"--folds {folds} is more than the {N} poses")
     fold_of = np.arange(N) % folds
-    errs = np.full((N, problem.M), np.nan)
+    errs = np.full(problem.visible.shape, np.nan)  # markers, then rigid bodies' channels
     per_fold = []
     for k in range(folds):
         train = poses.subset(fold_of != k)
@@ -184,6 +184,7 @@ def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = Tru
         sub = CalibrationProblem(problem.spec, train, problem.terms)
         sub.prior_center, sub.prior_scale = problem.prior_center, problem.prior_scale
         sub.half_width = problem.half_width
+        sub.body_rho, sub.rho_source = problem.body_rho, problem.rho_source
         fit = robust_fit(sub, z, active, robust, max_iter)
         st = sub.evaluate(fit.z, with_jac=False, poses=test)
         d = np.linalg.norm(st.r, axis=2)

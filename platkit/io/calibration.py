@@ -40,6 +40,10 @@ class Calibration:
     frame, marker_std (M, 3). terms/theta/theta_std: model terms and their parameters.
     rms_before: point RMS (m) with nominal td after fitting only the transform and markers;
     rms_after: point RMS (m) at the estimate (both over the observations kept by the robust loss).
+    body_names, body_positions (B, 3) m, body_rotvecs (B, 3) rad: rigid bodies' placements on the
+    moving part (body frame -> moving frame), body_std (B, 6) (origin m, rotation vector rad);
+    body_rho (m/rad): the weight of their rotation errors against position errors, and
+    body_rho_source: 'declared' (session.yaml rigid_body_noise), 'estimated' or 'default'.
     """
 
     platform: str
@@ -75,6 +79,12 @@ class Calibration:
     time_s: float = 0.0
     extras: dict[str, Any] = field(default_factory=dict)  # arrays for the report (not written)
     imu: dict[str, Any] = field(default_factory=dict)  # what an IMU diagnosis added (platkit.diagnose.imu), SI
+    body_names: list[str] = field(default_factory=list)
+    body_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    body_rotvecs: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    body_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    body_rho: float = float("nan")
+    body_rho_source: str = ""
 
     # ------------------------------------------------------------------ derived
     @property
@@ -139,6 +149,8 @@ class Calibration:
             "identifiability": self.identifiability,
             "terms": [t.to_dict(th, sd) for t, th, sd in zip(self.terms, self.theta, self.theta_std)],
         }
+        if self.body_names:
+            out["rigid_bodies"] = self._bodies_dict()
         if self.heldout:
             out["heldout"] = heldout_in_unit(self.heldout, self.length_unit)
         if self.extras.get("warnings"):
@@ -147,6 +159,23 @@ class Calibration:
             # SI (rad, rad/s), whatever the length unit: platkit.diagnose.imu's calibration_entry
             out["imu"] = strict(self.imu)
         return out
+
+    def _bodies_dict(self) -> dict:
+        """calibration.yaml's ``rigid_bodies``: each body's placement (moving_from_body) and the weight."""
+        s, lu = length_scale(self.length_unit), self.length_unit
+
+        def num(x, k=1.0):
+            return None if not np.isfinite(x) else float(x / k)
+
+        bodies = {}
+        for name, pos, rv, sd in zip(self.body_names, self.body_positions, self.body_rotvecs, self.body_std):
+            bodies[name] = {"position": [float(x / s) for x in pos], "rotation_vector": [float(x) for x in rv],
+                            "quaternion_wxyz": [float(x) for x in quat_from_rotvec(rv)],
+                            "std_position": [num(x, s) for x in sd[:3]],
+                            "std_rotation_vector": [num(x) for x in sd[3:]]}
+        return {"bodies": bodies, "note": "x_moving = R(rotation_vector) x_body + position",
+                "rotation_weight": {f"rho_{lu}_per_rad": num(self.body_rho, s), "source": self.body_rho_source,
+                                    "note": "rotation errors (rad) times rho count as position errors"}}
 
     def to_yaml(self) -> str:
         header = (f"# platkit calibration of the {self.platform} stand. Lengths in {self.length_unit}, "
@@ -249,11 +278,28 @@ def read_calibration(path: str | Path) -> Calibration:
     ])
     markers = _field(data, "markers", path, dict)
     names = list(markers)
-    if not names:
-        raise BadInput(f"{path}: field 'markers' lists no marker")
+    rb = data.get("rigid_bodies") or {}
+    if not isinstance(rb, dict) or not isinstance(rb.get("bodies", {}), dict):
+        raise BadInput(f"{path}: field 'rigid_bodies' must be a mapping with 'bodies' (one entry per body)")
+    bodies = rb.get("bodies") or {}
+    if not names and not bodies:
+        raise BadInput(f"{path}: field 'markers' lists no marker (and 'rigid_bodies' no body)")
     pos = np.array([_numbers(markers[m].get("position") if isinstance(markers[m], dict) else None, path,
-                             f"markers.{m}.position", 3) for m in names]) * s
-    mstd = np.array([_numbers(markers[m].get("std", [None] * 3), path, f"markers.{m}.std", 3) for m in names]) * s
+                             f"markers.{m}.position", 3) for m in names]).reshape(-1, 3) * s
+    mstd = np.array([_numbers(markers[m].get("std", [None] * 3), path, f"markers.{m}.std", 3)
+                     for m in names]).reshape(-1, 3) * s
+    body_names = list(bodies)
+    b_entry = [bodies[b] if isinstance(bodies[b], dict) else {} for b in body_names]
+    b_pos = np.array([_numbers(e.get("position"), path, f"rigid_bodies.bodies.{b}.position", 3)
+                      for b, e in zip(body_names, b_entry)]).reshape(-1, 3) * s
+    b_rot = np.array([_numbers(e.get("rotation_vector"), path, f"rigid_bodies.bodies.{b}.rotation_vector", 3)
+                      for b, e in zip(body_names, b_entry)]).reshape(-1, 3)
+    b_std = np.array([np.concatenate([
+        _numbers(e.get("std_position", [None] * 3), path, f"rigid_bodies.bodies.{b}.std_position", 3) * s,
+        _numbers(e.get("std_rotation_vector", [None] * 3), path, f"rigid_bodies.bodies.{b}.std_rotation_vector", 3)])
+        for b, e in zip(body_names, b_entry)]).reshape(-1, 6)
+    weight = rb.get("rotation_weight") or {}
+    rho = weight.get(f"rho_{lu}_per_rad") if isinstance(weight, dict) else None
     res = data.get("residual") or {}
     imu = data.get("imu") or {}
     if not isinstance(imu, dict):
@@ -275,7 +321,9 @@ def read_calibration(path: str | Path) -> Calibration:
         n_poses=int(res.get("n_poses", 0)), n_markers=len(names),
         identifiability=data.get("identifiability") or {}, terms=terms, theta=theta, theta_std=theta_std,
         heldout={},  # written for people in the file's unit; not read back
-        imu=dict(imu),
+        imu=dict(imu), body_names=body_names, body_positions=b_pos, body_rotvecs=b_rot, body_std=b_std,
+        body_rho=float("nan") if rho is None else float(rho) * s,
+        body_rho_source=str(weight.get("source", "")) if isinstance(weight, dict) else "",
     )
 
 

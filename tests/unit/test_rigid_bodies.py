@@ -1,0 +1,230 @@
+"""Rigid bodies measured in 6 DOF (spec section 1): the estimator's body channels, their weight, the
+same data given as markers, calibration.yaml and predict's seven columns per body.
+
+The pose sets are made here from PlatformModel.forward_batch with a known truth (perturbed td, a
+random base-to-mocap transform, random body placements), so the geometry can be judged against it.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from platkit.calibrate.bodies import average_body, log_so3, quat_mean, right_jacobian, right_jacobian_inv
+from platkit.calibrate.estimate import calibrate, parameter_scale
+from platkit.calibrate.predict import predict_bodies, prediction_table
+from platkit.calibrate.problem import CalibrationProblem
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
+from platkit.io.calibration import read_calibration
+from platkit.kinematics import PlatformModel
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+
+SIGMA_P = 1e-4  # m per axis: a mocap rigid body's origin
+SIGMA_R = 1e-3  # rad per axis: its orientation (0.057 deg)
+
+
+class BodyTruth:
+    """A simulated stand seen through B rigid bodies: true td, mocap_from_base (A, b), placements."""
+
+    def __init__(self, spec, seed=0, n_bodies=1):
+        rng = np.random.default_rng(seed)
+        self.spec, self.model, self.rng = spec, PlatformModel(spec), rng
+        scale = np.array([parameter_scale(p.unit, p.nominal) for p in spec.parameters])
+        free = np.array([p.free for p in spec.parameters])
+        self.td = spec.nominal_td() + 3.0 * scale * rng.normal(size=spec.n_td) * free
+        self.A = matrix_from_rotvec(rng.normal(0, 0.6, 3))
+        self.b = rng.normal(0, 1.5, 3)
+        self.origins = rng.normal(0, 0.2, (n_bodies, 3))
+        self.rotations = matrix_from_rotvec(rng.normal(0, 1.0, (n_bodies, 3)))
+
+    def controls(self, n, spread=0.3):
+        lo, hi = self.spec.control_bounds()
+        u0 = self.spec.neutral_u()
+        lo = np.where(np.isfinite(lo), lo, u0 - 1.0)
+        hi = np.where(np.isfinite(hi), hi, u0 + 1.0)
+        return np.clip(u0 + self.rng.uniform(-spread, spread, (n, self.spec.n_u)) * (hi - lo), lo, hi)
+
+    def bodies(self, U, noisy=True):
+        """(U kept, bodies (N, B, 7) in the mocap frame, with noise SIGMA_P, SIGMA_R per axis)."""
+        fb = self.model.forward_batch(U, self.td, strict=False)
+        ok = fb.converged & fb.on_branch
+        R = np.einsum("ab,nbc->nac", self.A, matrix_from_quat(fb.q[ok]))
+        o = (fb.X[ok] @ self.A.T + self.b)[:, None, :] + np.einsum("nab,kb->nka", R, self.origins)
+        Rw = np.einsum("nab,kbc->nkac", R, self.rotations)
+        if noisy:
+            o = o + self.rng.normal(0, SIGMA_P, o.shape)
+            Rw = Rw @ matrix_from_rotvec(self.rng.normal(0, SIGMA_R, o.shape))
+        return U[ok], np.concatenate([o, quat_from_matrix(Rw)], axis=2)
+
+    def poses(self, n, declared=True):
+        U, bodies = self.bodies(self.controls(n))
+        noise = {"position_m": SIGMA_P, "rotation_rad": SIGMA_R} if declared else {}
+        return PoseSet(self.spec.name, U, np.zeros((len(U), 0, 3)), [], bodies=bodies,
+                       body_names=[f"T{k + 1}" for k in range(bodies.shape[1])], body_noise=noise,
+                       length_unit="mm", source="simulated")
+
+
+def as_markers(poses: PoseSet, arm_m: float) -> PoseSet:
+    """The same measurements given as four points of each body's frame: origin and the axis tips at arm_m."""
+    o, R = poses.bodies[..., :3], matrix_from_quat(poses.bodies[..., 3:])
+    pts = [o] + [o + arm_m * R[..., :, k] for k in range(3)]
+    Y = np.stack(pts, axis=2).reshape(poses.n_poses, -1, 3)
+    names = [f"{b}{k}" for b in poses.body_names for k in "OXYZ"]
+    return PoseSet(poses.platform, poses.controls, Y, names, length_unit=poses.length_unit, source="as markers")
+
+
+def prediction_vs_crb(cal, test: PoseSet):
+    """Per channel: (RMS 3-D error (m) of the calibration's predictions against the noise-free poses
+    ``test``, RMS 3-D error the fit's covariance expects (its Cramer-Rao bound when the noise is
+    declared right)). Channels as the estimator's: markers, bodies' origins, bodies' rotations * rho."""
+    problem, z, active = cal.extras["problem"], cal.extras["z"], cal.extras["active"]
+    st = problem.evaluate(z, with_jac=True, poses=test)
+    J = st.J[..., active]
+    var = np.einsum("nmaj,jk,nmak->nm", J, cal.extras["cov"], J)
+    return np.sqrt(np.mean(np.sum(st.r ** 2, axis=2), axis=0)), np.sqrt(np.mean(var, axis=0))
+
+
+def noise_free(truth, poses, n=40):
+    U, clean = truth.bodies(truth.controls(n), noisy=False)
+    return PoseSet(poses.platform, U, np.zeros((len(U), 0, 3)), [], bodies=clean, body_names=list(poses.body_names),
+                   body_noise=dict(poses.body_noise), length_unit=poses.length_unit, source="truth")
+
+
+@pytest.fixture(scope="module")
+def stewart():
+    return get_platform("stewart")
+
+
+@pytest.fixture(scope="module")
+def fitted(stewart):
+    truth = BodyTruth(stewart, seed=3)
+    poses = truth.poses(60)
+    return truth, poses, calibrate(poses, stewart)
+
+
+# ---------------------------------------------------------------------------- rotation algebra
+
+def test_right_jacobian_and_its_inverse():
+    rng = np.random.default_rng(0)
+    phi = rng.normal(0, 1, (5, 3))
+    d = 1e-7 * rng.normal(size=3)
+    for p in phi:
+        lhs = log_so3(matrix_from_rotvec(p).T @ matrix_from_rotvec(p + d))
+        assert np.allclose(lhs, right_jacobian(p) @ d, atol=1e-12)
+        assert np.allclose(right_jacobian_inv(p) @ right_jacobian(p), np.eye(3), atol=1e-12)
+    assert np.allclose(right_jacobian(np.zeros(3)), np.eye(3))
+
+
+def test_quaternion_mean_ignores_signs_and_averaging_skips_occluded_rows():
+    rng = np.random.default_rng(1)
+    q0 = quat_from_matrix(matrix_from_rotvec(np.array([0.3, -1.0, 2.0])))
+    noisy = quat_from_matrix(matrix_from_quat(q0) @ matrix_from_rotvec(rng.normal(0, 1e-3, (200, 3))))
+    noisy[::2] *= -1  # the same orientations, half with the other sign
+    m = quat_mean(noisy)
+    assert np.linalg.norm(log_so3(matrix_from_quat(m).T @ matrix_from_quat(q0))) < 3e-4  # 1e-3 / sqrt(200) * 4
+    samples = np.concatenate([rng.normal(0, 1e-4, (200, 3)) + [1, 2, 3], noisy], axis=1)
+    samples[5] = np.nan
+    pose, n = average_body(samples)
+    assert n == 199 and np.allclose(pose[:3], [1, 2, 3], atol=5e-5)
+    assert average_body(np.full((4, 7), np.nan))[1] == 0
+
+
+# ---------------------------------------------------------------------------- the observation model
+
+@pytest.mark.parametrize("platform", ["stewart", "rotary"])
+def test_body_jacobian_matches_finite_differences(platform):
+    spec = get_platform(platform)
+    truth = BodyTruth(spec, seed=1, n_bodies=2)
+    poses = truth.poses(12)
+    poses.bodies[4, 1] = np.nan  # one body unseen in one pose
+    problem = CalibrationProblem(spec, poses)
+    z = problem.initial_registration(spec.nominal_td())
+    z = z + 1e-3 * np.random.default_rng(2).normal(size=z.shape)
+    st = problem.evaluate(z)
+    assert st.r.shape == (poses.n_poses, 4, 3)  # two origins, two rotation channels
+    assert np.isnan(st.r[4, [1, 3]]).all() and np.isfinite(st.r[3]).all()
+    h = 1e-6
+    for k in range(problem.n_z):
+        zp, zm = z.copy(), z.copy()
+        zp[k] += h
+        zm[k] -= h
+        fd = (problem.evaluate(zp, False).r - problem.evaluate(zm, False).r) / (2 * h)
+        assert np.nanmax(np.abs(fd - st.J[..., k])) < 1e-6, problem.names[k]
+
+
+def test_pose_subset_keeps_bodies(fitted):
+    _, poses, _ = fitted
+    sub = poses.subset([4, 1])
+    assert sub.body_names == poses.body_names and np.array_equal(sub.bodies, poses.bodies[[4, 1]])
+    assert sub.body_noise == poses.body_noise
+
+
+# ---------------------------------------------------------------------------- estimation
+
+def test_simulated_bodies_recover_the_geometry_at_its_crb(fitted):
+    truth, poses, cal = fitted
+    assert int(np.sum(np.array(cal.td_status) == "estimated")) > 20  # a stewart's geometry, not a few numbers
+    assert cal.body_rho_source == "declared" and cal.body_rho == pytest.approx(SIGMA_P / SIGMA_R)
+    # the geometry is judged where every gauge agrees: predictions at new commands against the
+    # noise-free truth. With the noise declared right the fit's covariance is the Cramer-Rao bound,
+    # and the errors are that size (one draw of a sum over ~40 directions: within a factor 1.6)
+    err, crb = prediction_vs_crb(cal, noise_free(truth, poses))
+    assert np.all(err / crb > 1 / 1.6) and np.all(err / crb < 1.6), (err, crb)
+    assert crb[0] < SIGMA_P  # 60 poses fix the body's origin better than one measurement
+    # residual noise per axis back at the position noise (both channels are metres of that noise)
+    assert cal.noise_sigma == pytest.approx(SIGMA_P, rel=0.2)
+
+
+def test_rho_is_estimated_when_not_declared(stewart):
+    truth = BodyTruth(stewart, seed=4)
+    poses = truth.poses(60, declared=False)
+    cal = calibrate(poses, stewart)
+    assert cal.body_rho_source == "estimated"
+    assert cal.body_rho == pytest.approx(SIGMA_P / SIGMA_R, rel=0.25)
+
+
+def test_same_data_as_markers_gives_the_same_geometry(fitted, stewart):
+    truth, poses, cal_b = fitted
+    # the same measurements as four points of the body's frame at 0.1 m (their noise: SIGMA_P plus
+    # 0.1 m * SIGMA_R through the arm, correlated between the four, which the marker fit ignores)
+    cal_m = calibrate(as_markers(poses, 0.1), stewart)
+    test = noise_free(truth, poses)
+    _, crb = prediction_vs_crb(cal_b, test)
+    header_b, rows_b, ok_b = prediction_table(cal_b, test.controls)
+    header_m, rows_m, ok_m = prediction_table(cal_m, test.controls)
+    assert ok_b.all() and ok_m.all()
+    origin_b = rows_b[:, [header_b.index(f"T1_{a}") for a in "xyz"]] * 1e-3
+    pts_m = np.stack([rows_m[:, [header_m.index(f"T1{k}_{a}") for a in "xyz"]] * 1e-3 for k in "OXYZ"], axis=1)
+    # tolerance: the two geometries differ by less than either is expected to miss the truth (the
+    # body fit's CRB): both are unbiased fits of the same noise, only weighted differently
+    d_origin = np.sqrt(np.mean(np.sum((origin_b - pts_m[:, 0]) ** 2, axis=1)))
+    assert d_origin < crb[0], (d_origin, crb[0])
+    R_b = matrix_from_quat(rows_b[:, [header_b.index(f"T1_{a}") for a in ("qw", "qx", "qy", "qz")]])
+    axes_m = (pts_m[:, 1:] - pts_m[:, :1]) / 0.1  # (N, 3 axes, 3): the marker fit's body axes
+    d_rot = np.sqrt(np.mean(np.sum((np.swapaxes(R_b, 1, 2) - axes_m) ** 2, axis=2)))
+    assert d_rot * cal_b.body_rho < crb[1], (d_rot, crb[1] / cal_b.body_rho)
+
+
+# ---------------------------------------------------------------------------- outputs
+
+def test_calibration_yaml_round_trip_and_predict_writes_seven_columns(fitted, tmp_path):
+    truth, poses, cal = fitted
+    path = tmp_path / "calibration.yaml"
+    path.write_text(cal.to_yaml())
+    back = read_calibration(path)
+    assert back.body_names == ["T1"] and back.body_rho_source == "declared"
+    assert np.allclose(back.body_positions, cal.body_positions) and np.allclose(back.body_rotvecs, cal.body_rotvecs)
+    U, clean = truth.bodies(truth.controls(20), noisy=False)
+    header, rows, ok = prediction_table(back, U)
+    cols = [header.index(f"T1_{a}") for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+    assert cols == list(range(cols[0], cols[0] + 7))
+    pred = rows[:, cols]
+    assert ok.all()
+    # against the noise-free truth: the origin within the position noise scale (in mm), the
+    # orientation within the rotation noise scale
+    assert np.max(np.linalg.norm(pred[:, :3] * 1e-3 - clean[:, 0, :3], axis=1)) < 5 * SIGMA_P
+    ang = np.linalg.norm(log_so3(np.einsum("nba,nbc->nac", matrix_from_quat(pred[:, 3:]),
+                                           matrix_from_quat(clean[:, 0, 3:]))), axis=1)
+    assert np.max(ang) < 5 * SIGMA_R
+    assert np.all(pred[:, 3] >= 0)
+    assert predict_bodies(back, np.tile([1.0, 0, 0, 0], (2, 1)), np.zeros((2, 3))).shape == (2, 1, 7)
