@@ -1,4 +1,5 @@
-"""Orientation errors as the BROAD benchmark defines them (Laidig et al. 2021).
+"""Orientation errors against a truth, with the definitions of Laidig et al. 2021 (BROAD; reading
+and scoring that data set is benchmarks/datasets/broad.py).
 
 For an estimate q and a truth q_true (scalar first, both "frame in the earth frame"), the error
 is taken in the earth frame, e = q * conj(q_true) = (w, x, y, z):
@@ -49,7 +50,7 @@ def rmse(err: np.ndarray, mask: np.ndarray | None = None) -> float:
 
 
 def inclination_rmse_deg(q_est, q_true, mask=None) -> float:
-    """The BROAD score: inclination RMSE over ``mask`` (movement == 1), degrees."""
+    """Inclination RMSE over ``mask`` (all samples if None; BROAD scores movement == 1), degrees."""
     return float(np.degrees(rmse(inclination_error(q_est, q_true), mask)))
 
 
