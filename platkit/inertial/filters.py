@@ -1,67 +1,19 @@
 """Low-pass filters for inertial signals, and the cut-off chosen from the data.
 
-Two uses: (1) the paper's step 1, a low-pass filter on the raw gyro and accelerometer whose
-cut-off "is found experimentally": :func:`cutoff_from_spectrum` finds it from the noise floor
-of the signal's spectrum, :func:`lowpass` applies it (causal or zero-phase); (2) the streaming
-second-order Butterworth filter :class:`LowPass2` the orientation estimators run sample by sample.
+The paper's step 1, a low-pass filter on the raw gyro and accelerometer whose cut-off "is found
+experimentally": :func:`cutoff_from_spectrum` finds it from the noise floor of the signal's
+spectrum, :func:`lowpass` applies it (causal or zero-phase). (The orientation estimators' own
+filters are the vqf package's.)
 Frequencies in Hz, times in s.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 
 from platkit.errors import BadInput
-
-
-def butter2_coefficients(tau: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Second-order Butterworth low pass whose step response has time constant ``tau`` (s).
-
-    The cut-off is f_c = sqrt(2) / (2 pi tau). Returns (b (3,), a (2,)) for
-    y = b0 x + s0; s0' = b1 x - a1 y + s1; s1' = b2 x - a2 y (a0 = 1).
-    """
-    fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
-    C = math.tan(math.pi * fc * dt)
-    D = C * C + math.sqrt(2.0) * C + 1.0
-    b0 = C * C / D
-    return np.array([b0, 2 * b0, b0]), np.array([2 * (C * C - 1) / D, (1 - math.sqrt(2.0) * C + C * C) / D])
-
-
-class LowPass2:
-    """Streaming second-order Butterworth low pass over a vector of channels.
-
-    For the first ``tau`` seconds the output is the running mean of the input; the filter then
-    starts in steady state at that mean (no start-up transient from zero).
-    """
-
-    def __init__(self, tau: float, dt: float, size: int):
-        self.b, self.a = butter2_coefficients(tau, dt)
-        self.n_init = max(1, int(math.ceil(tau / dt)))
-        self.count = 0
-        self.total = np.zeros(size)
-        self.s0 = np.zeros(size)
-        self.s1 = np.zeros(size)
-        self.y = np.zeros(size)
-
-    def step(self, x: np.ndarray) -> np.ndarray:
-        b, a = self.b, self.a
-        if self.count < self.n_init:
-            self.count += 1
-            self.total = self.total + x
-            self.y = self.total / self.count
-            if self.count == self.n_init:
-                x0 = self.y
-                self.s0 = x0 * (1.0 - b[0])
-                self.s1 = x0 * (b[2] - a[1])
-            return self.y
-        y = b[0] * x + self.s0
-        self.s0 = b[1] * x - a[0] * y + self.s1
-        self.s1 = b[2] * x - a[1] * y
-        self.y = y
-        return y
 
 
 def lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, zero_phase: bool = False, order: int = 2) -> np.ndarray:
