@@ -31,8 +31,9 @@ def effect_help() -> str:
 def add_parser(sub):
     p = sub.add_parser(
         "simulate", help="simulate a calibration session with a known true stand (truth.yaml)",
-        description="Two simulators. Default (additive, fast): the stand moves smoothly to each command, and hidden "
-                    "effects are added as the model terms diagnosis fits. --physics: a time-domain stand (each "
+        description="Two simulators. Default (additive; with --poses-only the fastest): the stand moves smoothly to "
+                    "each command, and hidden effects are added as the model terms diagnosis fits. --physics: a "
+                    "time-domain stand (each "
                     "actuator follows its command through rate and acceleration limits and its own damped "
                     "second-order response; effects act where their physics acts; hold, noise colour, occlusion, "
                     "latency and clock offset drawn per session from the seed) with the true settled pose of every "
