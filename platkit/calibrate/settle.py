@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2, fisher_exact
 
+from platkit.calibrate.bodies import stream_for_settling, with_settled_bodies
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
 from platkit.model import length_scale
@@ -604,7 +605,7 @@ def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray
     span = np.ptp(U, axis=0)
     moved = steps / np.where(span > 0, span, 1.0) > 0.05
     scored = []
-    for j, name in enumerate(control_names):
+    for j in range(len(control_names)):
         m = moved[:, j] & use
         o = ~moved[:, j] & use
         if m.sum() < 3 or o.sum() < 3:
@@ -784,8 +785,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     over the markers), 'extrapolated' (N,) 1.0 where the pose is the fitted rest position of a hold
     that never settled, 'held_markers' (N, M, 3) m where the stream was at the end of each hold
     (the window mean before any tail correction; the last ``min_still_s`` of a hold that never
-    settled): what a search that took the stream as it came would have averaged. ``settling``: sigma_m, n_commands, n_kept, n_extrapolated and
-    ``unsettled`` (the holds that never settled: rows, actuators, markers, time_constant_s, sentence).
+    settled): what a search that took the stream as it came would have averaged. ``settling``:
+    sigma_m, slow_noise_inflation, n_commands, n_kept, n_extrapolated and ``unsettled`` (the holds
+    that never settled: rows, actuators, markers, time_constant_s, sentence).
     Raises BadSession when no command settles, ComputationFailed when more than
     ``max_unsettled_fraction`` of the holds never settle and their approach cannot be extrapolated
     (or extrapolation is off): the message names the actuators and markers still moving.
@@ -973,7 +975,8 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
             "held_markers": col("held"),
         },
-        settling={"sigma_m": float(sigma), "slow_noise_inflation": float(slow_inflation), "n_commands": N, "n_kept": len(kept), "n_extrapolated": n_extrapolated,
+        settling={"sigma_m": float(sigma), "slow_noise_inflation": float(slow_inflation), "n_commands": N,
+                  "n_kept": len(kept), "n_extrapolated": n_extrapolated,
                   "unsettled": summary},
     )
     return poses, SettleReport(float(sigma), N, len(kept), dropped_list, float(rate), n_extrapolated, summary)
@@ -1007,10 +1010,10 @@ def load_poses(folder: str | Path, platform: str | None = None, description: str
         session = load_session(folder, platform=platform, description=description, spec=spec)
     if session.spec is None:
         raise BadSession(f"{Path(folder) / 'session.yaml'}: declares no platform (an IMU-only recording); calibration needs a stand")
-    if session.markers is not None:
-        return settle(session, options)[0]
+    if session.markers is not None:  # rigid bodies: averaged over the windows found (calibrate.bodies)
+        return with_settled_bodies(session, settle(stream_for_settling(session), options)[0])
     if session.poses is not None:
-        return poses_from_table(session)
+        return with_settled_bodies(session, poses_from_table(session))
     raise BadSession(
         f"{folder}: the session has no markers: expected markers.csv, poses.csv or session.yaml's markers_file"
     )
