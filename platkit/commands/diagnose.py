@@ -28,7 +28,7 @@ def run(args) -> int:
     from platkit.diagnose.search import Options, diagnose
     from platkit.io.atomic import check_output_dir
     from platkit.io.calibration import read_calibration
-    from platkit.io.session import read_session_yaml
+    from platkit.io.session import load_session, read_session_yaml
     from platkit.model import length_scale
 
     check_output_dir(args.out)
@@ -42,11 +42,14 @@ def run(args) -> int:
         raise BadInput(f"{args.calibration}: calibration file not found")
     cal = read_calibration(args.calibration)
 
+    sessions = {}  # folder -> the session as read: its streams are read once (issue 13)
+
     def poses_of(folder):
         platform = read_session_yaml(Path(folder)).get("platform")
         if platform is not None and platform != cal.platform:
             raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
-        return load_poses(folder, spec=cal.spec)
+        sessions[folder] = load_session(folder, spec=cal.spec, quiet=args.quiet)
+        return load_poses(folder, spec=cal.spec, session=sessions[folder])
 
     poses = poses_of(args.session)
     from platkit.commands.calibrate import settling_notes
@@ -61,7 +64,8 @@ def run(args) -> int:
                  heldout=heldout, progress=say, start=cal)
     if (Path(args.session) / "imu.csv").is_file():
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
-        d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status)
+        d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
+                                                 read=sessions[args.session])
     written = write_outputs(d, args.out)
     s = length_scale(d.unit)
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
@@ -70,15 +74,16 @@ def run(args) -> int:
     return 0
 
 
-def _diagnose_imu(session, cal, say, td_status=None) -> tuple[dict, dict]:
+def _diagnose_imu(session, cal, say, td_status=None, read=None) -> tuple[dict, dict]:
     """The IMU diagnosis of a session with imu.csv and commands (platkit.diagnose.imu): the
     mapping diagnosis.json holds (a session the IMU cannot be diagnosed on says why) and what
-    its accepted findings add to calibration.yaml (its ``imu`` mapping; empty without)."""
+    its accepted findings add to calibration.yaml (its ``imu`` mapping; empty without). ``read``:
+    the session already read (load_session), so that its streams are not read again."""
     from platkit.diagnose.imu import diagnose_imu, td_covariance
     from platkit.errors import ComputationFailed
     from platkit.io.session import load_session
 
-    s = load_session(session, platform=cal.platform)
+    s = load_session(session, platform=cal.platform) if read is None else read
     if s.commands is None or s.imu_stream is None:
         return {"findings": [], "verdict": "IMU not diagnosed: the session has no commands with its imu.csv."}, {}
     try:
