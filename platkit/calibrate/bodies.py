@@ -11,9 +11,13 @@ rotation_deg}``) or estimated from the residuals after a first fit (:func:`estim
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from platkit.geometry import matrix_from_quat, quat_from_matrix, skew
+from platkit.io.session import Session
+from platkit.poses import PoseSet
 
 #: rho (m/rad) before anything is known: a mocap body's 0.1 mm per 1 mrad (0.057 deg)
 DEFAULT_RHO_M_PER_RAD = 0.1
@@ -125,3 +129,59 @@ def placement_from_frame_points(points: np.ndarray) -> tuple[np.ndarray, np.ndar
     y -= np.sum(x * y, axis=1, keepdims=True) * x
     y /= np.linalg.norm(y, axis=1, keepdims=True)
     return o, np.stack([x, y, np.cross(x, y)], axis=2)
+
+
+# ---------------------------------------------------------------------------- settled poses
+
+#: name stem of the points that stand for a body's frame in the settling search of a body-only stream
+_FRAME_POINT = "{body}~{k}"
+
+
+def stream_for_settling(session: Session) -> Session:
+    """The session whose stream the settling search reads: ``session`` itself, or, for a stream
+    of rigid bodies without markers, a copy whose markers are three points of each body's frame
+    (:func:`body_frame_points`), so that a turn shows as motion like a translation."""
+    if session.bodies is None or session.marker_names:
+        return session
+    names = [_FRAME_POINT.format(body=b, k=k) for b in session.body_names for k in range(3)]
+    return replace(session, markers=body_frame_points(session.bodies), marker_names=names)
+
+
+def with_settled_bodies(session: Session, poses: PoseSet) -> PoseSet:
+    """``poses`` (settled by platkit.calibrate.settle, or read from poses.csv) with the session's rigid bodies.
+
+    From poses.csv the bodies are taken as they are. From a stream, each kept pose averages the
+    body samples inside its settled window (extras 'window_start'/'window_end'; positions by
+    the mean, orientations by :func:`quat_mean`, see :func:`average_body`); a pose whose window is
+    unknown (extrapolated to rest) leaves its bodies unseen, and that count is said in
+    ``poses.settling['bodies']``. Points that stood for the bodies in the search are removed.
+    """
+    if not session.body_names:
+        return poses
+    B = len(session.body_names)
+    if session.poses is not None and session.bodies is None:
+        bodies, counts, note = session.poses["bodies"], session.poses["n_body_samples"], ""
+    else:
+        t, stream = session.marker_t, session.bodies
+        ws, we = poses.extras["window_start"], poses.extras["window_end"]
+        bodies = np.full((poses.n_poses, B, 7), np.nan)
+        counts = np.zeros((poses.n_poses, B))
+        for n in range(poses.n_poses):
+            if not (np.isfinite(ws[n]) and np.isfinite(we[n])):
+                continue
+            a, b = np.searchsorted(t, ws[n], side="left"), np.searchsorted(t, we[n], side="right")
+            for k in range(B):
+                bodies[n, k], counts[n, k] = average_body(stream[a:b, k])
+        no_window = int(np.sum(~(np.isfinite(ws) & np.isfinite(we))))
+        unseen = int(np.sum(counts == 0))
+        note = (f"{unseen} settled body poses with no sample" + (f" ({no_window} poses extrapolated to rest have no "
+                "window to average the bodies over)" if no_window else "")) if unseen else ""
+    if not session.marker_names:  # the frame points were only for the search
+        poses.markers, poses.marker_names, poses.n_samples = np.zeros((poses.n_poses, 0, 3)), [], None
+        for key in ("marker_std", "held_markers"):
+            poses.extras.pop(key, None)
+    poses.bodies, poses.body_names, poses.n_body_samples = bodies, list(session.body_names), counts
+    poses.body_noise = dict(session.body_noise)
+    if note:
+        poses.settling = {**poses.settling, "bodies": note}
+    return poses

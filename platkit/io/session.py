@@ -39,7 +39,15 @@ SESSION_KEYS = (
     "platform", "description", "units", "markers", "base_markers", "mocap_rate_hz", "imu",
     "moving_link", "notes", "markers_file", "markers_time_offset", "base_link",
     "date",  # (platkit) when it was recorded, ISO 8601: orders a stand's history (platkit batch --history)
+    "rigid_bodies", "rigid_body_noise",  # 6-DOF bodies (spec section 1) and (platkit) their declared noise
 )
+#: the seven columns of a rigid body T: T_x,T_y,T_z (origin, length unit) and T_qw..T_qz (unit quaternion)
+BODY_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+#: a body's quaternion is unit if its norm is within this of 1 (recorders write 4 to 6 decimals); it
+#: is normalised after the check
+QUAT_NORM_TOL = 1e-3
+#: session.yaml ``rigid_body_noise`` keys: each sigma per axis, with its unit in the name
+BODY_NOISE_KEYS = {"position_mm": 1e-3, "position_m": 1.0, "rotation_deg": math.pi / 180, "rotation_rad": 1.0}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 #: keys of session.yaml's ``imu`` mapping: the spec's rate_hz and frame, and (platkit) the
 #: sensor's full scale, which flags saturated samples (platkit.io.imu)
@@ -77,7 +85,9 @@ class Session:
         spec: the stand's PlatformSpec built with the session's description, or None.
         description: the description file used (None: the stand's default).
         length_unit, time_unit: as declared in session.yaml.
-        marker_names (M,), base_marker_names (B,): as declared.
+        marker_names (M,), base_marker_names (B,): as declared. body_names: the rigid bodies
+            declared (``rigid_bodies``); body_noise: their declared noise {'position_m',
+            'rotation_rad'} (per-axis sigmas) or empty.
         mocap_rate_hz: declared rate or None. imu: the declared imu mapping or None.
         moving_link: URDF link carrying the markers, or None. notes: free text.
         command_t (N,) s; commands (N, n_u) internal units ('m' controls in metres), or None
@@ -85,8 +95,11 @@ class Session:
             exists) or without commands.csv.
         marker_t (K,) s and markers (K, M, 3) m (NaN = occluded), base_markers (K, B, 3) m:
             the raw motion-capture stream (from markers.csv or a C3D file), or None.
+        bodies: (K, B_body, 7) the rigid bodies' stream from markers.csv (origin m, unit
+            quaternion; all seven NaN where occluded), or None.
         poses: the reduced table of poses.csv as a dict (controls (N, n_u), markers (N, M, 3) m,
-            n_samples (N, M) or None, t (N,) or None), or None.
+            n_samples (N, M) or None, t (N,) or None, bodies (N, B_body, 7), n_body_samples
+            (N, B_body) or None), or None.
         imu_stream: the inertial stream from imu.csv as read and repaired by
             :func:`platkit.io.imu.read_imu_csv` (times in s), or None.
         imu_t (J,) s, imu_gyr (J, 3) rad/s, imu_acc (J, 3) m/s^2: the same stream's arrays.
@@ -119,6 +132,9 @@ class Session:
     imu_notes: list[str] = field(default_factory=list)
     markers_source: Path | None = None
     extras: dict = field(default_factory=dict)
+    body_names: list[str] = field(default_factory=list)
+    body_noise: dict = field(default_factory=dict)
+    bodies: np.ndarray | None = None
 
     @property
     def has_markers(self) -> bool:
@@ -392,15 +408,29 @@ def marker_columns(name: str) -> list[str]:
     return [f"{name}_{a}" for a in AXES]
 
 
-def _check_marker_header(table: Table, declared: list[str], leading: list[str], optional_suffixes=()) -> None:
+def body_columns(name: str) -> list[str]:
+    return [f"{name}_{a}" for a in BODY_SUFFIXES]
+
+
+def _check_marker_header(table: Table, declared: list[str], leading: list[str], optional_suffixes=(),
+                         bodies: list[str] = ()) -> None:
     """The header must be ``leading`` + x,y,z columns of every declared marker (+ optional
-    per-marker columns); name the first column that is missing or undeclared."""
+    per-marker columns) + the seven columns of every declared rigid body (+ the same optional
+    columns); name the first column that is missing or undeclared."""
     allowed = set(leading)
     for m in declared:
         allowed.update(marker_columns(m))
         allowed.update(f"{m}_{s}" for s in optional_suffixes)
+    for b in bodies:
+        allowed.update(body_columns(b))
+        allowed.update(f"{b}_{s}" for s in optional_suffixes)
     for col in table.header:
         if col not in allowed:
+            stem = col.rsplit("_", 1)[0]
+            if (col.endswith(("_qw", "_qx", "_qy", "_qz")) or f"{stem}_qw" in table.header) and stem not in bodies:
+                raise BadSession(
+                    f"{table.path}: column {col!r} is for a rigid body {stem!r} that session.yaml does not declare "
+                    f"(rigid_bodies: {', '.join(bodies) or 'none'})")
             stem = col.rsplit("_", 1)[0]
             if col.endswith(("_x", "_y", "_z")) and stem not in declared:
                 raise BadSession(
@@ -411,9 +441,44 @@ def _check_marker_header(table: Table, declared: list[str], leading: list[str], 
                 f"{table.path}: unexpected column {col!r}; expected {', '.join(leading)} then "
                 f"<marker>_x,_y,_z for {', '.join(declared)}"
             )
-    for col in list(leading) + [c for m in declared for c in marker_columns(m)]:
+    for col in list(leading) + [c for m in declared for c in marker_columns(m)] + [c for b in bodies
+                                                                                   for c in body_columns(b)]:
         if col not in table.header:
             raise BadSession(f"{table.path}: missing column {col!r}")
+
+
+def _body_block(table: Table, names: list[str], scale: float) -> np.ndarray:
+    """(rows, B, 7) from the seven columns of each rigid body: origin in metres, unit quaternion.
+
+    Occluded: all seven empty. Some empty, a never-seen body, or a quaternion whose norm is not
+    within QUAT_NORM_TOL of 1 is a BadSession naming the file, row and column; quaternions are
+    then normalised (their sign is kept: q and -q are the same orientation)."""
+    idx = np.array([[table.header.index(c) for c in body_columns(b)] for b in names], dtype=int).reshape(-1, 7)
+    out = table.data[:, idx] if idx.size else np.zeros((table.data.shape[0], 0, 7))
+    out = np.array(out, float)
+    finite = np.isfinite(out)
+    whole = finite.all(axis=2)
+    partial = finite.any(axis=2) & ~whole
+    if partial.any():
+        r, k = np.argwhere(partial)[0]
+        col = body_columns(names[k])[int(np.argmin(finite[r, k]))]
+        raise BadSession(f"{table.where(int(r), col)}: empty while other columns of body {names[k]!r} are given; "
+                         "an occluded body leaves all seven empty")
+    for k, b in enumerate(names):
+        if not whole[:, k].any():
+            raise BadSession(f"{table.path}: rigid body {b!r} is never seen (every row empty); remove it from "
+                             "session.yaml's rigid_bodies")
+    norm = np.linalg.norm(np.where(whole[..., None], out[..., 3:], 1.0), axis=2)
+    with np.errstate(invalid="ignore"):
+        bad = np.argwhere(whole & (np.abs(norm - 1.0) > QUAT_NORM_TOL))
+    if bad.size:
+        r, k = bad[0]
+        raise BadSession(f"{table.where(int(r), names[k] + '_qw')}: the quaternion of body {names[k]!r} has norm "
+                         f"{norm[r, k]:.6g}; expected a unit quaternion (qw,qx,qy,qz, norm within {QUAT_NORM_TOL:g} "
+                         "of 1)")
+    out[..., :3] *= scale
+    out[..., 3:] /= norm[..., None]
+    return out
 
 
 def _marker_block(table: Table, names: list[str], scale: float, in_place: bool = False) -> np.ndarray:
@@ -494,6 +559,30 @@ def _names(value, key: str, path: Path) -> list[str]:
     return names
 
 
+def _body_noise(value, path: Path) -> dict:
+    """session.yaml ``rigid_body_noise`` (e.g. {position_mm: 0.1, rotation_deg: 0.05}, per-axis
+    sigmas) -> {'position_m', 'rotation_rad'}, or {} when not given."""
+    if value is None:
+        return {}
+    form = "a mapping like {position_mm: 0.1, rotation_deg: 0.05} (per-axis sigmas)"
+    if not isinstance(value, dict):
+        raise BadSession(f"{path}: field 'rigid_body_noise' must be {form}")
+    unknown = sorted(set(value) - set(BODY_NOISE_KEYS), key=str)
+    if unknown:
+        raise BadSession(f"{path}: field 'rigid_body_noise' has unknown key {unknown[0]!r}; known keys: "
+                         f"{', '.join(BODY_NOISE_KEYS)}")
+    out = {}
+    for kind in ("position", "rotation"):
+        keys = [k for k in value if k.startswith(kind)]
+        if len(keys) != 1:
+            raise BadSession(f"{path}: field 'rigid_body_noise' needs one {kind} sigma; it must be {form}")
+        v = value[keys[0]]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or not math.isfinite(v):
+            raise BadSession(f"{path}: field 'rigid_body_noise.{keys[0]}' must be a positive number, got {v!r}")
+        out[f"{kind}_{'m' if kind == 'position' else 'rad'}"] = float(v) * BODY_NOISE_KEYS[keys[0]]
+    return out
+
+
 def read_session_yaml(folder: Path) -> dict:
     """session.yaml checked field by field; returns a dict of clean values."""
     path = folder / "session.yaml"
@@ -545,6 +634,11 @@ def read_session_yaml(folder: Path) -> dict:
     both = sorted(set(out["markers"]) & set(out["base_markers"]))
     if both:
         raise BadSession(f"{path}: marker {both[0]!r} is listed in both 'markers' and 'base_markers'")
+    out["rigid_bodies"] = _names(data.get("rigid_bodies"), "rigid_bodies", path)
+    both = sorted(set(out["rigid_bodies"]) & set(out["markers"] + out["base_markers"]))
+    if both:
+        raise BadSession(f"{path}: {both[0]!r} is listed both as a marker and in 'rigid_bodies'")
+    out["rigid_body_noise"] = _body_noise(data.get("rigid_body_noise"), path)
     rate = data.get("mocap_rate_hz")
     if rate is not None and (isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0 or not math.isfinite(rate)):
         raise BadSession(f"{path}: field 'mocap_rate_hz' must be a positive number, got {rate!r}")
@@ -685,6 +779,7 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         folder=folder, platform=name, spec=spec, description=desc_path, length_unit=y["length_unit"],
         time_unit=y["time_unit"], marker_names=y["markers"], base_marker_names=y["base_markers"],
         mocap_rate_hz=y["mocap_rate_hz"], imu=y["imu"], moving_link=y["moving_link"], notes=y["notes"],
+        body_names=y["rigid_bodies"], body_noise=y["rigid_body_noise"],
     )
     tscale = TIME_UNITS[s.time_unit]
     lscale = LENGTH_UNITS[s.length_unit]
@@ -716,6 +811,9 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     if y["markers_file"]:
         mpath = folder / y["markers_file"]
         if mpath.suffix.lower() == ".c3d":
+            if s.body_names:
+                raise BadSession(f"{ypath}: rigid bodies are not read from C3D files ({mpath.name}); give them as "
+                                 "the seven columns of each body in markers.csv (or poses.csv)")
 
             t, xyz = read_c3d_markers(mpath, s.marker_names + s.base_marker_names)
             t = t + y["markers_time_offset"]
@@ -736,8 +834,9 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         s.extras.setdefault("control_notes", []).append(
             f"{folder} holds both {name} and poses.csv: {name} (the raw stream, settled by platkit) is used, "
             "poses.csv is ignored; move one out to choose")
-    if s.has_markers and not s.marker_names:
-        raise BadSession(f"{ypath}: field 'markers' must name the markers on the moving part")
+    if s.has_markers and not s.marker_names and not s.body_names:
+        raise BadSession(f"{ypath}: field 'markers' must name the markers on the moving part (or 'rigid_bodies' "
+                         "the bodies measured in 6 DOF)")
 
     imu_path = folder / "imu.csv"
     if imu_path.is_file():
@@ -783,12 +882,15 @@ def _read_commands_without_stand(s: Session, path: Path, tscale: float) -> None:
 
 def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offset: float, quiet: bool = False) -> None:
     names = s.marker_names + s.base_marker_names
-    if not s.marker_names:
+    if not s.marker_names and not s.body_names:
         raise BadSession(f"{s.folder / 'session.yaml'}: field 'markers' must name the markers of {path.name}")
     table = read_table(path, "the motion-capture stream", quiet=quiet)
-    _check_marker_header(table, names, ["t"])
+    _check_marker_header(table, names, ["t"], bodies=s.body_names)
     t = table.column("t") * tscale + offset
     check_times(table, t)
+    if s.body_names:  # before the markers are scaled in place
+        s.bodies = _body_block(table, s.body_names, lscale)
+        _check_plausible_unit(table, s.bodies[..., :3], s.length_unit, s.body_names)
     xyz = _marker_block(table, names, lscale, in_place=True)  # the table is not used after this
     _check_seen(xyz, names, path)
     _check_plausible_unit(table, xyz, s.length_unit, names)
@@ -799,12 +901,12 @@ def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offs
 def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> None:
     if s.spec is None:
         raise BadSession(f"{s.folder / 'session.yaml'}: field 'platform' must name the stand that {path.name} is for")
-    if not s.marker_names:
+    if not s.marker_names and not s.body_names:
         raise BadSession(f"{s.folder / 'session.yaml'}: field 'markers' must name the markers of {path.name}")
     table = read_table(path, "the settled poses")
     leading = (["t"] if "t" in table.header else []) + s.spec.control_names
     names = s.marker_names + s.base_marker_names
-    _check_marker_header(table, names, leading, optional_suffixes=("n",))
+    _check_marker_header(table, names, leading, optional_suffixes=("n",), bodies=s.body_names)
     controls = check_controls(table, s.spec, leading[:1] if leading[:1] == ["t"] else [], s.length_unit,
                               s.extras.setdefault("control_notes", []))
     t = None
@@ -834,9 +936,12 @@ def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> Non
                 f"{table.where(int(r), s.marker_names[k] + '_n')}: {int(n[r, k])} samples but the position is "
                 f"{'given' if seen[r, k] else 'empty'}"
             )
+    bodies = _body_block(table, s.body_names, lscale)
+    _check_plausible_unit(table, bodies[..., :3], s.length_unit, s.body_names)
     M = len(s.marker_names)
     base = xyz[:, M:]
-    s.poses = {"controls": controls, "markers": xyz[:, :M], "n_samples": n, "t": t}
+    s.poses = {"controls": controls, "markers": xyz[:, :M], "n_samples": n, "t": t, "bodies": bodies,
+               "n_body_samples": _body_counts(table, s.body_names, bodies, path)}
     s.base_markers = base if base.shape[1] else None
     s.markers_source = path
     if s.command_t is not None and len(s.command_t) != len(controls):
@@ -845,6 +950,26 @@ def _read_poses_csv(s: Session, path: Path, lscale: float, tscale: float) -> Non
         )
     if t is None and s.command_t is not None:
         s.poses["t"] = s.command_t
+
+
+def _body_counts(table: Table, names: list[str], bodies: np.ndarray, path: Path) -> np.ndarray | None:
+    """poses.csv's optional <body>_n columns (N, B): samples averaged per body, or None when none is given."""
+    if not any(f"{b}_n" in table.header for b in names):
+        return None
+    n = np.zeros((len(table.data), len(names)))
+    seen = np.isfinite(bodies).all(axis=2)
+    for k, b in enumerate(names):
+        col = f"{b}_n"
+        if col not in table.header:
+            raise BadSession(f"{path}: missing column {col!r}; give <body>_n for every rigid body or none")
+        v = table.column(col)
+        bad = np.nonzero(~np.isfinite(v) | (v < 0) | (v != np.round(v)) | ((v > 0) != seen[:, k]))[0]
+        if bad.size:
+            r = int(bad[0])
+            raise BadSession(f"{table.where(r, col)}: expected a whole number of samples, > 0 exactly where the "
+                             f"body's pose is given (here {'given' if seen[r, k] else 'empty'})")
+        n[:, k] = v
+    return n
 
 
 #: directories (os.pathsep separated) searched first for examples/sessions/<platform>/ folders

@@ -228,3 +228,119 @@ def test_calibration_yaml_round_trip_and_predict_writes_seven_columns(fitted, tm
     assert np.max(ang) < 5 * SIGMA_R
     assert np.all(pred[:, 3] >= 0)
     assert predict_bodies(back, np.tile([1.0, 0, 0, 0], (2, 1)), np.zeros((2, 3))).shape == (2, 1, 7)
+
+
+# ---------------------------------------------------------------------------- session files
+
+def _write_session(folder, spec, U, bodies, names, stream_t=None, noise=True, settled=True, extra_yaml=""):
+    """A session folder by hand: commands.csv, and poses.csv (settled) or markers.csv (stream,
+    ``bodies`` then (K, B, 7) at ``stream_t``), lengths in mm."""
+    folder.mkdir()
+    noise_yaml = "rigid_body_noise: {position_mm: 0.1, rotation_deg: 0.0572958}\n" if noise else ""
+    (folder / "session.yaml").write_text(
+        f"platform: {spec.name}\nunits: {{length: mm, time: s}}\nmarkers: []\nrigid_bodies: [{', '.join(names)}]\n"
+        + noise_yaml + extra_yaml)
+    cols = [f"{b}_{a}" for b in names for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+
+    def body_rows(B):
+        out = np.array(B, float).reshape(len(B), -1)
+        for k in range(len(names)):
+            out[:, 7 * k:7 * k + 3] *= 1e3
+        return out
+
+    t_cmd = np.arange(len(U)) * 1.0
+    U_file = np.array([[u * 1e3 if c.unit == "m" else u for u, c in zip(row, spec.controls)] for row in U])
+    with open(folder / "commands.csv", "w") as f:
+        f.write(",".join(["t"] + spec.control_names) + "\n")
+        for t, row in zip(t_cmd, U_file):
+            f.write(",".join([f"{t:.6f}"] + [f"{v:.9f}" for v in row]) + "\n")
+    if settled:
+        with open(folder / "poses.csv", "w") as f:
+            f.write(",".join(["t"] + spec.control_names + cols) + "\n")
+            for t, row, b in zip(t_cmd, U_file, body_rows(bodies)):
+                f.write(",".join([f"{t:.6f}"] + [f"{v:.9f}" for v in row] + ["" if not np.isfinite(v) else f"{v:.9f}"
+                                                                             for v in b]) + "\n")
+    else:
+        with open(folder / "markers.csv", "w") as f:
+            f.write(",".join(["t"] + cols) + "\n")
+            for t, b in zip(stream_t, body_rows(bodies)):
+                f.write(",".join([f"{t:.6f}"] + ["" if not np.isfinite(v) else f"{v:.9f}" for v in b]) + "\n")
+    return folder
+
+
+def test_poses_csv_with_a_body_calibrates(stewart, tmp_path):
+    from platkit.calibrate.settle import load_poses
+    truth = BodyTruth(stewart, seed=5)
+    U, bodies = truth.bodies(truth.controls(50))
+    bodies[7, 0] = np.nan  # occluded: all seven empty
+    folder = _write_session(tmp_path / "s", stewart, U, bodies, ["T1"])
+    poses = load_poses(folder)
+    assert poses.body_names == ["T1"] and poses.n_markers == 0 and np.isnan(poses.bodies[7, 0]).all()
+    assert poses.body_noise["position_m"] == pytest.approx(1e-4)
+    assert poses.body_noise["rotation_rad"] == pytest.approx(1e-3, rel=1e-6)
+    assert np.allclose(poses.bodies[:7, 0, :3], bodies[:7, 0, :3], atol=1e-12)
+    cal = calibrate(poses, stewart)
+    err, crb = prediction_vs_crb(cal, noise_free(truth, poses))
+    assert np.all(err < 1.6 * crb)
+
+
+def test_stream_of_a_body_is_settled_and_averaged(stewart, tmp_path):
+    from platkit.calibrate.settle import load_poses
+    truth = BodyTruth(stewart, seed=6)
+    U, clean = truth.bodies(truth.controls(30), noisy=False)
+    rate, hold = 100.0, 1.0
+    rng = np.random.default_rng(0)
+    t = np.arange(int(len(U) * hold * rate)) / rate
+    row = np.minimum((t / hold).astype(int), len(U) - 1)
+    stream = clean[row].copy()  # (K, 1, 7): holds without motion between them (steps)
+    stream[..., :3] += rng.normal(0, SIGMA_P, stream[..., :3].shape)
+    R = matrix_from_quat(stream[..., 3:]) @ matrix_from_rotvec(rng.normal(0, SIGMA_R, stream[..., :3].shape))
+    stream[..., 3:] = quat_from_matrix(R) * np.where(rng.random((len(t), 1, 1)) < 0.5, -1, 1)  # either sign
+    stream[::37, 0] = np.nan
+    folder = _write_session(tmp_path / "s", stewart, U, stream, ["T1"], stream_t=t, settled=False)
+    poses = load_poses(folder)
+    assert poses.n_markers == 0 and poses.n_bodies == 1 and poses.n_poses >= 25
+    seen = poses.n_body_samples[:, 0] > 0
+    assert seen.all()
+    rows = poses.extras["row"]
+    # averaged over the settled windows: tenths of the sample noise
+    d_pos = np.linalg.norm(poses.bodies[:, 0, :3] - clean[rows, 0, :3], axis=1)
+    assert np.max(d_pos) < 4 * SIGMA_P
+    d_rot = np.linalg.norm(log_so3(np.einsum("nba,nbc->nac", matrix_from_quat(poses.bodies[:, 0, 3:]),
+                                             matrix_from_quat(clean[rows, 0, 3:]))), axis=1)
+    assert np.max(d_rot) < 4 * SIGMA_R
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda b: b.__setitem__((3, 0, 4), np.nan), "row 4 (line 5) column 'T1_qx': empty while other columns"),
+    (lambda b: b.__setitem__((5, 0, 3), 2.0), "row 6 (line 7) column 'T1_qw': the quaternion of body 'T1' has norm"),
+])
+def test_bad_body_rows_are_one_line_errors(stewart, tmp_path, change, message):
+    from platkit.errors import BadSession
+    from platkit.io.session import load_session
+    truth = BodyTruth(stewart, seed=7)
+    U, bodies = truth.bodies(truth.controls(10))
+    change(bodies)
+    folder = _write_session(tmp_path / "s", stewart, U, bodies, ["T1"])
+    with pytest.raises(BadSession, match=message.replace("(", r"\(").replace(")", r"\)")) as info:
+        load_session(folder)
+    assert "\n" not in str(info.value) and "poses.csv" in str(info.value)
+
+
+def test_bad_body_declarations_are_one_line_errors(stewart, tmp_path):
+    from platkit.errors import BadSession
+    from platkit.io.session import load_session
+    truth = BodyTruth(stewart, seed=8)
+    U, bodies = truth.bodies(truth.controls(10))
+    folder = _write_session(tmp_path / "a", stewart, U, bodies, ["T1"], noise=False,
+                            extra_yaml="rigid_body_noise: {position_mm: 0.1}\n")
+    with pytest.raises(BadSession, match="rigid_body_noise' needs one rotation sigma"):
+        load_session(folder)
+    folder = _write_session(tmp_path / "b", stewart, U, bodies, ["T1"], extra_yaml="markers_file: m.c3d\n")
+    (folder / "m.c3d").write_bytes(b"")
+    with pytest.raises(BadSession, match="rigid bodies are not read from C3D files"):
+        load_session(folder)
+    folder = _write_session(tmp_path / "c", stewart, U, bodies, ["T1"])
+    (folder / "session.yaml").write_text((folder / "session.yaml").read_text().replace("[T1]", "[S]"))
+    with pytest.raises(BadSession, match="column 'T1_x' is for a rigid body 'T1' that session.yaml does not declare"):
+        load_session(folder)
