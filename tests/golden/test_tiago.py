@@ -28,8 +28,19 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.datasets.tiago import (FIGAROH, LEVELS, MARKERS, TRAINING, URDF_NAME, VALIDATION, bl_rmse_mm, convert,
-                                       default_data_dir, pivot_order, read_postures)
+from benchmarks.datasets.tiago import (
+    FIGAROH,
+    LEVELS,
+    MARKERS,
+    TRAINING,
+    URDF_NAME,
+    VALIDATION,
+    bl_rmse_mm,
+    convert,
+    default_data_dir,
+    pivot_order,
+    read_postures,
+)
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.settle import load_poses
 from platkit.cli import main
