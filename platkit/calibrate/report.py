@@ -78,7 +78,7 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
     after = cal.extras.get("residuals_after")
     if after is not None:
         pm = per_marker_rms(after, cal.extras.get("weights"))
-        out["rms_after_per_marker"] = {n: _finite_or_none(v / s) for n, v in zip(cal.marker_names, pm)}
+        out["rms_after_per_marker"] = {n: _finite_or_none(v / s) for n, v in zip(channel_names(cal), pm)}
         d = np.linalg.norm(after, axis=2)
         out["max_error_after"] = _finite_or_none(np.nanmax(d) / s) if np.isfinite(d).any() else None
     if cal.heldout:
@@ -136,13 +136,14 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
         ax.legend(fontsize=8)
         out.append(("Residuals per pose", "RMS over the markers of each pose, before and after calibration.", _png(fig)))
 
-        fig, ax = _subplots(figsize=(max(4, 0.7 * len(cal.marker_names) + 2), 3.2))
+        names = channel_names(cal)
+        fig, ax = _subplots(figsize=(max(4, 0.7 * len(names) + 2), 3.2))
         pb = per_marker_rms(before, cal.extras.get("weights_before")) / s
         pa = per_marker_rms(after, w_after) / s
-        x = np.arange(len(cal.marker_names))
+        x = np.arange(len(names))
         ax.bar(x - 0.2, pb, 0.4, label="before", color="tab:red")
         ax.bar(x + 0.2, pa, 0.4, label="after", color="tab:blue")
-        ax.set_xticks(x, cal.marker_names)
+        ax.set_xticks(x, names)
         ax.set_ylabel(f"RMS error [{lu}]")
         ax.set_yscale("log")
         ax.legend(fontsize=8)
@@ -248,6 +249,12 @@ def _settling_html(st: dict) -> str:
     return out
 
 
+def channel_names(cal: Calibration) -> list[str]:
+    """Names of the residual channels: the markers, each body's origin, each body's rotation (times rho)."""
+    return (list(cal.marker_names) + [f"{b} origin" for b in cal.body_names]
+            + [f"{b} rotation" for b in cal.body_names])
+
+
 def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
     rep = report_dict(cal, poses)
     s = length_scale(cal.length_unit)
@@ -323,6 +330,16 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
             for n, pos, sd in zip(cal.marker_names, cal.marker_positions, cal.marker_std)]
     parts.append(f"<h2>Markers on the moving part ({lu}, moving frame)</h2>"
                  + _table(rows, ["marker", "x", "y", "z", "std x", "std y", "std z"]))
+    if cal.body_names:
+        rows = [(n, *(f"{x / s:.4f}" for x in pos), *(f"{x:.6f}" for x in rv),
+                 *("" if not np.isfinite(x) else f"{x / s:.3g}" for x in sd[:3]),
+                 *("" if not np.isfinite(x) else f"{x:.3g}" for x in sd[3:]))
+                for n, pos, rv, sd in zip(cal.body_names, cal.body_positions, cal.body_rotvecs, cal.body_std)]
+        parts.append(f"<h2>Rigid bodies on the moving part (origin {lu}, rotation vector rad, moving frame)</h2>"
+                     + _table(rows, ["body", "x", "y", "z", "rx", "ry", "rz", "std x", "std y", "std z",
+                                     "std rx", "std ry", "std rz"])
+                     + f"<p>Rotation errors weigh as position errors through rho = {cal.body_rho / s:.4g} {lu}/rad "
+                       f"({html.escape(cal.body_rho_source)}).</p>")
     T = cal.mocap_from_base
     parts.append(f"<h2>Base to motion capture</h2><pre>{html.escape(np.array2string(T[:3, :3], precision=6))}\n"
                  f"translation {html.escape(np.array2string(T[:3, 3] / s, precision=4))} {lu}</pre>")

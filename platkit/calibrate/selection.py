@@ -243,9 +243,12 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     note(f"the most general model: every group free ({', '.join(labels)})")
     reference = calibrate(poses, spec, free=_names(groups, labels), robust=robust, progress=progress, **common)
     kept = reference.extras["weights"] > 0
-    left_out = int(np.sum(np.all(np.isfinite(poses.markers), axis=2) & ~kept))
+    M, B = poses.n_markers, poses.n_bodies  # channels: markers, then each body's origin and rotation
+    left_out = int(np.sum(reference.extras["problem"].visible & ~kept))
     clean = poses.subset(np.ones(poses.n_poses, bool))
-    clean.markers = np.where(kept[..., None], poses.markers, np.nan)
+    clean.markers = np.where(kept[:, :M, None], poses.markers, np.nan)
+    if B:
+        clean.bodies = np.where((kept[:, M:M + B] & kept[:, M + B:])[..., None], poses.bodies, np.nan)
     fits: dict[tuple[str, ...], Calibration] = {tuple(labels): reference}
     scores: dict[tuple[str, ...], Candidate] = {tuple(labels): _score(reference, tuple(labels))}
     current = tuple(labels)

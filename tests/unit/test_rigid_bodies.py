@@ -344,3 +344,26 @@ def test_bad_body_declarations_are_one_line_errors(stewart, tmp_path):
     (folder / "session.yaml").write_text((folder / "session.yaml").read_text().replace("[T1]", "[S]"))
     with pytest.raises(BadSession, match="column 'T1_x' is for a rigid body 'T1' that session.yaml does not declare"):
         load_session(folder)
+
+
+def test_cli_calibrates_a_body_session_and_predict_writes_its_columns(stewart, tmp_path):
+    from platkit.cli import main
+    truth = BodyTruth(stewart, seed=9)
+    U, bodies = truth.bodies(truth.controls(40))
+    folder = _write_session(tmp_path / "s", stewart, U, bodies, ["T1"], noise=False)
+    out = tmp_path / "out"
+    assert main(["calibrate", str(folder), "--quiet", "--out", str(out)]) == 0
+    cal = read_calibration(out / "calibration.yaml")
+    assert cal.body_names == ["T1"] and cal.body_rho_source == "estimated"
+    U_new, clean = truth.bodies(truth.controls(6), noisy=False)
+    with open(tmp_path / "commands.csv", "w") as f:
+        f.write(",".join(stewart.control_names) + "\n")
+        for row in U_new:
+            f.write(",".join(f"{v * 1e3:.9f}" for v in row) + "\n")
+    assert main(["predict", "--calibration", str(out / "calibration.yaml"), "--commands",
+                 str(tmp_path / "commands.csv"), "--out", str(tmp_path / "pred.csv")]) == 0
+    lines = (tmp_path / "pred.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    cols = [header.index(f"T1_{a}") for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+    values = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])[:, cols]
+    assert np.max(np.abs(values[:, :3] * 1e-3 - clean[:, 0, :3])) < 5 * SIGMA_P  # a 40-pose fit: below the noise
