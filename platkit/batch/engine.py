@@ -29,15 +29,18 @@ from typing import Any
 from platkit.errors import BadInput, PlatkitError
 
 try:  # an optional extra: everything else in platkit works without it
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 except ImportError:  # pragma: no cover - exercised in environments without the extra
-    Client = LocalCluster = as_completed = None
+    dask = Client = LocalCluster = as_completed = None
 
 __all__ = ["SCHEDULER_ENV", "INSTALL_HINT", "Task", "Outcome", "require_dask", "have_dask", "cluster", "guarded",
            "run_tasks", "default_workers"]
 
 #: environment variable naming an existing Dask scheduler (same as --scheduler ADDRESS)
 SCHEDULER_ENV = "PLATKIT_DASK_SCHEDULER"
+#: Dask settings of the embedded cluster: no sampling profiler, no GIL monitor
+QUIET_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.admin.system-monitor.gil.enabled": False}
 INSTALL_HINT = 'pip install "platkit[batch]" (or: pip install "dask[distributed]>=2024.1")'
 
 
@@ -108,9 +111,12 @@ def cluster(scheduler: str | None = None, workers: int | None = None) -> Iterato
     n = default_workers() if workers is None else workers
     if n < 1:
         raise BadInput(f"--workers {n}: use 1 or more")
-    # one thread per worker: the calibrations are numpy/CasADi-bound, so processes, not threads, scale
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR) as local, Client(local) as client:
+    # one thread per worker: the calibrations are numpy/CasADi-bound, so processes, not threads, scale.
+    # Tasks last seconds: Dask's sampling profiler (every 10 ms) and GIL monitor (every 1 ms) would
+    # only take CPU from them (measured in benchmarks/batch_scaling.py)
+    with dask.config.set(QUIET_CONFIG), LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            silence_logs=logging.ERROR) as local, Client(local) as client:
         yield client
 
 
