@@ -67,6 +67,9 @@ def add_parser(sub):
                         "--physics drawn per session, in bursts)")
     p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
+    p.add_argument("--rigid-bodies", type=int, default=0,
+                   help="rigid bodies measured in 6 DOF on the moving part, T1, T2, ... (default 0; 0.1 mm and "
+                        "0.05 deg noise per sample; not with --physics)")
     p.add_argument("--imu", action="store_true",
                    help="also simulate an IMU on the moving part: imu.csv, session.yaml's imu entry, and the truth "
                         "files platkit orient scores against (truth_orientation.csv, truth_imu.yaml); any --imu-* "
@@ -112,6 +115,10 @@ def run(args) -> int:
         raise BadInput(f"--poses must be at least 3, got {args.poses}")
     if args.base_markers < 0:
         raise BadInput(f"--base-markers must be 0 or more, got {args.base_markers}")
+    if args.rigid_bodies < 0:
+        raise BadInput(f"--rigid-bodies must be 0 or more, got {args.rigid_bodies}")
+    if args.rigid_bodies and args.physics:
+        raise BadInput("--rigid-bodies: the physical simulator (--physics) does not simulate rigid bodies yet")
     if args.markers < 3:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
     if args.seed < 0:
@@ -157,7 +164,8 @@ def run(args) -> int:
                    occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
                    mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
                    description=None if args.description is None else Path(args.description).name,
-                   n_base_markers=args.base_markers, imu=imu, perturbation=args.perturbation)
+                   n_base_markers=args.base_markers, imu=imu, perturbation=args.perturbation,
+                   n_bodies=args.rigid_bodies)
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
                         moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"

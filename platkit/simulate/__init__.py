@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from platkit.calibrate.bodies import stream_for_settling, with_settled_bodies
 from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
 from platkit.calibrate.settle import SettleOptions, direction_of_last_motion, last_step, settle
 from platkit.errors import BadInput, NotIdentifiable
@@ -57,7 +58,9 @@ class Truth:
 
     td (n_td,) true parameters; td_nominal (n_td,); mocap_from_base (4, 4); markers (M, 3) m
     in the moving frame; terms [(ModelTerm, theta)]; noise_m marker noise per coordinate;
-    base_markers (B, 3) m in the base frame, or None.
+    base_markers (B, 3) m in the base frame, or None. Rigid bodies: body_names, their placements
+    on the moving part body_origins (B, 3) m and body_rotvecs (B, 3) rad (body frame -> moving
+    frame), body_noise {'position_m', 'rotation_rad'} per-axis sigmas of each sample.
     """
 
     platform: str
@@ -74,6 +77,10 @@ class Truth:
     description: str | None = None
     base_marker_names: list[str] = field(default_factory=list)
     base_markers: np.ndarray | None = None  # (B, 3) m in the base frame
+    body_names: list[str] = field(default_factory=list)
+    body_origins: np.ndarray | None = None
+    body_rotvecs: np.ndarray | None = None
+    body_noise: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The truth.yaml mapping (SI: metres, radians)."""
@@ -93,6 +100,9 @@ class Truth:
             "effects": [plain(term.to_dict(theta)) for term, theta in self.terms],
             "marker_noise_m": float(self.noise_m),
             "occlusion": float(self.occlusion),
+            **({"rigid_bodies": {n: {"position": [float(x) for x in o], "rotation_vector": [float(x) for x in r]}
+                                 for n, o, r in zip(self.body_names, self.body_origins, self.body_rotvecs)},
+                "rigid_body_noise": {k: float(v) for k, v in self.body_noise.items()}} if self.body_names else {}),
         }
 
 
@@ -138,6 +148,7 @@ class Simulation:
     imu: dict | None = None
     plan_info: dict = field(default_factory=dict)
     base_markers: np.ndarray | None = None  # (K, B, 3) m, mocap frame, the stream of markers on the base
+    bodies: np.ndarray | None = None  # (K, B, 7) the rigid bodies' stream (origin m, unit quaternion), mocap frame
 
 
 def _min_jerk(s):
@@ -194,7 +205,8 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
              mocap_rate_hz: float = 100.0, hold_s: float = 1.5, length_unit: str = "mm",
              imu: Callable | None = None, perturbation: float = 1.0, markers: np.ndarray | None = None,
              settle_options: SettleOptions | None = None, description: str | None = None,
-             n_base_markers: int = 0) -> Simulation:
+             n_base_markers: int = 0, n_bodies: int = 0, body_noise_mm: float = 0.1,
+             body_noise_deg: float = 0.05) -> Simulation:
     """Simulate a session of ``spec`` in memory.
 
     plan: 'grid' (snake-ordered grid, about n_poses points), 'random', a plan.csv path, a
@@ -210,6 +222,10 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
     hold_s: time the stand holds each command after arriving (s).
     n_base_markers: markers fixed on the base (B1, B2, ...), around the stand on the floor; they
         pin the base-to-mocap transform.
+    n_bodies: rigid bodies measured in 6 DOF on the moving part (T1, T2, ...), each sample with
+        per-axis noise body_noise_mm on its origin and body_noise_deg on its orientation (occluded
+        like the markers); their placements are drawn from their own random stream, so adding
+        them leaves the rest of the simulation as it was.
     """
 
     length_scale(length_unit)
@@ -248,6 +264,22 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         ang = 2 * np.pi * np.arange(n_base_markers) / n_base_markers + brng.uniform(-0.3, 0.3, n_base_markers)
         B = np.stack([rho * np.cos(ang), rho * np.sin(ang), brng.uniform(0, 0.05, n_base_markers) * rho], axis=1)
     B_mocap = None if B is None else B @ T[:3, :3].T + T[:3, 3]
+    body_rng = np.random.default_rng([seed, 11])
+    body_names = [f"T{k + 1}" for k in range(n_bodies)]
+    body_o = body_rng.normal(0, 0.3 * stand_length_scale(spec), (n_bodies, 3))
+    body_rv = body_rng.normal(0, 1.0, (n_bodies, 3))
+    body_noise = {"position_m": body_noise_mm * 1e-3, "rotation_rad": np.deg2rad(body_noise_deg)} if n_bodies else {}
+
+    def bodies_of(q, X, shrink=1.0):
+        """(K, n_bodies, 7) in the mocap frame, noise divided by ``shrink`` ((K, n_bodies) or 1)."""
+        R = T[:3, :3] @ matrix_from_quat(q)  # (K, 3, 3) mocap_from_moving
+        o = (X @ T[:3, :3].T + T[:3, 3])[:, None] + np.einsum("kab,mb->kma", R, body_o)
+        shape = (len(q), n_bodies, 3)
+        k = np.broadcast_to(np.asarray(shrink, float), shape[:2])[..., None]
+        o = o + body_rng.normal(size=shape) * body_noise.get("position_m", 0.0) / k
+        turn = matrix_from_rotvec(body_rng.normal(size=shape) * body_noise.get("rotation_rad", 0.0) / k)
+        Rw = np.einsum("kab,mbc,kmcd->kmad", R, matrix_from_rotvec(body_rv), turn)
+        return np.concatenate([o, quat_from_matrix(Rw)], axis=2)
 
     # command times: move (min-jerk, duration from the largest stroke fraction), then hold
     lo, hi = spec.control_bounds()
@@ -276,7 +308,7 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         return off
 
     truth = Truth(spec.name, spec.parameter_names, td_true, spec.nominal_td(), T, names, S, all_terms,
-                  noise, occlusion, seed, description, base_names, B)
+                  noise, occlusion, seed, description, base_names, B, body_names, body_o, body_rv, body_noise)
 
     def markers_of(q, X, moff):
         R = matrix_from_quat(q)
@@ -298,11 +330,16 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         base_avg = None
         if B_mocap is not None:
             base_avg = B_mocap + brng.normal(size=B_mocap.shape) * noise / np.sqrt(n_avg * N)
+        body_counts = body_rng.binomial(n_avg, 1 - occlusion, size=(N, n_bodies)).astype(float)
+        bod = bodies_of(q, X, np.sqrt(np.maximum(body_counts, 1)))
+        bod[body_counts == 0] = np.nan
         poses = PoseSet(platform=spec.name, controls=U, markers=Y, marker_names=names, description=description,
                         base_markers=base_avg, t=t_cmd, n_samples=counts, length_unit=length_unit, source="simulated",
                         extras={"row": np.arange(N), "direction": commands.extras["direction"],
                                 "last_step": commands.extras["last_step"], "elapsed": commands.extras["elapsed"],
-                                "settle_time": np.full(N, 0.5 * hold_s)})
+                                "settle_time": np.full(N, 0.5 * hold_s)},
+                        bodies=bod, body_names=body_names, n_body_samples=body_counts if n_bodies else None,
+                        body_noise=dict(body_noise))
         return Simulation(spec, poses, truth, t_cmd, U, None, None, None, mocap_rate_hz, length_unit,
                           plan_info=plan_info)
 
@@ -345,6 +382,12 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
         YB = B_mocap[None] + brng.normal(size=(len(tm),) + B_mocap.shape) * noise
         YB[_occlusion_mask(brng, len(tm), n_base_markers, occlusion, max(1, int(0.1 * mocap_rate_hz)))] = np.nan
         YB = np.round(YB * 1e6) / 1e6
+    bod = None
+    if n_bodies:
+        bod = bodies_of(q, X)
+        bod[_occlusion_mask(body_rng, len(tm), n_bodies, occlusion, max(1, int(0.1 * mocap_rate_hz)))] = np.nan
+        bod[..., :3] = np.round(bod[..., :3] * 1e6) / 1e6
+        bod[..., 3:] = np.round(bod[..., 3:] * 1e9) / 1e9
     traj = Trajectory(t_cmd, U, t_arrive, t_end, evaluate)
     imu_data = imu(traj, rng) if imu is not None else None
     if imu_data is not None and "truth_imu" in imu_data:
@@ -355,13 +398,14 @@ def simulate(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 80, plan: Any 
                    length_unit=length_unit, time_unit="s", marker_names=names, base_marker_names=base_names,
                    mocap_rate_hz=mocap_rate_hz, imu=None, moving_link=None, notes="",
                    command_t=t_cmd, commands=U, marker_t=tm, markers=Y, base_markers=YB,
-                   markers_source=Path("simulated"))
-    poses, report = settle(sess, settle_options)
+                   markers_source=Path("simulated"), body_names=body_names, body_noise=dict(body_noise), bodies=bod)
+    poses, report = settle(stream_for_settling(sess), settle_options)
+    poses = with_settled_bodies(sess, poses)
     poses.source = "simulated"
     poses.description = description
     plan_info.update(settle_sigma_m=report.sigma_m, kept=report.n_kept, dropped=len(report.dropped))
     return Simulation(spec, poses, truth, t_cmd, U, tm, Y, traj, mocap_rate_hz, length_unit, imu_data, plan_info,
-                      base_markers=YB)
+                      base_markers=YB, bodies=bod)
 
 
 # ----------------------------------------------------------------------------- files
@@ -404,6 +448,16 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
         }
         if base_link is not None:
             entry["base_link"] = base_link
+        bnames_6dof = list(sim.truth.body_names)
+        if bnames_6dof:
+            entry["rigid_bodies"] = bnames_6dof
+            entry["rigid_body_noise"] = {"position_mm": float(sim.truth.body_noise["position_m"] * 1e3),
+                                         "rotation_deg": float(np.rad2deg(sim.truth.body_noise["rotation_rad"]))}
+        bcols = [f"{b}_{a}" for b in bnames_6dof for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+
+        def body_cells(row7):  # (B, 7) -> cells: origins in the unit, quaternions to 9 digits, empty if unseen
+            return ["" if not np.isfinite(v) else (fmt(v / s, ldig) if j % 7 < 3 else f"{v:.9f}")
+                    for j, v in enumerate(row7.reshape(-1))]
         if description is not None:
             desc = Path(description)
             (tmp / desc.name).write_bytes(desc.read_bytes())
@@ -423,14 +477,19 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
                 if bnames:
                     r += [fmt(v / s, ldig) for v in p.base_markers.reshape(-1)]
                 r += [str(int(n)) for n in p.n_samples[i]]
+                if bnames_6dof:
+                    r += body_cells(p.bodies[i]) + [str(int(n)) for n in p.n_body_samples[i]]
                 rows.append(r)
-            header = spec.control_names + mcols + [f"{m}_n" for m in names]
+            header = (spec.control_names + mcols + [f"{m}_n" for m in names] + bcols
+                      + [f"{b}_n" for b in bnames_6dof])
             (tmp / "poses.csv").write_text(csv_text(header, rows), encoding="utf-8")
         else:
             Y = sim.markers if sim.base_markers is None else np.concatenate([sim.markers, sim.base_markers], axis=1)
             Y = Y.reshape(len(sim.marker_t), -1) / s
             rows = [[f"{t:.6f}"] + [fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
-            (tmp / "markers.csv").write_text(csv_text(["t"] + mcols, rows), encoding="utf-8")
+            if bnames_6dof:
+                rows = [r + body_cells(b) for r, b in zip(rows, sim.bodies)]
+            (tmp / "markers.csv").write_text(csv_text(["t"] + mcols + bcols, rows), encoding="utf-8")
         if sim.imu is not None:
             entry["imu"] = write_imu_files(sim.imu, tmp)
         (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")

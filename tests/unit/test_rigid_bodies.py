@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.bodies import average_body, log_so3, quat_mean, right_jacobian, right_jacobian_inv
-from platkit.calibrate.estimate import calibrate, parameter_scale
+from platkit.calibrate.estimate import calibrate, parameter_scale, predict_markers
 from platkit.calibrate.predict import predict_bodies, prediction_table
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
@@ -367,3 +367,27 @@ def test_cli_calibrates_a_body_session_and_predict_writes_its_columns(stewart, t
     cols = [header.index(f"T1_{a}") for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     values = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])[:, cols]
     assert np.max(np.abs(values[:, :3] * 1e-3 - clean[:, 0, :3])) < 5 * SIGMA_P  # a 40-pose fit: below the noise
+
+
+def test_simulated_session_with_a_body_round_trips_through_its_files(stewart, tmp_path):
+    from platkit.calibrate.settle import load_poses
+    from platkit.simulate import simulate, write_session
+    plain = simulate(stewart, seed=2, n_poses=30, raw=False)
+    sim = simulate(stewart, seed=2, n_poses=30, raw=False, n_bodies=1)
+    assert np.array_equal(plain.poses.markers, sim.poses.markers, equal_nan=True)  # bodies draw from their own stream
+    folder = write_session(sim, tmp_path / "s", poses_only=True)
+    poses = load_poses(folder)
+    assert poses.body_names == ["T1"] and poses.body_noise == pytest.approx(sim.truth.body_noise)
+    assert np.allclose(poses.bodies[..., :3], sim.poses.bodies[..., :3], atol=1e-6, equal_nan=True)
+    assert np.array_equal(poses.n_body_samples, sim.poses.n_body_samples)
+    cal = calibrate(poses, stewart)
+    assert cal.body_rho_source == "declared"
+    # the simulated body is where the truth put it, seen through the fitted stand: predict it
+    U = sim.poses.controls[:5]
+    fb = PlatformModel(stewart).forward_batch(U, sim.truth.td, strict=False)
+    T = sim.truth.mocap_from_base
+    R = T[:3, :3] @ matrix_from_quat(fb.q)
+    true_origin = fb.X @ T[:3, :3].T + T[:3, 3] + np.einsum("nab,b->na", R, sim.truth.body_origins[0])
+    _, q, X, _ = predict_markers(cal, U)
+    pred = predict_bodies(cal, q, X)
+    assert np.max(np.linalg.norm(pred[:, 0, :3] - true_origin, axis=1)) < 5 * SIGMA_P
