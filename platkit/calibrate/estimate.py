@@ -277,15 +277,24 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
 def refit_body_rho(problem: CalibrationProblem, fit, active, robust: bool, max_iter: int, progress: Progress | None):
     """With rigid bodies and no declared noise: rho = sigma_position / sigma_rotation (m/rad) from the
     bodies' residuals of ``fit`` (:func:`platkit.calibrate.bodies.estimate_rho`), and the fit repeated
-    with it; twice, as rho moves little after the first. Returns the last fit (``fit`` unchanged
-    without bodies, with declared noise, or when the residuals say nothing)."""
+    with it; twice, as rho moves little after the first. Each channel's scale is corrected for
+    what the fit absorbed of it (its rows' leverage: the stand's parameters take more of the
+    position noise than of the rotation noise). Returns the last fit (``fit`` unchanged without
+    bodies, with declared noise, or when the residuals say nothing)."""
     if not problem.B or problem.rho_source == "declared":
         return fit
     M, B = problem.M, problem.B
     for _ in range(2):
-        keep = (fit.weights > 0) & np.isfinite(fit.state.r).all(axis=2)
-        rho = estimate_rho(fit.state.r[:, M:M + B][keep[:, M:M + B]],
-                           fit.state.r[:, M + B:][keep[:, M + B:]] / problem.body_rho)
+        st = fit.state if fit.state.J is not None else problem.evaluate(fit.z)
+        keep = (fit.weights > 0) & np.isfinite(st.r).all(axis=2)
+        _, Jw = _weighted(st, fit.weights, active)
+        lev = np.einsum("ij,ij->i", Jw @ np.linalg.pinv(Jw.T @ Jw), Jw).reshape(st.r.shape).sum(axis=2)
+        dof = []
+        for ch in (slice(M, M + B), slice(M + B, M + 2 * B)):  # the bodies' origins, then their rotations
+            n = 3.0 * keep[:, ch].sum()
+            dof.append(np.sqrt(n / max(n - lev[:, ch][keep[:, ch]].sum(), 1.0)))
+        rho = estimate_rho(st.r[:, M:M + B][keep[:, M:M + B]] * dof[0],
+                           st.r[:, M + B:][keep[:, M + B:]] / problem.body_rho * dof[1])
         if rho is None:
             break
         problem.body_rho, problem.rho_source = rho, "estimated"

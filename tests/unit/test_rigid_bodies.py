@@ -180,7 +180,8 @@ def test_rho_is_estimated_when_not_declared(stewart):
     poses = truth.poses(60, declared=False)
     cal = calibrate(poses, stewart)
     assert cal.body_rho_source == "estimated"
-    assert cal.body_rho == pytest.approx(SIGMA_P / SIGMA_R, rel=0.25)
+    # robust scales of 60 residual norms each: 0.92 to 1.04 of the truth over 8 seeds (docs); 15% is ~3.5 sd
+    assert cal.body_rho == pytest.approx(SIGMA_P / SIGMA_R, rel=0.15)
 
 
 def test_same_data_as_markers_gives_the_same_geometry(fitted, stewart):
