@@ -112,7 +112,7 @@ def run_verb(verb: str, options: dict, session: str, name: str) -> dict:
             raise BadInput(f"platkit {verb} exited {code}: {warned.getvalue().strip() or said.getvalue().strip()}")
         root = Path(ns.out)
         files = {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-    return {"files": files, "line": said.getvalue().strip(),
+    return {"files": files, "line": said.getvalue().strip(), "out": ns.out,
             "warnings": [line for line in warned.getvalue().splitlines() if line.strip()]}
 
 
@@ -146,7 +146,8 @@ def run(args) -> int:
                   "seconds": outcome.seconds, "worker": outcome.worker}
         if outcome.ok:
             batch.write_session(outcome.key, outcome.value["files"],
-                                {**record, "line": outcome.value["line"],
+                                {**record, "line": outcome.value["line"].replace(outcome.value["out"],
+                                                                                 str(batch.sessions / outcome.key)),
                                  "warnings": outcome.value["warnings"] + outcome.warnings})
         else:
             batch.write_failure(outcome.key, {**record, "error": outcome.error, "kind": outcome.kind})
