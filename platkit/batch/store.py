@@ -20,7 +20,7 @@ from platkit.errors import BadInput
 from platkit.io.atomic import atomic_write_text, check_output_dir
 from platkit.io.jsonout import dumps
 
-__all__ = ["SessionRef", "find_sessions", "BatchFolder", "natural_key"]
+__all__ = ["SessionRef", "find_sessions", "match_sessions", "BatchFolder", "natural_key"]
 
 TASK_RECORD = "task.json"
 
@@ -40,13 +40,18 @@ def natural_key(text: str) -> list:
 
 
 def find_sessions(patterns: str | list[str]) -> list[SessionRef]:
+    """The session folders matched by ``patterns`` (see :func:`match_sessions`)."""
+    return match_sessions(patterns)[0]
+
+
+def match_sessions(patterns: str | list[str]) -> tuple[list[SessionRef], list[Path]]:
     """The session folders (holding session.yaml) matched by shell-style ``patterns``
-    (``fleet/*``, ``lab/**/month*``; a folder itself), in natural order of their paths. A matched
-    folder without session.yaml is skipped only if the pattern matched other things too, and the
-    skipped are counted in the error when nothing is left."""
+    (``fleet/*``, ``lab/**/month*``; a folder itself), in natural order of their names, and the
+    matched folders that hold no session.yaml (skipped: the caller says how many). Nothing
+    matched is bad input, naming how many folders were skipped."""
     patterns = [patterns] if isinstance(patterns, str) else list(patterns)
     found: list[Path] = []
-    skipped = 0
+    skipped: list[Path] = []
     for pattern in patterns:
         matches = sorted(glob.glob(os.path.expanduser(pattern), recursive=True), key=natural_key)
         for m in matches:
@@ -54,16 +59,16 @@ def find_sessions(patterns: str | list[str]) -> list[SessionRef]:
             if (p / "session.yaml").is_file():
                 found.append(p.resolve())
             elif p.is_dir():
-                skipped += 1
+                skipped.append(p)
     unique = list(dict.fromkeys(found))
     if not unique:
-        extra = f" ({skipped} matched folders hold no session.yaml)" if skipped else ""
+        extra = f" ({len(skipped)} matched folders hold no session.yaml)" if skipped else ""
         raise BadInput(f"{', '.join(patterns)}: no session folder (one holding session.yaml) matches{extra}")
     if len(unique) == 1:
-        return [SessionRef(unique[0].name, unique[0])]
+        return [SessionRef(unique[0].name, unique[0])], skipped
     common = Path(os.path.commonpath([str(p) for p in unique]))
     refs = [SessionRef(str(p.relative_to(common)).replace(os.sep, "__"), p) for p in unique]
-    return sorted(refs, key=lambda r: natural_key(r.name))
+    return sorted(refs, key=lambda r: natural_key(r.name)), skipped
 
 
 class BatchFolder:

@@ -119,7 +119,7 @@ def run_verb(verb: str, options: dict, session: str, name: str) -> dict:
 def run(args) -> int:
     from platkit.batch.engine import SCHEDULER_ENV, Task, cluster, progress_line, require_dask, run_tasks
     from platkit.batch.fleet import write_summary
-    from platkit.batch.store import BatchFolder, find_sessions
+    from platkit.batch.store import BatchFolder, match_sessions
     from platkit.io.atomic import check_output_dir
 
     require_dask()
@@ -132,7 +132,7 @@ def run(args) -> int:
         raise BadInput(f"--workers applies to the embedded cluster; the scheduler at "
                        f"{args.scheduler or os.environ.get(SCHEDULER_ENV)} has its own workers")
     check_output_dir(args.out)
-    sessions = find_sessions(args.session)
+    sessions, skipped = match_sessions(args.session)
     options = verb_options(args)
     for ref in sessions[:1]:  # a bad placeholder is bad input before any work
         session_options(options, str(ref.path), ref.name)
@@ -140,6 +140,9 @@ def run(args) -> int:
     todo = [ref for ref in sessions if not batch.done(ref.name)]
     say = (lambda line: None) if args.quiet else (lambda line: print(f"batch: {line}", file=sys.stderr, flush=True))
     say(f"{len(sessions)} sessions, {len(sessions) - len(todo)} already done, {len(todo)} to run")
+    if skipped:
+        print(f"platkit: warning: {len(skipped)} matched folders hold no session.yaml and are not sessions "
+              f"(first: {skipped[0]})", file=sys.stderr)
 
     def keep(outcome) -> None:
         record = {"session": next(str(r.path) for r in todo if r.name == outcome.key), "verb": verb, "ok": outcome.ok,

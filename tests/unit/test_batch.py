@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from platkit.batch import engine
-from platkit.batch.store import find_sessions
+from platkit.batch.store import find_sessions, match_sessions
 from platkit.cli import main
 from platkit.commands.batch import default_options, run_verb
 from platkit.simulate import simulate_session
@@ -168,3 +168,13 @@ def test_bad_options_are_bad_input_before_any_work(tmp_path, monkeypatch, capsys
     assert "--workers applies to the embedded cluster" in capsys.readouterr().err
     assert main(["batch", "calibrate", pattern, "--workers", "0", "--out", str(out)]) == 2
     assert not out.exists()
+
+
+def test_folders_without_session_yaml_are_counted_not_dropped_silently(tmp_path):
+    for name in ("month9", "month10", "notes"):
+        (tmp_path / name).mkdir()
+    for name in ("month9", "month10"):
+        (tmp_path / name / "session.yaml").write_text("platform: rotary\n")
+    refs, skipped = match_sessions(str(tmp_path / "*"))
+    assert [r.name for r in refs] == ["month9", "month10"]  # natural order
+    assert skipped == [tmp_path / "notes"]
