@@ -879,6 +879,11 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                            f"{1e3 * float(np.nanmax(fit.remaining_m)):.3g} mm to go at the next command")
             if start is not None:
                 p, v = trend_test(ts[start:end], seg[start:end], sig_slow)
+                while p < opt.trend_false_alarm and end - start >= 2 * min_samples:
+                    # the early part goes (what is left of an approach), a quarter at a time
+                    start += max(1, (end - start) // 4)
+                    p, v = trend_test(ts[start:end], seg[start:end], sig_slow)
+                    correction = np.zeros((M, 3))
                 if p < opt.trend_false_alarm:
                     why = (f"never settled: still moving at {1e3 * v:.3g} mm/s across its "
                            f"{(end - start) * dt:.2f} s window (trend p = {p:.2g})")
