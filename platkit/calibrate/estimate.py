@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from platkit.calibrate.bodies import estimate_rho
+from platkit.calibrate.bodies import estimate_rho, log_so3
 from platkit.calibrate.identifiability import (
     DEFAULT_REL_TOL,
     apply_marker_convention,
@@ -360,20 +360,54 @@ def point_errors(cal: Calibration, poses: PoseSet) -> np.ndarray:
     return np.linalg.norm(pred - poses.markers, axis=2)
 
 
+def predict_bodies(cal: Calibration, q: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """The calibration's rigid bodies (N, B, 7) in the motion-capture frame: origin (m) and unit quaternion
+    (qw >= 0), from the moving frame's pose in the base frame, q (N, 4) and X (N, 3) m (as
+    :func:`predict_markers` returns them)."""
+    N, B = len(q), len(cal.body_names)
+    if B == 0:
+        return np.zeros((N, 0, 7))
+    A = matrix_from_rotvec(cal.mocap_rotvec)
+    R = np.einsum("ab,nbc->nac", A, matrix_from_quat(q))  # mocap_from_moving rotation
+    origin = (X @ A.T + cal.mocap_translation)[:, None, :] + np.einsum("nab,kb->nka", R, cal.body_positions)
+    quat = quat_from_matrix(np.einsum("nab,kbc->nkac", R, matrix_from_rotvec(cal.body_rotvecs)))
+    quat = np.where(quat[..., :1] < 0, -quat, quat)
+    return np.concatenate([origin, quat], axis=2)
+
+
 def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
     """Held-out prediction of another session recorded in the same mocap frame: {'source',
-    'n_poses', 'rms' (m), 'rms_per_marker' {name: m}}. Markers are matched by name."""
+    'n_poses', 'rms' (m, over every marker and rigid body origin), 'rms_per_marker' {name: m}, and
+    with bodies 'rms_per_body' {name: m} (origins) and 'rotation_rms_per_body_rad' {name: rad}}.
+    Markers and bodies are matched by name."""
     missing = [m for m in cal.marker_names if m not in poses.marker_names]
+    missing += [b for b in cal.body_names if b not in poses.body_names]
     if missing:
-        raise BadInput(f"{poses.source or 'validation session'}: has no marker {missing[0]!r} of the calibration")
+        raise BadInput(f"{poses.source or 'validation session'}: has no marker or rigid body {missing[0]!r} of the "
+                       "calibration")
     order = [poses.marker_names.index(m) for m in cal.marker_names]
     sub = PoseSet(poses.platform, poses.controls, poses.markers[:, order], list(cal.marker_names), t=poses.t,
                   length_unit=poses.length_unit, source=poses.source, extras=dict(poses.extras))
-    d = point_errors(cal, sub)
+    pred, q, X, ok = predict_markers(cal, sub.controls, sub)
+    d = np.linalg.norm(pred - sub.markers, axis=2)
     per = {m: float(np.sqrt(np.nanmean(d[:, i] ** 2))) for i, m in enumerate(cal.marker_names)}
-    return {"source": poses.source, "n_poses": int(poses.n_poses), "rms": float(np.sqrt(np.nanmean(d ** 2))),
-            "rms_per_marker": per}
+    out = {"source": poses.source, "n_poses": int(poses.n_poses), "rms_per_marker": per}
+    if cal.body_names:
+        measured = poses.bodies[:, [poses.body_names.index(b) for b in cal.body_names]]
+        body = predict_bodies(cal, q, X)
+        body[~ok] = np.nan
+        d_body = np.linalg.norm(body[..., :3] - measured[..., :3], axis=2)
+        turn = np.einsum("nkba,nkbc->nkac", matrix_from_quat(np.nan_to_num(measured[..., 3:], nan=1.0)),
+                         matrix_from_quat(np.nan_to_num(body[..., 3:], nan=1.0)))
+        angle = np.where(np.isfinite(measured[..., 3:]).all(axis=2) & np.isfinite(body[..., 3:]).all(axis=2),
+                         np.linalg.norm(log_so3(turn), axis=2), np.nan)
+        out["rms_per_body"] = {b: float(np.sqrt(np.nanmean(d_body[:, k] ** 2))) for k, b in enumerate(cal.body_names)}
+        out["rotation_rms_per_body_rad"] = {b: float(np.sqrt(np.nanmean(angle[:, k] ** 2)))
+                                            for k, b in enumerate(cal.body_names)}
+        d = np.concatenate([d, d_body], axis=1)
+    out["rms"] = float(np.sqrt(np.nanmean(d ** 2))) if np.isfinite(d).any() else float("nan")
+    return out
 
 
-__all__ = ["calibrate", "kfold", "predict_markers", "point_errors", "second_session_errors", "free_mask", "CalibrationProblem",
-           "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]
+__all__ = ["calibrate", "kfold", "predict_markers", "predict_bodies", "point_errors", "second_session_errors",
+           "free_mask", "CalibrationProblem", "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]

@@ -18,10 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.calibrate.estimate import predict_markers
+from platkit.calibrate.estimate import predict_bodies, predict_markers
 from platkit.effects import with_history
 from platkit.errors import BadInput
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.atomic import atomic_write_text
 from platkit.io.calibration import Calibration, read_calibration
 from platkit.io.session import read_table
@@ -103,21 +102,6 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
                             bodies.reshape(N, -1), X / s, q])
     rows[~ok, cal.spec.n_u:] = np.nan
     return header, rows, ok
-
-
-def predict_bodies(cal: Calibration, q: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """The calibration's rigid bodies (N, B, 7) in the motion-capture frame: origin (m) and unit quaternion
-    (qw >= 0), from the moving frame's pose in the base frame, q (N, 4) and X (N, 3) m (as
-    :func:`~platkit.calibrate.estimate.predict_markers` returns them)."""
-    N, B = len(q), len(cal.body_names)
-    if B == 0:
-        return np.zeros((N, 0, 7))
-    A = matrix_from_rotvec(cal.mocap_rotvec)
-    R = np.einsum("ab,nbc->nac", A, matrix_from_quat(q))  # mocap_from_moving rotation
-    origin = (X @ A.T + cal.mocap_translation)[:, None, :] + np.einsum("nab,kb->nka", R, cal.body_positions)
-    quat = quat_from_matrix(np.einsum("nab,kbc->nkac", R, matrix_from_rotvec(cal.body_rotvecs)))
-    quat = np.where(quat[..., :1] < 0, -quat, quat)
-    return np.concatenate([origin, quat], axis=2)
 
 
 def terms_reading_time(cal: Calibration, U: np.ndarray) -> list[str]:

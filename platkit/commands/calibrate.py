@@ -167,7 +167,8 @@ def run(args) -> int:
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     s = length_scale(cal.length_unit)
     line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
-            f"({cal.n_poses} poses, {cal.n_markers} markers)")
+            f"({cal.n_poses} poses, {cal.n_markers} markers"
+            + (f", {len(cal.body_names)} rigid bodies (rho {cal.body_rho_source})" if cal.body_names else "") + ")")
     if args.folds and "rms" in cal.heldout:
         line += f"; {args.folds}-fold held-out rms {cal.heldout['rms'] / s:.4g} {cal.length_unit}"
     second = cal.heldout.get("second_session")

@@ -184,7 +184,7 @@ class Calibration:
 
 
 #: keys of Calibration.heldout (and of its 'second_session') that are lengths in metres
-HELDOUT_LENGTHS = ("rms", "rms_inliers", "rms_per_fold", "rms_per_marker")
+HELDOUT_LENGTHS = ("rms", "rms_inliers", "rms_per_fold", "rms_per_marker", "rms_per_body")
 
 
 def heldout_in_unit(heldout: dict, unit: str) -> dict:
@@ -202,7 +202,7 @@ def heldout_in_unit(heldout: dict, unit: str) -> dict:
     for k, v in heldout.items():
         if k in HELDOUT_LENGTHS:
             out[k] = conv(v)
-        elif isinstance(v, dict):
+        elif isinstance(v, dict) and not k.endswith("_rad"):  # angles stay in rad, their unit in the name
             out[k] = heldout_in_unit(v, unit)
         else:
             out[k] = v

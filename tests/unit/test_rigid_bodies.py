@@ -13,6 +13,7 @@ from platkit.calibrate.bodies import average_body, log_so3, quat_mean, right_jac
 from platkit.calibrate.estimate import calibrate, parameter_scale, predict_markers
 from platkit.calibrate.predict import predict_bodies, prediction_table
 from platkit.calibrate.problem import CalibrationProblem
+from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.calibration import read_calibration
 from platkit.kinematics import PlatformModel
@@ -392,3 +393,18 @@ def test_simulated_session_with_a_body_round_trips_through_its_files(stewart, tm
     _, q, X, _ = predict_markers(cal, U)
     pred = predict_bodies(cal, q, X)
     assert np.max(np.linalg.norm(pred[:, 0, :3] - true_origin, axis=1)) < 5 * SIGMA_P
+
+
+def test_validate_with_bodies_reports_their_errors(fitted, stewart):
+    from platkit.calibrate.estimate import second_session_errors
+    truth, poses, cal = fitted
+    other = truth.poses(30)
+    out = second_session_errors(cal, other)
+    # a new session with the same noise: each origin off by its 3-D noise, sqrt(3) sigma (+ the fit's share)
+    assert out["rms_per_body"]["T1"] == pytest.approx(np.sqrt(3) * SIGMA_P, rel=0.3)
+    assert out["rotation_rms_per_body_rad"]["T1"] == pytest.approx(np.sqrt(3) * SIGMA_R, rel=0.3)
+    assert out["rms"] == pytest.approx(out["rms_per_body"]["T1"])
+    renamed = other.subset(np.arange(other.n_poses))
+    renamed.body_names = ["S"]
+    with pytest.raises(BadInput, match="has no marker or rigid body 'T1'"):
+        second_session_errors(cal, renamed)
