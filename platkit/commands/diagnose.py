@@ -22,6 +22,21 @@ def add_parser(sub):
     return p
 
 
+def markers_only(poses, folder):
+    """Diagnosis reads markers only: a session's rigid bodies are left out, and said; a session of
+    bodies alone is refused in one line."""
+    if not poses.n_bodies:
+        return poses
+    bodies = ", ".join(poses.body_names)
+    if not poses.n_markers:
+        raise BadInput(f"{folder}: diagnose reads markers only, and this session has rigid bodies alone ({bodies}); "
+                       "calibrate and predict read them")
+    print(f"platkit: warning: {folder}: rigid bodies {bodies} left out: diagnose reads the markers only",
+          file=sys.stderr)
+    poses.body_names, poses.bodies, poses.n_body_samples = [], None, None
+    return poses
+
+
 def run(args) -> int:
     from platkit.calibrate.settle import load_poses
     from platkit.diagnose.report import write_outputs
@@ -49,7 +64,7 @@ def run(args) -> int:
         if platform is not None and platform != cal.platform:
             raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
         sessions[folder] = load_session(folder, spec=cal.spec, quiet=args.quiet)
-        return load_poses(folder, spec=cal.spec, session=sessions[folder])
+        return markers_only(load_poses(folder, spec=cal.spec, session=sessions[folder]), folder)
 
     poses = poses_of(args.session)
     from platkit.commands.calibrate import settling_notes

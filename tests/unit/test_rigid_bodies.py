@@ -408,3 +408,15 @@ def test_validate_with_bodies_reports_their_errors(fitted, stewart):
     renamed.body_names = ["S"]
     with pytest.raises(BadInput, match="has no marker or rigid body 'T1'"):
         second_session_errors(cal, renamed)
+
+
+def test_diagnose_leaves_bodies_out_and_says_so(fitted, capsys):
+    from platkit.commands.diagnose import markers_only
+    _, poses, _ = fitted
+    with pytest.raises(BadInput, match="diagnose reads markers only, and this session has rigid bodies alone"):
+        markers_only(poses.subset(np.arange(5)), "s")
+    both = as_markers(poses, 0.1).subset(np.arange(5))
+    both.bodies, both.body_names = poses.bodies[:5], ["T1"]
+    out = markers_only(both, "s")
+    assert out.n_bodies == 0 and out.n_markers == 4
+    assert "rigid bodies T1 left out" in capsys.readouterr().err
