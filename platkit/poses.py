@@ -100,7 +100,7 @@ class PoseSet:
             n_samples=None if self.n_samples is None else self.n_samples[rows],
             length_unit=self.length_unit, moving_link=self.moving_link, source=self.source,
             dropped=[], extras={k: np.asarray(v)[rows] for k, v in self.extras.items()}, settling=dict(self.settling),
-            bodies=self.bodies[rows] if self.body_names else None, body_names=list(self.body_names),
+            bodies=np.asarray(self.bodies)[rows] if self.body_names else None, body_names=list(self.body_names),
             n_body_samples=None if self.n_body_samples is None else self.n_body_samples[rows],
             body_noise=dict(self.body_noise),
         )

@@ -413,7 +413,7 @@ def body_columns(name: str) -> list[str]:
 
 
 def _check_marker_header(table: Table, declared: list[str], leading: list[str], optional_suffixes=(),
-                         bodies: list[str] = ()) -> None:
+                         bodies: tuple[str, ...] | list[str] = ()) -> None:
     """The header must be ``leading`` + x,y,z columns of every declared marker (+ optional
     per-marker columns) + the seven columns of every declared rigid body (+ the same optional
     columns); name the first column that is missing or undeclared."""
@@ -457,7 +457,7 @@ def _body_block(table: Table, names: list[str], scale: float) -> np.ndarray:
     out = table.data[:, idx] if idx.size else np.zeros((table.data.shape[0], 0, 7))
     out = np.array(out, float)
     finite = np.isfinite(out)
-    whole = finite.all(axis=2)
+    whole = np.all(finite, axis=2)
     partial = finite.any(axis=2) & ~whole
     if partial.any():
         r, k = np.argwhere(partial)[0]
