@@ -145,6 +145,10 @@ def run(args) -> int:
 
         if args.max_evaluations is not None and args.max_evaluations < 1:
             raise BadInput(f"--max-evaluations {args.max_evaluations}: use a positive number")
+        if poses.n_bodies:  # the paper's method knows markers only: bodies left out, and said
+            print(f"platkit: warning: rigid bodies {', '.join(poses.body_names)} left out: --method paper reads "
+                  "the markers only", file=sys.stderr)
+            poses.body_names, poses.bodies, poses.n_body_samples = [], None, None
         cal = calibrate_paper(poses, spec, free=free, max_evaluations=args.max_evaluations, progress=progress,
                               platform_options=options)
     else:
