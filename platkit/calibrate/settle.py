@@ -82,6 +82,7 @@ class SettleOptions:
     # an approach is extrapolated to rest only this far (m): markers follow the actuators through
     # the kinematics, and beyond about a millimetre the path to rest bends away from the fitted decay
     max_extrapolation_m: float = 1e-3
+    max_window_s: float | None = None  # the window is at most this long, ending where the hold does
 
 
 @dataclass
@@ -900,6 +901,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                     slow_taus[i] = late.tau
                     slow_left[i] = float(np.nanmax(late.remaining_m))
             continue
+        if opt.max_window_s is not None and end - start > max(min_samples, int(round(opt.max_window_s * rate))):
+            start = end - max(min_samples, int(round(opt.max_window_s * rate)))
+            correction = np.zeros((M, 3))
         r = _window_result(ts, seg, start, end, correction, fit)
         if r is None:
             dropped[i] = "every marker occluded: no sample in the settled window"

@@ -323,3 +323,13 @@ def test_calibrate_refuses_a_remnant(tmp_path, capsys):
     assert main(["calibrate", str(folder), "--quiet", "--no-selection", "--out", str(tmp_path / "cal")]) == 1
     err = capsys.readouterr().err
     assert "no motion-capture samples" in err and "remnant" in err and not (tmp_path / "cal").exists()
+
+
+def test_the_window_can_be_capped_to_the_end_of_the_hold():
+    rng = np.random.default_rng(15)
+    targets = rng.uniform(-0.03, 0.03, size=(5, 3))
+    t_cmd, t, X, truth = _approach_stream(targets, np.full(5, 0.05), rng)
+    poses, _ = settle(_session(t_cmd, t, X), SettleOptions(max_window_s=0.5))
+    span = poses.extras["window_end"] - poses.extras["window_start"]
+    assert poses.n_poses == 5 and np.all(span <= 0.5) and np.all(span >= 0.45)
+    assert np.all(poses.extras["window_end"] > t_cmd + 2.0)  # the last half second of each 2.5 s hold
