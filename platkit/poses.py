@@ -69,7 +69,7 @@ class PoseSet:
         if self.t is None:
             self.t = np.full(len(self.controls), np.nan)
         if self.bodies is None:
-            self.bodies = np.zeros((self.markers.shape[0], len(self.body_names), 7))
+            self.bodies = np.full((self.markers.shape[0], len(self.body_names), 7), np.nan)  # unseen
         self.bodies = np.asarray(self.bodies, float)
         if self.bodies.ndim != 3 or self.bodies.shape[2] != 7 or self.bodies.shape[0] != self.markers.shape[0]:
             raise ValueError(f"bodies must be (N, B, 7) with N = {self.markers.shape[0]}, got {self.bodies.shape}")
