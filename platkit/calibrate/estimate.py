@@ -293,8 +293,9 @@ def refit_body_rho(problem: CalibrationProblem, fit, active, robust: bool, max_i
         for ch in (slice(M, M + B), slice(M + B, M + 2 * B)):  # the bodies' origins, then their rotations
             n = 3.0 * keep[:, ch].sum()
             dof.append(np.sqrt(n / max(n - lev[:, ch][keep[:, ch]].sum(), 1.0)))
-        rho = estimate_rho(st.r[:, M:M + B][keep[:, M:M + B]] * dof[0],
-                           st.r[:, M + B:][keep[:, M + B:]] / problem.body_rho * dof[1])
+        r = st.r * np.sqrt(problem.base_weights)[:, :, None]  # in units of a typical pose's noise
+        rho = estimate_rho(r[:, M:M + B][keep[:, M:M + B]] * dof[0],
+                           r[:, M + B:][keep[:, M + B:]] / problem.body_rho * dof[1])
         if rho is None:
             break
         problem.body_rho, problem.rho_source = rho, "estimated"
