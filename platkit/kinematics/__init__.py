@@ -1,0 +1,32 @@
+"""Generic kinematics of any registered stand, derived from its CasADi residual.
+
+Forward kinematics solves G(p) = F(u, td, pose(p)) = 0 for the pose coordinates p by Newton's
+method (Gauss-Newton where the stand has more equations than coordinates); inverse kinematics
+uses the stand's closed form where it has one, else Gauss-Newton over u. Velocities and
+accelerations come from differentiating the constraint along a motion.
+
+One concept per module, joined in :class:`PlatformModel`:
+
+    core.py          the residual as CasADi functions, strokes, control checks, pose coordinates
+    newton.py        the Newton iteration: compiled C (platkit/native.py) or numpy
+    forward.py       forward kinematics, one control vector or a batch
+    inverse.py       inverse kinematics: closed form, Gauss-Newton, bounded least squares
+    rates.py         velocities and accelerations, in pose coordinates or as a twist
+    conditioning.py  the velocity Jacobian, condition numbers, distance to a singularity
+    results.py       ForwardResult, ForwardBatch, Conditioning
+"""
+from __future__ import annotations
+
+from platkit.kinematics.conditioning import SingularityAnalysis
+from platkit.kinematics.results import Conditioning, ForwardBatch, ForwardResult
+
+__all__ = ["PlatformModel", "ForwardResult", "ForwardBatch", "Conditioning"]
+
+
+class PlatformModel(SingularityAnalysis):
+    """Numeric solvers for one stand; all Jacobians come from the stand's CasADi functions.
+
+    ``length_unit`` is only the unit in which error messages show lengths ('mm' or 'm').
+    ``compile``: False forces the numpy/CasADi Newton (no C compiler involved).
+    Instances are not meant to be shared between threads.
+    """
