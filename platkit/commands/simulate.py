@@ -1,6 +1,7 @@
 """platkit simulate: write a simulated session folder (with its truth) for any stand."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from platkit.commands.common import add_platform_options, parse_vector, platform_from_args
@@ -39,7 +40,11 @@ def add_parser(sub):
                     "latency and clock offset drawn per session from the seed) with the true settled pose of every "
                     "command in truth_settled.csv. See docs/simulation.md.")
     add_platform_options(p)
-    p.add_argument("--out", required=True, help="session folder to write")
+    p.add_argument("--out", required=True, help="session folder to write (refused if it already holds files, "
+                                                "unless --force)")
+    p.add_argument("--force", action="store_true",
+                   help="write into an --out folder that already holds files (the session's files are replaced; "
+                        "other files there are left, and counted on stderr)")
     effect = p.add_argument("--effect", action="append", default=[], metavar="NAME[:SIZE]",
                             help="hidden effect, repeatable (NAME:SIZE or NAME=SIZE); the sizes are listed by "
                                  "platkit simulate --help")
@@ -113,6 +118,7 @@ def run(args) -> int:
 
     if args.poses < 3:
         raise BadInput(f"--poses must be at least 3, got {args.poses}")
+    check_out_folder(Path(args.out), args.force)
     if args.base_markers < 0:
         raise BadInput(f"--base-markers must be 0 or more, got {args.base_markers}")
     if args.rigid_bodies < 0:
@@ -179,6 +185,22 @@ def run(args) -> int:
     for e, theta in imu_effects:
         print(f"  hidden IMU effect {e.name}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(e.parameter_names, theta)))
     return 0
+
+
+def check_out_folder(out: Path, force: bool) -> None:
+    """A session is never simulated over another silently: an --out that is a file, or a folder
+    that already holds files, is refused unless --force (then said on stderr)."""
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {out}: is a file, not a session folder")
+    held = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
+    if not held:
+        return
+    if not force:
+        shown = ", ".join(held[:4]) + (f" and {len(held) - 4} more" if len(held) > 4 else "")
+        raise BadInput(f"--out {out}: already holds {len(held)} file(s) ({shown}); choose a new folder, "
+                       "or give --force to write the session over it")
+    print(f"simulate: --force: writing over {out}, which held {len(held)} file(s); the session's files are "
+          "replaced, any others are left as they were", file=sys.stderr)
 
 
 def run_physics(args, spec, plan, effects) -> int:

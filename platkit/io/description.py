@@ -5,6 +5,7 @@ and, where YAML gives one, the line.
 """
 from __future__ import annotations
 
+import difflib
 import os
 from pathlib import Path
 from typing import Any
@@ -27,10 +28,13 @@ def load_yaml(path: str | Path, error=BadDescription) -> dict[str, Any]:
         raise error(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{path}: cannot be read ({exc.__class__.__name__}: {exc})") from None
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     try:
+        if "&" in text:  # anchors: aliases to them may expand exponentially (a "billion laughs")
+            check_expansion(yaml.compose(text, Loader=loader), path, error)
         # libyaml's safe loader where PyYAML has it: a stand's description parses in a tenth of
         # the time, which every verb that looks up a stand pays (issue 13)
-        data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+        data = yaml.load(text, Loader=loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -39,6 +43,38 @@ def load_yaml(path: str | Path, error=BadDescription) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise error(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
     return data
+
+
+MAX_YAML_NODES = 100_000
+
+
+def check_expansion(root: yaml.Node | None, path: Path, error=BadDescription) -> None:
+    """Refuse a YAML document whose aliases expand to more than MAX_YAML_NODES nodes.
+
+    PyYAML shares an aliased object rather than copying it, so loading is cheap, but anything that
+    walks the result (printing notes, writing a report) visits every expansion: nine levels of
+    nine-fold aliases is 9^9 nodes from a few hundred bytes. Counted on the composed node graph,
+    each node's expanded size once (memoised), so the check itself stays linear in the file.
+    """
+    sizes: dict[int, int] = {}
+
+    def expanded(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        sizes[key] = MAX_YAML_NODES + 1  # a node reached again while being counted: a cycle
+        if isinstance(node, yaml.SequenceNode):
+            total = 1 + sum(expanded(child) for child in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            total = 1 + sum(expanded(k) + expanded(v) for k, v in node.value)
+        else:
+            total = 1
+        sizes[key] = total = min(total, MAX_YAML_NODES + 1)
+        return total
+
+    if root is not None and expanded(root) > MAX_YAML_NODES:
+        raise error(f"{path}: its YAML aliases (*name) expand to more than {MAX_YAML_NODES:,} values; "
+                    "write the values out instead")
 
 
 def default_description(filename: str) -> Path:
@@ -66,6 +102,28 @@ def check_platform(data: dict, name: str, path: Path) -> None:
     declared = data.get("platform")
     if declared is not None and str(declared) != name:
         raise BadDescription(f"{path}: field 'platform' says this file describes {declared!r}, not the {name} stand")
+
+
+METADATA_FIELDS = ("platform", "notes", "source")
+
+
+def check_fields(data: dict, known: tuple[str, ...] | list[str], path: Path, where: str = "") -> None:
+    """Refuse a field this description does not read (a typo such as ``ofset:`` would otherwise be
+    ignored and the stand built from its default), naming the closest known field.
+
+    ``known``: the fields of this mapping; at the top level (``where`` empty) the metadata fields
+    ``platform``, ``notes`` and ``source`` are allowed too.
+    """
+    allowed = tuple(known) + (METADATA_FIELDS if not where else ())
+    unknown = [str(k) for k in data if k not in allowed]
+    if not unknown:
+        return
+    key = unknown[0]
+    field = f"{where}.{key}" if where else key
+    close = difflib.get_close_matches(key, allowed, n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    others = f" and {len(unknown) - 1} more" if len(unknown) > 1 else ""
+    raise BadDescription(f"{path}: unknown field {field!r}{hint}{others}; known here: {', '.join(allowed)}")
 
 
 def require(data: dict, key: str, path: Path, kind: type | tuple = object, where: str = "") -> Any:

@@ -30,7 +30,7 @@ import numpy as np
 from platkit.errors import BadDescription, BadInput
 from platkit.geometry import ca_matrix_from_quat
 from platkit.hookspecs import hookimpl
-from platkit.io.description import check_platform, default_description, load_yaml, number, require, vector
+from platkit.io.description import check_fields, check_platform, default_description, load_yaml, number, require, vector
 from platkit.model import Control, Coordinate, Parameter, PlatformFactory, PlatformSpec, length_scale
 
 MOTORS = ("A", "B", "C")
@@ -43,7 +43,9 @@ def read_description(path: Path) -> dict:
     """Parse and check a psvr description; returns SI values (metres, radians)."""
     data = load_yaml(path)
     check_platform(data, "psvr", path)
+    check_fields(data, ("units", "motors", "crank_length", "rod_length", "neutral_pose"), path)
     units = require(data, "units", path, dict)
+    check_fields(units, ("length",), path, "units")
     length = units.get("length")
     if length not in ("mm", "m"):
         raise BadDescription(f"{path}: field 'units.length' must be 'mm' or 'm', got {length!r}")
@@ -56,6 +58,8 @@ def read_description(path: Path) -> dict:
         where = f"motors[{i}]"
         if not isinstance(m, dict):
             raise BadDescription(f"{path}: {where} must be a mapping")
+        check_fields(m, ("name", "crank_azimuth_deg", "crank_pivot", "platform_joint", "rad_per_count", "zero_count",
+                         "stroke"), path, where)
         names.append(str(require(m, "name", path, str, where)))
         azimuth.append(np.radians(number(m, "crank_azimuth_deg", path, where)))
         V_.append(vector(m, "crank_pivot", path, 3, where) * scale)
@@ -75,6 +79,7 @@ def read_description(path: Path) -> dict:
         if value <= 0:
             raise BadDescription(f"{path}: field {key!r} must be positive")
     neutral = require(data, "neutral_pose", path, dict)
+    check_fields(neutral, ("alpha", "beta", "h"), path, "neutral_pose")
     p0 = np.array([number(neutral, "alpha", path, "neutral_pose"), number(neutral, "beta", path, "neutral_pose"),
                    number(neutral, "h", path, "neutral_pose") * scale])
     return dict(names=names, azimuth=np.array(azimuth), V=np.array(V_), S=np.array(S_), k=np.array(k),

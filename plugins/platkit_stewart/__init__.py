@@ -15,7 +15,7 @@ import numpy as np
 from platkit.errors import BadDescription, BadInput
 from platkit.geometry import ca_matrix_from_quat, matrix_from_quat, matrix_from_rpy
 from platkit.hookspecs import hookimpl
-from platkit.io.description import check_platform, default_description, load_yaml, number, require, vector
+from platkit.io.description import check_fields, check_platform, default_description, load_yaml, number, require, vector
 from platkit.model import Control, Parameter, PlatformFactory, PlatformSpec, length_scale, six_dof_pose
 
 N_LEGS = 6
@@ -25,7 +25,9 @@ def read_description(path: Path) -> dict:
     """Parse and check a stewart description; returns SI arrays (metres, radians)."""
     data = load_yaml(path)
     check_platform(data, "stewart", path)
+    check_fields(data, ("units", "legs", "neutral_pose", "workspace_limits"), path)
     units = require(data, "units", path, dict)
+    check_fields(units, ("length",), path, "units")
     unit = require(units, "length", path, str, "units")
     if unit not in ("mm", "m"):
         raise BadDescription(f"{path}: field 'units.length' must be 'mm' or 'm', got {unit!r}")
@@ -38,6 +40,7 @@ def read_description(path: Path) -> dict:
         where = f"legs[{i}]"
         if not isinstance(leg, dict):
             raise BadDescription(f"{path}: {where} must be a mapping")
+        check_fields(leg, ("name", "base_joint", "platform_joint", "offset", "stroke"), path, where)
         names.append(str(require(leg, "name", path, str, where)))
         B.append(vector(leg, "base_joint", path, 3, where) * scale)
         P.append(vector(leg, "platform_joint", path, 3, where) * scale)
@@ -53,9 +56,13 @@ def read_description(path: Path) -> dict:
     if len(set(names)) != N_LEGS:
         raise BadDescription(f"{path}: leg names must differ, got {names}")
     neutral = require(data, "neutral_pose", path, dict)
+    check_fields(neutral, ("position", "rpy"), path, "neutral_pose")
     X0 = vector(neutral, "position", path, 3, "neutral_pose") * scale
     rpy0 = vector(neutral, "rpy", path, 3, "neutral_pose") if "rpy" in neutral else np.zeros(3)
     limits = data.get("workspace_limits") or {}
+    if not isinstance(limits, dict):
+        raise BadDescription(f"{path}: field 'workspace_limits' must be a mapping")
+    check_fields(limits, ("position_min", "position_max", "angle_max"), path, "workspace_limits")
     pmin = vector(limits, "position_min", path, 3, "workspace_limits") * scale if "position_min" in limits else None
     pmax = vector(limits, "position_max", path, 3, "workspace_limits") * scale if "position_max" in limits else None
     amax = number(limits, "angle_max", path, "workspace_limits") if "angle_max" in limits else np.pi / 2
