@@ -550,7 +550,7 @@ def _table_text(rows: list[list[str]], header=("t", "a", "b")) -> str:
 @pytest.fixture
 def small_chunks(monkeypatch):
     """Chunks of 4 rows, so that a few rows cross chunk boundaries as millions would."""
-    import platkit.io.session as session_module
+    import platkit.io.table as session_module
 
     monkeypatch.setattr(session_module, "CHUNK_ROWS", 4)
 
@@ -629,7 +629,7 @@ def test_empty_files_and_headers_are_named(tmp_path):
 
 
 def test_large_files_show_progress_from_the_start(tmp_path, monkeypatch, capsys):
-    import platkit.io.session as session_module
+    import platkit.io.table as session_module
 
     p = tmp_path / "m.csv"
     p.write_text(_table_text([[f"{i}", "1", "2"] for i in range(50)]))

@@ -1,0 +1,251 @@
+"""Checks of a session's streams, shared by its readers: times, the marker and rigid-body
+columns and their values, the plausibility of the declared length unit, the controls against
+the strokes. Every problem is one BadSession line naming the file, row and column."""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadSession
+from platkit.io.table import Table
+from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
+
+#: the seven columns of a rigid body T: T_x,T_y,T_z (origin, length unit) and T_qw..T_qz (unit quaternion)
+BODY_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+#: a body's quaternion is unit if its norm is within this of 1 (recorders write 4 to 6 decimals); it
+#: is normalised after the check
+QUAT_NORM_TOL = 1e-3
+#: the columns of a marker M: M_x, M_y, M_z
+AXES = ("x", "y", "z")
+
+
+def check_times(table: Table, t: np.ndarray, column: str = "t") -> None:
+    """Times must be present and strictly increasing: BadSession naming the row otherwise."""
+    bad = np.nonzero(~np.isfinite(t))[0]
+    if bad.size:
+        raise BadSession(f"{table.where(int(bad[0]), column)}: the time is empty; every row needs one")
+    d = np.diff(t)
+    if np.any(d <= 0):
+        r = int(np.nonzero(d <= 0)[0][0]) + 1
+        kind = "duplicated" if d[r - 1] == 0 else "earlier than the row before (times must increase)"
+        raise BadSession(f"{table.where(r, column)}: timestamp {t[r]:.9g} is {kind}")
+
+
+def marker_columns(name: str) -> list[str]:
+    return [f"{name}_{a}" for a in AXES]
+
+
+def body_columns(name: str) -> list[str]:
+    return [f"{name}_{a}" for a in BODY_SUFFIXES]
+
+
+def _check_marker_header(table: Table, declared: list[str], leading: list[str], optional_suffixes=(),
+                         bodies: tuple[str, ...] | list[str] = ()) -> None:
+    """The header must be ``leading`` + x,y,z columns of every declared marker (+ optional
+    per-marker columns) + the seven columns of every declared rigid body (+ the same optional
+    columns); name the first column that is missing or undeclared."""
+    allowed = set(leading)
+    for m in declared:
+        allowed.update(marker_columns(m))
+        allowed.update(f"{m}_{s}" for s in optional_suffixes)
+    for b in bodies:
+        allowed.update(body_columns(b))
+        allowed.update(f"{b}_{s}" for s in optional_suffixes)
+    for col in table.header:
+        if col not in allowed:
+            stem = col.rsplit("_", 1)[0]
+            if (col.endswith(("_qw", "_qx", "_qy", "_qz")) or f"{stem}_qw" in table.header) and stem not in bodies:
+                raise BadSession(
+                    f"{table.path}: column {col!r} is for a rigid body {stem!r} that session.yaml does not declare "
+                    f"(rigid_bodies: {', '.join(bodies) or 'none'})")
+            stem = col.rsplit("_", 1)[0]
+            if col.endswith(("_x", "_y", "_z")) and stem not in declared:
+                raise BadSession(
+                    f"{table.path}: column {col!r} is for a marker {stem!r} that session.yaml does not declare "
+                    f"(declared: {', '.join(declared) or 'none'})"
+                )
+            raise BadSession(
+                f"{table.path}: unexpected column {col!r}; expected {', '.join(leading)} then "
+                f"<marker>_x,_y,_z for {', '.join(declared)}"
+            )
+    for col in list(leading) + [c for m in declared for c in marker_columns(m)] + [c for b in bodies
+                                                                                   for c in body_columns(b)]:
+        if col not in table.header:
+            raise BadSession(f"{table.path}: missing column {col!r}")
+
+
+def _body_block(table: Table, names: list[str], scale: float) -> np.ndarray:
+    """(rows, B, 7) from the seven columns of each rigid body: origin in metres, unit quaternion.
+
+    Occluded: all seven empty. Some empty, a never-seen body, or a quaternion whose norm is not
+    within QUAT_NORM_TOL of 1 is a BadSession naming the file, row and column; quaternions are
+    then normalised (their sign is kept: q and -q are the same orientation)."""
+    idx = np.array([[table.header.index(c) for c in body_columns(b)] for b in names], dtype=int).reshape(-1, 7)
+    out = table.data[:, idx] if idx.size else np.zeros((table.data.shape[0], 0, 7))
+    out = np.array(out, float)
+    finite = np.isfinite(out)
+    whole = np.all(finite, axis=2)
+    partial = finite.any(axis=2) & ~whole
+    if partial.any():
+        r, k = np.argwhere(partial)[0]
+        col = body_columns(names[k])[int(np.argmin(finite[r, k]))]
+        raise BadSession(f"{table.where(int(r), col)}: empty while other columns of body {names[k]!r} are given; "
+                         "an occluded body leaves all seven empty")
+    for k, b in enumerate(names):
+        if not whole[:, k].any():
+            raise BadSession(f"{table.path}: rigid body {b!r} is never seen (every row empty); remove it from "
+                             "session.yaml's rigid_bodies")
+    norm = np.linalg.norm(np.where(whole[..., None], out[..., 3:], 1.0), axis=2)
+    with np.errstate(invalid="ignore"):
+        bad = np.argwhere(whole & (np.abs(norm - 1.0) > QUAT_NORM_TOL))
+    if bad.size:
+        r, k = bad[0]
+        raise BadSession(f"{table.where(int(r), names[k] + '_qw')}: the quaternion of body {names[k]!r} has norm "
+                         f"{norm[r, k]:.6g}; expected a unit quaternion (qw,qx,qy,qz, norm within {QUAT_NORM_TOL:g} "
+                         "of 1)")
+    out[..., :3] *= scale
+    out[..., 3:] /= norm[..., None]
+    return out
+
+
+def _marker_block(table: Table, names: list[str], scale: float, in_place: bool = False) -> np.ndarray:
+    """(rows, M, 3) metres from the x,y,z columns of ``names``. ``in_place``: where those
+    columns stand side by side in that order (as a recorder writes them), the result is a view
+    of ``table.data`` scaled in place, so a stream of millions of rows is not copied."""
+    idx = np.array([[table.header.index(c) for c in marker_columns(m)] for m in names], dtype=int).reshape(-1, 3)
+    if not idx.size:
+        return np.zeros((table.data.shape[0], 0, 3))
+    first = int(idx[0, 0])
+    if in_place and np.array_equal(idx.ravel(), np.arange(first, first + idx.size)):
+        block = table.data[:, first:first + idx.size]
+        block *= scale
+        return block.reshape(len(block), len(names), 3)
+    return table.data[:, idx] * scale
+
+
+#: no motion-capture volume is this large (m): coordinates beyond it are in another unit
+LARGEST_VOLUME_M = 100.0
+
+
+def _check_plausible_unit(table: Table, markers: np.ndarray, length_unit: str, names: list[str]) -> None:
+    """Marker coordinates that cannot be in the declared unit: BadSession naming the column.
+    Declared m but beyond 100 m: the file is in mm. Declared mm but every coordinate within
+    20 mm of the origin and the whole stream within 20 mm: the file is in m."""
+    if not markers.size or not np.isfinite(markers).any():
+        return
+    # fmax/fmin reductions skip NaN without copying the stream (millions of rows)
+    hi, lo = float(np.fmax.reduce(markers, axis=None)), float(np.fmin.reduce(markers, axis=None))
+    if max(hi, -lo) > LARGEST_VOLUME_M:
+        with np.errstate(invalid="ignore"):
+            r, k, a = np.argwhere(np.abs(markers) > LARGEST_VOLUME_M)[0]
+        raise BadSession(
+            f"{table.where(int(r), f'{names[k]}_{AXES[a]}')}: {markers[r, k, a] / LENGTH_UNITS[length_unit]:.6g} "
+            f"{length_unit} is beyond any motion-capture volume; is the file in mm? session.yaml declares {length_unit}"
+        )
+    if length_unit == "mm" and markers.shape[0] > 1:
+        hi, lo = hi / LENGTH_UNITS["mm"], lo / LENGTH_UNITS["mm"]
+        if max(hi, -lo) < 20.0 and hi - lo < 20.0:
+            raise BadSession(
+                f"{table.path}: every marker coordinate is within 20 mm of the origin; the values look like "
+                f"metres but session.yaml declares mm"
+            )
+
+
+def _check_seen(markers: np.ndarray, names: list[str], path: Path) -> None:
+    finite = np.isfinite(markers)
+    fx, fy, fz = finite[..., 0], finite[..., 1], finite[..., 2]  # (reductions over an axis of 3 are slow)
+    whole = fx & fy & fz
+    seen = whole.any(axis=0)
+    for m, ok in zip(names, seen):
+        if not ok:
+            raise BadSession(f"{path}: marker {m!r} is never seen (every sample empty); remove it from session.yaml")
+    partial = (fx | fy | fz) & ~whole
+    if np.any(partial):
+        r, k = np.argwhere(partial)[0]
+        raise BadSession(
+            f"{path} row {r + 1} (line {r + 2}): marker {names[k]!r} has some of x,y,z empty; an occluded "
+            f"sample leaves all three empty"
+        )
+
+
+#: a recorded control this fraction of its stroke past a limit is a reading (encoder noise, a soft
+#: limit), kept with a note; further out it is an error
+STROKE_TOLERANCE = 0.01
+
+
+def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str,
+                   notes: list[str] | None = None) -> np.ndarray:
+    """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes.
+
+    A value past a limit by at most STROKE_TOLERANCE of the stroke (a torso reading 0.350181 m
+    against 0.35) is kept, and one sentence per control naming the value and the limit is
+    appended to ``notes`` (default: a Python warning); further out is a BadSession.
+    """
+    names = spec.control_names
+    expected = leading + names
+    missing = [c for c in expected if c not in table.header]
+    if missing:
+        raise BadSession(
+            f"{table.path}: missing column {missing[0]!r}; the {spec.name} stand expects columns "
+            f"{', '.join(expected)} (is this a session for another stand?)"
+        )
+    raw = table.data[:, [table.header.index(n) for n in names]]
+    for j, n in enumerate(names):
+        bad = np.nonzero(~np.isfinite(raw[:, j]))[0]
+        if bad.size:
+            raise BadSession(f"{table.where(int(bad[0]), n)}: empty or nan; every command needs every control")
+    u = controls_to_si(spec, raw, length_unit)
+    for j, c in enumerate(spec.controls):
+        rounding_lo, rounding_hi = 1e-9 * max(1.0, abs(c.lower)), 1e-9 * max(1.0, abs(c.upper))
+        stroke = c.upper - c.lower
+        slack = STROKE_TOLERANCE * stroke if np.isfinite(stroke) and stroke > 0 else 0.0
+        past = (u[:, j] < c.lower - rounding_lo) | (u[:, j] > c.upper + rounding_hi)
+        out = np.nonzero((u[:, j] < c.lower - rounding_lo - slack) | (u[:, j] > c.upper + rounding_hi + slack))[0]
+        unit = length_unit if c.unit == "m" else c.unit
+        s_file = LENGTH_UNITS[length_unit] if c.unit == "m" else 1.0
+        lo, hi = c.lower / s_file, c.upper / s_file
+        if out.size:
+            r = int(out[0])
+            hint = ""
+            if c.unit == "m":
+                for other, s in LENGTH_UNITS.items():
+                    if other != length_unit and c.lower <= raw[r, j] * s <= c.upper:
+                        hint = f"; the value fits the stroke in {other}, but session.yaml declares {length_unit}"
+            raise BadSession(
+                f"{table.where(r, c.name)}: {raw[r, j]:.6g} is outside the stroke [{lo:.6g}, {hi:.6g}] {unit}{hint}"
+            )
+        if past.any():
+            rows = np.nonzero(past)[0]
+            r = int(rows[np.argmax(np.maximum(c.lower - u[rows, j], u[rows, j] - c.upper))])
+            limit = c.lower if u[r, j] < c.lower else c.upper
+            note = (f"{table.where(r, c.name)}: {raw[r, j]:.9g} is past the limit {limit / s_file:.9g} {unit}"
+                    + (f" ({rows.size} rows past a limit, this one the furthest)" if rows.size > 1 else "")
+                    + f"; kept as recorded: within {STROKE_TOLERANCE:.0%} of the stroke [{lo:.6g}, {hi:.6g}] "
+                    "(encoder noise or a soft limit)")
+            if notes is None:
+                warnings.warn(note, stacklevel=2)
+            else:
+                notes.append(note)
+    return u
+
+
+def _body_counts(table: Table, names: list[str], bodies: np.ndarray, path: Path) -> np.ndarray | None:
+    """poses.csv's optional <body>_n columns (N, B): samples averaged per body, or None when none is given."""
+    if not any(f"{b}_n" in table.header for b in names):
+        return None
+    n = np.zeros((len(table.data), len(names)))
+    seen = np.isfinite(bodies).all(axis=2)
+    for k, b in enumerate(names):
+        col = f"{b}_n"
+        if col not in table.header:
+            raise BadSession(f"{path}: missing column {col!r}; give <body>_n for every rigid body or none")
+        v = table.column(col)
+        bad = np.nonzero(~np.isfinite(v) | (v < 0) | (v != np.round(v)) | ((v > 0) != seen[:, k]))[0]
+        if bad.size:
+            r = int(bad[0])
+            raise BadSession(f"{table.where(r, col)}: expected a whole number of samples, > 0 exactly where the "
+                             f"body's pose is given (here {'given' if seen[r, k] else 'empty'})")
+        n[:, k] = v
+    return n

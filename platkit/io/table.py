@@ -1,0 +1,286 @@
+"""Numeric CSV tables (commands.csv, markers.csv, poses.csv, plan files): the chunked reader.
+
+pandas' C reader parses the body CHUNK_ROWS rows at a time into one array allocated once; where
+it stops or disagrees with the file's own count of lines and separators, the rest is read cell
+by cell, and that reading names the file, row, line and column of the problem."""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import sys
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas
+
+from platkit.errors import BadSession
+
+
+@dataclass
+class Table:
+    """A numeric CSV table: ``header`` names, ``data`` (rows, columns) floats, NaN for empty
+    cells or 'nan'."""
+
+    path: Path
+    header: list[str]
+    data: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[:, self.header.index(name)]
+
+    def where(self, row: int, column: str | None = None) -> str:
+        """'file row r (line l)[ column c]' for messages; ``row`` is 0-based."""
+        text = f"{self.path} row {row + 1} (line {row + 2})"
+        return text + (f" column {column!r}" if column is not None else "")
+
+
+def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
+    """Read a CSV table of numbers with a header row. Empty cells and 'nan' are NaN; anything
+    else that is not a finite number is a BadSession naming row and column.
+
+    The body is parsed by pandas' C reader, CHUNK_ROWS rows at a time, into one (rows, columns)
+    float64 array allocated once (peak memory: the table plus one chunk), so a stream of
+    millions of rows reads in seconds. Where that parse stops (a cell it cannot read) or
+    disagrees with the file's own count of lines and separators (a row with too few or too
+    many cells, a blank line, quoting), the rest is read cell by cell from the first row it
+    had not finished, and that reading names the file, row, line and column of the problem.
+    Files of PROGRESS_MIN_BYTES or more say on stderr how far the reading is, from its start
+    and about once a second, unless ``quiet``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise BadSession(f"{path}: file not found{' (' + what + ')' if what else ''}")
+    try:
+        header, body_start = _read_header(path)
+        progress = _Progress(path, quiet)  # says so at once for a large file, before counting its lines
+        n_lines, n_commas = _count_body(path, body_start)
+        if n_lines == 0:
+            raise BadSession(f"{path}: no data rows after the header")
+        progress.total = n_lines
+        data = np.empty((n_lines, len(header)))
+        done = _parse_fast(path, header, body_start, data, progress)
+        if done < n_lines:  # the rows the fast reader did fill must have their separators too
+            n_commas = _count_commas(path, body_start, _offset_of_row(path, body_start, done))
+        if n_commas != (len(header) - 1) * min(done, n_lines):
+            done = 0  # some row has too few or too many cells (or quotes): find it cell by cell
+        if done < n_lines:
+            try:
+                n_rows = _parse_exact(path, header, data, done, body_start, progress)
+            except BadSession:
+                _check_finite(path, header, data[:done], body_start)  # an earlier problem is told first
+                raise
+            data = data[:n_rows]
+        _check_finite(path, header, data, body_start)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
+    progress.finish()
+    return Table(path, header, data)
+
+
+def _check_finite(path: Path, header: list[str], data: np.ndarray, body_start: int) -> None:
+    """BadSession for the first infinite cell of ``data`` (the fast reader takes 'inf' and
+    1e999 for numbers), worded by the cell-by-cell reading of that row."""
+    infinite = np.isinf(data)
+    if infinite.any():
+        r = int(np.argwhere(infinite)[0][0])
+        _parse_exact(path, header, data, r, body_start, _Progress(path, quiet=True), stop=r + 1)
+
+
+#: files at least this large say on stderr how far their reading is (about once a second)
+PROGRESS_MIN_BYTES = 32 * 2**20
+#: rows the fast reader parses at a time: the peak memory beyond the table itself, and how far
+#: back the cell-by-cell reading starts when a chunk holds a cell the fast reader refuses
+CHUNK_ROWS = 50_000
+#: cells that the fast reader takes for NaN (the cell-by-cell reading: empty or 'nan' in any case)
+NAN_CELLS = ["", "nan", "NaN", "NAN", "-nan", "-NaN"]
+_BLOCK_BYTES = 16 * 2**20
+
+
+def _read_header(path: Path) -> tuple[list[str], int]:
+    """(header names, byte offset of the first data line); BadSession for an empty file or
+    an empty or duplicated column name."""
+    with path.open("rb") as fh:
+        first = fh.readline()
+        start = fh.tell()
+        if not first.strip():
+            if not fh.read().strip():
+                raise BadSession(f"{path}: the file is empty; expected a header row")
+            raise BadSession(f"{path}: header column 1 is empty")
+    header = [h.strip() for h in next(csv.reader([first.decode("utf-8-sig")]))]
+    for j, h in enumerate(header):
+        if not h:
+            raise BadSession(f"{path}: header column {j + 1} is empty")
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise BadSession(f"{path}: header has duplicate columns {dup}")
+    return header, start
+
+
+def _count_body(path: Path, start: int) -> tuple[int, int]:
+    """(lines, commas) of the file from byte ``start`` to its last non-blank character."""
+    lines = commas = 0
+    tail_newlines = 0  # newlines after the last non-blank character seen so far
+    any_text = False
+    with path.open("rb") as fh:
+        fh.seek(start)
+        while block := fh.read(_BLOCK_BYTES):
+            lines += _count_byte(block, b"\n")
+            commas += _count_byte(block, b",")
+            stripped = block.rstrip(b" \t\r\n")
+            if stripped:
+                any_text = True
+                tail_newlines = block.count(b"\n", len(stripped))
+            else:
+                tail_newlines += block.count(b"\n")
+    if not any_text:
+        return 0, 0
+    return lines - tail_newlines + 1, commas
+
+
+def _count_commas(path: Path, start: int, stop: int) -> int:
+    """Commas between byte offsets ``start`` and ``stop``."""
+    commas = 0
+    with path.open("rb") as fh:
+        fh.seek(start)
+        while start < stop and (block := fh.read(min(_BLOCK_BYTES, stop - start))):
+            commas += _count_byte(block, b",")
+            start += len(block)
+    return commas
+
+
+def _count_byte(block: bytes, byte: bytes) -> int:
+    """How often ``byte`` occurs in ``block`` (numpy: a few times faster than bytes.count)."""
+    return int(np.count_nonzero(np.frombuffer(block, np.uint8) == byte[0]))
+
+
+def _parse_fast(path: Path, header: list[str], body_start: int, data: np.ndarray, progress: _Progress) -> int:
+    """Fill ``data`` chunk by chunk with pandas' C reader, one row per line (a blank line is a
+    row of NaN here, which the separator count catches); the number of rows filled before the
+    first chunk it could not read (all of them: ``len(data)``). Blank lines after the last row
+    are not rows."""
+    done = 0
+    with path.open("rb") as fh, warnings.catch_warnings():
+        fh.seek(body_start)
+        warnings.simplefilter("ignore")  # a row with extra cells: the separator count finds it
+        try:
+            chunks = pandas.read_csv(
+                fh, header=None, names=header, index_col=False, dtype=np.float64, engine="c",
+                keep_default_na=False, na_values=NAN_CELLS, chunksize=CHUNK_ROWS, encoding="utf-8",
+                skip_blank_lines=False,
+            )
+            for chunk in chunks:
+                rows = chunk.to_numpy(dtype=np.float64)
+                if rows.shape[1] != data.shape[1]:
+                    return done
+                fit = min(len(rows), len(data) - done)
+                if fit < len(rows) and not np.isnan(rows[fit:]).all():
+                    return done
+                data[done:done + fit] = rows[:fit]
+                done += fit
+                progress.update(done)
+        except (ValueError, pandas.errors.ParserError, UnicodeDecodeError):
+            pass
+    return done
+
+
+def _parse_exact(path: Path, header: list[str], data: np.ndarray, first: int, body_start: int,
+                 progress: _Progress, stop: int | None = None) -> int:
+    """Read rows ``first``.. (0-based data rows) cell by cell into ``data``; the number of rows
+    of the table (trailing blank lines are not rows). BadSession naming the row, line and
+    column of the first cell that is not a finite number or NaN, and of a row whose cell count
+    differs from the header's. ``stop``: read no further than this row."""
+    n = len(header)
+    with path.open("rb") as raw:
+        raw.seek(_offset_of_row(path, body_start, first))
+        text = io.TextIOWrapper(raw, encoding="utf-8", newline="")
+        r = first
+        blank = None  # the first of a run of blank rows: an error only if a row follows
+        for row in csv.reader(text):
+            if stop is not None and r >= stop:
+                break
+            if not row or (len(row) == 1 and not row[0].strip()):  # a blank line
+                blank = (r, len(row)) if blank is None else blank
+                r += 1
+                continue
+            if blank is not None:
+                br, cells = blank
+                raise BadSession(f"{path} row {br + 1} (line {br + 2}): {cells} cells, expected {n} like the header")
+            if len(row) != n:
+                raise BadSession(f"{path} row {r + 1} (line {r + 2}): {len(row)} cells, expected {n} like the header")
+            if r >= len(data):  # more rows than lines counted: a quoted cell spans lines
+                raise BadSession(f"{path} row {r + 1} (line {r + 2}): a cell spans lines; expected one row per line")
+            values = data[r]
+            for j, cell in enumerate(row):
+                cell = cell.strip()
+                if cell == "" or cell.lower() == "nan":
+                    values[j] = math.nan
+                    continue
+                try:
+                    v = float(cell)
+                except ValueError:
+                    raise BadSession(
+                        f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a number, got {cell!r}"
+                    ) from None
+                if not math.isfinite(v):
+                    raise BadSession(
+                        f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a finite number, got {cell!r}"
+                    )
+                values[j] = v
+            r += 1
+            if r % CHUNK_ROWS == 0:
+                progress.update(r)
+        text.detach()
+    if blank is not None:
+        r = blank[0]
+    if r == 0:
+        raise BadSession(f"{path}: no data rows after the header")
+    return r
+
+
+def _offset_of_row(path: Path, body_start: int, row: int) -> int:
+    """Byte offset of data row ``row`` (0-based), counting one row per line."""
+    offset, need = body_start, row
+    with path.open("rb") as fh:
+        fh.seek(body_start)
+        while need:
+            block = fh.read(_BLOCK_BYTES)
+            if not block:
+                break
+            k = block.count(b"\n")
+            if k < need:
+                need -= k
+                offset += len(block)
+                continue
+            pos = -1
+            for _ in range(need):
+                pos = block.index(b"\n", pos + 1)
+            return offset + pos + 1
+    return offset
+
+
+class _Progress:
+    """'reading FILE: N% (rows of total)' on stderr for large files, at the start and about
+    once a second; nothing for small files or when quiet."""
+
+    def __init__(self, path: Path, quiet: bool, total_rows: int = 0):
+        self.path, self.total = path, total_rows
+        size = path.stat().st_size
+        self.on = not quiet and size >= PROGRESS_MIN_BYTES
+        self.t0 = self.last = time.monotonic()
+        if self.on:
+            print(f"reading {path}: {size / 1e6:.0f} MB", file=sys.stderr, flush=True)
+
+    def update(self, done: int) -> None:
+        now = time.monotonic()
+        if self.on and now - self.last >= 1.0:
+            self.last = now
+            print(f"reading {self.path.name}: {100 * done / max(self.total, 1):.0f}% ({done:,} of {self.total:,} rows, "
+                  f"{now - self.t0:.0f} s)", file=sys.stderr, flush=True)
+
+    def finish(self) -> None:
+        if self.on and time.monotonic() - self.t0 >= 1.0:
+            print(f"reading {self.path.name}: done in {time.monotonic() - self.t0:.1f} s", file=sys.stderr, flush=True)
