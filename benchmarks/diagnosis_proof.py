@@ -22,7 +22,7 @@ truth before and after diagnosis, and the goals (clear named right in >= 95% of 
 held-out error down >= 80%).
 
     .venv/bin/python benchmarks/diagnosis_proof.py --quick          # stewart, 1 seed (~10 min, 2 cores)
-    .venv/bin/python benchmarks/diagnosis_proof.py --jobs 2 --json run.jsonl   # full: 3 stands, 3 seeds (207 sessions)
+    .venv/bin/python benchmarks/diagnosis_proof.py --json run.jsonl            # full: 3 stands, 3 seeds (207 sessions)
     .venv/bin/python benchmarks/diagnosis_proof.py --summarise run.jsonl       # the tables again
 """
 from __future__ import annotations
@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from platkit.batch.cases import add_engine_options, run_cases
 from platkit.errors import BadInput, PlatkitError
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
@@ -157,9 +158,19 @@ def run_case(case: dict) -> dict:
                 "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
                 "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": 0.0}
     except (PlatkitError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-        return {**case, "named": [], "findings": [], "not_separable": [], "error": f"{type(exc).__name__}: {exc}",
-                "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
-                "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": 0.0}
+        return failed_row(case, f"{type(exc).__name__}: {exc}", 0.0)
+
+
+def failed_row(case: dict, error: str, seconds: float) -> dict:
+    """The line of a session that failed: in run_case, past it, or lost with its worker."""
+    return {**case, "named": [], "findings": [], "not_separable": [], "error": error,
+            "heldout_truth_rms_before_mm": float("nan"), "heldout_truth_rms_after_mm": float("nan"),
+            "recovery": [], "left_share": float("nan"), "absorbed": False, "time_s": seconds}
+
+
+def as_json(o):
+    """json.dumps' default for a result line: arrays as lists, anything else as its text."""
+    return o.tolist() if isinstance(o, np.ndarray) else str(o)
 
 
 def _run_case(case: dict) -> dict:
@@ -341,8 +352,10 @@ def main(argv=None) -> int:
     ap.add_argument("--stands", default=None, help="comma-separated stands (default: stewart,psvr,rotary)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per case (default 3; 1 with --quick)")
     ap.add_argument("--effects", default=None, help="only these effects (comma-separated), for a focused run")
-    ap.add_argument("--jobs", type=int, default=1, help="parallel processes")
-    ap.add_argument("--json", default=None, help="write every case's result here (one JSON line per session, as it ends)")
+    add_engine_options(ap)  # --jobs N, --scheduler ADDRESS, --serial
+    ap.add_argument("--json", default=None,
+                    help="append every case's result here (one JSON line per session, as it ends); a re-run skips "
+                         "the sessions it holds")
     ap.add_argument("--summarise", default=None, metavar="JSON", help="only print the tables of a saved run")
     args = ap.parse_args(argv)
     if args.summarise:
@@ -359,29 +372,18 @@ def main(argv=None) -> int:
         keep = set(args.effects.split(","))
         cases = [c for c in cases if {e for e, _ in c["effects"]} & keep or (not c["effects"] and "none" in keep)]
     print(f"{len(cases)} sessions on {', '.join(stands)}, {seeds} seed(s)", flush=True)
-    results = []
-    sink = open(args.json, "w") if args.json else None
 
-    def done(r):
-        results.append(r)
-        if sink is not None:
-            sink.write(json.dumps(r, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else str(o)) + "\n")
-            sink.flush()
+    def show(r):
         print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':30s} "
               f"held-out vs truth {r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm",
               flush=True)
 
-    if args.jobs > 1:
-        from multiprocessing import get_context
-
-        with get_context("spawn").Pool(args.jobs) as pool:
-            for r in pool.imap_unordered(run_case, cases):
-                done(r)
-    else:
-        for c in cases:
-            done(run_case(c))
-    if sink is not None:
-        sink.close()
+    try:
+        results = run_cases(run_case, cases, jobs=args.jobs, scheduler=args.scheduler, serial=args.serial,
+                            json_path=args.json, failed_row=failed_row, show=show, default=as_json)
+    except BadInput as exc:
+        print(f"diagnosis_proof: {exc}", file=sys.stderr)
+        return 2
     summary = summarise(results)
     print(summary["text"])
     return 0

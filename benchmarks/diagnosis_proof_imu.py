@@ -37,7 +37,7 @@ held-out error before and after, and the goals (clear named right in >= 95% of s
 >= 80%, no finding on >= 95% of clean sessions).
 
     .venv/bin/python benchmarks/diagnosis_proof_imu.py --quick          # stewart, 1 seed (~1 min, 2 cores)
-    .venv/bin/python benchmarks/diagnosis_proof_imu.py --jobs 2 --json imu.jsonl   # full: 3 stands, 3 seeds (81 sessions)
+    .venv/bin/python benchmarks/diagnosis_proof_imu.py --json imu.jsonl            # full: 3 stands, 3 seeds (81 sessions)
     .venv/bin/python benchmarks/diagnosis_proof_imu.py --summarise imu.jsonl       # the tables again
 """
 from __future__ import annotations
@@ -50,7 +50,8 @@ from collections import Counter, defaultdict
 
 import numpy as np
 
-from platkit.errors import PlatkitError
+from platkit.batch.cases import add_engine_options, run_cases
+from platkit.errors import BadInput, PlatkitError
 
 DEG = 180.0 / np.pi
 N_POSES = 60
@@ -172,7 +173,17 @@ def run_case(case: dict) -> dict:
     try:
         return {**_run_case(case), "time_s": time.perf_counter() - t0}
     except (PlatkitError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-        return {**case, "named": [], "error": f"{type(exc).__name__}: {exc}", "time_s": time.perf_counter() - t0}
+        return failed_row(case, f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+
+
+def failed_row(case: dict, error: str, seconds: float) -> dict:
+    """The line of a session that failed: in run_case, past it, or lost with its worker."""
+    return {**case, "named": [], "error": error, "time_s": seconds}
+
+
+def as_json(o):
+    """json.dumps' default for a result line: arrays as lists, anything else as its text."""
+    return o.tolist() if isinstance(o, np.ndarray) else str(o)
 
 
 def _run_case(case: dict) -> dict:
@@ -356,8 +367,10 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="stewart only, one seed")
     ap.add_argument("--stands", default=None, help="comma-separated stands (default: stewart,psvr,rotary)")
     ap.add_argument("--seeds", type=int, default=None, help="seeds per case (default 3; 1 with --quick)")
-    ap.add_argument("--jobs", type=int, default=1, help="parallel processes")
-    ap.add_argument("--json", default=None, help="write every case's result here (one JSON line per session, as it ends)")
+    add_engine_options(ap)  # --jobs N, --scheduler ADDRESS, --serial
+    ap.add_argument("--json", default=None,
+                    help="append every case's result here (one JSON line per session, as it ends); a re-run skips "
+                         "the sessions it holds")
     ap.add_argument("--summarise", default=None, metavar="JSON", help="only print the tables of a saved run")
     args = ap.parse_args(argv)
     if args.summarise:
@@ -374,28 +387,17 @@ def main(argv=None) -> int:
     seeds = args.seeds or (1 if args.quick else 3)
     cases = plan_cases(stands, seeds)
     print(f"{len(cases)} sessions on {', '.join(stands)}, {seeds} seed(s)", flush=True)
-    results = []
-    sink = open(args.json, "w") if args.json else None
 
-    def done(r):
-        results.append(r)
-        if sink is not None:
-            sink.write(json.dumps(r, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else str(o)) + "\n")
-            sink.flush()
+    def show(r):
         print(f"  {r['stand']:8s} {r['truth']:27s} {r['kind']:6s} seed {r['seed']:5d} -> "
               f"{'+'.join(r['named']) or 'none':28s} {r.get('error', '')}", flush=True)
 
-    if args.jobs > 1:
-        from multiprocessing import get_context
-
-        with get_context("spawn").Pool(args.jobs) as pool:
-            for r in pool.imap_unordered(run_case, cases):
-                done(r)
-    else:
-        for c in cases:
-            done(run_case(c))
-    if sink is not None:
-        sink.close()
+    try:
+        results = run_cases(run_case, cases, jobs=args.jobs, scheduler=args.scheduler, serial=args.serial,
+                            json_path=args.json, failed_row=failed_row, show=show, default=as_json)
+    except BadInput as exc:
+        print(f"diagnosis_proof_imu: {exc}", file=sys.stderr)
+        return 2
     print(summarise(results)["text"])
     return 0
 

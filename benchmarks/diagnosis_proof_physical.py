@@ -30,7 +30,14 @@ settling (the mean of the last second of each hold, timed by the truth).
 Seeds: ``--seed-base`` (default 880000, a range no development run used); session k of a cell
 has seed base + 1000 * stand index + 10 * cell index + k.
 
-    .venv/bin/python benchmarks/diagnosis_proof_physical.py --smoke --jobs 1       # a few minutes
+Every session is one task of platkit's batch engine (platkit.batch, Dask): an embedded local
+cluster of ``--jobs`` workers (default one per core), or an existing one (``--scheduler ADDRESS``
+or PLATKIT_DASK_SCHEDULER); ``--serial`` runs them in a loop in this process (the same lines but
+for time_s). Each session's JSON line is appended to ``--json`` as it finishes, and a re-run
+with the same file skips the sessions it already holds (a session lost with its worker is not
+written, so a re-run runs it).
+
+    .venv/bin/python benchmarks/diagnosis_proof_physical.py --smoke                # a few minutes
     .venv/bin/python benchmarks/diagnosis_proof_physical.py --sessions-per-cell 3 --json run.jsonl
     .venv/bin/python benchmarks/diagnosis_proof_physical.py --summarise run.jsonl
 """
@@ -51,6 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
+from platkit.batch.cases import add_engine_options, run_cases
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.settle import settle
 from platkit.cli import main as platkit_main
@@ -182,6 +190,11 @@ def run_case(case: dict) -> dict:
         out = {**case, "error": f"{type(exc).__name__}: {exc}"}
     out["time_s"] = time.perf_counter() - t0
     return out
+
+
+def failed_row(case: dict, error: str, seconds: float) -> dict:
+    """The line of a session whose run raised past run_case (or was lost with its worker)."""
+    return {**case, "error": error, "time_s": seconds}
 
 
 def _run_case(case: dict) -> dict:
@@ -360,8 +373,9 @@ def main(argv=None) -> int:
                          "every stand")
     ap.add_argument("--white-noise", action="store_true",
                     help="marker noise white only (default: white plus a correlated part, drawn per session)")
-    ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--json", default=None, help="append one JSON line per session here")
+    add_engine_options(ap)  # --jobs N, --scheduler ADDRESS, --serial
+    ap.add_argument("--json", default=None,
+                    help="append one JSON line per session here, as each finishes; a re-run skips the sessions it holds")
     ap.add_argument("--summarise", default=None, metavar="JSONL", help="only print the tables of a saved run")
     args = ap.parse_args(argv)
     if args.summarise:
@@ -374,14 +388,8 @@ def main(argv=None) -> int:
     cases = plan_cases(args.stands.split(","), args.sessions_per_cell, args.seed_base, args.commands,
                        set(args.kinds.split(",")), only, coloured=not args.white_noise)
     print(f"{len(cases)} sessions, seeds from {args.seed_base}, {args.commands} commands each", flush=True)
-    sink = open(args.json, "a") if args.json else None
-    results = []
 
-    def done(r):
-        results.append(r)
-        if sink is not None:
-            sink.write(json.dumps(r) + "\n")
-            sink.flush()
+    def show(r):
         if r.get("not_applicable"):
             print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} not applicable: {r['not_applicable'][:120]}")
             return
@@ -393,17 +401,12 @@ def main(argv=None) -> int:
               f"{r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm; settle bias "
               f"{s.get('in_noise_units', float('nan')):+.2f} noise ({r['time_s']:.0f} s)", flush=True)
 
-    if args.jobs > 1:
-        from multiprocessing import get_context
-
-        with get_context("spawn").Pool(args.jobs) as pool:
-            for r in pool.imap_unordered(run_case, cases):
-                done(r)
-    else:
-        for c in cases:
-            done(run_case(c))
-    if sink is not None:
-        sink.close()
+    try:
+        results = run_cases(run_case, cases, jobs=args.jobs, scheduler=args.scheduler, serial=args.serial,
+                            json_path=args.json, failed_row=failed_row, show=show)
+    except BadInput as exc:
+        print(f"diagnosis_proof_physical: {exc}", file=sys.stderr)
+        return 2
     print(summarise(results))
     return 0
 

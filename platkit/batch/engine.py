@@ -114,10 +114,15 @@ def cluster(scheduler: str | None = None, workers: int | None = None) -> Iterato
     # one thread per worker: the calibrations are numpy/CasADi-bound, so processes, not threads, scale.
     # Tasks last seconds: Dask's sampling profiler (every 10 ms) and GIL monitor (every 1 ms) would
     # only take CPU from them (measured in benchmarks/batch_scaling.py)
-    with dask.config.set(QUIET_CONFIG), LocalCluster(
-            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-            silence_logs=logging.ERROR) as local, Client(local) as client:
-        yield client
+    with dask.config.set(QUIET_CONFIG):
+        with warnings_module.catch_warnings():
+            # with no dashboard the scheduler still serves health checks over HTTP, on another port when 8787 is
+            # taken (another cluster on this machine): not worth a warning
+            warnings_module.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+            local = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                 silence_logs=logging.ERROR)
+        with local, Client(local) as client:
+            yield client
 
 
 def guarded(fn: Callable, *args) -> dict:

@@ -1,6 +1,8 @@
 """platkit batch on a local Dask cluster of 2 worker processes (one for the whole module): the
-same results as the single verbs one by one, a re-run that skips what is done, a failed
-session that stops nothing, a worker killed in the middle, and dask missing."""
+same results as the single verbs one by one (calibrate, diagnose, orient), a re-run that skips
+what is done, a failed session that stops nothing, a worker killed in the middle, dask missing;
+and the proof benchmarks' runner (platkit.batch.cases): the same rows on the engine as in a
+loop, written as they finish, a re-run that skips the cases its file holds."""
 from __future__ import annotations
 
 import json
@@ -10,13 +12,16 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from platkit.batch import engine
+from platkit.batch.cases import run_cases
 from platkit.batch.store import find_sessions, match_sessions
 from platkit.cli import main
 from platkit.commands.batch import default_options, run_verb
+from platkit.errors import BadInput
 from platkit.simulate import simulate_session
 
 pytest.importorskip("dask.distributed", reason="platkit[batch] (dask.distributed) is part of the dev extra")
@@ -36,7 +41,7 @@ def fleet(tmp_path_factory):
     root = tmp_path_factory.mktemp("fleet")
     singles = {}
     for i in range(N_SESSIONS):
-        folder = simulate_session("rotary", root / "fleet" / f"unit{i + 1}", seed=10 + i, n_poses=30, poses_only=True)
+        folder = simulate_session("rotary", root / "fleet" / f"unit{i + 1}", seed=10 + i, n_poses=20, poses_only=True)
         out = root / "single" / f"unit{i + 1}"
         assert main(["calibrate", str(folder), "--out", str(out), "--quiet"]) == 0
         singles[f"unit{i + 1}"] = out
@@ -178,3 +183,108 @@ def test_folders_without_session_yaml_are_counted_not_dropped_silently(tmp_path)
     refs, skipped = match_sessions(str(tmp_path / "*"))
     assert [r.name for r in refs] == ["month9", "month10"]  # natural order
     assert skipped == [tmp_path / "notes"]
+
+
+def same_files(batch_session: Path, single: Path) -> None:
+    """Every file the single verb wrote is in the batch's session folder, the same: JSON but for
+    the times taken, HTML by name only (it holds the plots' bytes), the rest byte for byte."""
+    names = sorted(str(p.relative_to(single)) for p in single.rglob("*") if p.is_file())
+    assert names and all((batch_session / n).is_file() for n in names), names
+    for n in names:
+        a, b = batch_session / n, single / n
+        if n.endswith(".json"):
+            assert untimed(json.loads(a.read_text())) == untimed(json.loads(b.read_text())), n
+        elif not n.endswith(".html"):
+            assert a.read_bytes() == b.read_bytes(), n
+
+
+def test_batch_diagnose_equals_single_verbs(fleet, client):
+    """Each session diagnosed from its own calibration ({name} in the path), with the verb's own
+    options passed through, gives what platkit diagnose gives it."""
+    root, singles = fleet
+    names = sorted(singles)[:2]
+    options = ["--folds", "3", "--max-effects", "1"]
+    for name in names:
+        assert main(["diagnose", str(root / "fleet" / name), "--calibration", str(singles[name] / "calibration.yaml"),
+                     "--out", str(root / "diag_single" / name), "--quiet", *options]) == 0
+    out = root / "diag_batch"
+    assert main(["batch", "diagnose", str(root / "fleet" / "unit[12]"), "--calibration",
+                 str(root / "single" / "{name}" / "calibration.yaml"), "--out", str(out), "--quiet",
+                 "--scheduler", client.scheduler.address, *options]) == 0
+    for name in names:
+        same_files(out / "sessions" / name, root / "diag_single" / name)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"ok": 2, "failed": 0, "missing": 0}
+
+
+def imu_session(folder: Path, seed: int) -> Path:
+    """An IMU-only session (platform: null), 20 s at 100 Hz, with its true orientation."""
+    from platkit.geometry import quat_from_rpy
+    from platkit.inertial.simulate import imu_from_motion
+    from platkit.io.imu import write_imu_csv
+
+    t = np.arange(0, 20, 0.01)
+    on = t > 5
+    q = quat_from_rpy(0.2 * np.sin(0.9 * t) * on, 0.15 * np.sin(0.7 * t) * on, 0.3 * t * on)
+    sim = imu_from_motion(t, q, np.zeros((len(t), 3)), bias=[0.01, 0.0, -0.01, 0, 0, 0], noise=[0.002, 0.02],
+                          rng=np.random.default_rng(seed))
+    folder.mkdir(parents=True)
+    (folder / "session.yaml").write_text("platform: null\nunits: {length: m, time: s}\nimu: {rate_hz: 100}\n")
+    write_imu_csv(folder / "imu.csv", t, sim["gyr"], sim["acc"])
+    (folder / "truth_orientation.csv").write_text(
+        "t,qw,qx,qy,qz\n" + "\n".join(f"{ti:.6f},{a:.10f},{b:.10f},{c:.10f},{d:.10f}" for ti, (a, b, c, d) in zip(t, q))
+        + "\n")
+    return folder
+
+
+def test_batch_orient_equals_single_verbs(tmp_path, client):
+    for i in (1, 2):
+        session = imu_session(tmp_path / "imu" / f"rig{i}", seed=i)
+        assert main(["orient", str(session), "--out", str(tmp_path / "single" / f"rig{i}")]) == 0
+    out = tmp_path / "batch"
+    assert main(["batch", "orient", str(tmp_path / "imu" / "*"), "--out", str(out), "--quiet",
+                 "--scheduler", client.scheduler.address]) == 0
+    for i in (1, 2):
+        same_files(out / "sessions" / f"rig{i}", tmp_path / "single" / f"rig{i}")
+    rows = (out / "summary.csv").read_text().splitlines()
+    assert len(rows) == 3 and all(",ok," in r for r in rows[1:])
+
+
+def test_proof_cases_on_the_engine_equal_the_loop_and_a_rerun_skips_them(tmp_path, client):
+    def square(case):  # a local function: sent to the workers by value
+        if case["x"] == 3:
+            raise RuntimeError("three is refused")
+        return {**case, "y": float(np.sqrt(case["x"]))}
+
+    def failed(case, error, seconds):
+        return {**case, "error": error}
+
+    cases = [{"x": x, "effects": [("backlash", "clear")]} for x in range(6)]
+    serial = run_cases(square, cases, serial=True, json_path=tmp_path / "serial.jsonl", failed_row=failed)
+    on_engine = run_cases(square, cases, scheduler=client.scheduler.address, json_path=tmp_path / "engine.jsonl",
+                          failed_row=failed)
+    # in the order of the cases, whatever order they finished in; a function sent by value (this local one, or
+    # a benchmark script's) names its file <dynamic-code> in the line of an error it raised on a worker
+    assert serial[3]["error"] == on_engine[3]["error"].replace("<dynamic-code>", "test_batch.py")
+    assert serial[3]["error"].startswith("RuntimeError: three is refused (at test_batch.py:")
+    assert serial[:3] + serial[4:] == on_engine[:3] + on_engine[4:] and len(serial) == 6
+    lines = (tmp_path / "engine.jsonl").read_text().splitlines()
+    assert sorted(line.replace("<dynamic-code>", "test_batch.py") for line in lines) == sorted(
+        (tmp_path / "serial.jsonl").read_text().splitlines()) and len(lines) == 6
+
+    def never(case):
+        raise AssertionError("a case the file holds ran again")
+
+    # a re-run finds every case in the file (tuples in the cases, lists in the file) and runs none
+    assert run_cases(never, cases, scheduler=client.scheduler.address, json_path=tmp_path / "engine.jsonl",
+                     failed_row=failed) == sorted(map(json.loads, lines), key=lambda r: r["x"])
+    # two lines lost: only those two cases run again, appended
+    (tmp_path / "engine.jsonl").write_text("\n".join(lines[2:]) + "\n")
+    again = run_cases(square, cases, scheduler=client.scheduler.address, json_path=tmp_path / "engine.jsonl",
+                      failed_row=failed)
+    assert [r["x"] for r in again] == list(range(6))
+    assert (tmp_path / "engine.jsonl").read_text().splitlines()[:4] == lines[2:]
+    assert len((tmp_path / "engine.jsonl").read_text().splitlines()) == 6
+    (tmp_path / "bad.jsonl").write_text('{"x": 0}\nnot json\n')
+    with pytest.raises(BadInput, match="bad.jsonl, line 2"):
+        run_cases(square, cases, serial=True, json_path=tmp_path / "bad.jsonl", failed_row=failed)
