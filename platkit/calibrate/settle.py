@@ -20,8 +20,15 @@ main motion (its speed below half its peak) to the end of the hold, every marker
 follows ``x_inf + (a + b s) exp(-s / tau)`` (s: time since the fit's start; first order and
 critically damped second order approaches are both of this form) with one ``tau`` per hold, and
 the window starts where the fitted tail's share of the window mean is at most ``tail_fraction``
-of the averaging noise (sigma / sqrt(n)). The trend is then tested over the whole window (a
-regression on time, chi-square over the markers): a window that still moves is no settled pose.
+of the averaging noise (sigma / sqrt(n)). The still stretch says how much of the fitted tail is
+there (a regression on the tail's shape, :func:`tail_scale`): the window is chosen by the upper
+bound of that share (a decay fitted too slow or too fast still marks where the approach ends),
+a correction by its estimate. Each hold's tail is mostly below its own noise, but every hold
+lags the same way: the tail as the holds share it (:func:`shared_tail`, timed from each hold's
+arrival within ARRIVAL_SIGMA sigma of rest, where every tail starts from the same distance)
+moves every window to where the pooled tail biases it by at most ``tail_fraction`` of its
+noise. The trend is then tested over the whole window (a regression on time, chi-square over
+the markers): a window that still moves is no settled pose.
 
 A hold that never settles (no still stretch, or one that still trends, or a tail that does not
 die before the next command) is dropped, unless so many do (more than ``max_unsettled_fraction``
@@ -34,7 +41,7 @@ from __future__ import annotations
 
 import warnings
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -105,6 +112,14 @@ class Approach:
     at_limit: bool  # tau at the top of the searched range: slower than the hold can show
     significant: bool = True  # False: the stream shows no decay (a and b set to zero)
     cov_ab: np.ndarray | None = None  # (M, 2, 2) covariance of (a, b) per coordinate, m^2 (tau held)
+
+    def scaled(self, k: float) -> Approach:
+        """This approach with its tail scaled by k (rest unchanged); not significant when k is 0."""
+        k = float(k)
+        out = replace(self, a=self.a * k, b=self.b * k, remaining_m=self.remaining_m * abs(k),
+                      cov_ab=None if self.cov_ab is None else self.cov_ab * k * k)
+        out.significant = self.significant and k != 0.0
+        return out
 
     def tail_std(self, t: np.ndarray) -> np.ndarray:
         """(K, M) m, the standard error of :meth:`tail` per coordinate (tau taken as known)."""
@@ -498,7 +513,8 @@ def _prony_tau(y: np.ndarray, ok: np.ndarray, dt: float) -> float | None:
 
 
 def tail_free_window(approach: Approach, t: np.ndarray, start: int, end: int, sigma: float,
-                     fraction: float, min_samples: int) -> tuple[int, np.ndarray] | None:
+                     fraction: float, min_samples: int,
+                     estimate: Approach | None = None) -> tuple[int, np.ndarray] | None:
     """(s, correction): the window [s, end) to average and the fitted tail's share of its mean
     ((M, 3) m, to subtract). s is the first index in [start, end - min_samples] at which that
     share is at most ``fraction`` of the averaging noise sigma / sqrt(end - s) (its norm over
@@ -520,29 +536,21 @@ def tail_free_window(approach: Approach, t: np.ndarray, start: int, end: int, si
         return start + int(idx[0]), np.zeros(F.shape[1:])
     k = int(np.argmin(ratio))
     if ratio[k] <= 1.0:
+        if estimate is not None and estimate is not approach:
+            G = np.nan_to_num(estimate.tail(t[start + k:end]))
+            return start + k, G.mean(axis=0)
         return start + k, share[k]
     return None
 
 
-def tail_established(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float) -> bool:
-    """Whether the fitted tail is to be believed over a still stretch (t (L,), markers (L, M, 3)):
-    at its start the tail stands out of its own standard error (three times, over every marker
-    coordinate together), and the stretch bears it out (:func:`tail_seen_in_window`). A decay
-    fitted to a few hundred milliseconds of ringing extrapolates a tail that neither supports."""
-    F = approach.tail(t[:1])[0]
-    sd = approach.tail_std(t[:1])[0]  # (M,)
-    if np.linalg.norm(F) < 3.0 * np.sqrt(3.0) * np.linalg.norm(sd):
-        return False
-    return tail_seen_in_window(approach, t, markers, sigma)
-
-
-def tail_seen_in_window(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float,
-                        z_limit: float = 4.0) -> bool:
-    """Whether a still stretch (t (L,), markers (L, M, 3)) bears out the fitted tail: the data,
-    centred, regressed on the tail's own shape over the stretch, scale kappa. False when kappa
-    is more than ``z_limit`` standard errors from 1 (the stretch is flatter, or steeper, than the
-    fit says: a decay fitted to a ringing or to the end of a minimum-jerk move); True otherwise,
-    also when the tail is too small to tell."""
+def tail_scale(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float, z: float = 2.0,
+               floor_z: float = 3.0) -> tuple[float, float]:
+    """(kappa, upper bound) of the share of the fitted tail that a still stretch (t (L,), markers
+    (L, M, 3)) bears out: the data, centred, regressed on the tail's own shape over the stretch
+    (kappa, standard error se against ``sigma``). The bound is kappa + z se, at least 0. A tail
+    the stretch cannot tell from the noise (at its start below ``floor_z`` times its own standard
+    error, over every marker coordinate) has kappa 0 but keeps the bound; a tail the stretch
+    bears out within 4 se keeps kappa 1."""
     F = approach.tail(t)
     ok = np.isfinite(markers).all(axis=2)
     num = den = 0.0
@@ -555,9 +563,15 @@ def tail_seen_in_window(approach: Approach, t: np.ndarray, markers: np.ndarray, 
         num += float(np.sum(g * y))
         den += float(np.sum(g * g))
     if den <= 0:
-        return True
+        return 1.0, 1.0
     kappa, se = num / den, sigma / np.sqrt(den)
-    return abs(kappa - 1.0) <= z_limit * se
+    hi = max(kappa + z * se, 0.0)
+    sd = approach.tail_std(t[:1])[0]
+    if np.linalg.norm(F[0]) < floor_z * np.sqrt(3.0) * np.linalg.norm(sd):
+        return 0.0, max(hi, min(1.0, (z + 1.0) * se))  # not established; noise may hide it
+    if abs(kappa - 1.0) <= 4.0 * se:
+        return 1.0, max(hi, 1.0)
+    return max(kappa, 0.0), hi
 
 
 def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float, float]:
@@ -709,66 +723,103 @@ def _window_result(ts: np.ndarray, seg: np.ndarray, start: int, end: int, correc
                 remaining=np.nan if fit is None else float(np.nanmax(fit.remaining_m)), extrapolated=0.0)
 
 
+#: the shared tail is aligned where a hold's distance still to go falls below this many sigma
+ARRIVAL_SIGMA = 20.0
+
+
+def arrival_index(ts: np.ndarray, seg: np.ndarray, k0: int, end: int, rest: np.ndarray, step: np.ndarray,
+                  sigma: float, n: int) -> int | None:
+    """The index after which a hold's distance still to go along its step (the running mean of
+    ``n`` samples of (x - rest) . step / |step|, m) stays below ARRIVAL_SIGMA sigma: the arrival
+    its tail is timed from. None when it never was that far (a step too small to time by)."""
+    d = seg[k0:end] - rest[None]
+    ok = np.isfinite(d).all(axis=2) & np.isfinite(step).all(axis=1)[None]
+    norm = np.sqrt(np.sum(np.where(ok[..., None], step[None] ** 2, 0.0), axis=(1, 2)))
+    proj = np.sum(np.where(ok[..., None], d * step[None], 0.0), axis=(1, 2)) / np.maximum(norm, 1e-300)
+    good = norm > 0
+    if good.sum() < n:
+        return None
+    c = np.concatenate([[0.0], np.cumsum(np.where(good, proj, 0.0))])
+    w = np.concatenate([[0], np.cumsum(good)])
+    k = np.arange(len(proj))
+    lo, hi = np.maximum(k - n // 2, 0), np.minimum(k + n // 2 + 1, len(proj))
+    run = (c[hi] - c[lo]) / np.maximum(w[hi] - w[lo], 1)
+    far = np.nonzero(np.abs(run) > ARRIVAL_SIGMA * sigma)[0]
+    return None if far.size == 0 else k0 + int(far[-1]) + 1
+
+
 def shared_tail(windows: dict[int, tuple], results: dict[int, dict], sigma: float, n: int) -> tuple | None:
-    """The approach's tail as the holds share it: h(s), the part of its step a hold still has to
-    go s seconds after its approach began (the speed at half its peak), pooled over every settled
-    hold by least squares, x(s) - x_rest = -step h(s), in bins of ``n`` samples' time.
+    """The approach's tail as the holds share it: h(s), the distance (m) a hold still has to go
+    along its step s seconds after its arrival (:func:`arrival_index`: the distance last above
+    ARRIVAL_SIGMA sigma), pooled over every settled hold in bins of ``n`` samples' time. Timed
+    from there, every hold's tail starts from the same distance and decays as its drives do,
+    whatever the length of the step.
 
     windows: row -> (t, stretch, approach start, window start, end); results: row -> its settled
     'mean' (M, 3), to which the step (this rest minus the previous hold's, over every marker
-    coordinate) is added as 'step'. Returns (bin edges (B+1,) s, h (B,), its standard error
-    (B,)), or None when fewer than 5 holds have a step above 20 sigma."""
+    coordinate) is added as 'step' and the arrival index as 'arrival'. Returns (bin edges (B+1,)
+    s, h (B,), its standard error (B,)), or None when fewer than 5 holds can be timed."""
     rows = sorted(windows)
     for prev, i in zip([None] + rows[:-1], rows):
         results[i]["step"] = None if prev is None or prev != i - 1 else results[i]["mean"] - results[prev]["mean"]
-    use = [i for i in rows if results[i]["step"] is not None and np.all(np.isfinite(results[i]["step"]))
-           and np.linalg.norm(results[i]["step"]) > 20 * sigma and windows[i][2] is not None]
+        results[i]["arrival"] = None
+        ts, seg, k0, start, end = windows[i]
+        step = results[i]["step"]
+        if step is not None and k0 is not None and np.all(np.isfinite(step)):
+            results[i]["arrival"] = arrival_index(ts, seg, k0, end, results[i]["mean"], step, sigma, n)
+    use = [i for i in rows if results[i]["arrival"] is not None and windows[i][4] - results[i]["arrival"] > n]
     if len(use) < 5:
         return None
     dt = float(np.median(np.diff(windows[use[0]][0])))
-    span = max(windows[i][0][windows[i][4] - 1] - windows[i][0][windows[i][2]] for i in use)
+    span = max(windows[i][0][windows[i][4] - 1] - windows[i][0][results[i]["arrival"]] for i in use)
     edges = np.arange(0.0, span + n * dt, n * dt)
     num = np.zeros(len(edges) - 1)
-    den = np.zeros(len(edges) - 1)
     cnt = np.zeros(len(edges) - 1)
     for i in use:
         ts, seg, k0, start, end = windows[i]
+        k = results[i]["arrival"]
         step = results[i]["step"]
-        d = seg[k0:end] - results[i]["mean"][None]  # (L, M, 3)
-        ok = np.isfinite(d).all(axis=2) & np.isfinite(step).all(axis=1)[None]
-        proj = np.sum(np.where(ok[..., None], d * step[None], 0.0), axis=(1, 2))  # (L,)
-        norm2 = np.sum(np.where(ok[..., None], step[None] ** 2, 0.0), axis=(1, 2))
-        b = np.searchsorted(edges, ts[k0:end] - ts[k0], side="right") - 1
-        keep = (b >= 0) & (b < len(num))
+        d = seg[k:end] - results[i]["mean"][None]  # (L, M, 3)
+        ok = np.isfinite(d).all(axis=2)
+        norm = np.sqrt(np.sum(np.where(ok[..., None], step[None] ** 2, 0.0), axis=(1, 2)))  # (L,)
+        proj = np.sum(np.where(ok[..., None], d * step[None], 0.0), axis=(1, 2)) / np.maximum(norm, 1e-300)
+        b = np.searchsorted(edges, ts[k:end] - ts[k], side="right") - 1
+        keep = (b >= 0) & (b < len(num)) & (norm > 0)
         np.add.at(num, b[keep], -proj[keep])
-        np.add.at(den, b[keep], norm2[keep])
         np.add.at(cnt, b[keep], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        h = np.where(den > 0, num / den, 0.0)
-        se = np.where(den > 0, sigma / np.sqrt(den), np.inf)
+        h = np.where(cnt > 0, num / np.maximum(cnt, 1), 0.0)
+        se = np.where(cnt > 0, sigma / np.sqrt(np.maximum(cnt, 1)), np.inf)
     return edges, h, se
 
 
-def profile_start(profile: tuple, step: np.ndarray | None, ts: np.ndarray, k0: int | None, start: int, end: int,
+def profile_start(profile: tuple, arrival: int | None, ts: np.ndarray, start: int, end: int,
                   sigma: float, fraction: float, min_samples: int) -> int | None:
-    """The first index s >= start at which the shared tail (:func:`shared_tail`), scaled by this
-    hold's step, biases the mean over [s, end) by at most ``fraction`` of its averaging noise
-    sigma / sqrt(end - s); bins where the profile is within two standard errors of zero count
-    as no tail (the pooled noise must not push every window late). None when no window of at least
-    ``min_samples`` qualifies or the hold has no step or approach start."""
-    if step is None or k0 is None or not np.all(np.isfinite(step)) or end - start < min_samples:
+    """The first index s >= start at which the shared tail (:func:`shared_tail`), timed from this
+    hold's ``arrival`` index, biases the mean over [s, end) by at most ``fraction`` of its
+    averaging noise sigma / sqrt(end - s). The tail decays: from the first bin where the profile
+    is within two standard errors of zero on, it counts as none (a later bin off zero by chance
+    must not push every window late). When no window of at least ``min_samples`` is that clean,
+    the one whose bias is the smallest share of its noise; None when the hold has no arrival
+    (a step too small to time) or is shorter than ``min_samples``."""
+    if arrival is None or end - start < min_samples:
         return None
     edges, h, se = profile
-    size = float(np.linalg.norm(step))
-    s = ts[start:end] - ts[k0]
-    b = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, len(h) - 1)
-    hs = np.where(np.abs(h[b]) > 2 * se[b], h[b], 0.0)  # bins whose tail is not resolved count as none
+    gone = np.nonzero(np.abs(h) <= 2 * se)[0]
+    h = np.where(np.arange(len(h)) < (gone[0] if gone.size else len(h)), h, 0.0)
+    s = ts[start:end] - ts[arrival]
+    b = np.searchsorted(edges, s, side="right") - 1
+    hs = np.where((b >= 0) & (b < len(h)), h[np.clip(b, 0, len(h) - 1)], 0.0)
+    hs = np.where(b < 0, h[0] if len(h) else 0.0, hs)  # before the arrival: at least the first bin's
     L = end - start
     nrem = L - np.arange(L)
-    share = np.abs(np.cumsum(hs[::-1])[::-1]) / nrem * size
-    okay = (share <= fraction * sigma / np.sqrt(nrem)) & (nrem >= min_samples)
-    idx = np.nonzero(okay)[0]
-    return None if idx.size == 0 else start + int(idx[0])
+    share = np.abs(np.cumsum(hs[::-1])[::-1]) / nrem
+    ratio = np.where(nrem >= min_samples, share / (sigma / np.sqrt(nrem)), np.inf)
+    idx = np.nonzero(ratio <= fraction)[0]
+    if idx.size:
+        return start + int(idx[0])
+    # no window is that clean: the least biased one (a window starting in the tail is the worse)
+    return start + int(np.argmin(ratio)) if np.isfinite(ratio).any() else None
 
 
 def settle(session: Session, options: SettleOptions | None = None) -> tuple[PoseSet, SettleReport]:
@@ -866,12 +917,22 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                    f"{opt.min_still_s:.2f} s needed")
         else:
             start = run[0]
-            if fit is not None and fit.significant and not tail_established(fit, ts[run[0]:end], seg[run[0]:end], sig_slow):
-                fit.a, fit.b = np.zeros_like(fit.a), np.zeros_like(fit.b)  # not there: the still stretch is flat
-                fit.significant = False
-                fit.remaining_m = np.zeros_like(fit.remaining_m)
-            if fit is not None:
-                window = tail_free_window(fit, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples)
+            bound = fit
+            if fit is not None and fit.significant:
+                # how much of the fitted tail the still stretch bears out: the window is chosen by
+                # its upper bound (a fit whose decay is off still marks where the approach ends;
+                # dropping it would start the window in the tail), a correction by its estimate
+                kappa, k_hi = tail_scale(fit, ts[run[0]:end], seg[run[0]:end], sig_slow)
+                bound = fit.scaled(k_hi)
+                fit = fit.scaled(kappa)
+            if fit is not None and bound is not None:
+                window = tail_free_window(bound, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples,
+                                          estimate=fit)
+                if window is None and bound is not fit:
+                    # the bound leaves no clean window (a slow decay the stretch hardly supports):
+                    # the estimate decides whether the hold settled
+                    window = (tail_free_window(fit, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples)
+                              if fit.significant else (run[0], np.zeros((M, 3))))
                 start = None if window is None else window[0]
                 if window is not None:
                     correction = window[1]
@@ -914,8 +975,8 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     # own noise) still biases every pose the same way, along its step
     profile = shared_tail(windows, results, sig_slow, n)
     if profile is not None:
-        for i, (ts, seg, k0, start, end) in windows.items():
-            later = profile_start(profile, results[i]["step"], ts, k0, start, end, sig_slow, opt.tail_fraction,
+        for i, (ts, seg, _k0, start, end) in windows.items():
+            later = profile_start(profile, results[i]["arrival"], ts, start, end, sig_slow, opt.tail_fraction,
                                   min_samples)
             if later is not None and later > start:
                 r = _window_result(ts, seg, later, end, np.zeros((M, 3)), fits.get(i))
