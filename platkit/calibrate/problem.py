@@ -25,8 +25,16 @@ J_r^-1(e) J_r(phi_b) for phi_b.
 """
 from __future__ import annotations
 
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -53,6 +61,7 @@ from platkit.geometry import (
 )
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.native import cache_dir
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
@@ -156,6 +165,7 @@ class CalibrationProblem:
         self.nominal = np.concatenate([spec.nominal_td(), np.zeros(self.n_z - spec.n_td)])
         self.half_width = np.full(self.n_z, np.inf)
         self.set_plausible(PLAUSIBLE_RANGE)
+        self._last: tuple[np.ndarray, float, FitState] | None = None
         self._build()
 
     def set_plausible(self, corrections: float | None) -> None:
@@ -203,78 +213,53 @@ class CalibrationProblem:
 
     # ------------------------------------------------------------------ CasADi
     def _build(self) -> None:
-        spec, M = self.spec, self.M + self.B  # the bodies' origins are observed like markers
-        u = ca.SX.sym("u", spec.n_u)
-        td = ca.SX.sym("td", spec.n_td)
-        w = ca.SX.sym("w", 3)
-        t = ca.SX.sym("t", 3)
-        m = ca.SX.sym("m", 3 * M)
-        dpose = ca.SX.sym("dpose", 6)
-        dm = ca.SX.sym("dm", 3 * M)
-        A = ca_matrix_from_rotvec(w)
-
-        def observe(q, X):
-            R = ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q))
-            pts = [ca.mtimes(A, X + dpose[0:3] + ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t
-                   for i in range(M)]
-            if self.B:  # Q = mocap_from_moving rotation, row by row, for the bodies' orientations
-                Q = ca.mtimes(A, R)
-                pts += [Q[i, j] for i in range(3) for j in range(3)]
-            return ca.vertcat(*pts)
-
-        if spec.forward is not None:
-            q, X = spec.forward(u, td)
-            y = observe(q, X)
-            self._G = ca.Function(
-                "observe_fwd", [u, td, w, t, m, dpose, dm],
-                [ca.densify(ca.horzcat(y, ca.jacobian(y, td), ca.jacobian(y, u), ca.jacobian(y, w), ca.jacobian(y, t),
-                                       ca.jacobian(y, m), ca.jacobian(y, dpose)))],
-                ["u", "td", "w", "t", "m", "dpose", "dm"], ["Y"])
-            self._cols = [1, spec.n_td, spec.n_u, 3, 3, 3 * M, 6]
-            self._Yonly = ca.Function("observe_fwd_y", [u, td, w, t, m, dpose, dm], [y])
-            self._pose_of = ca.Function("pose_fwd", [u, td], [q, X], ["u", "td"], ["q", "X"])
-        else:
-            p = ca.SX.sym("p", spec.n_p)
-            q, X = spec.pose(p)
-            y = observe(q, X)
-            r = spec.residual(u, td, q, X)
-            self._G = ca.Function(
-                "observe_ift", [u, td, p, w, t, m, dpose, dm],
-                [ca.densify(ca.horzcat(y, ca.jacobian(y, p), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m),
-                                       ca.jacobian(y, dpose))),
-                 ca.densify(ca.horzcat(ca.jacobian(r, p), ca.jacobian(r, td), ca.jacobian(r, u)))],
-                ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["Y", "F"])
-            self._cols = [1, spec.n_p, 3, 3, 3 * M, 6]
-            self._fcols = [spec.n_p, spec.n_td, spec.n_u]
-            self._Yonly = ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y])
-        self._maps: dict[int, ca.Function] = {}
+        """The observation functions of this stand and channel count, built once per (stand, M + B)
+        and shared by every problem of them (a model selection, k folds and a diagnosis build
+        dozens of problems of one stand)."""
+        key = (id(self.spec), self.M + self.B, self.B > 0)
+        hit = _BUILT.get(key)
+        if hit is None or hit[0] is not self.spec:
+            if len(_BUILT) > 16:
+                _BUILT.clear()
+            hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0))
+        self._fns = hit[1]
 
     def _call(self, n: int, with_jac: bool, args: list[np.ndarray]) -> list[np.ndarray]:
-        """Evaluate the observation function over n poses on preallocated buffers.
+        """Evaluate the observation function over n poses, CHUNK poses per call of a compiled-in-
+        CasADi map on preallocated buffers (one map per stand, whatever n: building a map costs
+        time in proportion to its length).
 
-        args: per-pose inputs as (n, size) C-ordered arrays (CasADi's column-major (size, n)),
-        shared inputs (td, w, t, m) as 1-D arrays. Returns the outputs as (n, cols, rows) arrays.
+        args: per-pose inputs as (n, size) C-ordered arrays, shared inputs (td, w, t, m) as 1-D
+        arrays. Returns each output as an (n, rows, cols) array, row-major per pose.
         """
-        key = (n, with_jac)
-        entry = self._maps.get(key)
-        if entry is None:
-            f = self._G if with_jac else self._Yonly
-            shared = [1, 3, 4, 5] if self.spec.forward is None else [1, 2, 3, 4]
-            fmap = f.map(f"{f.name()}_{n}", "serial", n, shared, [])
-            buf, run = fmap.buffer()
-            ins = [np.zeros(fmap.nnz_in(i)) for i in range(fmap.n_in())]
-            outs = [np.zeros(fmap.nnz_out(i)) for i in range(fmap.n_out())]
-            for i, a in enumerate(ins):
-                buf.set_arg(i, memoryview(a))
-            for i, a in enumerate(outs):
-                buf.set_res(i, memoryview(a))
-            shapes = [(n, fmap.size_out(i)[1] // n, fmap.size_out(i)[0]) for i in range(fmap.n_out())]
-            entry = self._maps[key] = (buf, run, ins, outs, shapes)
-        buf, run, ins, outs, shapes = entry
-        for dst, src in zip(ins, args):
-            dst[:] = np.ravel(src)
-        run()
-        return [o.reshape(sh).copy() for o, sh in zip(outs, shapes)]
+        buf, run, ins, outs, shapes, per_pose = self._fns.chunked(with_jac)
+        res = [np.empty((n,) + sh) for sh in shapes]
+        per = [np.ascontiguousarray(np.reshape(a, (n, -1)), dtype=float) if k in per_pose else np.ravel(a)
+               for k, a in enumerate(args)]
+        for k, a in enumerate(per):
+            if k not in per_pose:
+                ins[k][:] = a
+        for start in range(0, n, CHUNK):
+            stop = min(n, start + CHUNK)
+            m = stop - start
+            if m == CHUNK:  # the map reads and writes the arrays themselves: no copies
+                for k in per_pose:
+                    buf.set_arg(k, memoryview(per[k][start:stop].reshape(-1)))
+                for i, r in enumerate(res):
+                    buf.set_res(i, memoryview(r[start:stop].reshape(-1)))
+                run()
+                continue
+            for k in per_pose:  # the last, short chunk: through the map's own buffers
+                dst = ins[k].reshape(CHUNK, -1)
+                dst[:m] = per[k][start:stop]
+                dst[m:] = per[k][start]  # padded with the chunk's first pose: finite, and thrown away
+                buf.set_arg(k, memoryview(ins[k]))
+            for i, o in enumerate(outs):
+                buf.set_res(i, memoryview(o))
+            run()
+            for o, r, sh in zip(outs, res, shapes):
+                r[start:stop] = o.reshape((CHUNK,) + sh)[:m]
+        return res
 
     # ------------------------------------------------------------------ pieces
     def split(self, z):
@@ -305,12 +290,27 @@ class CalibrationProblem:
         return fb.q, fb.X, fb.p, fb.converged & fb.on_branch
 
     def evaluate(self, z, with_jac: bool = True, poses: PoseSet | None = None) -> FitState:
-        """Residuals (and the Jacobian) at z. ``poses``: another pose set (held-out prediction)."""
+        """Residuals (and the Jacobian) at z. ``poses``: another pose set (held-out prediction).
+
+        The last evaluation of the problem's own poses is kept: asked again at the same z (the
+        next robust round, the identifiability and covariance after a fit) with the same body_rho,
+        it is returned as it was, not recomputed. Callers must not write into the returned arrays."""
+        z = np.asarray(z, float)
+        own = poses is None
+        if own and self._last is not None and (self._last[2].J is not None or not with_jac) \
+                and self._last[1] == self.body_rho and np.array_equal(self._last[0], z):
+            return self._last[2]
+        state = self._evaluate(z, with_jac, poses)
+        if own:
+            self._last = (z.copy(), self.body_rho, state)
+        return state
+
+    def _evaluate(self, z, with_jac: bool, poses: PoseSet | None) -> FitState:
         own = poses is None
         poses = self.poses if own else poses
         N, M, B = poses.n_poses, self.M, self.B
-        td, w, t, m, theta = self.split(np.asarray(z, float))
-        p_body, phi_body = self.split_bodies(np.asarray(z, float))
+        td, w, t, m, theta = self.split(z)
+        p_body, phi_body = self.split_bodies(z)
         m = np.concatenate([m, p_body])  # the bodies' origins ride as points after the markers
         U = poses.controls
         guess = self._p_guess if own else None
@@ -341,29 +341,18 @@ class CalibrationProblem:
                 r = np.concatenate([r, self.body_rho * e], axis=1)
             r[~ok] = np.nan
             return FitState(r, None, ok)
-        Yall = outs[0].transpose(0, 2, 1)  # (N, 3 (M + B) [+ 9], cols)
-        parts = np.split(Yall, np.cumsum(self._cols)[:-1], axis=2)
-        y = parts[0][:, :, 0]
+        Yall = outs[0]  # (N, 3 (M + B) [+ 9], cols), row-major per pose
+        _, _, _, _, Y_m, Y_dpose, Y_u = np.split(Yall, np.cumsum(self._fns.cols)[:-1], axis=2)
+        y = Yall[:, :, 0]
         r = y[:, :nP3].reshape(N, M + B, 3) - measured
-        J = np.zeros((N, y.shape[1], self.n_z))
-        if self.spec.forward is not None:
-            _, Y_td, Y_u, Y_w, Y_t, Y_m, Y_dpose = parts
+        if self.n_z == self.i_m.stop:  # td, w, t, markers only: the function's own columns, no copy
+            J = Yall[:, :, 1:1 + self.n_z]
         else:
-            _, Y_p, Y_w, Y_t, Y_m, Y_dpose = parts
-            Fall = outs[1].transpose(0, 2, 1)  # (N, n_r, cols)
-            F_p, F_td, F_u = np.split(Fall, np.cumsum(self._fcols)[:-1], axis=2)
-            if F_p.shape[1] == F_p.shape[2]:
-                F_p_inv = np.linalg.inv(F_p)
-            else:
-                F_p_inv = np.linalg.pinv(F_p)  # (N, n_p, n_r)
-            Y_pinv = np.einsum("nap,npr->nar", Y_p, F_p_inv)
-            Y_td = -np.einsum("nar,nrk->nak", Y_pinv, F_td)
-            Y_u = -np.einsum("nar,nrk->nak", Y_pinv, F_u) if self.terms else None
-        J[:, :, self.i_td] = Y_td
-        J[:, :, self.i_w] = Y_w
-        J[:, :, self.i_t] = Y_t
-        J[:, :, self.i_m] = Y_m[:, :, :3 * M]
-        J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
+            J = np.empty((N, y.shape[1], self.n_z))
+            J[:, :, :self.i_m.stop] = Yall[:, :, 1:1 + self.i_m.stop]  # td, w, t, markers: one block
+            J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
+            J[:, :, self.i_body_rot] = 0.0
+            J[:, :, self.i_theta] = 0.0
         if self.terms:
             k = self.i_theta.start
             for term, th in zip(self.terms, theta):
@@ -517,6 +506,142 @@ class CalibrationProblem:
         H[3 * M:, 3 * M:] = vis.sum() * np.eye(3)
         sol = np.linalg.lstsq(H, g, rcond=None)[0]
         return sol[:3 * M].reshape(M, 3), sol[3 * M:]
+
+
+#: poses per call of the observation map (building a map costs in proportion to its length)
+CHUNK = 256
+_BUILT: dict = {}
+
+
+_compile_lock = threading.Lock()
+
+
+def _compiled(f: ca.Function) -> ca.Function:
+    """``f`` compiled to C (CasADi's code generator and the system compiler, once: the library is
+    kept in :func:`platkit.native.cache_dir` under a hash of its source), loaded as an external
+    function; ``f`` itself (CasADi's interpreter, some ten times slower) without a compiler, with
+    PLATKIT_COMPILE=0, or when compiling fails. Same operations in the same order (no
+    floating-point contraction): the same numbers as the interpreter."""
+    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return f
+    cc = next((shutil.which(c) for c in ([os.environ["CC"]] if os.environ.get("CC") else []) + ["cc", "gcc", "clang"]
+               if shutil.which(c)), None)
+    if cc is None:
+        return f
+    cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
+    cg.add(f)
+    source = cg.dump()
+    flags = ["-O2", "-ffp-contract=off", "-fPIC", "-shared"]
+    key = hashlib.sha256((source + cc + " ".join(flags) + sys.platform + ca.__version__).encode()).hexdigest()[:24]
+    folder = cache_dir()
+    lib = folder / f"observe_{key}.so"
+    with _compile_lock:
+        try:
+            if not lib.is_file():
+                folder.mkdir(parents=True, exist_ok=True)
+                with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
+                    src = Path(tmp) / f"{f.name()}.c"
+                    src.write_text(source)
+                    out = Path(tmp) / lib.name
+                    proc = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True,
+                                          timeout=600)
+                    if proc.returncode != 0:
+                        return f
+                    os.replace(out, lib)  # atomic: other processes see the whole library or none
+            return ca.external(f.name(), str(lib))
+        except (OSError, subprocess.SubprocessError, RuntimeError):
+            return f
+
+
+class _ObservationFunctions:
+    """The CasADi observation function of one stand and channel count and its CHUNK-pose maps.
+
+    The output is transposed so that a map lays each pose's block out row-major (rows, cols):
+    Y = [y | dy/dtd | dy/dw | dy/dt | dy/dm | dy/ddpose | dy/du], the unknowns' order of
+    CalibrationProblem (td, w, t, m first). The functions are compiled on first use
+    (:func:`_compiled`)."""
+
+    def __init__(self, G: ca.Function, Yonly: ca.Function, shared: list[int], cols: list[int]):
+        self.G, self.Yonly, self.shared, self.cols = G, Yonly, shared, cols
+        self._chunked: dict = {}
+        self._native: dict = {}
+
+    def native(self, with_jac: bool) -> ca.Function:
+        """The (compiled where possible) function behind the maps."""
+        if with_jac not in self._native:
+            self._native[with_jac] = _compiled(self.G if with_jac else self.Yonly)
+        return self._native[with_jac]
+
+    def chunked(self, with_jac: bool):
+        entry = self._chunked.get(with_jac)
+        if entry is None:
+            f = self.native(with_jac)
+            fmap = f.map(f"{f.name()}_{CHUNK}", "serial", CHUNK, self.shared, [])
+            buf, run = fmap.buffer()
+            ins = [np.zeros(fmap.nnz_in(i)) for i in range(fmap.n_in())]
+            outs = [np.zeros(fmap.nnz_out(i)) for i in range(fmap.n_out())]
+            for i, a in enumerate(ins):
+                buf.set_arg(i, memoryview(a))
+            for i, a in enumerate(outs):
+                buf.set_res(i, memoryview(a))
+            shapes = [(fmap.size_out(i)[1] // CHUNK, fmap.size_out(i)[0]) for i in range(fmap.n_out())]
+            per_pose = [i for i in range(fmap.n_in()) if i not in self.shared]
+            entry = self._chunked[with_jac] = (buf, run, ins, outs, shapes, per_pose)
+        return entry
+
+
+def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool) -> _ObservationFunctions:
+    """Build the observation function of ``spec`` for M points (markers, then bodies' origins)."""
+    u = ca.SX.sym("u", spec.n_u)
+    td = ca.SX.sym("td", spec.n_td)
+    w = ca.SX.sym("w", 3)
+    t = ca.SX.sym("t", 3)
+    m = ca.SX.sym("m", 3 * M)
+    dpose = ca.SX.sym("dpose", 6)
+    dm = ca.SX.sym("dm", 3 * M)
+    A = ca_matrix_from_rotvec(w)
+
+    def observe(q, X):
+        R = ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q))
+        pts = [ca.mtimes(A, X + dpose[0:3] + ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t
+               for i in range(M)]
+        if with_bodies:  # Q = mocap_from_moving rotation, row by row, for the bodies' orientations
+            Q = ca.mtimes(A, R)
+            pts += [Q[i, j] for i in range(3) for j in range(3)]
+        return ca.vertcat(*pts)
+
+    if spec.forward is not None:
+        q, X = spec.forward(u, td)
+        y = observe(q, X)
+        G = ca.Function(
+            "observe_fwd", [u, td, w, t, m, dpose, dm],
+            [ca.densify(ca.horzcat(y, ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m),
+                                   ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
+            ["u", "td", "w", "t", "m", "dpose", "dm"], ["Y"])
+        return _ObservationFunctions(G, ca.Function("observe_fwd_y", [u, td, w, t, m, dpose, dm], [y.T]),
+                                     [1, 2, 3, 4], [1, spec.n_td, 3, 3, 3 * M, 6, spec.n_u])
+    # through the Newton solution p(u, td) of r(u, td, p) = 0: dp/d(td, u) = -F_p^+ [F_td F_u],
+    # solved per pose inside the function (F_p^+ = F_p^-1, or (F_p^T F_p)^-1 F_p^T with more
+    # residuals than pose coordinates)
+    p = ca.SX.sym("p", spec.n_p)
+    q, X = spec.pose(p)
+    y = observe(q, X)
+    r = spec.residual(u, td, q, X)
+    F_p = ca.jacobian(r, p)
+    F_rest = ca.horzcat(ca.jacobian(r, td), ca.jacobian(r, u))  # sparse: a leg's residual, its own parameters
+    Y_p = ca.jacobian(y, p)
+    if F_p.shape[0] == F_p.shape[1]:  # Y_p F_p^-1 first: fewer right-hand sides, then F_rest's sparsity
+        Z = ca.solve(F_p.T, Y_p.T).T
+    else:
+        Z = ca.mtimes(ca.solve(ca.mtimes(F_p.T, F_p), Y_p.T).T, F_p.T)
+    Y_rest = -ca.mtimes(Z, F_rest)
+    G = ca.Function(
+        "observe_ift", [u, td, p, w, t, m, dpose, dm],
+        [ca.densify(ca.horzcat(y, Y_rest[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m),
+                               ca.jacobian(y, dpose), Y_rest[:, spec.n_td:]).T)],
+        ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["Y"])
+    return _ObservationFunctions(G, ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y.T]),
+                                 [1, 3, 4, 5], [1, spec.n_td, 3, 3, 3 * M, 6, spec.n_u])
 
 
 def _bodies(poses: PoseSet) -> np.ndarray:
