@@ -44,6 +44,11 @@ COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
 SECONDARY_COSTS = ("none", "mid_range", "joint_limits", "manipulability")
 
 
+def _clip(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """np.clip(x, lower, upper) for lower <= upper, without its wrapper's microseconds."""
+    return np.minimum(np.maximum(x, lower), upper)
+
+
 def parse_selection(text: str) -> np.ndarray:
     """'xyz', 'x,y,rz', 'all' -> a 0/1 mask (6,) over (x, y, z, rx, ry, rz)."""
     t = text.replace(",", "").replace(" ", "").lower()
@@ -217,6 +222,7 @@ class Servo:
                 "target_t": task.target[:3, 3].copy(), "target_R": task.target[:3, :3].copy(),
                 "rows": rows, "sw": np.sqrt(task.weights[rows]), "unit_weights": bool(np.all(task.weights == 1.0)),
                 "cols": np.flatnonzero(self.active),
+                "all_active": bool(self.active.all()) and bool(np.all(task.weights == 1.0)),
                 # lower_active - theta: the room below for an active joint, +inf (then 0) for a locked one
                 "lower_active": np.where(self.active, c.lower, np.inf),
                 "upper_active": np.where(self.active, c.upper, -np.inf),
@@ -260,6 +266,17 @@ class Servo:
         free = None
         fixed = None
         info = StepInfo()
+        if f["all_active"]:
+            # the first pass of the loop below in a few calls: every joint free, a full-rank J,
+            # no joint crossing a limit; anything else goes through the loop (same numbers)
+            U, sv, Vt = np.linalg.svd(Jw, full_matrices=False)
+            smin = float(sv[-1])
+            if smin > 1e-10 * max(1.0, float(sv[0])):
+                lam2 = o.damping.factor(smin, math.sqrt(float(ew @ ew)))
+                dq = Vt.T @ (sv / (sv * sv + lam2) * (U.T @ ew))
+                if not ((dq > upper_step + 1e-15).any() or (dq < lower_step - 1e-15).any()):
+                    info.sigma_min, info.damping = smin, math.sqrt(lam2)
+                    return self._fast_rate_limited(_clip(dq, lower_step, upper_step), lower_step, upper_step, info)
         for _ in range(c.n + 1):
             if free is None:  # first pass: every active joint free, nothing fixed
                 cols, r = f["cols"], ew
@@ -295,15 +312,19 @@ class Servo:
             fixed[worst] = min(max(dq[worst], lower_step[worst]), upper_step[worst])
             free[worst] = False
             info.clamped.append(worst)
-        dq = np.clip(dq, lower_step, upper_step)
-        if not o.use_rate_limits:
+        return self._fast_rate_limited(_clip(dq, lower_step, upper_step), lower_step, upper_step, info)
+
+    def _fast_rate_limited(self, dq: np.ndarray, lower_step: np.ndarray, upper_step: np.ndarray, info: StepInfo):
+        """The step (n,) scaled uniformly to the rate limits and clipped to both bounds, and ``info``."""
+        if not self.options.use_rate_limits:
             return dq, info
+        f = self._fast
         rate_step = f["rate_step"]
         # a joint that does not move allows any scale (rate / 1e-300 is beyond 1)
         info.rate_scale = min(1.0, float(np.min(rate_step / np.maximum(np.abs(dq), 1e-300)))) if dq.size else 1.0
         if info.rate_scale < 1.0:
             dq = dq * info.rate_scale
-        return np.clip(dq, np.maximum(lower_step, f["minus_rate_step"]), np.minimum(upper_step, rate_step)), info
+        return _clip(dq, np.maximum(lower_step, f["minus_rate_step"]), np.minimum(upper_step, rate_step)), info
 
     # ------------------------------------------------------------------ errors and Jacobians
 
@@ -497,7 +518,71 @@ class Servo:
         best.seconds = time.perf_counter() - start
         return best
 
+    def _fast_attempt(self, theta: np.ndarray, start: float) -> ServoResult:
+        """:meth:`_attempt` for the common case of :meth:`_fast_case` (one level of one task, no
+        secondary cost): the same steps, line search, stall test and result, with the merit a
+        plain float and no per-level bookkeeping (a step's Python overhead was most of its time)."""
+        o, c = self.options, self.chain
+        weights = self.tasks[0].weights
+        lower, upper = c.lower, c.upper
+        E = self._fast_error(theta)
+        merit = float(np.dot(weights, E**2))
+        path = [theta.copy()]
+        history = [merit]
+        best_merit, best_E = merit, E
+        stall_ref, stall_at = merit, 0
+        floor = 1e-2 * (o.tol_position**2 + o.tol_rotation**2)
+        reason = ""
+        iterations = 0
+        pos, rot = self._norms([E])
+        converged = self._done(pos, rot)
+        while not converged:
+            if iterations >= o.max_iterations:
+                reason = f"stopped at the iteration cap ({o.max_iterations})"
+                break
+            if time.perf_counter() - start > o.max_seconds:
+                reason = f"stopped at the time cap ({o.max_seconds:g} s)"
+                break
+            dq, _info = self._fast_step(theta, E)
+            accepted = False
+            alpha = 1.0
+            better_than = merit * (1.0 - 1e-12)  # Servo._better with one level
+            for _ in range(12):
+                trial = _clip(theta + alpha * dq, lower, upper)
+                trial_E = self._fast_error(trial)
+                trial_merit = float(np.dot(weights, trial_E**2))
+                if trial_merit < better_than:
+                    accepted = True
+                    break
+                alpha *= 0.5
+            iterations += 1
+            if not accepted:
+                reason = self.diagnose(theta, [E], stalled=True)
+                break
+            theta, E, merit = trial, trial_E, trial_merit  # trial is a new array: path may keep it
+            path.append(theta)
+            history.append(merit)
+            if merit < best_merit:
+                best_merit, best_E = merit, E
+            pos, rot = self._norms([E])
+            converged = self._done(pos, rot)
+            if merit < (1.0 - 1e-3) * stall_ref and stall_ref > floor:
+                stall_ref, stall_at = merit, iterations
+            elif iterations - stall_at >= o.stall_iterations and not converged:
+                reason = self.diagnose(theta, [E], stalled=True)
+                break
+        if not converged and reason.startswith("stopped at"):
+            why = self.diagnose(theta, [E], stalled=False)
+            reason = reason + ("; " + why if why else "")
+        bpos, brot = self._norms([best_E])
+        return ServoResult(theta=theta, converged=converged, iterations=iterations, position_errors=pos,
+                           rotation_errors=rot, path=np.array(path), merit_history=history, reason=reason,
+                           best_position_errors=bpos, best_rotation_errors=brot,
+                           seconds=time.perf_counter() - start)
+
     def _attempt(self, theta: np.ndarray, start: float) -> ServoResult:
+        if self._fast is not None:
+            return self._fast_attempt(theta, start)
         o = self.options
         c = self.chain
         errors = self.errors(theta)
