@@ -429,3 +429,41 @@ def apply_marker_convention(problem, z, gauge: Gauge) -> tuple[np.ndarray, np.nd
     if not change <= 1e-9 * max(1.0, float(np.nanmax(np.abs(problem.poses.markers)))):
         return z, np.eye(n_z)
     return z_new, T
+
+
+#: a marker left with fewer kept observations than this by a robust fit's outlier rejection
+MIN_KEPT_PER_MARKER = 6
+
+
+def keep_one_side_of_a_lost_marker(kept: np.ndarray, residuals: np.ndarray, problem=None, z=None,
+                                   min_kept: int = MIN_KEPT_PER_MARKER) -> tuple[np.ndarray, list[int]]:
+    """A robust fit rejects every observation of a marker that sits in two places (a marker that
+    slipped on the moving part: the fit places it between, and both halves are outliers); a fit
+    on the kept observations alone then has nothing to fix that marker with. Such a marker's
+    observations before or after its step are kept, whichever side is longer: its place there is
+    consistent and the poses fix it (a diagnosis names the slip).
+
+    kept: (N, C) observations the fit kept (channels: the M markers first); residuals: (N, M, 3)
+    its residuals, poses in session order; problem, z: the fit's problem and unknowns, to turn the
+    residuals into the moving frame, where a slip is a step (in the motion capture's frame it
+    turns with the platform). Returns (kept with those sides restored, the marker indices
+    restored)."""
+    kept = np.array(kept, bool, copy=True)
+    if problem is not None and z is not None:
+        td, w = problem.split(z)[:2]
+        R = matrix_from_quat(problem.kinematics(td, problem.poses.controls)[0])  # (N, 3, 3) moving -> base
+        residuals = np.einsum("nji,kj,nmk->nmi", R, matrix_from_rotvec(w), residuals)
+    restored = []
+    for m in range(residuals.shape[1]):
+        seen = np.nonzero(np.all(np.isfinite(residuals[:, m]), axis=1))[0]
+        if kept[:, m].sum() >= min_kept or len(seen) < 2 * min_kept:
+            continue
+        x = residuals[seen, m] - residuals[seen, m].mean(axis=0)
+        n = len(x)
+        j = np.arange(min_kept, n - min_kept + 1)
+        csum = np.cumsum(x, axis=0)
+        k = int(j[np.argmax(np.sum(csum[j - 1] ** 2, axis=1) * n / (j * (n - j)))])  # the step's split
+        side = seen[:k] if k >= n - k else seen[k:]
+        kept[side, m] = True
+        restored.append(m)
+    return kept, restored

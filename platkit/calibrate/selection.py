@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from platkit.calibrate.estimate import Progress, calibrate
+from platkit.calibrate.identifiability import keep_one_side_of_a_lost_marker
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
@@ -243,6 +244,9 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     note(f"the most general model: every group free ({', '.join(labels)})")
     reference = calibrate(poses, spec, free=_names(groups, labels), robust=robust, progress=progress, **common)
     kept = reference.extras["weights"] > 0
+    # a marker the robust fit rejected wholly (one that slipped) keeps one side of its step
+    kept = keep_one_side_of_a_lost_marker(kept, reference.extras["residuals_after"],
+                                          reference.extras["problem"], reference.extras["z"])[0]
     M, B = poses.n_markers, poses.n_bodies  # channels: markers, then each body's origin and rotation
     left_out = int(np.sum(reference.extras["problem"].visible & ~kept))
     clean = poses.subset(np.ones(poses.n_poses, bool))

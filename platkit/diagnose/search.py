@@ -63,6 +63,7 @@ class Options:
     folds: int = 5
     max_effects: int = 3
     max_refits: int = 3  # candidates refit per round (the best screened)
+    max_variants: int = 4  # of one kind at one place (periods, time constants, rows): the best screened fitted, lowest BIC kept
     # below: not separable from the geometry (its signature is inside the identification
     # Jacobian's column space to numerical precision); low but above this, a large effect still
     # leaves a detectable part, and the held-out test decides
@@ -264,7 +265,8 @@ def _body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
 def _place(term: ModelTerm) -> tuple:
     """(effect, actuator or marker): terms of one kind at one place compete, never add up."""
     w = term.where
-    return term.effect, str(w.get("actuator", "")), str(w.get("marker", ""))
+    actuator = str(w.get("actuator", ""))
+    return term.effect, "" if actuator == "all" else actuator, str(w.get("marker", ""))
 
 
 def _params(term: ModelTerm, theta: np.ndarray, std: np.ndarray | None) -> dict[str, dict[str, Any]]:
@@ -376,9 +378,15 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         if not chosen:
             break
         trials = []
-        for i in chosen:
+        for i0 in chosen:
+            # the variants of one kind at one place (a cooling time constant, a period, a slip's
+            # row): the score test ranks them at zero effect, a large effect may fit another
+            # better; the best screened few are fitted and the lowest BIC goes on
+            variants = [j for j in order if _place(cands[j][1]) == _place(cands[i0][1])][:opt.max_variants]
+            fits = [(j, _fit(spec, poses, cur.terms + [cands[j][1]], cur.z, cur.active, weights, opt.lm_iterations,
+                             opt.robust)) for j in variants]
+            i, f = min(fits, key=lambda x: x[1].bic)
             eff, term = cands[i]
-            f = _fit(spec, poses, cur.terms + [term], cur.z, cur.active, weights, opt.lm_iterations, opt.robust)
             f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
             trials.append((i, f, paired_improvement(cur.cv[judged], f.cv[judged])))
             say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)} "

@@ -10,7 +10,7 @@ rad, deg or counts otherwise). Time is measured from the session's first command
 |---|---|---|
 | backlash | u_i + b d_i, d_i = sign of the actuator's last move | b: half the play |
 | compliance | parallel stand (one term): u + c f, f = J^-T w, the actuator forces holding a 1 N weight at the moving frame's origin; serial chain: q_j + c_j tau_j, tau = gravity torque of the URDF's inertias | c |
-| thermal_drift | X + v t: the moving frame translated in the base frame, linear in time (one term) | v (3) |
+| thermal_drift | u_j + k h_j(t): every actuator longer by k times its heat h_j, the strokes it moved cooling with tau (150 s to 80 min, a factor sqrt(2) apart; one term, the physics); or X + v t, the moving frame translated linearly in time (the additive simulator's drift) | k; or v (3) |
 | cyclic_error | u_i + a sin(2 pi u_i / P) + b cos(2 pi u_i / P), P from a short list per unit | a, b |
 | scale_nonlinearity | u_i + a P2(s) + b P3(s), s = travel scaled to [-1, 1] over the stroke (Legendre) | a, b |
 | settling_lag | u - l (u_k - u_k-1): short of the command by a fraction of the last step (one term) | l |
@@ -342,33 +342,133 @@ class Compliance(Effect):
 
 
 # ---------------------------------------------------------------------------- thermal drift
+#: cooling time constants (s) a thermal drift is screened at, a factor sqrt(2) apart (the simulator
+#: draws 5 to 15 min); the score test picks among them
+COOLING_TAUS_S = tuple(float(round(150.0 * 2 ** (k / 2))) for k in range(11))  # 150 s to 80 min
+
+
+def motion_heat(poses: PoseSet, stroke: np.ndarray, tau_s: float) -> np.ndarray:
+    """(N, n_u) each actuator's heat at each pose: the strokes it moved, cooling with ``tau_s``,
+    ``theta_n = sum_k |u_k - u_(k-1)| / stroke exp(-(t_n - t_k) / tau)`` over the moves up to row n
+    (rows in session order, times from the first command). A gap in the rows (commands that gave
+    no pose) hides moves: a gap of g commands counts the move across it times g m1 / m_gap, the
+    mean single move over the mean move across gaps (per actuator, between 1 and g): g times for
+    a random plan, once for a sweep. Computed on the full session and kept by subsets (the key
+    'heat_<tau>' of ``extras``), so a fold's refit sees the same heat."""
+    key = f"heat_{tau_s:g}"
+    if key in poses.extras and np.shape(poses.extras[key]) == poses.controls.shape:
+        return np.asarray(poses.extras[key], float)
+    U = np.asarray(poses.controls, float)
+    N = len(U)
+    if N == 0:
+        return np.zeros_like(U)
+    t = history(poses, "elapsed")
+    row = history(poses, "row")
+    order = np.argsort(row, kind="stable")
+    move = np.abs(np.diff(U[order], axis=0)) / stroke
+    gap = np.maximum(np.diff(row[order]), 1.0)[:, None]
+    single = gap[:, 0] == 1
+    if np.any(~single):
+        m1 = np.mean(move[single], axis=0) if single.sum() >= 3 else np.mean(move / gap, axis=0)
+        across = np.sum(move[~single], axis=0) / np.sum(gap[~single], axis=0)  # move across a gap, per command
+        with np.errstate(divide="ignore", invalid="ignore"):
+            factor = np.where(across > 0, m1 / across, 1.0)  # g m1 / m_gap
+        move = np.where(gap > 1, move * np.clip(factor, 1.0, gap), move)
+    heat = np.zeros_like(U)
+    ts = t[order]
+    for k in range(1, N):
+        decay = np.exp(-max(ts[k] - ts[k - 1], 0.0) / tau_s)
+        heat[k] = heat[k - 1] * decay + move[k - 1]
+    out = np.empty_like(heat)
+    out[order] = heat
+    return out
+
+
+def remember_heat(poses: PoseSet, stroke: np.ndarray) -> None:
+    """Store the heat at every screened time constant in ``poses.extras`` (from the full session)."""
+    for tau in COOLING_TAUS_S:
+        key = f"heat_{tau:g}"
+        if key not in poses.extras or np.shape(poses.extras[key]) != poses.controls.shape:
+            poses.extras[key] = motion_heat(poses, stroke, tau)
+
+
 @dataclass
 class ThermalDriftTerm(ModelTerm):
+    """The moving frame translated linearly in time (the additive simulator's drift)."""
+
     def pose_offset(self, theta, poses, fk_q, fk_X):
         out = np.zeros((poses.n_poses, 6))
         out[:, :3] = history(poses, "elapsed")[:, None] * np.asarray(theta)[None, :3]
         return out
 
 
+@dataclass
+class ThermalExpansionTerm(ModelTerm):
+    """Every actuator longer by k times its heat (strokes moved, cooling with ``tau_s``)."""
+
+    tau_s: float = 600.0
+    stroke: np.ndarray = field(default_factory=lambda: np.ones(1))
+
+    def control_offset(self, theta, poses, n_u):
+        heat = motion_heat(poses, self.stroke, self.tau_s)
+        return theta[0] * heat[:, :n_u]
+
+
+def _strokes(spec: PlatformSpec) -> np.ndarray:
+    lo, hi = spec.control_bounds()
+    return np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, 1.0)
+
+
 class ThermalDrift(Effect):
     name = "thermal_drift"
-    summary = "a slow change with time over the session"
+    summary = "actuators that lengthen with the heat of their own motion, or a slow drift in time"
 
     def term(self):
         return ThermalDriftTerm(self.name, ["vx", "vy", "vz"], np.zeros(3), ["m/s"] * 3,
                                 {"time": "the whole session, linear in the time since its first command"})
 
+    def expansion(self, unit: str, stroke, tau_s: float):
+        stroke = np.asarray(stroke, float)
+        where = {"actuator": "all", "unit": unit, "cooling_time_constant_s": float(tau_s),
+                 "stroke": [float(s) for s in stroke],
+                 "heat": "strokes each actuator moved, cooling with the time constant"}
+        return ThermalExpansionTerm(self.name, ["expansion_per_stroke"], np.zeros(1), [unit], where,
+                                    tau_s=float(tau_s), stroke=stroke)
+
     def candidates(self, spec, poses, residuals=None):
-        return [self.term()] if np.ptp(history(poses, "elapsed")) > 0 else []
+        if not np.ptp(history(poses, "elapsed")) > 0:
+            return []
+        stroke = _strokes(spec)
+        remember_heat(poses, stroke)
+        units = {c.unit for c in spec.controls}
+        out = [self.term()]
+        if len(units) == 1 and np.ptp(poses.controls, axis=0).max() > 0:
+            out += [self.expansion(spec.controls[0].unit, stroke, tau) for tau in COOLING_TAUS_S]
+        return out
 
     def regressor(self, term, spec, poses):
+        if isinstance(term, ThermalExpansionTerm):
+            return np.mean(motion_heat(poses, term.stroke, term.tau_s), axis=1)
         return history(poses, "elapsed")
 
     def regressor_label(self, term):
+        if isinstance(term, ThermalExpansionTerm):
+            return f"mean heat of the actuators (strokes moved, cooling over {term.tau_s:g} s)"
         return "time since the first command (s)"
 
     def from_dict(self, data, spec=None):
-        return self.term()
+        where = _where(data)
+        if "cooling_time_constant_s" not in where:
+            return self.term()
+        tau = _number(where, "cooling_time_constant_s", self.name, positive=True)
+        stroke = where.get("stroke")
+        if not (isinstance(stroke, list) and stroke and all(isinstance(s, (int, float)) and s > 0 for s in stroke)):
+            raise BadInput("effect 'thermal_drift': where.stroke must list each actuator's stroke (> 0)")
+        if spec is not None and len(stroke) != spec.n_u:
+            raise BadInput(f"effect 'thermal_drift': where.stroke has {len(stroke)} strokes, {spec.name} "
+                           f"has {spec.n_u} actuators")
+        unit = where.get("unit")
+        return self.expansion(unit if isinstance(unit, str) else "m", stroke, tau)
 
     def simulation_term(self, spec, size, rng, commands):
         """``size``: drift of the moving frame in mm per hour, in a random horizontal-ish direction."""
@@ -596,6 +696,22 @@ def change_point(series: np.ndarray, min_segment: int = 3) -> tuple[int, float]:
     return int(idx[j[b]]), float(F)
 
 
+#: a slip moves one marker: at its split, its step is at least this many times any other marker's
+SLIP_DOMINANCE = 3.0
+
+
+def one_marker_steps(residuals: np.ndarray, k: int, m: int, dominance: float = SLIP_DOMINANCE) -> bool:
+    """Whether the step at split k (rows k.. after it) of marker m's residuals (N, M, 3, moving
+    frame, time order) is at least ``dominance`` times every other marker's step there: a slip
+    moves one marker and leaves the others consistent; a step all markers share (the frame, a
+    drift of the stand's actuators) is no slip."""
+    with np.errstate(invalid="ignore"):
+        step = np.linalg.norm(np.nanmean(residuals[k:], axis=0) - np.nanmean(residuals[:k], axis=0), axis=1)
+    others = np.delete(step, m)
+    others = others[np.isfinite(others)]
+    return bool(np.isfinite(step[m]) and (others.size == 0 or step[m] >= dominance * np.max(others)))
+
+
 @dataclass
 class MarkerSlipTerm(ModelTerm):
     marker: int = 0
@@ -625,6 +741,8 @@ class MarkerSlip(Effect):
         ts = t[order]
         for m in range(poses.n_markers):
             k, _ = change_point(residuals[order, m, :])
+            if k > 0 and not one_marker_steps(residuals[order], k, m):
+                continue
             # the geometry absorbs part of a step, which can move the residual's change point by
             # a row: the neighbours are candidates too, and the score test picks among them
             for j in (k - 1, k, k + 1):

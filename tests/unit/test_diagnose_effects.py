@@ -47,6 +47,7 @@ def test_each_candidate_round_trips_through_to_dict(stewart):
     poses = _poses(stewart)
     lib = effect_library()
     residuals = np.random.default_rng(1).normal(0, 1e-5, (40, 3, 3))
+    residuals[20:, 1] += 1e-4  # one marker steps (a slip moves one marker only)
     rng = np.random.default_rng(2)
     for name in NAMES:
         cands = lib[name].candidates(stewart, poses, residuals)
