@@ -1,7 +1,7 @@
 """platkit batch: a fleet calibration serial vs on the local Dask cluster, and the engine's
 per-task overhead against a bare loop.
 
-    .venv/bin/python benchmarks/batch_scaling.py [--sessions 200] [--platform stewart] [--poses 40]
+    .venv/bin/python benchmarks/batch_scaling.py [--sessions 200] [--platform stewart] [--poses 20]
                                                  [--workers N] [--tiny 400]
 
 1. ``--sessions`` simulated sessions (settled poses, seeds 1..N) are calibrated twice with the
@@ -10,7 +10,7 @@ per-task overhead against a bare loop.
    LocalCluster of ``--workers`` processes (default: one per core). Wall times, their ratio
    beside the ideal (the worker count), and the cluster's start-up time. Every session's
    calibration.yaml must be the same both ways (checked).
-2. Per-task overhead: ``--tiny`` tasks that each do ~1 ms of numpy work, through the engine on a
+2. Per-task overhead: ``--tiny`` tasks that each do a little numpy work (~0.1 ms), through the engine on a
    one-worker cluster vs a bare loop: (engine - loop) / tasks.
 
 Wall times on a shared machine vary with what else runs; the load average is printed with them,
@@ -58,8 +58,13 @@ def workers_cpu_s(client) -> float:
     return sum(client.run(cpu_s).values())
 
 
+def load() -> str:
+    """The load averages over 1, 5 and 15 minutes, as uptime prints them."""
+    return "load average {:.2f}, {:.2f}, {:.2f}".format(*os.getloadavg())
+
+
 def tiny(i: int) -> float:
-    """About a millisecond of numpy work."""
+    """A little numpy work (an eigen-decomposition of a 60 x 60 matrix: ~0.1 ms)."""
     a = np.random.default_rng(i).normal(size=(60, 60))
     return float(np.linalg.eigvalsh(a + a.T)[0])
 
@@ -68,7 +73,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sessions", type=int, default=200)
     ap.add_argument("--platform", default="stewart")
-    ap.add_argument("--poses", type=int, default=40)
+    ap.add_argument("--poses", type=int, default=20)
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--tiny", type=int, default=400)
     args = ap.parse_args()
@@ -81,7 +86,7 @@ def main() -> None:
                              poses_only=True)
         refs = find_sessions(str(root / "fleet" / "*"))
         print(f"{args.sessions} {args.platform} sessions of {args.poses} settled poses simulated in "
-              f"{time.perf_counter() - t0:.1f} s; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+              f"{time.perf_counter() - t0:.1f} s; {load()} on {os.cpu_count()} cores")
 
         tasks = [Task(r.name, ("calibrate", OPTIONS, str(r.path), r.name)) for r in refs]
         t0 = time.perf_counter()
@@ -96,12 +101,14 @@ def main() -> None:
             t0, c0 = time.perf_counter(), cpu_s()
             serial = {t.key: guarded(run_verb, *t.args) for t in tasks}
             t_serial, c_serial = time.perf_counter() - t0, cpu_s() - c0
+            print(f"serial loop done in {t_serial:.1f} s; {load()}", flush=True)
             assert all(v["ok"] for v in serial.values()), [v["error"] for v in serial.values() if not v["ok"]][:3]
 
             t1, c1, w1 = time.perf_counter(), cpu_s(), workers_cpu_s(client)
             outcomes = run_tasks(client, run_verb, tasks)
             t_cluster = time.perf_counter() - t1
             c_here, c_workers = cpu_s() - c1, workers_cpu_s(client) - w1
+            print(f"cluster done in {t_cluster:.1f} s; {load()}", flush=True)
         assert all(o.ok for o in outcomes), [o.error for o in outcomes if not o.ok][:3]
         differ = [o.key for o in outcomes if untimed(yaml.safe_load(o.value["files"]["calibration.yaml"]))
                   != untimed(yaml.safe_load(serial[o.key]["value"]["files"]["calibration.yaml"]))]
@@ -132,7 +139,7 @@ def main() -> None:
           f"({(t_engine - t_loop) / n / (t_serial / args.sessions):.1%} of one calibration above)")
     print(f"   CPU per task: bare loop {c_loop / n * 1e3:.1f} ms; engine: worker {c_worker / n * 1e3:.1f} ms + scheduler and "
           f"client {c_here / n * 1e3:.1f} ms")
-    print(f"   load average now {os.getloadavg()[0]:.1f}")
+    print(f"   {load()}")
 
 
 if __name__ == "__main__":
