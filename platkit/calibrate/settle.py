@@ -48,6 +48,7 @@ import numpy as np
 from scipy.stats import chi2, fisher_exact
 
 from platkit.calibrate.bodies import stream_for_settling, with_settled_bodies
+from platkit.calibrate.settle_attribution import attribute_actuators
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
 from platkit.model import length_scale
@@ -198,6 +199,14 @@ def settling_summary(poses: PoseSet, unit: str | None = None) -> dict:
                             "time_constant_quartiles_s": [_finite(v) for v in un["time_constant_quartiles_s"]],
                             "hold_s": _finite(un["hold_s"]), "remaining": _finite(un["remaining_m"] / scale)}
     return out
+
+
+def _nan_mean(x: np.ndarray) -> np.ndarray:
+    """(M, 3) the mean of a stretch (K, M, 3) over its samples where the marker is seen (NaN: never)."""
+    ok = np.isfinite(x).all(axis=2)
+    cnt = ok.sum(axis=0)
+    return np.where((cnt > 0)[:, None], np.sum(np.where(ok[..., None], x, 0.0), axis=0) / np.maximum(cnt, 1)[:, None],
+                    np.nan)
 
 
 def _finite(x) -> float | None:
@@ -599,11 +608,16 @@ def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float,
 def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray, control_names: list[str],
                        marker_names: list[str], hold_s: np.ndarray, n_commands: int,
                        other_drops: set[int] | None = None, slow_taus: dict[int, float] | None = None,
-                       slow_left: dict[int, float] | None = None) -> dict:
+                       slow_left: dict[int, float] | None = None, held: np.ndarray | None = None,
+                       tails: dict[int, np.ndarray] | None = None) -> dict:
     """Which actuators and markers are still moving in the holds ``rows`` that never settled, and
     with what time constant; ``sentence`` says it in one line.
 
-    An actuator is named when the holds after it moved (by more than 5% of its travel in the
+    An actuator is named when what is left of the holds' approaches lies along its own column of
+    the stand's Jacobian, read from the session (:func:`attribute_actuators`: ``held`` (N, M, 3)
+    where the markers were held, ``tails`` row -> (M, 3) the markers at the end of the hold less
+    where they were heading, or any vector along it: what they moved late in the hold, reversed);
+    else when the holds after it moved (by more than 5% of its travel in the
     session) never settle significantly more often than the others (one-sided Fisher exact test,
     Bonferroni over the actuators at 0.01), and its excess is at least 0.7 of the largest; when
     none is (every hold unsettled: no contrast), when the distance left at the end of the holds
@@ -619,6 +633,11 @@ def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray
     steps = np.abs(last_step(U))
     span = np.ptp(U, axis=0)
     moved = steps / np.where(span > 0, span, 1.0) > 0.05
+    attributed: list[int] = []
+    left_by: dict = {}
+    if held is not None and tails:
+        attributed, table = attribute_actuators(U, held, tails)
+        left_by = {control_names[j]: _finite(table["moved_late_m"][j]) for j in range(len(control_names))}
     scored = []
     for j in range(len(control_names)):
         m = moved[:, j] & use
@@ -631,7 +650,7 @@ def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray
         if p < 0.01 / len(control_names) and excess > 0:
             scored.append((float(excess), j))
     scored.sort(reverse=True)
-    named = [j for e, j in scored if e >= 0.7 * scored[0][0]] if scored else []
+    named = attributed or ([j for e, j in scored if e >= 0.7 * scored[0][0]] if scored else [])
     rem_of = dict(slow_left) if slow_left else {i: float(np.nanmax(fits[i].remaining_m)) for i in rows if i in fits}
     if not named and len(rem_of) >= 2 * U.shape[1] + 4:
         # every hold unsettled, no contrast: the distance left at the end grows with the slow
@@ -666,7 +685,7 @@ def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray
                 f"(markers {', '.join(markers) or 'all'}), {tc} against holds of {float(np.median(hold_s)):.3g} s")
     return {"rows": list(rows), "n": len(rows), "n_commands": n_commands, "actuators": actuators, "markers": markers,
             "time_constant_s": tau_med, "time_constant_quartiles_s": [tau_lo, tau_hi],
-            "hold_s": float(np.median(hold_s)),
+            "hold_s": float(np.median(hold_s)), "moved_late_along_actuator_m": left_by,
             "remaining_m": float(np.nanmedian(np.nanmax(rem, axis=1))) if rem.size else float("nan"),
             "sentence": sentence}
 
@@ -876,6 +895,8 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     windows: dict[int, tuple] = {}  # settled holds: (t, stretch, approach start, window start, end)
     slow_taus: dict[int, float] = {}  # holds that never settled: the time constant of the end of their approach
     slow_left: dict[int, float] = {}  # ... and the distance it still had to go (m)
+    slow_tail: dict[int, np.ndarray] = {}  # ... and what the markers moved late in it, reversed (m)
+    held_at = np.full((N, M, 3), np.nan)  # where the markers were held at each command (attribution's Jacobian)
     hold_s = np.empty(N)
     for i in range(N):
         t_end = tc[i + 1] if i + 1 < N else t[-1] + dt / 2
@@ -961,6 +982,13 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                 if late is not None and late.significant:
                     slow_taus[i] = late.tau
                     slow_left[i] = float(np.nanmax(late.remaining_m))
+            # where the markers still go at the end of the hold (m): what they moved over its last
+            # third against the third before, which no extrapolation enters (its sign: behind)
+            k = (k0 if k0 is not None else 0) + (end - (k0 if k0 is not None else 0)) // 3
+            third = (end - k) // 2
+            if third >= 4:
+                slow_tail[i] = _nan_mean(seg[k:k + third]) - _nan_mean(seg[end - third:end])
+            held_at[i] = _nan_mean(seg[max(end - min_samples, 0):end])
             continue
         if opt.max_window_s is not None and end - start > max(min_samples, int(round(opt.max_window_s * rate))):
             start = end - max(min_samples, int(round(opt.max_window_s * rate)))
@@ -985,8 +1013,10 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                     results[i] = r
     names = (list(session.spec.control_names) if session.spec is not None
              else [f"u{j + 1}" for j in range(U.shape[1])])
+    for i, r in results.items():
+        held_at[i] = r["mean"]
     summary = _unsettled_summary(unsettled, fits, U, names, list(session.marker_names), hold_s, N,
-                                 set(dropped) - set(unsettled), slow_taus, slow_left)
+                                 set(dropped) - set(unsettled), slow_taus, slow_left, held_at, slow_tail)
     many = len(unsettled) > opt.max_unsettled_fraction * N and len(unsettled) >= 2  # one of a few is no pattern
     n_extrapolated = 0
     if unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many)):

@@ -364,3 +364,23 @@ def test_settled_poses_of_a_physical_session_lag_the_true_rest_by_under_a_tenth_
         sel = (calm.marker_t >= poses.extras["window_start"][keep][k]) & (calm.marker_t <= poses.extras["window_end"][keep][k])
         tail.append(np.mean((calm.markers[sel] - T[i]).reshape(sel.sum(), -1) @ unit[k]))
     assert abs(np.mean(tail)) < 0.1 * np.std(err)
+
+
+def test_a_slow_actuator_of_a_physical_session_is_named_with_its_time_constant(tmp_path):
+    # one drive slow (settling_lag: its time constant a tenth of the hold): most holds never
+    # settle, every actuator moves in every command (no contrast between holds), and the old
+    # search said "no one actuator stands out". What the markers still move late in each hold
+    # lies along that actuator's column of the Jacobian the session itself shows.
+    from platkit.io.session import load_session
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    spec = get_platform("stewart")
+    sim = simulate_physics(spec, seed=700102, n_poses=60, plan="random", effects=[("settling_lag", 0.1)])
+    poses, report = settle(load_session(write_physical_session(sim, tmp_path / "s")))
+    slow = sim.response.to_dict(spec.control_names)["L3"]
+    zeta = slow["damping"]
+    mode = slow["tau_s"] / (zeta - np.sqrt(zeta**2 - 1))  # the slowest part of its approach decays so
+    un = report.unsettled
+    assert un["actuators"] == ["L3"] and "actuator L3 still moving" in un["sentence"]
+    assert abs(un["time_constant_s"] / mode - 1) < 0.3
+    assert report.n_extrapolated >= 0.8 * un["n"] and poses.n_poses >= 55
