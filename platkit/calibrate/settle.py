@@ -331,18 +331,23 @@ def still_mask(markers: np.ndarray, n: int, sigma: float, false_alarm: float) ->
     return (m > 0) & (stat < limit)
 
 
-def _last_still_run(still: np.ndarray, gap: int) -> tuple[int, int] | None:
-    """[start, end) of the last still stretch, bridging up to ``gap`` moving samples."""
+def _last_still_run(still: np.ndarray, gap: int, min_length: int = 0, tail: int = 0) -> tuple[int, int] | None:
+    """[start, end) of the last still stretch, bridging up to ``gap`` moving samples. With
+    ``min_length``: the last stretch at least that long when no more than ``tail`` samples follow
+    it (a flicker of stillness at the very end, where the test's half-window is clipped, while
+    the next move starts, is no stretch of its own)."""
     idx = np.nonzero(still)[0]
     if idx.size == 0:
         return None
-    end = idx[-1] + 1
-    start = idx[-1]
-    for j in range(idx.size - 2, -1, -1):
-        if idx[j + 1] - idx[j] - 1 > gap:
-            break
-        start = idx[j]
-    return int(start), int(end)
+    breaks = np.nonzero(np.diff(idx) - 1 > gap)[0]
+    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
+    ends = np.concatenate([idx[breaks], [idx[-1]]]) + 1
+    if min_length > 0:
+        long_enough = np.nonzero(ends - starts >= min_length)[0]
+        if long_enough.size and len(still) - ends[long_enough[-1]] <= tail:
+            k = int(long_enough[-1])
+            return int(starts[k]), int(ends[k])
+    return int(starts[-1]), int(ends[-1])
 
 
 def approach_start(markers: np.ndarray, n: int, sigma: float) -> int | None:
@@ -909,9 +914,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                 dropped[i] = f"too few samples: only {b - a} between t={tc[i]:.3f} s and t={t_end:.3f} s"
             continue
         seg, ts = X[a:b], t[a:b]
-        run = _last_still_run(still_mask(seg, n, sig_fast, opt.false_alarm), opt.gap_samples)
-        length = 0 if run is None else run[1] - run[0]
         slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * rate)))
+        run = _last_still_run(still_mask(seg, n, sig_fast, opt.false_alarm), opt.gap_samples, min_samples, slack)
+        length = 0 if run is None else run[1] - run[0]
         if run is not None and length >= min_samples and run[1] < (b - a) - slack:
             dropped[i] = (f"moved again: {(b - a - run[1]) * dt:.2f} s before the next command "
                           f"(after {length * dt:.2f} s still); the stand did not hold the command")
