@@ -63,7 +63,7 @@ class Options:
     folds: int = 5
     max_effects: int = 3
     max_refits: int = 3  # candidates refit per round (the best screened)
-    max_variants: int = 4  # of one kind at one place (periods, time constants, rows): the best screened fitted, lowest BIC kept
+    max_variants: int = 4  # of one kind at one place (periods, time constants, rows): this many fitted, then the best's neighbours
     # below: not separable from the geometry (its signature is inside the identification
     # Jacobian's column space to numerical precision); low but above this, a large effect still
     # leaves a detectable part, and the held-out test decides
@@ -379,13 +379,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             break
         trials = []
         for i0 in chosen:
-            # the variants of one kind at one place (a cooling time constant, a period, a slip's
-            # row): the score test ranks them at zero effect, a large effect may fit another
-            # better; the best screened few are fitted and the lowest BIC goes on
-            variants = [j for j in order if _place(cands[j][1]) == _place(cands[i0][1])][:opt.max_variants]
-            fits = [(j, _fit(spec, poses, cur.terms + [cands[j][1]], cur.z, cur.active, weights, opt.lm_iterations,
-                             opt.robust)) for j in variants]
-            i, f = min(fits, key=lambda x: x[1].bic)
+            i, f = _best_variant(i0, cands, scr, cur, spec, poses, weights, opt)
             eff, term = cands[i]
             f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
             trials.append((i, f, paired_improvement(cur.cv[judged], f.cv[judged])))
@@ -477,6 +471,30 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                      heldout_geometric=first_cv, at_noise_floor=at_floor, too_few_settled=bool(too_few_settled))
     diag.verdict = verdict(diag)
     return diag
+
+
+def _best_variant(i0: int, cands: list, scr: list, cur: Fit, spec: PlatformSpec, poses: PoseSet,
+                  weights: np.ndarray, opt: Options) -> tuple[int, Fit]:
+    """The variant of candidate ``i0``'s kind and place (a cooling time constant, a period, a
+    slip's row) that fits best, as (index, fit). The score test ranks them at zero effect; a large
+    effect may fit another better. ``opt.max_variants`` spread over them (in the library's order,
+    ``i0`` among them) are fitted, then the neighbours of the lowest BIC until it is a minimum."""
+    same = [j for j in range(len(cands)) if _place(cands[j][1]) == _place(cands[i0][1])
+            and scr[j][2] >= opt.min_separability]
+    if i0 not in same:
+        same.append(i0)
+    pick = {int(same[int(round(x))]) for x in np.linspace(0, len(same) - 1, max(1, min(opt.max_variants, len(same))))}
+    pick.add(i0)
+    fits: dict[int, Fit] = {}
+    while True:
+        for j in pick - set(fits):
+            fits[j] = _fit(spec, poses, cur.terms + [cands[j][1]], cur.z, cur.active, weights, opt.lm_iterations,
+                           opt.robust)
+        best = min(fits, key=lambda j: fits[j].bic)
+        b = same.index(best)
+        pick = {same[k] for k in (b - 1, b + 1) if 0 <= k < len(same)} - set(fits)
+        if not pick:
+            return best, fits[best]
 
 
 def _rms(cv: np.ndarray, mask: np.ndarray) -> float:
