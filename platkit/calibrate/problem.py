@@ -225,32 +225,32 @@ class CalibrationProblem:
         self._fns = hit[1]
 
     def _call(self, n: int, with_jac: bool, args: list[np.ndarray]) -> list[np.ndarray]:
-        """Evaluate the observation function over n poses, CHUNK poses per call of a compiled-in-
-        CasADi map on preallocated buffers (one map per stand, whatever n: building a map costs
-        time in proportion to its length).
+        """Evaluate the observation function over n poses, CHUNK poses (fewer for a small n) per
+        call of a CasADi map on preallocated buffers (a few maps per stand, whatever n: building
+        a map costs time in proportion to its length).
 
         args: per-pose inputs as (n, size) C-ordered arrays, shared inputs (td, w, t, m) as 1-D
         arrays. Returns each output as an (n, rows, cols) array, row-major per pose.
         """
-        buf, run, ins, outs, shapes, per_pose = self._fns.chunked(with_jac)
+        buf, run, ins, outs, shapes, per_pose, chunk, _ = self._fns.mapped(with_jac, n)
         res = [np.empty((n,) + sh) for sh in shapes]
         per = [np.ascontiguousarray(np.reshape(a, (n, -1)), dtype=float) if k in per_pose else np.ravel(a)
                for k, a in enumerate(args)]
         for k, a in enumerate(per):
             if k not in per_pose:
                 ins[k][:] = a
-        for start in range(0, n, CHUNK):
-            stop = min(n, start + CHUNK)
+        for start in range(0, n, chunk):
+            stop = min(n, start + chunk)
             m = stop - start
-            if m == CHUNK:  # the map reads and writes the arrays themselves: no copies
+            if m == chunk:  # the map reads and writes the arrays themselves: no copies
                 for k in per_pose:
                     buf.set_arg(k, memoryview(per[k][start:stop].reshape(-1)))
                 for i, r in enumerate(res):
                     buf.set_res(i, memoryview(r[start:stop].reshape(-1)))
                 run()
                 continue
-            for k in per_pose:  # the last, short chunk: through the map's own buffers
-                dst = ins[k].reshape(CHUNK, -1)
+            for k in per_pose:  # a short chunk: through the map's own buffers
+                dst = ins[k].reshape(chunk, -1)
                 dst[:m] = per[k][start:stop]
                 dst[m:] = per[k][start]  # padded with the chunk's first pose: finite, and thrown away
                 buf.set_arg(k, memoryview(ins[k]))
@@ -258,7 +258,7 @@ class CalibrationProblem:
                 buf.set_res(i, memoryview(o))
             run()
             for o, r, sh in zip(outs, res, shapes):
-                r[start:stop] = o.reshape((CHUNK,) + sh)[:m]
+                r[start:stop] = o.reshape((chunk,) + sh)[:m]
         return res
 
     # ------------------------------------------------------------------ pieces
@@ -341,15 +341,16 @@ class CalibrationProblem:
                 r = np.concatenate([r, self.body_rho * e], axis=1)
             r[~ok] = np.nan
             return FitState(r, None, ok)
-        Yall = outs[0]  # (N, 3 (M + B) [+ 9], cols), row-major per pose
-        _, _, _, _, Y_m, Y_dpose, Y_u = np.split(Yall, np.cumsum(self._fns.cols)[:-1], axis=2)
-        y = Yall[:, :, 0]
+        y = outs[0][:, :, 0]
+        J_main, J_offsets = outs[1], outs[2]  # (N, 3 (M + B) [+ 9], cols), row-major per pose
+        Y_m = J_main[:, :, self.i_m.start:]
+        Y_dpose, Y_u = J_offsets[:, :, :6], J_offsets[:, :, 6:]
         r = y[:, :nP3].reshape(N, M + B, 3) - measured
-        if self.n_z == self.i_m.stop:  # td, w, t, markers only: the function's own columns, no copy
-            J = Yall[:, :, 1:1 + self.n_z]
+        if self.n_z == J_main.shape[2]:  # td, w, t, markers only: the function's output as it is
+            J = J_main
         else:
             J = np.empty((N, y.shape[1], self.n_z))
-            J[:, :, :self.i_m.stop] = Yall[:, :, 1:1 + self.i_m.stop]  # td, w, t, markers: one block
+            J[:, :, :self.i_m.stop] = J_main[:, :, :self.i_m.stop]  # td, w, t, markers: one block
             J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
             J[:, :, self.i_body_rot] = 0.0
             J[:, :, self.i_theta] = 0.0
@@ -514,69 +515,115 @@ _BUILT: dict = {}
 
 
 _compile_lock = threading.Lock()
+#: pose evaluations of one function after which its compiled library is looked for in the cache,
+#: and after which it is compiled: compiling costs about as much as interpreting some 30,000
+#: pose evaluations (4.4 s for the TIAGo arm's 52,000 instructions, 120 us a pose interpreted;
+#: 0.6 s for the stewart stand's 7,900), so a calibration of 10,000 poses compiles at its third
+#: evaluation while a test of 40 poses never waits for the compiler (at most twice the time of
+#: the better choice made in advance)
+LOOK_AFTER, COMPILE_AFTER = 2_000, 30_000
+COMPILE_FLAGS = ["-O1", "-ffp-contract=off", "-fPIC", "-shared"]
 
 
-def _compiled(f: ca.Function) -> ca.Function:
-    """``f`` compiled to C (CasADi's code generator and the system compiler, once: the library is
-    kept in :func:`platkit.native.cache_dir` under a hash of its source), loaded as an external
-    function; ``f`` itself (CasADi's interpreter, some ten times slower) without a compiler, with
-    PLATKIT_COMPILE=0, or when compiling fails. Same operations in the same order (no
-    floating-point contraction): the same numbers as the interpreter."""
+def _compiler() -> str | None:
     if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
-        return f
-    cc = next((shutil.which(c) for c in ([os.environ["CC"]] if os.environ.get("CC") else []) + ["cc", "gcc", "clang"]
-               if shutil.which(c)), None)
-    if cc is None:
-        return f
+        return None
+    return next((shutil.which(c) for c in ([os.environ["CC"]] if os.environ.get("CC") else []) + ["cc", "gcc", "clang"]
+                 if shutil.which(c)), None)
+
+
+def _library(f: ca.Function, cc: str) -> tuple[Path, str]:
+    """The cache path of ``f``'s compiled library (:func:`platkit.native.cache_dir`, named by a hash
+    of its C source, the compiler and the flags) and that source."""
     cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
     cg.add(f)
     source = cg.dump()
-    flags = ["-O2", "-ffp-contract=off", "-fPIC", "-shared"]
-    key = hashlib.sha256((source + cc + " ".join(flags) + sys.platform + ca.__version__).encode()).hexdigest()[:24]
-    folder = cache_dir()
-    lib = folder / f"observe_{key}.so"
+    key = hashlib.sha256((source + cc + " ".join(COMPILE_FLAGS) + sys.platform + ca.__version__).encode()).hexdigest()
+    return cache_dir() / f"observe_{key[:24]}.so", source
+
+
+def _compiled(f: ca.Function, compile_now: bool) -> ca.Function | None:
+    """``f`` compiled to C and loaded as an external function: from the cache, or, with
+    ``compile_now``, compiled with the system compiler and kept there. None where there is no
+    library and ``compile_now`` is false, without a compiler, with PLATKIT_COMPILE=0, or when
+    compiling fails (the caller keeps CasADi's interpreter). The same operations, no
+    floating-point contraction: the interpreter's numbers to rounding (1e-15 m measured)."""
+    cc = _compiler()
+    if cc is None:
+        return None
+    lib, source = _library(f, cc)
     with _compile_lock:
         try:
             if not lib.is_file():
-                folder.mkdir(parents=True, exist_ok=True)
-                with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
+                if not compile_now:
+                    return None
+                lib.parent.mkdir(parents=True, exist_ok=True)
+                with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build-") as tmp:
                     src = Path(tmp) / f"{f.name()}.c"
                     src.write_text(source)
                     out = Path(tmp) / lib.name
-                    proc = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True,
-                                          timeout=600)
+                    proc = subprocess.run([cc, *COMPILE_FLAGS, "-o", str(out), str(src), "-lm"], capture_output=True,
+                                          text=True, timeout=600)
                     if proc.returncode != 0:
-                        return f
+                        return None
                     os.replace(out, lib)  # atomic: other processes see the whole library or none
             return ca.external(f.name(), str(lib))
         except (OSError, subprocess.SubprocessError, RuntimeError):
-            return f
+            return None
+
+
+def _chunk_for(n: int) -> int:
+    """Poses per map call for n poses: CHUNK, or n itself below it (no padding: a map of a few
+    dozen poses is built in milliseconds, and the folds and refits of a session reuse a few)."""
+    return min(CHUNK, max(1, n))
 
 
 class _ObservationFunctions:
-    """The CasADi observation function of one stand and channel count and its CHUNK-pose maps.
+    """The CasADi observation functions of one stand and channel count and their maps.
 
-    The output is transposed so that a map lays each pose's block out row-major (rows, cols):
-    Y = [y | dy/dtd | dy/dw | dy/dt | dy/dm | dy/ddpose | dy/du], the unknowns' order of
-    CalibrationProblem (td, w, t, m first). The functions are compiled on first use
-    (:func:`_compiled`)."""
+    The outputs are transposed so that a map lays each pose's block out row-major (rows, cols):
+    y, then J = [dy/dtd | dy/dw | dy/dt | dy/dm] in the unknowns' order of CalibrationProblem
+    (without model terms or rigid bodies' rotations it is the problem's Jacobian as it is), then
+    [dy/ddpose | dy/du] for the terms' offsets. Each function is interpreted by CasADi until it has
+    been evaluated on LOOK_AFTER poses, then taken compiled from the cache if there, and
+    compiled after COMPILE_AFTER poses (:func:`_compiled`)."""
 
-    def __init__(self, G: ca.Function, Yonly: ca.Function, shared: list[int], cols: list[int]):
-        self.G, self.Yonly, self.shared, self.cols = G, Yonly, shared, cols
-        self._chunked: dict = {}
-        self._native: dict = {}
+    def __init__(self, G: ca.Function, Yonly: ca.Function, shared: list[int]):
+        self.G, self.Yonly, self.shared = G, Yonly, shared
+        self._maps: dict = {}
+        self._native: dict = {}  # with_jac -> compiled function, or None once compiling was tried
+        self._evaluated = {True: 0, False: 0}
+        self._looked = {True: False, False: False}
 
     def native(self, with_jac: bool) -> ca.Function:
-        """The (compiled where possible) function behind the maps."""
-        if with_jac not in self._native:
-            self._native[with_jac] = _compiled(self.G if with_jac else self.Yonly)
-        return self._native[with_jac]
+        """The function behind the maps now: compiled where the policy above has made it so."""
+        f = self.G if with_jac else self.Yonly
+        if with_jac in self._native:  # decided: compiled, or None where compiling failed
+            got = self._native[with_jac]
+            return f if got is None else got
+        n = self._evaluated[with_jac]
+        if n >= COMPILE_AFTER:
+            got = self._native[with_jac] = _compiled(f, compile_now=True)
+            return f if got is None else got
+        if n >= LOOK_AFTER and not self._looked[with_jac]:
+            self._looked[with_jac] = True
+            found = _compiled(f, compile_now=False)
+            if found is not None:
+                self._native[with_jac] = found
+                return found
+        return f
 
-    def chunked(self, with_jac: bool):
-        entry = self._chunked.get(with_jac)
+    def mapped(self, with_jac: bool, n: int):
+        """(buffer, run, inputs, outputs, shapes, per-pose inputs, chunk) of the map for n poses."""
+        f = self.native(with_jac)
+        self._evaluated[with_jac] += n
+        chunk = _chunk_for(n)
+        key = (id(f), chunk)
+        entry = self._maps.get(key)
         if entry is None:
-            f = self.native(with_jac)
-            fmap = f.map(f"{f.name()}_{CHUNK}", "serial", CHUNK, self.shared, [])
+            if len(self._maps) > 64:
+                self._maps.clear()
+            fmap = f.map(f"{f.name()}_{chunk}", "serial", chunk, self.shared, [])
             buf, run = fmap.buffer()
             ins = [np.zeros(fmap.nnz_in(i)) for i in range(fmap.n_in())]
             outs = [np.zeros(fmap.nnz_out(i)) for i in range(fmap.n_out())]
@@ -584,9 +631,9 @@ class _ObservationFunctions:
                 buf.set_arg(i, memoryview(a))
             for i, a in enumerate(outs):
                 buf.set_res(i, memoryview(a))
-            shapes = [(fmap.size_out(i)[1] // CHUNK, fmap.size_out(i)[0]) for i in range(fmap.n_out())]
+            shapes = [(fmap.size_out(i)[1] // chunk, fmap.size_out(i)[0]) for i in range(fmap.n_out())]
             per_pose = [i for i in range(fmap.n_in()) if i not in self.shared]
-            entry = self._chunked[with_jac] = (buf, run, ins, outs, shapes, per_pose)
+            entry = self._maps[key] = (buf, run, ins, outs, shapes, per_pose, chunk, f)
         return entry
 
 
@@ -615,11 +662,11 @@ def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool) -> _Ob
         y = observe(q, X)
         G = ca.Function(
             "observe_fwd", [u, td, w, t, m, dpose, dm],
-            [ca.densify(ca.horzcat(y, ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m),
-                                   ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
-            ["u", "td", "w", "t", "m", "dpose", "dm"], ["Y"])
+            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
+             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
+            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
         return _ObservationFunctions(G, ca.Function("observe_fwd_y", [u, td, w, t, m, dpose, dm], [y.T]),
-                                     [1, 2, 3, 4], [1, spec.n_td, 3, 3, 3 * M, 6, spec.n_u])
+                                     [1, 2, 3, 4])
     # through the Newton solution p(u, td) of r(u, td, p) = 0: dp/d(td, u) = -F_p^+ [F_td F_u],
     # solved per pose inside the function (F_p^+ = F_p^-1, or (F_p^T F_p)^-1 F_p^T with more
     # residuals than pose coordinates)
@@ -637,11 +684,11 @@ def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool) -> _Ob
     Y_rest = -ca.mtimes(Z, F_rest)
     G = ca.Function(
         "observe_ift", [u, td, p, w, t, m, dpose, dm],
-        [ca.densify(ca.horzcat(y, Y_rest[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m),
-                               ca.jacobian(y, dpose), Y_rest[:, spec.n_td:]).T)],
-        ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["Y"])
+        [y.T, ca.densify(ca.horzcat(Y_rest[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
+         ca.densify(ca.horzcat(ca.jacobian(y, dpose), Y_rest[:, spec.n_td:]).T)],
+        ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
     return _ObservationFunctions(G, ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y.T]),
-                                 [1, 3, 4, 5], [1, spec.n_td, 3, 3, 3 * M, 6, spec.n_u])
+                                 [1, 3, 4, 5])
 
 
 def _bodies(poses: PoseSet) -> np.ndarray:
