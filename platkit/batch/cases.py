@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from platkit.batch.engine import Outcome, Task, cluster, guarded, run_tasks
+from platkit.batch.engine import SCHEDULER_ENV, Outcome, Task, cluster, guarded, run_tasks
 from platkit.errors import BadInput
 
 __all__ = ["add_engine_options", "case_id", "read_done", "run_cases"]
@@ -85,6 +86,12 @@ def run_cases(fn: Callable[[dict], dict], cases: Sequence[dict], *, jobs: int | 
     of ``cases``: those read back from the file, then run; a lost case's row (``failed_row``
     with 'lost: ...') is returned but not written."""
     stream = sys.stderr if stream is None else stream
+    if not serial and jobs is not None:
+        if jobs < 1:
+            raise BadInput(f"--jobs {jobs}: use 1 or more")
+        if scheduler or os.environ.get(SCHEDULER_ENV):
+            raise BadInput(f"--jobs applies to the embedded cluster; the scheduler at "
+                           f"{scheduler or os.environ.get(SCHEDULER_ENV)} has its own workers")
     fields = sorted({k for c in cases for k in c})
     ids = [case_id(c, default) for c in cases]
     if len(set(ids)) != len(ids):

@@ -288,6 +288,10 @@ def test_proof_cases_on_the_engine_equal_the_loop_and_a_rerun_skips_them(tmp_pat
     assert [r["x"] for r in again] == list(range(6))
     assert (tmp_path / "engine.jsonl").read_text().splitlines()[:4] == lines[2:]
     assert len((tmp_path / "engine.jsonl").read_text().splitlines()) == 6
+    with pytest.raises(BadInput, match="--jobs 0: use 1 or more"):
+        run_cases(square, cases, jobs=0, failed_row=failed)
+    with pytest.raises(BadInput, match="--jobs applies to the embedded cluster"):
+        run_cases(square, cases, jobs=2, scheduler=client.scheduler.address, failed_row=failed)
     (tmp_path / "bad.jsonl").write_text('{"x": 0}\nnot json\n')
     with pytest.raises(BadInput, match="bad.jsonl, line 2"):
         run_cases(square, cases, serial=True, json_path=tmp_path / "bad.jsonl", failed_row=failed)
