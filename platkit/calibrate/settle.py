@@ -397,9 +397,10 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
     mean = np.sum(np.where(ok[..., None], markers, 0.0), axis=0) / np.maximum(ok.sum(axis=0), 1)[:, None]
     y = np.where(ok[..., None], markers - mean[None], 0.0)  # (K, M, 3)
     w = ok.astype(float)
-    yty = np.sum(y**2, axis=(0, 2))  # (M,)
+    yty = np.sum(w[..., None] * y**2, axis=(0, 2))  # (M,)
+    yw = (w[..., None] * y).reshape(K, -1)
 
-    every = bool(ok.all())  # no occlusion: one design for every marker
+    every = bool(ok.all()) and bool(np.all(w == w.flat[0]))  # no occlusion: one design for every marker
 
     def solve(taus):
         E = np.exp(-s[None, :] / taus[:, None])  # (T, K)
@@ -407,11 +408,11 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
         T = len(taus)
         Gt = G.transpose(0, 2, 1)
         if every:
-            GtG = np.broadcast_to((Gt @ G)[:, None], (T, M, 3, 3)).copy()
+            GtG = np.broadcast_to(w.flat[0] * (Gt @ G)[:, None], (T, M, 3, 3)).copy()
         else:
             GG = (G[..., :, None] * G[..., None, :]).reshape(T, K, 9)
             GtG = np.moveaxis((GG.transpose(0, 2, 1) @ w).reshape(T, 3, 3, M), 3, 1)  # (T, M, 3, 3)
-        Gty = np.moveaxis((Gt @ y.reshape(K, -1)).reshape(T, 3, M, 3), 2, 1)  # (T, M, 3, 3)
+        Gty = np.moveaxis((Gt @ yw).reshape(T, 3, M, 3), 2, 1)  # (T, M, 3, 3)
         GtG[:, ~seen] = np.eye(3)
         GtG = GtG + np.eye(3) * 1e-12 * np.trace(GtG, axis1=2, axis2=3)[..., None, None]
         coef = np.linalg.solve(GtG, Gty)  # (T, M, 3, 3): [param, coord]
@@ -440,16 +441,18 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
         tp = _prony_tau(y, ok, dt)
         if tp is not None and 2 * dt <= tp <= 3 * span:
             starts.append((tp / 1.2, tp * 1.2))
-        best = None
-        for lo, hi in starts:
-            for _ in range(3):
-                taus = np.geomspace(lo, hi, 12)
-                rss_tot, coef, GtG = solve(taus)
-                j = int(np.argmin(rss_tot))
-                lo, hi = taus[max(j - 1, 0)], taus[min(j + 1, len(taus) - 1)]
-            if best is None or rss_tot[j] < best[0][best[3]]:
-                best = (rss_tot, coef, GtG, j, taus)
-        rss_tot, coef, GtG, j, taus = best
+        # every start refined at once (one solve per round over all their grids)
+        bounds = np.array(starts, float)  # (S, 2)
+        ramp = np.linspace(0.0, 1.0, 12)
+        for _ in range(3):
+            taus = np.exp(np.log(bounds[:, :1]) + np.log(bounds[:, 1:] / bounds[:, :1]) * ramp[None]).ravel()
+            rss_tot, coef, GtG = solve(taus)
+            per = rss_tot.reshape(len(bounds), 12)
+            k = np.argmin(per, axis=1)
+            grid = taus.reshape(len(bounds), 12)
+            rows = np.arange(len(bounds))
+            bounds = np.column_stack([grid[rows, np.maximum(k - 1, 0)], grid[rows, np.minimum(k + 1, 11)]])
+        j = int(np.argmin(rss_tot))
     c = coef[j]
     n_obs = 3 * int(ok[:, seen].sum())
     dof = max(n_obs - 9 * int(seen.sum()) - 1, 1)
@@ -822,15 +825,22 @@ def profile_start(profile: tuple, arrival: int | None, ts: np.ndarray, start: in
     """The first index s >= start at which the shared tail (:func:`shared_tail`), timed from this
     hold's ``arrival`` index, biases the mean over [s, end) by at most ``fraction`` of its
     averaging noise sigma / sqrt(end - s). The tail decays: from the first bin where the profile
-    is within two standard errors of zero on, it counts as none (a later bin off zero by chance
-    must not push every window late). When no window of at least ``min_samples`` is that clean,
+    is within two standard errors of zero on, it is extrapolated from the last resolved bins'
+    decay (a later bin off zero by chance must not push every window late). When no window of at least ``min_samples`` is that clean,
     the one whose bias is the smallest share of its noise; None when the hold has no arrival
     (a step too small to time) or is shorter than ``min_samples``."""
     if arrival is None or end - start < min_samples:
         return None
     edges, h, se = profile
     gone = np.nonzero(np.abs(h) <= 2 * se)[0]
-    h = np.where(np.arange(len(h)) < (gone[0] if gone.size else len(h)), h, 0.0)
+    r = int(gone[0]) if gone.size else len(h)
+    idx = np.arange(len(h))
+    if r >= 3 and h[r - 1] * h[r - 3] > 0:
+        # below its resolution the tail goes on decaying as its last resolved bins did
+        q = min(abs(h[r - 1] / h[r - 3]) ** 0.5, 0.95)
+        h = np.where(idx < r, h, h[r - 1] * q ** (idx - r + 1.0))
+    else:
+        h = np.where(idx < r, h, 0.0)
     s = ts[start:end] - ts[arrival]
     b = np.searchsorted(edges, s, side="right") - 1
     hs = np.where((b >= 0) & (b < len(h)), h[np.clip(b, 0, len(h) - 1)], 0.0)
