@@ -90,6 +90,9 @@ class SettleOptions:
     # an approach is extrapolated to rest only this far (m): markers follow the actuators through
     # the kinematics, and beyond about a millimetre the path to rest bends away from the fitted decay
     max_extrapolation_m: float = 1e-3
+    # ... or this share of the hold's step (largest marker): over a small share of a move the
+    # kinematics are straight whatever the stand's size
+    max_extrapolation_share: float = 0.02
     max_window_s: float | None = None  # the window is at most this long, ending where the hold does
 
 
@@ -1034,9 +1037,15 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                                  set(dropped) - set(unsettled), slow_taus, slow_left, held_at, slow_tail)
     many = len(unsettled) > opt.max_unsettled_fraction * N and len(unsettled) >= 2  # one of a few is no pattern
     n_extrapolated = 0
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        moved = np.linalg.norm(np.diff(held_at, axis=0), axis=2)  # (N - 1, M)
+        step_m = np.concatenate([[0.0], np.where(np.isfinite(moved).any(axis=1),
+                                                 np.nanmax(np.where(np.isfinite(moved), moved, -np.inf), axis=1), 0.0)])
     if unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many)):
         good = [i for i in unsettled if i in fits and fits[i].good
-                and float(np.nanmax(fits[i].remaining_m)) <= opt.max_extrapolation_m
+                and float(np.nanmax(fits[i].remaining_m)) <= max(opt.max_extrapolation_m,
+                                                                 opt.max_extrapolation_share * step_m[i])
                 and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], sig_slow)]
         if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
             if results:
