@@ -114,7 +114,6 @@ class CalibrationProblem:
         self.spec = spec
         self.poses = poses
         self.terms = list(terms)
-        self.model = PlatformModel(spec)
         self.N, self.M = poses.n_poses, poses.n_markers
         self.B = poses.n_bodies
         rho = declared_rho(poses.body_noise)
@@ -214,15 +213,17 @@ class CalibrationProblem:
     # ------------------------------------------------------------------ CasADi
     def _build(self) -> None:
         """The observation functions of this stand and channel count, built once per (stand, M + B)
-        and shared by every problem of them (a model selection, k folds and a diagnosis build
-        dozens of problems of one stand)."""
+        and shared by every problem of them, and the stand's PlatformModel, once per stand (a model
+        selection, k folds and a diagnosis build dozens of problems of one stand)."""
         key = (id(self.spec), self.M + self.B, self.B > 0)
         hit = _BUILT.get(key)
         if hit is None or hit[0] is not self.spec:
             if len(_BUILT) > 16:
                 _BUILT.clear()
-            hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0))
+            model = next((h[2] for h in _BUILT.values() if h[0] is self.spec), None) or PlatformModel(self.spec)
+            hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0), model)
         self._fns = hit[1]
+        self.model: PlatformModel = hit[2]  # its solvers keep only scratch buffers: one per stand
 
     def _call(self, n: int, with_jac: bool, args: list[np.ndarray]) -> list[np.ndarray]:
         """Evaluate the observation function over n poses, CHUNK poses (fewer for a small n) per
@@ -515,13 +516,14 @@ _BUILT: dict = {}
 
 
 _compile_lock = threading.Lock()
-#: pose evaluations of one function after which its compiled library is looked for in the cache,
-#: and after which it is compiled: compiling costs about as much as interpreting some 30,000
-#: pose evaluations (4.4 s for the TIAGo arm's 52,000 instructions, 120 us a pose interpreted;
-#: 0.6 s for the stewart stand's 7,900), so a calibration of 10,000 poses compiles at its third
-#: evaluation while a test of 40 poses never waits for the compiler (at most twice the time of
-#: the better choice made in advance)
-LOOK_AFTER, COMPILE_AFTER = 2_000, 30_000
+#: pose evaluations of one function (in one process) after which its compiled library is looked
+#: for in the cache, and after which it is compiled there. Compiling costs about as much as
+#: interpreting some 35,000 pose evaluations (4.4 s for the TIAGo arm's 52,000 instructions, 120
+#: us a pose interpreted; 0.6 s for the stewart stand's 7,900), once per machine: a calibration
+#: of 10,000 poses compiles at its first evaluation, a diagnosis of the 37 TIAGo postures
+#: (1,700 evaluations) after a fifth of its refits, and every later run finds the library; a
+#: test of 40 poses never waits for the compiler
+LOOK_AFTER, COMPILE_AFTER = 2_000, 10_000
 COMPILE_FLAGS = ["-O1", "-ffp-contract=off", "-fPIC", "-shared"]
 
 
