@@ -26,7 +26,7 @@ from platkit.simulate import simulate_session
 
 pytest.importorskip("dask.distributed", reason="platkit[batch] (dask.distributed) is part of the dev extra")
 
-N_SESSIONS = 3
+N_SESSIONS = 2
 
 
 @pytest.fixture(scope="module")
