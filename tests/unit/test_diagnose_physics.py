@@ -117,3 +117,18 @@ def test_the_heat_term_round_trips_and_predict_sees_it_reads_time(rotary):
         assert np.allclose(back.control_offset(theta, fresh, 2), term.control_offset(np.array([0.02]), poses, 2))
     off = term.control_offset(np.array([0.02]), poses, 2)
     assert off[0].tolist() == [0.0, 0.0] and np.all(np.diff(off[:, 0]) > -1e-3)  # heats as it moves
+
+
+def test_when_the_best_fit_cannot_predict_the_next_proves_itself_at_a_shared_level():
+    from platkit.diagnose.search import Fit, confirm
+
+    def fit(rss, cv_rms):
+        return Fit([], None, np.zeros(1), np.ones(1, bool), np.ones((20, 1)), np.zeros((20, 1, 3)), rss, 60, 1,
+                   cv=np.full(20, cv_rms**2))
+
+    cur = fit(1.0, 0.331)
+    judged = np.ones(20, bool)
+    backlash, drift = fit(0.2, 0.266), fit(0.3, 0.246)  # backlash: the lower BIC, but held-out p = 0.17
+    assert confirm([(0, backlash, 0.17), (1, drift, 0.00017)], [1.0, 1.0], cur, judged, Options())[0] == 1
+    assert confirm([(0, backlash, 0.17), (1, drift, 0.03)], [1.0, 1.0], cur, judged, Options()) is None  # 0.03 > 0.05 / 2
+    assert confirm([(0, backlash, 0.03), (1, drift, 0.00017)], [1.0, 1.0], cur, judged, Options())[0] == 0
