@@ -42,6 +42,7 @@ import numpy as np
 
 from platkit.calibrate.estimate import Progress, calibrate
 from platkit.calibrate.identifiability import keep_one_side_of_a_lost_marker
+from platkit.calibrate.solve import blas_threads
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
@@ -55,6 +56,10 @@ Z_CLEAR = 2.0
 FIT_LEVEL = 0.01
 #: fewer poses than this: nothing is selected (the stand's default free set is fitted)
 MIN_POSES = 8
+#: poses whose leave-one-out systems are solved in one stacked call
+CHUNK_POSES = 512
+#: beyond this condition number of I - P_n a pose's leave-one-out error is solved by lstsq
+WOODBURY_COND = 1e8
 UNGROUPED = "(ungrouped)"
 
 
@@ -77,6 +82,11 @@ def heldout_errors(cal: Calibration) -> np.ndarray:
     stand's parameters, the base-to-mocap transform, the markers). NaN where the marker was not
     seen or the fit's loss rejected it (weight 0).
     """
+    with blas_threads(1):  # stacked products of small matrices: BLAS threads only spin
+        return _heldout_errors(cal)
+
+
+def _heldout_errors(cal: Calibration) -> np.ndarray:
     problem, z, active, weights = (cal.extras[k] for k in ("problem", "z", "active", "weights"))
     st = problem.evaluate(z)
     N, M = st.r.shape[:2]
@@ -95,14 +105,25 @@ def heldout_errors(cal: Calibration) -> np.ndarray:
             if active[i]:
                 A[cols[i], cols[i]] += s * s
     E = np.full((N, M), np.nan)
-    for n in range(N):
-        if not seen[n].any():
-            continue
-        Jn = J[n].reshape(3 * M, n_a)
-        wn = np.repeat(w[n], 3)
-        rn = r[n].ravel()
-        dz = np.linalg.lstsq(A - Jn.T @ (wn[:, None] * Jn), Jn.T @ (wn * rn), rcond=None)[0]
-        E[n] = np.linalg.norm((rn + Jn @ dz).reshape(M, 3), axis=1)
+    Jr = J.reshape(N, 3 * M, n_a)
+    wr = np.repeat(w, 3, axis=1)  # (N, 3 M)
+    rr = r.reshape(N, 3 * M)
+    # r_n + J_n dz = (I - P_n)^-1 r_n with P_n = J_n A^-1 J_n^T W_n (Woodbury): one 3M x 3M solve
+    # per pose, all poses stacked, instead of an n_a x n_a least-squares solve each; where I - P_n
+    # is near singular (the pose alone fixes some unknown) the pose is solved as before (lstsq)
+    A_inv = np.linalg.inv(A) if np.linalg.cond(A) < WOODBURY_COND * 100 else None  # else every pose by lstsq
+    lstsq_poses = np.ones(N, bool) if A_inv is None else np.zeros(N, bool)
+    for start in range(0, 0 if A_inv is None else N, CHUNK_POSES):
+        k = slice(start, min(N, start + CHUNK_POSES))
+        I_P = np.eye(3 * M)[None] - (Jr[k] @ A_inv) @ np.swapaxes(Jr[k] * wr[k][:, :, None], 1, 2)
+        ill = np.linalg.cond(I_P) > WOODBURY_COND
+        I_P[ill] = np.eye(3 * M)
+        E[k] = np.linalg.norm(np.linalg.solve(I_P, rr[k][:, :, None])[:, :, 0].reshape(-1, M, 3), axis=2)
+        lstsq_poses[k] = ill
+    for n in np.nonzero(lstsq_poses & seen.any(axis=1))[0]:
+        Jn = Jr[n]
+        dz = np.linalg.lstsq(A - Jn.T @ (wr[n][:, None] * Jn), Jn.T @ (wr[n] * rr[n]), rcond=None)[0]
+        E[n] = np.linalg.norm((rr[n] + Jn @ dz).reshape(M, 3), axis=1)
     E[~seen] = np.nan
     return E
 
