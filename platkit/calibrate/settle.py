@@ -64,6 +64,9 @@ TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
 #: "noise" is motion (a recording that never rests)
 MAX_INFLATION = 30.0
 
+#: time constants on the coarse grid of an approach fit (then refined around its minima)
+COARSE_GRID = 40
+
 #: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
 SLOW_SCALE_S = 0.4
 
@@ -432,7 +435,7 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
         # the residual over tau has a narrow valley when the tail is many noise levels deep, which a
         # grid can step over: the recurrence of the sampled decay (Prony) points at it, and both
         # the grid's best and Prony's are refined twice on finer grids; the lower wins
-        grid = np.geomspace(2 * dt, 3 * span, 80)
+        grid = np.geomspace(2 * dt, 3 * span, COARSE_GRID)
         rss_g = solve(grid)[0]
         j = int(np.argmin(rss_g))
         at_top = j == len(grid) - 1
