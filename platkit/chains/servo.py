@@ -13,21 +13,22 @@ itself move (control in a moving local frame); several tasks with a shared trunk
 humanoid, the fingers of a hand) are solved jointly with a stacked Jacobian, by weight within a
 priority level and by strict priority between levels.
 
+What the servo is asked and answers (Task, ServoOptions, ServoResult, the failure messages) is
+in :mod:`platkit.chains.tasks`; following a dense trajectory in :mod:`platkit.chains.trajectory`.
+
 Units: metres and radians; time in seconds (``dt`` is the virtual servo's period).
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
 
 from platkit.chains.chain import KinematicChain
 from platkit.chains.solve import (
-    Damping,
     Level,
     StepInfo,
     joint_limit_gradient,
@@ -36,132 +37,23 @@ from platkit.chains.solve import (
     solve_lp,
     solve_pinv,
 )
-from platkit.chains.transforms import interpolate_pose, pose_error, rotation_action
+from platkit.chains.tasks import (
+    COMPONENTS,
+    SECONDARY_COSTS,
+    ServoOptions,
+    ServoResult,
+    Task,
+    closest_text,
+    failure_message,
+    parse_selection,
+)
+from platkit.chains.transforms import pose_error, rotation_action
 from platkit.errors import BadInput, OutOfWorkspace
-from platkit.geometry import rotvec_from_matrix
-
-COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
-SECONDARY_COSTS = ("none", "mid_range", "joint_limits", "manipulability")
 
 
 def _clip(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """np.clip(x, lower, upper) for lower <= upper, without its wrapper's microseconds."""
     return np.minimum(np.maximum(x, lower), upper)
-
-
-def parse_selection(text: str) -> np.ndarray:
-    """'xyz', 'x,y,rz', 'all' -> a 0/1 mask (6,) over (x, y, z, rx, ry, rz)."""
-    t = text.replace(",", "").replace(" ", "").lower()
-    if t in ("", "all"):
-        return np.ones(6)
-    mask = np.zeros(6)
-    i = 0
-    while i < len(t):
-        tok = t[i:i + 2] if t[i] == "r" else t[i]
-        if tok not in COMPONENTS:
-            raise BadInput(f"--select: unknown component {tok!r} in {text!r}; use x, y, z, rx, ry, rz (e.g. 'xyz' or 'xyzrz')")
-        mask[COMPONENTS.index(tok)] = 1.0
-        i += len(tok)
-    return mask
-
-
-@dataclass
-class Task:
-    """Drive ``link`` to ``target`` (4, 4), a placement given in ``frame`` ('world' or a link).
-
-    ``weights`` (6,) over (x, y, z, rx, ry, rz): 0 leaves a component free (selective control),
-    larger weights trade harder within a priority level. ``basis``: components read in the
-    ``frame``'s basis ('reference') or in the link's own ('local'). ``priority``: 0 first;
-    higher levels act only in the null space of lower ones.
-    """
-
-    link: str
-    target: np.ndarray
-    frame: str = "world"
-    weights: np.ndarray = field(default_factory=lambda: np.ones(6))
-    basis: str = "reference"
-    priority: int = 0
-
-    def __post_init__(self):
-        self.target = np.asarray(self.target, float)
-        self.weights = np.asarray(self.weights, float)
-        if self.target.shape != (4, 4):
-            raise BadInput(f"task {self.link!r}: target must be a 4x4 transform")
-        if self.weights.shape != (6,) or np.any(self.weights < 0) or not np.any(self.weights > 0):
-            raise BadInput(f"task {self.link!r}: weights must be 6 non-negative numbers, not all zero")
-        if self.basis not in ("reference", "local"):
-            raise BadInput(f"task {self.link!r}: basis must be 'reference' or 'local', got {self.basis!r}")
-
-
-@dataclass
-class ServoOptions:
-    """Tolerances, caps and the solver of the servo (SI units)."""
-
-    tol_position: float = 1e-6       # m
-    tol_rotation: float = 1e-6       # rad
-    max_iterations: int = 500
-    max_seconds: float = 30.0
-    gain: float = 1.0                # fraction of E commanded per step (<= 1: aperiodic)
-    max_linear_step: float = 0.1     # m per step of the commanded twist
-    max_angular_step: float = 0.5    # rad per step
-    dt: float = 0.1                  # s per step: rate limits become per-step limits rate * dt
-    use_rate_limits: bool = True
-    solver: str = "pinv"             # 'pinv' or 'lp'
-    secondary: str = "none"          # one of SECONDARY_COSTS
-    secondary_gain: float = 0.05
-    damping: Damping = field(default_factory=Damping)
-    joint_weights: np.ndarray | None = None
-    locked: Sequence[str] = ()
-    stall_iterations: int = 40       # stop when the error has not fallen 1e-3 in this many steps
-    restarts: int = 0                # after a failed attempt, start again from random configurations
-    refine_iterations: int = 100     # with a secondary cost: null-space steps after the targets are met
-    refine_step: float = 0.05        # rad (or m): largest null-space step while refining
-    seed: int = 0                    # of the restarts' random configurations
-
-    def check(self) -> None:
-        if self.solver not in ("pinv", "lp"):
-            raise BadInput(f"solver must be 'pinv' or 'lp', got {self.solver!r}")
-        if self.secondary not in SECONDARY_COSTS:
-            raise BadInput(f"secondary cost must be one of {', '.join(SECONDARY_COSTS)}, got {self.secondary!r}")
-        if not (0 < self.gain <= 1):
-            raise BadInput(f"gain must be in (0, 1], got {self.gain}")
-        for name in ("tol_position", "tol_rotation", "max_seconds", "max_linear_step", "max_angular_step", "dt"):
-            if not getattr(self, name) > 0:
-                raise BadInput(f"{name} must be positive, got {getattr(self, name)}")
-        if self.max_iterations < 1:
-            raise BadInput(f"max_iterations must be at least 1, got {self.max_iterations}")
-
-
-@dataclass
-class ServoResult:
-    """Outcome of the servo: the final configuration (n,), its path (k+1, n) over the steps,
-    per task the position error (m) and rotation error (rad) over the selected components,
-    and, when it failed, one sentence saying why."""
-
-    theta: np.ndarray
-    converged: bool
-    iterations: int
-    position_errors: list[float]
-    rotation_errors: list[float]
-    path: np.ndarray
-    merit_history: list[float]
-    reason: str = ""
-    best_position_errors: list[float] = field(default_factory=list)
-    best_rotation_errors: list[float] = field(default_factory=list)
-    seconds: float = 0.0
-    restarts: int = 0                # attempts made before this one's start; the path is this one's
-    iterations_total: int = 0        # over all attempts
-    refine_iterations: int = 0       # null-space steps taken after convergence (secondary cost)
-    secondary_cost: float | None = None  # H at the start of refinement and at the end: see refine
-    secondary_cost_before: float | None = None
-
-    @property
-    def position_error(self) -> float:
-        return max(self.position_errors)
-
-    @property
-    def rotation_error(self) -> float:
-        return max(self.rotation_errors)
 
 
 class Servo:
@@ -741,25 +633,6 @@ class Servo:
         return "; ".join(reasons)
 
 
-def closest_text(task: Task, position: float, rotation: float, unit: str = "m", scale: float = 1.0) -> str:
-    """'0.123 m / 0.0456 rad' over the components the task controls."""
-    parts = []
-    if np.any(task.weights[:3] > 0):
-        parts.append(f"{position / scale:.3g} {unit}")
-    if np.any(task.weights[3:] > 0):
-        parts.append(f"{rotation:.3g} rad")
-    return " / ".join(parts)
-
-
-def failure_message(tasks: Sequence[Task], result: ServoResult, unit: str = "m", scale: float = 1.0) -> str:
-    """One sentence: which link missed, how close it got, after how many steps, and why.
-    Position errors are shown in ``unit`` (``scale`` metres each)."""
-    k = int(np.argmax([p + r for p, r in zip(result.best_position_errors, result.best_rotation_errors)]))
-    closest = closest_text(tasks[k], result.best_position_errors[k], result.best_rotation_errors[k], unit, scale)
-    return (f"link {tasks[k].link!r} did not reach its target: closest {closest} "
-            f"after {result.iterations} iterations; {result.reason or 'no reason found'}")
-
-
 def track(chain: KinematicChain, tasks: Sequence[Task] | Task, theta0: np.ndarray | None = None,
           options: ServoOptions | None = None) -> ServoResult:
     """Run the servo to the tasks' targets; OutOfWorkspace (one sentence) if they are not met."""
@@ -772,101 +645,5 @@ def track(chain: KinematicChain, tasks: Sequence[Task] | Task, theta0: np.ndarra
     return result
 
 
-# ----------------------------------------------------------------------------- trajectories
-
-
-@dataclass
-class TrajectoryResult:
-    """Joint path along a trajectory: sample times (s,), configurations (s, n), and the pose
-    errors (m, rad) at each sample, plus the index of the waypoint segment of each sample."""
-
-    times: np.ndarray
-    thetas: np.ndarray
-    position_errors: np.ndarray
-    rotation_errors: np.ndarray
-    segment: np.ndarray
-    iterations: int
-
-
-def densify(times: np.ndarray, poses: np.ndarray, max_linear: float, max_angular: float):
-    """Samples between waypoints: linear in position, SLERP in rotation, each step at most
-    ``max_linear`` m and ``max_angular`` rad. ``times`` (k,), ``poses`` (k, 4, 4) ->
-    (times (s,), poses (s, 4, 4), segment index (s,))."""
-
-    out_t, out_p, seg = [float(times[0])], [poses[0]], [0]
-    for k in range(len(times) - 1):
-        a, b = poses[k], poses[k + 1]
-        dist = float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
-        ang = float(np.linalg.norm(rotvec_from_matrix(b[:3, :3] @ a[:3, :3].T)))
-        n = max(1, int(np.ceil(max(dist / max_linear, ang / max_angular))))
-        for i in range(1, n + 1):
-            s = i / n
-            out_t.append(float((1 - s) * times[k] + s * times[k + 1]))
-            out_p.append(interpolate_pose(a, b, s))
-            seg.append(k)
-    return np.array(out_t), np.array(out_p), np.array(seg)
-
-
-def _densify_moving(st, sp, seg, moving_frame, max_linear, max_angular):
-    """Carry local samples into the moving frame, adding samples where its own motion makes a
-    step longer than the limits (the frame may move between two equal local poses)."""
-
-    out_t, out_p, out_s = [st[0]], [moving_frame(st[0]) @ sp[0]], [seg[0]]
-    for k in range(1, len(st)):
-        a = moving_frame(st[k - 1]) @ sp[k - 1]
-        b = moving_frame(st[k]) @ sp[k]
-        dist = float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
-        ang = float(np.linalg.norm(rotvec_from_matrix(b[:3, :3] @ a[:3, :3].T)))
-        n = max(1, int(np.ceil(max(dist / max_linear, ang / max_angular))))
-        for i in range(1, n + 1):
-            s = i / n
-            t = (1 - s) * st[k - 1] + s * st[k]
-            out_t.append(t)
-            out_p.append(moving_frame(t) @ interpolate_pose(sp[k - 1], sp[k], s))
-            out_s.append(seg[k])
-    return np.array(out_t), np.array(out_p), np.array(out_s)
-
-
-def follow_trajectory(chain: KinematicChain, link: str, times: np.ndarray, poses: np.ndarray, *,
-                      frame: str = "world", theta0: np.ndarray | None = None, weights: np.ndarray | None = None,
-                      basis: str = "reference", options: ServoOptions | None = None,
-                      moving_frame: Callable[[float], np.ndarray] | None = None,
-                      max_linear_step: float = 0.005, max_angular_step: float = 0.02,
-                      sample_iterations: int = 100) -> TrajectoryResult:
-    """Follow waypoints ``poses`` (k, 4, 4) at ``times`` (k,) by the virtual servo.
-
-    The trajectory is resampled densely (:func:`densify`); the servo runs to each sample from
-    the previous solution. ``frame``: the link the poses are given in (a moving local frame if
-    joints move it); ``moving_frame``: t -> frame_from_poses (4, 4), an extra, externally moving
-    frame (a conveyor, a head) whose placement at time t carries the poses into ``frame``.
-    Raises OutOfWorkspace naming the time and waypoint segment of the first missed sample.
-    """
-    times = np.asarray(times, float)
-    poses = np.asarray(poses, float)
-    if times.ndim != 1 or poses.shape != (times.size, 4, 4) or times.size < 1:
-        raise BadInput("trajectory: expected k times and k 4x4 poses")
-    if np.any(np.diff(times) < 0):
-        raise BadInput("trajectory: times must not decrease")
-    options = options or ServoOptions()
-    w = np.ones(6) if weights is None else np.asarray(weights, float)
-    st, sp, seg = densify(times, poses, max_linear_step, max_angular_step)
-    if moving_frame is not None:
-        st, sp, seg = _densify_moving(st, sp, seg, moving_frame, max_linear_step, max_angular_step)
-    theta = chain.neutral() if theta0 is None else chain.check_configuration(theta0, "starting configuration")
-    first_opts = ServoOptions(**{**options.__dict__})
-    sample_opts = ServoOptions(**{**options.__dict__, "max_iterations": sample_iterations})
-    thetas, pos, rot = [], [], []
-    total = 0
-    for i, (t, P) in enumerate(zip(st, sp)):
-        task = Task(link, P, frame=frame, weights=w, basis=basis)
-        servo = Servo(chain, [task], first_opts if i == 0 else sample_opts)
-        res = servo.run(theta)
-        total += res.iterations
-        if not res.converged:
-            where = "the first waypoint" if i == 0 else f"t = {t:.6g} s (between waypoints {seg[i]} and {seg[i] + 1})"
-            raise OutOfWorkspace(f"trajectory not followed at {where}: " + failure_message([task], res))
-        theta = res.theta
-        thetas.append(theta.copy())
-        pos.append(res.position_error)
-        rot.append(res.rotation_error)
-    return TrajectoryResult(st, np.array(thetas), np.array(pos), np.array(rot), seg, total)
+__all__ = ["COMPONENTS", "SECONDARY_COSTS", "Servo", "ServoOptions", "ServoResult", "Task", "closest_text",
+           "failure_message", "parse_selection", "track"]
