@@ -87,7 +87,8 @@ def cli_row(repeat: int) -> None:
         for k in range(repeat):
             out = Path(tmp) / f"c{k}"
             t = time.perf_counter()
-            subprocess.run(PLATKIT + ["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)], check=True)
+            subprocess.run(PLATKIT + ["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)], check=True,
+                           stdout=subprocess.DEVNULL)
             walls.append(time.perf_counter() - t)
             rep = json.loads((out / "report.json").read_text())
             est.append(max(rep["time_s"], (rep.get("model_selection") or {}).get("time_s") or 0.0))

@@ -165,6 +165,7 @@ class CalibrationProblem:
         self.half_width = np.full(self.n_z, np.inf)
         self.set_plausible(PLAUSIBLE_RANGE)
         self._last: tuple[np.ndarray, float, FitState] | None = None
+        self._kin: tuple | None = None  # (td, controls, P, converged) of the last solve
         self._build()
 
     def set_plausible(self, corrections: float | None) -> None:
@@ -327,7 +328,13 @@ class CalibrationProblem:
             outs = self._call(N, with_jac, [Uo, td, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
             ok = np.ones(N, bool)
         else:
-            _, _, P, ok = self.kinematics(td, Uo, guess)
+            kin = self._kin
+            if own and kin is not None and np.array_equal(kin[0], td) and np.array_equal(kin[1], Uo):
+                P, ok = kin[2], kin[3]  # a trial's residuals, then its Jacobian: the same solution
+            else:
+                _, _, P, ok = self.kinematics(td, Uo, guess)
+                if own:
+                    self._kin = (td.copy(), Uo, P, ok)
             if own:
                 self._p_guess = np.where(ok[:, None], P, self._p_guess)
             P = np.where(ok[:, None], P, self._p_guess if own else self.spec.neutral_p())
