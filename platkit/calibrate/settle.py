@@ -97,6 +97,7 @@ class SettleOptions:
     # kinematics are straight whatever the stand's size
     max_extrapolation_share: float = 0.02
     max_window_s: float | None = None  # the window is at most this long, ending where the hold does
+    bound_keeps: float = 0.4  # the tail's upper bound may cut the still stretch to this share (else its estimate rules)
 
 
 @dataclass
@@ -591,7 +592,7 @@ def tail_scale(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: fl
     hi = max(kappa + z * se, 0.0)
     sd = approach.tail_std(t[:1])[0]
     if np.linalg.norm(F[0]) < floor_z * np.sqrt(3.0) * np.linalg.norm(sd):
-        return 0.0, max(hi, min(1.0, (z + 1.0) * se))  # not established; noise may hide it
+        return 0.0, hi  # not established: the bound is what the stretch allows
     if abs(kappa - 1.0) <= 4.0 * se:
         return 1.0, max(hi, 1.0)
     return max(kappa, 0.0), hi
@@ -970,9 +971,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             if fit is not None and bound is not None:
                 window = tail_free_window(bound, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples,
                                           estimate=fit)
-                if window is None and bound is not fit:
-                    # the bound leaves no clean window (a slow decay the stretch hardly supports):
-                    # the estimate decides whether the hold settled
+                if bound is not fit and (window is None or end - window[0] < opt.bound_keeps * (end - run[0])):
+                    # the bound leaves no clean window, or a small part of the still stretch (a
+                    # decay the stretch hardly supports, a short hold): the estimate decides
                     window = (tail_free_window(fit, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples)
                               if fit.significant else (run[0], np.zeros((M, 3))))
                 start = None if window is None else window[0]
