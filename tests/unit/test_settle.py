@@ -401,3 +401,19 @@ def test_a_session_of_slow_drives_and_short_holds_is_not_refused(tmp_path):
     assert poses.n_poses == 60 and not poses.dropped and report.n_extrapolated == 0
     err = np.linalg.norm(poses.markers - sim.settled_markers, axis=2)
     assert np.nanmedian(err) < 0.1e-3
+
+
+def test_attribution_names_the_actuator_whose_column_the_late_motion_follows():
+    from platkit.calibrate.settle_attribution import attribute_actuators
+
+    rng = np.random.default_rng(21)
+    N, n_u = 50, 3
+    U = rng.uniform(0, 1, size=(N, n_u))
+    A = rng.normal(size=(9, n_u)) * 0.1  # a linear stand: 3 markers, m per unit of control
+    held = (U @ A.T).reshape(N, 3, 3)
+    du = np.vstack([np.zeros((1, n_u)), np.diff(U, axis=0)])
+    lagging = {i: (-0.02 * A[:, 1] * du[i, 1] + rng.normal(size=9) * 2e-5).reshape(3, 3) for i in range(1, N)}
+    named, table = attribute_actuators(U, held, lagging)
+    assert named == [1] and table["positive"][1] > 0.9 and table["p"][1] < 1e-6
+    noise = {i: rng.normal(size=(3, 3)) * 2e-5 for i in range(1, N)}  # nothing moves along any column
+    assert attribute_actuators(U, held, noise)[0] == []
