@@ -16,14 +16,15 @@ plain reference. Goal (issue 13): platkit at or below the reference per target.
 
 ``--profile``: where platkit's time goes (cProfile, the ten largest own times).
 
-Why the goal is out of reach so far (measured 2026-11-24 on the 2-core machine, busy): an
-iteration of the servo is some 40 numpy calls on 6-vectors and 6 x n matrices (the step caps,
-the damped pseudo-inverse by SVD with the damping schedule, the limit clamping, the rate
-scaling, the line search that keeps the error falling), each a few microseconds, against about
-ten pinocchio calls per iteration of the reference; the rate limits (dt = 0.1 s) shorten steps
-(the --no-rate-limits row: fewer iterations); and a target the servo cannot reach within the
-limits (pinocchio's reference leaves them for most targets) takes the stall detection's 40
-steps before it gives up, which the median column separates from the mean.
+Why the goal is out of reach so far (measured 2026-11-25 on the 2-core machine, load about 4.7,
+50 targets: UR5 1.85 ms against 0.80, 2.31x; Panda 2.52 against 0.31, 8.15x; commit 8a7e787 gave
+2.82x and 8.93x in the same minute): an iteration of the servo's one-target loop costs 52-76 us
+against the reference's 18-25 (the step's SVD through numpy's wrapper, about 8 us; the clamping
+pass that re-solves when a joint reaches a limit; the rate scaling; some 20 numpy calls on
+6-vectors at a few microseconds each); the rate limits (dt = 0.1 s) shorten steps (the
+--no-rate-limits row: fewer iterations); and a target the servo cannot reach within the limits
+from mid-range (10-22 %; pinocchio's reference leaves them for most targets) takes the stall
+detection's 40 steps before it gives up, which the median column separates from the mean.
 """
 from __future__ import annotations
 
