@@ -190,7 +190,9 @@ def settling_summary(poses: PoseSet, unit: str | None = None) -> dict:
     """What became of every command of a session, for report.json (lengths in ``unit``, default
     the session's): n_commands, n_poses, n_dropped, dropped_by_reason, dropped (row: 1-based data
     row of commands.csv, reason), n_extrapolated and, when holds never settled, ``unsettled``
-    (sentence, actuators, markers, time_constant_s, hold_s, remaining)."""
+    (sentence, actuators, markers, time_constant_s, hold_s, remaining, moved_late_along_actuator:
+    per actuator, the median over its holds of how far the markers still moved along its own
+    Jacobian column late in the hold, reversed; positive: behind its command)."""
     scale = length_scale(unit or poses.length_unit)
     info = poses.settling or {}
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
@@ -204,7 +206,10 @@ def settling_summary(poses: PoseSet, unit: str | None = None) -> dict:
                             "markers": list(un["markers"]),
                             "time_constant_s": _finite(un["time_constant_s"]),
                             "time_constant_quartiles_s": [_finite(v) for v in un["time_constant_quartiles_s"]],
-                            "hold_s": _finite(un["hold_s"]), "remaining": _finite(un["remaining_m"] / scale)}
+                            "hold_s": _finite(un["hold_s"]), "remaining": _finite(un["remaining_m"] / scale),
+                            "moved_late_along_actuator": {
+                                k: (None if v is None else v / scale)
+                                for k, v in (un.get("moved_late_along_actuator_m") or {}).items()}}
     return out
 
 

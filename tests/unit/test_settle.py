@@ -384,6 +384,10 @@ def test_a_slow_actuator_of_a_physical_session_is_named_with_its_time_constant(t
     assert un["actuators"] == ["L3"] and "actuator L3 still moving" in un["sentence"]
     assert abs(un["time_constant_s"] / mode - 1) < 0.3
     assert report.n_extrapolated >= 0.8 * un["n"] and poses.n_poses >= 55
+    from platkit.calibrate.settle import settling_summary
+
+    late = settling_summary(poses)["unsettled"]["moved_late_along_actuator"]  # report.json, mm
+    assert max(late, key=lambda k: late[k]) == "L3" and late["L3"] > 0
 
 
 def test_a_session_of_slow_drives_and_short_holds_is_not_refused(tmp_path):
