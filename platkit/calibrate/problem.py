@@ -215,13 +215,16 @@ class CalibrationProblem:
     def _build(self) -> None:
         """The observation functions of this stand and channel count, built once per (stand, M + B)
         and shared by every problem of them, and the stand's PlatformModel, once per stand (a model
-        selection, k folds and a diagnosis build dozens of problems of one stand)."""
-        key = (id(self.spec), self.M + self.B, self.B > 0)
+        selection, k folds and a diagnosis build dozens of problems of one stand); per thread, as
+        their buffers are not to be shared between threads."""
+        thread = threading.get_ident()  # the maps' buffers and the model's are one thread's
+        key = (id(self.spec), self.M + self.B, self.B > 0, thread)
         hit = _BUILT.get(key)
         if hit is None or hit[0] is not self.spec:
             if len(_BUILT) > 16:
                 _BUILT.clear()
-            model = next((h[2] for h in _BUILT.values() if h[0] is self.spec), None) or PlatformModel(self.spec)
+            model = next((h[2] for k, h in _BUILT.items() if h[0] is self.spec and k[3] == thread), None) \
+                or PlatformModel(self.spec)
             hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0), model)
         self._fns = hit[1]
         self.model: PlatformModel = hit[2]  # its solvers keep only scratch buffers: one per stand

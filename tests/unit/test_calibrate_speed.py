@@ -108,3 +108,32 @@ def test_levenberg_marquardt_finds_the_registration_again_from_a_perturbed_start
     assert res.converged and res.state.r is pb.evaluate(res.z).r  # the last evaluation is the result's
     assert res.cost <= best.cost * (1 + 1e-6)
     np.testing.assert_allclose(res.z, best.z, atol=1e-6)
+
+
+def test_problems_in_threads_evaluate_apart():
+    """The observation maps and the stand's model are shared by the problems of one thread only:
+    two threads evaluating the same stand at once get each their own answer."""
+    import threading
+
+    pb, z = _problem("stewart", 300)
+    expected = pb.evaluate(z)
+    out: dict[int, np.ndarray] = {}
+    fns: dict[int, object] = {}
+    both = threading.Barrier(2)  # alive together: distinct thread idents
+
+    def work(k: int) -> None:
+        both.wait()
+        own = CalibrationProblem(pb.spec, pb.poses)
+        fns[k] = own._fns
+        for _ in range(5):
+            own._last = None
+            out[k] = own.evaluate(z).J
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(out) == 2 and all(f is not pb._fns for f in fns.values()) and fns[0] is not fns[1]
+    for J in out.values():
+        np.testing.assert_allclose(J, expected.J, rtol=0, atol=1e-12)
