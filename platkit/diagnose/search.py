@@ -252,19 +252,6 @@ def _offset_sign(term: ModelTerm, theta: np.ndarray, fit: "Fit", poses: PoseSet)
     return np.sign(off[:, int(np.argmax(np.var(off, axis=0)))])
 
 
-def _support(term: ModelTerm, fit: "Fit", poses: PoseSet) -> np.ndarray:
-    """(N,) the poses where the term (the last of ``fit``'s) moves the model: a slip acts from its
-    time on. Its held-out proof is made there: on the poses it leaves alone the refit geometry
-    only adds noise to the paired errors (a psvr slip late in the session, seed 702020: held-out
-    0.245 -> 0.032 mm over every pose, Wilcoxon p = 0.038)."""
-    theta = fit.theta(len(fit.terms) - 1)
-    q, X = fit.problem.kinematics(fit.problem.split(fit.z)[0], poses.controls)[:2]
-    parts = [term.control_offset(theta, poses, poses.controls.shape[1]), term.pose_offset(theta, poses, q, X),
-             term.marker_offset(theta, poses).reshape(poses.n_poses, -1)]
-    off = np.concatenate([np.nan_to_num(np.asarray(p, float)) for p in parts], axis=1)
-    return np.any(off != 0, axis=1)
-
-
 def _body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
     """(N, M, 3) the fit's residuals in the moving frame: a marker that slipped on the moving part
     makes a step there, while in the mocap frame its error turns with the platform."""
@@ -395,10 +382,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             i, f = _best_variant(i0, cands, scr, cur, spec, poses, weights, opt)
             eff, term = cands[i]
             f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
-            acts = judged & _support(term, f, poses)
-            if acts.sum() < 2 * opt.folds:
-                acts = judged
-            trials.append((i, f, paired_improvement(cur.cv[acts], f.cv[acts])))
+            trials.append((i, f, paired_improvement(cur.cv[judged], f.cv[judged])))
             say(f"  {eff.name} ({_where_text(term.where)}): held-out RMS {_fmt_rms(f.cv_rms, unit)} "
                 f"(paired p = {trials[-1][2]:.2g}), BIC {f.bic - cur.bic:+.1f}")
         good = confirm(trials, [sc[2] for sc in scr], cur, judged, opt)
