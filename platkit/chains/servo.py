@@ -115,6 +115,7 @@ class Servo:
                 "rows": rows, "sw": np.sqrt(task.weights[rows]), "unit_weights": bool(np.all(task.weights == 1.0)),
                 "cols": np.flatnonzero(self.active),
                 "all_active": bool(self.active.all()) and bool(np.all(task.weights == 1.0)),
+                "plain_command": o.gain == 1.0 and bool(np.all(task.weights > 0)),
                 # lower_active - theta: the room below for an active joint, +inf (then 0) for a locked one
                 "lower_active": np.where(self.active, c.lower, np.inf),
                 "upper_active": np.where(self.active, c.upper, -np.inf),
@@ -146,7 +147,15 @@ class Servo:
         microseconds, so the bounds are prepared once (:meth:`_fast_case`) and the common case
         (every component weighted 1, no joint at a limit) skips what it does not need."""
         o, c, f = self.options, self.chain, self._fast
-        e = self._commanded(E, self.tasks[0].weights)
+        if f["plain_command"]:  # gain 1, every component: _commanded's numbers without its products
+            x, y, z, rx, ry, rz = E.tolist()
+            lin = math.sqrt(x * x + y * y + z * z)
+            ang = math.sqrt(rx * rx + ry * ry + rz * rz)
+            scale = min(1.0, o.max_linear_step / lin if lin > 0 else math.inf,
+                        o.max_angular_step / ang if ang > 0 else math.inf)
+            e = E if scale == 1.0 else E * scale
+        else:
+            e = self._commanded(E, self.tasks[0].weights)
         J = self._fast_jacobian(theta)
         if f["unit_weights"]:
             Jw, ew = J, e
@@ -158,10 +167,11 @@ class Servo:
         free = None
         fixed = None
         info = StepInfo()
+        first = None  # the first pass's SVD, for the loop to reuse
         if f["all_active"]:
             # the first pass of the loop below in a few calls: every joint free, a full-rank J,
             # no joint crossing a limit; anything else goes through the loop (same numbers)
-            U, sv, Vt = np.linalg.svd(Jw, full_matrices=False)
+            U, sv, Vt = first = np.linalg.svd(Jw, full_matrices=False)
             smin = float(sv[-1])
             if smin > 1e-10 * max(1.0, float(sv[0])):
                 lam2 = o.damping.factor(smin, math.sqrt(float(ew @ ew)))
@@ -178,7 +188,10 @@ class Servo:
                 dq = fixed.copy()
                 r = ew - Jw @ fixed
             if cols.size:
-                U, sv, Vt = np.linalg.svd(Jw[:, cols], full_matrices=False)
+                if free is None and first is not None:
+                    U, sv, Vt = first  # every column: the SVD above
+                else:
+                    U, sv, Vt = np.linalg.svd(Jw[:, cols], full_matrices=False)
                 keep = sv > 1e-10 * max(1.0, float(sv[0]) if sv.size else 0.0)
                 everything = bool(keep.all())
                 info.sigma_min = float(sv[-1]) if everything else (float(sv[keep][-1]) if keep.any() else 0.0)
