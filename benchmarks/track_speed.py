@@ -18,7 +18,8 @@ plain reference. Goal (issue 13): platkit at or below the reference per target.
 
 Why the goal is out of reach so far (measured 2026-11-25 on the 2-core machine, load about 4.7,
 50 targets: UR5 1.85 ms against 0.80, 2.31x; Panda 2.52 against 0.31, 8.15x; commit 8a7e787 gave
-2.82x and 8.93x in the same minute): an iteration of the servo's one-target loop costs 52-76 us
+2.82x and 8.93x in the same minute; after reusing a clamped step's first SVD, at load 2.6-3.7:
+1.95x and 6.47x): an iteration of the servo's one-target loop costs 52-76 us
 against the reference's 18-25 (the step's SVD through numpy's wrapper, about 8 us; the clamping
 pass that re-solves when a joint reaches a limit; the rate scaling; some 20 numpy calls on
 6-vectors at a few microseconds each); the rate limits (dt = 0.1 s) shorten steps (the
