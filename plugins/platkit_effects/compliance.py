@@ -1,0 +1,211 @@
+"""compliance: the actuators give under the load they carry (a parallel stand's actuator forces
+holding a weight at the moving frame, a serial chain's gravity torques of its URDF inertias)."""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from platkit.effects import Effect
+from platkit.errors import BadInput
+from platkit.model import PlatformSpec
+from platkit.plugins import get_platform
+from platkit.terms import ModelTerm
+from platkit_effects.common import _actuator, _actuator_where, _platform_model, _size, _where
+from platkit_effects.physics import CompliancePhysics
+
+
+def _urdf_of(spec: PlatformSpec) -> str | None:
+    p = spec.extras.get("urdf_path")
+    if p is not None and Path(p).is_file():
+        return str(p)
+    p = spec.description_path
+    if p is not None and Path(p).suffix.lower() == ".urdf":
+        return str(p)
+    return None
+
+
+@functools.lru_cache(maxsize=8)
+def _gravity_model(urdf: str, joints: tuple[str, ...]):
+    """pinocchio model of the whole URDF tree with every joint but ``joints`` locked at zero, and
+    the q indices of ``joints`` (controls named otherwise, like the rotary's u1, u2, take the
+    URDF's one-dof joints in order)."""
+    import pinocchio as pin
+
+    full = pin.buildModelFromUrdf(urdf)
+    names = list(full.names[1:])
+    use = list(joints) if all(j in names for j in joints) else \
+        [n for n in names if full.joints[full.getJointId(n)].nq == 1][: len(joints)]
+    if len(use) != len(joints):
+        raise BadInput(f"{urdf}: cannot match the controls {', '.join(joints)} to the URDF's joints")
+    lock = [full.getJointId(n) for n in names if n not in use]
+    model = pin.buildReducedModel(full, lock, pin.neutral(full)) if lock else full
+    return model, [model.joints[model.getJointId(n)].idx_q for n in use]
+
+
+def serial_gravity_torques(urdf: str, joints: tuple[str, ...], q: np.ndarray) -> np.ndarray:
+    """(N, n) gravity torques (N m; N for prismatic joints) of ``joints`` at joint values q (N, n)
+    (rad, m), from the URDF's inertias: pinocchio's computeGeneralizedGravity, gravity -z."""
+    import pinocchio as pin
+
+    model, order = _gravity_model(urdf, tuple(joints))
+    data = model.createData()
+    out = np.zeros((len(q), len(order)))
+    for k, qk in enumerate(np.atleast_2d(q)):
+        full_q = pin.neutral(model)
+        full_q[order] = qk
+        out[k] = pin.computeGeneralizedGravity(model, data, full_q)[order]
+    return out
+
+
+def parallel_actuator_forces(spec: PlatformSpec, controls: np.ndarray) -> np.ndarray:
+    """(N, n_u) actuator forces f = J^-T w holding a 1 N weight (gravity along base -z) at the
+    moving frame's origin, at the nominal geometry: from F_u du + F_p dp = 0, J = du/dp, and
+    virtual work J^T f = dz/dp. Unit: N per N of payload weight (counts, rad: per unit)."""
+    import casadi as ca
+
+    model = _platform_model(spec)
+    fk = model.forward_batch(controls, strict=False)
+    p = ca.SX.sym("p", spec.n_p)
+    _, X = spec.pose(p)
+    dz_dp = ca.Function("dz_dp", [p], [ca.jacobian(X[2], p)])
+    td = spec.nominal_td()
+    out = np.zeros_like(np.atleast_2d(controls), dtype=float)
+    for k, (u, pk) in enumerate(zip(np.atleast_2d(controls), fk.p)):
+        _, F_p, F_u, _ = model.F_jac(u, td, pk)
+        du_dp = -np.linalg.lstsq(np.asarray(F_u), np.asarray(F_p), rcond=None)[0]
+        out[k] = np.linalg.lstsq(du_dp.T, np.asarray(dz_dp(pk)).ravel(), rcond=None)[0]
+    return out
+
+
+def actuator_loads(spec: PlatformSpec, controls: np.ndarray) -> np.ndarray:
+    """(N, n_u) the load each actuator carries: gravity torques from the URDF for serial chains,
+    J^-T w for a unit payload weight otherwise (see the two functions above)."""
+    controls = np.atleast_2d(np.asarray(controls, float))
+    urdf = _urdf_of(spec)
+    if urdf is not None:
+        scale = np.array([np.pi / 180 if c.unit == "deg" else 1.0 for c in spec.controls])
+        return serial_gravity_torques(urdf, tuple(spec.control_names), controls * scale)
+    return parallel_actuator_forces(spec, controls)
+
+
+_LOADS: dict[tuple, np.ndarray] = {}
+
+
+def cached_loads(spec: PlatformSpec, controls: np.ndarray) -> np.ndarray:
+    """actuator_loads, once per (stand, controls array): terms ask for them at every evaluation."""
+    key = (spec.name, str(spec.description_path), np.ascontiguousarray(controls, float).tobytes())
+    if key not in _LOADS:
+        if len(_LOADS) > 256:
+            _LOADS.clear()
+        _LOADS[key] = actuator_loads(spec, controls)
+    return _LOADS[key]
+
+
+@dataclass
+class ComplianceTerm(ModelTerm):
+    index: int | None = None  # None: one compliance for every actuator (parallel stands)
+    spec: PlatformSpec | None = field(default=None, repr=False)
+
+    def stand(self) -> PlatformSpec:
+        if self.spec is None:
+
+            w = self.where
+            self.spec = get_platform(w["platform"], w.get("description"), **(w.get("platform_options") or {}))
+        return self.spec
+
+    def control_offset(self, theta, poses, n_u):
+        loads = cached_loads(self.stand(), poses.controls)
+        out = np.zeros((poses.n_poses, n_u))
+        if self.index is None:
+            out[:] = theta[0] * loads
+        else:
+            out[:, self.index] = theta[0] * loads[:, self.index]
+        return out
+
+
+def _stand_where(spec: PlatformSpec) -> dict:
+    chain = spec.extras.get("chain")
+    options = {}
+    if chain is not None and spec.name == "urdf":
+        options = {"base_link": chain.base_link, "moving_link": chain.moving_link}
+    return {"platform": spec.name, "description": None if spec.description_path is None else str(spec.description_path),
+            "platform_options": options}
+
+
+class Compliance(Effect):
+    name = "compliance"
+    summary = "deflection that grows with the load an actuator or joint carries"
+
+    def term(self, spec, i):
+        if i is None:
+            unit = spec.controls[0].unit
+            where = {"actuator": "all", "unit": unit, "load": "actuator force J^-T w for a 1 N payload weight"}
+            where.update(_stand_where(spec))
+            return ComplianceTerm(self.name, ["deflection_per_newton_payload"], np.zeros(1), [f"{unit}/N"], where,
+                                  index=None, spec=spec)
+        where = _actuator_where(spec, i)
+        load_unit = "N" if spec.controls[i].unit == "m" else "N m"
+        where.update({"load": f"gravity torque from the URDF inertias ({load_unit})"})
+        where.update(_stand_where(spec))
+        return ComplianceTerm(self.name, ["compliance"], np.zeros(1), [f"{where['unit']}/({load_unit})"], where,
+                              index=i, spec=spec)
+
+    def candidates(self, spec, poses, residuals=None):
+        loads = cached_loads(spec, poses.controls)
+        if _urdf_of(spec) is None:
+            return [self.term(spec, None)] if np.ptp(loads) > 0 else []
+        return [self.term(spec, i) for i in range(spec.n_u) if np.ptp(loads[:, i]) > 1e-9]
+
+    def regressor(self, term, spec, poses):
+        loads = cached_loads(spec, poses.controls)
+        return loads[:, term.index] if term.index is not None else loads @ np.sign(np.mean(loads, axis=0))
+
+    def regressor_label(self, term):
+        if term.index is None:
+            return "sum of the actuator forces for a 1 N payload (N/N)"
+        return f"gravity load on {term.where['actuator']} ({term.where['load'].split('(')[-1].rstrip(')')})"
+
+    def from_dict(self, data, spec=None):
+        where = _where(data)
+        if spec is None:
+
+            if not isinstance(where.get("platform"), str):
+                raise BadInput("effect 'compliance': where.platform must name the stand the loads come from")
+            spec = get_platform(where["platform"], where.get("description"), **(where.get("platform_options") or {}))
+        if where.get("actuator") == "all":
+            return self.term(spec, None)
+        i, _, _ = _actuator(spec, data, self.name)
+        return self.term(spec, i)
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
+        loads = cached_loads(spec, commands.controls)
+        if _urdf_of(spec) is None:
+            term = self.term(spec, None)
+            j = int(np.argmax(np.max(np.abs(loads), axis=0)))
+        else:
+            span = np.ptp(loads, axis=0)
+            j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+            term = self.term(spec, j)
+        peak = float(np.max(np.abs(loads[:, j])))
+        if not peak > 0:
+            raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
+        return term, np.array([_size(spec, j, size, 1.0) / peak])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
+        loads = cached_loads(spec, plan.commands)
+        start = actuator_loads(spec, plan.start[None])[0]
+        if _urdf_of(spec) is None:
+            j, index, where = int(np.argmax(np.max(np.abs(loads), axis=0))), None, {"actuator": "all"}
+        else:
+            span = np.ptp(loads, axis=0)
+            j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+            index, where = j, {"actuator": spec.control_names[j]}
+        peak = float(np.max(np.abs(loads[:, j])))
+        if not peak > 0:
+            raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
+        return CompliancePhysics(_size(spec, j, size, 1.0) / peak, loads, start, index, spec.controls[j].unit, where)

@@ -1,0 +1,197 @@
+"""Effects of the drives, one term per actuator: backlash (play at reversal), cyclic_error (a
+periodic error of the travel) and scale_nonlinearity (a travel error smooth over the stroke)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from platkit.effects import Effect, history
+from platkit.errors import BadInput
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
+from platkit_effects.common import _actuator, _actuator_where, _number, _size, _where
+from platkit_effects.physics import BacklashPhysics, CyclicPhysics, ScalePhysics
+
+
+@dataclass
+class BacklashTerm(ModelTerm):
+    index: int = 0
+
+    def control_offset(self, theta, poses, n_u):
+        out = np.zeros((poses.n_poses, n_u))
+        out[:, self.index] = theta[0] * history(poses, "direction")[:, self.index]
+        return out
+
+
+class Backlash(Effect):
+    name = "backlash"
+    summary = "an actuator's position depends on the direction it last moved"
+
+    def term(self, i, where):
+        return BacklashTerm(self.name, ["half_play"], np.zeros(1), [where["unit"]], dict(where), index=i)
+
+    def candidates(self, spec, poses, residuals=None):
+        d = history(poses, "direction", spec)
+        return [self.term(i, _actuator_where(spec, i)) for i in range(spec.n_u)
+                if np.sum(d[:, i] > 0) >= 2 and np.sum(d[:, i] < 0) >= 2]
+
+    def regressor(self, term, spec, poses):
+        return history(poses, "direction", spec)[:, term.index]
+
+    def regressor_label(self, term):
+        return f"direction of the last move of {term.where['actuator']} (+1/-1)"
+
+    def from_dict(self, data, spec=None):
+        i, name, unit = _actuator(spec, data, self.name)
+        return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit})
+
+    def simulation_term(self, spec, size, rng, commands):
+        """(term, theta) for the simulator: ``size`` the full play (mm for length controls)."""
+        i = int(rng.integers(spec.n_u))
+        return self.term(i, _actuator_where(spec, i)), np.array([0.5 * _size(spec, i, size, 1.0)])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the full play (mm for length controls, else the control's unit), a deadband in the drive."""
+        i = int(rng.integers(spec.n_u))
+        return BacklashPhysics(i, spec.control_names[i], _size(spec, i, size, 1.0), spec.controls[i].unit)
+
+
+#: candidate periods per control unit: one turn and its harmonics; screw leads for 'm'
+PERIODS = {
+    "rad": (2 * np.pi, np.pi, 2 * np.pi / 3, np.pi / 2),
+    "deg": (360.0, 180.0, 120.0, 90.0),
+    "m": (0.02, 0.01, 0.005),
+    "count": (1024.0, 512.0, 256.0),
+}
+
+
+@dataclass
+class CyclicTerm(ModelTerm):
+    index: int = 0
+    period: float = 1.0
+
+    def control_offset(self, theta, poses, n_u):
+        phase = 2 * np.pi * poses.controls[:, self.index] / self.period
+        out = np.zeros((poses.n_poses, n_u))
+        out[:, self.index] = theta[0] * np.sin(phase) + theta[1] * np.cos(phase)
+        return out
+
+
+class CyclicError(Effect):
+    name = "cyclic_error"
+    summary = "an error periodic in an actuator's angle or travel (gear or encoder eccentricity)"
+
+    def term(self, i, where, period):
+        where = dict(where, period=float(period))
+        return CyclicTerm(self.name, ["sin_amplitude", "cos_amplitude"], np.zeros(2), [where["unit"]] * 2, where,
+                          index=i, period=float(period))
+
+    def candidates(self, spec, poses, residuals=None):
+        out = []
+        for i, c in enumerate(spec.controls):
+            travel = np.ptp(poses.controls[:, i])
+            for P in PERIODS.get(c.unit, ()):
+                if travel > P / 2:  # less than half a period seen is an offset and a slope
+                    out.append(self.term(i, _actuator_where(spec, i), P))
+        return out
+
+    def regressor(self, term, spec, poses):
+        return np.mod(poses.controls[:, term.index], term.period) / term.period
+
+    def regressor_label(self, term):
+        return f"phase of {term.where['actuator']} in a period of {term.period:g} {term.where['unit']} (turns)"
+
+    def from_dict(self, data, spec=None):
+        i, name, unit = _actuator(spec, data, self.name)
+        return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit},
+                         _number(_where(data), "period", self.name, positive=True))
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: amplitude (mm for lengths); period: one of PERIODS the commands span."""
+        options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
+                   if np.ptp(commands.controls[:, i]) > P / 2]
+        if not options:
+            raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
+        i, P = options[int(rng.integers(len(options)))]
+        a = _size(spec, i, size, 0.3)
+        ph = rng.uniform(0, 2 * np.pi)
+        return self.term(i, _actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the amplitude (mm for lengths) of a gear's error periodic in the actuator's true position."""
+        options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
+                   if np.ptp(plan.commands[:, i]) > P / 2]
+        if not options:
+            raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
+        i, P = options[int(rng.integers(len(options)))]
+        a = _size(spec, i, size, 0.3)
+        ph = rng.uniform(0, 2 * np.pi)
+        return CyclicPhysics(i, spec.control_names[i], P, a * np.cos(ph), a * np.sin(ph), spec.controls[i].unit)
+
+
+@dataclass
+class ScaleTerm(ModelTerm):
+    index: int = 0
+    lower: float = 0.0
+    upper: float = 1.0
+
+    def travel(self, controls):
+        return (2 * controls[:, self.index] - (self.lower + self.upper)) / (self.upper - self.lower)
+
+    def control_offset(self, theta, poses, n_u):
+        s = self.travel(poses.controls)
+        out = np.zeros((poses.n_poses, n_u))
+        out[:, self.index] = theta[0] * 0.5 * (3 * s**2 - 1) + theta[1] * 0.5 * (5 * s**3 - 3 * s)
+        return out
+
+
+class ScaleNonlinearity(Effect):
+    name = "scale_nonlinearity"
+    summary = "an actuator's travel not linear in its command"
+
+    def term(self, i, where, lower, upper):
+        where = dict(where, travel=[float(lower), float(upper)])
+        return ScaleTerm(self.name, ["quadratic", "cubic"], np.zeros(2), [where["unit"]] * 2, where,
+                         index=i, lower=float(lower), upper=float(upper))
+
+    def candidates(self, spec, poses, residuals=None):
+        out = []
+        for i, c in enumerate(spec.controls):
+            lo, hi = c.lower, c.upper
+            if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+                lo, hi = float(np.min(poses.controls[:, i])), float(np.max(poses.controls[:, i]))
+            if hi > lo and np.ptp(poses.controls[:, i]) > 0.2 * (hi - lo):
+                out.append(self.term(i, _actuator_where(spec, i), lo, hi))
+        return out
+
+    def regressor(self, term, spec, poses):
+        return term.travel(poses.controls)
+
+    def regressor_label(self, term):
+        return f"travel of {term.where['actuator']} over its stroke (-1..1)"
+
+    def from_dict(self, data, spec=None):
+        i, name, unit = _actuator(spec, data, self.name)
+        travel = _where(data).get("travel")
+        if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(v, (int, float)) for v in travel)
+                and travel[1] > travel[0]):
+            raise BadInput("effect 'scale_nonlinearity': where.travel must be [lower, upper] with lower < upper")
+        return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit}, *travel)
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the largest deviation from linear travel, at the stroke ends (mm for lengths)."""
+        terms = self.candidates(spec, commands)
+        if not terms:
+            raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
+        t = terms[int(rng.integers(len(terms)))]
+        return t, np.array([_size(spec, t.index, size, 1.0), 0.0])
+
+    def physics(self, spec, size, rng, plan):
+        """``size``: the largest deviation from linear travel, at the stroke ends (mm for lengths)."""
+        terms = [t for t in self.candidates(spec, PoseSet(spec.name, plan.commands, np.zeros((len(plan.commands), 0, 3)), []))]
+        if not terms:
+            raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
+        t = terms[int(rng.integers(len(terms)))]
+        return ScalePhysics(t.index, t.where["actuator"], t.lower, t.upper, _size(spec, t.index, size, 1.0), 0.0,
+                            t.where["unit"])
