@@ -37,7 +37,6 @@ position ``x_inf`` (its uncertainty in ``n_samples`` as sigma^2 / var, so the es
 it) when its approach fits the stream, or the search stops with a ComputationFailed naming the
 actuators and markers still moving and their time constant.
 """
-
 from __future__ import annotations
 
 import warnings
@@ -94,7 +93,6 @@ __all__ = [
     "profile_start", "settle", "settling_summary", "shared_tail", "still_mask", "tail_free_window",
     "tail_scale", "trend_test",
 ]
-
 
 #: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
 SLOW_SCALE_S = 0.4
