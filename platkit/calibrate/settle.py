@@ -54,6 +54,7 @@ from platkit.calibrate.settle_approach import (
     extrapolation_checked,
     fit_approach,
     tail_free_window,
+    tail_regression,
     tail_scale,
 )
 from platkit.calibrate.settle_report import (
@@ -158,6 +159,11 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     unsettled: list[int] = []
     segments: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # the stretches of the holds that never settled
     windows: dict[int, tuple] = {}  # settled holds: (t, stretch, approach start, window start, end)
+    # holds whose tail bound cut the still stretch to between bound_keeps_evident and bound_keeps
+    # of it: row -> (that window start, its correction, the tail's estimate), taken when the
+    # session bears its tails out
+    deferred: dict[int, tuple] = {}
+    evidence = [0.0, 0.0]  # the still stretches regressed on their fitted tails, pooled: sum g y, sum g g
     slow_taus: dict[int, float] = {}  # holds that never settled: the time constant of the end of their approach
     slow_left: dict[int, float] = {}  # ... and the distance it still had to go (m)
     slow_tail: dict[int, np.ndarray] = {}  # ... and what the markers moved late in it, reversed (m)
@@ -209,12 +215,17 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                 # its upper bound (a fit whose decay is off still marks where the approach ends;
                 # dropping it would start the window in the tail), a correction by its estimate
                 kappa, k_hi = tail_scale(fit, ts[run[0]:end], seg[run[0]:end], sig_slow)
+                num, den = tail_regression(fit.tail(ts[run[0]:end]), seg[run[0]:end])
+                evidence[0] += num
+                evidence[1] += den
                 bound = fit.scaled(k_hi)
                 fit = fit.scaled(kappa)
             if fit is not None and bound is not None:
                 window = tail_free_window(bound, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples,
                                           estimate=fit)
                 if bound is not fit and (window is None or end - window[0] < opt.bound_keeps * (end - run[0])):
+                    if window is not None and end - window[0] >= opt.bound_keeps_evident * (end - run[0]):
+                        deferred[i] = (window[0], window[1], fit)
                     # the bound leaves no clean window, or a small part of the still stretch (a
                     # decay the stretch hardly supports, a short hold): the estimate decides
                     window = (tail_free_window(fit, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples)
@@ -264,6 +275,17 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             continue
         results[i] = r
         windows[i] = (ts, seg, k0, start, end)
+    z = evidence[0] / (sig_slow * np.sqrt(evidence[1])) if evidence[1] > 0 else 0.0
+    if z >= opt.tail_evidence_z:
+        # the still stretches, pooled, bear out the fitted tails: the session's approaches have a
+        # real tail, and the bound's cut stands where a hold alone could not justify it
+        for i, (cut, corr, estimate) in deferred.items():
+            if i in windows and cut > windows[i][3]:
+                ts, seg, k0, _start, end = windows[i]
+                r = _window_result(ts, seg, cut, end, corr, estimate)
+                if r is not None:
+                    results[i] = r
+                    windows[i] = (ts, seg, k0, cut, end)
     # the tail the holds share: a start each hold could not justify alone (its tail below its
     # own noise) still biases every pose the same way, along its step
     profile = shared_tail(windows, results, sig_slow, n)

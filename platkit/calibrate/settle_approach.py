@@ -255,15 +255,11 @@ def tail_free_window(approach: Approach, t: np.ndarray, start: int, end: int, si
     return None
 
 
-def tail_scale(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float, z: float = 2.0,
-               floor_z: float = 3.0) -> tuple[float, float]:
-    """(kappa, upper bound) of the share of the fitted tail that a still stretch (t (L,), markers
-    (L, M, 3)) bears out: the data, centred, regressed on the tail's own shape over the stretch
-    (kappa, standard error se against ``sigma``). The bound is kappa + z se, at least 0. A tail
-    the stretch cannot tell from the noise (at its start below ``floor_z`` times its own standard
-    error, over every marker coordinate) has kappa 0 but keeps the bound; a tail the stretch
-    bears out within 4 se keeps kappa 1."""
-    F = approach.tail(t)
+def tail_regression(F: np.ndarray, markers: np.ndarray) -> tuple[float, float]:
+    """(sum g y, sum g g) m^2 of the regression of a still stretch (markers (L, M, 3)) on a tail's
+    shape F (L, M, 3), both centred per marker coordinate over the samples where the marker is
+    seen (markers with fewer than 4 such samples left out): kappa = num / den, its standard error
+    sigma / sqrt(den). Sums, so that holds can be pooled."""
     ok = np.isfinite(markers).all(axis=2)
     num = den = 0.0
     for m in range(markers.shape[1]):
@@ -274,6 +270,19 @@ def tail_scale(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: fl
         y = markers[sel, m] - markers[sel, m].mean(axis=0)
         num += float(np.sum(g * y))
         den += float(np.sum(g * g))
+    return num, den
+
+
+def tail_scale(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float, z: float = 2.0,
+               floor_z: float = 3.0) -> tuple[float, float]:
+    """(kappa, upper bound) of the share of the fitted tail that a still stretch (t (L,), markers
+    (L, M, 3)) bears out: the data, centred, regressed on the tail's own shape over the stretch
+    (kappa, standard error se against ``sigma``). The bound is kappa + z se, at least 0. A tail
+    the stretch cannot tell from the noise (at its start below ``floor_z`` times its own standard
+    error, over every marker coordinate) has kappa 0 but keeps the bound; a tail the stretch
+    bears out within 4 se keeps kappa 1."""
+    F = approach.tail(t)
+    num, den = tail_regression(F, markers)
     if den <= 0:
         return 1.0, 1.0
     kappa, se = num / den, sigma / np.sqrt(den)

@@ -38,6 +38,10 @@ class SettleOptions:
     max_extrapolation_share: float = 0.02
     max_window_s: float | None = None  # the window is at most this long, ending where the hold does
     bound_keeps: float = 0.4  # the tail's upper bound may cut the still stretch to this share (else its estimate rules)
+    # ... or to this share when the still stretches of the session, pooled, bear out their fitted
+    # tails (regressed on them: kappa at least tail_evidence_z standard errors above zero)
+    bound_keeps_evident: float = 0.25
+    tail_evidence_z: float = 3.0
 
 
 @dataclass
