@@ -37,7 +37,8 @@ def motion_heat(poses: PoseSet, stroke: np.ndarray, tau_s: float) -> np.ndarray:
     t = history(poses, "elapsed")
     row = history(poses, "row")
     order = np.argsort(row, kind="stable")
-    move = np.abs(np.diff(U[order], axis=0)) / stroke
+    Us = U[order] / stroke
+    move = np.abs(np.diff(Us, axis=0))
     gap = np.maximum(np.diff(row[order]), 1.0)[:, None]
     single = gap[:, 0] == 1
     if np.any(~single):
@@ -45,7 +46,15 @@ def motion_heat(poses: PoseSet, stroke: np.ndarray, tau_s: float) -> np.ndarray:
         across = np.sum(move[~single], axis=0) / np.sum(gap[~single], axis=0)  # move across a gap, per command
         with np.errstate(divide="ignore", invalid="ignore"):
             factor = np.where(across > 0, m1 / across, 1.0)  # g m1 / m_gap
-        move = np.where(gap > 1, move * np.clip(factor, 1.0, gap), move)
+        # a random plan's hidden commands: the path a -> c_1 .. c_(g-1) -> b expected with the c
+        # drawn from the commands seen, E|a - c| + (g - 2) m1 + E|c - b| (the move across the gap
+        # itself says little: a = b still moved); a sweep's (factor 1): the move across the gap
+        share = np.clip((factor - 1.0) / np.maximum(gap - 1.0, 1.0), 0.0, 1.0)
+        a, b = Us[:-1], Us[1:]
+        reach_a = np.mean(np.abs(a[:, None, :] - Us[None]), axis=1)
+        reach_b = np.mean(np.abs(b[:, None, :] - Us[None]), axis=1)
+        expected = np.maximum(reach_a + reach_b + (gap - 2.0) * m1, move)
+        move = np.where(gap > 1, move + share * (expected - move), move)
     heat = np.zeros_like(U)
     ts = t[order]
     for k in range(1, N):
