@@ -23,7 +23,10 @@ the window starts where the fitted tail's share of the window mean is at most ``
 of the averaging noise (sigma / sqrt(n)). The still stretch says how much of the fitted tail is
 there (a regression on the tail's shape, :func:`tail_scale`): the window is chosen by the upper
 bound of that share (a decay fitted too slow or too fast still marks where the approach ends),
-a correction by its estimate. Each hold's tail is mostly below its own noise, but every hold
+a correction by its estimate; where that bound leaves under ``bound_keeps`` of the still stretch
+the estimate decides, unless the session's still stretches, pooled, bear out their fitted tails
+(:func:`tail_regression`, ``tail_evidence_z``): then the bound's cut stands down to
+``bound_keeps_evident`` of it. Each hold's tail is mostly below its own noise, but every hold
 lags the same way: the tail as the holds share it (:func:`shared_tail`, timed from each hold's
 arrival within ARRIVAL_SIGMA sigma of rest, where every tail starts from the same distance)
 moves every window to where the pooled tail biases it by at most ``tail_fraction`` of its
@@ -92,7 +95,7 @@ __all__ = [
     "direction_of_last_motion", "dropped_by_reason", "dropped_sentence", "estimate_noise",
     "extrapolation_checked", "fit_approach", "last_step", "load_poses", "noise_inflation", "poses_from_table",
     "profile_start", "settle", "settling_summary", "shared_tail", "still_mask", "tail_free_window",
-    "tail_scale", "trend_test",
+    "tail_regression", "tail_scale", "trend_test",
 ]
 
 #: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
