@@ -9,6 +9,10 @@ probe's ``where``. Probes are never written to calibration.yaml.
   time bins (the first bin is the reference): any change with time.
 - :class:`SpaceProbe`: the moving frame translated by a quadratic function of its nominal
   position (6 monomials per axis): any smooth error over the workspace.
+- :class:`MarkerProbe`: each marker moved on the moving frame by its own offset, linear in the
+  controls and in their mean squared distance from the middle of the strokes (n_u + 1 terms per
+  marker and axis): a marker plate or mount that is not rigid, bending with the pose (the frame
+  probes move every marker together and cannot see it).
 """
 from __future__ import annotations
 
@@ -70,3 +74,41 @@ def space_probe(fk_X: np.ndarray) -> SpaceProbe | None:
     return SpaceProbe("unexplained", names, np.zeros(18), ["m"] * 18,
                       {"region": "the workspace, quadratic in the moving frame's position"},
                       center=X.mean(axis=0), scale=scale)
+
+
+@dataclass
+class MarkerProbe(ModelTerm):
+    mid: np.ndarray | None = None
+    half: np.ndarray | None = None
+    n_markers: int = 0
+
+    def features(self, poses: PoseSet) -> np.ndarray:
+        """(N, n_u + 1) the controls from the middle of their range (in half ranges) and the mean
+        of their squares."""
+        u = (np.asarray(poses.controls, float) - self.mid) / self.half
+        return np.hstack([u, np.mean(u * u, axis=1, keepdims=True)])
+
+    def marker_offset(self, theta, poses):
+        f = self.features(poses)
+        A = np.asarray(theta, float).reshape(self.n_markers, 3, f.shape[1])
+        return np.einsum("nf,maf->nma", f, A)
+
+
+def marker_probe(poses: PoseSet) -> MarkerProbe | None:
+    """A :class:`MarkerProbe` over ``poses``' control range; None with fewer than 30 poses, or
+    with fewer poses than 4 times the parameters' share of one marker's (too few to judge it)."""
+    U = np.asarray(poses.controls, float)
+    M = poses.n_markers
+    if len(U) < 30 or M < 2 or U.ndim != 2:
+        return None
+    n_f = U.shape[1] + 1
+    if len(U) * M * 3 < 4 * M * 3 * n_f:
+        return None
+    lo, hi = U.min(axis=0), U.max(axis=0)
+    half = np.where(hi > lo, 0.5 * (hi - lo), 1.0)
+    names = [f"{m}_{a}_{f}" for m in poses.marker_names for a in "xyz"
+             for f in [f"u{j + 1}" for j in range(n_f - 1)] + ["reach"]]
+    return MarkerProbe("unexplained", names, np.zeros(len(names)), ["m"] * len(names),
+                       {"markers": "each marker its own offset, linear in the controls and in their squared "
+                                   "distance from the middle of the strokes"},
+                       mid=0.5 * (lo + hi), half=half, n_markers=M)

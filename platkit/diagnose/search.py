@@ -40,7 +40,7 @@ import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors, robust_fit
 from platkit.diagnose.locate import Location, locate, located
-from platkit.diagnose.probes import space_probe, time_probe
+from platkit.diagnose.probes import marker_probe, space_probe, time_probe
 from platkit.diagnose.stats import bic, column_basis, holm, paired_improvement, score_test
 from platkit.effects import Effect, effect_library, with_history
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
@@ -637,7 +637,7 @@ def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Findi
     best None, than the current model) as an ``unexplained`` finding; else None."""
     ref = best if best is not None else cur
     fk_X = cur.problem.kinematics(cur.problem.split(cur.z)[0], poses.controls)[1]
-    probes = [p for p in (time_probe(poses), space_probe(fk_X)) if p is not None]
+    probes = [p for p in (time_probe(poses), space_probe(fk_X), marker_probe(poses)) if p is not None]
     results = []
     for probe in probes:
         f = _fit(spec, poses, cur.terms + [probe], cur.z, cur.active, cur.weights, opt.lm_iterations, opt.robust)
@@ -649,7 +649,9 @@ def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Findi
         gain_vs_ref = f.cv_rms < (1 - 2 * opt.min_relative_gain) * ref.cv_rms
         if p < opt.alpha_heldout / max(len(probes), 1) and p0 < opt.alpha_heldout and f.bic < cur.bic and gain_vs_ref:
             unit = poses.length_unit
-            what = "changes with time" if "time" in probe.where else "varies smoothly over the workspace"
+            what = ("changes with time" if "time" in probe.where else
+                    "moves each marker on its own with the pose" if "markers" in probe.where else
+                    "varies smoothly over the workspace")
             named = "" if best is None else f" better than the best named effect ({best.terms[-1].effect}, " \
                 f"{_fmt_rms(best.cv_rms, unit)})"
             return Finding(

@@ -6,8 +6,11 @@ import json
 import numpy as np
 
 import platkit.simulate.physics as physics_module
+from platkit.calibrate.settle import settle
 from platkit.cli import main
+from platkit.diagnose.search import Options, diagnose
 from platkit.effects import EffectPhysics
+from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
@@ -56,11 +59,21 @@ def _diagnose(tmp_path, session):
     return json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
 
 
-def test_a_non_rigid_marker_plate_is_unexplained_with_its_lack_of_fit(tmp_path, monkeypatch):
+def test_a_non_rigid_marker_plate_is_unexplained_by_the_marker_probe(tmp_path, monkeypatch):
     diag = _diagnose(tmp_path, _session(tmp_path, monkeypatch, [("plate_flex", 2.0)]))
     assert [f["effect"] for f in diag["findings"]] == ["unexplained"]
-    assert "times the noise floor" in diag["findings"][0]["evidence"]
+    assert "markers" in diag["findings"][0]["where"]  # each marker its own offset with the pose
+    assert "moves each marker on its own" in diag["findings"][0]["evidence"]
+    assert diag["findings"][0]["heldout_rms_after"] < 0.6 * diag["heldout_rms_geometric"]
     assert diag["heldout_rms_geometric"] > 2 * diag["noise_floor"]
+
+
+def test_without_probes_the_plate_is_a_lack_of_fit(tmp_path, monkeypatch):
+    spec = get_platform("psvr")
+    poses, _ = settle(load_session(_session(tmp_path, monkeypatch, [("plate_flex", 2.0)]), platform="psvr"))
+    d = diagnose(spec, poses, Options(probes=False))
+    assert [f.effect for f in d.findings] == ["unexplained"]
+    assert "times the noise floor" in d.findings[0].evidence
 
 
 def test_the_same_session_without_it_has_no_finding(tmp_path, monkeypatch):
