@@ -23,10 +23,14 @@ def motion_heat(poses: PoseSet, stroke: np.ndarray, tau_s: float) -> np.ndarray:
     """(N, n_u) each actuator's heat at each pose: the strokes it moved, cooling with ``tau_s``,
     ``theta_n = sum_k |u_k - u_(k-1)| / stroke exp(-(t_n - t_k) / tau)`` over the moves up to row n
     (rows in session order, times from the first command). A gap in the rows (commands that gave
-    no pose) hides moves: a gap of g commands counts the move across it times g m1 / m_gap, the
-    mean single move over the mean move across gaps (per actuator, between 1 and g): g times for
-    a random plan, once for a sweep. Computed on the full session and kept by subsets (the key
-    'heat_<tau>' of ``extras``), so a fold's refit sees the same heat."""
+    no pose) hides moves. The last hidden command c is known where the session reader kept each
+    row's own last step (``extras['last_step']``, from the full command list: b - c), so its move
+    into b counts exactly. The path from a to c over the k = g - 1 commands left is, for a random
+    plan, its expectation with the hidden commands drawn from those seen, E|a - x| + (k - 2) m1 +
+    E|x - c| (m1 the mean single move; exact, |c - a|, for k = 1), for a sweep |c - a|, blended
+    per actuator by how much longer single moves are than moves across gaps (g m1 / m_gap, 1 to
+    g). Computed on the full session and kept by subsets (the key 'heat_<tau>' of ``extras``),
+    so a fold's refit sees the same heat."""
     key = f"heat_{tau_s:g}"
     if key in poses.extras and np.shape(poses.extras[key]) == poses.controls.shape:
         return np.asarray(poses.extras[key], float)
@@ -46,15 +50,24 @@ def motion_heat(poses: PoseSet, stroke: np.ndarray, tau_s: float) -> np.ndarray:
         across = np.sum(move[~single], axis=0) / np.sum(gap[~single], axis=0)  # move across a gap, per command
         with np.errstate(divide="ignore", invalid="ignore"):
             factor = np.where(across > 0, m1 / across, 1.0)  # g m1 / m_gap
-        # a random plan's hidden commands: the path a -> c_1 .. c_(g-1) -> b expected with the c
-        # drawn from the commands seen, E|a - c| + (g - 2) m1 + E|c - b| (the move across the gap
-        # itself says little: a = b still moved); a sweep's (factor 1): the move across the gap
         share = np.clip((factor - 1.0) / np.maximum(gap - 1.0, 1.0), 0.0, 1.0)
         a, b = Us[:-1], Us[1:]
+        into_b = np.zeros_like(b)
+        steps = poses.extras.get("last_step")
+        if steps is not None and np.shape(steps) == U.shape:
+            ls = (np.asarray(steps, float)[order] / stroke)[1:]
+            # the rows' own steps (a reader without the full commands) say nothing of c: b - a
+            known = np.isfinite(ls).all(axis=1) & ~np.all(np.isclose(ls, b - a, rtol=1e-9, atol=1e-12), axis=1)
+            if np.any(known & ~single):
+                into_b = np.where((known & ~single)[:, None], np.nan_to_num(ls), 0.0)
+                b = b - into_b
+                gap = np.where((known & ~single)[:, None], gap - 1.0, gap)
+        span = np.abs(b - a)
         reach_a = np.mean(np.abs(a[:, None, :] - Us[None]), axis=1)
         reach_b = np.mean(np.abs(b[:, None, :] - Us[None]), axis=1)
-        expected = np.maximum(reach_a + reach_b + (gap - 2.0) * m1, move)
-        move = np.where(gap > 1, move + share * (expected - move), move)
+        expected = np.maximum(reach_a + reach_b + (gap - 2.0) * m1, span)
+        hidden = np.where(gap > 1, span + share * (expected - span), span)
+        move = np.where(single[:, None], move, hidden + np.abs(into_b))
     heat = np.zeros_like(U)
     ts = t[order]
     for k in range(1, N):
