@@ -549,10 +549,36 @@ def _table_text(rows: list[list[str]], header=("t", "a", "b")) -> str:
 
 @pytest.fixture
 def small_chunks(monkeypatch):
-    """Chunks of 4 rows, so that a few rows cross chunk boundaries as millions would."""
+    """Chunks of 4 rows, so that a few rows cross chunk boundaries as millions would; files of
+    any size parsed as two halves at once first (as large files are), then in one pass where a
+    half does not read cleanly."""
     import platkit.io.table as session_module
 
     monkeypatch.setattr(session_module, "CHUNK_ROWS", 4)
+    monkeypatch.setattr(session_module, "PARALLEL_MIN_BYTES", 0)
+
+
+@pytest.mark.parametrize("n", [8, 9, 13, 40])
+def test_two_halves_read_what_one_pass_reads(tmp_path, small_chunks, monkeypatch, n):
+    import platkit.io.table as table_module
+
+    rows = [[f"{i}", "" if i % 5 == 1 else f"{i * 0.5:.3f}", "nan" if i % 7 == 3 else "1.25"] for i in range(n)]
+    p = tmp_path / "m.csv"
+    p.write_text(_table_text(rows) + "\n\n")  # blank lines after the last row are no rows
+    halves = []
+    real = table_module._parse_fast
+
+    def spy(*args, **kwargs):
+        halves.append(kwargs.get("stop"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(table_module, "_parse_fast", spy)
+    both = read_table(p).data
+    assert len(halves) == 2 and halves[0] is not None and halves[1] is None  # two halves, no second pass
+    monkeypatch.setattr(table_module, "PARALLEL_MIN_BYTES", 10**12)
+    one = read_table(p).data
+    assert both.shape == one.shape == (n, 3)
+    assert np.array_equal(both, one, equal_nan=True)
 
 
 @pytest.mark.parametrize("row", [0, 3, 4, 5, 10])
