@@ -296,6 +296,15 @@ class Servo:
             rot.append(float(np.linalg.norm(E[3:][sel[3:]])))
         return pos, rot
 
+    def _capped(self, iterations: int, start: float) -> str:
+        """Why an attempt stops here (the iteration or the time cap), or '' to go on."""
+        o = self.options
+        if iterations >= o.max_iterations:
+            return f"stopped at the iteration cap ({o.max_iterations})"
+        if time.perf_counter() - start > o.max_seconds:
+            return f"stopped at the time cap ({o.max_seconds:g} s)"
+        return ""
+
     def _done(self, pos, rot) -> bool:
         o = self.options
         return all(p <= o.tol_position for p in pos) and all(r <= o.tol_rotation for r in rot)
@@ -442,11 +451,8 @@ class Servo:
         pos, rot = self._norms([E])
         converged = self._done(pos, rot)
         while not converged:
-            if iterations >= o.max_iterations:
-                reason = f"stopped at the iteration cap ({o.max_iterations})"
-                break
-            if time.perf_counter() - start > o.max_seconds:
-                reason = f"stopped at the time cap ({o.max_seconds:g} s)"
+            reason = self._capped(iterations, start)
+            if reason:
                 break
             dq, _info = self._fast_step(theta, E)
             accepted = False
@@ -502,11 +508,8 @@ class Servo:
         pos, rot = self._norms(errors)
         converged = self._done(pos, rot)
         while not converged:
-            if iterations >= o.max_iterations:
-                reason = f"stopped at the iteration cap ({o.max_iterations})"
-                break
-            if time.perf_counter() - start > o.max_seconds:
-                reason = f"stopped at the time cap ({o.max_seconds:g} s)"
+            reason = self._capped(iterations, start)
+            if reason:
                 break
             dq, _info = self.step(theta, errors)
             accepted = False
