@@ -40,6 +40,7 @@ import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors, robust_fit
 from platkit.diagnose.locate import Location, locate, located
+from platkit.diagnose.floor import noise_floor, worst_marker
 from platkit.diagnose.probes import marker_probe, space_probe, time_probe
 from platkit.diagnose.stats import bic, column_basis, holm, paired_improvement, score_test
 from platkit.effects import Effect, effect_library, with_history
@@ -475,7 +476,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     if (not stop and not any(f.effect == "unexplained" for f in findings) and not modelled and floor is not None
             and cur.cv_rms > opt.lack_of_fit_factor * floor):
         ratio = cur.cv_rms / floor
-        worst = _worst_marker(cur, poses)
+        worst = worst_marker(cur.r, poses)
         findings.append(Finding(
             effect="unexplained", where={"fit": "every pose", **({"marker": worst} if worst else {})}, parameters={},
             heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
@@ -576,37 +577,6 @@ def stand_calibration(cal: Calibration) -> Calibration:
         return cal
     return replace(cal, terms=[cal.terms[k] for k in keep], theta=[cal.theta[k] for k in keep],
                    theta_std=[cal.theta_std[k] for k in keep], marker_positions=markers, marker_std=mstd)
-
-
-def _worst_marker(cur: Fit, poses: PoseSet) -> str | None:
-    """The marker whose fit residuals are largest (RMS over the poses that saw it), when it stands
-    out (1.5 times the median marker's): a marker moving against the others; else None."""
-    r = np.asarray(cur.r, float)
-    seen = np.isfinite(r).all(axis=2)
-    per = np.array([np.sqrt(np.mean(np.sum(r[seen[:, m], m] ** 2, axis=1))) if seen[:, m].any() else 0.0
-                    for m in range(r.shape[1])])
-    if per.size < 2 or not np.median(per) > 0:
-        return None
-    k = int(np.argmax(per))
-    return poses.marker_names[k] if per[k] > 1.5 * np.median(per) else None
-
-
-def noise_floor(poses: PoseSet, n_params: int) -> float | None:
-    """The held-out RMS (m, of the 3-D marker error) that marker noise alone gives: each settled
-    marker averages n samples of noise sigma per coordinate (sigma from the settling search), and
-    a refit on the other folds adds its own error (about n_params / n_observations of it); a
-    coloured noise averages less (its slow part, ``slow_noise_inflation`` of settle). None
-    when the poses did not come from a stream (no sigma) or carry no sample counts."""
-    sigma = (poses.settling or {}).get("sigma_m")
-    if sigma is None or poses.n_samples is None:
-        return None
-    sigma = sigma * np.sqrt((poses.settling or {}).get("slow_noise_inflation", 1.0))  # coloured noise averages less
-    n = np.asarray(poses.n_samples, float)
-    seen = np.all(np.isfinite(poses.markers), axis=2) & (n > 0)
-    if not seen.any():
-        return None
-    ms = float(np.mean(3.0 * sigma**2 / n[seen]))
-    return float(np.sqrt(ms * (1.0 + n_params / (3.0 * seen.sum()))))
 
 
 def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.ndarray, opt: Options,
