@@ -26,7 +26,6 @@ import argparse  # noqa: E402  (below the handler on purpose)
 import importlib  # noqa: E402
 import os  # noqa: E402
 import re  # noqa: E402
-import traceback  # noqa: E402
 
 from platkit import __version__  # noqa: E402
 from platkit.errors import PlatkitError  # noqa: E402
@@ -94,6 +93,14 @@ def join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+def _print_traceback() -> None:
+    """--debug: the traceback of the error being handled (traceback imported only then: it
+    costs every start-up a few milliseconds, issue 13)."""
+    import traceback
+
+    traceback.print_exc()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command line; the exit status. Ctrl-C at any point, start-up included, ends
     with one line on stderr and 130."""
@@ -112,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except PlatkitError as exc:
         if debug:
-            traceback.print_exc()
+            _print_traceback()
         print(f"platkit: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # the reader stopped early (`platkit describe ... | head`): not an error
@@ -121,18 +128,18 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     except OSError as exc:  # a path the system refused (permissions, a file where a folder must be)
         if debug:
-            traceback.print_exc()
+            _print_traceback()
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"platkit: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if debug:
-            traceback.print_exc()
+            _print_traceback()
         print("platkit: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # an unexpected failure is a failed computation, said in one line
         if debug:
-            traceback.print_exc()
+            _print_traceback()
         print(f"platkit: error: {exc.__class__.__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
         return 1
 

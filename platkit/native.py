@@ -3,7 +3,7 @@
 The stand's residual and its Jacobian are generated with CasADi's code generator, a Newton
 driver that knows no stand is appended, and the result is compiled once with the system C
 compiler into a cache directory (``$PLATKIT_CACHE_DIR``, default ``~/.cache/platkit``) keyed by a
-hash of the source; ``PLATKIT_COMPILE=0`` switches it off. Loaded through ctypes.
+hash of the source (:func:`cache_dir`, platkit/io/cache.py); ``PLATKIT_COMPILE=0`` switches it off. Loaded through ctypes.
 """
 from __future__ import annotations
 
@@ -11,15 +11,16 @@ import ctypes
 import hashlib
 import os
 import shutil
-import subprocess
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
 import casadi as ca
 
+from platkit.io.cache import cache_dir
 from platkit.model import PlatformSpec
+
+__all__ = ["cache_dir", "native_for", "newton_functions", "NativeNewton", "CONVERGED", "MAX_ITERATIONS", "SINGULAR", "NOT_FINITE"]
 
 #: status codes of the Newton driver (C and numpy alike)
 CONVERGED, MAX_ITERATIONS, SINGULAR, NOT_FINITE = 0, 1, 2, 3
@@ -158,15 +159,6 @@ _native_by_functions: dict = {}  # id-key -> (functions kept alive, NativeNewton
 _native_by_hash: dict = {}
 
 
-def cache_dir() -> Path:
-    """Where compiled solvers are kept: $PLATKIT_CACHE_DIR, else $XDG_CACHE_HOME/platkit, else ~/.cache/platkit."""
-    env = os.environ.get("PLATKIT_CACHE_DIR")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "platkit"
-
-
 def _find_compiler() -> str | None:
     if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
         return None
@@ -238,20 +230,36 @@ def _build_native(spec: PlatformSpec, rj: ca.Function, post: ca.Function, n_g: i
         lib = folder / f"newton_{key}.so"
         try:
             if not lib.is_file():
-                folder.mkdir(parents=True, exist_ok=True)
-                with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
-                    src = Path(tmp) / "platkit_newton.c"
-                    src.write_text(source)
-                    out = Path(tmp) / lib.name
-                    proc = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True, timeout=300)
-                    if proc.returncode != 0:
-                        return f"the C compiler failed ({(proc.stderr.strip().splitlines() or ['?'])[-1]})"
-                    os.replace(out, lib)  # atomic: other processes see the whole library or none
+                failed = _compile(cc, flags, source, folder, lib)
+                if failed is not None:
+                    return failed
             native = NativeNewton(lib, spec.n_u, spec.n_p, n_g)
-        except (OSError, subprocess.SubprocessError) as exc:
+        except OSError as exc:
             return f"compiling the solver failed ({exc.__class__.__name__}: {exc})"
         _native_by_hash[key] = native
         return native
+
+
+def _compile(cc: str, flags: list[str], source: str, folder: Path, lib: Path) -> str | None:
+    """Compile ``source`` into ``lib`` (atomically: other processes see the whole library or
+    none); None, or the reason it failed. subprocess and tempfile are imported here, on a cache
+    miss, not by every start-up that only loads a cached solver (issue 13)."""
+    import subprocess
+    import tempfile
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=folder, prefix=".build-") as tmp:
+            src = Path(tmp) / "platkit_newton.c"
+            src.write_text(source)
+            out = Path(tmp) / lib.name
+            proc = subprocess.run([cc, *flags, "-o", str(out), str(src), "-lm"], capture_output=True, text=True, timeout=300)
+            if proc.returncode != 0:
+                return f"the C compiler failed ({(proc.stderr.strip().splitlines() or ['?'])[-1]})"
+            os.replace(out, lib)
+    except (OSError, subprocess.SubprocessError) as exc:
+        return f"compiling the solver failed ({exc.__class__.__name__}: {exc})"
+    return None
 
 
 def native_for(spec: PlatformSpec, rj, post, n_g):

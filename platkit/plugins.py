@@ -9,6 +9,11 @@ Two sources, registered through the same hooks (platkit/hookspecs.py):
   entry point naming a built-in module (the metadata of an older platkit) is skipped: a plugin is
   registered once.
 
+The entry-point group is read through ``importlib.metadata`` only when some distribution on the path
+declares it (:func:`may_declare_entry_points`, a directory listing): importing importlib.metadata
+costs a few milliseconds of every verb's start-up (issue 13), and almost no installation has an
+outside plugin.
+
 Every plugin is checked when it registers: a hook name platkit does not define (a misspelling) or
 a stand or effect name already taken is one line naming the plugin (:class:`BadPlugin`,
 :class:`PluginConflict`).
@@ -17,7 +22,8 @@ from __future__ import annotations
 
 import functools
 import importlib
-from importlib import metadata
+import os
+import sys
 from types import ModuleType
 from typing import TYPE_CHECKING, Any, cast
 
@@ -69,6 +75,10 @@ class PluginHost:
 
     def load_entry_points(self) -> None:
         """Register the outside plugins of the ``platkit`` entry-point group."""
+        if not may_declare_entry_points(ENTRY_POINT_GROUP):
+            return
+        from importlib import metadata
+
         for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
             if ep.module in BUILTIN_PLUGINS:
                 continue
@@ -162,6 +172,46 @@ class PluginHost:
 
     def build(self, name: str, description=None, **options) -> PlatformSpec:
         return self.factory(name)(description, **options)
+
+
+def may_declare_entry_points(group: str) -> bool:
+    """False only where no distribution that ``importlib.metadata`` would find can declare an
+    entry point of ``group``: the metadata folders (``*.dist-info``, ``*.egg-info``, an egg's
+    ``EGG-INFO``) of every folder on ``sys.path`` are listed as importlib.metadata lists them, and
+    none has an ``entry_points.txt`` with a section header naming ``group``. True (ask
+    importlib.metadata) for anything it cannot tell: a path entry that is a file (a zip or an egg),
+    a metadata file it cannot read, a finder other than the standard path finder that finds
+    distributions."""
+    from importlib.machinery import PathFinder
+
+    if any(getattr(f, "find_distributions", None) is not None and f is not PathFinder for f in sys.meta_path):
+        return True
+    needle = group.encode()
+    for root in sys.path:
+        if not isinstance(root, str):
+            return True
+        folder = root or "."
+        try:
+            children = os.listdir(folder)
+        except OSError:
+            if os.path.isfile(folder):  # importlib.metadata reads a zip on the path
+                return True
+            continue
+        is_egg = os.path.basename(folder).lower().endswith(".egg")
+        for child in children:
+            low = child.lower()
+            if not (low.endswith((".dist-info", ".egg-info")) or (is_egg and low == "egg-info")):
+                continue
+            try:
+                with open(os.path.join(folder, child, "entry_points.txt"), "rb") as fh:
+                    text = fh.read()
+            except (FileNotFoundError, NotADirectoryError):
+                continue
+            except OSError:
+                return True
+            if needle in text and any(line.strip().startswith(b"[") and needle in line for line in text.splitlines()):
+                return True
+    return False
 
 
 def _one_line(exc: Exception) -> str:

@@ -1,20 +1,24 @@
 """Description files: safe YAML reading and where a stand's default description lives.
 
 YAML is read with ``yaml.safe_load`` only (no tags that construct objects); errors name the file
-and, where YAML gives one, the line.
+and, where YAML gives one, the line. A text parsed once is read back from platkit's cache
+(platkit/io/cache.py) without importing PyYAML, which every verb that looks up a stand would
+otherwise pay at start-up (issue 13).
 """
 from __future__ import annotations
 
-import difflib
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 
 from platkit.errors import BadDescription
+from platkit.io.cache import cached_yaml, keep_yaml
 from platkit.io.shipped import shipped_dir
+
+if TYPE_CHECKING:
+    import yaml
 
 DESCRIPTIONS_ENV = "PLATKIT_DESCRIPTIONS"
 
@@ -28,6 +32,19 @@ def load_yaml(path: str | Path, error=BadDescription) -> dict[str, Any]:
         raise error(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{path}: cannot be read ({exc.__class__.__name__}: {exc})") from None
+    data = cached_yaml(text)
+    if data is not None:  # this text parsed to this mapping before (and passed the alias check)
+        return data
+    data = parse_yaml(text, path, error)
+    keep_yaml(text, data)
+    return data
+
+
+def parse_yaml(text: str, path: Path, error=BadDescription) -> dict[str, Any]:
+    """``text`` (the contents of ``path``) parsed safely; ``error`` (one line) when it is not a
+    YAML mapping or its aliases expand too far."""
+    import yaml  # here, not at the top: a cached parse needs no PyYAML (issue 13)
+
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     try:
         if "&" in text:  # anchors: aliases to them may expand exponentially (a "billion laughs")
@@ -56,6 +73,8 @@ def check_expansion(root: yaml.Node | None, path: Path, error=BadDescription) ->
     nine-fold aliases is 9^9 nodes from a few hundred bytes. Counted on the composed node graph,
     each node's expanded size once (memoised), so the check itself stays linear in the file.
     """
+    import yaml
+
     sizes: dict[int, int] = {}
 
     def expanded(node: yaml.Node) -> int:
@@ -120,6 +139,8 @@ def check_fields(data: dict, known: tuple[str, ...] | list[str], path: Path, whe
         return
     key = unknown[0]
     field = f"{where}.{key}" if where else key
+    import difflib  # here: only a refused field needs it
+
     close = difflib.get_close_matches(key, allowed, n=1)
     hint = f" (did you mean {close[0]!r}?)" if close else ""
     others = f" and {len(unknown) - 1} more" if len(unknown) > 1 else ""

@@ -8,7 +8,7 @@ editable install, where setuptools' finder maps each package to its folder of th
 """
 from __future__ import annotations
 
-from importlib import resources
+import importlib.util
 from pathlib import Path
 
 from platkit.errors import PlatkitError
@@ -27,6 +27,19 @@ def shipped_dir(kind: str) -> Path:
     without ``pip install``) or not unpacked on disk (descriptions may refer to files beside them).
     """
     package = PACKAGES[kind]
+    try:
+        # a package installed as a folder (a wheel unpacked, an editable install): its spec says
+        # where, without importing importlib.resources (zipfile, tempfile: a few milliseconds of
+        # every verb's start-up, issue 13)
+        spec = importlib.util.find_spec(package)
+    except ModuleNotFoundError:
+        spec = None
+    if spec is not None and spec.origin and spec.has_location and spec.submodule_search_locations:
+        here = Path(spec.origin).parent
+        if here.is_dir():
+            return here
+    from importlib import resources  # anything else: as importlib.resources finds it
+
     try:
         folder = resources.files(package)
     except ModuleNotFoundError:

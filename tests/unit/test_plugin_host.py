@@ -6,10 +6,11 @@ from importlib import metadata
 
 import pytest
 
+from platkit import plugins
 from platkit.errors import BadPlugin, PluginConflict, UnknownPlatform
 from platkit.hookspecs import hookimpl
 from platkit.model import PlatformFactory
-from platkit.plugins import BUILTIN_PLUGINS, BUILTIN_SOURCE, PluginHost
+from platkit.plugins import BUILTIN_PLUGINS, BUILTIN_SOURCE, PluginHost, may_declare_entry_points
 
 STANDS = {"stewart", "psvr", "rotary", "urdf"}
 #: the effects the outer contract names (shared/spec/README.md section 3), less `unexplained`
@@ -34,6 +35,8 @@ def _entry_points(monkeypatch, *eps):
         return [ep for ep in listed if kw.get("group") in (None, "platkit")]
 
     monkeypatch.setattr(metadata, "entry_points", entry_points)
+    # the folders on sys.path declare no such group: the host must ask importlib.metadata anyway
+    monkeypatch.setattr(plugins, "may_declare_entry_points", lambda group: True)
 
 
 def test_the_builtin_list_alone_gives_the_four_stands_and_the_effects(builtin_host):
@@ -132,3 +135,40 @@ def test_a_hook_with_arguments_the_specification_lacks_is_refused(builtin_host):
 def test_unknown_stand_lists_the_known_ones(builtin_host):
     with pytest.raises(UnknownPlatform, match="psvr, rotary, stewart, urdf"):
         builtin_host.factory("no-such-stand")
+
+
+def _dist(folder, name, entry_points=None):
+    info = folder / name
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name.split('-')[0]}\nVersion: 1.0\n")
+    if entry_points is not None:
+        (info / "entry_points.txt").write_text(entry_points)
+
+
+def test_the_entry_point_precheck_finds_what_importlib_metadata_finds(tmp_path, monkeypatch):
+    # a folder on the path with distributions that declare other groups only: nothing to ask for
+    _dist(tmp_path, "tool-1.0.dist-info", "[console_scripts]\nplatkit-like = tool:main\n")
+    _dist(tmp_path, "old-1.0.egg-info", "[pytest11]\nplatkit = old.plug\n")
+    _dist(tmp_path, "bare-1.0.dist-info")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert not list(metadata.entry_points(group="platkit-test-group"))
+    assert not may_declare_entry_points("platkit-test-group")
+    # one that declares the group (a header with spaces, a second section): found, and by
+    # importlib.metadata too
+    _dist(tmp_path, "Hexa_Stand-2.0.dist-info", "[console_scripts]\nx = y:z\n\n  [platkit-test-group]  \nhexa = hexa_stand\n")
+    assert may_declare_entry_points("platkit-test-group")
+    assert [ep.value for ep in metadata.entry_points(group="platkit-test-group")] == ["hexa_stand"]
+
+
+def test_the_entry_point_precheck_asks_where_it_cannot_tell(tmp_path, monkeypatch):
+    archive = tmp_path / "plugins.zip"
+    archive.write_bytes(b"PK\x05\x06" + bytes(18))  # an (empty) zip on the path: importlib.metadata reads zips
+    monkeypatch.syspath_prepend(str(archive))
+    assert may_declare_entry_points("platkit-test-group")
+
+
+def test_the_entry_point_precheck_agrees_with_importlib_metadata_here():
+    groups = {ep.group for dist in metadata.distributions() for ep in dist.entry_points}
+    assert groups, "this environment has entry points (pytest's, platkit's console script)"
+    assert all(may_declare_entry_points(g) for g in groups)
+    assert not may_declare_entry_points("platkit-no-such-group")
