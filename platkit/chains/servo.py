@@ -28,6 +28,14 @@ import numpy as np
 import pinocchio as pin
 
 from platkit.chains.chain import KinematicChain
+from platkit.chains.native_servo import (
+    CONVERGED,
+    ITERATION_CAP,
+    LINE_SEARCH_FAILED,
+    STALLED,
+    TIME_CAP,
+    CompiledServo,
+)
 from platkit.chains.solve import (
     Level,
     StepInfo,
@@ -89,6 +97,10 @@ class Servo:
         self.joint_weights = w
         self._fast = None
         self._fast = self._fast_case()
+        self._compiled: CompiledServo | None = None
+        #: run the one-world-target case by the compiled loop where a C compiler is there
+        #: (False: the Python loop, e.g. to compare the two)
+        self.compile = True
 
     # ------------------------------------------------------------------ one world target, fast
 
@@ -414,6 +426,11 @@ class Servo:
         o = self.options
         theta0 = self.chain.clip(self.chain.check_configuration(theta0, "starting configuration"))
         start = time.perf_counter()
+        self._compiled = None
+        if self._fast is not None and self.compile:  # built here: the options as they are now
+            task = self.tasks[0]
+            self._compiled = CompiledServo.build(self.chain, self.frame_ids[0], task.target, task.weights, o,
+                                                 self.active)
         rng = np.random.default_rng(o.seed)
         result = self._attempt(theta0, start)
         best = result
@@ -431,6 +448,43 @@ class Servo:
         best.iterations_total = total
         best.seconds = time.perf_counter() - start
         return best
+
+    def _compiled_attempt(self, compiled: CompiledServo, theta: np.ndarray, start: float) -> ServoResult:
+        """:meth:`_fast_attempt` by the compiled loop (:mod:`platkit.chains.native_servo`): the
+        same steps, stopping rules and result; the time cap is checked between chunks of
+        iterations, the reasons worded here."""
+        o = self.options
+        theta = np.array(theta, dtype=float)  # updated in place by the C loop
+        state = np.zeros(11)
+        rows = [theta.copy()[None, :]]
+        history: list[float] = []
+        first = True
+        while True:
+            time_over = time.perf_counter() - start > o.max_seconds
+            code, E, merit, steps, merits = compiled.chunk(theta, state, first, time_over)
+            if first:
+                history.append(float(state[10]))
+                first = False
+            if steps.shape[0]:
+                rows.append(steps)
+                history.extend(merits.tolist())
+            if code not in (CONVERGED, LINE_SEARCH_FAILED, STALLED, ITERATION_CAP, TIME_CAP):
+                continue  # a chunk ended, the attempt goes on
+            break
+        iterations = int(state[0])
+        reason = ""
+        if code in (LINE_SEARCH_FAILED, STALLED):
+            reason = self.diagnose(theta, [E], stalled=True)
+        elif code in (ITERATION_CAP, TIME_CAP):
+            reason = self._capped(iterations if code == ITERATION_CAP else 0, start)
+            why = self.diagnose(theta, [E], stalled=False)
+            reason = reason + ("; " + why if why else "")
+        pos, rot = self._norms([E])
+        bpos, brot = self._norms([state[2:8].copy()])
+        return ServoResult(theta=theta, converged=code == CONVERGED, iterations=iterations, position_errors=pos,
+                           rotation_errors=rot, path=np.vstack(rows), merit_history=history, reason=reason,
+                           best_position_errors=bpos, best_rotation_errors=brot,
+                           seconds=time.perf_counter() - start)
 
     def _fast_attempt(self, theta: np.ndarray, start: float) -> ServoResult:
         """:meth:`_attempt` for the common case of :meth:`_fast_case` (one level of one task, no
@@ -493,6 +547,8 @@ class Servo:
 
     def _attempt(self, theta: np.ndarray, start: float) -> ServoResult:
         if self._fast is not None:
+            if self._compiled is not None:
+                return self._compiled_attempt(self._compiled, theta, start)
             return self._fast_attempt(theta, start)
         o = self.options
         c = self.chain

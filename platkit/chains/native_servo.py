@@ -1,0 +1,523 @@
+"""The tracking servo's one-target loop compiled: :meth:`Servo._fast_attempt` in C.
+
+A servo iteration of the Python loop costs 40-76 us of numpy calls on 6-vectors (issue 13); the
+same iteration in C costs a few. The C source below knows no robot: the chain comes in as
+arrays (for every joint from the root to the controlled link its placement in the parent joint,
+its kind, axis and column in theta; the link's placement in the last joint), so one library
+serves every chain. It does what the Python loop does, number for number up to rounding:
+
+* the pose and the LOCAL_WORLD_ALIGNED frame Jacobian by forward kinematics along the joints
+  (the quantities pinocchio's ``forwardKinematics`` / ``computeFrameJacobian`` give), the error
+  E = (t_U - t_P, log3(R_U R_P^T)) with pinocchio's ``log3`` formula;
+* the step of ``Servo._fast_step``: the commanded twist (gain, step caps), the weighted rows, the
+  damped pseudo-inverse by SVD (one-sided Jacobi here, LAPACK there) with the ``Damping``
+  schedule and the 1e-10 rank cut, a joint that would cross a position limit clamped there and
+  the rest re-solved (the worst first, at most n + 1 passes), then the uniform scaling to the
+  rate limits and the clip to both bounds;
+* the line search (12 halvings, accept below merit (1 - 1e-12)), the tolerance test, the stall
+  rule (no 1e-3 fall of the merit in ``stall_iterations`` steps) and the iteration cap.
+
+The loop runs in chunks of at most ``CHUNK`` iterations; the caller checks the time cap between
+chunks (a chunk takes well under a millisecond) and words the reasons. Compiled once with the
+system C compiler into the cache directory (:func:`platkit.native.cache_dir`, keyed by the hash of
+the source, the compiler and the flags); without a compiler or with ``PLATKIT_COMPILE=0`` the Python loop serves.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from platkit.chains.chain import KinematicChain
+from platkit.native import cache_dir
+
+#: iterations per call into C; the time cap is checked between calls
+CHUNK = 128
+#: the most joints the compiled loop takes (its work arrays live on the C stack)
+MAX_JOINTS = 64
+
+#: what a chunk ended with (the C function's return value)
+CONVERGED, LINE_SEARCH_FAILED, STALLED, ITERATION_CAP, TIME_CAP, CHUNK_DONE = 0, 1, 2, 3, 4, 5
+
+# ints: n, nj, max_iterations, stall_iterations, use_rate_limits, has_error_scale, then
+#       active (n), column (nj), kind (nj: 0/1/2 revolute about x/y/z, 3 revolute about an axis, 4 prismatic)
+# doubles: gain, max_linear_step, max_angular_step, damping threshold, max damping, error scale,
+#          tol_position, tol_rotation, weights (6), target R (9, row major), target t (3),
+#          frame placement in the last joint (R 9, t 3), lower, upper, lower_active, upper_active,
+#          rate_step (n each), joint placements in their parent joint (12 each), axes (3 each)
+_SOURCE = r"""
+/* ---- platkit: the tracking servo's one-target loop (knows no robot) ---- */
+#include <math.h>
+#include <string.h>
+
+#define PK_MAXN 64
+#define PK_LOG3_PREC 3.6502815398728847e-06 /* pinocchio: eps^(1/3), TaylorSeriesExpansion::precision<2> */
+
+typedef struct {
+  int n, nj, max_it, stall_it, use_rate, has_es;
+  const int *active, *col, *kind;
+  double gain, max_lin, max_ang, thr, max_damp, es, tol_p, tol_r;
+  const double *w, *tR, *tt, *fR, *ft, *lower, *upper, *lower_act, *upper_act, *rate, *jplace, *jaxis;
+} pk_chain;
+
+static void pk_unpack(const int* ii, const double* dd, pk_chain* c) {
+  c->n = ii[0]; c->nj = ii[1]; c->max_it = ii[2]; c->stall_it = ii[3]; c->use_rate = ii[4]; c->has_es = ii[5];
+  c->active = ii + 6; c->col = c->active + c->n; c->kind = c->col + c->nj;
+  c->gain = dd[0]; c->max_lin = dd[1]; c->max_ang = dd[2]; c->thr = dd[3]; c->max_damp = dd[4]; c->es = dd[5];
+  c->tol_p = dd[6]; c->tol_r = dd[7]; c->w = dd + 8; c->tR = dd + 14; c->tt = dd + 23; c->fR = dd + 26; c->ft = dd + 35;
+  c->lower = dd + 38; c->upper = c->lower + c->n; c->lower_act = c->upper + c->n; c->upper_act = c->lower_act + c->n;
+  c->rate = c->upper_act + c->n; c->jplace = c->rate + c->n; c->jaxis = c->jplace + 12 * c->nj;
+}
+
+/* (R, p) <- (R, p) * (A, a): R row major */
+static void pk_compose(double* R, double* p, const double* A, const double* a) {
+  double T[9]; int i, j;
+  for (i = 0; i < 3; ++i) {
+    p[i] += R[3 * i] * a[0] + R[3 * i + 1] * a[1] + R[3 * i + 2] * a[2];
+    for (j = 0; j < 3; ++j) T[3 * i + j] = R[3 * i] * A[j] + R[3 * i + 1] * A[3 + j] + R[3 * i + 2] * A[6 + j];
+  }
+  memcpy(R, T, sizeof T);
+}
+
+/* The link's placement (R, p) and, if J is given, its Jacobian J (6 x n, column major, rows v then omega). */
+static void pk_fk(const pk_chain* c, const double* theta, double* R, double* p, double* J) {
+  double org[PK_MAXN * 3], ax[PK_MAXN * 3];
+  int k, i;
+  static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  memcpy(R, I3, sizeof I3); p[0] = p[1] = p[2] = 0.0;
+  for (k = 0; k < c->nj; ++k) {
+    const double* P = c->jplace + 12 * k; const double* a = c->jaxis + 3 * k;
+    double q = theta[c->col[k]], M[9], z[3] = {0.0, 0.0, 0.0};
+    int kind = c->kind[k];
+    pk_compose(R, p, P, P + 9);
+    if (kind == 4) {
+      z[0] = a[0] * q; z[1] = a[1] * q; z[2] = a[2] * q;
+      pk_compose(R, p, I3, z);
+    } else {
+      double s = sin(q), co = cos(q);
+      if (kind == 0) { double m[9] = {1, 0, 0, 0, co, -s, 0, s, co}; memcpy(M, m, sizeof m); }
+      else if (kind == 1) { double m[9] = {co, 0, s, 0, 1, 0, -s, 0, co}; memcpy(M, m, sizeof m); }
+      else if (kind == 2) { double m[9] = {co, -s, 0, s, co, 0, 0, 0, 1}; memcpy(M, m, sizeof m); }
+      else {
+        double t = 1.0 - co, x = a[0], y = a[1], w = a[2];
+        double m[9] = {co + t * x * x, t * x * y - s * w, t * x * w + s * y,
+                       t * x * y + s * w, co + t * y * y, t * y * w - s * x,
+                       t * x * w - s * y, t * y * w + s * x, co + t * w * w};
+        memcpy(M, m, sizeof m);
+      }
+      pk_compose(R, p, M, z);
+    }
+    for (i = 0; i < 3; ++i) {
+      org[3 * k + i] = p[i];
+      ax[3 * k + i] = R[3 * i] * a[0] + R[3 * i + 1] * a[1] + R[3 * i + 2] * a[2];
+    }
+  }
+  pk_compose(R, p, c->fR, c->ft);
+  if (!J) return;
+  memset(J, 0, sizeof(double) * 6 * c->n);
+  for (k = 0; k < c->nj; ++k) {
+    double* col = J + 6 * c->col[k]; const double* w = ax + 3 * k;
+    if (c->kind[k] == 4) { col[0] = w[0]; col[1] = w[1]; col[2] = w[2]; continue; }
+    {
+      double r0 = p[0] - org[3 * k], r1 = p[1] - org[3 * k + 1], r2 = p[2] - org[3 * k + 2];
+      col[0] = w[1] * r2 - w[2] * r1; col[1] = w[2] * r0 - w[0] * r2; col[2] = w[0] * r1 - w[1] * r0;
+      col[3] = w[0]; col[4] = w[1]; col[5] = w[2];
+    }
+  }
+}
+
+/* pinocchio's log3 (spatial/log.hxx): the rotation vector of R (row major). */
+static void pk_theta_axis(int i0, double val, const double* R, double* angle, double* axis) {
+  const double eps = 2.220446049250313e-16;
+  int i1 = (i0 + 1) % 3, i2 = (i0 + 2) % 3;
+  double s = sqrt(val + eps + eps * eps) * (R[3 * i2 + i1] >= R[3 * i1 + i2] ? 1.0 : -1.0);
+  double w, nrm;
+  axis[i0] = s / 2.0;
+  axis[i1] = 1.0 / (2.0 * s) * (R[3 * i1 + i0] + R[3 * i0 + i1]);
+  axis[i2] = 1.0 / (2.0 * s) * (R[3 * i2 + i0] + R[3 * i0 + i2]);
+  w = 1.0 / (2.0 * s) * (R[3 * i2 + i1] - R[3 * i1 + i2]);
+  nrm = sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]);
+  *angle = 2.0 * atan2(nrm, w);
+  axis[0] /= nrm; axis[1] /= nrm; axis[2] /= nrm;
+}
+
+static void pk_log3(const double* Rin, double* out) {
+  const double eps = 2.220446049250313e-16, prec = PK_LOG3_PREC, PI = 3.14159265358979323846;
+  double R[9], n0, n1, tr, cosv, th, t, as[3], as2;
+  int i, k;
+  /* renormalize_rotation_matrix: columns 0 and 1 normalised, 2 = 0 x 1, 0 = 1 x 2 */
+  n0 = sqrt(Rin[0] * Rin[0] + Rin[3] * Rin[3] + Rin[6] * Rin[6]);
+  n1 = sqrt(Rin[1] * Rin[1] + Rin[4] * Rin[4] + Rin[7] * Rin[7]);
+  for (i = 0; i < 3; ++i) { R[3 * i] = Rin[3 * i] / n0; R[3 * i + 1] = Rin[3 * i + 1] / n1; }
+  R[2] = R[3] * R[7] - R[6] * R[4]; R[5] = R[6] * R[1] - R[0] * R[7]; R[8] = R[0] * R[4] - R[3] * R[1];
+  R[0] = R[4] * R[8] - R[7] * R[5]; R[3] = R[7] * R[2] - R[1] * R[8]; R[6] = R[1] * R[5] - R[4] * R[2];
+  tr = R[0] + R[4] + R[8];
+  cosv = (tr - 1.0) / 2.0;
+  if (cosv >= -1.0 + prec) {
+    double acos_exp = sqrt(2.0 * (1.0 - cosv) + eps * eps);
+    th = tr <= 3.0 - prec ? (tr >= -1.0 + prec ? acos(cosv) : PI - acos_exp) : acos_exp;
+    as[0] = 0.5 * (R[7] - R[5]); as[1] = 0.5 * (R[2] - R[6]); as[2] = 0.5 * (R[3] - R[1]);
+    as2 = as[0] * as[0] + as[1] * as[1] + as[2] * as[2];
+    t = th >= prec ? th / sin(th) : 1.0 + as2 / 6.0 + as2 * as2 * 3.0 / 40.0;
+    for (k = 0; k < 3; ++k) out[k] = t * as[k];
+  } else {
+    double val[3], ang[3], axes[9];
+    int pick;
+    for (k = 0; k < 3; ++k) val[k] = 2.0 * R[4 * k] - tr + 1.0;
+    for (k = 0; k < 3; ++k) pk_theta_axis(k, val[k], R, ang + k, axes + 3 * k);
+    pick = val[0] >= val[1] ? (val[0] >= val[2] ? 0 : 2) : (val[1] >= val[2] ? 1 : 2);
+    for (k = 0; k < 3; ++k) out[k] = ang[pick] * axes[3 * pick + k];
+  }
+}
+
+/* E (6) at theta; returns the weighted merit. */
+static double pk_error(const pk_chain* c, const double* theta, double* E, double* J) {
+  double R[9], p[3], D[9], m = 0.0; int i, j;
+  pk_fk(c, theta, R, p, J);
+  for (i = 0; i < 3; ++i) {
+    E[i] = c->tt[i] - p[i];
+    for (j = 0; j < 3; ++j)
+      D[3 * i + j] = c->tR[3 * i] * R[3 * j] + c->tR[3 * i + 1] * R[3 * j + 1] + c->tR[3 * i + 2] * R[3 * j + 2];
+  }
+  pk_log3(D, E + 3);
+  for (i = 0; i < 6; ++i) m += c->w[i] * (E[i] * E[i]);
+  return m;
+}
+
+static void pk_norms(const pk_chain* c, const double* E, double* pos, double* rot) {
+  double a = 0.0, b = 0.0; int i;
+  for (i = 0; i < 3; ++i) { if (c->w[i] > 0) a += E[i] * E[i]; if (c->w[3 + i] > 0) b += E[3 + i] * E[3 + i]; }
+  *pos = sqrt(a); *rot = sqrt(b);
+}
+
+static double pk_damping(const pk_chain* c, double smin, double err) {
+  double lam2;
+  if (smin >= c->thr) return 0.0;
+  lam2 = c->max_damp * c->max_damp * (1.0 - (smin / c->thr) * (smin / c->thr));
+  if (c->has_es) lam2 *= fmin(1.0, err / c->es);
+  return lam2;
+}
+
+/* One-sided Jacobi on M (rows x cols, cols <= rows, column major, overwritten by M Q, whose
+   columns are orthogonal); Q (cols x cols) accumulates the rotations. */
+static void pk_jacobi(int rows, int cols, double* M, double* Q) {
+  int sweep, a, b, i;
+  const double tol = rows * 2.220446049250313e-16;
+  for (i = 0; i < cols * cols; ++i) Q[i] = 0.0;
+  for (i = 0; i < cols; ++i) Q[i * cols + i] = 1.0;
+  for (sweep = 0; sweep < 60; ++sweep) {
+    int rotated = 0;
+    for (a = 0; a < cols - 1; ++a) for (b = a + 1; b < cols; ++b) {
+      double* x = M + a * rows; double* y = M + b * rows;
+      double al = 0.0, be = 0.0, ga = 0.0, zeta, t, cs, sn;
+      for (i = 0; i < rows; ++i) { al += x[i] * x[i]; be += y[i] * y[i]; ga += x[i] * y[i]; }
+      if (ga == 0.0 || fabs(ga) <= tol * sqrt(al * be)) continue;  /* orthogonal to rounding */
+      rotated = 1;
+      zeta = (be - al) / (2.0 * ga);
+      t = fabs(zeta) > 1e150 ? 0.5 / zeta : (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
+      cs = 1.0 / sqrt(1.0 + t * t); sn = cs * t;
+      for (i = 0; i < rows; ++i) { double u = x[i], v = y[i]; x[i] = cs * u - sn * v; y[i] = sn * u + cs * v; }
+      x = Q + a * cols; y = Q + b * cols;
+      for (i = 0; i < cols; ++i) { double u = x[i], v = y[i]; x[i] = cs * u - sn * v; y[i] = sn * u + cs * v; }
+    }
+    if (!rotated) break;
+  }
+}
+
+/* dq[cols] += the damped pseudo-inverse of A = Jw[:, cols] (m x k) applied to r (m). */
+static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols, int k, const double* r, double* dq) {
+  double M[6 * PK_MAXN], Q[PK_MAXN * PK_MAXN], sv[6], big = 0.0, smin = 0.0, rn = 0.0, lam2;
+  int i, j, l, transposed = m <= k, ns = transposed ? m : k, any = 0;
+  if (transposed) { /* M = A^T (k x m) */
+    for (j = 0; j < k; ++j) for (i = 0; i < m; ++i) M[i * k + j] = Jw[cols[j] * 6 + i];
+    pk_jacobi(k, m, M, Q);
+  } else {          /* M = A (m x k) */
+    for (j = 0; j < k; ++j) for (i = 0; i < m; ++i) M[j * m + i] = Jw[cols[j] * 6 + i];
+    pk_jacobi(m, k, M, Q);
+  }
+  for (j = 0; j < ns; ++j) {
+    double s = 0.0; const double* y = M + j * (transposed ? k : m);
+    for (i = 0; i < (transposed ? k : m); ++i) s += y[i] * y[i];
+    sv[j] = sqrt(s);
+    if (sv[j] > big) big = sv[j];
+  }
+  for (i = 0; i < m; ++i) rn += r[i] * r[i];
+  rn = sqrt(rn);
+  for (j = 0; j < ns; ++j) if (sv[j] > 1e-10 * fmax(1.0, big)) { if (!any || sv[j] < smin) smin = sv[j]; any = 1; }
+  lam2 = pk_damping(c, any ? smin : 0.0, rn);
+  for (j = 0; j < ns; ++j) {
+    double f;
+    if (!(sv[j] > 1e-10 * fmax(1.0, big))) continue;
+    f = 1.0 / (sv[j] * sv[j] + lam2);
+    if (transposed) { /* A = Q Y^T: U = Q, V_j = Y_j / s_j */
+      const double* y = M + j * k; const double* u = Q + j * m; double d = 0.0;
+      for (i = 0; i < m; ++i) d += u[i] * r[i];
+      d *= f;
+      for (l = 0; l < k; ++l) dq[cols[l]] += y[l] * d;
+    } else {          /* A = Y Q^T: U_j = Y_j / s_j, V = Q */
+      const double* y = M + j * m; const double* v = Q + j * k; double d = 0.0;
+      for (i = 0; i < m; ++i) d += y[i] * r[i];
+      d *= f;
+      for (l = 0; l < k; ++l) dq[cols[l]] += v[l] * d;
+    }
+  }
+}
+
+/* Servo._fast_step: dq (n) at theta for the error E (6); J (6 x n) the Jacobian at theta. */
+static void pk_step(const pk_chain* c, const double* theta, const double* E, const double* J, double* dq) {
+  int n = c->n, i, j, m = 0, rows[6], cols[PK_MAXN], free_[PK_MAXN], first = 1, pass, k;
+  double e[6], ew[6], Jw[6 * PK_MAXN], lo[PK_MAXN], hi[PK_MAXN], fixed[PK_MAXN], r[6];
+  double lin, ang, scale;
+  for (i = 0; i < 6; ++i) e[i] = c->gain * E[i] * (c->w[i] > 0 ? 1.0 : 0.0);
+  lin = sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
+  ang = sqrt(e[3] * e[3] + e[4] * e[4] + e[5] * e[5]);
+  scale = 1.0;
+  if (lin > 0) scale = fmin(scale, c->max_lin / lin);
+  if (ang > 0) scale = fmin(scale, c->max_ang / ang);
+  if (scale != 1.0) for (i = 0; i < 6; ++i) e[i] *= scale;
+  for (i = 0; i < 6; ++i) if (c->w[i] > 0) {
+    double s = sqrt(c->w[i]);
+    for (j = 0; j < n; ++j) Jw[j * 6 + m] = J[j * 6 + i] * s;
+    ew[m] = s * e[i]; rows[m] = i; ++m;
+  }
+  (void)rows;
+  for (j = 0; j < n; ++j) {
+    lo[j] = fmin(c->lower_act[j] - theta[j], 0.0);
+    hi[j] = fmax(c->upper_act[j] - theta[j], 0.0);
+  }
+  for (pass = 0; pass <= n; ++pass) {
+    int worst = -1, over = 0, viol = 0;
+    double wx = 0.0;
+    k = 0;
+    if (first) {
+      for (j = 0; j < n; ++j) { dq[j] = 0.0; if (c->active[j]) cols[k++] = j; }
+      memcpy(r, ew, sizeof(double) * m);
+    } else {
+      for (j = 0; j < n; ++j) { dq[j] = fixed[j]; if (free_[j]) cols[k++] = j; }
+      for (i = 0; i < m; ++i) { double s = 0.0; for (j = 0; j < n; ++j) s += Jw[j * 6 + i] * fixed[j]; r[i] = ew[i] - s; }
+    }
+    if (k) pk_solve(c, Jw, m, cols, k, r, dq);
+    for (j = 0; j < n; ++j) if (dq[j] > hi[j] + 1e-15 || dq[j] < lo[j] - 1e-15) viol = 1;
+    if (!viol) break;
+    if (first) { for (j = 0; j < n; ++j) { free_[j] = c->active[j]; fixed[j] = 0.0; } first = 0; }
+    for (j = 0; j < n; ++j) if (free_[j] && (dq[j] > hi[j] + 1e-15 || dq[j] < lo[j] - 1e-15)) {
+      double x = fmax(dq[j] - hi[j], lo[j] - dq[j]);
+      if (!over || x > wx) { wx = x; worst = j; }
+      over = 1;
+    }
+    if (!over) break;
+    fixed[worst] = fmin(fmax(dq[worst], lo[worst]), hi[worst]);
+    free_[worst] = 0;
+  }
+  for (j = 0; j < n; ++j) dq[j] = fmin(fmax(dq[j], lo[j]), hi[j]);
+  if (c->use_rate) {
+    double rs = 1.0;
+    for (j = 0; j < n; ++j) rs = fmin(rs, c->rate[j] / fmax(fabs(dq[j]), 1e-300));
+    if (rs < 1.0) for (j = 0; j < n; ++j) dq[j] *= rs;
+    for (j = 0; j < n; ++j) dq[j] = fmin(fmax(dq[j], fmax(lo[j], -c->rate[j])), fmin(hi[j], c->rate[j]));
+  }
+}
+
+/* Up to `chunk` iterations of Servo._fast_attempt from theta (n, updated in place).
+   state (in/out, 11): iterations, best merit, best E (6), stall reference, stall iteration, the
+   merit at the start; `first` initialises them from theta. `time_over`: the time cap is already passed (checked
+   before this chunk's first iteration, as the Python loop does before every one).
+   out (8): E (6) and merit at theta, then the number of accepted steps written to path (chunk x n)
+   and history (chunk). Returns CONVERGED 0, LINE_SEARCH_FAILED 1, STALLED 2, ITERATION_CAP 3,
+   TIME_CAP 4 or CHUNK_DONE 5. */
+#ifdef _WIN32
+#define PK_EXPORT __declspec(dllexport)
+#else
+#define PK_EXPORT
+#endif
+PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* theta, double* state, int first,
+                             int time_over, int chunk, double* out, double* path, double* history) {
+  pk_chain c;
+  double E[6], merit, J[6 * PK_MAXN], dq[PK_MAXN], trial[PK_MAXN], tE[6], tmerit = 0.0, pos, rot, floor_;
+  int n, it, stall_at, steps = 0, code = CHUNK_DONE_, converged, t, i, j;
+  pk_unpack(ii, dd, &c);
+  n = c.n;
+  floor_ = 1e-2 * (c.tol_p * c.tol_p + c.tol_r * c.tol_r);
+  merit = pk_error(&c, theta, E, 0);
+  if (first) {
+    state[0] = 0; state[1] = merit; memcpy(state + 2, E, sizeof E); state[8] = merit; state[9] = 0; state[10] = merit;
+  }
+  it = (int)state[0]; stall_at = (int)state[9];
+  pk_norms(&c, E, &pos, &rot);
+  converged = pos <= c.tol_p && rot <= c.tol_r;
+  for (;;) {
+    int accepted = 0; double alpha = 1.0, better;
+    if (converged) { code = 0; break; }
+    if (it >= c.max_it) { code = 3; break; }
+    if (steps == 0 && time_over) { code = 4; break; }
+    if (steps >= chunk) { code = CHUNK_DONE_; break; }
+    pk_error(&c, theta, E, J);  /* the Jacobian at theta (E unchanged) */
+    pk_step(&c, theta, E, J, dq);
+    better = merit * (1.0 - 1e-12);
+    for (t = 0; t < 12; ++t) {
+      for (j = 0; j < n; ++j) trial[j] = fmin(fmax(theta[j] + alpha * dq[j], c.lower[j]), c.upper[j]);
+      tmerit = pk_error(&c, trial, tE, 0);
+      if (tmerit < better) { accepted = 1; break; }
+      alpha *= 0.5;
+    }
+    ++it;
+    if (!accepted) { code = 1; break; }
+    memcpy(theta, trial, sizeof(double) * n); memcpy(E, tE, sizeof E); merit = tmerit;
+    memcpy(path + (long)steps * n, theta, sizeof(double) * n); history[steps] = merit; ++steps;
+    if (merit < state[1]) { state[1] = merit; memcpy(state + 2, E, sizeof E); }
+    pk_norms(&c, E, &pos, &rot);
+    converged = pos <= c.tol_p && rot <= c.tol_r;
+    if (merit < (1.0 - 1e-3) * state[8] && state[8] > floor_) { state[8] = merit; stall_at = it; }
+    else if (it - stall_at >= c.stall_it && !converged) { code = 2; break; }
+  }
+  state[0] = it; state[9] = stall_at;
+  for (i = 0; i < 6; ++i) out[i] = E[i];
+  out[6] = merit; out[7] = steps;
+  return code;
+}
+"""
+_SOURCE = _SOURCE.replace("CHUNK_DONE_", str(CHUNK_DONE))
+
+COMPILE_FLAGS = ("-O2", "-fPIC", "-shared")
+
+_lock = threading.Lock()
+_loaded: dict[str, object] = {}  # "lib" -> the ctypes function, or the reason it is missing
+
+
+def _compiler() -> str | None:
+    """The system C compiler ($CC, cc, gcc, clang), or None (none, or PLATKIT_COMPILE=0)."""
+    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return None
+    cc = os.environ.get("CC")
+    return next((shutil.which(c) for c in ([cc] if cc else []) + ["cc", "gcc", "clang"] if shutil.which(c)), None)
+
+
+def _library() -> Path | str:
+    """The compiled servo in the cache directory (compiled there on the first call), or why not."""
+    import subprocess  # only on a cache miss (start-up stays light, issue 13)
+    import tempfile
+
+    cc = _compiler()
+    if cc is None:
+        return "no C compiler (or PLATKIT_COMPILE=0)"
+    key = hashlib.sha256((_SOURCE + cc + " ".join(COMPILE_FLAGS) + sys.platform).encode()).hexdigest()[:24]
+    lib = cache_dir() / f"servo_{key}.so"
+    if lib.is_file():
+        return lib
+    try:
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build-") as tmp:
+            src = Path(tmp) / "platkit_servo.c"
+            src.write_text(_SOURCE)
+            out = Path(tmp) / lib.name
+            proc = subprocess.run([cc, *COMPILE_FLAGS, "-o", str(out), str(src), "-lm"], capture_output=True, text=True,
+                                  timeout=300)
+            if proc.returncode != 0:
+                return f"the C compiler failed on the servo ({(proc.stderr.strip().splitlines() or ['?'])[-1]})"
+            os.replace(out, lib)  # atomic: other processes see the whole library or none
+    except (OSError, subprocess.SubprocessError) as exc:
+        return f"compiling the servo failed ({exc.__class__.__name__}: {exc})"
+    return lib
+
+
+def _chunk_function():
+    """The compiled ``pk_servo_chunk`` (compiled and loaded on first use), or the reason it is missing."""
+    with _lock:
+        hit = _loaded.get("lib")
+        if hit is not None:
+            return hit
+        built = _library()
+        if isinstance(built, str):
+            _loaded["lib"] = built
+            return built
+        try:
+            fn = ctypes.CDLL(str(built)).pk_servo_chunk
+        except OSError as exc:
+            _loaded["lib"] = f"loading the compiled servo failed ({exc})"
+            return _loaded["lib"]
+        fn.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int] * 3 + [ctypes.c_void_p] * 3
+        fn.restype = ctypes.c_int
+        _loaded["lib"] = fn
+        return fn
+
+
+def compiled_servo_reason() -> str:
+    """'' if the compiled loop is available, else why not (no compiler, PLATKIT_COMPILE=0, ...)."""
+    fn = _chunk_function()
+    return fn if isinstance(fn, str) else ""
+
+
+def _kind(chain: KinematicChain, index: int) -> int:
+    short = chain.model.joints[index].shortname()
+    for axis, code in (("X", 0), ("Y", 1), ("Z", 2)):
+        if short in (f"JointModelR{axis}", f"JointModelRUB{axis}"):
+            return code
+    if short.startswith("JointModelP"):
+        return 4
+    return 3
+
+
+class CompiledServo:
+    """The compiled one-target loop for one chain, link and target: :meth:`chunk` runs it.
+
+    Built by :meth:`build` from what ``Servo._fast_case`` prepared (the chain, the link's frame
+    id, the task's target (4, 4) and weights (6,), the options, the active joints (n,) bool);
+    None where the compiled loop is not available or does not apply (more than
+    :data:`MAX_JOINTS` joints)."""
+
+    def __init__(self, fn, ints: np.ndarray, doubles: np.ndarray, n: int):
+        self._fn = fn
+        self.ints = ints
+        self.doubles = doubles
+        self.n = n
+
+    @classmethod
+    def build(cls, chain: KinematicChain, frame_id: int, target: np.ndarray, weights: np.ndarray, options,
+              active: np.ndarray) -> CompiledServo | None:
+        if chain.n > MAX_JOINTS:
+            return None
+        fn = _chunk_function()
+        if isinstance(fn, str):
+            return None
+        model = chain.model
+        frame = model.frames[frame_id]
+        joints = chain.supporting_joints(frame_id)
+        d = options.damping
+        ints = [chain.n, len(joints), options.max_iterations, options.stall_iterations, int(options.use_rate_limits),
+                int(d.error_scale is not None)]
+        ints += [int(a) for a in active] + [jt.column for jt in joints] + [_kind(chain, jt.index) for jt in joints]
+        rate_step = np.where(np.isfinite(chain.rate), chain.rate * options.dt, np.inf)
+        doubles = [options.gain, options.max_linear_step, options.max_angular_step, d.threshold, d.max_damping,
+                   d.error_scale if d.error_scale is not None else 1.0, options.tol_position, options.tol_rotation]
+        parts = [np.array(doubles), np.asarray(weights, float), target[:3, :3].ravel(), target[:3, 3],
+                 frame.placement.rotation.ravel(), frame.placement.translation,
+                 chain.lower, chain.upper, np.where(active, chain.lower, np.inf), np.where(active, chain.upper, -np.inf),
+                 rate_step]
+        parts += [np.concatenate([model.jointPlacements[jt.index].rotation.ravel(),
+                                  model.jointPlacements[jt.index].translation]) for jt in joints]
+        parts += [jt.axis for jt in joints]
+        return cls(fn, np.ascontiguousarray(ints, dtype=np.intc),
+                   np.ascontiguousarray(np.concatenate(parts), dtype=float), chain.n)
+
+    def chunk(self, theta: np.ndarray, state: np.ndarray, first: bool, time_over: bool):
+        """Up to :data:`CHUNK` iterations from theta (n,), which is updated in place; ``state``
+        (11,) carries the iteration count, the best merit and its E, the stall reference and
+        its iteration between chunks, and the merit at the start (``first``: set them from theta). Returns (code, E (6,),
+        merit, path (k, n), history (k,)) with the k accepted steps of this chunk."""
+        out = np.empty(8)
+        path = np.empty((CHUNK, self.n))
+        history = np.empty(CHUNK)
+        code = self._fn(self.ints.ctypes.data, self.doubles.ctypes.data, theta.ctypes.data, state.ctypes.data,
+                        int(first), int(time_over), CHUNK, out.ctypes.data, path.ctypes.data, history.ctypes.data)
+        k = int(out[7])
+        return code, out[:6].copy(), float(out[6]), path[:k], history[:k]
+
+
+__all__ = ["CHUNK", "CONVERGED", "CHUNK_DONE", "CompiledServo", "ITERATION_CAP", "LINE_SEARCH_FAILED", "MAX_JOINTS",
+           "STALLED", "TIME_CAP", "compiled_servo_reason"]
