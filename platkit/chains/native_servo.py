@@ -30,6 +30,7 @@ import os
 import shutil
 import sys
 import threading
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -204,24 +205,25 @@ static double pk_damping(const pk_chain* c, double smin, double err) {
   return lam2;
 }
 
-/* One-sided Jacobi on M (rows x cols, cols <= rows, column major, overwritten by M Q, whose
-   columns are orthogonal); Q (cols x cols) accumulates the rotations. */
+/* One-sided Jacobi on M (rows x cols, cols <= rows, column major, overwritten by M R, whose
+   columns are orthogonal); Q (cols x cols) becomes Q R. */
 static void pk_jacobi(int rows, int cols, double* M, double* Q) {
   int sweep, a, b, i;
   const double tol = rows * 2.220446049250313e-16;
-  for (i = 0; i < cols * cols; ++i) Q[i] = 0.0;
-  for (i = 0; i < cols; ++i) Q[i * cols + i] = 1.0;
   for (sweep = 0; sweep < 60; ++sweep) {
     int rotated = 0;
+    double d[PK_MAXN]; /* squared column norms: fresh each sweep, updated by each rotation */
+    for (a = 0; a < cols; ++a) { double v = 0.0; for (i = 0; i < rows; ++i) v += M[a * rows + i] * M[a * rows + i]; d[a] = v; }
     for (a = 0; a < cols - 1; ++a) for (b = a + 1; b < cols; ++b) {
       double* x = M + a * rows; double* y = M + b * rows;
-      double al = 0.0, be = 0.0, ga = 0.0, zeta, t, cs, sn;
-      for (i = 0; i < rows; ++i) { al += x[i] * x[i]; be += y[i] * y[i]; ga += x[i] * y[i]; }
+      double al = d[a], be = d[b], ga = 0.0, zeta, t, cs, sn;
+      for (i = 0; i < rows; ++i) ga += x[i] * y[i];
       if (ga == 0.0 || fabs(ga) <= tol * sqrt(al * be)) continue;  /* orthogonal to rounding */
       rotated = 1;
       zeta = (be - al) / (2.0 * ga);
       t = fabs(zeta) > 1e150 ? 0.5 / zeta : (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
       cs = 1.0 / sqrt(1.0 + t * t); sn = cs * t;
+      d[a] = al - t * ga; d[b] = be + t * ga;
       for (i = 0; i < rows; ++i) { double u = x[i], v = y[i]; x[i] = cs * u - sn * v; y[i] = sn * u + cs * v; }
       x = Q + a * cols; y = Q + b * cols;
       for (i = 0; i < cols; ++i) { double u = x[i], v = y[i]; x[i] = cs * u - sn * v; y[i] = sn * u + cs * v; }
@@ -230,17 +232,83 @@ static void pk_jacobi(int rows, int cols, double* M, double* Q) {
   }
 }
 
+/* Cholesky of the p x p symmetric G (column major, lower part overwritten by L); 0 if G is
+   positive definite, 1 if not. */
+static int pk_cholesky(int p, double* G) {
+  int i, j, l;
+  for (j = 0; j < p; ++j) {
+    double d = G[j * p + j];
+    for (l = 0; l < j; ++l) d -= G[l * p + j] * G[l * p + j];
+    if (!(d > 0.0)) return 1;
+    d = sqrt(d); G[j * p + j] = d;
+    for (i = j + 1; i < p; ++i) {
+      double v = G[j * p + i];
+      for (l = 0; l < j; ++l) v -= G[l * p + i] * G[l * p + j];
+      G[j * p + i] = v / d;
+    }
+  }
+  return 0;
+}
+
+static void pk_cholesky_solve(int p, const double* L, double* b) {
+  int i, l;
+  for (i = 0; i < p; ++i) { double v = b[i]; for (l = 0; l < i; ++l) v -= L[l * p + i] * b[l]; b[i] = v / L[i * p + i]; }
+  for (i = p - 1; i >= 0; --i) { double v = b[i]; for (l = i + 1; l < p; ++l) v -= L[i * p + l] * b[l]; b[i] = v / L[i * p + i]; }
+}
+
+/* The common case without an SVD: when the smallest singular value of A is above the damping
+   threshold (G - threshold^2 I positive definite, G = A A^T or A^T A), the damping is 0 and no
+   singular value is cut, so the step is the plain pseudo-inverse A^T (A A^T)^-1 r (or
+   (A^T A)^-1 A^T r), the SVD's numbers up to rounding. 1 if it does not apply. */
+static int pk_solve_regular(const pk_chain* c, const double* Jw, int m, const int* cols, int k, const double* r,
+                            double* dq) {
+  double G[PK_MAXN * PK_MAXN], H[PK_MAXN * PK_MAXN], b[PK_MAXN], thr2 = c->thr * c->thr;
+  int i, j, l, rowwise = m <= k, p = rowwise ? m : k;
+  if (!(c->thr >= 1e-6)) return 1; /* a threshold near the 1e-10 rank cut: the SVD decides */
+  for (i = 0; i < p; ++i) for (j = 0; j <= i; ++j) {
+    double v = 0.0;
+    if (rowwise) for (l = 0; l < k; ++l) v += Jw[cols[l] * 6 + i] * Jw[cols[l] * 6 + j];
+    else for (l = 0; l < m; ++l) v += Jw[cols[i] * 6 + l] * Jw[cols[j] * 6 + l];
+    G[j * p + i] = G[i * p + j] = v;
+    H[j * p + i] = H[i * p + j] = v - (i == j ? thr2 : 0.0);
+  }
+  if (pk_cholesky(p, H) || pk_cholesky(p, G)) return 1;
+  if (rowwise) {
+    for (i = 0; i < m; ++i) b[i] = r[i];
+    pk_cholesky_solve(p, G, b);
+    for (l = 0; l < k; ++l) { double v = 0.0; for (i = 0; i < m; ++i) v += Jw[cols[l] * 6 + i] * b[i]; dq[cols[l]] += v; }
+  } else {
+    for (l = 0; l < k; ++l) { double v = 0.0; for (i = 0; i < m; ++i) v += Jw[cols[l] * 6 + i] * r[i]; b[l] = v; }
+    pk_cholesky_solve(p, G, b);
+    for (l = 0; l < k; ++l) dq[cols[l]] += b[l];
+  }
+  return 0;
+}
+
 /* dq[cols] += the damped pseudo-inverse of A = Jw[:, cols] (m x k) applied to r (m). */
-static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols, int k, const double* r, double* dq) {
+static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols, int k, const double* r, double* dq,
+                     double* warm) {
   double M[6 * PK_MAXN], Q[PK_MAXN * PK_MAXN], sv[6], big = 0.0, smin = 0.0, rn = 0.0, lam2;
-  int i, j, l, transposed = m <= k, ns = transposed ? m : k, any = 0;
-  if (transposed) { /* M = A^T (k x m) */
-    for (j = 0; j < k; ++j) for (i = 0; i < m; ++i) M[i * k + j] = Jw[cols[j] * 6 + i];
+  int i, j, l, transposed = m <= k, ns = transposed ? m : k, nq = transposed ? m : k, any = 0;
+  if (!pk_solve_regular(c, Jw, m, cols, k, r, dq)) return;
+  /* Q starts from the last step's rotations where given (warm[0] = 1): the Jacobian moved
+     little, so M Q is nearly orthogonal and fewer sweeps remain */
+  if (warm && warm[0] == 1.0) memcpy(Q, warm + 1, sizeof(double) * nq * nq);
+  else { for (i = 0; i < nq * nq; ++i) Q[i] = 0.0; for (i = 0; i < nq; ++i) Q[i * nq + i] = 1.0; }
+  if (transposed) { /* M = A^T Q (k x m) */
+    for (j = 0; j < m; ++j) for (l = 0; l < k; ++l) {
+      double v = 0.0; for (i = 0; i < m; ++i) v += Jw[cols[l] * 6 + i] * Q[j * m + i];
+      M[j * k + l] = v;
+    }
     pk_jacobi(k, m, M, Q);
-  } else {          /* M = A (m x k) */
-    for (j = 0; j < k; ++j) for (i = 0; i < m; ++i) M[j * m + i] = Jw[cols[j] * 6 + i];
+  } else {          /* M = A Q (m x k) */
+    for (j = 0; j < k; ++j) for (i = 0; i < m; ++i) {
+      double v = 0.0; for (l = 0; l < k; ++l) v += Jw[cols[l] * 6 + i] * Q[j * k + l];
+      M[j * m + i] = v;
+    }
     pk_jacobi(m, k, M, Q);
   }
+  if (warm) { warm[0] = 1.0; memcpy(warm + 1, Q, sizeof(double) * nq * nq); }
   for (j = 0; j < ns; ++j) {
     double s = 0.0; const double* y = M + j * (transposed ? k : m);
     for (i = 0; i < (transposed ? k : m); ++i) s += y[i] * y[i];
@@ -270,7 +338,7 @@ static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols
 }
 
 /* Servo._fast_step: dq (n) at theta for the error E (6); J (6 x n) the Jacobian at theta. */
-static void pk_step(const pk_chain* c, const double* theta, const double* E, const double* J, double* dq) {
+static void pk_step(const pk_chain* c, const double* theta, const double* E, const double* J, double* dq, double* warm) {
   int n = c->n, i, j, m = 0, rows[6], cols[PK_MAXN], free_[PK_MAXN], first = 1, pass, k;
   double e[6], ew[6], Jw[6 * PK_MAXN], lo[PK_MAXN], hi[PK_MAXN], fixed[PK_MAXN], r[6];
   double lin, ang, scale;
@@ -302,7 +370,7 @@ static void pk_step(const pk_chain* c, const double* theta, const double* E, con
       for (j = 0; j < n; ++j) { dq[j] = fixed[j]; if (free_[j]) cols[k++] = j; }
       for (i = 0; i < m; ++i) { double s = 0.0; for (j = 0; j < n; ++j) s += Jw[j * 6 + i] * fixed[j]; r[i] = ew[i] - s; }
     }
-    if (k) pk_solve(c, Jw, m, cols, k, r, dq);
+    if (k) pk_solve(c, Jw, m, cols, k, r, dq, first ? warm : 0);
     for (j = 0; j < n; ++j) if (dq[j] > hi[j] + 1e-15 || dq[j] < lo[j] - 1e-15) viol = 1;
     if (!viol) break;
     if (first) { for (j = 0; j < n; ++j) { free_[j] = c->active[j]; fixed[j] = 0.0; } first = 0; }
@@ -340,8 +408,10 @@ PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* theta, dou
                              int time_over, int chunk, double* out, double* path, double* history) {
   pk_chain c;
   double E[6], merit, J[6 * PK_MAXN], dq[PK_MAXN], trial[PK_MAXN], tE[6], tmerit = 0.0, pos, rot, floor_;
+  double warm[1 + PK_MAXN * PK_MAXN];
   int n, it, stall_at, steps = 0, code = CHUNK_DONE_, converged, t, i, j;
   pk_unpack(ii, dd, &c);
+  warm[0] = 0.0;
   n = c.n;
   floor_ = 1e-2 * (c.tol_p * c.tol_p + c.tol_r * c.tol_r);
   merit = pk_error(&c, theta, E, 0);
@@ -358,7 +428,7 @@ PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* theta, dou
     if (steps == 0 && time_over) { code = 4; break; }
     if (steps >= chunk) { code = CHUNK_DONE_; break; }
     pk_error(&c, theta, E, J);  /* the Jacobian at theta (E unchanged) */
-    pk_step(&c, theta, E, J, dq);
+    pk_step(&c, theta, E, J, dq, warm);
     better = merit * (1.0 - 1e-12);
     for (t = 0; t < 12; ++t) {
       for (j = 0; j < n; ++j) trial[j] = fmin(fmax(theta[j] + alpha * dq[j], c.lower[j]), c.upper[j]);
@@ -388,6 +458,8 @@ COMPILE_FLAGS = ("-O2", "-fPIC", "-shared")
 
 _lock = threading.Lock()
 _loaded: dict[str, object] = {}  # "lib" -> the ctypes function, or the reason it is missing
+#: per chain, the C loop's arrays by (frame, active joints, options): Servo objects come and go per target
+_by_chain: weakref.WeakKeyDictionary[KinematicChain, dict] = weakref.WeakKeyDictionary()
 
 
 def _compiler() -> str | None:
@@ -485,6 +557,28 @@ class CompiledServo:
         fn = _chunk_function()
         if isinstance(fn, str):
             return None
+        d = options.damping
+        key = (frame_id, active.tobytes(), options.gain, options.max_linear_step, options.max_angular_step, d.threshold,
+               d.max_damping, d.error_scale, options.tol_position, options.tol_rotation, options.max_iterations,
+               options.stall_iterations, options.use_rate_limits, options.dt)
+        per_chain = _by_chain.get(chain)
+        if per_chain is None:
+            per_chain = _by_chain[chain] = {}
+        hit = per_chain.get(key)
+        if hit is None:
+            if len(per_chain) > 64:  # options varied without end: keep the cache small
+                per_chain.clear()
+            hit = per_chain[key] = cls._arrays(chain, frame_id, options, active)
+        ints, template = hit
+        doubles = template.copy()
+        doubles[8:14] = weights
+        doubles[14:23] = target[:3, :3].ravel()
+        doubles[23:26] = target[:3, 3]
+        return cls(fn, ints, doubles, chain.n)
+
+    @staticmethod
+    def _arrays(chain: KinematicChain, frame_id: int, options, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ints, doubles) for the C loop, the weights and the target left at zero."""
         model = chain.model
         frame = model.frames[frame_id]
         joints = chain.supporting_joints(frame_id)
@@ -495,15 +589,14 @@ class CompiledServo:
         rate_step = np.where(np.isfinite(chain.rate), chain.rate * options.dt, np.inf)
         doubles = [options.gain, options.max_linear_step, options.max_angular_step, d.threshold, d.max_damping,
                    d.error_scale if d.error_scale is not None else 1.0, options.tol_position, options.tol_rotation]
-        parts = [np.array(doubles), np.asarray(weights, float), target[:3, :3].ravel(), target[:3, 3],
+        parts = [np.array(doubles), np.zeros(6), np.zeros(9), np.zeros(3),
                  frame.placement.rotation.ravel(), frame.placement.translation,
                  chain.lower, chain.upper, np.where(active, chain.lower, np.inf), np.where(active, chain.upper, -np.inf),
                  rate_step]
         parts += [np.concatenate([model.jointPlacements[jt.index].rotation.ravel(),
                                   model.jointPlacements[jt.index].translation]) for jt in joints]
         parts += [jt.axis for jt in joints]
-        return cls(fn, np.ascontiguousarray(ints, dtype=np.intc),
-                   np.ascontiguousarray(np.concatenate(parts), dtype=float), chain.n)
+        return np.ascontiguousarray(ints, dtype=np.intc), np.ascontiguousarray(np.concatenate(parts), dtype=float)
 
     def chunk(self, theta: np.ndarray, state: np.ndarray, first: bool, time_over: bool):
         """Up to :data:`CHUNK` iterations from theta (n,), which is updated in place; ``state``

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 from typing import Sequence
 
 import numpy as np
@@ -58,6 +59,19 @@ from platkit.chains.tasks import (
 from platkit.chains.transforms import pose_error, rotation_action
 from platkit.errors import BadInput, OutOfWorkspace
 
+_known: weakref.WeakKeyDictionary[KinematicChain, dict] = weakref.WeakKeyDictionary()
+
+
+def _per_chain(chain: KinematicChain) -> dict:
+    """What servos of one chain share (their active joints, the fast case's bounds), by key: a
+    servo is made per target, and these took most of its making (issue 13)."""
+    known = _known.get(chain)
+    if known is None:
+        known = _known[chain] = {}
+    elif len(known) > 256:  # keys without end (many frames, locked sets, dt): keep it small
+        known.clear()
+    return known
+
 
 def _clip(x: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """np.clip(x, lower, upper) for lower <= upper, without its wrapper's microseconds."""
@@ -82,18 +96,26 @@ class Servo:
         unknown = [n for n in self.options.locked if n not in chain.joint_names]
         if unknown:
             raise BadInput(f"locked joints not in the chain: {', '.join(unknown)}; joints: {', '.join(chain.joint_names)}")
-        active = np.zeros(chain.n, bool)
-        for f, r in zip(self.frame_ids, self.ref_ids):
-            for jt in chain.supporting_joints(f) + (chain.supporting_joints(r) if r else []):
-                active[jt.column] = True
-        for name in self.options.locked:
-            active[chain.joint_names.index(name)] = False
-        if not np.any(active):
-            raise BadInput("no joint moves the controlled link(s): " + ", ".join(t.link for t in self.tasks))
-        self.active = active
-        w = np.ones(chain.n) if self.options.joint_weights is None else np.asarray(self.options.joint_weights, float)
-        if w.shape != (chain.n,) or np.any(w <= 0):
-            raise BadInput(f"joint weights must be {chain.n} positive numbers")
+        known = _per_chain(chain)
+        key = ("active", tuple(self.frame_ids), tuple(self.ref_ids), tuple(self.options.locked))
+        active = known.get(key)
+        if active is None:
+            active = np.zeros(chain.n, bool)
+            for f, r in zip(self.frame_ids, self.ref_ids):
+                for jt in chain.supporting_joints(f) + (chain.supporting_joints(r) if r else []):
+                    active[jt.column] = True
+            for name in self.options.locked:
+                active[chain.joint_names.index(name)] = False
+            if not np.any(active):
+                raise BadInput("no joint moves the controlled link(s): " + ", ".join(t.link for t in self.tasks))
+            known[key] = active
+        self.active = active.copy()
+        if self.options.joint_weights is None:
+            w = np.ones(chain.n)
+        else:
+            w = np.asarray(self.options.joint_weights, float)
+            if w.shape != (chain.n,) or np.any(w <= 0):
+                raise BadInput(f"joint weights must be {chain.n} positive numbers")
         self.joint_weights = w
         self._fast = None
         self._fast = self._fast_case()
@@ -114,24 +136,40 @@ class Servo:
         pinocchio's own damped least squares)."""
         o, c = self.options, self.chain
         if (len(self.tasks) != 1 or self.ref_ids[0] != 0 or self.tasks[0].basis != "reference" or o.solver != "pinv"
-                or o.secondary != "none" or np.any(self.joint_weights != 1.0)):
+                or o.secondary != "none" or (o.joint_weights is not None and np.any(self.joint_weights != 1.0))):
             return None
-        model = c.model
-        # pinocchio's q is theta itself unless a continuous joint is stored as (cos, sin)
-        direct = model.nq == model.nv and all(model.joints[jt.index].idx_q == jt.column for jt in c.joints)
-        task = self.tasks[0]
-        rows = task.weights > 0
-        rate_step = np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)
-        return {"model": model, "data": model.createData(), "fid": self.frame_ids[0], "direct": direct,
-                "target_t": task.target[:3, 3].copy(), "target_R": task.target[:3, :3].copy(),
-                "rows": rows, "sw": np.sqrt(task.weights[rows]), "unit_weights": bool(np.all(task.weights == 1.0)),
-                "cols": np.flatnonzero(self.active),
-                "all_active": bool(self.active.all()) and bool(np.all(task.weights == 1.0)),
-                "plain_command": o.gain == 1.0 and bool(np.all(task.weights > 0)),
+        # the bounds depend on the chain, the active joints and dt only: made once per chain
+        known = _per_chain(c)
+        key = ("fast", self.active.tobytes(), o.dt)
+        bounds = known.get(key)
+        if bounds is None:
+            rate_step = np.where(np.isfinite(c.rate), c.rate * o.dt, np.inf)
+            bounds = known[key] = {
+                "model": c.model,
+                # pinocchio's q is theta itself unless a continuous joint is stored as (cos, sin)
+                "direct": c.model.nq == c.model.nv,  # every joint of a chain has one degree of freedom
+                "cols": np.flatnonzero(self.active), "every_joint": bool(self.active.all()),
                 # lower_active - theta: the room below for an active joint, +inf (then 0) for a locked one
                 "lower_active": np.where(self.active, c.lower, np.inf),
                 "upper_active": np.where(self.active, c.upper, -np.inf),
                 "rate_step": rate_step, "minus_rate_step": -rate_step}
+        task = self.tasks[0]
+        rows = task.weights > 0
+        unit_weights = bool(np.all(task.weights == 1.0))
+        every_row = unit_weights or bool(rows.all())
+        return {**bounds, "data": None, "fid": self.frame_ids[0],  # data: made by _fast_data on first use
+                "target_t": task.target[:3, 3].copy(), "target_R": task.target[:3, :3].copy(),
+                "rows": rows, "sw": np.ones(6) if unit_weights else np.sqrt(task.weights[rows]),
+                "unit_weights": unit_weights, "all_active": bounds["every_joint"] and unit_weights,
+                "plain_command": o.gain == 1.0 and every_row}
+
+    def _fast_data(self) -> pin.Data:
+        """Pinocchio's work data for the fast case, made on first use (the compiled loop needs it
+        only to explain a failure; making it costs 15 us a servo)."""
+        f = self._fast
+        if f["data"] is None:
+            f["data"] = f["model"].createData()
+        return f["data"]
 
     def _fast_q(self, theta: np.ndarray) -> np.ndarray:
         return theta if self._fast["direct"] else self.chain.pin_configuration(theta)
@@ -139,8 +177,9 @@ class Servo:
     def _fast_error(self, theta: np.ndarray) -> np.ndarray:
         """E (6,) = (t_U - t_P, rotvec(R_U R_P^T)) as :func:`pose_error` in the reference basis."""
         f = self._fast
-        pin.forwardKinematics(f["model"], f["data"], self._fast_q(theta))
-        M = pin.updateFramePlacement(f["model"], f["data"], f["fid"])
+        data = self._fast_data()
+        pin.forwardKinematics(f["model"], data, self._fast_q(theta))
+        M = pin.updateFramePlacement(f["model"], data, f["fid"])
         E = np.empty(6)
         E[:3] = f["target_t"] - M.translation
         E[3:] = pin.log3(f["target_R"] @ M.rotation.T)
@@ -149,7 +188,8 @@ class Servo:
     def _fast_jacobian(self, theta: np.ndarray) -> np.ndarray:
         """J (6, n): the frame origin's twist (v, omega) in world axes (LOCAL_WORLD_ALIGNED)."""
         f = self._fast
-        return pin.computeFrameJacobian(f["model"], f["data"], self._fast_q(theta), f["fid"], pin.LOCAL_WORLD_ALIGNED)
+        return pin.computeFrameJacobian(f["model"], self._fast_data(), self._fast_q(theta), f["fid"],
+                                        pin.LOCAL_WORLD_ALIGNED)
 
     def _fast_step(self, theta: np.ndarray, E: np.ndarray):
         """:func:`solve_pinv`'s step for this one level, without its generality (levels, joint
@@ -431,13 +471,14 @@ class Servo:
             task = self.tasks[0]
             self._compiled = CompiledServo.build(self.chain, self.frame_ids[0], task.target, task.weights, o,
                                                  self.active)
-        rng = np.random.default_rng(o.seed)
+        rng = np.random.default_rng(o.seed) if o.restarts else None
         result = self._attempt(theta0, start)
         best = result
         total = result.iterations
         for k in range(o.restarts):
             if result.converged or result.reason.startswith("stopped at the time cap") or "reaches at most" in result.reason:
                 break
+            assert rng is not None
             theta = np.where(self.active, self.chain.random(rng), theta0)
             result = self._attempt(theta, start)
             result.restarts = k + 1
