@@ -1,0 +1,65 @@
+"""Diagnosis on what the calibration it starts from could not see: held geometry freed again once
+an effect is modelled, a slow actuator named from the stream alone, and structure below the
+noise floor's reach not given another name (platkit.diagnose.search)."""
+from __future__ import annotations
+
+import json
+
+from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.selection import parameter_groups
+from platkit.cli import main
+from platkit.diagnose.search import Options, diagnose
+from platkit.plugins import get_platform
+from platkit.simulate import simulate
+from platkit.simulate.physics import simulate_physics, write_physical_session
+
+
+def test_geometry_the_calibration_held_is_freed_again_once_the_effect_is_modelled():
+    # a gear's cyclic error over a small error in the rod lengths, calibrated with the lengths
+    # held (as a selection scored with the cyclic error in the residual may hold them): with the
+    # lengths left held, two scale nonlinearities (93% inside the geometry) stand in for them
+    psvr = get_platform("psvr")
+    sim = simulate(psvr, seed=21, n_poses=40, raw=False, plan="random", effects=[("cyclic_error", 1.0)],
+                   perturbation=0.3)
+    groups = parameter_groups(psvr)
+    start = calibrate(sim.poses, psvr, free=[n for g, names in groups.items() if g != "lengths" for n in names])
+    assert all(start.td_status[psvr.parameter_names.index(n)] == "fixed" for n in groups["lengths"])
+    d = diagnose(psvr, sim.poses, Options(), start=start)
+    assert [f.effect for f in d.findings] == ["cyclic_error"]
+    notes = [r["geometry_reopened"] for r in d.rounds if "geometry_reopened" in r]
+    assert len(notes) == 1 and notes[0]["groups"] == ["lengths"]
+    assert notes[0]["heldout_rms_after"] < notes[0]["heldout_rms_before"]
+    assert all(d.calibration.td_status[psvr.parameter_names.index(n)] == "estimated" for n in groups["lengths"])
+    assert "freed again" in d.verdict
+
+
+def test_a_slow_actuator_is_named_from_the_stream_when_too_few_holds_settled_to_test_it(tmp_path):
+    # development seed 706190: 54 of 60 holds never settle (a slow u2), extrapolated to rest
+    sim = simulate_physics(get_platform("rotary"), seed=706190, n_poses=60, plan="random",
+                           effects=[("scale_nonlinearity", 0.3075), ("settling_lag", 0.15)], coloured=True)
+    slow = [p.parameters()["actuator"] for name, p in sim.physics if name == "settling_lag"]
+    session = write_physical_session(sim, tmp_path / "session")
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal")]) == 0
+    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
+                 "--out", str(tmp_path / "diag")]) == 0
+    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert [f["effect"] for f in d["findings"]] == ["settling_lag"]
+    f = d["findings"][0]
+    assert f["where"]["actuator"] == slow[0]
+    assert f["p_heldout"] is None  # not tested on held-out poses: too few settled; the stream's evidence
+    assert "too few to test" in f["evidence"]
+    assert "stand's physics was not tested" in d["verdict"]
+
+
+def test_structure_within_the_noise_floor_reach_beside_a_modelled_effect_is_not_named(tmp_path):
+    # psvr backlash in the physical simulator: the location tests still see autocorrelation on one
+    # marker after the play is modelled, but held-out prediction is within twice the noise floor
+    sim = simulate_physics(get_platform("psvr"), seed=882020, n_poses=60, plan="random",
+                           effects=[("backlash", 3.1)], coloured=True)
+    session = write_physical_session(sim, tmp_path / "session")
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal")]) == 0
+    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
+                 "--out", str(tmp_path / "diag")]) == 0
+    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert [f["effect"] for f in d["findings"]] == ["backlash"]
+    assert "Some structure remains in the residuals" in d["verdict"]  # said, not named
