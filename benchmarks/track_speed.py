@@ -16,24 +16,26 @@ plain reference. Goal (issue 13): platkit at or below the reference per target.
 
 ``--profile``: where platkit's time goes (cProfile, the ten largest own times).
 
-Why the goal is out of reach so far (measured 2026-11-25 on the 2-core machine, load about 4.7,
-50 targets: UR5 1.85 ms against 0.80, 2.31x; Panda 2.52 against 0.31, 8.15x; commit 8a7e787 gave
-2.82x and 8.93x in the same minute; after reusing a clamped step's first SVD, at load 2.6-3.7:
-1.95x and 6.47x): an iteration of the servo's one-target loop costs 52-76 us
-against the reference's 18-25 (the step's SVD through numpy's wrapper, about 8 us; the clamping
-pass that re-solves when a joint reaches a limit; the rate scaling; some 20 numpy calls on
-6-vectors at a few microseconds each); the rate limits (dt = 0.1 s) shorten steps (the
---no-rate-limits row: fewer iterations); and a target the servo cannot reach within the limits
-from mid-range (10-22 %; pinocchio's reference leaves them for most targets) takes the stall
-detection's 40 steps before it gives up, which the median column separates from the mean.
+The one-target servo runs compiled (platkit.chains.native_servo: the whole loop in C, built
+once per machine into the cache directory); the benchmark compiles it into a fresh temporary
+cache before timing and prints how long that took, so the rows are warm. The row "Python loop"
+is the same servo with the compiled loop switched off (``Servo.compile = False``: what runs
+without a C compiler or with PLATKIT_COMPILE=0, and what ran before 2026-11-26).
+
+History (2026-11-25, the 2-core machine): the Python loop took 1.95-2.31x the reference on UR5
+and 6.47-8.15x on Panda, 40-76 us an iteration in numpy calls against the reference's 17-25.
+Compiled (2026-11-26): see docs/chains.md section 6 for the figures and the command.
 """
 from __future__ import annotations
 
 import argparse
 import cProfile
 import io
+import os
 import pstats
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -43,11 +45,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from track_convergence import ROBOTS, reference_dls  # noqa: E402
 
 from platkit.chains import KinematicChain, Servo, ServoOptions, Task  # noqa: E402
+from platkit.chains.native_servo import compiled_servo_reason  # noqa: E402
 from platkit.chains.robots import example_robot_urdf  # noqa: E402
 
 
-def platkit_solve(chain, link, target, theta0, **options):
-    r = Servo(chain, [Task(link, target)], ServoOptions(**options)).run(theta0)
+def platkit_solve(chain, link, target, theta0, compiled=True, **options):
+    servo = Servo(chain, [Task(link, target)], ServoOptions(**options))
+    servo.compile = compiled
+    r = servo.run(theta0)
     within = bool(np.all(r.theta >= chain.lower - 1e-9) and np.all(r.theta <= chain.upper + 1e-9))
     return r.converged, within, r.iterations_total
 
@@ -59,6 +64,21 @@ def main(argv=None) -> None:
     ap.add_argument("--robots", default="ur5,panda")
     ap.add_argument("--profile", action="store_true")
     args = ap.parse_args(argv)
+    # compile the servo's loop now, into an empty cache, so that the timed rows are warm
+    cache = tempfile.mkdtemp(prefix="platkit-track-speed-")
+    os.environ["PLATKIT_CACHE_DIR"] = cache
+    try:
+        _run(args)
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)  # the loaded library stays mapped
+
+
+def _run(args) -> None:
+    t0 = time.perf_counter()
+    why = compiled_servo_reason()
+    took = time.perf_counter() - t0
+    print(f"compiled servo loop: {'NOT AVAILABLE (' + why + '); the rows run the Python loop' if why else 'built'} "
+          f"in {took:.2f} s (C compiler and load, once per machine; the timed rows are warm)\n")
     for robot in args.robots.split(","):
         urdf, link = ROBOTS[robot]
         chain = KinematicChain.from_urdf(example_robot_urdf(urdf))
@@ -69,6 +89,7 @@ def main(argv=None) -> None:
         solvers = {
             "platkit servo (platkit track)": lambda T: platkit_solve(chain, link, T, theta0),
             "platkit servo, --no-rate-limits": lambda T: platkit_solve(chain, link, T, theta0, use_rate_limits=False),
+            "platkit servo, Python loop": lambda T: platkit_solve(chain, link, T, theta0, compiled=False),
             "pinocchio DLS (reference)": lambda T: reference_dls(chain, fid, T, theta0)[:3],
             "pinocchio DLS, clipped to limits": lambda T: reference_dls(chain, fid, T, theta0, clip=True)[:3],
         }

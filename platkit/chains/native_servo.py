@@ -212,7 +212,7 @@ static void pk_jacobi(int rows, int cols, double* M, double* Q) {
   const double tol = rows * 2.220446049250313e-16;
   for (sweep = 0; sweep < 60; ++sweep) {
     int rotated = 0;
-    double d[PK_MAXN]; /* squared column norms: fresh each sweep, updated by each rotation */
+    double d[PK_MAXN], worst = 0.0; /* squared column norms: fresh each sweep, updated by each rotation */
     for (a = 0; a < cols; ++a) { double v = 0.0; for (i = 0; i < rows; ++i) v += M[a * rows + i] * M[a * rows + i]; d[a] = v; }
     for (a = 0; a < cols - 1; ++a) for (b = a + 1; b < cols; ++b) {
       double* x = M + a * rows; double* y = M + b * rows;
@@ -220,6 +220,7 @@ static void pk_jacobi(int rows, int cols, double* M, double* Q) {
       for (i = 0; i < rows; ++i) ga += x[i] * y[i];
       if (ga == 0.0 || fabs(ga) <= tol * sqrt(al * be)) continue;  /* orthogonal to rounding */
       rotated = 1;
+      worst = fmax(worst, fabs(ga) / sqrt(al * be));
       zeta = (be - al) / (2.0 * ga);
       t = fabs(zeta) > 1e150 ? 0.5 / zeta : (zeta >= 0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
       cs = 1.0 / sqrt(1.0 + t * t); sn = cs * t;
@@ -228,7 +229,9 @@ static void pk_jacobi(int rows, int cols, double* M, double* Q) {
       x = Q + a * cols; y = Q + b * cols;
       for (i = 0; i < cols; ++i) { double u = x[i], v = y[i]; x[i] = cs * u - sn * v; y[i] = sn * u + cs * v; }
     }
-    if (!rotated) break;
+    /* convergence is quadratic: after cosines below 1e-10 the next sweep would find them
+       below rounding, so it is not run */
+    if (!rotated || worst < 1e-10) break;
   }
 }
 
@@ -291,9 +294,10 @@ static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols
   double M[6 * PK_MAXN], Q[PK_MAXN * PK_MAXN], sv[6], big = 0.0, smin = 0.0, rn = 0.0, lam2;
   int i, j, l, transposed = m <= k, ns = transposed ? m : k, nq = transposed ? m : k, any = 0;
   if (!pk_solve_regular(c, Jw, m, cols, k, r, dq)) return;
-  /* Q starts from the last step's rotations where given (warm[0] = 1): the Jacobian moved
-     little, so M Q is nearly orthogonal and fewer sweeps remain */
-  if (warm && warm[0] == 1.0) memcpy(Q, warm + 1, sizeof(double) * nq * nq);
+  /* Q starts from the last solve's rotations where they fit (warm[0] = their size): the
+     Jacobian moved little (or lost a column to a limit), so M Q is nearly orthogonal and fewer
+     sweeps remain; any orthogonal Q gives an SVD of A */
+  if (warm && warm[0] == (double)nq) memcpy(Q, warm + 1, sizeof(double) * nq * nq);
   else { for (i = 0; i < nq * nq; ++i) Q[i] = 0.0; for (i = 0; i < nq; ++i) Q[i * nq + i] = 1.0; }
   if (transposed) { /* M = A^T Q (k x m) */
     for (j = 0; j < m; ++j) for (l = 0; l < k; ++l) {
@@ -308,7 +312,7 @@ static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols
     }
     pk_jacobi(m, k, M, Q);
   }
-  if (warm) { warm[0] = 1.0; memcpy(warm + 1, Q, sizeof(double) * nq * nq); }
+  if (warm) { warm[0] = nq; memcpy(warm + 1, Q, sizeof(double) * nq * nq); }
   for (j = 0; j < ns; ++j) {
     double s = 0.0; const double* y = M + j * (transposed ? k : m);
     for (i = 0; i < (transposed ? k : m); ++i) s += y[i] * y[i];
@@ -370,7 +374,7 @@ static void pk_step(const pk_chain* c, const double* theta, const double* E, con
       for (j = 0; j < n; ++j) { dq[j] = fixed[j]; if (free_[j]) cols[k++] = j; }
       for (i = 0; i < m; ++i) { double s = 0.0; for (j = 0; j < n; ++j) s += Jw[j * 6 + i] * fixed[j]; r[i] = ew[i] - s; }
     }
-    if (k) pk_solve(c, Jw, m, cols, k, r, dq, first ? warm : 0);
+    if (k) pk_solve(c, Jw, m, cols, k, r, dq, warm);
     for (j = 0; j < n; ++j) if (dq[j] > hi[j] + 1e-15 || dq[j] < lo[j] - 1e-15) viol = 1;
     if (!viol) break;
     if (first) { for (j = 0; j < n; ++j) { free_[j] = c->active[j]; fixed[j] = 0.0; } first = 0; }
