@@ -396,7 +396,8 @@ static void pk_step(const pk_chain* c, const double* theta, const double* E, con
   }
 }
 
-/* Up to `chunk` iterations of Servo._fast_attempt from theta (n, updated in place).
+/* Up to `chunk` iterations of Servo._fast_attempt. work: theta (n, updated in place), state (11),
+   out (8), path (chunk x n), history (chunk).
    state (in/out, 11): iterations, best merit, best E (6), stall reference, stall iteration, the
    merit at the start; `first` initialises them from theta. `time_over`: the time cap is already passed (checked
    before this chunk's first iteration, as the Python loop does before every one).
@@ -408,9 +409,9 @@ static void pk_step(const pk_chain* c, const double* theta, const double* E, con
 #else
 #define PK_EXPORT
 #endif
-PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* theta, double* state, int first,
-                             int time_over, int chunk, double* out, double* path, double* history) {
+PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* work, int first, int time_over, int chunk) {
   pk_chain c;
+  double *theta = work, *state = work + ii[0], *out = state + 11, *path = out + 8, *history = path + (long)chunk * ii[0];
   double E[6], merit, J[6 * PK_MAXN], dq[PK_MAXN], trial[PK_MAXN], tE[6], tmerit = 0.0, pos, rot, floor_;
   double warm[1 + PK_MAXN * PK_MAXN];
   int n, it, stall_at, steps = 0, code = CHUNK_DONE_, converged, t, i, j;
@@ -517,7 +518,7 @@ def _chunk_function():
         except OSError as exc:
             _loaded["lib"] = f"loading the compiled servo failed ({exc})"
             return _loaded["lib"]
-        fn.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int] * 3 + [ctypes.c_void_p] * 3
+        fn.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_int] * 3
         fn.restype = ctypes.c_int
         _loaded["lib"] = fn
         return fn
@@ -552,6 +553,7 @@ class CompiledServo:
         self.ints = ints
         self.doubles = doubles
         self.n = n
+        self._pointers = (ints.ctypes.data, doubles.ctypes.data)
 
     @classmethod
     def build(cls, chain: KinematicChain, frame_id: int, target: np.ndarray, weights: np.ndarray, options,
@@ -602,18 +604,28 @@ class CompiledServo:
         parts += [jt.axis for jt in joints]
         return np.ascontiguousarray(ints, dtype=np.intc), np.ascontiguousarray(np.concatenate(parts), dtype=float)
 
-    def chunk(self, theta: np.ndarray, state: np.ndarray, first: bool, time_over: bool):
-        """Up to :data:`CHUNK` iterations from theta (n,), which is updated in place; ``state``
-        (11,) carries the iteration count, the best merit and its E, the stall reference and
-        its iteration between chunks, and the merit at the start (``first``: set them from theta). Returns (code, E (6,),
-        merit, path (k, n), history (k,)) with the k accepted steps of this chunk."""
-        out = np.empty(8)
-        path = np.empty((CHUNK, self.n))
-        history = np.empty(CHUNK)
-        code = self._fn(self.ints.ctypes.data, self.doubles.ctypes.data, theta.ctypes.data, state.ctypes.data,
-                        int(first), int(time_over), CHUNK, out.ctypes.data, path.ctypes.data, history.ctypes.data)
-        k = int(out[7])
-        return code, out[:6].copy(), float(out[6]), path[:k], history[:k]
+    def start(self, theta: np.ndarray) -> np.ndarray:
+        """The work array of one attempt from theta (n,): theta (updated in place by the chunks),
+        the state they carry (11: the iteration count, the best merit and its E (6), the stall
+        reference and its iteration, the merit at the start), their outputs (8) and room for
+        one chunk's path (CHUNK, n) and merits (CHUNK,)."""
+        work = np.empty(self.n * (CHUNK + 1) + 19 + CHUNK)
+        work[:self.n] = theta
+        return work
+
+    def chunk(self, work: np.ndarray, first: bool, time_over: bool):
+        """Up to :data:`CHUNK` iterations from the work array's theta (``first``: the state set
+        from it; ``time_over``: the time cap is passed, checked before the first iteration).
+        Returns (code, E (6,), merit, path (k, n), history (k,)): E and the merit at the
+        theta reached, the k accepted steps of this chunk."""
+        n = self.n
+        code = self._fn(self._pointers[0], self._pointers[1], work.ctypes.data, int(first), int(time_over), CHUNK)
+        out = n + 11
+        k = int(work[out + 7])
+        path = out + 8
+        history = path + CHUNK * n
+        return (code, work[out:out + 6].copy(), float(work[out + 6]), work[path:path + k * n].reshape(k, n).copy(),
+                work[history:history + k].copy())
 
 
 __all__ = ["CHUNK", "CONVERGED", "CHUNK_DONE", "CompiledServo", "ITERATION_CAP", "LINE_SEARCH_FAILED", "MAX_JOINTS",

@@ -164,11 +164,16 @@ class Servo:
                 "plain_command": o.gain == 1.0 and every_row}
 
     def _fast_data(self) -> pin.Data:
-        """Pinocchio's work data for the fast case, made on first use (the compiled loop needs it
-        only to explain a failure; making it costs 15 us a servo)."""
+        """Pinocchio's work data for the fast case, made on first use and shared by the servos of
+        a chain (the compiled loop needs it only to explain a failure; making it costs 15 us)."""
         f = self._fast
         if f["data"] is None:
-            f["data"] = f["model"].createData()
+            # one per chain, as the chain's own (KinematicChain.data): each use computes and reads at once
+            known = _per_chain(self.chain)
+            data = known.get("fast data")
+            if data is None:
+                data = known["fast data"] = f["model"].createData()
+            f["data"] = data
         return f["data"]
 
     def _fast_q(self, theta: np.ndarray) -> np.ndarray:
@@ -495,14 +500,14 @@ class Servo:
         same steps, stopping rules and result; the time cap is checked between chunks of
         iterations, the reasons worded here."""
         o = self.options
-        theta = np.array(theta, dtype=float)  # updated in place by the C loop
-        state = np.zeros(11)
-        rows = [theta.copy()[None, :]]
+        work = compiled.start(theta)
+        state = work[self.chain.n:self.chain.n + 11]  # a view: the chunks update it
+        rows = [theta.reshape(1, -1)]
         history: list[float] = []
         first = True
         while True:
             time_over = time.perf_counter() - start > o.max_seconds
-            code, E, merit, steps, merits = compiled.chunk(theta, state, first, time_over)
+            code, E, merit, steps, merits = compiled.chunk(work, first, time_over)
             if first:
                 history.append(float(state[10]))
                 first = False
@@ -513,6 +518,7 @@ class Servo:
                 continue  # a chunk ended, the attempt goes on
             break
         iterations = int(state[0])
+        theta = work[:self.chain.n].copy()
         reason = ""
         if code in (LINE_SEARCH_FAILED, STALLED):
             reason = self.diagnose(theta, [E], stalled=True)
