@@ -33,181 +33,30 @@ an effect of any shape the geometry absorbs on this plan leaves nothing to find.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from platkit.calibrate.estimate import CalibrationProblem, calibrate, levenberg_marquardt, point_errors, robust_fit
+from platkit.calibrate.estimate import CalibrationProblem, calibrate, point_errors
 from platkit.calibrate.selection import parameter_groups
-from platkit.diagnose.locate import Location, locate, located
 from platkit.diagnose.floor import noise_floor, worst_marker
+from platkit.diagnose.locate import locate, located
 from platkit.diagnose.probes import marker_probe, space_probe, time_probe
-from platkit.diagnose.stats import bic, column_basis, holm, paired_improvement, score_test
+from platkit.diagnose.stats import column_basis, holm, paired_improvement, score_test
 from platkit.effects import Effect, effect_library, with_history
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
+from platkit.diagnose.fitting import (RECORDING_EFFECTS, Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms,
+                                       _obs, _rms, _where_text)
+from platkit.diagnose.recording import DIRECTION_EFFECTS, _settling_finding, _slow_actuator_echo, stand_calibration
+from platkit.diagnose.verdict import verdict
 
-
-#: effects that describe the recording, not the stand: corrected in the data, never predicted
-RECORDING_EFFECTS = ("settling_lag", "marker_slip")
-
-
-@dataclass
-class Options:
-    """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""
-
-    alpha: float = 0.01  # family-wise level of the screening and location tests
-    alpha_heldout: float = 0.05  # level of the held-out confirmation (one test per round)
-    folds: int = 5
-    max_effects: int = 3
-    max_refits: int = 3  # candidates refit per round (the best screened)
-    max_variants: int = 4  # of one kind at one place (periods, time constants, rows): this many fitted, then the best's neighbours
-    # below: not separable from the geometry (its signature is inside the identification
-    # Jacobian's column space to numerical precision); low but above this, a large effect still
-    # leaves a detectable part, and the held-out test decides
-    min_separability: float = 0.002
-    warn_separability: float = 0.3  # below: accepted with a warning
-    min_relative_gain: float = 0.02  # held-out RMS must fall by at least this fraction
-    weak_separability_factor: float = 0.1  # below warn_separability: held-out level alpha_heldout times this
-    free: Sequence[str] | None = None  # td parameters to fit (None: the stand's free ones)
-    probes: bool = True
-    # each model is fitted as the estimator calibrates (Huber weights, then rejection beyond
-    # 4.5 sigma), but scored on every seen observation: errors a model rejects as outliers (a
-    # slipped marker's later half) still count against it, so the model that explains them wins
-    robust: bool = True
-    lm_iterations: int = 30
-    # the geometric model's held-out RMS within this factor of the noise floor (or within three
-    # standard errors of its estimate over the observations, if more): nothing to find
-    noise_floor_factor: float = 1.03
-    # with nothing named, a geometric model still this many times the noise floor held out is a
-    # lack of fit the library has no name for: reported ``unexplained`` (clean physical sessions:
-    # 0.97-1.31 on development seeds 706600; out-of-library physics: 1.5-11.7)
-    lack_of_fit_factor: float = 2.0
-    # after an effect is accepted, the parameter groups the calibration held (its model selection
-    # scored them with the effect still in the residual) are freed again when that predicts
-    # held-out poses better; off: the calibration's free set stays
-    reopen_geometry: bool = True
-
-
-@dataclass
-class Fit:
-    """One model fitted by the estimator: its terms, unknowns and residuals."""
-
-    terms: list[ModelTerm]
-    problem: CalibrationProblem
-    z: np.ndarray
-    active: np.ndarray
-    weights: np.ndarray  # (N, M) scoring weights: 1 for every seen observation
-    r: np.ndarray  # (N, M, 3) m
-    rss: float
-    n_obs: int
-    n_params: int
-    cv: np.ndarray | None = None  # (N,) held-out mean squared marker error per pose, m^2
-    fit_weights: np.ndarray | None = None  # (N, M) the weights the fit itself used (robust)
-
-    @property
-    def bic(self) -> float:
-        return bic(self.rss, self.n_obs, self.n_params)
-
-    @property
-    def cv_rms(self) -> float:
-        return float(np.sqrt(np.nanmean(self.cv))) if self.cv is not None else float("nan")
-
-    def theta(self, k: int) -> np.ndarray:
-        return self.problem.split(self.z)[4][k]
-
-
-@dataclass
-class Finding:
-    """One result of diagnosis (the fields of diagnosis.json's findings, plus what the report plots)."""
-
-    effect: str
-    where: dict[str, Any]
-    parameters: dict[str, dict[str, Any]]
-    heldout_rms_before: float  # m
-    heldout_rms_after: float  # m
-    evidence: str
-    p_heldout: float = 1.0
-    p_screen: float = 1.0
-    bic_change: float = 0.0
-    separability: float = 1.0
-    warnings: list[str] = field(default_factory=list)
-    term: ModelTerm | None = None
-    regressor: np.ndarray | None = None
-    regressor_label: str = ""
-    signature_before: np.ndarray | None = None  # (N,) residual along the term's signature, m
-    signature_after: np.ndarray | None = None
-    heldout_session_rms_before: float | None = None
-    heldout_session_rms_after: float | None = None
-    corrected: str = ""  # for a recording artefact: how calibration.yaml leaves it out ('' for the stand's physics)
-
-
-@dataclass
-class Diagnosis:
-    findings: list[Finding]
-    verdict: str
-    calibration: Calibration  # the model with the accepted effects (what calibration.yaml holds)
-    base: Calibration  # the geometric model diagnosis started from
-    locations: list[Location]  # tests on the final residuals (most significant first)
-    locations_before: list[Location]
-    rounds: list[dict[str, Any]]
-    not_separable: list[dict[str, Any]]
-    unit: str
-    poses: PoseSet
-    heldout_session: dict[str, float] | None = None
-    imu: dict[str, Any] | None = None  # the gyro diagnosis (platkit.diagnose.imu), when the session has imu.csv
-    fitted: Calibration | None = None  # the model fitted to the data, recording artefacts included
-    noise_floor: float | None = None  # m, the held-out RMS that marker noise alone gives (None: unknown)
-    heldout_geometric: float | None = None  # m, the geometric model's held-out RMS
-    at_noise_floor: bool = False  # the geometric model predicts held-out poses as well as the noise allows
-    too_few_settled: bool = False  # most poses extrapolated: the stand's physics not tested (no settled poses to judge on)
-
-
-# ---------------------------------------------------------------------------- fitting
-def _obs(weights: np.ndarray, r: np.ndarray) -> np.ndarray:
-    return (weights > 0) & np.all(np.isfinite(r), axis=2)
-
-
-def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndarray, active0: np.ndarray,
-         weights: np.ndarray, iterations: int, robust: bool = True) -> Fit:
-    """Extend (z0, active0) with the new terms' theta (from their ``initial``) and refit (the
-    estimator's robust_fit when ``robust``); ``weights`` (N, M) score the fit."""
-    problem = CalibrationProblem(spec, poses, terms)
-    extra = problem.n_z - len(z0)
-    start = [t.initial for t in terms]
-    theta0 = np.concatenate(start)[len(np.concatenate(start)) - extra:] if extra else np.zeros(0)
-    z = np.concatenate([z0, theta0])
-    active = np.concatenate([active0, np.ones(extra, bool)])
-    if robust:
-        res = robust_fit(problem, z, active, robust=True, max_iter=iterations)
-    else:
-        res = levenberg_marquardt(problem, z, active, weights, max_iter=iterations)
-    keep = _obs(weights, res.state.r)
-    rss = float(np.sum(np.nan_to_num(res.state.r) ** 2 * keep[:, :, None]))
-    return Fit(list(terms), problem, res.z, active, weights, res.state.r, rss, 3 * int(keep.sum()), int(active.sum()),
-               fit_weights=res.weights)
-
-
-def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
-    """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds."""
-    N = poses.n_poses
-    fold = np.arange(N) % folds
-    out = np.full(N, np.nan)
-    for k in range(folds):
-        train, test = fold != k, fold == k
-        sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
-        w = fit.weights if fit.fit_weights is None else fit.fit_weights
-        res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations)
-        st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
-        d2 = np.sum(st.r**2, axis=2)
-        d2[fit.weights[test] <= 0] = np.nan
-        seen = np.isfinite(d2).sum(axis=1)
-        out[test] = np.where(seen > 0, np.nansum(d2, axis=1) / np.maximum(seen, 1), np.nan)
-    return out
+#: the names other modules import from here (the objects live in fitting, recording, verdict)
+__all__ = ["RECORDING_EFFECTS", "DIRECTION_EFFECTS", "Options", "Fit", "Finding", "Diagnosis", "diagnose", "screen",
+           "confirm", "noise_floor", "stand_calibration", "verdict"]
 
 
 def _weighted_system(fit: Fit, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -217,7 +66,6 @@ def _weighted_system(fit: Fit, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Jw = (np.nan_to_num(J) * sw[..., None]).reshape(-1, J.shape[-1])
     rows = np.repeat(keep.reshape(-1), 3)
     return r[rows], Jw[rows]
-
 
 def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet, candidates: list[ModelTerm]) -> list[tuple[float, float, float, np.ndarray]]:
     """Score test of each candidate at the current fit: [(F, p, separability, J columns (N, M, 3, k))]."""
@@ -239,7 +87,6 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet, candidates: list[ModelT
         k += K
     return out
 
-
 def _signature(J: np.ndarray, r: np.ndarray, theta: np.ndarray | None, sign: np.ndarray) -> np.ndarray:
     """(N,) each pose's measured-minus-model error along the term's signature (m): r_n (M*3)
     projected on J_n theta_hat, signed by the term's own offset at that pose (``sign``), so that
@@ -252,7 +99,6 @@ def _signature(J: np.ndarray, r: np.ndarray, theta: np.ndarray | None, sign: np.
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(size > 0, -np.sum(rn * d, axis=1) / size * sign, np.nan)
 
-
 def _offset_sign(term: ModelTerm, theta: np.ndarray, fit: "Fit", poses: PoseSet) -> np.ndarray:
     """(N,) sign of the term's offset at each pose, in its most varying component."""
     q, X = fit.problem.kinematics(fit.problem.split(fit.z)[0], poses.controls)[:2]
@@ -260,7 +106,6 @@ def _offset_sign(term: ModelTerm, theta: np.ndarray, fit: "Fit", poses: PoseSet)
              term.marker_offset(theta, poses).reshape(poses.n_poses, -1)]
     off = np.concatenate([np.nan_to_num(p) for p in parts], axis=1)
     return np.sign(off[:, int(np.argmax(np.var(off, axis=0)))])
-
 
 def _body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
     """(N, M, 3) the fit's residuals in the moving frame: a marker that slipped on the moving part
@@ -271,33 +116,11 @@ def _body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
     A = matrix_from_rotvec(w)  # base -> mocap
     return np.einsum("nji,kj,nmk->nmi", R, A, fit.r)
 
-
-#: effects whose signature is the direction of the last move: on an actuator whose approach was
-#: extrapolated to rest, the extrapolation's remnant has the same signature
-DIRECTION_EFFECTS = ("backlash",)
-
-
-def _slow_actuator_echo(term: ModelTerm, settled: Finding | None, poses: PoseSet) -> bool:
-    """True for a direction-of-motion effect (a backlash) on the actuator a ``settling_lag``
-    finding named, in a session where holds were extrapolated to rest: what the approach model
-    missed lies along that actuator's last move, which is a backlash's signature, so the two
-    cannot be told apart on these data (on the physical simulator: a slow stewart leg named with a
-    backlash made held-out prediction of the settled poses worse, 0.063 -> 0.103 mm, seed 885110)."""
-    if settled is None or term.effect not in DIRECTION_EFFECTS:
-        return False
-    extrapolated = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float)
-    if not np.any(extrapolated != 0):
-        return False
-    slow = str(settled.where.get("actuator", ""))
-    return bool(slow) and str(term.where.get("actuator", "")) == slow
-
-
 def _place(term: ModelTerm) -> tuple:
     """(effect, actuator or marker): terms of one kind at one place compete, never add up."""
     w = term.where
     actuator = str(w.get("actuator", ""))
     return term.effect, "" if actuator == "all" else actuator, str(w.get("marker", ""))
-
 
 def _params(term: ModelTerm, theta: np.ndarray, std: np.ndarray | None) -> dict[str, dict[str, Any]]:
     d = term.to_dict(theta, std)["parameters"]
@@ -305,17 +128,6 @@ def _params(term: ModelTerm, theta: np.ndarray, std: np.ndarray | None) -> dict[
         if v["std"] is not None and not np.isfinite(v["std"]):
             v["std"] = None
     return d
-
-
-def _fmt_rms(x: float, unit: str) -> str:
-    return f"{x / length_scale(unit):.3g} {unit}"
-
-
-def _where_text(where: dict) -> str:
-    keys = ("actuator", "marker", "time", "region", "frame", "period", "from_time_s")
-    parts = [f"{k} {where[k]}" for k in keys if k in where]
-    return ", ".join(parts) or "the whole model"
-
 
 # ---------------------------------------------------------------------------- the search
 def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
@@ -526,7 +338,6 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     diag.verdict = verdict(diag)
     return diag
 
-
 def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] | None, judged: np.ndarray,
               opt: Options, platform_options: dict | None) -> tuple[Fit, list[str], dict] | None:
     """The model with the parameter groups held by the calibration freed again, as (fit, free
@@ -559,7 +370,6 @@ def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] 
     return f, trial, {"groups": held, "heldout_rms_before": before, "heldout_rms_after": after, "p_heldout": float(p),
                       "text": text}
 
-
 def _best_variant(i0: int, cands: list, scr: list, cur: Fit, spec: PlatformSpec, poses: PoseSet,
                   weights: np.ndarray, opt: Options) -> tuple[int, Fit]:
     """The variant of candidate ``i0``'s kind and place (a cooling time constant, a period, a
@@ -582,7 +392,6 @@ def _best_variant(i0: int, cands: list, scr: list, cur: Fit, spec: PlatformSpec,
         pick = {same[k] for k in (b - 1, b + 1) if 0 <= k < len(same)} - set(fits)
         if not pick:
             return best, fits[best]
-
 
 def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float], cur: Fit, judged: np.ndarray,
             opt: Options) -> tuple[int, Fit, float] | None:
@@ -607,107 +416,6 @@ def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float],
         if f.bic < cur.bic and gain and p_h < level:
             return i, f, p_h
     return None
-
-
-def _rms(cv: np.ndarray, mask: np.ndarray) -> float:
-    """RMS (m) of the held-out errors ``cv`` (N,) (mean squares per pose) over the poses in ``mask``."""
-    return float(np.sqrt(np.nanmean(cv[mask])))
-
-
-def stand_calibration(cal: Calibration) -> Calibration:
-    """The calibration of the stand from one fitted with recording artefacts: settling_lag terms
-    left out (the stand is predicted where it settles), a slipped marker placed where it was after
-    the slip (its offset added to its position, the stds combined). Other terms stay."""
-    keep = [k for k, t in enumerate(cal.terms) if t.effect not in RECORDING_EFFECTS]
-    markers = np.array(cal.marker_positions, float, copy=True)
-    mstd = np.array(cal.marker_std, float, copy=True)
-    for t, theta, std in zip(cal.terms, cal.theta, cal.theta_std):
-        if t.effect == "marker_slip":
-            m = int(t.where["marker_index"])
-            markers[m] = markers[m] + np.asarray(theta, float)[:3]
-            sd = np.asarray(std, float)[:3] if std is not None else np.full(3, np.nan)
-            mstd[m] = np.sqrt(mstd[m] ** 2 + sd**2)
-    if len(keep) == len(cal.terms):
-        return cal
-    return replace(cal, terms=[cal.terms[k] for k in keep], theta=[cal.theta[k] for k in keep],
-                   theta_std=[cal.theta_std[k] for k in keep], marker_positions=markers, marker_std=mstd)
-
-
-def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.ndarray, opt: Options,
-                      say: Callable[[str], None]) -> Finding | None:
-    """The ``settling_lag`` finding of holds that never settled and were extrapolated to rest by
-    the settling search, or None.
-
-    It is made from the raw stream: the settling search extrapolated many holds (more than its
-    ``max_unsettled_fraction``) and read from the direction the markers still moved which
-    actuators lag, with what time constant. Where enough held-out *settled* poses exist, it is
-    tested there: the model fitted to the poses as extrapolated (``cur``) and one fitted with those
-    holds where the stream was at their end ('held_markers') predict them (the same data in both);
-    it stands when the extrapolated one predicts them significantly better, or, with the lagging
-    actuators named from the stream, when it predicts them no worse (the correction is the
-    settling search's own: diagnosis changes nothing in the calibration). With too few settled
-    poses to test on, the stream's evidence stands alone when it names the actuators."""
-    info = poses.settling or {}
-    un = info.get("unsettled") or {}
-    if not un or not info.get("n_extrapolated") or "held_markers" not in poses.extras or cur.cv is None:
-        return None
-    ex = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses))) > 0
-    named = list(un.get("actuators") or [])
-    unit = poses.length_unit
-    if ex.sum() == 0:
-        return None
-    if (~ex).sum() < 2 * opt.folds:
-        if not named:
-            say(f"{un['sentence']}; too few held-out settled poses ({int((~ex).sum())}) to test the extrapolation")
-            return None
-        rms = float(np.sqrt(np.nanmean(cur.cv)))
-        say(f"settling_lag (from the stream): {un['sentence']}; only {int((~ex).sum())} settled poses, too few to "
-            "test the extrapolation on held-out ones: the stream's evidence stands alone")
-        return _settling_lag(un, info, poses, rms, rms, float("nan"),
-                             f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their "
-                             f"fitted approach (only {int((~ex).sum())} holds settled: too few to test the "
-                             "extrapolation on held-out settled poses)")
-    naive = poses.subset(np.arange(poses.n_poses))
-    naive.markers = np.where(ex[:, None, None], np.asarray(poses.extras["held_markers"], float), poses.markers)
-    if naive.n_samples is not None:
-        n = np.array(naive.n_samples, float, copy=True)
-        n[ex] = np.median(n[~ex])  # a window of the stream, as a plain search would have averaged
-        naive.n_samples = n
-    w = np.all(np.isfinite(naive.markers), axis=2).astype(float)
-    base = _fit(spec, naive, cur.terms, cur.z, cur.active, w, opt.lm_iterations, opt.robust)
-    base.cv = _cv(base, spec, naive, opt.folds, opt.lm_iterations)
-    before = float(np.sqrt(np.nanmean(base.cv[~ex])))
-    after = float(np.sqrt(np.nanmean(cur.cv[~ex])))
-    p = paired_improvement(base.cv[~ex], cur.cv[~ex])
-    say(f"settling_lag (from the stream): held-out settled poses {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} "
-        f"(paired p = {p:.2g})")
-    better = after < before and p < opt.alpha_heldout
-    if not better and not (named and after <= before * 1.01):
-        return None
-    return _settling_lag(un, info, poses, before, after, float(p),
-                         f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their fitted "
-                         f"approach, instead of taken where the stream was at the end of the hold, predict the "
-                         f"{int((~ex).sum())} held-out settled poses at {_fmt_rms(after, unit)} against "
-                         f"{_fmt_rms(before, unit)} ({opt.folds}-fold, paired Wilcoxon p = {p:.2g}"
-                         + (")" if better else "; no better, no worse: the actuators named from the stream)"))
-
-
-def _settling_lag(un: dict, info: dict, poses: PoseSet, before: float, after: float, p: float,
-                  evidence: str) -> Finding:
-    """The ``settling_lag`` finding of the settling search's ``unsettled`` summary ``un``."""
-    tau = un.get("time_constant_s")
-    q = un.get("time_constant_quartiles_s") or [np.nan, np.nan]
-    spread = (q[1] - q[0]) / 1.349 if np.all(np.isfinite(q)) else None
-    where = {"actuator": ", ".join(un.get("actuators") or []) or "all", "markers": list(un.get("markers") or []),
-             "holds": int(un.get("n", 0)), "of_commands": int(info.get("n_commands", poses.n_poses))}
-    return Finding(
-        effect="settling_lag", where=where,
-        parameters={"time_constant": {"value": tau, "std": spread, "unit": "s"},
-                    "hold": {"value": un.get("hold_s"), "std": None, "unit": "s"}},
-        heldout_rms_before=before, heldout_rms_after=after, p_heldout=p, evidence=evidence,
-        corrected=("in the data: those holds enter as the rest position of their approach, weighted by its "
-                   "uncertainty; calibration.yaml predicts where the stand settles"))
-
 
 def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Finding | None:
     """A generic probe that predicts held-out poses significantly better than ``best`` (or, with
@@ -739,7 +447,6 @@ def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options) -> Findi
                           f"(paired Wilcoxon p = {p:.2g}); no effect in the library matches it"))
     return None
 
-
 def _evidence(f: Finding, poses: PoseSet, unit: str, folds: int) -> str:
     first = next(iter(f.parameters.items()), None)
     par = ""
@@ -753,7 +460,6 @@ def _evidence(f: Finding, poses: PoseSet, unit: str, folds: int) -> str:
             f"{_fmt_rms(f.heldout_rms_before, unit)} to {_fmt_rms(f.heldout_rms_after, unit)} over "
             f"{poses.n_poses} poses (paired Wilcoxon p = {f.p_heldout:.2g}, BIC {f.bic_change:+.0f}; "
             f"score test against the residual: Holm p = {f.p_screen:.2g}){par}")
-
 
 def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec: PlatformSpec,
                    findings: list[Finding]) -> dict[str, float]:
@@ -769,73 +475,3 @@ def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec
     return {"rms_before": before, "rms_after": after, "per_marker": per_marker,
             "p_improvement": paired_improvement(np.nanmean(e0**2, axis=1), np.nanmean(e1**2, axis=1)),
             "n_poses": heldout.n_poses}
-
-
-def verdict(d: Diagnosis) -> str:
-    """One paragraph for people."""
-    unit = d.unit
-    named = [f for f in d.findings if f.effect != "unexplained"]
-    unexpl = [f for f in d.findings if f.effect == "unexplained"]
-    parts = []
-    if not d.findings and d.at_noise_floor:
-        parts.append(f"The motion capture shows no hidden effect: the geometric model predicts held-out poses at "
-                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these settled poses "
-                     f"({_fmt_rms(d.noise_floor, unit)} from the marker noise and the samples averaged), so no "
-                     "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
-    elif not d.findings and not d.too_few_settled:
-        loc = located(d.locations, 0.01)
-        parts.append("The motion capture shows no hidden effect: no candidate effect improved held-out prediction "
-                     "significantly, "
-                     "and the residuals show no structure that survives correction for multiple testing"
-                     + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
-    if named:
-        first_before = max(f.heldout_rms_before for f in named)
-        last_after = min(f.heldout_rms_after for f in named)
-        names = ", ".join(f"{f.effect} ({_where_text(f.where)})" for f in named)
-        if last_after < first_before:
-            parts.append(f"The geometric model leaves out {names}. Modelling {'it' if len(named) == 1 else 'them'} "
-                         f"brings the held-out RMS from {_fmt_rms(first_before, unit)} to {_fmt_rms(last_after, unit)}.")
-        else:  # a slow actuator read from the stream, its holds already extrapolated by the settling search
-            parts.append(f"The recording shows {names}; the held-out RMS stays {_fmt_rms(last_after, unit)}.")
-    for r in d.rounds:
-        note = r.get("geometry_reopened")
-        if note:
-            parts.append(f"With {'the effect' if len(named) == 1 else 'the effects'} modelled, the geometry the "
-                         f"calibration held ({', '.join(note['groups'])}) was freed again: it predicts held-out poses "
-                         f"better ({_fmt_rms(note['heldout_rms_before'], unit)} -> "
-                         f"{_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates it.")
-    corrected = [f for f in named if f.corrected]
-    if corrected:
-        parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
-                     "the recording, not the stand: corrected in the data, and calibration.yaml predicts where the "
-                     "stand settles.")
-    un = (d.poses.settling or {}).get("unsettled") or {}
-    if un and not any(f.effect == "settling_lag" and f.term is None for f in named):
-        parts.append(f"Settling: {un['sentence']}.")
-    if d.too_few_settled:
-        parts.append("Most holds never settled: the stand's physics was not tested, for lack of settled poses to "
-                     "prove it on (extrapolated poses carry what their approach model missed, along the last move); "
-                     "record longer holds to test it.")
-    left = located(d.locations, 0.001) if named and not unexpl and not d.too_few_settled else []
-    if left and any(f.term is not None for f in named):
-        parts.append(f"Some structure remains in the residuals ({left[0].test}, {_where_text(left[0].where)}) that "
-                     "held-out prediction does not see (within twice the noise floor): what the model leaves of the "
-                     "physics it names, not reported as another effect.")
-    for f in unexpl:
-        parts.append(f"Structure remains that no known effect explains ({_where_text(f.where) or f.where}); "
-                     "it is reported as unexplained rather than given a wrong name.")
-    for f in named:
-        for w in f.warnings:
-            parts.append(f"Warning on {f.effect}: {w}.")
-    if d.not_separable:
-        parts.append("Not separable from the geometry on this design (not tested further): "
-                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in d.not_separable[:5])
-                     + (f" and {len(d.not_separable) - 5} more" if len(d.not_separable) > 5 else "") + ".")
-        if any(x["effect"] == "cyclic_error" for x in d.not_separable):
-            parts.append("A periodic error is invisible when every command sits at the same phase of its period "
-                         "(a grid whose steps are a multiple of it): record a random or dithered plan to test it.")
-    if d.heldout_session is not None:
-        h = d.heldout_session
-        parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
-                     f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
-    return " ".join(parts)

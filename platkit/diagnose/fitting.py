@@ -1,0 +1,181 @@
+"""What diagnosis fits and says (platkit.diagnose.search): its options, one fitted model with
+its K-fold held-out errors, a finding and the diagnosis; the refit and the cross-validation every
+step of the search shares."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from platkit.calibrate.estimate import CalibrationProblem, levenberg_marquardt, robust_fit
+from platkit.diagnose.locate import Location
+from platkit.diagnose.stats import bic
+from platkit.io.calibration import Calibration
+from platkit.model import PlatformSpec, length_scale
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
+
+#: effects that describe the recording, not the stand: corrected in the data, never predicted
+RECORDING_EFFECTS = ("settling_lag", "marker_slip")
+
+@dataclass
+class Options:
+    """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""
+
+    alpha: float = 0.01  # family-wise level of the screening and location tests
+    alpha_heldout: float = 0.05  # level of the held-out confirmation (one test per round)
+    folds: int = 5
+    max_effects: int = 3
+    max_refits: int = 3  # candidates refit per round (the best screened)
+    # of one kind at one place (periods, time constants, rows): this many fitted, then the best's neighbours
+    max_variants: int = 4
+    # below: not separable from the geometry (its signature is inside the identification
+    # Jacobian's column space to numerical precision); low but above this, a large effect still
+    # leaves a detectable part, and the held-out test decides
+    min_separability: float = 0.002
+    warn_separability: float = 0.3  # below: accepted with a warning
+    min_relative_gain: float = 0.02  # held-out RMS must fall by at least this fraction
+    weak_separability_factor: float = 0.1  # below warn_separability: held-out level alpha_heldout times this
+    free: Sequence[str] | None = None  # td parameters to fit (None: the stand's free ones)
+    probes: bool = True
+    # each model is fitted as the estimator calibrates (Huber weights, then rejection beyond
+    # 4.5 sigma), but scored on every seen observation: errors a model rejects as outliers (a
+    # slipped marker's later half) still count against it, so the model that explains them wins
+    robust: bool = True
+    lm_iterations: int = 30
+    # the geometric model's held-out RMS within this factor of the noise floor (or within three
+    # standard errors of its estimate over the observations, if more): nothing to find
+    noise_floor_factor: float = 1.03
+    # with nothing named, a geometric model still this many times the noise floor held out is a
+    # lack of fit the library has no name for: reported ``unexplained`` (clean physical sessions:
+    # 0.97-1.31 on development seeds 706600; out-of-library physics: 1.5-11.7)
+    lack_of_fit_factor: float = 2.0
+    # after an effect is accepted, the parameter groups the calibration held (its model selection
+    # scored them with the effect still in the residual) are freed again when that predicts
+    # held-out poses better; off: the calibration's free set stays
+    reopen_geometry: bool = True
+
+@dataclass
+class Fit:
+    """One model fitted by the estimator: its terms, unknowns and residuals."""
+
+    terms: list[ModelTerm]
+    problem: CalibrationProblem
+    z: np.ndarray
+    active: np.ndarray
+    weights: np.ndarray  # (N, M) scoring weights: 1 for every seen observation
+    r: np.ndarray  # (N, M, 3) m
+    rss: float
+    n_obs: int
+    n_params: int
+    cv: np.ndarray | None = None  # (N,) held-out mean squared marker error per pose, m^2
+    fit_weights: np.ndarray | None = None  # (N, M) the weights the fit itself used (robust)
+
+    @property
+    def bic(self) -> float:
+        return bic(self.rss, self.n_obs, self.n_params)
+
+    @property
+    def cv_rms(self) -> float:
+        return float(np.sqrt(np.nanmean(self.cv))) if self.cv is not None else float("nan")
+
+    def theta(self, k: int) -> np.ndarray:
+        return self.problem.split(self.z)[4][k]
+
+@dataclass
+class Finding:
+    """One result of diagnosis (the fields of diagnosis.json's findings, plus what the report plots)."""
+
+    effect: str
+    where: dict[str, Any]
+    parameters: dict[str, dict[str, Any]]
+    heldout_rms_before: float  # m
+    heldout_rms_after: float  # m
+    evidence: str
+    p_heldout: float = 1.0
+    p_screen: float = 1.0
+    bic_change: float = 0.0
+    separability: float = 1.0
+    warnings: list[str] = field(default_factory=list)
+    term: ModelTerm | None = None
+    regressor: np.ndarray | None = None
+    regressor_label: str = ""
+    signature_before: np.ndarray | None = None  # (N,) residual along the term's signature, m
+    signature_after: np.ndarray | None = None
+    heldout_session_rms_before: float | None = None
+    heldout_session_rms_after: float | None = None
+    corrected: str = ""  # for a recording artefact: how calibration.yaml leaves it out ('' for the stand's physics)
+
+@dataclass
+class Diagnosis:
+    findings: list[Finding]
+    verdict: str
+    calibration: Calibration  # the model with the accepted effects (what calibration.yaml holds)
+    base: Calibration  # the geometric model diagnosis started from
+    locations: list[Location]  # tests on the final residuals (most significant first)
+    locations_before: list[Location]
+    rounds: list[dict[str, Any]]
+    not_separable: list[dict[str, Any]]
+    unit: str
+    poses: PoseSet
+    heldout_session: dict[str, float] | None = None
+    imu: dict[str, Any] | None = None  # the gyro diagnosis (platkit.diagnose.imu), when the session has imu.csv
+    fitted: Calibration | None = None  # the model fitted to the data, recording artefacts included
+    noise_floor: float | None = None  # m, the held-out RMS that marker noise alone gives (None: unknown)
+    heldout_geometric: float | None = None  # m, the geometric model's held-out RMS
+    at_noise_floor: bool = False  # the geometric model predicts held-out poses as well as the noise allows
+    too_few_settled: bool = False  # most poses extrapolated: the stand's physics not tested (no settled poses to judge on)
+
+# ---------------------------------------------------------------------------- fitting
+def _obs(weights: np.ndarray, r: np.ndarray) -> np.ndarray:
+    return (weights > 0) & np.all(np.isfinite(r), axis=2)
+
+def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndarray, active0: np.ndarray,
+         weights: np.ndarray, iterations: int, robust: bool = True) -> Fit:
+    """Extend (z0, active0) with the new terms' theta (from their ``initial``) and refit (the
+    estimator's robust_fit when ``robust``); ``weights`` (N, M) score the fit."""
+    problem = CalibrationProblem(spec, poses, terms)
+    extra = problem.n_z - len(z0)
+    start = [t.initial for t in terms]
+    theta0 = np.concatenate(start)[len(np.concatenate(start)) - extra:] if extra else np.zeros(0)
+    z = np.concatenate([z0, theta0])
+    active = np.concatenate([active0, np.ones(extra, bool)])
+    if robust:
+        res = robust_fit(problem, z, active, robust=True, max_iter=iterations)
+    else:
+        res = levenberg_marquardt(problem, z, active, weights, max_iter=iterations)
+    keep = _obs(weights, res.state.r)
+    rss = float(np.sum(np.nan_to_num(res.state.r) ** 2 * keep[:, :, None]))
+    return Fit(list(terms), problem, res.z, active, weights, res.state.r, rss, 3 * int(keep.sum()), int(active.sum()),
+               fit_weights=res.weights)
+
+def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
+    """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds."""
+    N = poses.n_poses
+    fold = np.arange(N) % folds
+    out = np.full(N, np.nan)
+    for k in range(folds):
+        train, test = fold != k, fold == k
+        sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
+        w = fit.weights if fit.fit_weights is None else fit.fit_weights
+        res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations)
+        st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
+        d2 = np.sum(st.r**2, axis=2)
+        d2[fit.weights[test] <= 0] = np.nan
+        seen = np.isfinite(d2).sum(axis=1)
+        out[test] = np.where(seen > 0, np.nansum(d2, axis=1) / np.maximum(seen, 1), np.nan)
+    return out
+
+def _rms(cv: np.ndarray, mask: np.ndarray) -> float:
+    """RMS (m) of the held-out errors ``cv`` (N,) (mean squares per pose) over the poses in ``mask``."""
+    return float(np.sqrt(np.nanmean(cv[mask])))
+
+def _fmt_rms(x: float, unit: str) -> str:
+    return f"{x / length_scale(unit):.3g} {unit}"
+
+def _where_text(where: dict) -> str:
+    keys = ("actuator", "marker", "time", "region", "frame", "period", "from_time_s")
+    parts = [f"{k} {where[k]}" for k in keys if k in where]
+    return ", ".join(parts) or "the whole model"

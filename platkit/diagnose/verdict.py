@@ -1,0 +1,79 @@
+"""The diagnosis said in one paragraph for people (platkit.diagnose.search)."""
+from __future__ import annotations
+
+from platkit.diagnose.fitting import (
+    Diagnosis,
+    _fmt_rms,
+    _where_text,
+)
+from platkit.diagnose.locate import located
+
+
+def verdict(d: Diagnosis) -> str:
+    """One paragraph for people."""
+    unit = d.unit
+    named = [f for f in d.findings if f.effect != "unexplained"]
+    unexpl = [f for f in d.findings if f.effect == "unexplained"]
+    parts = []
+    if not d.findings and d.at_noise_floor:
+        parts.append(f"The motion capture shows no hidden effect: the geometric model predicts held-out poses at "
+                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these settled poses "
+                     f"({_fmt_rms(d.noise_floor, unit)} from the marker noise and the samples averaged), so no "
+                     "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
+    elif not d.findings and not d.too_few_settled:
+        loc = located(d.locations, 0.01)
+        parts.append("The motion capture shows no hidden effect: no candidate effect improved held-out prediction "
+                     "significantly, "
+                     "and the residuals show no structure that survives correction for multiple testing"
+                     + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
+    if named:
+        first_before = max(f.heldout_rms_before for f in named)
+        last_after = min(f.heldout_rms_after for f in named)
+        names = ", ".join(f"{f.effect} ({_where_text(f.where)})" for f in named)
+        if last_after < first_before:
+            parts.append(f"The geometric model leaves out {names}. Modelling {'it' if len(named) == 1 else 'them'} "
+                         f"brings the held-out RMS from {_fmt_rms(first_before, unit)} to {_fmt_rms(last_after, unit)}.")
+        else:  # a slow actuator read from the stream, its holds already extrapolated by the settling search
+            parts.append(f"The recording shows {names}; the held-out RMS stays {_fmt_rms(last_after, unit)}.")
+    for r in d.rounds:
+        note = r.get("geometry_reopened")
+        if note:
+            parts.append(f"With {'the effect' if len(named) == 1 else 'the effects'} modelled, the geometry the "
+                         f"calibration held ({', '.join(note['groups'])}) was freed again: it predicts held-out poses "
+                         f"better ({_fmt_rms(note['heldout_rms_before'], unit)} -> "
+                         f"{_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates it.")
+    corrected = [f for f in named if f.corrected]
+    if corrected:
+        parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
+                     "the recording, not the stand: corrected in the data, and calibration.yaml predicts where the "
+                     "stand settles.")
+    un = (d.poses.settling or {}).get("unsettled") or {}
+    if un and not any(f.effect == "settling_lag" and f.term is None for f in named):
+        parts.append(f"Settling: {un['sentence']}.")
+    if d.too_few_settled:
+        parts.append("Most holds never settled: the stand's physics was not tested, for lack of settled poses to "
+                     "prove it on (extrapolated poses carry what their approach model missed, along the last move); "
+                     "record longer holds to test it.")
+    left = located(d.locations, 0.001) if named and not unexpl and not d.too_few_settled else []
+    if left and any(f.term is not None for f in named):
+        parts.append(f"Some structure remains in the residuals ({left[0].test}, {_where_text(left[0].where)}) that "
+                     "held-out prediction does not see (within twice the noise floor): what the model leaves of the "
+                     "physics it names, not reported as another effect.")
+    for f in unexpl:
+        parts.append(f"Structure remains that no known effect explains ({_where_text(f.where) or f.where}); "
+                     "it is reported as unexplained rather than given a wrong name.")
+    for f in named:
+        for w in f.warnings:
+            parts.append(f"Warning on {f.effect}: {w}.")
+    if d.not_separable:
+        parts.append("Not separable from the geometry on this design (not tested further): "
+                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in d.not_separable[:5])
+                     + (f" and {len(d.not_separable) - 5} more" if len(d.not_separable) > 5 else "") + ".")
+        if any(x["effect"] == "cyclic_error" for x in d.not_separable):
+            parts.append("A periodic error is invisible when every command sits at the same phase of its period "
+                         "(a grid whose steps are a multiple of it): record a random or dithered plan to test it.")
+    if d.heldout_session is not None:
+        h = d.heldout_session
+        parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
+                     f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
+    return " ".join(parts)
