@@ -434,7 +434,8 @@ def summarise(results: list[dict]) -> str:
                 ref_text = (f"; reference (mean of each hold's last second) {np.mean([x['in_noise_units'] for x in ref]):+.3f}"
                             if ref else "")
                 lines.append(f"  {stand:8s} {label:24s} n={len(ss):3d}  mean {np.mean(m) * 1e3:+.2f} um  "
-                             f"= {np.mean(u):+.3f} averaging noise (range {u.min():+.2f}..{u.max():+.2f}); "
+                             f"= {np.mean(u):+.3f} +- {np.std(u, ddof=1) / np.sqrt(len(u)) if len(u) > 1 else np.nan:.3f} "
+                             f"averaging noise (range {u.min():+.2f}..{u.max():+.2f}); "
                              f"t median {np.median(t):+.1f}{ref_text}")
         fails = [r for r in results if r["stand"] == stand and "error" in r.get("settle", {})]
         if fails:
