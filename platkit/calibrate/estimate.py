@@ -174,7 +174,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
     # explains it (a slipped marker's later half is an outlier only to the geometry), and a
     # Jacobian column does not depend on the measured value
     used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
-    Jc = (st.J[..., cand_idx] * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
+    Jc = (np.take(st.J, cand_idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
     Jc = Jc.reshape(-1, len(cand_idx))
     ident = select_identifiable(Jc, [problem.names[i] for i in cand_idx], problem.scale[cand_idx],
                                 problem.tiers[cand_idx].tolist(), rel_tol)
@@ -220,7 +220,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         cov = cov_full[np.ix_(active, active)]
         moved = active | np.any(gauge_map != np.eye(n_z), axis=1)
         std_full[moved] = np.sqrt(np.clip(np.diag(cov_full)[moved], 0, None))
-    sv = singular_values(Jw * problem.scale[active][None, :])
+    sv = singular_values(Jw * problem.scale[active][None, :], blocked=True)  # reported only
     # report
     free_td = free_mask(spec, free)
     held_names = {h.name for h in ident.held}

@@ -133,13 +133,35 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
     return Identifiability(chosen, held, sv, cond, list(names))
 
 
-def singular_values(A: np.ndarray) -> np.ndarray:
+def singular_values(A: np.ndarray, blocked: bool = False) -> np.ndarray:
     """Singular values (descending) of a matrix: of its R factor (QR first, which is cheap for the
-    tall identification Jacobians), to full relative accuracy."""
+    tall identification Jacobians), to full relative accuracy. ``blocked``: the R factor by
+    :func:`r_factor` (a third of the time for 10,000 poses; the same values to 1e-13 relative),
+    for figures that are reported only: a choice of parameters made on them must not move with
+    rounding (two columns a symmetry makes alike are told apart by it)."""
     A = np.asarray(A, float)
     if A.shape[0] > 2 * A.shape[1]:
-        A = np.linalg.qr(A, mode="r")
+        A = r_factor(A) if blocked else np.linalg.qr(A, mode="r")
     return np.linalg.svd(A, compute_uv=False)
+
+
+#: rows per block of :func:`r_factor`: a block and its copies stay in the processor's cache
+QR_BLOCK = 4096
+
+
+def r_factor(A: np.ndarray) -> np.ndarray:
+    """The R factor of A = QR (min(m, n), n), computed blockwise for a tall A (TSQR): the R of
+    the stacked R factors of blocks of QR_BLOCK rows. Any R of A has the same column inner
+    products (R^T R = A^T A), hence the same singular values, spans and pivoting; one LAPACK QR
+    over the 150,000 rows of 10,000 poses streams every column through memory (0.16 s for 51
+    columns), the blocks stay in the cache (0.06 s), agreeing to rounding (singular values to
+    1e-13 relative; measured 2026-11-25)."""
+    A = np.asarray(A, float)
+    m, n = A.shape
+    if m <= 2 * QR_BLOCK or n == 0:
+        return np.linalg.qr(A, mode="r")
+    blocks = [np.linalg.qr(A[k:k + QR_BLOCK], mode="r") for k in range(0, m, QR_BLOCK)]
+    return np.linalg.qr(np.vstack(blocks), mode="r")
 
 
 def null_space_combinations(J: np.ndarray, names: list[str], scale: np.ndarray, rel_tol: float = 1e-8,
@@ -246,7 +268,7 @@ def _weighted_jacobian(problem, z, idx) -> np.ndarray:
     """Scaled Jacobian (rows, len(idx)) of the problem's seen observations, weighted as the fit."""
     st = problem.evaluate(z)
     used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
-    J = (st.J[..., idx] * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
+    J = (np.take(st.J, idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
     return J.reshape(-1, len(idx)) * problem.scale[idx][None, :]
 
 

@@ -46,9 +46,12 @@ class LMResult:
     cost: float
 
 
-def _weighted(state: FitState, weights, active, prior=None):
+def _weighted(state: FitState, weights, active, prior=None, scratch: dict | None = None):
     """Weighted residual vector and Jacobian columns of the active unknowns; ``prior``: optional
-    rows from :meth:`CalibrationProblem.prior_rows` (values, unknown index, slope)."""
+    rows from :meth:`CalibrationProblem.prior_rows` (values, unknown index, slope).
+
+    ``scratch``: a dict that keeps the weighted Jacobian's array from one call to the next (see
+    :func:`_weighted_columns`); the array returned is overwritten by the next call with it."""
     w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)  # (N, M)
     sw = np.sqrt(w)
     rw = (np.nan_to_num(state.r) * sw[:, :, None]).ravel()
@@ -59,7 +62,9 @@ def _weighted(state: FitState, weights, active, prior=None):
         # where a gather on the 4-D view took 120 ms)
         J2 = state.J.reshape(-1, state.J.shape[-1])
         rows = np.repeat(sw.ravel(), 3)[:, None]
-        if active.all():
+        if scratch is not None and J2.flags.c_contiguous:
+            Jw = _weighted_columns(J2, rows, active, scratch)
+        elif active.all():
             Jw = np.multiply(J2, rows)
         else:
             Jw = J2[:, np.nonzero(active)[0]]
@@ -78,10 +83,36 @@ def _weighted(state: FitState, weights, active, prior=None):
     return rw, Jw
 
 
-def _normal_equations(state: FitState, weights, active, prior=None):
+#: rows per block of the column gather in :func:`_weighted_columns`
+GATHER_BLOCK = 1024
+
+
+def _weighted_columns(J2: np.ndarray, rows: np.ndarray, active: np.ndarray, scratch: dict) -> np.ndarray:
+    """``J2[:, active] * rows`` into ``scratch``'s array, allocated once per Levenberg-Marquardt
+    run (75 MB for 10,000 poses) rather than at every step, and laid out as the plain expression
+    lays it out (column-major after a column gather, row-major without one): the products that
+    follow (H = Jw^T Jw) take the same BLAS path and give the same numbers bit for bit. The
+    gather goes in blocks of GATHER_BLOCK rows, which stay in the cache (16 -> 11 ms for
+    150,000 x 60 of 63 columns, 2026-11-25)."""
+    every = bool(active.all())
+    shape = (J2.shape[0], J2.shape[1] if every else int(np.count_nonzero(active)))
+    key = "Jw" if every else "Jw_columns"
+    out = scratch.get(key)
+    if out is None or out.shape != shape:
+        out = scratch[key] = np.empty(shape, order="C" if every else "F")
+    if every:
+        return np.multiply(J2, rows, out=out)
+    cols = np.nonzero(active)[0]
+    for k in range(0, J2.shape[0], GATHER_BLOCK):
+        out[k:k + GATHER_BLOCK] = J2[k:k + GATHER_BLOCK, cols]
+    out *= rows
+    return out
+
+
+def _normal_equations(state: FitState, weights, active, prior=None, scratch: dict | None = None):
     """(rw, H = Jw^T Jw, g = Jw^T rw) of :func:`_weighted` without keeping Jw: the prior rows,
-    one unknown each, are added to H's diagonal and g directly."""
-    rw, Jw = _weighted(state, weights, active)
+    one unknown each, are added to H's diagonal and g directly. ``scratch``: see :func:`_weighted`."""
+    rw, Jw = _weighted(state, weights, active, scratch=scratch)
     H = Jw.T @ Jw
     g = Jw.T @ rw
     if prior is not None:
@@ -111,7 +142,8 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
     z = np.array(z0, float)
     active = np.asarray(active, bool)
     st = problem.evaluate(z)
-    rw, H, g = _normal_equations(st, weights, active, problem.prior_rows(z))
+    scratch: dict = {}  # the weighted Jacobian's array, reused by every step of this run
+    rw, H, g = _normal_equations(st, weights, active, problem.prior_rows(z), scratch)
     cost = 0.5 * rw @ rw
     lam = 1e-5
     converged = False
@@ -144,7 +176,7 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
         done = small_step or small_gain or it == max_iter
         st_new = problem.evaluate(z_new)  # the Jacobian: for the next iteration or the next round
         if not done:
-            rw_new, H, g = _normal_equations(st_new, weights, active, problem.prior_rows(z_new))
+            rw_new, H, g = _normal_equations(st_new, weights, active, problem.prior_rows(z_new), scratch)
         z, st, rw, cost = z_new, st_new, rw_new, cost_new
         lam = max(lam / 10, 1e-12)
         if progress is not None:

@@ -153,3 +153,26 @@ def test_problems_in_threads_evaluate_apart():
     assert len(out) == 2 and all(f is not pb._fns for f in fns.values()) and fns[0] is not fns[1]
     for J in out.values():
         np.testing.assert_allclose(J, expected.J, rtol=0, atol=1e-12)
+
+
+def test_the_reused_weighted_jacobian_gives_the_same_normal_equations_bit_for_bit():
+    # the Jacobian's weighted columns are written into one array per Levenberg-Marquardt run
+    # (solve._weighted_columns), laid out as the plain expression lays them out, so that H = Jw^T Jw
+    # takes the same BLAS path: a choice of held parameters between columns that a symmetry makes
+    # alike moves with the last bit of H
+    from platkit.calibrate.problem import FitState
+    from platkit.calibrate.solve import GATHER_BLOCK, _normal_equations
+
+    rng = np.random.default_rng(3)
+    for n_poses in (1, 40, GATHER_BLOCK + 7):
+        J = rng.standard_normal((n_poses, 5, 3, 63))
+        r = rng.standard_normal((n_poses, 5, 3))
+        r[0, 1] = np.nan  # an unseen marker: weight 0
+        weights = rng.random((n_poses, 5))
+        state = FitState(r, J, np.ones(n_poses, bool))
+        scratch: dict = {}
+        for active in (np.ones(63, bool), np.arange(63) % 7 != 3, np.arange(63) == 5):
+            for _ in range(2):  # the second call reuses the array
+                plain = _normal_equations(state, weights, active)
+                reused = _normal_equations(state, weights, active, scratch=scratch)
+                assert all(np.array_equal(a, b) for a, b in zip(plain, reused))
