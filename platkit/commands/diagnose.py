@@ -18,6 +18,9 @@ def add_parser(sub):
     p.add_argument("--folds", type=int, default=5, help="K of the K-fold held-out test (default 5)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--keep-geometry", action="store_true",
+                   help="keep the calibration's free parameters (default: a parameter group it held is freed again "
+                        "once an effect is modelled, when that predicts held-out poses better)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     return p
 
@@ -75,7 +78,8 @@ def run(args) -> int:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None
     say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
-    d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects),
+    d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects,
+                                         reopen_geometry=not args.keep_geometry),
                  heldout=heldout, progress=say, start=cal)
     if (Path(args.session) / "imu.csv").is_file():
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)

@@ -364,9 +364,9 @@ def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] 
     if not (f.bic < cur.bic and after < (1 - opt.min_relative_gain) * before and p < opt.alpha_heldout):
         return None
     unit = poses.length_unit
-    text = (f"geometry: {', '.join(held)} freed again (held by the calibration's selection, made with the effect "
-            f"still in the residual): held-out RMS {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} "
-            f"(paired p = {p:.2g})")
+    text = (f"geometry: {', '.join(held)} freed again (held by the calibration, chosen with the effect still in the "
+            f"residual): held-out RMS {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} (paired p = {p:.2g}); "
+            "--keep-geometry keeps the calibration's free set")
     return f, trial, {"groups": held, "heldout_rms_before": before, "heldout_rms_after": after, "p_heldout": float(p),
                       "text": text}
 

@@ -41,7 +41,7 @@ def verdict(d: Diagnosis) -> str:
             parts.append(f"With {'the effect' if len(named) == 1 else 'the effects'} modelled, the geometry the "
                          f"calibration held ({', '.join(note['groups'])}) was freed again: it predicts held-out poses "
                          f"better ({_fmt_rms(note['heldout_rms_before'], unit)} -> "
-                         f"{_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates it.")
+                         f"{_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates it (--keep-geometry: not).")
     corrected = [f for f in named if f.corrected]
     if corrected:
         parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
