@@ -100,12 +100,18 @@ static void pk_fk(const pk_chain* c, const double* theta, double* R, double* p, 
     if (kind == 4) {
       z[0] = a[0] * q; z[1] = a[1] * q; z[2] = a[2] * q;
       pk_compose(R, p, I3, z);
+    } else if (kind <= 2) {
+      /* about a coordinate axis: R Rot(q) mixes the other two columns of R */
+      double s = sin(q), co = cos(q);
+      int u = (kind + 1) % 3, v = (kind + 2) % 3;
+      for (i = 0; i < 3; ++i) {
+        double ru = R[3 * i + u], rv = R[3 * i + v];
+        R[3 * i + u] = co * ru + s * rv;
+        R[3 * i + v] = co * rv - s * ru;
+      }
     } else {
       double s = sin(q), co = cos(q);
-      if (kind == 0) { double m[9] = {1, 0, 0, 0, co, -s, 0, s, co}; memcpy(M, m, sizeof m); }
-      else if (kind == 1) { double m[9] = {co, 0, s, 0, 1, 0, -s, 0, co}; memcpy(M, m, sizeof m); }
-      else if (kind == 2) { double m[9] = {co, -s, 0, s, co, 0, 0, 0, 1}; memcpy(M, m, sizeof m); }
-      else {
+      {
         double t = 1.0 - co, x = a[0], y = a[1], w = a[2];
         double m[9] = {co + t * x * x, t * x * y - s * w, t * x * w + s * y,
                        t * x * y + s * w, co + t * y * y, t * y * w - s * x,
@@ -413,13 +419,13 @@ PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* work, int 
   pk_chain c;
   double *theta = work, *state = work + ii[0], *out = state + 11, *path = out + 8, *history = path + (long)chunk * ii[0];
   double E[6], merit, J[6 * PK_MAXN], dq[PK_MAXN], trial[PK_MAXN], tE[6], tmerit = 0.0, pos, rot, floor_;
-  double warm[1 + PK_MAXN * PK_MAXN];
+  double warm[1 + PK_MAXN * PK_MAXN], Jt[6 * PK_MAXN];
   int n, it, stall_at, steps = 0, code = CHUNK_DONE_, converged, t, i, j;
   pk_unpack(ii, dd, &c);
   warm[0] = 0.0;
   n = c.n;
   floor_ = 1e-2 * (c.tol_p * c.tol_p + c.tol_r * c.tol_r);
-  merit = pk_error(&c, theta, E, 0);
+  merit = pk_error(&c, theta, E, J);
   if (first) {
     state[0] = 0; state[1] = merit; memcpy(state + 2, E, sizeof E); state[8] = merit; state[9] = 0; state[10] = merit;
   }
@@ -432,18 +438,18 @@ PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* work, int 
     if (it >= c.max_it) { code = 3; break; }
     if (steps == 0 && time_over) { code = 4; break; }
     if (steps >= chunk) { code = CHUNK_DONE_; break; }
-    pk_error(&c, theta, E, J);  /* the Jacobian at theta (E unchanged) */
     pk_step(&c, theta, E, J, dq, warm);
     better = merit * (1.0 - 1e-12);
     for (t = 0; t < 12; ++t) {
       for (j = 0; j < n; ++j) trial[j] = fmin(fmax(theta[j] + alpha * dq[j], c.lower[j]), c.upper[j]);
-      tmerit = pk_error(&c, trial, tE, 0);
+      tmerit = pk_error(&c, trial, tE, Jt);  /* its Jacobian too: the next step's if accepted */
       if (tmerit < better) { accepted = 1; break; }
       alpha *= 0.5;
     }
     ++it;
     if (!accepted) { code = 1; break; }
-    memcpy(theta, trial, sizeof(double) * n); memcpy(E, tE, sizeof E); merit = tmerit;
+    memcpy(theta, trial, sizeof(double) * n); memcpy(E, tE, sizeof E); memcpy(J, Jt, sizeof(double) * 6 * n);
+    merit = tmerit;
     memcpy(path + (long)steps * n, theta, sizeof(double) * n); history[steps] = merit; ++steps;
     if (merit < state[1]) { state[1] = merit; memcpy(state + 2, E, sizeof E); }
     pk_norms(&c, E, &pos, &rot);

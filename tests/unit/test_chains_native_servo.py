@@ -72,6 +72,40 @@ def test_compiled_loop_takes_the_python_loops_steps(cache, urdf, link, rate_limi
     assert list(cache.glob("servo_*.so")), "the compiled loop is not in the cache"
 
 
+MIXED = """<robot name="mixed">
+  <link name="base"/><link name="l1"/><link name="l2"/><link name="l3"/><link name="l4"/><link name="l5"/>
+  <link name="l6"/><link name="tip"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.1"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="2"/></joint>
+  <joint name="j2" type="prismatic"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.2" rpy="0.1 0.2 0.3"/>
+    <axis xyz="1 1 0"/><limit lower="-0.2" upper="0.3" effort="1" velocity="0.5"/></joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0.1 0 0.2" rpy="0 0.5 0"/>
+    <axis xyz="0.3 0.5 0.81"/><limit lower="-2" upper="2" effort="1" velocity="2"/></joint>
+  <joint name="j4" type="continuous"><parent link="l3"/><child link="l4"/><origin xyz="0 0.1 0.2"/>
+    <axis xyz="1 0 0"/><limit effort="1" velocity="3"/></joint>
+  <joint name="j5" type="revolute"><parent link="l4"/><child link="l5"/><origin xyz="0 0 0.15" rpy="0.3 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="1" velocity="2"/></joint>
+  <joint name="j6" type="revolute"><parent link="l5"/><child link="l6"/><origin xyz="0.05 0 0.1"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="2"/></joint>
+  <joint name="j7" type="fixed"><parent link="l6"/><child link="tip"/><origin xyz="0 0.02 0.08" rpy="0.1 0 0.2"/></joint>
+</robot>"""
+
+
+def test_prismatic_unaligned_and_continuous_joints(cache):
+    """A prismatic joint on a slanted axis, a revolute joint about an unaligned axis, a
+    continuous joint (pinocchio stores it as cos, sin) and a link behind a fixed joint: the
+    compiled forward kinematics and Jacobian take the Python loop's steps."""
+    chain = KinematicChain.from_urdf_text(MIXED)
+    rng = np.random.default_rng(9)
+    outcomes = []
+    for _ in range(8):
+        target = chain.placement(chain.random(rng), "tip")
+        a, b = _both(chain, Task("tip", target), chain.mid_range())
+        _assert_same(a, b)
+        outcomes.append(a.converged)
+    assert sum(outcomes) >= 4
+
+
 def test_weights_selection_gain_and_locked_joints(cache):
     """Rows weighted and left free, a gain below 1, a locked joint, restarts: the same steps."""
     chain = KinematicChain.from_urdf(example_robot_urdf(ROBOTS[1][0]))
