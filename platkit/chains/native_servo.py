@@ -218,7 +218,7 @@ static void pk_jacobi(int rows, int cols, double* M, double* Q) {
   const double tol = rows * 2.220446049250313e-16;
   for (sweep = 0; sweep < 60; ++sweep) {
     int rotated = 0;
-    double d[PK_MAXN], worst = 0.0; /* squared column norms: fresh each sweep, updated by each rotation */
+    double d[6], worst = 0.0; /* squared column norms: fresh each sweep, updated by each rotation */
     for (a = 0; a < cols; ++a) { double v = 0.0; for (i = 0; i < rows; ++i) v += M[a * rows + i] * M[a * rows + i]; d[a] = v; }
     for (a = 0; a < cols - 1; ++a) for (b = a + 1; b < cols; ++b) {
       double* x = M + a * rows; double* y = M + b * rows;
@@ -271,7 +271,7 @@ static void pk_cholesky_solve(int p, const double* L, double* b) {
    (A^T A)^-1 A^T r), the SVD's numbers up to rounding. 1 if it does not apply. */
 static int pk_solve_regular(const pk_chain* c, const double* Jw, int m, const int* cols, int k, const double* r,
                             double* dq) {
-  double G[PK_MAXN * PK_MAXN], H[PK_MAXN * PK_MAXN], b[PK_MAXN], thr2 = c->thr * c->thr;
+  double G[36], H[36], b[6], thr2 = c->thr * c->thr; /* p = min(m, k) <= 6 */
   int i, j, l, rowwise = m <= k, p = rowwise ? m : k;
   if (!(c->thr >= 1e-6)) return 1; /* a threshold near the 1e-10 rank cut: the SVD decides */
   for (i = 0; i < p; ++i) for (j = 0; j <= i; ++j) {
@@ -297,7 +297,7 @@ static int pk_solve_regular(const pk_chain* c, const double* Jw, int m, const in
 /* dq[cols] += the damped pseudo-inverse of A = Jw[:, cols] (m x k) applied to r (m). */
 static void pk_solve(const pk_chain* c, const double* Jw, int m, const int* cols, int k, const double* r, double* dq,
                      double* warm) {
-  double M[6 * PK_MAXN], Q[PK_MAXN * PK_MAXN], sv[6], big = 0.0, smin = 0.0, rn = 0.0, lam2;
+  double M[6 * PK_MAXN], Q[36], sv[6], big = 0.0, smin = 0.0, rn = 0.0, lam2; /* Q: min(m, k) <= 6 square */
   int i, j, l, transposed = m <= k, ns = transposed ? m : k, nq = transposed ? m : k, any = 0;
   if (!pk_solve_regular(c, Jw, m, cols, k, r, dq)) return;
   /* Q starts from the last solve's rotations where they fit (warm[0] = their size): the
@@ -419,7 +419,7 @@ PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* work, int 
   pk_chain c;
   double *theta = work, *state = work + ii[0], *out = state + 11, *path = out + 8, *history = path + (long)chunk * ii[0];
   double E[6], merit, J[6 * PK_MAXN], dq[PK_MAXN], trial[PK_MAXN], tE[6], tmerit = 0.0, pos, rot, floor_;
-  double warm[1 + PK_MAXN * PK_MAXN], Jt[6 * PK_MAXN];
+  double warm[1 + 36], Jt[6 * PK_MAXN];
   int n, it, stall_at, steps = 0, code = CHUNK_DONE_, converged, t, i, j;
   pk_unpack(ii, dd, &c);
   warm[0] = 0.0;
