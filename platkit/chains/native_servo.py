@@ -402,14 +402,16 @@ static void pk_step(const pk_chain* c, const double* theta, const double* E, con
   }
 }
 
-/* Up to `chunk` iterations of Servo._fast_attempt. work: theta (n, updated in place), state (11),
-   out (8), path (chunk x n), history (chunk).
+/* Up to `chunk` iterations of Servo._fast_attempt. work: the task's weights (6), target R (9, row
+   major) and t (3), theta (n, updated in place), state (11), out (12), path (chunk x n), history
+   (chunk); dd's slots for the task are not read.
    state (in/out, 11): iterations, best merit, best E (6), stall reference, stall iteration, the
-   merit at the start; `first` initialises them from theta. `time_over`: the time cap is already passed (checked
-   before this chunk's first iteration, as the Python loop does before every one).
-   out (8): E (6) and merit at theta, then the number of accepted steps written to path (chunk x n)
-   and history (chunk). Returns CONVERGED 0, LINE_SEARCH_FAILED 1, STALLED 2, ITERATION_CAP 3,
-   TIME_CAP 4 or CHUNK_DONE 5. */
+   merit at the start; `first` initialises them from theta. `time_over`: the time cap is already
+   passed (checked before this chunk's first iteration, as the Python loop does before every one).
+   out (12): E (6) and merit at theta, the number of accepted steps written to path (chunk x n)
+   and history (chunk), the position and rotation errors at theta and at the best theta.
+   Returns CONVERGED 0, LINE_SEARCH_FAILED 1, STALLED 2, ITERATION_CAP 3, TIME_CAP 4 or
+   CHUNK_DONE 5. */
 #ifdef _WIN32
 #define PK_EXPORT __declspec(dllexport)
 #else
@@ -417,11 +419,13 @@ static void pk_step(const pk_chain* c, const double* theta, const double* E, con
 #endif
 PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* work, int first, int time_over, int chunk) {
   pk_chain c;
-  double *theta = work, *state = work + ii[0], *out = state + 11, *path = out + 8, *history = path + (long)chunk * ii[0];
+  double *task = work, *theta = work + 18, *state = theta + ii[0], *out = state + 11, *path = out + 12;
+  double *history = path + (long)chunk * ii[0];
   double E[6], merit, J[6 * PK_MAXN], dq[PK_MAXN], trial[PK_MAXN], tE[6], tmerit = 0.0, pos, rot, floor_;
   double warm[1 + 36], Jt[6 * PK_MAXN];
   int n, it, stall_at, steps = 0, code = CHUNK_DONE_, converged, t, i, j;
   pk_unpack(ii, dd, &c);
+  c.w = task; c.tR = task + 6; c.tt = task + 15;  /* the target's part, per attempt */
   warm[0] = 0.0;
   n = c.n;
   floor_ = 1e-2 * (c.tol_p * c.tol_p + c.tol_r * c.tol_r);
@@ -460,6 +464,8 @@ PK_EXPORT int pk_servo_chunk(const int* ii, const double* dd, double* work, int 
   state[0] = it; state[9] = stall_at;
   for (i = 0; i < 6; ++i) out[i] = E[i];
   out[6] = merit; out[7] = steps;
+  pk_norms(&c, E, out + 8, out + 9);
+  pk_norms(&c, state + 2, out + 10, out + 11);
   return code;
 }
 """
@@ -554,12 +560,12 @@ class CompiledServo:
     None where the compiled loop is not available or does not apply (more than
     :data:`MAX_JOINTS` joints)."""
 
-    def __init__(self, fn, ints: np.ndarray, doubles: np.ndarray, n: int):
+    def __init__(self, fn, arrays: tuple, weights: np.ndarray, target: np.ndarray, n: int):
         self._fn = fn
-        self.ints = ints
-        self.doubles = doubles
+        self.arrays = arrays  # (ints, doubles, their addresses): shared by the chain's servos, read only
+        self.weights = weights
+        self.target = target
         self.n = n
-        self._pointers = (ints.ctypes.data, doubles.ctypes.data)
 
     @classmethod
     def build(cls, chain: KinematicChain, frame_id: int, target: np.ndarray, weights: np.ndarray, options,
@@ -580,13 +586,9 @@ class CompiledServo:
         if hit is None:
             if len(per_chain) > 64:  # options varied without end: keep the cache small
                 per_chain.clear()
-            hit = per_chain[key] = cls._arrays(chain, frame_id, options, active)
-        ints, template = hit
-        doubles = template.copy()
-        doubles[8:14] = weights
-        doubles[14:23] = target[:3, :3].ravel()
-        doubles[23:26] = target[:3, 3]
-        return cls(fn, ints, doubles, chain.n)
+            ints, doubles = cls._arrays(chain, frame_id, options, active)
+            hit = per_chain[key] = (ints, doubles, ints.ctypes.data, doubles.ctypes.data)
+        return cls(fn, hit, np.asarray(weights, float), target, chain.n)
 
     @staticmethod
     def _arrays(chain: KinematicChain, frame_id: int, options, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -611,27 +613,32 @@ class CompiledServo:
         return np.ascontiguousarray(ints, dtype=np.intc), np.ascontiguousarray(np.concatenate(parts), dtype=float)
 
     def start(self, theta: np.ndarray) -> np.ndarray:
-        """The work array of one attempt from theta (n,): theta (updated in place by the chunks),
+        """The work array of one attempt from theta (n,): the task's weights and target, theta
+        (updated in place by the chunks),
         the state they carry (11: the iteration count, the best merit and its E (6), the stall
-        reference and its iteration, the merit at the start), their outputs (8) and room for
+        reference and its iteration, the merit at the start), their outputs (12) and room for
         one chunk's path (CHUNK, n) and merits (CHUNK,)."""
-        work = np.empty(self.n * (CHUNK + 1) + 19 + CHUNK)
-        work[:self.n] = theta
+        work = np.empty(18 + self.n * (CHUNK + 1) + 23 + CHUNK)
+        work[:6] = self.weights
+        work[6:15] = self.target[:3, :3].ravel()
+        work[15:18] = self.target[:3, 3]
+        work[18:18 + self.n] = theta
         return work
 
     def chunk(self, work: np.ndarray, first: bool, time_over: bool):
         """Up to :data:`CHUNK` iterations from the work array's theta (``first``: the state set
         from it; ``time_over``: the time cap is passed, checked before the first iteration).
-        Returns (code, E (6,), merit, path (k, n), history (k,)): E and the merit at the
-        theta reached, the k accepted steps of this chunk."""
+        Returns (code, E (6,), merit, path (k, n), history (k,), norms): E and the merit at
+        the theta reached, the k accepted steps of this chunk, and norms = (position error,
+        rotation error, the best ones so far) over the weighted components (m, rad)."""
         n = self.n
-        code = self._fn(self._pointers[0], self._pointers[1], work.ctypes.data, int(first), int(time_over), CHUNK)
-        out = n + 11
+        code = self._fn(self.arrays[2], self.arrays[3], work.ctypes.data, int(first), int(time_over), CHUNK)
+        out = 18 + n + 11
         k = int(work[out + 7])
-        path = out + 8
+        path = out + 12
         history = path + CHUNK * n
         return (code, work[out:out + 6].copy(), float(work[out + 6]), work[path:path + k * n].reshape(k, n).copy(),
-                work[history:history + k].copy())
+                work[history:history + k].copy(), work[out + 8:out + 12].tolist())
 
 
 __all__ = ["CHUNK", "CONVERGED", "CHUNK_DONE", "CompiledServo", "ITERATION_CAP", "LINE_SEARCH_FAILED", "MAX_JOINTS",

@@ -501,13 +501,13 @@ class Servo:
         iterations, the reasons worded here."""
         o = self.options
         work = compiled.start(theta)
-        state = work[self.chain.n:self.chain.n + 11]  # a view: the chunks update it
+        state = work[18 + self.chain.n:29 + self.chain.n]  # a view: the chunks update it
         rows = [theta.reshape(1, -1)]
         history: list[float] = []
         first = True
         while True:
             time_over = time.perf_counter() - start > o.max_seconds
-            code, E, merit, steps, merits = compiled.chunk(work, first, time_over)
+            code, E, merit, steps, merits, norms = compiled.chunk(work, first, time_over)
             if first:
                 history.append(float(state[10]))
                 first = False
@@ -518,7 +518,7 @@ class Servo:
                 continue  # a chunk ended, the attempt goes on
             break
         iterations = int(state[0])
-        theta = work[:self.chain.n].copy()
+        theta = work[18:18 + self.chain.n].copy()
         reason = ""
         if code in (LINE_SEARCH_FAILED, STALLED):
             reason = self.diagnose(theta, [E], stalled=True)
@@ -526,11 +526,10 @@ class Servo:
             reason = self._capped(iterations if code == ITERATION_CAP else 0, start)
             why = self.diagnose(theta, [E], stalled=False)
             reason = reason + ("; " + why if why else "")
-        pos, rot = self._norms([E])
-        bpos, brot = self._norms([state[2:8].copy()])
-        return ServoResult(theta=theta, converged=code == CONVERGED, iterations=iterations, position_errors=pos,
-                           rotation_errors=rot, path=np.vstack(rows), merit_history=history, reason=reason,
-                           best_position_errors=bpos, best_rotation_errors=brot,
+        pos, rot, bpos, brot = norms  # Servo._norms of E and of the best E, taken in C
+        return ServoResult(theta=theta, converged=code == CONVERGED, iterations=iterations, position_errors=[pos],
+                           rotation_errors=[rot], path=np.vstack(rows), merit_history=history, reason=reason,
+                           best_position_errors=[bpos], best_rotation_errors=[brot],
                            seconds=time.perf_counter() - start)
 
     def _fast_attempt(self, theta: np.ndarray, start: float) -> ServoResult:
