@@ -28,9 +28,9 @@ without a C compiler or with PLATKIT_COMPILE=0, and what ran before).
 
 History (2026-11-25, the 2-core machine): the Python loop took 1.95-2.31x the reference on UR5
 and 6.47-8.15x on Panda, 40-76 us an iteration in numpy calls against the reference's 17-25.
-Compiled (2026-11-25, 23:00 UTC, load 2.6-3.4): UR5 0.36x, Panda 1.42x in one solve per
-target (0.19-0.36x and 0.58-1.42x over four runs), 0.15x and 0.58x with --repeat 3;
-docs/chains.md section 6 has the table.
+Compiled (2026-11-25, 23:04 UTC, load 3.8-4.4): UR5 0.25-0.31x, Panda 0.50-0.67x over four
+runs of one solve per target, 0.15x and 0.46x with --repeat 3; docs/chains.md section 6 has the
+table.
 """
 from __future__ import annotations
 
