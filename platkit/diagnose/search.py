@@ -287,14 +287,17 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         stop_unexplained = _probe_beats(spec, poses, cur, None, opt)
     if stop_unexplained is not None:
         findings.append(stop_unexplained)
-    elif not stop:
-        left = located(locations, opt.alpha * 0.1)
-        if left and modelled and floor is not None and cur.cv_rms <= opt.lack_of_fit_factor * floor:
+    # held-out prediction where the stand settled (an extrapolated pose carries what its approach
+    # model missed: the noise floor does not hold for it)
+    held = _rms(cur.cv, judged) if cur.cv is not None else float("nan")
+    if not stop:
+        left = located(locations, opt.alpha * 0.1) if stop_unexplained is None else []
+        if left and modelled and floor is not None and held <= opt.lack_of_fit_factor * floor:
             # beside a modelled effect, structure the location tests still see but held-out
             # prediction does not (within the factor clean sessions reach of the noise floor) is
             # what the effect's model leaves of its physics, not another effect: said, not named
             say(f"structure remains ({left[0].test}, adjusted p = {left[0].p_adjusted:.2g}) but the model predicts "
-                f"held-out poses at {_fmt_rms(cur.cv_rms, unit)}, within {opt.lack_of_fit_factor:g} times the noise "
+                f"held-out poses at {_fmt_rms(held, unit)}, within {opt.lack_of_fit_factor:g} times the noise "
                 "floor: not reported as unexplained")
             left = []
         if left:
@@ -307,17 +310,17 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                           "no effect in the library predicts held-out poses better"),
                 p_screen=float(top.p_adjusted)))
     if (not stop and not any(f.effect == "unexplained" for f in findings) and not modelled and floor is not None
-            and cur.cv_rms > opt.lack_of_fit_factor * floor):
-        ratio = cur.cv_rms / floor
+            and held > opt.lack_of_fit_factor * floor):
+        ratio = held / floor
         worst = worst_marker(cur.r, poses)
         findings.append(Finding(
             effect="unexplained", where={"fit": "every pose", **({"marker": worst} if worst else {})}, parameters={},
             heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
-            evidence=(f"the geometric model predicts held-out poses at {_fmt_rms(cur.cv_rms, unit)}, {ratio:.1f} times "
+            evidence=(f"the geometric model predicts held-out poses at {_fmt_rms(held, unit)}, {ratio:.1f} times "
                       f"the noise floor of these settled poses ({_fmt_rms(floor, unit)}), and no effect in the library "
                       "predicts them better: the stand does something the library does not hold"
                       + (f" (the largest residuals on marker {worst})" if worst else ""))))
-        say(f"lack of fit: held-out {_fmt_rms(cur.cv_rms, unit)} is {ratio:.1f} times the noise floor, nothing in "
+        say(f"lack of fit: held-out {_fmt_rms(held, unit)} is {ratio:.1f} times the noise floor, nothing in "
             "the library explains it: unexplained")
     findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
     stand = stand_calibration(final_cal)
