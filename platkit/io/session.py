@@ -43,6 +43,7 @@ from platkit.io.session_checks import (
     body_columns,
     check_controls,
     check_times,
+    checked_marker_block,
     marker_columns,
 )
 from platkit.io.session_yaml import BODY_NOISE_KEYS, IMU_KEYS, NO_PLATFORM, SESSION_KEYS, TIME_UNITS, read_session_yaml
@@ -265,9 +266,7 @@ def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offs
     if s.body_names:  # before the markers are scaled in place
         s.bodies = _body_block(table, s.body_names, lscale)
         _check_plausible_unit(table, s.bodies[..., :3], s.length_unit, s.body_names)
-    xyz = _marker_block(table, names, lscale, in_place=True)  # the table is not used after this
-    _check_seen(xyz, names, path)
-    _check_plausible_unit(table, xyz, s.length_unit, names)
+    xyz = checked_marker_block(table, names, lscale, s.length_unit)  # scaled in place: the table is not used after
     M = len(s.marker_names)
     s.marker_t, s.markers, s.base_markers, s.markers_source = t, xyz[:, :M], xyz[:, M:], path
 

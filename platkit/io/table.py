@@ -58,12 +58,13 @@ def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
     try:
         header, body_start = _read_header(path)
         progress = _Progress(path, quiet)  # says so at once for a large file, before counting its lines
-        n_lines, n_commas = _count_body(path, body_start)
+        mid = _split_offset(path, body_start)
+        n_lines, n_commas, rows_first = _count_body(path, body_start, mid)
         if n_lines == 0:
             raise BadSession(f"{path}: no data rows after the header")
         progress.total = n_lines
         data = np.empty((n_lines, len(header)))
-        done = _parse_halves(path, header, body_start, data, progress)
+        done = _parse_halves(path, header, data, progress, body_start, mid, rows_first) if mid is not None else 0
         if done < n_lines:
             done = _parse_fast(path, header, body_start, data, progress)
         if done < n_lines:  # the rows the fast reader did fill must have their separators too
@@ -86,11 +87,17 @@ def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
 
 def _check_finite(path: Path, header: list[str], data: np.ndarray, body_start: int) -> None:
     """BadSession for the first infinite cell of ``data`` (the fast reader takes 'inf' and
-    1e999 for numbers), worded by the cell-by-cell reading of that row."""
-    infinite = np.isinf(data)
-    if infinite.any():
-        r = int(np.argwhere(infinite)[0][0])
-        _parse_exact(path, header, data, r, body_start, _Progress(path, quiet=True), stop=r + 1)
+    1e999 for numbers), worded by the cell-by-cell reading of that row. Looked for in blocks of
+    _FINITE_BLOCK rows (the mask of a block stays in the cache; one of the whole table is an
+    eighth of its size)."""
+    for k in range(0, len(data), _FINITE_BLOCK):
+        infinite = np.isinf(data[k:k + _FINITE_BLOCK])
+        if infinite.any():
+            r = k + int(np.argwhere(infinite)[0][0])
+            _parse_exact(path, header, data, r, body_start, _Progress(path, quiet=True), stop=r + 1)
+
+
+_FINITE_BLOCK = 16_384
 
 
 #: files at least this large say on stderr how far their reading is (about once a second)
@@ -123,25 +130,51 @@ def _read_header(path: Path) -> tuple[list[str], int]:
     return header, start
 
 
-def _count_body(path: Path, start: int) -> tuple[int, int]:
-    """(lines, commas) of the file from byte ``start`` to its last non-blank character."""
-    lines = commas = 0
-    tail_newlines = 0  # newlines after the last non-blank character seen so far
-    any_text = False
-    with path.open("rb") as fh:
+def _count_body(path: Path, start: int, split: int | None = None) -> tuple[int, int, int]:
+    """(lines, commas) of the file from byte ``start`` to its last non-blank character, and the
+    lines before byte ``split`` (0 without one). One pass, read in _COUNT_BYTES blocks into one
+    buffer (counted in the cache: 65 -> 36 ms for 291 MB, 2026-11-25)."""
+    lines = commas = before = 0
+    buf = bytearray(_COUNT_BYTES)
+    view = np.frombuffer(buf, np.uint8)
+    hit = np.empty(_COUNT_BYTES, bool)
+    pos = start
+    with path.open("rb", buffering=0) as fh:
         fh.seek(start)
-        while block := fh.read(_BLOCK_BYTES):
-            lines += _count_byte(block, b"\n")
-            commas += _count_byte(block, b",")
+        while n := fh.readinto(buf):
+            v, h = view[:n], hit[:n]
+            np.equal(v, 10, out=h)  # b"\n"
+            lines += int(np.count_nonzero(h))
+            if split is not None and pos < split <= pos + n:
+                before = lines - int(np.count_nonzero(h[split - pos:]))
+            np.equal(v, 44, out=h)  # b","
+            commas += int(np.count_nonzero(h))
+            pos += n
+    tail_newlines, any_text = _blank_tail(path, start)
+    if not any_text:
+        return 0, 0, 0
+    return lines - tail_newlines + 1, commas, before
+
+
+def _blank_tail(path: Path, start: int) -> tuple[int, bool]:
+    """(newlines after the last non-blank character of the file from byte ``start``, whether
+    there is one), read backwards from the end."""
+    newlines = 0
+    with path.open("rb") as fh:
+        end = fh.seek(0, io.SEEK_END)
+        while end > start:
+            begin = max(start, end - _COUNT_BYTES)
+            fh.seek(begin)
+            block = fh.read(end - begin)
             stripped = block.rstrip(b" \t\r\n")
             if stripped:
-                any_text = True
-                tail_newlines = block.count(b"\n", len(stripped))
-            else:
-                tail_newlines += block.count(b"\n")
-    if not any_text:
-        return 0, 0
-    return lines - tail_newlines + 1, commas
+                return newlines + block.count(b"\n", len(stripped)), True
+            newlines += block.count(b"\n")
+            end = begin
+    return newlines, False
+
+
+_COUNT_BYTES = 2**20
 
 
 def _count_commas(path: Path, start: int, stop: int) -> int:
@@ -190,24 +223,24 @@ class _Range(io.RawIOBase):
 PARALLEL_MIN_BYTES = 16 * 2**20
 
 
-def _parse_halves(path: Path, header: list[str], body_start: int, data: np.ndarray, progress: _Progress) -> int:
-    """Fill ``data`` from two halves of the body, split at a line, in two threads; ``len(data)``
-    when both read cleanly, else 0 (the caller reads it in one pass, which finds the problem)."""
+def _split_offset(path: Path, body_start: int) -> int | None:
+    """The byte offset of the line at which a body of PARALLEL_MIN_BYTES or more is split in two
+    halves (the first line that starts after its middle), or None (too small to split)."""
     size = path.stat().st_size
-    if size - body_start < PARALLEL_MIN_BYTES or len(data) < 2 * CHUNK_ROWS:
-        return 0
+    if size - body_start < PARALLEL_MIN_BYTES:
+        return None
     with path.open("rb") as fh:
         fh.seek(body_start + (size - body_start) // 2)
         fh.readline()
-        mid = fh.tell()
-    rows_first = 0
-    with path.open("rb") as fh:
-        fh.seek(body_start)
-        left = mid - body_start
-        while left > 0 and (block := fh.read(min(_BLOCK_BYTES, left))):
-            rows_first += _count_byte(block, b"\n")
-            left -= len(block)
-    if not 0 < rows_first < len(data):
+        return fh.tell()
+
+
+def _parse_halves(path: Path, header: list[str], data: np.ndarray, progress: _Progress, body_start: int, mid: int,
+                  rows_first: int) -> int:
+    """Fill ``data`` from two halves of the body, split at byte ``mid`` (the start of a line;
+    ``rows_first`` lines before it), in two threads; ``len(data)`` when both read cleanly, else
+    0 (the caller reads it in one pass, which finds the problem)."""
+    if len(data) < 2 * CHUNK_ROWS or not 0 < rows_first < len(data):
         return 0
     parts = [(body_start, mid, data[:rows_first]), (mid, None, data[rows_first:])]
     counts = [0, 0]

@@ -697,3 +697,71 @@ def test_a_marker_stream_in_file_order_is_not_copied(tmp_path):
     np.testing.assert_allclose(xyz, data[:, 1:].reshape(3, 2, 3) * 1e-3)
     swapped = session_module._marker_block(Table(table.path, header, data.copy()), ["B", "A"], 1e-3, in_place=True)
     np.testing.assert_allclose(swapped, data[:, [4, 5, 6, 1, 2, 3]].reshape(3, 2, 3) * 1e-3)
+
+
+@pytest.mark.parametrize("text", ["a,b\n1,2\n3,4\n", "a,b\n1,2\n3,4", "a,b\n1,2\n3,4\n \n\t\n\n", "a,b\n\n \n",
+                                  "a,b\n1,2\n\n3,4\n,\n"])
+def test_the_line_count_in_small_blocks_is_the_count_in_one(tmp_path, monkeypatch, text):
+    import platkit.io.table as table_module
+
+    p = tmp_path / "c.csv"
+    p.write_bytes(text.encode())
+    start = len("a,b\n")
+    body = text[start:]
+    stripped = body.rstrip(" \t\r\n")
+    expect_lines = body.count("\n") - body.count("\n", len(stripped)) + 1 if stripped else 0
+    for block in (1, 2, 3, 7, 2**20):
+        monkeypatch.setattr(table_module, "_COUNT_BYTES", block)
+        for split in range(start + 1, len(text) + 1):
+            lines, commas, before = table_module._count_body(p, start, split)
+            assert (lines, commas if stripped else 0) == (expect_lines, body.count(",") if stripped else 0)
+            assert before == (text[start:split].count("\n") if stripped else 0)
+
+
+def _stream_table(tmp_path, values):
+    from platkit.io.table import Table
+
+    names = [f"M{k + 1}" for k in range(values.shape[1])]
+    header = ["t"] + [f"{m}_{a}" for m in names for a in "xyz"]
+    data = np.concatenate([np.arange(len(values))[:, None] * 0.1, values.reshape(len(values), -1)], axis=1)
+    return Table(tmp_path / "markers.csv", header, data), names
+
+
+@pytest.mark.parametrize("case", ["clean", "never seen", "partial late", "partial and never seen", "metres as mm",
+                                  "mm as m", "all empty but one"])
+def test_the_one_pass_over_the_markers_checks_as_the_three_passes(tmp_path, monkeypatch, case):
+    import platkit.io.session_checks as checks
+
+    rng = np.random.default_rng(5)
+    values = rng.uniform(-900, 900, (23, 3, 3))
+    unit = "mm"
+    values[[2, 9, 17], 1] = np.nan  # occluded samples
+    if case in ("never seen", "partial and never seen"):
+        values[:, 2] = np.nan
+    if case in ("partial late", "partial and never seen"):
+        values[19, 0, 1] = np.nan
+    if case == "metres as mm":
+        values /= 1000
+    if case == "mm as m":
+        unit = "m"
+    if case == "all empty but one":
+        values[:] = np.nan
+        values[4] = 1.0
+    monkeypatch.setattr(checks, "CHECK_BLOCK", 4)
+    outcomes = []
+    for one_pass in (True, False):
+        table, names = _stream_table(tmp_path, values.copy())
+        try:
+            if one_pass:
+                xyz = checks.checked_marker_block(table, names, 1e-3 if unit == "mm" else 1.0, unit)
+            else:
+                xyz = checks._marker_block(table, names, 1e-3 if unit == "mm" else 1.0, in_place=True)
+                checks._check_seen(xyz, names, table.path)
+                checks._check_plausible_unit(table, xyz, unit, names)
+            outcomes.append(xyz.copy())
+        except BadSession as exc:
+            outcomes.append(str(exc))
+    if isinstance(outcomes[0], str):
+        assert outcomes[0] == outcomes[1]
+    else:
+        assert case in ("clean", "all empty but one") and np.array_equal(outcomes[0], outcomes[1], equal_nan=True)
