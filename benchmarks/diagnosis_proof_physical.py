@@ -58,18 +58,20 @@ from pathlib import Path
 
 import numpy as np
 
-import platkit.simulate.physics as physics_module
 from platkit.batch.cases import add_engine_options, run_cases
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.settle import settle
 from platkit.cli import main as platkit_main
-from platkit.effects import EffectPhysics, with_history
+from platkit.effects import with_history
 from platkit.errors import BadInput, PlatkitError
 from platkit.io.jsonout import plain
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
 from platkit.simulate.physics import simulate_physics, write_physical_session
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.outside_physics
+from benchmarks.outside_physics import OUTSIDE, with_outside_physics  # noqa: E402
 
 EFFECTS = ["backlash", "compliance", "thermal_drift", "cyclic_error", "scale_nonlinearity", "settling_lag",
            "marker_slip", "base_tilt"]
@@ -80,80 +82,7 @@ CLEAR_MM, WEAK_MM = 0.2, 0.06
 LAG_SHARE = {"clear": 0.15, "weak": 0.1}
 ABSORBED = 0.1
 UNSEPARABLE = {"base_tilt"}
-#: physics the effect library does not hold (defined below, known to the simulator only)
-OUTSIDE = ["plate_flex", "frame_wobble"]
 HELD_OUT_EVERY = 5
-
-
-# ---------------------------------------------------------------------------- out-of-library physics
-class PlateFlex(EffectPhysics):
-    """The marker plate is not rigid: as the stand leaves its neutral command, each marker moves
-    along the moving frame's z by ``size`` mm times its own sign and share, times the squared
-    distance of the command in force from neutral (half strokes). No library effect moves the
-    markers against each other with the pose."""
-
-    effect = "plate_flex"
-
-    def __init__(self, size: float, rng: np.random.Generator, plan):
-        self.amplitude_m = size * 1e-3
-        self.share = rng.choice([-1.0, 1.0], len(plan.marker_names)) * rng.uniform(0.5, 1.0, len(plan.marker_names))
-        lo, hi = plan.spec.control_bounds()
-        self.mid, self.half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-
-    def parameters(self):
-        return {"amplitude_m": self.amplitude_m, "share": self.share.tolist()}
-
-    def marker_offsets(self, t, plan):
-        seg = np.searchsorted(plan.command_t, t, side="right") - 1
-        u = np.where(seg[:, None] >= 0, plan.commands[np.maximum(seg, 0)], plan.start[None])
-        reach = np.mean(((u - self.mid) / self.half) ** 2, axis=1)
-        out = np.zeros((len(t), len(self.share), 3))
-        out[:, :, 2] = self.amplitude_m * reach[:, None] * self.share[None]
-        return out
-
-
-class FrameWobble(EffectPhysics):
-    """Every marker sways with time along one direction of the moving frame, ``size`` mm times
-    sin(2 pi t / T), T drawn in 40-120 s (an air-conditioning cycle swinging the marker mount):
-    periodic in time, where the library's drifts are monotone and its slips are steps."""
-
-    effect = "frame_wobble"
-
-    def __init__(self, size: float, rng: np.random.Generator, plan):
-        self.amplitude_m = size * 1e-3
-        self.period_s = float(rng.uniform(40.0, 120.0))
-        self.phase = float(rng.uniform(0, 2 * np.pi))
-        d = rng.normal(size=3)
-        self.direction = d / np.linalg.norm(d)
-
-    def parameters(self):
-        return {"amplitude_m": self.amplitude_m, "period_s": self.period_s, "direction": self.direction.tolist()}
-
-    def marker_offsets(self, t, plan):
-        wave = self.amplitude_m * np.sin(2 * np.pi * np.asarray(t) / self.period_s + self.phase)
-        return np.broadcast_to(wave[:, None, None] * self.direction[None, None], (len(t), len(plan.marker_names), 3)).copy()
-
-
-class _OutsideEffect:
-    """Known to the simulator of this benchmark only: diagnose's library never sees it."""
-
-    def __init__(self, name: str, cls):
-        self.name, self.cls = name, cls
-
-    def physics(self, spec, size, rng, plan):
-        return self.cls(1.0 if size is None else size, rng, plan)
-
-
-def _with_outside_physics() -> None:
-    """Let the simulator (only: platkit.simulate.physics's own lookup) play the out-of-library physics.
-    Called in every task, since a Dask worker process does not run this module's top level."""
-    if getattr(physics_module, "_proof_outside", False):
-        return
-    library = physics_module.effect_library
-    outside = {"plate_flex": _OutsideEffect("plate_flex", PlateFlex),
-               "frame_wobble": _OutsideEffect("frame_wobble", FrameWobble)}
-    physics_module.effect_library = lambda: {**library(), **outside}
-    physics_module._proof_outside = True
 
 
 def held_out_rows(n: int) -> np.ndarray:
@@ -272,7 +201,7 @@ def failed_row(case: dict, error: str, seconds: float) -> dict:
 
 
 def _run_case(case: dict) -> dict:
-    _with_outside_physics()
+    with_outside_physics()
     spec = get_platform(case["stand"])
     seed, n = case["seed"], case["commands"]
     try:
