@@ -19,6 +19,7 @@ import importlib.util
 import marshal
 import os
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -81,7 +82,7 @@ def keep_yaml(text: str, data: dict[str, Any]) -> None:
         return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")  # one writer each
         tmp.write_bytes(blob)
         os.replace(tmp, path)  # atomic: a reader sees the whole blob or none
     except OSError:
