@@ -203,15 +203,18 @@ def checked_marker_block(table: Table, names: list[str], scale: float, length_un
     for k in range(0, n, CHECK_BLOCK):
         block = data[k:k + CHECK_BLOCK]
         block *= scale
-        finite = np.isfinite(block).reshape(len(block), M, 3)
+        finite = np.isfinite(block)
+        n_finite = np.count_nonzero(finite)
+        finite = finite.reshape(len(block), M, 3)
         fx, fy, fz = finite[..., 0], finite[..., 1], finite[..., 2]
-        whole = fx & fy & fz
-        seen |= whole.any(axis=0)
-        if partial_at is None:
-            partial = (fx | fy | fz) & ~whole
-            if partial.any():
-                r, m = np.argwhere(partial)[0]
-                partial_at = (k + int(r), int(m))
+        whole = fx & fy
+        whole &= fz
+        if not seen.all():
+            seen |= whole.any(axis=0)
+        # a sample with some of x,y,z empty: fewer finite coordinates than three per whole sample
+        if partial_at is None and n_finite != 3 * np.count_nonzero(whole):
+            r, m = np.argwhere((fx | fy | fz) & ~whole)[0]
+            partial_at = (k + int(r), int(m))
         hi = np.fmax(hi, np.fmax.reduce(block, axis=None))  # NaN-skipping, as _check_plausible_unit
         lo = np.fmin(lo, np.fmin.reduce(block, axis=None))
     xyz = data.reshape(n, M, 3)
