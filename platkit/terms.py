@@ -51,6 +51,13 @@ class ModelTerm:
     def marker_offset(self, theta: np.ndarray, poses: PoseSet) -> np.ndarray:
         return np.zeros((poses.n_poses, poses.n_markers, 3))
 
+    def offset_jacobians(self, theta: np.ndarray, poses: PoseSet, n_u: int, fk_q: np.ndarray,
+                         fk_X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The offsets' derivatives in ``theta`` (K,): (control (N, n_u, K), pose (N, 6, K),
+        marker (N, M, 3, K)), for a term that knows them (a term linear in theta); None, the
+        default: the estimator takes them by finite differences."""
+        return None
+
     def to_dict(self, theta: np.ndarray, std: np.ndarray | None = None) -> dict:
         """What calibration.yaml stores; ``from_dict`` of the effect rebuilds the term."""
         return {

@@ -368,6 +368,16 @@ class CalibrationProblem:
         if self.terms:
             k = self.i_theta.start
             for term, th in zip(self.terms, theta):
+                known = term.offset_jacobians(th, poses, self.spec.n_u, q0, X0)
+                if known is not None:  # a term linear in theta: its columns in one product each
+                    K = len(th)
+                    d_u, d_pose, d_mk = known
+                    if B:
+                        d_mk = np.concatenate([d_mk, np.zeros((N, B, 3, K))], axis=1)
+                    J[:, :, k:k + K] = (np.einsum("nak,nkj->naj", Y_u, d_u) + np.einsum("nak,nkj->naj", Y_dpose, d_pose)
+                                        + np.einsum("nak,nkj->naj", Y_m, d_mk.reshape(N, -1, K)))
+                    k += K
+                    continue
                 base = (term.control_offset(th, poses, self.spec.n_u), term.pose_offset(th, poses, q0, X0),
                         term.marker_offset(th, poses))
                 for j in range(len(th)):

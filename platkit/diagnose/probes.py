@@ -37,6 +37,17 @@ class TimeProbe(ModelTerm):
         out[:, :3] = table[b]
         return out
 
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        """Linear in theta: bin b >= 1 moves the frame along axis a by its (b - 1, a) entry."""
+        t = history(poses, "elapsed")
+        b = np.clip(np.searchsorted(self.t_edges, t, side="right") - 1, 0, len(self.t_edges) - 2)
+        N, K = poses.n_poses, len(theta)
+        d_pose = np.zeros((N, 6, K))
+        for a in range(3):
+            rows = np.flatnonzero(b >= 1)
+            d_pose[rows, a, 3 * (b[rows] - 1) + a] = 1.0
+        return np.zeros((N, n_u, K)), d_pose, np.zeros((N, poses.n_markers, 3, K))
+
 
 def time_probe(poses: PoseSet, bins: int = 6) -> TimeProbe | None:
     t = history(poses, "elapsed")
@@ -61,6 +72,18 @@ class SpaceProbe(ModelTerm):
         out = np.zeros((poses.n_poses, 6))
         out[:, :3] = mono @ np.asarray(theta).reshape(6, 3)
         return out
+
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        """Linear in theta: monomial i moves the frame along axis a by its (i, a) entry."""
+        s = (np.asarray(fk_X) - self.center) / self.scale
+        x, y, z = s.T
+        mono = np.stack([x * x, y * y, z * z, x * y, x * z, y * z], axis=1)
+        N, K = poses.n_poses, len(theta)
+        d_pose = np.zeros((N, 6, K))
+        for i in range(6):
+            for a in range(3):
+                d_pose[:, a, 3 * i + a] = mono[:, i]
+        return np.zeros((N, n_u, K)), d_pose, np.zeros((N, poses.n_markers, 3, K))
 
 
 def space_probe(fk_X: np.ndarray) -> SpaceProbe | None:
@@ -92,6 +115,18 @@ class MarkerProbe(ModelTerm):
         f = self.features(poses)
         A = np.asarray(theta, float).reshape(self.n_markers, 3, f.shape[1])
         return np.einsum("nf,maf->nma", f, A)
+
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        """Linear in theta: marker m, axis a moves by the features through its own block of
+        theta ((m, a, feature) order)."""
+        f = self.features(poses)
+        N, F = f.shape
+        d_m = np.zeros((N, self.n_markers, 3, self.n_markers * 3 * F))
+        for m in range(self.n_markers):
+            for a in range(3):
+                k = (3 * m + a) * F
+                d_m[:, m, a, k:k + F] = f
+        return np.zeros((N, n_u, len(theta))), np.zeros((N, 6, len(theta))), d_m
 
 
 def marker_probe(poses: PoseSet) -> MarkerProbe | None:

@@ -187,6 +187,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     if judged.sum() < 4 * opt.folds:
         judged = np.ones(poses.n_poses, bool)
     stop = at_floor or too_few_settled
+    reopened_once = False  # the held geometry is tried once, before the first term mostly inside it
     while len(findings) < opt.max_effects and not stop:
         cands: list[tuple[Effect, ModelTerm]] = []
         taken = {_place(t) for t in cur.terms}
@@ -241,6 +242,17 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             break
         i, best, ph = good
         eff, term = cands[i]
+        if opt.reopen_geometry and scr[i][2] < opt.warn_separability and not reopened_once:
+            # a term mostly inside the geometry's span competes with the geometry the calibration
+            # held (its selection scored the groups with every effect still in the residual): the
+            # held groups are tried first, and the round is screened again if they predict better
+            reopened_once = True
+            reopened = _reopened(spec, poses, cur, free, judged, opt, None if start is None else start.platform_options)
+            if reopened is not None:
+                cur, free, note = reopened
+                rounds[-1]["geometry_reopened"] = note
+                say(note["text"])
+                continue
         # naming check: a generic model of the same structure must not predict clearly better
         if opt.probes:
             probe_better = _probe_beats(spec, poses, cur, best, opt, ph)
@@ -265,12 +277,6 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         accepted_info.append({"fit": best, "J": Jc})
         say(f"accepted {eff.name} ({_where_text(term.where)})")
         cur = best
-        if opt.reopen_geometry:
-            reopened = _reopened(spec, poses, cur, free, judged, opt, None if start is None else start.platform_options)
-            if reopened is not None:
-                cur, free, note = reopened
-                rounds[-1]["geometry_reopened"] = note
-                say(note["text"])
     # the final model through the estimator's full procedure (robust weights, covariance)
     final_cal = base_cal if len(cur.terms) == len(prior) else calibrate(
         poses, spec, terms=cur.terms, free=free, td_start=td_start, robust=opt.robust,
@@ -349,7 +355,9 @@ def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] 
 
     A calibration's model selection scores the groups with every effect still in the residual:
     a large one (a gear's cyclic error) hides what a held group (the rod lengths) would explain,
-    and an effect mostly inside the geometry (a scale nonlinearity) is then named in its place."""
+    and an effect mostly inside the geometry (a scale nonlinearity) would be named in its place.
+    Tried once, when such a term (separability under ``warn_separability``) is about to be
+    accepted: where none is, the search costs nothing more."""
     if free is None:
         return None
     groups = parameter_groups(spec)

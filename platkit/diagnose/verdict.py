@@ -38,8 +38,8 @@ def verdict(d: Diagnosis) -> str:
     for r in d.rounds:
         note = r.get("geometry_reopened")
         if note:
-            parts.append(f"With {'the effect' if len(named) == 1 else 'the effects'} modelled, the geometry the "
-                         f"calibration held ({', '.join(note['groups'])}) was freed again: it predicts held-out poses "
+            parts.append(f"Before a term mostly inside the geometry was named, the geometry the calibration held "
+                         f"({', '.join(note['groups'])}) was freed again: it predicts held-out poses "
                          f"better ({_fmt_rms(note['heldout_rms_before'], unit)} -> "
                          f"{_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates it (--keep-geometry: not).")
     corrected = [f for f in named if f.corrected]
