@@ -20,7 +20,8 @@ def add_parser(sub):
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
     p.add_argument("--keep-geometry", action="store_true",
                    help="keep the calibration's free parameters (default: a parameter group it held is freed again "
-                        "once an effect is modelled, when that predicts held-out poses better)")
+                        "before a term mostly inside the geometry would be named, when that predicts held-out poses "
+                        "better)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     return p
 

@@ -8,8 +8,7 @@ side it last moved from; half play about 12 mrad), and the calibration.yaml it w
 
 Stated tolerances: the first finding is backlash on arm_6_joint with half play in
 [-14, -10] mrad (fitted -12.0 +- 0.6 mrad); validation BL RMSE of the diagnosed model < 3.0 mm
-(measured 2.73 mm since the joint scales are freed again after the backlash; 2.70 before) and at
-least 0.7 mm below the geometric model's (measured 3.73 mm).
+(measured 2.70 mm) and at least 0.7 mm below the geometric model's (measured 3.73 mm).
 """
 import json
 
