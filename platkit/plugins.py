@@ -180,11 +180,17 @@ def may_declare_entry_points(group: str) -> bool:
     ``EGG-INFO``) of every folder on ``sys.path`` are listed as importlib.metadata lists them, and
     none has an ``entry_points.txt`` with a section header naming ``group``. True (ask
     importlib.metadata) for anything it cannot tell: a path entry that is a file (a zip or an egg),
-    a metadata file it cannot read, a finder other than the standard path finder that finds
-    distributions."""
+    a metadata file it cannot read, a finder that finds distributions other than the standard path
+    finder and the importlib_metadata backport's (which read the same folders)."""
     from importlib.machinery import PathFinder
 
-    if any(getattr(f, "find_distributions", None) is not None and f is not PathFinder for f in sys.meta_path):
+    def reads_the_path(finder) -> bool:
+        # the standard path finder, or the importlib_metadata backport's finder (installed on
+        # sys.meta_path when a library imports the backport): both read the folders of sys.path
+        return finder is PathFinder or (type(finder).__name__ == "MetadataPathFinder"
+                                        and type(finder).__module__.split(".")[0] in ("importlib_metadata", "importlib"))
+
+    if any(getattr(f, "find_distributions", None) is not None and not reads_the_path(f) for f in sys.meta_path):
         return True
     needle = group.encode()
     for root in sys.path:

@@ -172,3 +172,15 @@ def test_the_entry_point_precheck_agrees_with_importlib_metadata_here():
     assert groups, "this environment has entry points (pytest's, platkit's console script)"
     assert all(may_declare_entry_points(g) for g in groups)
     assert not may_declare_entry_points("platkit-no-such-group")
+
+
+def test_the_entry_point_precheck_reads_past_the_importlib_metadata_backport(monkeypatch):
+    # a library that imports the importlib_metadata backport puts its path finder on sys.meta_path;
+    # it reads the same folders, so the precheck still tells; any other distribution finder: ask
+    backport = type("MetadataPathFinder", (), {"__module__": "importlib_metadata",
+                                               "find_distributions": lambda self, *a, **k: iter(())})
+    monkeypatch.setattr(sys, "meta_path", [*sys.meta_path, backport()])
+    assert not may_declare_entry_points("platkit-no-such-group")
+    other = type("ZipDistFinder", (), {"__module__": "somewhere", "find_distributions": lambda self, *a, **k: iter(())})
+    monkeypatch.setattr(sys, "meta_path", [*sys.meta_path, other()])
+    assert may_declare_entry_points("platkit-no-such-group")
