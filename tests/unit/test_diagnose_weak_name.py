@@ -1,0 +1,34 @@
+"""A name whose own held-out proof is weak yields to a generic probe that predicts better
+(platkit.diagnose.search._probe_beats): physics outside the library, a frame that sways with
+time, must not be named as a leg's cyclic error (development seed 708230 of the proof benchmark,
+its protocol: every fifth command held out and cut from the stream)."""
+import json
+import sys
+from pathlib import Path
+
+import platkit.simulate.physics as physics_module
+from platkit.cli import main
+from platkit.plugins import get_platform
+from platkit.simulate.physics import simulate_physics, write_physical_session
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
+from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows  # noqa: E402
+from benchmarks.outside_physics import FrameWobble, OutsideEffect  # noqa: E402
+
+
+def test_a_time_periodic_sway_is_unexplained_not_a_weakly_proven_cyclic_error(tmp_path, monkeypatch):
+    library = physics_module.effect_library
+    monkeypatch.setattr(physics_module, "effect_library",
+                        lambda: {**library(), "frame_wobble": OutsideEffect("frame_wobble", FrameWobble)})
+    sim = simulate_physics(get_platform("stewart"), seed=708230, n_poses=60, plan="random",
+                           effects=[("frame_wobble", 0.0927)], coloured=True)
+    monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
+    session = write_physical_session(sim, tmp_path / "session")
+    blank_held_out(session, sim, held_out_rows(len(sim.commands)))
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal"), "--no-report", "--quiet"]) == 0
+    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
+                 "--out", str(tmp_path / "diag"), "--quiet"]) == 0
+    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    # without the rule: cyclic_error (p = 0.03), cyclic_error, then unexplained
+    assert [f["effect"] for f in d["findings"]] == ["unexplained"]
+    assert "time" in d["findings"][0]["where"]
