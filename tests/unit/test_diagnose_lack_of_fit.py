@@ -2,51 +2,25 @@
 better and the geometric model stays well above the noise floor, diagnosis says `unexplained` (a
 lack of fit, with the ratio to the floor), never a clean bill and never a library name."""
 import json
-
-import numpy as np
+import sys
+from pathlib import Path
 
 import platkit.simulate.physics as physics_module
 from platkit.calibrate.settle import settle
 from platkit.cli import main
 from platkit.diagnose.search import Options, diagnose
-from platkit.effects import EffectPhysics
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
-
-class PlateFlex(EffectPhysics):
-    """Markers bend along the moving frame's z with the squared reach of the command in force:
-    a non-rigid marker plate, which no library effect (they move the whole frame, or one marker
-    in a step) describes."""
-
-    effect = "plate_flex"
-
-    def __init__(self, size_mm, plan):
-        lo, hi = plan.spec.control_bounds()
-        self.mid, self.half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-        self.amplitude = size_mm * 1e-3
-        self.share = np.array([1.0, -0.8, 0.6, -1.0, 0.7])[: len(plan.marker_names)]
-
-    def marker_offsets(self, t, plan):
-        seg = np.searchsorted(plan.command_t, t, side="right") - 1
-        u = np.where(seg[:, None] >= 0, plan.commands[np.maximum(seg, 0)], plan.start[None])
-        reach = np.mean(((u - self.mid) / self.half) ** 2, axis=1)
-        out = np.zeros((len(t), len(self.share), 3))
-        out[:, :, 2] = self.amplitude * reach[:, None] * self.share[None]
-        return out
-
-
-class _Outside:
-    name = "plate_flex"
-
-    def physics(self, spec, size, rng, plan):
-        return PlateFlex(size, plan)
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
+from benchmarks.outside_physics import OutsideEffect, PlateFlex  # noqa: E402
 
 
 def _session(tmp_path, monkeypatch, effects):
     library = physics_module.effect_library
-    monkeypatch.setattr(physics_module, "effect_library", lambda: {**library(), "plate_flex": _Outside()})
+    monkeypatch.setattr(physics_module, "effect_library",
+                        lambda: {**library(), "plate_flex": OutsideEffect("plate_flex", PlateFlex)})
     sim = simulate_physics(get_platform("psvr"), seed=706500, n_poses=40, plan="random", effects=effects)
     monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
     return write_physical_session(sim, tmp_path / "s")
