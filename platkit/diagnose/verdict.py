@@ -59,6 +59,12 @@ def verdict(d: Diagnosis) -> str:
         parts.append(f"Some structure remains in the residuals ({left[0].test}, {_where_text(left[0].where)}) that "
                      "held-out prediction does not see (within twice the noise floor): what the model leaves of the "
                      "physics it names, not reported as another effect.")
+    for r in d.rounds:
+        if r.get("not_named"):
+            parts.append(f"{', '.join(r['not_named'])} passed the held-out test only weakly, and the model with "
+                         f"{'it' if len(r['not_named']) == 1 else 'them'} still left held-out poses at more than "
+                         "twice the noise floor with structure located: a slice of physics the library does not "
+                         "hold, not named.")
     for f in unexpl:
         parts.append(f"Structure remains that no known effect explains ({_where_text(f.where) or f.where}); "
                      "it is reported as unexplained rather than given a wrong name.")
