@@ -10,14 +10,13 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
-import shutil
 import sys
 import threading
 from pathlib import Path
 
 import casadi as ca
 
-from platkit.io.cache import cache_dir
+from platkit.io.cache import c_compiler, cache_dir
 from platkit.model import PlatformSpec
 
 __all__ = ["cache_dir", "native_for", "newton_functions", "NativeNewton", "CONVERGED", "MAX_ITERATIONS", "SINGULAR", "NOT_FINITE"]
@@ -159,15 +158,7 @@ _native_by_functions: dict = {}  # id-key -> (functions kept alive, NativeNewton
 _native_by_hash: dict = {}
 
 
-def _find_compiler() -> str | None:
-    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
-        return None
-    cc = os.environ.get("CC")
-    for cand in ([cc] if cc else []) + ["cc", "gcc", "clang"]:
-        path = shutil.which(cand)
-        if path:
-            return path
-    return None
+_find_compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that tests may patch
 
 
 class NativeNewton:

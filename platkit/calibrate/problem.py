@@ -59,6 +59,7 @@ from platkit.geometry import (
     rigid_fit,
     rotvec_from_matrix,
 )
+from platkit.io.cache import c_compiler
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 from platkit.native import cache_dir
@@ -554,11 +555,7 @@ COMPILE_FLAGS_SMALL = ["-O2", "-ffp-contract=off", "-fPIC", "-shared"]
 SMALL_FUNCTION = 20_000
 
 
-def _compiler() -> str | None:
-    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
-        return None
-    return next((shutil.which(c) for c in ([os.environ["CC"]] if os.environ.get("CC") else []) + ["cc", "gcc", "clang"]
-                 if shutil.which(c)), None)
+_compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that tests may patch
 
 
 def compile_flags(f: ca.Function) -> list[str]:

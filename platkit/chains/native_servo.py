@@ -27,7 +27,6 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
-import shutil
 import sys
 import threading
 import weakref
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.chains.chain import KinematicChain
+from platkit.io.cache import c_compiler
 from platkit.native import cache_dir
 
 #: iterations per call into C; the time cap is checked between calls
@@ -479,12 +479,7 @@ _loaded: dict[str, object] = {}  # "lib" -> the ctypes function, or the reason i
 _by_chain: weakref.WeakKeyDictionary[KinematicChain, dict] = weakref.WeakKeyDictionary()
 
 
-def _compiler() -> str | None:
-    """The system C compiler ($CC, cc, gcc, clang), or None (none, or PLATKIT_COMPILE=0)."""
-    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
-        return None
-    cc = os.environ.get("CC")
-    return next((shutil.which(c) for c in ([cc] if cc else []) + ["cc", "gcc", "clang"] if shutil.which(c)), None)
+_compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that tests may patch
 
 
 def _library() -> Path | str:

@@ -18,6 +18,7 @@ import hashlib
 import importlib.util
 import marshal
 import os
+import shutil
 import sys
 import threading
 from pathlib import Path
@@ -35,6 +36,15 @@ def cache_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "platkit"
+
+
+def c_compiler() -> str | None:
+    """The system C compiler that builds the compiled solvers kept here ($CC, else cc, gcc,
+    clang on the PATH), or None: none found, or compiling switched off (PLATKIT_COMPILE=0)."""
+    if os.environ.get("PLATKIT_COMPILE", "1").strip().lower() in ("0", "no", "false", "off"):
+        return None
+    cc = os.environ.get("CC")
+    return next((path for path in map(shutil.which, ([cc] if cc else []) + ["cc", "gcc", "clang"]) if path), None)
 
 
 def _parser_tag() -> str:
