@@ -78,6 +78,18 @@ class CyclicTerm(ModelTerm):
         return out
 
 
+
+def _draw_cyclic(spec, size, rng, controls: np.ndarray) -> tuple[int, float, float, float]:
+    """A cyclic error drawn for simulation: an actuator and one of its PERIODS that the commands
+    ``controls`` (N, n_u) span over half of, the amplitude ``size`` (mm for lengths) in internal
+    units, and a phase (rad)."""
+    options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
+               if np.ptp(controls[:, i]) > P / 2]
+    if not options:
+        raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
+    i, P = options[int(rng.integers(len(options)))]
+    return i, P, _size(spec, i, size, 0.3), rng.uniform(0, 2 * np.pi)
+
 class CyclicError(Effect):
     name = "cyclic_error"
     summary = "an error periodic in an actuator's angle or travel (gear or encoder eccentricity)"
@@ -109,24 +121,12 @@ class CyclicError(Effect):
 
     def simulation_term(self, spec, size, rng, commands):
         """``size``: amplitude (mm for lengths); period: one of PERIODS the commands span."""
-        options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
-                   if np.ptp(commands.controls[:, i]) > P / 2]
-        if not options:
-            raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
-        i, P = options[int(rng.integers(len(options)))]
-        a = _size(spec, i, size, 0.3)
-        ph = rng.uniform(0, 2 * np.pi)
+        i, P, a, ph = _draw_cyclic(spec, size, rng, commands.controls)
         return self.term(i, _actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
 
     def physics(self, spec, size, rng, plan):
         """``size``: the amplitude (mm for lengths) of a gear's error periodic in the actuator's true position."""
-        options = [(i, P) for i, c in enumerate(spec.controls) for P in PERIODS.get(c.unit, ())
-                   if np.ptp(plan.commands[:, i]) > P / 2]
-        if not options:
-            raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
-        i, P = options[int(rng.integers(len(options)))]
-        a = _size(spec, i, size, 0.3)
-        ph = rng.uniform(0, 2 * np.pi)
+        i, P, a, ph = _draw_cyclic(spec, size, rng, plan.commands)
         return CyclicPhysics(i, spec.control_names[i], P, a * np.cos(ph), a * np.sin(ph), spec.controls[i].unit)
 
 
