@@ -1,13 +1,11 @@
 """Physics the effect library does not hold: when nothing in the library predicts held-out poses
 better and the geometric model stays well above the noise floor, diagnosis says `unexplained` (a
 lack of fit, with the ratio to the floor), never a clean bill and never a library name."""
-import json
 import sys
 from pathlib import Path
 
 import platkit.simulate.physics as physics_module
 from platkit.calibrate.settle import settle
-from platkit.cli import main
 from platkit.diagnose.search import Options, diagnose
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
@@ -26,15 +24,8 @@ def _session(tmp_path, monkeypatch, effects):
     return write_physical_session(sim, tmp_path / "s")
 
 
-def _diagnose(tmp_path, session):
-    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal"), "--no-report", "--quiet"]) == 0
-    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
-                 "--out", str(tmp_path / "diag")]) == 0
-    return json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
-
-
-def test_a_non_rigid_marker_plate_is_unexplained_by_the_marker_probe(tmp_path, monkeypatch):
-    diag = _diagnose(tmp_path, _session(tmp_path, monkeypatch, [("plate_flex", 2.0)]))
+def test_a_non_rigid_marker_plate_is_unexplained_by_the_marker_probe(tmp_path, monkeypatch, calibrate_and_diagnose):
+    diag = calibrate_and_diagnose(_session(tmp_path, monkeypatch, [("plate_flex", 2.0)]))
     assert [f["effect"] for f in diag["findings"]] == ["unexplained"]
     assert "markers" in diag["findings"][0]["where"]  # each marker its own offset with the pose
     assert "moves each marker on its own" in diag["findings"][0]["evidence"]
@@ -50,7 +41,7 @@ def test_without_probes_the_plate_is_a_lack_of_fit(tmp_path, monkeypatch):
     assert "times the noise floor" in d.findings[0].evidence
 
 
-def test_the_same_session_without_it_has_no_finding(tmp_path, monkeypatch):
-    diag = _diagnose(tmp_path, _session(tmp_path, monkeypatch, []))
+def test_the_same_session_without_it_has_no_finding(tmp_path, monkeypatch, calibrate_and_diagnose):
+    diag = calibrate_and_diagnose(_session(tmp_path, monkeypatch, []))
     assert diag["findings"] == []
     assert diag["heldout_rms_geometric"] < 2 * diag["noise_floor"]

@@ -3,11 +3,8 @@ an effect is modelled, a slow actuator named from the stream alone, and structur
 noise floor's reach not given another name (platkit.diagnose.search)."""
 from __future__ import annotations
 
-import json
-
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.selection import parameter_groups
-from platkit.cli import main
 from platkit.diagnose.search import Options, diagnose
 from platkit.plugins import get_platform
 from platkit.simulate import simulate
@@ -33,16 +30,12 @@ def test_geometry_the_calibration_held_is_freed_again_once_the_effect_is_modelle
     assert "freed again" in d.verdict
 
 
-def test_a_slow_actuator_is_named_from_the_stream_when_too_few_holds_settled_to_test_it(tmp_path):
+def test_a_slow_actuator_is_named_from_the_stream_when_too_few_holds_settled_to_test_it(tmp_path, calibrate_and_diagnose):
     # development seed 706190: 54 of 60 holds never settle (a slow u2), extrapolated to rest
     sim = simulate_physics(get_platform("rotary"), seed=706190, n_poses=60, plan="random",
                            effects=[("scale_nonlinearity", 0.3075), ("settling_lag", 0.15)], coloured=True)
     slow = [p.parameters()["actuator"] for name, p in sim.physics if name == "settling_lag"]
-    session = write_physical_session(sim, tmp_path / "session")
-    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal")]) == 0
-    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
-                 "--out", str(tmp_path / "diag")]) == 0
-    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    d = calibrate_and_diagnose(write_physical_session(sim, tmp_path / "session"))
     assert [f["effect"] for f in d["findings"]] == ["settling_lag"]
     f = d["findings"][0]
     assert f["where"]["actuator"] == slow[0]
@@ -51,15 +44,11 @@ def test_a_slow_actuator_is_named_from_the_stream_when_too_few_holds_settled_to_
     assert "stand's physics was not tested" in d["verdict"]
 
 
-def test_structure_within_the_noise_floor_reach_beside_a_modelled_effect_is_not_named(tmp_path):
+def test_structure_within_the_noise_floor_reach_beside_a_modelled_effect_is_not_named(tmp_path, calibrate_and_diagnose):
     # psvr backlash in the physical simulator: the location tests still see autocorrelation on one
     # marker after the play is modelled, but held-out prediction is within twice the noise floor
     sim = simulate_physics(get_platform("psvr"), seed=882020, n_poses=60, plan="random",
                            effects=[("backlash", 3.1)], coloured=True)
-    session = write_physical_session(sim, tmp_path / "session")
-    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal")]) == 0
-    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
-                 "--out", str(tmp_path / "diag")]) == 0
-    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    d = calibrate_and_diagnose(write_physical_session(sim, tmp_path / "session"))
     assert [f["effect"] for f in d["findings"]] == ["backlash"]
     assert "Some structure remains in the residuals" in d["verdict"]  # said, not named

@@ -2,12 +2,10 @@
 (platkit.diagnose.search._probe_beats): physics outside the library, a frame that sways with
 time, must not be named as a leg's cyclic error (development seed 708230 of the proof benchmark,
 its protocol: every fifth command held out and cut from the stream)."""
-import json
 import sys
 from pathlib import Path
 
 import platkit.simulate.physics as physics_module
-from platkit.cli import main
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
@@ -16,40 +14,32 @@ from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows  #
 from benchmarks.outside_physics import FrameWobble, OutsideEffect  # noqa: E402
 
 
-def test_a_time_periodic_sway_is_unexplained_not_a_weakly_proven_cyclic_error(tmp_path, monkeypatch):
+def _sway_session(tmp_path, monkeypatch, seed, size):
+    """A stewart session whose frame sways with time (physics only the simulator knows), in the
+    proof's protocol: every fifth command held out and cut from the stream."""
     library = physics_module.effect_library
     monkeypatch.setattr(physics_module, "effect_library",
                         lambda: {**library(), "frame_wobble": OutsideEffect("frame_wobble", FrameWobble)})
-    sim = simulate_physics(get_platform("stewart"), seed=708230, n_poses=60, plan="random",
-                           effects=[("frame_wobble", 0.0927)], coloured=True)
+    sim = simulate_physics(get_platform("stewart"), seed=seed, n_poses=60, plan="random",
+                           effects=[("frame_wobble", size)], coloured=True)
     monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
     session = write_physical_session(sim, tmp_path / "session")
     blank_held_out(session, sim, held_out_rows(len(sim.commands)))
-    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal"), "--no-report", "--quiet"]) == 0
-    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
-                 "--out", str(tmp_path / "diag"), "--quiet"]) == 0
-    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    return session
+
+
+def test_a_time_periodic_sway_is_unexplained_not_a_weakly_proven_cyclic_error(tmp_path, monkeypatch, calibrate_and_diagnose):
+    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 708230, 0.0927))
     # without the rule: cyclic_error (p = 0.03), cyclic_error, then unexplained
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     assert "time" in d["findings"][0]["where"]
 
 
-def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(tmp_path, monkeypatch):
+def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(tmp_path, monkeypatch, calibrate_and_diagnose):
     # proof seed 920222: a frame sway named a leg's scale nonlinearity at held-out p = 0.045, the
     # model then still 7 times the noise floor with structure located, and the truth's held-out
     # made worse, 0.232 -> 0.321 mm; no probe predicted better, so the rule above did not act
-    library = physics_module.effect_library
-    monkeypatch.setattr(physics_module, "effect_library",
-                        lambda: {**library(), "frame_wobble": OutsideEffect("frame_wobble", FrameWobble)})
-    sim = simulate_physics(get_platform("stewart"), seed=920222, n_poses=60, plan="random",
-                           effects=[("frame_wobble", 0.317)], coloured=True)
-    monkeypatch.setattr(physics_module, "effect_library", library)
-    session = write_physical_session(sim, tmp_path / "session")
-    blank_held_out(session, sim, held_out_rows(len(sim.commands)))
-    assert main(["calibrate", str(session), "--out", str(tmp_path / "cal"), "--no-report", "--quiet"]) == 0
-    assert main(["diagnose", str(session), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
-                 "--out", str(tmp_path / "diag"), "--quiet"]) == 0
-    d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 920222, 0.317))
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     assert any(r.get("not_named") == ["scale_nonlinearity (actuator L1)"] for r in d["rounds"])
     assert "passed the held-out test only weakly" in d["verdict"]
