@@ -71,11 +71,16 @@ def verdict(d: Diagnosis) -> str:
     for f in named:
         for w in f.warnings:
             parts.append(f"Warning on {f.effect}: {w}.")
-    if d.not_separable:
+    echo = [x for x in d.not_separable if str(x.get("from", "")).startswith("the slow actuator")]
+    geometry = [x for x in d.not_separable if x not in echo]
+    if echo:
+        parts.append("Not told apart from the slow actuator's unfinished approach (not named): "
+                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in echo) + ".")
+    if geometry:
         parts.append("Not separable from the geometry on this design (not tested further): "
-                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in d.not_separable[:5])
-                     + (f" and {len(d.not_separable) - 5} more" if len(d.not_separable) > 5 else "") + ".")
-        if any(x["effect"] == "cyclic_error" for x in d.not_separable):
+                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in geometry[:5])
+                     + (f" and {len(geometry) - 5} more" if len(geometry) > 5 else "") + ".")
+        if any(x["effect"] == "cyclic_error" for x in geometry):
             parts.append("A periodic error is invisible when every command sits at the same phase of its period "
                          "(a grid whose steps are a multiple of it): record a random or dithered plan to test it.")
     if d.heldout_session is not None:
