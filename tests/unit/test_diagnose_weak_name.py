@@ -38,8 +38,25 @@ def test_a_time_periodic_sway_is_unexplained_not_a_weakly_proven_cyclic_error(tm
 def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(tmp_path, monkeypatch, calibrate_and_diagnose):
     # proof seed 920222: a frame sway named a leg's scale nonlinearity at held-out p = 0.045, the
     # model then still 7 times the noise floor with structure located, and the truth's held-out
-    # made worse, 0.232 -> 0.321 mm; no probe predicted better, so the rule above did not act
+    # made worse, 0.232 -> 0.321 mm; no probe predicted better, so the rule above did not act.
+    # Settled as it was then (no limit on a window's length; with the 1.5 s limit the scale
+    # nonlinearity is not proven at all, see the next test)
+    import platkit.calibrate.settle as settle_module
+
+    monkeypatch.setattr(settle_module, "SettleOptions", _unlimited)
     d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 920222, 0.317))
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     assert any(r.get("not_named") == ["scale_nonlinearity (actuator L1)"] for r in d["rounds"])
     assert "passed the held-out test only weakly" in d["verdict"]
+
+
+def _unlimited():
+    from platkit.calibrate.settle_report import SettleOptions
+
+    return SettleOptions(max_window_s=None)
+
+
+def test_the_same_sway_settled_with_the_window_limit_names_nothing_but_unexplained(tmp_path, monkeypatch,
+                                                                                     calibrate_and_diagnose):
+    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 920222, 0.317))
+    assert [f["effect"] for f in d["findings"]] == ["unexplained"]

@@ -386,10 +386,29 @@ def test_short_holds_whose_session_bears_out_its_tails_let_the_bound_cut_deeper(
     sim = simulate_physics(spec, seed=700205, n_poses=60, plan="random", hold_s=2.0)
     calm = simulate_physics(spec, seed=700205, n_poses=60, plan="random", hold_s=2.0, noise_mm=1e-9, occlusion=0.0)
     session = load_session(write_physical_session(sim, tmp_path / "s"))
-    poses, _ = settle(session)
-    alone, _ = settle(session, SettleOptions(tail_evidence_z=np.inf))  # never the deeper cut
+    poses, _ = settle(session, SettleOptions(max_window_s=None))  # the bound's cut alone, no length limit
+    alone, _ = settle(session, SettleOptions(tail_evidence_z=np.inf, max_window_s=None))  # never the deeper cut
     assert poses.n_poses == alone.n_poses == 60
     assert abs(_tail_along_step(poses, sim, calm)) < 0.1 < abs(_tail_along_step(alone, sim, calm))
+
+
+def test_a_long_still_stretch_is_averaged_over_its_last_one_and_a_half_seconds(tmp_path):
+    # psvr, holds of 2-5 s, rate-limited moves ending in an overdamped approach: several windows
+    # started where the approach was still a fifth of a millimetre from rest (its tail below the
+    # stillness test) and lagged their hold by 10-15 um along the step. The window is at most
+    # max_window_s (1.5 s) long, ending where the hold does. Measured: -0.135 -> -0.046.
+    from platkit.io.session import load_session
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    spec = get_platform("psvr")
+    sim = simulate_physics(spec, seed=700316, n_poses=60, plan="random")
+    calm = simulate_physics(spec, seed=700316, n_poses=60, plan="random", noise_mm=1e-9, occlusion=0.0)
+    session = load_session(write_physical_session(sim, tmp_path / "s"))
+    capped, _ = settle(session)
+    whole, _ = settle(session, SettleOptions(max_window_s=None))
+    assert capped.n_poses == whole.n_poses
+    assert np.nanmax(capped.extras["window_end"] - capped.extras["window_start"]) <= 1.5 + 1e-9
+    assert abs(_tail_along_step(capped, sim, calm)) < 0.08 < 0.1 < abs(_tail_along_step(whole, sim, calm))
 
 
 def test_a_wobble_fitted_as_a_decay_keeps_its_windows():
