@@ -329,7 +329,9 @@ def summarise(results: list[dict]) -> str:
     absorbed = [r for r in ok if r.get("absorbed")]
     if absorbed:
         lines.append(f"absorbed by the geometry: no wrong name in "
-                     f"{sum(set(r['named']) <= {r['truth']} for r in absorbed)}/{len(absorbed)}")
+                     f"{sum(set(r['named']) <= set(r['truth'].split('+')) for r in absorbed)}/{len(absorbed)}"
+                     + "".join(f"; {r['stand']} {r['truth']} seed {r['seed']}: {'+'.join(r['named'])}" for r in absorbed
+                               if not set(r["named"]) <= set(r["truth"].split("+"))))
     clean = [r for r in ok if r["kind"] == "clean"]
     if clean:
         lines.append(f"clean sessions with a finding: {sum(bool(r['named']) for r in clean)}/{len(clean)}"
