@@ -309,7 +309,10 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             findings = [f for f in findings if f.term is None or id(f.term) not in gone]
             cur = _without(spec, poses, cur, weak, opt)
     # the final model through the estimator's full procedure (robust weights, covariance)
-    final_cal = base_cal if len(cur.terms) == len(prior) else calibrate(
+    # the geometry freed again counts as a change of the model, with or without a term beside it
+    # (its note in the rounds says calibration.yaml estimates the groups it freed)
+    unchanged = len(cur.terms) == len(prior) and free == free_given
+    final_cal = base_cal if unchanged else calibrate(
         poses, spec, terms=cur.terms, free=free, td_start=td_start, robust=opt.robust,
         platform_options=None if start is None else start.platform_options)
     modelled = [f for f in findings if f.term is not None]
@@ -361,7 +364,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             "the library explains it: unexplained")
     findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
     stand = stand_calibration(final_cal)
-    if start is not None and len(cur.terms) == len(prior) and list(free or []) == list(free_given or []):
+    if start is not None and unchanged:
         # nothing modelled and the geometry's free set as given: the calibration given is what
         # diagnosis writes, unchanged (a refit from it can wander within the estimate's own
         # uncertainty where the geometry is poorly determined: a slow psvr actuator's session,

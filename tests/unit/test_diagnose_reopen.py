@@ -52,3 +52,20 @@ def test_structure_within_the_noise_floor_reach_beside_a_modelled_effect_is_not_
     d = calibrate_and_diagnose(write_physical_session(sim, tmp_path / "session"))
     assert [f["effect"] for f in d["findings"]] == ["backlash"]
     assert "Some structure remains in the residuals" in d["verdict"]  # said, not named
+
+
+def test_geometry_freed_again_is_written_even_when_no_term_is_accepted_after_it():
+    # rod lengths off and held by the calibration, no effect: a scale nonlinearity stands in for
+    # them until the lengths are freed again, and the round screened again accepts nothing. The
+    # re-opening is a change of the model in its own right: calibration.yaml estimates the groups
+    # freed (as the verdict says), it is not the calibration given
+    psvr = get_platform("psvr")
+    sim = simulate(psvr, seed=21, n_poses=40, raw=False, plan="random", perturbation=0.3)
+    groups = parameter_groups(psvr)
+    start = calibrate(sim.poses, psvr, free=[n for g, names in groups.items() if g != "lengths" for n in names])
+    d = diagnose(psvr, sim.poses, Options(probes=False), start=start)
+    assert d.findings == []
+    assert [r["geometry_reopened"]["groups"] for r in d.rounds if "geometry_reopened" in r] == [["lengths"]]
+    assert d.calibration is not start
+    assert all(d.calibration.td_status[psvr.parameter_names.index(n)] == "estimated" for n in groups["lengths"])
+    assert "freed again" in d.verdict
