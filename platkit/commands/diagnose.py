@@ -89,7 +89,7 @@ def run(args) -> int:
     written = write_outputs(d, args.out)
     s = length_scale(d.unit)
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
-    print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {(d.fitted or d.calibration).rms_after / s:.4g} {d.unit}; "
+    print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {d.final_fit.rms_after / s:.4g} {d.unit}; "
           f"wrote {', '.join(str(p) for p in written)}")
     return 0
 

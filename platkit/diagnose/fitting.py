@@ -128,6 +128,12 @@ class Diagnosis:
     at_noise_floor: bool = False  # the geometric model predicts held-out poses as well as the noise allows
     too_few_settled: bool = False  # most poses extrapolated: the stand's physics not tested (no settled poses to judge on)
 
+    @property
+    def final_fit(self) -> Calibration:
+        """The final model as fitted to this session (its residuals, its RMS): ``fitted``, or the
+        written calibration where a diagnosis has no separate fit."""
+        return self.fitted or self.calibration
+
 # ---------------------------------------------------------------------------- fitting
 def _obs(weights: np.ndarray, r: np.ndarray) -> np.ndarray:
     return (weights > 0) & np.all(np.isfinite(r), axis=2)

@@ -79,7 +79,7 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
         "findings": [finding_dict(f, d.unit) for f in d.findings],
         "verdict": d.verdict,
         "rms_geometric": _num(d.base.rms_after / s),
-        "rms_final": _num((d.fitted or d.calibration).rms_after / s),
+        "rms_final": _num(d.final_fit.rms_after / s),
         "heldout_rms_geometric": None if d.heldout_geometric is None else _num(d.heldout_geometric / s),
         "noise_floor": None if d.noise_floor is None else _num(d.noise_floor / s),  # held-out RMS from marker noise alone
         "at_noise_floor": bool(d.at_noise_floor),  # then nothing is named: no effect can predict better
@@ -131,7 +131,7 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
         out.append((f"{f.effect}: {html.escape(json.dumps(strict(f.where)))}", _png(fig)))
     # residual norm in time order, before and after
     r0 = np.linalg.norm(d.base.extras["residuals_after"], axis=2)
-    r1 = np.linalg.norm((d.fitted or d.calibration).extras["residuals_after"], axis=2)
+    r1 = np.linalg.norm(d.final_fit.extras["residuals_after"], axis=2)
     t = d.poses.extras.get("elapsed", np.arange(d.poses.n_poses))
     fig = Figure(figsize=(10, 3.2))
     ax = fig.subplots()

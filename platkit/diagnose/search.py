@@ -159,8 +159,19 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             free = [n for n, st in zip(spec.parameter_names, start.td_status) if st == "estimated"]
         td_start, prior = start.td, list(start.terms)
     free_given = free
+    platform_options = None if start is None else start.platform_options
     base_cal = calibrate(poses, spec, terms=prior, free=free, td_start=td_start, robust=opt.robust,
-                         platform_options=None if start is None else start.platform_options)
+                         platform_options=platform_options)
+
+    def refit(terms: list[ModelTerm]) -> tuple[Calibration, bool]:
+        """The estimator's full fit (robust weights, covariance) of ``terms`` with the current free
+        set, and whether it is the model as given (no term added, the free set unchanged: then
+        the geometric fit itself). The geometry freed again counts as a change of the model, with
+        or without a term beside it (its note in the rounds says calibration.yaml estimates it)."""
+        if len(terms) == len(prior) and free == free_given:
+            return base_cal, True
+        return calibrate(poses, spec, terms=terms, free=free, td_start=td_start, robust=opt.robust,
+                         platform_options=platform_options), False
     z0, active0 = base_cal.extras["z"], base_cal.extras["active"]
     weights = np.all(np.isfinite(poses.markers), axis=2).astype(float)
     cur = _fit(spec, poses, prior, z0, active0, weights, opt.lm_iterations, opt.robust)
@@ -264,7 +275,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             # held (its selection scored the groups with every effect still in the residual): the
             # held groups are tried first, and the round is screened again if they predict better
             reopened_once = True
-            reopened = _reopened(spec, poses, cur, free, judged, opt, None if start is None else start.platform_options)
+            reopened = _reopened(spec, poses, cur, free, judged, opt, platform_options)
             if reopened is not None:
                 cur, free, note = reopened
                 rounds[-1]["geometry_reopened"] = note
@@ -319,12 +330,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                 if note is not None:
                     slip_notes[id(cur.terms[k])] = note
                     say(f"marker_slip ({_where_text(cur.terms[k].where)}): {note}")
-    # the geometry freed again counts as a change of the model, with or without a term beside it
-    # (its note in the rounds says calibration.yaml estimates the groups it freed)
-    unchanged = len(cur.terms) == len(prior) and free == free_given
-    final_cal = base_cal if unchanged else calibrate(
-        poses, spec, terms=cur.terms, free=free, td_start=td_start, robust=opt.robust,
-        platform_options=None if start is None else start.platform_options)
+    final_cal, unchanged = refit(cur.terms)
     modelled = [f for f in findings if f.term is not None]
     for k, (finding, info) in enumerate(zip(modelled, accepted_info), start=len(prior)):
         theta, std = final_cal.theta[k], final_cal.theta_std[k]
@@ -373,13 +379,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         say(f"lack of fit: held-out {_fmt_rms(held, unit)} is {ratio:.1f} times the noise floor, nothing in "
             "the library explains it: unexplained")
     findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
-    written, as_given = final_cal, unchanged
-    if slip_notes:  # calibration.yaml without the slips whose model change predicts no better
-        rest = [t for t in cur.terms if id(t) not in slip_notes]
-        as_given = len(rest) == len(prior) and free == free_given
-        written = base_cal if as_given else calibrate(
-            poses, spec, terms=rest, free=free, td_start=td_start, robust=opt.robust,
-            platform_options=None if start is None else start.platform_options)
+    # calibration.yaml without the slips whose model change predicts no better
+    written, as_given = refit([t for t in cur.terms if id(t) not in slip_notes]) if slip_notes else (final_cal, unchanged)
     stand = stand_calibration(written)
     if start is not None and as_given:
         # nothing modelled and the geometry's free set as given: the calibration given is what
@@ -571,8 +572,7 @@ def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, judged:
     (final proofs of 73295c8: 21 such sessions, 7 worse by 0.05-1.24 um on the rows after the slip,
     12 better). Only a change that predicts better is written (as for every other term)."""
     term = cur.terms[k]
-    t_slip = float(getattr(term, "t_slip", term.where.get("from_time_s", np.inf)))
-    after = judged & (np.asarray(history(poses, "elapsed"), float) >= t_slip) & np.isfinite(cur.cv)
+    after = judged & (np.asarray(history(poses, "elapsed"), float) >= float(term.where["from_time_s"])) & np.isfinite(cur.cv)
     if after.sum() < 2 * opt.folds:
         return None
     wo = _without(spec, poses, cur, {k}, opt)
