@@ -27,11 +27,25 @@ def test_a_slip_the_geometric_fit_already_followed_leaves_the_calibration_as_giv
     # Here both predict the poses after the slip at 0.027 mm (paired p = 0.73)
     d = calibrate_and_diagnose(_slip_session(tmp_path, "psvr", 931130, 1.0012402045946533))
     assert [f["effect"] for f in d["findings"]] == ["marker_slip"]
-    assert "no better: calibration.yaml is the fit without the slip" in d["findings"][0]["corrected"]
+    assert "not 2% better: calibration.yaml is the fit without the slip" in d["findings"][0]["corrected"]
     given = read_calibration(tmp_path / "cal" / "calibration.yaml")
     written = read_calibration(tmp_path / "diag" / "calibration.yaml")
     assert written.td.tolist() == given.td.tolist()
     assert written.marker_positions.tolist() == given.marker_positions.tolist()
+
+
+def test_a_slip_whose_model_predicts_only_slightly_better_leaves_the_calibration_as_given(tmp_path,
+                                                                                         calibrate_and_diagnose):
+    # proof seed 960134: the slip's model predicted the held-out poses after it 0.8% better in
+    # diagnose's folds (0.0531 against 0.0535 mm, p = 0.014) and was written; against the truth
+    # it predicted them worse, 0.0115 -> 0.0121 mm. A written change must gain what every other
+    # term must (min_relative_gain, 2%)
+    d = calibrate_and_diagnose(_slip_session(tmp_path, "stewart", 960134, 0.9879552124517214))
+    assert [f["effect"] for f in d["findings"]] == ["marker_slip"]
+    assert "(paired p = 0.014), not 2% better" in d["findings"][0]["corrected"]
+    given = read_calibration(tmp_path / "cal" / "calibration.yaml")
+    written = read_calibration(tmp_path / "diag" / "calibration.yaml")
+    assert written.td.tolist() == given.td.tolist()
 
 
 def test_a_slip_the_geometric_fit_did_not_follow_is_written(tmp_path, calibrate_and_diagnose):
