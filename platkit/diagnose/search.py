@@ -314,10 +314,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                 say(f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)}): proven only weakly, and the model "
                     f"still predicts held-out poses at more than {opt.lack_of_fit_factor:g} times the noise floor "
                     "with structure located: a slice of physics the library does not hold; not named")
-            gone = {id(cur.terms[k]) for k in weak}
-            accepted_info = [info for f, info in zip([f for f in findings if f.term is not None], accepted_info)
-                             if id(f.term) not in gone]
-            findings = [f for f in findings if f.term is None or id(f.term) not in gone]
+            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in weak})
             cur = _without(spec, poses, cur, weak, opt)
     # structure a generic probe still predicts better at the end: a named term that no longer
     # proves itself beside the probe was a slice of that structure (tested before the final fit)
@@ -335,10 +332,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                 say(f"{n}: no longer predicts held-out poses better beside the generic model that still beats "
                     f"the named ones (paired p = {loose[k]:.2g}): a slice of physics the library does not hold; "
                     "not named")
-            gone = {id(cur.terms[k]) for k in loose}
-            accepted_info = [info for f, info in zip([f for f in findings if f.term is not None], accepted_info)
-                             if id(f.term) not in gone]
-            findings = [f for f in findings if f.term is None or id(f.term) not in gone]
+            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
             cur, end_probe = reduced, again
     # the final model through the estimator's full procedure (robust weights, covariance)
     # a slip whose model change does not predict the poses from the slip on better: named and
@@ -567,6 +561,14 @@ def _without(spec: PlatformSpec, poses: PoseSet, cur: Fit, drop: set[int], opt: 
     f = _fit(spec, poses, [cur.terms[k] for k in keep], z, active, cur.weights, opt.lm_iterations, opt.robust)
     f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
     return f
+
+
+def _unnamed(findings: list[Finding], accepted_info: list[dict], gone: set[int]) -> tuple[list[Finding], list[dict]]:
+    """The findings, and the accepted terms' fit records (one per modelled finding, in order),
+    without those whose term's id is in ``gone``."""
+    modelled = [f for f in findings if f.term is not None]
+    info = [x for f, x in zip(modelled, accepted_info) if id(f.term) not in gone]
+    return [f for f in findings if f.term is None or id(f.term) not in gone], info
 
 
 def _unproven_beside_probe(spec: PlatformSpec, poses: PoseSet, probed: Fit, first: int, last: int,

@@ -20,6 +20,13 @@ def _slip_session(tmp_path, stand, seed, size):
     return session
 
 
+def _assert_written_as_given(tmp_path):
+    given = read_calibration(tmp_path / "cal" / "calibration.yaml")
+    written = read_calibration(tmp_path / "diag" / "calibration.yaml")
+    assert written.td.tolist() == given.td.tolist()
+    assert written.marker_positions.tolist() == given.marker_positions.tolist()
+
+
 def test_a_slip_the_geometric_fit_already_followed_leaves_the_calibration_as_given(tmp_path, calibrate_and_diagnose):
     # proof seed 931130: the robust geometric fit puts the slipped marker at its new place and
     # leaves its earlier half out; fitting both places brought that half back and the truth's
@@ -28,10 +35,7 @@ def test_a_slip_the_geometric_fit_already_followed_leaves_the_calibration_as_giv
     d = calibrate_and_diagnose(_slip_session(tmp_path, "psvr", 931130, 1.0012402045946533))
     assert [f["effect"] for f in d["findings"]] == ["marker_slip"]
     assert "not 2% better: calibration.yaml is the fit without the slip" in d["findings"][0]["corrected"]
-    given = read_calibration(tmp_path / "cal" / "calibration.yaml")
-    written = read_calibration(tmp_path / "diag" / "calibration.yaml")
-    assert written.td.tolist() == given.td.tolist()
-    assert written.marker_positions.tolist() == given.marker_positions.tolist()
+    _assert_written_as_given(tmp_path)
 
 
 def test_a_slip_whose_model_predicts_only_slightly_better_leaves_the_calibration_as_given(tmp_path,
@@ -43,9 +47,7 @@ def test_a_slip_whose_model_predicts_only_slightly_better_leaves_the_calibration
     d = calibrate_and_diagnose(_slip_session(tmp_path, "stewart", 960134, 0.9879552124517214))
     assert [f["effect"] for f in d["findings"]] == ["marker_slip"]
     assert "(paired p = 0.014), not 2% better" in d["findings"][0]["corrected"]
-    given = read_calibration(tmp_path / "cal" / "calibration.yaml")
-    written = read_calibration(tmp_path / "diag" / "calibration.yaml")
-    assert written.td.tolist() == given.td.tolist()
+    _assert_written_as_given(tmp_path)
 
 
 def test_a_slip_the_geometric_fit_did_not_follow_is_written(tmp_path, calibrate_and_diagnose):
