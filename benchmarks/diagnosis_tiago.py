@@ -1,0 +1,65 @@
+"""Real data: `platkit diagnose` on the PAL TIAGo arm (shared/data/real/tiago).
+
+    .venv/bin/python benchmarks/diagnosis_tiago.py [--data DIR]
+
+As a user would: `platkit calibrate` of the training day (2021-11-30, 37 postures), once with no
+options and once with the full geometric model (`--free offset,origin`, FIGAROH's), then `platkit
+diagnose` of each calibration with the validation day (2021-11-26, 62 postures) as its held-out
+recording (scored, never used to choose). Prints the findings and the norm RMSE of point BL on the
+validation day, as FIGAROH reports it, from the calibration before and after diagnosis (the
+calibration.yaml each writes, through the same prediction `platkit predict` uses).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.datasets
+
+from benchmarks.datasets.tiago import FIGAROH, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir  # noqa: E402
+from platkit.calibrate.settle import load_poses  # noqa: E402
+from platkit.cli import main as cli  # noqa: E402
+from platkit.io.calibration import read_calibration  # noqa: E402
+
+CASES = (("platkit calibrate, no options", []), ("platkit calibrate --free offset,origin", ["--free", "offset,origin"]))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=None, help="the TIAGo folder (default: shared/data/real/tiago beside the checkout)")
+    args = ap.parse_args()
+    data = Path(args.data) if args.data else default_data_dir()
+    with tempfile.TemporaryDirectory(prefix="platkit-tiago-") as tmp:
+        root = Path(tmp)
+        train = convert(data / TRAINING, root / "train")
+        valid = convert(data / VALIDATION, root / "valid")
+        print(f"validation-day norm RMSE of point BL, mm (FIGAROH full_geometric: "
+              f"{FIGAROH['full_geometric']['validation_mm']:.2f})")
+        for k, (label, free) in enumerate(CASES):
+            out = root / f"case{k}"
+            t0 = time.perf_counter()
+            if cli(["calibrate", str(train), *free, "--out", str(out / "cal"), "--quiet", "--no-report"]):
+                raise SystemExit(f"{label}: calibrate failed")
+            t1 = time.perf_counter()
+            if cli(["diagnose", str(train), "--calibration", str(out / "cal" / "calibration.yaml"), "--heldout",
+                    str(valid), "--out", str(out / "diag"), "--quiet"]):
+                raise SystemExit(f"{label}: diagnose failed")
+            t2 = time.perf_counter()
+            d = json.loads((out / "diag" / "diagnosis.json").read_text())
+            before = read_calibration(out / "cal" / "calibration.yaml")
+            after = read_calibration(out / "diag" / "calibration.yaml")
+            poses = load_poses(valid, spec=before.spec)
+            names = ", ".join(f"{f['effect']} ({f['where'].get('actuator') or f['where']})" for f in d["findings"])
+            h = d.get("heldout_session") or {}
+            print(f"{label}:\n  findings: {names or 'none'}\n  BL {bl_rmse_mm(before, poses):.2f} -> "
+                  f"{bl_rmse_mm(after, poses):.2f} mm; all four points, RMS {1e3 * h.get('rms_before', float('nan')):.2f} "
+                  f"-> {1e3 * h.get('rms_after', float('nan')):.2f} mm (paired p = {h.get('p_improvement', float('nan')):.2g}); "
+                  f"calibrate {t1 - t0:.1f} s, diagnose {t2 - t1:.1f} s", flush=True)
+
+
+if __name__ == "__main__":
+    main()
