@@ -12,8 +12,11 @@ One round (repeated until nothing passes or ``max_effects`` are in):
 3. take the refit candidate with the lowest BIC; accept it if its BIC is below the current
    model's AND its K-fold held-out prediction improves significantly (one-sided Wilcoxon on the
    per-pose held-out errors at ``alpha_heldout``; one confirmatory test per round, in the order
-   BIC fixes: a fixed-sequence procedure, so no multiplicity correction is needed); unless a generic probe (probes.py) predicts significantly better still, in which
-   case the structure is reported ``unexplained`` and not named.
+   BIC fixes: a fixed-sequence procedure, so no multiplicity correction is needed); unless a
+   generic probe (probes.py) predicts significantly better still, in which case the structure
+   is reported ``unexplained`` and not named. When a probe still beats the named model after the
+   last round, each named term is tested again beside it, and one that no longer predicts better
+   is not named (:func:`_unproven_beside_probe`).
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
