@@ -16,7 +16,7 @@ One round (repeated until nothing passes or ``max_effects`` are in):
    generic probe (probes.py) predicts significantly better still, in which case the structure
    is reported ``unexplained`` and not named. When a probe still beats the named model after the
    last round, each named term is tested again beside it, and one that no longer predicts better
-   is not named (:func:`_unproven_beside_probe`).
+   is not named (naming._unproven_beside_probe; the other checks on a name live there too).
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
@@ -44,9 +44,8 @@ from platkit.calibrate.estimate import CalibrationProblem, calibrate, point_erro
 from platkit.calibrate.selection import parameter_groups
 from platkit.diagnose.floor import noise_floor, worst_marker
 from platkit.diagnose.locate import locate, located
-from platkit.diagnose.probes import marker_probe, space_probe, time_probe
 from platkit.diagnose.stats import column_basis, holm, paired_improvement, score_test
-from platkit.effects import Effect, effect_library, history, with_history
+from platkit.effects import Effect, effect_library, with_history
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
@@ -54,16 +53,25 @@ from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 from platkit.diagnose.fitting import (RECORDING_EFFECTS, Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms,
                                        _obs, _rms, _where_text)
+from platkit.diagnose.naming import (
+    _best_probe,
+    _probe_beats,
+    _unnamed,
+    _unproven_beside_probe,
+    _weak_beside_lack_of_fit,
+    _without,
+)
 from platkit.diagnose.recording import (
     DIRECTION_EFFECTS,
     _settling_finding,
+    _slip_not_kept,
     _slow_actuator_echo,
     slow_actuator_weak_echo,
     stand_calibration,
 )
 from platkit.diagnose.verdict import verdict
 
-#: the names other modules import from here (the objects live in fitting, recording, verdict)
+#: the names other modules import from here (the objects live in fitting, naming, recording, verdict)
 __all__ = ["RECORDING_EFFECTS", "DIRECTION_EFFECTS", "Options", "Fit", "Finding", "Diagnosis", "diagnose", "screen",
            "confirm", "noise_floor", "stand_calibration", "verdict"]
 
@@ -506,143 +514,6 @@ def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float],
         if f.bic < cur.bic and gain and p_h < level:
             return i, f, p_h
     return None
-
-def _probe_beats(spec, poses, cur: Fit, best: Fit | None, opt: Options, best_p: float = 0.0) -> Finding | None:
-    """The ``unexplained`` finding of :func:`_best_probe`, or None."""
-    beaten = _best_probe(spec, poses, cur, best, opt, best_p)
-    return None if beaten is None else beaten[0]
-
-
-def _best_probe(spec, poses, cur: Fit, best: Fit | None, opt: Options,
-                best_p: float = 0.0) -> tuple[Finding, Fit] | None:
-    """A generic probe that predicts held-out poses significantly better than ``best`` (or, with
-    best None, than the current model): (its ``unexplained`` finding, the model with it); else None.
-
-    A named candidate whose own held-out proof is weak (``best_p``, its paired p against the
-    current model, above ``alpha_heldout * weak_separability_factor``) also yields to a probe
-    that is proven against the current model and predicts better than it with a lower BIC, even
-    when the two cannot be told apart significantly: a time-periodic sway of the frame was named as
-    a leg's cyclic error at p = 0.03 (dev seed 708230) while the time probe predicted held-out
-    poses at 0.224 mm against the name's 0.262 (BIC -240 against -66; paired p 0.08 between them)."""
-    ref = best if best is not None else cur
-    fk_X = cur.problem.kinematics(cur.problem.split(cur.z)[0], poses.controls)[1]
-    probes = [p for p in (time_probe(poses), space_probe(fk_X), marker_probe(poses)) if p is not None]
-    results = []
-    for probe in probes:
-        f = _fit(spec, poses, cur.terms + [probe], cur.z, cur.active, cur.weights, opt.lm_iterations, opt.robust)
-        f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
-        p = paired_improvement(ref.cv, f.cv)
-        p0 = paired_improvement(cur.cv, f.cv)
-        results.append((probe, f, p, p0))
-    for probe, f, p, p0 in sorted(results, key=lambda x: x[1].cv_rms):
-        gain_vs_ref = f.cv_rms < (1 - 2 * opt.min_relative_gain) * ref.cv_rms
-        proven = p < opt.alpha_heldout / max(len(probes), 1) and p0 < opt.alpha_heldout and f.bic < cur.bic
-        weak_name = (best is not None and best_p > opt.alpha_heldout * opt.weak_separability_factor
-                     and p0 < opt.alpha_heldout / max(len(probes), 1) and f.bic < best.bic)
-        if (proven or weak_name) and gain_vs_ref:
-            unit = poses.length_unit
-            what = ("changes with time" if "time" in probe.where else
-                    "moves each marker on its own with the pose" if "markers" in probe.where else
-                    "varies smoothly over the workspace")
-            named = "" if best is None else f" better than the best named effect ({best.terms[-1].effect}, " \
-                f"{_fmt_rms(best.cv_rms, unit)})"
-            return (Finding(
-                effect="unexplained", where=dict(probe.where), parameters={}, heldout_rms_before=cur.cv_rms,
-                heldout_rms_after=f.cv_rms, p_heldout=p0, bic_change=float(f.bic - cur.bic),
-                evidence=(f"a generic model in which the pose error {what} predicts held-out poses at "
-                          f"{_fmt_rms(f.cv_rms, unit)} against {_fmt_rms(cur.cv_rms, unit)}{named} "
-                          f"(paired Wilcoxon p = {p:.2g}); no effect in the library matches it")), f)
-    return None
-
-def _without(spec: PlatformSpec, poses: PoseSet, cur: Fit, drop: set[int], opt: Options) -> Fit:
-    """``cur`` refitted without its terms at the indices ``drop``, with its K-fold held-out errors."""
-    thetas = cur.problem.split(cur.z)[4]
-    start = cur.problem.i_theta.start
-    keep = [k for k in range(len(cur.terms)) if k not in drop]
-    z = np.concatenate([cur.z[:start]] + [np.asarray(thetas[k], float) for k in keep])
-    active = np.concatenate([cur.active[:start]] + [np.ones(len(thetas[k]), bool) for k in keep])
-    f = _fit(spec, poses, [cur.terms[k] for k in keep], z, active, cur.weights, opt.lm_iterations, opt.robust)
-    f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
-    return f
-
-
-def _unnamed(findings: list[Finding], accepted_info: list[dict], gone: set[int]) -> tuple[list[Finding], list[dict]]:
-    """The findings, and the accepted terms' fit records (one per modelled finding, in order),
-    without those whose term's id is in ``gone``."""
-    modelled = [f for f in findings if f.term is not None]
-    info = [x for f, x in zip(modelled, accepted_info) if id(f.term) not in gone]
-    return [f for f in findings if f.term is None or id(f.term) not in gone], info
-
-
-def _unproven_beside_probe(spec: PlatformSpec, poses: PoseSet, probed: Fit, first: int, last: int,
-                           judged: np.ndarray, opt: Options) -> dict[int, float]:
-    """{index: paired p} of the named terms ``probed.terms[first:last]`` that do not predict the
-    held-out settled poses significantly better (paired Wilcoxon at ``alpha_heldout``) in the
-    model that also holds the generic probe which still beats the named model (``probed``, the
-    probe last): each was a slice of that structure, not an effect of its own (a psvr frame that
-    sways with time was named a cyclic error of actuator A at p = 0.0018 before the time probe
-    was tried; beside the probe it proves nothing, and the truth's held-out had gone 0.060 ->
-    0.064 mm; proof seed 961233)."""
-    loose = {}
-    for k in range(first, last):
-        wo = _without(spec, poses, probed, {k}, opt)
-        rows = judged & np.isfinite(wo.cv) & np.isfinite(probed.cv)
-        p = paired_improvement(wo.cv[rows], probed.cv[rows])
-        if not (_rms(probed.cv, rows) < _rms(wo.cv, rows) and p < opt.alpha_heldout):
-            loose[k] = float(p)
-    return loose
-
-
-def _weak_beside_lack_of_fit(cur: Fit, poses: PoseSet, spec: PlatformSpec, findings: list[Finding], floor: float,
-                             judged: np.ndarray, weights: np.ndarray, n_prior: int, opt: Options) -> set[int]:
-    """The indices (into ``cur.terms``) of the named terms proven only weakly (held-out paired p
-    above ``alpha_heldout * weak_separability_factor``) in a model that still predicts held-out
-    poses at more than ``lack_of_fit_factor`` times the noise floor with structure located in its
-    residuals: each explains a slice of something the library does not hold (a frame that sways
-    with time was named a leg's scale nonlinearity at p = 0.045, held-out 7 times the floor after
-    it, and the truth's held-out went 0.232 -> 0.321 mm; proof seed 920222). Empty otherwise."""
-    if not _rms(cur.cv, judged) > opt.lack_of_fit_factor * floor:
-        return set()
-    level = opt.alpha_heldout * opt.weak_separability_factor
-    p_of = {id(f.term): f.p_heldout for f in findings if f.term is not None}
-    weak = {k for k in range(n_prior, len(cur.terms)) if p_of.get(id(cur.terms[k]), 0.0) > level}
-    if not weak or not located(locate(cur.r, poses, spec, weights, opt.alpha), opt.alpha * 0.1):
-        return set()
-    return weak
-
-
-def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, judged: np.ndarray,
-                   opt: Options) -> str | None:
-    """For the marker slip at ``cur.terms[k]``: when the model without it predicts the held-out
-    settled poses from the slip on as well as the model with it (not significantly worse), the
-    model change is not written: the sentence saying so is returned (None otherwise, or with too
-    few poses after the slip to tell). The slip stays a finding and in the fitted model (it is in
-    the recording, and the location tests see the data corrected), but calibration.yaml
-    predicts where the stand settles now, which the geometric fit already did: its robust weights
-    had put the marker at its new place and left its earlier half out. Fitting both places brings
-    that half back and moves the geometry within its own uncertainty, better or worse by chance
-    (final proofs of 73295c8: 21 such sessions, 7 worse by 0.05-1.24 um on the rows after the slip,
-    12 better). Only a change that predicts better is written, by the gain every other term must
-    show (``min_relative_gain``): proof seed 960134, a stewart slip whose model predicted the rows
-    after it 0.8% better in the folds (p = 0.014), predicted the truth 5% worse (0.0115 -> 0.0121
-    mm)."""
-    term = cur.terms[k]
-    after = judged & (np.asarray(history(poses, "elapsed"), float) >= float(term.where["from_time_s"])) & np.isfinite(cur.cv)
-    if after.sum() < 2 * opt.folds:
-        return None
-    wo = _without(spec, poses, cur, {k}, opt)
-    rows = after & np.isfinite(wo.cv)
-    with_rms, without_rms = _rms(cur.cv, rows), _rms(wo.cv, rows)
-    p = paired_improvement(wo.cv[rows], cur.cv[rows])
-    if with_rms < (1 - opt.min_relative_gain) * without_rms and p < opt.alpha_heldout:
-        return None
-    unit = poses.length_unit
-    return (f"in the data: marker {term.where.get('marker')} is fitted at both places; the fit without the slip had "
-            f"already placed it where it was after the slip (its earlier half left out as outliers), and fitting both "
-            f"places predicts the held-out poses from the slip on at {_fmt_rms(with_rms, unit)} against "
-            f"{_fmt_rms(without_rms, unit)} (paired p = {p:.2g}), not {100 * opt.min_relative_gain:g}% better: "
-            "calibration.yaml is the fit without the slip, the marker at its place after it")
-
 
 def _evidence(f: Finding, poses: PoseSet, unit: str, folds: int) -> str:
     first = next(iter(f.parameters.items()), None)

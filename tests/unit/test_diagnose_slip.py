@@ -1,5 +1,5 @@
 """A marker slip is named and corrected in the data; calibration.yaml takes the slip's model change
-only where it predicts the poses from the slip on better (platkit.diagnose.search._slip_not_kept),
+only where it predicts the poses from the slip on better (platkit.diagnose.recording._slip_not_kept),
 in the proof benchmark's protocol (every fifth command held out and cut from the stream)."""
 import sys
 from pathlib import Path

@@ -1,5 +1,5 @@
 """A name whose own held-out proof is weak yields to a generic probe that predicts better
-(platkit.diagnose.search._probe_beats): physics outside the library, a frame that sways with
+(platkit.diagnose.naming._probe_beats): physics outside the library, a frame that sways with
 time, must not be named as a leg's cyclic error (development seed 708230 of the proof benchmark,
 its protocol: every fifth command held out and cut from the stream)."""
 import sys
