@@ -233,7 +233,8 @@ def _run_case(case: dict) -> dict:
         diag = json.loads((work / "diag" / "diagnosis.json").read_text())
         result["named"] = [f["effect"] for f in diag["findings"]]
         result["diagnosis"] = {k: diag.get(k) for k in ("noise_floor", "heldout_rms_geometric", "at_noise_floor")}
-        result["findings"] = [{k: f.get(k) for k in ("effect", "where", "heldout_rms_before", "heldout_rms_after")}
+        result["findings"] = [{k: f.get(k) for k in ("effect", "where", "heldout_rms_before", "heldout_rms_after",
+                                                              "p_heldout", "separability")}
                               for f in diag["findings"]]
         # a slip is a recording artefact: the calibration predicts the marker's new place (spec section 3),
         # so held-out commands are scored from the slip on (the place before it is history)
