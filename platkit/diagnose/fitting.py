@@ -38,6 +38,9 @@ class Options:
     warn_separability: float = 0.3  # below: accepted with a warning
     min_relative_gain: float = 0.02  # held-out RMS must fall by at least this fraction
     weak_separability_factor: float = 0.1  # below warn_separability: held-out level alpha_heldout times this
+    # a held-out gain below this fraction is proven at that stricter level too: a slice of structure
+    # the term does not describe gives a small gain, and its paired test is the selection's winner
+    small_gain: float = 0.05
     free: Sequence[str] | None = None  # td parameters to fit (None: the stand's free ones)
     probes: bool = True
     # each model is fitted as the estimator calibrates (Huber weights, then rejection beyond

@@ -22,10 +22,12 @@ def verdict(d: Diagnosis) -> str:
                      "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
     elif not d.findings and not d.too_few_settled:
         loc = located(d.locations, 0.01)
-        parts.append("The motion capture shows no hidden effect: no candidate effect improved held-out prediction "
-                     "significantly, "
+        parts.append("The motion capture shows no hidden effect: no candidate effect passed the held-out test, "
                      "and the residuals show no structure that survives correction for multiple testing"
                      + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
+        closest = [r["not_accepted"] for r in d.rounds if r.get("not_accepted")]
+        if closest:
+            parts.append(f"The closest candidate: {closest[-1]}.")
     if named:
         first_before = max(f.heldout_rms_before for f in named)
         last_after = min(f.heldout_rms_after for f in named)
