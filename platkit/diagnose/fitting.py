@@ -20,6 +20,11 @@ from platkit.terms import ModelTerm
 #: effects that describe the recording, not the stand: corrected in the data, never predicted
 RECORDING_EFFECTS = ("settling_lag", "marker_slip")
 
+#: the "round" of diagnosis.json's rounds that un-name terms after the search (a search round is
+#: numbered): weakly proven names beside a lack of fit, names unproven beside the final probe
+ROUND_WEAK_NAMES = "weak names"
+ROUND_BESIDE_PROBE = "beside the probe"
+
 @dataclass
 class Options:
     """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""

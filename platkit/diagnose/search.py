@@ -51,8 +51,8 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit.diagnose.fitting import (RECORDING_EFFECTS, Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms,
-                                       _obs, _rms, _where_text)
+from platkit.diagnose.fitting import (RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_WEAK_NAMES, Diagnosis, Finding,
+                                       Fit, Options, _cv, _fit, _fmt_rms, _obs, _rms, _where_text)
 from platkit.diagnose.naming import (
     _best_probe,
     _probe_beats,
@@ -321,7 +321,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     if not stop and stop_unexplained is None and floor is not None and len(cur.terms) > len(prior):
         weak = _weak_beside_lack_of_fit(cur, poses, spec, findings, floor, judged, weights, len(prior), opt)
         if weak:
-            rounds.append({"round": "weak names", "not_named": [
+            rounds.append({"round": ROUND_WEAK_NAMES, "not_named": [
                 f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(weak)]})
             for k in sorted(weak):
                 say(f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)}): proven only weakly, and the model "
@@ -339,7 +339,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         again = _best_probe(spec, poses, reduced, None, opt) if reduced is not None else None
         if again is not None:
             names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(loose)]
-            rounds.append({"round": "beside the probe", "not_named": names,
+            rounds.append({"round": ROUND_BESIDE_PROBE, "not_named": names,
                            "paired_p": {n: loose[k] for n, k in zip(names, sorted(loose))}})
             for n, k in zip(names, sorted(loose)):
                 say(f"{n}: no longer predicts held-out poses better beside the generic model that still beats "

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 from platkit.diagnose.fitting import (
+    ROUND_BESIDE_PROBE,
+    ROUND_WEAK_NAMES,
     Diagnosis,
     _fmt_rms,
     _where_text,
@@ -62,11 +64,11 @@ def verdict(d: Diagnosis) -> str:
                      "held-out prediction does not see (within twice the noise floor): what the model leaves of the "
                      "physics it names, not reported as another effect.")
     for r in d.rounds:
-        if r.get("not_named") and r.get("round") == "beside the probe":
+        if r.get("not_named") and r.get("round") == ROUND_BESIDE_PROBE:
             parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside the "
                          "generic model that still beats the named ones: a slice of the structure reported as "
                          "unexplained, not named.")
-        elif r.get("not_named"):
+        elif r.get("not_named") and r.get("round") == ROUND_WEAK_NAMES:
             parts.append(f"{', '.join(r['not_named'])} passed the held-out test only weakly, and the model with "
                          f"{'it' if len(r['not_named']) == 1 else 'them'} still left held-out poses at more than "
                          "twice the noise floor with structure located: a slice of physics the library does not "
