@@ -10,6 +10,12 @@ from platkit.diagnose.fitting import (
 )
 from platkit.diagnose.locate import located
 
+#: with nothing found, a geometric model at least this many times the noise floor held out is said
+#: to be so (sessions with no hidden effect on the physical simulator: median 1.08, 90th percentile
+#: 1.37, highest 1.81 over 273 proof sessions; weak out-of-library physics left with no finding:
+#: 1.03-1.87), without a finding: the two overlap
+NOTED_LACK_OF_FIT = 1.3
+
 
 def verdict(d: Diagnosis) -> str:
     """One paragraph for people."""
@@ -24,9 +30,19 @@ def verdict(d: Diagnosis) -> str:
                      "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
     elif not d.findings and not d.too_few_settled:
         loc = located(d.locations, 0.01)
-        parts.append("The motion capture shows no hidden effect: no candidate effect passed the held-out test, "
-                     "and the residuals show no structure that survives correction for multiple testing"
+        ratio = (d.heldout_geometric / d.noise_floor if d.noise_floor and d.heldout_geometric is not None
+                 else None)
+        near = ratio is not None and ratio >= NOTED_LACK_OF_FIT
+        parts.append(("No hidden effect is claimed" if near else "The motion capture shows no hidden effect")
+                     + ": no candidate effect passed the held-out test, and the residuals show no structure that "
+                     "survives correction for multiple testing"
                      + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
+        if near:
+            parts.append(f"Yet the geometric model predicts held-out poses at {_fmt_rms(d.heldout_geometric, unit)}, "
+                         f"{ratio:.2g} times the noise floor of these settled poses ({_fmt_rms(d.noise_floor, unit)}): "
+                         "sessions with no hidden effect reach up to about twice the floor, and a weak effect of a "
+                         "shape the library does not hold sits there too, so the two cannot be told apart on this "
+                         "session; more poses, or longer holds, would.")
         closest = [r["not_accepted"] for r in d.rounds if r.get("not_accepted")]
         if closest:
             parts.append(f"The closest candidate: {closest[-1]}.")
