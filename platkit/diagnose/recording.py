@@ -86,6 +86,20 @@ def extrapolated_weak_echo(settled: Finding | None, poses: PoseSet, p_heldout: f
     return bool(np.any(np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float) != 0))
 
 
+def settled_stream_weak_lag(term: ModelTerm, settled: Finding | None, poses: PoseSet, p_heldout: float,
+                            level: float) -> bool:
+    """True for a fitted ``settling_lag`` term (a fraction of the last move, added to the poses)
+    proven only weakly (paired p above ``level``) in a session whose raw stream the settling search
+    read and found settled (no lag read from it): the direct evidence of a lag, markers still
+    moving at the end of a hold, is not there, and the term only takes a slice of some other
+    structure. On the physical simulator the fitted lag term was never the right name over 13
+    proof runs (slow actuators are read from the stream); once it named a weak frame sway, the
+    one wrong name of 216 out-of-library sessions (proof seed 1061233, p = 0.021)."""
+    if term.effect != "settling_lag" or settled is not None or p_heldout <= level:
+        return False
+    return (poses.settling or {}).get("sigma_m") is not None
+
+
 def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.ndarray, opt: Options,
                       say: Callable[[str], None]) -> Finding | None:
     """The ``settling_lag`` finding of holds that never settled and were extrapolated to rest by

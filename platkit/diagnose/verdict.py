@@ -96,7 +96,11 @@ def verdict(d: Diagnosis) -> str:
         for w in f.warnings:
             parts.append(f"Warning on {f.effect}: {w}.")
     echo = [x for x in d.not_separable if str(x.get("from", "")).startswith("the slow actuator")]
-    geometry = [x for x in d.not_separable if x not in echo]
+    stream = [x for x in d.not_separable if str(x.get("from", "")).startswith("the stream")]
+    geometry = [x for x in d.not_separable if x not in echo and x not in stream]
+    if stream:
+        parts.append("Not named, proven only weakly while the stream shows the holds settled: "
+                     + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in stream) + ".")
     if echo:
         parts.append("Not told apart from the slow actuator's unfinished approach (not named): "
                      + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in echo) + ".")

@@ -208,3 +208,23 @@ def test_with_nothing_found_a_lack_of_fit_near_the_floor_is_said_not_claimed():
     assert "cannot be told apart" in near
     clean = said(4.5e-5)  # 1.06 times: what most clean sessions show
     assert clean.startswith("The motion capture shows no hidden effect") and "times the noise floor" not in clean
+
+
+def test_a_weak_fitted_lag_needs_a_strong_proof_where_the_stream_shows_settled_holds():
+    from platkit.diagnose.search import Finding, settled_stream_weak_lag
+
+    spec = get_platform("stewart")
+    lag = effect_library()["settling_lag"]
+    term = next(iter(lag.candidates(spec, PoseSet("stewart", np.tile(spec.neutral_u(), (6, 1)), np.zeros((6, 3, 3)),
+                                                  ["a", "b", "c"]), None)))
+    poses = PoseSet("stewart", np.tile(spec.neutral_u(), (6, 1)), np.zeros((6, 3, 3)), ["a", "b", "c"])
+    poses.settling = {"sigma_m": 1e-4}
+    assert settled_stream_weak_lag(term, None, poses, 0.021, 0.005)
+    assert not settled_stream_weak_lag(term, None, poses, 0.001, 0.005)  # a strong proof: named as always
+    read = Finding("settling_lag", {"actuator": "L2", "holds": 20}, {}, 1.0, 0.5, "")
+    assert not settled_stream_weak_lag(term, read, poses, 0.021, 0.005)  # the stream showed a lag
+    poses.settling = None  # poses without a stream (poses.csv): nothing to contradict the term
+    assert not settled_stream_weak_lag(term, None, poses, 0.021, 0.005)
+    cyclic = effect_library()["cyclic_error"].term(1, {"actuator": "L2", "actuator_index": 1, "unit": "m"}, 0.01)
+    poses.settling = {"sigma_m": 1e-4}
+    assert not settled_stream_weak_lag(cyclic, None, poses, 0.021, 0.005)  # only the lag
