@@ -100,6 +100,24 @@ def settled_stream_weak_lag(term: ModelTerm, settled: Finding | None, poses: Pos
     return (poses.settling or {}).get("sigma_m") is not None
 
 
+def weak_beside_the_recording(term: ModelTerm, settled: Finding | None, poses: PoseSet, p_heldout: float,
+                              level: float) -> tuple[str, str] | None:
+    """(where it comes from, for not_separable; the sentence said) for a weakly proven term the
+    recording does not let be named (:func:`extrapolated_weak_echo`, :func:`settled_stream_weak_lag`),
+    else None."""
+    p = f"paired p = {p_heldout:.2g}"
+    if extrapolated_weak_echo(settled, poses, p_heldout, level):
+        return (f"the slow actuator's extrapolated approach (held-out {p}, a weak proof: what the approach model "
+                "missed reaches every pose)",
+                f"proven only weakly ({p}) in a session whose holds were extrapolated to rest: not told apart from "
+                "the approach's remnant")
+    if settled_stream_weak_lag(term, settled, poses, p_heldout, level):
+        return (f"the stream, which shows the holds settled (held-out {p}, a weak proof of a lag the stream does "
+                "not show)",
+                f"proven only weakly ({p}), and the stream shows the holds settled")
+    return None
+
+
 def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.ndarray, opt: Options,
                       say: Callable[[str], None]) -> Finding | None:
     """The ``settling_lag`` finding of holds that never settled and were extrapolated to rest by

@@ -66,8 +66,7 @@ from platkit.diagnose.recording import (
     _settling_finding,
     _slip_not_kept,
     _slow_actuator_echo,
-    extrapolated_weak_echo,
-    settled_stream_weak_lag,
+    weak_beside_the_recording,
     stand_calibration,
 )
 from platkit.diagnose.verdict import verdict
@@ -275,23 +274,12 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             break
         i, best, ph = good
         eff, term = cands[i]
-        if extrapolated_weak_echo(settled, poses, ph, opt.alpha_heldout * opt.weak_separability_factor):
+        weak = weak_beside_the_recording(term, settled, poses, ph, opt.alpha_heldout * opt.weak_separability_factor)
+        if weak is not None:  # a weak proof the recording (an extrapolated approach, settled holds) contradicts
             echoes.add(_place(term))
             not_separable[(eff.name, _where_text(term.where))] = {
-                "effect": eff.name, "where": term.where, "separability": float(scr[i][2]),
-                "from": (f"the slow actuator's extrapolated approach (held-out paired p = {ph:.2g}, a weak proof: "
-                         "what the approach model missed reaches every pose)")}
-            say(f"{eff.name} ({_where_text(term.where)}): proven only weakly (paired p = {ph:.2g}) in a session whose "
-                "holds were extrapolated to rest: not told apart from the approach's remnant; not named")
-            continue
-        if settled_stream_weak_lag(term, settled, poses, ph, opt.alpha_heldout * opt.weak_separability_factor):
-            echoes.add(_place(term))
-            not_separable[(eff.name, _where_text(term.where))] = {
-                "effect": eff.name, "where": term.where, "separability": float(scr[i][2]),
-                "from": (f"the stream, which shows the holds settled (held-out paired p = {ph:.2g}, a weak proof of a "
-                         "lag the stream does not show)")}
-            say(f"{eff.name} ({_where_text(term.where)}): proven only weakly (paired p = {ph:.2g}), and the stream "
-                "shows the holds settled: not named")
+                "effect": eff.name, "where": term.where, "separability": float(scr[i][2]), "from": weak[0]}
+            say(f"{eff.name} ({_where_text(term.where)}): {weak[1]}; not named")
             continue
         if opt.reopen_geometry and scr[i][2] < opt.warn_separability and not reopened_once:
             # a term mostly inside the geometry's span competes with the geometry the calibration

@@ -161,7 +161,7 @@ def test_a_weakly_proven_term_in_a_session_with_extrapolated_holds_is_not_named(
     slice: in such a session a term is named only on a strong held-out proof (proof seed 931111
     named a cyclic error on the slow psvr actuator at p = 0.018, 0.061 -> 0.071 mm held out; proof
     seed 1011112 one on another actuator at p = 0.0051, 0.084 -> 0.092 mm)."""
-    from platkit.diagnose.search import Finding, extrapolated_weak_echo
+    from platkit.diagnose.recording import Finding, extrapolated_weak_echo
 
     spec = get_platform("stewart")
     poses = PoseSet("stewart", np.tile(spec.neutral_u(), (6, 1)), np.zeros((6, 3, 3)), ["a", "b", "c"])
@@ -211,7 +211,7 @@ def test_with_nothing_found_a_lack_of_fit_near_the_floor_is_said_not_claimed():
 
 
 def test_a_weak_fitted_lag_needs_a_strong_proof_where_the_stream_shows_settled_holds():
-    from platkit.diagnose.search import Finding, settled_stream_weak_lag
+    from platkit.diagnose.recording import Finding, settled_stream_weak_lag
 
     spec = get_platform("stewart")
     lag = effect_library()["settling_lag"]
