@@ -25,6 +25,18 @@ RECORDING_EFFECTS = ("settling_lag", "marker_slip")
 ROUND_WEAK_NAMES = "weak names"
 ROUND_BESIDE_PROBE = "beside the probe"
 
+#: how a not_separable entry's "from" begins when the recording, not the geometry, kept a term
+#: from being named (the verdict says each apart): a slow actuator's extrapolated approach, a
+#: stream whose holds settled
+FROM_SLOW_APPROACH = "the slow actuator's extrapolated approach"
+FROM_SETTLED_STREAM = "the stream, which shows the holds settled"
+
+
+def extrapolated(poses: PoseSet) -> np.ndarray:
+    """(N,) bool: the poses the settling search extrapolated to rest from their approach (holds
+    that never settled); all False for poses not read from a stream."""
+    return np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float) != 0
+
 @dataclass
 class Options:
     """Knobs of the search (defaults are what the CLI and the proof benchmark use)."""

@@ -10,6 +10,8 @@ from dataclasses import replace
 import numpy as np
 
 from platkit.diagnose.fitting import (
+    FROM_SETTLED_STREAM,
+    FROM_SLOW_APPROACH,
     RECORDING_EFFECTS,
     Finding,
     Fit,
@@ -18,6 +20,7 @@ from platkit.diagnose.fitting import (
     _fit,
     _fmt_rms,
     _rms,
+    extrapolated,
 )
 from platkit.diagnose.naming import _without
 from platkit.diagnose.stats import paired_improvement
@@ -64,8 +67,7 @@ def _on_slow_actuator(term: ModelTerm, settled: Finding | None, poses: PoseSet) 
     where holds were extrapolated to rest."""
     if settled is None:
         return False
-    extrapolated = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float)
-    if not np.any(extrapolated != 0):
+    if not extrapolated(poses).any():
         return False
     slow = {a.strip() for a in str(settled.where.get("actuator", "")).split(",")} - {"", "all"}
     return str(term.where.get("actuator", "")).strip() in slow
@@ -83,7 +85,7 @@ def extrapolated_weak_echo(settled: Finding | None, poses: PoseSet, p_heldout: f
     p = 0.0051, 0.084 -> 0.092 mm (seed 1011112)."""
     if settled is None or p_heldout <= level:
         return False
-    return bool(np.any(np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float) != 0))
+    return bool(extrapolated(poses).any())
 
 
 def settled_stream_weak_lag(term: ModelTerm, settled: Finding | None, poses: PoseSet, p_heldout: float,
@@ -107,12 +109,12 @@ def weak_beside_the_recording(term: ModelTerm, settled: Finding | None, poses: P
     else None."""
     p = f"paired p = {p_heldout:.2g}"
     if extrapolated_weak_echo(settled, poses, p_heldout, level):
-        return (f"the slow actuator's extrapolated approach (held-out {p}, a weak proof: what the approach model "
+        return (f"{FROM_SLOW_APPROACH} (held-out {p}, a weak proof: what the approach model "
                 "missed reaches every pose)",
                 f"proven only weakly ({p}) in a session whose holds were extrapolated to rest: not told apart from "
                 "the approach's remnant")
     if settled_stream_weak_lag(term, settled, poses, p_heldout, level):
-        return (f"the stream, which shows the holds settled (held-out {p}, a weak proof of a lag the stream does "
+        return (f"{FROM_SETTLED_STREAM} (held-out {p}, a weak proof of a lag the stream does "
                 "not show)",
                 f"proven only weakly ({p}), and the stream shows the holds settled")
     return None
@@ -140,7 +142,7 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
     un = info.get("unsettled") or {}
     if not un or not info.get("n_extrapolated") or "held_markers" not in poses.extras or cur.cv is None:
         return None
-    ex = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses))) > 0
+    ex = extrapolated(poses)
     named = list(un.get("actuators") or [])
     unit = poses.length_unit
     if ex.sum() == 0:

@@ -51,8 +51,9 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit.diagnose.fitting import (RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_WEAK_NAMES, Diagnosis, Finding,
-                                       Fit, Options, _cv, _fit, _fmt_rms, _obs, _rms, _where_text)
+from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_WEAK_NAMES,
+                                       Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _obs, _rms, _where_text,
+                                       extrapolated)
 from platkit.diagnose.naming import (
     _best_probe,
     _probe_beats,
@@ -209,7 +210,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     # held-out proof on poses where the stand settled: an extrapolated pose carries what its
     # approach model missed, along the last move (a backlash's signature); with too few settled
     # poses to judge on, the stand's physics is not named (a recording that never settles)
-    judged = np.asarray(poses.extras.get("extrapolated", np.zeros(poses.n_poses)), float) == 0
+    judged = ~extrapolated(poses)
     too_few_settled = judged.sum() < 4 * opt.folds and not judged.all()
     if too_few_settled:
         say(f"only {int(judged.sum())} holds settled: too few to prove an effect of the stand on")
@@ -231,7 +232,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                 if _slow_actuator_echo(term, settled, poses):
                     not_separable[(eff.name, _where_text(term.where))] = {
                         "effect": eff.name, "where": term.where, "separability": 0.0,
-                        "from": "the slow actuator's extrapolated approach (an unfinished approach along the last "
+                        "from": f"{FROM_SLOW_APPROACH} (an unfinished approach along the last "
                                 "move looks like play in that actuator)"}
                     continue
                 cands.append((eff, term))

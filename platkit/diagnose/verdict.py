@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 from platkit.diagnose.fitting import (
+    FROM_SETTLED_STREAM,
+    FROM_SLOW_APPROACH,
     ROUND_BESIDE_PROBE,
     ROUND_WEAK_NAMES,
     Diagnosis,
@@ -95,8 +97,8 @@ def verdict(d: Diagnosis) -> str:
     for f in named:
         for w in f.warnings:
             parts.append(f"Warning on {f.effect}: {w}.")
-    echo = [x for x in d.not_separable if str(x.get("from", "")).startswith("the slow actuator")]
-    stream = [x for x in d.not_separable if str(x.get("from", "")).startswith("the stream")]
+    echo = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SLOW_APPROACH)]
+    stream = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SETTLED_STREAM)]
     geometry = [x for x in d.not_separable if x not in echo and x not in stream]
     if stream:
         parts.append("Not named, proven only weakly while the stream shows the holds settled: "
