@@ -234,8 +234,9 @@ def _run_case(case: dict) -> dict:
         result["named"] = [f["effect"] for f in diag["findings"]]
         result["diagnosis"] = {k: diag.get(k) for k in ("noise_floor", "heldout_rms_geometric", "at_noise_floor")}
         result["findings"] = [{k: f.get(k) for k in ("effect", "where", "heldout_rms_before", "heldout_rms_after",
-                                                              "p_heldout", "separability")}
+                                                              "p_heldout", "p_screen", "separability")}
                               for f in diag["findings"]]
+        result["neighbours"] = [r["tests"] for r in diag["rounds"] if r.get("round") == "neighbours"]
         # a slip is a recording artefact: the calibration predicts the marker's new place (spec section 3),
         # so held-out commands are scored from the slip on (the place before it is history)
         slips = [p["time_s"] for p in result["truth_physics"] if p["effect"] == "marker_slip"]
@@ -323,6 +324,12 @@ def summarise(results: list[dict]) -> str:
         rs = [r for r in ok if r["kind"] == kind and r["truth"] not in UNSEPARABLE and not r.get("absorbed")]
         if rs:
             lines.append(f"{kind}: named right {sum(map(right, rs))}/{len(rs)}")
+    for strength in ("clear", "weak"):
+        rs = [r for r in ok if r["kind"] == "outside" and r["effects"][0][1] == strength]
+        if rs:
+            by_neighbours = sum(any("alike" in (f.get("where") or {}) for f in r.get("findings", [])) for r in rs)
+            lines.append(f"outside, {strength}: named right {sum(map(right, rs))}/{len(rs)}; with no finding "
+                         f"{sum(not r['named'] for r in rs)}; said unexplained by the neighbour tests {by_neighbours}")
     tilt = [r for r in ok if r["truth"] in UNSEPARABLE]
     if tilt:
         lines.append(f"base_tilt (not separable from the mocap placement): no finding in "

@@ -24,6 +24,9 @@ RECORDING_EFFECTS = ("settling_lag", "marker_slip")
 #: numbered): weakly proven names beside a lack of fit, names unproven beside the final probe
 ROUND_WEAK_NAMES = "weak names"
 ROUND_BESIDE_PROBE = "beside the probe"
+#: the round of diagnosis.json that holds the neighbour tests of the geometric model's residuals
+#: (locate.neighbour_tests), run when nothing was named and held-out prediction is near the floor
+ROUND_NEIGHBOURS = "neighbours"
 
 #: how a not_separable entry's "from" begins when the recording, not the geometry, kept a term
 #: from being named (the verdict says each apart): a slow actuator's extrapolated approach, a

@@ -5,6 +5,7 @@ from platkit.diagnose.fitting import (
     FROM_SETTLED_STREAM,
     FROM_SLOW_APPROACH,
     ROUND_BESIDE_PROBE,
+    ROUND_NEIGHBOURS,
     ROUND_WEAK_NAMES,
     Diagnosis,
     _fmt_rms,
@@ -15,7 +16,7 @@ from platkit.diagnose.locate import located
 #: with nothing found, a geometric model at least this many times the noise floor held out is said
 #: to be so (sessions with no hidden effect on the physical simulator: median 1.08, 90th percentile
 #: 1.37, highest 1.81 over 273 proof sessions; weak out-of-library physics left with no finding:
-#: 1.03-1.87), without a finding: the two overlap
+#: 1.03-1.87), without a finding: the two overlap (the neighbour tests find half of those)
 NOTED_LACK_OF_FIT = 1.3
 
 
@@ -40,14 +41,15 @@ def verdict(d: Diagnosis) -> str:
                      "survives correction for multiple testing"
                      + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
         if near:
+            tests = [t for r in d.rounds if r.get("round") == ROUND_NEIGHBOURS for t in r["tests"]]
+            alike = ("; nor are its residuals more alike at poses next in time or with near commands than chance "
+                     f"(adjusted p = {min(t['p_adjusted'] for t in tests):.2g}), as a drift, a sway or a bend would "
+                     "leave them" if tests else "")
             parts.append(f"Yet the geometric model predicts held-out poses at {_fmt_rms(d.heldout_geometric, unit)}, "
                          f"{ratio:.2g} times the noise floor of these settled poses ({_fmt_rms(d.noise_floor, unit)}): "
                          "sessions with no hidden effect reach up to about twice the floor, and a weak effect of a "
-                         "shape the library does not hold sits there too, so the two cannot be told apart on this "
-                         "session; more poses, or longer holds, would.")
-        closest = [r["not_accepted"] for r in d.rounds if r.get("not_accepted")]
-        if closest:
-            parts.append(f"The closest candidate: {closest[-1]}.")
+                         f"shape the library does not hold sits there too{alike}. So the two cannot be told apart on "
+                         "this session; more poses, or longer holds, would.")
     if named:
         first_before = max(f.heldout_rms_before for f in named)
         last_after = min(f.heldout_rms_after for f in named)
@@ -92,8 +94,15 @@ def verdict(d: Diagnosis) -> str:
                          "twice the noise floor with structure located: a slice of physics the library does not "
                          "hold, not named.")
     for f in unexpl:
+        if "alike" in f.where:  # the neighbour tests (locate.neighbour_tests) near the noise floor
+            parts.append(f"Structure remains that no known effect explains: {f.evidence}. It is reported as "
+                         "unexplained rather than given a wrong name; more poses would show its shape.")
+            continue
         parts.append(f"Structure remains that no known effect explains ({_where_text(f.where) or f.where}); "
                      "it is reported as unexplained rather than given a wrong name.")
+    closest = [r["not_accepted"] for r in d.rounds if r.get("not_accepted")]
+    if closest and not named and not d.too_few_settled:
+        parts.append(f"The closest candidate in the library: {closest[-1]}.")
     for f in named:
         for w in f.warnings:
             parts.append(f"Warning on {f.effect}: {w}.")

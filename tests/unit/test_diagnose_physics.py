@@ -196,16 +196,22 @@ def test_with_nothing_found_a_lack_of_fit_near_the_floor_is_said_not_claimed():
     no finding, but the verdict gives the ratio instead of 'shows no hidden effect'."""
     from platkit.diagnose.search import Diagnosis, verdict
 
-    def said(heldout):
+    def said(heldout, rounds=()):
         d = Diagnosis(findings=[], verdict="", calibration=None, base=None, locations=[], locations_before=[],
-                      rounds=[], not_separable=[], unit="mm", noise_floor=4.23e-5, heldout_geometric=heldout,
+                      rounds=list(rounds), not_separable=[], unit="mm", noise_floor=4.23e-5, heldout_geometric=heldout,
                       poses=PoseSet("rotary", np.zeros((2, 2)), np.zeros((2, 3, 3)), ["a", "b", "c"]))
         return verdict(d)
 
     near = said(7.93e-5)
     assert near.startswith("No hidden effect is claimed")
+    assert "alike" not in near  # no neighbour tests in the rounds: nothing said of them
     assert "0.0793 mm, 1.9 times the noise floor of these settled poses (0.0423 mm)" in near
     assert "cannot be told apart" in near
+    tests = [{"test": "residuals alike at poses next in time", "statistic": -0.04, "p": 0.5, "p_adjusted": 1.0},
+             {"test": "residuals alike at poses with near commands", "statistic": 0.02, "p": 0.22, "p_adjusted": 0.44}]
+    with_tests = said(7.93e-5, [{"round": "neighbours", "tests": tests}])
+    assert "nor are its residuals more alike at poses next in time or with near commands than chance " \
+           "(adjusted p = 0.44)" in with_tests and "cannot be told apart" in with_tests
     clean = said(4.5e-5)  # 1.06 times: what most clean sessions show
     assert clean.startswith("The motion capture shows no hidden effect") and "times the noise floor" not in clean
 
