@@ -135,13 +135,31 @@ def located(tests: list[Location], alpha: float = 0.01) -> list[Location]:
     return [x for x in tests if x.p_adjusted < alpha]
 
 
+def neighbour_pairs(poses: PoseSet, keep: np.ndarray | None = None, k: int = 3) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The neighbours :func:`neighbour_tests` compares, as index pairs (a, b) into ``poses`` among
+    the ``keep`` poses: {"poses next in time": each pose and the next, "poses with near commands
+    (k nearest)": each pose and its ``k`` nearest in the controls (scaled by their spread)}."""
+    keep = np.ones(poses.n_poses, bool) if keep is None else np.asarray(keep, bool)
+    idx = np.flatnonzero(keep)
+    order = idx[np.argsort(history(poses, "elapsed")[idx], kind="stable")]
+    U = np.asarray(poses.controls, float)[idx]
+    spread = U.std(axis=0)
+    U = (U - U.mean(axis=0)) / np.where(spread > 0, spread, 1.0)
+    D = np.linalg.norm(U[:, None] - U[None], axis=2)
+    np.fill_diagonal(D, np.inf)
+    k = max(1, min(k, idx.size - 1))
+    near = np.argsort(D, axis=1, kind="stable")[:, :k]
+    return {"poses next in time": (order[:-1], order[1:]),
+            f"poses with near commands ({k} nearest)": (np.repeat(idx, k), idx[near.reshape(-1)])}
+
+
 def neighbour_tests(residuals: np.ndarray, poses: PoseSet, keep: np.ndarray | None = None, k: int = 3,
                     n_perm: int = 1999, seed: int = 12345) -> list[Location]:
     """Two omnibus tests that a fit's residuals (N, M, 3) m change smoothly, where the per-series
     tests of :func:`locate` each see a slice: are the residuals of poses next in time alike, and
-    those of poses with near commands (each pose's ``k`` nearest in the controls, scaled by their
-    spread)? Each pose's residual is the vector of all its markers' errors; the p-values are
-    permutation p-values (stats.neighbour_similarity), adjusted together (Bonferroni).
+    those of poses with near commands (:func:`neighbour_pairs`)? Each pose's residual is the
+    vector of all its markers' errors; the p-values are permutation p-values over the ``keep``
+    poses (stats.neighbour_similarity), adjusted together (Bonferroni); most significant first.
 
     A drift or sway of the marker mount shows along time; a plate that bends with the pose, or any
     error smooth over the workspace, shows over the commands. ``keep`` (N,) bool: the poses to test
@@ -150,25 +168,15 @@ def neighbour_tests(residuals: np.ndarray, poses: PoseSet, keep: np.ndarray | No
     idx = np.flatnonzero(keep)
     if idx.size < 12:
         return []
+    at = np.full(poses.n_poses, -1)
+    at[idx] = np.arange(idx.size)  # a pose's row among the kept ones
     R = np.asarray(residuals, float)[idx].reshape(idx.size, -1)
     rng = np.random.default_rng(seed)
-    t = history(poses, "elapsed")[idx]
-    order = np.argsort(t, kind="stable")
-    U = np.asarray(poses.controls, float)[idx]
-    spread = U.std(axis=0)
-    U = (U - U.mean(axis=0)) / np.where(spread > 0, spread, 1.0)
-    D = np.linalg.norm(U[:, None] - U[None], axis=2)
-    np.fill_diagonal(D, np.inf)
-    k = min(k, idx.size - 1)
-    near = np.argsort(D, axis=1, kind="stable")[:, :k]
     tests = []
-    s, p = neighbour_similarity(R, order[:-1], order[1:], n_perm, rng)
-    tests.append(Location("residuals alike at poses next in time", {"alike": "poses next in time"}, s, p,
-                          detail={"pairs": int(idx.size - 1)}))
-    s, p = neighbour_similarity(R, np.repeat(np.arange(idx.size), k), near.reshape(-1), n_perm, rng)
-    tests.append(Location("residuals alike at poses with near commands",
-                          {"alike": f"poses with near commands ({k} nearest)"}, s, p,
-                          detail={"pairs": int(idx.size * k)}))
+    for alike, (a, b) in neighbour_pairs(poses, keep, k).items():
+        s, p = neighbour_similarity(R, at[a], at[b], n_perm, rng)
+        tests.append(Location(f"residuals alike at {alike.split(' (')[0]}", {"alike": alike}, s, p,
+                              detail={"pairs": int(a.size)}))
     for x in tests:
         x.p_adjusted = min(1.0, x.p * len(tests))
     return sorted(tests, key=lambda x: x.p)

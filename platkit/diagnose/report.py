@@ -11,6 +11,8 @@ from typing import Any
 import numpy as np
 
 from platkit.calibrate.settle import settling_summary
+from platkit.diagnose.fitting import extrapolated
+from platkit.diagnose.locate import neighbour_pairs
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.figures import png_base64 as _png
@@ -116,6 +118,9 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
     s = length_scale(d.unit)
     out = []
     for f in d.findings:
+        if isinstance(f.where, dict) and "alike" in f.where:
+            out.append(_neighbour_plot(d, f))
+            continue
         if f.regressor is None or f.signature_before is None:
             continue
         fig = Figure(figsize=(10, 3.6))
@@ -145,6 +150,33 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
     return out
 
 
+def _neighbour_plot(d: Diagnosis, f: Finding) -> tuple[str, str]:
+    """An ``unexplained`` of the neighbour tests: each settled pose's error against its
+    neighbour's (next in time, or near in the commands), along the residuals' main direction (the
+    first principal direction of all the markers' errors): alike neighbours line up on the
+    diagonal, independent ones make a round cloud."""
+    from matplotlib.figure import Figure
+
+    s = length_scale(d.unit)
+    keep = ~extrapolated(d.poses)
+    a, b = neighbour_pairs(d.poses, keep if keep.sum() >= 12 else None)[f.where["alike"]]
+    R = np.asarray(d.base.extras["residuals_after"], float).reshape(d.poses.n_poses, -1)
+    seen = np.isfinite(R)
+    R = np.where(seen, R - np.nansum(R, axis=0) / np.maximum(seen.sum(axis=0), 1), 0.0)
+    direction = np.linalg.svd(R[np.unique(np.concatenate([a, b]))], full_matrices=False)[2][0]
+    x, y = R[a] @ direction / s, R[b] @ direction / s
+    fig = Figure(figsize=(5.2, 4.6))
+    ax = fig.subplots()
+    ax.plot(x, y, "o", ms=4, alpha=0.6)
+    lim = 1.05 * max(np.max(np.abs(x)), np.max(np.abs(y)), 1e-12)
+    ax.plot([-lim, lim], [-lim, lim], color="k", lw=0.5)
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_xlabel(f"error at a settled pose, along the residuals' main direction ({d.unit})")
+    ax.set_ylabel(f"at its neighbour ({d.unit})")
+    return (f"unexplained: errors of the geometric model at {html.escape(f.where['alike'])}", _png(fig))
+
+
 def report_html(d: Diagnosis) -> str:
     rows = []
     for f in d.findings:
@@ -162,7 +194,8 @@ def report_html(d: Diagnosis) -> str:
     table = ("<table border=1 cellpadding=4><tr><th>effect</th><th>where</th><th>parameters</th>"
              f"<th>held-out RMS before ({d.unit})</th><th>after</th><th>evidence</th></tr>" + "".join(rows) + "</table>"
              if rows else "<p>No findings.</p>")
-    imgs = "".join(f"<h3>{title}</h3><img alt='{title}' src='data:image/png;base64,{png}'>" for title, png in _plots(d))
+    imgs = "".join(f"<h3>{title}</h3><img alt=\"{html.escape(html.unescape(title))}\" src='data:image/png;base64,{png}'>"
+                   for title, png in _plots(d))
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>platkit diagnosis</title></head><body>"
             f"<h1>Diagnosis of the {html.escape(d.calibration.platform)} stand</h1>"
             f"<p>{html.escape(d.verdict)}</p>" + (f"<p>{html.escape(d.imu.get('verdict', ''))}</p>" if d.imu else "")

@@ -85,6 +85,8 @@ def test_a_weak_plate_flex_near_the_floor_is_unexplained(tmp_path, monkeypatch, 
     assert tests[0]["p_adjusted"] < 0.01
     assert "residuals are alike at poses with near commands" in d["verdict"]
     assert "No hidden effect" not in d["verdict"]
+    report = (tmp_path / "diag" / "report.html").read_text()  # each pose's error against its neighbour's, drawn
+    assert "<h3>unexplained: errors of the geometric model at poses with near commands (3 nearest)</h3><img" in report
 
 
 def test_a_weak_sway_of_the_marker_mount_is_unexplained(tmp_path, monkeypatch, calibrate_and_diagnose):
