@@ -63,6 +63,10 @@ class FrameWobble(EffectPhysics):
         return np.broadcast_to(wave[:, None, None] * self.direction[None, None], (len(t), len(plan.marker_names), 3)).copy()
 
 
+#: the out-of-library physics by name (what with_outside_physics lets the simulator play)
+OUTSIDE_PHYSICS = {"plate_flex": PlateFlex, "frame_wobble": FrameWobble}
+
+
 class OutsideEffect:
     """Known to the simulator of this benchmark only: diagnose's library never sees it."""
 
@@ -79,7 +83,6 @@ def with_outside_physics() -> None:
     if getattr(physics_module, "_proof_outside", False):
         return
     library = physics_module.effect_library
-    outside = {"plate_flex": OutsideEffect("plate_flex", PlateFlex),
-               "frame_wobble": OutsideEffect("frame_wobble", FrameWobble)}
+    outside = {name: OutsideEffect(name, cls) for name, cls in OUTSIDE_PHYSICS.items()}
     physics_module.effect_library = lambda: {**library(), **outside}
     physics_module._proof_outside = True

@@ -14,6 +14,41 @@ def builtin_host():
 
 
 @pytest.fixture
+def proof_session(tmp_path, monkeypatch):
+    """``make(stand, seed, effects)``: a session of the physical simulator in the protocol of the
+    proof benchmark (benchmarks/diagnosis_proof_physical.py: 60 commands at random, coloured
+    marker noise, every fifth command held out and cut from the stream), written to
+    ``tmp_path/session``; returns (the session folder, the simulation). ``effects``: [(name,
+    size)]; physics the library does not hold (benchmarks/outside_physics.py) is played by the
+    simulator only, never seen by diagnosis."""
+    import sys
+    from pathlib import Path
+
+    import platkit.simulate.physics as physics_module
+    from platkit.plugins import get_platform
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for benchmarks/
+    from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows
+    from benchmarks.outside_physics import OUTSIDE_PHYSICS, OutsideEffect
+
+    def make(stand, seed, effects):
+        library = physics_module.effect_library
+        outside = {name: OutsideEffect(name, OUTSIDE_PHYSICS[name]) for name, _ in effects if name in OUTSIDE_PHYSICS}
+        monkeypatch.setattr(physics_module, "effect_library", lambda: {**library(), **outside})
+        try:
+            sim = simulate_physics(get_platform(stand), seed=seed, n_poses=60, plan="random", effects=list(effects),
+                                   coloured=True)
+        finally:
+            monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
+        session = write_physical_session(sim, tmp_path / "session")
+        blank_held_out(session, sim, held_out_rows(len(sim.commands)))
+        return session, sim
+
+    return make
+
+
+@pytest.fixture
 def calibrate_and_diagnose(tmp_path):
     """``run(session)``: `platkit calibrate` then `platkit diagnose` of that calibration, each
     through the command line into ``tmp_path`` (cal/, diag/), both asserted to exit 0; returns

@@ -3,24 +3,15 @@ geometric model within twice the noise floor held out, residuals alike at poses 
 at poses with near commands are a weak effect outside the library, reported ``unexplained``.
 
 The sessions are from the proof on the physical simulator (seeds 1031213 and 1060230, the
-proof's protocol: every fifth command held out and cut from the stream), where diagnosis said
+proof's protocol: conftest.proof_session), where diagnosis said
 nothing before: a weak plate that flexes with the pose, and a weak sway of the marker mount."""
-import sys
-from pathlib import Path
-
 import numpy as np
 
-import platkit.simulate.physics as physics_module
 from platkit.diagnose.locate import neighbour_tests
 from platkit.diagnose.stats import neighbour_similarity
 from platkit.effects import with_history
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
-from platkit.simulate.physics import simulate_physics, write_physical_session
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
-from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows  # noqa: E402
-from benchmarks.outside_physics import FrameWobble, OutsideEffect, PlateFlex  # noqa: E402
 
 
 def test_neighbour_similarity_holds_its_level_on_independent_rows_and_sees_alike_ones():
@@ -46,37 +37,34 @@ def _poses(residual_of, rng):
     return poses, r
 
 
+def _sway(t, u):
+    return 1.5e-4 * np.sin(2 * np.pi * t / 60.0)[:, None, None] * np.ones((1, 3, 3))
+
+
+def _bend(t, u):
+    return 3e-3 * np.sum((u - 0.5) ** 2, axis=1)[:, None, None] * np.array([1.0, -1.0, 0.5])[None, :, None]
+
+
+def _white(t, u):
+    return 0.0
+
+
 def test_neighbour_tests_say_whether_the_structure_follows_time_or_the_commands():
     rng = np.random.default_rng(5)
-    sway = lambda t, u: 1.5e-4 * np.sin(2 * np.pi * t / 60.0)[:, None, None] * np.ones((1, 3, 3))
-    poses, r = _poses(sway, rng)
+    poses, r = _poses(_sway, rng)
     tests = neighbour_tests(r, poses)
     assert tests[0].test == "residuals alike at poses next in time" and tests[0].p_adjusted < 0.01
     assert tests[0].where == {"alike": "poses next in time"}
-    bend = lambda t, u: 3e-3 * np.sum((u - 0.5) ** 2, axis=1)[:, None, None] * np.array([1.0, -1.0, 0.5])[None, :, None]
-    poses, r = _poses(bend, rng)
+    poses, r = _poses(_bend, rng)
     tests = neighbour_tests(r, poses)
     assert tests[0].test == "residuals alike at poses with near commands" and tests[0].p_adjusted < 0.01
-    white = lambda t, u: 0.0
-    poses, r = _poses(white, rng)
+    poses, r = _poses(_white, rng)
     assert min(x.p_adjusted for x in neighbour_tests(r, poses)) > 0.01
     assert neighbour_tests(r, poses, keep=np.arange(48) < 10) == []  # too few poses to judge
 
 
-def _outside_session(tmp_path, monkeypatch, stand, seed, name, cls, size):
-    library = physics_module.effect_library
-    monkeypatch.setattr(physics_module, "effect_library", lambda: {**library(), name: OutsideEffect(name, cls)})
-    sim = simulate_physics(get_platform(stand), seed=seed, n_poses=60, plan="random", effects=[(name, size)],
-                           coloured=True)
-    monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
-    session = write_physical_session(sim, tmp_path / "session")
-    blank_held_out(session, sim, held_out_rows(len(sim.commands)))
-    return session
-
-
-def test_a_weak_plate_flex_near_the_floor_is_unexplained(tmp_path, monkeypatch, calibrate_and_diagnose):
-    d = calibrate_and_diagnose(_outside_session(tmp_path, monkeypatch, "psvr", 1031213, "plate_flex", PlateFlex,
-                                                1.0309245573075836))
+def test_a_weak_plate_flex_near_the_floor_is_unexplained(tmp_path, proof_session, calibrate_and_diagnose):
+    d = calibrate_and_diagnose(proof_session("psvr", 1031213, [("plate_flex", 1.0309245573075836)])[0])
     # before: no finding, the geometric model at 1.6 times the noise floor held out
     assert d["heldout_rms_geometric"] < 2 * d["noise_floor"]
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
@@ -89,9 +77,8 @@ def test_a_weak_plate_flex_near_the_floor_is_unexplained(tmp_path, monkeypatch, 
     assert "<h3>unexplained: errors of the geometric model at poses with near commands (3 nearest)</h3><img" in report
 
 
-def test_a_weak_sway_of_the_marker_mount_is_unexplained(tmp_path, monkeypatch, calibrate_and_diagnose):
-    d = calibrate_and_diagnose(_outside_session(tmp_path, monkeypatch, "stewart", 1060230, "frame_wobble",
-                                                FrameWobble, 0.09560564109299277))
+def test_a_weak_sway_of_the_marker_mount_is_unexplained(proof_session, calibrate_and_diagnose):
+    d = calibrate_and_diagnose(proof_session("stewart", 1060230, [("frame_wobble", 0.09560564109299277)])[0])
     # before: no finding, the geometric model at 1.2 times the noise floor held out
     assert d["heldout_rms_geometric"] < 2 * d["noise_floor"]
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]

@@ -4,24 +4,13 @@ finding unless its extrapolated holds predict the settled ones significantly wor
 at p = 0.12 fell to a lag term along every actuator's last move that predicted the truth worse
 (proof seed 961120 of the proof benchmark, its protocol: every fifth command held out and cut
 from the stream)."""
-import sys
-from pathlib import Path
-
 import yaml
 
-from platkit.plugins import get_platform
-from platkit.simulate.physics import simulate_physics, write_physical_session
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
-from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows  # noqa: E402
-
-
-def test_a_slow_actuator_named_from_the_stream_stands_when_not_significantly_worse(tmp_path, calibrate_and_diagnose):
-    sim = simulate_physics(get_platform("psvr"), seed=961120, n_poses=60, plan="random",
-                           effects=[("settling_lag", 0.1)], coloured=True)
+def test_a_slow_actuator_named_from_the_stream_stands_when_not_significantly_worse(tmp_path, proof_session,
+                                                                                     calibrate_and_diagnose):
+    session, sim = proof_session("psvr", 961120, [("settling_lag", 0.1)])
     assert [p.actuator for _, p in sim.physics] == ["C"]
-    session = write_physical_session(sim, tmp_path / "session")
-    blank_held_out(session, sim, held_out_rows(len(sim.commands)))
     d = calibrate_and_diagnose(session)
     # before: settling_lag (actuator all, along the last move), the truth's held-out 0.036 -> 0.042 mm
     assert [(f["effect"], f["where"]["actuator"]) for f in d["findings"]] == [("settling_lag", "C")]

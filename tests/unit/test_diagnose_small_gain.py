@@ -1,6 +1,6 @@
 """Two names that made held-out prediction of the settled poses worse in the proof on the
 physical simulator (seeds 1010000-1011999, the proof's protocol: every fifth command held out
-and cut from the stream), each now tested at the stricter held-out level:
+and cut from the stream, conftest.proof_session), each now tested at the stricter held-out level:
 
 - a held-out gain under ``small_gain`` (platkit.diagnose.search.confirm): a plate that flexes
   (physics the library does not hold) named a leg's scale nonlinearity at a 4% gain (now
@@ -8,32 +8,10 @@ and cut from the stream), each now tested at the stricter held-out level:
 - any term in a session whose holds were extrapolated to rest
   (platkit.diagnose.recording.extrapolated_weak_echo): a slow psvr actuator A given a cyclic
   error on actuator C."""
-import sys
-from pathlib import Path
-
-import platkit.simulate.physics as physics_module
-from platkit.plugins import get_platform
-from platkit.simulate.physics import simulate_physics, write_physical_session
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
-from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows  # noqa: E402
-from benchmarks.outside_physics import OutsideEffect, PlateFlex  # noqa: E402
 
 
-def _session(tmp_path, sim):
-    session = write_physical_session(sim, tmp_path / "session")
-    blank_held_out(session, sim, held_out_rows(len(sim.commands)))
-    return session
-
-
-def test_a_small_held_out_gain_must_prove_itself_strongly(tmp_path, monkeypatch, calibrate_and_diagnose):
-    library = physics_module.effect_library
-    monkeypatch.setattr(physics_module, "effect_library",
-                        lambda: {**library(), "plate_flex": OutsideEffect("plate_flex", PlateFlex)})
-    sim = simulate_physics(get_platform("stewart"), seed=1010211, n_poses=60, plan="random",
-                           effects=[("plate_flex", 0.922729524942375)], coloured=True)
-    monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
-    d = calibrate_and_diagnose(_session(tmp_path, sim))
+def test_a_small_held_out_gain_must_prove_itself_strongly(proof_session, calibrate_and_diagnose):
+    d = calibrate_and_diagnose(proof_session("stewart", 1010211, [("plate_flex", 0.922729524942375)])[0])
     # before: scale_nonlinearity (actuator L6) at a 4.1% gain, p = 0.019; the truth's held-out 0.068 -> 0.072 mm
     # since: unexplained, its residuals alike at poses with near commands (locate.neighbour_tests)
     assert [(f["effect"], f["where"].get("alike", "")[:24]) for f in d["findings"]] == \
@@ -43,11 +21,10 @@ def test_a_small_held_out_gain_must_prove_itself_strongly(tmp_path, monkeypatch,
     assert "The closest candidate in the library: scale_nonlinearity (actuator L6)" in d["verdict"]
 
 
-def test_a_weak_term_on_another_actuator_than_the_slow_one_is_not_named(tmp_path, calibrate_and_diagnose):
-    sim = simulate_physics(get_platform("psvr"), seed=1011112, n_poses=60, plan="random",
-                           effects=[("settling_lag", 0.15)], coloured=True)
+def test_a_weak_term_on_another_actuator_than_the_slow_one_is_not_named(proof_session, calibrate_and_diagnose):
+    session, sim = proof_session("psvr", 1011112, [("settling_lag", 0.15)])
     assert [p.actuator for _, p in sim.physics] == ["A"]
-    d = calibrate_and_diagnose(_session(tmp_path, sim))
+    d = calibrate_and_diagnose(session)
     # before: cyclic_error (actuator C) at p = 0.0051 beside the lag; the truth's held-out 0.084 -> 0.092 mm
     assert [(f["effect"], f["where"]["actuator"]) for f in d["findings"]] == [("settling_lag", "A")]
     echo = [x for x in d["not_separable"] if x["effect"] == "cyclic_error"]

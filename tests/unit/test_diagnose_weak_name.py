@@ -1,41 +1,17 @@
 """A name whose own held-out proof is weak yields to a generic probe that predicts better
 (platkit.diagnose.naming._probe_beats): physics outside the library, a frame that sways with
 time, must not be named as a leg's cyclic error (development seed 708230 of the proof benchmark,
-its protocol: every fifth command held out and cut from the stream)."""
-import sys
-from pathlib import Path
-
-import platkit.simulate.physics as physics_module
-from platkit.plugins import get_platform
-from platkit.simulate.physics import simulate_physics, write_physical_session
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
-from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows  # noqa: E402
-from benchmarks.outside_physics import FrameWobble, OutsideEffect  # noqa: E402
+its protocol: every fifth command held out and cut from the stream, conftest.proof_session)."""
 
 
-def _sway_session(tmp_path, monkeypatch, seed, size, stand="stewart"):
-    """A session whose frame sways with time (physics only the simulator knows), in the
-    proof's protocol: every fifth command held out and cut from the stream."""
-    library = physics_module.effect_library
-    monkeypatch.setattr(physics_module, "effect_library",
-                        lambda: {**library(), "frame_wobble": OutsideEffect("frame_wobble", FrameWobble)})
-    sim = simulate_physics(get_platform(stand), seed=seed, n_poses=60, plan="random",
-                           effects=[("frame_wobble", size)], coloured=True)
-    monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
-    session = write_physical_session(sim, tmp_path / "session")
-    blank_held_out(session, sim, held_out_rows(len(sim.commands)))
-    return session
-
-
-def test_a_time_periodic_sway_is_unexplained_not_a_weakly_proven_cyclic_error(tmp_path, monkeypatch, calibrate_and_diagnose):
-    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 708230, 0.0927))
+def test_a_time_periodic_sway_is_unexplained_not_a_weakly_proven_cyclic_error(proof_session, calibrate_and_diagnose):
+    d = calibrate_and_diagnose(proof_session("stewart", 708230, [("frame_wobble", 0.0927)])[0])
     # without the rule: cyclic_error (p = 0.03), cyclic_error, then unexplained
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     assert "time" in d["findings"][0]["where"]
 
 
-def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(tmp_path, monkeypatch, calibrate_and_diagnose):
+def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(monkeypatch, proof_session, calibrate_and_diagnose):
     # proof seed 920222: a frame sway named a leg's scale nonlinearity at held-out p = 0.045, the
     # model then still 7 times the noise floor with structure located, and the truth's held-out
     # made worse, 0.232 -> 0.321 mm; no probe predicted better, so the rule above did not act.
@@ -44,7 +20,7 @@ def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(tmp_path, 
     import platkit.calibrate.settle as settle_module
 
     monkeypatch.setattr(settle_module, "SettleOptions", _unlimited)
-    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 920222, 0.317))
+    d = calibrate_and_diagnose(proof_session("stewart", 920222, [("frame_wobble", 0.317)])[0])
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     assert any(r.get("not_named") == ["scale_nonlinearity (actuator L1)"] for r in d["rounds"])
     assert "passed the held-out test only weakly" in d["verdict"]
@@ -56,18 +32,18 @@ def _unlimited():
     return SettleOptions(max_window_s=None)
 
 
-def test_the_same_sway_settled_with_the_window_limit_names_nothing_but_unexplained(tmp_path, monkeypatch,
+def test_the_same_sway_settled_with_the_window_limit_names_nothing_but_unexplained(proof_session,
                                                                                      calibrate_and_diagnose):
-    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 920222, 0.317))
+    d = calibrate_and_diagnose(proof_session("stewart", 920222, [("frame_wobble", 0.317)])[0])
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
 
 
-def test_a_name_that_proves_nothing_beside_the_final_probe_is_not_named(tmp_path, monkeypatch, calibrate_and_diagnose):
+def test_a_name_that_proves_nothing_beside_the_final_probe_is_not_named(proof_session, calibrate_and_diagnose):
     # proof seed 961233: a psvr frame sway named a cyclic error of actuator A at held-out p = 0.0018
     # (a strong proof, so neither rule above acted), then the time probe beat the named model;
     # beside the probe the cyclic error predicts no better (p = 0.057), and the truth's held-out
     # had gone 0.060 -> 0.064 mm
-    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 961233, 0.09634128467490397, "psvr"))
+    d = calibrate_and_diagnose(proof_session("psvr", 961233, [("frame_wobble", 0.09634128467490397)])[0])
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     assert "time" in d["findings"][0]["where"]
     beside = [r for r in d["rounds"] if r.get("round") == "beside the probe"]
@@ -75,12 +51,12 @@ def test_a_name_that_proves_nothing_beside_the_final_probe_is_not_named(tmp_path
     assert "not beside the generic model" in d["verdict"]
 
 
-def test_a_weak_fitted_lag_is_not_named_when_the_stream_shows_the_holds_settled(tmp_path, monkeypatch,
+def test_a_weak_fitted_lag_is_not_named_when_the_stream_shows_the_holds_settled(proof_session,
                                                                                  calibrate_and_diagnose):
     # proof seed 1061233: a weak psvr frame sway (period 73 s) was named an additive settling_lag
     # along every actuator's last move at held-out p = 0.021, the one wrong name of 216
     # out-of-library sessions; the settling search had found the holds settled
-    d = calibrate_and_diagnose(_sway_session(tmp_path, monkeypatch, 1061233, 0.09484666623307283, "psvr"))
+    d = calibrate_and_diagnose(proof_session("psvr", 1061233, [("frame_wobble", 0.09484666623307283)])[0])
     assert [f["effect"] for f in d["findings"]] == ["unexplained"]
     lag = [x for x in d["not_separable"] if x["effect"] == "settling_lag"]
     assert lag and lag[0]["from"].startswith("the stream")
