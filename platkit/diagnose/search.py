@@ -455,7 +455,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     diag = Diagnosis(findings=findings, verdict="", calibration=stand, base=base_cal, locations=locations,
                      locations_before=locations_before, rounds=rounds, not_separable=list(not_separable.values()),
                      unit=unit, poses=poses, heldout_session=heldout_info, fitted=final_cal, noise_floor=floor,
-                     heldout_geometric=first_cv, at_noise_floor=at_floor, too_few_settled=bool(too_few_settled))
+                     heldout_geometric=first_cv, at_noise_floor=at_floor, too_few_settled=bool(too_few_settled),
+                     options=opt)
     diag.verdict = verdict(diag)
     return diag
 

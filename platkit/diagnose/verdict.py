@@ -13,12 +13,6 @@ from platkit.diagnose.fitting import (
 )
 from platkit.diagnose.locate import located
 
-#: with nothing found, a geometric model at least this many times the noise floor held out is said
-#: to be so (sessions with no hidden effect on the physical simulator: median 1.08, 90th percentile
-#: 1.37, highest 1.81 over 273 proof sessions; weak out-of-library physics left with no finding:
-#: 1.03-1.87), without a finding: the two overlap (the neighbour tests find half of those)
-NOTED_LACK_OF_FIT = 1.3
-
 
 def verdict(d: Diagnosis) -> str:
     """One paragraph for people."""
@@ -35,7 +29,7 @@ def verdict(d: Diagnosis) -> str:
         loc = located(d.locations, 0.01)
         ratio = (d.heldout_geometric / d.noise_floor if d.noise_floor and d.heldout_geometric is not None
                  else None)
-        near = ratio is not None and ratio >= NOTED_LACK_OF_FIT
+        near = ratio is not None and ratio >= d.options.noted_lack_of_fit
         parts.append(("No hidden effect is claimed" if near else "The motion capture shows no hidden effect")
                      + ": no candidate effect passed the held-out test, and the residuals show no structure that "
                      "survives correction for multiple testing"

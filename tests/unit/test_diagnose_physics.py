@@ -194,11 +194,11 @@ def test_with_nothing_found_a_lack_of_fit_near_the_floor_is_said_not_claimed():
     """Weak physics outside the library can leave the geometric model at 1.5-1.9 times the noise
     floor, where clean sessions also reach (proof seed 1032232, a weak rotary frame sway: 1.87):
     no finding, but the verdict gives the ratio instead of 'shows no hidden effect'."""
-    from platkit.diagnose.search import Diagnosis, verdict
+    from platkit.diagnose.search import Diagnosis, Options, verdict
 
-    def said(heldout, rounds=()):
+    def said(heldout, rounds=(), **options):
         d = Diagnosis(findings=[], verdict="", calibration=None, base=None, locations=[], locations_before=[],
-                      rounds=list(rounds), not_separable=[], unit="mm", noise_floor=4.23e-5, heldout_geometric=heldout,
+                      rounds=list(rounds), not_separable=[], options=Options(**options), unit="mm", noise_floor=4.23e-5, heldout_geometric=heldout,
                       poses=PoseSet("rotary", np.zeros((2, 2)), np.zeros((2, 3, 3)), ["a", "b", "c"]))
         return verdict(d)
 
@@ -212,6 +212,7 @@ def test_with_nothing_found_a_lack_of_fit_near_the_floor_is_said_not_claimed():
     with_tests = said(7.93e-5, [{"round": "neighbours", "tests": tests}])
     assert "nor are its residuals more alike at poses next in time or with near commands than chance " \
            "(adjusted p = 0.44)" in with_tests and "cannot be told apart" in with_tests
+    assert said(7.93e-5, noted_lack_of_fit=2.0).startswith("The motion capture shows no hidden effect")
     clean = said(4.5e-5)  # 1.06 times: what most clean sessions show
     assert clean.startswith("The motion capture shows no hidden effect") and "times the noise floor" not in clean
 
