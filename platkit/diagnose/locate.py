@@ -153,30 +153,47 @@ def neighbour_pairs(poses: PoseSet, keep: np.ndarray | None = None, k: int = 3) 
             f"poses with near commands ({k} nearest)": (np.repeat(idx, k), idx[near.reshape(-1)])}
 
 
-def neighbour_tests(residuals: np.ndarray, poses: PoseSet, keep: np.ndarray | None = None, k: int = 3,
+def neighbour_tests(frames: dict[str, np.ndarray], poses: PoseSet, keep: np.ndarray | None = None, k: int = 3,
                     n_perm: int = 1999, seed: int = 12345) -> list[Location]:
-    """Two omnibus tests that a fit's residuals (N, M, 3) m change smoothly, where the per-series
-    tests of :func:`locate` each see a slice: are the residuals of poses next in time alike, and
-    those of poses with near commands (:func:`neighbour_pairs`)? Each pose's residual is the
-    vector of all its markers' errors; the p-values are permutation p-values over the ``keep``
-    poses (stats.neighbour_similarity), adjusted together (Bonferroni); most significant first.
+    """Omnibus tests that a fit's residuals change smoothly, where the per-series tests of
+    :func:`locate` each see a slice: are the residuals of poses next in time alike, and those of
+    poses with near commands (:func:`neighbour_pairs`)? ``frames``: the residuals (N, M, 3) m in
+    each frame to test them in, by the frame's name ("motion capture", "moving": a sway of
+    the marker mount moves the markers along one direction of the moving part, which turns with
+    the stand in the room's frame). Each pose's residual is the vector of all its markers'
+    errors; the p-values are permutation p-values over the ``keep`` poses
+    (stats.neighbour_similarity), adjusted together over every test and frame (Bonferroni); most
+    significant first, each ``where`` {"alike": which neighbours, "frame": the frame}.
 
-    A drift or sway of the marker mount shows along time; a plate that bends with the pose, or any
-    error smooth over the workspace, shows over the commands. ``keep`` (N,) bool: the poses to test
-    (those where the stand settled). Fewer than 12 poses: no test."""
+    A drift or sway shows along time; a plate that bends with the pose, or any error smooth over
+    the workspace, shows over the commands. ``keep`` (N,) bool: the poses to test (those where the
+    stand settled). Fewer than 12 poses: no test."""
     keep = np.ones(poses.n_poses, bool) if keep is None else np.asarray(keep, bool)
     idx = np.flatnonzero(keep)
     if idx.size < 12:
         return []
     at = np.full(poses.n_poses, -1)
     at[idx] = np.arange(idx.size)  # a pose's row among the kept ones
-    R = np.asarray(residuals, float)[idx].reshape(idx.size, -1)
     rng = np.random.default_rng(seed)
+    pairs = neighbour_pairs(poses, keep, k)
     tests = []
-    for alike, (a, b) in neighbour_pairs(poses, keep, k).items():
-        s, p = neighbour_similarity(R, at[a], at[b], n_perm, rng)
-        tests.append(Location(f"residuals alike at {alike.split(' (')[0]}", {"alike": alike}, s, p,
-                              detail={"pairs": int(a.size)}))
+    for frame, residuals in frames.items():
+        R = np.asarray(residuals, float)[idx].reshape(idx.size, -1)
+        for alike, (a, b) in pairs.items():
+            s, p = neighbour_similarity(R, at[a], at[b], n_perm, rng)
+            name = f"residuals alike at {alike.split(' (')[0]}" + (f", in the {frame} frame" if len(frames) > 1 else "")
+            tests.append(Location(name, {"alike": alike, "frame": frame}, s, p, detail={"pairs": int(a.size)}))
     for x in tests:
         x.p_adjusted = min(1.0, x.p * len(tests))
     return sorted(tests, key=lambda x: x.p)
+
+
+def along_main_direction(residuals: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What a neighbour test compares, for a plot: each pose's residual vector (all markers,
+    taken from the poses' mean) at pairs (a, b), along the first principal direction of the
+    paired poses' vectors; returns (at a, at b), m. Alike neighbours line up on the diagonal."""
+    R = np.asarray(residuals, float).reshape(len(residuals), -1)
+    seen = np.isfinite(R)
+    R = np.where(seen, R - np.nansum(R, axis=0) / np.maximum(seen.sum(axis=0), 1), 0.0)
+    direction = np.linalg.svd(R[np.unique(np.concatenate([a, b]))], full_matrices=False)[2][0]
+    return R[a] @ direction, R[b] @ direction

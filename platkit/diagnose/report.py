@@ -11,8 +11,6 @@ from typing import Any
 import numpy as np
 
 from platkit.calibrate.settle import settling_summary
-from platkit.diagnose.fitting import extrapolated
-from platkit.diagnose.locate import neighbour_pairs
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.figures import png_base64 as _png
@@ -118,7 +116,7 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
     s = length_scale(d.unit)
     out = []
     for f in d.findings:
-        if isinstance(f.where, dict) and "alike" in f.where:
+        if isinstance(f.where, dict) and "alike" in f.where and f.regressor is not None:
             out.append(_neighbour_plot(d, f))
             continue
         if f.regressor is None or f.signature_before is None:
@@ -152,19 +150,13 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
 
 def _neighbour_plot(d: Diagnosis, f: Finding) -> tuple[str, str]:
     """An ``unexplained`` of the neighbour tests: each settled pose's error against its
-    neighbour's (next in time, or near in the commands), along the residuals' main direction (the
-    first principal direction of all the markers' errors): alike neighbours line up on the
-    diagonal, independent ones make a round cloud."""
+    neighbour's (next in time, or near in the commands), along the residuals' main direction
+    (locate.along_main_direction, kept in the finding's regressor and signature): alike neighbours
+    line up on the diagonal, independent ones make a round cloud."""
     from matplotlib.figure import Figure
 
     s = length_scale(d.unit)
-    keep = ~extrapolated(d.poses)
-    a, b = neighbour_pairs(d.poses, keep if keep.sum() >= 12 else None)[f.where["alike"]]
-    R = np.asarray(d.base.extras["residuals_after"], float).reshape(d.poses.n_poses, -1)
-    seen = np.isfinite(R)
-    R = np.where(seen, R - np.nansum(R, axis=0) / np.maximum(seen.sum(axis=0), 1), 0.0)
-    direction = np.linalg.svd(R[np.unique(np.concatenate([a, b]))], full_matrices=False)[2][0]
-    x, y = R[a] @ direction / s, R[b] @ direction / s
+    x, y = np.asarray(f.regressor) / s, np.asarray(f.signature_before) / s
     fig = Figure(figsize=(5.2, 4.6))
     ax = fig.subplots()
     ax.plot(x, y, "o", ms=4, alpha=0.6)
@@ -172,9 +164,11 @@ def _neighbour_plot(d: Diagnosis, f: Finding) -> tuple[str, str]:
     ax.plot([-lim, lim], [-lim, lim], color="k", lw=0.5)
     ax.set_xlim(-lim, lim)
     ax.set_ylim(-lim, lim)
-    ax.set_xlabel(f"error at a settled pose, along the residuals' main direction ({d.unit})")
+    ax.set_xlabel(f"{f.regressor_label} ({d.unit})")
     ax.set_ylabel(f"at its neighbour ({d.unit})")
-    return (f"unexplained: errors of the geometric model at {html.escape(f.where['alike'])}", _png(fig))
+    frame = f" (in the {f.where['frame']} frame)" if f.where.get("frame", "motion capture") != "motion capture" else ""
+    return (f"unexplained: errors of the geometric model at {html.escape(f.where['alike'])}{html.escape(frame)}",
+            _png(fig))
 
 
 def report_html(d: Diagnosis) -> str:
