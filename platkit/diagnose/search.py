@@ -547,11 +547,24 @@ def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float],
     prediction of the settled poses went 0.068 -> 0.072 mm (seed 1010211); right names with gains
     that small passed at p = 0.0024-0.0048."""
     for k, (i, f, p_h) in enumerate(sorted(trials, key=lambda x: x[1].bic)):
-        level = _level(f, separability[i], cur, judged, opt)[0] / (len(trials) if k > 0 else 1)
-        gain = _rms(f.cv, judged) < (1 - opt.min_relative_gain) * _rms(cur.cv, judged)
-        if f.bic < cur.bic and gain and p_h < level:
+        if _failed(f, p_h, separability[i], cur, judged, opt, share=len(trials) if k > 0 else 1) is None:
             return i, f, p_h
     return None
+
+
+def _failed(f: Fit, p_h: float, separability: float, cur: Fit, judged: np.ndarray, opt: Options,
+            share: int = 1) -> str | None:
+    """Why :func:`confirm` does not accept candidate ``f`` (held-out paired p ``p_h``, tested at
+    its level divided by ``share``), in words; None when it does."""
+    if f.bic >= cur.bic:
+        return f"BIC {f.bic - cur.bic:+.1f}"
+    before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
+    if after >= (1 - opt.min_relative_gain) * before:
+        return f"held-out gain {100 * (1 - after / before):.1f}% (under {100 * opt.min_relative_gain:g}%)"
+    level, why = _level(f, separability, cur, judged, opt)
+    if p_h < level / share:
+        return None
+    return f"held-out paired p = {p_h:.2g}, not under {level / share:.2g}" + (f" (the stricter level: {why})" if why else "")
 
 
 def _level(f: Fit, separability: float, cur: Fit, judged: np.ndarray, opt: Options) -> tuple[float, str]:
@@ -571,16 +584,8 @@ def _not_accepted(trials: list[tuple[int, Fit, float]], cands: list, separabilit
                   judged: np.ndarray, opt: Options) -> str:
     """Why the candidate the information criterion prefers was not accepted, in a sentence."""
     i, f, p_h = min(trials, key=lambda x: x[1].bic)
-    name = f"{cands[i][0].name} ({_where_text(cands[i][1].where)})"
-    before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
-    level, why = _level(f, separability[i], cur, judged, opt)
-    if f.bic >= cur.bic:
-        return f"{name}: not accepted, BIC {f.bic - cur.bic:+.1f}"
-    if after >= (1 - opt.min_relative_gain) * before:
-        return f"{name}: not accepted, held-out gain {100 * (1 - after / before):.1f}% (under " \
-               f"{100 * opt.min_relative_gain:g}%)"
-    return f"{name}: not accepted, held-out paired p = {p_h:.2g}, not under {level:.2g}" + \
-        (f" (the stricter level: {why})" if why else "")
+    return f"{cands[i][0].name} ({_where_text(cands[i][1].where)}): not accepted, " + \
+        str(_failed(f, p_h, separability[i], cur, judged, opt))
 
 def _evidence(f: Finding, poses: PoseSet, unit: str, folds: int) -> str:
     first = next(iter(f.parameters.items()), None)
