@@ -32,7 +32,10 @@ poses better than one from where the stream was at the end of those holds.
 
 Nothing is named when the geometric model already predicts held-out poses at the noise floor
 (the averaging noise of the settled poses, from the stream's noise and the samples averaged):
-an effect of any shape the geometry absorbs on this plan leaves nothing to find.
+an effect of any shape the geometry absorbs on this plan leaves nothing to find. With nothing
+found, a geometric model more than ``lack_of_fit_factor`` times the floor is a lack of fit
+(``unexplained``); below that, where held-out prediction cannot tell a weak effect from noise,
+residuals alike at poses next in time or with near commands are (locate.neighbour_tests).
 """
 from __future__ import annotations
 
