@@ -198,7 +198,8 @@ def test_with_nothing_found_a_lack_of_fit_near_the_floor_is_said_not_claimed():
 
     def said(heldout, rounds=(), **options):
         d = Diagnosis(findings=[], verdict="", calibration=None, base=None, locations=[], locations_before=[],
-                      rounds=list(rounds), not_separable=[], options=Options(**options), unit="mm", noise_floor=4.23e-5, heldout_geometric=heldout,
+                      rounds=list(rounds), not_separable=[], options=Options(**options), unit="mm",
+                      noise_floor=4.23e-5, heldout_geometric=heldout,
                       poses=PoseSet("rotary", np.zeros((2, 2)), np.zeros((2, 3, 3)), ["a", "b", "c"]))
         return verdict(d)
 
