@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from platkit.diagnose.stats import benjamini_hochberg, holm, ljung_box, neighbour_similarity, runs_test
+from platkit.diagnose.stats import benjamini_hochberg, centred_rows, holm, ljung_box, neighbour_similarity, runs_test
 from platkit.effects import history
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -167,7 +167,8 @@ def neighbour_tests(frames: dict[str, np.ndarray], poses: PoseSet, keep: np.ndar
 
     A drift or sway shows along time; a plate that bends with the pose, or any error smooth over
     the workspace, shows over the commands. ``keep`` (N,) bool: the poses to test (those where the
-    stand settled). Fewer than 12 poses: no test."""
+    stand settled). Each test's ``detail`` holds its pairs (``a``, ``b``: indices into ``poses``).
+    Fewer than 12 poses: no test."""
     keep = np.ones(poses.n_poses, bool) if keep is None else np.asarray(keep, bool)
     idx = np.flatnonzero(keep)
     if idx.size < 12:
@@ -182,7 +183,7 @@ def neighbour_tests(frames: dict[str, np.ndarray], poses: PoseSet, keep: np.ndar
         for alike, (a, b) in pairs.items():
             s, p = neighbour_similarity(R, at[a], at[b], n_perm, rng)
             name = f"residuals alike at {alike.split(' (')[0]}" + (f", in the {frame} frame" if len(frames) > 1 else "")
-            tests.append(Location(name, {"alike": alike, "frame": frame}, s, p, detail={"pairs": int(a.size)}))
+            tests.append(Location(name, {"alike": alike, "frame": frame}, s, p, detail={"a": a, "b": b}))
     for x in tests:
         x.p_adjusted = min(1.0, x.p * len(tests))
     return sorted(tests, key=lambda x: x.p)
@@ -192,8 +193,6 @@ def along_main_direction(residuals: np.ndarray, a: np.ndarray, b: np.ndarray) ->
     """What a neighbour test compares, for a plot: each pose's residual vector (all markers,
     taken from the poses' mean) at pairs (a, b), along the first principal direction of the
     paired poses' vectors; returns (at a, at b), m. Alike neighbours line up on the diagonal."""
-    R = np.asarray(residuals, float).reshape(len(residuals), -1)
-    seen = np.isfinite(R)
-    R = np.where(seen, R - np.nansum(R, axis=0) / np.maximum(seen.sum(axis=0), 1), 0.0)
+    R = centred_rows(np.asarray(residuals, float).reshape(len(residuals), -1))
     direction = np.linalg.svd(R[np.unique(np.concatenate([a, b]))], full_matrices=False)[2][0]
     return R[a] @ direction, R[b] @ direction

@@ -46,7 +46,7 @@ import numpy as np
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, point_errors
 from platkit.calibrate.selection import parameter_groups
 from platkit.diagnose.floor import noise_floor, worst_marker
-from platkit.diagnose.locate import along_main_direction, locate, located, neighbour_pairs, neighbour_tests
+from platkit.diagnose.locate import along_main_direction, locate, located, neighbour_tests
 from platkit.diagnose.stats import column_basis, holm, paired_improvement, score_test
 from platkit.effects import Effect, effect_library, with_history
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
@@ -403,28 +403,26 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         # time or over the commands (a sway of the marker mount, a plate that bends). Not in a
         # session whose holds were extrapolated to rest: the approach's remnant reaches the settled
         # poses too (proof seed 1101122: a weak psvr slow actuator read from the stream, the
-        # settled poses' residuals alike over near commands)
-        # in the room's frame (a drift of the cameras) and in the moving frame (a sway of the
-        # marker mount: one direction of the moving part, which turns with the stand in the room)
+        # settled poses' residuals alike over near commands). In the room's frame (a drift of the
+        # cameras) and in the moving frame (a sway of the marker mount: one direction of the
+        # moving part, which turns with the stand in the room)
         frames = {"motion capture": cur.r, "moving": _body_residuals(cur, poses)}
-        near = neighbour_tests(frames, poses, judged)
+        near = neighbour_tests(frames, poses)
         if near:
             rounds.append({"round": ROUND_NEIGHBOURS, "tests": [
                 {"test": x.test, "frame": x.where["frame"], "statistic": float(x.statistic), "p": float(x.p),
                  "p_adjusted": float(x.p_adjusted)} for x in near]})
         if near and near[0].p_adjusted < opt.alpha:
             top, ratio = near[0], held / floor
-            x_pose, x_neighbour = along_main_direction(frames[top.where["frame"]],
-                                                       *neighbour_pairs(poses, judged)[top.where["alike"]])
+            x_pose, x_neighbour = along_main_direction(frames[top.where["frame"]], top.detail["a"], top.detail["b"])
             worst = worst_marker(cur.r, poses)
             findings.append(Finding(
                 effect="unexplained", where={"fit": "every pose", **top.where, **({"marker": worst} if worst else {})},
                 parameters={}, heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
                 regressor=x_pose, signature_before=x_neighbour,
                 regressor_label="error at a settled pose, along the residuals' main direction",
-                evidence=(f"the geometric model's residuals are alike at {top.where['alike']}"
-                          + f" in the {top.where['frame']} frame (correlation "
-                          f"{top.statistic:.2f}, permutation p = {top.p:.2g}, {top.p_adjusted:.2g} adjusted for "
+                evidence=(f"the geometric model's residuals are alike at {top.where['alike']} in the "
+                          f"{top.where['frame']} frame (correlation {top.statistic:.2f}, permutation p = {top.p:.2g}, {top.p_adjusted:.2g} adjusted for "
                           f"{len(near)} tests), though it predicts held-out poses at {_fmt_rms(held, unit)}, only "
                           f"{ratio:.1f} times the noise floor; no effect in the library predicts them better: a weak "
                           "effect of a shape the library does not hold"), p_screen=float(top.p_adjusted)))

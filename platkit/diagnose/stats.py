@@ -118,14 +118,22 @@ def bic(rss: float, n_obs: int, n_params: int) -> float:
     return n_obs * np.log(max(rss, 1e-300) / n_obs) + n_params * np.log(n_obs)
 
 
+def centred_rows(R: np.ndarray) -> np.ndarray:
+    """The rows of ``R`` (N, D) taken from their mean over the finite entries of each column;
+    NaN entries become 0."""
+    R = np.asarray(R, float)
+    seen = np.isfinite(R)
+    return np.where(seen, R - np.nansum(R, axis=0) / np.maximum(seen.sum(axis=0), 1), 0.0)
+
+
 def neighbour_similarity(R: np.ndarray, a: np.ndarray, b: np.ndarray, n_perm: int = 1999,
                          rng: np.random.Generator | None = None) -> tuple[float, float]:
     """Are the rows of ``R`` (N, D) alike at the index pairs (a[k], b[k])? A permutation test.
 
     The statistic is the mean inner product of the paired rows over the mean squared row, each
-    row taken from the rows' mean (a correlation: near 0 for rows that are independent, up to 1
-    when paired rows are equal); its
-    null is the same statistic with the rows' labels shuffled (``n_perm`` times). Returns
+    row taken from the rows' mean (:func:`centred_rows`; a correlation: near 0 for rows that are
+    independent, up to 1 when paired rows are equal); its null is the same statistic with the
+    rows' labels shuffled (``n_perm`` times). Returns
     (statistic, one-sided p that paired rows are more alike than chance). NaN entries count as 0.
 
     A least-squares fit's residuals are not exchangeable (r = (I - H) e), but where the pairs are
@@ -133,9 +141,7 @@ def neighbour_similarity(R: np.ndarray, a: np.ndarray, b: np.ndarray, n_perm: in
     is conservative there (clean physical sessions: none of 225 under 0.01 over poses with near
     commands, 3 of 225 over poses next in time).
     """
-    R = np.asarray(R, float)
-    seen = np.isfinite(R)
-    R = np.where(seen, R - np.nansum(R, axis=0) / np.maximum(seen.sum(axis=0), 1), 0.0)
+    R = centred_rows(R)
     a, b = np.asarray(a, int), np.asarray(b, int)
     den = float(np.mean(np.sum(R * R, axis=1)))
     if a.size == 0 or den <= 0:
