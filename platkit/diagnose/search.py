@@ -54,7 +54,7 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_NEIGHBOURS, ROUND_WEAK_NAMES,
+from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME, ROUND_NEIGHBOURS, ROUND_WEAK_NAMES,
                                        Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _obs, _rms, _where_text,
                                        extrapolated)
 from platkit.diagnose.naming import (
@@ -62,6 +62,7 @@ from platkit.diagnose.naming import (
     _probe_beats,
     _unnamed,
     _unproven_beside_probe,
+    _unproven_beside_time,
     _weak_beside_lack_of_fit,
     _without,
 )
@@ -331,6 +332,18 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                     "with structure located: a slice of physics the library does not hold; not named")
             findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in weak})
             cur = _without(spec, poses, cur, weak, opt)
+    if not stop and stop_unexplained is None and opt.probes and floor is not None and len(cur.terms) > len(prior):
+        loose, about = _unproven_beside_time(spec, poses, cur, len(prior), floor, judged, weights, opt)
+        if loose:
+            names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(loose)]
+            rounds.append({"round": ROUND_BESIDE_TIME, "not_named": names,
+                           "paired_p": {n: loose[k] for n, k in zip(names, sorted(loose))}, **about})
+            for n, k in zip(names, sorted(loose)):
+                say(f"{n}: no longer predicts held-out poses better (paired p = {loose[k]:.2g}) beside a model of "
+                    f"the structure in time the location tests still find ({about['located']}): a slice of "
+                    "physics the library does not hold; not named")
+            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
+            cur = _without(spec, poses, cur, set(loose), opt)
     # structure a generic probe still predicts better at the end: a named term that no longer
     # proves itself beside the probe was a slice of that structure (tested before the final fit)
     end_probe = _best_probe(spec, poses, cur, None, opt) if not stop and stop_unexplained is None and opt.probes \

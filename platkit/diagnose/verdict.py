@@ -5,6 +5,7 @@ from platkit.diagnose.fitting import (
     FROM_SETTLED_STREAM,
     FROM_SLOW_APPROACH,
     ROUND_BESIDE_PROBE,
+    ROUND_BESIDE_TIME,
     ROUND_NEIGHBOURS,
     ROUND_WEAK_NAMES,
     Diagnosis,
@@ -82,6 +83,11 @@ def verdict(d: Diagnosis) -> str:
             parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside the "
                          "generic model that still beats the named ones: a slice of the structure reported as "
                          "unexplained, not named.")
+        elif r.get("not_named") and r.get("round") == ROUND_BESIDE_TIME:
+            parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside a "
+                         f"model of the structure in time that the residuals still hold ({r['located']}; a time "
+                         f"probe of {r['time_bins']} bins): a slice of that structure, reported as unexplained, "
+                         "not named.")
         elif r.get("not_named") and r.get("round") == ROUND_WEAK_NAMES:
             parts.append(f"{', '.join(r['not_named'])} passed the held-out test only weakly, and the model with "
                          f"{'it' if len(r['not_named']) == 1 else 'them'} still left held-out poses at more than "
