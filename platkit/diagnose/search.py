@@ -332,18 +332,6 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                     "with structure located: a slice of physics the library does not hold; not named")
             findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in weak})
             cur = _without(spec, poses, cur, weak, opt)
-    if not stop and stop_unexplained is None and opt.probes and floor is not None and len(cur.terms) > len(prior):
-        loose, about = _unproven_beside_time(spec, poses, cur, len(prior), floor, judged, weights, opt)
-        if loose:
-            names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(loose)]
-            rounds.append({"round": ROUND_BESIDE_TIME, "not_named": names,
-                           "paired_p": {n: loose[k] for n, k in zip(names, sorted(loose))}, **about})
-            for n, k in zip(names, sorted(loose)):
-                say(f"{n}: no longer predicts held-out poses better (paired p = {loose[k]:.2g}) beside a model of "
-                    f"the structure in time the location tests still find ({about['located']}): a slice of "
-                    "physics the library does not hold; not named")
-            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
-            cur = _without(spec, poses, cur, set(loose), opt)
     # structure a generic probe still predicts better at the end: a named term that no longer
     # proves itself beside the probe was a slice of that structure (tested before the final fit)
     end_probe = _best_probe(spec, poses, cur, None, opt) if not stop and stop_unexplained is None and opt.probes \
@@ -362,6 +350,22 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                     "not named")
             findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
             cur, end_probe = reduced, again
+    if end_probe is None and not stop and stop_unexplained is None and opt.probes and floor is not None \
+            and len(cur.terms) > len(prior):
+        # no probe beats the named model, but the location tests still find structure in time
+        # beside a lack of fit: each name is tested beside a model of it
+        loose, about = _unproven_beside_time(spec, poses, cur, len(prior), floor, judged, weights, opt)
+        if loose:
+            names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(loose)]
+            rounds.append({"round": ROUND_BESIDE_TIME, "not_named": names,
+                           "paired_p": {n: loose[k] for n, k in zip(names, sorted(loose))}, **about})
+            for n, k in zip(names, sorted(loose)):
+                say(f"{n}: no longer predicts held-out poses better (paired p = {loose[k]:.2g}) beside a model of "
+                    f"the structure in time the location tests still find ({about['located']}): a slice of "
+                    "physics the library does not hold; not named")
+            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
+            cur = _without(spec, poses, cur, set(loose), opt)
+            end_probe = _best_probe(spec, poses, cur, None, opt)
     # the final model through the estimator's full procedure (robust weights, covariance)
     # a slip whose model change does not predict the poses from the slip on better: named and
     # corrected in the data (the fitted model keeps it), but not written into calibration.yaml
