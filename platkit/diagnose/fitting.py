@@ -87,6 +87,13 @@ class Options:
     # held-out poses better; off: the calibration's free set stays
     reopen_geometry: bool = True
 
+    @property
+    def weak_alpha(self) -> float:
+        """The stricter held-out level (``alpha_heldout`` times ``weak_separability_factor``): a
+        term mostly inside the geometry or with a small gain proves itself at it (search.confirm),
+        and a name proven above it is weak (the naming and recording rules)."""
+        return self.alpha_heldout * self.weak_separability_factor
+
 @dataclass
 class Fit:
     """One model fitted by the estimator: its terms, unknowns and residuals."""

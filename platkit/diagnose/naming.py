@@ -46,7 +46,7 @@ def _best_probe(spec, poses, cur: Fit, best: Fit | None, opt: Options,
     for probe, f, p, p0 in sorted(results, key=lambda x: x[1].cv_rms):
         gain_vs_ref = f.cv_rms < (1 - 2 * opt.min_relative_gain) * ref.cv_rms
         proven = p < opt.alpha_heldout / max(len(probes), 1) and p0 < opt.alpha_heldout and f.bic < cur.bic
-        weak_name = (best is not None and best_p > opt.alpha_heldout * opt.weak_separability_factor
+        weak_name = (best is not None and best_p > opt.weak_alpha
                      and p0 < opt.alpha_heldout / max(len(probes), 1) and f.bic < best.bic)
         if (proven or weak_name) and gain_vs_ref:
             unit = poses.length_unit
@@ -151,7 +151,7 @@ def _weak_beside_lack_of_fit(cur: Fit, poses: PoseSet, spec: PlatformSpec, findi
     it, and the truth's held-out went 0.232 -> 0.321 mm; proof seed 920222). Empty otherwise."""
     if not _rms(cur.cv, judged) > opt.lack_of_fit_factor * floor:
         return set()
-    level = opt.alpha_heldout * opt.weak_separability_factor
+    level = opt.weak_alpha
     p_of = {id(f.term): f.p_heldout for f in findings if f.term is not None}
     weak = {k for k in range(n_prior, len(cur.terms)) if p_of.get(id(cur.terms[k]), 0.0) > level}
     if not weak or not located(locate(cur.r, poses, spec, weights, opt.alpha), opt.alpha * 0.1):

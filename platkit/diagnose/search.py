@@ -279,7 +279,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             break
         i, best, ph = good
         eff, term = cands[i]
-        weak = weak_beside_the_recording(term, settled, poses, ph, opt.alpha_heldout * opt.weak_separability_factor)
+        weak = weak_beside_the_recording(term, settled, poses, ph, opt.weak_alpha)
         if weak is not None:  # a weak proof the recording (an extrapolated approach, settled holds) contradicts
             echoes.add(_place(term))
             not_separable[(eff.name, _where_text(term.where))] = {
@@ -598,7 +598,7 @@ def _level(f: Fit, separability: float, cur: Fit, judged: np.ndarray, opt: Optio
         why = f"its held-out gain, {100 * (1 - after / before):.1f}%, is under {100 * opt.small_gain:g}%"
     else:
         return opt.alpha_heldout, ""
-    return opt.alpha_heldout * opt.weak_separability_factor, why
+    return opt.weak_alpha, why
 
 
 def _not_accepted(trials: list[tuple[int, Fit, float]], cands: list, separability: Sequence[float], cur: Fit,
