@@ -16,7 +16,10 @@ One round (repeated until nothing passes or ``max_effects`` are in):
    generic probe (probes.py) predicts significantly better still, in which case the structure
    is reported ``unexplained`` and not named. When a probe still beats the named model after the
    last round, each named term is tested again beside it, and one that no longer predicts better
-   is not named (naming._unproven_beside_probe; the other checks on a name live there too).
+   is not named (naming._unproven_beside_probe; the other checks on a name live there too); where
+   none does but the model is left above twice the noise floor with its residuals structured in
+   time, each is tested beside a time probe fine enough to follow that structure
+   (naming._unproven_beside_time).
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
