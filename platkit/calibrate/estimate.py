@@ -32,7 +32,7 @@ from platkit.calibrate.identifiability import (
     singular_values,
 )
 from platkit.calibrate.plan import reference_poses_for
-from platkit.calibrate.problem import PLAUSIBLE_RANGE, CalibrationProblem, Progress, parameter_scale
+from platkit.calibrate.problem import PLAUSIBLE_RANGE, REJECT_K, CalibrationProblem, Progress, parameter_scale
 from platkit.calibrate.solve import _rms, _weighted, blas_threads, kfold, levenberg_marquardt, robust_fit
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
@@ -133,7 +133,31 @@ def fit_warnings(cal: Calibration, poses: PoseSet) -> list[str]:
                    "stopped, but the model does not describe these data. Check that the session is for this stand "
                    "and description, that the control columns are in the stand's order and units (session.yaml "
                    "units), that no marker columns are swapped, then run platkit diagnose")
+    lost = rejected_by_marker(cal)
+    for name, (n_rej, n_seen) in lost.items():
+        if n_rej >= max(3, MARKER_LOST_SHARE * n_seen):
+            out.append(f"marker {name}: {n_rej} of its {n_seen} observations rejected as outliers (beyond "
+                       f"{REJECT_K:g} sigma): a marker that slipped or was relabelled part-way through the session "
+                       "looks like this; its place is where most of its observations put it. Run platkit diagnose "
+                       "(a marker_slip is corrected in the data)")
     return out
+
+
+#: a marker with at least this share of its observations rejected is said (a slip, a relabelling)
+MARKER_LOST_SHARE = 0.2
+
+
+def rejected_by_marker(cal: Calibration) -> dict[str, tuple[int, int]]:
+    """{marker: (observations rejected as outliers, observations seen)} for the markers with any
+    rejected, from the robust fit's final weights; empty without them."""
+    w = cal.extras.get("weights")
+    r = cal.extras.get("residuals_after")
+    if w is None or r is None:
+        return {}
+    M = len(cal.marker_names)
+    seen = np.isfinite(r[:, :M]).all(axis=2)
+    rej = seen & (np.asarray(w)[:, :M] <= 0)
+    return {n: (int(rej[:, m].sum()), int(seen[:, m].sum())) for m, n in enumerate(cal.marker_names) if rej[:, m].any()}
 
 
 def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options, td_start,

@@ -173,6 +173,12 @@ def run(args) -> int:
     line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
             f"({cal.n_poses} poses, {cal.n_markers} markers"
             + (f", {len(cal.body_names)} rigid bodies (rho {cal.body_rho_source})" if cal.body_names else "") + ")")
+    from platkit.calibrate.estimate import rejected_by_marker
+
+    lost = rejected_by_marker(cal)
+    if lost:
+        line += (f"; {sum(n for n, _ in lost.values())} marker observations rejected as outliers ("
+                 + ", ".join(f"{k} {n}" for k, (n, _) in lost.items()) + ")")
     if args.folds and "rms" in cal.heldout:
         line += f"; {args.folds}-fold held-out rms {cal.heldout['rms'] / s:.4g} {cal.length_unit}"
     second = cal.heldout.get("second_session")

@@ -151,6 +151,7 @@ def test_a_marker_that_slips_midway_keeps_the_place_most_of_its_observations_giv
     cal = calibrate(PoseSet("stewart", poses.controls, Y, poses.marker_names), stewart)
     assert prediction_error(cal, truth) < 10 * sigma
     assert cal.n_rejected == int(after.sum())
+    assert any(w.startswith(f"marker M1: {int(after.sum())} of its {n} observations rejected") for w in cal.extras["warnings"])
 
 
 def test_occluded_markers_are_skipped(stewart):
