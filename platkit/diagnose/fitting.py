@@ -12,6 +12,7 @@ import numpy as np
 from platkit.calibrate.estimate import CalibrationProblem, levenberg_marquardt, robust_fit
 from platkit.diagnose.locate import Location
 from platkit.diagnose.stats import bic
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
@@ -223,3 +224,12 @@ def _where_text(where: dict) -> str:
     keys = ("actuator", "marker", "time", "region", "frame", "period", "from_time_s")
     parts = [f"{k} {where[k]}" for k in keys if k in where]
     return ", ".join(parts) or "the whole model"
+
+def body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
+    """(N, M, 3) the fit's residuals in the moving frame: a marker that slipped on the moving part
+    makes a step there, while in the mocap frame its error turns with the platform."""
+    td, w = fit.problem.split(fit.z)[:2]
+    q = fit.problem.kinematics(td, poses.controls)[0]
+    R = matrix_from_quat(q)  # (N, 3, 3) moving -> base
+    A = matrix_from_rotvec(w)  # base -> mocap
+    return np.einsum("nji,kj,nmk->nmi", R, A, fit.r)

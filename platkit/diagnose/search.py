@@ -38,7 +38,8 @@ Nothing is named when the geometric model already predicts held-out poses at the
 an effect of any shape the geometry absorbs on this plan leaves nothing to find. With nothing
 found, a geometric model more than ``lack_of_fit_factor`` times the floor is a lack of fit
 (``unexplained``); below that, where held-out prediction cannot tell a weak effect from noise,
-residuals alike at poses next in time or with near commands are (locate.neighbour_tests).
+residuals alike at poses next in time or with near commands are (locate.neighbour_tests); both
+rules are in lack_of_fit.py.
 """
 from __future__ import annotations
 
@@ -48,18 +49,18 @@ import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, point_errors
 from platkit.calibrate.selection import parameter_groups
-from platkit.diagnose.floor import noise_floor, worst_marker
-from platkit.diagnose.locate import along_main_direction, locate, located, neighbour_tests
+from platkit.diagnose.floor import noise_floor
+from platkit.diagnose.locate import locate, located
 from platkit.diagnose.stats import column_basis, holm, paired_improvement, score_test
 from platkit.effects import Effect, effect_library, with_history
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME, ROUND_NEIGHBOURS, ROUND_WEAK_NAMES,
+from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME, ROUND_WEAK_NAMES,
                                        Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _obs, _rms, _where_text,
-                                       extrapolated)
+                                       body_residuals, extrapolated)
+from platkit.diagnose.lack_of_fit import lack_of_fit
 from platkit.diagnose.naming import (
     _best_probe,
     _probe_beats,
@@ -131,15 +132,6 @@ def _offset_sign(term: ModelTerm, theta: np.ndarray, fit: "Fit", poses: PoseSet)
              term.marker_offset(theta, poses).reshape(poses.n_poses, -1)]
     off = np.concatenate([np.nan_to_num(p) for p in parts], axis=1)
     return np.sign(off[:, int(np.argmax(np.var(off, axis=0)))])
-
-def _body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
-    """(N, M, 3) the fit's residuals in the moving frame: a marker that slipped on the moving part
-    makes a step there, while in the mocap frame its error turns with the platform."""
-    td, w = fit.problem.split(fit.z)[:2]
-    q = fit.problem.kinematics(td, poses.controls)[0]
-    R = matrix_from_quat(q)  # (N, 3, 3) moving -> base
-    A = matrix_from_rotvec(w)  # base -> mocap
-    return np.einsum("nji,kj,nmk->nmi", R, A, fit.r)
 
 def _place(term: ModelTerm) -> tuple:
     """(effect, actuator or marker): terms of one kind at one place compete, never add up."""
@@ -229,7 +221,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     while len(findings) < opt.max_effects and not stop:
         cands: list[tuple[Effect, ModelTerm]] = []
         taken = {_place(t) for t in cur.terms}
-        body_r = _body_residuals(cur, poses)
+        body_r = body_residuals(cur, poses)
         for eff in library.values():
             if eff.name == "settling_lag" and settled is not None:
                 continue  # the lag is already read from the stream and corrected in the data
@@ -415,51 +407,12 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                           f"survives correction for {len(locations)} tests (adjusted p = {top.p_adjusted:.2g}); "
                           "no effect in the library predicts held-out poses better"),
                 p_screen=float(top.p_adjusted)))
-    lack = (not stop and not any(f.effect == "unexplained" for f in findings) and not modelled
-            and floor is not None)
-    if lack and held <= opt.lack_of_fit_factor * floor and not extrapolated(poses).any():
-        # within the factor clean sessions reach of the floor, held-out prediction cannot tell a
-        # weak lack of fit from noise; omnibus tests of the residuals can, where it is smooth in
-        # time or over the commands (a sway of the marker mount, a plate that bends). Not in a
-        # session whose holds were extrapolated to rest: the approach's remnant reaches the settled
-        # poses too (proof seed 1101122: a weak psvr slow actuator read from the stream, the
-        # settled poses' residuals alike over near commands). In the room's frame (a drift of the
-        # cameras) and in the moving frame (a sway of the marker mount: one direction of the
-        # moving part, which turns with the stand in the room)
-        frames = {"motion capture": cur.r, "moving": _body_residuals(cur, poses)}
-        near = neighbour_tests(frames, poses)
-        if near:
-            rounds.append({"round": ROUND_NEIGHBOURS, "tests": [
-                {"test": x.test, "frame": x.where["frame"], "statistic": float(x.statistic), "p": float(x.p),
-                 "p_adjusted": float(x.p_adjusted)} for x in near]})
-        if near and near[0].p_adjusted < opt.alpha:
-            top, ratio = near[0], held / floor
-            x_pose, x_neighbour = along_main_direction(frames[top.where["frame"]], top.detail["a"], top.detail["b"])
-            worst = worst_marker(cur.r, poses)
-            findings.append(Finding(
-                effect="unexplained", where={"fit": "every pose", **top.where, **({"marker": worst} if worst else {})},
-                parameters={}, heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
-                regressor=x_pose, signature_before=x_neighbour,
-                regressor_label="error at a settled pose, along the residuals' main direction",
-                evidence=(f"the geometric model's residuals are alike at {top.where['alike']} in the "
-                          f"{top.where['frame']} frame (correlation {top.statistic:.2f}, permutation p = {top.p:.2g}, {top.p_adjusted:.2g} adjusted for "
-                          f"{len(near)} tests), though it predicts held-out poses at {_fmt_rms(held, unit)}, only "
-                          f"{ratio:.1f} times the noise floor; no effect in the library predicts them better: a weak "
-                          "effect of a shape the library does not hold"), p_screen=float(top.p_adjusted)))
-            say(f"residuals alike at {top.where['alike']} (adjusted p = {top.p_adjusted:.2g}), held-out "
-                f"{ratio:.1f} times the noise floor, nothing in the library explains it: unexplained")
-    elif lack and held > opt.lack_of_fit_factor * floor:
-        ratio = held / floor
-        worst = worst_marker(cur.r, poses)
-        findings.append(Finding(
-            effect="unexplained", where={"fit": "every pose", **({"marker": worst} if worst else {})}, parameters={},
-            heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
-            evidence=(f"the geometric model predicts held-out poses at {_fmt_rms(held, unit)}, {ratio:.1f} times "
-                      f"the noise floor of these settled poses ({_fmt_rms(floor, unit)}), and no effect in the library "
-                      "predicts them better: the stand does something the library does not hold"
-                      + (f" (the largest residuals on marker {worst})" if worst else ""))))
-        say(f"lack of fit: held-out {_fmt_rms(held, unit)} is {ratio:.1f} times the noise floor, nothing in "
-            "the library explains it: unexplained")
+    if not stop and not modelled and floor is not None and not any(f.effect == "unexplained" for f in findings):
+        lack, near = lack_of_fit(cur, poses, floor, held, opt, say)
+        if near is not None:
+            rounds.append(near)
+        if lack is not None:
+            findings.append(lack)
     findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
     # calibration.yaml without the slips whose model change predicts no better
     written, as_given = refit([t for t in cur.terms if id(t) not in slip_notes]) if slip_notes else (final_cal, unchanged)
