@@ -47,6 +47,7 @@ import argparse
 import contextlib
 import csv
 import io
+import itertools
 import json
 import shutil
 import sys
@@ -234,7 +235,7 @@ def _run_case(case: dict) -> dict:
         result["named"] = [f["effect"] for f in diag["findings"]]
         result["diagnosis"] = {k: diag.get(k) for k in ("noise_floor", "heldout_rms_geometric", "at_noise_floor")}
         result["findings"] = [{k: f.get(k) for k in ("effect", "where", "heldout_rms_before", "heldout_rms_after",
-                                                              "p_heldout", "p_screen", "separability")}
+                                                              "p_heldout", "p_screen", "separability", "alternatives")}
                               for f in diag["findings"]]
         result["neighbours"] = [r["tests"] for r in diag["rounds"] if r.get("round") == "neighbours"]
         # a slip is a recording artefact: the calibration predicts the marker's new place (spec section 3),
@@ -314,6 +315,15 @@ def summarise(results: list[dict]) -> str:
         want = set(r["truth"].split("+")) if r["truth"] != "none" else set()
         return set(r["named"]) == want
 
+    def right_or_alternative(r):
+        """Named right with, for each finding, its name or one of the alternatives diagnosis said
+        it could not tell apart from it on the session's plan."""
+        if r["kind"] == "outside":
+            return right(r)
+        want = set(r["truth"].split("+")) if r["truth"] != "none" else set()
+        choices = [[f["effect"]] + [a["effect"] for a in (f.get("alternatives") or [])] for f in r.get("findings", [])]
+        return any(set(pick) == want for pick in itertools.product(*choices))
+
     confusion: dict[str, Counter] = defaultdict(Counter)
     for r in ok:
         confusion[f"{r['truth']} ({r['kind']})"]["+".join(r["named"]) or "none"] += 1
@@ -324,6 +334,10 @@ def summarise(results: list[dict]) -> str:
         rs = [r for r in ok if r["kind"] == kind and r["truth"] not in UNSEPARABLE and not r.get("absorbed")]
         if rs:
             lines.append(f"{kind}: named right {sum(map(right, rs))}/{len(rs)}")
+            told = [r for r in rs if not right(r) and right_or_alternative(r)]
+            if told:
+                lines.append(f"{kind}: right among the alternatives diagnosis said it could not tell apart, not named "
+                             f"first: {len(told)} (" + ", ".join(f"{r['stand']} {r['seed']}" for r in told) + ")")
     for strength in ("clear", "weak"):
         rs = [r for r in ok if r["kind"] == "outside" and r["effects"][0][1] == strength]
         if rs:
@@ -338,8 +352,9 @@ def summarise(results: list[dict]) -> str:
     if absorbed:
         lines.append(f"absorbed by the geometry: no wrong name in "
                      f"{sum(set(r['named']) <= set(r['truth'].split('+')) for r in absorbed)}/{len(absorbed)}"
-                     + "".join(f"; {r['stand']} {r['truth']} seed {r['seed']}: {'+'.join(r['named'])}" for r in absorbed
-                               if not set(r["named"]) <= set(r["truth"].split("+"))))
+                     + "".join(f"; {r['stand']} {r['truth']} seed {r['seed']}: {'+'.join(r['named'])}"
+                               + (" (the truth among the alternatives said)" if right_or_alternative(r) else "")
+                               for r in absorbed if not set(r["named"]) <= set(r["truth"].split("+"))))
     clean = [r for r in ok if r["kind"] == "clean"]
     if clean:
         lines.append(f"clean sessions with a finding: {sum(bool(r['named']) for r in clean)}/{len(clean)}"

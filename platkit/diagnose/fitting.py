@@ -145,6 +145,9 @@ class Finding:
     heldout_session_rms_before: float | None = None
     heldout_session_rms_after: float | None = None
     corrected: str = ""  # for a recording artefact: how calibration.yaml leaves it out ('' for the stand's physics)
+    # other effects at the same place that the round would have accepted and that predict held-out
+    # poses as well (search._equally_good): {"effect", "where", "heldout_rms", "p_named_better"}
+    alternatives: list[dict[str, Any]] = field(default_factory=list)
 
 @dataclass
 class Diagnosis:

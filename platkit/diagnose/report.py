@@ -35,6 +35,15 @@ def _length_unit(si_unit: str | None, unit: str) -> tuple[float, str | None]:
     return 1.0, si_unit
 
 
+def _where_dict(where: Any) -> Any:
+    """A finding's ``where`` for diagnosis.json: "unit" (the unit the term's parameters are stored
+    in, SI; the shown parameters carry theirs) becomes "stored_unit"."""
+    out = dict(strict(where)) if isinstance(where, dict) else strict(where)
+    if isinstance(out, dict) and "unit" in out:
+        out["stored_unit"] = out.pop("unit")
+    return out
+
+
 def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
     s = length_scale(unit)
     params = {}
@@ -42,10 +51,7 @@ def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
         k, shown = _length_unit(v.get("unit"), unit)
         params[name] = {"value": _num(v["value"] / k), "std": None if v["std"] is None else _num(v["std"] / k),
                         "unit": shown}
-    where = dict(strict(f.where)) if isinstance(f.where, dict) else strict(f.where)
-    if isinstance(where, dict) and "unit" in where:
-        # the unit the term's parameters are stored in (SI); the shown parameters carry theirs
-        where["stored_unit"] = where.pop("unit")
+    where = _where_dict(f.where)
     out = {
         "effect": f.effect,
         "where": where,
@@ -62,6 +68,10 @@ def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
     }
     if f.corrected:  # a recording artefact: how calibration.yaml leaves it out
         out["corrected"] = f.corrected
+    if f.alternatives:  # other effects at the same place, not told apart from it on this plan
+        out["alternatives"] = [{"effect": a["effect"], "where": _where_dict(a["where"]),
+                                "heldout_rms": _num(a["heldout_rms"] / s), "p_named_better": _num(a["p_named_better"])}
+                               for a in f.alternatives]
     if f.heldout_session_rms_before is not None:
         out["heldout_session_rms_before"] = _num(f.heldout_session_rms_before / s)
         out["heldout_session_rms_after"] = _num(f.heldout_session_rms_after / s)

@@ -106,6 +106,12 @@ def verdict(d: Diagnosis) -> str:
     for f in named:
         for w in f.warnings:
             parts.append(f"Warning on {f.effect}: {w}.")
+        if f.alternatives:
+            alts = ", ".join(f"{a['effect']} ({_where_text(a['where'])}, {_fmt_rms(a['heldout_rms'], unit)})"
+                             for a in f.alternatives)
+            parts.append(f"Not told apart on this plan: {f.effect} ({_where_text(f.where)}, held-out "
+                         f"{_fmt_rms(f.heldout_rms_after, unit)}) and {alts} predict held-out poses as well as each "
+                         "other: the effect is one of them, and this plan cannot tell which.")
     echo = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SLOW_APPROACH)]
     stream = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SETTLED_STREAM)]
     geometry = [x for x in d.not_separable if x not in echo and x not in stream]
