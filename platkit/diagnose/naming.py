@@ -1,9 +1,10 @@
 """Checks on a name before and after it is given: a generic probe (probes.py) that predicts
 held-out poses better than the named model takes its place as ``unexplained``; a name proven only
-weakly beside a lack of fit, one that proves nothing beside the probe that still beats the
-named model at the end, or one that proves nothing beside a model of the structure in time the
-location tests still find beside a lack of fit, is not named. ``_without`` refits a model with some of its terms left
-out, and ``_unnamed`` takes their findings back (used by the search and the recording rules)."""
+weakly beside a lack of fit, one that proves nothing beside the probe that still beats the named
+model at the end, or one that proves nothing beside a model of the structure in time the
+location tests still find beside a lack of fit, is not named. ``_without`` refits a model with
+some of its terms left out, and ``_unnamed`` takes their findings back (used by the search and
+the recording rules)."""
 from __future__ import annotations
 
 import numpy as np
