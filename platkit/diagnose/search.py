@@ -320,13 +320,11 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     if not stop and stop_unexplained is None and floor is not None and len(cur.terms) > len(prior):
         weak = _weak_beside_lack_of_fit(cur, poses, spec, findings, floor, judged, weights, len(prior), opt)
         if weak:
-            rounds.append({"round": ROUND_WEAK_NAMES, "not_named": [
-                f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(weak)]})
-            for k in sorted(weak):
-                say(f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)}): proven only weakly, and the model "
-                    f"still predicts held-out poses at more than {opt.lack_of_fit_factor:g} times the noise floor "
-                    "with structure located: a slice of physics the library does not hold; not named")
-            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in weak})
+            findings, accepted_info = _take_back(
+                cur, dict.fromkeys(weak), ROUND_WEAK_NAMES, {}, lambda p: (
+                    f"proven only weakly, and the model still predicts held-out poses at more than "
+                    f"{opt.lack_of_fit_factor:g} times the noise floor with structure located"),
+                findings, accepted_info, rounds, say)
             cur = _without(spec, poses, cur, weak, opt)
     # structure a generic probe still predicts better at the end: a named term that no longer
     # proves itself beside the probe was a slice of that structure (tested before the final fit)
@@ -337,14 +335,11 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         reduced = _without(spec, poses, cur, set(loose), opt) if loose else None
         again = _best_probe(spec, poses, reduced, None, opt) if reduced is not None else None
         if again is not None:
-            names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(loose)]
-            rounds.append({"round": ROUND_BESIDE_PROBE, "not_named": names,
-                           "paired_p": {n: loose[k] for n, k in zip(names, sorted(loose))}})
-            for n, k in zip(names, sorted(loose)):
-                say(f"{n}: no longer predicts held-out poses better beside the generic model that still beats "
-                    f"the named ones (paired p = {loose[k]:.2g}): a slice of physics the library does not hold; "
-                    "not named")
-            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
+            findings, accepted_info = _take_back(
+                cur, loose, ROUND_BESIDE_PROBE, {}, lambda p: (
+                    f"no longer predicts held-out poses better beside the generic model that still beats the named "
+                    f"ones (paired p = {p:.2g})"),
+                findings, accepted_info, rounds, say)
             cur, end_probe = reduced, again
     if end_probe is None and not stop and stop_unexplained is None and opt.probes and floor is not None \
             and len(cur.terms) > len(prior):
@@ -352,14 +347,11 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         # beside a lack of fit: each name is tested beside a model of it
         loose, about = _unproven_beside_time(spec, poses, cur, len(prior), floor, judged, weights, opt)
         if loose:
-            names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in sorted(loose)]
-            rounds.append({"round": ROUND_BESIDE_TIME, "not_named": names,
-                           "paired_p": {n: loose[k] for n, k in zip(names, sorted(loose))}, **about})
-            for n, k in zip(names, sorted(loose)):
-                say(f"{n}: no longer predicts held-out poses better (paired p = {loose[k]:.2g}) beside a model of "
-                    f"the structure in time the location tests still find ({about['located']}): a slice of "
-                    "physics the library does not hold; not named")
-            findings, accepted_info = _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in loose})
+            findings, accepted_info = _take_back(
+                cur, loose, ROUND_BESIDE_TIME, about, lambda p: (
+                    f"no longer predicts held-out poses better (paired p = {p:.2g}) beside a model of the structure "
+                    f"in time the location tests still find ({about['located']})"),
+                findings, accepted_info, rounds, say)
             cur = _without(spec, poses, cur, set(loose), opt)
             end_probe = _best_probe(spec, poses, cur, None, opt)
     # the final model through the estimator's full procedure (robust weights, covariance)
@@ -444,6 +436,24 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                      options=opt)
     diag.verdict = verdict(diag)
     return diag
+
+def _take_back(cur: Fit, taken: dict[int, float | None], round_name: str, about: dict[str, Any],
+               why: Callable[[float | None], str], findings: list[Finding], accepted_info: list[dict],
+               rounds: list[dict], say: Callable[[str], None]) -> tuple[list[Finding], list[dict]]:
+    """Takes back the names of the terms ``cur.terms[k]`` for k in ``taken`` (k -> the paired p of
+    the test that took it back, or None): a round ``round_name`` in ``rounds`` (their names, the
+    paired p-values if any, then ``about``), one progress line each (``why(p)``), and the findings
+    and fit records without them (the caller refits the model without the terms)."""
+    ks = sorted(taken)
+    names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in ks]
+    entry: dict[str, Any] = {"round": round_name, "not_named": names}
+    if any(taken[k] is not None for k in ks):
+        entry["paired_p"] = {n: taken[k] for n, k in zip(names, ks)}
+    rounds.append({**entry, **about})
+    for n, k in zip(names, ks):
+        say(f"{n}: {why(taken[k])}: a slice of physics the library does not hold; not named")
+    return _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in ks})
+
 
 def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] | None, judged: np.ndarray,
               opt: Options, platform_options: dict | None) -> tuple[Fit, list[str], dict] | None:
