@@ -23,12 +23,12 @@ import numpy as np
 import yaml
 
 from platkit.calibrate.estimate import calibrate, predict_markers
-from platkit.calibrate.settle import load_poses
 from platkit.cli import main
 from platkit.errors import UnknownPlatform
 from platkit.geometry import matrix_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
+from platkit.settle import load_poses
 
 GANTRY = Path(__file__).resolve().parents[1] / "descriptions" / "gantry_xyz.urdf"
 STANDS = {"gantry": ("urdf", str(GANTRY)), "delta": ("delta", None)}

@@ -48,7 +48,7 @@ PYTHON = sys.executable
 SCRIPT = Path(PYTHON).parent / "platkit"
 PLATKIT = [str(SCRIPT)] if SCRIPT.is_file() else [PYTHON, "-m", "platkit.cli"]
 IMPORTS = ("import platkit.commands.calibrate, platkit.calibrate.estimate, platkit.calibrate.selection, "
-           "platkit.calibrate.settle, platkit.calibrate.report, platkit.io.session")
+           "platkit.settle, platkit.calibrate.report, platkit.io.session")
 
 
 def poses_of(n: int):

@@ -25,9 +25,9 @@ from benchmarks.datasets.tiago import FIGAROH, LEVELS, TRAINING, VALIDATION, bl_
 from platkit.calibrate.estimate import calibrate  # noqa: E402
 from platkit.calibrate.paper import calibrate_paper  # noqa: E402
 from platkit.calibrate.selection import select_model  # noqa: E402
-from platkit.calibrate.settle import load_poses  # noqa: E402
 from platkit.io.session import load_session  # noqa: E402
 from platkit.poses import PoseSet  # noqa: E402
+from platkit.settle import load_poses  # noqa: E402
 
 
 def main(argv=None) -> int:

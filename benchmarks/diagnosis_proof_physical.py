@@ -61,7 +61,6 @@ import numpy as np
 
 from platkit.batch.cases import add_engine_options, run_cases
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.settle import settle
 from platkit.cli import main as platkit_main
 from platkit.effects import with_history
 from platkit.errors import BadInput, PlatkitError
@@ -69,6 +68,7 @@ from platkit.io.jsonout import plain
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
+from platkit.settle import settle
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.outside_physics

@@ -3,7 +3,7 @@
 Per session (``platkit.simulate.physics``, random plan, default nuisances: coloured noise,
 occlusion bursts, latency, clock offset drawn from the seed) the stream is simulated twice, with
 its noise and without (same seed, noise 1e-9 mm, no occlusion), and settled with
-``platkit.calibrate.settle.settle``. Printed per session and per stand, along each command's last
+``platkit.settle.settle``. Printed per session and per stand, along each command's last
 step, averaged over markers, in units of the spread of that quantity over the poses (the averaging
 noise of one settled pose):
 
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.calibrate.settle import settle
 from platkit.errors import PlatkitError
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
+from platkit.settle import settle
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
 

@@ -84,7 +84,7 @@ def top_imports(cmd_args: list[str], n: int = 6) -> list[tuple[float, str]]:
 
 #: what `platkit calibrate` imports to do its work: its start-up, beside the estimation itself
 CALIBRATE_IMPORTS = ("import platkit.commands.calibrate, platkit.calibrate.estimate, platkit.calibrate.selection, "
-                     "platkit.calibrate.settle, platkit.calibrate.report, platkit.io.session")
+                     "platkit.settle, platkit.calibrate.report, platkit.io.session")
 
 
 def calibration(repeat: int) -> None:

@@ -32,10 +32,10 @@ from pathlib import Path
 import numpy as np
 
 from platkit.calibrate.estimate import calibrate, point_errors
-from platkit.calibrate.settle import load_poses
 from platkit.errors import BadInput, BadSession
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.session import load_session
+from platkit.settle import load_poses
 
 MARKERS = ["BL", "BR", "TR", "TL"]
 JOINTS = ["torso_lift_joint"] + [f"arm_{k}_joint" for k in range(1, 8)]

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from platkit.calibrate.bodies import estimate_rho, log_so3
+from platkit.bodies import estimate_rho, log_so3
 from platkit.calibrate.identifiability import (
     DEFAULT_REL_TOL,
     apply_marker_convention,
@@ -300,7 +300,7 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
 
 def refit_body_rho(problem: CalibrationProblem, fit, active, robust: bool, max_iter: int, progress: Progress | None):
     """With rigid bodies and no declared noise: rho = sigma_position / sigma_rotation (m/rad) from the
-    bodies' residuals of ``fit`` (:func:`platkit.calibrate.bodies.estimate_rho`), and the fit repeated
+    bodies' residuals of ``fit`` (:func:`platkit.bodies.estimate_rho`), and the fit repeated
     with it; twice, as rho moves little after the first. Each channel's scale is corrected for
     what the fit absorbed of it (its rows' leverage: the stand's parameters take more of the
     position noise than of the rotation noise). Returns the last fit (``fit`` unchanged without

@@ -15,7 +15,7 @@ finite differences (they are numpy functions with few parameters) and chained wi
 Jacobians. The solvers are in :mod:`platkit.calibrate.solve`, the procedure in
 :mod:`platkit.calibrate.estimate`.
 
-Rigid bodies measured in 6 DOF (:mod:`platkit.calibrate.bodies`): body b has an unknown placement
+Rigid bodies measured in 6 DOF (:mod:`platkit.bodies`): body b has an unknown placement
 (origin p_b, m, and rotation vector phi_b, rad, on the moving part) and two residual channels
 after the M markers': its origin, observed like a marker at p_b (channel M + b), and
 rho * log(R_meas^T R_pred) with R_pred = exp(w) exp(dth_n) R(q_n) exp(phi_b) (channel M + B + b),
@@ -39,7 +39,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from platkit.calibrate.bodies import (
+from platkit.bodies import (
     DEFAULT_RHO_M_PER_RAD,
     body_frame_points,
     declared_rho,
@@ -429,7 +429,7 @@ class CalibrationProblem:
         """Transform and markers by rigid alignment at nominal kinematics: z (n_z,).
 
         A rigid body enters as three points of its frame (origin and two axis tips,
-        :func:`~platkit.calibrate.bodies.body_frame_points`); its placement is read back from them.
+        :func:`~platkit.bodies.body_frame_points`); its placement is read back from them.
         """
         poses = self.poses
         q, X, _, ok = self.kinematics(td, poses.controls)

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from platkit.calibrate.settle import settling_summary
 from platkit.errors import BadInput
 from platkit.geometry import rpy_from_quat
 from platkit.io import jsonout
@@ -26,6 +25,7 @@ from platkit.io.urdf_export import export_calibrated_urdf
 from platkit.kinematics import PlatformModel
 from platkit.model import length_scale
 from platkit.poses import PoseSet
+from platkit.settle import settling_summary
 
 
 def _finite_or_none(x):

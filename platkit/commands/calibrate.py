@@ -74,8 +74,8 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     """(poses, spec, platform_options) of a session folder, or of the stand's example session.
     The folder's streams are read once; ``quiet``: no reading progress on stderr. What the reading
     kept with a warning is said on stderr and appended to ``notes``."""
-    from platkit.calibrate.settle import load_poses
     from platkit.io.session import example_session, load_session
+    from platkit.settle import load_poses
 
     if session is None:
         if platform is None:
@@ -95,8 +95,8 @@ def load_for_calibration(session: str | None, platform: str | None, description:
 def settling_notes(poses, folder) -> list[str]:
     """What settling dropped (counted by reason) and extrapolated, one line each; ComputationFailed
     when fewer than half the commands gave a pose (a fit to the remnant would look converged)."""
-    from platkit.calibrate.settle import dropped_sentence
     from platkit.errors import ComputationFailed
+    from platkit.settle import dropped_sentence
 
     info = poses.settling or {}
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))

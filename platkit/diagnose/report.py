@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.settle import settling_summary
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.figures import png_base64 as _png
 from platkit.io.jsonout import strict
 from platkit.model import length_scale
+from platkit.settle import settling_summary
 
 FORMAT = "platkit-diagnosis/1"
 

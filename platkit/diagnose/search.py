@@ -28,7 +28,7 @@ Two effects describe the recording, not the stand (RECORDING_EFFECTS: settling_l
 they are fitted like the others, so that the geometry is estimated from corrected data, but the
 calibration diagnosis writes predicts where the stand settles: without the lag, with a slipped
 marker at its new place (:func:`stand_calibration`). Holds that never settled are found in the
-raw stream by the settling search (platkit.calibrate.settle); when it extrapolated them to rest,
+raw stream by the settling search (platkit.settle); when it extrapolated them to rest,
 the ``settling_lag`` finding says which actuators lag and with what time constant, and is
 accepted only if the calibration from the extrapolated poses predicts the held-out *settled*
 poses better than one from where the stream was at the end of those holds.

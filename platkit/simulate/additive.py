@@ -16,15 +16,15 @@ from typing import Unpack
 
 import numpy as np
 
-from platkit.calibrate.bodies import stream_for_settling, with_settled_bodies
+from platkit.bodies import stream_for_settling, with_settled_bodies
 from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
-from platkit.calibrate.settle import direction_of_last_motion, last_step, settle
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
+from platkit.settle import direction_of_last_motion, last_step, settle
 from platkit.simulate.effects import simulation_term
 from platkit.simulate.options import (
     PlanOptions,

@@ -22,9 +22,9 @@ from typing import Any, TypedDict
 
 import numpy as np
 
-from platkit.calibrate.settle import SettleOptions
 from platkit.errors import BadInput
 from platkit.model import length_scale
+from platkit.settle import SettleOptions
 from platkit.terms import ModelTerm
 
 __all__ = ["PlanOptions", "TruthOptions", "RecordingOptions", "SimulationOptions", "SimulateKeywords",

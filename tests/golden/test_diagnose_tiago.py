@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from benchmarks.datasets import tiago
-from platkit.calibrate.settle import load_poses
 from platkit.cli import main
 from platkit.io.calibration import read_calibration
+from platkit.settle import load_poses
 
 
 @pytest.fixture(scope="module")

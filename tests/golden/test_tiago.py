@@ -42,11 +42,11 @@ from benchmarks.datasets.tiago import (
     read_postures,
 )
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.settle import load_poses
 from platkit.cli import main
 from platkit.io.calibration import read_calibration
 from platkit.io.session import load_session
 from platkit.poses import PoseSet
+from platkit.settle import load_poses
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,10 @@ import sys
 from pathlib import Path
 
 import platkit.simulate.physics as physics_module
-from platkit.calibrate.settle import settle
 from platkit.diagnose.search import Options, diagnose
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
+from platkit.settle import settle
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/

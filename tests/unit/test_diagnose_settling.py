@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.settle import settle
 from platkit.diagnose.search import Options, diagnose, noise_floor, stand_calibration
 from platkit.effects import effect_library
 from platkit.io.session import Session
 from platkit.plugins import get_platform
+from platkit.settle import settle
 from platkit.simulate import simulate
 
 

@@ -20,7 +20,7 @@ def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(monkeypatc
     # made worse, 0.232 -> 0.321 mm; no probe predicted better, so the rule above did not act.
     # Settled as it was then (no limit on a window's length; with the 1.5 s limit the scale
     # nonlinearity is not proven at all, see the next test)
-    import platkit.calibrate.settle as settle_module
+    import platkit.settle._settle as settle_module
 
     monkeypatch.setattr(settle_module, "SettleOptions", _unlimited)
     d = calibrate_and_diagnose(proof_session("stewart", 920222, [("frame_wobble", 0.317)])[0])
@@ -30,7 +30,7 @@ def test_a_weakly_proven_name_beside_a_large_lack_of_fit_is_not_named(monkeypatc
 
 
 def _unlimited():
-    from platkit.calibrate.settle_report import SettleOptions
+    from platkit.settle import SettleOptions
 
     return SettleOptions(max_window_s=None)
 

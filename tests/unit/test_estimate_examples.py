@@ -1,4 +1,4 @@
-"""Sessions made by platkit.simulate (raw marker streams settled by platkit.calibrate.settle): the
+"""Sessions made by platkit.simulate (raw marker streams settled by platkit.settle): the
 example sessions shipped with platkit, and fresh ones. Calibration predicts the markers of the
 true stand to well under the marker noise."""
 from __future__ import annotations
@@ -8,10 +8,10 @@ import pytest
 import yaml
 
 from platkit.calibrate.estimate import calibrate, predict_markers
-from platkit.calibrate.settle import load_poses
 from platkit.geometry import matrix_from_quat
 from platkit.io.session import example_session, load_session
 from platkit.kinematics import PlatformModel
+from platkit.settle import load_poses
 
 
 @pytest.mark.parametrize("stand", ["stewart", "psvr", "rotary"])

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from platkit.calibrate.bodies import average_body, log_so3, quat_mean, right_jacobian, right_jacobian_inv
+from platkit.bodies import average_body, log_so3, quat_mean, right_jacobian, right_jacobian_inv
 from platkit.calibrate.estimate import calibrate, parameter_scale, predict_markers
 from platkit.calibrate.predict import predict_bodies, prediction_table
 from platkit.calibrate.problem import CalibrationProblem
@@ -317,7 +317,7 @@ def _write_session(folder, spec, U, bodies, names, stream_t=None, noise=True, se
 
 
 def test_poses_csv_with_a_body_calibrates(stewart, tmp_path):
-    from platkit.calibrate.settle import load_poses
+    from platkit.settle import load_poses
     truth = BodyTruth(stewart, seed=5)
     U, bodies = truth.bodies(truth.controls(50))
     bodies[7, 0] = np.nan  # occluded: all seven empty
@@ -333,7 +333,7 @@ def test_poses_csv_with_a_body_calibrates(stewart, tmp_path):
 
 
 def test_stream_of_a_body_is_settled_and_averaged(stewart, tmp_path):
-    from platkit.calibrate.settle import load_poses
+    from platkit.settle import load_poses
     truth = BodyTruth(stewart, seed=6)
     U, clean = truth.bodies(truth.controls(30), noisy=False)
     rate, hold = 100.0, 1.0
@@ -418,7 +418,7 @@ def test_cli_calibrates_a_body_session_and_predict_writes_its_columns(stewart, t
 
 
 def test_simulated_session_with_a_body_round_trips_through_its_files(stewart, tmp_path):
-    from platkit.calibrate.settle import load_poses
+    from platkit.settle import load_poses
     from platkit.simulate import simulate, write_session
     plain = simulate(stewart, seed=2, n_poses=30, raw=False)
     sim = simulate(stewart, seed=2, n_poses=30, raw=False, n_bodies=1)

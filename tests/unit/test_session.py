@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from platkit.calibrate.settle import load_poses
+from platkit.settle import load_poses
 from platkit.cli import main
 from platkit.errors import BadSession
 from platkit.io.session import example_session, load_session, read_table

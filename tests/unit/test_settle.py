@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from platkit.calibrate.settle import (
+from platkit.settle import (
     SettleOptions, direction_of_last_motion, estimate_noise, last_step, settle, still_mask,
 )
 from platkit.errors import BadSession
@@ -161,7 +161,7 @@ def test_sigma_can_be_given():
 
 
 def test_settling_a_simulated_stand_session(tmp_path):
-    from platkit.calibrate.settle import load_poses
+    from platkit.settle import load_poses
     from platkit.simulate import simulate, write_session
 
     spec = get_platform("psvr")
@@ -278,7 +278,7 @@ def test_a_small_remaining_approach_is_extrapolated_to_rest():
 
 
 def test_dropped_commands_are_counted_by_reason():
-    from platkit.calibrate.settle import dropped_by_reason, dropped_sentence
+    from platkit.settle import dropped_by_reason, dropped_sentence
 
     dropped = [(1, "never settled: x"), (4, "moved again: y"), (7, "never settled: z")]
     assert dropped_by_reason(dropped) == {"never settled": 2, "moved again": 1}
@@ -445,7 +445,7 @@ def test_a_slow_actuator_of_a_physical_session_is_named_with_its_time_constant(t
     assert un["actuators"] == ["L3"] and "actuator L3 still moving" in un["sentence"]
     assert abs(un["time_constant_s"] / mode - 1) < 0.3
     assert report.n_extrapolated >= 0.8 * un["n"] and poses.n_poses >= 55
-    from platkit.calibrate.settle import settling_summary
+    from platkit.settle import settling_summary
 
     late = settling_summary(poses)["unsettled"]["moved_late_along_actuator"]  # report.json, mm
     assert max(late, key=lambda k: late[k]) == "L3" and late["L3"] > 0
@@ -469,7 +469,7 @@ def test_a_session_of_slow_drives_and_short_holds_is_not_refused(tmp_path):
 
 
 def test_attribution_names_the_actuator_whose_column_the_late_motion_follows():
-    from platkit.calibrate.settle_attribution import attribute_actuators
+    from platkit.settle import attribute_actuators
 
     rng = np.random.default_rng(21)
     N, n_u = 50, 3

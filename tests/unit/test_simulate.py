@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import yaml
 
-from platkit.calibrate.settle import load_poses
 from platkit.cli import main
 from platkit.errors import BadInput, BadSession
 from platkit.geometry import matrix_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform, list_platforms
+from platkit.settle import load_poses
 from platkit.simulate import _commands_poseset, simulate, simulate_session
 from platkit.simulate.effects import parse_effect, simulation_term
 from platkit.terms import ModelTerm

@@ -7,11 +7,11 @@ import yaml
 
 from platkit.calibrate.estimate import calibrate, predict_markers
 from platkit.calibrate.plan import random_candidates
-from platkit.calibrate.settle import load_poses
 from platkit.geometry import matrix_from_quat
 from platkit.io.session import example_session
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
+from platkit.settle import load_poses
 
 
 def test_example_session_calibrates_to_its_truth():

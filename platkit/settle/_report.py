@@ -1,4 +1,4 @@
-"""What the settling search says (platkit.calibrate.settle): its options, its report, and the
+"""What the settling search says (platkit.settle): its options, its report, and the
 dropped commands and settling summary that report.json carries."""
 from __future__ import annotations
 

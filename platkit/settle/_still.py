@@ -1,4 +1,4 @@
-"""Where a stream is still (platkit.calibrate.settle): the noise, the neighbouring-halves still
+"""Where a stream is still (platkit.settle): the noise, the neighbouring-halves still
 test and the last still stretch of a hold, the trend test of a window, and each command's last step."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The approach of a hold to rest (platkit.calibrate.settle): ``x_inf + (a + b s) exp(-s / tau)``
+"""The approach of a hold to rest (platkit.settle): ``x_inf + (a + b s) exp(-s / tau)``
 fitted to the stream, the window its tail leaves free, the tail's share of a still stretch, an
 extrapolation to rest checked against the stream, and a window's averaged result."""
 from __future__ import annotations

@@ -148,7 +148,7 @@ def stream_for_settling(session: Session) -> Session:
 
 
 def with_settled_bodies(session: Session, poses: PoseSet) -> PoseSet:
-    """``poses`` (settled by platkit.calibrate.settle, or read from poses.csv) with the session's rigid bodies.
+    """``poses`` (settled by platkit.settle, or read from poses.csv) with the session's rigid bodies.
 
     From poses.csv the bodies are taken as they are. From a stream, each kept pose averages the
     body samples inside its settled window (extras 'window_start'/'window_end'; positions by

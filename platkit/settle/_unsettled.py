@@ -1,14 +1,14 @@
-"""Holds that never settled (platkit.calibrate.settle): which actuators and markers still moved,
+"""Holds that never settled (platkit.settle): which actuators and markers still moved,
 their time constant, what remained, and the sentence that says so."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.stats import fisher_exact
 
-from platkit.calibrate.settle_approach import Approach
-from platkit.calibrate.settle_attribution import attribute_actuators
-from platkit.calibrate.settle_report import _finite
-from platkit.calibrate.settle_still import last_step
+from platkit.settle._approach import Approach
+from platkit.settle._attribution import attribute_actuators
+from platkit.settle._report import _finite
+from platkit.settle._still import last_step
 
 
 def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray, control_names: list[str],

@@ -47,10 +47,11 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.calibrate.bodies import stream_for_settling, with_settled_bodies
-from platkit.calibrate.settle_approach import (
-    COARSE_GRID,
-    TAIL_FALSE_ALARM,
+from platkit.bodies import stream_for_settling, with_settled_bodies
+from platkit.errors import BadSession, ComputationFailed
+from platkit.io.session import Session, load_session
+from platkit.poses import PoseSet
+from platkit.settle._approach import (
     Approach,
     _fit_tail,
     _window_result,
@@ -60,17 +61,11 @@ from platkit.calibrate.settle_approach import (
     tail_regression,
     tail_scale,
 )
-from platkit.calibrate.settle_report import (
-    DROP_CATEGORIES,
+from platkit.settle._report import (
     SettleOptions,
     SettleReport,
-    dropped_by_reason,
-    dropped_sentence,
-    settling_summary,
 )
-from platkit.calibrate.settle_still import (
-    MAX_INFLATION,
-    SIGMA_FLOOR_M,
+from platkit.settle._still import (
     _last_still_run,
     _quiet_stretches,
     approach_start,
@@ -81,22 +76,8 @@ from platkit.calibrate.settle_still import (
     still_mask,
     trend_test,
 )
-from platkit.calibrate.settle_tail import ARRIVAL_SIGMA, arrival_index, profile_start, shared_tail
-from platkit.calibrate.settle_unsettled import _unsettled_summary
-from platkit.errors import BadSession, ComputationFailed
-from platkit.io.session import Session, load_session
-from platkit.poses import PoseSet
-
-#: every name other modules, tests and benchmarks import from here (the search itself lives in
-#: settle_still, settle_approach, settle_tail, settle_unsettled; its options and report in settle_report)
-__all__ = [
-    "ARRIVAL_SIGMA", "COARSE_GRID", "DROP_CATEGORIES", "MAX_INFLATION", "SIGMA_FLOOR_M", "SLOW_SCALE_S",
-    "TAIL_FALSE_ALARM", "Approach", "SettleOptions", "SettleReport", "approach_start", "arrival_index",
-    "direction_of_last_motion", "dropped_by_reason", "dropped_sentence", "estimate_noise",
-    "extrapolation_checked", "fit_approach", "last_step", "load_poses", "noise_inflation", "poses_from_table",
-    "profile_start", "settle", "settling_summary", "shared_tail", "still_mask", "tail_free_window",
-    "tail_regression", "tail_scale", "trend_test",
-]
+from platkit.settle._tail import profile_start, shared_tail
+from platkit.settle._unsettled import _unsettled_summary
 
 #: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
 SLOW_SCALE_S = 0.4

@@ -1,4 +1,4 @@
-"""The tail the holds share (platkit.calibrate.settle): each hold timed from its arrival near rest,
+"""The tail the holds share (platkit.settle): each hold timed from its arrival near rest,
 the pooled tail of every hold, and where each window must start so that it lags by at most a
 fraction of its noise."""
 from __future__ import annotations
