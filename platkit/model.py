@@ -83,6 +83,10 @@ class PlatformSpec:
         branch: (u, td, q, X) -> g; the stand's assembly mode is g > 0 componentwise. A pose
             with some g <= 0 satisfies F = 0 but is a mirror the stand cannot take.
         load: (u, td, q, X) -> actuator loads per unit payload; used by diagnosis (compliance).
+        tracked_links, link_poses: a tree (several links carry markers): the links, the moving
+            frame's (the spec's pose) first, and ``link_poses: (u, td) -> (q (4 L), X (3 L))``,
+            every tracked link's orientation and position in the base frame, stacked in that
+            order. Empty and None for a stand with one moving part.
     """
 
     name: str
@@ -101,6 +105,8 @@ class PlatformSpec:
     moving_frame: str = "platform"
     base_frame: str = "base"
     extras: dict[str, Any] = field(default_factory=dict)
+    tracked_links: list[str] = field(default_factory=list)
+    link_poses: ca.Function | None = None
 
     @property
     def n_u(self) -> int:
@@ -220,6 +226,11 @@ def validate_spec(spec: PlatformSpec) -> None:
         _check_function(spec.name, spec.inverse, "inverse", {"td": n_td, "q": 4, "X": 3}, {"u": n_u})
     if spec.forward is not None:
         _check_function(spec.name, spec.forward, "forward", {"u": n_u, "td": n_td}, {"q": 4, "X": 3})
+    if spec.link_poses is not None:
+        L = len(spec.tracked_links)
+        if L == 0:
+            raise BadDescription(f"stand {spec.name!r}: link_poses is given but tracked_links is empty")
+        _check_function(spec.name, spec.link_poses, "link_poses", {"u": n_u, "td": n_td}, {"q": 4 * L, "X": 3 * L})
     if spec.branch is not None:
         _check_function(spec.name, spec.branch, "branch", {"u": n_u, "td": n_td, "q": 4, "X": 3}, {"g": -1})
     r = np.asarray(spec.residual(spec.neutral_u(), spec.nominal_td(), *spec.pose(spec.neutral_p()))).ravel()
