@@ -1,0 +1,238 @@
+"""Gravity loads of a whole URDF tree: the torque about every joint's axis and the full moment at
+every joint, from the configuration of every joint of the tree, mimic joints included.
+
+Rules:
+
+- The model is pinocchio's of the whole URDF (fixed base, gravity along the root's -z), every
+  one-dof joint a joint of its own; a mimic joint takes ``multiplier * master + offset`` (URDF
+  semantics), so its load is the load at the place it really is. Joints not given sit at zero.
+- ``loads(Q)``: for each configuration, the spatial force each joint transmits to its subtree
+  (pinocchio's rnea at zero velocity and acceleration, ``data.f``; pinocchio's gravity, 9.81 m/s^2), in the joint's own frame:
+  ``moment`` (3,) N m about the joint's origin, ``force`` (3,) N, and ``torque`` = its component
+  along the joint's motion (N m about a revolute axis, N along a prismatic one). This is what a
+  motor or brake must hold; a joint's elastic deflection follows it.
+- ``generalized(torque)``: the torques of the joints that have a value of their own (the recorded
+  joints), a mimic joint's torque folded into its master's by the chain rule
+  (``tau_master += multiplier * tau_mimic``): pinocchio's computeGeneralizedGravity of a model
+  built with mimic joints gives the same.
+- A payload at a link (mass, centre of mass in the link's frame) adds to that link's body.
+- Mass moments: gravity loads are linear in each body's mass and first mass moment
+  ``(m, m c_x, m c_y, m c_z)`` (c in the body's joint frame). ``moment_regressor(Q)`` gives the
+  moments' derivatives in them, so that loads of a URDF without (or with doubtful) inertias can be
+  estimated from data; ``mass_moments()`` are the URDF's own.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from platkit.errors import BadDescription, BadInput
+from platkit.urdf import read_urdf
+
+#: a body heavier than this (kg) in a URDF is absurd for a robot on a calibration stand
+MAX_LINK_MASS = 1.0e4
+
+
+@dataclass(frozen=True)
+class Payload:
+    """A point-like load carried by ``link``: ``mass`` (kg) at ``com`` (3,) m in the link's frame."""
+
+    link: str
+    mass: float
+    com: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class Loads:
+    """Gravity loads at N configurations over the tree's joints (``TreeLoads.joints`` order):
+    ``torque`` (N, J) about (along) each joint's axis; ``moment`` (N, J, 3) N m and ``force``
+    (N, J, 3) N in each joint's frame; ``origin`` (N, J, 3) m and ``rotation`` (N, J, 3, 3) each
+    joint frame's placement in the root frame."""
+
+    torque: np.ndarray
+    moment: np.ndarray
+    force: np.ndarray
+    origin: np.ndarray
+    rotation: np.ndarray
+
+
+class TreeLoads:
+    """Gravity loads of the URDF at ``urdf`` (see the module docstring); ``payload`` optional."""
+
+    def __init__(self, urdf: str | Path, payload: Payload | None = None):
+        import pinocchio as pin
+
+        self.path = Path(urdf)
+        tree = read_urdf(self.path)
+        self.tree = tree
+        model = pin.buildModelFromUrdf(str(self.path))
+        self.joints: list[str] = []
+        for jid in range(1, model.njoints):
+            j = model.joints[jid]
+            if j.nq != 1 or j.nv != 1:
+                raise BadDescription(f"{self.path}: joint {model.names[jid]!r} has {j.nq} coordinates; tree loads "
+                                     "take one-dof joints (revolute, continuous, prismatic)")
+            self.joints.append(model.names[jid])
+        self.mimic: dict[str, tuple[str, float, float]] = {}
+        for name in self.joints:
+            m = tree.joints[name].mimic
+            if m is not None:
+                if m[0] not in self.joints:
+                    raise BadDescription(f"{self.path}: joint {name!r}: mimic master {m[0]!r} is not a moving joint "
+                                         "of the URDF")
+                if tree.joints[m[0]].mimic is not None:
+                    raise BadDescription(f"{self.path}: joint {name!r}: mimic master {m[0]!r} is itself a mimic joint")
+                self.mimic[name] = (m[0], float(m[1]), float(m[2]))
+        self.recorded = [n for n in self.joints if n not in self.mimic]
+        self.index = {n: k for k, n in enumerate(self.joints)}
+        for jid in range(1, model.njoints):
+            m = float(model.inertias[jid].mass)
+            if not np.isfinite(m) or m < 0 or m > MAX_LINK_MASS:
+                raise BadDescription(f"{self.path}: the links moved by joint {model.names[jid]!r} have mass {m} kg; "
+                                     f"masses must lie in [0, {MAX_LINK_MASS:g}] kg")
+        if payload is not None:
+            self._add_payload(model, payload)
+        self.model = model
+        self.data = model.createData()
+        self.prismatic = np.array([tree.joints[n].type == "prismatic" for n in self.joints])
+        self.axes = np.array([tree.joints[n].axis for n in self.joints], float)
+        # subtree[j, b]: body b (attached to joint b) hangs below joint j (both in self.joints order)
+        J = len(self.joints)
+        self.subtree = np.zeros((J, J), bool)
+        for b in range(J):
+            jid = b + 1
+            while jid > 0:
+                self.subtree[jid - 1, b] = True
+                jid = model.parents[jid]
+
+    def _add_payload(self, model, payload: Payload) -> None:
+        import pinocchio as pin
+
+        if not model.existFrame(payload.link):
+            raise BadInput(f"payload: link {payload.link!r} is not in {self.path}")
+        if not (np.isfinite(payload.mass) and 0 <= payload.mass <= MAX_LINK_MASS):
+            raise BadInput(f"payload: mass {payload.mass} kg must lie in [0, {MAX_LINK_MASS:g}] kg")
+        frame = model.frames[model.getFrameId(payload.link)]
+        body = pin.Inertia(float(payload.mass), np.asarray(payload.com, float), np.zeros((3, 3)))
+        jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
+        if jid == 0:
+            return  # carried by the fixed base: no joint feels it
+        model.inertias[jid] = model.inertias[jid] + frame.placement.act(body)
+
+    # ------------------------------------------------------------------ configurations
+    @property
+    def total_mass(self) -> float:
+        return float(sum(self.model.inertias[j].mass for j in range(1, self.model.njoints)))
+
+    def configuration(self, names: list[str] | tuple[str, ...], values: np.ndarray) -> np.ndarray:
+        """(N, J) every joint's value from ``values`` (N, n) of the joints ``names`` (SI: rad, m):
+        joints not named at zero, mimic joints from their masters. A name that is not a recorded
+        joint of the tree is bad input."""
+        values = np.atleast_2d(np.asarray(values, float))
+        if values.shape[1] != len(names):
+            raise BadInput(f"tree loads: {values.shape[1]} values per row for {len(names)} joints")
+        Q = np.zeros((len(values), len(self.joints)))
+        for k, n in enumerate(names):
+            if n not in self.index:
+                raise BadInput(f"tree loads: {n!r} is not a moving joint of {self.path}")
+            if n in self.mimic:
+                raise BadInput(f"tree loads: {n!r} is a mimic joint of {self.path} (it follows "
+                               f"{self.mimic[n][0]!r}); give its master")
+            Q[:, self.index[n]] = values[:, k]
+        return self.follow_mimic(Q)
+
+    def follow_mimic(self, Q: np.ndarray) -> np.ndarray:
+        """``Q`` (N, J) with every mimic joint set from its master."""
+        Q = np.array(Q, float)
+        for n, (master, mult, off) in self.mimic.items():
+            Q[:, self.index[n]] = mult * Q[:, self.index[master]] + off
+        return Q
+
+    # ------------------------------------------------------------------ loads
+    def loads(self, Q: np.ndarray) -> Loads:
+        """Gravity loads at the configurations ``Q`` (N, J) (mimic joints as given: call
+        :meth:`follow_mimic` or :meth:`configuration` first)."""
+        import pinocchio as pin
+
+        Q = np.atleast_2d(np.asarray(Q, float))
+        N, J = Q.shape
+        model, data = self.model, self.data
+        zero = np.zeros(model.nv)
+        moment, force = np.zeros((N, J, 3)), np.zeros((N, J, 3))
+        origin, rotation = np.zeros((N, J, 3)), np.zeros((N, J, 3, 3))
+        for k in range(N):
+            pin.rnea(model, data, Q[k], zero, zero)
+            pin.forwardKinematics(model, data, Q[k])
+            for j in range(J):
+                f = data.f[j + 1]
+                moment[k, j], force[k, j] = f.angular, f.linear
+                M = data.oMi[j + 1]
+                origin[k, j], rotation[k, j] = M.translation, M.rotation
+        torque = np.where(self.prismatic[None], np.einsum("njk,jk->nj", force, self.axes),
+                          np.einsum("njk,jk->nj", moment, self.axes))
+        return Loads(torque, moment, force, origin, rotation)
+
+    def generalized(self, torque: np.ndarray) -> np.ndarray:
+        """(N, R) torques of the recorded joints (``self.recorded``), mimic joints' folded into
+        their masters' by the chain rule."""
+        torque = np.atleast_2d(torque)
+        out = np.array(torque[:, [self.index[n] for n in self.recorded]])
+        pos = {n: k for k, n in enumerate(self.recorded)}
+        for n, (master, mult, _) in self.mimic.items():
+            out[:, pos[master]] += mult * torque[:, self.index[n]]
+        return out
+
+    # ------------------------------------------------------------------ mass moments
+    def mass_moments(self) -> np.ndarray:
+        """(4 J,) each body's (m, m c_x, m c_y, m c_z) from the URDF (and payload), c in the
+        frame of the joint that carries the body, bodies in ``self.joints`` order."""
+        out = np.zeros((len(self.joints), 4))
+        for j in range(len(self.joints)):
+            I = self.model.inertias[j + 1]
+            out[j] = [I.mass, *(I.mass * np.asarray(I.lever))]
+        return out.ravel()
+
+    def moment_regressor(self, Q: np.ndarray, loads: Loads | None = None) -> np.ndarray:
+        """(N, J, 3, 4 J): d(moment of joint j, in its frame) / d(mass moments), so that
+        ``moment = regressor @ mass_moments()`` (``loads``: those of ``Q`` if already computed)."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        L = self.loads(Q) if loads is None else loads
+        N, J = Q.shape
+        g = np.array(self.model.gravity.linear, float)
+        out = np.zeros((N, J, 3, J, 4))
+        for k in range(N):
+            O, R = L.origin[k], L.rotation[k]
+            for j in range(J):
+                bodies = np.nonzero(self.subtree[j])[0]
+                lever = O[bodies] - O[j]                                     # (B, 3) world
+                # held moment = -sum (r_b - o_j) x m_b g, with m_b r_b = m_b p_b + R_b h_b
+                d_m = -np.cross(lever, g)                                    # (B, 3) per unit mass
+                d_h = -np.cross(np.transpose(R[bodies], (0, 2, 1)), g)      # (B, 3 (h comp), 3) world
+                Rt = R[j].T
+                out[k, j, :, bodies, 0] = d_m @ Rt.T
+                out[k, j, :, bodies, 1:] = np.transpose(d_h @ Rt.T, (0, 2, 1))
+        return out.reshape(N, J, 3, 4 * J)
+
+    def torque_regressor(self, Q: np.ndarray, loads: Loads | None = None,
+                         moment_regressor: np.ndarray | None = None) -> np.ndarray:
+        """(N, J, 4 J): d(torque about joint j's axis) / d(mass moments) (a prismatic joint's
+        force along its axis depends on the masses below it alone)."""
+        Q = np.atleast_2d(np.asarray(Q, float))
+        L = self.loads(Q) if loads is None else loads
+        Y = self.moment_regressor(Q, L) if moment_regressor is None else moment_regressor
+        out = np.einsum("njkp,jk->njp", Y, self.axes)
+        g = np.array(self.model.gravity.linear, float)
+        for j in np.nonzero(self.prismatic)[0]:
+            along = -np.einsum("nkl,k,l->n", L.rotation[:, j], g, self.axes[j])  # axis . R_j^T (-g)
+            out[:, j, :] = 0.0
+            out[:, j, 0::4] = along[:, None] * self.subtree[j][None]
+        return out
+
+
+@functools.lru_cache(maxsize=8)
+def tree_loads(urdf: str, payload: Payload | None = None) -> TreeLoads:
+    """One :class:`TreeLoads` per URDF file and payload (building one parses the file)."""
+    return TreeLoads(urdf, payload)
