@@ -29,6 +29,7 @@ import re  # noqa: E402
 
 from platkit import __version__  # noqa: E402
 from platkit.errors import PlatkitError  # noqa: E402
+from platkit.notices import collecting  # noqa: E402
 
 #: verb modules under platkit.commands, in the order `platkit --help` lists them
 COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient", "batch"]
@@ -116,7 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         except SystemExit as exc:  # argparse already printed one line; bad usage is bad input
             return 2 if exc.code not in (0, None) else 0
         debug = getattr(args, "debug", False)
-        return int(args._run(args) or 0)
+        with collecting():  # each warning printed once on stderr, and kept for the verb's report
+            return int(args._run(args) or 0)
     except PlatkitError as exc:
         if debug:
             _print_traceback()

@@ -24,7 +24,9 @@ from platkit.errors import BadInput
 from platkit.io.atomic import atomic_write_text
 from platkit.io.calibration import Calibration, read_calibration
 from platkit.io.session import read_table
+from platkit.limits import check_strokes
 from platkit.model import controls_from_si, controls_to_si, length_scale
+from platkit.notices import warn
 from platkit.poses import PoseSet
 
 
@@ -61,25 +63,11 @@ def read_commands(path: str | Path, cal: Calibration) -> tuple[np.ndarray, np.nd
 
 
 def _check_strokes(table, spec, U_file: np.ndarray, U_si: np.ndarray, length_unit: str) -> None:
-    """A command outside a control's stroke is bad input, as in a session's commands.csv (most
-    often a length in the wrong unit, which the message then says)."""
-    for j, c in enumerate(spec.controls):
-        tol_lo, tol_hi = 1e-9 * max(1.0, abs(c.lower)), 1e-9 * max(1.0, abs(c.upper))
-        out = np.nonzero((U_si[:, j] < c.lower - tol_lo) | (U_si[:, j] > c.upper + tol_hi))[0]
-        if not out.size:
-            continue
-        r = int(out[0])
-        value = float(U_file[r, j])
-        hint = ""
-        if c.unit == "m":
-            s = length_scale(length_unit)
-            lo, hi, unit = c.lower / s, c.upper / s, length_unit
-            other = "m" if length_unit == "mm" else "mm"
-            if c.lower <= value * length_scale(other) <= c.upper:
-                hint = f"; the value fits the stroke in {other}, but the calibration's lengths are in {length_unit}"
-        else:
-            lo, hi, unit = c.lower, c.upper, c.unit
-        raise BadInput(f"{table.where(r, c.name)}: {value:.6g} is outside the stroke [{lo:.6g}, {hi:.6g}] {unit}{hint}")
+    """Commands against the strokes under platkit.limits' policy, as a session's commands.csv: a
+    reading past a limit within the recording tolerance is kept with a warning, further out is
+    bad input (with a hint when the number is in the other length unit)."""
+    check_strokes(spec, U_si, U_file, length_unit, table.where, BadInput,
+                  f"the calibration's lengths are in {length_unit}", warn)
 
 
 def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = None):
@@ -96,7 +84,7 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     header += [f"{m}_{a}" for m in cal.marker_names for a in "xyz"]
     header += [f"{b}_{a}" for b in cal.body_names for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
-    bodies = predict_bodies(cal, q, X)
+    bodies = predict_bodies(cal, q, X, U, poses)
     bodies[..., :3] /= s
     rows = np.column_stack([controls_from_si(cal.spec, U, cal.length_unit), markers.reshape(N, -1) / s,
                             bodies.reshape(N, -1), X / s, q])

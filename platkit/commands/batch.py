@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 from platkit.errors import BadInput
+from platkit.notices import collecting
 
 #: verbs a batch runs, each through its module platkit.commands.<verb>
 VERBS = ("calibrate", "diagnose", "orient")
@@ -106,7 +107,7 @@ def run_verb(verb: str, options: dict, session: str, name: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="platkit-batch-") as tmp:
         ns.out = str(Path(tmp) / "out")
         said, warned = io.StringIO(), io.StringIO()
-        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(warned):
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(warned), collecting():
             code = module.run(ns)
         if code:
             raise BadInput(f"platkit {verb} exited {code}: {warned.getvalue().strip() or said.getvalue().strip()}")

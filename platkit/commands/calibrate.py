@@ -8,6 +8,7 @@ from pathlib import Path
 from platkit.errors import BadInput
 from platkit.io.atomic import check_output_dir
 from platkit.model import length_scale
+from platkit.notices import warn
 
 
 def add_parser(sub):
@@ -86,7 +87,7 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     poses = load_poses(folder, spec=s.spec, session=s)
     options = {"moving_link": s.moving_link} if s.moving_link else {}
     for note in s.extras.get("control_notes", []) + settling_notes(poses, folder):  # kept with a warning
-        print(f"platkit: warning: {note}", file=sys.stderr)
+        warn(note)
         if notes is not None:
             notes.append(note)
     return poses, s.spec, options
@@ -146,8 +147,7 @@ def run(args) -> int:
         if args.max_evaluations is not None and args.max_evaluations < 1:
             raise BadInput(f"--max-evaluations {args.max_evaluations}: use a positive number")
         if poses.n_bodies:  # the paper's method knows markers only: bodies left out, and said
-            print(f"platkit: warning: rigid bodies {', '.join(poses.body_names)} left out: --method paper reads "
-                  "the markers only", file=sys.stderr)
+            warn(f"rigid bodies {', '.join(poses.body_names)} left out: --method paper reads the markers only")
             poses.body_names, poses.bodies, poses.n_body_samples = [], None, None
         cal = calibrate_paper(poses, spec, free=free, max_evaluations=args.max_evaluations, progress=progress,
                               platform_options=options)
@@ -185,13 +185,12 @@ def run(args) -> int:
     if second is not None:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / s:.4g} {cal.length_unit}"
         if second["rms"] > SAME_FRAME_RATIO * max(cal.rms_after, 1e-12):
-            print(f"platkit: warning: the second session's rms is {second['rms'] / max(cal.rms_after, 1e-12):.0f} times "
-                  f"the fit's: was {args.validate} recorded in the same motion-capture frame?", file=sys.stderr)
+            warn(f"the second session's rms is {second['rms'] / max(cal.rms_after, 1e-12):.0f} times "
+                 f"the fit's: was {args.validate} recorded in the same motion-capture frame?")
     limit = cal.identifiability.get("at_plausible_limit") or []
     if limit:
-        print(f"platkit: warning: {', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
-              "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose",
-              file=sys.stderr)
+        warn(f"{', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
+             "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose")
     chosen = cal.identifiability.get("model_selection") or {}
     if chosen.get("candidates"):
         held = chosen.get("held") or []

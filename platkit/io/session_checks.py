@@ -3,14 +3,15 @@ columns and their values, the plausibility of the declared length unit, the cont
 the strokes. Every problem is one BadSession line naming the file, row and column."""
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from platkit.errors import BadSession
 from platkit.io.table import Table
+from platkit.limits import RECORDING_TOLERANCE, check_strokes
 from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
+from platkit.notices import warn
 
 #: the seven columns of a rigid body T: T_x,T_y,T_z (origin, length unit) and T_qw..T_qz (unit quaternion)
 BODY_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -232,17 +233,17 @@ def checked_marker_block(table: Table, names: list[str], scale: float, length_un
 
 
 #: a recorded control this fraction of its stroke past a limit is a reading (encoder noise, a soft
-#: limit), kept with a note; further out it is an error
-STROKE_TOLERANCE = 0.01
+#: limit), kept with a note; further out it is an error (the one policy of platkit.limits)
+STROKE_TOLERANCE = RECORDING_TOLERANCE
 
 
 def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_unit: str,
                    notes: list[str] | None = None) -> np.ndarray:
-    """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes.
-
-    A value past a limit by at most STROKE_TOLERANCE of the stroke (a torso reading 0.350181 m
-    against 0.35) is kept, and one sentence per control naming the value and the limit is
-    appended to ``notes`` (default: a Python warning); further out is a BadSession.
+    """Control columns of ``table`` -> (N, n_u) internal units, checked against the strokes under
+    platkit.limits' policy: a value past a limit by at most RECORDING_TOLERANCE of the stroke (a
+    torso reading 0.350181 m against 0.35) is kept, and one sentence per control naming the
+    value and the limit is appended to ``notes`` (default: a PlatkitWarning); further out is a
+    BadSession.
     """
     names = spec.control_names
     expected = leading + names
@@ -258,38 +259,8 @@ def check_controls(table: Table, spec: PlatformSpec, leading: list[str], length_
         if bad.size:
             raise BadSession(f"{table.where(int(bad[0]), n)}: empty or nan; every command needs every control")
     u = controls_to_si(spec, raw, length_unit)
-    for j, c in enumerate(spec.controls):
-        rounding_lo, rounding_hi = 1e-9 * max(1.0, abs(c.lower)), 1e-9 * max(1.0, abs(c.upper))
-        stroke = c.upper - c.lower
-        slack = STROKE_TOLERANCE * stroke if np.isfinite(stroke) and stroke > 0 else 0.0
-        past = (u[:, j] < c.lower - rounding_lo) | (u[:, j] > c.upper + rounding_hi)
-        out = np.nonzero((u[:, j] < c.lower - rounding_lo - slack) | (u[:, j] > c.upper + rounding_hi + slack))[0]
-        unit = length_unit if c.unit == "m" else c.unit
-        s_file = LENGTH_UNITS[length_unit] if c.unit == "m" else 1.0
-        lo, hi = c.lower / s_file, c.upper / s_file
-        if out.size:
-            r = int(out[0])
-            hint = ""
-            if c.unit == "m":
-                for other, s in LENGTH_UNITS.items():
-                    if other != length_unit and c.lower <= raw[r, j] * s <= c.upper:
-                        hint = f"; the value fits the stroke in {other}, but session.yaml declares {length_unit}"
-            raise BadSession(
-                f"{table.where(r, c.name)}: {raw[r, j]:.6g} is outside the stroke [{lo:.6g}, {hi:.6g}] {unit}{hint}"
-            )
-        if past.any():
-            rows = np.nonzero(past)[0]
-            r = int(rows[np.argmax(np.maximum(c.lower - u[rows, j], u[rows, j] - c.upper))])
-            limit = c.lower if u[r, j] < c.lower else c.upper
-            note = (f"{table.where(r, c.name)}: {raw[r, j]:.9g} is past the limit {limit / s_file:.9g} {unit}"
-                    + (f" ({rows.size} rows past a limit, this one the furthest)" if rows.size > 1 else "")
-                    + f"; kept as recorded: within {STROKE_TOLERANCE:.0%} of the stroke [{lo:.6g}, {hi:.6g}] "
-                    "(encoder noise or a soft limit)")
-            if notes is None:
-                warnings.warn(note, stacklevel=2)
-            else:
-                notes.append(note)
-    return u
+    return check_strokes(spec, u, raw, length_unit, table.where, BadSession, f"session.yaml declares {length_unit}",
+                         warn if notes is None else notes.append)
 
 
 def _body_counts(table: Table, names: list[str], bodies: np.ndarray, path: Path) -> np.ndarray | None:

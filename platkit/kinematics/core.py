@@ -7,7 +7,9 @@ import numpy as np
 
 from platkit.errors import BadInput, OutOfWorkspace
 from platkit.geometry import quat_normalize
-from platkit.model import PlatformSpec, length_scale
+from platkit.limits import check_strokes
+from platkit.model import PlatformSpec, controls_from_si, length_scale
+from platkit.notices import warn
 
 
 class ModelCore:
@@ -54,7 +56,8 @@ class ModelCore:
 
     def check_controls(self, u, strict: bool = True) -> np.ndarray:
         """Controls as an array (n_u,) or (N, n_u); BadInput for a wrong length or a non-finite
-        value, OutOfWorkspace (strict) for a value outside its stroke. Messages show lengths in
+        value; ``strict``: a value past its stroke under platkit.limits' policy (within the
+        recording tolerance a warning, further out OutOfWorkspace). Messages show lengths in
         the model's ``length_unit``."""
         u = np.asarray(u, dtype=float)
         if u.shape[-1:] != (self.spec.n_u,):
@@ -74,18 +77,16 @@ class ModelCore:
             i = int(np.argwhere(~finite)[0][-1])
             raise BadInput(f"{self.spec.name}: control {self.spec.controls[i].name} is not a finite number")
         if strict:
-            bad = (u < self._lo_tol) | (u > self._hi_tol)
-            if np.any(bad):
-                idx = np.argwhere(bad)[0]
-                c = self.spec.controls[int(idx[-1])]
-                val, unit = self._show(float(u[tuple(idx)]), c.unit)
-                lo, _ = self._show(c.lower, c.unit)
-                hi, _ = self._show(c.upper, c.unit)
-                row = f" (row {int(idx[0])})" if u.ndim > 1 else ""
-                raise OutOfWorkspace(
-                    f"{self.spec.name}: control {c.name} = {val:.6g} {unit}{row} is outside its stroke "
-                    f"[{lo:.6g}, {hi:.6g}] {unit}"
-                )
+            # past a limit: platkit.limits' policy (a reading within the recording tolerance is
+            # kept with a warning, further out is OutOfWorkspace)
+            U = np.atleast_2d(u)
+            name = self.spec.name
+
+            def where(r: int, control: str) -> str:
+                return f"{name}: control {control}" + (f" (row {r})" if u.ndim > 1 else "")
+
+            check_strokes(self.spec, U, controls_from_si(self.spec, U, self.length_unit), self.length_unit, where,
+                          OutOfWorkspace, f"the lengths are in {self.length_unit}", warn)
         return u
 
     def pose(self, p) -> tuple[np.ndarray, np.ndarray]:
