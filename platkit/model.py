@@ -68,6 +68,26 @@ class Coordinate:
     upper: float = np.inf
 
 
+@dataclass(frozen=True)
+class RowMisfit:
+    """How far one residual row may stay from zero on the real stand: a cable's stretch, a leg's
+    play. ``name``: the row as a person reads it ('cable c3'); ``unit``: the row's unit ('m',
+    'rad' or '1'); ``plausible``: the largest |r_i| the stand takes as real, in that unit (SI).
+
+    A stand with more residual rows than pose coordinates declares one per row: forward
+    kinematics is then the weighted least-squares pose (row i weighted by 1/plausible_i), and a
+    pose whose rows miss by more than their plausible misfit is refused, naming the rows.
+    """
+
+    name: str
+    unit: str
+    plausible: float
+
+
+#: the spaces a stand may declare free (a box every point of which the stand takes)
+FREE_SPACES = ("controls", "pose")
+
+
 @dataclass
 class PlatformSpec:
     """Everything a stand tells the core about itself.
@@ -105,6 +125,8 @@ class PlatformSpec:
     moving_frame: str = "platform"
     base_frame: str = "base"
     extras: dict[str, Any] = field(default_factory=dict)
+    misfit: list[RowMisfit] | None = None
+    free_space: str = "controls"
     tracked_links: list[str] = field(default_factory=list)
     link_poses: ca.Function | None = None
 
@@ -131,6 +153,23 @@ class PlatformSpec:
     @property
     def coordinate_names(self) -> list[str]:
         return [c.name for c in self.coordinates]
+
+    @property
+    def pose_free(self) -> bool:
+        """True when the stand declares its pose box free (samples are drawn as poses)."""
+        return self.free_space == "pose"
+
+    def plausible_misfit(self) -> np.ndarray | None:
+        """(n_r,) the rows' plausible misfit (SI), or None where the rows must close exactly."""
+        if self.misfit is None:
+            return None
+        return np.array([m.plausible for m in self.misfit], dtype=float)
+
+    def coordinate_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return (
+            np.array([c.lower for c in self.coordinates], float),
+            np.array([c.upper for c in self.coordinates], float),
+        )
 
     def nominal_td(self) -> np.ndarray:
         return np.array([p.nominal for p in self.parameters], dtype=float)
@@ -236,6 +275,46 @@ def validate_spec(spec: PlatformSpec) -> None:
     r = np.asarray(spec.residual(spec.neutral_u(), spec.nominal_td(), *spec.pose(spec.neutral_p()))).ravel()
     if not np.all(np.isfinite(r)):
         raise BadDescription(f"stand {spec.name!r}: the residual is not finite at the neutral pose")
+    _check_misfit(spec, r.size)
+    _check_free_space(spec)
+
+
+def _where(spec: PlatformSpec) -> str:
+    return f"{spec.description_path}: " if spec.description_path is not None else ""
+
+
+def _check_misfit(spec: PlatformSpec, n_r: int) -> None:
+    """The plausible misfit: one positive finite RowMisfit per residual row, or none at all."""
+    if spec.misfit is None:
+        return
+    where = f"{_where(spec)}stand {spec.name!r}: field 'misfit'"
+    rows = list(spec.misfit)
+    if len(rows) != n_r:
+        raise BadDescription(f"{where} declares {len(rows)} rows, the residual has {n_r}")
+    if n_r < spec.n_p:
+        raise BadDescription(f"{where}: a plausible misfit needs at least as many residual rows as pose coordinates "
+                             f"({n_r} < {spec.n_p})")
+    for i, m in enumerate(rows):
+        if not isinstance(m, RowMisfit):
+            raise BadDescription(f"{where}[{i}] must be a platkit.model.RowMisfit, got {type(m).__name__}")
+        if not (isinstance(m.plausible, (int, float)) and np.isfinite(m.plausible) and m.plausible > 0):
+            raise BadDescription(f"{where}[{i}] ({m.name}): plausible misfit must be a positive number, got {m.plausible!r}")
+
+
+def _check_free_space(spec: PlatformSpec) -> None:
+    """A declared free space: 'controls' needs finite strokes only where sampled (checked there);
+    'pose' needs finite coordinate bounds and a way from poses to controls."""
+    where = f"{_where(spec)}stand {spec.name!r}: field 'free_space'"
+    if spec.free_space not in FREE_SPACES:
+        raise BadDescription(f"{where} is {spec.free_space!r}, not one of {', '.join(FREE_SPACES)}")
+    if spec.free_space == "pose":
+        lo, hi = spec.coordinate_bounds()
+        bad = [c.name for c, a, b in zip(spec.coordinates, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and a < b)]
+        if bad:
+            raise BadDescription(f"{where} is 'pose' but coordinates {bad} have no finite bounds lower < upper")
+        p0 = spec.neutral_p()
+        if np.any(p0 < lo) or np.any(p0 > hi):
+            raise BadDescription(f"{where} is 'pose' but the neutral pose lies outside the coordinates' bounds")
 
 
 def length_scale(unit: str) -> float:

@@ -94,6 +94,80 @@ static double pk_norm(const double* r) {
   return sqrt(s);
 }
 
+#if PK_NR > PK_NP
+/* More rows than pose coordinates: Levenberg-Marquardt on the (weighted) rows r(p), the
+   least-squares pose. Steps solve (J^T J + lam diag(J^T J)) dp = J^T r; a step is kept only when
+   it lowers |r| (lam / 3), else lam x 4 and the step is tried again. Stops converged when
+   |r| <= tol (the rows close), when the step is below 1e-11 (1 + |p|_inf), or when no step
+   lowers |r| (a minimum to machine precision); status 1 after max_iter steps. out as pk_newton
+   below. */
+CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const double* p0,
+                                    double tol, int max_iter, double* out) {
+  double r[PK_NR + 1], J[PK_NR * PK_NP + 1], rt[PK_NR + 1], Jt[PK_NR * PK_NP + 1];
+  double N[PK_NP * PK_NP + 1], A[PK_NP * PK_NP + 1], gr[PK_NP + 1], b[PK_NP + 1], pt[PK_NP + 1];
+  double* p = out; double* q = out + PK_NP; double* X = q + 4; double* g = X + 3;
+  double* info = g + PK_NG;
+  double nrm, nt, lam = 1e-4; int k, i, j, l, tries, status = 0;
+  memcpy(p, p0, sizeof(double) * PK_NP);
+  pk_eval_rj(u, td, p, r, J);
+  nrm = pk_norm(r);
+  for (k = 0;; ++k) {
+    double scale = 0.0, step = 0.0, pmax = 0.0; int kept = 0;
+    if (!isfinite(nrm)) { status = 3; break; }
+    if (nrm <= tol) { status = 0; break; }
+    if (k >= max_iter) { status = 1; break; }
+    for (i = 0; i < PK_NP; ++i) {
+      double bi = 0.0;
+      for (l = 0; l < PK_NR; ++l) bi += J[l + i * PK_NR] * r[l];
+      gr[i] = bi;
+      for (j = 0; j < PK_NP; ++j) {
+        double a = 0.0;
+        for (l = 0; l < PK_NR; ++l) a += J[l + i * PK_NR] * J[l + j * PK_NR];
+        N[i + j * PK_NP] = a;
+      }
+    }
+    for (i = 0; i < PK_NP * PK_NP; ++i) { double v = fabs(N[i]); if (v > scale) scale = v; }
+    for (tries = 0; tries < 40 && !kept; ++tries) {
+      memcpy(A, N, sizeof(double) * PK_NP * PK_NP);
+      memcpy(b, gr, sizeof(double) * PK_NP);
+      for (i = 0; i < PK_NP; ++i) {
+        double d = N[i + i * PK_NP];
+        A[i + i * PK_NP] += lam * (d > 1e-12 * scale ? d : 1e-12 * scale + 1e-300);
+      }
+      if (pk_lu_solve(PK_NP, A, b, scale)) { lam *= 4.0; continue; }
+      for (i = 0; i < PK_NP; ++i) pt[i] = p[i] - b[i];
+      pk_eval_rj(u, td, pt, rt, Jt);
+      nt = pk_norm(rt);
+      if (isfinite(nt) && nt < nrm) {
+        kept = 1;
+        for (i = 0; i < PK_NP; ++i) {
+          double s = fabs(b[i]), v = fabs(pt[i]);
+          if (s > step) step = s;
+          if (v > pmax) pmax = v;
+        }
+        memcpy(p, pt, sizeof(double) * PK_NP);
+        memcpy(r, rt, sizeof(double) * PK_NR);
+        memcpy(J, Jt, sizeof(double) * PK_NR * PK_NP);
+        nrm = nt;
+        lam = lam / 3.0 > 1e-12 ? lam / 3.0 : 1e-12;
+      } else {
+        lam *= 4.0;
+      }
+    }
+    if (!kept) { status = 0; ++k; break; }
+    if (step <= 1e-11 * (1.0 + pmax)) { status = 0; ++k; break; }
+  }
+  pk_eval_post(u, td, p, q, X, g);
+  {
+    double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    double sgn = q[0] < 0 ? -1.0 : 1.0;
+    int on = 1;
+    for (i = 0; i < 4; ++i) q[i] *= sgn / qn;
+    for (i = 0; i < PK_NG; ++i) if (!(g[i] > 0)) on = 0;
+    info[0] = k; info[1] = nrm; info[2] = status; info[3] = on;
+  }
+}
+#else
 /* Newton on r(p) = F(u, td, pose(p)) = 0 from p0. out: p (NP), q (4, unit, w >= 0), X (3),
    g (NG), then iterations, |r|, status, on_branch. Once |r| <= tol one more step polishes the
    solution (kept only if it lowers |r|); it is not counted as an iteration. */
@@ -132,6 +206,8 @@ CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const dou
     info[0] = k; info[1] = nrm; info[2] = status; info[3] = on;
   }
 }
+
+#endif
 
 /* pk_newton for one control vector inside [lo, hi] (NaN is outside); 1 and nothing solved when
    outside (the caller words the error), 0 otherwise. The check costs nothing here and a
@@ -181,12 +257,17 @@ class NativeNewton:
 
 
 def newton_functions(spec: PlatformSpec) -> tuple[ca.Function, ca.Function, int]:
-    """(rj, post, n_g): rj(u, td, p) -> (r, dense J_p); post(u, td, p) -> (q, X, g)."""
+    """(rj, post, n_g): rj(u, td, p) -> (r, dense J_p); post(u, td, p) -> (q, X, g). Where the
+    stand declares its rows' plausible misfit, r is row i over its plausible misfit (the rows
+    the least-squares pose weighs)."""
     u = ca.SX.sym("u", spec.n_u)
     td = ca.SX.sym("td", spec.n_td)
     p = ca.SX.sym("p", spec.n_p)
     q, X = spec.pose(p)
     r = spec.residual(u, td, q, X)
+    plausible = spec.plausible_misfit()
+    if plausible is not None:  # least squares weighted by the rows' plausible misfit
+        r = r / ca.DM(plausible)
     rj = ca.Function("pk_rj", [u, td, p], [r, ca.densify(ca.jacobian(r, p))], ["u", "td", "p"], ["r", "J"])
     if spec.branch is not None:
         g = spec.branch(u, td, q, X)
@@ -254,7 +335,9 @@ def _compile(cc: str, flags: list[str], source: str, folder: Path, lib: Path) ->
 
 
 def native_for(spec: PlatformSpec, rj, post, n_g):
-    key = (id(spec.residual), id(spec.pose), id(spec.branch), spec.n_td)
+    plausible = spec.plausible_misfit()
+    key = (id(spec.residual), id(spec.pose), id(spec.branch), spec.n_td,
+           None if plausible is None else tuple(plausible.tolist()))
     hit = _native_by_functions.get(key)
     if hit is not None:
         return hit[1]

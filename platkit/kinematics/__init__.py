@@ -1,7 +1,10 @@
 """Generic kinematics of any registered stand, derived from its CasADi residual.
 
 Forward kinematics solves G(p) = F(u, td, pose(p)) = 0 for the pose coordinates p by Newton's
-method (Gauss-Newton where the stand has more equations than coordinates); inverse kinematics
+method; where the stand has more rows than coordinates it takes the least-squares pose
+(Levenberg-Marquardt, rows weighted by their declared plausible misfit) and reports the rows'
+misfit. A solve that fails, leaves the stand's branch or misfits beyond the plausible starts
+again from a library of poses spread over the stand's free space. Inverse kinematics
 uses the stand's closed form where it has one, else Gauss-Newton over u. Velocities and
 accelerations come from differentiating the constraint along a motion.
 
@@ -9,7 +12,8 @@ One concept per module, joined in :class:`PlatformModel`:
 
     core.py          the residual as CasADi functions, strokes, control checks, pose coordinates
     newton.py        the Newton iteration: compiled C (platkit/native.py) or numpy
-    forward.py       forward kinematics, one control vector or a batch
+    forward.py       forward kinematics, one control vector or a batch; misfit, restarts, angles wrapped
+    sampling.py      samples of the free space (controls or poses), the start library
     inverse.py       inverse kinematics: closed form, Gauss-Newton, bounded least squares
     rates.py         velocities and accelerations, in pose coordinates or as a twist
     conditioning.py  the velocity Jacobian, condition numbers, distance to a singularity

@@ -23,7 +23,9 @@ from platkit.native import CONVERGED, MAX_ITERATIONS, NOT_FINITE, SINGULAR, Nati
 
 class NewtonSolver(ModelCore):
     """G(p) = F(u, td, pose(p)) = 0 solved for p: one problem or N, in C or in numpy; out rows
-    (p, q, X, g, iterations, |r|, status, on_branch)."""
+    (p, q, X, g, iterations, |r|, status, on_branch). Where rows outnumber pose coordinates the
+    solve is Levenberg-Marquardt on the rows weighted by their plausible misfit, and |r| is the
+    weighted misfit at the least-squares pose."""
 
     @functools.cached_property
     def _newton_fns(self):
@@ -106,8 +108,58 @@ class NewtonSolver(ModelCore):
             return out
         return self._solve_numpy(u, td, np.broadcast_to(P0, (N, self.spec.n_p)))
 
+    def _lm_numpy_one(self, u: np.ndarray, td: np.ndarray, p0: np.ndarray) -> np.ndarray:
+        """Levenberg-Marquardt on the (weighted) rows of a stand with more rows than pose
+        coordinates: the C driver's rule and out row (platkit/native.py)."""
+        n_p = self.spec.n_p
+        p = np.array(p0, dtype=float)
+        r, J = self._rj_one(u, td, p)
+        nrm = math.sqrt(float(r @ r))
+        lam, status, k = 1e-4, CONVERGED, 0
+        while True:
+            if not math.isfinite(nrm):
+                status = NOT_FINITE
+                break
+            if nrm <= self.tol:
+                break
+            if k >= self.max_iter:
+                status = MAX_ITERATIONS
+                break
+            N, gr = J.T @ J, J.T @ r
+            scale = float(np.max(np.abs(N)))
+            d = np.diag(N).copy()
+            d = np.where(d > 1e-12 * scale, d, 1e-12 * scale + 1e-300)
+            kept = False
+            step = 0.0
+            for _ in range(40):
+                try:
+                    b = np.linalg.solve(N + lam * np.diag(d), gr)
+                except np.linalg.LinAlgError:
+                    lam *= 4.0
+                    continue
+                pt = p - b
+                rt, Jt = self._rj_one(u, td, pt)
+                nt = math.sqrt(float(rt @ rt))
+                if math.isfinite(nt) and nt < nrm:
+                    kept, step = True, float(np.max(np.abs(b)))
+                    p, r, J, nrm = pt, rt, Jt, nt
+                    lam = max(lam / 3.0, 1e-12)
+                    break
+                lam *= 4.0
+            k += 1
+            if not kept or step <= 1e-11 * (1.0 + float(np.max(np.abs(p)))):
+                break
+        q, X, g = self._post_one(u, td, p)
+        q = q / math.sqrt(float(q @ q))
+        if q[0] < 0:
+            q = -q
+        on = bool(np.all(g > 0))
+        return np.concatenate([p[:n_p], q, X, g, [k, nrm, status, on]])
+
     def _solve_numpy_one(self, u: np.ndarray, td: np.ndarray, p0: np.ndarray) -> np.ndarray:
         """One Newton solve with numpy over CasADi buffer evaluations; the C driver's out row."""
+        if self.n_r > self.spec.n_p:
+            return self._lm_numpy_one(u, td, p0)
         square = self.n_r == self.spec.n_p
         p = np.array(p0, dtype=float)
         status, k = CONVERGED, 0
@@ -149,6 +201,8 @@ class NewtonSolver(ModelCore):
         """The same iteration as the C driver, vectorised over the N problems with numpy."""
         rj, post, n_g = self._newton_fns
         N, n_p = U.shape[0], self.spec.n_p
+        if self.n_r > n_p:
+            return np.array([self._lm_numpy_one(U[i], td, P0[i]) for i in range(N)]).reshape(N, n_p + 7 + n_g + 4)
         P = np.array(P0, dtype=float)
         iters = np.zeros(N)
         norms = np.full(N, np.inf)

@@ -17,8 +17,23 @@ class ForwardResult:
     q: np.ndarray  # (4,) orientation, w x y z
     X: np.ndarray  # (3,) position, m
     iterations: int
-    residual: float  # final |F|
+    residual: float  # final |F| (a redundant stand: |F| weighted by the rows' plausible misfit)
     on_branch: bool
+    #: a stand with more residual rows than pose coordinates: each row's residual at the
+    #: least-squares pose (n_r,), in the rows' units (SI); None for a square stand (rows close)
+    misfit: np.ndarray | None = None
+    #: the rows' plausible misfit (n_r,) as the stand declares it, None where it declares none
+    plausible: np.ndarray | None = None
+
+    @property
+    def misfit_ratio(self) -> float:
+        """The worst row's |misfit| over its plausible misfit (0 for a square stand; at most 1
+        for an accepted solution); NaN where the stand declares no plausible misfit."""
+        if self.misfit is None:
+            return 0.0
+        if self.plausible is None:
+            return float("nan")
+        return float(np.max(np.abs(self.misfit) / self.plausible))
 
     @property
     def rpy(self) -> np.ndarray:
@@ -38,8 +53,9 @@ class ForwardBatch:
     X: np.ndarray  # (N, 3)
     iterations: np.ndarray  # (N,)
     residual: np.ndarray  # (N,)
-    converged: np.ndarray  # (N,) bool
+    converged: np.ndarray  # (N,) bool (a redundant stand: False where rows miss beyond their plausible misfit)
     on_branch: np.ndarray  # (N,) bool
+    misfit: np.ndarray | None = None  # (N, n_r) rows' residual of a redundant stand, SI; None if square
 
 
 @dataclass
