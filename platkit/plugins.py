@@ -234,15 +234,36 @@ def get_platform(name: str, description=None, **options) -> PlatformSpec:
     """Build the named stand's spec from ``description`` (None: the plugin's default).
 
     ``options``: stand-specific choices (e.g. ``moving_link="tool0"`` for URDF chains); values
-    must be hashable (strings, numbers, tuples). Specs are cached per (name, description, options).
+    are strings, numbers, lists or mappings of them (a tree's ``moving_link={"R": "right_tcp"}``).
+    Specs are cached per (name, description, options).
     """
-    key = tuple(sorted((k, v) for k, v in options.items() if v is not None))
+    key = tuple(sorted((k, _frozen(v)) for k, v in options.items() if v is not None))
     return _cached_platform(name, None if description is None else str(description), key)
+
+
+class _FrozenDict(tuple):
+    """A mapping's items, hashable, told apart from a list's tuple."""
+
+
+def _frozen(v):
+    if isinstance(v, dict):
+        return _FrozenDict((k, _frozen(x)) for k, x in v.items())
+    if isinstance(v, (list, tuple)):
+        return tuple(_frozen(x) for x in v)
+    return v
+
+
+def _thawed(v):
+    if isinstance(v, _FrozenDict):
+        return {k: _thawed(x) for k, x in v}
+    if isinstance(v, tuple):
+        return [_thawed(x) for x in v]
+    return v
 
 
 @functools.lru_cache(maxsize=32)
 def _cached_platform(name: str, description: str | None, options: tuple) -> PlatformSpec:
-    return default_host().build(name, description, **dict(options))
+    return default_host().build(name, description, **{k: _thawed(v) for k, v in options})
 
 
 def list_platforms() -> dict[str, PlatformFactory]:

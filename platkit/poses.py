@@ -23,7 +23,10 @@ class PoseSet:
         t: (N,) seconds, the time each command was sent (NaN if unknown).
         n_samples: (N, M) samples averaged per marker (0 for unseen), or None.
         length_unit: the session's declared unit ('mm' or 'm'), used for reporting only.
-        moving_link: the link carrying the markers (URDF stands), or None.
+        moving_link: the link carrying the markers (URDF stands), or None; on a tree the
+            session's mapping {marker or rigid body: link}.
+        marker_links: {marker or rigid body: link it rides on} on a tree (from a mapping
+            ``moving_link``); empty where every marker and body rides on the stand's moving frame.
         source: where the data came from (a path, or 'simulated').
         dropped: list of (row, reason) for commands that gave no pose.
         settling: what the settling search found over the whole session (sigma_m, n_commands,
@@ -47,7 +50,7 @@ class PoseSet:
     t: np.ndarray | None = None
     n_samples: np.ndarray | None = None
     length_unit: str = "mm"
-    moving_link: str | None = None
+    moving_link: str | dict | None = None
     source: str = ""
     dropped: list[tuple[int, str]] = field(default_factory=list)
     extras: dict[str, np.ndarray] = field(default_factory=dict)
@@ -56,8 +59,11 @@ class PoseSet:
     body_names: list[str] = field(default_factory=list)
     n_body_samples: np.ndarray | None = None
     body_noise: dict = field(default_factory=dict)
+    marker_links: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        if not self.marker_links and isinstance(self.moving_link, dict):
+            self.marker_links = dict(self.moving_link)
         self.controls = np.atleast_2d(np.asarray(self.controls, float))
         self.markers = np.asarray(self.markers, float)
         if self.markers.ndim != 3 or self.markers.shape[2] != 3:
@@ -102,5 +108,21 @@ class PoseSet:
             dropped=[], extras={k: np.asarray(v)[rows] for k, v in self.extras.items()}, settling=dict(self.settling),
             bodies=np.asarray(self.bodies)[rows] if self.body_names else None, body_names=list(self.body_names),
             n_body_samples=None if self.n_body_samples is None else self.n_body_samples[rows],
-            body_noise=dict(self.body_noise),
+            body_noise=dict(self.body_noise), marker_links=dict(self.marker_links),
         )
+
+    def links_of(self, tracked: list[str]) -> list[int]:
+        """Index in ``tracked`` (a spec's tracked links; the first is its moving frame) of the link
+        each marker, then each rigid body, rides on: (M + B,) ints; all 0 without a mapping.
+        ValueError naming a marker or body with no link, or a link that is not tracked."""
+        if not self.marker_links:
+            return [0] * (self.n_markers + self.n_bodies)
+        out = []
+        for name in list(self.marker_names) + list(self.body_names):
+            link = self.marker_links.get(name)
+            if link is None:
+                raise ValueError(f"marker or rigid body {name!r} is not mapped to a link in moving_link")
+            if link not in tracked:
+                raise ValueError(f"{name!r} rides on link {link!r}, which the stand does not track ({tracked})")
+            out.append(tracked.index(link))
+        return out

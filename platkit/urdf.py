@@ -15,7 +15,10 @@ Joint model, for every actuated joint j of the chain (revolute, continuous, pris
 with ``c_j`` the control's unit conversion (1 for 'rad' and 'm', pi/180 for 'deg'), ``offset_j``
 in the joint's SI unit (rad or m) and ``scale_j`` dimensionless. A mimic joint follows its master:
 ``theta = multiplier * theta_master + offset`` (URDF semantics; the master must be an actuated
-joint of the same chain). Each actuated or mimic joint's origin carries a small rigid error::
+joint that is a control: on a chain, a joint of the chain; on a tree, a recorded joint anywhere
+in it), with the multiplier and offset parameters of their own (group ``mimic``, nominal the
+URDF's numbers, fixed unless freed). Each actuated or mimic joint's origin carries a small rigid
+error::
 
     parent_from_child = origin_nominal * Trans(origin_x, origin_y, origin_z)
                         * Rz(origin_rz) Ry(origin_ry) Rx(origin_rx) * motion(theta)
@@ -25,9 +28,17 @@ fixed joints are not separate parameters: a small error of a fixed joint between
 joints equals an error of the next actuated joint's origin, one before the first actuated joint is
 part of the base-to-mocap transform, one after the last is part of the marker positions.
 
-td layout: per actuated joint, in chain order, ``<joint>.offset``, ``<joint>.scale`` (actuated
-only), then ``<joint>.origin_x, _y, _z, _rx, _ry, _rz``. Nominal values: offset 0, scale 1,
-origin errors 0; the URDF's own numbers are kept in ``spec.extras['chain']``.
+td layout: per actuated or mimic joint, in chain order, ``<joint>.offset``, ``<joint>.scale``
+(actuated only) or ``<joint>.mimic_multiplier``, ``<joint>.mimic_offset`` (mimic only), then
+``<joint>.origin_x, _y, _z, _rx, _ry, _rz``. Nominal values: offset 0, scale 1, origin errors 0,
+the mimic's own numbers; the URDF's own numbers are kept in ``spec.extras['chain']``.
+
+Trees (:func:`kinematic_tree`, :func:`tree_spec`): several links carry markers (two hands on one
+torso). The controls are the recorded actuated joints below the base link (every one by
+default), in depth-first order; each joint's parameters are laid out as on a chain, in the same
+order, and a joint that moves no tracked link keeps its parameters (the identifiability analysis
+holds them). The spec's pose is the first tracked link's; ``spec.link_poses`` gives every
+tracked link's.
 """
 from __future__ import annotations
 
@@ -351,12 +362,150 @@ def serial_chain(tree: UrdfTree, base_link: str | None = None, moving_link: str 
     return SerialChain(path, tree.robot_name, base, moving_link, chain, tree)
 
 
+# ----------------------------------------------------------------------------- the tree
+
+
+@dataclass
+class KinematicTree:
+    """A tree below ``base_link`` whose links ``links`` carry markers (the first is the moving
+    link: the spec's pose). ``joints``: every joint below the base, depth-first (fixed included);
+    ``recorded``: the actuated joints that are controls, in that order. Quacks like
+    :class:`SerialChain` (``actuated``, ``calibrated``, ``moving_link``, ``tree``)."""
+
+    path: Path
+    robot_name: str
+    base_link: str
+    links: list[str]
+    joints: list[UrdfJoint]
+    recorded: list[str]
+    tree: UrdfTree = field(repr=False)
+
+    @property
+    def moving_link(self) -> str:
+        return self.links[0]
+
+    @property
+    def actuated(self) -> list[UrdfJoint]:
+        """The controls: the recorded actuated joints (not mimic), depth-first."""
+        rec = set(self.recorded)
+        return [j for j in self.joints if j.actuated and j.name in rec]
+
+    @property
+    def calibrated(self) -> list[UrdfJoint]:
+        """Joints with parameters: the controls and the mimic joints whose master is one."""
+        rec = set(self.recorded)
+        return [j for j in self.joints if (j.actuated and j.name in rec)
+                or (j.mimic is not None and j.type in ACTUATED_TYPES and j.mimic[0] in rec)]
+
+    def path_to(self, link: str) -> list[UrdfJoint]:
+        """The joints from the base to ``link``, base first."""
+        out = []
+        while link != self.base_link:
+            joint = self.tree.joints[self.tree.parent_joint[link]]
+            out.append(joint)
+            link = joint.parent
+        return out[::-1]
+
+    def required(self) -> dict[str, str]:
+        """{joint: tracked link it moves} of the actuated joints that must be controls: those on
+        a tracked link's path, and the masters of the mimic joints there."""
+        out: dict[str, str] = {}
+        for link in self.links:
+            for j in self.path_to(link):
+                if j.actuated:
+                    out.setdefault(j.name, link)
+                elif j.mimic is not None:
+                    out.setdefault(j.mimic[0], link)
+        return out
+
+
+def _below(tree: UrdfTree, base: str) -> list[UrdfJoint]:
+    """The joints in the subtree under ``base``, depth-first (a branch's joints together, in the
+    file's order of the children)."""
+    children: dict[str, list[UrdfJoint]] = {}
+    for j in tree.joints.values():
+        children.setdefault(j.parent, []).append(j)
+    order: list[UrdfJoint] = []
+    stack = list(reversed(children.get(base, [])))
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(children.get(j.child, [])))
+    return order
+
+
+def kinematic_tree(tree: UrdfTree, links: list[str], base_link: str | None = None,
+                   recorded: list[str] | None = None, where: str = "") -> KinematicTree:
+    """The tree below ``base_link`` (default: the root) with the tracked ``links`` (the first is
+    the moving link) and the ``recorded`` actuated joints as controls (None: every actuated joint
+    below the base). Bad input, one line naming the file and the link or joint: a link not in
+    the URDF or not below the base, a mimic joint whose master is missing or not a joint that
+    can be recorded, a recorded name that is no actuated joint below the base (``where``: the
+    file that named it, e.g. commands.csv), a joint a tracked link needs that is not recorded."""
+    path = tree.path
+    base = base_link if base_link is not None else tree.root
+    if base not in tree.links:
+        raise BadInput(f"{path}: base_link {base!r} is not a link of the URDF")
+    if not links:
+        raise BadInput(f"{path}: a tree needs at least one tracked link")
+    joints = _below(tree, base)
+    below = {j.child for j in joints}
+    for link in links:
+        if link not in tree.links:
+            raise BadInput(f"{path}: moving_link {link!r} is not a link of the URDF")
+        if link not in below:
+            raise BadInput(f"{path}: moving_link {link!r} is not below base_link {base!r} in the tree")
+    by_name = {j.name: j for j in joints}
+    for j in joints:
+        if j.mimic is None:
+            continue
+        if j.mimic[0] not in tree.joints:
+            raise BadDescription(f"{path}: joint {j.name!r} <mimic joint={j.mimic[0]!r}>: the master names no joint "
+                                 "of the file")
+        master = tree.joints[j.mimic[0]]
+        if j.type not in ACTUATED_TYPES:
+            raise BadDescription(f"{path}: joint {j.name!r} is {j.type} but has a <mimic>")
+        if not master.actuated:
+            raise BadDescription(f"{path}: joint {j.name!r} <mimic joint={master.name!r}>: the master is "
+                                 f"{'itself a mimic joint' if master.mimic else master.type}; it must be an actuated joint")
+    actuated = [j.name for j in joints if j.actuated]
+    if recorded is None:
+        recorded = actuated
+    src = where or "the recorded joints"
+    for name in recorded:
+        j = tree.joints.get(name)
+        if j is None:
+            raise BadInput(f"{src}: column {name!r} is no joint of the URDF {path}")
+        if name not in by_name:
+            raise BadInput(f"{src}: column {name!r} is joint {name!r}, which is not below base_link {base!r}")
+        if j.mimic is not None:
+            raise BadInput(f"{src}: column {name!r} is a mimic joint of {j.mimic[0]!r}: it follows its master "
+                           "and is not a column")
+        if not j.actuated:
+            raise BadInput(f"{src}: column {name!r} is a {j.type} joint; only revolute, continuous and prismatic "
+                           "joints are recorded")
+    kt = KinematicTree(path, tree.robot_name, base, list(links), joints, [n for n in actuated if n in set(recorded)], tree)
+    for link in links:
+        for j in kt.path_to(link):
+            if j.type in ("floating", "planar"):
+                raise BadInput(f"{path}: joint {j.name!r} on the path {base} -> {link} is {j.type}; only revolute, "
+                               "continuous, prismatic and fixed joints can be controlled")
+    missing = [(n, link) for n, link in kt.required().items() if n not in set(kt.recorded)]
+    if missing:
+        n, link = missing[0]
+        raise BadInput(f"{src}: missing column {n!r}: joint {n!r} moves the tracked link {link!r}")
+    if not kt.actuated:
+        raise BadInput(f"{path}: the tree below {base!r} has no actuated joint")
+    return kt
+
+
 # ----------------------------------------------------------------------------- parameters
 
 
-def chain_parameters(chain: SerialChain, free_groups: tuple[str, ...] = ("offset", "origin")) -> list[Parameter]:
-    """The td list of a chain (layout in the module docstring). ``free_groups``: which of the
-    groups 'offset', 'scale', 'origin' start free (the estimator may fix unidentifiable ones)."""
+def chain_parameters(chain, free_groups: tuple[str, ...] = ("offset", "origin")) -> list[Parameter]:
+    """The td list of a chain or tree (layout in the module docstring). ``free_groups``: which of
+    the groups 'offset', 'scale', 'origin', 'mimic' start free (the estimator may fix
+    unidentifiable ones)."""
     params = []
     src = str(chain.path)
     for j in chain.calibrated:
@@ -365,6 +514,12 @@ def chain_parameters(chain: SerialChain, free_groups: tuple[str, ...] = ("offset
                                     source=f"{src}: joint {j.name} zero (nominal: the URDF zero)"))
             params.append(Parameter(f"{j.name}.scale", "1", 1.0, lower=0.0, free="scale" in free_groups, group="scale",
                                     source=f"{src}: joint {j.name} (nominal: one joint unit per control unit)"))
+        else:
+            master, multiplier, offset = j.mimic
+            params.append(Parameter(f"{j.name}.mimic_multiplier", "1", multiplier, free="mimic" in free_groups,
+                                    group="mimic", source=f"{src}: joint {j.name} <mimic joint='{master}' multiplier>"))
+            params.append(Parameter(f"{j.name}.mimic_offset", j.unit, offset, free="mimic" in free_groups,
+                                    group="mimic", source=f"{src}: joint {j.name} <mimic joint='{master}' offset>"))
         xyz = " ".join(format(v + 0.0, ".9g") for v in j.origin[:3, 3])  # + 0.0: no '-0'
         rpy = " ".join(format(v + 0.0, ".9g") for v in urdf_rpy(j.origin[:3, :3]))
         for f in ORIGIN_FIELDS:
@@ -374,7 +529,7 @@ def chain_parameters(chain: SerialChain, free_groups: tuple[str, ...] = ("offset
     return params
 
 
-def joint_origins(chain: SerialChain) -> dict[str, dict]:
+def joint_origins(chain) -> dict[str, dict]:
     """The URDF's nominal numbers of the chain's joints, plain (for reports):
     {joint: {type, parent, child, xyz (m), rpy (rad), axis, lower, upper}}."""
     return {
@@ -396,60 +551,93 @@ def _axis_rotation(axis: np.ndarray, theta):
     return R, q
 
 
-def chain_kinematics(chain: SerialChain, control_units: list[str], u, td):
-    """Symbolic forward kinematics of ``chain``: (R 3x3, q (4,), X (3,)) of the moving link in
-    the base link, for controls ``u`` (n_u,) in ``control_units`` and parameters ``td`` laid out
-    as :func:`chain_parameters`. Also returns ``theta``: the joint positions (n_u,) in SI."""
-    R_acc = ca.DM.eye(3)
-    q_acc = ca.DM([1.0, 0.0, 0.0, 0.0])
-    X_acc = ca.DM.zeros(3)
-    # joint values first: a mimic joint may sit before its master on the chain
+def joint_values(calibrated: list[UrdfJoint], control_units: list[str], u, td):
+    """(theta {joint: SI value}, td_start {joint: index of its first parameter}) of the actuated and
+    mimic joints ``calibrated`` (td laid out as :func:`chain_parameters`), for controls ``u`` in
+    ``control_units``: actuated joints take the controls in order, mimic joints follow their master."""
     theta_of: dict[str, object] = {}
     td_start: dict[str, int] = {}
-    k = 0
-    i = 0
-    for j in chain.calibrated:
+    k = i = 0
+    for j in calibrated:
         td_start[j.name] = k
         if j.actuated:
             offset, scale = td[k], td[k + 1]
             theta_of[j.name] = scale * (CONTROL_UNIT_FACTORS[control_units[i]] * u[i] - offset)
             i += 1
-            k += 2
-        k += 6
+        k += 8
     assert k == td.shape[0] and i == u.shape[0], "td or u does not match the chain"
-    for j in chain.calibrated:
+    for j in calibrated:  # a mimic joint may come before its master
         if not j.actuated:
-            master, multiplier, mimic_offset = j.mimic
-            theta_of[j.name] = multiplier * theta_of[master] + mimic_offset
-    for j in chain.joints:
-        R0 = j.origin[:3, :3]
-        t0 = j.origin[:3, 3]
-        q0 = quat_from_matrix(R0)
-        if j.type == "fixed":
-            X_acc = X_acc + ca.mtimes(R_acc, ca.DM(t0))
-            R_acc = ca.mtimes(R_acc, ca.DM(R0))
-            q_acc = ca_quat_multiply(q_acc, ca.DM(q0))
-            continue
+            k = td_start[j.name]
+            theta_of[j.name] = td[k] * theta_of[j.mimic[0]] + td[k + 1]
+    return theta_of, td_start
+
+
+def _joint_local(j: UrdfJoint, theta_of: dict, td_start: dict, td):
+    """(R, q, X) of parent_from_child of joint ``j``: its origin, origin error and motion. A joint
+    without parameters (fixed, or not a control: held at its zero, a mimic at its offset) is its
+    origin and that constant motion."""
+    R0 = j.origin[:3, :3]
+    t0 = j.origin[:3, 3]
+    q0 = quat_from_matrix(R0)
+    if j.name in td_start:
         theta = theta_of[j.name]
-        k = td_start[j.name] + (2 if j.actuated else 0)
+        k = td_start[j.name] + 2
         d = td[k:k + 3]
         rx, ry, rz = td[k + 3], td[k + 4], td[k + 5]
-        R_err = ca_matrix_from_rpy(rx, ry, rz)
-        q_err = ca_quat_from_rpy(rx, ry, rz)
-        # parent_from_child = origin * Trans(d) * R_err * motion(theta)
         X_local = ca.DM(t0) + ca.mtimes(ca.DM(R0), d)
-        R_local = ca.mtimes(ca.DM(R0), R_err)
-        q_local = ca_quat_multiply(ca.DM(q0), q_err)
-        if j.type == "prismatic":
-            X_local = X_local + ca.mtimes(R_local, ca.DM(j.axis)) * theta
-        else:
-            R_joint, q_joint = _axis_rotation(j.axis, theta)
-            R_local = ca.mtimes(R_local, R_joint)
-            q_local = ca_quat_multiply(q_local, q_joint)
-        X_acc = X_acc + ca.mtimes(R_acc, X_local)
-        R_acc = ca.mtimes(R_acc, R_local)
-        q_acc = ca_quat_multiply(q_acc, q_local)
-    return R_acc, q_acc, X_acc
+        R_local = ca.mtimes(ca.DM(R0), ca_matrix_from_rpy(rx, ry, rz))
+        q_local = ca_quat_multiply(ca.DM(q0), ca_quat_from_rpy(rx, ry, rz))
+    else:
+        theta = 0.0 if j.mimic is None else j.mimic[2]
+        X_local, R_local, q_local = ca.DM(t0), ca.DM(R0), ca.DM(q0)
+        if j.type not in ACTUATED_TYPES:
+            return R_local, q_local, X_local
+    # parent_from_child = origin * Trans(d) * R_err * motion(theta)
+    if j.type == "prismatic":
+        X_local = X_local + ca.mtimes(R_local, ca.DM(j.axis)) * theta
+    else:
+        R_joint, q_joint = _axis_rotation(j.axis, theta)
+        R_local = ca.mtimes(R_local, R_joint)
+        q_local = ca_quat_multiply(q_local, q_joint)
+    return R_local, q_local, X_local
+
+
+def _compose(acc, local):
+    R_acc, q_acc, X_acc = acc
+    R_local, q_local, X_local = local
+    return ca.mtimes(R_acc, R_local), ca_quat_multiply(q_acc, q_local), X_acc + ca.mtimes(R_acc, X_local)
+
+
+_IDENTITY = (ca.DM.eye(3), ca.DM([1.0, 0.0, 0.0, 0.0]), ca.DM.zeros(3))
+
+
+def chain_kinematics(chain, control_units: list[str], u, td, link: str | None = None):
+    """Symbolic forward kinematics of a chain or tree: (R 3x3, q (4,), X (3,)) of ``link`` (default:
+    the moving link) in the base link, for controls ``u`` (n_u,) in ``control_units`` and
+    parameters ``td`` laid out as :func:`chain_parameters`."""
+    return link_kinematics(chain, control_units, u, td, [link or chain.moving_link])[0]
+
+
+def link_kinematics(chain, control_units: list[str], u, td, links: list[str]):
+    """[(R 3x3, q (4,), X (3,)) per link of ``links``] in the base link of a chain or tree; the
+    joints shared by several links' paths are composed once."""
+    theta_of, td_start = joint_values(chain.calibrated, control_units, u, td)
+    tree = chain.tree
+    done: dict[str, tuple] = {chain.base_link: _IDENTITY}
+
+    def pose_of(link: str):
+        path = []
+        while link not in done:
+            joint = tree.joints[tree.parent_joint[link]]
+            path.append(joint)
+            link = joint.parent
+        acc = done[link]
+        for j in reversed(path):
+            acc = done[j.child] = _compose(acc, _joint_local(j, theta_of, td_start, td))
+        return acc
+
+    return [pose_of(link) for link in links]
 
 
 def orientation_error(q_model, q):
@@ -462,7 +650,7 @@ def orientation_error(q_model, q):
 
 
 def chain_spec(
-    chain: SerialChain,
+    chain: SerialChain | KinematicTree,
     *,
     name: str,
     title: str,
@@ -472,7 +660,9 @@ def chain_spec(
     description: dict | None = None,
     description_path: Path | None = None,
 ) -> PlatformSpec:
-    """A PlatformSpec for a serial chain: closed-form forward, 6-row residual, six-dof pose.
+    """A PlatformSpec for a serial chain or a tree: closed-form forward, 6-row residual, six-dof
+    pose of the moving link; on a tree also ``tracked_links`` and ``link_poses`` (every tracked
+    link's pose, the moving link first).
 
     Residual (6 rows): ``[X - X_fk(u, td); orientation_error(q_fk(u, td), q)]`` in metres and
     radians. Controls default to the actuated joints' names in their URDF units (rad, m);
@@ -493,8 +683,15 @@ def chain_spec(
     td = ca.SX.sym("td", len(params))
     q = ca.SX.sym("q", 4)
     X = ca.SX.sym("X", 3)
-    _, q_fk, X_fk = chain_kinematics(chain, units, u, td)
+    tracked = list(chain.links) if isinstance(chain, KinematicTree) else []
+    frames = link_kinematics(chain, units, u, td, tracked or [chain.moving_link])
+    _, q_fk, X_fk = frames[0]
     forward = ca.Function("forward", [u, td], [q_fk, X_fk], ["u", "td"], ["q", "X"])
+    link_poses = None
+    if tracked:
+        link_poses = ca.Function("link_poses", [u, td], [ca.vertcat(*[f[1] for f in frames]),
+                                                         ca.vertcat(*[f[2] for f in frames])],
+                                 ["u", "td"], ["q", "X"])
     residual = ca.Function("F", [u, td, q, X], [ca.vertcat(X - X_fk, orientation_error(q_fk, q))],
                            ["u", "td", "q", "X"], ["r"])
     controls = []
@@ -523,16 +720,21 @@ def chain_spec(
         base_frame=chain.base_link,
         extras={"chain": chain, "control_units": units, "urdf_path": chain.path,
                 "joint_origins": joint_origins(chain)},
+        tracked_links=tracked,
+        link_poses=link_poses,
     )
 
 
-def frame_jacobian(spec: PlatformSpec) -> ca.Function:
-    """CasADi ``J(u, td) -> (J_lin (3, n_u), J_ang (3, n_u))``: the moving frame's origin velocity
-    and angular velocity, both in base-frame axes, per unit control rate (control units)."""
-    chain: SerialChain = spec.extras["chain"]
+def frame_jacobian(spec: PlatformSpec, link: str | None = None) -> ca.Function:
+    """CasADi ``J(u, td) -> (J_lin (3, n_u), J_ang (3, n_u))``: the origin velocity and angular
+    velocity of ``link`` (default: the moving frame; on a tree any link of it), both in base-frame
+    axes, per unit control rate (control units). Mimic joints move with their master."""
+    chain = spec.extras["chain"]
+    if link is not None and link not in chain.tree.links:
+        raise BadInput(f"{chain.path}: link {link!r} is not a link of the URDF")
     u = ca.SX.sym("u", spec.n_u)
     td = ca.SX.sym("td", spec.n_td)
-    R, _, X = chain_kinematics(chain, spec.extras["control_units"], u, td)
+    R, _, X = chain_kinematics(chain, spec.extras["control_units"], u, td, link)
     J_lin = ca.jacobian(X, u)
     cols = []
     for i in range(spec.n_u):

@@ -32,7 +32,14 @@ from platkit.calibrate.identifiability import (
     singular_values,
 )
 from platkit.calibrate.plan import reference_poses_for
-from platkit.calibrate.problem import PLAUSIBLE_RANGE, REJECT_K, CalibrationProblem, Progress, parameter_scale
+from platkit.calibrate.problem import (
+    PLAUSIBLE_RANGE,
+    REJECT_K,
+    CalibrationProblem,
+    Progress,
+    link_frames,
+    parameter_scale,
+)
 from platkit.calibrate.solve import _rms, _weighted, blas_threads, kfold, levenberg_marquardt, robust_fit
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
@@ -276,11 +283,13 @@ def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progr
         mocap_std=np.concatenate([std_full[problem.i_w], std_full[problem.i_t]]),
         marker_names=list(poses.marker_names), marker_positions=m.copy(),
         marker_std=std_full[problem.i_m].reshape(-1, 3), rms_before=rms_before, rms_after=rms_after,
-        length_unit=poses.length_unit, platform_options=dict(platform_options or {}), method="lsq",
+        length_unit=poses.length_unit, platform_options=dict(spec.extras.get("platform_options") or platform_options or {}),
+        method="lsq",
         converged=bool(fit.converged), iterations=int(fit.iterations), n_poses=poses.n_poses,
         n_markers=poses.n_markers, n_observations=int(keep.sum()),
         n_rejected=int(np.sum(problem.visible & ~keep)), noise_sigma=float(np.sqrt(s2)),
         identifiability=identifiability, terms=list(terms), theta=[np.array(x) for x in theta], theta_std=theta_std,
+        marker_links=dict(poses.marker_links) if problem.point_links is not None else {},
     )
     cal.extras.update({
         "residuals_before": residuals_before, "residuals_after": st.r.copy(), "weights": weights.copy(),
@@ -355,6 +364,31 @@ def predict_markers(cal: Calibration, controls: np.ndarray, poses: PoseSet | Non
     if poses is None:
         poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, M, 3), np.nan),
                         marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+    R_all, X_all, dm, ok = _predicted_frames(cal, spec, model, U, poses)
+    A = matrix_from_rotvec(cal.mocap_rotvec)
+    k = np.array(calibration_links(cal)[:M], int)
+    pts = X_all[:, k] + np.einsum("nmab,nmb->nma", R_all[:, k], cal.marker_positions[None] + dm)
+    markers = pts @ A.T + cal.mocap_translation
+    R, X = R_all[:, 0], X_all[:, 0]
+    q = quat_normalize(quat_from_matrix(R))
+    markers[~ok] = np.nan
+    return markers, q, X, ok
+
+
+def calibration_links(cal: Calibration) -> list[int]:
+    """Index in the stand's tracked links of the link each marker, then each body, of ``cal``
+    rides on (all 0 where they ride on the moving frame)."""
+    names = list(cal.marker_names) + list(cal.body_names)
+    if not cal.marker_links:
+        return [0] * len(names)
+    tracked = cal.spec.tracked_links or [cal.spec.moving_frame]
+    return [tracked.index(cal.marker_links[n]) for n in names]
+
+
+def _predicted_frames(cal: Calibration, spec: PlatformSpec, model: PlatformModel, U: np.ndarray, poses: PoseSet):
+    """The tracked links' frames under ``cal``'s model terms: R (N, L, 3, 3), X (N, L, 3) m in the
+    base frame (L = 1 but on a tree), the markers' offsets dm (N, M, 3) and converged (N,)."""
+    N, M = U.shape[0], len(cal.marker_names)
     td = cal.td
     du = np.zeros((N, spec.n_u))
     dpose = np.zeros((N, 6))
@@ -366,17 +400,13 @@ def predict_markers(cal: Calibration, controls: np.ndarray, poses: PoseSet | Non
             dpose += term.pose_offset(th, poses, fb.q, fb.X)
             dm += term.marker_offset(th, poses)
     fb = model.forward_batch(U + du, td, strict=False)
-    R = matrix_from_quat(fb.q) @ np.eye(3)
-    R = np.einsum("nab,nbc->nac", matrix_from_rotvec(dpose[:, 3:]), R)
-    X = fb.X + dpose[:, :3]
-    A = matrix_from_rotvec(cal.mocap_rotvec)
-    pts = X[:, None, :] + np.einsum("nab,nmb->nma", R, cal.marker_positions[None] + dm)
-    markers = pts @ A.T + cal.mocap_translation
-
-    q = quat_normalize(quat_from_matrix(R))
-    ok = fb.converged & fb.on_branch
-    markers[~ok] = np.nan
-    return markers, q, X, ok
+    if cal.marker_links and spec.link_poses is not None:
+        R_all, X_all = link_frames(spec, td, U + du)
+    else:
+        R_all, X_all = matrix_from_quat(fb.q)[:, None], fb.X[:, None]
+    R_all = np.einsum("nab,nkbc->nkac", matrix_from_rotvec(dpose[:, 3:]), R_all)
+    X_all = X_all + dpose[:, None, :3]
+    return R_all, X_all, dm, fb.converged & fb.on_branch
 
 
 def point_errors(cal: Calibration, poses: PoseSet) -> np.ndarray:
@@ -385,17 +415,33 @@ def point_errors(cal: Calibration, poses: PoseSet) -> np.ndarray:
     return np.linalg.norm(pred - poses.markers, axis=2)
 
 
-def predict_bodies(cal: Calibration, q: np.ndarray, X: np.ndarray) -> np.ndarray:
+def predict_bodies(cal: Calibration, q: np.ndarray, X: np.ndarray, controls: np.ndarray | None = None,
+                   poses: PoseSet | None = None) -> np.ndarray:
     """The calibration's rigid bodies (N, B, 7) in the motion-capture frame: origin (m) and unit quaternion
     (qw >= 0), from the moving frame's pose in the base frame, q (N, 4) and X (N, 3) m (as
-    :func:`predict_markers` returns them)."""
+    :func:`predict_markers` returns them). On a tree whose bodies ride on other links, from the
+    ``controls`` (N, n_u) (and ``poses``, for the model terms) instead."""
     N, B = len(q), len(cal.body_names)
     if B == 0:
         return np.zeros((N, 0, 7))
     A = matrix_from_rotvec(cal.mocap_rotvec)
-    R = np.einsum("ab,nbc->nac", A, matrix_from_quat(q))  # mocap_from_moving rotation
-    origin = (X @ A.T + cal.mocap_translation)[:, None, :] + np.einsum("nab,kb->nka", R, cal.body_positions)
-    quat = quat_from_matrix(np.einsum("nab,kbc->nkac", R, matrix_from_rotvec(cal.body_rotvecs)))
+    links = calibration_links(cal)[len(cal.marker_names):]
+    if any(links):
+        if controls is None:
+            raise ValueError("predict_bodies: a tree's bodies need the controls")
+        spec = cal.calibrated_spec()
+        U = np.atleast_2d(np.asarray(controls, float))
+        if poses is None:
+            poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
+                            marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+        R_all, X_all, _, _ = _predicted_frames(cal, spec, PlatformModel(spec), U, poses)
+        Rk, Xk = R_all[:, links], X_all[:, links]  # (N, B, 3, 3), (N, B, 3)
+    else:
+        Rk = np.broadcast_to(matrix_from_quat(q)[:, None], (N, B, 3, 3))
+        Xk = np.broadcast_to(X[:, None], (N, B, 3))
+    R = np.einsum("ab,nkbc->nkac", A, Rk)  # each body's mocap_from_link rotation
+    origin = Xk @ A.T + cal.mocap_translation + np.einsum("nkab,kb->nka", R, cal.body_positions)
+    quat = quat_from_matrix(np.einsum("nkab,kbc->nkac", R, matrix_from_rotvec(cal.body_rotvecs)))
     quat = np.where(quat[..., :1] < 0, -quat, quat)
     return np.concatenate([origin, quat], axis=2)
 
@@ -419,7 +465,7 @@ def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
     out = {"source": poses.source, "n_poses": int(poses.n_poses), "rms_per_marker": per}
     if cal.body_names:
         measured = poses.bodies[:, [poses.body_names.index(b) for b in cal.body_names]]
-        body = predict_bodies(cal, q, X)
+        body = predict_bodies(cal, q, X, sub.controls, sub)
         body[~ok] = np.nan
         d_body = np.linalg.norm(body[..., :3] - measured[..., :3], axis=2)
         turn = np.einsum("nkba,nkbc->nkac", matrix_from_quat(np.nan_to_num(measured[..., 3:], nan=1.0)),

@@ -138,6 +138,19 @@ class CalibrationProblem:
                 n = np.concatenate([n_m, n_b, n_b], axis=1)
         if n is not None and n.shape == self.visible.shape and np.all(n[self.visible] > 0):
             self.base_weights = np.where(self.visible, n / np.median(n[self.visible]), 0.0)
+        # on a tree, the tracked link of each marker, then each body (index in spec.tracked_links);
+        # None where every point rides on the moving frame
+        self.point_links: tuple[int, ...] | None = None
+        if poses.marker_links:
+            try:
+                links = poses.links_of(spec.tracked_links or [spec.moving_frame])
+            except ValueError as exc:
+                raise BadInput(f"{poses.source or 'poses'}: {exc}") from None
+            if any(links):
+                if spec.link_poses is None:
+                    raise BadInput(f"{poses.source or 'poses'}: the markers ride on several links, but the "
+                                   f"{spec.name} stand tracks one moving frame")
+                self.point_links = tuple(links)
         self.theta_sizes = [len(t.initial) for t in self.terms]
         n_theta = int(sum(self.theta_sizes))
         self.i_td = slice(0, spec.n_td)
@@ -219,14 +232,15 @@ class CalibrationProblem:
         selection, k folds and a diagnosis build dozens of problems of one stand); per thread, as
         their buffers are not to be shared between threads."""
         thread = threading.get_ident()  # the maps' buffers and the model's are one thread's
-        key = (id(self.spec), self.M + self.B, self.B > 0, thread)
+        key = (id(self.spec), self.M + self.B, self.B > 0, thread, self.point_links)
         hit = _BUILT.get(key)
         if hit is None or hit[0] is not self.spec:
             if len(_BUILT) > 16:
                 _BUILT.clear()
             model = next((h[2] for k, h in _BUILT.items() if h[0] is self.spec and k[3] == thread), None) \
                 or PlatformModel(self.spec)
-            hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0), model)
+            hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0,
+                                                                   self.point_links, self.B), model)
         self._fns = hit[1]
         self.model: PlatformModel = hit[2]  # its solvers keep only scratch buffers: one per stand
 
@@ -349,7 +363,7 @@ class CalibrationProblem:
             y = outs[0].reshape(N, -1)
             r = y[:, :nP3].reshape(N, M + B, 3) - measured
             if B:
-                e = self._body_rotation_errors(y[:, nP3:].reshape(N, 3, 3), phi_body, poses)
+                e = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(N)), phi_body, poses)
                 r = np.concatenate([r, self.body_rho * e], axis=1)
             r[~ok] = np.nan
             return FitState(r, None, ok)
@@ -396,29 +410,40 @@ class CalibrationProblem:
                     k += 1
         J_pts = J[:, :nP3].reshape(N, M + B, 3, self.n_z)
         if B:
-            e, J_rot = self._body_rotation_errors(y[:, nP3:].reshape(N, 3, 3), phi_body, poses,
-                                                  J[:, nP3:].reshape(N, 3, 3, self.n_z))
+            e, J_rot = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(N)), phi_body, poses,
+                                                  J[:, nP3:].reshape(self._Q_shape(N) + (self.n_z,)))
             r = np.concatenate([r, self.body_rho * e], axis=1)
             J_pts = np.concatenate([J_pts, self.body_rho * J_rot], axis=1)
         r[~ok] = np.nan
         return FitState(r, J_pts, ok)
 
+    def _Q_shape(self, N: int) -> tuple[int, ...]:
+        """Shape of the bodies' mocap_from_link rotations in the observation: one (N, 3, 3) for
+        all, or on a tree one per body (N, B, 3, 3)."""
+        return (N, 3, 3) if self.point_links is None else (N, self.B, 3, 3)
+
     def _body_rotation_errors(self, Q, phi_body, poses: PoseSet, dQ=None):
         """Each body's orientation error e = log(R_meas^T Q exp(phi_b)) (N, B, 3) rad (NaN unseen) and,
-        with dQ (N, 3, 3, n_z) the derivatives of Q = mocap_from_moving rotation, de/dz (N, B, 3, n_z)."""
+        with dQ (N, 3, 3, n_z) the derivatives of Q = mocap_from_moving rotation, de/dz (N, B, 3, n_z).
+        On a tree Q (N, B, 3, 3) and dQ (N, B, 3, 3, n_z): each body's own link."""
         N, B = Q.shape[0], self.B
+        if Q.ndim == 3:
+            Q = np.broadcast_to(Q[:, None], (N, B, 3, 3))
+            if dQ is not None:
+                dQ = np.broadcast_to(dQ[:, None], (N, B) + dQ.shape[1:])
         Rb = matrix_from_rotvec(phi_body)  # (B, 3, 3)
         seen = np.all(np.isfinite(poses.bodies), axis=2)
         Rm = matrix_from_quat(np.where(seen[..., None], poses.bodies[..., 3:], np.array([1.0, 0, 0, 0])))
-        pred = np.einsum("nab,kbc->nkac", Q, Rb)
+        pred = np.einsum("nkab,kbc->nkac", Q, Rb)
         e = log_so3(np.einsum("nkba,nkbc->nkac", Rm, pred))  # (N, B, 3)
         e[~seen] = np.nan
         if dQ is None:
             return e
-        S = np.einsum("nba,nbck->nack", Q, dQ)  # Q^T dQ: skew, the moving frame's angular rates
-        v = 0.5 * np.stack([S[:, 2, 1] - S[:, 1, 2], S[:, 0, 2] - S[:, 2, 0], S[:, 1, 0] - S[:, 0, 1]], axis=1)
+        S = np.einsum("nkba,nkbcz->nkacz", Q, dQ)  # Q^T dQ: skew, the link's angular rates
+        v = 0.5 * np.stack([S[:, :, 2, 1] - S[:, :, 1, 2], S[:, :, 0, 2] - S[:, :, 2, 0], S[:, :, 1, 0] - S[:, :, 0, 1]],
+                           axis=2)  # (N, B, 3, n_z)
         Jinv = right_jacobian_inv(np.nan_to_num(e))  # (N, B, 3, 3)
-        de = np.einsum("nkab,kcb,ncz->nkaz", Jinv, Rb, v)
+        de = np.einsum("nkab,kcb,nkcz->nkaz", Jinv, Rb, v)
         for b in range(B):
             cols = slice(self.i_body_rot.start + 3 * b, self.i_body_rot.start + 3 * b + 3)
             de[:, b, :, cols] = Jinv[:, b] @ right_jacobian(phi_body[b])
@@ -438,11 +463,20 @@ class CalibrationProblem:
         Y = np.concatenate([poses.markers, body_frame_points(_bodies(poses))], axis=1)
         vis = np.concatenate([self.visible[:, :M], np.repeat(self.visible[:, M:M + B], 3, axis=1)], axis=1)
         vis &= ok[:, None]
-        A = self._initial_rotation(R, X, Y, vis)
+        if self.point_links is None:
+            A = self._initial_rotation(R, X, Y, vis)
+            R, X = R[:, None], X[:, None]  # one frame for every point
+        else:  # each point on its link's frame; the rotation from the link that carries the most points
+            links = np.array(list(self.point_links[:M]) + [k for k in self.point_links[M:] for _ in range(3)])
+            R_all, X_all = self.link_frames(td, poses.controls)
+            R, X = R_all[:, links], X_all[:, links]
+            best = int(np.argmax(np.bincount(links, weights=vis.sum(axis=0))))
+            on = links == best
+            A = self._initial_rotation(R_all[:, best], X_all[:, best], Y[:, on], vis[:, on])
         keep = vis.copy()
         for _ in range(6):  # alternate: markers by least squares, then Kabsch; gross outliers left out
             mk, b = self._markers_given_rotation(A, R, X, Y, keep)
-            pts = X[:, None, :] + np.einsum("nab,mb->nma", R, mk)
+            pts = X + np.einsum("nmab,mb->nma", R, mk)
             d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
             sigma = _robust_sigma(d[vis])
             keep = vis & (d <= max(REJECT_K * sigma, 1e-12))
@@ -508,23 +542,30 @@ class CalibrationProblem:
             return A
         return np.eye(3)
 
+    def link_frames(self, td, U) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`link_frames` of this problem's stand."""
+        return link_frames(self.spec, td, U)
+
     @staticmethod
     def _markers_given_rotation(A, R, X, Y, vis):
         """Linear least squares for marker positions m (M, 3) and translation b given A
-        (normal equations; the blocks (A R_n)^T (A R_n) are identities)."""
+        (normal equations; the blocks (A R_n)^T (A R_n) are identities). R (N, M or 1, 3, 3) and
+        X (N, M or 1, 3): the frame each marker rides on; R (N, 3, 3) and X (N, 3): one for all."""
         N, M = vis.shape
+        R = np.broadcast_to(R[:, None] if R.ndim == 3 else R, (N, M, 3, 3))
+        X = np.broadcast_to(X[:, None] if X.ndim == 2 else X, (N, M, 3))
         H = np.zeros((3 * M + 3, 3 * M + 3))
         g = np.zeros(3 * M + 3)
-        C = np.einsum("ab,nbc->nac", A, R)  # (N, 3, 3): d y / d m
-        res = Y - (X @ A.T)[:, None, :]  # (N, M, 3)
+        C = np.einsum("ab,nmbc->nmac", A, R)  # (N, M, 3, 3): d y / d m
+        res = Y - X @ A.T  # (N, M, 3)
         for i in range(M):
             v = vis[:, i]
             k = slice(3 * i, 3 * i + 3)
             H[k, k] = v.sum() * np.eye(3)
-            Ct = C[v].sum(axis=0).T
+            Ct = C[v, i].sum(axis=0).T
             H[k, 3 * M:] = Ct
             H[3 * M:, k] = Ct.T
-            g[k] = np.einsum("nba,nb->a", C[v], res[v, i])
+            g[k] = np.einsum("nba,nb->a", C[v, i], res[v, i])
             g[3 * M:] += res[v, i].sum(axis=0)
         H[3 * M:, 3 * M:] = vis.sum() * np.eye(3)
         sol = np.linalg.lstsq(H, g, rcond=None)[0]
@@ -668,8 +709,15 @@ class _ObservationFunctions:
         return entry
 
 
-def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool) -> _ObservationFunctions:
-    """Build the observation function of ``spec`` for M points (markers, then bodies' origins)."""
+def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
+                           point_links: tuple[int, ...] | None = None, n_bodies: int = 0) -> _ObservationFunctions:
+    """Build the observation function of ``spec`` for M points (markers, then bodies' origins).
+
+    ``point_links`` (M,): on a tree, the tracked link each point rides on (the last ``n_bodies``
+    are the bodies' origins; index in
+    ``spec.tracked_links``; :attr:`PlatformSpec.link_poses` gives their poses); the terms' pose
+    offsets act on each link's pose alike, and each body's orientation is read from its own
+    link (9 numbers per body instead of one 3x3 for all)."""
     u = ca.SX.sym("u", spec.n_u)
     td = ca.SX.sym("td", spec.n_td)
     w = ca.SX.sym("w", 3)
@@ -688,6 +736,31 @@ def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool) -> _Ob
             pts += [Q[i, j] for i in range(3) for j in range(3)]
         return ca.vertcat(*pts)
 
+    def observe_links(qs, Xs):
+        Rs = [ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q)) for q in qs]
+        pts = []
+        for i in range(M):
+            k = point_links[i]
+            pts.append(ca.mtimes(A, Xs[k] + dpose[0:3] + ca.mtimes(Rs[k], m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t)
+        if with_bodies:  # each body's mocap_from_link rotation, row by row
+            for k in point_links[M - n_bodies:]:
+                Q = ca.mtimes(A, Rs[k])
+                pts += [Q[i, j] for i in range(3) for j in range(3)]
+        return ca.vertcat(*pts)
+
+    if spec.forward is not None and point_links is not None:
+        L = len(spec.tracked_links)
+        q_all, X_all = spec.link_poses(u, td)
+        y = observe_links([q_all[4 * k:4 * k + 4] for k in range(L)], [X_all[3 * k:3 * k + 3] for k in range(L)])
+        G = ca.Function(
+            "observe_tree", [u, td, w, t, m, dpose, dm],
+            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
+             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
+            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
+        return _ObservationFunctions(G, ca.Function("observe_tree_y", [u, td, w, t, m, dpose, dm], [y.T]),
+                                     [1, 2, 3, 4])
+    if point_links is not None:
+        raise BadInput(f"stand {spec.name!r}: markers on several links need a closed-form forward and link_poses")
     if spec.forward is not None:
         q, X = spec.forward(u, td)
         y = observe(q, X)
@@ -720,6 +793,17 @@ def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool) -> _Ob
         ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
     return _ObservationFunctions(G, ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y.T]),
                                  [1, 3, 4, 5])
+
+
+def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
+    """Every tracked link's rotation (N, L, 3, 3) and position (N, L, 3) m in the base frame of a
+    tree stand (``spec.link_poses``), for controls U (N, n_u) and parameters td (n_td,)."""
+    U = np.atleast_2d(np.asarray(U, float))
+    N, L = len(U), len(spec.tracked_links)
+    q_all, X_all = spec.link_poses.map(N)(U.T, np.asarray(td, float))
+    q_all = np.asarray(q_all).T.reshape(N, L, 4)
+    X_all = np.asarray(X_all).T.reshape(N, L, 3)
+    return matrix_from_quat(q_all), X_all
 
 
 def _bodies(poses: PoseSet) -> np.ndarray:

@@ -18,13 +18,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from platkit.effects import term_from_dict
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, rotvec_from_quat, transform
 from platkit.io.description import load_yaml
 from platkit.io.jsonout import strict
 from platkit.model import PlatformSpec, length_scale
-from platkit.plugins import get_platform
+from platkit.plugins import get_platform, term_from_dict
 
 FORMAT = "platkit-calibration/1"
 
@@ -44,6 +43,8 @@ class Calibration:
     moving part (body frame -> moving frame), body_std (B, 6) (origin m, rotation vector rad);
     body_rho (m/rad): the weight of their rotation errors against position errors, and
     body_rho_source: 'declared' (session.yaml rigid_body_noise), 'estimated' or 'default'.
+    marker_links: on a tree, {marker or body: the link it rides on}; marker and body positions
+    are then in their own link's frame (empty: all on the moving frame).
     """
 
     platform: str
@@ -85,6 +86,7 @@ class Calibration:
     body_std: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     body_rho: float = float("nan")
     body_rho_source: str = ""
+    marker_links: dict[str, str] = field(default_factory=dict)  # tree: marker or body -> its link
 
     # ------------------------------------------------------------------ derived
     @property
@@ -113,10 +115,12 @@ class Calibration:
                               "group": p.group, "status": st}
         R = matrix_from_rotvec(self.mocap_rotvec)
         q = quat_from_rotvec(self.mocap_rotvec)
-        markers = {}
+        markers: dict[str, dict[str, Any]] = {}
         for name, pos, sd in zip(self.marker_names, self.marker_positions, self.marker_std):
             markers[name] = {"position": [float(x / s) for x in pos],
                              "std": [None if not np.isfinite(x) else float(x / s) for x in sd]}
+            if self.marker_links:
+                markers[name]["link"] = self.marker_links[name]
         out = {
             "format": FORMAT,
             "platform": self.platform,
@@ -167,12 +171,14 @@ class Calibration:
         def num(x, k=1.0):
             return None if not np.isfinite(x) else float(x / k)
 
-        bodies = {}
+        bodies: dict[str, dict[str, Any]] = {}
         for name, pos, rv, sd in zip(self.body_names, self.body_positions, self.body_rotvecs, self.body_std):
             bodies[name] = {"position": [float(x / s) for x in pos], "rotation_vector": [float(x) for x in rv],
                             "quaternion_wxyz": [float(x) for x in quat_from_rotvec(rv)],
                             "std_position": [num(x, s) for x in sd[:3]],
                             "std_rotation_vector": [num(x) for x in sd[3:]]}
+            if self.marker_links:
+                bodies[name]["link"] = self.marker_links[name]
         return {"bodies": bodies, "note": "x_moving = R(rotation_vector) x_body + position",
                 "rotation_weight": {f"rho_{lu}_per_rad": num(self.body_rho, s), "source": self.body_rho_source,
                                     "note": "rotation errors (rad) times rho count as position errors"}}
@@ -233,7 +239,7 @@ def read_calibration(path: str | Path) -> Calibration:
     """Read a calibration.yaml (as written by :meth:`Calibration.to_yaml`) and rebuild the stand.
 
     Model terms are rebuilt by the diagnosis effect library when one is installed
-    (``platkit.effects.term_from_dict``); BadInput names the file and field otherwise.
+    (``platkit.plugins.term_from_dict``); BadInput names the file and field otherwise.
     """
 
     path = Path(path)
@@ -298,6 +304,18 @@ def read_calibration(path: str | Path) -> Calibration:
         _numbers(e.get("std_position", [None] * 3), path, f"rigid_bodies.bodies.{b}.std_position", 3) * s,
         _numbers(e.get("std_rotation_vector", [None] * 3), path, f"rigid_bodies.bodies.{b}.std_rotation_vector", 3)])
         for b, e in zip(body_names, b_entry)]).reshape(-1, 6)
+    links = {}
+    for kind, entries in (("markers", {m: markers[m] for m in names}), ("rigid_bodies.bodies", dict(zip(body_names, b_entry)))):
+        for n, e in entries.items():
+            link = e.get("link") if isinstance(e, dict) else None
+            if link is not None:
+                if not isinstance(link, str) or (spec.tracked_links and link not in spec.tracked_links):
+                    raise BadInput(f"{path}: field '{kind}.{n}.link': {link!r} is not a link the stand tracks "
+                                   f"({', '.join(spec.tracked_links) or spec.moving_frame})")
+                links[n] = link
+    if links and len(links) != len(names) + len(body_names):
+        n = next(n for n in names + body_names if n not in links)
+        raise BadInput(f"{path}: field 'link' missing for {n!r}; on a tree every marker and body names its link")
     weight = rb.get("rotation_weight") or {}
     rho = weight.get(f"rho_{lu}_per_rad") if isinstance(weight, dict) else None
     res = data.get("residual") or {}
@@ -324,6 +342,7 @@ def read_calibration(path: str | Path) -> Calibration:
         imu=dict(imu), body_names=body_names, body_positions=b_pos, body_rotvecs=b_rot, body_std=b_std,
         body_rho=float("nan") if rho is None else float(rho) * s,
         body_rho_source=str(weight.get("source", "")) if isinstance(weight, dict) else "",
+        marker_links=links,
     )
 
 

@@ -48,7 +48,7 @@ from platkit.io.session_checks import (
 )
 from platkit.io.session_yaml import BODY_NOISE_KEYS, IMU_KEYS, NO_PLATFORM, SESSION_KEYS, TIME_UNITS, read_session_yaml
 from platkit.io.shipped import shipped_dir
-from platkit.io.table import Table, read_table
+from platkit.io.table import Table, _read_header, read_table
 from platkit.model import LENGTH_UNITS, PlatformSpec
 from platkit.plugins import get_platform
 
@@ -75,7 +75,8 @@ class Session:
             declared (``rigid_bodies``); body_noise: their declared noise {'position_m',
             'rotation_rad'} (per-axis sigmas) or empty.
         mocap_rate_hz: declared rate or None. imu: the declared imu mapping or None.
-        moving_link: URDF link carrying the markers, or None. notes: free text.
+        moving_link: URDF link carrying the markers, or None; on a tree the mapping {marker or
+            rigid body: link}. notes: free text.
         command_t (N,) s; commands (N, n_u) internal units ('m' controls in metres), or None
             without a stand (command_t is still read, and its times checked, if commands.csv
             exists) or without commands.csv.
@@ -103,7 +104,7 @@ class Session:
     base_marker_names: list[str]
     mocap_rate_hz: float | None
     imu: dict | None
-    moving_link: str | None
+    moving_link: str | dict | None
     notes: str
     command_t: np.ndarray | None = None
     commands: np.ndarray | None = None
@@ -155,9 +156,15 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     if spec is None and name is not None:
 
         options = {k: y[k] for k in ("moving_link", "base_link") if y[k]}
+        joints_file = None
+        if isinstance(y["moving_link"], dict):  # a tree: the recorded joints are the controls
+            joints_file, options["joints"] = recorded_joints(folder, y)
         try:
             spec = get_platform(name, desc_path, **options)
         except BadInput as exc:
+            text = str(exc)
+            if joints_file is not None and text.startswith(JOINTS_WHERE):
+                raise BadSession(f"{joints_file}{text[len(JOINTS_WHERE):]}") from None
             raise BadSession(f"{ypath}: {exc}") from None
     s = Session(
         folder=folder, platform=name, spec=spec, description=desc_path, length_unit=y["length_unit"],
@@ -226,6 +233,28 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     if s.commands is None and s.poses is None and s.imu_t is None:
         raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
     return s
+
+
+#: how the urdf stand names the recorded joints in its errors (replaced by the file that listed them)
+JOINTS_WHERE = "urdf stand option 'joints'"
+
+
+def recorded_joints(folder: Path, y: dict) -> tuple[Path, list[str]]:
+    """(file, joint names) of a tree session: the columns of commands.csv but ``t`` (of poses.csv
+    without commands.csv: but ``t`` and the marker, count and rigid-body columns)."""
+    cpath = folder / "commands.csv"
+    path = cpath if cpath.is_file() or not (folder / "poses.csv").is_file() else folder / "poses.csv"
+    if not path.is_file():
+        raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
+    header, _ = _read_header(path)
+    if path == cpath:
+        return path, [h for h in header if h != "t"]
+    taken = {"t"}
+    for m in y["markers"] + y["base_markers"]:
+        taken.update(f"{m}_{a}" for a in ("x", "y", "z", "n"))
+    for b in y["rigid_bodies"]:
+        taken.update(f"{b}_{a}" for a in BODY_SUFFIXES + ("n",))
+    return path, [h for h in header if h not in taken]
 
 
 def _read_imu(s: Session, path: Path, tscale: float, max_repair_s: float) -> None:

@@ -64,6 +64,23 @@ def _body_noise(value, path: Path) -> dict:
     return out
 
 
+def _link_mapping(value: dict, markers: list[str], bodies: list[str], path: Path) -> dict:
+    """A tree's ``moving_link``: {marker or rigid body: link}, every declared marker and body mapped
+    (spec section 1), e.g. {R: right_tcp, L: left_tcp}."""
+    for k, v in value.items():
+        if not isinstance(k, str) or not isinstance(v, str) or not v.strip():
+            raise BadSession(f"{path}: field 'moving_link' must map marker names to link names, e.g. "
+                             f"{{R: right_tcp, L: left_tcp}}; got {k!r}: {v!r}")
+        if k not in markers and k not in bodies:
+            raise BadSession(f"{path}: field 'moving_link.{k}': {k!r} is not a marker or rigid body of 'markers' "
+                             "or 'rigid_bodies'")
+    missing = [n for n in markers + bodies if n not in value]
+    if missing:
+        raise BadSession(f"{path}: field 'moving_link' maps markers to links but not {missing[0]!r}; on a tree every "
+                         "marker and rigid body names its link")
+    return {k: v.strip() for k, v in value.items()}
+
+
 def read_session_yaml(folder: Path) -> dict:
     """session.yaml checked field by field; returns a dict of clean values."""
     path = folder / "session.yaml"
@@ -142,8 +159,12 @@ def read_session_yaml(folder: Path) -> dict:
     out["imu"] = imu
     for key in ("moving_link", "base_link"):
         link = data.get(key)
+        if key == "moving_link" and isinstance(link, dict):
+            out[key] = _link_mapping(link, out["markers"], out["rigid_bodies"], path)
+            continue
         if link is not None and (not isinstance(link, str) or not link.strip()):
-            raise BadSession(f"{path}: field {key!r} must be a link name or null")
+            raise BadSession(f"{path}: field {key!r} must be a link name or null"
+                             + (", or on a tree a mapping {marker: link}" if key == "moving_link" else ""))
         out[key] = link
     notes = data.get("notes")
     out["notes"] = "" if notes is None else str(notes)

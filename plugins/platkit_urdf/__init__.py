@@ -1,4 +1,4 @@
-"""platkit stand ``urdf``: any serial chain from any URDF.
+"""platkit stand ``urdf``: any serial chain, or tree, from any URDF.
 
 The description is a URDF file (the chain runs from ``base_link``, default the root link, to
 ``moving_link``, default the single leaf) or a YAML file that names one::
@@ -8,10 +8,15 @@ The description is a URDF file (the chain runs from ``base_link``, default the r
     moving_link: tool0        # optional
 
 Options (from a session or the command line) ``base_link`` and ``moving_link`` override the
-description's. Controls: the chain's actuated joints in chain order, in the URDF's units
-(rad, m). Parameters (see :mod:`platkit.urdf`): per joint an offset (free), a scale (fixed at 1:
-the spec's urdf stand calibrates offsets and origin errors) and six origin errors (free; the
-estimator reduces the unidentifiable ones away and reports them).
+description's. A tree (several tracked links, :func:`platkit.urdf.kinematic_tree`): ``moving_link``
+a mapping {marker or rigid body: link} (the first link named is the moving frame, the spec's
+pose), and ``joints`` the recorded actuated joints (the columns of commands.csv; default every
+actuated joint below the base link), which are then the controls. Controls of a chain: its
+actuated joints in chain order, in the URDF's units (rad, m). Parameters (see
+:mod:`platkit.urdf`): per joint an offset (free), a scale (fixed at 1: the spec's urdf stand
+calibrates offsets and origin errors) and six origin errors (free; the estimator reduces the
+unidentifiable ones away and reports them); per mimic joint its multiplier and offset (group
+``mimic``, fixed unless freed: ``--free mimic``).
 """
 from __future__ import annotations
 
@@ -21,10 +26,12 @@ from platkit.errors import BadDescription, BadInput
 from platkit.hookspecs import hookimpl
 from platkit.io.description import default_description, load_yaml, require
 from platkit.model import PlatformFactory, PlatformSpec
-from platkit.urdf import chain_spec, read_urdf, serial_chain
+from platkit.urdf import chain_spec, kinematic_tree, read_urdf, serial_chain
 
 TITLE = "Serial chain from a URDF"
-OPTIONS = ("base_link", "moving_link")
+OPTIONS = ("base_link", "moving_link", "joints")
+#: how errors about the recorded joints name their source (a session names its commands.csv instead)
+JOINTS_WHERE = "urdf stand option 'joints'"
 YAML_FIELDS = ("urdf", "base_link", "moving_link", "notes")
 
 
@@ -42,7 +49,12 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     if unknown:
         raise BadInput(f"the urdf stand takes the options {', '.join(OPTIONS)}; unknown: {unknown}")
     for k, v in options.items():
-        if not isinstance(v, str) or not v:
+        if k == "joints":
+            if not isinstance(v, (list, tuple)) or not all(isinstance(n, str) and n for n in v):
+                raise BadInput(f"urdf stand option 'joints' must be a list of joint names, got {v!r}")
+        elif k == "moving_link" and isinstance(v, dict):
+            tracked_links(v, "urdf stand option 'moving_link'")
+        elif not isinstance(v, str) or not v:
             raise BadInput(f"urdf stand option {k!r} must be a link name, got {v!r}")
     path = path or default_description("urdf_default_arm.urdf")
     chosen: dict = {}
@@ -55,24 +67,53 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
         urdf_path = (path.parent / require(data, "urdf", path, str)).resolve()
         if not urdf_path.is_file():
             raise BadDescription(f"{path}: field 'urdf' names {urdf_path}, which is not a file")
-        for k in OPTIONS:
-            chosen[k] = _text(data.get(k), path, k)
+        for k in ("base_link", "moving_link"):
+            v = data.get(k)
+            if k == "moving_link" and isinstance(v, dict):
+                tracked_links(v, f"{path}: field 'moving_link'")
+                chosen[k] = v
+            else:
+                chosen[k] = _text(v, path, k)
         description = dict(data)
     else:
         urdf_path = path
         description = {}
     chosen.update(options)
     tree = read_urdf(urdf_path)
-    chain = serial_chain(tree, chosen.get("base_link"), chosen.get("moving_link"))
-    description.update(urdf=str(urdf_path), base_link=chain.base_link, moving_link=chain.moving_link)
-    return chain_spec(
+    moving = chosen.get("moving_link")
+    if isinstance(moving, dict) or chosen.get("joints") is not None:
+        links = tracked_links(moving, "urdf stand option 'moving_link'") if isinstance(moving, dict) else (
+            [moving] if moving else [])
+        if not links:
+            raise BadInput("urdf stand option 'joints' needs 'moving_link' (a link, or a mapping marker -> link)")
+        chain = kinematic_tree(tree, links, chosen.get("base_link"), chosen.get("joints"),
+                               where=JOINTS_WHERE)
+        title = f"{TITLE}: {chain.robot_name} tree {chain.base_link} -> {', '.join(chain.links)}"
+    else:
+        chain = serial_chain(tree, chosen.get("base_link"), moving)
+        title = f"{TITLE}: {chain.robot_name} {chain.base_link} -> {chain.moving_link}"
+    description.update(urdf=str(urdf_path), base_link=chain.base_link,
+                       moving_link=moving if isinstance(moving, dict) else chain.moving_link)
+    spec = chain_spec(
         chain,
         name="urdf",
-        title=f"{TITLE}: {chain.robot_name} {chain.base_link} -> {chain.moving_link}",
+        title=title,
         free_groups=("offset", "origin"),
         description=description,
         description_path=path,
     )
+    # what rebuilds this stand (calibration.yaml's platform_options, effects that rebuild it)
+    spec.extras["platform_options"] = {k: v for k, v in chosen.items() if v is not None and k in OPTIONS}
+    return spec
+
+
+def tracked_links(mapping: dict, where: str) -> list[str]:
+    """The links of a mapping {marker or body: link}, each once, in the order first named (the
+    first is the moving frame). BadInput naming ``where`` if it is not such a mapping."""
+    if not mapping or not all(isinstance(k, str) and k and isinstance(v, str) and v for k, v in mapping.items()):
+        raise BadInput(f"{where} must map marker or rigid-body names to link names, e.g. {{R: right_tcp, L: left_tcp}}, "
+                       f"got {mapping!r}")
+    return list(dict.fromkeys(mapping.values()))
 
 
 @hookimpl
