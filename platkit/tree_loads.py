@@ -175,6 +175,20 @@ class TreeLoads:
                           np.einsum("njk,jk->nj", moment, self.axes))
         return Loads(torque, moment, force, origin, rotation)
 
+    def link_placements(self, Q: np.ndarray, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """(origin (N, 3), rotation (N, 3, 3)): ``link``'s frame in the root frame at ``Q`` (N, J)."""
+        import pinocchio as pin
+
+        if not self.model.existFrame(link):
+            raise BadInput(f"tree loads: link {link!r} is not in {self.path}")
+        fid = self.model.getFrameId(link)
+        Q = np.atleast_2d(np.asarray(Q, float))
+        origin, rotation = np.zeros((len(Q), 3)), np.zeros((len(Q), 3, 3))
+        for k, q in enumerate(Q):
+            pin.framesForwardKinematics(self.model, self.data, q)
+            origin[k], rotation[k] = self.data.oMf[fid].translation, self.data.oMf[fid].rotation
+        return origin, rotation
+
     def generalized(self, torque: np.ndarray) -> np.ndarray:
         """(N, R) torques of the recorded joints (``self.recorded``), mimic joints' folded into
         their masters' by the chain rule."""

@@ -1,8 +1,8 @@
 """compliance: the actuators give under the load they carry (a parallel stand's actuator forces
-holding a weight at the moving frame, a serial chain's gravity torques of its URDF inertias)."""
+holding a weight at the moving frame; a URDF stand's gravity torques of the whole tree, every
+control's joint at its command, mimic joints following their masters: see tree_compliance)."""
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,8 +13,21 @@ from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
+from platkit.tree_loads import tree_loads
 from platkit_effects.common import _actuator, _actuator_where, _platform_model, _size, _where
 from platkit_effects.physics import CompliancePhysics
+from platkit_effects.tree_compliance import (
+    JointRotationTerm,
+    MassMomentTerm,
+    deflected_torque,
+    joint_rotation_from_dict,
+    joint_rotation_term,
+    load_state,
+    mass_moment_basis,
+    mass_moment_from_dict,
+    mass_moment_term,
+    tree_stand,
+)
 
 
 def _urdf_of(spec: PlatformSpec) -> str | None:
@@ -27,37 +40,19 @@ def _urdf_of(spec: PlatformSpec) -> str | None:
     return None
 
 
-@functools.lru_cache(maxsize=8)
-def _gravity_model(urdf: str, joints: tuple[str, ...]):
-    """pinocchio model of the whole URDF tree with every joint but ``joints`` locked at zero, and
-    the q indices of ``joints`` (controls named otherwise, like the rotary's u1, u2, take the
-    URDF's one-dof joints in order)."""
-    import pinocchio as pin
-
-    full = pin.buildModelFromUrdf(urdf)
-    names = list(full.names[1:])
-    use = list(joints) if all(j in names for j in joints) else \
-        [n for n in names if full.joints[full.getJointId(n)].nq == 1][: len(joints)]
-    if len(use) != len(joints):
-        raise BadInput(f"{urdf}: cannot match the controls {', '.join(joints)} to the URDF's joints")
-    lock = [full.getJointId(n) for n in names if n not in use]
-    model = pin.buildReducedModel(full, lock, pin.neutral(full)) if lock else full
-    return model, [model.joints[model.getJointId(n)].idx_q for n in use]
-
-
 def serial_gravity_torques(urdf: str, joints: tuple[str, ...], q: np.ndarray) -> np.ndarray:
     """(N, n) gravity torques (N m; N for prismatic joints) of ``joints`` at joint values q (N, n)
-    (rad, m), from the URDF's inertias: pinocchio's computeGeneralizedGravity, gravity -z."""
-    import pinocchio as pin
-
-    model, order = _gravity_model(urdf, tuple(joints))
-    data = model.createData()
-    out = np.zeros((len(q), len(order)))
-    for k, qk in enumerate(np.atleast_2d(q)):
-        full_q = pin.neutral(model)
-        full_q[order] = qk
-        out[k] = pin.computeGeneralizedGravity(model, data, full_q)[order]
-    return out
+    (rad, m), from the URDF's inertias: the whole tree's loads (platkit.tree_loads), the joints not
+    given at zero, mimic joints following their masters, gravity -z. Joints named otherwise (like
+    the rotary's u1, u2) take the URDF's one-dof joints in order."""
+    T = tree_loads(urdf)
+    names = list(joints)
+    if not all(n in T.recorded for n in names):
+        if len(T.recorded) < len(names):
+            raise BadInput(f"{urdf}: cannot match the controls {', '.join(joints)} to the URDF's joints")
+        names = T.recorded[: len(names)]
+    tau = T.loads(T.configuration(names, np.atleast_2d(q))).torque
+    return tau[:, [T.index[n] for n in names]]
 
 
 def parallel_actuator_forces(spec: PlatformSpec, controls: np.ndarray) -> np.ndarray:
@@ -84,10 +79,10 @@ def actuator_loads(spec: PlatformSpec, controls: np.ndarray) -> np.ndarray:
     """(N, n_u) the load each actuator carries: gravity torques from the URDF for serial chains,
     J^-T w for a unit payload weight otherwise (see the two functions above)."""
     controls = np.atleast_2d(np.asarray(controls, float))
-    urdf = _urdf_of(spec)
-    if urdf is not None:
-        scale = np.array([np.pi / 180 if c.unit == "deg" else 1.0 for c in spec.controls])
-        return serial_gravity_torques(urdf, tuple(spec.control_names), controls * scale)
+    stand = tree_stand(spec)
+    if stand is not None:
+        S = load_state(stand, controls)
+        return S.loads.torque[:, [stand.loads.index[n] for n in stand.joints]]
     return parallel_actuator_forces(spec, controls)
 
 
@@ -117,12 +112,19 @@ class ComplianceTerm(ModelTerm):
         return self.spec
 
     def control_offset(self, theta, poses, n_u):
-        loads = cached_loads(self.stand(), poses.controls)
+        """``c`` times the load; on a URDF stand the joint's load at its own deflected
+        configuration (the fixed point of tree_compliance.deflected_torque)."""
+        spec = self.stand()
         out = np.zeros((poses.n_poses, n_u))
         if self.index is None:
-            out[:] = theta[0] * loads
-        else:
-            out[:, self.index] = theta[0] * loads[:, self.index]
+            out[:] = theta[0] * cached_loads(spec, poses.controls)
+            return out
+        stand = tree_stand(spec)
+        if stand is None:
+            out[:, self.index] = theta[0] * cached_loads(spec, poses.controls)[:, self.index]
+            return out
+        i = self.index
+        out[:, i] = theta[0] * deflected_torque(stand, poses.controls, stand.joints[i], theta[0] * stand.scale[i])
         return out
 
 
@@ -154,22 +156,51 @@ class Compliance(Effect):
                               index=i, spec=spec)
 
     def candidates(self, spec, poses, residuals=None):
-        loads = cached_loads(spec, poses.controls)
-        if _urdf_of(spec) is None:
+        stand = tree_stand(spec)
+        if stand is None:
+            loads = cached_loads(spec, poses.controls)
             return [self.term(spec, None)] if np.ptp(loads) > 0 else []
-        return [self.term(spec, i) for i in range(spec.n_u) if np.ptp(loads[:, i]) > 1e-9]
+        if stand.loads.total_mass <= 0:  # no inertias: the loads through the mass moments
+            out = []
+            for i, joint in enumerate(stand.joints):
+                basis, rank = mass_moment_basis(stand, poses.controls, joint)
+                if basis.shape[1]:
+                    out.append(mass_moment_term(self.name, spec, i, joint, basis, rank))
+            return out
+        S = load_state(stand, poses.controls)
+        tau = S.loads.torque
+        terms: list = [self.term(spec, i) for i, n in enumerate(stand.joints)
+                       if np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
+        terms += [joint_rotation_term(self.name, spec, n, "axis") for n in stand.chain
+                  if n in stand.loads.mimic and np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
+        return terms
 
     def regressor(self, term, spec, poses):
+        if isinstance(term, MassMomentTerm):
+            return term.columns(poses.controls)[:, 0]
+        if isinstance(term, JointRotationTerm):
+            stand = tree_stand(spec)
+            if stand is None:
+                return np.zeros(poses.n_poses)
+            return load_state(stand, poses.controls).loads.torque[:, stand.loads.index[term.joint]]
         loads = cached_loads(spec, poses.controls)
         return loads[:, term.index] if term.index is not None else loads @ np.sign(np.mean(loads, axis=0))
 
     def regressor_label(self, term):
+        if isinstance(term, MassMomentTerm):
+            return f"gravity torque on {term.where['actuator']} per its best-determined mass-moment combination (N m)"
+        if isinstance(term, JointRotationTerm):
+            return f"gravity torque on joint {term.joint} (N m)"
         if term.index is None:
             return "sum of the actuator forces for a 1 N payload (N/N)"
         return f"gravity load on {term.where['actuator']} ({term.where['load'].split('(')[-1].rstrip(')')})"
 
     def from_dict(self, data, spec=None):
         where = _where(data)
+        if "basis" in where:
+            return mass_moment_from_dict(self.name, data, spec)
+        if "about" in where:
+            return joint_rotation_from_dict(self.name, data, spec)
         if spec is None:
 
             if not isinstance(where.get("platform"), str):

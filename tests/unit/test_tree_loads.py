@@ -134,3 +134,17 @@ def test_bad_input_names_the_field(tmp_path):
     (bad / "tree.urdf").write_text(text)
     with pytest.raises(BadDescription, match="mass"):
         TreeLoads(bad / "tree.urdf")
+
+
+def test_the_moment_is_the_subtrees_weight_about_the_joint(tmp_path):
+    T = TreeLoads(_tree(tmp_path))
+    Q = T.configuration(NAMES, CONFIGS)
+    L = T.loads(Q)
+    data = T.model.createData()
+    g = T.model.gravity.linear
+    for k, q in enumerate(Q):
+        pin.centerOfMass(T.model, data, q, True)  # data.com[j], data.mass[j]: the subtree below joint j
+        for j in range(len(T.joints)):
+            com = data.oMi[j + 1].act(data.com[j + 1])  # pinocchio keeps a subtree's CoM in its joint's frame
+            held = -np.cross(com - L.origin[k, j], data.mass[j + 1] * g)
+            assert np.allclose(L.rotation[k, j] @ L.moment[k, j], held, atol=1e-9)

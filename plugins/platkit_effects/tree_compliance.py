@@ -1,0 +1,389 @@
+"""Compliance of a URDF tree: the loads of the whole tree at each pose (platkit.tree_loads), the
+joint elasticity of a joint that is no control (a mimic joint), link bending, and the loads of a
+URDF without inertias through its identifiable mass moments.
+
+Rules:
+
+- The configuration is every control of the stand mapped to the URDF joint of its name (controls
+  named otherwise, like the rotary's u1, u2, take the URDF's one-dof joints in order); joints that
+  are no control sit at zero; mimic joints follow their masters. On a tree session every
+  recorded joint is a control, so the loads are the whole robot's.
+- A deflection is the compliance times the load the joint holds (pinocchio's sign: the torque a
+  motor must apply; a joint that gives under its weight has a negative compliance).
+- Joint elasticity of a control: a control offset ``c tau_j`` (platkit_effects.compliance), the
+  load taken at the deflected configuration (the fixed point ``d = c tau_j(q + d e_j)``) where
+  the deflection at the commands exceeds ``DEFLECTION_TOL``; below it the load changes by less
+  than about that fraction and the commanded configuration's load is used.
+- Joint elasticity of a mimic joint, and link bending (the two axes across a joint's axis, under
+  the moment's components along them): a small rotation at the joint's origin, of the moving frame
+  (a pose offset in the base frame), linear in the loads at the commanded configuration.
+- A URDF without inertias: a control's gravity torque is linear in the mass moments of the bodies
+  below it; the term's parameters are the compliance times the ``MAX_MASS_COMBINATIONS`` best
+  determined combinations of them on the session's poses (the regressor's leading singular
+  directions), the rank of the rest said in ``where``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from platkit.effects import Effect
+from platkit.errors import BadInput
+from platkit.model import PlatformSpec
+from platkit.plugins import get_platform
+from platkit.terms import ModelTerm
+from platkit.tree_loads import Loads, TreeLoads, tree_loads
+from platkit_effects.common import _where
+
+#: rad (m for prismatic joints): a deflection above which the load is taken at the deflected pose
+DEFLECTION_TOL = 1e-3
+#: mass-moment combinations kept per joint when the URDF has no inertias
+MAX_MASS_COMBINATIONS = 3
+#: singular values below this share of the largest are not identifiable on the session
+RANK_TOL = 1e-6
+
+
+def urdf_of(spec: PlatformSpec) -> str | None:
+    """The URDF file a stand's loads come from, or None (no URDF: a parallel stand)."""
+    p = spec.extras.get("urdf_path")
+    if p is not None and Path(p).is_file():
+        return str(p)
+    p = spec.description_path
+    if p is not None and Path(p).suffix.lower() == ".urdf":
+        return str(p)
+    return None
+
+
+@dataclass
+class TreeStand:
+    """A stand's URDF tree for loads: ``loads`` (TreeLoads), ``joints`` the tree joint of each
+    control, ``scale`` control unit -> SI, ``base_link``, ``chain`` the tree joints (mimic
+    included) from the base link to the moving link, base first."""
+
+    spec: PlatformSpec
+    loads: TreeLoads
+    joints: list[str]
+    scale: np.ndarray
+    base_link: str | None
+    chain: list[str]
+
+    def configuration(self, controls: np.ndarray) -> np.ndarray:
+        return self.loads.configuration(self.joints, np.atleast_2d(np.asarray(controls, float)) * self.scale)
+
+
+_STANDS: dict[int, tuple[PlatformSpec, TreeStand | None]] = {}
+
+
+def tree_stand(spec: PlatformSpec) -> TreeStand | None:
+    """The stand's :class:`TreeStand` (None without a URDF), once per spec object."""
+    hit = _STANDS.get(id(spec))
+    if hit is not None and hit[0] is spec:
+        return hit[1]
+    urdf = urdf_of(spec)
+    stand = None
+    if urdf is not None:
+        T = tree_loads(urdf)
+        names = list(spec.control_names)
+        if not all(n in T.recorded for n in names):
+            one_dof = list(T.recorded)
+            if len(one_dof) < len(names):
+                raise BadInput(f"{urdf}: cannot match the controls {', '.join(names)} to the URDF's joints")
+            names = one_dof[: len(names)]
+        scale = np.array([np.pi / 180 if c.unit == "deg" else 1.0 for c in spec.controls])
+        chain = spec.extras.get("chain")
+        base = getattr(chain, "base_link", None)
+        if chain is not None and hasattr(chain, "path_to"):
+            path = [j.name for j in chain.path_to(chain.moving_link)]
+        elif chain is not None:
+            path = [j.name for j in chain.joints]
+        else:
+            path = list(T.joints)
+        stand = TreeStand(spec, T, names, scale, base if base != T.tree.root else None,
+                          [n for n in path if n in T.index])
+    if len(_STANDS) > 16:
+        _STANDS.clear()
+    _STANDS[id(spec)] = (spec, stand)
+    return stand
+
+
+@dataclass
+class LoadState:
+    """The loads at a set of commands: ``Q`` (N, J) the configuration, ``loads``, and the base
+    link's frame in the root frame (``base_origin`` (N, 3), ``base_rotation`` (N, 3, 3))."""
+
+    Q: np.ndarray
+    loads: Loads
+    base_origin: np.ndarray
+    base_rotation: np.ndarray
+
+
+_STATES: dict[tuple, LoadState] = {}
+
+
+def load_state(stand: TreeStand, controls: np.ndarray) -> LoadState:
+    """The loads of ``stand`` at ``controls`` (N, n_u), once per (stand, controls array)."""
+    controls = np.ascontiguousarray(np.atleast_2d(controls), float)
+    key = (id(stand), controls.shape, controls.tobytes())
+    hit = _STATES.get(key)
+    if hit is None:
+        Q = stand.configuration(controls)
+        L = stand.loads.loads(Q)
+        if stand.base_link is None:
+            o, R = np.zeros((len(Q), 3)), np.broadcast_to(np.eye(3), (len(Q), 3, 3)).copy()
+        else:
+            o, R = stand.loads.link_placements(Q, stand.base_link)
+        if len(_STATES) > 128:
+            _STATES.clear()
+        hit = _STATES[key] = LoadState(Q, L, o, R)
+    return hit
+
+
+def deflected_torque(stand: TreeStand, controls: np.ndarray, joint: str, compliance: float) -> np.ndarray:
+    """(N,) the load of ``joint`` at the equilibrium ``d = compliance * tau(q + d)`` of its own
+    deflection d (SI), where the deflection exceeds DEFLECTION_TOL (see the module docstring)."""
+    S = load_state(stand, controls)
+    j = stand.loads.index[joint]
+    tau = S.loads.torque[:, j]
+    d = compliance * tau
+    if not np.max(np.abs(d), initial=0.0) > DEFLECTION_TOL:
+        return tau
+    for _ in range(20):
+        Q = S.Q.copy()
+        Q[:, j] += d
+        tau = stand.loads.loads(Q).torque[:, j]
+        new = compliance * tau
+        if np.max(np.abs(new - d)) < 1e-4 * DEFLECTION_TOL:
+            break
+        d = new
+    return tau
+
+
+def across_axes(axis: np.ndarray) -> np.ndarray:
+    """(2, 3) two unit vectors across ``axis``, with it a right-handed frame (u, v, axis)."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    e = np.eye(3)[int(np.argmin(np.abs(a)))]
+    u = np.cross(a, e)
+    u /= np.linalg.norm(u)
+    return np.array([u, np.cross(a, u)])
+
+
+def _rotation_offset(S: LoadState, j: int, w_local: np.ndarray, fk_X: np.ndarray) -> np.ndarray:
+    """(N, 6) the moving frame turned by ``w_local`` (N, 3) rad about joint j's origin, in the base
+    frame: (w x (X - o), w)."""
+    L = S.loads
+    w_root = np.einsum("nab,nb->na", L.rotation[:, j], w_local)
+    w = np.einsum("nba,nb->na", S.base_rotation, w_root)
+    o = np.einsum("nba,nb->na", S.base_rotation, L.origin[:, j] - S.base_origin)
+    return np.hstack([np.cross(w, np.asarray(fk_X, float) - o), w])
+
+
+def _stand_where(spec: PlatformSpec) -> dict:
+    chain = spec.extras.get("chain")
+    options = {}
+    if chain is not None and spec.name == "urdf" and not hasattr(chain, "path_to"):
+        options = {"base_link": chain.base_link, "moving_link": chain.moving_link}
+    return {"platform": spec.name, "description": None if spec.description_path is None else str(spec.description_path),
+            "platform_options": options}
+
+
+def spec_from_where(where: dict, effect: str) -> PlatformSpec:
+    if not isinstance(where.get("platform"), str):
+        raise BadInput(f"effect {effect!r}: where.platform must name the stand the loads come from")
+    return get_platform(where["platform"], where.get("description"), **(where.get("platform_options") or {}))
+
+
+@dataclass
+class JointRotationTerm(ModelTerm):
+    """The moving frame turned at joint ``joint``: about its axis by ``c tau`` (``about``
+    'axis': a mimic joint's elasticity) or about the two axes across it by ``c_u M_u``, ``c_v M_v``
+    (``about`` 'across': link bending)."""
+
+    joint: str = ""
+    about: str = "axis"
+    spec: PlatformSpec | None = field(default=None, repr=False)
+
+    def stand(self) -> TreeStand:
+        if self.spec is None:
+            self.spec = spec_from_where(self.where, self.effect)
+        stand = tree_stand(self.spec)
+        if stand is None or self.joint not in stand.loads.index:
+            raise BadInput(f"effect {self.effect!r}: joint {self.joint!r} is not a moving joint of the stand's URDF")
+        return stand
+
+    def _unit_rotations(self, stand: TreeStand, S: LoadState) -> list[np.ndarray]:
+        """Per parameter, (N, 3) rad of rotation per unit of it, in the joint's frame."""
+        j = stand.loads.index[self.joint]
+        if self.about == "axis":
+            return [S.loads.torque[:, j][:, None] * stand.loads.axes[j][None]]
+        U = across_axes(stand.loads.axes[j])
+        return [(S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U]
+
+    def pose_offset(self, theta, poses, fk_q, fk_X):
+        stand = self.stand()
+        S = load_state(stand, poses.controls)
+        w = sum(t * r for t, r in zip(theta, self._unit_rotations(stand, S)))
+        return _rotation_offset(S, stand.loads.index[self.joint], w, fk_X)
+
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        stand = self.stand()
+        S = load_state(stand, poses.controls)
+        j = stand.loads.index[self.joint]
+        pose = np.stack([_rotation_offset(S, j, r, fk_X) for r in self._unit_rotations(stand, S)], axis=-1)
+        return (np.zeros((poses.n_poses, n_u, len(theta))), pose,
+                np.zeros((poses.n_poses, poses.n_markers, 3, len(theta))))
+
+
+def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str) -> JointRotationTerm:
+    where = {"joint": joint, "about": about}
+    where.update(_stand_where(spec))
+    if about == "axis":
+        where["load"] = "gravity torque of the whole tree about the joint's axis (N m)"
+        return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where, joint=joint,
+                                 about=about, spec=spec)
+    where["load"] = "gravity moment of the whole tree across the joint's axis (N m)"
+    return JointRotationTerm(effect, ["compliance_u", "compliance_v"], np.zeros(2), ["rad/(N m)"] * 2, where,
+                             joint=joint, about=about, spec=spec)
+
+
+def joint_rotation_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointRotationTerm:
+    where = _where(data)
+    joint, about = where.get("joint"), where.get("about")
+    if not isinstance(joint, str) or about not in ("axis", "across"):
+        raise BadInput(f"effect {effect!r}: where needs joint (a URDF joint name) and about ('axis' or 'across')")
+    if spec is None:
+        spec = spec_from_where(where, effect)
+    term = joint_rotation_term(effect, spec, joint, about)
+    term.stand()
+    return term
+
+
+# ---------------------------------------------------------------------------- mass moments
+@dataclass
+class MassMomentTerm(ModelTerm):
+    """Control ``index`` (tree joint ``joint``) offset by ``Y_j(q) B theta``: Y_j the joint's
+    gravity-torque regressor in the mass moments, B (4 J, r) the combinations kept."""
+
+    index: int = 0
+    joint: str = ""
+    basis: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    spec: PlatformSpec | None = field(default=None, repr=False)
+
+    def stand(self) -> TreeStand:
+        if self.spec is None:
+            self.spec = spec_from_where(self.where, self.effect)
+        stand = tree_stand(self.spec)
+        if stand is None:
+            raise BadInput(f"effect {self.effect!r}: the stand has no URDF")
+        return stand
+
+    def columns(self, controls: np.ndarray) -> np.ndarray:
+        """(N, r) the joint's torque per unit of each kept combination."""
+        stand = self.stand()
+        S = load_state(stand, controls)
+        Y = stand.loads.torque_regressor(S.Q, S.loads)[:, stand.loads.index[self.joint]]
+        return Y @ self.basis
+
+    def control_offset(self, theta, poses, n_u):
+        out = np.zeros((poses.n_poses, n_u))
+        out[:, self.index] = self.columns(poses.controls) @ theta / self.stand().scale[self.index]
+        return out
+
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        K = len(theta)
+        control = np.zeros((poses.n_poses, n_u, K))
+        control[:, self.index, :] = self.columns(poses.controls) / self.stand().scale[self.index]
+        return control, np.zeros((poses.n_poses, 6, K)), np.zeros((poses.n_poses, poses.n_markers, 3, K))
+
+
+def mass_moment_basis(stand: TreeStand, controls: np.ndarray, joint: str) -> tuple[np.ndarray, int]:
+    """(B (4 J, r), rank): the joint's identifiable mass-moment combinations on ``controls``,
+    the r <= MAX_MASS_COMBINATIONS best determined, scaled so that each column's torque has unit
+    RMS over the poses; rank: how many are identifiable at all."""
+    S = load_state(stand, controls)
+    Y = stand.loads.torque_regressor(S.Q, S.loads)[:, stand.loads.index[joint]]
+    if not np.any(Y):
+        return np.zeros((Y.shape[1], 0)), 0
+    _, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    rank = int(np.sum(s > RANK_TOL * s[0]))
+    r = min(rank, MAX_MASS_COMBINATIONS)
+    B = Vt[:r].T / (s[:r] / np.sqrt(len(Y)))
+    return B, rank
+
+
+def mass_moment_term(effect: str, spec: PlatformSpec, i: int, joint: str, basis: np.ndarray, rank: int) -> MassMomentTerm:
+    r = basis.shape[1]
+    where = {"actuator": spec.control_names[i], "actuator_index": i, "unit": spec.controls[i].unit, "joint": joint,
+             "load": "gravity torque from mass moments estimated with the compliance (the URDF has no inertias)",
+             "identifiable_mass_moments": int(rank), "kept": int(r), "basis": np.round(basis, 12).tolist()}
+    where.update(_stand_where(spec))
+    names = [f"compliance_x_mass_moments_{k + 1}" for k in range(r)]
+    return MassMomentTerm(effect, names, np.zeros(r), [spec.controls[i].unit] * r, where, index=i, joint=joint,
+                          basis=basis, spec=spec)
+
+
+def mass_moment_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> MassMomentTerm:
+    where = _where(data)
+    try:
+        basis = np.asarray(where["basis"], float)
+        i, joint = int(where["actuator_index"]), str(where["joint"])
+    except (KeyError, TypeError, ValueError):
+        raise BadInput(f"effect {effect!r}: where needs basis (a matrix), actuator_index and joint") from None
+    if spec is None:
+        spec = spec_from_where(where, effect)
+    stand = tree_stand(spec)
+    if stand is None or basis.ndim != 2 or basis.shape[0] != 4 * len(stand.loads.joints) or not 0 <= i < spec.n_u:
+        raise BadInput(f"effect {effect!r}: where.basis must have 4 rows per moving joint of the stand's URDF")
+    return mass_moment_term(effect, spec, i, joint, basis, int(where.get("identifiable_mass_moments", basis.shape[1])))
+
+
+# ---------------------------------------------------------------------------- link bending
+class LinkBending(Effect):
+    name = "link_bending"
+    summary = "a link bends about the two axes across a joint's axis under the gravity moment there"
+
+    def candidates(self, spec, poses, residuals=None):
+        stand = tree_stand(spec)
+        if stand is None or stand.loads.total_mass <= 0:
+            return []
+        S = load_state(stand, poses.controls)
+        out = []
+        for name in stand.chain:
+            j = stand.loads.index[name]
+            across = S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T
+            if np.max(np.ptp(across, axis=0)) > 1e-6:
+                out.append(joint_rotation_term(self.name, spec, name, "across"))
+        return out
+
+    def regressor(self, term, spec, poses):
+        stand = tree_stand(spec)
+        if stand is None:
+            return np.zeros(poses.n_poses)
+        S = load_state(stand, poses.controls)
+        j = stand.loads.index[term.where["joint"]]
+        across = S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T
+        return across[:, int(np.argmax(np.ptp(across, axis=0)))]
+
+    def regressor_label(self, term):
+        return f"gravity moment across joint {term.where['joint']} (N m)"
+
+    def from_dict(self, data, spec=None):
+        return joint_rotation_from_dict(self.name, data, spec)
+
+    def simulation_term(self, spec, size, rng, commands):
+        """``size``: the largest bending rotation over the commands (mrad), default 1."""
+        stand = tree_stand(spec)
+        if stand is None or stand.loads.total_mass <= 0:
+            return None
+        S = load_state(stand, commands.controls)
+        peaks = []
+        for name in stand.chain:
+            j = stand.loads.index[name]
+            peaks.append(np.max(np.abs(S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T)))
+        peaks = np.array(peaks)
+        if not peaks.size or not peaks.max() > 0:
+            return None
+        k = int(rng.choice(np.nonzero(peaks >= 0.5 * peaks.max())[0]))
+        c = (1.0 if size is None else float(size)) * 1e-3 / peaks[k]
+        return joint_rotation_term(self.name, spec, stand.chain[k], "across"), np.array([c, c])

@@ -1,0 +1,133 @@
+"""Compliance of a URDF tree as diagnosis fits it (plugins/platkit_effects/tree_compliance.py and
+compliance.py): the whole tree's loads, a mimic joint's elasticity and link bending as rotations
+at the joint checked against pinocchio's kinematics, the fixed point, the mass-moment route."""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+from platkit_effects import Compliance, LinkBending
+from platkit_effects.compliance import actuator_loads
+from platkit_effects.tree_compliance import (
+    JointRotationTerm,
+    MassMomentTerm,
+    across_axes,
+    deflected_torque,
+    load_state,
+    tree_stand,
+)
+from tests.unit.test_tree_loads import _tree
+
+U = np.array([[0.3, 0.4, -0.7], [-1.0, -0.2, 1.1], [0.0, 1.2, 0.3], [0.6, -0.9, 0.2], [-0.4, 0.7, -1.2]])
+
+
+def _poses(spec, controls):
+    n = len(controls)
+    return PoseSet(spec.name, np.asarray(controls, float), np.zeros((n, 1, 3)), ["m"], length_unit="m")
+
+
+def _moving_placement(free, q, link="l_lo"):
+    data = free.createData()
+    pin.framesForwardKinematics(free, data, q)
+    M = data.oMf[free.getFrameId(link)]
+    return M.translation.copy(), M.rotation.copy()
+
+
+@pytest.fixture()
+def arm(tmp_path):
+    return get_platform("urdf", _tree(tmp_path), moving_link="l_lo")
+
+
+def test_loads_are_the_whole_trees_with_the_mimic_joint_following(arm):
+    stand = tree_stand(arm)
+    assert stand.joints == ["t1", "l1", "l2"] and stand.chain == ["t1", "t2", "l1", "l2"]
+    T = stand.loads
+    Q = T.configuration(["t1", "l1", "l2"], U)
+    want = T.loads(Q).torque[:, [T.index[n] for n in ("t1", "l1", "l2")]]
+    assert np.allclose(actuator_loads(arm, U), want)
+    assert np.all(np.abs(Q[:, T.index["t2"]] - (0.7 * U[:, 0] + 0.05)) < 1e-12)
+
+
+def test_a_mimic_joints_elasticity_turns_the_moving_frame_at_the_joint(arm):
+    terms = Compliance().candidates(arm, _poses(arm, U))
+    mimic = [t for t in terms if isinstance(t, JointRotationTerm)]
+    assert [t.joint for t in mimic] == ["t2"] and len(terms) == 4
+    stand = tree_stand(arm)
+    T, S = stand.loads, load_state(stand, U)
+    free = pin.buildModelFromUrdf(str(T.path))
+    c = 1e-6
+    X = np.array([_moving_placement(free, q)[0] for q in S.Q])
+    off = mimic[0].pose_offset(np.array([c]), _poses(arm, U), None, X)
+    for k, q in enumerate(S.Q):
+        bent = q.copy()
+        bent[T.index["t2"]] += c * S.loads.torque[k, T.index["t2"]]
+        x1, R1 = _moving_placement(free, bent)
+        x0, R0 = _moving_placement(free, q)
+        assert np.allclose(off[k, :3], x1 - x0, rtol=0, atol=1e-9)
+        assert np.allclose(off[k, 3:], pin.log3(R1 @ R0.T), rtol=0, atol=1e-9)
+
+
+def test_link_bending_turns_about_the_axes_across_under_the_moment_there(arm):
+    terms = LinkBending().candidates(arm, _poses(arm, U))
+    assert [t.joint for t in terms] == ["t1", "t2", "l1", "l2"]
+    stand = tree_stand(arm)
+    T, S = stand.loads, load_state(stand, U)
+    term = terms[2]  # l1: bending of the upper arm
+    j = T.index["l1"]
+    X = np.array([_moving_placement(pin.buildModelFromUrdf(str(T.path)), q)[0] for q in S.Q])
+    cu, cv = 2e-6, -1e-6
+    off = term.pose_offset(np.array([cu, cv]), _poses(arm, U), None, X)
+    u, v = across_axes(T.axes[j])
+    assert abs(u @ T.axes[j]) < 1e-12 and abs(v @ T.axes[j]) < 1e-12
+    for k in range(len(U)):
+        w_joint = cu * (S.loads.moment[k, j] @ u) * u + cv * (S.loads.moment[k, j] @ v) * v
+        w = S.loads.rotation[k, j] @ w_joint
+        assert np.allclose(off[k, 3:], w)
+        assert np.allclose(off[k, :3], np.cross(w, X[k] - S.loads.origin[k, j]))
+    # linear in theta: its Jacobian is exact
+    _, pose_jac, _ = term.offset_jacobians(np.zeros(2), _poses(arm, U), 3, None, X)
+    assert np.allclose(pose_jac @ np.array([cu, cv]), off)
+    # stored and read back
+    back = LinkBending().from_dict(term.to_dict(np.array([cu, cv])))
+    assert np.allclose(back.pose_offset(np.array([cu, cv]), _poses(arm, U), None, X), off)
+
+
+def test_the_fixed_point_holds_the_load_at_the_deflected_pose(arm):
+    stand = tree_stand(arm)
+    c = -0.01  # rad/(N m): a large sag, so the load changes with it
+    tau = deflected_torque(stand, U, "l1", c)
+    T = stand.loads
+    Q = stand.configuration(U)
+    Q[:, T.index["l1"]] += c * tau
+    assert np.allclose(T.loads(Q).torque[:, T.index["l1"]], tau, atol=1e-6)
+    plain = load_state(stand, U).loads.torque[:, T.index["l1"]]
+    assert np.abs(tau - plain).max() > 1e-3
+    # a small compliance keeps the commanded load exactly
+    assert np.array_equal(deflected_torque(stand, U, "l1", 1e-9), plain)
+
+
+def test_without_inertias_compliance_is_tried_through_the_mass_moments(tmp_path):
+    heavy = get_platform("urdf", _tree(tmp_path), moving_link="l_lo")
+    bare_dir = tmp_path / "bare"
+    bare_dir.mkdir()
+    bare = get_platform("urdf", _tree(bare_dir, masses=False), moving_link="l_lo")
+    terms = Compliance().candidates(bare, _poses(bare, U))
+    assert terms and all(isinstance(t, MassMomentTerm) for t in terms)
+    assert LinkBending().candidates(bare, _poses(bare, U)) == []
+    # l2 (the forearm about an oblique axis) has 2 identifiable mass moments on these poses, both
+    # kept: the true loads (the heavy URDF's) lie in their span exactly
+    term = next(t for t in terms if t.joint == "l2")
+    assert (term.where["identifiable_mass_moments"], term.where["kept"]) == (2, 2)
+    cols = term.columns(U)
+    true = actuator_loads(heavy, U)[:, 2]
+    fit = np.linalg.lstsq(cols, true, rcond=None)[0]
+    assert np.abs(cols @ fit - true).max() < 1e-9 * np.abs(true).max()
+    # t1 (the torso, both arms below it) has more than are kept: said in where
+    t1 = next(t for t in terms if t.joint == "t1")
+    assert t1.where["identifiable_mass_moments"] > t1.where["kept"] == 3
+    back = Compliance().from_dict(term.to_dict(fit))
+    assert isinstance(back, MassMomentTerm)
+    assert np.allclose(back.control_offset(fit, _poses(bare, U), 3), term.control_offset(fit, _poses(bare, U), 3))
