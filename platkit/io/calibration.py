@@ -78,6 +78,8 @@ class Calibration:
     theta_std: list = field(default_factory=list)
     heldout: dict[str, Any] = field(default_factory=dict)
     time_s: float = 0.0
+    #: a calibration from motion (platkit.calibrate.motion): the samples used and the actuators' response
+    motion: dict[str, Any] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)  # arrays for the report (not written)
     imu: dict[str, Any] = field(default_factory=dict)  # what an IMU diagnosis added (platkit.diagnose.imu), SI
     body_names: list[str] = field(default_factory=list)
@@ -159,6 +161,8 @@ class Calibration:
             out["heldout"] = heldout_in_unit(self.heldout, self.length_unit)
         if self.extras.get("warnings"):
             out["warnings"] = [str(w) for w in self.extras["warnings"]]
+        if self.motion:  # the actuators' response fitted with the geometry (times s, controls' internal units)
+            out["actuator_response"] = strict(self.motion)
         if self.imu:
             # SI (rad, rad/s), whatever the length unit: platkit.diagnose.imu's calibration_entry
             out["imu"] = strict(self.imu)
@@ -319,6 +323,9 @@ def read_calibration(path: str | Path) -> Calibration:
     weight = rb.get("rotation_weight") or {}
     rho = weight.get(f"rho_{lu}_per_rad") if isinstance(weight, dict) else None
     res = data.get("residual") or {}
+    motion = data.get("actuator_response") or {}
+    if not isinstance(motion, dict):
+        raise BadInput(f"{path}: field 'actuator_response' must be a mapping (a calibration from motion)")
     imu = data.get("imu") or {}
     if not isinstance(imu, dict):
         raise BadInput(f"{path}: field 'imu' must be a mapping (what an IMU diagnosis added)")
@@ -339,7 +346,7 @@ def read_calibration(path: str | Path) -> Calibration:
         n_poses=int(res.get("n_poses", 0)), n_markers=len(names),
         identifiability=data.get("identifiability") or {}, terms=terms, theta=theta, theta_std=theta_std,
         heldout={},  # written for people in the file's unit; not read back
-        imu=dict(imu), body_names=body_names, body_positions=b_pos, body_rotvecs=b_rot, body_std=b_std,
+        imu=dict(imu), motion=dict(motion), body_names=body_names, body_positions=b_pos, body_rotvecs=b_rot, body_std=b_std,
         body_rho=float("nan") if rho is None else float(rho) * s,
         body_rho_source=str(weight.get("source", "")) if isinstance(weight, dict) else "",
         marker_links=links,

@@ -31,12 +31,15 @@ __all__ = ["ActuatorResponse", "profile_duration", "motion_profile", "follow", "
 class ActuatorResponse:
     """Per-actuator response, arrays (n_u,): ``tau_s`` time constant 1/w of the second-order
     approach (s); ``damping`` zeta; ``rate`` the profile's rate limit (control unit per s);
-    ``accel`` its acceleration limit (control unit per s^2)."""
+    ``accel`` its acceleration limit (control unit per s^2); ``streamed``: the drive follows each
+    command as it comes (a step reference held to the next command, no profile: commands
+    streamed at a steady rate by a path or motion-cue follower)."""
 
     tau_s: np.ndarray
     damping: np.ndarray
     rate: np.ndarray
     accel: np.ndarray
+    streamed: bool = False
 
     def check(self) -> None:
         for name in ("tau_s", "damping", "rate", "accel"):
@@ -124,14 +127,18 @@ def follow(reference: np.ndarray, dt: float, tau_s: np.ndarray, damping: np.ndar
 
 def actuator_motion(t: np.ndarray, command_t: np.ndarray, commands: np.ndarray, start: np.ndarray,
                     response: ActuatorResponse, fine_step_s: float = 1e-3) -> np.ndarray:
-    """(K, n_u) the actuators' true positions at times ``t`` (K,) sorted: the profile followed by
-    the second-order response, integrated every ``fine_step_s`` from 0 s and interpolated
-    linearly to ``t``."""
+    """(K, n_u) the actuators' true positions at times ``t`` (K,) sorted: the profile (or, for a
+    ``streamed`` response, each command held to the next) followed by the second-order response,
+    integrated every ``fine_step_s`` from 0 s and interpolated linearly to ``t``."""
     response.check()
     t = np.asarray(t, float)
     t_end = float(max(t[-1], command_t[-1])) + fine_step_s
     fine = np.arange(0.0, t_end + fine_step_s, fine_step_s)
-    ref = motion_profile(fine, command_t, commands, start, response)
+    if response.streamed:  # each command held to the next, from the grid point it falls on
+        seg = np.searchsorted(command_t, fine + 1e-9, side="right") - 1
+        ref = np.where(seg[:, None] < 0, np.asarray(start, float)[None], commands[np.maximum(seg, 0)])
+    else:
+        ref = motion_profile(fine, command_t, commands, start, response)
     x = follow(ref, fine_step_s, response.tau_s, response.damping)
     out = np.empty((len(t), commands.shape[1]))
     for j in range(commands.shape[1]):

@@ -48,6 +48,7 @@ from platkit.io.jsonout import plain
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, controls_from_si, length_scale
 from platkit.simulate.actuator import ActuatorResponse, actuator_motion, profile_duration
+from platkit.simulate.continuous import continuous_plan
 from platkit.simulate.files import csv_text, fmt, write_imu_files
 from platkit.simulate.nuisance import Nuisances, coloured_noise, draw_nuisances, occlusion_mask
 from platkit.simulate.stand import make_plan, perturb_parameters
@@ -215,7 +216,8 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                      occlusion: float | None = None, latency_s: float | None = None,
                      clock_offset_s: float | None = None, coloured: bool = True, overshoot: bool = False,
                      imu: dict | None = None, perturbation: float = 1.0, description: str | None = None,
-                     fine_step_s: float = 2e-3) -> PhysicalSession:
+                     fine_step_s: float = 2e-3, motion: str | None = None, duration_s: float = 200.0,
+                     command_rate_hz: float = 20.0) -> PhysicalSession:
     """Simulate a session of ``spec`` in the time domain (see the module's docstring).
 
     plan: 'grid', 'random', a plan.csv path, a Plan or an (N, n_u) array (internal units).
@@ -225,6 +227,10 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         overshoot: drives tuned below critical damping.
     imu: None, or the options of platkit.inertial.simulate.imu_for_trajectory (rate_hz, bias,
         noise, ...): an IMU on the moving part, which feels a tilted base.
+    motion: None (holds: each command held after its move), or a continuous-motion kind of
+        :mod:`platkit.simulate.continuous` ('multisine', 'path', 'cue'): commands streamed every
+        1 / ``command_rate_hz`` s for ``duration_s`` s, without holds, each followed as it comes
+        (``plan`` and ``n_poses`` are then unused; the last command is held ``hold_s``).
     """
     length_scale(length_unit)
     if n_markers < 3:
@@ -235,7 +241,13 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         raise BadInput(f"fine_step_s must be in (0, 0.01] s, got {fine_step_s:g}")
     rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
     model = PlatformModel(spec)
-    U, plan_info = make_plan(spec, plan, n_poses, rng_plan, model, length_unit)
+    if motion is None:
+        U, plan_info = make_plan(spec, plan, n_poses, rng_plan, model, length_unit)
+    else:  # streamed: planned within the drives' limits, drawn below with the nuisances
+        draw = draw_nuisances(spec, np.random.default_rng([seed, 3]), hold_s=hold_s, overshoot=overshoot)
+        td_plan = perturb_parameters(spec, np.random.default_rng([seed, 1]), perturbation)
+        U, plan_info = continuous_plan(spec, motion, duration_s, command_rate_hz, rng_plan, model, td_plan,
+                                       draw.response.rate, draw.response.accel)
     model.check_controls(U)
     td = perturb_parameters(spec, rng_stand, perturbation)
     ok, P_rest = feasible(spec, U, td, model)
@@ -252,14 +264,18 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                                overshoot=overshoot, latency_s=latency_s, clock_offset_s=clock_offset_s,
                                coloured=coloured)
     start = spec.neutral_u()
-    t_cmd, hold_end = _schedule(U, start, nuisances, rng_nuis)
+    if motion is None:
+        t_cmd, hold_end = _schedule(U, start, nuisances, rng_nuis)
+    else:
+        t_cmd = np.round(LEAD_IN_S + np.arange(len(U)) / command_rate_hz, 6)
+        hold_end = np.append(t_cmd[1:], t_cmd[-1] + nuisances.hold_s)
     end_t = float(hold_end[-1])
     phys_plan = PhysicsPlan(spec, t_cmd, U, start, nuisances.hold_s, end_t, names)
     physics = [(name, physics_of(name, spec, size, np.random.default_rng([seed, 100 + k]), phys_plan))
                for k, (name, size) in enumerate(effects)]
     r0 = nuisances.response
     response = ActuatorResponse(np.array(r0.tau_s, float), np.array(r0.damping, float), np.array(r0.rate, float),
-                                np.array(r0.accel, float))
+                                np.array(r0.accel, float), streamed=motion is not None)
     for _, p in physics:
         p.respond(response)
     response.check()

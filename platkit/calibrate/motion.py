@@ -1,0 +1,352 @@
+"""Calibration from motion: every motion-capture sample as data, through the actuators' response.
+
+Where a session's holds do not settle, or it has none (a stand streaming a path), each sample
+of the stream is an observation: the markers follow the stand's pose at the controls its
+actuators had reached at that instant, from the command log through a per-actuator response
+(:mod:`platkit.calibrate.response`: a step or rate/acceleration-limited profile reference, a
+first- or second-order response, one time shift for the clock offset and common delay). The
+response is a :class:`~platkit.terms.ModelTerm` whose control offset is the reached controls
+minus the starting ones, so geometry, markers, frame and response are one sparse least-squares
+problem of :func:`platkit.calibrate.estimate.calibrate`: the same exact Jacobians (CasADi) for
+the geometry, the same robust loss and outlier rule, the same identifiability (a response the
+data cannot tell from the geometry is held at its start and said). The response's own columns
+are central differences per actuator (each parameter moves one actuator, or all for the shift).
+
+Procedure (:func:`calibrate_motion`):
+1. checks: the two clocks overlap; a command log streamed more slowly than the motion moves is
+   refused (BadSession naming commands.csv);
+2. the samples: every sample with a marker seen, from the second command on (the stand's place
+   before the first is not logged), decimated evenly to at most ``max_samples``;
+3. the response's start: the markers registered at the commanded controls (rigid alignment),
+   each sample's pose by Kabsch, the actuators' travel by inverse kinematics at the nominal
+   geometry, and the response fitted to that travel alone (a grid over the shift, then
+   least squares): an actuator that moved too little to show its response keeps the start;
+4. the full fit with :func:`calibrate` and the response as a term; the term leaves the
+   calibration afterwards (calibration.yaml keeps it as ``actuator_response``; prediction of
+   settled poses needs no response).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.problem import CalibrationProblem, Progress
+from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.errors import BadSession, ComputationFailed, NotIdentifiable
+from platkit.geometry import matrix_from_rotvec, quat_from_matrix, rigid_fit
+from platkit.io.calibration import Calibration
+from platkit.io.session import Session
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
+
+__all__ = ["ResponseTerm", "calibrate_motion", "motion_samples", "check_motion_session", "STREAMED_MAX_S"]
+
+#: a command log whose median interval is at most this (s) is streamed (step reference); longer
+#: intervals are point-to-point moves between holds (profile reference)
+STREAMED_MAX_S = 0.25
+#: samples fitted at most (decimated evenly), and used to start the response
+MAX_SAMPLES, START_SAMPLES = 4000, 600
+#: a streamed log must come at least this many times faster than the motion's bandwidth
+COMMAND_OVERSAMPLING = 2.0
+#: the share of the markers' velocity power below the motion's bandwidth
+BANDWIDTH_SHARE = 0.95
+#: starting response: time constant (s), damping; a profile's rate and acceleration from the
+#: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
+TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
+#: the two clocks must share at least this part of the shorter file's span
+OVERLAP_SHARE = 0.5
+#: the shifts (s) tried to start the response
+SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
+
+
+class ResponseTerm(ModelTerm):
+    """The actuators' response as a model term: control offset = the controls reached at each
+    sample (``poses.t``, motion-capture clock) minus ``poses.controls``."""
+
+    def __init__(self, model: ResponseModel, T: np.ndarray, U: np.ndarray, control_names: list[str],
+                 theta0: np.ndarray, steps: np.ndarray):
+        units = []
+        for name in model.names(control_names):
+            block = name.split(".")[0]
+            units.append({"shift_s": "s", "tau_s": "s", "damping": "1", "rate": "unit/s",
+                          "accel": "unit/s^2"}[block])
+        super().__init__("actuator_response", model.names(control_names), np.asarray(theta0, float).copy(), units,
+                         {"kind": model.kind, "reference": model.reference})
+        self.model, self.T, self.U, self.steps = model, T, U, np.asarray(steps, float)
+        self._cache: tuple | None = None
+
+    def reached(self, theta, t) -> np.ndarray:
+        key = (np.asarray(theta, float).tobytes(), id(t), len(t))
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        x = actuator_positions(self.model, theta, self.T, self.U, t)
+        self._cache = (key, x)
+        return x
+
+    def control_offset(self, theta, poses: PoseSet, n_u: int) -> np.ndarray:
+        return self.reached(theta, poses.t) - poses.controls
+
+    def offset_jacobians(self, theta, poses: PoseSet, n_u: int, fk_q, fk_X):
+        theta = np.asarray(theta, float)
+        N, K = poses.n_poses, len(theta)
+        d_u = np.zeros((N, n_u, K))
+        for k in range(K):
+            h = self.steps[k]
+            up, dn = theta.copy(), theta.copy()
+            up[k] += h
+            dn[k] -= h
+            j = self.model.actuator_of(k)
+            if j is None:
+                d_u[:, :, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t)
+                                - actuator_positions(self.model, dn, self.T, self.U, poses.t)) / (2 * h)
+            else:
+                d_u[:, j, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t, only=j)
+                                - actuator_positions(self.model, dn, self.T, self.U, poses.t, only=j)) / (2 * h)
+        return d_u, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
+
+
+@dataclass
+class MotionSamples:
+    """The samples a motion calibration fits: indices into the stream, and what was left out."""
+
+    index: np.ndarray
+    n_stream: int
+    n_unseen: int
+    n_before: int
+    stride: int
+
+
+def check_motion_session(session: Session) -> str:
+    """The reference the command log calls for ('step': streamed, 'profile': holds), after the
+    checks: markers and commands present, clocks that overlap, a streamed log not sparser
+    than the motion. BadSession naming the file otherwise."""
+    cmd_file = session.folder / "commands.csv"
+    mk_file = session.markers_source or session.folder / "markers.csv"
+    if session.markers is None or session.marker_t is None:
+        raise BadSession(f"{session.folder}: the session has no motion-capture stream; calibrating from motion "
+                         "needs markers.csv or a C3D file")
+    if session.commands is None or session.command_t is None or len(session.command_t) < 3:
+        raise BadSession(f"{cmd_file}: fewer than 3 commands; calibrating from motion needs the command log")
+    tc, tm = session.command_t, session.marker_t
+    last = float(tc[-1] + np.median(np.diff(tc)))  # the last command is held about as long as the others
+    overlap = min(float(tm[-1]), last) - max(float(tm[0]), float(tc[0]))
+    if overlap < OVERLAP_SHARE * min(last - float(tc[0]), float(tm[-1] - tm[0])):
+        raise BadSession(f"{cmd_file}: its times ({tc[0]:.3f} to {tc[-1]:.3f} s) and those of {mk_file} "
+                         f"({tm[0]:.3f} to {tm[-1]:.3f} s) do not overlap: the two files are on clocks that do not "
+                         "meet (write both from one clock, or shift one by the known offset)")
+    span = np.diff(tc)
+    med = float(np.median(span))
+    reference = "step" if med <= STREAMED_MAX_S else "profile"
+    bandwidth, moving = motion_bandwidth(tm, session.markers)
+    if moving > 0.8 and (reference == "profile" or COMMAND_OVERSAMPLING * bandwidth > 1.0 / med):
+        raise BadSession(f"{cmd_file}: the command log ({1.0 / med:.3g} commands per s) is sparser than the motion "
+                         f"in {mk_file} (moving {100 * moving:.0f}% of the time, bandwidth {bandwidth:.3g} Hz): "
+                         f"at least {COMMAND_OVERSAMPLING * bandwidth:.3g} commands per s are needed to tell where "
+                         "the stand was sent")
+    return reference
+
+
+def motion_bandwidth(t: np.ndarray, Y: np.ndarray) -> tuple[float, float]:
+    """(bandwidth Hz, share of the time moving) of the markers' mean: the frequency below which
+    BANDWIDTH_SHARE of its velocity power lies, and the share of samples whose speed exceeds
+    five times what the noise gives."""
+    c = np.nanmean(Y, axis=1)  # (K, 3) the markers' centroid (NaN where none is seen)
+    ok = np.isfinite(c).all(axis=1)
+    if ok.sum() < 16:
+        return 0.0, 0.0
+    dt = float(np.median(np.diff(t)))
+    k = np.arange(len(c))
+    c = np.stack([np.interp(k, k[ok], c[ok, a]) for a in range(3)], axis=1)
+    v = np.diff(c, axis=0) / dt
+    noise = 1.4826 * np.median(np.abs(np.diff(c, 2, axis=0) - np.median(np.diff(c, 2, axis=0), axis=0)),
+                               axis=0) / np.sqrt(6)
+    speed_noise = float(np.linalg.norm(noise)) * np.sqrt(2) / dt
+    moving = float(np.mean(np.linalg.norm(v, axis=1) > 5 * speed_noise)) if speed_noise > 0 else 1.0
+    P = np.sum(np.abs(np.fft.rfft(v - v.mean(axis=0), axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(len(v), dt)
+    cum = np.cumsum(P)
+    if cum[-1] <= 0:
+        return 0.0, moving
+    return float(f[np.searchsorted(cum, BANDWIDTH_SHARE * cum[-1])]), moving
+
+
+def motion_samples(session: Session, reference: str, max_samples: int = MAX_SAMPLES) -> MotionSamples:
+    """The stream's samples to fit: a marker seen, after the second command is sent (the stand's
+    place before the first is not logged; a profile's first move starts from it), evenly
+    decimated to at most ``max_samples``."""
+    tm, Y = session.marker_t, session.markers
+    seen = np.isfinite(Y).all(axis=2).any(axis=1)
+    start = session.command_t[1] + (0.0 if reference == "step" else 0.0)
+    after = tm >= start
+    cand = np.nonzero(seen & after)[0]
+    stride = max(1, int(np.ceil(len(cand) / max(max_samples, 1))))
+    return MotionSamples(cand[::stride], len(tm), int((~seen).sum()), int((seen & ~after).sum()), stride)
+
+
+def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
+    span = np.array([c.upper - c.lower for c in spec.controls], float)
+    span = np.where(np.isfinite(span) & (span > 0), span, 1.0)
+    th = [np.zeros(1), np.full(model.n_u, TAU0_S)]
+    if model.kind == "second_order":
+        th.append(np.full(model.n_u, ZETA0))
+    if model.reference == "profile":
+        th += [span / STROKE_TIME_S, span / STROKE_TIME_S / ACCEL_TIME_S]
+    return np.concatenate(th)
+
+
+def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.full(model.size, 1e-9)
+    hi = np.full(model.size, np.inf)
+    lo[0], hi[0] = -5.0, 5.0
+    for j in range(model.n_u):
+        lo[model.index("tau_s", j)], hi[model.index("tau_s", j)] = 2e-3, 20.0
+        if model.kind == "second_order":
+            lo[model.index("damping", j)], hi[model.index("damping", j)] = 0.2, 5.0
+    return lo, hi
+
+
+def _travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarray, guess_u: np.ndarray):
+    """The actuators' travel (K, n_u) at each sample by inverse kinematics of the pose the markers
+    give (Kabsch of the marker layout ``mk`` onto the sample, in the base frame); NaN rows where
+    fewer than three markers are seen or the pose is out of reach."""
+    K = len(Y)
+    out = np.full((K, spec.n_u), np.nan)
+    Yb = (Y - b) @ A  # base frame: A^T (y - b)
+    for k in range(K):
+        vis = np.isfinite(Yb[k]).all(axis=1)
+        if vis.sum() < 3:
+            continue
+        R, X = rigid_fit(mk[vis], Yb[k, vis])
+        try:
+            out[k] = model.inverse(quat_from_matrix(R), X, td, strict=False, guess=guess_u[k])
+        except ComputationFailed:  # a pose out of reach is left out (NaN)
+            continue
+    return out
+
+
+def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, steps):
+    """The response fitted to the actuators' travel alone: the shift by a grid, then least squares
+    (soft L1) over everything. Actuators whose travel is all NaN keep theta0."""
+    ok = np.isfinite(travel).all(axis=1)
+    t, travel = t[ok], travel[ok]
+    if len(t) < 10:
+        return np.asarray(theta0, float)
+    theta = np.asarray(theta0, float).copy()
+    best = None
+    for s in SHIFT_GRID_S:
+        theta[0] = s
+        e = float(np.sum((actuator_positions(rmodel, theta, T, U, t) - travel) ** 2))
+        if best is None or e < best[0]:
+            best = (e, s)
+    theta[0] = best[1]
+    lo, hi = _lower_upper(rmodel, theta)
+    theta = np.clip(theta, lo + 1e-12, hi - 1e-12)
+    for j in range(rmodel.n_u):  # each actuator's own response, the shift and damping held (the full fit frees them)
+        ks = [rmodel.index(b, j) for b in rmodel.blocks if b != "damping"]
+        scale = max(float(np.ptp(travel[:, j])), 1e-9)
+        if not np.ptp(U[:, j]) > 0:
+            continue
+
+        def res(x, j=j, ks=ks, scale=scale):
+            th = theta.copy()
+            th[ks] = x
+            return (actuator_positions(rmodel, th, T, U, t, only=j) - travel[:, j]) / scale
+
+        sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
+                            x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=40)
+        theta[ks] = sol.x
+    return theta
+
+
+def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "second_order", free=None,
+                     robust: bool = True, max_samples: int = MAX_SAMPLES, progress: Progress | None = None,
+                     platform_options: dict | None = None, ridge_m: float = 0.0, reason: str = "") -> tuple[Calibration, PoseSet]:
+    """Calibrate ``spec`` from the whole stream of ``session`` (module docstring). Returns the
+    calibration (its ``motion`` says which samples served and the fitted response with its
+    uncertainty) and the pose set of the samples fitted. ``reason``: why the motion model serves
+    (said in the report)."""
+    t0 = time.perf_counter()
+    reference = check_motion_session(session)
+    rmodel = ResponseModel(kind, reference, spec.n_u)
+    chosen = motion_samples(session, reference, max_samples)
+    idx = chosen.index
+    if len(idx) < 20:
+        raise BadSession(f"{session.markers_source}: only {len(idx)} samples with markers seen after the second "
+                         "command; calibrating from motion needs the stand moving under the markers")
+    T, U = session.command_t, session.commands
+    t = session.marker_t[idx]
+    Y = session.markers[idx]
+    theta0 = _starting_theta(rmodel, spec)
+    steps = _steps(rmodel, theta0)
+    # 3. the response's start from the actuators' travel at the nominal geometry
+    X0 = actuator_positions(rmodel, theta0, T, U, t)
+    poses0 = PoseSet(platform=spec.name, controls=X0, markers=Y, marker_names=list(session.marker_names), t=t,
+                     length_unit=session.length_unit, source=str(session.folder))
+    problem = CalibrationProblem(spec, poses0)
+    z = problem.initial_registration(spec.nominal_td())
+    _, w, tr, mk, _ = problem.split(z)
+    sub = np.unique(np.linspace(0, len(idx) - 1, min(len(idx), START_SAMPLES)).astype(int))
+    travel = _travel(spec, problem.model, spec.nominal_td(), matrix_from_rotvec(w), tr, mk, Y[sub], X0[sub])
+    theta_start = _fit_response_to_travel(rmodel, theta0, T, U, t[sub], travel, steps)
+    steps = _steps(rmodel, theta_start)
+    # 4. the full fit
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps)
+    X1 = actuator_positions(rmodel, theta_start, T, U, t)
+    poses = PoseSet(platform=spec.name, controls=X1, markers=Y, marker_names=list(session.marker_names), t=t,
+                    description=None if session.description is None else str(session.description),
+                    length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
+                    extras={"row": idx, "elapsed": t - t[0]})
+    cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
+                    platform_options=platform_options, ridge_m=ridge_m)
+    theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
+    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
+    names = term.parameter_names
+    par = rmodel.split(theta)
+    sd = rmodel.split(np.where(np.isfinite(theta_std), theta_std, np.nan))
+    per = {}
+    for j, c in enumerate(spec.control_names):
+        entry = {}
+        for b in rmodel.blocks:
+            name = f"{b}.{c}"
+            held_here = f"term.actuator_response.{name}" in held
+            entry[b] = {"value": float(par[b][j]), "std": None if held_here or not np.isfinite(sd[b][j])
+                        else float(sd[b][j]), "status": "held_at_start" if held_here else "estimated"}
+        per[c] = entry
+    shift_held = "term.actuator_response.shift_s" in held
+    cal.motion = {
+        "used": "motion",
+        "why": reason or "calibrated from the whole stream",
+        "response": {"kind": kind, "reference": reference, "units": "s for times; controls' internal units "
+                     "(m for length controls) per s for rates",
+                     "shift_s": {"value": float(par["shift_s"]), "std": None if shift_held or not np.isfinite(
+                         sd["shift_s"]) else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
+                         "note": "the motion capture's clock minus the commands', with the stand's common delay"},
+                     "actuators": per},
+        "samples": {"n_stream": chosen.n_stream, "n_fitted": int(len(idx)), "stride": chosen.stride,
+                    "n_unseen": chosen.n_unseen, "n_before_second_command": chosen.n_before,
+                    "n_rejected_as_outliers": int(cal.n_rejected),
+                    "rule": "every sample with a marker seen from the second command on, one in every "
+                            f"{chosen.stride}"},
+        "held": [n for n in held if n.startswith("term.actuator_response.")],
+        "time_s": time.perf_counter() - t0,
+    }
+    cal.extras["response_names"] = names
+    cal.terms, cal.theta, cal.theta_std = [], [], []  # settled poses need no response
+    if progress is not None:
+        progress("motion", {"response": cal.motion["response"]})
+    if not np.isfinite(cal.rms_after):
+        raise NotIdentifiable(f"{session.folder}: the motion model did not fit the stream")
+    return cal, poses
+
+
+def _steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:
+    """Central-difference steps: 1e-4 s for the shift, 1e-4 relative for the rest."""
+    h = 1e-4 * np.maximum(np.abs(np.asarray(theta, float)), 1e-2)
+    h[0] = 1e-4
+    return h

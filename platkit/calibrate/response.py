@@ -1,0 +1,228 @@
+"""How a stand's actuators follow their command log in time: the response the motion model fits.
+
+Each actuator j follows a reference r_j(t) built from the command log (times T_i on the
+commands clock, values u_i), through a linear response that starts at rest:
+
+- reference ``step``: r_j holds each command until the next (commands streamed at a steady
+  rate, a motion-cue or path follower); ``profile``: each command starts a trapezoidal velocity
+  profile (rate limit ``rate_j``, acceleration limit ``accel_j``) from where the previous one
+  stood when it was cut (a point-to-point drive moving between holds);
+- response ``first_order``: tau_j x' + x = r; ``second_order``: x'' + 2 zeta_j w_j x' + w_j^2 x =
+  w_j^2 r with w_j = 1 / tau_j (damping zeta_j; 1 critically damped, below 1 an overshoot);
+- one time shift s (the motion capture's clock minus the commands', with the stand's common
+  delay: from the markers alone the two are one number): a sample stamped t sees the actuators
+  at t - s on the commands clock.
+
+A step reference is integrated exactly at any time: the state at each command instant by the
+exact zero-order-hold recursion (a linear filter when the commands come at a steady rate), then
+the free response from there to each sample. A profile reference is integrated on a fine grid
+with a first-order hold (exact for a reference linear over each step; the profile is smooth to
+its acceleration), and the actuators' position interpolated linearly at the samples. Before the
+first command every actuator rests on it. Internal units throughout (m for length controls).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from platkit.errors import BadInput
+
+__all__ = ["ResponseModel", "REFERENCES", "KINDS", "actuator_positions", "trapezoid_reference"]
+
+REFERENCES = ("step", "profile")
+KINDS = ("first_order", "second_order")
+#: the fine grid of a profile reference: this share of the shortest time constant, at most FINE_MAX_S
+FINE_SHARE, FINE_MAX_S = 0.1, 2e-3
+#: command intervals equal to this (s) are one steady rate (the files keep microseconds)
+STEADY_TOL_S = 2e-6
+#: the smallest time constant and damping the response takes (a parameter pushed below is clipped)
+TAU_MIN_S, ZETA_MIN = 1e-3, 0.05
+
+
+@dataclass
+class ResponseModel:
+    """Which response (``kind``) after which reference (``reference``), for ``n_u`` actuators.
+
+    theta (the fitted vector): [shift_s, tau_s (n_u), damping (n_u) for second_order, rate (n_u)
+    and accel (n_u) for a profile reference]."""
+
+    kind: str
+    reference: str
+    n_u: int
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise BadInput(f"actuator response: kind must be one of {', '.join(KINDS)}, not {self.kind!r}")
+        if self.reference not in REFERENCES:
+            raise BadInput(f"actuator response: reference must be one of {', '.join(REFERENCES)}, "
+                           f"not {self.reference!r}")
+
+    @property
+    def blocks(self) -> list[str]:
+        out = ["tau_s"]
+        if self.kind == "second_order":
+            out.append("damping")
+        if self.reference == "profile":
+            out += ["rate", "accel"]
+        return out
+
+    @property
+    def size(self) -> int:
+        return 1 + self.n_u * len(self.blocks)
+
+    def names(self, control_names: list[str]) -> list[str]:
+        return ["shift_s"] + [f"{b}.{c}" for b in self.blocks for c in control_names]
+
+    def split(self, theta) -> dict[str, np.ndarray]:
+        """{'shift_s': float array (), block: (n_u,)} of theta."""
+        theta = np.asarray(theta, float)
+        out = {"shift_s": theta[0]}
+        for k, b in enumerate(self.blocks):
+            out[b] = theta[1 + k * self.n_u:1 + (k + 1) * self.n_u]
+        return out
+
+    def index(self, block: str, j: int) -> int:
+        return 1 + self.blocks.index(block) * self.n_u + j
+
+    def actuator_of(self, k: int) -> int | None:
+        """The actuator theta[k] belongs to (None: the shift, shared by all)."""
+        return None if k == 0 else (k - 1) % self.n_u
+
+
+def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, accel: float) -> np.ndarray:
+    """One actuator's profile reference at commands-clock times ``s`` (K,), sorted: each command
+    u_i (sent at T_i) starts a trapezoidal profile (rate, accel) from where the last one stood
+    when it was cut; before T_0 it rests at u_0."""
+    v, a = max(float(rate), 1e-12), max(float(accel), 1e-12)
+    N = len(T)
+    origin = np.empty(N)
+    pos = float(u[0])
+    span = np.diff(T)
+    for i in range(N):  # where each profile starts (a few hundred holds: a plain loop)
+        origin[i] = pos
+        if i + 1 < N:
+            d = float(u[i] - pos)
+            pos = pos + np.sign(d) * float(_covered(np.array([span[i]]), abs(d), v, a)[0])
+    seg = np.searchsorted(T, s, side="right") - 1
+    out = np.where(seg < 0, u[0], u[np.maximum(seg, 0)]).astype(float)
+    ok = seg >= 0
+    i = seg[ok]
+    d = u[i] - origin[i]
+    out[ok] = origin[i] + np.sign(d) * _covered(s[ok] - T[i], np.abs(d), v, a)
+    return out
+
+
+def _covered(s, d, v, a):
+    """Distance covered after time s >= 0 by the trapezoid over distance d >= 0 (broadcast)."""
+    s, d = np.asarray(s, float), np.asarray(d, float)
+    tri = d < v * v / a
+    ta = np.where(tri, np.sqrt(d / a), v / a)
+    vp = a * ta
+    T = np.where(tri, 2 * ta, d / v + v / a)
+    s = np.clip(s, 0.0, None)
+    r = np.maximum(T - s, 0.0)
+    return np.where(s <= ta, 0.5 * a * s ** 2,
+                    np.where(s <= T - ta, 0.5 * a * ta ** 2 + vp * (s - ta), np.where(s < T, d - 0.5 * a * r ** 2, d)))
+
+
+def _free(tau_s: np.ndarray, e0: np.ndarray, v0: np.ndarray, tau: float, zeta: float):
+    """Free response of x'' + 2 zeta w x' + w^2 x = 0 (w = 1/tau) after ``tau_s`` from (e0, v0):
+    (position, velocity), broadcast."""
+    w = 1.0 / tau
+    g = w * w * (zeta * zeta - 1.0)
+    a = zeta * w
+    if abs(g) < 1e-12 * w * w:  # critically damped
+        ex = np.exp(-a * tau_s)
+        C, S = ex, ex * tau_s
+    elif g > 0:
+        b = np.sqrt(g)
+        e1, e2 = np.exp((b - a) * tau_s), np.exp(-(a + b) * tau_s)
+        C, S = 0.5 * (e1 + e2), 0.5 * (e1 - e2) / b
+    else:
+        b = np.sqrt(-g)
+        ex = np.exp(-a * tau_s)
+        C, S = ex * np.cos(b * tau_s), ex * np.sin(b * tau_s) / b
+    return e0 * C + (v0 + a * e0) * S, v0 * C - (w * w * e0 + a * v0) * S
+
+
+def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None) -> np.ndarray:
+    """One actuator after a step reference, exactly, at commands-clock times t (K,)."""
+    N = len(T)
+    p = np.empty(N)
+    v = np.zeros(N)
+    p[0] = u[0]
+    span = np.diff(T)
+    steady = N > 2 and float(np.ptp(span)) <= STEADY_TOL_S
+    if zeta is None:  # first order: p_(i+1) = u_i + (p_i - u_i) exp(-span / tau)
+        if steady:
+            a = float(np.exp(-span[0] / tau))
+            p[1:] = u[0] + signal.lfilter([1.0 - a], [1.0, -a], u[:-1] - u[0])
+        else:
+            a = np.exp(-span / tau)
+            for i in range(N - 1):
+                p[i + 1] = u[i] + (p[i] - u[i]) * a[i]
+    elif steady:  # the state recursion over a steady interval is one linear filter per output
+        h = float(span[0])
+        pp, pv = _free(np.array(h), np.array(1.0), np.array(0.0), tau, zeta)
+        vp, vv = _free(np.array(h), np.array(0.0), np.array(1.0), tau, zeta)
+        Phi = np.array([[float(pp), float(vp)], [float(pv), float(vv)]])
+        Gam = (np.eye(2) - Phi)[:, 0]
+        # c (zI - Phi)^-1 Gam = c [[z - Phi22, Phi12], [Phi21, z - Phi11]] Gam / (z^2 - tr z + det)
+        den = [1.0, -float(np.trace(Phi)), float(np.linalg.det(Phi))]
+        adj0 = np.array([[-Phi[1, 1], Phi[0, 1]], [Phi[1, 0], -Phi[0, 0]]]) @ Gam
+        x = u - u[0]  # the state at T_i from the commands before it (a strictly proper filter)
+        for row, out in ((0, p), (1, v)):
+            num = [0.0, float(Gam[row]), float(adj0[row])]
+            out[:] = signal.lfilter(num, den, x) + (u[0] if row == 0 else 0.0)
+    else:
+        for i in range(N - 1):
+            e, vel = _free(np.array(span[i]), np.array(p[i] - u[i]), np.array(v[i]), tau, zeta)
+            p[i + 1], v[i + 1] = u[i] + float(e), float(vel)
+    seg = np.searchsorted(T, t, side="right") - 1
+    out = np.full(len(t), float(u[0]))
+    ok = seg >= 0
+    i = seg[ok]
+    s = t[ok] - T[i]
+    if zeta is None:
+        out[ok] = u[i] + (p[i] - u[i]) * np.exp(-s / tau)
+    else:
+        out[ok] = u[i] + _free(s, p[i] - u[i], v[i], tau, zeta)[0]
+    return out
+
+
+def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None, rate: float,
+                 accel: float) -> np.ndarray:
+    """One actuator after a profile reference, on a fine grid from T_0 (first-order hold), at t."""
+    h = min(FINE_MAX_S, FINE_SHARE * tau)
+    t_end = max(float(t.max()), float(T[-1])) + 2 * h
+    grid = T[0] + h * np.arange(int(np.ceil((t_end - T[0]) / h)) + 1)
+    r = trapezoid_reference(grid, T, u, rate, accel) - u[0]
+    if zeta is None:
+        sys_c = ([1.0], [tau, 1.0])
+    else:
+        w = 1.0 / tau
+        sys_c = ([w * w], [1.0, 2 * zeta * w, w * w])
+    num, den, _ = signal.cont2discrete(sys_c, h, method="foh")
+    x = signal.lfilter(np.ravel(num), den, r) + u[0]
+    return np.interp(t, grid, x, left=float(u[0]))
+
+
+def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray, t: np.ndarray,
+                       only: int | None = None) -> np.ndarray:
+    """(K, n_u) the actuators' positions at motion-capture times t (K,) from the command log (T (N,)
+    s on the commands clock, U (N, n_u)) under the response ``theta`` (see :class:`ResponseModel`).
+    ``only``: that actuator's column alone, (K,)."""
+    par = model.split(theta)
+    s = np.asarray(t, float) - float(par["shift_s"])
+    cols = range(model.n_u) if only is None else [only]
+    out = []
+    for j in cols:
+        tau = max(float(par["tau_s"][j]), TAU_MIN_S)
+        zeta = max(float(par["damping"][j]), ZETA_MIN) if "damping" in par else None
+        if model.reference == "step":
+            out.append(_step_one(s, T, U[:, j], tau, zeta))
+        else:
+            out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), float(par["accel"][j])))
+    return out[0] if only is not None else np.stack(out, axis=1)

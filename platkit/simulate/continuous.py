@@ -1,0 +1,89 @@
+"""Continuous-motion plans: commands streamed at a steady rate, without holds.
+
+``multisine``: each actuator sums MULTISINE_COMPONENTS sines at frequencies spread
+logarithmically over MULTISINE_BAND_HZ with random phases (its own per actuator);
+``path``: a smooth random path, white noise through a second-order low-pass at PATH_CUTOFF_HZ
+and back (zero phase); ``cue``: motion-cue-like, smoothed random steps (each held
+CUE_HOLD_S on average) pulled back to neutral by a washout of CUE_WASHOUT_S. Every kind starts
+and ends at the neutral controls at rest (a raised-cosine ramp of RAMP_S), and its amplitude
+is the largest up to AMPLITUDE_SHARE of each half-stroke that keeps every rate and acceleration
+within LIMIT_SHARE of the drives' limits and every command reachable by the true stand.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+from platkit.calibrate.plan import feasible
+from platkit.errors import BadInput, NotIdentifiable
+
+__all__ = ["KINDS", "continuous_plan"]
+
+KINDS = ("multisine", "path", "cue")
+MULTISINE_COMPONENTS, MULTISINE_BAND_HZ = 6, (0.05, 0.8)
+PATH_CUTOFF_HZ = 0.4
+CUE_HOLD_S, CUE_WASHOUT_S, CUE_SMOOTH_HZ = 1.5, 4.0, 1.0
+RAMP_S = 2.0
+AMPLITUDE_SHARE, LIMIT_SHARE = 0.35, 0.7
+
+
+def _shape(kind: str, t: np.ndarray, n_u: int, rate_hz: float, rng: np.random.Generator) -> np.ndarray:
+    """(N, n_u) the plan's shape, each column of unit largest magnitude, before the ramp."""
+    N = len(t)
+    if kind == "multisine":
+        f = np.geomspace(*MULTISINE_BAND_HZ, MULTISINE_COMPONENTS)
+        out = np.zeros((N, n_u))
+        for j in range(n_u):
+            ph = rng.uniform(0, 2 * np.pi, len(f))
+            a = 1.0 / np.sqrt(f / f[0])  # less amplitude at higher frequency: smoother
+            out[:, j] = np.sum(a[None] * np.sin(2 * np.pi * f[None] * t[:, None] + ph[None]), axis=1)
+    elif kind == "path":
+        b, a = signal.butter(2, PATH_CUTOFF_HZ / (rate_hz / 2))
+        out = signal.filtfilt(b, a, rng.normal(size=(N, n_u)), axis=0)
+    elif kind == "cue":
+        steps = np.zeros((N, n_u))
+        k = 0
+        while k < N:
+            n = max(1, int(rng.exponential(CUE_HOLD_S) * rate_hz))
+            steps[k:k + n] = rng.uniform(-1, 1, n_u)
+            k += n
+        b, a = signal.butter(2, CUE_SMOOTH_HZ / (rate_hz / 2))
+        smooth = signal.filtfilt(b, a, steps, axis=0)
+        bw, aw = signal.butter(1, 1.0 / (2 * np.pi * CUE_WASHOUT_S) / (rate_hz / 2), btype="high")
+        out = signal.filtfilt(bw, aw, smooth, axis=0)
+    else:
+        raise BadInput(f"continuous motion: kind must be one of {', '.join(KINDS)}, not {kind!r}")
+    out = out - out.mean(axis=0)
+    return out / np.maximum(np.abs(out).max(axis=0), 1e-12)
+
+
+def continuous_plan(spec, kind: str, duration_s: float, rate_hz: float, rng: np.random.Generator, model, td,
+                    rate: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, dict]:
+    """(N, n_u) commands streamed every 1/rate_hz s for duration_s s, and what the plan was (the
+    module docstring); ``rate`` and ``accel`` (n_u,) the drives' limits (internal units per s,
+    per s^2), ``td`` the true parameters (every command reachable)."""
+    if not duration_s > 3 * RAMP_S:
+        raise BadInput(f"continuous motion: a duration of {duration_s:g} s is too short (more than {3 * RAMP_S:g} s)")
+    if not 0 < rate_hz <= 1000:
+        raise BadInput(f"continuous motion: a command rate of {rate_hz:g} per s is out of range (0, 1000]")
+    t = np.arange(int(round(duration_s * rate_hz))) / rate_hz
+    shape = _shape(kind, t, spec.n_u, rate_hz, rng)
+    ramp = np.clip(np.minimum(t, t[-1] - t) / RAMP_S, 0, 1)
+    shape = shape * (0.5 - 0.5 * np.cos(np.pi * ramp))[:, None]
+    lo = np.array([c.lower for c in spec.controls], float)
+    hi = np.array([c.upper for c in spec.controls], float)
+    u0 = spec.neutral_u()
+    half = np.minimum(hi - u0, u0 - lo)
+    amp = AMPLITUDE_SHARE * np.where(np.isfinite(half) & (half > 0), half, 0.0)
+    v = np.abs(np.diff(shape, axis=0)).max(axis=0) * rate_hz
+    a = np.abs(np.diff(shape, 2, axis=0)).max(axis=0) * rate_hz ** 2
+    amp = np.minimum(amp, np.minimum(LIMIT_SHARE * rate / np.maximum(v, 1e-12),
+                                     LIMIT_SHARE * accel / np.maximum(a, 1e-12)))
+    for _ in range(8):
+        U = u0 + shape * amp
+        ok, _ = feasible(spec, U, td, model)
+        if ok.all():
+            return U, {"kind": kind, "duration_s": float(duration_s), "command_rate_hz": float(rate_hz),
+                       "amplitude": [float(x) for x in amp]}
+        amp = 0.7 * amp
+    raise NotIdentifiable(f"{spec.name}: no {kind} motion around the neutral pose stays reachable")
