@@ -19,7 +19,7 @@ from platkit.errors import BadInput
 from platkit.geometry import rpy_from_quat
 from platkit.io import jsonout
 from platkit.io.atomic import atomic_output_dir
-from platkit.io.calibration import Calibration, heldout_in_unit
+from platkit.io.calibration import Calibration, heldout_in_unit, write_calibration_yaml
 from platkit.io.figures import png_base64
 from platkit.io.urdf_export import export_calibrated_urdf
 from platkit.kinematics import PlatformModel
@@ -75,6 +75,8 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
     }
     if poses is not None:
         out["settling"] = settling_summary(poses, cal.length_unit)  # every command: kept, extrapolated, or dropped and why
+    if cal.motion:  # calibrated from motion: which samples served, the actuators' response fitted
+        out["motion"] = cal.motion
     after = cal.extras.get("residuals_after")
     if after is not None:
         pm = per_marker_rms(after, cal.extras.get("weights"))
@@ -372,7 +374,7 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
         rep = report_dict(cal, poses)
         if "calibrated_urdf" in cal.extras:
             rep["calibrated_urdf"] = cal.extras["calibrated_urdf"]
-        (tmp / "calibration.yaml").write_text(cal.to_yaml(), encoding="utf-8")
+        write_calibration_yaml(cal, tmp)  # with its description beside it: the folder travels
         (tmp / "report.json").write_text(jsonout.dumps(rep, indent=2) + "\n", encoding="utf-8")
         if with_html:
             (tmp / "report.html").write_text(report_html(cal, poses), encoding="utf-8")

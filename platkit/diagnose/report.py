@@ -12,6 +12,7 @@ import numpy as np
 
 from platkit.diagnose.search import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
+from platkit.io.calibration import write_calibration_yaml
 from platkit.io.figures import png_base64 as _png
 from platkit.io.jsonout import strict
 from platkit.model import length_scale
@@ -211,6 +212,6 @@ def write_outputs(d: Diagnosis, out_dir: str | Path) -> list[Path]:
     """diagnosis.json, calibration.yaml, report.html in ``out_dir``, atomically."""
     with atomic_output_dir(out_dir) as tmp:
         (tmp / "diagnosis.json").write_text(json.dumps(diagnosis_dict(d), indent=2) + "\n", encoding="utf-8")
-        (tmp / "calibration.yaml").write_text(d.calibration.to_yaml(), encoding="utf-8")
+        write_calibration_yaml(d.calibration, tmp)  # with its description beside it: the folder travels
         (tmp / "report.html").write_text(report_html(d), encoding="utf-8")
     return [Path(out_dir) / n for n in ("diagnosis.json", "calibration.yaml", "report.html")]

@@ -11,6 +11,7 @@ stand declares it (``unit`` beside each). Inside platkit everything is SI.
 """
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,10 +19,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from platkit.errors import BadInput
+from platkit.errors import BadInput, PlatkitError
 from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, rotvec_from_quat, transform
 from platkit.io.description import load_yaml
 from platkit.io.jsonout import strict
+from platkit.io.shipped import shipped_dir
 from platkit.model import PlatformSpec, length_scale
 from platkit.plugins import get_platform, term_from_dict
 
@@ -187,10 +189,78 @@ class Calibration:
                 "rotation_weight": {f"rho_{lu}_per_rad": num(self.body_rho, s), "source": self.body_rho_source,
                                     "note": "rotation errors (rad) times rho count as position errors"}}
 
-    def to_yaml(self) -> str:
+    def to_yaml(self, data: dict | None = None) -> str:
+        """calibration.yaml's text: of :meth:`to_dict`, or of ``data`` (that dict, edited)."""
         header = (f"# platkit calibration of the {self.platform} stand. Lengths in {self.length_unit}, "
                   "angles in rad, other parameters in the unit beside them.\n")
-        return header + yaml.safe_dump(strict(self.to_dict()), sort_keys=False, default_flow_style=None, width=120)
+        return header + yaml.safe_dump(strict(self.to_dict() if data is None else data), sort_keys=False,
+                                       default_flow_style=None, width=120)
+
+
+#: the folder, beside calibration.yaml, that holds a copy of the description it was made with
+DESCRIPTION_DIR = "description"
+#: prefix of a description shipped with platkit, written by name (found in any installation)
+SHIPPED = "shipped:"
+
+
+def write_calibration_yaml(cal: Calibration, folder: str | Path) -> Path:
+    """Write ``folder/calibration.yaml`` so that the folder travels: moved, or sent to a colleague,
+    it still predicts.
+
+    The rule for the description it names (and the terms' ``where.description``): a description
+    shipped with platkit is written ``shipped:<name>``; any other is copied into
+    ``folder/description/`` and written relative to calibration.yaml (a URDF-route stand built
+    from a YAML that names a URDF: the URDF, as the stand's options keep the YAML's choices).
+    """
+    folder = Path(folder)
+    data = cal.to_dict()
+    renamed = _portable_descriptions(cal, folder)
+    if data.get("description") in renamed:
+        data["description"] = renamed[data["description"]]
+    for term in data.get("terms") or []:
+        where = term.get("where") if isinstance(term, dict) else None
+        if isinstance(where, dict) and where.get("description") in renamed:
+            where["description"] = renamed[where["description"]]
+    path = folder / "calibration.yaml"
+    path.write_text(cal.to_yaml(data), encoding="utf-8")
+    return path
+
+
+def _portable_descriptions(cal: Calibration, folder: Path) -> dict[str, str]:
+    """{description as the calibration names it: as calibration.yaml writes it}, copying what
+    must travel into ``folder/description/``."""
+    if not cal.description:
+        return {}
+    src = Path(cal.description)
+    if not src.is_file():
+        return {}
+    try:
+        shipped = shipped_dir("descriptions").resolve()
+    except PlatkitError:  # a checkout without the data package: nothing is shipped
+        shipped = None
+    source = src
+    urdf = cal.spec.extras.get("urdf_path")
+    if src.suffix.lower() in (".yaml", ".yml") and urdf is not None and cal.spec.extras.get("platform_options") is not None:
+        source = Path(urdf)
+    if shipped is not None and source.resolve().parent == shipped:
+        return {cal.description: SHIPPED + source.name}
+    (folder / DESCRIPTION_DIR).mkdir(exist_ok=True)
+    shutil.copyfile(source, folder / DESCRIPTION_DIR / source.name)
+    return {cal.description: f"{DESCRIPTION_DIR}/{source.name}"}
+
+
+def resolve_description(value, path: Path) -> str | None:
+    """A description as calibration.yaml ``path`` names it -> a path to build the stand from:
+    ``shipped:<name>`` among the shipped descriptions, a relative path from the file's folder."""
+    if value is None:
+        return None
+    value = str(value)
+    if value.startswith(SHIPPED):
+        return str(shipped_dir("descriptions") / value[len(SHIPPED):])
+    if not Path(value).is_absolute():
+        candidate = path.parent / value
+        return str(candidate) if candidate.is_file() else value
+    return value
 
 
 #: keys of Calibration.heldout (and of its 'second_session') that are lengths in metres
@@ -251,10 +321,7 @@ def read_calibration(path: str | Path) -> Calibration:
     if data.get("format") != FORMAT:
         raise BadInput(f"{path}: field 'format' must be {FORMAT!r} (is this a platkit calibration.yaml?)")
     platform = _field(data, "platform", path, str)
-    description = data.get("description")
-    if description is not None and not Path(description).is_absolute():
-        candidate = (path.parent / description)
-        description = str(candidate) if candidate.is_file() else description
+    description = resolve_description(data.get("description"), path)
     options = data.get("platform_options") or {}
     if not isinstance(options, dict):
         raise BadInput(f"{path}: field 'platform_options' must be a mapping")
@@ -331,6 +398,9 @@ def read_calibration(path: str | Path) -> Calibration:
         raise BadInput(f"{path}: field 'imu' must be a mapping (what an IMU diagnosis added)")
     terms, theta, theta_std = [], [], []
     for k, tdict in enumerate(data.get("terms") or []):
+        where = tdict.get("where") if isinstance(tdict, dict) else None
+        if isinstance(where, dict) and isinstance(where.get("description"), str):
+            tdict = dict(tdict, where=dict(where, description=resolve_description(where["description"], path)))
         term, th, sd = _term_from_dict(tdict, path, k, spec)
         terms.append(term)
         theta.append(th)
@@ -369,4 +439,5 @@ def quat_of(cal: Calibration) -> np.ndarray:
     return quat_from_rotvec(cal.mocap_rotvec)
 
 
-__all__ = ["Calibration", "read_calibration", "FORMAT", "rotvec_from_quat"]
+__all__ = ["Calibration", "read_calibration", "write_calibration_yaml", "resolve_description", "FORMAT",
+           "rotvec_from_quat"]

@@ -1,0 +1,266 @@
+"""Trees (issue 24): a session whose markers ride on several links of one URDF (two hands on one
+torso) is one fit; mimic joints follow a master anywhere in the tree; results travel; bad input
+is one line naming the file and field.
+
+The tree is tests/data/trees/two_arm_torso.urdf: a torso yaw, a pitch and a second pitch coupled
+to it by <mimic multiplier=0.5>, a head that moves no marker, two 3-joint arms."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+import yaml
+
+from platkit.calibrate.estimate import calibrate, point_errors
+from platkit.calibrate.problem import link_frames
+from platkit.cli import main
+from platkit.errors import BadDescription, BadInput
+from platkit.geometry import matrix_from_rotvec
+from platkit.io.calibration import read_calibration
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+from platkit.urdf import frame_jacobian
+
+URDF = Path(__file__).resolve().parents[1] / "data" / "trees" / "two_arm_torso.urdf"
+MARKERS = {"R1": ("right_tcp", [0.03, 0.0, 0.0]), "R2": ("right_tcp", [0.0, 0.03, 0.01]),
+           "R3": ("right_tcp", [0.0, 0.0, 0.04]), "L1": ("left_tcp", [0.03, 0.0, 0.0]),
+           "L2": ("left_tcp", [0.0, -0.03, 0.01]), "L3": ("left_tcp", [0.01, 0.01, 0.04])}
+MAPPING = {n: link for n, (link, _) in MARKERS.items()}
+SIGMA = 5e-5  # m per axis
+MOCAP_ROTVEC, MOCAP_T = np.array([0.1, -0.2, 0.3]), np.array([1.0, 0.5, -0.2])
+
+
+def tree_spec(path=URDF, **options):
+    return get_platform("urdf", path, moving_link=MAPPING, **options)
+
+
+def observe(spec, td, U, rng, sigma=SIGMA):
+    """Markers (N, M, 3) m in the mocap frame of the true stand (td) under controls U."""
+    R, X = link_frames(spec, td, U)
+    A = matrix_from_rotvec(MOCAP_ROTVEC)
+    cols = []
+    for link, m in MARKERS.values():
+        k = spec.tracked_links.index(link)
+        cols.append((X[:, k] + np.einsum("nab,b->na", R[:, k], np.array(m))) @ A.T + MOCAP_T)
+    Y = np.stack(cols, axis=1)
+    return Y + rng.normal(0.0, sigma, Y.shape)
+
+
+def true_td(spec, rng):
+    td = spec.nominal_td().copy()
+    for i, p in enumerate(spec.parameters):
+        if p.group == "offset":
+            td[i] += rng.normal(0.0, 2e-3)
+        elif p.group == "origin":
+            td[i] += rng.normal(0.0, 1e-3)
+    return td
+
+
+def commands(spec, n, rng):
+    lo, hi = spec.control_bounds()
+    return rng.uniform(0.8 * lo, 0.8 * hi, size=(n, spec.n_u))
+
+
+def test_tree_controls_are_the_recorded_joints_and_each_link_matches_its_chain():
+    spec = tree_spec()
+    assert spec.tracked_links == ["right_tcp", "left_tcp"]
+    assert spec.control_names == ["torso_yaw", "torso_pitch", "head_yaw", "right_1_joint", "right_2_joint",
+                                  "right_3_joint", "left_1_joint", "left_2_joint", "left_3_joint"]
+    mimic = [p for p in spec.parameters if p.group == "mimic"]
+    assert [(p.name, p.nominal, p.free) for p in mimic] == [("torso_pitch_2.mimic_multiplier", 0.5, False),
+                                                            ("torso_pitch_2.mimic_offset", 0.0, False)]
+    rng = np.random.default_rng(3)
+    U = commands(spec, 5, rng)
+    td = true_td(spec, rng)
+    R, X = link_frames(spec, td, U)
+    for k, link in enumerate(spec.tracked_links):  # the same link through its own chain
+        chain = get_platform("urdf", URDF, moving_link=link)
+        cols = [spec.control_names.index(n) for n in chain.control_names]
+        td_chain = np.array([td[spec.parameter_names.index(n)] for n in chain.parameter_names])
+        for n in range(len(U)):
+            q, Xc = chain.forward(U[n, cols], td_chain)
+            assert np.allclose(np.asarray(Xc).ravel(), X[n, k], atol=1e-12)
+    # the mimic joint moves with its master: half the pitch on the second torso joint
+    u = np.zeros(spec.n_u)
+    u[1] = 0.2
+    _, X_half = link_frames(spec, spec.nominal_td(), u[None])
+    u_unc = spec.nominal_td().copy()
+    u_unc[spec.parameter_names.index("torso_pitch_2.mimic_multiplier")] = 0.0
+    _, X_none = link_frames(spec, u_unc, u[None])
+    assert not np.allclose(X_half, X_none)
+
+
+def test_mimic_master_off_the_tracked_chain_and_jacobians(tmp_path):
+    """A joint of the right arm mimics one of the left arm: a chain to the right hand refuses it,
+    the tree follows it; the frame Jacobian of each link is the finite difference of its pose."""
+    text = URDF.read_text().replace(
+        '<joint name="right_3_joint" type="revolute"><parent link="right_2"/><child link="right_3"/>\n'
+        '    <origin xyz="0 0 -0.25"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="1"/></joint>',
+        '<joint name="right_3_joint" type="revolute"><parent link="right_2"/><child link="right_3"/>\n'
+        '    <origin xyz="0 0 -0.25"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="1"/>'
+        '<mimic joint="left_3_joint" multiplier="-1" offset="0.1"/></joint>')
+    path = tmp_path / "coupled.urdf"
+    path.write_text(text)
+    with pytest.raises(BadInput, match="right_3_joint.*mimics 'left_3_joint', which is not an actuated joint of the chain"):
+        get_platform("urdf", path, moving_link="right_tcp")
+    spec = tree_spec(path)
+    assert "right_3_joint" not in spec.control_names and "left_3_joint" in spec.control_names
+    rng = np.random.default_rng(4)
+    u = commands(spec, 1, rng)[0]
+    td = spec.nominal_td()
+    i = spec.control_names.index("left_3_joint")
+    for link in spec.tracked_links:
+        J_lin, J_ang = (np.asarray(a) for a in frame_jacobian(spec, link)(u, td))
+        k = spec.tracked_links.index(link)
+        h = 1e-6
+        up, um = u.copy(), u.copy()
+        up[i] += h
+        um[i] -= h
+        fd = (link_frames(spec, td, up[None])[1][0, k] - link_frames(spec, td, um[None])[1][0, k]) / (2 * h)
+        assert np.allclose(J_lin[:, i], fd, atol=1e-7)
+        assert np.linalg.norm(J_lin[:, i]) > 1e-3  # the left wrist moves both hands
+    with pytest.raises(BadInput, match="not a link of the URDF"):
+        frame_jacobian(spec, "no_such_link")
+
+
+def test_two_hands_one_fit_heldout_within_the_noise():
+    spec = tree_spec()
+    rng = np.random.default_rng(11)
+    td = true_td(spec, rng)
+    U = commands(spec, 140, rng)
+    Y = observe(spec, td, U, rng)
+    poses = PoseSet("urdf", U, Y, list(MARKERS), moving_link=MAPPING)
+    assert poses.marker_links == MAPPING
+    cal = calibrate(poses.subset(np.arange(90)), spec)
+    assert cal.rms_before > 1e-3 and cal.converged
+    err = point_errors(cal, poses.subset(np.arange(90, 140)))  # (50, 6) m
+    # clean 3-D noise of sigma per axis: a mean norm of 1.6 sigma; the fit's own error adds a little
+    for hand in ("R", "L"):
+        cols = [j for j, n in enumerate(MARKERS) if n.startswith(hand)]
+        assert np.nanmean(err[:, cols]) < 2.2 * SIGMA, hand
+    # the head moves no marker: a control whose parameters the data cannot fix, held and said
+    status = dict(zip(spec.parameter_names, cal.td_status))
+    assert status["head_yaw.offset"] == "held_at_nominal"
+    held = {h["name"] if isinstance(h, dict) else h for h in cal.identifiability["held_at_nominal"]}
+    assert "head_yaw.offset" in held
+    # the trunk and both branches in the one fit
+    for joint in ("torso_pitch", "right_2_joint", "left_2_joint"):
+        assert any(st == "estimated" for n, st in status.items() if n.startswith(joint + ".")), joint
+
+
+def test_free_mimic_recovers_the_coupling():
+    spec = tree_spec()
+    rng = np.random.default_rng(12)
+    td = spec.nominal_td().copy()
+    i = spec.parameter_names.index("torso_pitch_2.mimic_multiplier")
+    td[i] = 0.47  # the coupling is not quite what the drawing says
+    U = commands(spec, 80, rng)
+    poses = PoseSet("urdf", U, observe(spec, td, U, rng), list(MARKERS), moving_link=MAPPING)
+    cal = calibrate(poses, spec, free=["offset", "mimic"])
+    assert abs(cal.td[i] - 0.47) < 4 * cal.td_std[i] + 1e-4 and cal.td_std[i] < 0.01
+    with pytest.raises(BadInput, match="--free: nope is neither"):
+        calibrate(poses, spec, free=["nope"])
+
+
+def write_session(folder: Path, spec, U, Y, columns=None, mapping=MAPPING):
+    folder.mkdir(parents=True)
+    shutil.copyfile(URDF, folder / "robot.urdf")
+    (folder / "session.yaml").write_text(yaml.safe_dump({
+        "platform": "urdf", "description": "robot.urdf", "units": {"length": "mm", "time": "s"},
+        "markers": list(MARKERS), "moving_link": mapping, "mocap_rate_hz": 100}, sort_keys=False))
+    columns = list(spec.control_names) if columns is None else columns
+    head = ",".join(["t", *columns])
+    rows = [",".join([f"{2.0 * n:.1f}"] + [format(U[n, spec.control_names.index(c)], ".12g") if c in spec.control_names
+                                            else "0" for c in columns]) for n in range(len(U))]
+    (folder / "commands.csv").write_text(head + "\n" + "\n".join(rows) + "\n")
+    mhead = ",".join(["t", *columns] + [f"{m}_{a}" for m in MARKERS for a in "xyz"])
+    mrows = [r + "," + ",".join(format(v * 1e3, ".9g") for v in Y[n].ravel()) for n, r in enumerate(rows)]
+    (folder / "poses.csv").write_text(mhead + "\n" + "\n".join(mrows) + "\n")
+    return folder
+
+
+def test_cli_tree_session_calibrates_and_the_moved_results_still_predict(tmp_path, capsys):
+    spec = tree_spec()
+    rng = np.random.default_rng(21)
+    td = true_td(spec, rng)
+    U = commands(spec, 70, rng)
+    Y = observe(spec, td, U, rng)
+    session = write_session(tmp_path / "session", spec, U, Y)
+    out = tmp_path / "results"
+    assert main(["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)]) == 0
+    data = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert data["description"] == "description/robot.urdf"  # relative to calibration.yaml, copied beside it
+    assert data["markers"]["L2"]["link"] == "left_tcp" and data["platform_options"]["moving_link"] == MAPPING
+    # the session and its URDF gone, the results folder moved: it still predicts
+    shutil.rmtree(session)
+    moved = tmp_path / "elsewhere" / "sent"
+    moved.parent.mkdir()
+    shutil.move(str(out), str(moved))
+    cmd = tmp_path / "cmd.csv"
+    cmd.write_text(",".join(spec.control_names) + "\n"
+                   + "\n".join(",".join(format(v, ".12g") for v in u) for u in U[:5]) + "\n")
+    pred = tmp_path / "pred.csv"
+    assert main(["predict", "--calibration", str(moved / "calibration.yaml"), "--commands", str(cmd),
+                 "--out", str(pred)]) == 0
+    lines = pred.read_text().splitlines()
+    header = lines[0].split(",")
+    got = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    P = got[:, [header.index(f"{m}_{a}") for m in MARKERS for a in "xyz"]].reshape(5, len(MARKERS), 3)
+    assert np.max(np.linalg.norm(P - Y[:5] * 1e3, axis=2)) < 10 * SIGMA * 1e3
+    cal = read_calibration(moved / "calibration.yaml")
+    assert cal.marker_links == MAPPING and cal.spec.tracked_links == ["right_tcp", "left_tcp"]
+
+
+@pytest.mark.parametrize("change, expected", [
+    ("mapping", "moving_link 'no_hand' is not a link of the URDF"),
+    ("missing", "commands.csv: missing column 'left_2_joint': joint 'left_2_joint' moves the tracked link 'left_tcp'"),
+    ("extra", "commands.csv: column 'gripper' is no joint of the URDF"),
+    ("mimic", "commands.csv: column 'torso_pitch_2' is a mimic joint of 'torso_pitch': it follows its master"),
+    ("unmapped", "field 'moving_link' maps markers to links but not 'L3'"),
+])
+def test_bad_tree_sessions_are_one_line(tmp_path, capsys, change, expected):
+    spec = tree_spec()
+    rng = np.random.default_rng(5)
+    U = commands(spec, 12, rng)
+    Y = observe(spec, spec.nominal_td(), U, rng)
+    columns = list(spec.control_names)
+    mapping = dict(MAPPING)
+    if change == "mapping":
+        mapping["L1"] = "no_hand"
+    elif change == "missing":
+        columns.remove("left_2_joint")
+    elif change == "extra":
+        columns.append("gripper")
+    elif change == "mimic":
+        columns.append("torso_pitch_2")
+    elif change == "unmapped":
+        del mapping["L3"]
+    session = write_session(tmp_path / "s", spec, U, Y, columns, mapping)
+    out = tmp_path / "out"
+    assert main(["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
+    assert not out.exists()
+
+
+def test_mimic_whose_master_is_missing_names_the_file_and_joint(tmp_path):
+    path = tmp_path / "broken.urdf"
+    path.write_text(URDF.read_text().replace('<mimic joint="torso_pitch"', '<mimic joint="torso_pitch_x"'))
+    with pytest.raises(BadDescription, match=r"broken.urdf: joint 'torso_pitch_2' <mimic joint='torso_pitch_x'>: "
+                                             "the master names no joint"):
+        tree_spec(path)
+
+
+def test_link_poses_is_checked_by_validate_spec():
+    from dataclasses import replace
+
+    from platkit.model import validate_spec
+
+    spec = tree_spec()
+    u, td = ca.SX.sym("u", spec.n_u), ca.SX.sym("td", spec.n_td)
+    wrong = ca.Function("link_poses", [u, td], [ca.DM.zeros(4), ca.DM.zeros(3)], ["u", "td"], ["q", "X"])
+    with pytest.raises(BadDescription, match="link_poses output q has shape"):
+        validate_spec(replace(spec, link_poses=wrong))
