@@ -19,7 +19,8 @@ def _interrupted_while_starting(signum, frame):
 
 # Started as the `platkit` command (the console script, or python -m platkit.cli): a Ctrl-C while
 # the modules below load ends in one line too. Imported as a library, the handler is left alone.
-if sys.argv and sys.argv[0].replace("\\", "/").rsplit("/", 1)[-1] in ("platkit", "cli.py"):
+if sys.argv and sys.argv[0].replace("\\", "/").rsplit("/", 1)[-1] in ("platkit", "cli.py") \
+        and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a batch's workers ignore Ctrl-C: left so
     signal.signal(signal.SIGINT, _interrupted_while_starting)
 
 import argparse  # noqa: E402  (below the handler on purpose)
@@ -29,7 +30,7 @@ import re  # noqa: E402
 
 from platkit import __version__  # noqa: E402
 from platkit.errors import PlatkitError  # noqa: E402
-from platkit.notices import collecting  # noqa: E402
+from platkit.notices import collecting, units_checked  # noqa: E402
 
 #: verb modules under platkit.commands, in the order `platkit --help` lists them
 COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient", "batch"]
@@ -59,6 +60,10 @@ def build_parser(verbs: list[str] | None = None) -> argparse.ArgumentParser:
         p = module.add_parser(sub)
         p.set_defaults(_run=module.run)
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback on errors")
+        p.add_argument("--units-checked", action="store_true", default=False,
+                       help="the units of the input files are right as written: plausibility checks of units "
+                            "(a gyro in deg/s, an accelerometer in g, times in ms, lengths in m or mm) keep the "
+                            "data with a warning instead of refusing it")
     return parser
 
 
@@ -117,7 +122,9 @@ def main(argv: list[str] | None = None) -> int:
         except SystemExit as exc:  # argparse already printed one line; bad usage is bad input
             return 2 if exc.code not in (0, None) else 0
         debug = getattr(args, "debug", False)
-        with collecting():  # each warning printed once on stderr, and kept for the verb's report
+        with collecting(), units_checked(getattr(args, "units_checked", False)):
+            # each warning printed once on stderr and kept for the verb's report; --units-checked
+            # answers the plausibility checks of units
             return int(args._run(args) or 0)
     except PlatkitError as exc:
         if debug:

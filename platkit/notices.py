@@ -6,6 +6,9 @@ printed at once on stderr as ``platkit: warning: <text>`` (once, however often i
 kept, so that the verb's report (report.json, report.html) lists every one of them: what
 :func:`said` returns. Outside :func:`collecting` (the library used from Python) a warning is an
 ordinary Python warning of the category :class:`PlatkitWarning`.
+
+:func:`units_checked` marks a block where the user has answered the plausibility checks of units
+(``--units-checked``): they keep the data with a note instead of refusing it.
 """
 from __future__ import annotations
 
@@ -13,6 +16,7 @@ import sys
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from contextvars import ContextVar
 
 
 class PlatkitWarning(UserWarning):
@@ -60,3 +64,24 @@ def collecting(stream=None, echo: bool = True) -> Iterator[list[str]]:
             yield kept
         finally:
             _collected.pop()
+
+
+#: whether the user answered the plausibility checks of units (``--units-checked``)
+_UNITS_CHECKED: ContextVar[bool] = ContextVar("platkit_units_checked", default=False)
+
+
+@contextmanager
+def units_checked(on: bool = True) -> Iterator[None]:
+    """Inside the block the plausibility checks of units (platkit.io.session_checks.implausible)
+    keep the data as written, with a note, instead of refusing: the user has checked the units
+    (``--units-checked``)."""
+    token = _UNITS_CHECKED.set(on)
+    try:
+        yield
+    finally:
+        _UNITS_CHECKED.reset(token)
+
+
+def units_are_checked() -> bool:
+    """Whether the code runs inside :func:`units_checked`."""
+    return _UNITS_CHECKED.get()

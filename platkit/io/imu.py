@@ -24,6 +24,7 @@ import pandas
 
 from platkit.errors import BadSession
 from platkit.io.atomic import atomic_write_text
+from platkit.io.session_checks import implausible
 
 IMU_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
 
@@ -42,7 +43,9 @@ class ImuStream:
 
     ``t`` (N,) s; ``gyr`` (N, 3) rad/s; ``acc`` (N, 3) m/s^2, sensor axes. ``saturated`` (N, 6)
     bool marks samples at a clipping limit (gyro x, y, z, accel x, y, z). ``repairs``: one
-    sentence per repair made while reading (empty when the file was used as it is).
+    sentence per repair made while reading (empty when the file was used as it is). ``notes``:
+    one sentence per check the stream could not be judged by, or that the user answered
+    (:func:`check_units`).
     """
 
     t: np.ndarray
@@ -51,6 +54,7 @@ class ImuStream:
     saturated: np.ndarray = None
     repairs: list[str] = field(default_factory=list)
     source: str = ""
+    notes: list[str] = field(default_factory=list)
 
     def __post_init__(self):
         self.t = np.asarray(self.t, float)
@@ -73,8 +77,8 @@ class ImuStream:
         return 1.0 / self.dt
 
     def warnings(self) -> list[str]:
-        """Repairs and saturation, as sentences for a report."""
-        out = list(self.repairs)
+        """Repairs, saturation and the units checks' notes, as sentences for a report."""
+        out = list(self.repairs) + list(self.notes)
         names = IMU_COLUMNS[1:]
         for j in range(6):
             k = int(self.saturated[:, j].sum())
@@ -85,7 +89,7 @@ class ImuStream:
 
     def slice(self, start: int, stop: int) -> ImuStream:
         return ImuStream(self.t[start:stop], self.gyr[start:stop], self.acc[start:stop],
-                         self.saturated[start:stop], list(self.repairs), self.source)
+                         self.saturated[start:stop], list(self.repairs), self.source, list(self.notes))
 
 
 def _line(row_index: int) -> int:
@@ -307,26 +311,33 @@ GYRO_MAX_RAD_S = math.radians(2000.0)
 DEG_RATIO_TOLERANCE = 2.0
 #: the rotation (rad, in the file's gyro units) the tilting needs to sum to before the ratio is judged
 MIN_TILT_FOR_RATIO = 0.3
+#: ... and the share of the gravity direction's changes the gyro's rotations must explain (R^2 of
+#: the fitted ratio): at rest, or where the accelerometer reads mostly the motion's own
+#: acceleration (translations, fast turns), the ratio means nothing and is not judged
+MIN_R2_FOR_RATIO = 0.3
 #: sampling rates (Hz) outside which an IMU's times are implausible
 MIN_RATE_HZ = 1.0
 MAX_RATE_HZ = 1e5
 
 
-def gravity_turn_ratio(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, window_s: float = 0.5) -> tuple[float, float]:
-    """(k, tilt): how fast the gyro turns the accelerometer's gravity direction, as a ratio.
+def gravity_turn_fit(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray,
+                     window_s: float = 0.5) -> tuple[float, float, float]:
+    """(k, tilt, r2): how fast the gyro turns the accelerometer's gravity direction, as a ratio.
 
     The stream is cut into windows of ``window_s``; between consecutive windows the mean
     accelerometer direction u changes by du ~ -k r x u, r the rotation the gyro integrated
     between the windows' middles (sensor axes). k is 1 for a gyro in rad/s (pi/180 for one in
-    deg/s); ``tilt`` (rad in the gyro's units) is the rotation that could turn gravity, which
-    must be large enough (:data:`MIN_TILT_FOR_RATIO`) for k to mean anything (nan otherwise).
+    deg/s); ``tilt`` (rad in the gyro's units) is the rotation that could turn gravity; ``r2``
+    the share of the changes du the fit explains. k means something only where both are large
+    enough (:data:`MIN_TILT_FOR_RATIO`, :data:`MIN_R2_FOR_RATIO`); nan where the stream is
+    shorter than three windows.
     """
     n = len(t)
     dt = float(np.median(np.diff(t)))
     k = max(2, int(round(window_s / dt)))
     m = n // k
     if m < 3:
-        return float("nan"), 0.0
+        return float("nan"), 0.0, 0.0
     u = acc[:m * k].reshape(m, k, 3).mean(axis=1)
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     cum = np.concatenate([np.zeros((1, 3)), np.cumsum(gyr[1:m * k] * np.diff(t[:m * k])[:, None], axis=0)])
@@ -336,16 +347,31 @@ def gravity_turn_ratio(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, window_s
     du = np.diff(u, axis=0)
     s = float(np.sum(a * a))
     tilt = math.sqrt(s)
-    if tilt < MIN_TILT_FOR_RATIO:
-        return float("nan"), tilt
-    return float(-np.sum(du * a) / s), tilt
+    if s <= 0:
+        return float("nan"), 0.0, 0.0
+    ratio = float(-np.sum(du * a) / s)
+    total = float(np.sum(du * du))
+    r2 = 1.0 - float(np.sum((du + ratio * a) ** 2)) / total if total > 0 else 0.0
+    return ratio, tilt, r2
+
+
+def gravity_turn_ratio(t: np.ndarray, gyr: np.ndarray, acc: np.ndarray, window_s: float = 0.5) -> tuple[float, float]:
+    """(k, tilt) of :func:`gravity_turn_fit`, k nan where the tilt is too small to judge."""
+    k, tilt, _ = gravity_turn_fit(t, gyr, acc, window_s)
+    return (k if tilt >= MIN_TILT_FOR_RATIO else float("nan")), tilt
 
 
 def check_units(stream: ImuStream, source: str, declared_rate_hz: float | None = None) -> None:
     """Stop with one line naming the file and column where the stream is plainly not in the
     spec's units (seconds, rad/s, m/s^2): an accelerometer in g (median magnitude about 1), a gyro
     in deg/s (faster than any gyro's full scale, or turning gravity pi/180 as fast as it claims),
-    times in ms (steps 1000 times the declared ``rate_hz``, or an implausibly slow rate)."""
+    times in ms (steps 1000 times the declared ``rate_hz``, or an implausibly slow rate).
+
+    Each is a plausibility check the user can answer (``--units-checked``: the stream is kept
+    as written, with a note; the refusal says so). The gravity ratio is judged only where the
+    stream can tell (:func:`gravity_turn_fit`: enough rotation, and rotations that explain the
+    gravity direction's turning); where the ratio would say deg/s but the stream cannot tell (at
+    rest, translations, fast turns) it passes with a note in ``stream.notes``."""
     dt = stream.dt
     rate = 1.0 / dt
     if declared_rate_hz is not None and declared_rate_hz > 0:
@@ -356,29 +382,43 @@ def check_units(stream: ImuStream, source: str, declared_rate_hz: float | None =
                 hint = "; the times look like milliseconds: write seconds, or declare units: {time: ms} in session.yaml"
             elif 1 / 3000 <= ratio <= 1 / 300:
                 hint = "; the times look like seconds in a session declared in milliseconds"
-            raise BadSession(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.4g} Hz) but session.yaml "
-                             f"declares the IMU at rate_hz {declared_rate_hz:g}; expected times in seconds at that "
-                             f"rate{hint}")
+            implausible(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.4g} Hz) but session.yaml "
+                        f"declares the IMU at rate_hz {declared_rate_hz:g}; expected times in seconds at that "
+                        f"rate{hint}", stream.notes)
     elif rate < MIN_RATE_HZ:
-        raise BadSession(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.3g} Hz), expected seconds "
-                         f"at an IMU's rate (at least {MIN_RATE_HZ:g} Hz); times in milliseconds? write seconds, or "
-                         "declare units: {time: ms} in session.yaml")
+        implausible(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.3g} Hz), expected seconds "
+                    f"at an IMU's rate (at least {MIN_RATE_HZ:g} Hz); times in milliseconds? write seconds, or "
+                    "declare units: {time: ms} in session.yaml", stream.notes)
     elif rate > MAX_RATE_HZ:
-        raise BadSession(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.3g} Hz), faster than an "
-                         f"IMU samples (at most {MAX_RATE_HZ:g} Hz); seconds in a session declared in milliseconds?")
+        implausible(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.3g} Hz), faster than an "
+                    f"IMU samples (at most {MAX_RATE_HZ:g} Hz); seconds in a session declared in milliseconds?",
+                    stream.notes)
     norm = float(np.median(np.linalg.norm(stream.acc, axis=1)))
     if not ACC_NORM_RANGE[0] <= norm <= ACC_NORM_RANGE[1]:
         what = " (that is g: multiply by 9.80665)" if 0.5 <= norm <= 2.0 else ""
-        raise BadSession(f"{source}: columns 'acc_x', 'acc_y', 'acc_z': the accelerometer's median magnitude is "
-                         f"{norm:.4g}{what}; expected m/s^2, about 9.81 at rest")
+        implausible(f"{source}: columns 'acc_x', 'acc_y', 'acc_z': the accelerometer's median magnitude is "
+                    f"{norm:.4g}{what}; expected m/s^2, about 9.81 at rest", stream.notes)
     # the 99th percentile: a few samples of a step in a synthetic stream are not a gyro's range
     peak = float(np.percentile(np.linalg.norm(stream.gyr, axis=1), 99.0))
     if peak > GYRO_MAX_RAD_S:
-        raise BadSession(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro reads up to {peak:.4g}, faster than "
-                         f"any gyro's range in rad/s ({GYRO_MAX_RAD_S:.3g} rad/s = 2000 deg/s); expected rad/s (deg/s? "
-                         "multiply by pi/180)")
-    k, _ = gravity_turn_ratio(stream.t, stream.gyr, stream.acc)
+        implausible(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro reads up to {peak:.4g}, faster than "
+                    f"any gyro's range in rad/s ({GYRO_MAX_RAD_S:.3g} rad/s = 2000 deg/s); expected rad/s (deg/s? "
+                    "multiply by pi/180)", stream.notes)
+        return
+    k, tilt, r2 = gravity_turn_fit(stream.t, stream.gyr, stream.acc)
     deg = math.pi / 180.0
-    if np.isfinite(k) and deg / DEG_RATIO_TOLERANCE <= k <= deg * DEG_RATIO_TOLERANCE:
-        raise BadSession(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro turns the accelerometer's gravity "
-                         f"{1 / k:.3g} times too fast for rad/s (that is deg/s: multiply by pi/180); expected rad/s")
+    looks_deg = bool(np.isfinite(k) and deg / DEG_RATIO_TOLERANCE <= k <= deg * DEG_RATIO_TOLERANCE)
+    if not looks_deg:
+        return
+    if not (tilt >= MIN_TILT_FOR_RATIO and r2 >= MIN_R2_FOR_RATIO):
+        why = (f"it turns {tilt:.2g} rad in all (at least {MIN_TILT_FOR_RATIO:g} needed)" if tilt < MIN_TILT_FOR_RATIO
+               else f"its rotations explain {max(r2, 0.0):.0%} of the gravity direction's changes (at least "
+                    f"{MIN_R2_FOR_RATIO:.0%} needed: at rest, or where the accelerometer reads mostly the "
+                    "motion's own acceleration, the ratio means nothing)")
+        stream.notes.append(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro's unit is taken as rad/s, as "
+                            f"the spec says: the ratio of its rotations to the gravity direction's turning ({1 / k:.3g}) "
+                            f"would say deg/s, but the stream cannot tell: {why}")
+    else:
+        implausible(f"{source}: columns 'gyr_x', 'gyr_y', 'gyr_z': the gyro turns the accelerometer's gravity "
+                    f"{1 / k:.3g} times too fast for rad/s (that is deg/s: multiply by pi/180); expected rad/s",
+                    stream.notes)

@@ -11,7 +11,7 @@ from platkit.errors import BadSession
 from platkit.io.table import Table
 from platkit.limits import RECORDING_TOLERANCE, check_strokes
 from platkit.model import LENGTH_UNITS, PlatformSpec, controls_to_si
-from platkit.notices import warn
+from platkit.notices import units_are_checked, warn
 
 #: the seven columns of a rigid body T: T_x,T_y,T_z (origin, length unit) and T_qw..T_qz (unit quaternion)
 BODY_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -20,6 +20,24 @@ BODY_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
 QUAT_NORM_TOL = 1e-3
 #: the columns of a marker M: M_x, M_y, M_z
 AXES = ("x", "y", "z")
+
+
+#: how a refusal by a plausibility check says it can be answered
+UNITS_CHECKED_ANSWER = "if the file is right as written, run again with --units-checked"
+
+
+def implausible(message: str, notes: list[str] | None = None) -> None:
+    """A plausibility check of units failed: a BadSession of ``message`` that says how to answer
+    it, or, where the user answered (platkit.notices.units_checked), a note (appended to ``notes``, default
+    a PlatkitWarning) and the data kept as written."""
+    if units_are_checked():
+        note = f"{message} (kept as written: --units-checked)"
+        if notes is None:
+            warn(note)
+        else:
+            notes.append(note)
+        return
+    raise BadSession(f"{message}; {UNITS_CHECKED_ANSWER}")
 
 
 def check_times(table: Table, t: np.ndarray, column: str = "t") -> None:
@@ -148,14 +166,15 @@ def _check_plausible_unit(table: Table, markers: np.ndarray, length_unit: str, n
     if max(hi, -lo) > LARGEST_VOLUME_M:
         with np.errstate(invalid="ignore"):
             r, k, a = np.argwhere(np.abs(markers) > LARGEST_VOLUME_M)[0]
-        raise BadSession(
+        implausible(
             f"{table.where(int(r), f'{names[k]}_{AXES[a]}')}: {markers[r, k, a] / LENGTH_UNITS[length_unit]:.6g} "
             f"{length_unit} is beyond any motion-capture volume; is the file in mm? session.yaml declares {length_unit}"
         )
+        return
     if length_unit == "mm" and markers.shape[0] > 1:
         hi, lo = hi / LENGTH_UNITS["mm"], lo / LENGTH_UNITS["mm"]
         if max(hi, -lo) < 20.0 and hi - lo < 20.0:
-            raise BadSession(
+            implausible(
                 f"{table.path}: every marker coordinate is within 20 mm of the origin; the values look like "
                 f"metres but session.yaml declares mm"
             )
