@@ -37,6 +37,7 @@ from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.geometry import ca_matrix_from_quat, skew
 from platkit.io.session import check_controls, read_table
 from platkit.kinematics import PlatformModel
+from platkit.kinematics.sampling import controls_of_poses, pose_box, sample_poses
 from platkit.model import PlatformSpec, controls_from_si, length_scale
 
 
@@ -118,9 +119,37 @@ def feasible(spec: PlatformSpec, U: np.ndarray, td=None, model: PlatformModel | 
     return ok & inside & np.all(np.isfinite(U), axis=1), P
 
 
+def pose_grid_plan(spec: PlatformSpec, points_per_coordinate: int, margin: float = 0.1, td=None,
+                   model: PlatformModel | None = None) -> Plan:
+    """The grid plan of a stand whose pose space is free: a uniform grid over the coordinates'
+    bounds (shrunk by ``margin``) in snake order, mapped through inverse kinematics; poses whose
+    controls leave the strokes or the branch are dropped (and counted)."""
+    model = model or PlatformModel(spec)
+    k = int(points_per_coordinate)
+    if k < 2:
+        raise BadInput(f"--grid must be at least 2 points per coordinate, got {k}")
+    if k ** spec.n_p > 2_000_000:
+        raise BadInput(f"--grid {k} gives {k ** spec.n_p} poses for {spec.n_p} coordinates; choose fewer")
+    lo, hi = pose_box(spec, margin)
+    axes = [np.linspace(a, b, k) for a, b in zip(lo, hi)]
+    idx = snake_order([k] * spec.n_p)
+    P = np.stack([axes[j][idx[:, j]] for j in range(spec.n_p)], axis=1)
+    res = controls_of_poses(model, P, td)
+    ok = res["ok"]
+    if not np.any(ok):
+        raise NotIdentifiable(f"{spec.name}: no pose of the {k}-per-coordinate grid over the pose box has controls "
+                              "inside the strokes on the stand's branch")
+    return Plan(res["controls"][ok], "grid", {"space": "pose", "points_per_coordinate": k, "grid_points": int(len(P)),
+                                              "infeasible_dropped": int((~ok).sum()), "margin": margin}, P[ok])
+
+
 def grid_plan(spec: PlatformSpec, points_per_control: int, margin: float = 0.1, td=None,
               model: PlatformModel | None = None) -> Plan:
-    """The paper's plan: the uniform grid in snake order, infeasible points dropped."""
+    """The paper's plan: the uniform grid in snake order, infeasible points dropped. A stand whose
+    pose space is free (``spec.free_space == 'pose'``) takes the grid over its poses instead
+    (:func:`pose_grid_plan`, ``points_per_control`` values per coordinate)."""
+    if spec.pose_free:
+        return pose_grid_plan(spec, points_per_control, margin, td, model)
     U = grid_points(spec, points_per_control, margin)
     ok, P = feasible(spec, U, td, model)
     if not np.any(ok):
@@ -135,10 +164,11 @@ def grid_plan_for(spec: PlatformSpec, n_poses: int, margin: float = 0.1, td=None
     feasible points, thinned evenly along its path."""
     model = model or PlatformModel(spec)
     k = 2
+    n_dim = spec.n_p if spec.pose_free else spec.n_u  # the free space's dimension
     while True:
-        if k ** spec.n_u > 200_000:
+        if k ** n_dim > 200_000:
             raise NotIdentifiable(f"{spec.name}: no grid with {n_poses} reachable points was found")
-        if k ** spec.n_u >= n_poses:
+        if k ** n_dim >= n_poses:
             plan = grid_plan(spec, k, margin, td, model)
             if len(plan.controls) >= n_poses:
                 break
@@ -150,8 +180,12 @@ def grid_plan_for(spec: PlatformSpec, n_poses: int, margin: float = 0.1, td=None
 
 def random_candidates(spec: PlatformSpec, n: int, rng: np.random.Generator, margin: float = 0.1, td=None,
                       model: PlatformModel | None = None) -> Plan:
-    """``n`` feasible controls drawn uniformly from the control box (rejection sampling)."""
+    """``n`` feasible controls drawn uniformly from the control box (rejection sampling); for a
+    stand whose pose space is free, ``n`` poses drawn from the pose box and their controls."""
     model = model or PlatformModel(spec)
+    if spec.pose_free:
+        P, U, drawn = sample_poses(model, n, rng, margin, td)
+        return Plan(U, "random", {"margin": margin, "space": "pose", "infeasible_dropped": int(drawn - n)}, P)
     lo, hi = control_box(spec, margin)
     U_out, P_out = [], []
     tries = 0

@@ -30,6 +30,7 @@ from platkit.native import CONVERGED, MAX_ITERATIONS, NOT_FINITE, SINGULAR
 RESTARTS = 8
 #: most poses in the start library
 LIBRARY_SIZE = 800
+_HALF_PI = 0.5 * math.pi
 
 
 class ForwardSolver(NewtonSolver):
@@ -127,28 +128,31 @@ class ForwardSolver(NewtonSolver):
         return operator.itemgetter(*idx)
 
     def _wrapped(self, p: np.ndarray, q: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """Pose coordinates whose angles lie in (-pi, pi] where the stand's pose allows it: each
-        angle wrapped where the wrapped coordinates give the same pose, else the stand's own
-        coordinates of (q, X); p unchanged when neither gives the same pose."""
+        """Pose coordinates with their angles in (-pi, pi], in the stand's own convention where it
+        has one. Angles within (-pi/2, pi/2] are kept as solved; otherwise the first of: the
+        stand's coordinates of (q, X) (its canonical angles, e.g. pitch within +-pi/2), each
+        angle wrapped into (-pi, pi], that gives the same pose; p unchanged when none does."""
         idx = self._angle_index
         if not idx:
             return p
         values = p.tolist()
-        if all(-math.pi < values[k] <= math.pi for k in idx):
+        if all(-_HALF_PI < values[k] <= _HALF_PI for k in idx):
             return p
         for cand in self._angle_candidates(p, q, X):
+            if not all(-math.pi < cand[k] <= math.pi for k in idx):
+                continue
             q2, X2 = self.pose(cand)
             if np.max(np.abs(X2 - X)) <= 1e-9 and 1 - abs(float(q2 @ q)) <= 1e-12:
                 return cand
         return p
 
     def _angle_candidates(self, p, q, X):
+        if self.spec.coordinates_from_pose is not None:
+            yield self.coordinates(q, X)
         w = p.copy()
         for k in self._angle_index:
             w[k] = math.pi - (math.pi - w[k]) % (2 * math.pi)  # into (-pi, pi]
         yield w
-        if self.spec.coordinates_from_pose is not None:
-            yield self.coordinates(q, X)
 
     # ------------------------------------------------------------------ one control vector
 
@@ -178,7 +182,7 @@ class ForwardSolver(NewtonSolver):
                     get = self._angle_getter
                     if get is not None:
                         angles = get(values)
-                        if not (min(angles) > -math.pi and max(angles) <= math.pi):
+                        if not (min(angles) > -_HALF_PI and max(angles) <= _HALF_PI):
                             p = self._wrapped(p, out[n_p:n_p + 4], out[n_p + 4:n_p + 7])
                     return ForwardResult(p, out[n_p:n_p + 4], out[n_p + 4:n_p + 7], int(values[-4]), values[-3], True)
                 return self._forward_checked(u.copy(), None, None, allow_mirror, restarts is not False, out)
@@ -343,8 +347,8 @@ class ForwardSolver(NewtonSolver):
                         R[i] = r
         P = out[:, :n_p].copy()
         idx = self._angle_index
-        if idx and np.any((P[:, idx] <= -math.pi) | (P[:, idx] > math.pi)):
-            for i in np.nonzero(np.any((P[:, idx] <= -math.pi) | (P[:, idx] > math.pi), axis=1))[0]:
+        if idx and np.any((P[:, idx] <= -_HALF_PI) | (P[:, idx] > _HALF_PI)):
+            for i in np.nonzero(np.any((P[:, idx] <= -_HALF_PI) | (P[:, idx] > _HALF_PI), axis=1))[0]:
                 P[i] = self._wrapped(P[i], out[i, n_p:n_p + 4], out[i, n_p + 4:n_p + 7])
         return ForwardBatch(P, out[:, n_p:n_p + 4], out[:, n_p + 4:n_p + 7], out[:, -4].astype(int),
                             out[:, -3].copy(), converged, on, R)
