@@ -730,8 +730,8 @@ def frame_jacobian(spec: PlatformSpec, link: str | None = None) -> ca.Function:
     velocity of ``link`` (default: the moving frame; on a tree any link of it), both in base-frame
     axes, per unit control rate (control units). Mimic joints move with their master."""
     chain = spec.extras["chain"]
-    if link is not None and link not in chain.tree.links:
-        raise BadInput(f"{chain.path}: link {link!r} is not a link of the URDF")
+    if link is not None:
+        link_pose_function(spec, [link])  # BadInput for a link not in the URDF or not below the base
     u = ca.SX.sym("u", spec.n_u)
     td = ca.SX.sym("td", spec.n_td)
     R, _, X = chain_kinematics(chain, spec.extras["control_units"], u, td, link)
@@ -742,6 +742,29 @@ def frame_jacobian(spec: PlatformSpec, link: str | None = None) -> ca.Function:
         cols.append(ca.vertcat(W[2, 1], W[0, 2], W[1, 0]))
     J_ang = ca.horzcat(*cols)
     return ca.Function("frame_jacobian", [u, td], [J_lin, J_ang], ["u", "td"], ["J_lin", "J_ang"])
+
+
+def link_pose_function(spec: PlatformSpec, links: list[str]) -> ca.Function:
+    """CasADi ``(u, td) -> (q (4 L), X (3 L))``: the poses of any ``links`` of a URDF-route stand's
+    tree (below its base link) in the base frame, stacked in that order. BadInput naming a link
+    that is not in the URDF or not below the base."""
+    chain = spec.extras.get("chain")
+    if chain is None:
+        raise BadInput(f"stand {spec.name!r} is not described by a URDF; it has no links to ask for")
+    tree = chain.tree
+    for link in links:
+        if link not in tree.links:
+            raise BadInput(f"{chain.path}: link {link!r} is not a link of the URDF")
+        walk = link
+        while walk != chain.base_link:
+            if walk not in tree.parent_joint:
+                raise BadInput(f"{chain.path}: link {link!r} is not below base_link {chain.base_link!r}")
+            walk = tree.joints[tree.parent_joint[walk]].parent
+    u = ca.SX.sym("u", spec.n_u)
+    td = ca.SX.sym("td", spec.n_td)
+    frames = link_kinematics(chain, spec.extras["control_units"], u, td, list(links))
+    return ca.Function("link_poses", [u, td], [ca.vertcat(*[f[1] for f in frames]), ca.vertcat(*[f[2] for f in frames])],
+                       ["u", "td"], ["q", "X"])
 
 
 def urdf_rpy(R: np.ndarray) -> np.ndarray:

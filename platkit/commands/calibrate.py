@@ -96,14 +96,13 @@ def load_for_calibration(session: str | None, platform: str | None, description:
 def settling_notes(poses, folder) -> list[str]:
     """What settling dropped (counted by reason) and extrapolated, one line each; ComputationFailed
     when fewer than half the commands gave a pose (a fit to the remnant would look converged)."""
-    from platkit.errors import ComputationFailed
-    from platkit.settle import dropped_sentence
+    from platkit.settle import HoldsNeverSettle, dropped_sentence
 
     info = poses.settling or {}
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
     said = dropped_sentence(poses.dropped, n_commands)
     if poses.n_poses < 0.5 * n_commands:
-        raise ComputationFailed(f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant "
+        raise HoldsNeverSettle(f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant "
                                 "of the session: see the reasons (platkit calibrate counts them) and record again")
     out = [said] if said else []
     un = info.get("unsettled") or {}
@@ -132,8 +131,15 @@ def run(args) -> int:
         raise BadInput(f"--prior-strength {args.prior_strength}: use a positive length in the session's unit")
     check_output_dir(args.out)
     notes: list[str] = []
-    poses, spec, options = load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet,
-                                                notes=notes)
+    from platkit.settle import HoldsNeverSettle, NeverSettles
+
+    try:
+        poses, spec, options = load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet,
+                                                    notes=notes)
+    except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
+        if args.method == "paper":
+            raise
+        return run_motion(args, str(exc), notes)
     other = None  # read before any work: a bad second session is bad input, found at once
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, spec.name, args.description, quiet=args.quiet)
@@ -197,6 +203,54 @@ def run(args) -> int:
         line += (f"; free: {', '.join(chosen['chosen'])} (chosen by held-out prediction"
                  + (f"; held: {', '.join(held)})" if held else ")"))
     for w in fit_notes:  # the control notes were said when the session was read
+        print(f"platkit: warning: {w}", file=sys.stderr)
+    print(f"{line}; wrote {', '.join(str(p) for p in written)}")
+    return 0
+
+
+def run_motion(args, why: str, notes: list[str]) -> int:
+    """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
+    markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
+    with the stand's default free parameters (``--free`` as given)."""
+    from platkit.calibrate.estimate import second_session_errors
+    from platkit.calibrate.motion import calibrate_motion
+    from platkit.calibrate.report import write_outputs
+    from platkit.io.session import example_session, load_session
+
+    folder = Path(args.session) if args.session is not None else Path(example_session(args.platform))
+    s = load_session(folder, platform=args.platform, description=args.description, quiet=True)
+    options = {"moving_link": s.moving_link} if s.moving_link else {}
+    free = None
+    if args.free is not None:
+        free = [] if args.free.strip().lower() == "none" else [f.strip() for f in args.free.split(",") if f.strip()]
+    other = None
+    if args.validate is not None:
+        other, _, _ = load_for_calibration(args.validate, s.spec.name, args.description, quiet=args.quiet)
+    reason = f"settling: {why}"
+    note = ("the holds do not settle or there are none: calibrated from the whole stream through the actuators' "
+            "fitted response instead (report: motion)")
+    print(f"platkit: warning: {note}", file=sys.stderr)
+    ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
+    cal, poses = calibrate_motion(s, s.spec, free=free, robust=not args.no_robust,
+                                  progress=None if args.quiet else progress_printer(s.length_unit),
+                                  platform_options=options, ridge_m=ridge_m, reason=reason)
+    if other is not None:
+        cal.heldout["second_session"] = second_session_errors(cal, other)
+    fit_notes = list(cal.extras.get("warnings", []))
+    cal.extras["warnings"] = notes + [note] + fit_notes
+    written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
+    sc = length_scale(cal.length_unit)
+    r = cal.motion["response"]
+    taus = {c: e["tau_s"]["value"] for c, e in r["actuators"].items()}
+    slow = max(taus, key=lambda c: taus[c])
+    line = (f"rms {cal.rms_before / sc:.4g} -> {cal.rms_after / sc:.4g} {cal.length_unit} from motion "
+            f"({cal.motion['samples']['n_fitted']} of {cal.motion['samples']['n_stream']} samples, {cal.n_markers} "
+            f"markers); response {r['kind']} after a {r['reference']} reference: shift {r['shift_s']['value']:.4g} s, "
+            f"slowest {slow} tau {taus[slow]:.4g} s")
+    second = cal.heldout.get("second_session")
+    if second is not None:
+        line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / sc:.4g} {cal.length_unit}"
+    for w in fit_notes:
         print(f"platkit: warning: {w}", file=sys.stderr)
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0

@@ -14,7 +14,9 @@ def add_platform_options(parser, required: bool = True) -> None:
     parser.add_argument("--platform", required=required, help="stand name (see `platkit plugins`)")
     parser.add_argument("--description", default=None, help="description file (default: the stand's own)")
     parser.add_argument("--base-link", default=None, help="serial-chain stands: the link the chain starts from")
-    parser.add_argument("--moving-link", default=None, help="serial-chain stands: the link that moves (carries the markers)")
+    parser.add_argument("--moving-link", default=None,
+                        help="serial-chain stands: the link that moves (carries the markers); a tree: the tracked "
+                             "links, comma separated")
 
 
 def platform_from_args(args):
@@ -23,6 +25,8 @@ def platform_from_args(args):
     from platkit.plugins import get_platform
 
     options = {k: getattr(args, k, None) for k in ("base_link", "moving_link")}
+    if options["moving_link"] and "," in options["moving_link"]:  # a tree: several tracked links
+        options["moving_link"] = {n.strip(): n.strip() for n in options["moving_link"].split(",") if n.strip()}
     return get_platform(args.platform, args.description, **{k: v for k, v in options.items() if v is not None})
 
 

@@ -264,3 +264,20 @@ def test_link_poses_is_checked_by_validate_spec():
     wrong = ca.Function("link_poses", [u, td], [ca.DM.zeros(4), ca.DM.zeros(3)], ["u", "td"], ["q", "X"])
     with pytest.raises(BadDescription, match="link_poses output q has shape"):
         validate_spec(replace(spec, link_poses=wrong))
+
+
+def test_fk_gives_every_tracked_link_and_any_link_asked(capsys):
+    import json
+
+    u = "0,0.1,0.2,0.3,-0.2,0.1,-0.3,0.2,0.1"
+    assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
+                 "--u", u, "--link", "head", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert list(out["links"]) == ["right_tcp", "left_tcp", "head"]
+    spec = get_platform("urdf", URDF, moving_link={"right_tcp": "right_tcp", "left_tcp": "left_tcp"})
+    _, X = link_frames(spec, spec.nominal_td(), np.array([[float(v) for v in u.split(",")]]))
+    assert np.allclose([out["links"]["left_tcp"][a] for a in "xyz"], X[0, 1] * 1e3, atol=1e-9)
+    assert out["x"] == pytest.approx(out["links"]["right_tcp"]["x"])
+    assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
+                 "--u", u, "--link", "nowhere"]) == 2
+    assert "link 'nowhere' is not a link of the URDF" in capsys.readouterr().err
