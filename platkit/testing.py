@@ -4,8 +4,9 @@
     check_platform(spec)          # raises AssertionError naming the failed check
     check_imu_effect(effect)      # the same for an IMU effect (platkit.effects.ImuEffect)
 
-Checks: the spec validates; F = 0 at the neutral pose; CasADi Jacobians of F against central
-finite differences; inverse-then-forward round trips at random poses near neutral; forward-then-
+Checks: the spec validates; a stand with more residual rows than pose coordinates declares its
+rows' plausible misfit, and a declared free pose space is free; F = 0 at the neutral pose; CasADi
+Jacobians of F against central finite differences; inverse-then-forward round trips at random poses near neutral; forward-then-
 inverse round trips at random controls; the closed-form inverse (if any) against the iterative one.
 """
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 from platkit.effects import ImuEffect
 from platkit.errors import PlatkitError
 from platkit.kinematics import PlatformModel
+from platkit.kinematics.sampling import controls_of_poses, pose_box
 from platkit.model import PlatformSpec, validate_spec
 
 
@@ -29,7 +31,12 @@ def _fd_jacobian(f, x, h):
 
 
 def _random_controls(spec: PlatformSpec, model: PlatformModel, rng, n: int) -> list[np.ndarray]:
-    """Controls of random reachable poses: perturb neutral controls within 10% of each stroke."""
+    """Controls of random reachable poses: perturb the neutral controls within 8% of each stroke,
+    or, for a stand whose pose space is free, the neutral pose within 8% of each coordinate's
+    range, mapped through inverse kinematics (independent controls of such a stand are
+    inconsistent)."""
+    if spec.pose_free:
+        return [u for u in _random_pose_controls(spec, model, rng, n)[1]]
     lo, hi = spec.control_bounds()
     u0 = spec.neutral_u()
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
@@ -40,6 +47,43 @@ def _random_controls(spec: PlatformSpec, model: PlatformModel, rng, n: int) -> l
     return out
 
 
+def _random_pose_controls(spec: PlatformSpec, model: PlatformModel, rng, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(P (n, n_p), U (n, n_u)): poses within 8% of each coordinate's range of the neutral pose
+    that the stand takes, with their controls."""
+    lo, hi = pose_box(spec)
+    p0 = spec.neutral_p()
+    P_all, U_all = [], []
+    for _ in range(20):
+        P = np.clip(p0 + rng.uniform(-0.08, 0.08, (2 * n, spec.n_p)) * (hi - lo), lo, hi)
+        res = controls_of_poses(model, P)
+        P_all += list(P[res["ok"]])
+        U_all += list(res["controls"][res["ok"]])
+        if len(P_all) >= n:
+            break
+    assert len(P_all) >= n, f"{spec.name}: fewer than {n} poses near neutral have controls inside the strokes on the branch"
+    return np.array(P_all[:n]), np.array(U_all[:n])
+
+
+def _check_declarations(spec: PlatformSpec, model: PlatformModel, rng) -> dict:
+    """A stand with more residual rows than pose coordinates declares its rows' plausible misfit;
+    the declared free space is free: most samples of it are taken by the stand."""
+    where = f"{spec.description_path}: " if spec.description_path is not None else ""
+    if model.n_r > spec.n_p:
+        assert spec.misfit is not None, (
+            f"{where}stand {spec.name!r}: {model.n_r} residual rows for {spec.n_p} pose coordinates and no plausible "
+            f"misfit declared (field 'misfit': one platkit.model.RowMisfit per row)")
+    out: dict = {"free_space": spec.free_space}
+    if spec.pose_free:
+        lo, hi = pose_box(spec, 0.1)
+        P = rng.uniform(lo, hi, (40, spec.n_p))
+        ok = controls_of_poses(model, P)["ok"]
+        out["free_space_taken"] = float(ok.mean())
+        assert ok.mean() >= 0.5, (
+            f"{where}stand {spec.name!r}: field 'free_space' is 'pose' but only {int(ok.sum())} of 40 poses drawn in "
+            f"the coordinates' bounds have controls inside the strokes on the branch")
+    return out
+
+
 def check_platform(spec: PlatformSpec, n_samples: int = 20, seed: int = 0, tol_pose: float = 1e-8) -> dict:
     """Run the conformance checks on ``spec``; return a dict of figures; AssertionError on failure."""
     rng = np.random.default_rng(seed)
@@ -47,6 +91,7 @@ def check_platform(spec: PlatformSpec, n_samples: int = 20, seed: int = 0, tol_p
     model = PlatformModel(spec)
     td = spec.nominal_td()
     report: dict = {"platform": spec.name}
+    report.update(_check_declarations(spec, model, rng))
 
     # 1. neutral pose satisfies the constraints under neutral controls
     r0 = model.residual(spec.neutral_u(), spec.neutral_p(), td)
@@ -109,8 +154,14 @@ def check_platform(spec: PlatformSpec, n_samples: int = 20, seed: int = 0, tol_p
     worst_v = worst_a = 0.0
     for u in _random_controls(spec, model, rng, 3):
         fk = model.forward(u, td)
-        udot = rng.normal(0, 0.02, spec.n_u) * span
-        uddot = rng.normal(0, 0.02, spec.n_u) * span
+        if spec.pose_free:
+            # consistent rates: a pose-free stand's independent control rates fit no motion
+            scale = pose_box(spec)[1] - pose_box(spec)[0]
+            udot, uddot = model.inverse_acceleration(fk.p, rng.normal(0, 0.02, spec.n_p) * scale,
+                                                     rng.normal(0, 0.02, spec.n_p) * scale, td, u=u)
+        else:
+            udot = rng.normal(0, 0.02, spec.n_u) * span
+            uddot = rng.normal(0, 0.02, spec.n_u) * span
         pdot, pddot = model.forward_acceleration(u, udot, uddot, td, p=fk.p)
         pdot_only = model.forward_velocity(u, udot, td, p=fk.p)
         h = 1e-4
