@@ -39,6 +39,9 @@ def run(args) -> int:
                 "on_branch": res.on_branch})
     s = length_scale(args.unit)
     out["coordinates"] = {c.name: float(v / s if c.unit == "m" else v) for c, v in zip(spec.coordinates, res.p)}
+    misfit = _misfit_rows(spec, res, args.unit)
+    if misfit is not None:
+        out["misfit"] = misfit
     links = link_poses(spec, u, args)
     if links:
         out["links"] = {name: pose_dict(q, X, args.unit) for name, (q, X) in links.items()}
@@ -49,6 +52,9 @@ def run(args) -> int:
     print(f"rotation  roll={np.degrees(out['roll']):.5f} pitch={np.degrees(out['pitch']):.5f} yaw={np.degrees(out['yaw']):.5f} deg")
     print(f"quaternion w={out['qw']:.9f} x={out['qx']:.9f} y={out['qy']:.9f} z={out['qz']:.9f}")
     print(f"newton iterations {res.iterations}, residual {res.residual:.2e}" + ("" if res.on_branch else "  MIRROR POSE (not on the stand's branch)"))
+    if misfit is not None:
+        print("misfit    " + ", ".join(f"{name} {row['value']:+.4g} {row['unit']}" for name, row in misfit.items())
+              + f" (worst {res.misfit_ratio:.0%} of its plausible misfit)")
     for name, (q, X) in links.items():
         d = pose_dict(q, X, args.unit)
         print(f"link {name}  x={d['x']:.4f} y={d['y']:.4f} z={d['z']:.4f} {args.unit}  "
@@ -66,3 +72,19 @@ def link_poses(spec, u, args) -> dict:
     q, X = link_pose_function(spec, names)(u, spec.nominal_td())
     q, X = np.asarray(q).ravel(), np.asarray(X).ravel()
     return {n: (q[4 * k:4 * k + 4], X[3 * k:3 * k + 3]) for k, n in enumerate(names)}
+
+
+def _misfit_rows(spec, res, unit: str) -> dict | None:
+    """Each row's misfit at the least-squares pose of a stand with more rows than pose
+    coordinates ('m' rows in ``unit``), with its plausible misfit; None for a square stand."""
+    if res.misfit is None:
+        return None
+    s = length_scale(unit)
+    rows = spec.misfit or [None] * len(res.misfit)
+    out = {}
+    for i, (m, v) in enumerate(zip(rows, res.misfit)):
+        name = m.name if m is not None else f"row {i}"
+        scale = s if m is not None and m.unit == "m" else 1.0
+        out[name] = {"value": float(v / scale), "unit": unit if scale != 1.0 else (m.unit if m is not None else ""),
+                     "plausible": float(m.plausible / scale) if m is not None else None}
+    return out
