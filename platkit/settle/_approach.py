@@ -7,7 +7,7 @@ import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc, gammaincinv
 
 #: probability that a still stretch is fitted a significant approach tail
 TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
@@ -98,19 +98,41 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
     every = bool(ok.all()) and bool(np.all(w == w.flat[0]))  # no occlusion: one design for every marker
 
     def solve(taus):
-        E = np.exp(-s[None, :] / taus[:, None])  # (T, K)
-        G = np.stack([np.ones_like(E), E, (s[None, :] / taus[:, None]) * E], axis=2)  # (T, K, 3)
+        # the normal equations of the design [1, e, (s / tau) e] (e = exp(-s / tau)) built from
+        # sums over the samples (one matrix product per entry, every tau at once)
+        X = s[None, :] / taus[:, None]  # (T, K)
+        E = np.exp(-X)
+        P = X * E
         T = len(taus)
-        Gt = G.transpose(0, 2, 1)
+        rows = (E, P)
+        Gty = np.empty((T, 3, yw.shape[1]))
+        Gty[:, 0] = yw.sum(axis=0)
+        Gty[:, 1] = E @ yw
+        Gty[:, 2] = P @ yw
+        Gty = np.moveaxis(Gty.reshape(T, 3, M, 3), 2, 1)  # (T, M, 3, 3): [param, coord]
         if every:
-            GtG = np.broadcast_to(w.flat[0] * (Gt @ G)[:, None], (T, M, 3, 3)).copy()
+            # one design for every marker: one 3x3 system per tau, every marker's coordinates its columns
+            A = np.empty((T, 3, 3))
+            A[:, 0, 0] = K
+            for i, g in enumerate(rows, start=1):
+                A[:, 0, i] = A[:, i, 0] = g.sum(axis=1)
+                for j, h in enumerate(rows[i - 1:], start=i):
+                    A[:, i, j] = A[:, j, i] = np.einsum("tk,tk->t", g, h)
+            A *= w.flat[0]
+            A += np.eye(3) * 1e-12 * np.trace(A, axis1=1, axis2=2)[:, None, None]
+            rhs = np.moveaxis(Gty, 1, 2).reshape(T, 3, M * 3)
+            coef = np.moveaxis(np.linalg.solve(A, rhs).reshape(T, 3, M, 3), 2, 1)
+            GtG = np.broadcast_to(A[:, None], (T, M, 3, 3))
         else:
-            GG = (G[..., :, None] * G[..., None, :]).reshape(T, K, 9)
-            GtG = np.moveaxis((GG.transpose(0, 2, 1) @ w).reshape(T, 3, 3, M), 3, 1)  # (T, M, 3, 3)
-        Gty = np.moveaxis((Gt @ yw).reshape(T, 3, M, 3), 2, 1)  # (T, M, 3, 3)
-        GtG[:, ~seen] = np.eye(3)
-        GtG = GtG + np.eye(3) * 1e-12 * np.trace(GtG, axis1=2, axis2=3)[..., None, None]
-        coef = np.linalg.solve(GtG, Gty)  # (T, M, 3, 3): [param, coord]
+            GtG = np.empty((T, M, 3, 3))
+            GtG[:, :, 0, 0] = w.sum(axis=0)
+            for i, g in enumerate(rows, start=1):
+                GtG[:, :, 0, i] = GtG[:, :, i, 0] = g @ w
+                for j, h in enumerate(rows[i - 1:], start=i):
+                    GtG[:, :, i, j] = GtG[:, :, j, i] = (g * h) @ w
+            GtG[:, ~seen] = np.eye(3)
+            GtG = GtG + np.eye(3) * 1e-12 * np.trace(GtG, axis1=2, axis2=3)[..., None, None]
+            coef = np.linalg.solve(GtG, Gty)  # (T, M, 3, 3): [param, coord]
         rss = yty[None] - np.einsum("tmic,tmic->tm", coef, Gty)  # (T, M)
         return np.sum(np.where(seen[None], rss, 0.0), axis=1), coef, GtG
 
@@ -168,7 +190,7 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
     # must not move a window or make a hold unsettled
     rss0 = float(np.sum(yty[seen]))
     extra = 2 * 3 * int(seen.sum()) + 1
-    if not chi2.sf((rss0 - max(rss_tot[j], 0.0)) / sigma**2, extra) < TAIL_FALSE_ALARM:
+    if not chdtrc(extra, max((rss0 - max(rss_tot[j], 0.0)) / sigma**2, 0.0)) < TAIL_FALSE_ALARM:
         fit.a, fit.b = np.zeros_like(a), np.zeros_like(b)
         fit.x_inf = np.where(seen[:, None], mean, np.nan)
         fit.significant = False
@@ -218,7 +240,10 @@ def _prony_tau(y: np.ndarray, ok: np.ndarray, dt: float) -> float | None:
     A = np.stack([d[1:-1], d[:-2]], axis=-1).reshape(-1, 2)
     b = d[2:].reshape(-1)
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    r = float(np.max(np.abs(np.roots([1.0, -coef[0], -coef[1]]))))
+    # the larger modulus of the roots of z^2 - c0 z - c1
+    c0, c1 = float(coef[0]), float(coef[1])
+    disc = c0 * c0 + 4.0 * c1
+    r = (abs(c0) + np.sqrt(disc)) / 2.0 if disc >= 0 else float(np.sqrt(-c1))
     if not 0 < r < 1:
         return None
     return -L * dt / np.log(r)
@@ -322,7 +347,7 @@ def extrapolation_checked(ts: np.ndarray, seg: np.ndarray, fit: Approach, end: i
     pred = early.x_inf + np.mean(early.tail(ts[cut:end]), axis=0)
     var = early.x_inf_std**2 + sigma**2 / np.maximum(cnt, 1)[:, None]
     stat = float(np.sum(((meas - pred) ** 2 / var)[seen]))
-    return stat < chi2.ppf(1 - false_alarm, 3 * int(seen.sum()))
+    return stat < 2.0 * gammaincinv(1.5 * int(seen.sum()), 1 - false_alarm)  # the chi-square quantile
 
 
 def _window_result(ts: np.ndarray, seg: np.ndarray, start: int, end: int, correction: np.ndarray,
