@@ -21,6 +21,10 @@ what a user wants from a calibration, prediction of poses it was not fitted on:
    least supported;
 3. the chosen groups are fitted once more on the whole session with the user's loss.
 
+Model terms (physics a diagnosis accepted) may be fitted with every candidate
+(:func:`reselect_geometry`): the geometry is then chosen beside the physics, and a group that only
+stood in for it (a torso joint's scale for gravity sag) is held.
+
 Scores: the median and the RMS of the held-out 3-D marker errors (every kept observation of every
 pose, each predicted from a fit without its pose). The median is the typical error of a new pose;
 the RMS weighs every pose. On real data a few poses that no other pose resembles dominate the RMS
@@ -46,6 +50,7 @@ from platkit.calibrate.solve import blas_threads
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 #: two candidates whose held-out median and RMS agree to this fraction describe the same (a joint
 #: offset beside its origin's rotation): the group between them is redundant
@@ -235,19 +240,21 @@ def group_significance(with_g: Calibration, without_g: Calibration) -> tuple[flo
 
 def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progress: Progress | None = None,
                  platform_options: dict | None = None, ridge_m: float = 0.0, folds: int = 0,
-                 tolerance: float = TOLERANCE) -> Calibration:
+                 tolerance: float = TOLERANCE, terms: Sequence[ModelTerm] = ()) -> Calibration:
     """Calibrate with the parameter groups chosen by held-out prediction (module docstring).
 
     Returns the final :class:`Calibration`, its ``identifiability['model_selection']`` saying what
     was chosen, what each candidate scored and why (lengths in the session's unit).
     ``folds``: K-fold held-out errors of the chosen model, as :func:`calibrate`.
+    ``terms``: model terms (accepted physics) fitted with every candidate, so that the geometry is
+    chosen beside them (:func:`reselect_geometry`).
     """
     t0 = time.perf_counter()
     groups = parameter_groups(spec)
     labels = list(groups)
     unit = poses.length_unit
     s = length_scale(unit)
-    common = dict(platform_options=platform_options, ridge_m=ridge_m)
+    common = dict(platform_options=platform_options, ridge_m=ridge_m, terms=list(terms))
 
     def note(text: str) -> None:
         if progress is not None:
@@ -337,10 +344,28 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     order = sorted(scores.values(), key=lambda c: (c.heldout_median, len(c.groups)))
     sel = Selection(labels, chosen, order, reason, left_out, time.perf_counter() - t0)
     cal.identifiability["model_selection"] = sel.to_dict(unit)
+    if terms:
+        cal.identifiability["model_selection"]["beside_terms"] = [t.effect for t in terms]
     # what the user fitted, for the statuses: parameters of held groups are 'fixed' by the selection
     cal.extras["selection"] = sel
     note(f"chose {', '.join(chosen)}" + (f"; held {', '.join(held)}" if held else ""))
     return cal
 
 
-__all__ = ["select_model", "heldout_errors", "parameter_groups", "Selection", "Candidate", "TOLERANCE"]
+def reselect_geometry(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm], robust: bool = True,
+                      progress: Progress | None = None, platform_options: dict | None = None,
+                      ridge_m: float = 0.0) -> Calibration:
+    """The geometry's model selection made again on a model augmented by ``terms`` (effects a
+    diagnosis accepted): every candidate set of parameter groups is fitted with the terms, and the
+    groups are chosen by held-out prediction as :func:`select_model` does.
+
+    Why: a group chosen without the physics may have stood in for it (on a humanoid the torso
+    joints' scales, freed at 1.05, take the place of gravity sag); once the physics is modelled, a
+    group that no longer predicts held-out poses better is held. Returns the Calibration of the
+    chosen groups with the terms fitted; ``identifiability['model_selection']`` says what was chosen
+    and ``beside_terms`` which effects it was chosen beside."""
+    return select_model(poses, spec, robust=robust, progress=progress, platform_options=platform_options,
+                        ridge_m=ridge_m, terms=terms)
+
+
+__all__ = ["select_model", "reselect_geometry", "heldout_errors", "parameter_groups", "Selection", "Candidate", "TOLERANCE"]
