@@ -1,0 +1,190 @@
+"""A humanoid upper body that bends under its own weight: default `platkit calibrate`, then
+`platkit diagnose`, on settled poses from the elastic tree simulator (platkit.simulate.elastic_tree).
+
+    .venv/bin/python benchmarks/trees_humanoid.py [--seeds 1] [--poses 300 --heldout 200] [--bare]
+
+The robot: PAL's Talos (example-robot-data's talos_reduced.urdf, with its inertias: a public
+description not written here), legs removed, grippers fixed, both 7-joint arms and the head on a
+torso whose last joint is coupled to the one before it as a URDF mimic joint (torso_3_joint, half
+of torso_2_joint's pitch, 10 cm above it). The true robot, drawn per seed: origin errors (0.5 mm,
+1 mrad RMS), zero offsets (2 mrad RMS), elastic torso and shoulder/elbow joints (the coupled one
+too) and bending links at the torso and the shoulders, three markers on each hand, mocap noise
+0.1 mm. The calibration sees the nominal URDF (``--bare``: with every inertia stripped).
+
+Per seed and hand, the held-out mean marker error (mm, against the recorded noisy markers) of:
+the rigid calibration, the calibration diagnose writes, and the true elastic model itself (the
+noise floor); plus the effects diagnose names.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+import xml.etree.ElementTree as ET
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from platkit.cli import main as cli  # noqa: E402
+from platkit.simulate.elastic_tree import (  # noqa: E402
+    ElasticTruth,
+    simulate_elastic_tree,
+    write_elastic_session,
+)
+
+ROBOTS = Path(metadata.distribution("example-robot-data").locate_file("cmeel.prefix/share/example-robot-data")) / "robots"
+HANDS = {"left": "arm_left_7_link", "right": "arm_right_7_link"}
+ARMS = [f"arm_{s}_{i}_joint" for s in ("left", "right") for i in range(1, 8)]
+RECORDED = ["torso_1_joint", "torso_2_joint", "head_1_joint", "head_2_joint", *ARMS]
+ELASTIC = ["torso_1_joint", "torso_2_joint", "torso_3_joint"] + [f"arm_{s}_{i}_joint" for s in ("left", "right")
+                                                                  for i in (1, 2, 4)]
+BENT = ["torso_2_joint", "arm_left_2_joint", "arm_right_2_joint"]
+
+
+def upper_body(out: Path, bare: bool = False) -> Path:
+    """Talos's upper body with the coupled torso joint (see the module docstring)."""
+    tree = ET.parse(ROBOTS / "talos_data/robots/talos_reduced.urdf")
+    robot = tree.getroot()
+    for tag in ("transmission", "gazebo"):
+        for e in robot.findall(tag):
+            robot.remove(e)
+    for j in robot.findall("joint"):
+        for m in j.findall("mimic"):
+            j.remove(m)
+        if j.get("name").startswith("gripper_") and j.get("type") != "fixed":
+            j.set("type", "fixed")
+    legs = {j.find("child").get("link") for j in robot.findall("joint") if j.get("name").startswith("leg_")}
+    for j in robot.findall("joint"):
+        if j.get("name").startswith("leg_"):
+            robot.remove(j)
+    for link in robot.findall("link"):
+        if link.get("name") in legs:
+            robot.remove(link)
+    # torso_3: a pitch coupled to torso_2's, 10 cm above it, carrying what torso_2_link carried
+    for j in robot.findall("joint"):
+        if j.find("parent").get("link") == "torso_2_link":
+            j.find("parent").set("link", "torso_3_link")
+            o = j.find("origin")
+            xyz = np.array([float(v) for v in (o.get("xyz") or "0 0 0").split()]) - [0, 0, 0.1]
+            o.set("xyz", " ".join(f"{v:.6g}" for v in xyz))
+    ET.SubElement(robot, "link", name="torso_3_link")
+    tj = ET.SubElement(robot, "joint", name="torso_3_joint", type="revolute")
+    ET.SubElement(tj, "parent", link="torso_2_link")
+    ET.SubElement(tj, "child", link="torso_3_link")
+    ET.SubElement(tj, "origin", xyz="0 0 0.1", rpy="0 0 0")
+    ET.SubElement(tj, "axis", xyz="0 1 0")
+    ET.SubElement(tj, "limit", lower="-1", upper="1", effort="100", velocity="1")
+    ET.SubElement(tj, "mimic", joint="torso_2_joint", multiplier="0.5", offset="0")
+    if bare:
+        for link in robot.findall("link"):
+            for e in link.findall("inertial"):
+                link.remove(e)
+    for link in robot.findall("link"):
+        for tag in ("visual", "collision"):
+            for e in link.findall(tag):
+                link.remove(e)
+    tree.write(out)
+    return out
+
+
+def limits(path: Path) -> dict[str, tuple[float, float]]:
+    out = {}
+    for j in ET.parse(path).getroot().findall("joint"):
+        lim = j.find("limit")
+        if lim is not None and j.get("type") == "revolute":
+            out[j.get("name")] = (float(lim.get("lower")), float(lim.get("upper")))
+    return out
+
+
+def draw(seed: int, nominal: Path, n: int) -> tuple[ElasticTruth, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    lim = limits(nominal)
+    moving = [j for j in lim]
+    truth = ElasticTruth(
+        joint_compliance={j: float(rng.uniform(0.5, 1.5) * 1e-4) for j in ELASTIC},
+        bending={j: (float(rng.uniform(0.3, 1.0) * 1e-4), float(rng.uniform(0.3, 1.0) * 1e-4)) for j in BENT},
+        origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in moving},
+        offset={j: float(rng.normal(0, 2e-3)) for j in RECORDED})
+    cmd = np.zeros((n, len(RECORDED)))
+    for i, j in enumerate(RECORDED):
+        lo, hi = lim[j]
+        share = 0.35 if j.startswith(("torso", "head")) else 0.6
+        mid, half = (lo + hi) / 2, (hi - lo) / 2 * share
+        cmd[:, i] = rng.uniform(mid - half, mid + half, n)
+    return truth, cmd
+
+
+def predicted(cal: Path, commands: np.ndarray, names: list[str], work: Path) -> dict[str, np.ndarray]:
+    csv = work / "commands.csv"
+    csv.write_text("\n".join([",".join(["t", *RECORDED])] + [",".join([f"{k}.0", *(f"{v:.10g}" for v in row)])
+                                                            for k, row in enumerate(commands)]) + "\n")
+    out = work / "predicted.csv"
+    if cli(["predict", "--calibration", str(cal), "--commands", str(csv), "--out", str(out)]):
+        raise SystemExit(f"predict failed on {cal}")
+    data = np.genfromtxt(out, delimiter=",", names=True)
+    return {n: np.stack([data[f"{n}_x"], data[f"{n}_y"], data[f"{n}_z"]], axis=1) for n in names}
+
+
+def per_hand(pred: dict[str, np.ndarray], recorded: np.ndarray, sim) -> dict[str, float]:
+    out = {}
+    for hand, link in HANDS.items():
+        errs = [np.linalg.norm(pred[n] - 1e3 * recorded[:, m], axis=1)
+                for m, (n, lk) in enumerate(zip(sim.marker_names, sim.marker_links)) if lk == link]
+        out[hand] = float(np.mean(errs))
+    return out
+
+
+def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path) -> None:
+    nominal = upper_body(root / "talos_upper.urdf")
+    model_urdf = upper_body(root / "talos_upper_bare.urdf", bare=True) if bare else nominal
+    truth, cmd = draw(seed, nominal, n_fit + n_held)
+    markers = {f"{h[0].upper()}{k}": link for h, link in HANDS.items() for k in range(1, 4)}
+    sim = simulate_elastic_tree(nominal, truth, cmd, RECORDED, markers, seed=seed + 1000, workdir=root)
+    fit, held = np.arange(n_fit), np.arange(n_fit, n_fit + n_held)
+    moving = dict(markers)
+    train = write_elastic_session(sim, model_urdf, root / "train", moving, fit)
+    test = write_elastic_session(sim, model_urdf, root / "test", moving, held)
+    t0 = time.perf_counter()
+    if cli(["calibrate", str(train), "--out", str(root / "cal"), "--quiet", "--no-report"]):
+        raise SystemExit("calibrate failed")
+    t1 = time.perf_counter()
+    if cli(["diagnose", str(train), "--calibration", str(root / "cal" / "calibration.yaml"), "--heldout", str(test),
+            "--out", str(root / "diag"), "--quiet"]):
+        raise SystemExit("diagnose failed")
+    t2 = time.perf_counter()
+    d = json.loads((root / "diag" / "diagnosis.json").read_text())
+    rigid = per_hand(predicted(root / "cal" / "calibration.yaml", cmd[held], sim.marker_names, root), sim.markers[held], sim)
+    after = per_hand(predicted(root / "diag" / "calibration.yaml", cmd[held], sim.marker_names, root), sim.markers[held], sim)
+    floor = {h: float(np.mean([np.linalg.norm(1e3 * (sim.exact[held, m] - sim.markers[held, m]), axis=1)
+                               for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
+    unmodelled = {h: float(np.mean([np.linalg.norm(1e3 * (sim.rigid[held, m] - sim.exact[held, m]), axis=1)
+                                    for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
+    names = "; ".join(f"{f['effect']} ({f['where'].get('actuator') or f['where'].get('joint') or ''})"
+                      for f in d["findings"])
+    print(f"seed {seed}{' (no inertias)' if bare else ''}: held-out mean per hand, mm (left / right)\n"
+          f"  elastic sag itself (rigid true robot vs elastic): {unmodelled['left']:.2f} / {unmodelled['right']:.2f}\n"
+          f"  rigid calibration:     {rigid['left']:.2f} / {rigid['right']:.2f}\n"
+          f"  after diagnose:        {after['left']:.2f} / {after['right']:.2f}\n"
+          f"  true elastic model:    {floor['left']:.2f} / {floor['right']:.2f} (noise floor)\n"
+          f"  findings: {names or 'none'}\n  calibrate {t1 - t0:.0f} s, diagnose {t2 - t1:.0f} s", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[24001])
+    ap.add_argument("--poses", type=int, default=300)
+    ap.add_argument("--heldout", type=int, default=200)
+    ap.add_argument("--bare", action="store_true", help="strip every inertia from the URDF the calibration sees")
+    args = ap.parse_args()
+    for seed in args.seeds:
+        with tempfile.TemporaryDirectory(prefix="platkit-trees-") as tmp:
+            run(seed, args.poses, args.heldout, args.bare, Path(tmp))
+
+
+if __name__ == "__main__":
+    main()
