@@ -27,6 +27,7 @@ from platkit_effects.tree_compliance import (
     mass_moment_from_dict,
     mass_moment_term,
     tree_stand,
+    untried_compliance,
 )
 
 
@@ -171,9 +172,13 @@ class Compliance(Effect):
         tau = S.loads.torque
         terms: list = [self.term(spec, i) for i, n in enumerate(stand.joints)
                        if np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
-        terms += [joint_rotation_term(self.name, spec, n, "axis") for n in stand.chain
+        terms += [joint_rotation_term(self.name, spec, n, "axis") for n in stand.shared
                   if n in stand.loads.mimic and np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
         return terms
+
+    def untried(self, spec, poses):
+        """Why compliance is not tried at some joints of a URDF stand (see untried_compliance)."""
+        return untried_compliance(spec, poses)
 
     def regressor(self, term, spec, poses):
         if isinstance(term, MassMomentTerm):

@@ -16,7 +16,11 @@ Rules:
   than about that fraction and the commanded configuration's load is used.
 - Joint elasticity of a mimic joint, and link bending (the two axes across a joint's axis, under
   the moment's components along them): a small rotation at the joint's origin, of the moving frame
-  (a pose offset in the base frame), linear in the loads at the commanded configuration.
+  (a pose offset in the base frame), linear in the loads at the commanded configuration. On a
+  tree (several tracked links) a pose offset moves every tracked link alike, so these terms are
+  offered at the joints that carry every tracked link (the trunk), the translation each other
+  link misses added as a marker offset; a joint that carries only some (an arm's) is not offered
+  (:func:`untried`).
 - A URDF without inertias: a control's gravity torque is linear in the mass moments of the bodies
   below it; the term's parameters are the compliance times the ``MAX_MASS_COMBINATIONS`` best
   determined combinations of them on the session's poses (the regressor's leading singular
@@ -29,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.effects import Effect
+from platkit.effects import Effect, SizeHelp
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
@@ -60,7 +64,9 @@ def urdf_of(spec: PlatformSpec) -> str | None:
 class TreeStand:
     """A stand's URDF tree for loads: ``loads`` (TreeLoads), ``joints`` the tree joint of each
     control, ``scale`` control unit -> SI, ``base_link``, ``chain`` the tree joints (mimic
-    included) from the base link to the moving link, base first."""
+    included) from the base link to the moving link, base first; ``tracked`` the links that carry
+    markers (the moving link first) and ``shared`` the joints of ``chain`` that carry every one of
+    them (on a chain: all of ``chain``)."""
 
     spec: PlatformSpec
     loads: TreeLoads
@@ -68,6 +74,8 @@ class TreeStand:
     scale: np.ndarray
     base_link: str | None
     chain: list[str]
+    tracked: list[str] = field(default_factory=list)
+    shared: list[str] = field(default_factory=list)
 
     def configuration(self, controls: np.ndarray) -> np.ndarray:
         return self.loads.configuration(self.joints, np.atleast_2d(np.asarray(controls, float)) * self.scale)
@@ -100,12 +108,27 @@ def tree_stand(spec: PlatformSpec) -> TreeStand | None:
             path = [j.name for j in chain.joints]
         else:
             path = list(T.joints)
-        stand = TreeStand(spec, T, names, scale, base if base != T.tree.root else None,
-                          [n for n in path if n in T.index])
+        path = [n for n in path if n in T.index]
+        moving = getattr(chain, "moving_link", None)
+        tracked = list(spec.tracked_links) or ([moving] if moving else [])
+        shared = [n for n in path if all(n in ancestors(T, link) for link in tracked)]
+        stand = TreeStand(spec, T, names, scale, base if base != T.tree.root else None, path, tracked, shared)
     if len(_STANDS) > 16:
         _STANDS.clear()
     _STANDS[id(spec)] = (spec, stand)
     return stand
+
+
+def ancestors(T: TreeLoads, link: str) -> set[str]:
+    """The moving joints of the tree between its root and ``link``."""
+    out, seen = set(), 0
+    while link in T.tree.parent_joint and seen <= len(T.tree.joints):
+        joint = T.tree.parent_joint[link]
+        if joint in T.index:
+            out.add(joint)
+        link = T.tree.joints[joint].parent
+        seen += 1
+    return out
 
 
 @dataclass
@@ -117,6 +140,15 @@ class LoadState:
     loads: Loads
     base_origin: np.ndarray
     base_rotation: np.ndarray
+    links: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def link_in_base(self, stand: TreeStand, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """(origin (N, 3), rotation (N, 3, 3)) of ``link`` in the base frame (nominal geometry)."""
+        if link not in self.links:
+            o, R = stand.loads.link_placements(self.Q, link)
+            self.links[link] = (np.einsum("nba,nb->na", self.base_rotation, o - self.base_origin),
+                                np.einsum("nba,nbc->nac", self.base_rotation, R))
+        return self.links[link]
 
 
 _STATES: dict[tuple, LoadState] = {}
@@ -226,13 +258,39 @@ class JointRotationTerm(ModelTerm):
         w = sum(t * r for t, r in zip(theta, self._unit_rotations(stand, S)))
         return _rotation_offset(S, stand.loads.index[self.joint], w, fk_X)
 
+    def marker_offset(self, theta, poses):
+        stand = self.stand()
+        S = load_state(stand, poses.controls)
+        w = sum(t * r for t, r in zip(theta, self._unit_rotations(stand, S)))
+        return self._other_links(stand, S, stand.loads.index[self.joint], w, poses)
+
+    def _other_links(self, stand: TreeStand, S: LoadState, j: int, w_local: np.ndarray, poses) -> np.ndarray:
+        """(N, M, 3): on a tree, where the pose offset (which moves every tracked link alike, by the
+        moving link's translation) misses a marker's link: R_k^T (w x (X_k - X_0)) in link k's frame
+        (the joint carries every tracked link: ``stand.shared``)."""
+        out = np.zeros((poses.n_poses, poses.n_markers, 3))
+        links = poses.marker_links
+        if not links or len(stand.tracked) < 2:
+            return out
+        w_root = np.einsum("nab,nb->na", S.loads.rotation[:, j], w_local)
+        w = np.einsum("nba,nb->na", S.base_rotation, w_root)
+        X0, _ = S.link_in_base(stand, stand.tracked[0])
+        for m, name in enumerate(poses.marker_names):
+            link = links.get(name, stand.tracked[0])
+            if link == stand.tracked[0]:
+                continue
+            Xk, Rk = S.link_in_base(stand, link)
+            out[:, m] = np.einsum("nba,nb->na", Rk, np.cross(w, Xk - X0))
+        return out
+
     def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
         stand = self.stand()
         S = load_state(stand, poses.controls)
         j = stand.loads.index[self.joint]
-        pose = np.stack([_rotation_offset(S, j, r, fk_X) for r in self._unit_rotations(stand, S)], axis=-1)
-        return (np.zeros((poses.n_poses, n_u, len(theta))), pose,
-                np.zeros((poses.n_poses, poses.n_markers, 3, len(theta))))
+        units = self._unit_rotations(stand, S)
+        pose = np.stack([_rotation_offset(S, j, r, fk_X) for r in units], axis=-1)
+        marker = np.stack([self._other_links(stand, S, j, r, poses) for r in units], axis=-1)
+        return np.zeros((poses.n_poses, n_u, len(theta))), pose, marker
 
 
 def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str) -> JointRotationTerm:
@@ -338,10 +396,58 @@ def mass_moment_from_dict(effect: str, data: dict, spec: PlatformSpec | None) ->
     return mass_moment_term(effect, spec, i, joint, basis, int(where.get("identifiable_mass_moments", basis.shape[1])))
 
 
+# ---------------------------------------------------------------------------- what is not tried
+def _listed(names: list[str]) -> str:
+    return ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+
+
+def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
+    """Why compliance is not tried at some joints of a URDF stand (one sentence each)."""
+    stand = tree_stand(spec)
+    if stand is None:
+        return []
+    out = []
+    T = stand.loads
+    if T.total_mass <= 0:
+        out.append("the URDF has no inertias: each joint's compliance is tried with its gravity load's "
+                   f"best-determined mass-moment combinations (at most {MAX_MASS_COMBINATIONS} per joint), "
+                   "not with the URDF's loads")
+        return out
+    tau = load_state(stand, poses.controls).loads.torque
+    flat = [n for n in stand.joints if not np.ptp(tau[:, T.index[n]]) > 1e-9]
+    if flat:
+        out.append(f"the gravity load of {_listed(flat)} does not change over the poses (a vertical axis, or a "
+                   "joint that carries nothing)")
+    lone = [n for n in stand.chain + [m for m in T.mimic if m not in stand.chain]
+            if n in T.mimic and n not in stand.shared and any(n in ancestors(T, link) for link in stand.tracked)]
+    if lone:
+        out.append(f"the mimic joint{'s' if len(lone) > 1 else ''} {_listed(lone)} carr{'y' if len(lone) > 1 else 'ies'} "
+                   "only some of the tracked links, and a model term's pose offset moves every tracked link alike")
+    return out
+
+
+def untried_bending(spec: PlatformSpec, poses) -> list[str]:
+    """Why link bending is not tried at some joints of a URDF stand (one sentence each)."""
+    stand = tree_stand(spec)
+    if stand is None:
+        return []
+    T = stand.loads
+    if T.total_mass <= 0:
+        return ["the URDF has no inertias, so the moment across a joint is unknown (the mass moments are estimated "
+                "for compliance alone)"]
+    lone = sorted({n for link in stand.tracked for n in ancestors(T, link)} - set(stand.shared),
+                  key=lambda n: T.index[n])
+    if lone:
+        return [f"{_listed(lone)} carr{'y' if len(lone) > 1 else 'ies'} only some of the tracked links, and a model "
+                "term's pose offset moves every tracked link alike"]
+    return []
+
+
 # ---------------------------------------------------------------------------- link bending
 class LinkBending(Effect):
     name = "link_bending"
     summary = "a link bends about the two axes across a joint's axis under the gravity moment there"
+    simulation_size = SizeHelp("the largest bending rotation over the commands (default 1)", "mrad")
 
     def candidates(self, spec, poses, residuals=None):
         stand = tree_stand(spec)
@@ -349,12 +455,16 @@ class LinkBending(Effect):
             return []
         S = load_state(stand, poses.controls)
         out = []
-        for name in stand.chain:
+        for name in stand.shared:
             j = stand.loads.index[name]
             across = S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T
             if np.max(np.ptp(across, axis=0)) > 1e-6:
                 out.append(joint_rotation_term(self.name, spec, name, "across"))
         return out
+
+    def untried(self, spec, poses):
+        """Why link bending is not tried at some joints (see untried_bending)."""
+        return untried_bending(spec, poses)
 
     def regressor(self, term, spec, poses):
         stand = tree_stand(spec)
@@ -378,7 +488,7 @@ class LinkBending(Effect):
             return None
         S = load_state(stand, commands.controls)
         peaks = []
-        for name in stand.chain:
+        for name in stand.shared:
             j = stand.loads.index[name]
             peaks.append(np.max(np.abs(S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T)))
         peaks = np.array(peaks)
@@ -386,4 +496,4 @@ class LinkBending(Effect):
             return None
         k = int(rng.choice(np.nonzero(peaks >= 0.5 * peaks.max())[0]))
         c = (1.0 if size is None else float(size)) * 1e-3 / peaks[k]
-        return joint_rotation_term(self.name, spec, stand.chain[k], "across"), np.array([c, c])
+        return joint_rotation_term(self.name, spec, stand.shared[k], "across"), np.array([c, c])

@@ -131,3 +131,48 @@ def test_without_inertias_compliance_is_tried_through_the_mass_moments(tmp_path)
     back = Compliance().from_dict(term.to_dict(fit))
     assert isinstance(back, MassMomentTerm)
     assert np.allclose(back.control_offset(fit, _poses(bare, U), 3), term.control_offset(fit, _poses(bare, U), 3))
+
+
+def test_on_a_tree_rotations_are_offered_where_they_move_every_tracked_link(tmp_path):
+    path = _tree(tmp_path)
+    tree = get_platform("urdf", path, moving_link={"L": "l_lo", "R": "r_lo"})
+    stand = tree_stand(tree)
+    assert stand.tracked == ["l_lo", "r_lo"] and stand.shared == ["t1", "t2"]
+    C = np.array([[0.3, 0.4, -0.7, 0.1, 0.5], [-1.0, -0.2, 1.1, -0.05, -0.8], [0.0, 1.2, 0.3, 0.2, 0.0]])
+    poses = PoseSet(tree.name, C, np.zeros((3, 2, 3)), ["L", "R"], length_unit="m",
+                    moving_link={"L": "l_lo", "R": "r_lo"})
+    terms = LinkBending().candidates(tree, poses)
+    assert [t.joint for t in terms] == ["t1", "t2"]
+    assert "l1, l2, r1, r2 carry only some of the tracked links" in LinkBending().untried(tree, poses)[0]
+    # the pose offset (the moving link's) plus the marker offset put a marker at link k's origin
+    # where the rotation at the joint takes it: w x (X_k - o)
+    term = terms[1]
+    S = load_state(stand, C)
+    X0, _ = S.link_in_base(stand, "l_lo")
+    Xr, Rr = S.link_in_base(stand, "r_lo")
+    theta = np.array([3e-6, -2e-6])
+    dpose = term.pose_offset(theta, poses, None, X0)
+    dm = term.marker_offset(theta, poses)
+    assert np.allclose(dm[:, 0], 0.0)
+    j = stand.loads.index["t2"]
+    u, v = across_axes(stand.loads.axes[j])
+    for k in range(len(C)):
+        w = S.loads.rotation[k, j] @ (theta[0] * (S.loads.moment[k, j] @ u) * u + theta[1] * (S.loads.moment[k, j] @ v) * v)
+        assert np.allclose(dpose[k, 3:], w)
+        assert np.allclose(dpose[k, :3] + Rr[k] @ dm[k, 1], np.cross(w, Xr[k] - S.loads.origin[k, j]))
+    _, pose_jac, marker_jac = term.offset_jacobians(np.zeros(2), poses, 5, None, X0)
+    assert np.allclose(marker_jac @ theta, dm) and np.allclose(pose_jac @ theta, dpose)
+
+
+def test_what_cannot_be_tried_is_said(tmp_path):
+    bare = get_platform("urdf", _tree(tmp_path, masses=False), moving_link="l_lo")
+    poses = _poses(bare, U)
+    assert "no inertias" in LinkBending().untried(bare, poses)[0]
+    assert "mass-moment combinations" in Compliance().untried(bare, poses)[0]
+    heavy_dir = tmp_path / "heavy"
+    heavy_dir.mkdir()
+    arm = get_platform("urdf", _tree(heavy_dir), moving_link="l_lo")
+    assert LinkBending().untried(arm, _poses(arm, U)) == []
+    still = _poses(arm, np.repeat(U[:1], 4, axis=0))  # one configuration: no load changes
+    assert Compliance().candidates(arm, still) == []
+    assert any("the gravity load of t1, l1, l2 does not change" in r for r in Compliance().untried(arm, still))
