@@ -375,6 +375,20 @@ def predict_markers(cal: Calibration, controls: np.ndarray, poses: PoseSet | Non
     return markers, q, X, ok
 
 
+def predict_links(cal: Calibration, controls: np.ndarray, poses: PoseSet | None = None):
+    """Every tracked link's pose under ``cal`` (model terms included): q (N, L, 4) and X (N, L, 3) m in
+    the base frame, for controls (N, n_u) SI; L = 1 (the moving frame) but on a tree."""
+    spec = cal.calibrated_spec()
+    U = np.atleast_2d(np.asarray(controls, float))
+    if poses is None:
+        poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((len(U), len(cal.marker_names), 3), np.nan),
+                        marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+    R_all, X_all, _, ok = _predicted_frames(cal, spec, PlatformModel(spec), U, poses)
+    q = quat_normalize(quat_from_matrix(R_all))
+    q[~ok], X_all[~ok] = np.nan, np.nan
+    return q, X_all
+
+
 def calibration_links(cal: Calibration) -> list[int]:
     """Index in the stand's tracked links of the link each marker, then each body, of ``cal``
     rides on (all 0 where they ride on the moving frame)."""
@@ -480,5 +494,6 @@ def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
     return out
 
 
-__all__ = ["calibrate", "kfold", "predict_markers", "predict_bodies", "point_errors", "second_session_errors",
+__all__ = ["calibrate", "kfold", "predict_markers", "predict_bodies", "predict_links", "point_errors",
+           "second_session_errors",
            "free_mask", "CalibrationProblem", "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]

@@ -5,7 +5,8 @@ an optional ``t`` column and other columns are allowed and used only by time- or
 dependent model terms). 'm' controls are in the calibration's length unit.
 Output: one row per command row: the control columns, every marker's ``<name>_x,_y,_z`` in the
 motion-capture frame, every rigid body's ``<T>_x,_y,_z,_qw,_qx,_qy,_qz`` (origin and unit
-quaternion, qw >= 0) in the motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame;
+quaternion, qw >= 0) in the motion-capture frame, then the pose ``x,y,z,qw,qx,qy,qz`` of the moving frame in the base frame
+(on a tree then ``<link>_x,...,<link>_qz`` for each other tracked link);
 lengths in the calibration's length unit. A command outside its control's stroke, a ``t``
 that decreases, or no ``t`` for a model with time-dependent terms, is bad input; rows whose forward kinematics fails inside the strokes are written
 with empty cells and counted.
@@ -18,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.calibrate.estimate import predict_bodies, predict_markers
+from platkit.calibrate.estimate import predict_bodies, predict_links, predict_markers
 from platkit.effects import with_history
 from platkit.errors import BadInput
 from platkit.io.atomic import atomic_write_text
 from platkit.io.calibration import Calibration, read_calibration
-from platkit.io.session import read_table
+from platkit.io.table import read_table
 from platkit.limits import check_strokes
 from platkit.model import controls_from_si, controls_to_si, length_scale
 from platkit.notices import warn
@@ -86,8 +87,14 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
     bodies = predict_bodies(cal, q, X, U, poses)
     bodies[..., :3] /= s
-    rows = np.column_stack([controls_from_si(cal.spec, U, cal.length_unit), markers.reshape(N, -1) / s,
-                            bodies.reshape(N, -1), X / s, q])
+    cols = [controls_from_si(cal.spec, U, cal.length_unit), markers.reshape(N, -1) / s, bodies.reshape(N, -1), X / s, q]
+    others = cal.spec.tracked_links[1:] if cal.marker_links else []
+    if others:  # a tree: each other tracked link's pose after the moving frame's
+        q_links, X_links = predict_links(cal, U, poses)
+        for k, link in enumerate(others, start=1):
+            header += [f"{link}_{a}" for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+            cols += [X_links[:, k] / s, q_links[:, k]]
+    rows = np.column_stack(cols)
     rows[~ok, cal.spec.n_u:] = np.nan
     return header, rows, ok
 

@@ -18,7 +18,7 @@ from platkit.calibrate.estimate import calibrate, point_errors
 from platkit.calibrate.problem import link_frames
 from platkit.cli import main
 from platkit.errors import BadDescription, BadInput
-from platkit.geometry import matrix_from_rotvec
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.io.calibration import read_calibration
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
@@ -211,6 +211,13 @@ def test_cli_tree_session_calibrates_and_the_moved_results_still_predict(tmp_pat
     P = got[:, [header.index(f"{m}_{a}") for m in MARKERS for a in "xyz"]].reshape(5, len(MARKERS), 3)
     assert np.max(np.linalg.norm(P - Y[:5] * 1e3, axis=2)) < 10 * SIGMA * 1e3
     cal = read_calibration(moved / "calibration.yaml")
+    # the other hand's pose after the moving frame's: the frame its markers are predicted from
+    X_left = got[:, [header.index(f"left_tcp_{a}") for a in "xyz"]]
+    R_left = matrix_from_quat(got[:, [header.index(f"left_tcp_{a}") for a in ("qw", "qx", "qy", "qz")]])
+    k = cal.marker_names.index("L2")
+    L2 = (X_left + np.einsum("nab,b->na", R_left, cal.marker_positions[k] * 1e3)) @ cal.mocap_from_base[:3, :3].T \
+        + cal.mocap_from_base[:3, 3] * 1e3
+    assert np.allclose(L2, P[:, list(MARKERS).index("L2")], atol=1e-5)
     assert cal.marker_links == MAPPING and cal.spec.tracked_links == ["right_tcp", "left_tcp"]
 
 
