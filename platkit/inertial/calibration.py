@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from platkit.errors import BadInput, NotIdentifiable, PlatkitError
 from platkit.geometry import quat_conjugate, quat_from_rotvec, quat_multiply, quat_normalize, rotvec_from_quat
@@ -78,11 +77,19 @@ class ImuCalibration:
 
 
 def _moving_std(x: np.ndarray, k: int) -> np.ndarray:
-    """Std over a centred window of k samples, per sample (N,) of (N, d) data (summed over d)."""
-    from scipy.ndimage import uniform_filter1d
+    """Std over a centred window of k samples, per sample (N,) of (N, d) data (summed over d): the
+    window of sample i is [i - k // 2, i + (k - 1) // 2], the ends padded with the first and last
+    samples (scipy.ndimage.uniform_filter1d's mode "nearest", by running sums: no scipy.ndimage
+    to import for a verb's start-up)."""
+    x = np.asarray(x, float)
+    pad = np.concatenate([np.repeat(x[:1], k // 2, axis=0), x, np.repeat(x[-1:], (k - 1) // 2, axis=0)])
 
-    m = uniform_filter1d(x, k, axis=0, mode="nearest")
-    m2 = uniform_filter1d(x * x, k, axis=0, mode="nearest")
+    def mean(v):
+        c = np.concatenate([np.zeros((1,) + v.shape[1:]), np.cumsum(v, axis=0)])
+        return (c[k:] - c[:-k]) / k
+
+    m = mean(pad)
+    m2 = mean(pad * pad)
     return np.sqrt(np.clip(m2 - m * m, 0, None).sum(axis=1))
 
 
@@ -149,6 +156,8 @@ def fit_accelerometer(static_means: np.ndarray, gravity: float = G_STANDARD) -> 
 
     def res(x):
         return np.linalg.norm((m - x[:3]) / x[3:], axis=1) - gravity
+
+    from scipy.optimize import least_squares  # not at the top: scipy.optimize costs platkit orient's start-up
 
     sol = least_squares(res, np.r_[np.zeros(3), np.ones(3)], method="lm")
     J = sol.jac

@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 
 from platkit.errors import BadInput
 
@@ -25,6 +24,8 @@ def lowpass(x: np.ndarray, cutoff_hz: float, rate_hz: float, zero_phase: bool = 
     if not 0 < cutoff_hz < rate_hz / 2:
         raise BadInput(f"low-pass cut-off {cutoff_hz:.4g} Hz must lie between 0 and half the sampling rate "
                        f"({rate_hz / 2:.4g} Hz)")
+    from scipy import signal  # here, not at the top: scipy.signal costs platkit orient's start-up a second
+
     sos = signal.butter(order, cutoff_hz, fs=rate_hz, output="sos")
     if zero_phase:
         return signal.sosfiltfilt(sos, x, axis=0)
@@ -63,6 +64,8 @@ def cutoff_from_spectrum(x: np.ndarray, rate_hz: float, margin: float = 4.0,
     if n < 64:
         raise BadInput(f"{n} samples are too few to estimate a spectrum (need at least 64)")
     nper = int(min(n, 2 ** int(np.log2(max(64, rate_hz * 4)))))
+    from scipy import signal  # not at the top: see lowpass
+
     f, p = signal.welch(x - x.mean(axis=0), fs=rate_hz, nperseg=nper, axis=0)
     psd = p.sum(axis=1)
     upper = f >= rate_hz / 4

@@ -41,7 +41,9 @@ from platkit.inertial.paper import PaperParams, estimate_paper
 from platkit.io.calibration import read_calibration
 from platkit.io.description import load_yaml
 from platkit.io.imu import read_imu_csv
-from platkit.io.session import TIME_UNITS, check_times, read_session_yaml, read_table
+from platkit.io.session_checks import check_times
+from platkit.io.session_yaml import TIME_UNITS, read_session_yaml
+from platkit.io.table import read_table
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_to_si
 from platkit.plugins import get_platform
@@ -261,7 +263,8 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
         report["alignment"] = {"source": "none (identity)"}
     if rest_warning is not None and report["gyr_bias_source"] == "none (zero)":
         warnings.append(rest_warning)  # said only when no other source gave the bias
-    q_sp = quat_from_matrix(R_sp)
+    # the identity (no calibration, no commands) needs no conversion (scipy.spatial's import is most of its cost)
+    q_sp = q_sp if np.array_equal(R_sp, np.eye(3)) else quat_from_matrix(R_sp)
     report["sensor_from_platform"] = np.asarray(R_sp).tolist()
     report["gyr_bias_start_rad_s"] = (cal.gyr_bias + cal.gyr_scale * np.asarray(bias0)).tolist()
 

@@ -3,7 +3,7 @@
 orientation.csv: ``t,qw,qx,qy,qz``, the platform frame in the base frame (spec section 2), t in
 seconds on the session's clock. report.json: the settings found (bias, alignment, latency), the
 warnings, and, when the session holds the truth, the errors in degrees. report.html: the same
-with plots (orientation over time; errors over time when the truth is known).
+with plots, inline SVG (orientation over time; errors over time when the truth is known).
 """
 from __future__ import annotations
 
@@ -16,49 +16,35 @@ from platkit.geometry import rpy_from_quat
 from platkit.inertial.orient import OrientResult
 from platkit.io import jsonout
 from platkit.io.atomic import atomic_output_dir
-from platkit.io.figures import png_base64 as _png
+from platkit.io.svgplot import line_plot
 
 
 def orientation_csv(t: np.ndarray, q: np.ndarray) -> str:
-    rows = ["t,qw,qx,qy,qz"]
-    rows += [f"{ti:.9g},{a:.9f},{b:.9f},{c:.9f},{d:.9f}" for ti, (a, b, c, d) in zip(t, q)]
-    return "\n".join(rows) + "\n"
+    # one %-format over every row at once: the same text as a row-by-row f-string, in a third of the time
+    data = np.column_stack([t, q]).ravel().tolist()
+    return "t,qw,qx,qy,qz\n" + ("%.9g,%.9f,%.9f,%.9f,%.9f\n" * len(t)) % tuple(data)
 
 
 def _plots(result: OrientResult) -> list[tuple[str, str]]:
-    """(title, base64 PNG) of each plot; bare matplotlib Figures (no pyplot state, the user's
-    backend untouched)."""
-    from matplotlib.figure import Figure  # matplotlib only when drawing: the verb's start-up
-
+    """(title, inline SVG) of each plot (platkit.io.svgplot: no matplotlib to import, which
+    alone would cost the verb more than its estimate); at most about 4000 points per line."""
     out = []
     step = max(1, len(result.t) // 4000)
     rpy = np.degrees(rpy_from_quat(result.q[::step]))
-    fig = Figure(figsize=(9, 3.2))
-    ax = fig.subplots()
-    for j, name in enumerate(("roll", "pitch", "yaw")):
-        ax.plot(result.t[::step], rpy[:, j], lw=0.8, label=name)
+    series = [(result.t[::step], rpy[:, j], name, "") for j, name in enumerate(("roll", "pitch", "yaw"))]
     if result.truth is not None:
         tt, qt = result.truth
         s2 = max(1, len(tt) // 4000)
         rt = np.degrees(rpy_from_quat(qt[::s2]))
-        for j in range(3):
-            ax.plot(tt[::s2], rt[:, j], "k:", lw=0.6)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("deg")
-    ax.legend(loc="upper right", fontsize=8)
-    out.append(("Orientation (roll, pitch, yaw of the platform in the base frame; dotted: truth)", _png(fig)))
+        series += [(tt[::s2], rt[:, j], "truth", "dotted") for j in range(3)]
+    out.append(("Orientation (roll, pitch, yaw of the platform in the base frame; dotted: truth)",
+                line_plot(series, "t [s]", "deg")))
     if result.errors:
         e = result.errors
         s2 = max(1, len(e["t"]) // 4000)
-        fig = Figure(figsize=(9, 3.2))
-        ax = fig.subplots()
-        ax.plot(e["t"][::s2], np.degrees(e["inclination"][::s2]), lw=0.8, label="inclination")
-        ax.plot(e["t"][::s2], np.degrees(e["total"][::s2]), lw=0.8, label="total")
-        ax.plot(e["t"][::s2], np.degrees(e["total_heading_aligned"][::s2]), lw=0.8, label="total, heading aligned")
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("error [deg]")
-        ax.legend(loc="upper right", fontsize=8)
-        out.append(("Error against the truth", _png(fig)))
+        series = [(e["t"][::s2], np.degrees(e[k][::s2]), label, "") for k, label in
+                  (("inclination", "inclination"), ("total", "total"), ("total_heading_aligned", "total, heading aligned"))]
+        out.append(("Error against the truth", line_plot(series, "t [s]", "error [deg]")))
     return out
 
 
@@ -77,8 +63,8 @@ def report_html(result: OrientResult) -> str:
                      f"{t['total_rmse_heading_aligned_deg']:.3f} deg.</p>")
     if r.get("warnings"):
         parts.append("<h2>Warnings</h2><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in r["warnings"]) + "</ul>")
-    for title, png in _plots(result):
-        parts.append(f"<h2>{html.escape(title)}</h2><img alt='{html.escape(title)}' src='data:image/png;base64,{png}'>")
+    for title, svg in _plots(result):
+        parts.append(f"<h2>{html.escape(title)}</h2>{svg}")
     parts.append("<h2>report.json</h2><pre>" + html.escape(jsonout.dumps(r, indent=2)) + "</pre>")
     parts.append("</body></html>")
     return "\n".join(parts)

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas
 
 from platkit.errors import BadSession
 from platkit.io.atomic import atomic_write_text
@@ -98,14 +97,16 @@ def _line(row_index: int) -> int:
 
 
 def _fast_rows(body: str, n_columns: int, cols: list[int]) -> np.ndarray | None:
-    """(N, 7) the IMU columns of a clean file's data rows, parsed by pandas' C reader; None where a
-    line has another number of cells than the header (or is blank), a cell is not a plain number
-    (NaN only as an empty or 'nan' cell outside ``t``), or anything else the cell-by-cell reader
-    must name or repair."""
+    """(N, 7) the IMU columns of a clean file's data rows, parsed by numpy's C reader (np.loadtxt:
+    no pandas to import, which would cost the verb's start-up more than the parse); None where a
+    line has another number of cells than the header, a cell is empty or not a plain number (a
+    'nan' cell is NaN, outside ``t``), or anything else the cell-by-cell reader must name or
+    repair."""
+    if not body.strip():
+        return None
     try:
-        data = pandas.read_csv(io.StringIO(body), header=None, dtype=float, engine="c", keep_default_na=False,
-                               na_values=["", "nan", "NaN", "NAN"], skip_blank_lines=False).to_numpy()
-    except (ValueError, pandas.errors.ParserError):  # a longer row than the first is a ParserError
+        data = np.loadtxt(io.StringIO(body), delimiter=",", dtype=float, ndmin=2, comments=None, encoding=None)
+    except ValueError:  # an empty cell, text, or a row with another number of cells
         return None
     if data.ndim != 2 or data.shape[1] != n_columns:
         return None

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas
 
 from platkit.errors import BadSession
 
@@ -271,6 +270,8 @@ def _parse_fast(path: Path, header: list[str], body_start: int, data: np.ndarray
     first chunk it could not read (all of them: ``len(data)``). Blank lines after the last row
     are not rows. ``stop``: read the file only up to this byte offset; ``update(rows)``: the
     progress callback (default ``progress.update``)."""
+    import pandas  # here, not at the top: a verb that reads no table (platkit orient) need not import it
+
     done = 0
     update = progress.update if update is None else update
     with io.BufferedReader(_Range(path, body_start, stop), 1 << 20) as fh, warnings.catch_warnings():
