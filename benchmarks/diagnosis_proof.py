@@ -35,8 +35,8 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass
 
 import numpy as np
+from batch_cases import add_engine_options, run_cases  # benchmarks/batch_cases.py, beside this script
 
-from platkit.batch.cases import add_engine_options, run_cases
 from platkit.errors import BadInput, PlatkitError
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
@@ -109,7 +109,8 @@ def build_truth(spec, effects: list[tuple[str, str]], seed: int):
     """[(term, theta)] for effects [(name, 'clear'|'weak')], each scaled to move the markers by
     CLEAR_MM or WEAK_MM RMS on this session's commands."""
     from platkit.calibrate.estimate import calibrate
-    from platkit.effects import effect_library, with_history
+    from platkit.effects import with_history
+    from platkit.plugins import effect_library
 
     lib = effect_library()
     rng = np.random.default_rng(seed + 99)
@@ -175,7 +176,7 @@ def as_json(o):
 
 def _run_case(case: dict) -> dict:
     from platkit.calibrate.estimate import predict_markers
-    from platkit.diagnose.search import Options, diagnose
+    from platkit.diagnose import Options, diagnose
     from platkit.plugins import get_platform
 
     t0 = time.perf_counter()

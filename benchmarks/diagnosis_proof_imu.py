@@ -49,8 +49,8 @@ import time
 from collections import Counter, defaultdict
 
 import numpy as np
+from batch_cases import add_engine_options, run_cases  # benchmarks/batch_cases.py, beside this script
 
-from platkit.batch.cases import add_engine_options, run_cases
 from platkit.errors import BadInput, PlatkitError
 
 DEG = 180.0 / np.pi
@@ -121,11 +121,11 @@ def _heldout(spec, cal, d, test) -> dict[str, list[float]]:
     """RMS on the noise-free held-out recording ``test`` before (base model) and after (the named
     parameters), nuisances refitted: 'gyro' deg/s of the mean rates, 'accelerometer' m/s^2."""
     from platkit.diagnose.imu import segments_from_session, up_in_sensor
-    from platkit.effects import effect_library
     from platkit.geometry import matrix_from_rotvec
     from platkit.inertial.command_aided import command_poses
     from platkit.io.imu import ImuStream
     from platkit.kinematics import PlatformModel
+    from platkit.plugins import effect_library
 
     im = test.imu
     q = command_poses(PlatformModel(spec), test.commands, td=cal.td)

@@ -17,6 +17,7 @@ full session and stores it in ``poses.extras`` (subsets keep it row by row).
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,22 +25,99 @@ import numpy as np
 
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
-from platkit.plugins import default_host
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
 #: relative size (of a control's stroke) below which a change of command is "no move"
 MOVE_TOLERANCE = 1e-6
+#: the unit of a simulated size on one actuator (:func:`control_size`), for :class:`SizeHelp`
+CONTROL_SIZE_UNIT = "mm for length controls, else the control's unit"
+
+
+@dataclass(frozen=True)
+class SizeHelp:
+    """What the size of ``--effect NAME=SIZE`` means in one simulator: ``meaning`` (a phrase,
+    e.g. 'the full play') and the ``unit`` it is given in (e.g. 'mm for length controls'; '' for
+    a pure number, a fraction or a share)."""
+
+    meaning: str
+    unit: str
+
+    def text(self) -> str:
+        return f"{self.meaning}, in {self.unit}" if self.unit else self.meaning
 
 
 class Effect:
-    """Base class of a diagnosis effect (one physical mechanism, e.g. backlash).
+    """Base class of a diagnosis effect (one physical mechanism, e.g. a play in a drive).
 
-    Attributes: ``name`` (the spec's effect name), ``summary`` (one line for people).
+    What the core knows of an effect, it reads from these class attributes and methods (an
+    outside effect declares them like a built-in one; :func:`platkit.testing.check_effect`
+    checks them):
+
+    - ``name`` (the name findings and calibration.yaml carry), ``summary`` (one line for people);
+    - ``recording``: True for an artefact of the recording rather than of the stand (a pose taken
+      before the stand settled, a marker that moved on the platform). Its term is fitted like any
+      other, so that the geometry is estimated from corrected data, and left out of the stand's
+      calibration (:meth:`moved_marker` says where a marker it moved stays; :meth:`correction`
+      says how it was corrected; :meth:`onset` when it began);
+    - ``direction``: True for an effect whose signature is the direction of each actuator's last
+      move (a play in a drive). Where the settling search extrapolated an actuator's approach to
+      rest, the extrapolation's remnant lies along that actuator's last move too, so such an effect
+      is not named on that actuator;
+    - ``unsettled_holds``: True for the effect that holds which never settled are (a lag of the
+      stand behind its commands). The settling search reads it from the raw stream and corrects it
+      there: diagnosis reports the stream's finding under this effect's name, and does not fit the
+      effect's term where the stream gave one;
+    - ``not_separable_advice``: a sentence the verdict adds when a term of this effect cannot be
+      told from the geometry on the session's plan ('' for none);
+    - ``simulation_size``, ``physics_size``: what the size of ``platkit simulate --effect
+      NAME=SIZE`` means in the additive and in the time-domain simulator (:class:`SizeHelp`, its
+      meaning and unit; None where the effect has no such simulation).
     """
 
     name: str = ""
     summary: str = ""
+    recording: bool = False
+    direction: bool = False
+    unsettled_holds: bool = False
+    not_separable_advice: str = ""
+    simulation_size: SizeHelp | None = None
+    physics_size: SizeHelp | None = None
+
+    def size_help(self, physics: bool = False) -> SizeHelp | None:
+        """What a simulated size of this effect means (``physics``: in the time-domain simulator)."""
+        return self.physics_size if physics else self.simulation_size
+
+    def onset(self, term: ModelTerm) -> float | None:
+        """For a recording artefact: the time (s since the session's first command) from which
+        ``term`` acts (a slip's moment), or None when it acts throughout. Diagnosis writes a term
+        with an onset into calibration.yaml only when the model with it predicts the held-out poses
+        from that time on better (by ``min_relative_gain``, significantly) than the model without
+        it; otherwise the fitted model keeps it and calibration.yaml is the fit without it."""
+        return None
+
+    def moved_marker(self, term: ModelTerm, theta: np.ndarray,
+                     std: np.ndarray | None) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """For a recording artefact that moved a marker on the platform: (the marker's index, the
+        (3,) m offset from the marker's fitted place to where the stand's calibration puts it,
+        that offset's (3,) standard deviation, NaN where unknown); None when it moves no marker."""
+        return None
+
+    def correction(self, where: dict[str, Any], unwritten: str | None = None) -> str:
+        """For a recording artefact: how its accepted term at ``where`` is corrected, a sentence
+        for the finding's ``corrected``. ``unwritten``: for a term with an :meth:`onset` whose
+        model change is not written, the held-out comparison that decided it (a phrase: the RMS
+        with against without, its paired p, the gain it missed)."""
+        text = f"in the data: {self.name} is fitted so that the geometry sees the stand; calibration.yaml leaves it out"
+        if unwritten is not None:
+            text += f" (the model with it predicts the held-out poses from its onset on at {unwritten})"
+        return text
+
+    def untried(self, spec: PlatformSpec, poses: PoseSet) -> list[str]:
+        """Why the effect cannot be tried (somewhere) on this stand and session: one phrase each,
+        read after 'where' (the verdict and diagnosis.json say them; nothing is skipped silently).
+        Default: none."""
+        return []
 
     def candidates(self, spec: PlatformSpec, poses: PoseSet, residuals: np.ndarray | None = None) -> list[ModelTerm]:
         """Terms this effect could add on this stand and session. ``residuals``: (N, M, 3) m,
@@ -72,40 +150,6 @@ class Effect:
         """The effect's physics in a session for the time-domain simulator (see the physics
         section below), of ``size`` (None: the default); None when the effect has none."""
         return None
-
-
-def effect_library() -> dict[str, Effect]:
-    """Effect name -> effect, from every installed plugin (built-in and outside)."""
-
-    return default_host().effects()
-
-
-def size_docs(method: str) -> dict[str, str]:
-    """Effect name -> what a size means for ``method`` ('simulation_term' or 'physics'): the
-    method's docstring, for every installed effect that has one (the simulators' --effect help)."""
-    out = {}
-    for name, effect in effect_library().items():
-        doc = getattr(getattr(effect, method, None), "__doc__", None)
-        if doc:
-            text = " ".join(doc.split()).replace("``", "")
-            for prefix in ("(term, theta) for the simulator:", "size:", "size"):
-                text = text[len(prefix):].strip() if text.startswith(prefix) else text
-            out[name] = text.rstrip(".")
-    return out
-
-
-def term_from_dict(data: dict[str, Any], spec: PlatformSpec | None = None,
-                   where: str = "calibration") -> tuple[ModelTerm, np.ndarray]:
-    """(term, theta) from a stored mapping, through the effect library; BadInput names an
-    unknown effect."""
-    if not isinstance(data, dict) or "effect" not in data:
-        raise BadInput(f"{where}: each term must be a mapping with an 'effect' field")
-    library = effect_library()
-    name = data["effect"]
-    if name not in library:
-        raise BadInput(f"{where}: unknown effect {name!r}; installed effects: {', '.join(sorted(library))}")
-    term = library[name].from_dict(data, spec)
-    return term, theta_from_dict(data, term.parameter_names, where)
 
 
 def theta_from_dict(data: dict[str, Any], names: list[str], where: str = "term") -> np.ndarray:
@@ -284,6 +328,8 @@ class ImuEffect(Effect):
       mounting is always there; a drift fitted without it takes what it leaves);
     - ``min_separability``: tested only where at least this share of the effect's signature is
       beyond what the base model (and the effects already in it) can mimic;
+    - ``simulation_keyword``: the keyword of :func:`platkit.inertial.simulate.imu_from_motion`
+      whose value is this effect's theta ('' for none: the effect comes through its ``effects``);
     - ``reported_as``: the name its findings carry (the spec's name where the motion capture
       knows the same physical effect, e.g. ``base_tilt``); default ``name``.
 
@@ -297,6 +343,7 @@ class ImuEffect(Effect):
     min_size: float = 0.0
     nuisance: bool = False
     min_separability: float = 0.0
+    simulation_keyword: str = ""
     reported_as: str = ""
 
     @property
@@ -307,17 +354,23 @@ class ImuEffect(Effect):
     def n_params(self) -> int:
         return len(self.parameter_names)
 
-    def candidates(self, spec, poses, residuals=None) -> list[ModelTerm]:
+    def candidates(self, spec: PlatformSpec, poses: PoseSet, residuals: np.ndarray | None = None) -> list[ModelTerm]:
         return []
 
-    def simulation_term(self, spec, size, rng, commands):
-        """size: in the effect's display unit, with --imu (an IMU effect acts on the simulated
-        IMU's samples through its sensor model, platkit.inertial.simulate, not as a model term)."""
+    def size_help(self, physics: bool = False) -> SizeHelp | None:
+        """An IMU effect's size is in its display unit, with ``--imu``: it acts on the simulated
+        IMU's samples through its sensor model (:mod:`platkit.inertial.simulate`), in either simulator."""
+        return SizeHelp("with --imu (acts on the simulated IMU's samples through the sensor model, "
+                        + ("not in the stand's physics)" if physics else "not as a model term)"), self.display_unit)
+
+    def simulation_term(self, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
+                        commands: PoseSet) -> tuple[ModelTerm, np.ndarray] | None:
+        """None: an IMU effect adds no model term (see :meth:`size_help`)."""
         return None
 
-    def physics(self, spec, size, rng, plan):
-        """size: in the effect's display unit, with --imu (an IMU effect acts on the simulated
-        IMU's samples through its sensor model, not in the stand's physics)."""
+    def physics(self, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
+                plan: PhysicsPlan) -> EffectPhysics | None:
+        """None: an IMU effect has no physics of the stand (see :meth:`size_help`)."""
         return None
 
     # --- the sensor model (one implementation for simulation and diagnosis)
@@ -380,9 +433,8 @@ class ImuEffect(Effect):
         return v / np.linalg.norm(v) * size / self.display_scale
 
 
-def imu_effects(library: dict[str, Effect] | None = None) -> dict[str, ImuEffect]:
-    """Name -> IMU effect, from ``library`` (default: every installed effect)."""
-    library = effect_library() if library is None else library
+def imu_effects(library: Mapping[str, Effect]) -> dict[str, ImuEffect]:
+    """Name -> IMU effect, from ``library`` (effect name -> effect)."""
     return {n: e for n, e in library.items() if isinstance(e, ImuEffect)}
 
 

@@ -24,17 +24,18 @@ import functools
 import importlib
 import os
 import sys
+from collections.abc import Mapping
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
+import numpy as np
 import pluggy
 
 from platkit import __version__, hookspecs
-from platkit.errors import BadPlugin, PluginConflict, UnknownPlatform
+from platkit.effects import Effect, theta_from_dict
+from platkit.errors import BadInput, BadPlugin, PluginConflict, UnknownPlatform
 from platkit.model import PlatformFactory, PlatformSpec
-
-if TYPE_CHECKING:
-    from platkit.effects import Effect
+from platkit.terms import ModelTerm
 
 ENTRY_POINT_GROUP = "platkit"
 
@@ -228,6 +229,26 @@ def _one_line(exc: Exception) -> str:
 def default_host() -> PluginHost:
     """The process-wide host: the built-in plugins and every installed outside plugin."""
     return PluginHost()
+
+
+def effect_library() -> dict[str, Effect]:
+    """Effect name -> effect, from every installed plugin (built-in and outside): the process-wide
+    host's (:func:`default_host`)."""
+    return default_host().effects()
+
+
+def term_from_dict(data: dict[str, Any], spec: PlatformSpec | None = None, where: str = "calibration",
+                   library: Mapping[str, Effect] | None = None) -> tuple[ModelTerm, np.ndarray]:
+    """(term, theta) from a mapping ``ModelTerm.to_dict`` stored, through ``library`` (effect name
+    -> effect; default: every installed effect); BadInput names an unknown effect."""
+    if not isinstance(data, dict) or "effect" not in data:
+        raise BadInput(f"{where}: each term must be a mapping with an 'effect' field")
+    library = effect_library() if library is None else library
+    name = data["effect"]
+    if name not in library:
+        raise BadInput(f"{where}: unknown effect {name!r}; installed effects: {', '.join(sorted(library))}")
+    term = library[name].from_dict(data, spec)
+    return term, theta_from_dict(data, term.parameter_names, where)
 
 
 def get_platform(name: str, description=None, **options) -> PlatformSpec:

@@ -51,6 +51,12 @@ class ModelTerm:
     def marker_offset(self, theta: np.ndarray, poses: PoseSet) -> np.ndarray:
         return np.zeros((poses.n_poses, poses.n_markers, 3))
 
+    def level_tilt(self, theta: np.ndarray) -> np.ndarray | None:
+        """(2,) rad: how far the term turns the whole stand about its base's x and y axes in the
+        level world, or None (the default) for a term that does not. The motion capture cannot see
+        such a turn (its transform absorbs it); an IMU's accelerometer reads it against gravity."""
+        return None
+
     def offset_jacobians(self, theta: np.ndarray, poses: PoseSet, n_u: int, fk_q: np.ndarray,
                          fk_X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The offsets' derivatives in ``theta`` (K,): (control (N, n_u, K), pose (N, 6, K),

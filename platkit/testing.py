@@ -2,7 +2,8 @@
 
     from platkit.testing import check_platform
     check_platform(spec)          # raises AssertionError naming the failed check
-    check_imu_effect(effect)      # the same for an IMU effect (platkit.effects.ImuEffect)
+    check_effect(effect, spec)    # the same for a diagnosis effect (platkit.effects.Effect) on a stand
+    check_imu_effect(effect)      # an IMU effect (platkit.effects.ImuEffect)
 
 Checks: the spec validates; a stand with more residual rows than pose coordinates declares its
 rows' plausible misfit, and a declared free pose space is free; F = 0 at the neutral pose; CasADi
@@ -13,11 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.effects import ImuEffect
+from platkit.effects import Effect, EffectPhysics, ImuEffect, PhysicsPlan, SizeHelp, theta_from_dict, with_history
 from platkit.errors import PlatkitError
 from platkit.kinematics import PlatformModel
 from platkit.kinematics.sampling import controls_of_poses, pose_box
 from platkit.model import PlatformSpec, validate_spec
+from platkit.poses import PoseSet
+from platkit.terms import ModelTerm
 
 
 def _fd_jacobian(f, x, h):
@@ -249,3 +252,115 @@ def check_imu_effect(effect, seed: int = 0) -> dict:
     assert isinstance(effect.headline(rep["parameters"]), str), f"{name}: headline must be a few words"
     assert effect.candidates(None, None) == [], f"{name}: an IMU effect adds no motion-capture term"
     return {"effect": name, "sensor": effect.sensor, "n_params": n, "reported_as": effect.finding_name}
+
+def _effect_session(spec: PlatformSpec, rng, n: int = 24, n_markers: int = 3):
+    """A small session for :func:`check_effect`: random commands within 30% of each stroke about
+    neutral, 2 s apart, markers at zero, the history filled in; and residuals (N, M, 3) m with the
+    first marker stepping by 1 mm halfway (so that effects located in the residuals find something)."""
+    lo, hi = spec.control_bounds()
+    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    U = np.clip(spec.neutral_u() + rng.uniform(-0.3, 0.3, (n, spec.n_u)) * span, lo, hi)
+    poses = with_history(PoseSet(spec.name, U, np.zeros((n, n_markers, 3)), [f"m{k + 1}" for k in range(n_markers)],
+                                 t=2.0 * np.arange(n, dtype=float)), spec)
+    residuals = 1e-5 * rng.normal(size=(n, n_markers, 3))
+    residuals[n // 2:, 0] += np.array([1e-3, -5e-4, 2e-4])
+    return poses, residuals
+
+
+def _check_term(effect: Effect, term: ModelTerm, spec: PlatformSpec, poses: PoseSet, theta: np.ndarray | None,
+                rng) -> None:
+    """One term of ``effect``: its fields, its offsets (shapes, finite, nothing at theta = 0), its
+    stored form back through ``from_dict``, its regressor, and what a recording artefact says."""
+    name = effect.name
+    label = f"{name} term {term.where!r}"
+    assert isinstance(term, ModelTerm), f"{name}: a term must be a platkit.terms.ModelTerm, got {type(term).__name__}"
+    assert term.effect == name, f"{label}: its effect is {term.effect!r}, not the effect's name"
+    k = len(term.parameter_names)
+    assert k > 0 and len(np.atleast_1d(term.initial)) == k and (not term.units or len(term.units) == k), \
+        f"{label}: parameter_names, initial and units must have one entry per parameter"
+    assert isinstance(term.where, dict), f"{label}: where must be a mapping"
+    N, n_u, M = poses.n_poses, spec.n_u, poses.n_markers
+    model = PlatformModel(spec)
+    fk = model.forward_batch(poses.controls, strict=False)
+    theta = 1e-3 * rng.normal(size=k) if theta is None else np.asarray(theta, float)
+    for th, zero in ((np.zeros(k), True), (theta, False)):
+        for what, out, shape in (("control_offset", term.control_offset(th, poses, n_u), (N, n_u)),
+                                 ("pose_offset", term.pose_offset(th, poses, fk.q, fk.X), (N, 6)),
+                                 ("marker_offset", term.marker_offset(th, poses), (N, M, 3))):
+            out = np.asarray(out, float)
+            assert out.shape == shape, f"{label}: {what} has shape {out.shape}, expected {shape}"
+            assert np.all(np.isfinite(out)), f"{label}: {what} is not finite"
+            if zero:
+                assert np.allclose(out, 0.0, atol=1e-15), f"{label}: {what} at theta = 0 is not 'no effect'"
+    stored = term.to_dict(theta, np.abs(theta))
+    back = effect.from_dict(stored, spec)
+    assert isinstance(back, ModelTerm) and back.effect == name and list(back.parameter_names) == list(term.parameter_names), \
+        f"{label}: from_dict(to_dict(...)) does not give the term back"
+    assert np.allclose(theta_from_dict(stored, back.parameter_names), theta), f"{label}: theta does not survive to_dict"
+    reg = np.asarray(effect.regressor(term, spec, poses), float)
+    assert reg.shape == (N,), f"{label}: regressor has shape {reg.shape}, expected ({N},)"
+    assert isinstance(effect.regressor_label(term), str) and effect.regressor_label(term), \
+        f"{label}: regressor_label must be a label"
+    if effect.recording:
+        onset = effect.onset(term)
+        assert onset is None or np.isfinite(float(onset)), f"{label}: onset must be a time in s or None"
+        moved = effect.moved_marker(term, theta, np.abs(theta))
+        if moved is not None:
+            m, offset, sd = moved
+            assert isinstance(m, (int, np.integer)) and 0 <= m < M, f"{label}: moved_marker's index {m!r} is no marker"
+            assert np.shape(offset) == (3,) and np.shape(sd) == (3,), f"{label}: moved_marker's offset and std are (3,)"
+        for unwritten in (None, "0.1 mm against 0.1 mm (paired p = 0.5), not 2% better"):
+            text = effect.correction(term.where, unwritten)
+            assert isinstance(text, str) and text, f"{label}: correction must be a sentence"
+
+
+def check_effect(effect, spec: PlatformSpec, seed: int = 0) -> dict:
+    """The conformance checks of a diagnosis effect (:class:`platkit.effects.Effect`), built-in or
+    outside, on the stand ``spec``: what diagnosis, calibration.yaml and the simulators rely on.
+    An IMU effect (:class:`platkit.effects.ImuEffect`) gets :func:`check_imu_effect`. Returns a
+    dict of figures; AssertionError naming the effect and the check on failure.
+
+    Checks: its name and summary; the attributes the core reads (``recording``, ``direction``,
+    ``unsettled_holds`` flags, an ``unsettled_holds`` effect being a recording artefact,
+    ``not_separable_advice`` a string, ``size_help`` a :class:`SizeHelp` or None in each
+    simulator, and given where ``simulation_term`` / ``physics`` simulate it on ``spec``); on a small
+    session of random commands, every candidate term and the simulated one: its fields, offsets of
+    the documented shapes, finite, and none at theta = 0 (diagnosis nests every model in the one
+    without it), back from its stored form, a regressor per pose, and for a recording artefact its
+    onset, moved marker and correction sentence.
+    """
+    if isinstance(effect, ImuEffect):
+        return check_imu_effect(effect, seed)
+    assert isinstance(effect, Effect), f"{effect!r}: not a platkit.effects.Effect"
+    name = effect.name
+    assert isinstance(name, str) and name, f"{effect!r}: an effect needs a name"
+    assert isinstance(effect.summary, str) and effect.summary, f"{name}: an effect needs a one-line summary"
+    for flag in ("recording", "direction", "unsettled_holds"):
+        assert isinstance(getattr(effect, flag), bool), f"{name}: {flag} must be True or False"
+    assert not effect.unsettled_holds or effect.recording, \
+        f"{name}: an unsettled_holds effect is an artefact of the recording (recording = True)"
+    assert isinstance(effect.not_separable_advice, str), f"{name}: not_separable_advice must be a string"
+    rng = np.random.default_rng(seed)
+    poses, residuals = _effect_session(spec, rng)
+    terms: list[tuple[ModelTerm, np.ndarray | None]] = [(t, None) for t in effect.candidates(spec, poses, residuals)]
+    made = effect.simulation_term(spec, None, rng, poses)
+    plan = PhysicsPlan(spec, np.asarray(poses.t, float), poses.controls, spec.neutral_u(), 1.0,
+                       float(poses.t[-1]) + 2.0, list(poses.marker_names))
+    physics = effect.physics(spec, None, rng, plan)
+    for physical, simulated in ((False, made is not None), (True, physics is not None)):
+        told = effect.size_help(physical)
+        mode = "physics" if physical else "simulation_term"
+        assert told is None or (isinstance(told, SizeHelp) and told.meaning and isinstance(told.unit, str)), \
+            f"{name}: size_help({physical}) must be a SizeHelp with a meaning and a unit, or None"
+        assert told is not None or not simulated, f"{name}: {mode} simulates the effect, but its size help is missing"
+    if made is not None:
+        term, theta = made
+        assert np.all(np.isfinite(np.asarray(theta, float))), f"{name}: simulation_term's theta is not finite"
+        terms.append((term, np.asarray(theta, float)))
+    if physics is not None:
+        assert isinstance(physics, EffectPhysics) and isinstance(physics.parameters(), dict), \
+            f"{name}: physics must give an EffectPhysics whose parameters() is a mapping"
+    for term, theta in terms:
+        _check_term(effect, term, spec, poses, theta, rng)
+    return {"effect": name, "stand": spec.name, "terms": len(terms), "recording": effect.recording,
+            "simulated": made is not None, "physics": physics is not None}

@@ -42,11 +42,12 @@ def markers_only(poses, folder):
 
 
 def run(args) -> int:
+    from platkit.diagnose import Options, diagnose
     from platkit.diagnose.report import write_outputs
-    from platkit.diagnose.search import Options, diagnose
     from platkit.io.atomic import check_output_dir
     from platkit.io.calibration import read_calibration
-    from platkit.io.session import load_session, read_session_yaml
+    from platkit.io.session import load_session
+    from platkit.io.session_yaml import read_session_yaml
     from platkit.model import length_scale
     from platkit.settle import load_poses
 

@@ -19,11 +19,11 @@ DEFAULT_IMU_NOISE = (0.002, 0.02)
 
 def effect_help() -> str:
     """The --effect help: what SIZE means for every installed effect, in both simulators (from
-    the effects' docstrings: the plugins are loaded, so only when help is shown)."""
-    from platkit.effects import size_docs
+    the effects' ``size_help``: the plugins are loaded, so only when help is shown)."""
+    from platkit.simulate.effects import size_help
 
-    sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_docs("simulation_term").items()))
-    physics_sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_docs("physics").items()))
+    sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help().items()))
+    physics_sizes = "; ".join(f"{n}: {what}" for n, what in sorted(size_help(physics=True).items()))
     return (f"hidden effect, repeatable (NAME:SIZE or NAME=SIZE). Sizes: {sizes}. With --physics: "
             f"{physics_sizes}. A base_tilt turns the whole stand in the level world: the motion capture cannot see "
             "it, an --imu's accelerometer can (its truth also goes to truth_imu.yaml)")

@@ -18,9 +18,6 @@ from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-#: effects that describe the recording, not the stand: corrected in the data, never predicted
-RECORDING_EFFECTS = ("settling_lag", "marker_slip")
-
 #: the "round" of diagnosis.json's rounds that un-name terms after the search (a search round is
 #: numbered): weakly proven names beside a lack of fit, names unproven beside the final probe,
 #: names unproven beside a model of the structure in time the location tests still find
@@ -169,6 +166,10 @@ class Diagnosis:
     at_noise_floor: bool = False  # the geometric model predicts held-out poses as well as the noise allows
     too_few_settled: bool = False  # most poses extrapolated: the stand's physics not tested (no settled poses to judge on)
     options: Options = field(default_factory=Options)  # the knobs the search ran with
+    # effect name -> what the verdict says when a term of it is not separable (Effect.not_separable_advice)
+    advice: dict[str, str] = field(default_factory=dict)
+    # effect name -> why it could not be tried (somewhere) on this stand and session (Effect.untried)
+    untried: dict[str, list[str]] = field(default_factory=dict)
 
     @property
     def final_fit(self) -> Calibration:

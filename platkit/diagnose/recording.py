@@ -1,10 +1,11 @@
-"""Recording artefacts in diagnosis: the ``settling_lag`` finding read from the raw stream (holds
-that never settled, extrapolated to rest by the settling search), the backlash such a session
-would echo, and the calibration of the stand that leaves the artefacts out (no lag, a slipped
-marker at its new place)."""
+"""Recording artefacts in diagnosis: the finding of holds that never settled, read from the raw
+stream (extrapolated to rest by the settling search) and named after the library's
+``unsettled_holds`` effect; the direction effects such a session would echo; and the calibration
+of the stand that leaves the artefacts out (the effects whose ``recording`` is True: a lag left
+out, a moved marker at its new place)."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -12,7 +13,6 @@ import numpy as np
 from platkit.diagnose.fitting import (
     FROM_SETTLED_STREAM,
     FROM_SLOW_APPROACH,
-    RECORDING_EFFECTS,
     Finding,
     Fit,
     Options,
@@ -24,42 +24,44 @@ from platkit.diagnose.fitting import (
 )
 from platkit.diagnose.naming import _without
 from platkit.diagnose.stats import paired_improvement
-from platkit.effects import history
+from platkit.effects import Effect, history
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec
+from platkit.plugins import effect_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
 
-def stand_calibration(cal: Calibration) -> Calibration:
-    """The calibration of the stand from one fitted with recording artefacts: settling_lag terms
-    left out (the stand is predicted where it settles), a slipped marker placed where it was after
-    the slip (its offset added to its position, the stds combined). Other terms stay."""
-    keep = [k for k, t in enumerate(cal.terms) if t.effect not in RECORDING_EFFECTS]
+def stand_calibration(cal: Calibration, library: Mapping[str, Effect] | None = None) -> Calibration:
+    """The calibration of the stand from one fitted with recording artefacts (the terms whose
+    effect in ``library``, default every installed effect, has ``recording`` True): their terms
+    left out (the stand is predicted where it settles), a marker one of them moved placed where it
+    moved to (``Effect.moved_marker``: its offset added to its position, the stds combined).
+    Other terms stay."""
+    library = effect_library() if library is None else library
+    artefact = [t.effect in library and library[t.effect].recording for t in cal.terms]
+    keep = [k for k, a in enumerate(artefact) if not a]
     markers = np.array(cal.marker_positions, float, copy=True)
     mstd = np.array(cal.marker_std, float, copy=True)
-    for t, theta, std in zip(cal.terms, cal.theta, cal.theta_std):
-        if t.effect == "marker_slip":
-            m = int(t.where["marker_index"])
-            markers[m] = markers[m] + np.asarray(theta, float)[:3]
-            sd = np.asarray(std, float)[:3] if std is not None else np.full(3, np.nan)
+    for t, theta, std, a in zip(cal.terms, cal.theta, cal.theta_std, artefact):
+        moved = library[t.effect].moved_marker(t, theta, std) if a else None
+        if moved is not None:
+            m, offset, sd = moved
+            markers[m] = markers[m] + offset
             mstd[m] = np.sqrt(mstd[m] ** 2 + sd**2)
     if len(keep) == len(cal.terms):
         return cal
     return replace(cal, terms=[cal.terms[k] for k in keep], theta=[cal.theta[k] for k in keep],
                    theta_std=[cal.theta_std[k] for k in keep], marker_positions=markers, marker_std=mstd)
 
-#: effects whose signature is the direction of the last move: on an actuator whose approach was
-#: extrapolated to rest, the extrapolation's remnant has the same signature
-DIRECTION_EFFECTS = ("backlash",)
-
-def _slow_actuator_echo(term: ModelTerm, settled: Finding | None, poses: PoseSet) -> bool:
-    """True for a direction-of-motion effect (a backlash) on the actuator a ``settling_lag``
-    finding named, in a session where holds were extrapolated to rest: what the approach model
-    missed lies along that actuator's last move, which is a backlash's signature, so the two
-    cannot be told apart on these data (on the physical simulator: a slow stewart leg named with a
-    backlash made held-out prediction of the settled poses worse, 0.063 -> 0.103 mm, seed 885110)."""
-    return term.effect in DIRECTION_EFFECTS and _on_slow_actuator(term, settled, poses)
+def _slow_actuator_echo(effect: Effect, term: ModelTerm, settled: Finding | None, poses: PoseSet) -> bool:
+    """True for a term of a direction effect (``Effect.direction``, a backlash) on an actuator the
+    finding of unsettled holds named, in a session where holds were extrapolated to rest: what the
+    approach model missed lies along that actuator's last move, which is a direction effect's
+    signature, so the two cannot be told apart on these data (on the physical simulator: a slow
+    stewart leg named with a backlash made held-out prediction of the settled poses worse, 0.063
+    -> 0.103 mm, seed 885110)."""
+    return effect.direction and _on_slow_actuator(term, settled, poses)
 
 
 def _on_slow_actuator(term: ModelTerm, settled: Finding | None, poses: PoseSet) -> bool:
@@ -88,21 +90,21 @@ def extrapolated_weak_echo(settled: Finding | None, poses: PoseSet, p_heldout: f
     return bool(extrapolated(poses).any())
 
 
-def settled_stream_weak_lag(term: ModelTerm, settled: Finding | None, poses: PoseSet, p_heldout: float,
+def settled_stream_weak_lag(effect: Effect, settled: Finding | None, poses: PoseSet, p_heldout: float,
                             level: float) -> bool:
-    """True for a fitted ``settling_lag`` term (a fraction of the last move, added to the poses)
-    proven only weakly (paired p above ``level``) in a session whose raw stream the settling search
+    """True for a fitted term of the ``unsettled_holds`` effect (a lag: a fraction of the last
+    move, added to the poses) proven only weakly (paired p above ``level``) in a session whose raw stream the settling search
     read and found settled (no lag read from it): the direct evidence of a lag, markers still
     moving at the end of a hold, is not there, and the term only takes a slice of some other
     structure. On the physical simulator the fitted lag term was never the right name over 13
     proof runs (slow actuators are read from the stream); once it named a weak frame sway, the
     one wrong name of 216 out-of-library sessions (proof seed 1061233, p = 0.021)."""
-    if term.effect != "settling_lag" or settled is not None or p_heldout <= level:
+    if not effect.unsettled_holds or settled is not None or p_heldout <= level:
         return False
     return (poses.settling or {}).get("sigma_m") is not None
 
 
-def weak_beside_the_recording(term: ModelTerm, settled: Finding | None, poses: PoseSet, p_heldout: float,
+def weak_beside_the_recording(effect: Effect, settled: Finding | None, poses: PoseSet, p_heldout: float,
                               level: float) -> tuple[str, str] | None:
     """(where it comes from, for not_separable; the sentence said) for a weakly proven term the
     recording does not let be named (:func:`extrapolated_weak_echo`, :func:`settled_stream_weak_lag`),
@@ -113,17 +115,28 @@ def weak_beside_the_recording(term: ModelTerm, settled: Finding | None, poses: P
                 "missed reaches every pose)",
                 f"proven only weakly ({p}) in a session whose holds were extrapolated to rest: not told apart from "
                 "the approach's remnant")
-    if settled_stream_weak_lag(term, settled, poses, p_heldout, level):
+    if settled_stream_weak_lag(effect, settled, poses, p_heldout, level):
         return (f"{FROM_SETTLED_STREAM} (held-out {p}, a weak proof of a lag the stream does "
                 "not show)",
                 f"proven only weakly ({p}), and the stream shows the holds settled")
     return None
 
 
+def unsettled_effect(library: Mapping[str, Effect]) -> Effect | None:
+    """The effect that holds which never settled are (``Effect.unsettled_holds``): the first of
+    ``library``'s, else of the installed effects' (a library given without it still names what
+    the stream shows), None when no effect is."""
+    for candidates in (library, effect_library()):
+        for effect in candidates.values():
+            if effect.unsettled_holds:
+                return effect
+    return None
+
+
 def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.ndarray, opt: Options,
-                      say: Callable[[str], None]) -> Finding | None:
-    """The ``settling_lag`` finding of holds that never settled and were extrapolated to rest by
-    the settling search, or None.
+                      say: Callable[[str], None], name: str) -> Finding | None:
+    """The finding of holds that never settled and were extrapolated to rest by the settling
+    search, named ``name`` (the ``unsettled_holds`` effect's), or None.
 
     It is made from the raw stream: the settling search extrapolated many holds (more than its
     ``max_unsettled_fraction``) and read from the direction the markers still moved which
@@ -152,9 +165,9 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
             say(f"{un['sentence']}; too few held-out settled poses ({int((~ex).sum())}) to test the extrapolation")
             return None
         rms = float(np.sqrt(np.nanmean(cur.cv)))
-        say(f"settling_lag (from the stream): {un['sentence']}; only {int((~ex).sum())} settled poses, too few to "
+        say(f"{name} (from the stream): {un['sentence']}; only {int((~ex).sum())} settled poses, too few to "
             "test the extrapolation on held-out ones: the stream's evidence stands alone")
-        return _settling_lag(un, info, poses, rms, rms, float("nan"),
+        return _settling_lag(name, un, info, poses, rms, rms, float("nan"),
                              f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their "
                              f"fitted approach (only {int((~ex).sum())} holds settled: too few to test the "
                              "extrapolation on held-out settled poses)")
@@ -171,13 +184,13 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
     after = float(np.sqrt(np.nanmean(cur.cv[~ex])))
     p = paired_improvement(base.cv[~ex], cur.cv[~ex])
     p_worse = paired_improvement(cur.cv[~ex], base.cv[~ex])
-    say(f"settling_lag (from the stream): held-out settled poses {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} "
+    say(f"{name} (from the stream): held-out settled poses {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} "
         f"(paired p = {p:.2g}; worse: p = {p_worse:.2g})")
     better = after < before and p < opt.alpha_heldout
     worse = after > before and p_worse < opt.alpha_heldout
     if not better and not (named and not worse):
         return None
-    return _settling_lag(un, info, poses, before, after, float(p),
+    return _settling_lag(name, un, info, poses, before, after, float(p),
                          f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their fitted "
                          f"approach, instead of taken where the stream was at the end of the hold, predict the "
                          f"{int((~ex).sum())} held-out settled poses at {_fmt_rms(after, unit)} against "
@@ -185,16 +198,16 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
                          + (")" if better else f"; no better, not significantly worse, p = {p_worse:.2g}: the actuators named "
                             "from the stream)"))
 
-def _settling_lag(un: dict, info: dict, poses: PoseSet, before: float, after: float, p: float,
+def _settling_lag(name: str, un: dict, info: dict, poses: PoseSet, before: float, after: float, p: float,
                   evidence: str) -> Finding:
-    """The ``settling_lag`` finding of the settling search's ``unsettled`` summary ``un``."""
+    """The finding ``name`` of the settling search's ``unsettled`` summary ``un``."""
     tau = un.get("time_constant_s")
     q = un.get("time_constant_quartiles_s") or [np.nan, np.nan]
     spread = (q[1] - q[0]) / 1.349 if np.all(np.isfinite(q)) else None
     where = {"actuator": ", ".join(un.get("actuators") or []) or "all", "markers": list(un.get("markers") or []),
              "holds": int(un.get("n", 0)), "of_commands": int(info.get("n_commands", poses.n_poses))}
     return Finding(
-        effect="settling_lag", where=where,
+        effect=name, where=where,
         parameters={"time_constant": {"value": tau, "std": spread, "unit": "s"},
                     "hold": {"value": un.get("hold_s"), "std": None, "unit": "s"}},
         heldout_rms_before=before, heldout_rms_after=after, p_heldout=p, evidence=evidence,
@@ -202,15 +215,17 @@ def _settling_lag(un: dict, info: dict, poses: PoseSet, before: float, after: fl
                    "uncertainty; calibration.yaml predicts where the stand settles"))
 
 
-def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, judged: np.ndarray,
-                   opt: Options) -> str | None:
-    """For the marker slip at ``cur.terms[k]``: when the model without it predicts the held-out
-    settled poses from the slip on as well as the model with it (not significantly worse), the
-    model change is not written: the sentence saying so is returned (None otherwise, or with too
-    few poses after the slip to tell). The slip stays a finding and in the fitted model (it is in
-    the recording, and the location tests see the data corrected), but calibration.yaml
-    predicts where the stand settles now, which the geometric fit already did: its robust weights
-    had put the marker at its new place and left its earlier half out. Fitting both places brings
+def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, effect: Effect, onset: float,
+                   judged: np.ndarray, opt: Options) -> str | None:
+    """For the recording artefact at ``cur.terms[k]`` that acts from ``onset`` on
+    (``Effect.onset``, a marker slip): when the model without it predicts the held-out settled
+    poses from the onset on as well as the model with it (not significantly worse), the model
+    change is not written: the sentence saying so (``effect.correction``) is returned (None
+    otherwise, or with too few poses after the onset to tell). The artefact stays a finding and in
+    the fitted model (it is in the recording, and the location tests see the data corrected), but
+    calibration.yaml predicts where the stand settles now, which the geometric fit already did:
+    for a slip, its robust weights had put the marker at its new place and left its earlier half
+    out. Fitting both places brings
     that half back and moves the geometry within its own uncertainty, better or worse by chance
     (final proofs of 73295c8: 21 such sessions, 7 worse by 0.05-1.24 um on the rows after the slip,
     12 better). Only a change that predicts better is written, by the gain every other term must
@@ -218,7 +233,7 @@ def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, judged:
     after it 0.8% better in the folds (p = 0.014), predicted the truth 5% worse (0.0115 -> 0.0121
     mm)."""
     term = cur.terms[k]
-    after = judged & (np.asarray(history(poses, "elapsed"), float) >= float(term.where["from_time_s"])) & np.isfinite(cur.cv)
+    after = judged & (np.asarray(history(poses, "elapsed"), float) >= onset) & np.isfinite(cur.cv)
     if after.sum() < 2 * opt.folds:
         return None
     wo = _without(spec, poses, cur, {k}, opt)
@@ -228,8 +243,5 @@ def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, judged:
     if with_rms < (1 - opt.min_relative_gain) * without_rms and p < opt.alpha_heldout:
         return None
     unit = poses.length_unit
-    return (f"in the data: marker {term.where.get('marker')} is fitted at both places; the fit without the slip had "
-            f"already placed it where it was after the slip (its earlier half left out as outliers), and fitting both "
-            f"places predicts the held-out poses from the slip on at {_fmt_rms(with_rms, unit)} against "
-            f"{_fmt_rms(without_rms, unit)} (paired p = {p:.2g}), not {100 * opt.min_relative_gain:g}% better: "
-            "calibration.yaml is the fit without the slip, the marker at its place after it")
+    return effect.correction(term.where, f"{_fmt_rms(with_rms, unit)} against {_fmt_rms(without_rms, unit)} "
+                                         f"(paired p = {p:.2g}), not {100 * opt.min_relative_gain:g}% better")

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from platkit.diagnose.search import Diagnosis, Finding
+from platkit.diagnose.fitting import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.calibration import write_calibration_yaml
 from platkit.io.figures import png_base64 as _png

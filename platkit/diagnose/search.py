@@ -24,13 +24,13 @@ One round (repeated until nothing passes or ``max_effects`` are in):
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
 
-Two effects describe the recording, not the stand (RECORDING_EFFECTS: settling_lag, marker_slip):
-they are fitted like the others, so that the geometry is estimated from corrected data, but the
-calibration diagnosis writes predicts where the stand settles: without the lag, with a slipped
-marker at its new place (:func:`stand_calibration`). Holds that never settled are found in the
-raw stream by the settling search (platkit.settle); when it extrapolated them to rest,
-the ``settling_lag`` finding says which actuators lag and with what time constant, and is
-accepted only if the calibration from the extrapolated poses predicts the held-out *settled*
+Effects whose ``recording`` is True describe the recording, not the stand (a lag, a slipped
+marker): they are fitted like the others, so that the geometry is estimated from corrected data,
+but the calibration diagnosis writes predicts where the stand settles: without the lag, with a
+moved marker at its new place (:func:`stand_calibration`). Holds that never settled are found in
+the raw stream by the settling search (platkit.settle); when it extrapolated them to rest, the
+finding of the ``unsettled_holds`` effect says which actuators lag and with what time constant,
+and is accepted only if the calibration from the extrapolated poses predicts the held-out *settled*
 poses better than one from where the stream was at the end of those holds.
 
 Nothing is named when the geometric model already predicts held-out poses at the noise floor
@@ -48,16 +48,17 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem, calibrate, point_errors
-from platkit.calibrate.selection import parameter_groups
+from platkit.calibrate.selection import parameter_groups, reselect_geometry
 from platkit.diagnose.floor import noise_floor
 from platkit.diagnose.locate import locate, located
 from platkit.diagnose.stats import column_basis, holm, paired_improvement, score_test
-from platkit.effects import Effect, effect_library, with_history
+from platkit.effects import Effect, with_history
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
+from platkit.plugins import effect_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, RECORDING_EFFECTS, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME, ROUND_WEAK_NAMES,
+from platkit.diagnose.fitting import (FROM_SLOW_APPROACH, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME, ROUND_WEAK_NAMES,
                                        Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _obs, _rms, _where_text,
                                        body_residuals, extrapolated)
 from platkit.diagnose.lack_of_fit import lack_of_fit
@@ -71,18 +72,16 @@ from platkit.diagnose.naming import (
     _without,
 )
 from platkit.diagnose.recording import (
-    DIRECTION_EFFECTS,
     _settling_finding,
     _slip_not_kept,
     _slow_actuator_echo,
-    weak_beside_the_recording,
     stand_calibration,
+    unsettled_effect,
+    weak_beside_the_recording,
 )
 from platkit.diagnose.verdict import verdict
 
-#: the names other modules import from here (the objects live in fitting, naming, recording, verdict)
-__all__ = ["RECORDING_EFFECTS", "DIRECTION_EFFECTS", "Options", "Fit", "Finding", "Diagnosis", "diagnose", "screen",
-           "confirm", "noise_floor", "stand_calibration", "verdict"]
+__all__ = ["diagnose", "screen", "confirm"]
 
 
 def _weighted_system(fit: Fit, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,7 +202,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     if floor is not None:
         say(f"noise floor of held-out prediction: {_fmt_rms(floor, unit)}"
             + (" (the geometric model is at it: nothing left to find)" if at_floor else ""))
-    settled = _settling_finding(spec, poses, cur, weights, opt, say)
+    lag_effect = unsettled_effect(library)
+    settled = None if lag_effect is None else _settling_finding(spec, poses, cur, weights, opt, say, lag_effect.name)
     if settled is not None:
         findings.append(settled)
     # held-out proof on poses where the stand settled: an extrapolated pose carries what its
@@ -223,12 +223,12 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         taken = {_place(t) for t in cur.terms}
         body_r = body_residuals(cur, poses)
         for eff in library.values():
-            if eff.name == "settling_lag" and settled is not None:
+            if eff.unsettled_holds and settled is not None:
                 continue  # the lag is already read from the stream and corrected in the data
             for term in eff.candidates(spec, poses, body_r):
                 if _place(term) in taken or _place(term) in echoes:  # one term of a kind per actuator / marker
                     continue
-                if _slow_actuator_echo(term, settled, poses):
+                if _slow_actuator_echo(eff, term, settled, poses):
                     not_separable[(eff.name, _where_text(term.where))] = {
                         "effect": eff.name, "where": term.where, "separability": 0.0,
                         "from": f"{FROM_SLOW_APPROACH} (an unfinished approach along the last "
@@ -274,7 +274,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
             break
         i, best, ph = good
         eff, term = cands[i]
-        weak = weak_beside_the_recording(term, settled, poses, ph, opt.weak_alpha)
+        weak = weak_beside_the_recording(eff, settled, poses, ph, opt.weak_alpha)
         if weak is not None:  # a weak proof the recording (an extrapolated approach, settled holds) contradicts
             echoes.add(_place(term))
             not_separable[(eff.name, _where_text(term.where))] = {
@@ -317,6 +317,12 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         accepted_info.append({"fit": best, "J": Jc})
         say(f"accepted {eff.name} ({_where_text(term.where)})")
         cur = best
+        if opt.reopen_geometry and not eff.recording:  # the geometry chosen again beside the physics
+            again = _reselected(spec, poses, cur, free, judged, opt, platform_options)
+            if again is not None:
+                again[2]["after"] = f"{eff.name} ({_where_text(term.where)})"
+                cur, free, rounds[-1]["geometry_reselected"] = again
+                say(again[2]["text"])
     if not stop and stop_unexplained is None and floor is not None and len(cur.terms) > len(prior):
         weak = _weak_beside_lack_of_fit(cur, poses, spec, findings, floor, judged, weights, len(prior), opt)
         if weak:
@@ -360,11 +366,13 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     slip_notes: dict[int, str] = {}
     if not stop and stop_unexplained is None:
         for k in range(len(prior), len(cur.terms)):
-            if cur.terms[k].effect == "marker_slip":
-                note = _slip_not_kept(spec, poses, cur, k, judged, opt)
+            eff = library.get(cur.terms[k].effect)
+            onset = eff.onset(cur.terms[k]) if eff is not None and eff.recording else None
+            if eff is not None and onset is not None:
+                note = _slip_not_kept(spec, poses, cur, k, eff, onset, judged, opt)
                 if note is not None:
                     slip_notes[id(cur.terms[k])] = note
-                    say(f"marker_slip ({_where_text(cur.terms[k].where)}): {note}")
+                    say(f"{eff.name} ({_where_text(cur.terms[k].where)}): {note}")
     final_cal, unchanged = refit(cur.terms)
     modelled = [f for f in findings if f.term is not None]
     for k, (finding, info) in enumerate(zip(modelled, accepted_info), start=len(prior)):
@@ -409,7 +417,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     findings.sort(key=lambda f: -(f.heldout_rms_before - f.heldout_rms_after) if f.effect != "unexplained" else 0)
     # calibration.yaml without the slips whose model change predicts no better
     written, as_given = refit([t for t in cur.terms if id(t) not in slip_notes]) if slip_notes else (final_cal, unchanged)
-    stand = stand_calibration(written)
+    stand = stand_calibration(written, library)
     if start is not None and as_given:
         # nothing modelled and the geometry's free set as given: the calibration given is what
         # diagnosis writes, unchanged (a refit from it can wander within the estimate's own
@@ -417,15 +425,10 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         # proof seed 931112, moved u0_B by one standard error and the settled poses' held-out
         # prediction 0.121 -> 0.125 mm, with no finding that changes the model)
         stand = start
-    for f in findings:
-        if f.effect == "settling_lag" and f.term is not None:
-            f.corrected = ("in the data: the lag is fitted so that the geometry sees where the stand settles; "
-                           "calibration.yaml leaves it out (predict gives the settled pose)")
-        elif f.effect == "marker_slip" and f.term is not None and id(f.term) in slip_notes:
-            f.corrected = slip_notes[id(f.term)]
-        elif f.effect == "marker_slip":
-            f.corrected = (f"in the data: marker {f.where.get('marker')} is fitted at both places; calibration.yaml "
-                           "holds its place after the slip")
+    for f in findings:  # a recording artefact's term is corrected in the data
+        eff = library.get(f.effect)
+        if f.term is not None and eff is not None and eff.recording:
+            f.corrected = slip_notes.get(id(f.term)) or eff.correction(f.where)
     heldout_info = None
     if heldout is not None:
         heldout_info = _score_heldout(base_cal, stand, heldout, spec, findings)
@@ -433,7 +436,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
                      locations_before=locations_before, rounds=rounds, not_separable=list(not_separable.values()),
                      unit=unit, poses=poses, heldout_session=heldout_info, fitted=final_cal, noise_floor=floor,
                      heldout_geometric=first_cv, at_noise_floor=at_floor, too_few_settled=bool(too_few_settled),
-                     options=opt)
+                     options=opt, advice={n: e.not_separable_advice for n, e in library.items() if e.not_separable_advice},
+                     untried={n: r for n, e in library.items() if (r := e.untried(spec, poses))})
     diag.verdict = verdict(diag)
     return diag
 
@@ -488,6 +492,32 @@ def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] 
             "--keep-geometry keeps the calibration's free set")
     return f, trial, {"groups": held, "heldout_rms_before": before, "heldout_rms_after": after, "p_heldout": float(p),
                       "text": text}
+
+def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] | None, judged: np.ndarray,
+                opt: Options, platform_options: dict | None) -> tuple[Fit, list[str], dict] | None:
+    """After an effect of the stand is accepted, the geometry's model selection made again beside
+    the accepted terms (platkit.calibrate.selection.reselect_geometry), as (fit, free names, note),
+    when it chooses another free set that predicts the held-out ``judged`` poses no worse than
+    ``cur``; else None. A group chosen with the physics still in the residual may stand in for it
+    (a torso joint's scale for its gravity sag): beside the physics it no longer earns its place."""
+    if free is None:
+        return None
+    cal = reselect_geometry(poses, spec, cur.terms, robust=opt.robust, platform_options=platform_options)
+    chosen = [n for n, st in zip(spec.parameter_names, cal.td_status) if st == "estimated"]
+    if set(chosen) == set(free):
+        return None
+    f = _fit(spec, poses, cur.terms, cal.extras["z"], cal.extras["active"], cur.weights, opt.lm_iterations, opt.robust)
+    f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
+    before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
+    if not after <= before:
+        return None
+    sel = cal.identifiability.get("model_selection") or {}
+    unit = poses.length_unit
+    text = (f"geometry chosen again beside {', '.join(t.effect for t in cur.terms)}: free "
+            f"{', '.join(sel.get('chosen', [])) or 'none'} (held {', '.join(sel.get('held', [])) or 'none'}), held-out "
+            f"RMS {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)}; --keep-geometry keeps the calibration's free set")
+    return f, chosen, {"chosen": list(sel.get("chosen", [])), "held": list(sel.get("held", [])),
+                       "heldout_rms_before": before, "heldout_rms_after": after, "text": text}
 
 def _best_variant(i0: int, cands: list, scr: list, cur: Fit, spec: PlatformSpec, poses: PoseSet,
                   weights: np.ndarray, opt: Options) -> tuple[int, Fit]:

@@ -61,13 +61,20 @@ def verdict(d: Diagnosis) -> str:
                          f"({', '.join(note['groups'])}) was freed again: it predicts held-out poses "
                          f"better ({_fmt_rms(note['heldout_rms_before'], unit)} -> "
                          f"{_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates it (--keep-geometry: not).")
+    for r in d.rounds:
+        note = r.get("geometry_reselected")
+        if note:
+            parts.append(f"After {note['after']} was accepted, the geometry's model "
+                         f"selection was made again beside it: it frees {', '.join(note['chosen']) or 'no group'} and "
+                         f"holds {', '.join(note['held']) or 'none'} (held-out {_fmt_rms(note['heldout_rms_before'], unit)} "
+                         f"-> {_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates that set.")
     corrected = [f for f in named if f.corrected]
     if corrected:
         parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
                      "the recording, not the stand: corrected in the data, and calibration.yaml predicts where the "
                      "stand settles.")
     un = (d.poses.settling or {}).get("unsettled") or {}
-    if un and not any(f.effect == "settling_lag" and f.term is None for f in named):
+    if un and not any(f.term is None for f in named):  # the stream's own finding says it
         parts.append(f"Settling: {un['sentence']}.")
     if d.too_few_settled:
         parts.append("Most holds never settled: the stand's physics was not tested, for lack of settled poses to "
@@ -125,9 +132,10 @@ def verdict(d: Diagnosis) -> str:
         parts.append("Not separable from the geometry on this design (not tested further): "
                      + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in geometry[:5])
                      + (f" and {len(geometry) - 5} more" if len(geometry) > 5 else "") + ".")
-        if any(x["effect"] == "cyclic_error" for x in geometry):
-            parts.append("A periodic error is invisible when every command sits at the same phase of its period "
-                         "(a grid whose steps are a multiple of it): record a random or dithered plan to test it.")
+        for name in sorted({x["effect"] for x in geometry} & set(d.advice)):
+            parts.append(d.advice[name])
+    for name, reasons in d.untried.items():
+        parts.append(f"Not tried: {name} where {'; and where '.join(reasons)}.")
     if d.heldout_session is not None:
         h = d.heldout_session
         parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.effects import ImuEffect, effect_library, imu_sensor_model
+from platkit.effects import ImuEffect, imu_sensor_model
 from platkit.errors import BadInput
 from platkit.geometry import (
     matrix_from_quat,
@@ -43,6 +43,7 @@ from platkit.io.atomic import atomic_output_dir
 from platkit.io.imu import write_imu_csv
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_from_si
+from platkit.plugins import effect_library
 
 G_STANDARD = 9.80665
 
@@ -68,17 +69,27 @@ def _tilt(value) -> np.ndarray:
     return w
 
 
+def keyword_effect(keyword: str) -> ImuEffect:
+    """The installed IMU effect whose theta the keyword ``keyword`` of :func:`imu_from_motion`
+    gives (its ``simulation_keyword``); BadInput when no installed effect takes it."""
+    for effect in effect_library().values():
+        if isinstance(effect, ImuEffect) and effect.simulation_keyword == keyword:
+            return effect
+    raise BadInput(f"{keyword}: no installed IMU effect simulates it (an ImuEffect with simulation_keyword {keyword!r})")
+
+
 def named_effects(base_tilt=None, bias_rate=None) -> list[tuple[ImuEffect, np.ndarray]]:
-    """The registered ``imu_base_tilt`` and ``gyro_bias_drift`` effects for a base tilt (2,) rad
-    about the base's x and y axes and a linear gyro bias drift (3,) rad/s per s (None: none)."""
+    """The installed IMU effects for a base tilt (2,) rad about the base's x and y axes and a
+    linear gyro bias drift (3,) rad/s per s (None: none), as (effect, theta): the effects whose
+    ``simulation_keyword`` is 'base_tilt' and 'bias_rate'."""
     out = []
     if base_tilt is not None:
-        out.append((effect_library()["imu_base_tilt"], _tilt(base_tilt)))
+        out.append((keyword_effect("base_tilt"), _tilt(base_tilt)))
     if bias_rate is not None:
         rate = np.asarray(bias_rate, float)
         if rate.shape != (3,) or not np.all(np.isfinite(rate)):
             raise BadInput(f"bias_rate: expected 3 numbers (gyro x, y, z rad/s per s), got shape {rate.shape}")
-        out.append((effect_library()["gyro_bias_drift"], rate))
+        out.append((keyword_effect("bias_rate"), rate))
     return out
 
 

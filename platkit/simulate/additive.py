@@ -74,11 +74,11 @@ def _commands_poseset(spec, U, t, marker_names) -> PoseSet:
 
 
 def _imu_truth_of_terms(truth_imu: dict, terms) -> None:
-    """Add what pose effects do to an IMU's truth: a ``base_tilt`` term turns the whole stand
-    about the base's x and y axes in the level world (the mocap transform absorbs it, gravity in
-    the model's base frame turns with it), so the accelerometer sees a base tilted by its
-    (tilt_x, tilt_y); they add to a tilt the IMU hook was given (``base_tilt_rad``)."""
-    tilts = [np.asarray(theta, float)[:2] for term, theta in terms if term.effect == "base_tilt"]
+    """Add what pose effects do to an IMU's truth: a term with a ``level_tilt`` turns the whole
+    stand about the base's x and y axes in the level world (the mocap transform absorbs it, gravity
+    in the model's base frame turns with it), so the accelerometer sees a base tilted by it; the
+    tilts add to one the IMU hook was given (``base_tilt_rad``)."""
+    tilts = [t for t in (term.level_tilt(np.asarray(theta, float)) for term, theta in terms) if t is not None]
     if tilts:
         truth_imu["base_tilt_rad"] = (np.asarray(truth_imu.get("base_tilt_rad", np.zeros(2)), float)
                                       + np.sum(tilts, axis=0)).tolist()

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.effects import effect_library, size_docs
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
+from platkit.plugins import effect_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
@@ -37,15 +37,16 @@ def simulation_term(name: str, spec: PlatformSpec, size: float | None, rng: np.r
     return made
 
 
-def _docstring_sizes(method: str) -> dict[str, str]:
-    return size_docs(method)
-
-
 def size_help(physics: bool = False) -> dict[str, str]:
-    """Effect name -> what its ``--effect NAME=SIZE`` size means: the docstring of the effect's
-    ``simulation_term`` (additive mode) or ``physics`` (``physics``), for every installed effect
-    that has one."""
-    return _docstring_sizes("physics" if physics else "simulation_term")
+    """Effect name -> what its ``--effect NAME=SIZE`` size means (``Effect.size_help``: its meaning
+    and unit) in the additive simulator, or the time-domain one (``physics``), for every installed
+    effect that says."""
+    out = {}
+    for name, effect in effect_library().items():
+        told = effect.size_help(physics)
+        if told is not None:
+            out[name] = told.text()
+    return out
 
 
 def parse_effect(text: str) -> tuple[str, float | None]:

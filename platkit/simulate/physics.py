@@ -39,7 +39,7 @@ import numpy as np
 import yaml
 
 from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
-from platkit.effects import EffectPhysics, PhysicsPlan, PhysicsSeries, effect_library
+from platkit.effects import EffectPhysics, PhysicsPlan, PhysicsSeries
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, transform
 from platkit.inertial.simulate import imu_for_trajectory
@@ -47,6 +47,7 @@ from platkit.io.atomic import atomic_output_dir
 from platkit.io.jsonout import plain
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, controls_from_si, length_scale
+from platkit.plugins import effect_library
 from platkit.simulate.actuator import ActuatorResponse, actuator_motion, profile_duration
 from platkit.simulate.continuous import continuous_plan
 from platkit.simulate.files import csv_text, fmt, write_imu_files

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import Effect
+from platkit.effects import Effect, SizeHelp
 from platkit.terms import ModelTerm
 from platkit_effects.common import _platform_model
 from platkit_effects.physics import BaseTiltPhysics
@@ -13,6 +13,9 @@ from platkit_effects.physics import BaseTiltPhysics
 
 @dataclass
 class BaseTiltTerm(ModelTerm):
+    def level_tilt(self, theta):
+        return np.asarray(theta, float)[:2]
+
     def pose_offset(self, theta, poses, fk_q, fk_X):
         w = np.array([theta[0], theta[1], 0.0])
         out = np.zeros((poses.n_poses, 6))
@@ -24,6 +27,8 @@ class BaseTiltTerm(ModelTerm):
 class BaseTilt(Effect):
     name = "base_tilt"
     summary = "the base, or the mocap vertical, tilted against the model's"
+    simulation_size = SizeHelp("the tilt, about a random horizontal axis", "mrad")
+    physics_size = SizeHelp("the tilt of the base against the level world, about a random horizontal axis", "mrad")
 
     def term(self):
         return BaseTiltTerm(self.name, ["tilt_x", "tilt_y"], np.zeros(2), ["rad", "rad"], {"frame": "base"})
@@ -42,11 +47,9 @@ class BaseTilt(Effect):
         return self.term()
 
     def simulation_term(self, spec, size, rng, commands):
-        """``size``: the tilt in mrad, about a random horizontal axis."""
         a = rng.uniform(0, 2 * np.pi)
         return self.term(), (2.0 if size is None else float(size)) * 1e-3 * np.array([np.cos(a), np.sin(a)])
 
     def physics(self, spec, size, rng, plan):
-        """``size``: the tilt in mrad of the base against the level world, about a random horizontal axis."""
         a = rng.uniform(0, 2 * np.pi)
         return BaseTiltPhysics((2.0 if size is None else float(size)) * 1e-3 * np.array([np.cos(a), np.sin(a)]))

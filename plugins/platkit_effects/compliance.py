@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.effects import Effect
+from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
@@ -141,6 +141,8 @@ def _stand_where(spec: PlatformSpec) -> dict:
 class Compliance(Effect):
     name = "compliance"
     summary = "deflection that grows with the load an actuator or joint carries"
+    simulation_size = SizeHelp("the largest deflection of an actuator over the commands", CONTROL_SIZE_UNIT)
+    physics_size = simulation_size
 
     def term(self, spec, i):
         if i is None:

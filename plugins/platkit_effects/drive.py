@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import Effect, history
+from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp, history
 from platkit.errors import BadInput
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
@@ -26,6 +26,9 @@ class BacklashTerm(ModelTerm):
 
 class Backlash(Effect):
     name = "backlash"
+    direction = True
+    simulation_size = SizeHelp("the full play", CONTROL_SIZE_UNIT)
+    physics_size = SizeHelp("the full play, a deadband in the drive", CONTROL_SIZE_UNIT)
     summary = "an actuator's position depends on the direction it last moved"
 
     def term(self, i, where):
@@ -47,12 +50,10 @@ class Backlash(Effect):
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit})
 
     def simulation_term(self, spec, size, rng, commands):
-        """(term, theta) for the simulator: ``size`` the full play (mm for length controls)."""
         i = int(rng.integers(spec.n_u))
         return self.term(i, _actuator_where(spec, i)), np.array([0.5 * _size(spec, i, size, 1.0)])
 
     def physics(self, spec, size, rng, plan):
-        """``size``: the full play (mm for length controls, else the control's unit), a deadband in the drive."""
         i = int(rng.integers(spec.n_u))
         return BacklashPhysics(i, spec.control_names[i], _size(spec, i, size, 1.0), spec.controls[i].unit)
 
@@ -92,6 +93,10 @@ def _draw_cyclic(spec, size, rng, controls: np.ndarray) -> tuple[int, float, flo
 
 class CyclicError(Effect):
     name = "cyclic_error"
+    not_separable_advice = ("A periodic error is invisible when every command sits at the same phase of its period "
+                            "(a grid whose steps are a multiple of it): record a random or dithered plan to test it.")
+    simulation_size = SizeHelp("the amplitude, of a period from PERIODS that the commands span", CONTROL_SIZE_UNIT)
+    physics_size = SizeHelp("the amplitude of a gear's error periodic in the actuator's true position", CONTROL_SIZE_UNIT)
     summary = "an error periodic in an actuator's angle or travel (gear or encoder eccentricity)"
 
     def term(self, i, where, period):
@@ -120,12 +125,10 @@ class CyclicError(Effect):
                          _number(_where(data), "period", self.name, positive=True))
 
     def simulation_term(self, spec, size, rng, commands):
-        """``size``: amplitude (mm for lengths); period: one of PERIODS the commands span."""
         i, P, a, ph = _draw_cyclic(spec, size, rng, commands.controls)
         return self.term(i, _actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
 
     def physics(self, spec, size, rng, plan):
-        """``size``: the amplitude (mm for lengths) of a gear's error periodic in the actuator's true position."""
         i, P, a, ph = _draw_cyclic(spec, size, rng, plan.commands)
         return CyclicPhysics(i, spec.control_names[i], P, a * np.cos(ph), a * np.sin(ph), spec.controls[i].unit)
 
@@ -148,6 +151,8 @@ class ScaleTerm(ModelTerm):
 
 class ScaleNonlinearity(Effect):
     name = "scale_nonlinearity"
+    simulation_size = SizeHelp("the largest deviation from linear travel, at the stroke ends", CONTROL_SIZE_UNIT)
+    physics_size = simulation_size
     summary = "an actuator's travel not linear in its command"
 
     def term(self, i, where, lower, upper):
@@ -180,7 +185,6 @@ class ScaleNonlinearity(Effect):
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit}, *travel)
 
     def simulation_term(self, spec, size, rng, commands):
-        """``size``: the largest deviation from linear travel, at the stroke ends (mm for lengths)."""
         terms = self.candidates(spec, commands)
         if not terms:
             raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
@@ -188,7 +192,6 @@ class ScaleNonlinearity(Effect):
         return t, np.array([_size(spec, t.index, size, 1.0), 0.0])
 
     def physics(self, spec, size, rng, plan):
-        """``size``: the largest deviation from linear travel, at the stroke ends (mm for lengths)."""
         terms = [t for t in self.candidates(spec, PoseSet(spec.name, plan.commands, np.zeros((len(plan.commands), 0, 3)), []))]
         if not terms:
             raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")

@@ -82,6 +82,7 @@ class GyroBiasDrift(ImuEffect):
     parameter_names = ("drift_x", "drift_y", "drift_z")
     display_unit = "deg/s per min"
     display_scale = DEG * 60.0
+    simulation_keyword = "bias_rate"
 
     def gyro_bias(self, theta, t):
         return np.asarray(t, float)[:, None] * np.asarray(theta, float)[None, :]
@@ -166,6 +167,7 @@ class ImuBaseTilt(ImuEffect):
     display_scale = DEG
     min_size = MIN_TILT_DEG
     min_separability = MIN_TILT_SEPARABILITY
+    simulation_keyword = "base_tilt"
     reported_as = "base_tilt"
 
     def level_from_base(self, theta):

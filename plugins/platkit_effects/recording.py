@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import Effect, history
+from platkit.effects import Effect, SizeHelp, history
 from platkit.errors import BadInput
 from platkit.terms import ModelTerm
 from platkit_effects.common import _number, _where
@@ -23,6 +23,14 @@ class SettlingTerm(ModelTerm):
 class SettlingLag(Effect):
     name = "settling_lag"
     summary = "the pose was recorded before the platform settled"
+    recording = True
+    unsettled_holds = True
+    simulation_size = SizeHelp("the fraction of the last step not yet made", "")
+    physics_size = SizeHelp("the time constant of one slow actuator, as a share of the hold (default 0.5)", "")
+
+    def correction(self, where, unwritten=None):
+        return ("in the data: the lag is fitted so that the geometry sees where the stand settles; "
+                "calibration.yaml leaves it out (predict gives the settled pose)")
 
     def term(self):
         return SettlingTerm(self.name, ["lag_fraction"], np.zeros(1), ["1"],
@@ -43,11 +51,9 @@ class SettlingLag(Effect):
         return self.term()
 
     def simulation_term(self, spec, size, rng, commands):
-        """``size``: the fraction of the last step not yet made."""
         return self.term(), np.array([0.003 if size is None else float(size)])
 
     def physics(self, spec, size, rng, plan):
-        """``size``: the time constant of one slow actuator, as a share of the hold (default 0.5)."""
         i = int(rng.integers(spec.n_u))
         share = 0.5 if size is None else float(size)
         if not share > 0:
@@ -104,6 +110,24 @@ class MarkerSlipTerm(ModelTerm):
 class MarkerSlip(Effect):
     name = "marker_slip"
     summary = "a marker moved on the platform during the session"
+    recording = True
+    simulation_size = SizeHelp("the jump, halfway through the session, of a random marker", "mm")
+    physics_size = SizeHelp("the jump of a random marker, at a random instant in the middle half of the session", "mm")
+
+    def onset(self, term):
+        return float(term.where["from_time_s"])
+
+    def moved_marker(self, term, theta, std):
+        sd = np.asarray(std, float)[:3] if std is not None else np.full(3, np.nan)
+        return int(term.where["marker_index"]), np.asarray(theta, float)[:3], sd
+
+    def correction(self, where, unwritten=None):
+        marker = f"in the data: marker {where.get('marker')} is fitted at both places"
+        if unwritten is None:
+            return f"{marker}; calibration.yaml holds its place after the slip"
+        return (f"{marker}; the fit without the slip had already placed it where it was after the slip (its earlier "
+                f"half left out as outliers), and fitting both places predicts the held-out poses from the slip on at "
+                f"{unwritten}: calibration.yaml is the fit without the slip, the marker at its place after it")
 
     def term(self, name, m, t_slip):
         return MarkerSlipTerm(self.name, ["dx", "dy", "dz"], np.zeros(3), ["m"] * 3,
@@ -142,7 +166,6 @@ class MarkerSlip(Effect):
         return self.term(where.get("marker", m), m, _number(where, "from_time_s", self.name))
 
     def simulation_term(self, spec, size, rng, commands):
-        """``size``: the jump in mm, halfway through the session, of a random marker."""
         m = int(rng.integers(commands.n_markers))
         t = history(commands, "elapsed")
         t_slip = 0.5 * (t[len(t) // 2 - 1] + t[len(t) // 2])
@@ -151,7 +174,6 @@ class MarkerSlip(Effect):
         return self.term(commands.marker_names[m], m, t_slip), d
 
     def physics(self, spec, size, rng, plan):
-        """``size``: the jump in mm of a random marker, at a random instant in the middle half of the session."""
         m = int(rng.integers(len(plan.marker_names)))
         t0 = float(plan.command_t[0])
         t_s = float(rng.uniform(t0 + 0.25 * (plan.end_s - t0), t0 + 0.75 * (plan.end_s - t0)))

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.effects import Effect, history
+from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp, history
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -116,6 +116,10 @@ def _strokes(spec: PlatformSpec) -> np.ndarray:
 class ThermalDrift(Effect):
     name = "thermal_drift"
     summary = "actuators that lengthen with the heat of their own motion, or a slow drift in time"
+    simulation_size = SizeHelp("the drift of the moving frame, in a random horizontal-ish direction", "mm per hour")
+    physics_size = SizeHelp("the largest lengthening of an actuator over the session, from heat that grows with the "
+                            "distance each actuator moves and cools with a time constant of 5 to 15 minutes",
+                            CONTROL_SIZE_UNIT)
 
     def term(self):
         return ThermalDriftTerm(self.name, ["vx", "vy", "vz"], np.zeros(3), ["m/s"] * 3,

@@ -182,8 +182,9 @@ def test_example_session_recovers_the_simulated_truth(tmp_path, capsys):
 def test_model_terms_survive_the_file_and_predict(stewart_session, tmp_path):
     from platkit.calibrate.estimate import calibrate, predict_markers
     from platkit.calibrate.report import write_outputs
-    from platkit.effects import effect_library, with_history
+    from platkit.effects import with_history
     from platkit.io.session import load_session
+    from platkit.plugins import effect_library
     from platkit.settle import load_poses
 
     folder, _ = stewart_session

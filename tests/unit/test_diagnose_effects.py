@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from platkit.effects import effect_library, move_direction, term_from_dict, with_history
+from platkit.effects import move_direction, with_history
+from platkit.plugins import effect_library, term_from_dict
 from platkit.errors import BadInput
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet

@@ -12,12 +12,11 @@ import yaml
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
 from platkit.diagnose.imu import diagnose_imu, td_covariance
-from platkit.effects import effect_library
 from platkit.errors import NotIdentifiable
 from platkit.geometry import matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
 from platkit.io.imu import ImuStream
-from platkit.plugins import get_platform
+from platkit.plugins import effect_library, get_platform
 from platkit.simulate import simulate
 
 DEG = 180.0 / np.pi

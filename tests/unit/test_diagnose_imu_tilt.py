@@ -14,12 +14,11 @@ import yaml
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
 from platkit.diagnose.imu import DEG, diagnose_imu, frame_gauge, td_covariance, up_in_sensor
-from platkit.effects import effect_library
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.inertial.simulate import imu_for_trajectory
 from platkit.io.calibration import read_calibration
 from platkit.io.imu import ImuStream
-from platkit.plugins import default_host, get_platform
+from platkit.plugins import default_host, effect_library, get_platform
 from platkit.simulate import simulate
 
 #: a constant gyro bias (rad/s) and accelerometer bias (m/s^2) in every case: normal, never a finding

@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 import platkit.simulate.physics as physics_module
-from platkit.diagnose.search import Options, diagnose
+from platkit.diagnose import Options, diagnose
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.settle import settle

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.selection import parameter_groups
-from platkit.diagnose.search import Options, diagnose
+from platkit.diagnose import Options, diagnose
 from platkit.plugins import get_platform
 from platkit.simulate import simulate
 from platkit.simulate.physics import simulate_physics, write_physical_session

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.estimate import calibrate
-from platkit.diagnose.search import Options, diagnose, noise_floor, stand_calibration
-from platkit.effects import effect_library
+from platkit.diagnose import Options, diagnose
+from platkit.diagnose.floor import noise_floor
+from platkit.diagnose.recording import stand_calibration
 from platkit.io.session import Session
-from platkit.plugins import get_platform
+from platkit.plugins import effect_library, get_platform
 from platkit.settle import settle
 from platkit.simulate import simulate
 

@@ -289,7 +289,8 @@ def test_plausible_range_stops_the_geometry_wandering_off():
     geometry metres away (a rod of several metres fits the poses as well); the plausible range
     keeps td within 100 typical corrections and names what reached its edge; with the effect
     modelled nothing is near the edge and the amplitude is recovered."""
-    from platkit.effects import effect_library, with_history
+    from platkit.effects import with_history
+    from platkit.plugins import effect_library
     from platkit.simulate import simulate
 
     spec = get_platform("psvr")

@@ -45,6 +45,7 @@ from platkit.effects import Effect, ImuEffect, imu_effects
 from platkit.inertial.command_aided import command_poses
 from platkit.io.imu import ImuStream
 from platkit.kinematics import PlatformModel
+from platkit.plugins import effect_library
 
 DEG = 180.0 / np.pi
 #: the units findings are shown in, by sensor: (name, scale from SI)
@@ -165,7 +166,7 @@ def diagnose_segments(seg: Segments, alpha: float = 0.01, alpha_heldout: float =
     ones (:func:`frame_gauge`). An effect must exceed what they allow (Wald test with every
     covariance at ``alpha``) and its ``min_size``; an effect is not tested where its separability
     is below its ``min_separability``."""
-    effects = list(imu_effects(library).values())
+    effects = list(imu_effects(effect_library() if library is None else library).values())
     has_acc = seg.holds is not None
     gyro_all = tuple(e for e in effects if e.sensor == "gyro")
     acc_all = tuple(e for e in effects if e.sensor == "accelerometer") if has_acc else ()
