@@ -20,12 +20,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.errors import BadInput, PlatkitError
+from platkit.errors import BadInput, ComputationFailed, PlatkitError
 from platkit.kinematics import PlatformModel
+from platkit.kinematics.sampling import controls_of_poses, pose_grid
 from platkit.model import PlatformSpec
 
 #: |F| (m) above which a grid pose's inverse is not trusted to close the constraints
 CLOSE_TOL = 1e-8
+#: a swept coordinate whose admissible values span no more than this (m or rad) is degenerate
+DEGENERATE_SPAN = 1e-6
 
 
 @dataclass
@@ -121,8 +124,17 @@ def control_samples(spec: PlatformSpec, n: int, max_samples: int = MAX_CONTROL_S
 def pose_images(spec: PlatformSpec, n: int = 9, td=None, model: PlatformModel | None = None) -> np.ndarray:
     """Pose coordinates (M, n_p) of the control grid's forward solutions that converge on the
     stand's branch (started from the neutral pose). ``n``: values per control (fewer when the
-    grid would pass :data:`MAX_CONTROL_SAMPLES` rows; see :func:`control_samples`)."""
+    grid would pass :data:`MAX_CONTROL_SAMPLES` rows; see :func:`control_samples`).
+
+    A stand whose pose space is free (``spec.free_space == 'pose'``; its independent controls
+    are almost never consistent) samples that space instead: the poses of a grid over the
+    coordinates' bounds (``n`` values per coordinate, fewer past MAX_CONTROL_SAMPLES) whose
+    inverse kinematics lies inside the strokes on the branch."""
     model = model or PlatformModel(spec)
+    if spec.pose_free:
+        k = max(2, min(n, int(np.floor(MAX_CONTROL_SAMPLES ** (1.0 / spec.n_p) + 1e-9))))
+        P = pose_grid(spec, k)
+        return P[controls_of_poses(model, P, td)["ok"]]
     U = control_samples(spec, n)
     fb = model.forward_batch(U, td=td)
     keep = fb.converged & fb.on_branch
@@ -137,11 +149,18 @@ def default_axes(spec: PlatformSpec, names: list[str], n: int, td=None, margin: 
     idx = _coordinate_indices(spec, names)
     pts = pose_images(spec, n_controls, td=td, model=model)
     if pts.shape[0] == 0:
-        raise PlatkitError(f"{spec.name}: no control combination has a forward solution on the stand's branch")
+        what = "pose of the grid over the pose box" if spec.pose_free else "control combination"
+        raise PlatkitError(f"{spec.name}: no {what} has a forward solution on the stand's branch")
     axes = {}
     for name, i in zip(names, idx):
         c = spec.coordinates[i]
         lo, hi = float(pts[:, i].min()), float(pts[:, i].max())
+        if not hi - lo > DEGENERATE_SPAN:
+            raise ComputationFailed(
+                f"{spec.name}: the admissible set is degenerate: pose coordinate {name} spans {hi - lo:.3g} "
+                f"{c.unit} over the {pts.shape[0]} sampled poses the stand takes (a point or a sliver); "
+                + ("its free space is its pose box (field 'free_space')" if spec.pose_free else
+                   "if its commands are not independent (a cable robot), declare free_space='pose'"))
         pad = margin * max(hi - lo, 1e-6)
         lo, hi = max(lo - pad, c.lower), min(hi + pad, c.upper)
         axes[name] = np.linspace(lo, hi, n)
@@ -234,6 +253,22 @@ def admissible_grid(spec: PlatformSpec, axes: dict[str, np.ndarray], fixed: dict
         no_solution=no_solution.reshape(shape), outside_stroke=outside.reshape(shape), off_branch=off.reshape(shape),
         control_names=tuple(spec.control_names),
     )
+
+
+def check_not_degenerate(grid: AdmissibleGrid) -> None:
+    """ComputationFailed (one line) when the grid's admissible poses are a point or a sliver:
+    fewer than two grid values along some swept coordinate, or a grid whose own range along a
+    coordinate is no more than :data:`DEGENERATE_SPAN`."""
+    if not grid.inside.any():
+        raise ComputationFailed(f"{grid.platform}: no pose of the grid is admissible")
+    for k, (name, axis, unit) in enumerate(zip(grid.names, grid.axes, grid.units)):
+        occupied = np.unique(np.nonzero(grid.inside)[k])
+        span = float(axis[-1] - axis[0]) if len(axis) > 1 else 0.0
+        if occupied.size < 2 or not span > DEGENERATE_SPAN:
+            raise ComputationFailed(
+                f"{grid.platform}: the admissible set is degenerate along {name}: {occupied.size} of {len(axis)} grid "
+                f"values over {span:.3g} {unit} hold admissible poses (a point or a sliver, {int(grid.inside.sum())} "
+                "poses in all); no volume or boundary is reported")
 
 
 # ----------------------------------------------------------------------------- plots

@@ -2,7 +2,8 @@
 
 - :func:`corner_envelope`: forward kinematics at the 2^n_u corners of the control box (every
   control at its lower or upper stroke). For the Stewart platform these are the paper's 64
-  min/max leg combinations (Liu, Ma, Lin, table 4).
+  min/max leg combinations (Liu, Ma, Lin, table 4). A stand whose pose space is free (a cable
+  robot) takes the 2^n_p corners of its pose box through inverse kinematics instead.
 - :func:`translational_envelope`: the extreme positions of the moving origin over every pose the
   stand can take with its controls inside their strokes, by constrained optimisation (CasADi +
   IPOPT): maximise / minimise x, y, z subject to lower <= u <= upper, the stand's branch, and
@@ -29,10 +30,13 @@ from platkit.errors import BadInput, ComputationFailed
 from platkit.io import jsonout
 from platkit.io.atomic import atomic_output_dir
 from platkit.kinematics import PlatformModel
+from platkit.kinematics.sampling import controls_of_poses, pose_box
 from platkit.model import controls_from_si, length_scale
 
 #: corners are enumerated up to this many controls (2^16 forward solves)
 MAX_CORNER_CONTROLS = 16
+#: a workspace whose origin moves no more than this (m) along every axis is a point
+DEGENERATE_SPAN = 1e-6
 AXES = ("x", "y", "z")
 
 
@@ -107,6 +111,8 @@ def corner_envelope(model: PlatformModel, td=None, continuation_steps: int = 8) 
     ``continuation_steps`` steps, each started from the previous solution.
     """
     spec = model.spec
+    if spec.pose_free:
+        return pose_corner_envelope(model, td)
     U = control_corners(model)
     batch = model.forward_batch(U, td)
     ok = batch.converged & batch.on_branch
@@ -122,6 +128,43 @@ def corner_envelope(model: PlatformModel, td=None, continuation_steps: int = 8) 
             continue
         P[i], X[i], q[i], ok[i] = res.p, res.X, res.q, True
     return CornerEnvelope(U, P, X, q, ok, model.pose(spec.neutral_p())[1])
+
+
+def pose_corner_envelope(model: PlatformModel, td=None) -> CornerEnvelope:
+    """The corners of a pose-free stand's pose box (every coordinate at its lower or upper bound,
+    2^n_p poses) mapped through inverse kinematics; a corner counts as converged when its
+    controls lie inside the strokes with the stand on its branch. Such a stand's control box
+    has almost no consistent corner (independent cable lengths fit no pose)."""
+    spec = model.spec
+    lo, hi = pose_box(spec)
+    bits = np.array(list(itertools.product([0, 1], repeat=spec.n_p)), dtype=bool)[:, ::-1]
+    P = np.where(bits, hi, lo)
+    res = controls_of_poses(model, P, td)
+    q = np.array([model.pose(p)[0] for p in P])
+    X = np.array([model.pose(p)[1] for p in P])
+    U = np.where(np.isfinite(res["controls"]), res["controls"], np.nan)
+    return CornerEnvelope(U, P, X, q, res["ok"], model.pose(spec.neutral_p())[1])
+
+
+def check_envelope(spec, corners: CornerEnvelope, envelopes) -> None:
+    """ComputationFailed (one line) when the workspace is degenerate: fewer than two corners
+    solved, or the origin's range along every axis, over the corners and the envelopes, no more
+    than :data:`DEGENERATE_SPAN` (a point) while the stand has translational coordinates."""
+    n_ok = int(corners.converged.sum())
+    what = "pose-box corners" if spec.pose_free else "control-box corners"
+    if n_ok < 2:
+        raise ComputationFailed(
+            f"{spec.name}: the workspace is degenerate: {n_ok} of {len(corners.converged)} {what} solved on the stand's "
+            "branch" + ("" if spec.pose_free else "; if its commands are not independent (a cable robot), declare "
+                        "free_space='pose'"))
+    lengths = any(c.unit == "m" for c in spec.coordinates)
+    span = corners.upper - corners.lower
+    for env in envelopes:
+        span = np.maximum(span, env.upper - env.lower)
+    if lengths and not np.max(span) > DEGENERATE_SPAN:
+        raise ComputationFailed(
+            f"{spec.name}: the workspace is degenerate: the origin moves {np.max(span):.3g} m at most along x, y and z "
+            f"over {n_ok} {what} and the envelopes (a point)")
 
 
 def _ipopt_options() -> dict:
@@ -290,11 +333,13 @@ def workspace_figures(model: PlatformModel, td=None, conditioning_threshold: flo
     spec = model.spec
     corners = corner_envelope(model, td)
     if not corners.converged.any():
-        raise ComputationFailed(f"{spec.name}: forward kinematics failed at every corner of the control box")
+        box = "pose box (inverse kinematics)" if spec.pose_free else "control box"
+        raise ComputationFailed(f"{spec.name}: forward kinematics failed at every corner of the {box}")
     # both searches start from the extreme corners too: a local optimum from neutral alone can be
     # smaller than corner poses already found (a delta robot's z max at fixed orientation)
     fixed = translational_envelope(model, "fixed", td, starts=_extreme_corner_starts(corners))
     free = translational_envelope(model, "free", td, starts=_extreme_corner_starts(corners))
+    check_envelope(spec, corners, (fixed, free))
     inv_cond = model.inverse_condition_numbers(corners.P[corners.converged], td, corners.U[corners.converged])
     neutral_cond = model.conditioning(spec.neutral_p(), td, spec.neutral_u())
 

@@ -13,7 +13,7 @@ import csv
 
 import numpy as np
 
-from platkit.admissible import admissible_grid, default_axes, plot_boundary, plot_slices
+from platkit.admissible import admissible_grid, check_not_degenerate, default_axes, plot_boundary, plot_slices
 from platkit.commands.common import add_platform_options, add_unit_option, platform_from_args
 from platkit.errors import BadInput
 from platkit.io.atomic import atomic_output_dir, check_output_dir
@@ -63,6 +63,7 @@ def run(args) -> int:
     model = PlatformModel(spec)
     axes = default_axes(spec, names, args.n, model=model)
     grid = admissible_grid(spec, axes, model=model)
+    check_not_degenerate(grid)
     s = length_scale(args.unit)
 
     def shown(value, unit):

@@ -29,7 +29,8 @@ def run(args) -> int:
     corners = figures["corners"]
     print(f"{spec.name}: origin relative to the neutral pose, {unit}")
     print(f"{'envelope':<34}" + "".join(f"{a + ' min':>11}{a + ' max':>11}" for a in AXES))
-    rows = [(f"{corners['count']} control-box corners ({corners['converged']} solved)", corners["relative_to_neutral"])]
+    box = "pose-box" if spec.pose_free else "control-box"
+    rows = [(f"{corners['count']} {box} corners ({corners['converged']} solved)", corners["relative_to_neutral"])]
     for name, env in figures["true_envelope"].items():
         rows.append((f"true, {name.replace('_', ' ')}", env))
     for label, env in rows:

@@ -1,0 +1,183 @@
+"""Stands with more residual rows than pose coordinates (issue 26): forward kinematics is the
+weighted least-squares pose with the rows' misfit beside it, refused only beyond the declared
+plausible misfit; declarations checked; restarts find the stand's own assembly; angles wrapped;
+pose-free stands sampled in pose space; degenerate admissible sets refused.
+
+The stand here is a point hung on four cables (three coordinates, four rows), written for these
+tests; the least-squares truth is scipy's, independent of platkit's solver.
+"""
+from dataclasses import replace
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from platkit.admissible import AdmissibleGrid, admissible_poses, check_not_degenerate, pose_images
+from platkit.calibrate.plan import grid_plan, random_candidates
+from platkit.errors import BadDescription, ComputationFailed, OutOfWorkspace, WrongBranch
+from platkit.kinematics import PlatformModel
+from platkit.model import Control, Coordinate, Parameter, PlatformSpec, RowMisfit, validate_spec
+from platkit.plugins import get_platform
+from platkit.testing import check_platform
+
+ANCHORS = np.array([[1.0, 1.0, 2.0], [-1.0, 1.0, 2.0], [-1.0, -1.0, 2.0], [1.0, -1.0, 0.0]])
+STRETCH = np.array([2e-3, 2e-3, 2e-3, 4e-3])  # the fourth cable may miss twice as much
+
+
+def point_stand(misfit=True, free_space="pose") -> PlatformSpec:
+    u = ca.SX.sym("u", 4)
+    td = ca.SX.sym("td", 12)
+    q = ca.SX.sym("q", 4)
+    X = ca.SX.sym("X", 3)
+    A = ca.reshape(td, 3, 4)
+    lengths = ca.sqrt(ca.sum1((A - ca.repmat(X, 1, 4)) ** 2)).T
+    residual = ca.Function("F", [u, td, q, X], [u - lengths], ["u", "td", "q", "X"], ["r"])
+    inverse = ca.Function("inverse", [td, q, X], [lengths], ["td", "q", "X"], ["u"])
+    p = ca.SX.sym("p", 3)
+    pose = ca.Function("pose", [p], [ca.DM([1.0, 0, 0, 0]), p], ["p"], ["q", "X"])
+    from_pose = ca.Function("coordinates_from_pose", [q, X], [X], ["q", "X"], ["p"])
+    params = [Parameter(f"A{i + 1}_{c}", "m", float(ANCHORS[i, k])) for i in range(4) for k, c in enumerate("xyz")]
+    X0 = np.array([0.0, 0.0, 1.0])
+    u0 = np.linalg.norm(ANCHORS - X0, axis=1)
+    controls = [Control(f"c{i + 1}", "m", 0.2, 4.0, float(v)) for i, v in enumerate(u0)]
+    coords = [Coordinate(n, "m", float(v), float(v) - 0.4, float(v) + 0.4) for n, v in zip("xyz", X0)]
+    rows = [RowMisfit(f"cable c{i + 1}", "m", float(s)) for i, s in enumerate(STRETCH)] if misfit else None
+    return PlatformSpec("point4", "a point on four cables", controls, params, coords, residual, pose,
+                        coordinates_from_pose=from_pose, inverse=inverse, misfit=rows, free_space=free_space)
+
+
+def scipy_pose(u, x0=(0.0, 0.0, 1.0)):
+    """The weighted least-squares point, by scipy."""
+    sol = least_squares(lambda x: (u - np.linalg.norm(ANCHORS - x, axis=1)) / STRETCH, np.array(x0, float),
+                        method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    return sol.x, u - np.linalg.norm(ANCHORS - sol.x, axis=1)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_forward_is_the_weighted_least_squares_pose_with_its_misfit(compiled):
+    spec = point_stand()
+    model = PlatformModel(spec, compile=compiled)
+    assert model.redundant and ("compiled C" in model.backend) == compiled
+    u = np.linalg.norm(ANCHORS - [0.1, -0.2, 1.1], axis=1) + np.array([1e-3, -1e-3, 5e-4, 2e-3])
+    fk = model.forward(u)
+    x, r = scipy_pose(u)
+    np.testing.assert_allclose(fk.X, x, atol=1e-12)
+    np.testing.assert_allclose(fk.misfit, r, atol=1e-12)
+    assert fk.misfit_ratio == pytest.approx(np.max(np.abs(r) / STRETCH)) and 0 < fk.misfit_ratio < 1
+    # consistent controls: the exact pose, no misfit
+    exact = model.forward(np.linalg.norm(ANCHORS - [0.1, -0.2, 1.1], axis=1))
+    np.testing.assert_allclose(exact.X, [0.1, -0.2, 1.1], atol=1e-12)
+    assert np.max(np.abs(exact.misfit)) < 1e-12
+
+
+def test_a_misfit_beyond_the_plausible_is_refused_naming_rows_and_amounts():
+    model = PlatformModel(point_stand())
+    X0 = np.array([0.0, 0.0, 1.0])
+    u = np.linalg.norm(ANCHORS - X0, axis=1)
+    # lengths along the rows' left null space: no motion of the point absorbs them
+    J = (X0 - ANCHORS) / u[:, None]
+    n = np.linalg.svd(J)[0][:, -1]
+    u = u + 0.02 * n
+    _, r = scipy_pose(u)
+    assert np.any(np.abs(r) > STRETCH)
+    worst = int(np.argmax(np.abs(r) / STRETCH))
+    with pytest.raises(OutOfWorkspace) as err:
+        model.forward(u)
+    msg = str(err.value)
+    assert "\n" not in msg and "plausible misfit" in msg
+    assert msg.split(": ", 2)[2].startswith(f"cable c{worst + 1} misses by {abs(r[worst]) * 1e3:.4g} mm "
+                                            f"(plausible {STRETCH[worst] * 1e3:.4g})")
+    assert f"({int(np.sum(np.abs(r) > STRETCH))} of 4 rows beyond)" in msg
+    batch = model.forward_batch(np.vstack([u, np.linalg.norm(ANCHORS - [0, 0, 1.0], axis=1)]))
+    assert batch.converged.tolist() == [False, True] and batch.misfit.shape == (2, 4)
+    np.testing.assert_allclose(batch.misfit[0], r, atol=1e-10)
+
+
+def test_without_a_declared_misfit_the_rows_must_close():
+    spec = point_stand(misfit=False, free_space="controls")
+    model = PlatformModel(spec)
+    u = np.linalg.norm(ANCHORS - [0.1, 0.0, 1.2], axis=1)
+    np.testing.assert_allclose(model.forward(u).X, [0.1, 0.0, 1.2], atol=1e-12)
+    with pytest.raises(OutOfWorkspace, match=r"fit no pose exactly .*declares no plausible misfit \(PlatformSpec.misfit\)"):
+        model.forward(u + [1e-4, 0, 0, 0])
+    with pytest.raises(AssertionError, match=r"point4.*4 residual rows for 3 pose coordinates and no plausible misfit "
+                                             r"declared \(field 'misfit'"):
+        check_platform(spec)
+
+
+def test_declarations_are_checked_naming_the_field():
+    spec = point_stand()
+    validate_spec(spec)
+    with pytest.raises(BadDescription, match=r"point4.*field 'misfit' declares 3 rows, the residual has 4"):
+        validate_spec(replace(spec, misfit=spec.misfit[:3]))
+    with pytest.raises(BadDescription, match=r"field 'misfit'\[1\] \(cable c2\): plausible misfit must be a positive"):
+        validate_spec(replace(spec, misfit=[spec.misfit[0], RowMisfit("cable c2", "m", 0.0), *spec.misfit[2:]]))
+    with pytest.raises(BadDescription, match=r"field 'free_space' is 'poses', not one of controls, pose"):
+        validate_spec(replace(spec, free_space="poses"))
+    unbounded = [replace(c, lower=-np.inf) for c in spec.coordinates]
+    with pytest.raises(BadDescription, match=r"field 'free_space' is 'pose' but coordinates \['x', 'y', 'z'\] have no "
+                                             "finite bounds"):
+        validate_spec(replace(spec, coordinates=unbounded))
+
+
+def test_the_point_stand_passes_the_conformance_check():
+    report = check_platform(point_stand())
+    assert report["free_space"] == "pose" and report["free_space_taken"] == 1.0 and report["round_trips"] == 20
+
+
+def test_pose_free_plans_and_images_are_drawn_in_pose_space():
+    spec = point_stand()
+    plan = grid_plan(spec, 3)
+    assert plan.info["space"] == "pose" and plan.info["grid_points"] == 27 and len(plan.controls) == 27
+    np.testing.assert_allclose(plan.controls, np.linalg.norm(ANCHORS[None] - plan.poses[:, None], axis=2), atol=1e-12)
+    rnd = random_candidates(spec, 10, np.random.default_rng(1))
+    assert rnd.info["space"] == "pose" and rnd.controls.shape == (10, 4)
+    P = pose_images(spec, 5)
+    assert P.shape == (125, 3) and admissible_poses(spec, P)["inside"].all()
+
+
+def test_a_point_or_a_sliver_is_refused():
+    axes = (np.linspace(0, 1, 5), np.linspace(0, 1, 5))
+    inside = np.zeros((5, 5), bool)
+
+    def grid(inside):
+        return AdmissibleGrid("point4", ("x", "y"), ("m", "m"), axes, {}, inside, np.zeros((5, 5, 4)),
+                              ~inside, np.zeros((5, 5), bool), np.zeros((5, 5), bool))
+
+    inside[2, 2] = True
+    with pytest.raises(ComputationFailed, match=r"degenerate along x: 1 of 5 grid values"):
+        check_not_degenerate(grid(inside))
+    inside[2, 3] = True  # a sliver: one x value
+    with pytest.raises(ComputationFailed, match="degenerate along x"):
+        check_not_degenerate(grid(inside))
+    inside[3, 2] = True
+    check_not_degenerate(grid(inside))
+
+
+@pytest.fixture(scope="module")
+def stewart():
+    return PlatformModel(get_platform("stewart"))
+
+
+def test_restarts_find_the_stands_own_assembly_from_a_mirror_start(stewart):
+    u = stewart.spec.neutral_u() + 0.05
+    own = stewart.forward(u)
+    with pytest.raises(WrongBranch):
+        stewart.forward(u, guess=[0, 0, -3.0, 0, 0, 0])  # an explicit guess is honoured alone
+    again = stewart.forward(u, guess=[0, 0, -3.0, 0, 0, 0], restarts=True)
+    assert again.on_branch and np.allclose(again.X, own.X, atol=1e-12)
+    batch = stewart.forward_batch(np.vstack([u, u]), guess=np.array([[0, 0, -3.0, 0, 0, 0], own.p]))
+    assert batch.on_branch.all() and batch.converged.all() and np.allclose(batch.X, own.X, atol=1e-12)
+
+
+def test_angles_come_back_wrapped(stewart):
+    u = stewart.spec.neutral_u() + np.array([0.02, -0.01, 0.03, 0.0, 0.01, -0.02])
+    own = stewart.forward(u)
+    turned = own.p + np.array([0, 0, 0, 2 * np.pi, -4 * np.pi, 2 * np.pi])  # the same pose, angles a turn off
+    res = stewart.forward(u, guess=turned)
+    np.testing.assert_allclose(res.p, own.p, atol=1e-10)
+    # roll, pitch, yaw near (pi, pi, pi) is the level pose too: the stand's own convention comes back
+    near = own.p + np.array([0, 0, 0, np.pi, np.pi, np.pi]) * [0, 0, 0, 1, -1, 1]
+    res = stewart.forward(u, guess=near)
+    assert np.all(np.abs(res.p[3:]) < 0.5) and np.allclose(res.X, own.X, atol=1e-10)
