@@ -457,14 +457,12 @@ def kinematic_tree(tree: UrdfTree, links: list[str], base_link: str | None = Non
             raise BadInput(f"{path}: moving_link {link!r} is not below base_link {base!r} in the tree")
     by_name = {j.name: j for j in joints}
     for j in joints:
-        if j.mimic is None:
+        if j.mimic is None or j.type not in ACTUATED_TYPES:  # a fixed joint's <mimic> moves nothing
             continue
         if j.mimic[0] not in tree.joints:
             raise BadDescription(f"{path}: joint {j.name!r} <mimic joint={j.mimic[0]!r}>: the master names no joint "
                                  "of the file")
         master = tree.joints[j.mimic[0]]
-        if j.type not in ACTUATED_TYPES:
-            raise BadDescription(f"{path}: joint {j.name!r} is {j.type} but has a <mimic>")
         if not master.actuated:
             raise BadDescription(f"{path}: joint {j.name!r} <mimic joint={master.name!r}>: the master is "
                                  f"{'itself a mimic joint' if master.mimic else master.type}; it must be an actuated joint")
