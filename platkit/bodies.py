@@ -185,3 +185,44 @@ def with_settled_bodies(session: Session, poses: PoseSet) -> PoseSet:
     if note:
         poses.settling = {**poses.settling, "bodies": note}
     return poses
+
+
+#: a body with more than this share of its orientations rejected as outliers is refused: its
+#: orientations do not follow the stand's motion (most often a quaternion written in another order)
+ROTATION_REJECTED_SHARE = 0.5
+#: ... when read in another order they follow it within this (rad, median), and that order is named
+ORDER_AGREEMENT_RAD = 0.05
+#: the orders a recorder writes a quaternion in, as indices into the four columns qw,qx,qy,qz read as
+#: written: the quaternion w,x,y,z they hold is ``q[..., idx]``
+QUATERNION_ORDERS = {"x,y,z,w (scalar last)": [3, 0, 1, 2]}
+
+
+def orientation_spread(measured: np.ndarray, predicted: np.ndarray) -> float:
+    """How well measured orientations follow predicted ones up to one fixed rotation (a body's
+    placement): the median angle (rad) of each pose's rotation predicted -> measured about their
+    mean. measured, predicted (K, 4) unit quaternions (w, x, y, z); NaN with no row."""
+    if not len(measured):
+        return float("nan")
+    D = np.einsum("nba,nbc->nac", matrix_from_quat(predicted), matrix_from_quat(measured))  # R_pred^T R_meas
+    mean = matrix_from_quat(quat_mean(quat_from_matrix(D)))
+    return float(np.median(np.linalg.norm(log_so3(np.einsum("ba,nbc->nac", mean, D)), axis=-1)))
+
+
+def rotation_refusal(body: str, source: str, measured: np.ndarray, predicted: np.ndarray, n_rejected: int,
+                     n_seen: int) -> str:
+    """The line that refuses a body whose orientations were rejected en masse, naming the likely
+    cause: the order of its quaternion columns where another order follows the fit's motion
+    (within ORDER_AGREEMENT_RAD), else a body whose orientation does not follow the stand.
+    measured, predicted (K, 4): the body's orientations as read and as the fit predicts them."""
+    head = (f"{source}: rigid body {body!r}: {n_rejected} of its {n_seen} orientations rejected as outliers: they "
+            "do not follow the stand's motion")
+    as_written = orientation_spread(measured, predicted)
+    for order, idx in QUATERNION_ORDERS.items():
+        other = orientation_spread(measured[:, idx], predicted)
+        if other <= ORDER_AGREEMENT_RAD and other < 0.2 * as_written:
+            return (f"{head} as written (qw,qx,qy,qz: {np.degrees(as_written):.3g} deg median), but read as {order} "
+                    f"they do ({np.degrees(other):.2g} deg): the columns {body}_qw,{body}_qx,{body}_qy,{body}_qz "
+                    f"hold {order.split(' ')[0]}; write them as qw,qx,qy,qz (the spec's order)")
+    return (f"{head} ({np.degrees(as_written):.3g} deg median from the fit's rotation, in any column order): check "
+            f"that the columns {body}_qw..{body}_qz hold the body's orientation as qw,qx,qy,qz and that the body "
+            "rides the moving part")

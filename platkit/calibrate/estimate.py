@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from platkit.bodies import estimate_rho, log_so3
+from platkit.bodies import ROTATION_REJECTED_SHARE, estimate_rho, log_so3, rotation_refusal
 from platkit.calibrate.identifiability import (
     DEFAULT_REL_TOL,
     apply_marker_convention,
@@ -41,7 +41,7 @@ from platkit.calibrate.problem import (
     parameter_scale,
 )
 from platkit.calibrate.solve import _rms, _weighted, blas_threads, kfold, levenberg_marquardt, robust_fit
-from platkit.errors import BadInput, NoConvergence, NotIdentifiable
+from platkit.errors import BadInput, BadSession, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
 from platkit.io.calibration import Calibration
 from platkit.kinematics import PlatformModel
@@ -89,6 +89,7 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
         cal = _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options,
                          td_start, ridge_m, plausible)
     cal.extras["warnings"] = fit_warnings(cal, poses)
+    check_body_orientations(cal, poses)
     return cal
 
 
@@ -147,11 +148,51 @@ def fit_warnings(cal: Calibration, poses: PoseSet) -> list[str]:
                        f"{REJECT_K:g} sigma): a marker that slipped or was relabelled part-way through the session "
                        "looks like this; its place is where most of its observations put it. Run platkit diagnose "
                        "(a marker_slip is corrected in the data)")
+    for name, (n_rej, n_rot, n_seen) in rejected_by_body(cal).items():
+        if n_rej >= max(3, MARKER_LOST_SHARE * n_seen):
+            out.append(f"rigid body {name}: {n_rej} of its {n_seen} observations rejected as outliers (beyond "
+                       f"{REJECT_K:g} sigma; {n_rot} by their orientation, {n_rej - n_rot} by their origin alone): the "
+                       "fit rests on the rest; a body that slipped, was re-defined in the mocap software part-way, or "
+                       "whose orientation is written in another order looks like this. Run platkit diagnose")
     return out
 
 
 #: a marker with at least this share of its observations rejected is said (a slip, a relabelling)
 MARKER_LOST_SHARE = 0.2
+
+
+def rejected_by_body(cal: Calibration) -> dict[str, tuple[int, int, int]]:
+    """{body: (observations rejected as outliers, of them by the orientation, observations seen)}
+    for the rigid bodies with any rejected, from the robust fit's final weights: an observation
+    (one pose of one body) is rejected where its origin or its orientation channel is."""
+    w = cal.extras.get("weights")
+    r = cal.extras.get("residuals_after")
+    B = len(cal.body_names)
+    if w is None or r is None or not B:
+        return {}
+    M = len(cal.marker_names)
+    w = np.asarray(w)
+    seen = np.isfinite(r[:, M:M + B]).all(axis=2)
+    rot = seen & (w[:, M + B:M + 2 * B] <= 0)
+    rej = seen & ((w[:, M:M + B] <= 0) | rot)
+    return {n: (int(rej[:, k].sum()), int(rot[:, k].sum()), int(seen[:, k].sum()))
+            for k, n in enumerate(cal.body_names) if rej[:, k].any()}
+
+
+def check_body_orientations(cal: Calibration, poses: PoseSet) -> None:
+    """BadSession where a rigid body's orientations were rejected en masse (more than
+    ROTATION_REJECTED_SHARE of those seen): the fit would rest on its origins alone and look
+    perfect; the line names the likely cause (platkit.bodies.rotation_refusal)."""
+    for name, (_, n_rot, n_seen) in rejected_by_body(cal).items():
+        if n_seen < 4 or n_rot <= ROTATION_REJECTED_SHARE * n_seen:
+            continue
+        b = cal.body_names.index(name)
+        _, q, X, ok = predict_markers(cal, poses.controls, poses)
+        predicted = predict_bodies(cal, q, X, poses.controls, poses)[:, b, 3:]
+        measured = poses.bodies[:, b, 3:]
+        use = ok & np.isfinite(measured).all(axis=1) & np.isfinite(predicted).all(axis=1)
+        raise BadSession(rotation_refusal(name, poses.source or "the session", measured[use], predicted[use],
+                                          n_rot, n_seen))
 
 
 def rejected_by_marker(cal: Calibration) -> dict[str, tuple[int, int]]:
