@@ -79,6 +79,17 @@ from platkit.settle._still import (
 from platkit.settle._tail import profile_start, shared_tail
 from platkit.settle._unsettled import _unsettled_summary
 
+
+class HoldsNeverSettle(ComputationFailed):
+    """So many holds never settled that the poses left would be a remnant: the stream itself is
+    the data (``platkit calibrate`` then fits the motion model, platkit.calibrate.motion)."""
+
+
+class NeverSettles(BadSession):
+    """No command gave a still window: a session without holds (``platkit calibrate`` then fits
+    the motion model, platkit.calibrate.motion)."""
+
+
 #: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
 SLOW_SCALE_S = 0.4
 
@@ -302,7 +313,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
                 and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], sig_slow)]
         if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
             if results:
-                raise ComputationFailed(
+                raise HoldsNeverSettle(
                     f"{session.markers_source}: {summary['sentence']}; the approach of only {len(good)} of them "
                     "fits the stream well enough to extrapolate to rest: record longer holds (or a slower plan)")
             good = []  # nothing settled and little extrapolates: the recording never settles (below)
@@ -321,14 +332,14 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
             dropped.pop(i)
             n_extrapolated += 1
     elif many and len(unsettled) > 0.5 * N and results:
-        raise ComputationFailed(
+        raise HoldsNeverSettle(
             f"{session.markers_source}: {summary['sentence']}; calibrating from the {N - len(dropped)} that did "
             "would fit a remnant: record longer holds, or settle with extrapolation to rest")
     kept = sorted(results)
     dropped_list = sorted(dropped.items())
     if not kept:
         reason = dropped_list[0][1] if dropped_list else "no commands"
-        raise BadSession(
+        raise NeverSettles(
             f"{session.markers_source}: the recording never settles: none of {N} commands gave a still window "
             f"(first: row {dropped_list[0][0] + 1 if dropped_list else 0}: {reason})"
             + (f"; {summary['sentence']}" if summary else "")
