@@ -288,3 +288,48 @@ def test_fk_gives_every_tracked_link_and_any_link_asked(capsys):
     assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
                  "--u", u, "--link", "nowhere"]) == 2
     assert "link 'nowhere' is not a link of the URDF" in capsys.readouterr().err
+
+
+def test_a_rigid_body_on_the_other_hand_exact_jacobian_and_fit():
+    """Markers on the right hand, a 6-DOF body on the left: the body's orientation is read from its
+    own link; the problem's Jacobian is its finite difference, and the fit finds the body's place."""
+    from platkit.calibrate.problem import CalibrationProblem
+    from platkit.geometry import quat_from_matrix
+
+    mapping = {"R1": "right_tcp", "R2": "right_tcp", "R3": "right_tcp", "T": "left_tcp"}
+    spec = get_platform("urdf", URDF, moving_link=mapping)
+    rng = np.random.default_rng(8)
+    td = true_td(spec, rng)
+    U = commands(spec, 60, rng)
+    R, X = link_frames(spec, td, U)
+    A = matrix_from_rotvec(MOCAP_ROTVEC)
+    markers = np.stack([(X[:, 0] + R[:, 0] @ np.array(MARKERS[n][1])) @ A.T + MOCAP_T for n in ("R1", "R2", "R3")],
+                       axis=1) + rng.normal(0.0, SIGMA, (60, 3, 3))
+    p_body, R_body = np.array([0.01, 0.02, 0.05]), matrix_from_rotvec([0.3, -0.1, 0.2])
+    origin = (X[:, 1] + R[:, 1] @ p_body) @ A.T + MOCAP_T + rng.normal(0.0, SIGMA, (60, 3))
+    quat = quat_from_matrix(np.einsum("ab,nbc,cd->nad", A, R[:, 1], R_body))
+    bodies = np.concatenate([origin, quat], axis=1)[:, None, :]
+    poses = PoseSet("urdf", U, markers, ["R1", "R2", "R3"], moving_link=mapping, bodies=bodies, body_names=["T"])
+    problem = CalibrationProblem(spec, poses)
+    assert problem.point_links == (0, 0, 0, 1)
+    z = problem.initial_registration(spec.nominal_td()) + rng.normal(0.0, 1e-4, problem.n_z)
+    st = problem.evaluate(z)
+    cols = [problem.names.index(n) for n in ("left_2_joint.offset", "torso_pitch.offset", "mocap.rx", "body.T.rx",
+                                             "body.T.y", "marker.R2.z")]
+    for c in cols:
+        h = 1e-7
+        zp, zm = z.copy(), z.copy()
+        zp[c] += h
+        zm[c] -= h
+        fd = (problem.evaluate(zp, with_jac=False).r - problem.evaluate(zm, with_jac=False).r) / (2 * h)
+        assert np.allclose(st.J[..., c], fd, atol=1e-6), problem.names[c]
+    cal = calibrate(poses, spec)
+    assert cal.marker_links == mapping
+    assert np.allclose(cal.body_positions[0], p_body, atol=2e-3)
+    from platkit.calibrate.estimate import predict_bodies, predict_markers
+
+    _, q, Xm, ok = predict_markers(cal, U)
+    pred = predict_bodies(cal, q, Xm, U)
+    assert ok.all() and np.max(np.linalg.norm(pred[:, 0, :3] - origin, axis=1)) < 6 * SIGMA
+    turn = np.abs(np.einsum("na,na->n", pred[:, 0, 3:], quat))  # |cos(half the angle between)|
+    assert np.min(turn) > np.cos(1e-3)
