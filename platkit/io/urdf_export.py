@@ -6,7 +6,8 @@ For every actuated or mimic joint j on the calibrated chain, the joint's ``<orig
               * motion(-offset_j)
 
 where ``motion`` is the rotation about the joint axis (revolute, continuous) or the translation
-along it (prismatic), and for a mimic joint ``offset = multiplier * offset_master``. Then the
+along it (prismatic), and for a mimic joint ``offset = multiplier * offset_master`` (its
+``<mimic multiplier offset>`` written with the calibrated ``mimic_multiplier``, ``mimic_offset``). Then the
 exported URDF at joint values ``v = c * u`` (the controls in the URDF's units: rad, m) puts every
 link where the calibrated model puts it at controls ``u``: the offsets become the URDF's zero, in
 the one place every URDF reader honours (the origin rpy/xyz), rather than in a ``<calibration>``
@@ -60,8 +61,9 @@ def calibrated_origins(spec: PlatformSpec, td) -> dict[str, np.ndarray]:
     for j in chain.calibrated:
         if j.actuated:
             offset = offsets[j.name]
-        else:
+        else:  # the calibrated coupling where the stand has one (mimic_multiplier), else the file's
             master, multiplier, _ = j.mimic
+            multiplier = value.get(f"{j.name}.mimic_multiplier", multiplier)
             offset = multiplier * offsets[master]
         d = np.array([value[f"{j.name}.{f}"] for f in ORIGIN_FIELDS[:3]])
         rx, ry, rz = (value[f"{j.name}.{f}"] for f in ORIGIN_FIELDS[3:])
@@ -121,6 +123,11 @@ def export_calibrated_urdf(spec: PlatformSpec, td, out: str | Path, markers: dic
         el = by_name.get(name)
         if el is None:
             raise BadInput(f"{chain.path}: joint {name!r} is no longer in the file; rebuild the stand from it")
+        mimic = el.find("mimic")
+        if mimic is not None and f"{name}.mimic_multiplier" in spec.parameter_names:  # the calibrated coupling
+            value = dict(zip(spec.parameter_names, np.asarray(td, float)))
+            mimic.set("multiplier", _number(value[f"{name}.mimic_multiplier"]))
+            mimic.set("offset", _number(value[f"{name}.mimic_offset"]))
         old = el.find("origin")
         new = _origin_element(etree, T)
         if old is None:

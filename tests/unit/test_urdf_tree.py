@@ -333,3 +333,23 @@ def test_a_rigid_body_on_the_other_hand_exact_jacobian_and_fit():
     assert ok.all() and np.max(np.linalg.norm(pred[:, 0, :3] - origin, axis=1)) < 6 * SIGMA
     turn = np.abs(np.einsum("na,na->n", pred[:, 0, 3:], quat))  # |cos(half the angle between)|
     assert np.min(turn) > np.cos(1e-3)
+
+
+def test_exported_urdf_keeps_a_calibrated_mimic_coupling(tmp_path):
+    """The calibrated URDF of a tree with a freed mimic coupling, read back as a chain, puts the
+    hand where the calibrated tree does."""
+    from platkit.io.urdf_export import export_calibrated_urdf
+
+    spec = tree_spec()
+    rng = np.random.default_rng(9)
+    td = true_td(spec, rng)
+    td[spec.parameter_names.index("torso_pitch_2.mimic_multiplier")] = 0.47
+    td[spec.parameter_names.index("torso_pitch_2.mimic_offset")] = 0.01
+    out = export_calibrated_urdf(spec, td, tmp_path / "calibrated.urdf")
+    back = get_platform("urdf", out, moving_link="left_tcp")
+    U = commands(spec, 4, rng)
+    _, X = link_frames(spec, td, U)
+    cols = [spec.control_names.index(n) for n in back.control_names]
+    for n in range(len(U)):
+        _, Xb = back.forward(U[n, cols], back.nominal_td())
+        assert np.allclose(np.asarray(Xb).ravel(), X[n, 1], atol=1e-10)
