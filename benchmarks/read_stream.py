@@ -9,7 +9,7 @@ its wall time, its peak memory above what the process held before the read (ru_m
 ratios: speed relative to pandas.read_csv (goal: at least 0.5) and peak memory relative to the
 numeric array (rows x columns x 8 bytes; goal: under 2).
 
-Rows: pandas.read_csv (the reference); platkit.io.session.read_table; load_session of the
+Rows: pandas.read_csv (the reference); platkit.io.table.read_table; load_session of the
 folder (the reader plus every check of the stream: times, units, occlusions); the time to the
 first progress line on stderr; and a file with one bad cell near its end, for the time to the
 one-line error that names its row and column.
@@ -42,7 +42,8 @@ def child(what: str, path: str) -> None:
     import pandas
 
     from platkit.errors import BadSession
-    from platkit.io.session import load_session, read_table
+    from platkit.io.session import load_session
+    from platkit.io.table import read_table
 
     before = rss_bytes()
     t0 = time.perf_counter()

@@ -20,6 +20,8 @@ _EXPORTS = {
     "Control": "platkit.model", "Coordinate": "platkit.model", "Parameter": "platkit.model",
     "PlatformFactory": "platkit.model", "PlatformSpec": "platkit.model",
     "get_platform": "platkit.plugins", "list_platforms": "platkit.plugins",
+    "hookimpl": "platkit.hookspecs", "Effect": "platkit.effects", "ModelTerm": "platkit.terms",
+    "PoseSet": "platkit.poses",
 }
 __all__ = sorted(_EXPORTS)
 

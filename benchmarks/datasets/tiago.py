@@ -4,7 +4,7 @@ Thanh Nguyen, CNRS and Toward), turned into platkit sessions and scored like FIG
 A dataset converter, not the core (../../shared/STYLE.md): a user's own robot gets no special
 case in platkit, and this one needs none. The URDF is copied into the session byte for byte; the
 torso's recorded 0.350181 m against the URDF's 0.35 m limit is a reading the session reader keeps
-with a warning (platkit.io.session.check_controls).
+with a warning (platkit.io.session_checks.check_controls).
 
 Source: ``shared/data/real/tiago/`` (README.md there). Each row of a ``qualisys_*_static_postures``
 CSV is a settled pose: four points BL, BR, TR, TL of one rigid body on the hand (metres, in the

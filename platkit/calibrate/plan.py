@@ -35,7 +35,8 @@ import numpy as np
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL, select_identifiable
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.geometry import ca_matrix_from_quat, skew
-from platkit.io.session import check_controls, read_table
+from platkit.io.session_checks import check_controls
+from platkit.io.table import read_table
 from platkit.kinematics import PlatformModel
 from platkit.kinematics.sampling import controls_of_poses, pose_box, sample_poses
 from platkit.model import PlatformSpec, controls_from_si, length_scale

@@ -132,8 +132,8 @@ def _target(text: str, s: float) -> tuple[np.ndarray, bool]:
 def read_trajectory(path: str, s: float) -> tuple[np.ndarray, np.ndarray, bool]:
     """(times (k,), poses (k, 4, 4), rotation given) from a trajectory CSV; BadInput naming the
     file, row and column on anything malformed (the numbers are read by the session reader,
-    :func:`platkit.io.session.read_table`, so every CSV of platkit words its errors alike)."""
-    from platkit.io.session import read_table
+    :func:`platkit.io.table.read_table`, so every CSV of platkit words its errors alike)."""
+    from platkit.io.table import read_table
 
     table = read_table(Path(path), "trajectory")
     p, header = table.path, table.header

@@ -14,8 +14,8 @@ seconds. Every problem is one :class:`~platkit.errors.BadSession` line naming th
 This module reads a session folder into a :class:`Session`; its parts are one concept each:
 session.yaml in :mod:`platkit.io.session_yaml`, the chunked CSV reader in
 :mod:`platkit.io.table`, the checks of the streams and controls in
-:mod:`platkit.io.session_checks`, C3D in :mod:`platkit.io.c3d`. Their public names are
-re-exported here, where code written before the split imports them from.
+:mod:`platkit.io.session_checks`, C3D in :mod:`platkit.io.c3d`; their names are imported from
+there.
 """
 from __future__ import annotations
 
@@ -29,36 +29,24 @@ from platkit.errors import BadInput, BadSession
 from platkit.io.c3d import read_c3d_markers
 from platkit.io.imu import DEFAULT_MAX_REPAIR_S, ImuStream, read_imu_csv
 from platkit.io.session_checks import (
-    AXES,
     BODY_SUFFIXES,
-    LARGEST_VOLUME_M,
-    QUAT_NORM_TOL,
-    STROKE_TOLERANCE,
     _body_block,
     _body_counts,
     _check_marker_header,
     _check_plausible_unit,
     _check_seen,
     _marker_block,
-    body_columns,
     check_controls,
     check_times,
     checked_marker_block,
-    marker_columns,
 )
-from platkit.io.session_yaml import BODY_NOISE_KEYS, IMU_KEYS, NO_PLATFORM, SESSION_KEYS, TIME_UNITS, read_session_yaml
+from platkit.io.session_yaml import TIME_UNITS, read_session_yaml
 from platkit.io.shipped import shipped_dir
-from platkit.io.table import Table, _read_header, read_table
+from platkit.io.table import _read_header, read_table
 from platkit.model import LENGTH_UNITS, PlatformSpec
 from platkit.plugins import get_platform
 
-__all__ = [
-    "Session", "load_session", "example_session", "EXAMPLES_ENV",
-    # re-exported from the modules the session reader was split into (issue 12)
-    "Table", "read_table", "read_session_yaml", "check_controls", "check_times", "marker_columns", "body_columns",
-    "SESSION_KEYS", "BODY_SUFFIXES", "QUAT_NORM_TOL", "BODY_NOISE_KEYS", "TIME_UNITS", "IMU_KEYS", "NO_PLATFORM",
-    "AXES", "LARGEST_VOLUME_M", "STROKE_TOLERANCE",
-]
+__all__ = ["Session", "load_session", "example_session", "EXAMPLES_ENV"]
 
 
 @dataclass

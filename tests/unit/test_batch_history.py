@@ -10,7 +10,7 @@ import yaml
 
 from platkit.batch.history import session_date, stand_history
 from platkit.errors import BadInput
-from platkit.io.session import read_session_yaml
+from platkit.io.session_yaml import read_session_yaml
 
 
 def tables(n: int, step_at: int | None, step: float, seed: int = 0) -> list[dict]:

@@ -12,7 +12,8 @@ from platkit.calibrate.estimate import MISFIT_ABSOLUTE_M, calibrate, fit_warning
 from platkit.cli import main
 from platkit.errors import BadDescription, BadSession
 from platkit.geometry import matrix_from_quat
-from platkit.io.session import STROKE_TOLERANCE, load_session
+from platkit.io.session import load_session
+from platkit.io.session_checks import STROKE_TOLERANCE
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet

@@ -11,7 +11,8 @@ import pytest
 from platkit.settle import load_poses
 from platkit.cli import main
 from platkit.errors import BadSession
-from platkit.io.session import example_session, load_session, read_table
+from platkit.io.session import example_session, load_session
+from platkit.io.table import read_table
 from platkit.plugins import get_platform
 from platkit.simulate import simulate, write_session
 
@@ -686,8 +687,9 @@ def test_calibrate_reads_the_motion_capture_stream_once(monkeypatch):
 
 
 def test_a_marker_stream_in_file_order_is_not_copied(tmp_path):
-    from platkit.io.session import Table, marker_columns
-    import platkit.io.session as session_module
+    import platkit.io.session_checks as session_module
+    from platkit.io.session_checks import marker_columns
+    from platkit.io.table import Table
 
     header = ["t"] + [c for m in ("A", "B") for c in marker_columns(m)]
     data = np.arange(3 * 7, dtype=float).reshape(3, 7)
