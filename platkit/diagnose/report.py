@@ -100,6 +100,7 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
                            "p_adjusted": _num(x.p_adjusted)} for x in d.locations if x.p_adjusted < 0.05][:20],
         "settling": strict(settling_summary(d.poses, d.unit)),  # every command: kept, extrapolated, dropped and why
         "not_separable": strict(d.not_separable),
+        "untried": dict(d.untried),
         "rounds": strict(d.rounds),
         "method": ("forward selection: score-test screening (Holm), refit with the shared estimator, accepted when "
                    "the K-fold held-out error falls significantly (one-sided Wilcoxon, Holm) and BIC falls, unless a "

@@ -176,3 +176,12 @@ def test_what_cannot_be_tried_is_said(tmp_path):
     still = _poses(arm, np.repeat(U[:1], 4, axis=0))  # one configuration: no load changes
     assert Compliance().candidates(arm, still) == []
     assert any("the gravity load of t1, l1, l2 does not change" in r for r in Compliance().untried(arm, still))
+
+
+def test_the_tree_effects_conform_on_a_urdf_tree(tmp_path):
+    from platkit.testing import check_effect
+
+    tree = get_platform("urdf", _tree(tmp_path), moving_link={"L": "l_lo", "R": "r_lo"})
+    for effect in (Compliance(), LinkBending()):
+        report = check_effect(effect, tree)
+        assert report["terms"] > 0, report
