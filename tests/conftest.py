@@ -1,7 +1,47 @@
 import os
+from pathlib import Path
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 import pytest
+
+#: the real data the golden tests (and a few others) read: ``shared/`` beside the checkout, as CI lays it out
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+SHARED_DATA = SHARED / "data" / "real"
+
+
+def needs_shared(path: Path) -> bool:
+    """Whether a test module reads the shared real data (it names the ``shared`` folder or a
+    dataset reader of benchmarks/datasets)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError:
+        return False
+    return '"shared"' in text or "benchmarks.datasets" in text or "/work/shared" in text
+
+
+#: the test modules this run collects, those that fail to import included
+_COLLECTED: set[Path] = set()
+
+
+def pytest_collect_file(file_path, parent):
+    if file_path.suffix == ".py" and file_path.name.startswith("test_"):
+        _COLLECTED.add(Path(file_path))
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Without the shared real data, a run that collected tests reading it stops before any test
+    with one line that says what is missing and where it comes from (rather than failures and
+    errors one by one, or tests skipped, which would pass where the data are broken)."""
+    if SHARED_DATA.is_dir():
+        return
+    files = sorted(f for f in _COLLECTED if needs_shared(f))
+    if files:
+        names = ", ".join(f.relative_to(Path(__file__).resolve().parent).as_posix() for f in files[:3])
+        more = f" and {len(files) - 3} more" if len(files) > 3 else ""
+        pytest.exit(f"the real data these tests read are missing: {SHARED_DATA} (TIAGo, BROAD) is not there; "
+                    f"{len(files)} test files need it ({names}{more}). It is the project's shared/ folder, laid "
+                    "beside the checkout as CI has it: clone or link it there (ln -s /path/to/shared "
+                    f"{SHARED})", returncode=4)
 
 
 @pytest.fixture
