@@ -184,7 +184,10 @@ class ForwardSolver(NewtonSolver):
                         angles = get(values)
                         if not (min(angles) > -_HALF_PI and max(angles) <= _HALF_PI):
                             p = self._wrapped(p, out[n_p:n_p + 4], out[n_p + 4:n_p + 7])
-                    return ForwardResult(p, out[n_p:n_p + 4], out[n_p + 4:n_p + 7], int(values[-4]), values[-3], True)
+                            values[:n_p] = p.tolist()
+                    if all(lo <= values[k] <= hi for k, lo, hi in self._bounds):
+                        return ForwardResult(p, out[n_p:n_p + 4], out[n_p + 4:n_p + 7], int(values[-4]), values[-3],
+                                             True)
                 return self._forward_checked(u.copy(), None, None, allow_mirror, restarts is not False, out)
         u = self.check_controls(u, strict=strict)
         if u.ndim != 1:
@@ -214,6 +217,7 @@ class ForwardSolver(NewtonSolver):
             return self._result(out, r)
         first = (out, verdict, r)
         mirror = (out, r) if verdict == "mirror" else None
+        outside = (out, r) if verdict == "outside" else None
         if again:
             for start in self._restart_poses(u, self._td(td), p0):
                 o = self._solve_one(u, td, start)
@@ -222,6 +226,10 @@ class ForwardSolver(NewtonSolver):
                     return self._result(o, rr)
                 if v == "mirror" and mirror is None:
                     mirror = (o, rr)
+                if v == "outside" and outside is None:
+                    outside = (o, rr)
+        if outside is not None:  # on the branch, beyond the coordinates' bounds, and nothing better found
+            return self._result(*outside)
         if allow_mirror and mirror is not None:
             return self._result(*mirror)
         out, verdict, r = first
@@ -240,8 +248,10 @@ class ForwardSolver(NewtonSolver):
         raise NoConvergence(f"{self.spec.name} forward kinematics", int(iterations), float(residual), why)
 
     def _verdict(self, out: np.ndarray, u, td) -> tuple[str, np.ndarray | None]:
-        """'ok', 'failed' (no convergence), 'mirror' (off the branch) or 'misfit' (rows beyond
-        their plausible misfit) for one out row, with the rows' residual of a redundant stand."""
+        """'ok', 'failed' (no convergence), 'mirror' (off the branch), 'misfit' (rows beyond
+        their plausible misfit) or 'outside' (on the branch, outside the coordinates' bounds: a
+        solution the restarts try to better, kept when they do not) for one out row, with the
+        rows' residual of a redundant stand."""
         if out[-2] != CONVERGED:
             return "failed", None
         r = None
@@ -251,7 +261,25 @@ class ForwardSolver(NewtonSolver):
                 return "misfit", r
         if not out[-1]:
             return "mirror", r
+        if self._bounds:
+            n_p = self._n_p
+            p = self._wrapped(out[:n_p], out[n_p:n_p + 4], out[n_p + 4:n_p + 7]).tolist()
+            if not all(lo <= p[k] <= hi for k, lo, hi in self._bounds):
+                return "outside", r
         return "ok", r
+
+    @functools.cached_property
+    def _bounds(self) -> tuple[tuple[int, float, float], ...]:
+        """(k, lower, upper) of the coordinates whose bounds restrict them: finite, and for an
+        angle narrower than (-pi, pi] (angles are wrapped there)."""
+        out = []
+        for k, c in enumerate(self.spec.coordinates):
+            lo, hi = float(c.lower), float(c.upper)
+            if c.unit == "rad" and lo <= -math.pi and hi >= math.pi:
+                continue
+            if math.isfinite(lo) or math.isfinite(hi):
+                out.append((k, lo - 1e-9, hi + 1e-9))
+        return tuple(out)
 
     def _result(self, out: np.ndarray, r: np.ndarray | None = None) -> ForwardResult:
         n_p = self.spec.n_p
@@ -338,7 +366,11 @@ class ForwardSolver(NewtonSolver):
             converged &= np.array([not self._implausible(r) for r in R], bool)
         on = out[:, -1] > 0.5
         if restarts:
-            for i in np.nonzero(~(converged & on))[0]:
+            retry = ~(converged & on)
+            if self._bounds:
+                for i in np.nonzero(~retry)[0]:
+                    retry[i] = self._verdict(out[i], U[i], td)[0] == "outside"
+            for i in np.nonzero(retry)[0]:
                 again = self._batch_restart(U[i], td, P0[i if stride else 0])
                 if again is not None:
                     out[i], r = again
