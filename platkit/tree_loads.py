@@ -70,12 +70,16 @@ class TreeLoads:
         self.tree = tree
         model = pin.buildModelFromUrdf(str(self.path))
         self.joints: list[str] = []
+        self._idx_q: list[int] = []
+        self._circle: list[bool] = []  # a continuous joint: pinocchio's q holds (cos, sin)
         for jid in range(1, model.njoints):
             j = model.joints[jid]
-            if j.nq != 1 or j.nv != 1:
-                raise BadDescription(f"{self.path}: joint {model.names[jid]!r} has {j.nq} coordinates; tree loads "
-                                     "take one-dof joints (revolute, continuous, prismatic)")
+            if j.nv != 1 or j.nq not in (1, 2):
+                raise BadDescription(f"{self.path}: joint {model.names[jid]!r} has {j.nv} degrees of freedom; tree "
+                                     "loads take one-dof joints (revolute, continuous, prismatic)")
             self.joints.append(model.names[jid])
+            self._idx_q.append(j.idx_q)
+            self._circle.append(j.nq == 2)
         self.mimic: dict[str, tuple[str, float, float]] = {}
         for name in self.joints:
             m = tree.joints[name].mimic
@@ -151,6 +155,16 @@ class TreeLoads:
             Q[:, self.index[n]] = mult * Q[:, self.index[master]] + off
         return Q
 
+    def pinocchio_q(self, q: np.ndarray) -> np.ndarray:
+        """pinocchio's configuration vector of one configuration ``q`` (J,) (joint values)."""
+        out = np.zeros(self.model.nq)
+        for v, i, circle in zip(q, self._idx_q, self._circle):
+            if circle:
+                out[i], out[i + 1] = np.cos(v), np.sin(v)
+            else:
+                out[i] = v
+        return out
+
     # ------------------------------------------------------------------ loads
     def loads(self, Q: np.ndarray) -> Loads:
         """Gravity loads at the configurations ``Q`` (N, J) (mimic joints as given: call
@@ -164,8 +178,9 @@ class TreeLoads:
         moment, force = np.zeros((N, J, 3)), np.zeros((N, J, 3))
         origin, rotation = np.zeros((N, J, 3)), np.zeros((N, J, 3, 3))
         for k in range(N):
-            pin.rnea(model, data, Q[k], zero, zero)
-            pin.forwardKinematics(model, data, Q[k])
+            q = self.pinocchio_q(Q[k])
+            pin.rnea(model, data, q, zero, zero)
+            pin.forwardKinematics(model, data, q)
             for j in range(J):
                 f = data.f[j + 1]
                 moment[k, j], force[k, j] = f.angular, f.linear
@@ -185,7 +200,7 @@ class TreeLoads:
         Q = np.atleast_2d(np.asarray(Q, float))
         origin, rotation = np.zeros((len(Q), 3)), np.zeros((len(Q), 3, 3))
         for k, q in enumerate(Q):
-            pin.framesForwardKinematics(self.model, self.data, q)
+            pin.framesForwardKinematics(self.model, self.data, self.pinocchio_q(q))
             origin[k], rotation[k] = self.data.oMf[fid].translation, self.data.oMf[fid].rotation
         return origin, rotation
 

@@ -447,7 +447,6 @@ def untried_bending(spec: PlatformSpec, poses) -> list[str]:
 class LinkBending(Effect):
     name = "link_bending"
     summary = "a link bends about the two axes across a joint's axis under the gravity moment there"
-    simulation_size = SizeHelp("the largest bending rotation over the commands", "mrad")
     simulation_size = SizeHelp("the largest bending rotation over the commands (default 1)", "mrad")
 
     def candidates(self, spec, poses, residuals=None):

@@ -148,3 +148,15 @@ def test_the_moment_is_the_subtrees_weight_about_the_joint(tmp_path):
             com = data.oMi[j + 1].act(data.com[j + 1])  # pinocchio keeps a subtree's CoM in its joint's frame
             held = -np.cross(com - L.origin[k, j], data.mass[j + 1] * g)
             assert np.allclose(L.rotation[k, j] @ L.moment[k, j], held, atol=1e-9)
+
+
+def test_a_continuous_joint_loads_as_a_revolute_one(tmp_path):
+    T = TreeLoads(_tree(tmp_path))
+    wheel = tmp_path / "wheel"
+    wheel.mkdir()
+    text = _tree(wheel).read_text().replace('<joint name="l2" type="revolute">', '<joint name="l2" type="continuous">')
+    (wheel / "tree.urdf").write_text(text)
+    C = TreeLoads(wheel / "tree.urdf")
+    assert C.model.nq == T.model.nq + 1  # pinocchio keeps (cos, sin) for it
+    Q = T.configuration(NAMES, CONFIGS)
+    assert np.allclose(C.loads(Q).torque, T.loads(Q).torque, atol=1e-12)
