@@ -28,7 +28,8 @@ setup(
     packages=[*find_packages(include=["platkit", "platkit.*"]), *PLUGINS, *DATA, *SESSIONS],
     package_dir={**{p: "plugins/" + p.replace(".", "/") for p in PLUGINS}, **DATA},
     package_data={
-        "platkit": ["py.typed"],
+        "platkit": ["py.typed", "*.c"],  # C sources compiled on first use (platkit.native.compiled_library)
+        "platkit.chains": ["*.c"],
         "platkit_data.descriptions": ["*.yaml", "*.urdf"],
         "platkit_data.sessions": ["README.md"],
         **{s: ["*.yaml", "*.csv", "*.c3d"] for s in SESSIONS},

@@ -62,7 +62,7 @@ from platkit.geometry import (
 from platkit.io.cache import c_compiler
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
-from platkit.native import cache_dir
+from platkit.native import compiled_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
@@ -604,43 +604,27 @@ def compile_flags(f: ca.Function) -> list[str]:
     return COMPILE_FLAGS_SMALL if f.n_instructions() <= SMALL_FUNCTION else COMPILE_FLAGS
 
 
-def _library(f: ca.Function, cc: str) -> tuple[Path, str]:
-    """The cache path of ``f``'s compiled library (:func:`platkit.native.cache_dir`, named by a hash
-    of its C source, the compiler and the flags) and that source."""
-    cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-    cg.add(f)
-    source = cg.dump()
-    key = hashlib.sha256((source + cc + " ".join(compile_flags(f)) + sys.platform + ca.__version__).encode()).hexdigest()
-    return cache_dir() / f"observe_{key[:24]}.so", source
-
-
 def _compiled(f: ca.Function, compile_now: bool) -> ca.Function | None:
     """``f`` compiled to C and loaded as an external function: from the cache, or, with
-    ``compile_now``, compiled with the system compiler and kept there. None where there is no
-    library and ``compile_now`` is false, without a compiler, with PLATKIT_COMPILE=0, or when
-    compiling fails (the caller keeps CasADi's interpreter). The same operations, no
-    floating-point contraction: the interpreter's numbers to rounding (1e-15 m measured)."""
+    ``compile_now``, compiled with the system compiler and kept there
+    (:func:`platkit.native.compiled_library`, named by a hash of its C source, the compiler, the
+    flags and CasADi's version). None where there is no library and ``compile_now`` is false,
+    without a compiler, with PLATKIT_COMPILE=0, or when compiling fails (the caller keeps CasADi's
+    interpreter). The same operations, no floating-point contraction: the interpreter's numbers to
+    rounding (1e-15 m measured)."""
     cc = _compiler()
     if cc is None:
         return None
-    lib, source = _library(f, cc)
+    cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
+    cg.add(f)
     with _compile_lock:
+        built = compiled_library(cg.dump(), "observe", compile_flags(f), cc=cc, salt=ca.__version__,
+                                 compile_now=compile_now, timeout=600)
+        if isinstance(built, str):
+            return None
         try:
-            if not lib.is_file():
-                if not compile_now:
-                    return None
-                lib.parent.mkdir(parents=True, exist_ok=True)
-                with tempfile.TemporaryDirectory(dir=lib.parent, prefix=".build-") as tmp:
-                    src = Path(tmp) / f"{f.name()}.c"
-                    src.write_text(source)
-                    out = Path(tmp) / lib.name
-                    proc = subprocess.run([cc, *compile_flags(f), "-o", str(out), str(src), "-lm"], capture_output=True,
-                                          text=True, timeout=600)
-                    if proc.returncode != 0:
-                        return None
-                    os.replace(out, lib)  # atomic: other processes see the whole library or none
-            return ca.external(f.name(), str(lib))
-        except (OSError, subprocess.SubprocessError, RuntimeError):
+            return ca.external(f.name(), str(built))
+        except RuntimeError:
             return None
 
 

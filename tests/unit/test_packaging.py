@@ -83,6 +83,10 @@ def test_the_wheel_holds_every_package_and_builtin_plugin(names):
     assert {f"{p}/__init__.py" for p in packages} - names == set()
     assert "platkit/py.typed" in names
     assert not [n for n in names if n.startswith(("tests/", "benchmarks/", "docs/")) or "__pycache__" in n]
+    # the C sources compiled on first use (platkit.native.compiled_library) are package data
+    sources = {str(p.relative_to(REPO)) for p in (REPO / "platkit").rglob("*.c")}
+    assert {"platkit/newton_driver.c", "platkit/chains/native_servo.c"} <= sources
+    assert sources - names == set()
 
 
 def test_every_plugin_folder_is_on_the_builtin_list():
