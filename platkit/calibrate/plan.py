@@ -289,7 +289,8 @@ class IdentificationJacobian:
 def identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarray, td=None,
                             P: np.ndarray | None = None, model: PlatformModel | None = None) -> IdentificationJacobian:
     """The identification Jacobian at controls U (N, n_u) with markers (M, 3) m on the moving
-    part; ``P`` (N, n_p): the poses if already solved."""
+    part (on a tree, marker k on tracked link k mod L); ``P`` (N, n_p): the poses if already
+    solved."""
     model = model or PlatformModel(spec)
     td = spec.nominal_td() if td is None else np.asarray(td, float)
     U = np.atleast_2d(U)
@@ -299,6 +300,8 @@ def identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarr
             raise BadInput(f"{spec.name}: {(~ok).sum()} of the planned controls are not reachable")
     M = len(markers)
     free = np.array([p.free for p in spec.parameters])
+    if spec.link_poses is not None and len(spec.tracked_links) > 1:
+        return _tree_identification_jacobian(spec, U, np.asarray(markers, float), td, free)
     mfun = _marker_function(spec, M)
     s_flat = np.asarray(markers, float).reshape(-1)  # x,y,z per marker, matching the reshape above
     N = len(U)
@@ -320,6 +323,38 @@ def identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarr
         names += [f"marker{k + 1}_{a}" for a in "xyz"]
         units += ["m"] * 3
     return IdentificationJacobian(J, names, units, int(free.sum()))
+
+
+def _tree_identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarray, td: np.ndarray,
+                                   free: np.ndarray) -> IdentificationJacobian:
+    """:func:`identification_jacobian` of a tree (several tracked links): marker k rides on tracked
+    link k mod L, so that every branch is planned for; closed form through ``spec.link_poses``."""
+    M, L = len(markers), len(spec.tracked_links)
+    u = ca.SX.sym("u", spec.n_u)
+    t = ca.SX.sym("td", spec.n_td)
+    S = ca.SX.sym("s", 3 * M)
+    q_all, X_all = spec.link_poses(u, t)
+    m = ca.vertcat(*[X_all[3 * (k % L):3 * (k % L) + 3]
+                     + ca.mtimes(ca_matrix_from_quat(q_all[4 * (k % L):4 * (k % L) + 4]), S[3 * k:3 * k + 3])
+                     for k in range(M)])
+    f = ca.Function("tree_markers", [u, t, S], [m, ca.jacobian(m, t), ca.jacobian(m, S)])
+    N = len(U)
+    n_free = int(free.sum())
+    J = np.zeros((N, 3 * M, n_free + 6 + 3 * M))
+    s_flat = markers.reshape(-1)
+    for i in range(N):
+        mv, m_td, m_s = (np.asarray(a) for a in f(U[i], td, s_flat))
+        mv = mv.reshape(M, 3)
+        J[i, :, :n_free] = m_td[:, free]
+        J[i, :, n_free:n_free + 3] = np.tile(np.eye(3), (M, 1))
+        J[i, :, n_free + 3:n_free + 6] = np.vstack([-skew(mk) for mk in mv])
+        J[i, :, n_free + 6:] = m_s
+    names = [p.name for p in spec.parameters if p.free] + ["mocap_x", "mocap_y", "mocap_z", "mocap_rx", "mocap_ry", "mocap_rz"]
+    units = [p.unit for p in spec.parameters if p.free] + ["m"] * 3 + ["rad"] * 3
+    for k in range(M):
+        names += [f"marker{k + 1}_{a}" for a in "xyz"]
+        units += ["m"] * 3
+    return IdentificationJacobian(J, names, units, n_free)
 
 
 class _Subspace:

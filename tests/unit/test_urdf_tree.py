@@ -353,3 +353,24 @@ def test_exported_urdf_keeps_a_calibrated_mimic_coupling(tmp_path):
     for n in range(len(U)):
         _, Xb = back.forward(U[n, cols], back.nominal_td())
         assert np.allclose(np.asarray(Xb).ravel(), X[n, 1], atol=1e-10)
+
+
+def test_plan_for_a_tree_plans_for_every_branch():
+    """The identification Jacobian of a tree puts markers on every tracked link: the plan's
+    uncertainties cover both arms, and its rank is the chain's plus the other arm's."""
+    from platkit.calibrate.plan import default_marker_layout, identification_jacobian, random_candidates
+
+    spec = tree_spec()
+    rng = np.random.default_rng(0)
+    cand = random_candidates(spec, 30, rng)
+    markers = default_marker_layout(spec, 6, np.random.default_rng(0))
+    J = identification_jacobian(spec, cand.controls, markers).J
+    left = [i for i, n in enumerate(spec.parameter_names) if spec.parameters[i].free and n.startswith("left_")]
+    cols = [k for k, i in enumerate(np.nonzero([p.free for p in spec.parameters])[0]) if i in left]
+    assert np.linalg.norm(J[:, :, cols]) > 0  # the left arm is seen
+    chain = get_platform("urdf", URDF, moving_link="right_tcp")
+    sub = [spec.control_names.index(n) for n in chain.control_names]
+    J_chain = identification_jacobian(chain, cand.controls[:, sub], markers).J
+    rank_tree = np.linalg.matrix_rank(J.reshape(-1, J.shape[-1]), tol=1e-9)
+    rank_chain = np.linalg.matrix_rank(J_chain.reshape(-1, J_chain.shape[-1]), tol=1e-9)
+    assert rank_tree > rank_chain + 10
