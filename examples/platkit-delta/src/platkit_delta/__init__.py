@@ -23,29 +23,21 @@ import numpy as np
 
 from platkit.errors import BadDescription, BadInput
 from platkit.hookspecs import hookimpl
-from platkit.io.description import load_yaml, number, require, vector
+from platkit.io.description import check_fields, check_platform, load_yaml, number, require, vector
 from platkit.model import Control, Coordinate, Parameter, PlatformFactory, PlatformSpec, length_scale
 
 NAME = "delta"
 N_ARMS = 3
 DEFAULT_DESCRIPTION = Path(__file__).with_name("delta.yaml")
-TOP_FIELDS = {"platform", "units", "arms", "neutral_pose", "workspace"}
-ARM_FIELDS = {"name", "base_joint", "azimuth_deg", "platform_joint", "upper_arm", "forearm", "zero_offset", "range"}
-
-
-def _no_unknown_fields(data: dict, known: set, path: Path, where: str = "") -> None:
-    unknown = sorted(set(data) - known)
-    if unknown:
-        field = f"{where}.{unknown[0]}" if where else unknown[0]
-        raise BadDescription(f"{path}: unknown field {field!r} (known: {', '.join(sorted(known))})")
+TOP_FIELDS = ("units", "arms", "neutral_pose", "workspace")
+ARM_FIELDS = ("name", "base_joint", "azimuth_deg", "platform_joint", "upper_arm", "forearm", "zero_offset", "range")
 
 
 def read_description(path: Path) -> dict:
     """Parse and check a description; return SI arrays. Every error names the file and field."""
     data = load_yaml(path)
-    _no_unknown_fields(data, TOP_FIELDS, path)
-    if data.get("platform", NAME) != NAME:
-        raise BadDescription(f"{path}: field 'platform' says {data['platform']!r}, not {NAME!r}")
+    check_platform(data, NAME, path)
+    check_fields(data, TOP_FIELDS, path)
     units = require(data, "units", path, dict)
     scale = length_scale(str(units.get("length", "")))
     arms = require(data, "arms", path, list)
@@ -56,7 +48,7 @@ def read_description(path: Path) -> dict:
         where = f"arms[{i}]"
         if not isinstance(arm, dict):
             raise BadDescription(f"{path}: {where} must be a mapping")
-        _no_unknown_fields(arm, ARM_FIELDS, path, where)
+        check_fields(arm, ARM_FIELDS, path, where)
         out["names"].append(require(arm, "name", path, str, where))
         out["B"].append(vector(arm, "base_joint", path, 3, where) * scale)
         out["P"].append(vector(arm, "platform_joint", path, 3, where) * scale)
@@ -74,10 +66,10 @@ def read_description(path: Path) -> dict:
             raise BadDescription(f"{path}: field '{where}.range' must be [min, max] with min < max")
         out["ranges"].append(r)
     neutral = require(data, "neutral_pose", path, dict)
-    _no_unknown_fields(neutral, {"position"}, path, "neutral_pose")
+    check_fields(neutral, ("position",), path, "neutral_pose")
     X0 = vector(neutral, "position", path, 3, "neutral_pose") * scale
     box = require(data, "workspace", path, dict)
-    _no_unknown_fields(box, {"min", "max"}, path, "workspace")
+    check_fields(box, ("min", "max"), path, "workspace")
     lo = vector(box, "min", path, 3, "workspace") * scale
     hi = vector(box, "max", path, 3, "workspace") * scale
     if not np.all(lo < X0) or not np.all(X0 < hi):
