@@ -4,7 +4,8 @@ every joint, from the configuration of every joint of the tree, mimic joints inc
 Rules:
 
 - The model is pinocchio's of the whole URDF (fixed base, gravity along the root's -z), every
-  one-dof joint a joint of its own; a mimic joint takes ``multiplier * master + offset`` (URDF
+  one-dof joint a joint of its own (joints of more degrees of freedom, floating or planar, held at
+  pinocchio's neutral configuration: ``held``); a mimic joint takes ``multiplier * master + offset`` (URDF
   semantics), so its load is the load at the place it really is. Joints not given sit at zero.
 - ``loads(Q)``: for each configuration, the spatial force each joint transmits to its subtree
   (pinocchio's rnea at zero velocity and acceleration, ``data.f``; pinocchio's gravity, 9.81 m/s^2), in the joint's own frame:
@@ -69,14 +70,16 @@ class TreeLoads:
         tree = read_urdf(self.path)
         self.tree = tree
         model = pin.buildModelFromUrdf(str(self.path))
+        # joints of more than one degree of freedom (floating, planar) are held at pinocchio's neutral
+        self.held = [model.names[jid] for jid in range(1, model.njoints)
+                     if model.joints[jid].nv != 1 or model.joints[jid].nq not in (1, 2)]
+        if self.held:
+            model = pin.buildReducedModel(model, [model.getJointId(n) for n in self.held], pin.neutral(model))
         self.joints: list[str] = []
         self._idx_q: list[int] = []
         self._circle: list[bool] = []  # a continuous joint: pinocchio's q holds (cos, sin)
         for jid in range(1, model.njoints):
             j = model.joints[jid]
-            if j.nv != 1 or j.nq not in (1, 2):
-                raise BadDescription(f"{self.path}: joint {model.names[jid]!r} has {j.nv} degrees of freedom; tree "
-                                     "loads take one-dof joints (revolute, continuous, prismatic)")
             self.joints.append(model.names[jid])
             self._idx_q.append(j.idx_q)
             self._circle.append(j.nq == 2)

@@ -160,3 +160,15 @@ def test_a_continuous_joint_loads_as_a_revolute_one(tmp_path):
     assert C.model.nq == T.model.nq + 1  # pinocchio keeps (cos, sin) for it
     Q = T.configuration(NAMES, CONFIGS)
     assert np.allclose(C.loads(Q).torque, T.loads(Q).torque, atol=1e-12)
+
+
+def test_a_floating_joint_is_held_at_rest(tmp_path):
+    T = TreeLoads(_tree(tmp_path))
+    free = tmp_path / "free"
+    free.mkdir()
+    (free / "tree.urdf").write_text(_tree(free).read_text().replace('<joint name="neck" type="fixed">',
+                                                                    '<joint name="neck" type="floating">'))
+    F = TreeLoads(free / "tree.urdf")
+    assert F.held == ["neck"] and F.joints == T.joints
+    Q = T.configuration(NAMES, CONFIGS)
+    assert np.allclose(F.loads(Q).torque, T.loads(Q).torque, atol=1e-12)
