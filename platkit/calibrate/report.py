@@ -83,6 +83,16 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
     if after is not None:
         pm = per_marker_rms(after, cal.extras.get("weights"))
         out["rms_after_per_marker"] = {n: _finite_or_none(v / s) for n, v in zip(channel_names(cal), pm)}
+        if cal.marker_links:  # a tree: each tracked link's markers together (docs/trees.md)
+            M = len(cal.marker_names)
+            keep = np.isfinite(after[:, :M]).all(axis=2) & (np.asarray(cal.extras.get("weights"))[:, :M] > 0)
+            d2 = np.sum(np.nan_to_num(after[:, :M]) ** 2, axis=2)
+            out["rms_after_per_link"] = {}
+            for link in dict.fromkeys(cal.marker_links[m] for m in cal.marker_names):
+                on = np.array([cal.marker_links[m] == link for m in cal.marker_names])
+                sel = keep[:, on]
+                out["rms_after_per_link"][link] = _finite_or_none(np.sqrt(np.mean(d2[:, on][sel])) / s) if sel.any() \
+                    else None
         d = np.linalg.norm(after, axis=2)
         out["max_error_after"] = _finite_or_none(np.nanmax(d) / s) if np.isfinite(d).any() else None
     if cal.heldout:

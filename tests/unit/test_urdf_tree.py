@@ -192,6 +192,10 @@ def test_cli_tree_session_calibrates_and_the_moved_results_still_predict(tmp_pat
     out = tmp_path / "results"
     assert main(["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)]) == 0
     data = yaml.safe_load((out / "calibration.yaml").read_text())
+    import json
+
+    per_link = json.loads((out / "report.json").read_text())["rms_after_per_link"]
+    assert list(per_link) == ["right_tcp", "left_tcp"] and all(v < 0.2 for v in per_link.values())
     assert data["description"] == "description/robot.urdf"  # relative to calibration.yaml, copied beside it
     assert data["markers"]["L2"]["link"] == "left_tcp" and data["platform_options"]["moving_link"] == MAPPING
     # the session and its URDF gone, the results folder moved: it still predicts
