@@ -24,6 +24,7 @@ import traceback
 import warnings as warnings_module
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from platkit.errors import BadInput, PlatkitError
@@ -35,7 +36,7 @@ except ImportError:  # pragma: no cover - exercised in environments without the 
     dask = Client = LocalCluster = as_completed = None
 
 __all__ = ["SCHEDULER_ENV", "INSTALL_HINT", "Task", "Outcome", "require_dask", "have_dask", "cluster", "guarded",
-           "run_tasks", "default_workers"]
+           "run_tasks", "default_workers", "capped_workers", "TaskTimeout", "terminate_as_interrupt", "scratch_folder"]
 
 #: environment variable naming an existing Dask scheduler (same as --scheduler ADDRESS)
 SCHEDULER_ENV = "PLATKIT_DASK_SCHEDULER"
@@ -88,17 +89,64 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def capped_workers(workers: int | None) -> tuple[int, str]:
+    """Worker processes of the embedded cluster for ``--workers`` (None: one per core), at most
+    the cores this process may use (its CPU affinity, else os.cpu_count): more processes than
+    cores only share them. Returns the count and, where ``workers`` was capped, one line saying so."""
+    cores = default_workers()
+    if workers is None:
+        return cores, ""
+    if workers < 1:
+        raise BadInput(f"--workers {workers}: use 1 or more")
+    if workers > cores:
+        return cores, f"--workers {workers}: this process may use {cores} cores; running {cores} workers"
+    return workers, ""
+
+
+def _ignore_interrupts_in_children():
+    """A context in which processes started ignore SIGINT (and keep ignoring it after exec: Python
+    installs its Ctrl-C handler only where SIGINT is not ignored). The cluster's workers then
+    leave a Ctrl-C at the terminal to this process, which stops them itself, with one line."""
+    import signal
+    import threading
+
+    @contextlib.contextmanager
+    def ctx():
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, before)
+
+    return ctx()
+
+
+#: the dashboard of the embedded cluster, where one is asked for (a free port if 8787 is taken)
+DASHBOARD_ADDRESS = ":8787"
+
+
 @contextlib.contextmanager
-def cluster(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+def cluster(scheduler: str | None = None, workers: int | None = None, dashboard: bool = False,
+            say: Callable[[str], None] | None = None) -> Iterator[Any]:
     """A dask.distributed Client: connected to ``scheduler`` (an address such as
     ``tcp://10.0.0.5:8786``; default the ``PLATKIT_DASK_SCHEDULER`` environment variable), else
-    to an embedded LocalCluster of ``workers`` processes (default one per core) with one thread
-    each, closed on exit. An unreachable scheduler is bad input (exit 2)."""
+    to an embedded LocalCluster of ``workers`` processes (default one per core, never more than
+    the cores this process may use: :func:`capped_workers`) with one thread each, closed on exit.
+    ``dashboard``: the embedded cluster serves Dask's dashboard (needs bokeh); its address is
+    handed to ``say``, as is a cap on the workers. The workers ignore Ctrl-C: the caller's
+    KeyboardInterrupt closes the cluster (and with it the workers) on its way out. An
+    unreachable scheduler is bad input (exit 2)."""
     require_dask()
+    say = say or (lambda line: print(f"batch: {line}", file=sys.stderr, flush=True))
     address = scheduler or os.environ.get(SCHEDULER_ENV) or None
     if address:
         if workers is not None:
             raise BadInput(f"--workers applies to the embedded cluster; the scheduler at {address} has its own workers")
+        if dashboard:
+            raise BadInput(f"--dashboard applies to the embedded cluster; the scheduler at {address} serves its own")
         try:
             client = Client(address, timeout="10s")
         except (OSError, TimeoutError, ValueError) as exc:
@@ -108,33 +156,69 @@ def cluster(scheduler: str | None = None, workers: int | None = None) -> Iterato
         finally:
             client.close()
         return
-    n = default_workers() if workers is None else workers
-    if n < 1:
-        raise BadInput(f"--workers {n}: use 1 or more")
+    n, capped = capped_workers(workers)
+    if capped:
+        say(capped)
+    if dashboard:
+        try:
+            import bokeh  # noqa: F401 - Dask's dashboard is drawn with it
+        except ImportError:
+            raise BadInput('--dashboard needs bokeh, which is not installed: pip install "bokeh>=3.1"') from None
     # one thread per worker: the calibrations are numpy/CasADi-bound, so processes, not threads, scale.
     # Tasks last seconds: Dask's sampling profiler (every 10 ms) and GIL monitor (every 1 ms) would
     # only take CPU from them (measured in benchmarks/batch_scaling.py)
     with dask.config.set(QUIET_CONFIG):
-        with warnings_module.catch_warnings():
+        with warnings_module.catch_warnings(), _ignore_interrupts_in_children():
             # with no dashboard the scheduler still serves health checks over HTTP, on another port when 8787 is
             # taken (another cluster on this machine): not worth a warning
             warnings_module.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
-            local = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                                 silence_logs=logging.ERROR)
+            local = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                 dashboard_address=DASHBOARD_ADDRESS if dashboard else None,
+                                 silence_logs=logging.CRITICAL)
         with local, Client(local) as client:
+            if dashboard:
+                say(f"dashboard at {client.dashboard_link}")
             yield client
 
 
-def guarded(fn: Callable, *args) -> dict:
+class TaskTimeout(Exception):
+    """Raised inside a task that ran past its time limit (see :func:`guarded`)."""
+
+
+def _raise_in(thread_id: int, exc_type: type) -> None:
+    import ctypes
+
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread_id), ctypes.py_object(exc_type))
+
+
+def guarded(fn: Callable, *args, timeout: float | None = None) -> dict:
     """Run ``fn(*args)`` on a worker; return a plain dict (ok, value | error, kind, seconds,
     worker, warnings). A platkit error keeps its one-line message; anything else is named with
-    its class and the last frame, so a person finds it without the worker's log."""
+    its class and the last frame, so a person finds it without the worker's log. ``timeout``
+    (s): past it the task is stopped (a :class:`TaskTimeout` raised in its thread, which takes
+    effect at its next Python instruction: a single long call into compiled code ends first) and
+    is a failed outcome of kind 'timed out'; the worker goes on with the next task."""
+    import threading
+
     start = time.perf_counter()
     where = f"{socket.gethostname()}:{os.getpid()}"
+    timer = None
+    if timeout is not None:
+        timer = threading.Timer(timeout, _raise_in, (threading.get_ident(), TaskTimeout))
+        timer.daemon = True
+        timer.start()
     with warnings_module.catch_warnings(record=True) as caught:
         warnings_module.simplefilter("always")
         try:
-            value = fn(*args)
+            try:
+                value = fn(*args)
+            finally:
+                if timer is not None:
+                    timer.cancel()
+        except TaskTimeout:
+            return {"ok": False, "error": f"timed out: stopped after {timeout:g} s (--task-timeout)",
+                    "kind": "timed out", "seconds": time.perf_counter() - start, "worker": where,
+                    "warnings": _lines(caught)}
         except PlatkitError as exc:
             return {"ok": False, "error": str(exc), "kind": "bad input" if exc.exit_code == 2 else "failed",
                     "seconds": time.perf_counter() - start, "worker": where, "warnings": _lines(caught)}
@@ -152,13 +236,16 @@ def _lines(caught) -> list[str]:
 
 
 def run_tasks(client, fn: Callable, tasks: Sequence[Task], on_outcome: Callable[[Outcome], None] | None = None,
-              progress: Callable[[Outcome, int, int], None] | None = None, retries: int = 0) -> list[Outcome]:
+              progress: Callable[[Outcome, int, int], None] | None = None, retries: int = 0,
+              timeout: float | None = None) -> list[Outcome]:
     """Run ``fn(*task.args)`` for every task on ``client``'s cluster; return the outcomes in the
     order they finished. ``on_outcome(outcome)`` runs here, in this process, as each finishes
     (write its results there); ``progress(outcome, done, total)`` after it. Each task's outcome
     is handed over exactly once. A task whose workers died more often than the scheduler allows
     (``distributed.scheduler.allowed-failures``) is a 'lost' outcome; ``retries`` re-runs a task
-    whose function raised something outside :func:`guarded` (none, by default)."""
+    whose function raised something outside :func:`guarded` (none, by default); ``timeout`` (s) stops
+    a task that runs longer (:func:`guarded`). Interrupted (Ctrl-C, or SIGTERM turned into one by
+    the caller), the tasks not finished are cancelled before the interrupt goes on."""
     require_dask()
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
@@ -167,10 +254,21 @@ def run_tasks(client, fn: Callable, tasks: Sequence[Task], on_outcome: Callable[
     run_id = f"{os.getpid()}-{time.time_ns()}"
     futures = {}
     for t in tasks:
-        fut = client.submit(guarded, fn, *t.args, key=f"platkit-{t.key}-{run_id}", pure=False, retries=retries)
+        fut = client.submit(guarded, fn, *t.args, timeout=timeout, key=f"platkit-{t.key}-{run_id}", pure=False,
+                            retries=retries)
         futures[fut.key] = (t, fut)
     outcomes: list[Outcome] = []
     seen: set[str] = set()
+    try:
+        _collect(futures, seen, outcomes, on_outcome, progress, len(tasks))
+    except BaseException:
+        with contextlib.suppress(Exception):
+            client.cancel([f for _, f in futures.values()], force=True)
+        raise
+    return outcomes
+
+
+def _collect(futures, seen, outcomes, on_outcome, progress, total) -> None:
     for fut in as_completed([f for _, f in futures.values()]):
         task, _ = futures[fut.key]
         if task.key in seen:  # a result is taken once, whatever the scheduler did to get it
@@ -189,8 +287,7 @@ def run_tasks(client, fn: Callable, tasks: Sequence[Task], on_outcome: Callable[
             on_outcome(outcome)
         outcomes.append(outcome)
         if progress is not None:
-            progress(outcome, len(outcomes), len(tasks))
-    return outcomes
+            progress(outcome, len(outcomes), total)
 
 
 def progress_line(prefix: str, stream=None, start: float | None = None) -> Callable[[Outcome, int, int], None]:
@@ -208,3 +305,61 @@ def progress_line(prefix: str, stream=None, start: float | None = None) -> Calla
               file=stream if stream is not None else sys.stderr, flush=True)
 
     return show
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Within it, SIGTERM is handled as Ctrl-C (a KeyboardInterrupt in the main thread), so that
+    a batch stopped either way closes its cluster, stops its workers, removes its temporary
+    folders and leaves no partial output (outputs are written whole or not at all). Outside the
+    main thread it does nothing."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+#: the prefix of a batch's scratch folder in the temporary directory (its process id follows)
+SCRATCH_PREFIX = "platkit-batch-"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: alive
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def scratch_folder() -> Iterator[str]:
+    """A folder for the tasks' private outputs (``<tmp>/platkit-batch-<pid>-XXXX``), removed on
+    the way out whatever happens (an error, Ctrl-C, SIGTERM under :func:`terminate_as_interrupt`).
+    A batch killed outright (SIGKILL) cannot remove its own: the next batch on this machine removes
+    every such folder whose process is gone."""
+    import shutil
+    import tempfile
+
+    root = Path(tempfile.gettempdir())
+    for old in root.glob(f"{SCRATCH_PREFIX}*"):
+        pid = old.name[len(SCRATCH_PREFIX):].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
+    path = tempfile.mkdtemp(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-")
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)

@@ -2,9 +2,15 @@
 parameters that moved), read back from each session's usual outputs, written as summary.csv,
 summary.json and summary.html (with plots).
 
-A parameter *moved* when its estimate differs from the description's nominal by more than
-``MOVED_SIGMA`` of its own standard deviation (the calibration's); held or fixed parameters
-(no std) never count as moved.
+A parameter *moved* in a session when its estimate differs from the description's nominal by
+more than its own standard deviation (the calibration's) explains: |z| = |value - nominal| / std
+above the two-sided Bonferroni level for ``MOVED_ALPHA`` over the parameters the session
+estimated (so a session of 30 parameters at the noise has a 1% chance of any flag, not 8%).
+Only estimated parameters are judged: one the session held at nominal (its poses did not
+identify it) is *not identified* there and has no value, and a fixed one (a gauge of the batch,
+or not asked for) neither. The fleet's medians are over the sessions that identified the
+parameter. A batch calibrates every session in one parameterisation (platkit.batch.gauge), so
+these compare across sessions.
 """
 from __future__ import annotations
 
@@ -16,19 +22,22 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy.stats import norm
 
 from platkit.batch.store import BatchFolder, SessionRef
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.figures import png_base64
 from platkit.io.jsonout import dumps
 
-__all__ = ["MOVED_SIGMA", "session_row", "summarise", "write_summary", "parameter_table"]
+__all__ = ["MOVED_ALPHA", "moved_level", "moved_parameters", "session_row", "summarise", "write_summary",
+           "parameter_table"]
 
-#: |value - nominal| beyond this many of its std: the parameter moved
-MOVED_SIGMA = 3.0
+#: family-wise level of the "moved" test over one session's estimated parameters
+MOVED_ALPHA = 0.01
 #: summary.csv columns, in order (a verb fills those it has)
 COLUMNS = ["session", "status", "error", "unit", "n_poses", "n_markers", "rms_before", "rms_after", "heldout_rms",
            "converged", "findings", "heldout_rms_before_findings", "heldout_rms_after_findings", "moved",
+           "not_identified",
            "n_samples", "method", "inclination_rmse_deg", "total_rmse_deg", "seconds", "worker", "path"]
 
 
@@ -43,16 +52,28 @@ def parameter_table(calibration_yaml: Path) -> dict[str, dict]:
             for name, p in (data.get("parameters") or {}).items()}
 
 
-def moved_parameters(params: dict[str, dict]) -> list[dict]:
+def _estimated(p: dict) -> bool:
+    return p.get("status", "estimated") == "estimated" and p.get("std") is not None and p["std"] > 0
+
+
+def moved_level(params: dict[str, dict], alpha: float = MOVED_ALPHA) -> float:
+    """|z| beyond which a parameter of this session moved: two-sided Bonferroni at ``alpha`` over
+    its estimated parameters."""
+    n = sum(1 for p in params.values() if _estimated(p))
+    return float(norm.isf(alpha / 2 / max(n, 1)))
+
+
+def moved_parameters(params: dict[str, dict], alpha: float = MOVED_ALPHA) -> list[dict]:
     """The parameters that moved (see the module docstring), largest first: name, change
     (value - nominal, in its unit), std, z."""
     out = []
+    level = moved_level(params, alpha)
     for name, p in params.items():
-        if p.get("std") is None or not p["std"] > 0:
+        if not _estimated(p):
             continue
         change = p["value"] - p["nominal"]
         z = change / p["std"]
-        if abs(z) > MOVED_SIGMA:
+        if abs(z) > level:
             out.append({"name": name, "change": change, "std": p["std"], "z": z, "unit": p["unit"]})
     return sorted(out, key=lambda m: -abs(m["z"]))
 
@@ -74,6 +95,8 @@ def session_row(verb: str, ref: SessionRef, batch: BatchFolder) -> dict:
         row["parameters"] = params
         row["moved_detail"] = moved_parameters(params)
         row["moved"] = " ".join(m["name"] for m in row["moved_detail"])
+        row["moved_level"] = moved_level(params)
+        row["not_identified"] = " ".join(n for n, p in params.items() if p.get("status") == "held_at_nominal")
     if verb == "calibrate":
         rep = _read_json(folder / "report.json")
         row.update(unit=rep["unit"], n_poses=rep["n_poses"], n_markers=rep["n_markers"], rms_before=rep["rms_before"],
@@ -106,16 +129,24 @@ def summarise(verb: str, sessions: list[SessionRef], batch: BatchFolder) -> dict
     fleet: dict[str, dict] = {}
     for r in rows:
         for name, p in (r.get("parameters") or {}).items():
-            f = fleet.setdefault(name, {"unit": p["unit"], "changes": [], "moved_in": []})
-            f["changes"].append(p["value"] - p["nominal"])
+            f = fleet.setdefault(name, {"unit": p["unit"], "changes": [], "z": [], "moved_in": [], "not_identified_in": []})
+            if _estimated(p):
+                f["changes"].append(p["value"] - p["nominal"])
+                f["z"].append((p["value"] - p["nominal"]) / p["std"])
+            elif p.get("status") == "held_at_nominal":
+                f["not_identified_in"].append(r["session"])
         for m in r.get("moved_detail", []):
             fleet[m["name"]]["moved_in"].append(r["session"])
     parameters = {name: {"unit": f["unit"], "n_sessions": len(f["changes"]),
-                         "median_change": float(np.median(f["changes"])),
+                         "median_change": float(np.median(f["changes"])) if f["changes"] else None,
                          "spread_change": float(np.std(f["changes"], ddof=1)) if len(f["changes"]) > 1 else None,
-                         "moved_in": f["moved_in"]} for name, f in fleet.items()}
-    return {"verb": verb, "counts": counts, "moved_sigma": MOVED_SIGMA,
-            "moved_definition": f"|value - nominal| > {MOVED_SIGMA:g} std of the session's own estimate",
+                         "median_z": float(np.median(f["z"])) if f["z"] else None,
+                         "moved_in": f["moved_in"], "not_identified_in": f["not_identified_in"]}
+                  for name, f in fleet.items() if f["changes"] or f["not_identified_in"]}
+    return {"verb": verb, "counts": counts, "moved_alpha": MOVED_ALPHA,
+            "moved_definition": f"|value - nominal| / std beyond the two-sided Bonferroni level for {MOVED_ALPHA:g} over "
+                                "the session's estimated parameters (its moved_level); parameters a session did not "
+                                "identify are not judged there",
             "sessions": rows, "parameters": parameters}
 
 
@@ -160,20 +191,21 @@ def _plots(summary: dict) -> list[tuple[str, str, str]]:
         for i, r in enumerate(rows):
             for j, n in enumerate(pnames):
                 p = (r.get("parameters") or {}).get(n)
-                if p and p.get("std"):
+                if p and _estimated(p):
                     Z[i, j] = (p["value"] - p["nominal"]) / p["std"]
         fig = Figure(figsize=(max(6, 0.22 * len(pnames) + 2), max(2.5, 0.22 * len(rows) + 1.5)))
         ax = fig.subplots()
         im = ax.imshow(np.clip(Z, -10, 10), cmap="coolwarm", vmin=-10, vmax=10, aspect="auto", interpolation="nearest")
-        moved = np.abs(Z) > MOVED_SIGMA
+        moved = np.abs(Z) > np.array([[r.get("moved_level") or np.inf] for r in rows])
         for i, j in zip(*np.nonzero(moved)):
             ax.text(j, i, "*", ha="center", va="center", fontsize=8)
         ax.set_xticks(np.arange(len(pnames)), pnames, rotation=90, fontsize=6)
         ax.set_yticks(np.arange(len(rows)), names, fontsize=7)
         fig.colorbar(im, ax=ax, label="(value - nominal) / std, clipped at 10")
-        out.append(("Parameters that moved", f"Each cell is one parameter of one session, its change from the "
-                    f"nominal description in units of its own std; * marks |change| > {MOVED_SIGMA:g} std. "
-                    "Grey: held at nominal or fixed.", png_base64(fig)))
+        out.append(("Parameters that moved", "Each cell is one parameter of one session, its change from the "
+                    "nominal description in units of its own std; * marks a parameter that moved (beyond the "
+                    "session's Bonferroni level). White: not estimated in that session (not identified, or "
+                    "fixed).", png_base64(fig)))
     effects: dict[str, int] = {}
     for r in rows:
         for e in (r.get("findings") or "").split():
@@ -214,11 +246,14 @@ def _html(summary: dict) -> str:
     parts.append("<h2>Sessions</h2><table><tr>" + "".join(f"<th>{html.escape(k)}</th>" for k in head) + "</tr>"
                  + table + "</table>")
     if summary["parameters"]:
-        prow = "".join(f"<tr><td>{html.escape(n)}</td><td>{len(p['moved_in'])}</td><td>{_fmt(p['median_change'])}</td>"
-                       f"<td>{_fmt(p['spread_change'])}</td><td>{html.escape(p['unit'])}</td></tr>"
+        prow = "".join(f"<tr><td>{html.escape(n)}</td><td>{p['n_sessions']}</td><td>{len(p['moved_in'])}</td>"
+                       f"<td>{_fmt(p['median_change'])}</td><td>{_fmt(p['median_z'])}</td>"
+                       f"<td>{_fmt(p['spread_change'])}</td><td>{html.escape(p['unit'])}</td>"
+                       f"<td>{html.escape(' '.join(p['not_identified_in']))}</td></tr>"
                        for n, p in summary["parameters"].items())
-        parts.append("<h2>Parameters over the fleet</h2><table><tr><th>parameter</th><th>sessions moved</th>"
-                     "<th>median change</th><th>spread of the change</th><th>unit</th></tr>" + prow + "</table>")
+        parts.append("<h2>Parameters over the fleet</h2><table><tr><th>parameter</th><th>sessions estimated</th>"
+                     "<th>sessions moved</th><th>median change</th><th>median z</th><th>spread of the change</th>"
+                     "<th>unit</th><th>not identified in</th></tr>" + prow + "</table>")
     parts.append("</body></html>")
     return "\n".join(parts)
 

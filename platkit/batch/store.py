@@ -4,10 +4,16 @@ written whole (a temporary sibling renamed into place), so a re-run skips what i
     DIR/batch.json               the verb and its options (a re-run must use the same)
     DIR/sessions/<name>/         the single verb's usual outputs, plus task.json (where, how long)
     DIR/failed/<name>.json       why a session failed (removed when a re-run succeeds)
+
+Each record (task.json, failed/<name>.json) holds the task's *fingerprint*: a hash of every file
+of the session folder (paths and contents) and of the files its options name, and a hash of the
+options it ran with (:func:`fingerprint`). A re-run redoes a session whose fingerprint differs,
+and says why.
 """
 from __future__ import annotations
 
 import glob
+import hashlib
 import json
 import os
 import re
@@ -20,7 +26,7 @@ from platkit.errors import BadInput
 from platkit.io.atomic import atomic_write_text, check_output_dir
 from platkit.io.jsonout import dumps
 
-__all__ = ["SessionRef", "find_sessions", "match_sessions", "BatchFolder", "natural_key"]
+__all__ = ["SessionRef", "find_sessions", "match_sessions", "BatchFolder", "natural_key", "fingerprint", "why_redo"]
 
 TASK_RECORD = "task.json"
 
@@ -32,6 +38,54 @@ class SessionRef:
 
     name: str
     path: Path
+
+
+def _hash_files(h, root: Path, label: str) -> None:
+    files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file())
+    for p in files:
+        rel = p.name if p == root else str(p.relative_to(root))
+        h.update(f"{label}/{rel}\0".encode())
+        with p.open("rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        h.update(b"\0")
+
+
+def fingerprint(session: str | Path, options: dict, files: dict[str, str] | None = None) -> dict:
+    """What a task's result depends on: ``inputs``, a SHA-256 over every file in the session
+    folder (relative paths and contents) and over ``files`` ({option: path}, each file or folder
+    an option names, such as a description or a calibration); ``options``, a SHA-256 of the
+    options as JSON (keys sorted)."""
+    h = hashlib.sha256()
+    _hash_files(h, Path(session), "session")
+    for key, path in sorted((files or {}).items()):
+        p = Path(path)
+        if p.exists():
+            _hash_files(h, p, key)
+        else:
+            h.update(f"{key}: missing {p}\0".encode())
+    o = hashlib.sha256(dumps(options, sort_keys=True).encode()).hexdigest()
+    return {"inputs": h.hexdigest(), "options": o}
+
+
+def why_redo(record: dict | None, now: dict, redo: bool = False) -> str:
+    """Why a session must run (a few words), or '' when its ``record`` (task.json) holds a
+    result of these inputs and options: 'new', 'failed before', 'its files changed', 'its
+    options changed', 'no fingerprint (an older batch)', '--redo'."""
+    if record is None:
+        return "new"
+    if not record.get("ok"):
+        return "failed before"
+    if redo:
+        return "--redo"
+    before = record.get("fingerprint")
+    if not isinstance(before, dict):
+        return "no fingerprint (an older batch)"
+    if before.get("inputs") != now["inputs"]:
+        return "its files changed"
+    if before.get("options") != now["options"]:
+        return "its options changed"
+    return ""
 
 
 def natural_key(text: str) -> list:
@@ -110,12 +164,13 @@ class BatchFolder:
 
     def write_session(self, name: str, files: dict[str, bytes], record: dict) -> Path:
         """Write the session's files and its task.json into sessions/<name>/ at once: they are
-        written into a temporary sibling that is then renamed (the folder appears whole)."""
+        written into a temporary sibling that is then renamed (the folder appears whole). A
+        folder there from before (a session redone) is replaced by the new one in one rename;
+        the old one is removed after."""
         self.start()
         target = self.sessions / name
-        if target.exists():
-            raise BadInput(f"{target}: already holds results; a batch writes each session once")
         tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=self.sessions))
+        old = None
         try:
             for rel, data in files.items():
                 dest = tmp / rel
@@ -125,9 +180,14 @@ class BatchFolder:
                 dest.write_bytes(data)
             (tmp / TASK_RECORD).write_text(dumps(record, indent=2) + "\n", encoding="utf-8")
             os.chmod(tmp, 0o777 & ~_umask())
+            if target.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{name}.old.", dir=self.sessions))
+                os.rename(target, old / "x")
             os.rename(tmp, target)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
         self.clear_failure(name)
         return target
 

@@ -1,8 +1,9 @@
 """platkit batch on a local Dask cluster of 2 worker processes (one for the whole module): the
-same results as the single verbs one by one (calibrate, diagnose, orient), a re-run that skips
-what is done, a failed session that stops nothing, a worker killed in the middle, dask missing;
-and the proof benchmarks' runner (platkit.batch.cases): the same rows on the engine as in a
-loop, written as they finish, a re-run that skips the cases its file holds."""
+same results as the single verbs one by one (calibrate in the batch's parameterisation, diagnose,
+orient), a re-run that skips what is done and redoes what changed, a failed session that stops
+nothing, a worker killed in the middle, a task past its time limit, dask missing; and the proof
+benchmarks' runner (benchmarks/batch_cases.py): the same rows on the engine as in a loop, written
+as they finish, a re-run that skips the cases its file holds."""
 from __future__ import annotations
 
 import json
@@ -16,8 +17,8 @@ import numpy as np
 import pytest
 import yaml
 
+from benchmarks.batch_cases import run_cases
 from platkit.batch import engine
-from platkit.batch.cases import run_cases
 from platkit.batch.store import find_sessions, match_sessions
 from platkit.cli import main
 from platkit.commands.batch import default_options, run_verb
@@ -70,7 +71,14 @@ def test_batch_equals_single_verbs_then_rerun_skips(fleet, client, capsys):
     out = root / "batch"
     argv = ["batch", "calibrate", str(root / "fleet" / "*"), "--out", str(out), "--scheduler", client.scheduler.address]
     assert main(argv) == 0
-    for name, single in singles.items():
+    # one parameterisation: the groups held-out selection chose in any session, less the stand's gauge
+    param = json.loads((out / "parameterisation.json").read_text())
+    assert param["decided_by"].startswith("the union of the groups held-out selection chose")
+    assert json.loads((out / "selection.json").read_text()).keys() == singles.keys()
+    for name in singles:  # what platkit calibrate gives with that free list
+        single = root / "single_free" / name
+        assert main(["calibrate", str(root / "fleet" / name), "--free", ",".join(param["free"]) or "none", "--out",
+                     str(single), "--quiet"]) == 0
         same_as_single(out / "sessions" / name, single)
     summary = json.loads((out / "summary.json").read_text())
     assert [r["session"] for r in summary["sessions"]] == sorted(singles)
@@ -82,11 +90,58 @@ def test_batch_equals_single_verbs_then_rerun_skips(fleet, client, capsys):
     before = {n: (out / "sessions" / n / "task.json").stat().st_mtime_ns for n in singles}
     assert main(argv) == 0
     said = capsys.readouterr()
-    assert f"{N_SESSIONS} already done, 0 to run" in said.err
+    assert f"{N_SESSIONS} done before with these inputs and options, 0 to run" in said.err
+    assert f"({N_SESSIONS} from before)" in said.out
     assert {n: (out / "sessions" / n / "task.json").stat().st_mtime_ns for n in singles} == before
     # other options in the same folder would mix two settings: refused
     assert main(argv + ["--folds", "3"]) == 2
     assert "other options" in capsys.readouterr().err
+
+
+def test_a_rerun_redoes_the_session_whose_file_changed_alone_and_redo_redoes_all(tmp_path, client, capsys):
+    for i in (1, 2, 3):
+        simulate_session("rotary", tmp_path / "fleet" / f"u{i}", seed=30 + i, n_poses=12, poses_only=True)
+    out = tmp_path / "out"
+    argv = ["batch", "calibrate", str(tmp_path / "fleet" / "*"), "--free", "origin", "--no-report", "--out", str(out),
+            "--scheduler", client.scheduler.address]
+    assert main(argv) == 0
+    stamp = {n: (out / "sessions" / n / "task.json").stat().st_mtime_ns for n in ("u1", "u2", "u3")}
+    capsys.readouterr()
+    yml = tmp_path / "fleet" / "u2" / "session.yaml"
+    yml.write_text(yml.read_text() + "notes: re-exported\n")
+    assert main(argv) == 0
+    said = capsys.readouterr().out
+    assert "(2 from before, 1 run: 1 its files changed)" in said
+    now = {n: (out / "sessions" / n / "task.json").stat().st_mtime_ns for n in ("u1", "u2", "u3")}
+    assert [n for n in now if now[n] != stamp[n]] == ["u2"]
+    assert json.loads((out / "sessions" / "u2" / "task.json").read_text())["ran_because"] == "its files changed"
+    assert not [p for p in (out / "sessions").iterdir() if p.name.startswith(".")]  # no partial folder left
+    assert main(argv + ["--redo"]) == 0
+    assert "(0 from before, 3 run: 3 --redo)" in capsys.readouterr().out
+
+
+def test_a_task_past_its_time_limit_is_stopped_and_the_worker_goes_on(client):
+    def slow(x):
+        deadline = time.monotonic() + (30 if x == 1 else 0.01)
+        while time.monotonic() < deadline:  # Python steps: the limit takes effect at once
+            time.sleep(0.001)
+        return x
+
+    outcomes = {o.key: o for o in engine.run_tasks(client, slow, [engine.Task(f"t{x}", (x,)) for x in (0, 1, 2)],
+                                                   timeout=1.0)}
+    assert outcomes["t0"].ok and outcomes["t2"].ok
+    assert not outcomes["t1"].ok and outcomes["t1"].kind == "timed out" and outcomes["t1"].seconds < 10
+    assert engine.run_tasks(client, slow, [engine.Task("again", (0,))])[0].ok
+
+
+def test_workers_are_capped_at_the_cores_and_said():
+    cores = engine.default_workers()
+    assert engine.capped_workers(None) == (cores, "")
+    assert engine.capped_workers(1) == (1, "")
+    n, said = engine.capped_workers(cores + 5)
+    assert n == cores and said == f"--workers {cores + 5}: this process may use {cores} cores; running {cores} workers"
+    with pytest.raises(BadInput, match="--workers 0"):
+        engine.capped_workers(0)
 
 
 def test_failed_session_is_reported_and_the_others_stand(fleet, client, capsys):
@@ -104,8 +159,8 @@ def test_failed_session_is_reported_and_the_others_stand(fleet, client, capsys):
         failure = json.loads((out / "failed" / "unit9.json").read_text())
         assert not failure["ok"] and failure["kind"] == "bad input"
         assert not (out / "sessions" / "unit9").exists()
-        for name, single in singles.items():
-            same_as_single(out / "sessions" / name, single)
+        for name in singles:  # untouched: as the test above left them
+            same_as_single(out / "sessions" / name, root / "single_free" / name)
         summary = json.loads((out / "summary.json").read_text())
         assert summary["counts"] == {"ok": N_SESSIONS, "failed": 1, "missing": 0}
     finally:

@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 import yaml
 
-from platkit.batch.history import session_date, stand_history
-from platkit.errors import BadInput
+from platkit.batch.history import (
+    check_one_stand,
+    history_order,
+    read_maintenance,
+    session_date,
+    session_when,
+    stand_history,
+)
+from platkit.errors import BadInput, BadSession
 from platkit.io.session_yaml import read_session_yaml
 
 
@@ -68,3 +75,75 @@ def test_dates_come_from_session_yaml(tmp_path):
         session_date(tmp_path / "a")
     h = stand_history(["x", "y", "z"], tables(3, None, 0.0), [dt.date(2026, 1, 1), dt.date(2026, 1, 31), dt.date(2026, 3, 2)])
     assert h["time"] == [0.0, 30.0, 60.0] and h["time_axis"].startswith("days")
+
+
+def test_sessions_of_one_day_are_ordered_by_time_else_by_folder_name(tmp_path):
+    whens = {"b": "2026-03-01T09:30", "a": "2026-03-01T14:00", "c": "2026-03-01", "d": "2026-03-01",
+             "e": "2026-02-27"}
+    for name, when in whens.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "session.yaml").write_text(f"platform: rotary\ndate: {when}\n")
+    names = sorted(whens)
+    ws = [session_when(tmp_path / n) for n in names]
+    order, axis = history_order(names, ws)
+    assert [names[i] for i in order] == ["e", "b", "a", "c", "d"] and axis.startswith("days")
+    assert ws[names.index("b")] == dt.datetime(2026, 3, 1, 9, 30)
+    # several sessions on one day: a history with a time axis and no singular trend
+    ordered = [ws[i] for i in order]
+    h = stand_history([names[i] for i in order], tables(5, None, 0.0, seed=4), ordered)
+    assert h["time"][:3] == [0.0, pytest.approx(2 + 9.5 / 24), pytest.approx(2 + 14 / 24)]
+    assert h["time"][3] == h["time"][4] == 2.0 and h["changes"] == []
+    same_day = [dt.date(2026, 3, 1)] * 4
+    h = stand_history(list("wxyz"), tables(4, None, 0.0, seed=5), same_day)  # no time spread: no trend
+    assert "trend_per_step" not in h["parameters"]["p1"]
+
+
+def test_an_invalid_date_is_one_line_naming_the_file_and_the_field(tmp_path):
+    for text in ("date: 2026-02-30\n", "date: March\n", "date: 2026-13-01T10:00\n"):
+        (tmp_path / "session.yaml").write_text("platform: rotary\n" + text)
+        with pytest.raises(BadSession) as err:
+            session_when(tmp_path)
+        assert str(tmp_path / "session.yaml") in str(err.value) and "field 'date'" in str(err.value)
+        assert "\n" not in str(err.value)
+
+
+def test_a_history_follows_one_stand():
+    check_one_stand([("stewart", "d1")] * 3, ["m1", "m2", "m3"])
+    with pytest.raises(BadInput, match="a history follows one stand: m1 is stewart .* m3 is psvr"):
+        check_one_stand([("stewart", "d1"), ("stewart", "d1"), ("psvr", "d2")], ["m1", "m2", "m3"])
+    with pytest.raises(BadInput, match="a different description"):
+        check_one_stand([("stewart", "d1"), ("stewart", "d2")], ["m1", "m2"])
+
+
+def test_maintenance_starts_a_new_run_and_is_said(tmp_path):
+    dates = [dt.date(2026, m, 1) for m in range(1, 13)]
+    log = tmp_path / "maintenance.yaml"
+    log.write_text("- {date: 2026-07-01, note: leg L4 replaced}\n- {date: 2026-12-15, note: cleaned}\n")
+    events = read_maintenance(log)
+    assert [e["note"] for e in events] == ["leg L4 replaced", "cleaned"]
+    t = tables(12, 6, 2.0)  # p3 steps at the seventh month, the day of the event
+    h = stand_history([f"m{i:02d}" for i in range(12)], t, dates, events=events)
+    assert h["changes"] == []  # explained by the event: said, not flagged
+    assert h["events"][0] == {"date": "2026-07-01", "note": "leg L4 replaced", "before_session": "m06"}
+    assert h["events"][1]["before_session"] is None
+    assert h["z"][6][3] is None  # the first session after the event is not tested against those before
+    without = stand_history([f"m{i:02d}" for i in range(12)], t, dates)
+    assert [(f["parameter"], f["session"]) for f in without["changes"]] == [("p3", "m06")]
+    log.write_text("- {date: 2026-07-01}\n")
+    with pytest.raises(BadInput, match="maintenance.yaml: event 1: needs a 'date' and a 'note'"):
+        read_maintenance(log)
+    log.write_text("- {date: July, note: x}\n")
+    with pytest.raises(BadInput, match="maintenance.yaml: field 'date' of event '1'"):
+        read_maintenance(log)
+    with pytest.raises(BadInput, match="placed by date"):
+        stand_history(["a", "b"], tables(2, None, 0.0), [None, None], events=events)
+
+
+def test_parameters_a_session_did_not_identify_are_tested_only_where_identified():
+    t = tables(6, None, 0.0, seed=6)
+    for i in (2, 3):
+        t[i]["p5"].update(std=None, status="held_at_nominal")
+    h = stand_history([f"m{i}" for i in range(6)], t, [None] * 6)
+    assert h["parameters"]["p5"]["not_identified_in"] == ["m2", "m3"]
+    assert h["tested_on"]["not_identified_in"]["p5"] == ["m2", "m3"]
+    assert h["z"][2][5] is None and h["z"][4][5] is not None  # m4 against m0, m1
