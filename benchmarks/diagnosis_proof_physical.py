@@ -58,8 +58,8 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
+from batch_cases import add_engine_options, run_cases  # benchmarks/batch_cases.py, beside this script
 
-from platkit.batch.cases import add_engine_options, run_cases
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main as platkit_main
 from platkit.effects import with_history
