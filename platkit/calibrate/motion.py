@@ -13,8 +13,8 @@ data cannot tell from the geometry is held at its start and said). The response'
 are central differences per actuator (each parameter moves one actuator, or all for the shift).
 
 Procedure (:func:`calibrate_motion`):
-1. checks: the two clocks overlap; a command log streamed more slowly than the motion moves is
-   refused (BadSession naming commands.csv);
+1. checks: markers and at least three commands, on two clocks that overlap (BadSession naming
+   commands.csv);
 2. the samples: every sample with a marker seen, from the second command on (the stand's place
    before the first is not logged), decimated evenly to at most ``max_samples``;
 3. the response's start: the markers registered at the commanded controls (rigid alignment),
@@ -52,10 +52,6 @@ __all__ = ["ResponseTerm", "calibrate_motion", "motion_samples", "check_motion_s
 STREAMED_MAX_S = 0.25
 #: samples fitted at most (decimated evenly), and used to start the response
 MAX_SAMPLES, START_SAMPLES = 4000, 600
-#: a streamed log must come at least this many times faster than the motion's bandwidth
-COMMAND_OVERSAMPLING = 2.0
-#: the share of the markers' velocity power below the motion's bandwidth
-BANDWIDTH_SHARE = 0.95
 #: starting response: time constant (s), damping; a profile's rate and acceleration from the
 #: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
 TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
@@ -124,8 +120,8 @@ class MotionSamples:
 
 def check_motion_session(session: Session) -> str:
     """The reference the command log calls for ('step': streamed, 'profile': holds), after the
-    checks: markers and commands present, clocks that overlap, a streamed log not sparser
-    than the motion. BadSession naming the file otherwise."""
+    checks: markers and commands present, on clocks that overlap. BadSession naming the file
+    otherwise."""
     cmd_file = session.folder / "commands.csv"
     mk_file = session.markers_source or session.folder / "markers.csv"
     if session.markers is None or session.marker_t is None:
@@ -143,37 +139,7 @@ def check_motion_session(session: Session) -> str:
     span = np.diff(tc)
     med = float(np.median(span))
     reference = "step" if med <= STREAMED_MAX_S else "profile"
-    bandwidth, moving = motion_bandwidth(tm, session.markers)
-    if moving > 0.8 and (reference == "profile" or COMMAND_OVERSAMPLING * bandwidth > 1.0 / med):
-        raise BadSession(f"{cmd_file}: the command log ({1.0 / med:.3g} commands per s) is sparser than the motion "
-                         f"in {mk_file} (moving {100 * moving:.0f}% of the time, bandwidth {bandwidth:.3g} Hz): "
-                         f"at least {COMMAND_OVERSAMPLING * bandwidth:.3g} commands per s are needed to tell where "
-                         "the stand was sent")
     return reference
-
-
-def motion_bandwidth(t: np.ndarray, Y: np.ndarray) -> tuple[float, float]:
-    """(bandwidth Hz, share of the time moving) of the markers' mean: the frequency below which
-    BANDWIDTH_SHARE of its velocity power lies, and the share of samples whose speed exceeds
-    five times what the noise gives."""
-    c = np.nanmean(Y, axis=1)  # (K, 3) the markers' centroid (NaN where none is seen)
-    ok = np.isfinite(c).all(axis=1)
-    if ok.sum() < 16:
-        return 0.0, 0.0
-    dt = float(np.median(np.diff(t)))
-    k = np.arange(len(c))
-    c = np.stack([np.interp(k, k[ok], c[ok, a]) for a in range(3)], axis=1)
-    v = np.diff(c, axis=0) / dt
-    noise = 1.4826 * np.median(np.abs(np.diff(c, 2, axis=0) - np.median(np.diff(c, 2, axis=0), axis=0)),
-                               axis=0) / np.sqrt(6)
-    speed_noise = float(np.linalg.norm(noise)) * np.sqrt(2) / dt
-    moving = float(np.mean(np.linalg.norm(v, axis=1) > 5 * speed_noise)) if speed_noise > 0 else 1.0
-    P = np.sum(np.abs(np.fft.rfft(v - v.mean(axis=0), axis=0)) ** 2, axis=1)
-    f = np.fft.rfftfreq(len(v), dt)
-    cum = np.cumsum(P)
-    if cum[-1] <= 0:
-        return 0.0, moving
-    return float(f[np.searchsorted(cum, BANDWIDTH_SHARE * cum[-1])]), moving
 
 
 def motion_samples(session: Session, reference: str, max_samples: int = MAX_SAMPLES) -> MotionSamples:

@@ -1,0 +1,70 @@
+"""Calibration from motion (platkit.calibrate.motion): the actuators' response, sessions without
+holds, and the bad input it refuses. Small sessions of the physical simulator (fixed seeds)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from platkit.calibrate.estimate import predict_markers
+from platkit.calibrate.motion import calibrate_motion, check_motion_session
+from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.errors import BadSession
+from platkit.io.session import load_session
+from platkit.plugins import get_platform
+from platkit.simulate.actuator import ActuatorResponse, actuator_motion
+from platkit.simulate.physics import simulate_physics, write_physical_session
+
+
+@pytest.fixture(scope="module")
+def streamed(tmp_path_factory):
+    spec = get_platform("stewart")
+    sim = simulate_physics(spec, seed=4101, motion="multisine", duration_s=24.0, mocap_rate_hz=50.0)
+    folder = tmp_path_factory.mktemp("motion") / "session"
+    write_physical_session(sim, folder)
+    return sim, load_session(folder)
+
+
+def test_response_matches_the_simulator_drive():
+    """The exact step response and the profile's fine-grid response follow the simulator's own
+    drive (an independent integration) to well below a micrometre per mm of travel."""
+    rng = np.random.default_rng(0)
+    T = 0.5 + np.arange(120) * 0.05
+    U = np.cumsum(rng.normal(size=(120, 1)) * 0.002, axis=0)
+    t = np.linspace(0.6, 6.5, 1500)
+    step = actuator_positions(ResponseModel("second_order", "step", 1), np.array([0.0, 0.08, 1.0]), T, U, t)[:, 0]
+    sim = actuator_motion(t, T, U, U[0], ActuatorResponse(np.array([0.08]), np.array([1.0]), np.array([1e6]),
+                                                          np.array([1e12])), fine_step_s=1e-5)[:, 0]
+    assert np.abs(step - sim).max() < 2e-6
+    Th, Uh = np.array([0.5, 3.5, 6.0, 9.0]), np.array([[0.0], [0.1], [-0.05], [0.02]])
+    t = np.linspace(0.6, 12, 2000)
+    prof = actuator_positions(ResponseModel("second_order", "profile", 1), np.array([0.0, 0.3, 1.1, 0.08, 0.3]),
+                              Th, Uh, t)[:, 0]
+    sim = actuator_motion(t, Th, Uh, np.array([0.0]), ActuatorResponse(np.array([0.3]), np.array([1.1]),
+                                                                        np.array([0.08]), np.array([0.3])),
+                          fine_step_s=1e-4)[:, 0]
+    assert np.abs(prof - sim).max() < 1e-5
+
+
+def test_no_hold_session_calibrated(streamed):
+    sim, session = streamed
+    cal, poses = calibrate_motion(session, session.spec, max_samples=800)
+    assert cal.motion["samples"]["n_fitted"] == poses.n_poses <= 800
+    pred, _, _, _ = predict_markers(cal, sim.commands)
+    truth = np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2)))
+    rms_before = cal.rms_before
+    assert truth < 0.05e-3 < rms_before  # the settled poses of every command, against the truth
+    r = cal.motion["response"]
+    assert r["reference"] == "step"
+    assert abs(r["shift_s"]["value"] - sim.nuisances.time_shift_s) < 3e-3
+    taus = np.array([r["actuators"][c]["tau_s"]["value"] for c in session.spec.control_names])
+    assert np.all(np.abs(taus / sim.response.tau_s - 1) < 0.1)
+    assert cal.terms == [] and "actuator_response" in cal.to_dict()
+
+
+def test_clocks_that_do_not_overlap_are_refused(streamed):
+    _, session = streamed
+    late = dataclasses.replace(session, marker_t=session.marker_t + 1000.0)
+    with pytest.raises(BadSession, match="commands.csv.*do not overlap"):
+        check_motion_session(late)
