@@ -16,10 +16,8 @@ import yaml
 
 from platkit.calibrate.estimate import calibrate, point_errors
 from platkit.calibrate.problem import link_frames
-from platkit.cli import main
 from platkit.errors import BadDescription, BadInput
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec
-from platkit.io.calibration import read_calibration
+from platkit.geometry import matrix_from_rotvec
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
 from platkit.urdf import frame_jacobian
@@ -182,81 +180,6 @@ def write_session(folder: Path, spec, U, Y, columns=None, mapping=MAPPING):
     return folder
 
 
-def test_cli_tree_session_calibrates_and_the_moved_results_still_predict(tmp_path, capsys):
-    spec = tree_spec()
-    rng = np.random.default_rng(21)
-    td = true_td(spec, rng)
-    U = commands(spec, 70, rng)
-    Y = observe(spec, td, U, rng)
-    session = write_session(tmp_path / "session", spec, U, Y)
-    out = tmp_path / "results"
-    assert main(["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)]) == 0
-    data = yaml.safe_load((out / "calibration.yaml").read_text())
-    import json
-
-    per_link = json.loads((out / "report.json").read_text())["rms_after_per_link"]
-    assert list(per_link) == ["right_tcp", "left_tcp"] and all(v < 0.2 for v in per_link.values())
-    assert data["description"] == "description/robot.urdf"  # relative to calibration.yaml, copied beside it
-    assert data["markers"]["L2"]["link"] == "left_tcp" and data["platform_options"]["moving_link"] == MAPPING
-    # the session and its URDF gone, the results folder moved: it still predicts
-    shutil.rmtree(session)
-    moved = tmp_path / "elsewhere" / "sent"
-    moved.parent.mkdir()
-    shutil.move(str(out), str(moved))
-    cmd = tmp_path / "cmd.csv"
-    cmd.write_text(",".join(spec.control_names) + "\n"
-                   + "\n".join(",".join(format(v, ".12g") for v in u) for u in U[:5]) + "\n")
-    pred = tmp_path / "pred.csv"
-    assert main(["predict", "--calibration", str(moved / "calibration.yaml"), "--commands", str(cmd),
-                 "--out", str(pred)]) == 0
-    lines = pred.read_text().splitlines()
-    header = lines[0].split(",")
-    got = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
-    P = got[:, [header.index(f"{m}_{a}") for m in MARKERS for a in "xyz"]].reshape(5, len(MARKERS), 3)
-    assert np.max(np.linalg.norm(P - Y[:5] * 1e3, axis=2)) < 10 * SIGMA * 1e3
-    cal = read_calibration(moved / "calibration.yaml")
-    # the other hand's pose after the moving frame's: the frame its markers are predicted from
-    X_left = got[:, [header.index(f"left_tcp_{a}") for a in "xyz"]]
-    R_left = matrix_from_quat(got[:, [header.index(f"left_tcp_{a}") for a in ("qw", "qx", "qy", "qz")]])
-    k = cal.marker_names.index("L2")
-    L2 = (X_left + np.einsum("nab,b->na", R_left, cal.marker_positions[k] * 1e3)) @ cal.mocap_from_base[:3, :3].T \
-        + cal.mocap_from_base[:3, 3] * 1e3
-    assert np.allclose(L2, P[:, list(MARKERS).index("L2")], atol=1e-5)
-    assert cal.marker_links == MAPPING and cal.spec.tracked_links == ["right_tcp", "left_tcp"]
-
-
-@pytest.mark.parametrize("change, expected", [
-    ("mapping", "moving_link 'no_hand' is not a link of the URDF"),
-    ("missing", "commands.csv: missing column 'left_2_joint': joint 'left_2_joint' moves the tracked link 'left_tcp'"),
-    ("extra", "commands.csv: column 'gripper' is no joint of the URDF"),
-    ("mimic", "commands.csv: column 'torso_pitch_2' is a mimic joint of 'torso_pitch': it follows its master"),
-    ("unmapped", "field 'moving_link' maps markers to links but not 'L3'"),
-])
-def test_bad_tree_sessions_are_one_line(tmp_path, capsys, change, expected):
-    spec = tree_spec()
-    rng = np.random.default_rng(5)
-    U = commands(spec, 12, rng)
-    Y = observe(spec, spec.nominal_td(), U, rng)
-    columns = list(spec.control_names)
-    mapping = dict(MAPPING)
-    if change == "mapping":
-        mapping["L1"] = "no_hand"
-    elif change == "missing":
-        columns.remove("left_2_joint")
-    elif change == "extra":
-        columns.append("gripper")
-    elif change == "mimic":
-        columns.append("torso_pitch_2")
-    elif change == "unmapped":
-        del mapping["L3"]
-    session = write_session(tmp_path / "s", spec, U, Y, columns, mapping)
-    out = tmp_path / "out"
-    assert main(["calibrate", str(session), "--quiet", "--no-report", "--out", str(out)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and expected in err[0], err
-    assert not out.exists()
-
-
 def test_mimic_whose_master_is_missing_names_the_file_and_joint(tmp_path):
     path = tmp_path / "broken.urdf"
     path.write_text(URDF.read_text().replace('<mimic joint="torso_pitch"', '<mimic joint="torso_pitch_x"'))
@@ -275,23 +198,6 @@ def test_link_poses_is_checked_by_validate_spec():
     wrong = ca.Function("link_poses", [u, td], [ca.DM.zeros(4), ca.DM.zeros(3)], ["u", "td"], ["q", "X"])
     with pytest.raises(BadDescription, match="link_poses output q has shape"):
         validate_spec(replace(spec, link_poses=wrong))
-
-
-def test_fk_gives_every_tracked_link_and_any_link_asked(capsys):
-    import json
-
-    u = "0,0.1,0.2,0.3,-0.2,0.1,-0.3,0.2,0.1"
-    assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
-                 "--u", u, "--link", "head", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert list(out["links"]) == ["right_tcp", "left_tcp", "head"]
-    spec = get_platform("urdf", URDF, moving_link={"right_tcp": "right_tcp", "left_tcp": "left_tcp"})
-    _, X = link_frames(spec, spec.nominal_td(), np.array([[float(v) for v in u.split(",")]]))
-    assert np.allclose([out["links"]["left_tcp"][a] for a in "xyz"], X[0, 1] * 1e3, atol=1e-9)
-    assert out["x"] == pytest.approx(out["links"]["right_tcp"]["x"])
-    assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
-                 "--u", u, "--link", "nowhere"]) == 2
-    assert "link 'nowhere' is not a link of the URDF" in capsys.readouterr().err
 
 
 def test_a_rigid_body_on_the_other_hand_exact_jacobian_and_fit():
