@@ -15,13 +15,17 @@ clips q to the joint limits after every step (the simplest way to make it respec
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from platkit.chains import KinematicChain, Servo, ServoOptions, Task
-from platkit.chains.robots import example_robot_urdf
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the reference robots' finder
+from reference_robots import example_robot_urdf  # noqa: E402
 
 ROBOTS = {
     "ur5": ("ur_description/urdf/ur5_robot.urdf", "tool0"),

@@ -48,11 +48,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from reference_robots import example_robot_urdf  # noqa: E402  (tests/, put on the path by track_convergence)
 from track_convergence import ROBOTS, reference_dls  # noqa: E402
 
 from platkit.chains import KinematicChain, Servo, ServoOptions, Task  # noqa: E402
 from platkit.chains.native_servo import compiled_servo_reason  # noqa: E402
-from platkit.chains.robots import example_robot_urdf  # noqa: E402
 
 
 def platkit_solve(chain, link, target, theta0, compiled=True, **options):

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from reference_robots import example_robot_urdf
 
 from platkit.chains import KinematicChain, Servo, ServoOptions, Task, follow_trajectory, track
-from platkit.chains.robots import example_robot_urdf
 from platkit.chains.transforms import pose_error
 from platkit.errors import OutOfWorkspace
 from platkit.geometry import matrix_from_rotvec

@@ -4,9 +4,9 @@ import json
 
 import numpy as np
 import pytest
+from reference_robots import example_robot_urdf
 
 from platkit.chains import KinematicChain
-from platkit.chains.robots import example_robot_urdf
 from platkit.cli import main
 from platkit.geometry import matrix_from_rpy, rotvec_from_matrix
 

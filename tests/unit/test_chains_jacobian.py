@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from reference_robots import example_robot_urdf
 
 from platkit.chains import KinematicChain
-from platkit.chains.robots import example_robot_urdf
 from platkit.chains.transforms import (
     compose_quat_vec,
     dual_quat_from_transform,

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference_robots import example_robot_urdf
 
 from platkit.chains import KinematicChain, Servo, ServoOptions, Task, native_servo
-from platkit.chains.robots import example_robot_urdf
 
 ROBOTS = [("ur_description/urdf/ur5_robot.urdf", "tool0"), ("panda_description/urdf/panda.urdf", "panda_hand")]
 

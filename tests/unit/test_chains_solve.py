@@ -168,8 +168,9 @@ def test_one_world_target_takes_the_same_steps_as_the_general_servo(urdf, link, 
     """One task in the world frame goes through pinocchio's placement and Jacobian and a
     one-level step (Servo._fast_case); the general path (the chain's own Jacobian, solve_pinv)
     must take the same steps: same path, same outcome, limits kept."""
+    from reference_robots import example_robot_urdf
+
     from platkit.chains import KinematicChain, Servo, ServoOptions, Task
-    from platkit.chains.robots import example_robot_urdf
 
     chain = KinematicChain.from_urdf(example_robot_urdf(urdf))
     rng = np.random.default_rng(7)
@@ -192,8 +193,9 @@ def test_one_world_target_takes_the_same_steps_as_the_general_servo(urdf, link, 
 
 
 def test_other_tasks_keep_the_general_servo():
+    from reference_robots import example_robot_urdf
+
     from platkit.chains import KinematicChain, Servo, ServoOptions, Task
-    from platkit.chains.robots import example_robot_urdf
 
     chain = KinematicChain.from_urdf(example_robot_urdf("ur_description/urdf/ur5_robot.urdf"))
     T = chain.placement(chain.mid_range(), "tool0")

@@ -43,7 +43,8 @@ def test_a_malformed_trajectory_names_row_and_column_like_every_csv(tmp_path, bo
 ])
 def test_counts_out_of_range_name_the_option(tmp_path, capsys, option, value, message):
     """(before: --seed -1 was 'ValueError: expected non-negative integer', exit 1)"""
-    from platkit.chains.robots import example_robot_urdf
+    from reference_robots import example_robot_urdf
+
     from platkit.cli import main
 
     urdf = example_robot_urdf("ur_description/urdf/ur5_robot.urdf")

@@ -4,10 +4,10 @@ legs not (held at their zero); one fit, held-out markers within the noise."""
 from __future__ import annotations
 
 import numpy as np
+from reference_robots import example_robot_urdf
 
 from platkit.calibrate.estimate import calibrate, point_errors
 from platkit.calibrate.problem import link_frames
-from platkit.chains.robots import example_robot_urdf
 from platkit.geometry import matrix_from_rotvec
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet

@@ -1,4 +1,6 @@
-"""Where the reference robots of example-robot-data live (a dev dependency: tests, benchmarks)."""
+"""Where the reference robots of example-robot-data live (a dev dependency of the tests and the
+benchmarks, not of the library): ``from reference_robots import example_robot_urdf`` (tests/ is on
+the tests' path; a benchmark puts it there)."""
 from __future__ import annotations
 
 import os
