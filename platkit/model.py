@@ -102,7 +102,6 @@ class PlatformSpec:
         forward: (u, td) -> (q, X), closed-form forward kinematics (serial chains).
         branch: (u, td, q, X) -> g; the stand's assembly mode is g > 0 componentwise. A pose
             with some g <= 0 satisfies F = 0 but is a mirror the stand cannot take.
-        load: (u, td, q, X) -> actuator loads per unit payload; used by diagnosis (compliance).
         tracked_links, link_poses: a tree (several links carry markers): the links, the moving
             frame's (the spec's pose) first, and ``link_poses: (u, td) -> (q (4 L), X (3 L))``,
             every tracked link's orientation and position in the base frame, stacked in that

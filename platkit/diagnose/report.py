@@ -210,7 +210,11 @@ def report_html(d: Diagnosis) -> str:
 
 
 def write_outputs(d: Diagnosis, out_dir: str | Path) -> list[Path]:
-    """diagnosis.json, calibration.yaml, report.html in ``out_dir``, atomically."""
+    """Write diagnosis.json, calibration.yaml and report.html into ``out_dir``, all or none
+    (:func:`platkit.io.atomic.atomic_output_dir`). calibration.yaml is ``d.calibration``, the
+    stand's: recording artefacts left out (``d.fitted`` holds the model fitted to the data), its
+    description copied beside it unless shipped (:func:`platkit.io.calibration.write_calibration_yaml`).
+    Returns the three paths."""
     with atomic_output_dir(out_dir) as tmp:
         (tmp / "diagnosis.json").write_text(json.dumps(diagnosis_dict(d), indent=2) + "\n", encoding="utf-8")
         write_calibration_yaml(d.calibration, tmp)  # with its description beside it: the folder travels
