@@ -25,6 +25,7 @@ if sys.argv and sys.argv[0].replace("\\", "/").rsplit("/", 1)[-1] in ("platkit",
 
 import argparse  # noqa: E402  (below the handler on purpose)
 import importlib  # noqa: E402
+import keyword  # noqa: E402
 import os  # noqa: E402
 import re  # noqa: E402
 
@@ -33,7 +34,7 @@ from platkit.errors import PlatkitError  # noqa: E402
 from platkit.notices import collecting, units_checked  # noqa: E402
 
 #: verb modules under platkit.commands, in the order `platkit --help` lists them
-COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient", "batch"]
+COMMANDS = ["plugins", "describe", "fk", "ik", "admissible", "workspace", "calibrate", "predict", "diagnose", "track", "simulate", "plan", "orient", "import", "batch"]
 
 def chosen_verb(argv: list[str]) -> str | None:
     """The verb a command line names: its first word that is not one of platkit's own options
@@ -56,7 +57,8 @@ def build_parser(verbs: list[str] | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS if verbs is None else verbs:
-        module = importlib.import_module(f"platkit.commands.{name}")
+        # a verb that is a Python keyword (import) lives in a module named with a trailing underscore
+        module = importlib.import_module(f"platkit.commands.{name}{'_' if keyword.iskeyword(name) else ''}")
         p = module.add_parser(sub)
         p.set_defaults(_run=module.run)
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback on errors")
