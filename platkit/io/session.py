@@ -27,6 +27,7 @@ import numpy as np
 
 from platkit.errors import BadInput, BadSession
 from platkit.io.c3d import read_c3d_markers
+from platkit.io.importers import export_format, read_recording
 from platkit.io.imu import DEFAULT_MAX_REPAIR_S, ImuStream, read_imu_csv
 from platkit.io.session_checks import (
     BODY_SUFFIXES,
@@ -189,12 +190,16 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     # motion-capture markers: markers.csv, a C3D file, or the reduced poses.csv
     if y["markers_file"]:
         mpath = folder / y["markers_file"]
-        if mpath.suffix.lower() == ".c3d":
+        fmt = export_format(mpath) or ("c3d" if mpath.suffix.lower() == ".c3d" and s.body_names else None)
+        if fmt is not None:  # a vendor export, recognised by its content; a C3D file's bodies are its rotations
+            _read_markers_export(s, mpath, fmt, y["markers_time_offset"])
+        elif mpath.suffix.lower() == ".c3d":
             _read_markers_c3d(s, mpath, y["markers_time_offset"])
         elif mpath.suffix.lower() == ".csv":
             _read_markers_csv(s, mpath, lscale, tscale, y["markers_time_offset"], quiet)
         else:
-            raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, got {y['markers_file']!r}")
+            raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, or a Vicon, Qualisys "
+                             f"or Motive export, got {y['markers_file']!r}")
     elif (folder / "markers.csv").is_file():
         _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
     elif poses_path.is_file():
@@ -286,6 +291,36 @@ def _read_markers_csv(s: Session, path: Path, lscale: float, tscale: float, offs
     xyz = checked_marker_block(table, names, lscale, s.length_unit)  # scaled in place: the table is not used after
     M = len(s.marker_names)
     s.marker_t, s.markers, s.base_markers, s.markers_source = t, xyz[:, :M], xyz[:, M:], path
+
+
+def _read_markers_export(s: Session, path: Path, fmt: str, offset: float) -> None:
+    """The marker stream (and rigid bodies) from a vendor export (platkit.io.importers: Vicon CSV,
+    Qualisys TSV, Motive CSV, C3D with rotations), times shifted by ``offset`` (s). The export
+    says its length unit, which must be session.yaml's; names match as the importers map them
+    (``Subject:M1`` is ``M1``); what the export read and left out is said in the control notes."""
+    rec = read_recording(path, fmt)
+    ypath = s.folder / "session.yaml"
+    if rec.unit != s.length_unit:
+        raise BadSession(f"{path}: the export's lengths are in {rec.unit}, session.yaml declares {s.length_unit}")
+    names = s.marker_names + s.base_marker_names
+    for kind, want, have in (("marker", names, rec.markers), ("rigid body", s.body_names, rec.bodies)):
+        missing = [n for n in want if n not in have]
+        if missing:
+            raise BadSession(f"{path}: no {kind} {missing[0]!r} (declared in {ypath}); the export has "
+                             f"{', '.join(have) or 'none'}")
+    scale = LENGTH_UNITS[rec.unit]
+    K = rec.n_samples
+    xyz = np.stack([rec.markers[n] for n in names], axis=1) * scale if names else np.zeros((K, 0, 3))
+    if s.body_names:
+        s.bodies = np.stack([np.column_stack([rec.bodies[b][0] * scale, rec.bodies[b][1]]) for b in s.body_names], axis=1)
+        for k, b in enumerate(s.body_names):
+            if not np.isfinite(s.bodies[:, k]).all(axis=1).any():
+                raise BadSession(f"{path}: rigid body {b!r} is never seen; remove it from {ypath}'s rigid_bodies")
+    M = len(s.marker_names)
+    s.marker_t, s.markers, s.base_markers, s.markers_source = rec.t + offset, xyz[:, :M], xyz[:, M:], path
+    if names:
+        _check_seen(xyz, names, path)
+    s.extras.setdefault("control_notes", []).extend([rec.summary()] + [f"{path.name}: {n}" for n in rec.notes])
 
 
 def _read_markers_c3d(s: Session, path: Path, offset: float) -> None:
