@@ -316,6 +316,10 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
     prev_true = np.vstack([spec.neutral_u()[None], U_true[:-1]])
     prev_moff = np.vstack([np.zeros((1, len(stand.marker_names), 3)), m_off[:-1]])
     tau, freq, overshoot = 0.12, 3.0, 0.05
+    # paths in the space the stand declares free: poses for a pose-free stand (its controls along a
+    # straight control path fit no pose), controls otherwise
+    pose_path = spec.pose_free and spec.inverse is not None
+    prev_poses = np.vstack([spec.neutral_p()[None], stand.poses[:-1]])
 
     def evaluate(t):
         i = np.clip(np.searchsorted(t_cmd, t, side="right") - 1, 0, N - 1)
@@ -325,7 +329,10 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
         delta = U_true[i] - prev_true[i]
         after = np.maximum(t - t_arrive[i], 0.0)
         wiggle = overshoot * np.exp(-after / tau) * np.sin(2 * np.pi * freq * after) * (t >= t_arrive[i])
-        u = prev_true[i] + (s + wiggle)[:, None] * delta
+        if pose_path:  # a pose-free stand moves along straight lines in its pose coordinates
+            u = _pose_path_controls(spec, prev_poses[i], stand.poses[i], prev_true[i], U_true[i], s + wiggle)
+        else:
+            u = prev_true[i] + (s + wiggle)[:, None] * delta
         moff = prev_moff[i] + s[:, None, None] * (m_off[i] - prev_moff[i])
         guess = np.where(before[:, None], spec.neutral_p(), stand.poses[i])
         fb = model.forward_batch(u, td=stand.td, guess=guess, strict=False)
@@ -340,6 +347,24 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
         return q, X, moff
 
     return Trajectory(t_cmd, stand.controls, t_arrive, schedule.end_t, evaluate)
+
+
+def _pose_path_controls(spec: PlatformSpec, P0: np.ndarray, P1: np.ndarray, U0: np.ndarray, U1: np.ndarray,
+                        frac: np.ndarray) -> np.ndarray:
+    """Controls (K, n_u) at fractions ``frac`` (K,) of straight moves in pose coordinates from P0 to
+    P1 (K, n_p each): the nominal closed-form inverse kinematics of the interpolated pose, plus
+    the endpoints' differences between the controls sent (U0, U1) and that inverse, interpolated
+    alike, so the path starts and ends on the controls sent."""
+    K = len(frac)
+    td0 = spec.nominal_td()
+    pose, inverse = spec.pose.map(K), spec.inverse.map(K)
+
+    def ik(P):
+        q, X = pose(np.ascontiguousarray(P.T))
+        return np.asarray(inverse(td0, q, X)).T
+
+    f = np.asarray(frac, float)[:, None]
+    return ik(P0 + f * (P1 - P0)) + (1 - f) * (U0 - ik(P0)) + f * (U1 - ik(P1))
 
 
 def record_stream(options: SimulationOptions, rng: np.random.Generator, stand: TrueStand,

@@ -181,3 +181,18 @@ def test_angles_come_back_wrapped(stewart):
     near = own.p + np.array([0, 0, 0, np.pi, np.pi, np.pi]) * [0, 0, 0, 1, -1, 1]
     res = stewart.forward(u, guess=near)
     assert np.all(np.abs(res.p[3:]) < 0.5) and np.allclose(res.X, own.X, atol=1e-10)
+
+
+def test_a_pose_free_stand_streams_along_straight_lines_in_pose():
+    from platkit.simulate import simulate
+
+    sim = simulate(point_stand(), seed=3, n_poses=8)
+    traj = sim.trajectory
+    # half-way through each move the point is half-way between the poses it moves between (the
+    # true geometry, 2 mm off nominal, bends the line by well under a millimetre; a straight line
+    # in cable lengths sags by centimetres)
+    mid = traj.command_t + 0.5 * (traj.arrive_t - traj.command_t)
+    _, X, _ = traj.evaluate(mid)
+    ends = traj.evaluate(traj.arrive_t - 1e-9)[1]
+    starts = np.vstack([traj.evaluate(np.array([traj.command_t[0] - 1e-3]))[1], ends[:-1]])
+    assert np.max(np.linalg.norm(X - 0.5 * (starts + ends), axis=1)) < 1e-3
