@@ -154,9 +154,20 @@ def grid_plan(spec: PlatformSpec, points_per_control: int, margin: float = 0.1, 
     U = grid_points(spec, points_per_control, margin)
     ok, P = feasible(spec, U, td, model)
     if not np.any(ok):
-        raise NotIdentifiable(f"{spec.name}: no point of the {points_per_control}-per-control grid is reachable")
+        raise NotIdentifiable(f"{spec.name}: no point of the {points_per_control}-per-control grid is reachable"
+                              + _free_space_hint(spec, model))
     return Plan(U[ok], "grid", {"points_per_control": int(points_per_control), "grid_points": int(len(U)),
                                 "infeasible_dropped": int((~ok).sum()), "margin": margin}, P[ok])
+
+
+def _free_space_hint(spec: PlatformSpec, model: PlatformModel | None) -> str:
+    """The hint for a stand whose control box is sampled but whose rows outnumber its pose
+    coordinates (its independent commands are almost never consistent)."""
+    model = model or PlatformModel(spec)
+    if model.n_r > spec.n_p and not spec.pose_free:
+        return (f"; its {model.n_r} residual rows outnumber its {spec.n_p} pose coordinates, so independent commands "
+                "rarely fit a pose: declare its pose space free (PlatformSpec field 'free_space': 'pose')")
+    return ""
 
 
 def grid_plan_for(spec: PlatformSpec, n_poses: int, margin: float = 0.1, td=None,
@@ -193,7 +204,7 @@ def random_candidates(spec: PlatformSpec, n: int, rng: np.random.Generator, marg
     while sum(len(u) for u in U_out) < n:
         tries += 1
         if tries > 50:
-            raise NotIdentifiable(f"{spec.name}: fewer than {n} random controls are reachable")
+            raise NotIdentifiable(f"{spec.name}: fewer than {n} random controls are reachable" + _free_space_hint(spec, model))
         U = rng.uniform(lo, hi, size=(max(2 * n, 16), spec.n_u))
         ok, P = feasible(spec, U, td, model)
         U_out.append(U[ok])

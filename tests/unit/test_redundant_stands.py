@@ -15,7 +15,7 @@ from scipy.optimize import least_squares
 
 from platkit.admissible import AdmissibleGrid, admissible_poses, check_not_degenerate, pose_images
 from platkit.calibrate.plan import grid_plan, random_candidates
-from platkit.errors import BadDescription, ComputationFailed, OutOfWorkspace, WrongBranch
+from platkit.errors import BadDescription, ComputationFailed, NotIdentifiable, OutOfWorkspace, WrongBranch
 from platkit.kinematics import PlatformModel
 from platkit.model import Control, Coordinate, Parameter, PlatformSpec, RowMisfit, validate_spec
 from platkit.plugins import get_platform
@@ -135,6 +135,11 @@ def test_pose_free_plans_and_images_are_drawn_in_pose_space():
     assert rnd.info["space"] == "pose" and rnd.controls.shape == (10, 4)
     P = pose_images(spec, 5)
     assert P.shape == (125, 3) and admissible_poses(spec, P)["inside"].all()
+    # the same stand with its control box declared free: the box's corners fit no pose, and the
+    # refusal says what to declare
+    with pytest.raises(NotIdentifiable, match=r"point4: no point of the 2-per-control grid is reachable; its 4 residual "
+                                              r"rows outnumber its 3 pose coordinates.*'free_space': 'pose'"):
+        grid_plan(replace(spec, free_space="controls"), 2)
 
 
 def test_a_point_or_a_sliver_is_refused():
