@@ -109,6 +109,16 @@ def _print_traceback() -> None:
     traceback.print_exc()
 
 
+def as_flag(message: str, argv: list[str]) -> str:
+    """A library error that begins with the name of a parameter ('free: ...', 'folds 7 ...') said
+    as the option the command line set it with ('--free: ...', '--folds 7 ...'), where ``argv``
+    holds that option; other messages unchanged."""
+    head = message.split(":", 1)[0].split(" ", 1)[0]
+    flag = "--" + head.replace("_", "-")
+    given = any(a == flag or a.startswith(flag + "=") for a in argv)
+    return flag + message[len(head):] if head.isidentifier() and given else message
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command line; the exit status. Ctrl-C at any point, start-up included, ends
     with one line on stderr and 130."""
@@ -131,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     except PlatkitError as exc:
         if debug:
             _print_traceback()
-        print(f"platkit: error: {exc}", file=sys.stderr)
+        print(f"platkit: error: {as_flag(str(exc), argv)}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # the reader stopped early (`platkit describe ... | head`): not an error
         devnull = os.open(os.devnull, os.O_WRONLY)

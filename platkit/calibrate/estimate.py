@@ -62,7 +62,7 @@ def free_mask(spec: PlatformSpec, free: Sequence[str] | None) -> np.ndarray:
     unknown = sorted(wanted - known)
     if unknown:
         groups = sorted({p.group for p in spec.parameters if p.group})
-        raise BadInput(f"--free: {', '.join(unknown)} is neither a parameter nor a group of the {spec.name} stand "
+        raise BadInput(f"free: {', '.join(unknown)} is neither a parameter nor a group of the {spec.name} stand "
                        f"(groups: {', '.join(groups)})")
     return np.array([(p.name in wanted or p.group in wanted) for p in spec.parameters], bool)
 

@@ -1,0 +1,28 @@
+"""Library errors name the parameter ('free: ...'); the command line says the option that set it
+('--free: ...', platkit.cli.as_flag)."""
+import pytest
+
+from platkit.calibrate.estimate import calibrate
+from platkit.cli import as_flag, main
+from platkit.errors import BadInput
+from platkit.plugins import get_platform
+from platkit.simulate import simulate
+
+
+def test_a_parameter_is_said_as_the_option_given():
+    assert as_flag("free: nope is neither a parameter", ["calibrate", "--free", "nope"]) == \
+        "--free: nope is neither a parameter"
+    assert as_flag("folds 9 is more than the 6 poses", ["calibrate", "--folds=9"]) == "--folds 9 is more than the 6 poses"
+    assert as_flag("max_effects 0: use 1 or more", ["diagnose", "--max-effects", "0"]) == "--max-effects 0: use 1 or more"
+    # not given on the command line, or not a parameter's name: unchanged
+    assert as_flag("free: nope is neither a parameter", ["calibrate"]) == "free: nope is neither a parameter"
+    assert as_flag("/tmp/x.csv: row 3", ["calibrate", "--free", "a"]) == "/tmp/x.csv: row 3"
+
+
+def test_the_library_names_the_parameter_and_the_cli_the_flag(tmp_path, capsys):
+    spec = get_platform("stewart")
+    poses = simulate(spec, seed=2, n_poses=12, raw=False).poses
+    with pytest.raises(BadInput, match="^free: nope is neither a parameter nor a group of the stewart stand"):
+        calibrate(poses, spec, free=["nope"])
+    assert main(["calibrate", "--platform", "stewart", "--free", "nope", "--out", str(tmp_path / "cal"), "--quiet"]) == 2
+    assert "platkit: error: --free: nope is neither a parameter nor a group of the stewart stand" in capsys.readouterr().err
