@@ -213,16 +213,17 @@ class ForwardSolver(NewtonSolver):
         if out is None:
             out = self._solve_one(u, td, p0)
         verdict, r = self._verdict(out, u, td)
-        if verdict == "ok":
+        if verdict == "ok" or (verdict == "outside" and p0 is None):
+            # from the neutral start, a pose beyond the coordinates' bounds is the stand's own
             return self._result(out, r)
         first = (out, verdict, r)
         mirror = (out, r) if verdict == "mirror" else None
         outside = (out, r) if verdict == "outside" else None
         if again:
-            for start in self._restart_poses(u, self._td(td), p0):
+            for j, start in enumerate(self._restart_poses(u, self._td(td), p0)):
                 o = self._solve_one(u, td, start)
                 v, rr = self._verdict(o, u, td)
-                if v == "ok":
+                if v == "ok" or (v == "outside" and p0 is not None and j == 0):  # j = 0: the neutral start
                     return self._result(o, rr)
                 if v == "mirror" and mirror is None:
                     mirror = (o, rr)
@@ -367,11 +368,11 @@ class ForwardSolver(NewtonSolver):
         on = out[:, -1] > 0.5
         if restarts:
             retry = ~(converged & on)
-            if self._bounds:
+            if self._bounds and guess is not None:  # from a guess, a pose beyond the bounds may be another assembly
                 for i in np.nonzero(~retry)[0]:
                     retry[i] = self._verdict(out[i], U[i], td)[0] == "outside"
             for i in np.nonzero(retry)[0]:
-                again = self._batch_restart(U[i], td, P0[i if stride else 0])
+                again = self._batch_restart(U[i], td, None if guess is None else P0[i if stride else 0])
                 if again is not None:
                     out[i], r = again
                     converged[i], on[i] = True, True
@@ -386,17 +387,21 @@ class ForwardSolver(NewtonSolver):
                             out[:, -3].copy(), converged, on, R)
 
     def _batch_restart(self, u, td, p0) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """(out row, rows' residual) of the first restart accepted, or None."""
+        """(out row, rows' residual) of the first restart accepted (else the first on the branch
+        beyond the coordinates' bounds), or None. ``p0``: the row's guess, None for the neutral."""
         try:
             starts = self._restart_poses(u, td, p0)
         except PlatkitError:
             return None
-        for start in starts:
+        outside = None
+        for j, start in enumerate(starts):
             o = self._solve_one(u, td, start)
             v, r = self._verdict(o, u, td)
-            if v == "ok":
+            if v == "ok" or (v == "outside" and p0 is not None and j == 0):  # j = 0: the neutral start
                 return o, r
-        return None
+            if v == "outside" and outside is None:
+                outside = (o, r)
+        return outside
 
     @functools.lru_cache(maxsize=16)  # noqa: B019 - kept with the long-lived model, one per batch size
     def _F_map(self, n: int):
