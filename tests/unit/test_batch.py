@@ -350,3 +350,45 @@ def test_proof_cases_on_the_engine_equal_the_loop_and_a_rerun_skips_them(tmp_pat
     (tmp_path / "bad.jsonl").write_text('{"x": 0}\nnot json\n')
     with pytest.raises(BadInput, match="bad.jsonl, line 2"):
         run_cases(square, cases, serial=True, json_path=tmp_path / "bad.jsonl", failed_row=failed)
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_an_interrupted_batch_ends_in_one_line_and_leaves_nothing(tmp_path, how):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) or SIGTERM to platkit
+    while a session runs: one line, exit 130, the workers gone, no scratch folder, no partial output."""
+    import subprocess
+    import sys
+
+    for i in (1, 2):
+        simulate_session("rotary", tmp_path / "fleet" / f"u{i}", seed=50 + i, n_poses=12, poses_only=True)
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "platkit.cli", "batch", "calibrate", str(tmp_path / "fleet" / "*"),
+                             "--free", "origin", "--workers", "1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            env={**os.environ, "TMPDIR": str(scratch)})
+    try:
+        deadline = time.monotonic() + 180
+        while not list(scratch.glob("platkit-batch-*/platkit-batch-task-*")):  # a session is running
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.1)
+        if how == "ctrl-c":
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            os.kill(proc.pid, signal.SIGTERM)
+        said, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "platkit: interrupted" and "Traceback" not in err, err
+    assert not list(scratch.glob("platkit-batch-*"))
+    assert not (out / "sessions").exists() or not [p for p in (out / "sessions").iterdir() if p.name.startswith(".")]
+    deadline = time.monotonic() + 30
+    while True:  # no worker of its cluster outlives it (a busy one is stopped within seconds)
+        left = subprocess.run(["ps", "-o", "pid=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
+        if not left.strip() or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)
+    assert left.strip() == ""
