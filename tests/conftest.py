@@ -64,7 +64,8 @@ def proof_session(tmp_path, monkeypatch):
     import sys
     from pathlib import Path
 
-    import platkit.simulate.physics as physics_module
+    from outside_plugins import library_with
+
     from platkit.plugins import get_platform
     from platkit.simulate.physics import simulate_physics, write_physical_session
 
@@ -73,14 +74,10 @@ def proof_session(tmp_path, monkeypatch):
     from benchmarks.outside_physics import OUTSIDE_PHYSICS, OutsideEffect
 
     def make(stand, seed, effects):
-        library = physics_module.effect_library
-        outside = {name: OutsideEffect(name, OUTSIDE_PHYSICS[name]) for name, _ in effects if name in OUTSIDE_PHYSICS}
-        monkeypatch.setattr(physics_module, "effect_library", lambda: {**library(), **outside})
-        try:
-            sim = simulate_physics(get_platform(stand), seed=seed, n_poses=60, plan="random", effects=list(effects),
-                                   coloured=True)
-        finally:
-            monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
+        outside = [OutsideEffect(name, OUTSIDE_PHYSICS[name]) for name, _ in effects if name in OUTSIDE_PHYSICS]
+        # the outside physics through a plugin host of the simulation's own: diagnose never sees it
+        sim = simulate_physics(get_platform(stand), seed=seed, n_poses=60, plan="random", effects=list(effects),
+                               coloured=True, library=library_with(*outside))
         session = write_physical_session(sim, tmp_path / "session")
         blank_held_out(session, sim, held_out_rows(len(sim.commands)))
         return session, sim

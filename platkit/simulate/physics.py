@@ -39,7 +39,7 @@ import numpy as np
 import yaml
 
 from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
-from platkit.effects import EffectPhysics, PhysicsPlan, PhysicsSeries
+from platkit.effects import Effect, EffectPhysics, PhysicsPlan, PhysicsSeries
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, transform
 from platkit.inertial.simulate import imu_for_trajectory
@@ -125,9 +125,10 @@ class PhysicalSession:
 
 
 def physics_of(name: str, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
-               plan: PhysicsPlan) -> EffectPhysics:
-    """An effect's physics by name, from the effect library (built-in and outside plugins)."""
-    library = effect_library()
+               plan: PhysicsPlan, library: dict[str, Effect] | None = None) -> EffectPhysics:
+    """An effect's physics by name, from ``library`` (effect name -> effect; default: every
+    installed effect, built-in and outside plugins')."""
+    library = effect_library() if library is None else library
     effect = library.get(name)
     if effect is None:
         raise BadInput(f"--effect {name!r}: unknown effect; installed: {', '.join(sorted(library))}")
@@ -218,11 +219,13 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                      clock_offset_s: float | None = None, coloured: bool = True, overshoot: bool = False,
                      imu: dict | None = None, perturbation: float = 1.0, description: str | None = None,
                      fine_step_s: float = 2e-3, motion: str | None = None, duration_s: float = 200.0,
-                     command_rate_hz: float = 20.0) -> PhysicalSession:
+                     command_rate_hz: float = 20.0, library: dict[str, Effect] | None = None) -> PhysicalSession:
     """Simulate a session of ``spec`` in the time domain (see the module's docstring).
 
     plan: 'grid', 'random', a plan.csv path, a Plan or an (N, n_u) array (internal units).
-    effects: [(name, size or None)], sizes as ``platkit simulate --help`` states them.
+    effects: [(name, size or None)], sizes as ``platkit simulate --help`` states them, from
+        ``library`` (effect name -> effect, e.g. a PluginHost's ``effects()``; default: every
+        installed effect).
     hold_s, noise_mm (white, per coordinate and sample), occlusion, latency_s, clock_offset_s:
         fixed nuisances (None: drawn from the seed); coloured False: white noise only;
         overshoot: drives tuned below critical damping.
@@ -272,7 +275,7 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         hold_end = np.append(t_cmd[1:], t_cmd[-1] + nuisances.hold_s)
     end_t = float(hold_end[-1])
     phys_plan = PhysicsPlan(spec, t_cmd, U, start, nuisances.hold_s, end_t, names)
-    physics = [(name, physics_of(name, spec, size, np.random.default_rng([seed, 100 + k]), phys_plan))
+    physics = [(name, physics_of(name, spec, size, np.random.default_rng([seed, 100 + k]), phys_plan, library))
                for k, (name, size) in enumerate(effects)]
     r0 = nuisances.response
     response = ActuatorResponse(np.array(r0.tau_s, float), np.array(r0.damping, float), np.array(r0.rate, float),

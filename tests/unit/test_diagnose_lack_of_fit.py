@@ -4,7 +4,8 @@ lack of fit, with the ratio to the floor), never a clean bill and never a librar
 import sys
 from pathlib import Path
 
-import platkit.simulate.physics as physics_module
+from outside_plugins import library_with
+
 from platkit.diagnose import Options, diagnose
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
@@ -16,11 +17,9 @@ from benchmarks.outside_physics import OutsideEffect, PlateFlex  # noqa: E402
 
 
 def _session(tmp_path, monkeypatch, effects):
-    library = physics_module.effect_library
-    monkeypatch.setattr(physics_module, "effect_library",
-                        lambda: {**library(), "plate_flex": OutsideEffect("plate_flex", PlateFlex)})
-    sim = simulate_physics(get_platform("psvr"), seed=706500, n_poses=40, plan="random", effects=effects)
-    monkeypatch.setattr(physics_module, "effect_library", library)  # diagnose never sees it
+    # the plate's physics through a plugin host of the simulation's own: diagnose never sees it
+    sim = simulate_physics(get_platform("psvr"), seed=706500, n_poses=40, plan="random", effects=effects,
+                           library=library_with(OutsideEffect("plate_flex", PlateFlex)))
     return write_physical_session(sim, tmp_path / "s")
 
 

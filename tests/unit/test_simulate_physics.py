@@ -193,11 +193,10 @@ def test_an_effect_without_physics_is_refused(psvr, monkeypatch):
     class Bare(Effect):
         name = "bare"
 
-    import platkit.simulate.physics as physics
+    from outside_plugins import library_with
 
-    monkeypatch.setattr(physics, "effect_library", lambda: {"bare": Bare()})
     with pytest.raises(BadInput, match="no physics"):
-        simulate_physics(psvr, seed=1, n_poses=4, effects=[("bare", None)])
+        simulate_physics(psvr, seed=1, n_poses=4, effects=[("bare", None)], library=library_with(Bare()))
 
 
 def test_an_outside_effect_with_physics_plays_out(psvr, monkeypatch):
@@ -213,8 +212,7 @@ def test_an_outside_effect_with_physics_plays_out(psvr, monkeypatch):
         def physics(self, spec, size, rng, plan):
             return Shift()
 
-    import platkit.simulate.physics as physics
+    from outside_plugins import library_with
 
-    monkeypatch.setattr(physics, "effect_library", lambda: {"shift": Outside()})
-    sim = simulate_physics(psvr, seed=1, n_poses=4, effects=[("shift", None)], **QUIET)
+    sim = simulate_physics(psvr, seed=1, n_poses=4, effects=[("shift", None)], library=library_with(Outside()), **QUIET)
     assert np.allclose(sim.settled_controls - sim.commands, [5.0, 0.0, 0.0])
