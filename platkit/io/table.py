@@ -55,6 +55,9 @@ def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
     if not path.is_file():
         raise BadSession(f"{path}: file not found{' (' + what + ')' if what else ''}")
     try:
+        sep = _separator(path)
+        if sep != ",":
+            return _read_separated(path, sep)
         header, body_start = _read_header(path)
         progress = _Progress(path, quiet)  # says so at once for a large file, before counting its lines
         mid = _split_offset(path, body_start)
@@ -81,6 +84,81 @@ def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise BadSession(f"{path}: cannot be read as CSV ({exc})") from None
     progress.finish()
+    return Table(path, header, data)
+
+
+def _separator(path: Path) -> str:
+    """The separator of a table: ';' where its header line has one, else a tab where it has one
+    and no comma, else ','."""
+    with path.open("rb") as fh:
+        first = fh.readline()
+    if b";" in first:
+        return ";"
+    if b"\t" in first and b"," not in first:
+        return "\t"
+    return ","
+
+
+def _read_separated(path: Path, sep: str) -> Table:
+    """A table separated by ';' or a tab (as spreadsheets write CSV in many locales), its decimal
+    mark a comma or a point: a comma in a number cell is a decimal comma. Parsed by pandas' C
+    reader where the decimal mark of the first data row holds throughout and every row has the
+    header's cells; else cell by cell, which names the row, line and column of the first cell
+    that is not a finite number or NaN and of a row whose cell count differs from the header's
+    (the same errors as a comma-separated table's)."""
+    import pandas
+
+    text = path.read_text(encoding="utf-8-sig")
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines or not lines[0].strip():
+        raise BadSession(f"{path}: the file is empty; expected a header row")
+    header = [h.strip() for h in next(csv.reader([lines[0]], delimiter=sep))]
+    for j, h in enumerate(header):
+        if not h:
+            raise BadSession(f"{path}: header column {j + 1} is empty")
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise BadSession(f"{path}: header has duplicate columns {dup}")
+    if len(lines) < 2:
+        raise BadSession(f"{path}: no data rows after the header")
+    n = len(header)
+    body = "\n".join(lines[1:])
+    decimal = "," if "," in lines[1] else "."
+    data = None
+    if body.count(sep) == (n - 1) * (len(lines) - 1) and '"' not in body:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                data = pandas.read_csv(io.StringIO(body), sep=sep, decimal=decimal, header=None, dtype=np.float64,
+                                       engine="c", keep_default_na=False, na_values=NAN_CELLS,
+                                       skip_blank_lines=False).to_numpy()
+        except (ValueError, pandas.errors.ParserError):
+            data = None
+        if data is not None and (data.shape != (len(lines) - 1, n) or np.isinf(data).any()):
+            data = None
+    if data is None:
+        data = np.empty((len(lines) - 1, n))
+        for r, row in enumerate(csv.reader(lines[1:], delimiter=sep)):
+            if len(row) != n:
+                raise BadSession(f"{path} row {r + 1} (line {r + 2}): {len(row)} cells, expected {n} like the header")
+            for j, cell in enumerate(row):
+                cell = cell.strip()
+                if cell == "" or cell.lower() == "nan":
+                    data[r, j] = math.nan
+                    continue
+                try:
+                    v = float(cell.replace(",", "."))
+                except ValueError:
+                    raise BadSession(
+                        f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a number, got {cell!r}"
+                    ) from None
+                if not math.isfinite(v):
+                    raise BadSession(
+                        f"{path} row {r + 1} (line {r + 2}) column {header[j]!r}: expected a finite number, got {cell!r}"
+                    )
+                data[r, j] = v
     return Table(path, header, data)
 
 

@@ -249,3 +249,23 @@ def test_a_declared_marker_the_export_lacks_is_one_line(tmp_path):
                                          + "markers_file: vicon_nexus.csv\n")
     with pytest.raises(BadInput, match=r"vicon_nexus.csv: no marker 'M3' \(declared in .*session.yaml\); the export has M1, M2"):
         load_session(folder)
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_a_session_table_with_another_separator_and_decimal_commas_reads_the_same(tmp_path, sep):
+    from platkit.io.table import read_table
+
+    src = EXAMPLES / "rotary"
+    folder = tmp_path / "s"
+    shutil.copytree(src, folder)
+    for name in ("markers.csv", "commands.csv"):
+        text = (src / name).read_text()
+        (folder / name).write_text(text.replace(",", sep).replace(".", ","))
+    for name in ("markers.csv", "commands.csv"):
+        a, b = read_table(src / name), read_table(folder / name)
+        assert a.header == b.header and np.array_equal(a.data, b.data, equal_nan=True)
+    lines = (folder / "markers.csv").read_text().splitlines()
+    lines[2] = lines[2].replace(",", ",x", 1)  # row 2, column t: '0,x033333'
+    (folder / "markers.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(BadInput, match=r"markers.csv row 2 \(line 3\) column 't': expected a number, got '0,x033333'"):
+        read_table(folder / "markers.csv")
