@@ -152,6 +152,50 @@ class Effect:
         return None
 
 
+# ---------------------------------------------------------------------------- helpers for effect authors
+def stored_where(data: Any) -> dict[str, Any]:
+    """The ``where`` mapping of a stored term (``ModelTerm.to_dict``), {} when there is none."""
+    where = data.get("where") if isinstance(data, dict) else None
+    return where if isinstance(where, dict) else {}
+
+
+def actuator_where(spec: PlatformSpec, i: int) -> dict[str, Any]:
+    """The ``where`` of a term on control ``i``: its name, index and unit (what
+    :func:`stored_actuator` reads back without the spec)."""
+    return {"actuator": spec.control_names[i], "actuator_index": i, "unit": spec.controls[i].unit}
+
+
+def stored_actuator(spec: PlatformSpec | None, data: dict[str, Any], effect: str) -> tuple[int, str, str]:
+    """(index, name, unit) of the actuator a stored term acts on: by name in ``spec`` when given
+    (BadInput names an actuator the stand lacks), else from the stored index and unit."""
+    where = stored_where(data)
+    name, index, unit = where.get("actuator"), where.get("actuator_index"), where.get("unit")
+    if spec is not None:
+        if name not in spec.control_names:
+            raise BadInput(f"effect {effect!r}: actuator {name!r} is not a control of {spec.name} "
+                           f"({', '.join(spec.control_names)})")
+        i = spec.control_names.index(name)
+        return i, str(name), spec.controls[i].unit
+    if not isinstance(index, int) or index < 0 or not isinstance(unit, str):
+        raise BadInput(f"effect {effect!r}: where needs actuator_index (an integer >= 0) and unit")
+    return index, str(name), unit
+
+
+def stored_number(where: dict[str, Any], key: str, effect: str, positive: bool = False) -> float:
+    """A number of a stored term's ``where``; BadInput names the effect and field otherwise."""
+    v = where.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (positive and not v > 0):
+        raise BadInput(f"effect {effect!r}: where.{key} must be a{' positive' if positive else ''} number")
+    return float(v)
+
+
+def control_size(spec: PlatformSpec, i: int, size: float | None, default: float) -> float:
+    """A simulated size on control ``i`` in SI (``size`` None: ``default``): mm -> m for a length
+    control, else the control's own unit (:data:`CONTROL_SIZE_UNIT`)."""
+    size = default if size is None else float(size)
+    return size * 1e-3 if spec.controls[i].unit == "m" else size
+
+
 def theta_from_dict(data: dict[str, Any], names: list[str], where: str = "term") -> np.ndarray:
     """The parameter values stored by ``ModelTerm.to_dict`` in the order ``names``."""
     params = data.get("parameters") or {}

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import Effect, SizeHelp, history
+from platkit.effects import Effect, SizeHelp, history, stored_number, stored_where
 from platkit.hookspecs import hookimpl
 from platkit.terms import ModelTerm
 
@@ -57,8 +57,8 @@ class CameraHeat(Effect):
         return f"the camera's warm-up, 1 - exp(-t / {TAU_S:g} s)"
 
     def from_dict(self, data, spec=None):
-        where = data.get("where") or {}
-        return self.term(where.get("marker", ""), int(where.get("marker_index", 0)))
+        where = stored_where(data)
+        return self.term(str(where.get("marker", "")), int(stored_number(where, "marker_index", self.name)))
 
     def correction(self, where, unwritten=None):
         return (f"in the data: marker {where.get('marker')}'s image drifting with the camera's warm-up is fitted; "
