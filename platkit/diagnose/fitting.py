@@ -72,8 +72,7 @@ class Options:
     # standard errors of its estimate over the observations, if more): nothing to find
     noise_floor_factor: float = 1.03
     # with nothing named, a geometric model still this many times the noise floor held out is a
-    # lack of fit the library has no name for: reported ``unexplained`` (clean physical sessions:
-    # 0.97-1.31 on development seeds 706600; out-of-library physics: 1.5-11.7)
+    # lack of fit the library has no name for: reported ``unexplained``
     lack_of_fit_factor: float = 2.0
     # with nothing found, a geometric model at least this many times the noise floor held out is
     # said to be so in the verdict, without a finding (clean proof sessions on the physical
@@ -88,7 +87,7 @@ class Options:
     @property
     def weak_alpha(self) -> float:
         """The stricter held-out level (``alpha_heldout`` times ``weak_separability_factor``): a
-        term mostly inside the geometry or with a small gain proves itself at it (search.confirm),
+        term mostly inside the geometry or with a small gain proves itself at it (rounds.confirm),
         and a name proven above it is weak (the naming and recording rules)."""
         return self.alpha_heldout * self.weak_separability_factor
 
@@ -143,7 +142,7 @@ class Finding:
     heldout_session_rms_after: float | None = None
     corrected: str = ""  # for a recording artefact: how calibration.yaml leaves it out ('' for the stand's physics)
     # other effects at the same place that the round would have accepted and that predict held-out
-    # poses as well (search._equally_good): {"effect", "where", "heldout_rms", "p_named_better"}
+    # poses as well (rounds.equally_good): {"effect", "where", "heldout_rms", "p_named_better"}
     alternatives: list[dict[str, Any]] = field(default_factory=list)
 
 @dataclass
@@ -225,7 +224,7 @@ def _fmt_rms(x: float, unit: str) -> str:
     return f"{x / length_scale(unit):.3g} {unit}"
 
 def _where_text(where: dict) -> str:
-    keys = ("actuator", "marker", "time", "region", "frame", "period", "from_time_s")
+    keys = ("actuator", "joint", "marker", "time", "region", "frame", "period", "from_time_s")
     parts = [f"{k} {where[k]}" for k in keys if k in where]
     return ", ".join(parts) or "the whole model"
 

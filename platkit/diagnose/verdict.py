@@ -21,30 +21,7 @@ def verdict(d: Diagnosis) -> str:
     named = [f for f in d.findings if f.effect != "unexplained"]
     unexpl = [f for f in d.findings if f.effect == "unexplained"]
     parts = []
-    if not d.findings and d.at_noise_floor:
-        parts.append(f"The motion capture shows no hidden effect: the geometric model predicts held-out poses at "
-                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these settled poses "
-                     f"({_fmt_rms(d.noise_floor, unit)} from the marker noise and the samples averaged), so no "
-                     "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
-    elif not d.findings and not d.too_few_settled:
-        loc = located(d.locations, 0.01)
-        ratio = (d.heldout_geometric / d.noise_floor if d.noise_floor and d.heldout_geometric is not None
-                 else None)
-        near = ratio is not None and ratio >= d.options.noted_lack_of_fit
-        parts.append(("No hidden effect is claimed" if near else "The motion capture shows no hidden effect")
-                     + ": no candidate effect passed the held-out test, and the residuals show no structure that "
-                     "survives correction for multiple testing"
-                     + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
-        if near:
-            tests = [t for r in d.rounds if r.get("round") == ROUND_NEIGHBOURS for t in r["tests"]]
-            alike = ("; nor are its residuals more alike at poses next in time or with near commands than chance "
-                     f"(adjusted p = {min(t['p_adjusted'] for t in tests):.2g}), as a drift, a sway or a bend would "
-                     "leave them" if tests else "")
-            parts.append(f"Yet the geometric model predicts held-out poses at {_fmt_rms(d.heldout_geometric, unit)}, "
-                         f"{ratio:.2g} times the noise floor of these settled poses ({_fmt_rms(d.noise_floor, unit)}): "
-                         "sessions with no hidden effect reach up to about twice the floor, and a weak effect of a "
-                         f"shape the library does not hold sits there too{alike}. So the two cannot be told apart on "
-                         "this session; more poses, or longer holds, would.")
+    parts += _nothing_found(d)
     if named:
         first_before = max(f.heldout_rms_before for f in named)
         last_after = min(f.heldout_rms_after for f in named)
@@ -85,21 +62,7 @@ def verdict(d: Diagnosis) -> str:
         parts.append(f"Some structure remains in the residuals ({left[0].test}, {_where_text(left[0].where)}) that "
                      "held-out prediction does not see (within twice the noise floor): what the model leaves of the "
                      "physics it names, not reported as another effect.")
-    for r in d.rounds:
-        if r.get("not_named") and r.get("round") == ROUND_BESIDE_PROBE:
-            parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside the "
-                         "generic model that still beats the named ones: a slice of the structure reported as "
-                         "unexplained, not named.")
-        elif r.get("not_named") and r.get("round") == ROUND_BESIDE_TIME:
-            parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside a "
-                         f"model of the structure in time that the residuals still hold ({r['located']}; a time "
-                         f"probe of {r['time_bins']} bins): a slice of that structure, reported as unexplained, "
-                         "not named.")
-        elif r.get("not_named") and r.get("round") == ROUND_WEAK_NAMES:
-            parts.append(f"{', '.join(r['not_named'])} passed the held-out test only weakly, and the model with "
-                         f"{'it' if len(r['not_named']) == 1 else 'them'} still left held-out poses at more than "
-                         "twice the noise floor with structure located: a slice of physics the library does not "
-                         "hold, not named.")
+    parts += _taken_back(d)
     for f in unexpl:
         if "alike" in f.where:  # the neighbour tests (locate.neighbour_tests) near the noise floor
             parts.append(f"Structure remains that no known effect explains: {f.evidence}. It is reported as "
@@ -119,6 +82,70 @@ def verdict(d: Diagnosis) -> str:
             parts.append(f"Not told apart on this plan: {f.effect} ({_where_text(f.where)}, held-out "
                          f"{_fmt_rms(f.heldout_rms_after, unit)}) and {alts} predict held-out poses as well as each "
                          "other: the effect is one of them, and this plan cannot tell which.")
+    parts += _not_separable(d)
+    if d.heldout_session is not None:
+        h = d.heldout_session
+        parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
+                     f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
+    return " ".join(parts)
+
+
+def _nothing_found(d: Diagnosis) -> list[str]:
+    """The sentences of a diagnosis that names nothing: at the noise floor, or near it."""
+    unit = d.unit
+    parts: list[str] = []
+    if not d.findings and d.at_noise_floor:
+        parts.append(f"The motion capture shows no hidden effect: the geometric model predicts held-out poses at "
+                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these settled poses "
+                     f"({_fmt_rms(d.noise_floor, unit)} from the marker noise and the samples averaged), so no "
+                     "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
+    elif not d.findings and not d.too_few_settled:
+        loc = located(d.locations, 0.01)
+        ratio = (d.heldout_geometric / d.noise_floor if d.noise_floor and d.heldout_geometric is not None
+                 else None)
+        near = ratio is not None and ratio >= d.options.noted_lack_of_fit
+        parts.append(("No hidden effect is claimed" if near else "The motion capture shows no hidden effect")
+                     + ": no candidate effect passed the held-out test, and the residuals show no structure that "
+                     "survives correction for multiple testing"
+                     + ("" if not loc else f" (weakest remaining: {loc[0].test})") + ".")
+        if near:
+            tests = [t for r in d.rounds if r.get("round") == ROUND_NEIGHBOURS for t in r["tests"]]
+            alike = ("; nor are its residuals more alike at poses next in time or with near commands than chance "
+                     f"(adjusted p = {min(t['p_adjusted'] for t in tests):.2g}), as a drift, a sway or a bend would "
+                     "leave them" if tests else "")
+            parts.append(f"Yet the geometric model predicts held-out poses at {_fmt_rms(d.heldout_geometric, unit)}, "
+                         f"{ratio:.2g} times the noise floor of these settled poses ({_fmt_rms(d.noise_floor, unit)}): "
+                         "sessions with no hidden effect reach up to about twice the floor, and a weak effect of a "
+                         f"shape the library does not hold sits there too{alike}. So the two cannot be told apart on "
+                         "this session; more poses, or longer holds, would.")
+    return parts
+
+
+def _taken_back(d: Diagnosis) -> list[str]:
+    """The sentences of the names taken back after the search (their rounds)."""
+    parts: list[str] = []
+    for r in d.rounds:
+        if r.get("not_named") and r.get("round") == ROUND_BESIDE_PROBE:
+            parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside the "
+                         "generic model that still beats the named ones: a slice of the structure reported as "
+                         "unexplained, not named.")
+        elif r.get("not_named") and r.get("round") == ROUND_BESIDE_TIME:
+            parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better at first, but not beside a "
+                         f"model of the structure in time that the residuals still hold ({r['located']}; a time "
+                         f"probe of {r['time_bins']} bins): a slice of that structure, reported as unexplained, "
+                         "not named.")
+        elif r.get("not_named") and r.get("round") == ROUND_WEAK_NAMES:
+            parts.append(f"{', '.join(r['not_named'])} passed the held-out test only weakly, and the model with "
+                         f"{'it' if len(r['not_named']) == 1 else 'them'} still left held-out poses at more than "
+                         "twice the noise floor with structure located: a slice of physics the library does not "
+                         "hold, not named.")
+    return parts
+
+
+def _not_separable(d: Diagnosis) -> list[str]:
+    """The sentences of the terms set aside (by the recording, or not separable from the
+    geometry) and of the effects that could not be tried."""
+    parts: list[str] = []
     echo = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SLOW_APPROACH)]
     stream = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SETTLED_STREAM)]
     geometry = [x for x in d.not_separable if x not in echo and x not in stream]
@@ -136,8 +163,4 @@ def verdict(d: Diagnosis) -> str:
             parts.append(d.advice[name])
     for name, reasons in d.untried.items():
         parts.append(f"Not tried: {name} where {'; and where '.join(reasons)}.")
-    if d.heldout_session is not None:
-        h = d.heldout_session
-        parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
-                     f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
-    return " ".join(parts)
+    return parts

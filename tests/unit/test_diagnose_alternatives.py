@@ -1,5 +1,5 @@
 """Two effects at one place that the search cannot tell apart on the session's plan are both said
-(platkit.diagnose.search._equally_good): the name given is one of them, and diagnosis.json and the
+(platkit.diagnose.rounds.equally_good): the name given is one of them, and diagnosis.json and the
 verdict say the other (proof seed 1151103 of the physical simulator, in the proof's protocol:
 conftest.proof_session; seen since)."""
 

@@ -121,7 +121,7 @@ def test_the_heat_term_round_trips_and_predict_sees_it_reads_time(rotary):
 
 def test_when_the_best_fit_cannot_predict_the_next_proves_itself_at_a_shared_level():
     from platkit.diagnose.fitting import Fit
-    from platkit.diagnose.search import confirm
+    from platkit.diagnose.rounds import confirm
 
     def fit(rss, cv_rms):
         return Fit([], None, np.zeros(1), np.ones(1, bool), np.ones((20, 1)), np.zeros((20, 1, 3)), rss, 60, 1,

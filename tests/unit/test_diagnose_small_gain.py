@@ -2,7 +2,7 @@
 physical simulator (seeds 1010000-1011999, the proof's protocol: every fifth command held out
 and cut from the stream, conftest.proof_session), each now tested at the stricter held-out level:
 
-- a held-out gain under ``small_gain`` (platkit.diagnose.search.confirm): a plate that flexes
+- a held-out gain under ``small_gain`` (platkit.diagnose.rounds.confirm): a plate that flexes
   (physics the library does not hold) named a leg's scale nonlinearity at a 4% gain (now
   ``unexplained``, by the neighbour tests);
 - any term in a session whose holds were extrapolated to rest

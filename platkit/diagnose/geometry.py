@@ -1,0 +1,76 @@
+"""The geometry chosen again during the search: the groups a calibration held freed again before a
+term mostly inside the geometry is named (:func:`_reopened`), and the model selection made again
+beside an accepted effect of the stand (:func:`_reselected`)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.selection import parameter_groups, reselect_geometry
+from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _fmt_rms, _rms
+from platkit.diagnose.stats import paired_improvement
+from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
+
+
+def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] | None, judged: np.ndarray,
+              opt: Options, platform_options: dict | None) -> tuple[Fit, list[str], dict] | None:
+    """The model with the parameter groups held by the calibration freed again, as (fit, free
+    names, note), when it predicts the held-out ``judged`` poses better than ``cur`` (lower BIC, a
+    held-out gain of ``min_relative_gain``, paired p < ``alpha_heldout``); else None.
+
+    A calibration's model selection scores the groups with every effect still in the residual:
+    a large one (a gear's cyclic error) hides what a held group (the rod lengths) would explain,
+    and an effect mostly inside the geometry (a scale nonlinearity) would be named in its place.
+    Tried once, when such a term (separability under ``warn_separability``) is about to be
+    accepted: where none is, the search costs nothing more."""
+    if free is None:
+        return None
+    groups = parameter_groups(spec)
+    held = [g for g, names in groups.items() if not set(names) & set(free)]
+    if not held:
+        return None
+    trial = list(free) + [n for g in held for n in groups[g]]
+    td_now = cur.problem.split(cur.z)[0]
+    cal = calibrate(poses, spec, terms=cur.terms, free=trial, td_start=td_now, robust=opt.robust,
+                    platform_options=platform_options)
+    f = _fit(spec, poses, cur.terms, cal.extras["z"], cal.extras["active"], cur.weights, opt.lm_iterations, opt.robust)
+    f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
+    p = paired_improvement(cur.cv[judged], f.cv[judged])
+    before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
+    if not (f.bic < cur.bic and after < (1 - opt.min_relative_gain) * before and p < opt.alpha_heldout):
+        return None
+    unit = poses.length_unit
+    text = (f"geometry: {', '.join(held)} freed again (held by the calibration, chosen with the effect still in the "
+            f"residual): held-out RMS {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)} (paired p = {p:.2g}); "
+            "--keep-geometry keeps the calibration's free set")
+    return f, trial, {"groups": held, "heldout_rms_before": before, "heldout_rms_after": after, "p_heldout": float(p),
+                      "text": text}
+
+def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] | None, judged: np.ndarray,
+                opt: Options, platform_options: dict | None) -> tuple[Fit, list[str], dict] | None:
+    """After an effect of the stand is accepted, the geometry's model selection made again beside
+    the accepted terms (platkit.calibrate.selection.reselect_geometry), as (fit, free names, note),
+    when it chooses another free set that predicts the held-out ``judged`` poses no worse than
+    ``cur``; else None. A group chosen with the physics still in the residual may stand in for it
+    (a torso joint's scale for its gravity sag): beside the physics it no longer earns its place."""
+    if free is None:
+        return None
+    cal = reselect_geometry(poses, spec, cur.terms, robust=opt.robust, platform_options=platform_options)
+    chosen = [n for n, st in zip(spec.parameter_names, cal.td_status) if st == "estimated"]
+    if set(chosen) == set(free):
+        return None
+    f = _fit(spec, poses, cur.terms, cal.extras["z"], cal.extras["active"], cur.weights, opt.lm_iterations, opt.robust)
+    f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
+    before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
+    if not after <= before:
+        return None
+    sel = cal.identifiability.get("model_selection") or {}
+    unit = poses.length_unit
+    text = (f"geometry chosen again beside {', '.join(t.effect for t in cur.terms)}: free "
+            f"{', '.join(sel.get('chosen', [])) or 'none'} (held {', '.join(sel.get('held', [])) or 'none'}), held-out "
+            f"RMS {_fmt_rms(before, unit)} -> {_fmt_rms(after, unit)}; --keep-geometry keeps the calibration's free set")
+    return f, chosen, {"chosen": list(sel.get("chosen", [])), "held": list(sel.get("held", [])),
+                       "heldout_rms_before": before, "heldout_rms_after": after, "text": text}
