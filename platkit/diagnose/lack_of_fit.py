@@ -37,8 +37,7 @@ def lack_of_fit(cur: Fit, poses: PoseSet, floor: float, held: float, opt: Option
     if not held <= opt.lack_of_fit_factor * floor or extrapolated(poses).any():
         return None, None
     # Not in a session whose holds were extrapolated to rest: the approach's remnant reaches the
-    # settled poses too (proof seed 1101122: a weak psvr slow actuator read from the stream, the
-    # settled poses' residuals alike over near commands). In the room's frame (a drift of the
+    # settled poses too. In the room's frame (a drift of the
     # cameras) and in the moving frame (a sway of the marker mount: one direction of the moving
     # part, which turns with the stand in the room)
     frames = {"motion capture": cur.r, "moving": body_residuals(cur, poses)}

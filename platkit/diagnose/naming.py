@@ -31,9 +31,7 @@ def _best_probe(spec, poses, cur: Fit, best: Fit | None, opt: Options,
     A named candidate whose own held-out proof is weak (``best_p``, its paired p against the
     current model, above ``alpha_heldout * weak_separability_factor``) also yields to a probe
     that is proven against the current model and predicts better than it with a lower BIC, even
-    when the two cannot be told apart significantly: a time-periodic sway of the frame was named as
-    a leg's cyclic error at p = 0.03 (dev seed 708230) while the time probe predicted held-out
-    poses at 0.224 mm against the name's 0.262 (BIC -240 against -66; paired p 0.08 between them)."""
+    when the two cannot be told apart significantly."""
     ref = best if best is not None else cur
     fk_X = cur.problem.kinematics(cur.problem.split(cur.z)[0], poses.controls)[1]
     probes = [p for p in (time_probe(poses), space_probe(fk_X), marker_probe(poses)) if p is not None]
@@ -89,10 +87,7 @@ def _unproven_beside_probe(spec: PlatformSpec, poses: PoseSet, probed: Fit, firs
     """{index: paired p} of the named terms ``probed.terms[first:last]`` that do not predict the
     held-out settled poses significantly better (paired Wilcoxon at ``alpha_heldout``) in the
     model that also holds the generic probe which still beats the named model (``probed``, the
-    probe last): each was a slice of that structure, not an effect of its own (a psvr frame that
-    sways with time was named a cyclic error of actuator A at p = 0.0018 before the time probe
-    was tried; beside the probe it proves nothing, and the truth's held-out had gone 0.060 ->
-    0.064 mm; proof seed 961233)."""
+    probe last): each was a slice of that structure, not an effect of its own."""
     loose = {}
     for k in range(first, last):
         wo = _without(spec, poses, probed, {k}, opt)
@@ -116,9 +111,7 @@ def _unproven_beside_time(spec: PlatformSpec, poses: PoseSet, cur: Fit, first: i
     a time resolution the probe cannot afford on few poses and predicts no better than a chance
     slice of it. The model of it is the time probe whose resolution (6 bins up to a quarter of the
     poses) predicts held-out poses best. A named term that proves nothing beside it was a slice of
-    that structure (a stewart frame swaying with a 65 s period over a 300 s session was named a
-    leg's cyclic error of period 0.01 m at p = 0.004, a 7% gain; beside a 10-bin time probe it
-    gives p = 0.07, and the truth's held-out had gone 0.074 -> 0.079 mm; proof seed 1100230)."""
+    that structure."""
     if not _rms(cur.cv, judged) > opt.lack_of_fit_factor * floor:
         return {}, {}
     left = located(locate(cur.r, poses, spec, weights, opt.alpha), opt.alpha * 0.1)
@@ -147,9 +140,7 @@ def _weak_beside_lack_of_fit(cur: Fit, poses: PoseSet, spec: PlatformSpec, findi
     """The indices (into ``cur.terms``) of the named terms proven only weakly (held-out paired p
     above ``alpha_heldout * weak_separability_factor``) in a model that still predicts held-out
     poses at more than ``lack_of_fit_factor`` times the noise floor with structure located in its
-    residuals: each explains a slice of something the library does not hold (a frame that sways
-    with time was named a leg's scale nonlinearity at p = 0.045, held-out 7 times the floor after
-    it, and the truth's held-out went 0.232 -> 0.321 mm; proof seed 920222). Empty otherwise."""
+    residuals: each explains a slice of something the library does not hold. Empty otherwise."""
     if not _rms(cur.cv, judged) > opt.lack_of_fit_factor * floor:
         return set()
     level = opt.weak_alpha

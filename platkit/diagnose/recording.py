@@ -58,9 +58,7 @@ def _slow_actuator_echo(effect: Effect, term: ModelTerm, settled: Finding | None
     """True for a term of a direction effect (``Effect.direction``, a backlash) on an actuator the
     finding of unsettled holds named, in a session where holds were extrapolated to rest: what the
     approach model missed lies along that actuator's last move, which is a direction effect's
-    signature, so the two cannot be told apart on these data (on the physical simulator: a slow
-    stewart leg named with a backlash made held-out prediction of the settled poses worse, 0.063
-    -> 0.103 mm, seed 885110)."""
+    signature, so the two cannot be told apart on these data."""
     return effect.direction and _on_slow_actuator(term, settled, poses)
 
 
@@ -82,9 +80,7 @@ def extrapolated_weak_echo(settled: Finding | None, poses: PoseSet, p_heldout: f
     through the kinematics; even the poses that settled are biased along its last move (the
     settling search's own test stops short of a slow drive's last hundredths). A term on that
     actuator, or on any other, absorbs a slice of it, and a weak proof does not tell the two
-    apart. On the physical simulator: a slow psvr actuator A with no other effect was given a
-    cyclic error on A at p = 0.018, 0.061 -> 0.071 mm held out (seed 931111), and one on C at
-    p = 0.0051, 0.084 -> 0.092 mm (seed 1011112)."""
+    apart."""
     if settled is None or p_heldout <= level:
         return False
     return bool(extrapolated(poses).any())
@@ -93,12 +89,10 @@ def extrapolated_weak_echo(settled: Finding | None, poses: PoseSet, p_heldout: f
 def settled_stream_weak_lag(effect: Effect, settled: Finding | None, poses: PoseSet, p_heldout: float,
                             level: float) -> bool:
     """True for a fitted term of the ``unsettled_holds`` effect (a lag: a fraction of the last
-    move, added to the poses) proven only weakly (paired p above ``level``) in a session whose raw stream the settling search
-    read and found settled (no lag read from it): the direct evidence of a lag, markers still
-    moving at the end of a hold, is not there, and the term only takes a slice of some other
-    structure. On the physical simulator the fitted lag term was never the right name over 13
-    proof runs (slow actuators are read from the stream); once it named a weak frame sway, the
-    one wrong name of 216 out-of-library sessions (proof seed 1061233, p = 0.021)."""
+    move, added to the poses) proven only weakly (paired p above ``level``) in a session whose raw
+    stream the settling search read and found settled (no lag read from it): the direct evidence
+    of a lag, markers still moving at the end of a hold, is not there, and the term only takes a
+    slice of some other structure."""
     if not effect.unsettled_holds or settled is not None or p_heldout <= level:
         return False
     return (poses.settling or {}).get("sigma_m") is not None
@@ -146,11 +140,8 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
     it stands when the extrapolated one predicts them significantly better, or, with the lagging
     actuators named from the stream, when it does not predict them significantly worse (paired
     Wilcoxon the other way at ``alpha_heldout``). The correction is the settling search's own:
-    diagnosis changes nothing in the calibration. ("No worse" had been "within 1%": a slow psvr
-    actuator named from the stream, 5% worse but not significantly (p = 0.12), fell to a lag term
-    fitted along every actuator's last move, and the settled poses were predicted worse, 0.036 ->
-    0.042 mm; proof seed 961120.) With too few settled poses to test on, the stream's evidence
-    stands alone when it names the actuators."""
+    diagnosis changes nothing in the calibration. With too few settled poses to test on, the
+    stream's evidence stands alone when it names the actuators."""
     info = poses.settling or {}
     un = info.get("unsettled") or {}
     if not un or not info.get("n_extrapolated") or "held_markers" not in poses.extras or cur.cv is None:
@@ -225,13 +216,9 @@ def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, effect:
     the fitted model (it is in the recording, and the location tests see the data corrected), but
     calibration.yaml predicts where the stand settles now, which the geometric fit already did:
     for a slip, its robust weights had put the marker at its new place and left its earlier half
-    out. Fitting both places brings
-    that half back and moves the geometry within its own uncertainty, better or worse by chance
-    (final proofs of 73295c8: 21 such sessions, 7 worse by 0.05-1.24 um on the rows after the slip,
-    12 better). Only a change that predicts better is written, by the gain every other term must
-    show (``min_relative_gain``): proof seed 960134, a stewart slip whose model predicted the rows
-    after it 0.8% better in the folds (p = 0.014), predicted the truth 5% worse (0.0115 -> 0.0121
-    mm)."""
+    out. Fitting both places brings that half back and moves the geometry within its own
+    uncertainty, better or worse by chance, so only a change that predicts better is written, by
+    the gain every other term must show (``min_relative_gain``)."""
     term = cur.terms[k]
     after = judged & (np.asarray(history(poses, "elapsed"), float) >= onset) & np.isfinite(cur.cv)
     if after.sum() < 2 * opt.folds:

@@ -148,7 +148,7 @@ def thermal_state(t: np.ndarray, motor: np.ndarray, stroke: np.ndarray, tau_s: f
         return np.zeros_like(motor)
     dt = float(np.median(np.diff(t)))
     # imported here, not at the top: every stand lookup loads this plugin, and scipy.signal takes
-    # longer to import than all of `platkit fk` (issue 13)
+    # longer to import than all of `platkit fk`
     from scipy.signal import lfilter
 
     heat = np.vstack([np.zeros((1, motor.shape[1])), np.abs(np.diff(motor, axis=0)) / stroke])
