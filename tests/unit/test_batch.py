@@ -392,3 +392,15 @@ def test_an_interrupted_batch_ends_in_one_line_and_leaves_nothing(tmp_path, how)
             break
         time.sleep(0.5)
     assert left.strip() == ""
+
+
+def test_the_dashboard_without_bokeh_is_one_line(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "bokeh", None)  # as if not installed
+    with pytest.raises(BadInput, match=r'--dashboard needs bokeh, which is not installed: pip install "bokeh>=3.1"'):
+        with engine.cluster(workers=1, dashboard=True):
+            pass
+    with pytest.raises(BadInput, match="--dashboard applies to the embedded cluster"):
+        with engine.cluster(scheduler="tcp://127.0.0.1:1", dashboard=True):
+            pass
