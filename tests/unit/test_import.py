@@ -269,3 +269,23 @@ def test_a_session_table_with_another_separator_and_decimal_commas_reads_the_sam
     (folder / "markers.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(BadInput, match=r"markers.csv row 2 \(line 3\) column 't': expected a number, got '0,x033333'"):
         read_table(folder / "markers.csv")
+
+
+def test_layout_variants_read_the_same(tmp_path):
+    ref = read("qualisys_3d.tsv")
+    # QTM on a decimal-comma locale; and an older export without the Frame/Time row
+    lines = (DATA / "qualisys_3d.tsv").read_text().splitlines()
+    comma = tmp_path / "comma.tsv"
+    comma.write_text("\n".join(lines[:12] + [x.replace(".", ",") for x in lines[12:]]) + "\n")
+    old = tmp_path / "old.tsv"
+    old.write_text("\n".join(lines[:11] + ["\t".join(x.split("\t")[2:]) for x in lines[12:]]) + "\n")
+    for path in (comma, old):
+        rec = read_recording(path)
+        assert np.array_equal(rec.markers["M1"], ref.markers["M1"]) and np.allclose(rec.t, ref.t)
+    # a Vicon export whose rows end with a comma
+    vicon = tmp_path / "v.csv"
+    vicon.write_text("\n".join(x + "," if x and x[0] in ",F0123456789" else x
+                               for x in (DATA / "vicon_nexus.csv").read_text().splitlines()) + "\n")
+    rec, ref = read_recording(vicon), read("vicon_nexus.csv")
+    assert np.array_equal(rec.markers["M2"], ref.markers["M2"], equal_nan=True)
+    assert np.array_equal(rec.bodies["T"][1], ref.bodies["T"][1], equal_nan=True)

@@ -22,7 +22,8 @@ its first column), checked against Roll, Pitch, Yaw taken as R = Rx(roll) Ry(pit
 (QTM's default "Qualisys standard" angles): where the file's angles match the matrix read row by
 row instead, that reading is used and said; where they match neither (angles defined otherwise
 in QTM's settings), the column reading is kept and said. Times: the Time column, else the frame
-index over FREQUENCY. A marker at 0,0,0, or an empty or NaN cell, is an occluded sample (QTM
+index over FREQUENCY. Cells are separated by tabs, so a decimal comma is read as a decimal point.
+A marker at 0,0,0, or an empty or NaN cell, is an occluded sample (QTM
 writes zeros for a gap), and a body whose cells are empty, NaN or all zero.
 """
 from __future__ import annotations
@@ -108,7 +109,7 @@ def read_qualisys_tsv(path: str | Path) -> Recording:
             raise BadInput(f"{path}: line {line}: {len(cells)} cells, expected {width} "
                            f"({lead} leading and {per} per name of {names_key})")
         for c in range(width):
-            values[r, c] = number(cells[c], f"{path}: line {line}, column {c + 1}")
+            values[r, c] = number(cells[c], f"{path}: line {line}, column {c + 1}", decimal_comma=True)
     n_frames = number(header["NO_OF_FRAMES"][0], f"{path}: NO_OF_FRAMES")
     if n_frames != len(body):
         raise BadInput(f"{path}: NO_OF_FRAMES says {n_frames:g}, the file has {len(body)} data rows (cut short?)")

@@ -80,7 +80,7 @@ def read_vicon_csv(path: str | Path) -> Recording:
                            f"{section!r}), got {','.join(comps[:3])!r}")
         if not data:
             raise BadInput(f"{path}: section {section!r} (line {line}) has no data rows")
-        width = len(comps)
+        width = max(c for c in range(len(comps)) if comps[c].strip()) + 1  # trailing empty cells are no columns
         starts = [c for c in range(2, max(len(names), 2)) if names[c].strip()]
         if not starts:
             raise BadInput(f"{path}: line {line + 2}: no names in section {section!r}")
