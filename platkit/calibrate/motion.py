@@ -14,7 +14,9 @@ are central differences per actuator (each parameter moves one actuator, or all 
 
 Procedure (:func:`calibrate_motion`):
 1. checks: markers and at least three commands, on two clocks that overlap (BadSession naming
-   commands.csv);
+   commands.csv); after the fit (4.), markers off by more than MISFIT_RATIO times their own
+   noise say that the log does not explain the motion (commands missing: a log sparser than the
+   motion, or another recording's), BadSession naming commands.csv;
 2. the samples: every sample with a marker seen, from the second command on (the stand's place
    before the first is not logged), decimated evenly to at most ``max_samples``;
 3. the response's start: the markers registered at the commanded controls (rigid alignment),
@@ -33,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from platkit.calibrate.estimate import calibrate
+from platkit.calibrate.estimate import calibrate, marker_noise_floor
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import ResponseModel, actuator_positions
 from platkit.errors import BadSession, ComputationFailed, NotIdentifiable
@@ -55,6 +57,12 @@ MAX_SAMPLES, START_SAMPLES = 4000, 600
 #: starting response: time constant (s), damping; a profile's rate and acceleration from the
 #: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
 TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
+#: a fit whose RMS is this many times the markers' own 3-D noise (from the distances between
+#: them) does not describe the stream: the command log does not say where the stand was sent
+MISFIT_RATIO = 5.0
+#: in a streamed log, an interval this many times the median is a gap; markers moving more than
+#: GAP_MOVE_M (m) in its second half, long after any response, mean commands are missing there
+GAP_FACTOR, GAP_MOVE_M = 10.0, 1e-3
 #: the two clocks must share at least this part of the shorter file's span
 OVERLAP_SHARE = 0.5
 #: the shifts (s) tried to start the response
@@ -139,7 +147,27 @@ def check_motion_session(session: Session) -> str:
     span = np.diff(tc)
     med = float(np.median(span))
     reference = "step" if med <= STREAMED_MAX_S else "profile"
+    if reference == "step":
+        _check_gaps(tc, tm, session.markers, cmd_file, mk_file, med)
     return reference
+
+
+def _check_gaps(tc, tm, Y, cmd_file, mk_file, med: float) -> None:
+    """A streamed log with an interval over GAP_FACTOR times its median, in whose second half the
+    markers' centroid moves more than GAP_MOVE_M: commands are missing there (BadSession)."""
+    c = np.nanmean(Y, axis=1) if Y.shape[1] else np.zeros((len(tm), 3))
+    for i in np.nonzero(np.diff(tc) > GAP_FACTOR * med)[0]:
+        a, b = float(tc[i]), float(tc[i + 1])
+        mid = 0.5 * (a + b)
+        first = c[(tm >= mid) & (tm < mid + 0.2 * (b - a))]
+        last = c[(tm >= b - 0.2 * (b - a)) & (tm < b)]
+        if not (np.isfinite(first).all(axis=1).any() and np.isfinite(last).all(axis=1).any()):
+            continue
+        moved = float(np.linalg.norm(np.nanmean(last, axis=0) - np.nanmean(first, axis=0)))
+        if moved > GAP_MOVE_M:
+            raise BadSession(f"{cmd_file}: no command from t={a:.3f} to t={b:.3f} s ({b - a:.3g} s, the log's interval is "
+                             f"{med:.3g} s) while the markers in {mk_file} moved {1e3 * moved:.3g} mm late in it: the "
+                             "log is sparser than the motion (commands missing)")
 
 
 def motion_samples(session: Session, reference: str, max_samples: int = MAX_SAMPLES) -> MotionSamples:
@@ -204,13 +232,10 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     if len(t) < 10:
         return np.asarray(theta0, float)
     theta = np.asarray(theta0, float).copy()
-    best = None
-    for s in SHIFT_GRID_S:
-        theta[0] = s
-        e = float(np.sum((actuator_positions(rmodel, theta, T, U, t) - travel) ** 2))
-        if best is None or e < best[0]:
-            best = (e, s)
-    theta[0] = best[1]
+    theta[0] = 0.0  # every shift at once: the response at the shifted times
+    shifted = (t[None, :] - SHIFT_GRID_S[:, None]).ravel()
+    X = actuator_positions(rmodel, theta, T, U, shifted).reshape(len(SHIFT_GRID_S), len(t), -1)
+    theta[0] = SHIFT_GRID_S[int(np.argmin(np.sum((X - travel[None]) ** 2, axis=(1, 2))))]
     lo, hi = _lower_upper(rmodel, theta)
     theta = np.clip(theta, lo + 1e-12, hi - 1e-12)
     for j in range(rmodel.n_u):  # each actuator's own response, the shift and damping held (the full fit frees them)
@@ -225,7 +250,7 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
             return (actuator_positions(rmodel, th, T, U, t, only=j) - travel[:, j]) / scale
 
         sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
-                            x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=40)
+                            x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
         theta[ks] = sol.x
     return theta
 
@@ -270,6 +295,12 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                     extras={"row": idx, "elapsed": t - t[0]})
     cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
                     platform_options=platform_options, ridge_m=ridge_m)
+    floor = np.sqrt(3) * marker_noise_floor(poses)
+    if np.isfinite(floor) and floor > 0 and cal.rms_after > MISFIT_RATIO * floor:
+        raise BadSession(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "
+                         f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
+                         f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
+                         "sparser than the motion) or the log is another recording's")
     theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
     held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
     names = term.parameter_names

@@ -18,7 +18,8 @@ exact zero-order-hold recursion (a linear filter when the commands come at a ste
 the free response from there to each sample. A profile reference is integrated on a fine grid
 with a first-order hold (exact for a reference linear over each step; the profile is smooth to
 its acceleration), and the actuators' position interpolated linearly at the samples. Before the
-first command every actuator rests on it. Internal units throughout (m for length controls).
+first command every actuator rests on it (a profile's: where the caller says it rests).
+Internal units throughout (m for length controls).
 """
 from __future__ import annotations
 
@@ -33,8 +34,10 @@ __all__ = ["ResponseModel", "REFERENCES", "KINDS", "actuator_positions", "trapez
 
 REFERENCES = ("step", "profile")
 KINDS = ("first_order", "second_order")
-#: the fine grid of a profile reference: this share of the shortest time constant, at most FINE_MAX_S
-FINE_SHARE, FINE_MAX_S = 0.1, 2e-3
+#: the fine grid of a profile reference (s): the first-order hold is exact for a reference linear
+#: over each step, whatever the time constant; the trapezoid's curvature costs accel h^2 / 8 (1.5 um
+#: at 3 m/s^2)
+FINE_STEP_S = 2e-3
 #: command intervals equal to this (s) are one steady rate (the files keep microseconds)
 STEADY_TOL_S = 2e-6
 #: the smallest time constant and damping the response takes (a parameter pushed below is clipped)
@@ -91,14 +94,15 @@ class ResponseModel:
         return None if k == 0 else (k - 1) % self.n_u
 
 
-def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, accel: float) -> np.ndarray:
-    """One actuator's profile reference at commands-clock times ``s`` (K,), sorted: each command
-    u_i (sent at T_i) starts a trapezoidal profile (rate, accel) from where the last one stood
-    when it was cut; before T_0 it rests at u_0."""
+def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, accel: float,
+                        start: float | None = None) -> np.ndarray:
+    """One actuator's profile reference at commands-clock times ``s`` (K,): each command u_i (sent
+    at T_i) starts a trapezoidal profile (rate, accel) from where the last one stood when it was
+    cut; before T_0 it rests at ``start`` (default u_0)."""
     v, a = max(float(rate), 1e-12), max(float(accel), 1e-12)
     N = len(T)
     origin = np.empty(N)
-    pos = float(u[0])
+    pos = float(u[0]) if start is None else float(start)
     span = np.diff(T)
     for i in range(N):  # where each profile starts (a few hundred holds: a plain loop)
         origin[i] = pos
@@ -106,7 +110,7 @@ def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float
             d = float(u[i] - pos)
             pos = pos + np.sign(d) * float(_covered(np.array([span[i]]), abs(d), v, a)[0])
     seg = np.searchsorted(T, s, side="right") - 1
-    out = np.where(seg < 0, u[0], u[np.maximum(seg, 0)]).astype(float)
+    out = np.where(seg < 0, origin[0], u[np.maximum(seg, 0)]).astype(float)
     ok = seg >= 0
     i = seg[ok]
     d = u[i] - origin[i]
@@ -193,27 +197,28 @@ def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: flo
 
 
 def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None, rate: float,
-                 accel: float) -> np.ndarray:
+                 accel: float, start: float) -> np.ndarray:
     """One actuator after a profile reference, on a fine grid from T_0 (first-order hold), at t."""
-    h = min(FINE_MAX_S, FINE_SHARE * tau)
+    h = FINE_STEP_S
     t_end = max(float(t.max()), float(T[-1])) + 2 * h
     grid = T[0] + h * np.arange(int(np.ceil((t_end - T[0]) / h)) + 1)
-    r = trapezoid_reference(grid, T, u, rate, accel) - u[0]
+    r = trapezoid_reference(grid, T, u, rate, accel, start) - start
     if zeta is None:
         sys_c = ([1.0], [tau, 1.0])
     else:
         w = 1.0 / tau
         sys_c = ([w * w], [1.0, 2 * zeta * w, w * w])
     num, den, _ = signal.cont2discrete(sys_c, h, method="foh")
-    x = signal.lfilter(np.ravel(num), den, r) + u[0]
-    return np.interp(t, grid, x, left=float(u[0]))
+    x = signal.lfilter(np.ravel(num), den, r) + start
+    return np.interp(t, grid, x, left=float(start))
 
 
 def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray, t: np.ndarray,
-                       only: int | None = None) -> np.ndarray:
+                       only: int | None = None, start: np.ndarray | None = None) -> np.ndarray:
     """(K, n_u) the actuators' positions at motion-capture times t (K,) from the command log (T (N,)
     s on the commands clock, U (N, n_u)) under the response ``theta`` (see :class:`ResponseModel`).
-    ``only``: that actuator's column alone, (K,)."""
+    ``only``: that actuator's column alone, (K,). ``start`` (n_u,): where a profile's actuators
+    rest before the first command (default: on it; a step reference always starts on it)."""
     par = model.split(theta)
     s = np.asarray(t, float) - float(par["shift_s"])
     cols = range(model.n_u) if only is None else [only]
@@ -224,5 +229,6 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
         if model.reference == "step":
             out.append(_step_one(s, T, U[:, j], tau, zeta))
         else:
-            out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), float(par["accel"][j])))
+            out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), float(par["accel"][j]),
+                                    float(U[0, j] if start is None else start[j])))
     return out[0] if only is not None else np.stack(out, axis=1)

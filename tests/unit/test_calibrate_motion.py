@@ -68,3 +68,13 @@ def test_clocks_that_do_not_overlap_are_refused(streamed):
     late = dataclasses.replace(session, marker_t=session.marker_t + 1000.0)
     with pytest.raises(BadSession, match="commands.csv.*do not overlap"):
         check_motion_session(late)
+
+
+def test_a_command_log_sparser_than_the_motion_is_refused(streamed):
+    """Six seconds of commands missing from a streamed log while the stand moved: refused in one
+    line naming commands.csv, before any fit."""
+    _, session = streamed
+    keep = (session.command_t < 8.0) | (session.command_t > 14.0)
+    sparse = dataclasses.replace(session, command_t=session.command_t[keep], commands=session.commands[keep])
+    with pytest.raises(BadSession, match=r"commands.csv: no command from t=7\.9.* the log is sparser than the motion"):
+        check_motion_session(sparse)
