@@ -10,7 +10,7 @@ rad, deg or counts otherwise). Time is measured from the session's first command
 |---|---|---|
 | backlash | u_i + b d_i, d_i = sign of the actuator's last move | b: half the play |
 | compliance | parallel stand (one term): u + c f, f = J^-T w, the actuator forces holding a 1 N weight at the moving frame's origin; URDF stand: q_j + c_j tau_j, tau = the whole tree's gravity torque at the joint's own deflected pose; a mimic joint on the chain: the moving frame turned about its axis by c tau; a URDF without inertias: q_j + Y_j(q) B theta, the mass moments' best-determined combinations | c; or theta (r <= 3) |
-| link_bending | the moving frame turned at a joint about the two axes across its axis by c_u M_u, c_v M_v, M the whole tree's gravity moment there | c_u, c_v |
+| link_bending | the moving frame turned at a joint about the axes across its axis by c M_across, M_across the part across the axis of the whole tree's gravity moment there | c |
 | thermal_drift | u_j + k h_j(t): every actuator longer by k times its heat h_j, the strokes it moved cooling with tau (150 s to 80 min, a factor sqrt(2) apart; one term, the physics); or X + v t, the moving frame translated linearly in time (the additive simulator's drift) | k; or v (3) |
 | cyclic_error | u_i + a sin(2 pi u_i / P) + b cos(2 pi u_i / P), P from a short list per unit | a, b |
 | scale_nonlinearity | u_i + a P2(s) + b P3(s), s = travel scaled to [-1, 1] over the stroke (Legendre) | a, b |

@@ -14,8 +14,11 @@ Rules:
   load taken at the deflected configuration (the fixed point ``d = c tau_j(q + d e_j)``) where
   the deflection at the commands exceeds ``DEFLECTION_TOL``; below it the load changes by less
   than about that fraction and the commanded configuration's load is used.
-- Joint elasticity of a mimic joint, and link bending (the two axes across a joint's axis, under
-  the moment's components along them): a small rotation at the joint's origin, of the moving frame
+- Joint elasticity of a mimic joint, and link bending (about the two axes across a joint's axis,
+  ``c M_across``: the moment's part across the axis times one compliance, a link as stiff in both
+  directions across it; two compliances let a link at a joint mimic the elasticity of the joint
+  next to it, whose axis lies across: on TIAGo's wrist such a term ranked above the drive's play
+  and was not proven): a small rotation at the joint's origin, of the moving frame
   (a pose offset in the base frame), linear in the loads at the commanded configuration. On a
   tree (several tracked links) a pose offset moves every tracked link alike, so these terms are
   offered at the joints that carry every tracked link (the trunk), the translation each other
@@ -229,8 +232,8 @@ def spec_from_where(where: dict, effect: str) -> PlatformSpec:
 @dataclass
 class JointRotationTerm(ModelTerm):
     """The moving frame turned at joint ``joint``: about its axis by ``c tau`` (``about``
-    'axis': a mimic joint's elasticity) or about the two axes across it by ``c_u M_u``, ``c_v M_v``
-    (``about`` 'across': link bending)."""
+    'axis': a mimic joint's elasticity) or about the two axes across it by ``c M_across`` (the
+    moment's part across the axis; ``about`` 'across': link bending)."""
 
     joint: str = ""
     about: str = "axis"
@@ -245,12 +248,12 @@ class JointRotationTerm(ModelTerm):
         return stand
 
     def _unit_rotations(self, stand: TreeStand, S: LoadState) -> list[np.ndarray]:
-        """Per parameter, (N, 3) rad of rotation per unit of it, in the joint's frame."""
+        """Per parameter (one), (N, 3) rad of rotation per unit of it, in the joint's frame."""
         j = stand.loads.index[self.joint]
         if self.about == "axis":
             return [S.loads.torque[:, j][:, None] * stand.loads.axes[j][None]]
         U = across_axes(stand.loads.axes[j])
-        return [(S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U]
+        return [sum((S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U)]
 
     def pose_offset(self, theta, poses, fk_q, fk_X):
         stand = self.stand()
@@ -301,7 +304,7 @@ def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str)
         return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where, joint=joint,
                                  about=about, spec=spec)
     where["load"] = "gravity moment of the whole tree across the joint's axis (N m)"
-    return JointRotationTerm(effect, ["compliance_u", "compliance_v"], np.zeros(2), ["rad/(N m)"] * 2, where,
+    return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where,
                              joint=joint, about=about, spec=spec)
 
 
@@ -496,4 +499,4 @@ class LinkBending(Effect):
             return None
         k = int(rng.choice(np.nonzero(peaks >= 0.5 * peaks.max())[0]))
         c = (1.0 if size is None else float(size)) * 1e-3 / peaks[k]
-        return joint_rotation_term(self.name, spec, stand.shared[k], "across"), np.array([c, c])
+        return joint_rotation_term(self.name, spec, stand.shared[k], "across"), np.array([c])
