@@ -8,7 +8,8 @@ description not written here), legs removed, grippers fixed, both 7-joint arms a
 torso whose last joint is coupled to the one before it as a URDF mimic joint (torso_3_joint, half
 of torso_2_joint's pitch, 10 cm above it). The true robot, drawn per seed: origin errors (0.5 mm,
 1 mrad RMS), zero offsets (2 mrad RMS), elastic torso and shoulder/elbow joints (the coupled one
-too) and bending links at the torso and the shoulders, three markers on each hand, mocap noise
+too) and bending links at the torso and the shoulders (stiffer one way than the other by up to
+25%: the effect fits one compliance for both), three markers on each hand, mocap noise
 0.1 mm. The calibration sees the nominal URDF (``--bare``: with every inertia stripped).
 
 Per seed and hand, the held-out mean marker error (mm, against the recorded noisy markers) of:
@@ -107,7 +108,8 @@ def draw(seed: int, nominal: Path, n: int) -> tuple[ElasticTruth, np.ndarray]:
     moving = [j for j in lim]
     truth = ElasticTruth(
         joint_compliance={j: float(rng.uniform(0.5, 1.5) * 1e-4) for j in ELASTIC},
-        bending={j: (float(rng.uniform(0.3, 1.0) * 1e-4), float(rng.uniform(0.3, 1.0) * 1e-4)) for j in BENT},
+        bending={j: (float(k), float(k * rng.uniform(0.8, 1.25))) for j in BENT
+                 for k in [rng.uniform(0.3, 1.0) * 1e-4]},
         origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in moving},
         offset={j: float(rng.normal(0, 2e-3)) for j in RECORDED})
     cmd = np.zeros((n, len(RECORDED)))
