@@ -147,3 +147,21 @@ def test_parameters_a_session_did_not_identify_are_tested_only_where_identified(
     assert h["parameters"]["p5"]["not_identified_in"] == ["m2", "m3"]
     assert h["tested_on"]["not_identified_in"]["p5"] == ["m2", "m3"]
     assert h["z"][2][5] is None and h["z"][4][5] is not None  # m4 against m0, m1
+
+
+def test_history_refuses_before_any_work_a_bad_date_or_two_stands(tmp_path, capsys):
+    from platkit.cli import main
+
+    pytest.importorskip("dask.distributed")
+    for name, platform, date in (("m1", "rotary", "2026-01-01"), ("m2", "rotary", "2026-02-30")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "session.yaml").write_text(f"platform: {platform}\nunits: {{length: mm}}\ndate: {date}\n")
+    argv = ["batch", "calibrate", str(tmp_path / "m*"), "--history", "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{tmp_path / 'm2' / 'session.yaml'}: field 'date'" in err[0]
+    (tmp_path / "m2" / "session.yaml").write_text("platform: psvr\nunits: {length: mm}\ndate: 2026-02-01\n")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a history follows one stand: m1 is rotary" in err[0]
+    assert not (tmp_path / "out").exists()  # nothing written
