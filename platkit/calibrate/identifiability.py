@@ -284,7 +284,7 @@ _REFERENCE_PROBLEMS: dict = {}
 def _reference_problem(problem, U_ref: np.ndarray):
     """A term-free problem of the same class over the reference controls, with the problem's
     marker count (kept per stand object: a model selection fits one stand many times)."""
-    key = (id(problem.spec), problem.M, problem.poses.n_bodies, type(problem))
+    key = (id(problem.spec), problem.M, problem.poses.n_bodies, type(problem), getattr(problem, "point_links", None))
     hit = _REFERENCE_PROBLEMS.get(key)
     if hit is not None and hit[0] is problem.spec and hit[1] is U_ref:
         return hit[2]
@@ -292,7 +292,8 @@ def _reference_problem(problem, U_ref: np.ndarray):
     ref_poses = PoseSet(problem.spec.name, U_ref, np.zeros((len(U_ref), problem.M, 3)), list(problem.poses.marker_names),
                         length_unit=problem.poses.length_unit, source="the stand's reference poses",
                         bodies=np.tile([0.0, 0, 0, 1, 0, 0, 0], (len(U_ref), B, 1)),
-                        body_names=list(problem.poses.body_names))
+                        body_names=list(problem.poses.body_names),
+                        marker_links=dict(problem.poses.marker_links))  # on a tree, each marker on its link
     ref_problem = type(problem)(problem.spec, ref_poses)
     if len(_REFERENCE_PROBLEMS) > 16:
         _REFERENCE_PROBLEMS.clear()
