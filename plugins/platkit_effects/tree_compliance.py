@@ -216,8 +216,8 @@ def _rotation_offset(S: LoadState, j: int, w_local: np.ndarray, fk_X: np.ndarray
 
 def _stand_where(spec: PlatformSpec) -> dict:
     chain = spec.extras.get("chain")
-    options = {}
-    if chain is not None and spec.name == "urdf" and not hasattr(chain, "path_to"):
+    options = dict(spec.extras.get("platform_options") or {})
+    if not options and chain is not None and spec.name == "urdf" and not hasattr(chain, "path_to"):
         options = {"base_link": chain.base_link, "moving_link": chain.moving_link}
     return {"platform": spec.name, "description": None if spec.description_path is None else str(spec.description_path),
             "platform_options": options}

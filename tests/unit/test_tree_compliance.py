@@ -163,6 +163,9 @@ def test_on_a_tree_rotations_are_offered_where_they_move_every_tracked_link(tmp_
         assert np.allclose(dpose[k, :3] + Rr[k] @ dm[k, 1], np.cross(w, Xr[k] - S.loads.origin[k, j]))
     _, pose_jac, marker_jac = term.offset_jacobians(np.zeros(1), poses, 5, None, X0)
     assert np.allclose(marker_jac @ theta, dm) and np.allclose(pose_jac @ theta, dpose)
+    back = LinkBending().from_dict(term.to_dict(theta))  # the tree rebuilt from where alone
+    assert tree_stand(back.spec).tracked == ["l_lo", "r_lo"]
+    assert np.allclose(back.marker_offset(theta, poses), dm)
 
 
 def test_what_cannot_be_tried_is_said(tmp_path):
