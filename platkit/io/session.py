@@ -200,6 +200,9 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         else:
             raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, or a Vicon, Qualisys "
                              f"or Motive export, got {y['markers_file']!r}")
+    elif (folder / "markers.csv").is_file() and export_format(folder / "markers.csv"):
+        # a vendor export saved as markers.csv: read by its content (docs/importers.md)
+        _read_markers_export(s, folder / "markers.csv", export_format(folder / "markers.csv") or "", y["markers_time_offset"])
     elif (folder / "markers.csv").is_file():
         _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
     elif poses_path.is_file():
