@@ -131,7 +131,8 @@ def write_session(rec: Recording, out: str | Path, platform: str | None = None,
         "mocap_rate_hz": float(rec.rate_hz) if rec.rate_hz else None,
         "imu": None,
         "moving_link": None,
-        "notes": f"imported by platkit import from {Path(rec.source).name} ({rec.format}); " + rec.summary(),
+        "notes": "; ".join([f"imported by platkit import from {Path(rec.source).name} ({rec.format})", rec.summary()]
+                           + rec.notes),
     }
     if rec.bodies:
         entry["rigid_bodies"] = list(rec.bodies)
