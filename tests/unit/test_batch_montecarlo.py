@@ -68,3 +68,32 @@ def test_monte_carlo_options_are_checked_before_any_work(tmp_path, capsys):
                  "--compare", str(tmp_path / "missing.csv")]) == 2
     assert "not found" in capsys.readouterr().err
     assert not (tmp_path / "p.csv").exists()
+
+
+def test_a_monte_carlo_interrupted_says_so_once(tmp_path):
+    """Ctrl-C to the process group of `platkit plan --monte-carlo` (its workers ignore it; platkit
+    stops them): 'interrupted' once, exit 130."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "g.csv"
+    proc = subprocess.Popen([sys.executable, "-m", "platkit.cli", "plan", "--platform", "rotary", "--grid", "3", "--out",
+                             str(out), "--monte-carlo", "2000", "--workers", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        draws = tmp_path / "g.montecarlo" / "draws"
+        while not (draws.is_dir() and any(draws.iterdir())):  # draws are being written
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.1)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.splitlines().count("platkit: interrupted") == 1 and "Traceback" not in err, err
+    assert sum("interrupt" in line.replace(str(tmp_path), "").lower() for line in err.splitlines()) == 1, err
