@@ -416,6 +416,10 @@ def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
                    f"best-determined mass-moment combinations (at most {MAX_MASS_COMBINATIONS} per joint), "
                    "not with the URDF's loads")
         return out
+    massless = [n for n in stand.chain if not T.model.inertias[T.index[n] + 1].mass > 0]
+    if massless:
+        out.append(f"the links moved by {_listed(massless)} have no mass in the URDF (doubtful where they are real "
+                   "links: the loads above them leave them out)")
     tau = load_state(stand, poses.controls).loads.torque
     flat = [n for n in stand.joints if not np.ptp(tau[:, T.index[n]]) > 1e-9]
     if flat:

@@ -177,6 +177,13 @@ def test_what_cannot_be_tried_is_said(tmp_path):
     heavy_dir.mkdir()
     arm = get_platform("urdf", _tree(heavy_dir), moving_link="l_lo")
     assert LinkBending().untried(arm, _poses(arm, U)) == []
+    assert Compliance().untried(arm, _poses(arm, U)) == []
+    light = tmp_path / "light"
+    light.mkdir()
+    upper = '<link name="l_up"><inertial><origin xyz="0.1 0.02 -0.1"/><mass value='
+    (light / "tree.urdf").write_text(_tree(light).read_text().replace(upper + '"1.5"/>', upper + '"0"/>'))
+    doubtful = get_platform("urdf", light / "tree.urdf", moving_link="l_lo")
+    assert any("the links moved by l1 have no mass" in r for r in Compliance().untried(doubtful, _poses(doubtful, U)))
     still = _poses(arm, np.repeat(U[:1], 4, axis=0))  # one configuration: no load changes
     assert Compliance().candidates(arm, still) == []
     assert any("the gravity load of t1, l1, l2 does not change" in r for r in Compliance().untried(arm, still))
