@@ -371,7 +371,9 @@ class Search:
         self.accepted.append({"fit": best, "J": Jc})
         self.say(f"accepted {eff.name} ({_where_text(term.where)})")
         self.cur = best
-        if opt.reopen_geometry and not eff.recording:  # the geometry chosen again beside the physics
+        sel = (self.start.identifiability.get("model_selection") or {}) if self.start is not None else {}
+        chosen_free = bool(sel) and not str(sel.get("reason", "")).startswith("no selection")  # not the user's --free
+        if opt.reopen_geometry and chosen_free and not eff.recording:  # the geometry chosen again beside the physics
             again = _reselected(self.spec, self.poses, self.cur, self.free, self.judged, opt, self.platform_options)
             if again is not None:
                 again[2]["after"] = f"{eff.name} ({_where_text(term.where)})"
