@@ -110,13 +110,13 @@ def _print_traceback() -> None:
 
 
 def as_flag(message: str, argv: list[str]) -> str:
-    """A library error that begins with the name of a parameter ('free: ...', 'folds 7 ...') said
-    as the option the command line set it with ('--free: ...', '--folds 7 ...'), where ``argv``
+    """A library error that begins with the name of a parameter and a colon ('free: ...',
+    'folds: ...') said as the option the command line set it with ('--free: ...'), where ``argv``
     holds that option; other messages unchanged."""
-    head = message.split(":", 1)[0].split(" ", 1)[0]
+    head, colon, rest = message.partition(":")
     flag = "--" + head.replace("_", "-")
     given = any(a == flag or a.startswith(flag + "=") for a in argv)
-    return flag + message[len(head):] if head.isidentifier() and given else message
+    return f"{flag}:{rest}" if colon and head.isidentifier() and given else message
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -290,7 +290,7 @@ def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = Tru
     poses = problem.poses
     N = poses.n_poses
     if folds > N:
-        raise BadInput(f"folds {folds} is more than the {N} poses")
+        raise BadInput(f"folds: {folds} is more than the {N} poses")
     fold_of = np.arange(N) % folds
     errs = np.full(problem.visible.shape, np.nan)  # markers, then rigid bodies' channels
     per_fold = []

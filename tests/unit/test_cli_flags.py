@@ -1,5 +1,5 @@
 """Library errors name the parameter ('free: ...'); the command line says the option that set it
-('--free: ...', platkit.cli.as_flag)."""
+('--free: ...', platkit.cli.as_flag); a message that only begins with an option's word is left."""
 import pytest
 
 from platkit.calibrate.estimate import calibrate
@@ -12,8 +12,10 @@ from platkit.simulate import simulate
 def test_a_parameter_is_said_as_the_option_given():
     assert as_flag("free: nope is neither a parameter", ["calibrate", "--free", "nope"]) == \
         "--free: nope is neither a parameter"
-    assert as_flag("folds 9 is more than the 6 poses", ["calibrate", "--folds=9"]) == "--folds 9 is more than the 6 poses"
-    assert as_flag("max_effects 0: use 1 or more", ["diagnose", "--max-effects", "0"]) == "--max-effects 0: use 1 or more"
+    assert as_flag("folds: 9 is more than the 6 poses", ["calibrate", "--folds=9"]) == "--folds: 9 is more than the 6 poses"
+    assert as_flag("max_effects: 0, use 1 or more", ["diagnose", "--max-effects", "0"]) == "--max-effects: 0, use 1 or more"
+    assert as_flag("link 'tool0' did not reach its target", ["track", "--link", "tool0"]) == \
+        "link 'tool0' did not reach its target"
     # not given on the command line, or not a parameter's name: unchanged
     assert as_flag("free: nope is neither a parameter", ["calibrate"]) == "free: nope is neither a parameter"
     assert as_flag("/tmp/x.csv: row 3", ["calibrate", "--free", "a"]) == "/tmp/x.csv: row 3"
