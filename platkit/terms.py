@@ -2,7 +2,8 @@
 
 The estimator (estimate.py) fits td, the base-to-mocap transform, the marker positions and the
 parameters ``theta`` of any number of terms together. Diagnosis (platkit/diagnose) builds terms
-from its effect library (backlash, compliance, thermal drift, ...) and refits with them; a
+from the effect library (the effects' plugins: a play in a drive, a bend under load, a thermal
+drift, ...) and refits with them; a
 calibration.yaml stores the accepted terms so that `predict` reproduces them.
 
 A term acts at up to three places, each a numpy function of theta and the pose set (per pose,
@@ -31,7 +32,7 @@ from platkit.poses import PoseSet
 class ModelTerm:
     """Base class: a named extra-physics term with parameters ``theta``.
 
-    Subclasses set ``effect`` (a diagnosis effect name such as 'backlash'), ``parameter_names``
+    Subclasses set ``effect`` (the name of the diagnosis effect it belongs to), ``parameter_names``
     (len K), ``initial`` (K,), ``units`` (K,), ``where`` (what it is attached to: an actuator,
     marker, time span), and override one or more of the offset methods.
     """
