@@ -36,6 +36,7 @@ __all__ = ["FORMATS", "Recording", "export_format", "read_recording", "sniff", "
 #: what ``platkit import --format`` accepts
 FORMATS = ("vicon", "qualisys", "motive", "c3d", "table")
 
+
 def sniff(path: str | Path) -> str:
     """The format of an export by its content: one of FORMATS; BadInput when it is none of them."""
     path = Path(path)
