@@ -5,10 +5,10 @@ import math
 import sys
 from pathlib import Path
 
-from platkit.errors import BadInput
+from platkit.errors import BadInput, ComputationFailed
 from platkit.io.atomic import check_output_dir
 from platkit.model import length_scale
-from platkit.notices import warn
+from platkit.notices import said, warn
 
 
 def add_parser(sub):
@@ -172,40 +172,78 @@ def run(args) -> int:
         from platkit.calibrate.estimate import second_session_errors
 
         cal.heldout["second_session"] = second_session_errors(cal, other)
-    fit_notes = list(cal.extras.get("warnings", []))
-    cal.extras["warnings"] = notes + fit_notes  # the report says both
-    written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     s = length_scale(cal.length_unit)
+    # every warning is said before the outputs are written, so that the report lists it too
+    second = cal.heldout.get("second_session")
+    if second is not None and second["rms"] > SAME_FRAME_RATIO * max(cal.rms_after, 1e-12):
+        warn(f"the second session's rms is {second['rms'] / max(cal.rms_after, 1e-12):.0f} times "
+             f"the fit's: was {args.validate} recorded in the same motion-capture frame?")
+    limit = cal.identifiability.get("at_plausible_limit") or []
+    if limit:
+        warn(f"{', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
+             "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose")
+    fit_notes = list(cal.extras.get("warnings", []))
+    for w in fit_notes:
+        warn(w)
+    failure = fit_failure(cal)  # in the report as a warning; on stderr as the error line at the end
+    cal.extras["warnings"] = all_warnings(notes, fit_notes, [failure] if failure else [])
+    written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
             f"({cal.n_poses} poses, {cal.n_markers} markers"
             + (f", {len(cal.body_names)} rigid bodies (rho {cal.body_rho_source})" if cal.body_names else "") + ")")
-    from platkit.calibrate.estimate import rejected_by_marker
+    from platkit.calibrate.estimate import rejected_by_body, rejected_by_marker
 
     lost = rejected_by_marker(cal)
     if lost:
         line += (f"; {sum(n for n, _ in lost.values())} marker observations rejected as outliers ("
                  + ", ".join(f"{k} {n}" for k, (n, _) in lost.items()) + ")")
+    lost_bodies = rejected_by_body(cal)
+    if lost_bodies:
+        line += (f"; {sum(n for n, _, _ in lost_bodies.values())} rigid-body observations rejected as outliers ("
+                 + ", ".join(f"{k} {n} of {seen}" for k, (n, _, seen) in lost_bodies.items()) + ")")
     if args.folds and "rms" in cal.heldout:
         line += f"; {args.folds}-fold held-out rms {cal.heldout['rms'] / s:.4g} {cal.length_unit}"
-    second = cal.heldout.get("second_session")
     if second is not None:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / s:.4g} {cal.length_unit}"
-        if second["rms"] > SAME_FRAME_RATIO * max(cal.rms_after, 1e-12):
-            warn(f"the second session's rms is {second['rms'] / max(cal.rms_after, 1e-12):.0f} times "
-                 f"the fit's: was {args.validate} recorded in the same motion-capture frame?")
-    limit = cal.identifiability.get("at_plausible_limit") or []
-    if limit:
-        warn(f"{', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
-             "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose")
     chosen = cal.identifiability.get("model_selection") or {}
     if chosen.get("candidates"):
         held = chosen.get("held") or []
         line += (f"; free: {', '.join(chosen['chosen'])} (chosen by held-out prediction"
                  + (f"; held: {', '.join(held)})" if held else ")"))
-    for w in fit_notes:  # the control notes were said when the session was read
-        print(f"platkit: warning: {w}", file=sys.stderr)
+    if failure:  # the outputs are whole, for inspection; the exit status says the fit failed
+        print(f"{line}; wrote {', '.join(str(p) for p in written)}")
+        raise ComputationFailed(f"{failure}; the outputs in {args.out} are written for inspection only")
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+#: a fit whose rms ends above this many times its start's made it worse (any method)
+WORSE_THAN_START = 1.001
+
+
+def fit_failure(cal) -> str | None:
+    """Why ``cal`` is not a calibration to use, or None: its method did not converge, or it ended
+    with a larger rms than it started from. calibrate writes the outputs whole (for inspection),
+    says this as a warning in the report, and exits 1 (ComputationFailed)."""
+    s = length_scale(cal.length_unit)
+    rms = f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit}"
+    steps = "evaluations" if cal.method == "paper" else "iterations"
+    if not cal.converged:
+        return (f"not converged: --method {cal.method} stopped after {cal.iterations} {steps} without meeting its "
+                f"tolerance ({rms})" + ("; raise --max-evaluations" if cal.method == "paper" else ""))
+    if cal.rms_after > WORSE_THAN_START * cal.rms_before:
+        return f"not converged to a better fit: --method {cal.method} ended worse than its start ({rms})"
+    return None
+
+
+def all_warnings(*groups: list[str]) -> list[str]:
+    """Every warning said while the verb ran (platkit.notices) and those of ``groups`` (for a
+    caller outside the CLI), each once, in order."""
+    out: list[str] = []
+    for w in [w for g in groups for w in g] + said():
+        if w not in out:
+            out.append(w)
+    return out
 
 
 def run_motion(args, why: str, notes: list[str]) -> int:
@@ -229,7 +267,7 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     reason = f"settling: {why}"
     note = ("the holds do not settle or there are none: calibrated from the whole stream through the actuators' "
             "fitted response instead (report: motion)")
-    print(f"platkit: warning: {note}", file=sys.stderr)
+    warn(note)
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
     cal, poses = calibrate_motion(s, s.spec, free=free, robust=not args.no_robust,
                                   progress=None if args.quiet else progress_printer(s.length_unit),
@@ -237,7 +275,9 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     if other is not None:
         cal.heldout["second_session"] = second_session_errors(cal, other)
     fit_notes = list(cal.extras.get("warnings", []))
-    cal.extras["warnings"] = notes + [note] + fit_notes
+    for w in fit_notes:
+        warn(w)
+    cal.extras["warnings"] = all_warnings(notes, [note], fit_notes)  # said before writing: the report lists them
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     sc = length_scale(cal.length_unit)
     r = cal.motion["response"]
@@ -250,8 +290,6 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     second = cal.heldout.get("second_session")
     if second is not None:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / sc:.4g} {cal.length_unit}"
-    for w in fit_notes:
-        print(f"platkit: warning: {w}", file=sys.stderr)
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
 
