@@ -98,16 +98,23 @@ def _line(row_index: int) -> int:
 
 def _fast_rows(body: str, n_columns: int, cols: list[int]) -> np.ndarray | None:
     """(N, 7) the IMU columns of a clean file's data rows, parsed by numpy's C reader (np.loadtxt:
-    no pandas to import, which would cost the verb's start-up more than the parse); None where a
-    line has another number of cells than the header, a cell is empty or not a plain number (a
-    'nan' cell is NaN, outside ``t``), or anything else the cell-by-cell reader must name or
+    no pandas to import, which would cost the verb's start-up more than the parse), or where a
+    cell is empty, by pandas' C reader (empty and 'nan' cells NaN); None where a line has another
+    number of cells than the header (or is blank), a cell is not a plain number (NaN only as an
+    empty or 'nan' cell outside ``t``), or anything else the cell-by-cell reader must name or
     repair."""
     if not body.strip():
         return None
     try:
         data = np.loadtxt(io.StringIO(body), delimiter=",", dtype=float, ndmin=2, comments=None, encoding=None)
     except ValueError:  # an empty cell, text, or a row with another number of cells
-        return None
+        import pandas  # here, not at the top: only a file with gaps needs it
+
+        try:
+            data = pandas.read_csv(io.StringIO(body), header=None, dtype=float, engine="c", keep_default_na=False,
+                                   na_values=["", "nan", "NaN", "NAN"], skip_blank_lines=False).to_numpy()
+        except (ValueError, pandas.errors.ParserError):  # a longer row than the first is a ParserError
+            return None
     if data.ndim != 2 or data.shape[1] != n_columns:
         return None
     # a shorter row comes back padded with NaN: every row has all its cells only if the commas add up
