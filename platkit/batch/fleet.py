@@ -92,7 +92,9 @@ def session_row(verb: str, ref: SessionRef, batch: BatchFolder) -> dict:
     row["status"] = "ok"
     if verb in ("calibrate", "diagnose"):
         params = parameter_table(folder / "calibration.yaml")
-        row["parameters"] = params
+        # a parameter the session did not identify is said so, with no value (calibration.yaml holds its nominal)
+        row["parameters"] = {n: ({**p, "value": None, "std": None} if p.get("status") == "held_at_nominal" else p)
+                             for n, p in params.items()}
         row["moved_detail"] = moved_parameters(params)
         row["moved"] = " ".join(m["name"] for m in row["moved_detail"])
         row["moved_level"] = moved_level(params)
