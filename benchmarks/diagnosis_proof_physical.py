@@ -71,8 +71,9 @@ from platkit.poses import PoseSet
 from platkit.settle import settle
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.outside_physics
-from benchmarks.outside_physics import OUTSIDE, with_outside_physics  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the protocol and outside physics
+from outside_plugins.outside_physics import OUTSIDE, with_outside_physics  # noqa: E402
+from proof_protocol import blank_held_out, held_out_rows  # noqa: E402
 
 EFFECTS = ["backlash", "compliance", "thermal_drift", "cyclic_error", "scale_nonlinearity", "settling_lag",
            "marker_slip", "base_tilt"]
@@ -83,12 +84,6 @@ CLEAR_MM, WEAK_MM = 0.2, 0.06
 LAG_SHARE = {"clear": 0.15, "weak": 0.1}
 ABSORBED = 0.1
 UNSEPARABLE = {"base_tilt"}
-HELD_OUT_EVERY = 5
-
-
-def held_out_rows(n: int) -> np.ndarray:
-    return np.arange(2, n, HELD_OUT_EVERY)
-
 
 def _truth_poses(sim) -> PoseSet:
     """The truth's settled poses as a PoseSet (noise-free)."""
@@ -123,20 +118,6 @@ def sized_effects(spec, seed: int, n: int, effects: list[tuple[str, str]]) -> tu
         out.append((name, target / per_unit))
         info.append({"effect": name, "left_share": left / raw, "raw_mm_per_unit": raw, "left_mm_per_unit": left})
     return out, info
-
-
-def blank_held_out(folder: Path, sim, rows: np.ndarray) -> int:
-    """Cut the held-out commands' stretches (from the command to the next) out of markers.csv
-    (rewritten whole): the recording has a gap there. Returns the samples cut."""
-    te = sim.marker_t - sim.nuisances.time_shift_s
-    cut = np.zeros(len(te), bool)
-    for i in rows:
-        cut |= (te >= sim.command_t[i]) & (te < sim.hold_end_t[i])
-    path = folder / "markers.csv"
-    lines = path.read_text().splitlines()
-    keep = [lines[0]] + [line for line, c in zip(lines[1:], cut) if not c]
-    path.write_text("\n".join(keep) + "\n")
-    return int(cut.sum())
 
 
 def _cli(args: list[str]) -> tuple[int, str]:

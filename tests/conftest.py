@@ -57,21 +57,16 @@ def builtin_host():
 def proof_session(tmp_path, monkeypatch):
     """``make(stand, seed, effects)``: a session of the physical simulator in the protocol of the
     proof benchmark (benchmarks/diagnosis_proof_physical.py: 60 commands at random, coloured
-    marker noise, every fifth command held out and cut from the stream), written to
-    ``tmp_path/session``; returns (the session folder, the simulation). ``effects``: [(name,
-    size)]; physics the library does not hold (benchmarks/outside_physics.py) is played by the
-    simulator only, never seen by diagnosis."""
-    import sys
-    from pathlib import Path
-
+    marker noise, every fifth command held out and cut from the stream: tests/proof_protocol.py),
+    written to ``tmp_path/session``; returns (the session folder, the simulation). ``effects``:
+    [(name, size)]; physics the library does not hold (tests/outside_plugins/outside_physics.py)
+    is played by the simulator only, through a plugin host of its own, never seen by diagnosis."""
     from outside_plugins import library_with
+    from outside_plugins.outside_physics import OUTSIDE_PHYSICS, OutsideEffect
+    from proof_protocol import blank_held_out, held_out_rows
 
     from platkit.plugins import get_platform
     from platkit.simulate.physics import simulate_physics, write_physical_session
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for benchmarks/
-    from benchmarks.diagnosis_proof_physical import blank_held_out, held_out_rows
-    from benchmarks.outside_physics import OUTSIDE_PHYSICS, OutsideEffect
 
     def make(stand, seed, effects):
         outside = [OutsideEffect(name, OUTSIDE_PHYSICS[name]) for name, _ in effects if name in OUTSIDE_PHYSICS]

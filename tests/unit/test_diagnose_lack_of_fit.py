@@ -1,19 +1,14 @@
 """Physics the effect library does not hold: when nothing in the library predicts held-out poses
 better and the geometric model stays well above the noise floor, diagnosis says `unexplained` (a
 lack of fit, with the ratio to the floor), never a clean bill and never a library name."""
-import sys
-from pathlib import Path
-
 from outside_plugins import library_with
+from outside_plugins.outside_physics import OutsideEffect, PlateFlex
 
 from platkit.diagnose import Options, diagnose
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.settle import settle
 from platkit.simulate.physics import simulate_physics, write_physical_session
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks/
-from benchmarks.outside_physics import OutsideEffect, PlateFlex  # noqa: E402
 
 
 def _session(tmp_path, monkeypatch, effects):

@@ -1,8 +1,10 @@
-"""Physics the effect library does not hold, for the proofs (benchmarks/diagnosis_proof_physical.py)
-and the tests that diagnosis says `unexplained` of it: known to the physical simulator only, never
-to diagnose's library.
+"""Physics the effect library does not hold, for the tests that diagnosis says `unexplained` of it
+and the proofs (benchmarks/diagnosis_proof_physical.py): known to the physical simulator only,
+never to diagnose's library. A test passes it to the simulator through a plugin host of its own
+(``simulate_physics(..., library=library_with(OutsideEffect(name, cls)))``); the proof benchmark,
+whose Dask workers build their own simulations, lets the simulator's lookup play it:
 
-    from benchmarks.outside_physics import with_outside_physics
+    from outside_plugins.outside_physics import with_outside_physics   # tests/ on the path
     with_outside_physics()          # platkit.simulate.physics now plays 'plate_flex', 'frame_wobble'
 """
 from __future__ import annotations
