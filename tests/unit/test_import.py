@@ -221,7 +221,7 @@ def test_a_session_folder_holding_an_export_is_read_by_content(tmp_path):
     assert a.n_poses == b.n_poses and np.allclose(a.markers, b.markers, atol=1e-9, equal_nan=True)
 
 
-def test_rigid_bodies_through_a_motive_export_keep_their_rotations(tmp_path):
+def test_rigid_bodies_through_a_motive_export_and_a_c3d_file_keep_their_rotations(tmp_path):
     # a simulated session with a rigid body; its stream as a Motive export (quaternions x,y,z,w)
     src = tmp_path / "sim"
     assert main(["simulate", "--platform", "rotary", "--out", str(src), "--seed", "3", "--poses", "6",
@@ -237,6 +237,58 @@ def test_rigid_bodies_through_a_motive_export_keep_their_rotations(tmp_path):
     qa, qb = a.bodies[..., 3:], b.bodies[..., 3:]
     assert np.abs(np.abs(np.sum(qa * qb, axis=-1)) - 1).max() < 1e-12  # the same rotations
     assert np.allclose(a.bodies[..., :3], b.bodies[..., :3], atol=1e-9)
+    # the same stream as a C3D file: points, and the body as a ROTATION group's 4x4 transforms
+    c3d = tmp_path / "c3d"
+    c3d.mkdir()
+    shutil.copy(src / "commands.csv", c3d)
+    _as_c3d(src, c3d / "take.c3d", 50.0)
+    (c3d / "session.yaml").write_text((src / "session.yaml").read_text() + "markers_file: take.c3d\n")
+    c = load_poses(c3d)
+    assert c.n_poses == a.n_poses
+    assert np.nanmax(np.abs(c.markers - a.markers)) < 1e-6  # float32 in the file: 0.1 um at metres
+    assert np.abs(np.abs(np.sum(qa * c.bodies[..., 3:], axis=-1)) - 1).max() < 1e-10
+    assert np.abs(c.bodies[..., :3] - a.bodies[..., :3]).max() < 1e-6
+
+
+def _as_c3d(folder: Path, path: Path, rate: float) -> None:
+    """A spec markers.csv (mm, uniform rate from t = 0) rewritten as a C3D file: its markers as
+    points (occluded: residual -1), its bodies as ROTATION transforms (occluded: NaN)."""
+    import ezc3d
+
+    from platkit.geometry import matrix_from_quat
+
+    lines = (folder / "markers.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    data = np.array([[float(c) if c else np.nan for c in x.split(",")] for x in lines[1:]])
+    col = {h: k for k, h in enumerate(header)}
+    bodies = [h[:-3] for h in header if h.endswith("_qw")]
+    markers = [h[:-2] for h in header[1:] if h.endswith("_x") and h[:-2] not in bodies]
+    n = len(data)
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [rate]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(markers)
+    pts = np.ones((4, len(markers), n))
+    res = np.zeros((1, len(markers), n))
+    for j, m in enumerate(markers):
+        xyz = data[:, [col[f"{m}_{a}"] for a in "xyz"]]
+        gone = ~np.isfinite(xyz).all(axis=1)
+        pts[:3, j] = np.where(gone[:, None], 0.0, xyz).T
+        res[0, j, gone] = -1.0
+    c["data"]["points"] = pts
+    c["data"]["meta_points"]["residuals"] = res
+    c.add_parameter("POINT", "UNITS", "mm")
+    rot = np.full((4, 4, len(bodies), n), np.nan)
+    for j, b in enumerate(bodies):
+        q = data[:, [col[f"{b}_{a}"] for a in ("qw", "qx", "qy", "qz")]]
+        seen = np.isfinite(q).all(axis=1)
+        T = np.zeros((int(seen.sum()), 4, 4))
+        T[:, :3, :3] = matrix_from_quat(q[seen] / np.linalg.norm(q[seen], axis=1, keepdims=True))
+        T[:, :3, 3] = data[seen][:, [col[f"{b}_{a}"] for a in "xyz"]]
+        T[:, 3, 3] = 1.0
+        rot[:, :, j, seen] = T.transpose(1, 2, 0)
+    c["data"]["rotations"] = rot
+    c.add_parameter("ROTATION", "LABELS", tuple(bodies))
+    c.write(str(path))
 
 
 def test_a_declared_marker_the_export_lacks_is_one_line(tmp_path):
