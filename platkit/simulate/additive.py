@@ -18,6 +18,7 @@ import numpy as np
 
 from platkit.bodies import stream_for_settling, with_settled_bodies
 from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
+from platkit.calibrate.problem import link_frames
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.session import Session
@@ -121,6 +122,7 @@ class TrueStand:
     body_rotvecs: np.ndarray
     body_noise: dict
     body_rng: np.random.Generator
+    marker_links: list[int] | None = None  # a tree: the tracked link each marker rides on (spec.tracked_links)
 
     @property
     def base_markers_mocap(self) -> np.ndarray | None:
@@ -128,12 +130,18 @@ class TrueStand:
         T = self.mocap_from_base
         return None if self.base_markers is None else self.base_markers @ T[:3, :3].T + T[:3, 3]
 
-    def markers_of(self, q: np.ndarray, X: np.ndarray, moff: np.ndarray) -> np.ndarray:
+    def markers_of(self, q: np.ndarray, X: np.ndarray, moff: np.ndarray, frames=None) -> np.ndarray:
         """(K, M, 3) m in the mocap frame of the markers at poses q (K, 4), X (K, 3), displaced
-        on the moving part by moff (K, M, 3)."""
+        on the moving part by moff (K, M, 3); on a tree each on its link of ``frames`` (R (K, L, 3, 3),
+        X (K, L, 3): every tracked link's pose)."""
         T = self.mocap_from_base
-        R = matrix_from_quat(q)
         body = self.markers[None] + moff  # (K, M, 3)
+        if self.marker_links is not None and frames is not None:
+            R_all, X_all = frames
+            k = np.asarray(self.marker_links)
+            base = X_all[:, k] + np.einsum("kmij,kmj->kmi", R_all[:, k], body)
+            return base @ T[:3, :3].T + T[:3, 3]
+        R = matrix_from_quat(q)
         base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, body)
         return base @ T[:3, :3].T + T[:3, 3]
 
@@ -226,8 +234,10 @@ def draw_true_stand(spec: PlatformSpec, seed: int, truth: TruthOptions, recordin
     body_rv = body_rng.normal(0, 1.0, (n_bodies, 3))
     body_noise = ({"position_m": recording.body_noise_mm * 1e-3, "rotation_rad": np.deg2rad(recording.body_noise_deg)}
                   if n_bodies else {})
+    # a tree (several tracked links): marker k on tracked link k mod L, so that every branch is seen
+    links = [k % len(spec.tracked_links) for k in range(n_markers)] if spec.link_poses is not None else None
     return TrueStand(td_true, U, P_true, names, S, T, base_names, B, brng, body_names, body_o, body_rv, body_noise,
-                     body_rng)
+                     body_rng, links)
 
 
 def command_schedule(spec: PlatformSpec, U: np.ndarray, hold_s: float) -> Schedule:
@@ -268,12 +278,19 @@ def settled_poses_directly(spec: PlatformSpec, model: PlatformModel, options: Si
     if not np.all(fb.converged & fb.on_branch):
         raise NotIdentifiable(f"{spec.name}: the effects push {int((~fb.converged).sum())} poses off the stand")
     q, X = fb.q, fb.X
+    frames = None
+    if stand.marker_links is not None:  # a tree: every tracked link's pose
+        frames = link_frames(spec, stand.td, hidden.controls)
     if hidden.moves_pose:
-        q, X = _apply_pose_offset(q, X, hidden.pose_offsets(hidden.commands, q, X))
+        off = hidden.pose_offsets(hidden.commands, q, X)
+        q, X = _apply_pose_offset(q, X, off)
+        if frames is not None:  # the pose offsets move every tracked link alike (as the model's do)
+            frames = (np.einsum("kab,klbc->klac", matrix_from_rotvec(off[:, 3:]), frames[0]),
+                      frames[1] + off[:, None, :3])
     noise = rec.noise_mm * 1e-3
     n_avg = max(1, int(0.5 * rec.hold_s * rec.mocap_rate_hz))
     counts = rng.binomial(n_avg, 1 - rec.occlusion, size=(N, n_markers)).astype(float)
-    Y = (stand.markers_of(q, X, hidden.marker_offsets)
+    Y = (stand.markers_of(q, X, hidden.marker_offsets, frames)
          + rng.normal(size=(N, n_markers, 3)) * noise / np.sqrt(np.maximum(counts, 1))[..., None])
     Y[counts == 0] = np.nan
     base_avg = None
@@ -291,7 +308,9 @@ def settled_poses_directly(spec: PlatformSpec, model: PlatformModel, options: Si
                            "last_step": commands.extras["last_step"], "elapsed": commands.extras["elapsed"],
                            "settle_time": np.full(N, 0.5 * rec.hold_s)},
                    bodies=bod, body_names=stand.body_names, n_body_samples=body_counts if n_bodies else None,
-                   body_noise=dict(stand.body_noise))
+                   body_noise=dict(stand.body_noise),
+                   moving_link=None if stand.marker_links is None else
+                   {m: spec.tracked_links[k] for m, k in zip(stand.marker_names, stand.marker_links)})
 
 
 @dataclass
@@ -441,6 +460,11 @@ def simulate(spec: PlatformSpec, options: SimulationOptions | None = None,
     rec.check()
     if opts.imu is not None and not opts.raw:
         raise BadInput("an IMU stream needs the simulated motion: simulate with raw=True (not poses only)")
+    if opts.raw and spec.link_poses is not None:
+        raise BadInput(f"a tree ({', '.join(spec.tracked_links)}) is simulated as settled poses: give --poses-only "
+                       "(raw=False)")
+    if spec.link_poses is not None and (opts.recording.n_bodies or opts.recording.n_base_markers):
+        raise BadInput("a simulated tree carries markers only (no rigid bodies or base markers)")
     rng = np.random.default_rng(opts.seed)
     model = PlatformModel(spec)
     U, plan_info = plan_commands(spec, opts.plan, rng, model, rec.length_unit)

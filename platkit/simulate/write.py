@@ -48,7 +48,8 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             "base_markers": list(bnames),
             "mocap_rate_hz": float(sim.mocap_rate_hz),
             "imu": None,
-            "moving_link": moving_link,
+            # a tree: the mapping marker -> link the simulation placed them by (platkit.simulate.additive)
+            "moving_link": sim.poses.moving_link if isinstance(sim.poses.moving_link, dict) else moving_link,
             "notes": notes or f"simulated by platkit (seed {sim.truth.seed}); the true stand is in truth.yaml",
         }
         if base_link is not None:

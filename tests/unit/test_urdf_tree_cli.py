@@ -131,3 +131,24 @@ def test_a_joint_reading_just_past_its_limit_warns_alike_in_calibrate_and_predic
     again = [line for line in capsys.readouterr().err.splitlines() if "left_1_joint" in line]
     assert len(again) == 1 and again[0].split(": ", 1)[1].split("kept as recorded")[0].split(" is past")[1] \
         == said[0].split(": ", 1)[1].split("kept as recorded")[0].split(" is past")[1]
+
+
+def test_simulate_a_tree_then_calibrate_it(tmp_path, capsys):
+    """`platkit simulate --moving-link a,b --poses-only` writes a tree session (markers on every
+    tracked link, the mapping in session.yaml) that calibrate fits to its noise; a raw stream of a
+    tree is refused in one line."""
+    folder = tmp_path / "sim"
+    base = ["simulate", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
+            "--seed", "3", "--markers", "6"]
+    assert main(base + ["--out", str(folder), "--poses-only"]) == 0
+    mapping = yaml.safe_load((folder / "session.yaml").read_text())["moving_link"]
+    assert sorted(set(mapping.values())) == ["left_tcp", "right_tcp"] and len(mapping) == 6
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--no-selection", "--out", str(out)]) == 0
+    truth = yaml.safe_load((folder / "truth.yaml").read_text())
+    rms = yaml.safe_load((out / "calibration.yaml").read_text())["residual"]["rms_after"]
+    assert rms < truth["marker_noise_m"] * 1e3  # below one sample's noise per axis: the settled poses average many
+    capsys.readouterr()
+    assert main(base + ["--out", str(tmp_path / "raw")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is simulated as settled poses: give --poses-only" in err[0]
