@@ -126,6 +126,15 @@ def _png(fig) -> str:
     return png_base64(fig, tight=False)
 
 
+def _finite_row_mean(a: np.ndarray) -> np.ndarray:
+    """Mean of each row's finite entries, NaN for a row with none (a pose the model could not
+    predict), without numpy's warning about an empty mean."""
+    ok = np.isfinite(a)
+    n = ok.sum(axis=1)
+    total = np.where(ok, a, 0.0).sum(axis=1)
+    return np.divide(total, n, out=np.full(len(n), np.nan), where=n > 0)
+
+
 def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]]:
     """(title, caption, base64 png) for every plot the data allow."""
     s = length_scale(cal.length_unit)
@@ -135,8 +144,8 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
     w_after = cal.extras.get("weights")
     if before is not None and after is not None:
         fig, ax = _subplots(figsize=(9, 3.2))
-        db = np.sqrt(np.nanmean(np.sum(before ** 2, axis=2), axis=1)) / s
-        da = np.sqrt(np.nanmean(np.sum(after ** 2, axis=2), axis=1)) / s
+        db = np.sqrt(_finite_row_mean(np.sum(before ** 2, axis=2))) / s
+        da = np.sqrt(_finite_row_mean(np.sum(after ** 2, axis=2))) / s
         n = np.arange(len(db))
         ax.plot(n, db, ".", ms=3, label=f"before (nominal td), RMS {cal.rms_before / s:.3g} {lu}", color="tab:red")
         ax.plot(n, da, ".", ms=3, label=f"after, RMS {cal.rms_after / s:.3g} {lu}", color="tab:blue")

@@ -59,17 +59,28 @@ def _evidence(f: Finding, poses: PoseSet, unit: str, folds: int) -> str:
             f"{poses.n_poses} poses (paired Wilcoxon p = {f.p_heldout:.2g}, BIC {f.bic_change:+.0f}; "
             f"score test against the residual: Holm p = {f.p_screen:.2g}){par}")
 
+def _finite_mean(a: np.ndarray, axis: int | None = None):
+    """Mean of the finite entries (along ``axis``), NaN where there is none (a held-out pose or a
+    marker the model could not predict), without numpy's warning about an empty mean."""
+    ok = np.isfinite(a)
+    n = ok.sum(axis=axis)
+    total = np.where(ok, a, 0.0).sum(axis=axis)
+    if axis is None:
+        return float(total / n) if n else float("nan")
+    return np.divide(total, n, out=np.full(np.shape(n), np.nan), where=n > 0)
+
+
 def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec: PlatformSpec,
                    findings: list[Finding]) -> dict[str, float]:
     ho = with_history(heldout, spec)
     e0 = point_errors(base, ho)
     e1 = point_errors(final, ho)
-    before = float(np.sqrt(np.nanmean(e0**2)))
-    after = float(np.sqrt(np.nanmean(e1**2)))
+    before = float(np.sqrt(_finite_mean(e0**2)))
+    after = float(np.sqrt(_finite_mean(e1**2)))
     for f in findings:
         f.heldout_session_rms_before, f.heldout_session_rms_after = before, after
-    per_marker = {n: (float(np.sqrt(np.nanmean(e0[:, m] ** 2))), float(np.sqrt(np.nanmean(e1[:, m] ** 2))))
+    per_marker = {n: (float(np.sqrt(_finite_mean(e0[:, m] ** 2))), float(np.sqrt(_finite_mean(e1[:, m] ** 2))))
                   for m, n in enumerate(base.marker_names)}
     return {"rms_before": before, "rms_after": after, "per_marker": per_marker,
-            "p_improvement": paired_improvement(np.nanmean(e0**2, axis=1), np.nanmean(e1**2, axis=1)),
+            "p_improvement": paired_improvement(_finite_mean(e0**2, axis=1), _finite_mean(e1**2, axis=1)),
             "n_poses": heldout.n_poses}

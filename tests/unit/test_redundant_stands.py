@@ -201,3 +201,22 @@ def test_a_pose_free_stand_streams_along_straight_lines_in_pose():
     ends = traj.evaluate(traj.arrive_t - 1e-9)[1]
     starts = np.vstack([traj.evaluate(np.array([traj.command_t[0] - 1e-3]))[1], ends[:-1]])
     assert np.max(np.linalg.norm(X - 0.5 * (starts + ends), axis=1)) < 1e-3
+
+
+def test_means_over_poses_the_model_could_not_predict_leak_no_numpy_warning():
+    """A pose a redundant stand refuses (its rows beyond their plausible misfit) is a row of NaN in
+    the residuals calibrate plots and diagnose scores; their means skip it without numpy's
+    'Mean of empty slice'."""
+    import warnings
+
+    from platkit.calibrate.report import _finite_row_mean
+    from platkit.diagnose.evidence import _finite_mean
+
+    a = np.array([[np.nan, np.nan], [1.0, 3.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rows = _finite_row_mean(a)
+        per_pose = _finite_mean(a, axis=1)
+        column, everything, nothing = _finite_mean(a[:, 0]), _finite_mean(a), _finite_mean(a[:1])
+    assert np.isnan(rows[0]) and rows[1] == 2.0 and np.isnan(per_pose[0]) and per_pose[1] == 2.0
+    assert column == 1.0 and everything == 2.0 and np.isnan(nothing)
