@@ -38,6 +38,7 @@ from platkit.io.session_checks import (
     _check_seen,
     _marker_block,
     check_controls,
+    check_stream_times,
     check_times,
     checked_marker_block,
 )
@@ -207,6 +208,8 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
     elif poses_path.is_file():
         _read_poses_csv(s, poses_path, lscale, tscale)
+    if s.marker_t is not None and s.markers_source is not None:  # its times against mocap_rate_hz and the commands
+        check_stream_times(s.marker_t, s.markers_source, s.time_unit, s.mocap_rate_hz, s.command_t, cpath)
     if s.markers is not None and poses_path.is_file():  # said, so that nobody believes the other file was used
         name = s.markers_source.name if s.markers_source is not None else "the marker stream"
         s.extras.setdefault("control_notes", []).append(

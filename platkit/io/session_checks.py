@@ -300,3 +300,58 @@ def _body_counts(table: Table, names: list[str], bodies: np.ndarray, path: Path)
                              f"body's pose is given (here {'given' if seen[r, k] else 'empty'})")
         n[:, k] = v
     return n
+
+
+#: motion-capture rates (Hz) outside which a marker stream's times are implausible in the declared unit
+MOCAP_RATE_RANGE_HZ = (2.0, 20_000.0)
+#: a declared mocap_rate_hz the stream's median step contradicts by more than this factor is refused
+MOCAP_RATE_FACTOR = 2.0
+#: a command log whose span and the marker stream's differ by more than this factor are in other time units
+SPAN_FACTOR = 30.0
+
+
+def _unit_hint(ratio: float, time_unit: str) -> str:
+    """The likely time unit of a file whose times are ``ratio`` times too large (seconds taken for them)."""
+    if 300 <= ratio <= 3000 and time_unit == "s":
+        return "; the times look like milliseconds: write seconds, or declare units: {time: ms} in session.yaml"
+    if 1 / 3000 <= ratio <= 1 / 300 and time_unit == "ms":
+        return "; the times look like seconds in a session declared in milliseconds (units: {time: s})"
+    return ""
+
+
+def check_stream_times(stream_t: np.ndarray, stream_path: Path, time_unit: str, declared_rate_hz: float | None,
+                       command_t: np.ndarray | None = None, commands_path: Path | None = None) -> None:
+    """The marker stream's times (s, after session.yaml's time unit) against what they must agree
+    with: session.yaml's ``mocap_rate_hz`` (its median step within MOCAP_RATE_FACTOR of the
+    declared rate), a motion-capture rate at all (MOCAP_RATE_RANGE_HZ, where no rate is
+    declared), and the command log (the two spans within SPAN_FACTOR of each other). A mismatch is
+    one line naming the file and field, with the time unit the numbers look like; a plausibility
+    check the user can answer (``--units-checked``)."""
+    if len(stream_t) < 2:
+        return
+    dt = float(np.median(np.diff(stream_t)))
+    if not dt > 0:
+        return
+    rate = 1.0 / dt
+    where = f"{stream_path}: column 't'"
+    if declared_rate_hz is not None and declared_rate_hz > 0:
+        ratio = declared_rate_hz / rate  # > 1: the steps are longer than the declared rate's
+        if not 1 / MOCAP_RATE_FACTOR <= ratio <= MOCAP_RATE_FACTOR:
+            implausible(f"{where}: the median time step is {dt:.4g} s ({rate:.4g} Hz), but session.yaml's field "
+                        f"'mocap_rate_hz' declares {declared_rate_hz:g} Hz (units: time: {time_unit})"
+                        + (_unit_hint(ratio, time_unit) or "; correct mocap_rate_hz or the times"))
+    elif not MOCAP_RATE_RANGE_HZ[0] <= rate <= MOCAP_RATE_RANGE_HZ[1]:
+        slow = rate < MOCAP_RATE_RANGE_HZ[0]
+        implausible(f"{where}: the median time step is {dt:.4g} s ({rate:.4g} Hz), "
+                    + (f"slower than a motion-capture system records (at least {MOCAP_RATE_RANGE_HZ[0]:g} Hz)" if slow
+                       else f"faster than a motion-capture system records (at most {MOCAP_RATE_RANGE_HZ[1]:g} Hz)")
+                    + f" in session.yaml's units (time: {time_unit})"
+                    + _unit_hint(1000.0 if slow else 1e-3, time_unit))
+    if command_t is None or len(command_t) < 2:
+        return
+    span_m = float(stream_t[-1] - stream_t[0])
+    span_c = float(command_t[-1] - command_t[0])
+    if span_m > 0 and span_c > 0 and not 1 / SPAN_FACTOR <= span_c / span_m <= SPAN_FACTOR:
+        implausible(f"{commands_path}: column 't' spans {span_c:.4g} s, {stream_path.name}'s {span_m:.4g} s "
+                    f"({span_c / span_m:.3g} times as long): the two files' times are not in the same unit "
+                    f"(session.yaml: units: time: {time_unit}); write both in it")
