@@ -282,6 +282,12 @@ class ForwardSolver(NewtonSolver):
                 out.append((k, lo - 1e-9, hi + 1e-9))
         return tuple(out)
 
+    @functools.cached_property
+    def _bounds_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """_bounds as arrays: (indices, lower, upper)."""
+        b = self._bounds
+        return (np.array([x[0] for x in b], int), np.array([x[1] for x in b]), np.array([x[2] for x in b]))
+
     def _result(self, out: np.ndarray, r: np.ndarray | None = None) -> ForwardResult:
         n_p = self.spec.n_p
         iterations, residual, _status, on = out[-4:].tolist()
@@ -369,8 +375,15 @@ class ForwardSolver(NewtonSolver):
         if restarts:
             retry = ~(converged & on)
             if self._bounds and guess is not None:  # from a guess, a pose beyond the bounds may be another assembly
-                for i in np.nonzero(~retry)[0]:
-                    retry[i] = self._verdict(out[i], U[i], td)[0] == "outside"
+                rows = np.nonzero(~retry)[0]
+                P = out[rows, :n_p].copy()
+                idx = self._angle_index
+                if idx:
+                    for j in np.nonzero(np.any(np.abs(P[:, idx]) > _HALF_PI, axis=1))[0]:
+                        i = rows[j]
+                        P[j] = self._wrapped(out[i, :n_p], out[i, n_p:n_p + 4], out[i, n_p + 4:n_p + 7])
+                k, lo, hi = self._bounds_arrays
+                retry[rows[~np.all((P[:, k] >= lo) & (P[:, k] <= hi), axis=1)]] = True
             for i in np.nonzero(retry)[0]:
                 again = self._batch_restart(U[i], td, None if guess is None else P0[i if stride else 0])
                 if again is not None:
