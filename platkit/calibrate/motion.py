@@ -52,8 +52,9 @@ __all__ = ["ResponseTerm", "calibrate_motion", "motion_samples", "check_motion_s
 #: a command log whose median interval is at most this (s) is streamed (step reference); longer
 #: intervals are point-to-point moves between holds (profile reference)
 STREAMED_MAX_S = 0.25
-#: samples fitted at most (decimated evenly), and used to start the response
-MAX_SAMPLES, START_SAMPLES = 4000, 600
+#: samples fitted at most (decimated evenly), and used to start the response; rounds of the start;
+#: samples before the first command that say where a profile's actuators rest
+MAX_SAMPLES, START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 4000, 600, 2, 50
 #: starting response: time constant (s), damping; a profile's rate and acceleration from the
 #: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
 TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
@@ -74,7 +75,7 @@ class ResponseTerm(ModelTerm):
     sample (``poses.t``, motion-capture clock) minus ``poses.controls``."""
 
     def __init__(self, model: ResponseModel, T: np.ndarray, U: np.ndarray, control_names: list[str],
-                 theta0: np.ndarray, steps: np.ndarray):
+                 theta0: np.ndarray, steps: np.ndarray, start: np.ndarray | None = None):
         units = []
         for name in model.names(control_names):
             block = name.split(".")[0]
@@ -82,14 +83,14 @@ class ResponseTerm(ModelTerm):
                           "accel": "unit/s^2"}[block])
         super().__init__("actuator_response", model.names(control_names), np.asarray(theta0, float).copy(), units,
                          {"kind": model.kind, "reference": model.reference})
-        self.model, self.T, self.U, self.steps = model, T, U, np.asarray(steps, float)
+        self.model, self.T, self.U, self.steps, self.start = model, T, U, np.asarray(steps, float), start
         self._cache: tuple | None = None
 
     def reached(self, theta, t) -> np.ndarray:
         key = (np.asarray(theta, float).tobytes(), id(t), len(t))
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
-        x = actuator_positions(self.model, theta, self.T, self.U, t)
+        x = actuator_positions(self.model, theta, self.T, self.U, t, start=self.start)
         self._cache = (key, x)
         return x
 
@@ -107,11 +108,12 @@ class ResponseTerm(ModelTerm):
             dn[k] -= h
             j = self.model.actuator_of(k)
             if j is None:
-                d_u[:, :, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t)
-                                - actuator_positions(self.model, dn, self.T, self.U, poses.t)) / (2 * h)
+                d_u[:, :, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t, start=self.start)
+                                - actuator_positions(self.model, dn, self.T, self.U, poses.t, start=self.start)) / (2 * h)
             else:
-                d_u[:, j, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t, only=j)
-                                - actuator_positions(self.model, dn, self.T, self.U, poses.t, only=j)) / (2 * h)
+                d_u[:, j, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t, only=j, start=self.start)
+                                - actuator_positions(self.model, dn, self.T, self.U, poses.t, only=j, start=self.start)
+                                ) / (2 * h)
         return d_u, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
 
 
@@ -224,7 +226,7 @@ def _travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarra
     return out
 
 
-def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, steps):
+def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, steps, start=None):
     """The response fitted to the actuators' travel alone: the shift by a grid, then least squares
     (soft L1) over everything. Actuators whose travel is all NaN keep theta0."""
     ok = np.isfinite(travel).all(axis=1)
@@ -234,8 +236,11 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     theta = np.asarray(theta0, float).copy()
     theta[0] = 0.0  # every shift at once: the response at the shifted times
     shifted = (t[None, :] - SHIFT_GRID_S[:, None]).ravel()
-    X = actuator_positions(rmodel, theta, T, U, shifted).reshape(len(SHIFT_GRID_S), len(t), -1)
-    theta[0] = SHIFT_GRID_S[int(np.argmin(np.sum((X - travel[None]) ** 2, axis=(1, 2))))]
+    X = actuator_positions(rmodel, theta, T, U, shifted, start=start).reshape(len(SHIFT_GRID_S), len(t), -1)
+    # each actuator's best shift, the median over them (a slow actuator's lag is not the clock's)
+    moved = np.ptp(U, axis=0) > 0
+    best = SHIFT_GRID_S[np.argmin(np.sum((X - travel[None]) ** 2, axis=1), axis=0)]
+    theta[0] = float(np.median(best[moved])) if moved.any() else 0.0
     lo, hi = _lower_upper(rmodel, theta)
     theta = np.clip(theta, lo + 1e-12, hi - 1e-12)
     for j in range(rmodel.n_u):  # each actuator's own response, the shift and damping held (the full fit frees them)
@@ -247,7 +252,7 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
         def res(x, j=j, ks=ks, scale=scale):
             th = theta.copy()
             th[ks] = x
-            return (actuator_positions(rmodel, th, T, U, t, only=j) - travel[:, j]) / scale
+            return (actuator_positions(rmodel, th, T, U, t, only=j, start=start) - travel[:, j]) / scale
 
         sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
                             x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
@@ -275,20 +280,32 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     Y = session.markers[idx]
     theta0 = _starting_theta(rmodel, spec)
     steps = _steps(rmodel, theta0)
-    # 3. the response's start from the actuators' travel at the nominal geometry
-    X0 = actuator_positions(rmodel, theta0, T, U, t)
-    poses0 = PoseSet(platform=spec.name, controls=X0, markers=Y, marker_names=list(session.marker_names), t=t,
-                     length_unit=session.length_unit, source=str(session.folder))
-    problem = CalibrationProblem(spec, poses0)
-    z = problem.initial_registration(spec.nominal_td())
-    _, w, tr, mk, _ = problem.split(z)
+    # 3. the response's start from the actuators' travel at the nominal geometry, twice (the
+    # second registration at the controls the first response gives); a profile's actuators rest
+    # before the first command where the samples before it put them
+    theta_start, start = theta0, None
     sub = np.unique(np.linspace(0, len(idx) - 1, min(len(idx), START_SAMPLES)).astype(int))
-    travel = _travel(spec, problem.model, spec.nominal_td(), matrix_from_rotvec(w), tr, mk, Y[sub], X0[sub])
-    theta_start = _fit_response_to_travel(rmodel, theta0, T, U, t[sub], travel, steps)
+    seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
+    pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
+    for _ in range(START_ROUNDS):
+        X0 = actuator_positions(rmodel, theta_start, T, U, t, start=start)
+        poses0 = PoseSet(platform=spec.name, controls=X0, markers=Y, marker_names=list(session.marker_names), t=t,
+                         length_unit=session.length_unit, source=str(session.folder))
+        problem = CalibrationProblem(spec, poses0)
+        z = problem.initial_registration(spec.nominal_td())
+        _, w, tr, mk, _ = problem.split(z)
+        A = matrix_from_rotvec(w)
+        travel = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, Y[sub], X0[sub])
+        if reference == "profile" and len(pre):
+            before = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
+                             np.repeat(U[:1], len(pre), axis=0))
+            if np.isfinite(before).all(axis=1).any():
+                start = np.nanmedian(before, axis=0)
+        theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, t[sub], travel, steps, start)
     steps = _steps(rmodel, theta_start)
     # 4. the full fit
-    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps)
-    X1 = actuator_positions(rmodel, theta_start, T, U, t)
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps, start)
+    X1 = actuator_positions(rmodel, theta_start, T, U, t, start=start)
     poses = PoseSet(platform=spec.name, controls=X1, markers=Y, marker_names=list(session.marker_names), t=t,
                     description=None if session.description is None else str(session.description),
                     length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
