@@ -10,7 +10,7 @@ from platkit.errors import BadInput
 #: the additive simulator's defaults for the nuisances --physics draws per session
 ADDITIVE_DEFAULTS = {"noise_mm": 0.2, "occlusion": 0.02, "hold_s": 1.5}
 #: options only the physical simulator reads
-PHYSICS_ONLY = ("latency_s", "clock_offset_s", "white_noise", "overshoot")
+PHYSICS_ONLY = ("latency_s", "clock_offset_s", "white_noise", "overshoot", "motion", "duration_s", "command_rate_hz")
 
 #: IMU rate when --imu is given without --imu-rate-hz
 DEFAULT_IMU_RATE_HZ = 200.0
@@ -98,6 +98,13 @@ def add_parser(sub):
                    help="--physics: white marker noise only (default: white plus a correlated part)")
     p.add_argument("--overshoot", action="store_true",
                    help="--physics: drives tuned below critical damping, so they overshoot their commands")
+    p.add_argument("--motion", default=None, choices=["multisine", "path", "cue"],
+                   help="--physics: commands streamed at a steady rate without holds (a multi-sine per actuator, a "
+                        "smooth random path, or motion-cue-like smoothed steps), instead of --poses held commands")
+    p.add_argument("--duration-s", type=float, default=None,
+                   help="--physics --motion: the session's length, s (default 200)")
+    p.add_argument("--command-rate-hz", type=float, default=None,
+                   help="--physics --motion: commands per second (default 20)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of the session files (default mm)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--raw", dest="poses_only", action="store_false", help="write the raw markers.csv stream (default)")
@@ -213,7 +220,8 @@ def run_physics(args, spec, plan, effects) -> int:
                            occlusion=args.occlusion, latency_s=args.latency_s, clock_offset_s=args.clock_offset_s,
                            coloured=not args.white_noise, overshoot=args.overshoot, imu=imu_options(args),
                            perturbation=args.perturbation,
-                           description=None if args.description is None else Path(args.description).name)
+                           description=None if args.description is None else Path(args.description).name,
+                           **motion_options(args))
     out = write_physical_session(sim, args.out, description=args.description,
                                  moving_link=getattr(args, "moving_link", None),
                                  base_link=getattr(args, "base_link", None))
@@ -231,6 +239,20 @@ def run_physics(args, spec, plan, effects) -> int:
         print(f"  hidden effect {name}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                    for k, v in physics.parameters().items()))
     return 0
+
+
+def motion_options(args) -> dict:
+    """simulate_physics's continuous-motion keywords from --motion, --duration-s, --command-rate-hz."""
+    if args.motion is None:
+        if args.duration_s is not None or args.command_rate_hz is not None:
+            raise BadInput("--duration-s and --command-rate-hz apply to --motion")
+        return {}
+    out: dict = {"motion": args.motion}
+    if args.duration_s is not None:
+        out["duration_s"] = args.duration_s
+    if args.command_rate_hz is not None:
+        out["command_rate_hz"] = args.command_rate_hz
+    return out
 
 
 def imu_options(args) -> dict | None:

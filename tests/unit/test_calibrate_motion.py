@@ -78,3 +78,20 @@ def test_a_command_log_sparser_than_the_motion_is_refused(streamed):
     sparse = dataclasses.replace(session, command_t=session.command_t[keep], commands=session.commands[keep])
     with pytest.raises(BadSession, match=r"commands.csv: no command from t=7\.9.* the log is sparser than the motion"):
         check_motion_session(sparse)
+
+
+def test_cli_simulates_a_session_without_holds_and_calibrates_it(tmp_path, capsys):
+    """platkit simulate --physics --motion writes a streamed session; platkit calibrate, whose
+    settling finds no holds, calibrates it from motion and keeps the response."""
+    from platkit.cli import main
+    from platkit.io.calibration import read_calibration
+
+    folder, out = tmp_path / "session", tmp_path / "cal"
+    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "20",
+                 "--rate-hz", "40", "--seed", "4102", "--out", str(folder)]) == 0
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(out)]) == 0
+    line = capsys.readouterr()
+    assert "from motion" in line.out and "calibrated from the whole stream" in line.err
+    cal = read_calibration(out / "calibration.yaml")
+    assert cal.motion["response"]["reference"] == "step"
+    assert set(cal.motion["response"]["actuators"]) == set(cal.spec.control_names)
