@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from platkit.errors import BadInput
+from platkit.notices import warn
 
 
 def add_parser(sub):
@@ -35,8 +36,7 @@ def markers_only(poses, folder):
     if not poses.n_markers:
         raise BadInput(f"{folder}: diagnose reads markers only, and this session has rigid bodies alone ({bodies}); "
                        "calibrate and predict read them")
-    print(f"platkit: warning: {folder}: rigid bodies {bodies} left out: diagnose reads the markers only",
-          file=sys.stderr)
+    warn(f"{folder}: rigid bodies {bodies} left out: diagnose reads the markers only")
     poses.body_names, poses.bodies, poses.n_body_samples = [], None, None
     return poses
 
@@ -69,13 +69,15 @@ def run(args) -> int:
         if platform is not None and platform != cal.platform:
             raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
         sessions[folder] = load_session(folder, spec=cal.spec, quiet=args.quiet)
+        for note in sessions[folder].extras.get("control_notes", []):  # readings kept (platkit.limits)
+            warn(note)
         return markers_only(load_poses(folder, spec=cal.spec, session=sessions[folder]), folder)
 
     poses = poses_of(args.session)
     from platkit.commands.calibrate import settling_notes
 
     for note in settling_notes(poses, args.session):  # dropped commands by reason, holds extrapolated to rest
-        print(f"platkit: warning: {note}", file=sys.stderr)
+        warn(note)
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None

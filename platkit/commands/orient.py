@@ -1,9 +1,8 @@
 """platkit orient: the platform's orientation from a session's inertial stream."""
 from __future__ import annotations
 
-import sys
-
 from platkit.errors import BadInput
+from platkit.notices import said, warn
 
 #: the estimators of platkit.inertial.orient.METHODS (a test keeps the two equal): importing that
 #: module to build the parser would load every filter and scipy.signal (seconds, issue 13)
@@ -42,9 +41,10 @@ def run(args) -> int:
         raise BadInput(f"--max-repair-s: must be 0 or more seconds, got {args.max_repair_s}")
     result = orient_session(args.session, args.method, args.calibration, args.imu_calibration,
                             args.platform, args.description, args.max_repair_s, args.level_base)
+    for w in result.warnings:  # said before writing (platkit.notices): the report lists every warning
+        warn(w)
+    result.report["warnings"] = list(dict.fromkeys(list(result.warnings) + said()))
     write_outputs(result, args.out)
-    for w in result.warnings:
-        print(f"platkit: warning: {w}", file=sys.stderr)
     r = result.report
     line = f"orientation of {len(result.t)} samples ({r['method']}) -> {args.out}/orientation.csv"
     if "truth" in r:

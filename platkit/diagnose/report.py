@@ -16,6 +16,7 @@ from platkit.io.calibration import write_calibration_yaml
 from platkit.io.figures import png_base64 as _png
 from platkit.io.jsonout import strict
 from platkit.model import length_scale
+from platkit.notices import said
 from platkit.settle import settling_summary
 
 FORMAT = "platkit-diagnosis/1"
@@ -89,6 +90,7 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
         "n_markers": d.poses.n_markers,
         "findings": [finding_dict(f, d.unit) for f in d.findings],
         "verdict": d.verdict,
+        "warnings": said(),  # every warning said while the verb ran (platkit.notices)
         "rms_geometric": _num(d.base.rms_after / s),
         "rms_final": _num(d.final_fit.rms_after / s),
         "heldout_rms_geometric": None if d.heldout_geometric is None else _num(d.heldout_geometric / s),
@@ -205,6 +207,7 @@ def report_html(d: Diagnosis) -> str:
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>platkit diagnosis</title></head><body>"
             f"<h1>Diagnosis of the {html.escape(d.calibration.platform)} stand</h1>"
             f"<p>{html.escape(d.verdict)}</p>" + (f"<p>{html.escape(d.imu.get('verdict', ''))}</p>" if d.imu else "")
+            + "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>" for w in said())
             + f"<h2>Findings</h2>{table}<h2>Where the residual was structured</h2>"
             f"{imgs}</body></html>")
 

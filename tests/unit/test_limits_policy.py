@@ -3,6 +3,7 @@ past a limit within the recording tolerance (1% of the stroke) a warning with th
 everywhere, further out a refusal whose hint is true to the unit."""
 from __future__ import annotations
 
+import html
 import json
 import re
 import warnings
@@ -125,3 +126,26 @@ def test_calibrate_reads_the_session_under_the_same_policy(tmp_path, capsys):
     assert "column 'L1': 4805 is past the limit 4795 mm by 10 mm; kept as recorded" in err
     rep = json.loads((out / "report.json").read_text())
     assert any("4805 is past the limit 4795 mm" in w for w in rep["warnings"])
+
+
+def test_diagnose_says_the_reading_and_writes_it_in_its_reports(tmp_path, capsys):
+    import shutil
+
+    folder = tmp_path / "s"
+    shutil.copytree(example_session("rotary"), folder)
+    lines = (folder / "commands.csv").read_text().splitlines()
+    cells = lines[3].split(",")
+    cells[2] = "90.5"  # u2's stroke is [-90, 90] deg: 0.5 deg past, within the 1.8 deg tolerance
+    lines[3] = ",".join(cells)
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    assert main(["calibrate", str(folder), "--out", str(tmp_path / "cal"), "--quiet", "--no-report",
+                 "--no-selection"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(folder), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
+                 "--out", str(out), "--quiet"]) == 0
+    said = (f"{folder / 'commands.csv'} row 3 (line 4) column 'u2': 90.5 is past the limit 90 deg by 0.5 deg; "
+            "kept as recorded")
+    assert f"platkit: warning: {said}" in capsys.readouterr().err
+    assert any(w.startswith(said) for w in json.loads((out / "diagnosis.json").read_text())["warnings"])
+    assert html.escape(said) in (out / "report.html").read_text()

@@ -463,7 +463,10 @@ def test_diagnose_leaves_bodies_out_and_says_so(fitted, capsys):
         markers_only(poses.subset(np.arange(5)), "s")
     both = as_markers(poses, 0.1).subset(np.arange(5))
     both.bodies, both.body_names = poses.bodies[:5], ["T1"]
-    out = markers_only(both, "s")
+    from platkit.notices import collecting
+    with collecting() as said:  # as the command line runs a verb: printed, and kept for the report
+        out = markers_only(both, "s")
+    assert said == ["s: rigid bodies T1 left out: diagnose reads the markers only"]
     assert out.n_bodies == 0 and out.n_markers == 4
     assert "rigid bodies T1 left out" in capsys.readouterr().err
 
