@@ -186,12 +186,23 @@ def run(args) -> int:
         kind += f", {len(sim.imu['t'])} IMU samples"
     print(f"wrote {out}: {spec.name}, {len(sim.commands)} commands, {kind}, "
           f"{sim.poses.n_poses} settled poses; truth in {Path(out) / 'truth.yaml'}")
+    say_dropped(sim.plan_info, len(sim.commands))
     for term, theta in sim.truth.terms:
         values = ", ".join(f"{n}={v:.4g}" for n, v in zip(term.parameter_names, theta))
         print(f"  hidden effect {term.effect} at {term.where}: {values}")
     for e, theta in imu_effects:
         print(f"  hidden IMU effect {e.name}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(e.parameter_names, theta)))
     return 0
+
+
+def say_dropped(plan_info: dict, n_kept: int) -> None:
+    """Planned commands the true stand does not reach are never dropped silently: one line on
+    stderr (the same sentence is in session.yaml's notes and the count in truth.yaml's plan)."""
+    from platkit.simulate.files import dropped_note
+
+    note = dropped_note(plan_info, n_kept)
+    if note is not None:
+        print(f"simulate: {note}", file=sys.stderr)
 
 
 def check_out_folder(out: Path, force: bool) -> None:
@@ -235,6 +246,7 @@ def run_physics(args, spec, plan, effects) -> int:
     print(f"  nuisances: hold {n.hold_s:.2f} s, noise {n.noise_m * 1e3:.3f} mm white + {n.coloured_m * 1e3:.3f} mm "
           f"correlated ({n.correlation_s:.2f} s), occlusion {100 * n.occlusion:.1f}%, latency {n.latency_s * 1e3:.0f} ms, "
           f"clock offset {n.clock_offset_s * 1e3:+.0f} ms")
+    say_dropped(sim.plan_info, len(sim.commands))
     for name, physics in sim.physics:
         print(f"  hidden effect {name}: " + ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                    for k, v in physics.parameters().items()))

@@ -13,12 +13,25 @@ from platkit.errors import BadInput
 from platkit.inertial.simulate import write_imu
 from platkit.io.jsonout import plain
 
-__all__ = ["fmt", "csv_text", "write_imu_files", "truth_imu"]
+__all__ = ["fmt", "csv_text", "write_imu_files", "truth_imu", "dropped_note"]
 
 
 def fmt(v: float, digits: int) -> str:
     """A CSV cell: ``v`` with ``digits`` decimals, empty for NaN (an occluded sample)."""
     return "" if not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+def dropped_note(plan_info: dict, n_kept: int) -> str | None:
+    """One sentence saying how many planned commands the simulation dropped and why (forward
+    kinematics of the true stand, drawn away from the description, finds no pose for them on the
+    stand's branch, within the coordinates' bounds and the rows' plausible misfit), or None when
+    none was dropped. ``n_kept``: the commands the session holds."""
+    n = int(plan_info.get("unreachable_with_true_geometry", 0))
+    if n <= 0:
+        return None
+    return (f"{n} of {n + n_kept} planned commands dropped: unreachable with the true geometry (the simulated true "
+            f"stand takes no pose for them on its branch, within the coordinates' bounds and the rows' plausible "
+            f"misfit); the session holds the other {n_kept}")
 
 
 def csv_text(header: list[str], rows) -> str:

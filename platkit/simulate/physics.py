@@ -50,7 +50,7 @@ from platkit.model import PlatformSpec, controls_from_si, length_scale
 from platkit.plugins import effect_library
 from platkit.simulate.actuator import ActuatorResponse, actuator_motion, profile_duration
 from platkit.simulate.continuous import continuous_plan
-from platkit.simulate.files import csv_text, fmt, write_imu_files
+from platkit.simulate.files import csv_text, dropped_note, fmt, write_imu_files
 from platkit.simulate.nuisance import Nuisances, coloured_noise, draw_nuisances, occlusion_mask
 from platkit.simulate.stand import make_plan, perturb_parameters
 
@@ -389,6 +389,9 @@ def write_physical_session(sim: PhysicalSession, out: str | Path, description: s
             "notes": notes or f"simulated in the time domain by platkit (seed {sim.seed}); the truth is in "
                               "truth.yaml and truth_settled.csv",
         }
+        dropped = dropped_note(sim.plan_info, len(sim.commands))
+        if dropped is not None:  # said where the user reads, whatever notes were given
+            entry["notes"] = f"{entry['notes']}; {dropped}"
         if base_link is not None:
             entry["base_link"] = base_link
         if description is not None:

@@ -10,7 +10,7 @@ from platkit.errors import BadInput
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.jsonout import plain
 from platkit.model import controls_from_si, length_scale
-from platkit.simulate.files import csv_text, fmt, truth_imu, write_imu_files
+from platkit.simulate.files import csv_text, dropped_note, fmt, truth_imu, write_imu_files
 from platkit.simulate.results import Simulation
 
 __all__ = ["write_session"]
@@ -52,6 +52,9 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             "moving_link": sim.poses.moving_link if isinstance(sim.poses.moving_link, dict) else moving_link,
             "notes": notes or f"simulated by platkit (seed {sim.truth.seed}); the true stand is in truth.yaml",
         }
+        dropped = dropped_note(sim.plan_info, len(sim.commands))
+        if dropped is not None:  # said where the user reads, whatever notes were given
+            entry["notes"] = f"{entry['notes']}; {dropped}"
         if base_link is not None:
             entry["base_link"] = base_link
         bnames_6dof = list(sim.truth.body_names)

@@ -140,3 +140,25 @@ def test_simulate_calibrate_predict_against_an_independent_truth(installed):
     err = np.linalg.norm(pred - true, axis=2)
     rms = float(np.sqrt(np.mean(err**2)))
     assert rms <= 0.02e-3 < report["rms_before"] * 1e-3 / 10, (rms, report["rms_before"])
+
+
+def test_simulate_says_how_many_commands_the_true_stand_does_not_reach(installed):
+    tmp, env = installed
+    session = tmp / "dropped"
+    # 3 times the default perturbation: 1 of the 20 planned poses' nominal lengths misfits the true
+    # cables beyond their 10 mm stretch (seed 1)
+    res = _platkit(env, "simulate", "--platform", "cable", "--out", str(session), "--poses-only", "--poses", "20",
+                   "--perturbation", "3", "--seed", "1")
+    assert res.returncode == 0, res.stderr
+    line = ("1 of 20 planned commands dropped: unreachable with the true geometry (the simulated true stand takes no "
+            "pose for them on its branch, within the coordinates' bounds and the rows' plausible misfit); the session "
+            "holds the other 19")
+    assert res.stderr.strip() == f"simulate: {line}"
+    assert yaml.safe_load((session / "session.yaml").read_text())["notes"].endswith(f"; {line}")
+    assert yaml.safe_load((session / "truth.yaml").read_text())["plan"]["unreachable_with_true_geometry"] == 1
+    with open(session / "commands.csv", newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == 19
+    res = _platkit(env, "simulate", "--platform", "cable", "--out", str(tmp / "clean"), "--poses-only", "--poses", "20",
+                   "--seed", "1")
+    assert res.returncode == 0 and "dropped" not in res.stderr + res.stdout, res.stderr
+    assert "dropped" not in yaml.safe_load((tmp / "clean" / "session.yaml").read_text())["notes"]
