@@ -14,7 +14,10 @@ def add_parser(sub):
     p = sub.add_parser("plan", help="experiment design: a snake-ordered grid or a D-optimal set of commands")
     add_platform_options(p)
     p.add_argument("--out", required=True, help="plan.csv to write (plan.json with the predicted uncertainty beside it)")
-    p.add_argument("--grid", type=int, default=None, metavar="N", help="N points per control, visited in snake order")
+    p.add_argument("--grid", type=int, default=None, metavar="N",
+                   help="N points per control, visited in snake order (a stand whose pose space is free, "
+                        "'free_space: pose' like a cable robot: N values per pose coordinate, mapped to commands "
+                        "through IK)")
     p.add_argument("--optimal", type=int, default=None, metavar="N", help="select N poses D-optimally")
     p.add_argument("--candidates", type=int, default=500, metavar="M",
                    help="random feasible candidates for --optimal (default 500; with --grid the grid is the candidate set)")
