@@ -227,8 +227,10 @@ def _travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarra
 
 
 def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, steps, start=None):
-    """The response fitted to the actuators' travel alone: the shift by a grid, then least squares
-    (soft L1) over everything. Actuators whose travel is all NaN keep theta0."""
+    """The response fitted to the actuators' travel alone: the shift by a grid (each actuator's best,
+    their median), then each actuator's least squares (soft L1) with a shift of its own, the shift
+    at the median of theirs, and each actuator's again with it held. Actuators that never move
+    keep theta0."""
     ok = np.isfinite(travel).all(axis=1)
     t, travel = t[ok], travel[ok]
     if len(t) < 10:
@@ -243,20 +245,28 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     theta[0] = float(np.median(best[moved])) if moved.any() else 0.0
     lo, hi = _lower_upper(rmodel, theta)
     theta = np.clip(theta, lo + 1e-12, hi - 1e-12)
-    for j in range(rmodel.n_u):  # each actuator's own response, the shift and damping held (the full fit frees them)
-        ks = [rmodel.index(b, j) for b in rmodel.blocks if b != "damping"]
-        scale = max(float(np.ptp(travel[:, j])), 1e-9)
-        if not np.ptp(U[:, j]) > 0:
-            continue
+    shifts = []
+    for own_shift in (True, False):  # each actuator with a shift of its own, then all at their median
+        for j in range(rmodel.n_u):  # the damping held (the full fit frees it)
+            ks = ([0] if own_shift else []) + [rmodel.index(b, j) for b in rmodel.blocks if b != "damping"]
+            scale = max(float(np.ptp(travel[:, j])), 1e-9)
+            if not np.ptp(U[:, j]) > 0:
+                continue
 
-        def res(x, j=j, ks=ks, scale=scale):
-            th = theta.copy()
-            th[ks] = x
-            return (actuator_positions(rmodel, th, T, U, t, only=j, start=start) - travel[:, j]) / scale
+            def res(x, j=j, ks=ks, scale=scale):
+                th = theta.copy()
+                th[ks] = x
+                return (actuator_positions(rmodel, th, T, U, t, only=j, start=start) - travel[:, j]) / scale
 
-        sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
-                            x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
-        theta[ks] = sol.x
+            sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
+                                x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
+            if own_shift:
+                shifts.append(float(sol.x[0]))
+                theta[ks[1:]] = sol.x[1:]
+            else:
+                theta[ks] = sol.x
+        if own_shift and shifts:
+            theta[0] = float(np.median(shifts))
     return theta
 
 
