@@ -175,20 +175,38 @@ def _ipopt_options() -> dict:
             "show_eval_warnings": False}
 
 
-def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=None,
-                           starts: list[np.ndarray] | None = None) -> TranslationalEnvelope:
-    """Extreme origin positions over the reachable poses (see the module docstring).
+@dataclass
+class _EnvelopeProblem:
+    """The optimisation behind one translational envelope: variables ``x`` in [x_lb, x_ub] (the
+    controls, the pose coordinates, or both, by the stand's route), and as functions of them the
+    controls ``u``, pose coordinates ``p`` and origin ``X``; constraints ``G`` in [lbg, ubg].
+    ``pose_lb``, ``pose_ub``: the pose coordinates' box (angles pinned at a fixed orientation);
+    ``lo_u``, ``hi_u``: the strokes; ``p0``: the neutral pose."""
 
-    ``starts``: extra starting pose coordinates (n_p,) tried besides the neutral pose (at a fixed
-    orientation, with the orientation coordinates set to the neutral ones); the best feasible
-    optimum is kept, and a start that is itself feasible counts as a candidate, so the envelope
-    holds every feasible start (a corner of the control box it was given). Raises
-    ComputationFailed if no start gives a feasible optimum.
-    """
-    if orientation not in ("fixed", "free"):
-        raise BadInput(f"orientation must be 'fixed' or 'free', got {orientation!r}")
+    x: ca.SX
+    u: ca.SX
+    p: ca.SX
+    X: ca.SX
+    G: ca.SX
+    lbg: np.ndarray
+    ubg: np.ndarray
+    x_lb: np.ndarray
+    x_ub: np.ndarray
+    pose_lb: np.ndarray
+    pose_ub: np.ndarray
+    lo_u: np.ndarray
+    hi_u: np.ndarray
+    p0: np.ndarray
+    solver_name: str
+
+
+def _envelope_problem(model: PlatformModel, orientation: str, td) -> _EnvelopeProblem:
+    """The variables, constraints and bounds of the envelope search on the stand's route: serial
+    chains (closed-form forward) over the controls, a fixed orientation one scalar constraint;
+    stands with a closed-form inverse over the pose coordinates, the controls held to their
+    strokes; any other stand over both, held to F(u, td, pose(p)) = 0. The stand's branch holds
+    wherever the pose is a variable. An infinite pose bound is read as +-1e6."""
     spec = model.spec
-    td = model._td(td)
     n_p, n_u = spec.n_p, spec.n_u
     lo_u, hi_u = spec.control_bounds()
     p = ca.SX.sym("p", n_p)
@@ -241,54 +259,89 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
         lbg.append(np.full(gb.shape[0], 1e-6))
         ubg.append(np.full(gb.shape[0], np.inf))
     G = ca.vertcat(*g) if g else ca.SX(0, 1)
-    lbg = np.concatenate(lbg) if lbg else np.zeros(0)
-    ubg = np.concatenate(ubg) if ubg else np.zeros(0)
-    sense_sym = ca.SX.sym("sense", 4)  # (sign, e_x, e_y, e_z): minimise sign * e . X
-    objective = sense_sym[0] * ca.dot(sense_sym[1:], X)
-    solver = ca.nlpsol("envelope", "ipopt", {"x": x, "p": sense_sym, "f": objective, "g": G}, _ipopt_options())
-    u_of = ca.Function("u_of", [x], [u])
-    X_of = ca.Function("X_of", [x], [X])
+    return _EnvelopeProblem(x, u, p, X, G, np.concatenate(lbg) if lbg else np.zeros(0),
+                            np.concatenate(ubg) if ubg else np.zeros(0), x_lb, x_ub, lbx, ubx, lo_u, hi_u, p0,
+                            solver_name)
 
-    p_of = ca.Function("p_of", [x], [p])
 
-    def start_vector(pp):
-        pp = np.clip(np.asarray(pp, float), lbx, ubx)
-        if spec.forward is not None:
-            qq, XX = model.pose(pp)
-            return np.clip(model.inverse(qq, XX, td, strict=False), lo_u, hi_u)
-        if spec.inverse is not None:
-            return pp
+def _start_vector(model: PlatformModel, nlp: _EnvelopeProblem, td, pp) -> np.ndarray:
+    """The variables ``x`` of the start at pose coordinates ``pp`` (clipped into the pose box;
+    controls by the inverse kinematics, clipped into their strokes). Raises ComputationFailed
+    where the stand cannot reach the pose."""
+    spec = model.spec
+    pp = np.clip(np.asarray(pp, float), nlp.pose_lb, nlp.pose_ub)
+    if spec.forward is not None:
         qq, XX = model.pose(pp)
-        return np.concatenate([pp, model.inverse(qq, XX, td, strict=False)])
+        return np.clip(model.inverse(qq, XX, td, strict=False), nlp.lo_u, nlp.hi_u)
+    if spec.inverse is not None:
+        return pp
+    qq, XX = model.pose(pp)
+    return np.concatenate([pp, model.inverse(qq, XX, td, strict=False)])
 
-    start_points = [p0] + [np.asarray(s, float) for s in (starts or [])]
-    G_of = ca.Function("G_of", [x], [G])
 
-    def feasible_point(xs) -> bool:
-        if not np.all(np.isfinite(xs)) or np.any(xs < x_lb - 1e-9) or np.any(xs > x_ub + 1e-9):
-            return False
-        gv = np.asarray(G_of(xs)).ravel()
-        return bool(np.all(np.isfinite(gv))) and max(float(np.max(lbg - gv, initial=0.0)),
-                                                     float(np.max(gv - ubg, initial=0.0))) <= 1e-7
+def _feasible_point(nlp: _EnvelopeProblem, G_of: ca.Function, xs) -> bool:
+    """True where ``xs`` is finite, inside its bounds (1e-9) and meets the constraints (1e-7)."""
+    if not np.all(np.isfinite(xs)) or np.any(xs < nlp.x_lb - 1e-9) or np.any(xs > nlp.x_ub + 1e-9):
+        return False
+    gv = np.asarray(G_of(xs)).ravel()
+    return bool(np.all(np.isfinite(gv))) and max(float(np.max(nlp.lbg - gv, initial=0.0)),
+                                                 float(np.max(gv - nlp.ubg, initial=0.0))) <= 1e-7
+
+
+def _best_extreme(model: PlatformModel, nlp: _EnvelopeProblem, td, solver, G_of: ca.Function, X_of: ca.Function,
+                  start_points: list[np.ndarray], k: int, sign: float) -> tuple[float, np.ndarray] | None:
+    """(origin coordinate k, variables) of the best feasible candidate minimising ``sign`` times
+    origin coordinate ``k``: from each start that the stand can reach, IPOPT's local optimum and
+    the start itself; None where no candidate is feasible. ``G_of``, ``X_of``: the constraints
+    and the origin as functions of the variables."""
+    e = np.zeros(3)
+    e[k] = 1.0
+    best = None
+    for sp in start_points:
+        try:
+            x0 = _start_vector(model, nlp, td, sp)
+        except ComputationFailed:
+            continue
+        sol = solver(x0=x0, p=np.concatenate([[sign], e]), lbx=nlp.x_lb, ubx=nlp.x_ub, lbg=nlp.lbg, ubg=nlp.ubg)
+        # IPOPT's local optimum, and the start itself where it is a feasible pose
+        for xs in (np.asarray(sol["x"]).ravel(), np.asarray(x0, float).ravel()):
+            if not _feasible_point(nlp, G_of, xs):
+                continue
+            val = float(np.asarray(X_of(xs)).ravel()[k])
+            if best is None or sign * val < sign * best[0]:
+                best = (val, xs)
+    return best
+
+
+def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=None,
+                           starts: list[np.ndarray] | None = None) -> TranslationalEnvelope:
+    """Extreme origin positions over the reachable poses (see the module docstring).
+
+    ``starts``: extra starting pose coordinates (n_p,) tried besides the neutral pose (at a fixed
+    orientation, with the orientation coordinates set to the neutral ones); the best feasible
+    optimum is kept, and a start that is itself feasible counts as a candidate, so the envelope
+    holds every feasible start (a corner of the control box it was given). Raises
+    ComputationFailed if no start gives a feasible optimum.
+    """
+    if orientation not in ("fixed", "free"):
+        raise BadInput(f"orientation must be 'fixed' or 'free', got {orientation!r}")
+    spec = model.spec
+    td = model._td(td)
+    nlp = _envelope_problem(model, orientation, td)
+    sense_sym = ca.SX.sym("sense", 4)  # (sign, e_x, e_y, e_z): minimise sign * e . X
+    objective = sense_sym[0] * ca.dot(sense_sym[1:], nlp.X)
+    solver = ca.nlpsol("envelope", "ipopt", {"x": nlp.x, "p": sense_sym, "f": objective, "g": nlp.G},
+                       _ipopt_options())
+    u_of = ca.Function("u_of", [nlp.x], [nlp.u])
+    p_of = ca.Function("p_of", [nlp.x], [nlp.p])
+    G_of = ca.Function("G_of", [nlp.x], [nlp.G])
+    X_of = ca.Function("X_of", [nlp.x], [nlp.X])
+    start_points = [nlp.p0] + [np.asarray(s, float) for s in (starts or [])]
+    lo_u, hi_u = nlp.lo_u, nlp.hi_u
     extremes = []
     for k, axis in enumerate(AXES):
         for sense, sign in (("min", 1.0), ("max", -1.0)):
-            e = np.zeros(3)
-            e[k] = 1.0
-            best = None
-            for sp in start_points:
-                try:
-                    x0 = start_vector(sp)
-                except ComputationFailed:
-                    continue
-                sol = solver(x0=x0, p=np.concatenate([[sign], e]), lbx=x_lb, ubx=x_ub, lbg=lbg, ubg=ubg)
-                # IPOPT's local optimum, and the start itself where it is a feasible pose
-                for xs in (np.asarray(sol["x"]).ravel(), np.asarray(x0, float).ravel()):
-                    if not feasible_point(xs):
-                        continue
-                    val = float(np.asarray(X_of(xs)).ravel()[k])
-                    if best is None or sign * val < sign * best[0]:
-                        best = (val, xs)
+            best = _best_extreme(model, nlp, td, solver, G_of, X_of, start_points, k, sign)
             if best is None:
                 raise ComputationFailed(f"{spec.name}: the {sense} of {axis} ({orientation} orientation) found no feasible optimum")
             val, xs = best
@@ -296,7 +349,7 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
             span = np.maximum(hi_u - lo_u, 1e-12)
             active = [c.name for c, a, l, h, sp in zip(spec.controls, uu, lo_u, hi_u, span) if min(a - l, h - a) < 1e-6 * sp]
             extremes.append(AxisExtreme(axis, sense, val, np.asarray(p_of(xs)).ravel(), uu, active))
-    return TranslationalEnvelope(orientation, extremes, solver_name)
+    return TranslationalEnvelope(orientation, extremes, nlp.solver_name)
 
 
 def fixed_orientation_section(model: PlatformModel, plane: str, level: float, bounds_m: tuple, n: int = 81, td=None):
