@@ -167,6 +167,143 @@ def _session_commands(folder: Path, y: dict, calibration: str | Path | None, pla
 MIN_SAMPLES = 10
 
 
+def _read_session_imu(folder: Path, y: dict, max_repair_s: float):
+    """The session's imu.csv, read with its declared ranges and rate; BadInput below MIN_SAMPLES."""
+    imu_decl = y["imu"] or {}
+    imu = read_imu_csv(folder / "imu.csv", max_repair_s=max_repair_s, gyr_range=imu_decl.get("gyr_range_rad_s"),
+                       acc_range=imu_decl.get("acc_range_m_s2"), time_scale=TIME_UNITS[y["time_unit"]],
+                       declared_rate_hz=imu_decl.get("rate_hz"))
+    if imu.n < MIN_SAMPLES:
+        raise BadInput(f"{folder / 'imu.csv'}: {imu.n} samples are too few to estimate an orientation "
+                       f"(need at least {MIN_SAMPLES}: the offline estimator's zero-phase filter)")
+    return imu
+
+
+def _start_bias(imu_c, cal_given: bool, report: dict) -> tuple[np.ndarray, str | None]:
+    """(gyro bias at the start, the warning to give if nothing better is found): zero under an IMU
+    calibration (it removed the bias), else the first rest of the recording, else zero with the
+    reason; the source goes into ``report['gyr_bias_source']``."""
+    if cal_given:
+        report["gyr_bias_source"] = "imu calibration"
+        return np.zeros(3), None
+    try:
+        bias0 = gyro_bias_at_rest(imu_c, min_s=1.0)
+        report["gyr_bias_source"] = "first rest of the recording"
+        return bias0, None
+    except NotIdentifiable as exc:
+        report["gyr_bias_source"] = "none (zero)"
+        return np.zeros(3), str(exc)
+
+
+@dataclass
+class _CommandFrame:
+    """What the commands give the estimate: the sensor-from-platform rotation, the start bias,
+    the command times and poses (``q_cmd`` None where the platform never holds one: no heading to
+    align to) and the platform's timing (None where it could not be measured)."""
+
+    R_sp: np.ndarray
+    bias0: np.ndarray
+    t_cmd: np.ndarray | None = None
+    q_cmd: np.ndarray | None = None
+    timing: object = None
+
+
+def _frame_from_commands(folder: Path, cmds, imu_c, method: str, frame: _CommandFrame,
+                         calibration: str | Path | None, imu_calibration: str | Path | None,
+                         report: dict, warnings: list[str]) -> _CommandFrame:
+    """The commanded poses, the platform's timing and, without an IMU calibration, R_SP and the
+    bias from the held poses. The unaided methods go on without what cannot be found (and say
+    so); command-aided raises NotIdentifiable."""
+    cal_given = imu_calibration is not None
+    spec, td, t_cmd, U = cmds
+    model = PlatformModel(spec)
+    q_cmd = command_poses(model, U, td)
+    R_sp, bias0 = frame.R_sp, frame.bias0
+    try:
+        timing = estimate_timing(imu_c, t_cmd, q_cmd, bias0)
+        held_any = held_mask(imu_c.t, t_cmd, timing).any()
+    except NotIdentifiable as exc:
+        if method == "command-aided":
+            raise
+        warnings.append(f"{exc}; the commands are not used")
+        timing, held_any = None, False
+    if timing is not None:
+        report["timing"] = {"lag_s": timing.lag_s, "settle_s": timing.settle_s, "n_moves": timing.n_moves,
+                            "lag_std_s": timing.lag_std_s, "settle_std_s": timing.settle_std_s}
+    report["platform"] = spec.name
+    report["calibration"] = str(calibration) if calibration else None
+    if cal_given:
+        report["alignment"] = {"source": f"imu calibration {imu_calibration}"}
+    elif timing is not None:
+        try:
+            fit, bias_held = estimate_alignment_from_commands(imu_c, t_cmd, q_cmd, timing)
+        except NotIdentifiable as exc:
+            if method == "command-aided":
+                raise
+            warnings.append(f"{exc}; the sensor axes are taken as the platform axes")
+            report["alignment"] = {"source": "none (identity)"}
+        else:
+            R_sp = fit.sensor_from_platform
+            bias0 = bias_held
+            report["gyr_bias_source"] = "held poses of the session"
+            report["alignment"] = {"source": "estimated from the session's moves",
+                                   "rms_rad": fit.rms, "angle_std_rad": fit.angle_std}
+    else:
+        report["alignment"] = {"source": "none (identity)"}
+    if not held_any:
+        if method == "command-aided":
+            raise NotIdentifiable(f"{folder}: the platform never holds a commanded pose long enough "
+                                  "for the command-aided estimator")
+        q_cmd = None  # nothing to align the heading with
+    return _CommandFrame(R_sp, bias0, t_cmd, q_cmd, timing)
+
+
+def _estimate(method: str, imu, imu_c, frame: _CommandFrame, q_sp: np.ndarray, cal_given: bool,
+              level_base: bool, report: dict, warnings: list[str]):
+    """(estimator result, q_base_from_platform (N, 4)) by ``method``; the unaided methods' heading
+    aligned to the commanded poses over the held intervals where there are any."""
+    t_cmd, q_cmd, timing = frame.t_cmd, frame.q_cmd, frame.timing
+    if method == "command-aided":
+        params = CommandAidedParams(timing=timing, tilt_from_accelerometer=cal_given or level_base,
+                                    level_base=level_base)
+        est = estimate_command_aided(imu_c, t_cmd, q_cmd, frame.R_sp, frame.bias0, params)
+        if level_base and not cal_given:
+            warnings.append("--level-base without --imu-calibration: the accelerometer's bias and scale errors "
+                            "go straight into the tilt")
+        report["heading"] = "absolute (from the commanded poses)"
+        return est, est.q
+    if method == "paper":
+        est = estimate_paper(imu_c, PaperParams(gyro_bias=tuple(frame.bias0)))
+    elif method == "platkit-causal":
+        est = estimate_platkit(imu_c, PlatkitParams(initial_bias=tuple(frame.bias0)))
+    else:
+        est = estimate_offline(imu_c, PlatkitParams(initial_bias=tuple(frame.bias0)))
+    q_bp = quat_normalize(quat_multiply(est.q, q_sp[None, :]))
+    if q_cmd is not None:
+        held = held_mask(imu.t, t_cmd, timing)
+        k = np.clip(np.searchsorted(t_cmd, imu.t, side="right") - 1, 0, len(t_cmd) - 1)
+        rot = _heading_offset(q_bp[held], q_cmd[k[held]])
+        q_bp = quat_normalize(quat_multiply(rot[None, :], q_bp))
+        report["heading"] = "aligned to the commanded poses over the held intervals"
+    else:
+        report["heading"] = "relative to the start (no magnetometer, no commands)"
+    return est, q_bp
+
+
+def _imu_truth_errors(path: Path, R_sp: np.ndarray, bias_end: np.ndarray) -> dict:
+    """truth_imu.yaml against the estimate: the alignment's error (deg) and the end bias's (deg/s,
+    raw sensor axes), each where the truth gives it."""
+    truth = read_truth_imu(path)
+    cmp = {}
+    if "sensor_from_platform" in truth:
+        err = rotvec_from_matrix(np.asarray(R_sp) @ truth["sensor_from_platform"].T)
+        cmp["alignment_error_deg"] = float(np.degrees(np.linalg.norm(err)))
+    if "gyr_bias_rad_s" in truth:
+        # the bias at the end of the run, raw sensor axes, against the true bias
+        cmp["gyr_bias_error_deg_s"] = np.degrees(bias_end - truth["gyr_bias_rad_s"]).tolist()
+    return cmp
+
+
 def orient_session(folder: str | Path, method: str = "platkit", calibration: str | Path | None = None,
                    imu_calibration: str | Path | None = None, platform: str | None = None,
                    description: str | Path | None = None, max_repair_s: float = 0.05,
@@ -177,13 +314,7 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     folder = Path(folder)
     y = read_session_yaml(folder)
     tscale = TIME_UNITS[y["time_unit"]]
-    imu_decl = y["imu"] or {}
-    imu = read_imu_csv(folder / "imu.csv", max_repair_s=max_repair_s, gyr_range=imu_decl.get("gyr_range_rad_s"),
-                       acc_range=imu_decl.get("acc_range_m_s2"), time_scale=tscale,
-                       declared_rate_hz=imu_decl.get("rate_hz"))
-    if imu.n < MIN_SAMPLES:
-        raise BadInput(f"{folder / 'imu.csv'}: {imu.n} samples are too few to estimate an orientation "
-                       f"(need at least {MIN_SAMPLES}: the offline estimator's zero-phase filter)")
+    imu = _read_session_imu(folder, y, max_repair_s)
     warnings = imu.warnings()
     report: dict = {"session": str(folder), "method": method, "n_samples": imu.n, "rate_hz": imu.rate_hz,
                     "duration_s": float(imu.t[-1] - imu.t[0])}
@@ -191,7 +322,6 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     cal = ImuCalibration()
     cal_given = imu_calibration is not None
     if cal_given:
-
         cal = ImuCalibration.from_dict(load_yaml(imu_calibration, error=BadInput), str(imu_calibration))
     imu_c = cal.apply(imu) if cal_given else imu
 
@@ -201,98 +331,24 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
 
     # the gyro bias at the start: from the calibration, else from the first rest of the recording
     # (replaced below by the held poses' bias when the commands give one)
-    rest_warning = None
-    if cal_given:
-        bias0 = np.zeros(3)
-        report["gyr_bias_source"] = "imu calibration"
-    else:
-        try:
-            bias0 = gyro_bias_at_rest(imu_c, min_s=1.0)
-            report["gyr_bias_source"] = "first rest of the recording"
-        except NotIdentifiable as exc:
-            bias0 = np.zeros(3)
-            report["gyr_bias_source"] = "none (zero)"
-            rest_warning = str(exc)
-
-    q_sp = np.array([1.0, 0.0, 0.0, 0.0])
-    R_sp = cal.sensor_from_platform
-    q_cmd = t_cmd = timing = None
+    bias0, rest_warning = _start_bias(imu_c, cal_given, report)
+    frame = _CommandFrame(cal.sensor_from_platform, bias0)
     if cmds is not None:
-        spec, td, t_cmd, U = cmds
-        model = PlatformModel(spec)
-        q_cmd = command_poses(model, U, td)
-        try:
-            timing = estimate_timing(imu_c, t_cmd, q_cmd, bias0)
-            held_any = held_mask(imu_c.t, t_cmd, timing).any()
-        except NotIdentifiable as exc:
-            if method == "command-aided":
-                raise
-            warnings.append(f"{exc}; the commands are not used")
-            timing, held_any = None, False
-        if timing is not None:
-            report["timing"] = {"lag_s": timing.lag_s, "settle_s": timing.settle_s, "n_moves": timing.n_moves,
-                                "lag_std_s": timing.lag_std_s, "settle_std_s": timing.settle_std_s}
-        report["platform"] = spec.name
-        report["calibration"] = str(calibration) if calibration else None
-        if cal_given:
-            report["alignment"] = {"source": f"imu calibration {imu_calibration}"}
-        elif timing is not None:
-            try:
-                fit, bias_held = estimate_alignment_from_commands(imu_c, t_cmd, q_cmd, timing)
-            except NotIdentifiable as exc:
-                if method == "command-aided":
-                    raise
-                warnings.append(f"{exc}; the sensor axes are taken as the platform axes")
-                report["alignment"] = {"source": "none (identity)"}
-            else:
-                R_sp = fit.sensor_from_platform
-                bias0 = bias_held
-                report["gyr_bias_source"] = "held poses of the session"
-                report["alignment"] = {"source": "estimated from the session's moves",
-                                       "rms_rad": fit.rms, "angle_std_rad": fit.angle_std}
-        else:
-            report["alignment"] = {"source": "none (identity)"}
-        if not held_any:
-            if method == "command-aided":
-                raise NotIdentifiable(f"{folder}: the platform never holds a commanded pose long enough "
-                                      "for the command-aided estimator")
-            q_cmd = None  # nothing to align the heading with
+        frame = _frame_from_commands(folder, cmds, imu_c, method, frame, calibration, imu_calibration, report,
+                                     warnings)
     elif not cal_given:
         warnings.append("no IMU calibration and no commands: the sensor axes are taken as the platform axes "
                         "and the heading is relative to the start")
         report["alignment"] = {"source": "none (identity)"}
     if rest_warning is not None and report["gyr_bias_source"] == "none (zero)":
         warnings.append(rest_warning)  # said only when no other source gave the bias
+    R_sp = frame.R_sp
     # the identity (no calibration, no commands) needs no conversion (scipy.spatial's import is most of its cost)
-    q_sp = q_sp if np.array_equal(R_sp, np.eye(3)) else quat_from_matrix(R_sp)
+    q_sp = np.array([1.0, 0.0, 0.0, 0.0]) if np.array_equal(R_sp, np.eye(3)) else quat_from_matrix(R_sp)
     report["sensor_from_platform"] = np.asarray(R_sp).tolist()
-    report["gyr_bias_start_rad_s"] = (cal.gyr_bias + cal.gyr_scale * np.asarray(bias0)).tolist()
+    report["gyr_bias_start_rad_s"] = (cal.gyr_bias + cal.gyr_scale * np.asarray(frame.bias0)).tolist()
 
-    if method == "command-aided":
-        params = CommandAidedParams(timing=timing, tilt_from_accelerometer=cal_given or level_base,
-                                    level_base=level_base)
-        est = estimate_command_aided(imu_c, t_cmd, q_cmd, R_sp, bias0, params)
-        if level_base and not cal_given:
-            warnings.append("--level-base without --imu-calibration: the accelerometer's bias and scale errors "
-                            "go straight into the tilt")
-        q_bp = est.q
-        report["heading"] = "absolute (from the commanded poses)"
-    else:
-        if method == "paper":
-            est = estimate_paper(imu_c, PaperParams(gyro_bias=tuple(bias0)))
-        elif method == "platkit-causal":
-            est = estimate_platkit(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
-        else:
-            est = estimate_offline(imu_c, PlatkitParams(initial_bias=tuple(bias0)))
-        q_bp = quat_normalize(quat_multiply(est.q, q_sp[None, :]))
-        if q_cmd is not None:
-            held = held_mask(imu.t, t_cmd, timing)
-            k = np.clip(np.searchsorted(t_cmd, imu.t, side="right") - 1, 0, len(t_cmd) - 1)
-            rot = _heading_offset(q_bp[held], q_cmd[k[held]])
-            q_bp = quat_normalize(quat_multiply(rot[None, :], q_bp))
-            report["heading"] = "aligned to the commanded poses over the held intervals"
-        else:
-            report["heading"] = "relative to the start (no magnetometer, no commands)"
+    est, q_bp = _estimate(method, imu, imu_c, frame, q_sp, cal_given, level_base, report, warnings)
     report["estimator"] = {k: v for k, v in est.info.items() if k != "params"}
     # the estimators see the calibrated stream; in raw sensor units the bias is b_cal + s r
     bias_end = cal.gyr_bias + cal.gyr_scale * np.asarray(est.bias[-1])
@@ -301,18 +357,10 @@ def orient_session(folder: str | Path, method: str = "platkit", calibration: str
     result = OrientResult(imu.t, q_bp, report, warnings=warnings)
     tpath = folder / "truth_orientation.csv"
     if tpath.is_file():
-        _score(result, *read_truth_orientation(tpath, tscale), absolute_heading=q_cmd is not None)
+        _score(result, *read_truth_orientation(tpath, tscale), absolute_heading=frame.q_cmd is not None)
     ipath = folder / "truth_imu.yaml"
     if ipath.is_file():
-        truth = read_truth_imu(ipath)
-        cmp = {}
-        if "sensor_from_platform" in truth:
-            err = rotvec_from_matrix(np.asarray(R_sp) @ truth["sensor_from_platform"].T)
-            cmp["alignment_error_deg"] = float(np.degrees(np.linalg.norm(err)))
-        if "gyr_bias_rad_s" in truth:
-            # the bias at the end of the run, raw sensor axes, against the true bias
-            cmp["gyr_bias_error_deg_s"] = np.degrees(bias_end - truth["gyr_bias_rad_s"]).tolist()
-        report["truth_imu"] = cmp
+        report["truth_imu"] = _imu_truth_errors(ipath, R_sp, bias_end)
     report["warnings"] = warnings
     return result
 
