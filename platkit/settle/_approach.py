@@ -3,11 +3,13 @@ fitted to the stream, the window its tail leaves free, the tail's share of a sti
 extrapolation to rest checked against the stream, and a window's averaged result."""
 from __future__ import annotations
 
+import contextlib
 import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import chdtrc, gammaincinv
+from threadpoolctl import ThreadpoolController
 
 #: probability that a still stretch is fitted a significant approach tail
 TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
@@ -66,6 +68,21 @@ class Approach:
         return (not self.at_limit and self.chi2_per_dof < 2.0 and bool(np.isfinite(self.x_inf_std).any()))
 
 
+_controller: list[ThreadpoolController] = []
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """BLAS (OpenBLAS, MKL, BLIS) limited to one thread inside the block, restored after: an
+    approach fit's products are a few hundred by tens, where worker threads only wake and spin
+    (on a shared machine they make each product up to eighty times slower); the results are
+    the same, each product's sums being split over rows and columns, not over the samples."""
+    if not _controller:
+        _controller.append(ThreadpoolController())
+    with _controller[0].limit(limits=1, user_api="blas"):
+        yield
+
+
 def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float | None = None,
                  tau: float | None = None) -> Approach | None:
     """Fit x(s) = x_inf + (a + b s) exp(-s / tau) to a hold's tail, s = t - t[0].
@@ -76,6 +93,12 @@ def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float 
     session's); for each tau the rest is linear least squares (normal equations, per marker over
     its visible samples). None when no marker has 8 samples in the stretch.
     """
+    with _one_blas_thread():
+        return _fit(t, markers, sigma, t_end, tau)
+
+
+def _fit(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float | None, tau: float | None) -> Approach | None:
+    """fit_approach's body (its docstring)."""
     t = np.asarray(t, float)
     K = len(t)
     if K < 8:
