@@ -3,7 +3,8 @@ eight rows for six pose coordinates) as an outside plugin: installed with pip in
 its own, found through its entry point, it passes its own tests (the conformance suite among
 them) and goes through simulate (platkit's own plan, drawn in pose space), calibrate and predict:
 every one of 200 fresh commands inside the workspace is predicted, within 0.02 mm RMS of an
-independent least-squares truth.
+independent least-squares truth. Its outside physics (cable elasticity, pulley radius) are effects
+it registers itself; its own tests plant them and diagnose them.
 
 pip builds the package with build isolation, as for the tutorial's hexapod.
 """
@@ -49,7 +50,13 @@ def test_the_installed_stand_is_found_and_passes_its_tests(installed):
     assert stands["cable"]["package"] == "platkit-cable 0.1.0"
     res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(EXAMPLE / "tests")],
                          capture_output=True, text=True, env=env, cwd=tmp, timeout=300)
-    assert res.returncode == 0 and "5 passed" in res.stdout, res.stdout[-3000:]
+    assert res.returncode == 0 and "10 passed" in res.stdout, res.stdout[-3000:]
+    # its outside physics, registered through the effect hook, can be planted by simulate
+    res = _platkit(env, "simulate", "--help")
+    assert res.returncode == 0, res.stderr
+    text = " ".join(res.stdout.split())
+    assert "cable_elasticity: the largest stretch of a cable over the commands, in mm" in text
+    assert "pulley_radius: the pulleys' radius, in mm" in text
 
 
 def test_fk_reports_the_misfit_and_wrapped_angles_and_refuses_absurd_lengths(installed):

@@ -16,6 +16,10 @@ the stand declares its pose space free (``free_space='pose'``), so plans and che
 and map them through the closed-form inverse kinematics.
 
 td = (A_1..A_8, b_1..b_8, o_1..o_8): 56 numbers, metres.
+
+The package also registers the cable robot's outside physics as diagnosis effects
+(``cable_elasticity``, ``pulley_radius``: see platkit_cable.effects), through the same hook as
+platkit's built-in effects.
 """
 from __future__ import annotations
 
@@ -29,6 +33,7 @@ from platkit.geometry import ca_matrix_from_quat
 from platkit.hookspecs import hookimpl
 from platkit.io.description import check_fields, check_platform, load_yaml, number, require, vector
 from platkit.model import Control, Parameter, PlatformFactory, PlatformSpec, RowMisfit, length_scale, six_dof_pose
+from platkit_cable.effects import EFFECTS
 
 NAME = "cable"
 N_CABLES = 8
@@ -138,3 +143,8 @@ def build(path: Path | None, options: dict) -> PlatformSpec:
 @hookimpl
 def platkit_register_platforms():
     return [PlatformFactory(NAME, "cable-driven parallel robot (8 cables, 6-DOF platform)", build, (".yaml", ".yml"))]
+
+
+@hookimpl
+def platkit_register_effects():
+    return list(EFFECTS)
