@@ -11,8 +11,10 @@ evaluated at moves them by far less than the data's noise.
   come from a stated static load model: the platform holds a payload's weight at its origin
   (gravity along the base's -z), and the eight tensions are those of the six equilibrium
   equations nearest to a pretension of PRETENSION times the weight on every cable (the
-  closed-form tension distribution), per newton of weight: tau_i. The term: d_i = e l_i tau_i, one e for every cable
-  (e = m g / (E A): the strain of a cable carrying the full weight).
+  closed-form tension distribution), per newton of weight: tau_i. The term: d_i = e l_i tau_i,
+  one e for every cable (e = m g / (E A): the strain of a cable carrying the full weight). The
+  distribution is not bounded: near the workspace's edges it gives some cables a negative
+  tension (a cable the model would let go slack), where the term shortens them.
 - ``pulley_radius``: each cable leaves its winch over a swivelling pulley of radius r. It comes
   up the pulley's vertical swivel axis through the anchor A_i, wraps the pulley (centre
   C_i = A_i + r h_i, h_i the horizontal unit vector from A_i toward the cable's platform point
