@@ -75,7 +75,8 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     """(header, rows (N, cols), ok (N,)) of the predict output for controls U (N, n_u) SI."""
     N = U.shape[0]
     poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
-                    marker_names=list(cal.marker_names), t=t, length_unit=cal.length_unit)
+                    marker_names=list(cal.marker_names), t=t, length_unit=cal.length_unit,
+                    marker_links=dict(cal.marker_links))  # on a tree, terms move each marker with its link
     if cal.terms:  # history- and time-dependent terms read the rows' order and times
 
         poses = with_history(poses, cal.spec)

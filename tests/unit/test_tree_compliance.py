@@ -196,3 +196,27 @@ def test_the_tree_effects_conform_on_a_urdf_tree(tmp_path):
     for effect in (Compliance(), LinkBending()):
         report = check_effect(effect, tree)
         assert report["terms"] > 0, report
+
+
+def test_predict_gives_the_terms_each_markers_link(tmp_path, monkeypatch):
+    """A tree term moves each marker with its own link (marker_offset reads poses.marker_links):
+    prediction must hand the terms the calibration's mapping, as the fit had it."""
+    from types import SimpleNamespace
+
+    import platkit.calibrate.predict as predict
+
+    tree = get_platform("urdf", _tree(tmp_path), moving_link={"L": "l_lo", "R": "r_lo"})
+    seen = {}
+
+    def markers(cal, U, poses):
+        seen["links"] = dict(poses.marker_links)
+        n = len(U)
+        return np.zeros((n, 2, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), np.zeros((n, 3)), np.ones(n, bool)
+
+    monkeypatch.setattr(predict, "predict_markers", markers)
+    monkeypatch.setattr(predict, "predict_bodies", lambda cal, q, X, U, poses: np.zeros((len(U), 0, 7)))
+    monkeypatch.setattr(predict, "predict_links", lambda cal, U, poses: (np.zeros((len(U), 2, 4)), np.zeros((len(U), 2, 3))))
+    cal = SimpleNamespace(platform="urdf", marker_names=["L", "R"], length_unit="m", terms=[], spec=tree,
+                          marker_links={"L": "l_lo", "R": "r_lo"}, body_names=[])
+    predict.prediction_table(cal, np.zeros((3, 5)))
+    assert seen["links"] == {"L": "l_lo", "R": "r_lo"}
