@@ -6,7 +6,8 @@ logarithmically over MULTISINE_BAND_HZ with random phases (its own per actuator)
 and back (zero phase); ``cue``: motion-cue-like, smoothed random steps (each held
 CUE_HOLD_S on average) pulled back to neutral by a washout of CUE_WASHOUT_S. Every kind starts
 and ends at the neutral controls at rest (a raised-cosine ramp of RAMP_S), and its amplitude
-is the largest up to AMPLITUDE_SHARE of each half-stroke that keeps every rate and acceleration
+is the largest up to AMPLITUDE_SHARE of each half-stroke (slow and wide: the geometry is seen over
+the workspace) that keeps every rate and acceleration
 within LIMIT_SHARE of the drives' limits and every command reachable by the true stand.
 """
 from __future__ import annotations
@@ -20,11 +21,11 @@ from platkit.errors import BadInput, NotIdentifiable
 __all__ = ["KINDS", "continuous_plan"]
 
 KINDS = ("multisine", "path", "cue")
-MULTISINE_COMPONENTS, MULTISINE_BAND_HZ = 6, (0.05, 0.8)
+MULTISINE_COMPONENTS, MULTISINE_BAND_HZ = 6, (0.02, 0.25)
 PATH_CUTOFF_HZ = 0.4
 CUE_HOLD_S, CUE_WASHOUT_S, CUE_SMOOTH_HZ = 1.5, 4.0, 1.0
 RAMP_S = 2.0
-AMPLITUDE_SHARE, LIMIT_SHARE = 0.35, 0.7
+AMPLITUDE_SHARE, LIMIT_SHARE = 0.9, 0.7
 
 
 def _shape(kind: str, t: np.ndarray, n_u: int, rate_hz: float, rng: np.random.Generator) -> np.ndarray:
