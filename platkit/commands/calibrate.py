@@ -96,13 +96,18 @@ def load_for_calibration(session: str | None, platform: str | None, description:
 def settling_notes(poses, folder) -> list[str]:
     """What settling dropped (counted by reason) and extrapolated, one line each; ComputationFailed
     when fewer than half the commands gave a pose (a fit to the remnant would look converged)."""
+    from platkit.errors import ComputationFailed
     from platkit.settle import HoldsNeverSettle, dropped_sentence
 
     info = poses.settling or {}
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
     said = dropped_sentence(poses.dropped, n_commands)
     if poses.n_poses < 0.5 * n_commands:
-        raise HoldsNeverSettle(f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant "
+        # holds that did not settle: the motion model may serve (platkit calibrate); commands without
+        # samples: no model does
+        unsampled = sum(1 for _, why in poses.dropped if str(why).startswith("no motion-capture samples"))
+        refusal = ComputationFailed if unsampled >= 0.5 * len(poses.dropped) else HoldsNeverSettle
+        raise refusal(f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant "
                                 "of the session: see the reasons (platkit calibrate counts them) and record again")
     out = [said] if said else []
     un = info.get("unsettled") or {}
