@@ -77,8 +77,6 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         out["settling"] = settling_summary(poses, cal.length_unit)  # every command: kept, extrapolated, or dropped and why
     if cal.motion:  # calibrated from motion: which samples served, the actuators' response fitted
         out["motion"] = cal.motion
-    if cal.motion:  # calibrated from motion: which samples served, the actuators' response fitted
-        out["motion"] = cal.motion
     after = cal.extras.get("residuals_after")
     if after is not None:
         pm = per_marker_rms(after, cal.extras.get("weights"))
