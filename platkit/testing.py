@@ -253,6 +253,7 @@ def check_imu_effect(effect, seed: int = 0) -> dict:
     assert effect.candidates(None, None) == [], f"{name}: an IMU effect adds no motion-capture term"
     return {"effect": name, "sensor": effect.sensor, "n_params": n, "reported_as": effect.finding_name}
 
+
 def _effect_session(spec: PlatformSpec, rng, n: int = 24, n_markers: int = 3):
     """A small session for :func:`check_effect`: random commands within 30% of each stroke about
     neutral, 2 s apart, markers at zero, the history filled in; and residuals (N, M, 3) m with the

@@ -149,7 +149,9 @@ def pose_corner_envelope(model: PlatformModel, td=None) -> CornerEnvelope:
 def check_envelope(spec, corners: CornerEnvelope, envelopes) -> None:
     """ComputationFailed (one line) when the workspace is degenerate: fewer than two corners
     solved, or the origin's range along every axis, over the corners and the envelopes, no more
-    than :data:`DEGENERATE_SPAN` (a point) while the stand has translational coordinates."""
+    than :data:`DEGENERATE_SPAN` (a point) while the stand has translational coordinates and its
+    solved corners turn the platform by no more than :data:`DEGENERATE_SPAN` rad either (a stand
+    that only turns, such as a rotary rig, has a workspace of orientations)."""
     n_ok = int(corners.converged.sum())
     what = "pose-box corners" if spec.pose_free else "control-box corners"
     if n_ok < 2:
@@ -161,7 +163,9 @@ def check_envelope(spec, corners: CornerEnvelope, envelopes) -> None:
     span = corners.upper - corners.lower
     for env in envelopes:
         span = np.maximum(span, env.upper - env.lower)
-    if lengths and not np.max(span) > DEGENERATE_SPAN:
+    q = corners.q[corners.converged]
+    turn = 2.0 * np.arccos(np.clip(np.abs(q @ q[0]), 0.0, 1.0))  # angle of each solved corner from the first
+    if lengths and not np.max(span) > DEGENERATE_SPAN and not np.max(turn) > DEGENERATE_SPAN:
         raise ComputationFailed(
             f"{spec.name}: the workspace is degenerate: the origin moves {np.max(span):.3g} m at most along x, y and z "
             f"over {n_ok} {what} and the envelopes (a point)")
