@@ -8,7 +8,6 @@ pip builds the package with build isolation, as for the tutorial's hexapod.
 """
 import csv
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from example_plugins import install_example, run_platkit
 
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "examples" / "platkit-delta"
@@ -23,21 +23,11 @@ EXAMPLE = REPO / "examples" / "platkit-delta"
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("delta")
-    site = tmp / "site"
-    res = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--quiet", "--disable-pip-version-check", "--no-deps",
-         "--target", str(site), str(EXAMPLE)],
-        capture_output=True, text=True, timeout=300,
-    )
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert (site / "platkit_delta" / "delta.yaml").is_file(), "the description must ship as package data"
-    return tmp, dict(os.environ, PYTHONPATH=str(site), MPLBACKEND="Agg")
+    return install_example(tmp_path_factory, "platkit-delta", "platkit_delta", "delta.yaml")
 
 
 def _platkit(env, *args):
-    return subprocess.run([sys.executable, "-m", "platkit.cli", *args], capture_output=True, text=True, env=env,
-                          timeout=120)
+    return run_platkit(env, *args, timeout=120)
 
 
 def test_the_installed_stand_is_found_and_passes_its_tests(installed):
