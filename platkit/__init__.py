@@ -7,7 +7,7 @@
 
 The names below are imported on first use (PEP 562), so that ``import platkit.cli`` (every
 ``platkit`` command line, ``--version`` included) starts without CasADi and NumPy, and a
-Ctrl-C during start-up reaches the CLI's handler (issue 13).
+Ctrl-C during start-up reaches the CLI's handler.
 """
 import importlib
 

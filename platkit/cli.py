@@ -103,7 +103,7 @@ def join_negative_values(argv: list[str]) -> list[str]:
 
 def _print_traceback() -> None:
     """--debug: the traceback of the error being handled (traceback imported only then: it
-    costs every start-up a few milliseconds, issue 13)."""
+    costs every start-up a few milliseconds)."""
     import traceback
 
     traceback.print_exc()

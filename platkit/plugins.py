@@ -11,7 +11,7 @@ Two sources, registered through the same hooks (platkit/hookspecs.py):
 
 The entry-point group is read through ``importlib.metadata`` only when some distribution on the path
 declares it (:func:`may_declare_entry_points`, a directory listing): importing importlib.metadata
-costs a few milliseconds of every verb's start-up (issue 13), and almost no installation has an
+costs a few milliseconds of every verb's start-up, and almost no installation has an
 outside plugin.
 
 Every plugin is checked when it registers: a hook name platkit does not define (a misspelling) or

@@ -108,7 +108,7 @@ def _subplots(nrows: int = 1, ncols: int = 1, figsize=(6.4, 4.8), squeeze: bool 
     """(figure, axes) like pyplot.subplots, without pyplot: a bare Figure (no global figure
     registry, no GUI backend) with fixed margins in inches (``gap_in``: between rows and
     columns, for rotated tick labels), so that saving it draws it once: no layout engine and
-    no tight bounding box, each of which costs a second drawing (issue 13: the report was most
+    no tight bounding box, each of which costs a second drawing (the report was most
     of a small calibration's time)."""
     w, h = figsize
     fig = Figure(figsize=figsize)

@@ -249,12 +249,10 @@ def _recentred_markers(problem: CalibrationProblem, res: LMResult, keep: np.ndar
     observations puts it (its active coordinates); None when no marker would.
 
     Rejection is for outliers: a marker that loses most of its observations is misplaced, not
-    noisy. A marker that slips halfway through a session (by 0.95 mm, 40 times the noise) is
-    placed between its two places by the least-squares start and the Huber rounds, every one of
-    its observations is then beyond REJECT_K sigma, and its place was left wherever the start put
-    it, 3.5 mm from either (psvr, proof seed 1111133: every held-out settled pose predicted at
-    1.77 mm). From the median, the larger share of its observations is kept and the rest rejected
-    (and counted)."""
+    noisy. A marker that slips partway through a session sits, after the least-squares start and
+    the Huber rounds, between its two places, where every one of its observations can lie beyond
+    REJECT_K sigma and rejection would leave it there, at neither place. From the median, the
+    larger share of its observations is kept and the rest rejected (and counted)."""
     state = res.state if res.state.J is not None else problem.evaluate(res.z, with_jac=True)
     r, J = state.r, state.J
     seen_all = problem.visible[:, :problem.M] & np.isfinite(r[:, :problem.M]).all(axis=2)

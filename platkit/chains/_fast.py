@@ -54,7 +54,7 @@ class FastPath:
         error and the Jacobian come from pinocchio in one call each (the same quantities as
         :meth:`KinematicChain.relative_placement` / ``relative_jacobian``, which assemble them
         joint by joint in Python), and a step that hits no position limit is the damped
-        pseudo-inverse of that one level directly (issue 13: a target took 15-60 times
+        pseudo-inverse of that one level directly (a target took 15-60 times
         pinocchio's own damped least squares)."""
         o, c = self.options, self.chain
         if (len(self.tasks) != 1 or self.ref_ids[0] != 0 or self.tasks[0].basis != "reference" or o.solver != "pinv"

@@ -1,6 +1,6 @@
 """The tracking servo's one-target loop compiled: :meth:`Servo._fast_attempt` in C.
 
-A servo iteration of the Python loop costs 40-76 us of numpy calls on 6-vectors (issue 13); the
+A servo iteration of the Python loop costs 40-76 us of numpy calls on 6-vectors; the
 same iteration in C costs a few. The C source below knows no robot: the chain comes in as
 arrays (for every joint from the root to the controlled link its placement in the parent joint,
 its kind, axis and column in theta; the link's placement in the last joint), so one library

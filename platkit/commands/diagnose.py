@@ -62,7 +62,7 @@ def run(args) -> int:
         raise BadInput(f"{args.calibration}: calibration file not found")
     cal = read_calibration(args.calibration)
 
-    sessions = {}  # folder -> the session as read: its streams are read once (issue 13)
+    sessions = {}  # folder -> the session as read: its streams are read once
 
     def poses_of(folder):
         platform = read_session_yaml(Path(folder)).get("platform")

@@ -5,7 +5,7 @@ from platkit.errors import BadInput
 from platkit.notices import said, warn
 
 #: the estimators of platkit.inertial.orient.METHODS (a test keeps the two equal): importing that
-#: module to build the parser would load every filter and scipy.signal (seconds, issue 13)
+#: module to build the parser would load every filter and scipy.signal (seconds)
 METHODS = ("platkit", "platkit-causal", "paper", "command-aided")
 
 

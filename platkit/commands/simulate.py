@@ -50,7 +50,7 @@ def add_parser(sub):
                                  "platkit simulate --help")
     plain_help = p.format_help
 
-    def format_help() -> str:  # issue 13: building the parser must not import the simulator
+    def format_help() -> str:  # building the parser must not import the simulator
         effect.help = effect_help()
         return plain_help()
 

@@ -5,7 +5,7 @@ and parsed YAML files are kept in one folder: ``$PLATKIT_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/platkit``, else ``~/.cache/platkit``.
 
 Parsed YAML: every verb that looks up a stand reads its description, and importing PyYAML costs a
-start-up about 8 ms (issue 13), more than parsing the file. What ``yaml.safe_load`` returned for a
+start-up about 8 ms, more than parsing the file. What ``yaml.safe_load`` returned for a
 file's text is kept as a :mod:`marshal` blob named by the hash of that text (and of the PyYAML and
 Python it was parsed with), so a text parsed once is not parsed again, nor PyYAML imported. Only
 texts that parsed to a mapping that passed the alias check are kept; a value marshal cannot

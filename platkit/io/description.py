@@ -3,7 +3,7 @@
 YAML is read with ``yaml.safe_load`` only (no tags that construct objects); errors name the file
 and, where YAML gives one, the line. A text parsed once is read back from platkit's cache
 (platkit/io/cache.py) without importing PyYAML, which every verb that looks up a stand would
-otherwise pay at start-up (issue 13).
+otherwise pay at start-up.
 """
 from __future__ import annotations
 
@@ -43,14 +43,14 @@ def load_yaml(path: str | Path, error=BadDescription) -> dict[str, Any]:
 def parse_yaml(text: str, path: Path, error=BadDescription) -> dict[str, Any]:
     """``text`` (the contents of ``path``) parsed safely; ``error`` (one line) when it is not a
     YAML mapping or its aliases expand too far."""
-    import yaml  # here, not at the top: a cached parse needs no PyYAML (issue 13)
+    import yaml  # here, not at the top: a cached parse needs no PyYAML
 
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     try:
         if "&" in text:  # anchors: aliases to them may expand exponentially (a "billion laughs")
             check_expansion(yaml.compose(text, Loader=loader), path, error)
         # libyaml's safe loader where PyYAML has it: a stand's description parses in a tenth of
-        # the time, which every verb that looks up a stand pays (issue 13)
+        # the time, which every verb that looks up a stand pays
         data = yaml.load(text, Loader=loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)

@@ -30,7 +30,7 @@ def shipped_dir(kind: str) -> Path:
     try:
         # a package installed as a folder (a wheel unpacked, an editable install): its spec says
         # where, without importing importlib.resources (zipfile, tempfile: a few milliseconds of
-        # every verb's start-up, issue 13)
+        # every verb's start-up)
         spec = importlib.util.find_spec(package)
     except ModuleNotFoundError:
         spec = None

@@ -61,7 +61,7 @@ class NewtonSolver(ModelCore):
         """(u buffer, out buffer, the compiled checked solve, its ctypes arguments, (tol,
         max_iter) they were built with) of a solve with the nominal td from the neutral pose
         that first checks the strokes; arguments built once, not converted on every call (a
-        warm forward call is a few microseconds, issue 13). None without the compiled solver."""
+        warm forward call is a few microseconds). None without the compiled solver."""
         nat = self._native
         if not isinstance(nat, NativeNewton) or self.spec.forward is not None:
             return None
