@@ -50,15 +50,9 @@ def match_labels(labels: list[str], names: list[str], path: Path) -> list[int]:
     return out
 
 
-def read_c3d_markers(path: str | Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Markers ``names`` from a C3D file.
-
-    Returns ``t`` (K,) seconds from the file's first frame number and point rate, and ``xyz``
-    (K, len(names), 3) metres in the motion-capture frame, NaN where occluded.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise BadSession(f"{path}: file not found (the motion-capture markers)")
+def _open_c3d(path: Path):
+    """The C3D file read by ezc3d, its POINT:UNITS (one of C3D_UNITS) and POINT:RATE (Hz, positive);
+    BadSession naming the file and parameter otherwise."""
     ezc3d = _ezc3d()
     try:
         c = ezc3d.c3d(str(path))
@@ -71,6 +65,19 @@ def read_c3d_markers(path: str | Path, names: list[str]) -> tuple[np.ndarray, np
     rate = float(np.asarray(_param(c, "POINT", "RATE", path), float).ravel()[0])
     if not rate > 0:
         raise BadSession(f"{path}: POINT:RATE is {rate}; expected a positive frame rate")
+    return c, unit, rate
+
+
+def read_c3d_markers(path: str | Path, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Markers ``names`` from a C3D file.
+
+    Returns ``t`` (K,) seconds from the file's first frame number and point rate, and ``xyz``
+    (K, len(names), 3) metres in the motion-capture frame, NaN where occluded.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise BadSession(f"{path}: file not found (the motion-capture markers)")
+    c, unit, rate = _open_c3d(path)
     labels = list(_param(c, "POINT", "LABELS", path))
     idx = match_labels(labels, names, path)
     points = np.asarray(c["data"]["points"], float)  # (4, n_points, n_frames)
@@ -93,19 +100,8 @@ def read_c3d_recording(path: str | Path) -> Recording:
     path = Path(path)
     if not path.is_file():
         raise BadSession(f"{path}: file not found")
-    ezc3d = _ezc3d()
-    try:
-        c = ezc3d.c3d(str(path))
-    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on a bad file
-        raise BadSession(f"{path}: cannot be read as C3D ({exc})") from None
-    units = _param(c, "POINT", "UNITS", path)
-    unit = str(units[0] if isinstance(units, (list, tuple)) and units else units).strip().lower()
-    if unit not in C3D_UNITS:
-        raise BadSession(f"{path}: POINT:UNITS is {unit!r}; expected one of {', '.join(C3D_UNITS)}")
+    c, unit, rate = _open_c3d(path)
     scale, unit_out = (10.0, "mm") if unit == "cm" else (1.0, unit)
-    rate = float(np.asarray(_param(c, "POINT", "RATE", path), float).ravel()[0])
-    if not rate > 0:
-        raise BadSession(f"{path}: POINT:RATE is {rate}; expected a positive frame rate")
     points = np.asarray(c["data"]["points"], float)  # (4, n_points, n_frames)
     first = int(c["header"]["points"]["first_frame"])
     n = points.shape[2]
