@@ -22,7 +22,7 @@ import numpy as np
 
 from platkit.errors import BadInput, ComputationFailed, PlatkitError
 from platkit.kinematics import PlatformModel
-from platkit.kinematics.sampling import controls_of_poses, pose_grid
+from platkit.kinematics.sampling import controls_of_poses, nominal_inverse, pose_grid
 from platkit.model import PlatformSpec
 
 #: |F| (m) above which a grid pose's inverse is not trusted to close the constraints
@@ -191,16 +191,7 @@ def admissible_poses(spec: PlatformSpec, P, td=None, model: PlatformModel | None
         raise BadInput(f"{spec.name} poses have {spec.n_p} coordinates, got {P.shape[1]}")
     td = spec.nominal_td() if td is None else np.asarray(td, float)
     N = P.shape[0]
-    q, X = (np.asarray(a).T for a in spec.pose.map(N)(P.T))
-    if spec.inverse is not None:
-        U = np.asarray(spec.inverse.map(N)(td, q.T, X.T)).T
-    else:
-        U = np.full((N, spec.n_u), np.nan)
-        for k in range(N):
-            try:
-                U[k] = model.inverse(q[k], X[k], td, strict=False)
-            except PlatkitError:
-                pass  # no solution from the neutral start: counted as no_solution below
+    U, q, X = nominal_inverse(model, P, td)  # NaN rows: no solution from the neutral start
     no_solution = ~np.all(np.isfinite(U), axis=1)
     Us = np.where(no_solution[:, None], spec.neutral_u(), U)
     r = np.asarray(spec.residual.map(N)(Us.T, td, q.T, X.T)).T

@@ -38,6 +38,25 @@ def pose_grid(spec, n: int, margin: float = 0.0) -> np.ndarray:
     return np.array(list(itertools.product(*[np.linspace(a, b, n) for a, b in zip(lo, hi)])), dtype=float)
 
 
+def nominal_inverse(model, P: np.ndarray, td: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse kinematics of poses P (N, n_p) at parameters td: the controls U (N, n_u; NaN rows
+    where there is no solution) and the poses' orientations q (N, 4) and positions X (N, 3). The
+    stand's closed-form inverse batched where it has one, else the model's inverse from the
+    neutral controls pose by pose."""
+    spec = model.spec
+    N = P.shape[0]
+    q, X = (np.asarray(a).T for a in spec.pose.map(N)(P.T))
+    if spec.inverse is not None:
+        return np.asarray(spec.inverse.map(N)(td, q.T, X.T)).T, q, X
+    U = np.full((N, spec.n_u), np.nan)
+    for k in range(N):
+        try:
+            U[k] = model.inverse(q[k], X[k], td, strict=False)
+        except PlatkitError:
+            pass  # no solution: a NaN row
+    return U, q, X
+
+
 def controls_of_poses(model, P: np.ndarray, td=None) -> dict[str, np.ndarray]:
     """Nominal inverse kinematics of poses P (N, n_p): ``controls`` (N, n_u; NaN where there is
     no solution) and ``ok`` (N,) bool: a solution inside the strokes with the stand on its
@@ -48,16 +67,7 @@ def controls_of_poses(model, P: np.ndarray, td=None) -> dict[str, np.ndarray]:
     td = spec.nominal_td() if td is None else np.asarray(td, float)
     if N == 0:
         return {"controls": np.zeros((0, spec.n_u)), "ok": np.zeros(0, bool)}
-    q, X = (np.asarray(a).T for a in spec.pose.map(N)(P.T))
-    if spec.inverse is not None:
-        U = np.asarray(spec.inverse.map(N)(td, q.T, X.T)).T
-    else:
-        U = np.full((N, spec.n_u), np.nan)
-        for k in range(N):
-            try:
-                U[k] = model.inverse(q[k], X[k], td, strict=False)
-            except PlatkitError:
-                pass  # no solution: not ok below
+    U, q, X = nominal_inverse(model, P, td)
     ok = np.all(np.isfinite(U), axis=1)
     Us = np.where(ok[:, None], U, spec.neutral_u())
     r = np.asarray(spec.residual.map(N)(Us.T, td, q.T, X.T)).T
