@@ -175,10 +175,21 @@ def cluster(scheduler: str | None = None, workers: int | None = None, dashboard:
             local = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                  dashboard_address=DASHBOARD_ADDRESS if dashboard else None,
                                  silence_logs=logging.CRITICAL)
-        with local, Client(local) as client:
-            if dashboard:
-                say(f"dashboard at {client.dashboard_link}")
-            yield client
+        quiet = logging.getLogger("distributed")
+        level = quiet.level
+        try:
+            with local, Client(local) as client:
+                if dashboard:
+                    say(f"dashboard at {client.dashboard_link}")
+                try:
+                    yield client
+                except BaseException:
+                    # torn down under an interrupt or an error: the scheduler's report of comms closing
+                    # under it is expected, and the caller says what happened in one line
+                    quiet.setLevel(logging.CRITICAL + 1)
+                    raise
+        finally:
+            quiet.setLevel(level)
 
 
 class TaskTimeout(Exception):
