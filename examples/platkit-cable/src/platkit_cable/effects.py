@@ -25,6 +25,7 @@ evaluated at moves them by far less than the data's noise.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -183,7 +184,23 @@ def _check_stand(spec: PlatformSpec, effect: str) -> None:
         raise BadInput(f"effect {effect}: acts on the {STAND} stand only, not on {spec.name}")
 
 
-class CableElasticity(Effect):
+class _CableEffect(Effect):
+    """An effect of the cable stand: its term rebuilt from a stored one's 'where' (the stand's
+    geometry), on the cable stand only."""
+
+    term: Callable[[PlatformSpec], ModelTerm]  # each effect's own term on the stand's geometry
+
+    def from_dict(self, data, spec=None):
+        where = data.get("where") if isinstance(data, dict) else None
+        if not isinstance(where, dict):
+            raise BadInput(f"effect {self.name}: a stored term needs its 'where'")
+        if spec is None:
+            spec = _stand(where)
+        _check_stand(spec, self.name)
+        return self.term(spec)
+
+
+class CableElasticity(_CableEffect):
     name = "cable_elasticity"
     summary = "cables stretch with their tension: l t / (E A), tensions holding the payload's weight"
     simulation_size = SizeHelp("the largest stretch of a cable over the commands", "mm")
@@ -213,15 +230,6 @@ class CableElasticity(Effect):
     def regressor_label(self, term):
         return "sum of length x tension per N of payload weight, signed (m)"
 
-    def from_dict(self, data, spec=None):
-        where = data.get("where") if isinstance(data, dict) else None
-        if not isinstance(where, dict):
-            raise BadInput(f"effect {self.name}: a stored term needs its 'where'")
-        if spec is None:
-            spec = _stand(where)
-        _check_stand(spec, self.name)
-        return self.term(spec)
-
     def simulation_term(self, spec, size, rng, commands):
         """``size``: the largest stretch of a cable over the commands, mm (default 2)."""
         _check_stand(spec, self.name)
@@ -232,7 +240,7 @@ class CableElasticity(Effect):
         return self.term(spec), np.array([(2.0 if size is None else size) * 1e-3 / peak])
 
 
-class PulleyRadius(Effect):
+class PulleyRadius(_CableEffect):
     name = "pulley_radius"
     summary = "cables leave their winches over swivelling pulleys: a wrap r beta per cable"
     simulation_size = SizeHelp("the pulleys' radius", "mm")
@@ -254,15 +262,6 @@ class PulleyRadius(Effect):
 
     def regressor_label(self, term):
         return "mean over the cables of the wrap excess from neutral of a 1 mm pulley (mm/mm)"
-
-    def from_dict(self, data, spec=None):
-        where = data.get("where") if isinstance(data, dict) else None
-        if not isinstance(where, dict):
-            raise BadInput(f"effect {self.name}: a stored term needs its 'where'")
-        if spec is None:
-            spec = _stand(where)
-        _check_stand(spec, self.name)
-        return self.term(spec)
 
     def simulation_term(self, spec, size, rng, commands):
         """``size``: the pulleys' radius, mm (default 15)."""
