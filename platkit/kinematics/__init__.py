@@ -21,10 +21,13 @@ One concept per module, joined in :class:`PlatformModel`:
 """
 from __future__ import annotations
 
+import threading
+
 from platkit.kinematics.conditioning import SingularityAnalysis
 from platkit.kinematics.results import Conditioning, ForwardBatch, ForwardResult
+from platkit.model import PlatformSpec
 
-__all__ = ["PlatformModel", "ForwardResult", "ForwardBatch", "Conditioning"]
+__all__ = ["PlatformModel", "ForwardResult", "ForwardBatch", "Conditioning", "platform_model"]
 
 
 class PlatformModel(SingularityAnalysis):
@@ -34,3 +37,24 @@ class PlatformModel(SingularityAnalysis):
     ``compile``: False forces the numpy/CasADi Newton (no C compiler involved).
     Instances are not meant to be shared between threads.
     """
+
+
+#: the models platform_model built, per thread: {id(spec): (spec, model)}
+_MODELS = threading.local()
+#: the specs whose models are kept per thread; past it the cache starts again
+MODELS_KEPT = 16
+
+
+def platform_model(spec: PlatformSpec) -> PlatformModel:
+    """The kinematic model of ``spec``, built once per spec object and thread (building one
+    compiles CasADi functions; a model is not shared between threads): what an effect or a
+    plugin that needs forward kinematics in every call takes rather than a new PlatformModel."""
+    models = getattr(_MODELS, "models", None)
+    if models is None:
+        models = _MODELS.models = {}
+    hit = models.get(id(spec))
+    if hit is None or hit[0] is not spec:
+        if len(models) > MODELS_KEPT:
+            models.clear()
+        hit = models[id(spec)] = (spec, PlatformModel(spec))
+    return hit[1]

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from platkit.effects import Effect, SizeHelp
+from platkit.kinematics import platform_model
 from platkit.terms import ModelTerm
-from platkit_effects.common import _platform_model
 from platkit_effects.physics import BaseTiltPhysics
 
 
@@ -37,7 +37,7 @@ class BaseTilt(Effect):
         return [self.term()]
 
     def regressor(self, term, spec, poses):
-        z = _platform_model(spec).forward_batch(poses.controls, strict=False).X[:, 2]
+        z = platform_model(spec).forward_batch(poses.controls, strict=False).X[:, 2]
         return z - np.mean(z)
 
     def regressor_label(self, term):

@@ -9,12 +9,16 @@ from pathlib import Path
 import numpy as np
 
 from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp
+from platkit.effects import actuator_where as _actuator_where
+from platkit.effects import control_size as _size
+from platkit.effects import stored_actuator as _actuator
+from platkit.effects import stored_where as _where
 from platkit.errors import BadInput
+from platkit.kinematics import platform_model as _platform_model
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
 from platkit.tree_loads import tree_loads
-from platkit_effects.common import _actuator, _actuator_where, _platform_model, _size, _where
 from platkit_effects.physics import CompliancePhysics
 from platkit_effects.tree_compliance import (
     JointRotationTerm,

@@ -6,11 +6,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp, history
+from platkit.effects import (
+    CONTROL_SIZE_UNIT,
+    Effect,
+    SizeHelp,
+    actuator_where,
+    control_size,
+    history,
+    stored_actuator,
+    stored_number,
+    stored_where,
+)
 from platkit.errors import BadInput
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit_effects.common import _actuator, _actuator_where, _number, _size, _where
 from platkit_effects.physics import BacklashPhysics, CyclicPhysics, ScalePhysics
 
 
@@ -36,7 +45,7 @@ class Backlash(Effect):
 
     def candidates(self, spec, poses, residuals=None):
         d = history(poses, "direction", spec)
-        return [self.term(i, _actuator_where(spec, i)) for i in range(spec.n_u)
+        return [self.term(i, actuator_where(spec, i)) for i in range(spec.n_u)
                 if np.sum(d[:, i] > 0) >= 2 and np.sum(d[:, i] < 0) >= 2]
 
     def regressor(self, term, spec, poses):
@@ -46,16 +55,16 @@ class Backlash(Effect):
         return f"direction of the last move of {term.where['actuator']} (+1/-1)"
 
     def from_dict(self, data, spec=None):
-        i, name, unit = _actuator(spec, data, self.name)
+        i, name, unit = stored_actuator(spec, data, self.name)
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit})
 
     def simulation_term(self, spec, size, rng, commands):
         i = int(rng.integers(spec.n_u))
-        return self.term(i, _actuator_where(spec, i)), np.array([0.5 * _size(spec, i, size, 1.0)])
+        return self.term(i, actuator_where(spec, i)), np.array([0.5 * control_size(spec, i, size, 1.0)])
 
     def physics(self, spec, size, rng, plan):
         i = int(rng.integers(spec.n_u))
-        return BacklashPhysics(i, spec.control_names[i], _size(spec, i, size, 1.0), spec.controls[i].unit)
+        return BacklashPhysics(i, spec.control_names[i], control_size(spec, i, size, 1.0), spec.controls[i].unit)
 
 
 #: candidate periods per control unit: one turn and its harmonics; screw leads for 'm'
@@ -89,7 +98,7 @@ def _draw_cyclic(spec, size, rng, controls: np.ndarray) -> tuple[int, float, flo
     if not options:
         raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
     i, P = options[int(rng.integers(len(options)))]
-    return i, P, _size(spec, i, size, 0.3), rng.uniform(0, 2 * np.pi)
+    return i, P, control_size(spec, i, size, 0.3), rng.uniform(0, 2 * np.pi)
 
 class CyclicError(Effect):
     name = "cyclic_error"
@@ -110,7 +119,7 @@ class CyclicError(Effect):
             travel = np.ptp(poses.controls[:, i])
             for P in PERIODS.get(c.unit, ()):
                 if travel > P / 2:  # less than half a period seen is an offset and a slope
-                    out.append(self.term(i, _actuator_where(spec, i), P))
+                    out.append(self.term(i, actuator_where(spec, i), P))
         return out
 
     def regressor(self, term, spec, poses):
@@ -120,13 +129,13 @@ class CyclicError(Effect):
         return f"phase of {term.where['actuator']} in a period of {term.period:g} {term.where['unit']} (turns)"
 
     def from_dict(self, data, spec=None):
-        i, name, unit = _actuator(spec, data, self.name)
+        i, name, unit = stored_actuator(spec, data, self.name)
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit},
-                         _number(_where(data), "period", self.name, positive=True))
+                         stored_number(stored_where(data), "period", self.name, positive=True))
 
     def simulation_term(self, spec, size, rng, commands):
         i, P, a, ph = _draw_cyclic(spec, size, rng, commands.controls)
-        return self.term(i, _actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
+        return self.term(i, actuator_where(spec, i), P), np.array([a * np.cos(ph), a * np.sin(ph)])
 
     def physics(self, spec, size, rng, plan):
         i, P, a, ph = _draw_cyclic(spec, size, rng, plan.commands)
@@ -167,7 +176,7 @@ class ScaleNonlinearity(Effect):
             if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
                 lo, hi = float(np.min(poses.controls[:, i])), float(np.max(poses.controls[:, i]))
             if hi > lo and np.ptp(poses.controls[:, i]) > 0.2 * (hi - lo):
-                out.append(self.term(i, _actuator_where(spec, i), lo, hi))
+                out.append(self.term(i, actuator_where(spec, i), lo, hi))
         return out
 
     def regressor(self, term, spec, poses):
@@ -177,8 +186,8 @@ class ScaleNonlinearity(Effect):
         return f"travel of {term.where['actuator']} over its stroke (-1..1)"
 
     def from_dict(self, data, spec=None):
-        i, name, unit = _actuator(spec, data, self.name)
-        travel = _where(data).get("travel")
+        i, name, unit = stored_actuator(spec, data, self.name)
+        travel = stored_where(data).get("travel")
         if not (isinstance(travel, list) and len(travel) == 2 and all(isinstance(v, (int, float)) for v in travel)
                 and travel[1] > travel[0]):
             raise BadInput("effect 'scale_nonlinearity': where.travel must be [lower, upper] with lower < upper")
@@ -189,12 +198,12 @@ class ScaleNonlinearity(Effect):
         if not terms:
             raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
         t = terms[int(rng.integers(len(terms)))]
-        return t, np.array([_size(spec, t.index, size, 1.0), 0.0])
+        return t, np.array([control_size(spec, t.index, size, 1.0), 0.0])
 
     def physics(self, spec, size, rng, plan):
         terms = [t for t in self.candidates(spec, PoseSet(spec.name, plan.commands, np.zeros((len(plan.commands), 0, 3)), []))]
         if not terms:
             raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
         t = terms[int(rng.integers(len(terms)))]
-        return ScalePhysics(t.index, t.where["actuator"], t.lower, t.upper, _size(spec, t.index, size, 1.0), 0.0,
+        return ScalePhysics(t.index, t.where["actuator"], t.lower, t.upper, control_size(spec, t.index, size, 1.0), 0.0,
                             t.where["unit"])

@@ -7,10 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import Effect, SizeHelp, history
+from platkit.effects import Effect, SizeHelp, history, stored_number, stored_where
 from platkit.errors import BadInput
 from platkit.terms import ModelTerm
-from platkit_effects.common import _number, _where
 from platkit_effects.physics import MarkerSlipPhysics, SlowActuator
 
 
@@ -159,11 +158,11 @@ class MarkerSlip(Effect):
         return f"before (0) or after (1) {term.t_slip:.4g} s"
 
     def from_dict(self, data, spec=None):
-        where = _where(data)
+        where = stored_where(data)
         m = where.get("marker_index")
         if isinstance(m, bool) or not isinstance(m, int) or m < 0:
             raise BadInput("effect 'marker_slip': where.marker_index must be an integer >= 0")
-        return self.term(where.get("marker", m), m, _number(where, "from_time_s", self.name))
+        return self.term(where.get("marker", m), m, stored_number(where, "from_time_s", self.name))
 
     def simulation_term(self, spec, size, rng, commands):
         m = int(rng.integers(commands.n_markers))

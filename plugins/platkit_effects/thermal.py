@@ -7,11 +7,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp, history
+from platkit.effects import control_size as _size
+from platkit.effects import stored_number as _number
+from platkit.effects import stored_where as _where
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
-from platkit_effects.common import _number, _size, _where
 from platkit_effects.physics import ThermalPhysics, thermal_state
 
 #: cooling time constants (s) a thermal drift is screened at, a factor sqrt(2) apart (the simulator

@@ -37,12 +37,12 @@ from pathlib import Path
 import numpy as np
 
 from platkit.effects import Effect, SizeHelp
+from platkit.effects import stored_where as _where
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
 from platkit.tree_loads import Loads, TreeLoads, tree_loads
-from platkit_effects.common import _where
 
 #: rad (m for prismatic joints): a deflection above which the load is taken at the deflected pose
 DEFLECTION_TOL = 1e-3
