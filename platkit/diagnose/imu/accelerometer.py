@@ -25,10 +25,11 @@ R_SP); ``frame`` (the model's frames against the real ones, the effect's ``frame
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
-from platkit.diagnose.imu.fitting import covariance, gauss_newton, numeric_columns, separability, split
+from platkit.diagnose.imu.fitting import EffectFit, covariance, gauss_newton, numeric_columns, separability, split
 from platkit.diagnose.imu.gyro import sensor_rotation
 from platkit.diagnose.imu.segments import Holds, Segments, blocks, model_rates
 from platkit.effects import ImuEffect, imu_sensor_model
@@ -38,25 +39,14 @@ G_STANDARD = 9.80665
 
 
 @dataclass
-class AccFit:
+class AccFit(EffectFit):
     """The accelerometer at the holds: ``x`` = (gravity per axis (3) m/s^2, bias (3) m/s^2, each
-    effect's theta), ``cov`` its covariance from the noise (``n_params``: the rank), ``resid``
-    (H, 3) m/s^2 on all holds, ``sensor_rotation`` (3) rad the R_SP used (rotation vector)."""
+    effect's theta), ``resid`` (H, 3) m/s^2 on all holds, ``cv`` (H,) (m/s^2)^2,
+    ``sensor_rotation`` (3) rad the R_SP used (rotation vector)."""
 
-    effects: tuple[ImuEffect, ...]
-    x: np.ndarray
-    cov: np.ndarray
-    resid: np.ndarray
-    rss: float
-    n_params: int
-    separability: dict[str, float]
+    N_BASE: ClassVar[int] = 6
     sensor_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    cv: np.ndarray | None = None  # (H,) held-out squared error per hold, (m/s^2)^2
     effect_cov: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)  # name -> source -> (n, n) SI
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(e.name for e in self.effects)
 
     @property
     def scale(self) -> np.ndarray:
@@ -66,25 +56,10 @@ class AccFit:
     def bias(self) -> np.ndarray:
         return self.x[3:6]
 
-    def index(self, name: str) -> slice:
-        i = 6
-        for e in self.effects:
-            if e.name == name:
-                return slice(i, i + e.n_params)
-            i += e.n_params
-        raise KeyError(name)
-
-    def theta(self, name: str) -> np.ndarray:
-        return self.x[self.index(name)]
-
     def total_cov(self, name: str) -> np.ndarray:
         """(n, n) SI: an effect's covariance from every source."""
         n = self.index(name).stop - self.index(name).start
         return sum(self.effect_cov.get(name, {}).values(), np.zeros((n, n)))
-
-    @property
-    def cv_rms(self) -> float:
-        return float(np.sqrt(np.mean(self.cv) / 3.0))
 
 
 def up_in_sensor(R: np.ndarray, R_sp: np.ndarray, R_lb: np.ndarray | None = None) -> np.ndarray:
@@ -145,7 +120,7 @@ def fit_acc(holds: Holds, t_c: float, R_sp: np.ndarray, effects: tuple[ImuEffect
         cols[i:i + e.n_params] = True
         sep[e.name] = separability(Aw, cols)
         i += e.n_params
-    return AccFit(tuple(effects), x, cov, resid, rss, rank, sep, rotvec_from_matrix(R_sp))
+    return AccFit(tuple(effects), x, cov, resid, rss, rank, sep, sensor_rotation=rotvec_from_matrix(R_sp))
 
 
 def acc_cv(holds: Holds, t_c: float, R_sp: np.ndarray, effects: tuple[ImuEffect, ...], block: int) -> np.ndarray:

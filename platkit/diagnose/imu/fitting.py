@@ -4,6 +4,8 @@ the F test and the separability of an effect's columns from the rest."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 from scipy import linalg as sla
@@ -16,6 +18,47 @@ STEP = 1e-6
 #: Gauss-Newton stops when no parameter moves by more than this share of its value (or 1e-15)
 TOLERANCE = 1e-9
 MAX_ITERATIONS = 8
+
+
+@dataclass
+class EffectFit:
+    """A sensor model fitted with ``effects``: ``x`` = (the ``N_BASE`` base parameters, each
+    effect's theta in order), ``cov`` its covariance from the noise (``n_params``: the rank),
+    ``resid`` on all rows, ``cv`` the held-out squared error per row (3 axes summed)."""
+
+    N_BASE: ClassVar[int] = 0
+    effects: tuple[Any, ...]
+    x: np.ndarray
+    cov: np.ndarray
+    resid: np.ndarray
+    rss: float
+    n_params: int
+    separability: dict[str, float]
+    cv: np.ndarray | None = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    def index(self, name: str) -> slice:
+        """Where effect ``name``'s parameters sit in ``x``."""
+        i = self.N_BASE
+        for e in self.effects:
+            if e.name == name:
+                return slice(i, i + e.n_params)
+            i += e.n_params
+        raise KeyError(name)
+
+    def theta(self, name: str) -> np.ndarray:
+        return self.x[self.index(name)]
+
+    @property
+    def thetas(self) -> list[np.ndarray]:
+        return split(self.x, self.N_BASE, [e.n_params for e in self.effects])
+
+    @property
+    def cv_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.cv) / 3.0))
 
 
 def split(x: np.ndarray, n_base: int, sizes: list[int]) -> list[np.ndarray]:

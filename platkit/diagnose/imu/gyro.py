@@ -12,10 +12,11 @@ Gauss-Legendre: exact for a bias polynomial up to degree 9). Weighted least squa
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
-from platkit.diagnose.imu.fitting import covariance, gauss_newton, numeric_columns, separability, split
+from platkit.diagnose.imu.fitting import EffectFit, covariance, gauss_newton, numeric_columns, separability, split
 from platkit.diagnose.imu.segments import Segments, blocks
 from platkit.effects import ImuEffect, imu_sensor_model
 from platkit.geometry import rotvec_from_matrix
@@ -24,52 +25,21 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(5)
 
 
 @dataclass
-class GyroFit:
+class GyroFit(EffectFit):
     """The gyro model with ``effects`` on the segments: ``x`` = (b0 (3) rad/s, each effect's
-    theta), ``cov`` its covariance from the noise, ``resid`` (K, 3) rad/s on all segments."""
+    theta), ``resid`` (K, 3) rad/s on all segments, ``cv`` (K,) (rad/s)^2."""
 
-    effects: tuple[ImuEffect, ...]
-    x: np.ndarray
-    cov: np.ndarray
-    resid: np.ndarray
-    rss: float
-    n_params: int
-    separability: dict[str, float]
-    cv: np.ndarray | None = None  # (K,) held-out squared error per segment, (rad/s)^2
+    N_BASE: ClassVar[int] = 3
     model_cov: np.ndarray | None = None  # parameter covariance from the calibrated model's uncertainty (td)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(e.name for e in self.effects)
 
     @property
     def b0(self) -> np.ndarray:
         return self.x[:3]
 
-    def index(self, name: str) -> slice:
-        """Where effect ``name``'s parameters sit in ``x``."""
-        i = 3
-        for e in self.effects:
-            if e.name == name:
-                return slice(i, i + e.n_params)
-            i += e.n_params
-        raise KeyError(name)
-
-    def theta(self, name: str) -> np.ndarray:
-        return self.x[self.index(name)]
-
     @property
     def sensor_from_platform(self) -> np.ndarray:
         """(3, 3) R_SP of the fit."""
         return imu_sensor_model(list(zip(self.effects, self.thetas)))[0]
-
-    @property
-    def thetas(self) -> list[np.ndarray]:
-        return split(self.x, 3, [e.n_params for e in self.effects])
-
-    @property
-    def cv_rms(self) -> float:
-        return float(np.sqrt(np.mean(self.cv) / 3.0))
 
 
 def gyro_model(seg: Segments, effects: tuple[ImuEffect, ...], x: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
