@@ -19,9 +19,10 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.datasets
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the real-data readers: tests/real_data
 
-from benchmarks.datasets.tiago import FIGAROH, LEVELS, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir, pivot_order  # noqa: E402
+from real_data.tiago import FIGAROH, LEVELS, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir, pivot_order  # noqa: E402
+
 from platkit.calibrate.estimate import calibrate  # noqa: E402
 from platkit.calibrate.paper import calibrate_paper  # noqa: E402
 from platkit.calibrate.selection import select_model  # noqa: E402

@@ -33,13 +33,16 @@ import sys
 import time
 from collections import Counter, defaultdict
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
-from batch_cases import add_engine_options, run_cases  # benchmarks/batch_cases.py, beside this script
 
 from platkit.errors import BadInput, PlatkitError
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the case runner: tests/batch_cases.py
+from batch_cases import add_engine_options, run_cases  # noqa: E402
 
 NOISE_MM = 0.2  # per mocap sample and coordinate; a settled pose averages ~75 samples: ~0.023 mm
 CLEAR_MM, WEAK_MM = 0.2, 0.06

@@ -47,11 +47,14 @@ import json
 import sys
 import time
 from collections import Counter, defaultdict
+from pathlib import Path
 
 import numpy as np
-from batch_cases import add_engine_options, run_cases  # benchmarks/batch_cases.py, beside this script
 
 from platkit.errors import BadInput, PlatkitError
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the case runner: tests/batch_cases.py
+from batch_cases import add_engine_options, run_cases  # noqa: E402
 
 DEG = 180.0 / np.pi
 N_POSES = 60

@@ -58,7 +58,6 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
-from batch_cases import add_engine_options, run_cases  # benchmarks/batch_cases.py, beside this script
 
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main as platkit_main
@@ -71,7 +70,8 @@ from platkit.poses import PoseSet
 from platkit.settle import settle
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the protocol and outside physics
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the case runner, the protocol, outside physics
+from batch_cases import add_engine_options, run_cases  # noqa: E402
 from outside_plugins.outside_physics import OUTSIDE, with_outside_physics  # noqa: E402
 from proof_protocol import blank_held_out, held_out_rows  # noqa: E402
 

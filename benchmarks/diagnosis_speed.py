@@ -32,9 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.datasets
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the real-data readers: tests/real_data
 
-from benchmarks.datasets import tiago  # noqa: E402
+from real_data import tiago  # noqa: E402
 
 PYTHON = sys.executable
 SCRIPT = Path(PYTHON).parent / "platkit"

@@ -18,9 +18,10 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the checkout: benchmarks.datasets
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the real-data readers: tests/real_data
 
-from benchmarks.datasets.tiago import FIGAROH, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir  # noqa: E402
+from real_data.tiago import FIGAROH, TRAINING, VALIDATION, bl_rmse_mm, convert, default_data_dir  # noqa: E402
+
 from platkit.cli import main as cli  # noqa: E402
 from platkit.io.calibration import read_calibration  # noqa: E402
 from platkit.settle import load_poses  # noqa: E402

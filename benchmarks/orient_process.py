@@ -30,9 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for benchmarks.datasets
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the real-data readers: tests/real_data
 
-from benchmarks.datasets.broad import DATA, read_broad  # noqa: E402
+from real_data.broad import DATA, read_broad  # noqa: E402
+
 from platkit.io.imu import write_imu_csv  # noqa: E402
 
 PYTHON = sys.executable

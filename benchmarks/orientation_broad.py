@@ -2,7 +2,7 @@
 and what `platkit orient` costs per sample against the vqf package (issue 13's goal: within 2x).
 
 Scored as the BROAD benchmark scores (README beside the data): inclination RMSE over the samples
-with movement == 1, degrees, the truth's NaN samples skipped (benchmarks/datasets/broad.py).
+with movement == 1, degrees, the truth's NaN samples skipped (tests/real_data/broad.py).
 Estimators:
 
   platkit          platkit's causal estimator (platkit.inertial.estimator.estimate_platkit: the vqf
@@ -37,9 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for benchmarks.datasets
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the real-data readers: tests/real_data
 
-from benchmarks.datasets.broad import DATA, read_broad  # noqa: E402
+from real_data.broad import DATA, read_broad  # noqa: E402
+
 from platkit.inertial.calibration import gyro_bias_at_rest  # noqa: E402
 from platkit.inertial.estimator import estimate_offline, estimate_platkit  # noqa: E402
 from platkit.inertial.orient import orient_session  # noqa: E402

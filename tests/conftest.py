@@ -11,12 +11,12 @@ SHARED_DATA = SHARED / "data" / "real"
 
 def needs_shared(path: Path) -> bool:
     """Whether a test module reads the shared real data (it names the ``shared`` folder or a
-    dataset reader of benchmarks/datasets)."""
+    dataset reader of tests/real_data)."""
     try:
         text = path.read_text(encoding="utf-8")
     except OSError:
         return False
-    return '"shared"' in text or "benchmarks.datasets" in text or "/work/shared" in text
+    return '"shared"' in text or "from real_data" in text or "/work/shared" in text
 
 
 #: the test modules this run collects, those that fail to import included

@@ -12,7 +12,7 @@
 - :mod:`platkit.inertial.simulate`: IMU samples from a known motion, with IMU effects
   (:class:`platkit.effects.ImuEffect` plugins) played through their sensor model.
 - :mod:`platkit.inertial.metrics`: orientation errors against a truth (the definitions of Laidig
-  et al. 2021). Reading and scoring the BROAD data set: benchmarks/datasets/broad.py.
+  et al. 2021). Reading and scoring the BROAD data set: tests/real_data/broad.py.
 
 Quaternions are (w, x, y, z); ``q_earth_from_sensor`` maps sensor coordinates to the earth frame
 (z up). An accelerometer at rest reads +|g| along the earth's up axis.

@@ -1,5 +1,5 @@
 """Orientation errors against a truth, with the definitions of Laidig et al. 2021 (BROAD; reading
-and scoring that data set is benchmarks/datasets/broad.py).
+and scoring that data set is tests/real_data/broad.py).
 
 For an estimate q and a truth q_true (scalar first, both "frame in the earth frame"), the error
 is taken in the earth frame, e = q * conj(q_true) = (w, x, y, z):

@@ -3,17 +3,12 @@ and its opening rest alone (a stationary recording): the plausibility checks of 
 where the data can tell, and none of these real recordings is refused."""
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from real_data.broad import DATA, read_broad
 
 from platkit.inertial.orient import orient_session
 from platkit.io.imu import write_imu_csv
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks.datasets
-from benchmarks.datasets.broad import DATA, read_broad  # noqa: E402
 
 TRIALS = sorted(DATA.glob("*.hdf5"))
 

@@ -1,6 +1,6 @@
 """Golden: orientation on two real BROAD trials (../shared/data/real/broad), scored as the
 benchmark scores: inclination RMSE over movement == 1, degrees (the reader and the score:
-benchmarks/datasets/broad.py).
+tests/real_data/broad.py).
 
 Figures measured with benchmarks/orientation_broad.py (full trials, no slicing):
 
@@ -17,18 +17,13 @@ trial 05, where its case A uses the breaks (gyro integration alone drifts to mor
 """
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from real_data.broad import DATA, read_broad
 
 from platkit.inertial.calibration import gyro_bias_at_rest
 from platkit.inertial.estimator import estimate_offline, estimate_platkit
 from platkit.inertial.paper import PaperParams, estimate_paper
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks.datasets
-from benchmarks.datasets.broad import DATA, read_broad  # noqa: E402
 
 
 def _trial(name):

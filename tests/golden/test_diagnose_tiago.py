@@ -14,8 +14,8 @@ import json
 
 import numpy as np
 import pytest
+from real_data import tiago
 
-from benchmarks.datasets import tiago
 from platkit.cli import main
 from platkit.io.calibration import read_calibration
 from platkit.settle import load_poses

@@ -27,8 +27,7 @@ import json
 
 import numpy as np
 import pytest
-
-from benchmarks.datasets.tiago import (
+from real_data.tiago import (
     FIGAROH,
     LEVELS,
     MARKERS,
@@ -41,6 +40,7 @@ from benchmarks.datasets.tiago import (
     pivot_order,
     read_postures,
 )
+
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
 from platkit.io.calibration import read_calibration

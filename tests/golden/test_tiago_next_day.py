@@ -10,8 +10,8 @@ import csv
 
 import numpy as np
 import pytest
+from real_data.tiago import TRAINING, VALIDATION, convert, default_data_dir, read_postures
 
-from benchmarks.datasets.tiago import TRAINING, VALIDATION, convert, default_data_dir, read_postures
 from platkit.cli import main
 
 

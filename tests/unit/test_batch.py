@@ -2,7 +2,7 @@
 same results as the single verbs one by one (calibrate in the batch's parameterisation, diagnose,
 orient), a re-run that skips what is done and redoes what changed, a failed session that stops
 nothing, a worker killed in the middle, a task past its time limit, dask missing; and the proof
-benchmarks' runner (benchmarks/batch_cases.py): the same rows on the engine as in a loop, written
+benchmarks' runner (tests/batch_cases.py): the same rows on the engine as in a loop, written
 as they finish, a re-run that skips the cases its file holds."""
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from batch_cases import run_cases
 
-from benchmarks.batch_cases import run_cases
 from platkit.batch import engine
 from platkit.batch.store import find_sessions, match_sessions
 from platkit.cli import main

@@ -156,14 +156,9 @@ def test_missing_and_empty_files(tmp_path):
 
 
 def test_broad_reader_bad_files(tmp_path):
-    """The BROAD reader lives with the benchmarks (it needs h5py, which platkit does not)."""
-    import sys
-    from pathlib import Path
-
+    """The BROAD reader lives with the tests' real-data readers (it needs h5py, which platkit does not)."""
     import h5py
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository, for benchmarks.datasets
-    from benchmarks.datasets.broad import read_broad
+    from real_data.broad import read_broad
 
     p = tmp_path / "t.hdf5"
     with h5py.File(p, "w") as f:

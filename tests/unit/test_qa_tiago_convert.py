@@ -1,8 +1,8 @@
-"""`benchmarks/datasets/tiago.py convert`: a missing CSV is named as such (before: 'URDF not
+"""`tests/real_data/tiago.py convert`: a missing CSV is named as such (before: 'URDF not
 found (pass urdf=...)', about a file the user never gave)."""
 import pytest
+from real_data import tiago
 
-from benchmarks.datasets import tiago
 from platkit.errors import BadInput
 
 

@@ -1,10 +1,11 @@
 """Real data: the PAL TIAGo arm recorded by Qualisys (FIGAROH's example data, Apache-2.0,
 Thanh Nguyen, CNRS and Toward), turned into platkit sessions and scored like FIGAROH.
 
-A dataset converter, not the core (../../shared/STYLE.md): a user's own robot gets no special
-case in platkit, and this one needs none. The URDF is copied into the session byte for byte; the
-torso's recorded 0.350181 m against the URDF's 0.35 m limit is a reading the session reader keeps
-with a warning (platkit.io.session_checks.check_controls).
+A dataset converter, not the core (../shared/STYLE.md): a user's own robot gets no special
+case in platkit, and this one needs none; the golden tests and the benchmarks share it. The URDF
+is copied into the session byte for byte; the torso's recorded 0.350181 m against the URDF's
+0.35 m limit is a reading the session reader keeps with a warning
+(platkit.io.session_checks.check_controls).
 
 Source: ``shared/data/real/tiago/`` (README.md there). Each row of a ``qualisys_*_static_postures``
 CSV is a settled pose: four points BL, BR, TR, TL of one rigid body on the hand (metres, in the
@@ -13,13 +14,12 @@ frame of a rigid body fixed to the robot base) and the joints ``torso_lift_joint
 
 :func:`convert` writes a session folder (session.yaml for the ``urdf`` stand with the URDF copied
 beside it unchanged, moving link ``wrist_ft_tool_link``, units m; commands.csv; poses.csv).
-:func:`compare_with_figaroh` fits three model levels on the training day and scores point BL on
-the validation day (norm RMSE, mm), beside FIGAROH 1.0.2's published figures.
+:func:`bl_rmse_mm` scores point BL as FIGAROH 1.0.2 reports it (norm RMSE, mm; its published
+figures in :data:`FIGAROH`); benchmarks/calibration_tiago.py fits the model levels beside them.
 
 Command line::
 
-    .venv/bin/python benchmarks/datasets/tiago.py convert CSV OUT_SESSION [--urdf FILE]
-    .venv/bin/python benchmarks/datasets/tiago.py compare [--data DIR]
+    .venv/bin/python tests/real_data/tiago.py convert CSV OUT_SESSION [--urdf FILE]
 """
 from __future__ import annotations
 
@@ -31,11 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.calibrate.estimate import calibrate, point_errors
+from platkit.calibrate.estimate import point_errors
 from platkit.errors import BadInput, BadSession
 from platkit.io.atomic import atomic_output_dir
-from platkit.io.session import load_session
-from platkit.settle import load_poses
 
 MARKERS = ["BL", "BR", "TR", "TL"]
 JOINTS = ["torso_lift_joint"] + [f"arm_{k}_joint" for k in range(1, 8)]
@@ -120,7 +118,7 @@ def convert(csv_path: str | Path, out_session: str | Path, urdf: str | Path | No
     J = d["joints"][order]
     Y = d["markers"][order]
     yaml_text = (
-        "# Converted by benchmarks/datasets/tiago.py from FIGAROH's example data (Apache-2.0; Thanh Nguyen, CNRS and Toward).\n"
+        "# Converted by tests/real_data/tiago.py from FIGAROH's example data (Apache-2.0; Thanh Nguyen, CNRS and Toward).\n"
         f"# Source: {csv_path.name}\n"
         "platform: urdf\n"
         f"description: {URDF_NAME}\n"
@@ -168,74 +166,16 @@ def bl_rmse_mm(cal, poses) -> float:
     return float(np.sqrt(np.mean(d ** 2)) * 1e3)
 
 
-def compare_with_figaroh(data_dir: str | Path | None = None, work: str | Path | None = None, robust: bool = False,
-                         progress=None) -> dict:
-    """Fit each model level on the training day, predict the validation day, score BL.
-
-    Returns {level: {'training_mm', 'validation_mm', 'n_estimated', 'held', 'figaroh': {...}}}.
-    ``robust``: False by default, as FIGAROH's plain least squares (the data have no gross outliers).
-    """
-    import tempfile
-
-
-    data_dir = Path(data_dir) if data_dir is not None else default_data_dir()
-    tmpdir = None
-    if work is None:
-        tmpdir = tempfile.TemporaryDirectory(prefix="platkit-tiago-")
-        work = tmpdir.name
-    work = Path(work)
-    try:
-        sessions = {}
-        for role, name in (("training", TRAINING), ("validation", VALIDATION)):
-            folder = convert(data_dir / name, work / role)
-            s = load_session(folder)
-            sessions[role] = (load_poses(folder, spec=s.spec), s.spec)
-        train, spec = sessions["training"]
-        valid, _ = sessions["validation"]
-        out = {}
-        for level, groups in LEVELS.items():
-            cal = calibrate(train, spec, free=groups, robust=robust, progress=progress,
-                            platform_options={"moving_link": MOVING_LINK})
-            out[level] = {
-                "training_mm": bl_rmse_mm(cal, train),
-                "validation_mm": bl_rmse_mm(cal, valid),
-                "n_estimated": int(sum(st == "estimated" for st in cal.td_status)),
-                "n_unknowns": int(sum(st == "estimated" for st in cal.td_status)) + 6 + 3 * cal.n_markers,
-                "held": [h["name"] for h in cal.identifiability.get("held_at_nominal", [])],
-                "figaroh": FIGAROH[level],
-                "calibration": cal,
-            }
-        return out
-    finally:
-        if tmpdir is not None:
-            tmpdir.cleanup()
-
-
-def format_table(result: dict) -> str:
-    lines = [f"{'model':<16} {'td est.':>7} {'train BL mm':>12} {'valid BL mm':>12} {'FIGAROH train':>14} "
-             f"{'FIGAROH valid':>14}"]
-    for level, r in result.items():
-        f = r["figaroh"]
-        lines.append(f"{level:<16} {r['n_estimated']:>7d} {r['training_mm']:>12.2f} {r['validation_mm']:>12.2f} "
-                     f"{f['training_mm']:>14.2f} {f['validation_mm']:>14.2f}")
-    return "\n".join(lines)
-
-
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="benchmarks/datasets/tiago.py", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="tests/real_data/tiago.py", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("convert", help="write a platkit session folder for one static-postures CSV")
     c.add_argument("csv")
     c.add_argument("out")
     c.add_argument("--urdf", default=None)
-    k = sub.add_parser("compare", help="three model levels, BL on the validation day, beside FIGAROH")
-    k.add_argument("--data", default=None)
     args = parser.parse_args(argv)
     try:
-        if args.cmd == "convert":
-            print(f"wrote {convert(args.csv, args.out, args.urdf)}")
-        else:
-            print(format_table(compare_with_figaroh(args.data)))
+        print(f"wrote {convert(args.csv, args.out, args.urdf)}")
     except BadInput as exc:
         print(f"platkit: error: {exc}", file=sys.stderr)
         return 2

@@ -6,7 +6,7 @@ A trial is an HDF5 file with the datasets ``imu_gyr`` (N, 3) rad/s, ``imu_acc`` 
 ``movement`` (N,) 0/1 (the samples scored) and the attribute ``sampling_rate`` (Hz). The score:
 inclination RMSE over the samples with movement == 1, degrees, the truth's NaN samples skipped.
 
-Used by benchmarks/orientation_broad.py and tests/golden/test_broad_orientation.py; needs h5py
+Used by the BROAD golden tests and benchmarks (orientation_broad.py, orient_process.py); needs h5py
 (platkit's ``dev`` extra), which platkit itself does not.
 """
 from __future__ import annotations
@@ -19,9 +19,10 @@ import numpy as np
 from platkit.errors import BadSession
 from platkit.inertial.metrics import inclination_rmse_deg
 from platkit.io.imu import ImuStream, saturation_mask
+from real_data import SHARED_DATA
 
 #: the trials in ../shared/data/real/broad, beside the repository
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "broad"
+DATA = SHARED_DATA / "broad"
 
 
 @dataclass

@@ -1,6 +1,7 @@
 """Benchmark runs on the batch engine: a list of cases (plain dicts, one session each), one Dask
 task per case, one JSON line per result appended to a file as each finishes, and a re-run that
-skips the cases the file already holds.
+skips the cases the file already holds. The proof benchmarks (benchmarks/diagnosis_proof*.py)
+import it from tests/, where tests/unit/test_batch.py tests it without the benchmarks.
 
     ap = argparse.ArgumentParser(); add_engine_options(ap)          # --jobs, --scheduler, --serial
     rows = run_cases(run_case, cases, args, json_path="run.jsonl", failed_row=row_of_error, show=print_row)
