@@ -41,22 +41,28 @@ static int pk_lu_solve(int n, double* A, double* b, double scale) {
   return 0;
 }
 
+/* The normal equations of the rows: A = J^T J (NP x NP, column-major), g = J^T r. */
+static void pk_normal(const double* J, const double* r, double* A, double* g) {
+  int i, j, l;
+  for (i = 0; i < PK_NP; ++i) {
+    double gi = 0.0;
+    for (l = 0; l < PK_NR; ++l) gi += J[l + i * PK_NR] * r[l];
+    g[i] = gi;
+    for (j = 0; j < PK_NP; ++j) {
+      double a = 0.0;
+      for (l = 0; l < PK_NR; ++l) a += J[l + i * PK_NR] * J[l + j * PK_NR];
+      A[i + j * PK_NP] = a;
+    }
+  }
+}
+
 /* The Newton step: solve J dp = r (Gauss-Newton J^T J dp = J^T r when NR > NP) into b. */
 static int pk_step(const double* J, const double* r, double* A, double* b) {
-  int i, j, l; double scale = 0.0;
+  int i; double scale = 0.0;
   if (PK_NR == PK_NP) {
     memcpy(A, J, sizeof(double) * PK_NP * PK_NP); memcpy(b, r, sizeof(double) * PK_NP);
   } else {
-    for (i = 0; i < PK_NP; ++i) {
-      double bi = 0.0;
-      for (l = 0; l < PK_NR; ++l) bi += J[l + i * PK_NR] * r[l];
-      b[i] = bi;
-      for (j = 0; j < PK_NP; ++j) {
-        double a = 0.0;
-        for (l = 0; l < PK_NR; ++l) a += J[l + i * PK_NR] * J[l + j * PK_NR];
-        A[i + j * PK_NP] = a;
-      }
-    }
+    pk_normal(J, r, A, b);
   }
   for (i = 0; i < PK_NP * PK_NP; ++i) { double v = fabs(A[i]); if (v > scale) scale = v; }
   return pk_lu_solve(PK_NP, A, b, scale);
@@ -81,7 +87,7 @@ CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const dou
   double N[PK_NP * PK_NP + 1], A[PK_NP * PK_NP + 1], gr[PK_NP + 1], b[PK_NP + 1], pt[PK_NP + 1];
   double* p = out; double* q = out + PK_NP; double* X = q + 4; double* g = X + 3;
   double* info = g + PK_NG;
-  double nrm, nt, lam = 1e-4; int k, i, j, l, tries, status = 0;
+  double nrm, nt, lam = 1e-4; int k, i, tries, status = 0;
   memcpy(p, p0, sizeof(double) * PK_NP);
   pk_eval_rj(u, td, p, r, J);
   nrm = pk_norm(r);
@@ -90,16 +96,7 @@ CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const dou
     if (!isfinite(nrm)) { status = 3; break; }
     if (nrm <= tol) { status = 0; break; }
     if (k >= max_iter) { status = 1; break; }
-    for (i = 0; i < PK_NP; ++i) {
-      double bi = 0.0;
-      for (l = 0; l < PK_NR; ++l) bi += J[l + i * PK_NR] * r[l];
-      gr[i] = bi;
-      for (j = 0; j < PK_NP; ++j) {
-        double a = 0.0;
-        for (l = 0; l < PK_NR; ++l) a += J[l + i * PK_NR] * J[l + j * PK_NR];
-        N[i + j * PK_NP] = a;
-      }
-    }
+    pk_normal(J, r, N, gr);
     for (i = 0; i < PK_NP * PK_NP; ++i) { double v = fabs(N[i]); if (v > scale) scale = v; }
     for (tries = 0; tries < 40 && !kept; ++tries) {
       memcpy(A, N, sizeof(double) * PK_NP * PK_NP);
