@@ -6,8 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.commands.common import add_platform_options, platform_from_args
+from platkit.commands.common import add_platform_options, parse_vector, platform_from_args
 from platkit.errors import BadInput
+from platkit.notices import said
 
 
 def add_parser(sub):
@@ -21,11 +22,32 @@ def add_parser(sub):
     p.add_argument("--optimal", type=int, default=None, metavar="N", help="select N poses D-optimally")
     p.add_argument("--candidates", type=int, default=500, metavar="M",
                    help="random feasible candidates for --optimal (default 500; with --grid the grid is the candidate set)")
-    p.add_argument("--noise-mm", type=float, default=0.1, help="marker noise per coordinate of a settled pose, mm (default 0.1)")
+    p.add_argument("--noise-mm", type=float, default=0.1,
+                   help="marker noise per coordinate of a settled pose (with --motion: of each sample), mm (default 0.1)")
     p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
     p.add_argument("--margin", type=float, default=0.1, help="fraction of each stroke kept clear at both ends (default 0.1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of plan.csv (default mm)")
+    mo = p.add_argument_group("excitation for calibration from motion (--motion): --out is the session's commands.csv")
+    mo.add_argument("--motion", action="store_true",
+                    help="design a streamed excitation trajectory without holds: a Fourier series per control, D-optimal "
+                         "for the model calibrate fits to a stream, within the strokes (less --margin), --max-rate and "
+                         "--max-accel on every command, every command reachable")
+    mo.add_argument("--duration-s", type=float, default=None, help="the session's length, s")
+    mo.add_argument("--target-mm", type=float, default=None,
+                    help="the predicted marker error to reach (3-D RMS over the stand's reference poses, mm): the session "
+                         "is made as long as it needs (with --duration-s: that length, checked against the target)")
+    mo.add_argument("--max-rate", default=None, metavar="V[,V...]",
+                    help="the drives' rate limit: one number or one per control, in --unit per s for length controls "
+                         "(rad/s for angles); default: what the description declares (a URDF joint's velocity)")
+    mo.add_argument("--max-accel", default=None, metavar="A[,A...]",
+                    help="the drives' acceleration limit, per s^2, as --max-rate")
+    mo.add_argument("--period-s", type=float, default=40.0, help="the series' period, s (default 40)")
+    mo.add_argument("--harmonics", type=int, default=8, help="harmonics of the base frequency 1/period (default 8)")
+    mo.add_argument("--command-rate-hz", type=float, default=20.0, help="commands per second (default 20)")
+    mo.add_argument("--rate-hz", type=float, default=100.0, help="the motion capture's rate, samples per s (default 100)")
+    mo.add_argument("--evaluations", type=int, default=200,
+                    help="trajectories the design evaluates (default 200, about 0.1 s each)")
     mc = p.add_argument_group("Monte-Carlo evaluation (needs platkit[batch]: dask.distributed)")
     mc.add_argument("--monte-carlo", type=int, default=None, metavar="N",
                     help="also score the plan on N true stands drawn around the description: each simulated, "
@@ -50,6 +72,11 @@ def run(args) -> int:
     from platkit.io import jsonout
     from platkit.io.atomic import atomic_output_dir, check_output_file
 
+    if args.motion:
+        return run_motion(args)
+    used = [f"--{k.replace('_', '-')}" for k in MOTION_ONLY if getattr(args, k) is not None]
+    if used:
+        raise BadInput(f"{', '.join(used)}: only with --motion")
     if args.grid is None and args.optimal is None:
         raise BadInput("give --grid N or --optimal N (or both: the grid is then the candidate set)")
     if not 0 <= args.margin < 0.5:
@@ -89,6 +116,7 @@ def run(args) -> int:
     report["n_poses"] = int(len(plan.controls))
     if study is not None:
         report["monte_carlo"] = _monte_carlo(args, spec, plan, markers, out)
+    report["warnings"] = said()  # every warning said while the verb ran (platkit.notices), on stderr too
     with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
         pl.write_plan_csv(tmp / out.name, spec, plan.controls, args.unit)
         (tmp / (out.stem + ".json")).write_text(jsonout.dumps(report, indent=2, default=float) + "\n", encoding="utf-8")
@@ -96,6 +124,97 @@ def run(args) -> int:
     if study is not None:
         _print_monte_carlo(report["monte_carlo"], report["plan"], out)
     return 0
+
+
+#: options that apply to --motion alone (their defaults None)
+MOTION_ONLY = ("duration_s", "target_mm", "max_rate", "max_accel")
+
+
+def run_motion(args) -> int:
+    """``platkit plan --motion``: the excitation trajectory (platkit.calibrate.excitation) written as
+    the session's commands.csv, its report (<out stem>.json) beside it."""
+    from platkit.calibrate import excitation as ex
+    from platkit.calibrate import plan as pl
+    from platkit.io import jsonout
+    from platkit.io.atomic import atomic_output_dir, check_output_file
+    from platkit.model import controls_to_si, length_scale
+
+    for flag, on in (("--grid", args.grid is not None), ("--optimal", args.optimal is not None),
+                     ("--monte-carlo", args.monte_carlo is not None), ("--compare", bool(args.compare)),
+                     ("--effect", bool(args.effect))):
+        if on:
+            raise BadInput(f"{flag}: applies to hold plans, not --motion")
+    if not 0 <= args.margin < 0.5:
+        raise BadInput(f"--margin must be in [0, 0.5), got {args.margin}")
+    if not args.noise_mm > 0:
+        raise BadInput("--noise-mm must be positive")
+    if args.seed < 0:
+        raise BadInput(f"--seed: must be 0 or more, got {args.seed}")
+    if args.target_mm is not None and not args.target_mm > 0:
+        raise BadInput(f"--target-mm must be positive, got {args.target_mm:g}")
+    out = Path(args.out)
+    if out.suffix.lower() != ".csv":
+        raise BadInput(f"--out {out}: expected a .csv file name (the session's commands.csv)")
+    check_output_file(out)
+    spec = platform_from_args(args)
+
+    def limit(text, option):
+        if text is None:
+            return None
+        v = parse_vector(text, option)
+        if v.size not in (1, spec.n_u):
+            raise BadInput(f"{option}: expected 1 or {spec.n_u} numbers (one per control: "
+                           f"{', '.join(spec.control_names)}), got {v.size}")
+        if not np.all(v > 0):
+            raise BadInput(f"{option}: every limit must be positive, got {text}")
+        return controls_to_si(spec, np.broadcast_to(v, (spec.n_u,)), args.unit)
+
+    limits = ex.drive_limits(spec, limit(args.max_rate, "--max-rate"), limit(args.max_accel, "--max-accel"),
+                             args.margin)
+    markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))
+    progress = None if args.quiet else _design_progress()
+    result = ex.plan_excitation(spec, limits, period_s=args.period_s, harmonics=args.harmonics,
+                                command_rate_hz=args.command_rate_hz, mocap_rate_hz=args.rate_hz,
+                                sigma_m=args.noise_mm * 1e-3, markers=markers, rng=np.random.default_rng(args.seed),
+                                duration_s=args.duration_s,
+                                target_m=None if args.target_mm is None else args.target_mm * 1e-3,
+                                evaluations=args.evaluations, progress=progress)
+    report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, "markers": args.markers,
+              "marker_layout_m": markers.tolist(), "seed": args.seed, **result.report}
+    with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
+        ex.write_commands_csv(tmp / out.name, spec, result.t, result.controls, args.unit)
+        (tmp / (out.stem + ".json")).write_text(jsonout.dumps(report, indent=2, default=float) + "\n", encoding="utf-8")
+    r, p = result.report, result.report["prediction"]
+    sc = length_scale("mm")
+    print(f"wrote {out} ({r['n_commands']} commands at {r['command_rate_hz']:g} per s, {r['duration_s']:.1f} s, no holds) "
+          f"and {out.with_suffix('.json')}")
+    print(f"excitation: period {r['family']['period_s']:g} s, {r['family']['harmonics']} harmonics; rate "
+          f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at most; "
+          f"log det per sample {r['design']['logdet_per_sample_random']:.2f} (random multisine) -> "
+          f"{r['design']['logdet_per_sample']:.2f} ({r['design']['evaluations']} evaluations)")
+    print(f"predicted marker error (3-D RMS, {p['samples_fitted']} samples of {args.noise_mm:g} mm noise): "
+          f"{p['marker_rms_m'] / sc:.4f} mm (a random multisine of the same duration and limits: "
+          f"{p['marker_rms_m_random'] / sc:.4f} mm)")
+    if "target" in r:
+        tg = r["target"]
+        print(f"target {tg['target_m'] / sc:g} mm: {'met' if tg['met'] else 'NOT met'} by a session of "
+              f"{tg['duration_s']:.1f} s" + (f" ({tg['samples_needed']} samples needed)" if "samples_needed" in tg else ""))
+    return 0
+
+
+def _design_progress():
+    """Progress of the design on stderr: one line about every 2 s, and the last."""
+    import time
+
+    last = [time.perf_counter()]
+
+    def show(k: int, n: int, logdet: float) -> None:
+        now = time.perf_counter()
+        if k == n or now - last[0] >= 2.0:
+            last[0] = now
+            print(f"plan: excitation design {k}/{n}  log det per sample {logdet:.2f}", file=sys.stderr, flush=True)
+
+    return show
 
 
 def _monte_carlo_inputs(args) -> bool:

@@ -58,11 +58,15 @@ def _shape(kind: str, t: np.ndarray, n_u: int, rate_hz: float, rng: np.random.Ge
     return out / np.maximum(np.abs(out).max(axis=0), 1e-12)
 
 
-def continuous_plan(spec, kind: str, duration_s: float, rate_hz: float, rng: np.random.Generator, model, td,
+def continuous_plan(spec, kind: str | np.ndarray, duration_s: float, rate_hz: float, rng: np.random.Generator, model, td,
                     rate: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, dict]:
     """(N, n_u) commands streamed every 1/rate_hz s for duration_s s, and what the plan was (the
     module docstring); ``rate`` and ``accel`` (n_u,) the drives' limits (internal units per s,
-    per s^2), ``td`` the true parameters (every command reachable)."""
+    per s^2), ``td`` the true parameters (every command reachable). ``kind`` an (N, n_u) array:
+    those commands, streamed as they are (a designed excitation, ``platkit plan --motion``;
+    ``duration_s`` unused), with the largest share of the drives' limits they use said."""
+    if not isinstance(kind, str):
+        return _given(spec, np.asarray(kind, float), rate_hz, rate, accel)
     if not duration_s > 3 * RAMP_S:
         raise BadInput(f"continuous motion: a duration of {duration_s:g} s is too short (more than {3 * RAMP_S:g} s)")
     if not 0 < rate_hz <= 1000:
@@ -88,3 +92,19 @@ def continuous_plan(spec, kind: str, duration_s: float, rate_hz: float, rng: np.
                        "amplitude": [float(x) for x in amp]}
         amp = 0.7 * amp
     raise NotIdentifiable(f"{spec.name}: no {kind} motion around the neutral pose stays reachable")
+
+
+def _given(spec, U: np.ndarray, rate_hz: float, rate: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Given commands (N, n_u) streamed every 1/rate_hz s: checked for shape and values; the
+    largest share of the drives' rate and acceleration limits they ask for is said (a share over 1:
+    the drives cannot follow them as commanded)."""
+    if U.ndim != 2 or U.shape[1] != spec.n_u or len(U) < 3:
+        raise BadInput(f"continuous motion: given commands must be (N >= 3, {spec.n_u}), got {U.shape}")
+    if not np.all(np.isfinite(U)):
+        raise BadInput("continuous motion: given commands hold a value that is not a number")
+    if not 0 < rate_hz <= 1000:
+        raise BadInput(f"continuous motion: a command rate of {rate_hz:g} per s is out of range (0, 1000]")
+    v = np.abs(np.diff(U, axis=0)).max(axis=0) * rate_hz
+    a = np.abs(np.diff(U, 2, axis=0)).max(axis=0) * rate_hz ** 2 if len(U) > 2 else np.zeros(spec.n_u)
+    return U, {"kind": "given", "duration_s": float(len(U) / rate_hz), "command_rate_hz": float(rate_hz),
+               "drive_rate_share": float(np.max(v / rate)), "drive_accel_share": float(np.max(a / accel))}

@@ -1,0 +1,115 @@
+"""Designed excitation against a random multisine: predicted and reached accuracy of calibration from motion.
+
+On the stewart stand: `plan --motion`'s design (platkit.calibrate.excitation: D-optimal over the
+Fourier family within the given rate, acceleration and stroke limits, from --design-seed) and the
+random multisine it starts from (the same family, duration and limits) are each streamed to the
+physical simulator (platkit.simulate.physics: the true stand drawn from the seed, its drives'
+responses, latency, clock offset, occlusion bursts; white marker noise of --noise-mm, or the
+drawn white + correlated noise with --drawn-noise) on seeds not used while developing, then
+calibrated from motion (platkit.calibrate.motion, as `platkit calibrate` does on a session without
+holds). The error is that of the calibration's predicted markers against the true stand's at the
+stand's reference poses (the poses the prediction is told on), 3-D RMS in mm. Prints per seed the
+predicted and reached error of each trajectory, reached / predicted (at most 1: the prediction
+holds), and random / designed (over 1: the design is better).
+
+    .venv/bin/python benchmarks/plan_excitation.py [--seeds 2700001,2700002] [--duration-s 60]
+"""
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from platkit.calibrate.estimate import predict_markers
+from platkit.calibrate.excitation import (
+    FourierFamily,
+    MotionInformation,
+    design_excitation,
+    drive_limits,
+    limit_violations,
+    samples_fitted,
+    trajectory,
+)
+from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.plan import default_marker_layout, reference_poses_for
+from platkit.geometry import matrix_from_quat
+from platkit.io.session import load_session
+from platkit.kinematics import PlatformModel
+from platkit.plugins import get_platform
+from platkit.simulate.physics import LEAD_IN_S, simulate_physics, write_physical_session
+
+
+def truth_error(cal, sim, U) -> float:
+    """RMS (m) of the calibration's markers against the true stand's at commands U (3-D)."""
+    fb = PlatformModel(sim.spec).forward_batch(U, td=sim.td, strict=False)
+    T = sim.mocap_from_base
+    true = (fb.X[:, None, :] + np.einsum("kij,mj->kmi", matrix_from_quat(fb.q), sim.marker_body)) @ T[:3, :3].T + T[:3, 3]
+    pred, _, _, _ = predict_markers(cal, U)
+    return float(np.sqrt(np.nanmean(np.sum((pred - true) ** 2, axis=2))))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", default="2700001")
+    ap.add_argument("--duration-s", type=float, default=60.0)
+    ap.add_argument("--period-s", type=float, default=40.0)
+    ap.add_argument("--harmonics", type=int, default=8)
+    ap.add_argument("--evaluations", type=int, default=200)
+    ap.add_argument("--design-seed", type=int, default=0)
+    ap.add_argument("--max-rate", type=float, default=250.0, help="mm/s")
+    ap.add_argument("--max-accel", type=float, default=500.0, help="mm/s^2")
+    ap.add_argument("--noise-mm", type=float, default=0.2)
+    ap.add_argument("--drawn-noise", action="store_true", help="the simulator's drawn white + correlated noise")
+    ap.add_argument("--rate-hz", type=float, default=100.0)
+    args = ap.parse_args()
+    spec = get_platform("stewart")
+    command_rate_hz = 20.0
+    limits = drive_limits(spec, args.max_rate * 1e-3, args.max_accel * 1e-3, 0.1)
+    markers = default_marker_layout(spec, 5, np.random.default_rng(0))
+    t0 = time.perf_counter()
+    info = MotionInformation(spec, markers)
+    family = FourierFamily(args.period_s, args.harmonics, spec.n_u)
+    design = design_excitation(spec, family, limits, info, command_rate_hz, np.random.default_rng(args.design_seed),
+                               evaluations=args.evaluations)
+    print(f"design: {args.evaluations} evaluations in {time.perf_counter() - t0:.0f} s; log det per sample "
+          f"{design.logdet_start:.2f} (random multisine) -> {design.logdet:.2f} (designed)")
+    sigma = args.noise_mm * 1e-3
+    n_fit = samples_fitted(args.duration_s, args.rate_hz, start_s=LEAD_IN_S + 1 / command_rate_hz)
+    plans = {}
+    for name, coef in (("designed", design.coef), ("random", design.start)):
+        U, meta = trajectory(spec, family, coef, limits, args.duration_s, command_rate_hz)
+        v = limit_violations(U, command_rate_hz, limits)
+        t_cmd = LEAD_IN_S + np.arange(len(U)) / command_rate_hz
+        t_s = np.linspace(t_cmd[1], t_cmd[-1] + 0.5, n_fit)
+        pred = info.prediction(info.per_sample(t_cmd, U, t_s), n_fit, sigma)["marker_rms_m"]
+        plans[name] = (U, pred)
+        print(f"{name}: {len(U)} commands, rate {v['rate_share']:.3f} and acceleration {v['accel_share']:.3f} of the "
+              f"limits, {v['box'] + v['rate'] + v['accel']} samples past them; predicted {pred * 1e3:.4f} mm "
+              f"({n_fit} samples of {args.noise_mm:g} mm white noise)")
+    U_ref, _ = reference_poses_for(spec)
+    print(f"{'seed':>8} {'designed pred':>14} {'designed':>9} {'reached/pred':>13} {'random pred':>12} {'random':>9} "
+          f"{'reached/pred':>13} {'random/designed':>16}")
+    for seed in (int(s) for s in args.seeds.split(",")):
+        out = {}
+        for name, (U, _pred) in plans.items():
+            noise = {} if args.drawn_noise else {"noise_mm": args.noise_mm, "coloured": False}
+            sim = simulate_physics(spec, seed=seed, motion=U, command_rate_hz=command_rate_hz,
+                                   mocap_rate_hz=args.rate_hz, **noise)
+            with tempfile.TemporaryDirectory() as tmp:
+                folder = Path(tmp) / name
+                write_physical_session(sim, folder)
+                s = load_session(folder)
+                cal, _ = calibrate_motion(s, s.spec)
+            ok = np.ones(len(U_ref), bool)
+            out[name] = truth_error(cal, sim, U_ref[ok])
+        d, r = out["designed"], out["random"]
+        pd, pr = plans["designed"][1], plans["random"][1]
+        print(f"{seed:>8} {pd * 1e3:>14.4f} {d * 1e3:>9.4f} {d / pd:>13.2f} {pr * 1e3:>12.4f} {r * 1e3:>9.4f} "
+              f"{r / pr:>13.2f} {r / d:>16.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,638 @@
+"""Excitation trajectories for calibration from motion: D-optimal over a Fourier family, within
+the drives' limits, and how long a session must be for a target accuracy.
+
+The family (as in dynamic identification): each actuator j follows a periodic Fourier series of
+base frequency f0 = 1 / ``period_s`` with H harmonics,
+
+    u_j(t) = u0_j + A_j w(t) s_j(t),   s_j(t) = sum_k a_jk sin(2 pi k f0 t) + b_jk cos(2 pi k f0 t),
+
+around the neutral controls u0, with s_j scaled to unit largest magnitude over a period, and a
+raised-cosine window w(t) that starts and ends the session at rest on the neutral controls.
+The amplitude A_j is the largest that keeps, on every command (streamed at ``command_rate_hz``),
+the control inside its stroke box (:class:`Limits`: the stroke less ``margin`` at both ends),
+its rate (first difference of the commands) within ``rate`` and its acceleration (second
+difference) within ``accel``; every command is then checked reachable (forward kinematics on the
+stand's branch, inside the coordinates' bounds) and all amplitudes shrink together until it is.
+The window lasts long enough for the limits to hold while it rises.
+
+The information is that of the model `platkit calibrate` fits to a stream
+(:mod:`platkit.calibrate.motion`): :class:`~platkit.calibrate.problem.CalibrationProblem` with
+the actuators' response as a :class:`~platkit.calibrate.motion.ResponseTerm` (a step reference,
+second-order response, one clock shift), evaluated at the nominal geometry, the default marker
+layout and a starting response (time constant TAU0_S, damping ZETA0, no shift: motion.py's).
+Its columns are the stand's free parameters, the motion-capture frame, the markers and the
+response; the directions no pose ever fixes (gauges: the null space of the same model's settled
+Jacobian over the stand's reference poses) are left out, so the D-criterion is log det of the
+information per sample in the identifiable subspace, with fixed column scales (differences of it
+are independent of the scales and the basis).
+
+The design maximises that criterion over the coefficients (a, b) by a (1+1) evolution strategy
+with the one-fifth success rule, from a random multisine (random phases, amplitude 1/sqrt(k)):
+the start is the random multisine of the same duration and limits that the design is compared
+with.
+
+Prediction, for white marker noise ``sigma`` (m, per coordinate and sample): calibrate fits every
+sample with a marker seen from the second command on, so the information of a session of duration
+D at motion-capture rate R is n(D) = (D - the first command interval) R (share seen) times the
+information per sample, and the covariance sigma^2 / n(D) times its inverse. The predicted error
+is the RMS over the stand's reference poses and the markers of the 3-D standard deviation of the
+predicted marker positions (gauge-free: the error `calibrate` makes predicting settled poses),
+the parameters' standard deviations those of the minimum-norm solution. The session length for a
+target is the shortest D whose predicted error meets it (the error falls as 1 / sqrt(D)); a target
+that needs more than LONGEST_S is refused (NotIdentifiable, one line saying what LONGEST_S gives).
+"""
+from __future__ import annotations
+
+import csv
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from platkit.calibrate.motion import TAU0_S, ZETA0, ResponseTerm
+from platkit.calibrate.plan import feasible, reference_poses_for
+from platkit.calibrate.problem import CalibrationProblem
+from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.calibrate.solve import blas_threads
+from platkit.errors import BadInput, NotIdentifiable
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec, controls_from_si
+from platkit.poses import PoseSet
+
+__all__ = ["Limits", "FourierFamily", "MotionInformation", "ExcitationDesign", "drive_limits", "trajectory",
+           "design_excitation", "limit_violations", "samples_fitted", "session_length_for", "RAMP_S"]
+
+#: the window's shortest rise (s), doubled until the limits hold while it rises (at most one period)
+RAMP_S = 2.0
+#: samples per period the design evaluates (at times not commensurate with the commands, so that
+#: each command's transient is seen at every phase)
+DESIGN_SAMPLES = 200
+#: commands before the period the design evaluates (s): the response starts at rest before them
+LEAD_S = 2.0
+#: amplitudes shrink by this factor until every command is reachable, at most SHRINK_TRIES times
+SHRINK, SHRINK_TRIES = 0.9, 40
+#: the smallest amplitude a control may be left with, as a share of its room around neutral: below
+#: it the limits leave the stand nearly still (refused, naming the control)
+MIN_AMPLITUDE_SHARE = 0.02
+#: relative tolerance of the limit checks (rounding of the written commands)
+LIMIT_RTOL = 1e-9
+#: the evolution strategy: starting step (relative to the coefficients' norm), its bounds
+STEP0, STEP_MIN, STEP_MAX = 0.3, 0.01, 1.0
+#: the longest session the target search considers (s)
+LONGEST_S = 3600.0
+
+
+@dataclass
+class Limits:
+    """What every command must keep (internal units): ``lower``/``upper`` (n_u,) the box, ``rate``
+    (n_u,) per s and ``accel`` (n_u,) per s^2 the drives' limits."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    rate: np.ndarray
+    accel: np.ndarray
+    source: dict = field(default_factory=dict)
+
+
+def _declared_rates(spec: PlatformSpec) -> np.ndarray | None:
+    """The controls' rate limits the stand's description declares, in the controls' units per s:
+    a URDF's ``<limit velocity>`` (SI: rad/s, m/s) of the chain's movable joints, one per control
+    in order; None where any is missing."""
+    path, chain = spec.extras.get("urdf_path"), spec.extras.get("chain")
+    if not path or chain is None:
+        return None
+    movable = [j.name for j in getattr(chain, "joints", []) if j.type not in ("fixed",) and j.mimic is None]
+    if len(movable) != spec.n_u:
+        return None
+    try:
+        root = ET.parse(str(path)).getroot()
+    except (OSError, ET.ParseError):
+        return None
+    rates = {}
+    for joint in root.iter("joint"):
+        lim = joint.find("limit")
+        if lim is not None and lim.get("velocity") is not None:
+            try:
+                rates[joint.get("name")] = float(lim.get("velocity", "nan"))
+            except ValueError:
+                continue
+    per_unit = {"deg": 180.0 / np.pi}  # the URDF's rad/s in a control counted in degrees
+    out = np.array([rates.get(n, np.nan) * per_unit.get(c.unit, 1.0) for n, c in zip(movable, spec.controls)], float)
+    return out if np.all(np.isfinite(out) & (out > 0)) else None
+
+
+def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.ndarray | None,
+                 margin: float = 0.1) -> Limits:
+    """The limits of a plan: the strokes less ``margin`` of each at both ends, and the rate and
+    acceleration limits given (internal units, one number or one per control), else those the
+    description declares (a URDF's joint ``velocity``); BadInput naming what is missing."""
+    lo, hi = spec.control_bounds()
+    if not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
+        bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and b > a)]
+        raise BadInput(f"{spec.name}: controls {', '.join(bad)} have no finite stroke; an excitation trajectory "
+                       "needs one for every control")
+    if not 0 <= margin < 0.5:
+        raise BadInput(f"--margin must be in [0, 0.5), got {margin}")
+    span = hi - lo
+    source = {}
+    rate = _per_control(spec, max_rate, "--max-rate")
+    if rate is None:
+        rate = _declared_rates(spec)
+        if rate is None:
+            raise BadInput(f"--max-rate: the {spec.name} stand's description declares no rate limit for its controls "
+                           f"({', '.join(spec.control_names)}); give the drives' limit (one number, or one per control)")
+        source["rate"] = "description (URDF joint velocity)"
+    else:
+        source["rate"] = "--max-rate"
+    accel = _per_control(spec, max_accel, "--max-accel")
+    if accel is None:
+        raise BadInput(f"--max-accel: the {spec.name} stand's description declares no acceleration limit for its "
+                       "controls; give the drives' limit (one number, or one per control)")
+    source["accel"] = "--max-accel"
+    u0 = spec.neutral_u()
+    lower, upper = lo + margin * span, hi - margin * span
+    if np.any(u0 <= lower) or np.any(u0 >= upper):
+        raise BadInput(f"--margin {margin:g}: the neutral controls of the {spec.name} stand lie outside the strokes "
+                       "less the margin; choose a smaller margin")
+    return Limits(lower, upper, rate, accel, source)
+
+
+def _per_control(spec: PlatformSpec, value, option: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    v = np.atleast_1d(np.asarray(value, float))
+    if v.size == 1:
+        v = np.full(spec.n_u, float(v[0]))
+    if v.size != spec.n_u:
+        raise BadInput(f"{option}: expected 1 or {spec.n_u} numbers (one per control: {', '.join(spec.control_names)}), "
+                       f"got {v.size}")
+    if not np.all(np.isfinite(v) & (v > 0)):
+        raise BadInput(f"{option}: every limit must be a positive number, got {', '.join(f'{x:g}' for x in v)}")
+    return v
+
+
+@dataclass
+class FourierFamily:
+    """The periodic family: ``period_s``, ``harmonics`` H, for ``n_u`` actuators; coefficients
+    (n_u, H, 2): (a, b) of sin and cos of each harmonic."""
+
+    period_s: float
+    harmonics: int
+    n_u: int
+
+    def __post_init__(self):
+        if not (self.period_s > 0 and math.isfinite(self.period_s)):
+            raise BadInput(f"--period-s must be a positive number of seconds, got {self.period_s:g}")
+        if self.harmonics < 1:
+            raise BadInput(f"--harmonics must be at least 1, got {self.harmonics}")
+
+    @property
+    def size(self) -> int:
+        return self.n_u * self.harmonics * 2
+
+    def random_multisine(self, rng: np.random.Generator) -> np.ndarray:
+        """Coefficients of a multisine with random phases and amplitude 1/sqrt(k) per harmonic k."""
+        k = np.arange(1, self.harmonics + 1)
+        ph = rng.uniform(0, 2 * np.pi, (self.n_u, self.harmonics))
+        amp = 1.0 / np.sqrt(k)[None, :]
+        return np.stack([amp * np.cos(ph), amp * np.sin(ph)], axis=2)
+
+    def raw(self, coef: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(K, n_u) the series at times t (K,), unscaled."""
+        w = 2 * np.pi / self.period_s * np.arange(1, self.harmonics + 1)
+        arg = np.asarray(t, float)[:, None] * w[None, :]
+        c = np.asarray(coef, float).reshape(self.n_u, self.harmonics, 2)
+        return np.sin(arg) @ c[:, :, 0].T + np.cos(arg) @ c[:, :, 1].T
+
+
+def _window(t: np.ndarray, duration_s: float, ramp_s: float) -> np.ndarray:
+    r = np.clip(np.minimum(t, duration_s - t) / ramp_s, 0, 1)
+    return 0.5 - 0.5 * np.cos(np.pi * r)
+
+
+def limit_violations(U: np.ndarray, command_rate_hz: float, limits: Limits) -> dict:
+    """Commands (N, n_u) streamed every 1/command_rate_hz s against the limits: the number of
+    samples past the box, the rate (first differences) and the acceleration (second differences),
+    and the largest share of each limit used."""
+    U = np.asarray(U, float)
+    v = np.abs(np.diff(U, axis=0)) * command_rate_hz
+    a = np.abs(np.diff(U, 2, axis=0)) * command_rate_hz ** 2
+    tol = 1 + LIMIT_RTOL
+    span = limits.upper - limits.lower
+    box = (U < limits.lower - LIMIT_RTOL * span) | (U > limits.upper + LIMIT_RTOL * span)
+    return {"box": int(np.sum(np.any(box, axis=1))), "rate": int(np.sum(np.any(v > limits.rate * tol, axis=1))),
+            "accel": int(np.sum(np.any(a > limits.accel * tol, axis=1))),
+            "rate_share": float(np.max(v / limits.rate)) if len(v) else 0.0,
+            "accel_share": float(np.max(a / limits.accel)) if len(a) else 0.0}
+
+
+class _Scaler:
+    """Amplitudes within the limits, and reachability, of shapes of one family (module docstring)."""
+
+    def __init__(self, spec: PlatformSpec, family: FourierFamily, limits: Limits, command_rate_hz: float,
+                 model: PlatformModel, td: np.ndarray):
+        self.spec, self.family, self.limits, self.rate_hz, self.model, self.td = spec, family, limits, command_rate_hz, model, td
+        n = int(round(family.period_s * command_rate_hz))
+        if n < 8:
+            raise BadInput(f"--period-s {family.period_s:g}: fewer than 8 commands per period at {command_rate_hz:g} "
+                           "per s")
+        self.t_period = np.arange(n) / command_rate_hz
+        self.u0 = spec.neutral_u()
+        self.half = np.minimum(limits.upper - self.u0, self.u0 - limits.lower)
+
+    def amplitudes(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A (n_u,), shape over one period (n, n_u) of unit largest magnitude) within the box, rate
+        and acceleration limits (periodic differences), before reachability."""
+        s = self.family.raw(coef, self.t_period)
+        peak = np.max(np.abs(s), axis=0)
+        if np.any(peak <= 0):
+            raise BadInput("excitation: an actuator's series is zero everywhere")
+        s = s / peak
+        h = self.rate_hz
+        v = np.max(np.abs(np.roll(s, -1, axis=0) - s), axis=0) * h
+        a = np.max(np.abs(np.roll(s, -1, axis=0) - 2 * s + np.roll(s, 1, axis=0)), axis=0) * h * h
+        A = np.minimum(self.half, np.minimum(self.limits.rate / np.maximum(v, 1e-300),
+                                             self.limits.accel / np.maximum(a, 1e-300)))
+        small = A < MIN_AMPLITUDE_SHARE * self.half
+        if np.any(small):
+            j = int(np.argmax(small))
+            raise BadInput(f"{self.spec.name}: the rate and acceleration limits leave {self.spec.control_names[j]} "
+                           f"{100 * A[j] / self.half[j]:.2g}% of its room around neutral over a {self.family.period_s:g} s "
+                           "period: raise --max-rate/--max-accel or lengthen --period-s")
+        return A, s
+
+    def reachable_period(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A, shape) with every command of a period reachable (amplitudes shrunk together);
+        NotIdentifiable where no amplitude is."""
+        A, s = self.amplitudes(coef)
+        for _ in range(SHRINK_TRIES):
+            ok, _ = feasible(self.spec, self.u0 + s * A, self.td, self.model)
+            if ok.all():
+                return A, s
+            A = A * SHRINK
+        raise NotIdentifiable(f"{self.spec.name}: no excitation of this shape around the neutral controls stays "
+                              "reachable; a larger --margin or fewer --harmonics")
+
+
+def trajectory(spec: PlatformSpec, family: FourierFamily, coef: np.ndarray, limits: Limits, duration_s: float,
+               command_rate_hz: float, model: PlatformModel | None = None, td=None) -> tuple[np.ndarray, dict]:
+    """(U (N, n_u) commands every 1/command_rate_hz s for duration_s s, what it is): the family's
+    member ``coef`` within the limits (module docstring), windowed to start and end at rest on the
+    neutral controls. Every command is checked: reachable, inside the box, rate and acceleration
+    within the limits (NotIdentifiable if the window cannot rise within them in one period)."""
+    model = model or PlatformModel(spec)
+    td = spec.nominal_td() if td is None else np.asarray(td, float)
+    scaler = _Scaler(spec, family, limits, command_rate_hz, model, td)
+    A, _ = scaler.reachable_period(coef)
+    t = np.arange(int(round(duration_s * command_rate_hz))) / command_rate_hz
+    end = float(t[-1]) if len(t) else 0.0
+    raw = family.raw(coef, t)
+    peak = np.max(np.abs(family.raw(coef, scaler.t_period)), axis=0)
+    ramp = RAMP_S
+    while True:
+        if ramp > min(family.period_s, 0.5 * end):
+            raise NotIdentifiable(f"{spec.name}: the session cannot rise to its excitation and back within the rate "
+                                  f"and acceleration limits in {duration_s:g} s (ramps up to {min(family.period_s, 0.5 * end):g} "
+                                  "s each); a longer session")
+        U = scaler.u0 + _window(t, end, ramp)[:, None] * raw / peak * A
+        bad = limit_violations(U, command_rate_hz, limits)
+        if not (bad["box"] or bad["rate"] or bad["accel"]):
+            break
+        ramp *= 1.5
+    for _ in range(SHRINK_TRIES):
+        ok, _ = feasible(spec, U, td, model)
+        if ok.all():
+            break
+        A = A * SHRINK
+        U = scaler.u0 + _window(t, end, ramp)[:, None] * raw / peak * A
+    else:
+        raise NotIdentifiable(f"{spec.name}: the excitation's commands do not all stay reachable")
+    return U, {"ramp_s": float(ramp), "amplitude": [float(x) for x in A], **limit_violations(U, command_rate_hz, limits)}
+
+
+class MotionInformation:
+    """The information per sample of a streamed session about the parameters calibrate fits from
+    motion (module docstring), at the nominal geometry.
+
+    ``markers`` (M, 3) m on the moving part; ``tau_s``, ``damping`` the assumed response."""
+
+    def __init__(self, spec: PlatformSpec, markers: np.ndarray, *, tau_s: float = TAU0_S, damping: float = ZETA0,
+                 model: PlatformModel | None = None):
+        self.spec, self.markers = spec, np.asarray(markers, float)
+        self.model = model or PlatformModel(spec)
+        self.td = spec.nominal_td()
+        self.rmodel = ResponseModel("second_order", "step", spec.n_u)
+        self.theta = np.concatenate([[0.0], np.full(spec.n_u, tau_s), np.full(spec.n_u, damping)])
+        self.steps = 1e-4 * np.maximum(np.abs(self.theta), 1e-2)
+        self.steps[0] = 1e-4
+        self.M = len(self.markers)
+        free = np.array([p.free for p in spec.parameters], bool)
+        self.free = free
+        # the settled model over the reference poses: its scales, gauges and the poses the error is told on
+        U_ref, P_ref = reference_poses_for(spec, self.model)
+        if len(U_ref) < 3:
+            raise NotIdentifiable(f"{spec.name}: fewer than 3 reference poses are reachable")
+        self.U_ref = U_ref
+        ref = self._problem(U_ref)
+        z_static = self._z(ref)
+        J_ref = ref.evaluate(z_static).J  # (N, M, 3, n_static)
+        self.static_cols = np.concatenate([np.nonzero(free)[0], np.arange(spec.n_td, ref.n_z)])
+        self.scale_static = ref.scale[self.static_cols]
+        A = J_ref[..., self.static_cols].reshape(-1, len(self.static_cols)) * self.scale_static
+        with blas_threads(1):
+            _, sv, Vt = np.linalg.svd(np.linalg.qr(A, mode="r"), full_matrices=False)
+        rank = int(np.sum(sv > 1e-7 * sv[0]))
+        self.V_static = Vt[:rank].T  # (n_static, r): the identifiable directions (scaled)
+        self.J_ref = A  # (rows, n_static) scaled
+        self.n_theta = self.rmodel.size
+        self.names = ([p.name for p in spec.parameters if p.free] + ["mocap.rx", "mocap.ry", "mocap.rz", "mocap.x",
+                      "mocap.y", "mocap.z"] + [f"marker{k + 1}.{a}" for k in range(self.M) for a in "xyz"]
+                      + [f"response.{n}" for n in self.rmodel.names(spec.control_names)])
+        self.units = ([p.unit for p in spec.parameters if p.free] + ["rad"] * 3 + ["m"] * 3 + ["m"] * (3 * self.M)
+                      + ["s"] + ["s"] * spec.n_u + ["1"] * spec.n_u)
+        self.rank = rank + self.n_theta
+        self.n_parameters = len(self.static_cols) + self.n_theta
+
+    def _problem(self, U, t=None, term: ResponseTerm | None = None) -> CalibrationProblem:
+        N = len(U)
+        poses = PoseSet(platform=self.spec.name, controls=U, markers=np.zeros((N, self.M, 3)),
+                        marker_names=[f"M{k + 1}" for k in range(self.M)], t=t)
+        return CalibrationProblem(self.spec, poses, [] if term is None else [term])
+
+    def _z(self, problem, theta=None):
+        z = np.zeros(problem.n_z)
+        z[problem.i_td] = self.td
+        z[problem.i_m] = self.markers.ravel()
+        if theta is not None:
+            z[problem.i_theta] = theta
+        return z
+
+    def jacobian(self, T: np.ndarray, U: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(K * 3M, n) the scaled Jacobian of the samples at times t (K,) of commands U (N, n_u) sent
+        at T (N,), columns (free td, frame, markers, response), in the identifiable basis."""
+        X = actuator_positions(self.rmodel, self.theta, T, U, t)
+        term = ResponseTerm(self.rmodel, T, U, list(self.spec.control_names), self.theta, self.steps)
+        problem = self._problem(X, t, term)
+        state = problem.evaluate(self._z(problem, self.theta))
+        if not np.all(state.converged):
+            raise NotIdentifiable(f"{self.spec.name}: forward kinematics failed at {int((~state.converged).sum())} "
+                                  "samples of the excitation")
+        cols = np.concatenate([self.static_cols, np.arange(problem.i_theta.start, problem.i_theta.stop)])
+        scale = np.concatenate([self.scale_static, np.full(self.n_theta, 1e-3)])
+        J = state.J[..., cols].reshape(-1, len(cols)) * scale
+        r = self.V_static.shape[1]
+        out = np.empty((J.shape[0], r + self.n_theta))
+        out[:, :r] = J[:, :len(self.static_cols)] @ self.V_static
+        out[:, r:] = J[:, len(self.static_cols):]
+        return out
+
+    def per_sample(self, T, U, t) -> np.ndarray:
+        """(r, r) the information per sample (unit noise) in the identifiable basis."""
+        with blas_threads(1):
+            J = self.jacobian(T, U, t)
+            return J.T @ J / len(t)
+
+    def prediction(self, info_per_sample: np.ndarray, n_samples: float, sigma_m: float) -> dict:
+        """The predicted uncertainty of a fit to ``n_samples`` samples with white marker noise
+        ``sigma_m`` (module docstring): 'marker_rms_m' (3-D, over the reference poses),
+        'parameter_std' (SI, minimum-norm solution), 'logdet_per_sample'."""
+        info = info_per_sample * n_samples
+        sign, logdet = np.linalg.slogdet(info_per_sample)
+        if sign <= 0 or not np.isfinite(logdet):
+            return {"identifiable": False, "logdet_per_sample": None}
+        cov_r = sigma_m ** 2 * np.linalg.inv(info)
+        r = self.V_static.shape[1]
+        V = np.zeros((self.n_parameters, r + self.n_theta))
+        V[:len(self.static_cols), :r] = self.V_static
+        V[len(self.static_cols):, r:] = np.eye(self.n_theta)
+        cov_scaled = V @ cov_r @ V.T
+        scale = np.concatenate([self.scale_static, np.full(self.n_theta, 1e-3)])
+        std = np.sqrt(np.maximum(np.diag(cov_scaled), 0)) * scale
+        c_static = cov_scaled[:len(self.static_cols), :len(self.static_cols)]
+        with blas_threads(1):
+            var = np.einsum("ij,ji->i", self.J_ref, c_static @ self.J_ref.T)
+        rms3 = float(np.sqrt(3 * np.mean(np.maximum(var, 0))))
+        return {"identifiable": True, "logdet_per_sample": float(logdet), "marker_rms_m": rms3,
+                "parameter_std": {n: {"std": float(s), "unit": u} for n, s, u in zip(self.names, std, self.units)}}
+
+
+def samples_fitted(duration_s: float, mocap_rate_hz: float, seen: float = 1.0, start_s: float = 0.0) -> int:
+    """How many samples calibrate fits from a session of ``duration_s`` s at ``mocap_rate_hz``:
+    every sample with a marker seen (share ``seen``) after ``start_s``."""
+    return int(math.floor(max(0.0, duration_s - start_s) * mocap_rate_hz * seen))
+
+
+@dataclass
+class ExcitationDesign:
+    """A designed excitation: the family, its coefficients, the start's, and the D-criterion of
+    each (log det of the information per sample, identifiable basis) with the evaluations run."""
+
+    family: FourierFamily
+    coef: np.ndarray
+    start: np.ndarray
+    logdet: float
+    logdet_start: float
+    evaluations: int
+    info_per_sample: np.ndarray
+    info_start: np.ndarray
+    history: list = field(default_factory=list)
+
+
+def _design_samples(family: FourierFamily, command_rate_hz: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(command times from -LEAD_S over one period, sample times over the period): the samples
+    evenly spaced at an interval not commensurate with the commands' (golden-ratio offset)."""
+    T = np.arange(-int(round(LEAD_S * command_rate_hz)), int(round(family.period_s * command_rate_hz))) / command_rate_hz
+    phase = (np.arange(n) * 0.6180339887498949) % 1.0
+    t = (np.arange(n) + phase) * family.period_s / n
+    return T, np.sort(t)
+
+
+def design_excitation(spec: PlatformSpec, family: FourierFamily, limits: Limits, information: MotionInformation,
+                      command_rate_hz: float, rng: np.random.Generator, evaluations: int = 150,
+                      progress: Callable[[int, int, float], None] | None = None,
+                      start: np.ndarray | None = None) -> ExcitationDesign:
+    """The D-optimal member of ``family`` within ``limits`` (module docstring): a (1+1) evolution
+    strategy over the coefficients from a random multisine (``start``: given coefficients), each
+    candidate at the largest amplitudes its limits and reachability allow. ``progress(k, n,
+    logdet)`` after each evaluation."""
+    if evaluations < 1:
+        raise BadInput(f"--evaluations must be at least 1, got {evaluations}")
+    model = information.model
+    scaler = _Scaler(spec, family, limits, command_rate_hz, model, information.td)
+    T, t = _design_samples(family, command_rate_hz, DESIGN_SAMPLES)
+    Tp = (T % family.period_s)
+
+    def score(coef):
+        A, _ = scaler.reachable_period(coef)
+        peak = np.max(np.abs(family.raw(coef, scaler.t_period)), axis=0)
+        U = scaler.u0 + family.raw(coef, Tp) / peak * A
+        info = information.per_sample(T, U, t)
+        sign, val = np.linalg.slogdet(info)
+        return (float(val) if sign > 0 else -np.inf), info
+
+    coef = family.random_multisine(rng) if start is None else np.asarray(start, float).reshape(family.n_u, family.harmonics, 2)
+    best, info = score(coef)
+    first, info0 = best, info
+    c0 = coef.copy()
+    step = STEP0
+    history = [best]
+    if progress is not None:
+        progress(1, evaluations, best)
+    for k in range(1, evaluations):
+        norm = np.sqrt(np.mean(coef ** 2))
+        trial = coef + step * norm * rng.normal(size=coef.shape)
+        try:
+            val, tinfo = score(trial)
+        except (NotIdentifiable, BadInput):  # a trial the limits leave still or unreachable: rejected
+            val, tinfo = -np.inf, None
+        if val > best:
+            coef, best, info = trial, val, tinfo
+            step = min(step * 1.5, STEP_MAX)
+        else:
+            step = max(step * 1.5 ** -0.25, STEP_MIN)
+        history.append(best)
+        if progress is not None:
+            progress(k + 1, evaluations, best)
+    if not np.isfinite(best):
+        raise NotIdentifiable(f"{spec.name}: no excitation of the family identifies the {information.rank} identifiable "
+                              "directions (the information stays singular)")
+    return ExcitationDesign(family, coef, c0, best, first, evaluations, info, info0, history)
+
+
+def session_length_for(information: MotionInformation, info_per_sample: np.ndarray, target_m: float, sigma_m: float,
+                       mocap_rate_hz: float, seen: float = 1.0, start_s: float = 0.0) -> dict:
+    """The shortest session (s) whose predicted marker error (3-D RMS) meets ``target_m`` with white
+    noise ``sigma_m``: the samples it needs, the duration at ``mocap_rate_hz`` with share ``seen``
+    of samples seen (fitted from ``start_s``). NotIdentifiable where it needs more than LONGEST_S."""
+    if not target_m > 0:
+        raise BadInput(f"--target-mm must be positive, got {target_m * 1e3:g}")
+    one = information.prediction(info_per_sample, 1.0, sigma_m)
+    if not one["identifiable"]:
+        raise NotIdentifiable("the excitation does not identify the parameters (the information stays singular)")
+    need = math.ceil((one["marker_rms_m"] / target_m) ** 2)  # error ~ 1 / sqrt(n)
+    duration = start_s + need / (mocap_rate_hz * seen)
+    if duration > LONGEST_S:
+        best = one["marker_rms_m"] / math.sqrt(samples_fitted(LONGEST_S, mocap_rate_hz, seen, start_s))
+        raise NotIdentifiable(f"--target-mm {target_m * 1e3:g}: needs {duration:.0f} s of motion capture at "
+                              f"{mocap_rate_hz:g} samples per s with {sigma_m * 1e3:g} mm noise, over {LONGEST_S:.0f} s "
+                              f"(which predicts {best * 1e3:.4g} mm): a larger target, more markers, a faster or quieter "
+                              "motion capture")
+    return {"target_m": float(target_m), "samples": int(need), "duration_s": float(duration)}
+
+
+@dataclass
+class ExcitationPlan:
+    """What ``platkit plan --motion`` writes: commands U (N, n_u) internal units sent at t (N,) s,
+    and the report (SI)."""
+
+    t: np.ndarray
+    controls: np.ndarray
+    report: dict
+
+
+def _predict_trajectory(information: MotionInformation, U: np.ndarray, command_rate_hz: float, duration_s: float,
+                        mocap_rate_hz: float, seen: float, sigma_m: float) -> tuple[dict, int]:
+    """The prediction for the whole trajectory U streamed from t = 0: the samples calibrate fits
+    (from the second command on), 4 * DESIGN_SAMPLES of them evaluated evenly at most (the
+    information per sample, scaled to the samples fitted)."""
+    T = np.arange(len(U)) / command_rate_hz
+    start = T[1]
+    n_fit = samples_fitted(duration_s, mocap_rate_hz, seen, start)
+    if n_fit < 20:
+        raise BadInput(f"a session of {duration_s:g} s at {mocap_rate_hz:g} samples per s gives {n_fit} samples; "
+                       "calibrating from motion needs at least 20")
+    n_eval = min(n_fit, 4 * DESIGN_SAMPLES)
+    phase = (np.arange(n_eval) * 0.6180339887498949) % 1.0
+    t = start + (np.arange(n_eval) + phase) * (duration_s - start) / n_eval
+    return information.prediction(information.per_sample(T, U, t), n_fit, sigma_m), n_fit
+
+
+def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harmonics: int, command_rate_hz: float,
+                    mocap_rate_hz: float, sigma_m: float, markers: np.ndarray, rng: np.random.Generator,
+                    duration_s: float | None = None, target_m: float | None = None, evaluations: int = 200,
+                    seen: float = 1.0, progress: Callable[[int, int, float], None] | None = None) -> ExcitationPlan:
+    """Design the excitation (:func:`design_excitation`) and the session: ``duration_s`` as given,
+    else the shortest that meets ``target_m`` (:func:`session_length_for`, then lengthened until the
+    whole trajectory's prediction meets it), at least 1.25 periods. The report holds the limits,
+    the family and its coefficients, the D-criterion of the design and of the random multisine it
+    started from, and the predicted errors of both at the same duration and limits."""
+    if duration_s is None and target_m is None:
+        raise BadInput("give --duration-s S or --target-mm E (or both: the duration is then checked against the target)")
+    if not 0 < command_rate_hz <= 1000:
+        raise BadInput(f"--command-rate-hz must be in (0, 1000], got {command_rate_hz:g}")
+    if not 0 < mocap_rate_hz <= 10000:
+        raise BadInput(f"--rate-hz must be in (0, 10000], got {mocap_rate_hz:g}")
+    if not sigma_m > 0:
+        raise BadInput("--noise-mm must be positive")
+    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
+        raise BadInput(f"--duration-s must be a positive number of seconds, got {duration_s:g}")
+    if duration_s is not None and duration_s > LONGEST_S:
+        raise BadInput(f"--duration-s {duration_s:g}: at most {LONGEST_S:g} s")
+    family = FourierFamily(period_s, harmonics, spec.n_u)
+    if harmonics / period_s > 0.25 * command_rate_hz:
+        raise BadInput(f"--harmonics {harmonics} of a {period_s:g} s period reach {harmonics / period_s:g} Hz, over a "
+                       f"quarter of the command rate ({command_rate_hz:g} per s)")
+    information = MotionInformation(spec, markers)
+    design = design_excitation(spec, family, limits, information, command_rate_hz, rng, evaluations, progress)
+    shortest = 1.25 * period_s
+    length: dict | None = None
+    if duration_s is None:
+        assert target_m is not None
+        length = session_length_for(information, design.info_per_sample, target_m, sigma_m, mocap_rate_hz, seen,
+                                    1.0 / command_rate_hz)
+        duration = max(shortest, length["duration_s"])
+    else:
+        duration = float(duration_s)
+    for _ in range(8):
+        U, meta = trajectory(spec, family, design.coef, limits, duration, command_rate_hz, information.model,
+                             information.td)
+        pred, n_fit = _predict_trajectory(information, U, command_rate_hz, duration, mocap_rate_hz, seen, sigma_m)
+        if duration_s is not None or target_m is None or pred["marker_rms_m"] <= target_m:
+            break
+        duration = min(LONGEST_S, duration * max(1.1, (pred["marker_rms_m"] / target_m) ** 2))
+    U_random, _ = trajectory(spec, family, design.start, limits, duration, command_rate_hz, information.model,
+                             information.td)
+    pred_random, _ = _predict_trajectory(information, U_random, command_rate_hz, duration, mocap_rate_hz, seen, sigma_m)
+    t = np.arange(len(U)) / command_rate_hz
+    report = {
+        "kind": "excitation",
+        "family": {"name": "fourier", "period_s": float(period_s), "base_frequency_hz": 1.0 / period_s,
+                   "harmonics": int(harmonics), "coefficients": np.asarray(design.coef).tolist(),
+                   "rule": "u_j(t) = u0_j + A_j w(t) s_j(t), s_j = sum_k a_jk sin(2 pi k t / period) + b_jk cos(...) "
+                           "scaled to unit peak; w a raised-cosine rise and fall of ramp_s"},
+        "limits": {"lower": limits.lower.tolist(), "upper": limits.upper.tolist(), "rate": limits.rate.tolist(),
+                   "accel": limits.accel.tolist(), "source": limits.source,
+                   "units": "controls' internal units (m for length controls), per s and per s^2"},
+        "command_rate_hz": float(command_rate_hz), "duration_s": float(t[-1] + 1.0 / command_rate_hz),
+        "n_commands": int(len(U)), "ramp_s": meta["ramp_s"], "amplitude": meta["amplitude"],
+        "checked": {k: meta[k] for k in ("box", "rate", "accel", "rate_share", "accel_share")},
+        "design": {"evaluations": int(design.evaluations), "logdet_per_sample": design.logdet,
+                   "logdet_per_sample_random": design.logdet_start,
+                   "criterion": "log det of the information per sample in the identifiable subspace (free parameters, "
+                                "frame, markers, response; gauges left out), fixed column scales"},
+        "prediction": {"noise_m": float(sigma_m), "mocap_rate_hz": float(mocap_rate_hz), "seen": float(seen),
+                       "samples_fitted": int(n_fit), "marker_rms_m": pred["marker_rms_m"],
+                       "marker_rms_m_random": pred_random["marker_rms_m"],
+                       "identifiable_rank": int(information.rank), "n_parameters": int(information.n_parameters),
+                       "parameter_std": pred["parameter_std"],
+                       "definition": "3-D RMS over the stand's reference poses and the markers of the standard deviation "
+                                     "of the calibrated model's marker positions, white marker noise per coordinate and "
+                                     "sample, every sample calibrate fits"},
+    }
+    if target_m is not None:
+        report["target"] = {"target_m": float(target_m), "met": bool(pred["marker_rms_m"] <= target_m),
+                            "duration_s": report["duration_s"], **({} if length is None else {
+                                "samples_needed": length["samples"]})}
+    return ExcitationPlan(t, U, report)
+
+
+def write_commands_csv(path, spec: PlatformSpec, t: np.ndarray, U: np.ndarray, length_unit: str) -> None:
+    """commands.csv of the session format: ``t`` (s), then the control columns in the file's units."""
+    V = controls_from_si(spec, U, length_unit)
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t"] + list(spec.control_names))
+        for ti, row in zip(t, V):
+            w.writerow([f"{ti:.6f}"] + [f"{v:.9g}" for v in row])
