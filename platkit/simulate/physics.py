@@ -53,6 +53,7 @@ from platkit.simulate.continuous import continuous_plan
 from platkit.simulate.files import csv_text, dropped_note, fmt, write_imu_files
 from platkit.simulate.nuisance import Nuisances, coloured_noise, draw_nuisances, occlusion_mask
 from platkit.simulate.stand import make_plan, perturb_parameters
+from platkit.simulate.warmup import draw_warmup
 
 __all__ = ["PhysicalSession", "simulate_physics", "write_physical_session", "physics_of"]
 
@@ -219,7 +220,8 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                      clock_offset_s: float | None = None, coloured: bool = True, overshoot: bool = False,
                      imu: dict | None = None, perturbation: float = 1.0, description: str | None = None,
                      fine_step_s: float = 2e-3, motion: str | None = None, duration_s: float = 200.0,
-                     command_rate_hz: float = 20.0, library: dict[str, Effect] | None = None) -> PhysicalSession:
+                     command_rate_hz: float = 20.0, library: dict[str, Effect] | None = None,
+                     warmup: str | None = None) -> PhysicalSession:
     """Simulate a session of ``spec`` in the time domain (see the module's docstring).
 
     plan: 'grid', 'random', a plan.csv path, a Plan or an (N, n_u) array (internal units).
@@ -235,7 +237,56 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         :mod:`platkit.simulate.continuous` ('multisine', 'path', 'cue'): commands streamed every
         1 / ``command_rate_hz`` s for ``duration_s`` s, without holds, each followed as it comes
         (``plan`` and ``n_poses`` are then unused; the last command is held ``hold_s``).
+    warmup: None, or a warm-up with time since power-on (platkit.simulate.warmup: 'visible',
+        switched on just before the first command; 'warm', long before), its size drawn from the
+        seed like a nuisance; it acts after the effects' drives and is listed with them in the
+        truth (as thermal_drift, form 'warm-up with time').
     """
+    _check_options(n_markers, mocap_rate_hz, fine_step_s, length_unit)
+    rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
+    model = PlatformModel(spec)
+    U, plan_info, td, P_rest = _commands(spec, model, seed, plan, n_poses, motion, hold_s, overshoot, perturbation,
+                                         duration_s, command_rate_hz, length_unit, rng_plan, rng_stand)
+    S = default_marker_layout(spec, n_markers, rng_stand)
+    names = [f"M{k + 1}" for k in range(n_markers)]
+    size_m = stand_length_scale(spec) / 0.6
+    mocap_from_level = _level_mocap(rng_stand, size_m)
+    nuisances = draw_nuisances(spec, rng_nuis, hold_s=hold_s, noise_mm=noise_mm, occlusion=occlusion,
+                               overshoot=overshoot, latency_s=latency_s, clock_offset_s=clock_offset_s,
+                               coloured=coloured)
+    if motion is None:
+        t_cmd, hold_end = _schedule(U, spec.neutral_u(), nuisances, rng_nuis)
+    else:
+        t_cmd = np.round(LEAD_IN_S + np.arange(len(U)) / command_rate_hz, 6)
+        hold_end = np.append(t_cmd[1:], t_cmd[-1] + nuisances.hold_s)
+    phys_plan = PhysicsPlan(spec, t_cmd, U, spec.neutral_u(), nuisances.hold_s, float(hold_end[-1]), names)
+    physics, response = _physics(spec, seed, effects, phys_plan, nuisances, motion is not None, library, warmup)
+    tilt = np.zeros(2)
+    for _, p in physics:
+        w = p.base_tilt()
+        if w is not None:
+            tilt = tilt + np.asarray(w, float)[:2]
+    level_from_base = transform(matrix_from_rotvec(np.array([tilt[0], tilt[1], 0.0])), np.zeros(3))
+    rec = _Recorder(_Stand(spec, model, td, phys_plan, response, physics, P_rest, fine_step_s), S,
+                    mocap_from_level @ level_from_base, mocap_rate_hz)
+    marker_t, Y = rec.stream(nuisances, rng_noise, rng_occ)
+    last = np.clip(np.searchsorted(rec.t_exp, hold_end, side="left") - 1, 0, len(rec.t_exp) - 1)
+    q_s, X_s, settled_markers, u_settled = rec.rest(last)
+    base_names = [f"B{k + 1}" for k in range(n_base_markers)]
+    B, YB = _base_markers(n_base_markers, size_m, rec, nuisances, rng_base)
+    imu_data = None
+    if imu is not None:
+        options = dict(imu)
+        if np.any(tilt):
+            options["base_tilt"] = tilt + np.asarray(options.get("base_tilt", np.zeros(2)), float)
+        imu_data = imu_for_trajectory(**options)(_Trajectory(rec.stand, phys_plan.end_s), np.random.default_rng([seed, 8]))
+    plan_info.update(commands=int(len(U)))
+    return PhysicalSession(spec, seed, length_unit, mocap_rate_hz, t_cmd, U, names, marker_t, Y, q_s, X_s,
+                           settled_markers, td, rec.T, S, physics, nuisances, response, plan_info, base_names, YB, B,
+                           imu_data, description, hold_end, u_settled)
+
+
+def _check_options(n_markers: int, mocap_rate_hz: float, fine_step_s: float, length_unit: str) -> None:
     length_scale(length_unit)
     if n_markers < 3:
         raise BadInput(f"markers: at least 3 on the moving part, got {n_markers}")
@@ -243,8 +294,12 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         raise BadInput(f"motion-capture rate must be positive, got {mocap_rate_hz:g}")
     if not 0 < fine_step_s <= 0.01:
         raise BadInput(f"fine_step_s must be in (0, 0.01] s, got {fine_step_s:g}")
-    rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
-    model = PlatformModel(spec)
+
+
+def _commands(spec, model, seed, plan, n_poses, motion, hold_s, overshoot, perturbation, duration_s,
+              command_rate_hz, length_unit, rng_plan, rng_stand):
+    """(U (N, n_u) the commands the true stand reaches, plan_info, td the true parameters,
+    P_rest (N, n_p) the true poses at rest): planned (holds) or streamed (``motion``)."""
     if motion is None:
         U, plan_info = make_plan(spec, plan, n_poses, rng_plan, model, length_unit)
     else:  # streamed: planned within the drives' limits, drawn below with the nuisances
@@ -260,94 +315,85 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         U, P_rest = U[ok], P_rest[ok]
     if len(U) < 3:
         raise NotIdentifiable(f"{spec.name}: fewer than 3 planned poses are reachable")
-    S = default_marker_layout(spec, n_markers, rng_stand)
-    names = [f"M{k + 1}" for k in range(n_markers)]
-    size_m = stand_length_scale(spec) / 0.6
-    mocap_from_level = _level_mocap(rng_stand, size_m)
-    nuisances = draw_nuisances(spec, rng_nuis, hold_s=hold_s, noise_mm=noise_mm, occlusion=occlusion,
-                               overshoot=overshoot, latency_s=latency_s, clock_offset_s=clock_offset_s,
-                               coloured=coloured)
-    start = spec.neutral_u()
-    if motion is None:
-        t_cmd, hold_end = _schedule(U, start, nuisances, rng_nuis)
-    else:
-        t_cmd = np.round(LEAD_IN_S + np.arange(len(U)) / command_rate_hz, 6)
-        hold_end = np.append(t_cmd[1:], t_cmd[-1] + nuisances.hold_s)
-    end_t = float(hold_end[-1])
-    phys_plan = PhysicsPlan(spec, t_cmd, U, start, nuisances.hold_s, end_t, names)
+    return U, plan_info, td, P_rest
+
+
+def _physics(spec, seed, effects, phys_plan: PhysicsPlan, nuisances: Nuisances, streamed: bool, library,
+             warmup: str | None) -> tuple[list[tuple[str, EffectPhysics]], ActuatorResponse]:
+    """The effects' physics (each from its own random stream), the warm-up's last, and the
+    actuators' response they leave."""
     physics = [(name, physics_of(name, spec, size, np.random.default_rng([seed, 100 + k]), phys_plan, library))
                for k, (name, size) in enumerate(effects)]
+    if warmup is not None:
+        w = draw_warmup(spec, warmup, np.random.default_rng([seed, 9]), float(phys_plan.command_t[0]))
+        physics.append((w.effect, w))
     r0 = nuisances.response
     response = ActuatorResponse(np.array(r0.tau_s, float), np.array(r0.damping, float), np.array(r0.rate, float),
-                                np.array(r0.accel, float), streamed=motion is not None)
+                                np.array(r0.accel, float), streamed=streamed)
     for _, p in physics:
         p.respond(response)
     response.check()
+    return physics, response
 
-    tilt = np.zeros(2)
-    for _, p in physics:
-        w = p.base_tilt()
-        if w is not None:
-            tilt = tilt + np.asarray(w, float)[:2]
-    level_from_base = transform(matrix_from_rotvec(np.array([tilt[0], tilt[1], 0.0])), np.zeros(3))
-    T = mocap_from_level @ level_from_base
-    stand = _Stand(spec, model, td, phys_plan, response, physics, P_rest, fine_step_s)
 
-    def marker_offsets(t):
-        off = np.zeros((len(t), n_markers, 3))
-        for _, p in physics:
-            o = p.marker_offsets(t, phys_plan)
+class _Recorder:
+    """The motion capture of the true stand: ``T`` (4, 4) mocap_from_base, markers at ``S``
+    (M, 3) on the moving part, exposures ``t_exp`` every 1/rate on the commands clock."""
+
+    def __init__(self, stand: _Stand, S: np.ndarray, T: np.ndarray, rate_hz: float):
+        self.stand, self.S, self.T, self.rate = stand, S, T, rate_hz
+        self.t_exp = np.arange(0.0, stand.plan.end_s, 1.0 / rate_hz)
+
+    def offsets(self, t: np.ndarray) -> np.ndarray:
+        off = np.zeros((len(t), len(self.S), 3))
+        for _, p in self.stand.physics:
+            o = p.marker_offsets(t, self.stand.plan)
             if o is not None:
                 off = off + np.asarray(o, float)
         return off
 
-    def to_mocap(q, X, off):
+    def to_mocap(self, q: np.ndarray, X: np.ndarray, t: np.ndarray) -> np.ndarray:
         R = matrix_from_quat(q)
-        base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, S[None] + off)
-        return base @ T[:3, :3].T + T[:3, 3]
+        base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, self.S[None] + self.offsets(t))
+        return base @ self.T[:3, :3].T + self.T[:3, 3]
 
-    # the stream: exposures every 1/rate on the commands clock, stamped later by the latency and offset
-    t_exp = np.arange(0.0, end_t, 1.0 / mocap_rate_hz)
-    u, seg = stand.controls(t_exp)
-    q, X = stand.pose(u, seg, t_exp)
-    Y = to_mocap(q, X, marker_offsets(t_exp))
-    dt = 1.0 / mocap_rate_hz
-    Y = Y + rng_noise.normal(size=Y.shape) * nuisances.noise_m
-    Y = Y + coloured_noise(rng_noise, Y.shape, dt, nuisances.coloured_m, nuisances.correlation_s)
-    burst = max(1, int(round(nuisances.burst_s * mocap_rate_hz)))
-    Y[occlusion_mask(rng_occ, len(t_exp), n_markers, nuisances.occlusion, burst)] = np.nan
-    Y = np.round(Y * 1e6) / 1e6  # 1 um steps, as the files keep them
-    marker_t = np.round(t_exp + nuisances.time_shift_s, 6)
+    def stream(self, nuisances: Nuisances, rng_noise, rng_occ) -> tuple[np.ndarray, np.ndarray]:
+        """(marker_t (K,), markers (K, M, 3)): exposures stamped later by the latency and offset,
+        with white and coloured noise, bursts of occlusion (NaN) and 1 um steps."""
+        t_exp = self.t_exp
+        u, seg = self.stand.controls(t_exp)
+        q, X = self.stand.pose(u, seg, t_exp)
+        Y = self.to_mocap(q, X, t_exp)
+        Y = Y + rng_noise.normal(size=Y.shape) * nuisances.noise_m
+        Y = Y + coloured_noise(rng_noise, Y.shape, 1.0 / self.rate, nuisances.coloured_m, nuisances.correlation_s)
+        Y[occlusion_mask(rng_occ, len(t_exp), len(self.S), nuisances.occlusion, self.burst(nuisances))] = np.nan
+        Y = np.round(Y * 1e6) / 1e6  # 1 um steps, as the files keep them
+        return np.round(t_exp + nuisances.time_shift_s, 6), Y
 
-    # the truth: the rest series at the end of every hold
-    # (on the stream's even grid, which slow states such as heat are integrated on; the last
-    # exposure before each hold ends)
-    last = np.clip(np.searchsorted(t_exp, hold_end, side="left") - 1, 0, len(t_exp) - 1)
-    u_rest, seg_rest = stand.controls(t_exp, rest=True)
-    t_rest = t_exp[last]
-    q_s, X_s = stand.pose(u_rest[last], seg_rest[last], t_rest)
-    settled_markers = to_mocap(q_s, X_s, marker_offsets(t_rest))
+    def burst(self, nuisances: Nuisances) -> int:
+        return max(1, int(round(nuisances.burst_s * self.rate)))
 
-    base_names = [f"B{k + 1}" for k in range(n_base_markers)]
-    B = YB = None
-    if n_base_markers:
-        rho = 1.5 * size_m
-        ang = 2 * np.pi * np.arange(n_base_markers) / n_base_markers + rng_base.uniform(-0.3, 0.3, n_base_markers)
-        B = np.stack([rho * np.cos(ang), rho * np.sin(ang), rng_base.uniform(0, 0.05, n_base_markers) * rho], axis=1)
-        YB = (B @ T[:3, :3].T + T[:3, 3])[None] + rng_base.normal(size=(len(t_exp), n_base_markers, 3)) * nuisances.noise_m
-        YB[occlusion_mask(rng_base, len(t_exp), n_base_markers, nuisances.occlusion, burst)] = np.nan
-        YB = np.round(YB * 1e6) / 1e6
+    def rest(self, last: np.ndarray):
+        """(q (N, 4), X (N, 3), markers (N, M, 3), controls (N, n_u)) of the rest series at the
+        exposures ``last`` (N,) (the last before each hold ends: on the stream's even grid, which
+        slow states such as heat are integrated on)."""
+        u_rest, seg_rest = self.stand.controls(self.t_exp, rest=True)
+        t_rest = self.t_exp[last]
+        q_s, X_s = self.stand.pose(u_rest[last], seg_rest[last], t_rest)
+        return q_s, X_s, self.to_mocap(q_s, X_s, t_rest), u_rest[last]
 
-    imu_data = None
-    if imu is not None:
-        options = dict(imu)
-        if np.any(tilt):
-            options["base_tilt"] = tilt + np.asarray(options.get("base_tilt", np.zeros(2)), float)
-        imu_data = imu_for_trajectory(**options)(_Trajectory(stand, end_t), np.random.default_rng([seed, 8]))
-    plan_info.update(commands=int(len(U)))
-    return PhysicalSession(spec, seed, length_unit, mocap_rate_hz, t_cmd, U, names, marker_t, Y, q_s, X_s,
-                           settled_markers, td, T, S, physics, nuisances, response, plan_info, base_names, YB, B,
-                           imu_data, description, hold_end, u_rest[last])
+
+def _base_markers(n: int, size_m: float, rec: _Recorder, nuisances: Nuisances, rng_base):
+    """(B (n, 3) the base markers in the base frame, YB (K, n, 3) their stream), or (None, None)."""
+    if not n:
+        return None, None
+    T, K = rec.T, len(rec.t_exp)
+    rho = 1.5 * size_m
+    ang = 2 * np.pi * np.arange(n) / n + rng_base.uniform(-0.3, 0.3, n)
+    B = np.stack([rho * np.cos(ang), rho * np.sin(ang), rng_base.uniform(0, 0.05, n) * rho], axis=1)
+    YB = (B @ T[:3, :3].T + T[:3, 3])[None] + rng_base.normal(size=(K, n, 3)) * nuisances.noise_m
+    YB[occlusion_mask(rng_base, K, n, nuisances.occlusion, rec.burst(nuisances))] = np.nan
+    return B, np.round(YB * 1e6) / 1e6
 
 
 def settled_table(sim: PhysicalSession) -> tuple[list[str], list[list[str]]]:
