@@ -22,7 +22,6 @@ KNOWN_LONG_FUNCTIONS = {
     ("commands/batch.py", "run"),
     ("settle/_approach.py", "_fit"),
     ("settle/_settle.py", "settle"),
-    ("simulate/physics.py", "simulate_physics"),
 }
 
 
