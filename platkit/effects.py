@@ -70,6 +70,11 @@ class Effect:
       effect's term where the stream gave one;
     - ``not_separable_advice``: a sentence the verdict adds when a term of this effect cannot be
       told from the geometry on the session's plan ('' for none);
+    - ``forecast``: True for an effect whose terms extrapolate in time beyond what was recorded (a
+      drift, a warm-up). Its variants fall into forms (a term's ``where['form']``): within a form
+      the variants compete by BIC, the forms by how each predicts the later part of the session
+      held out (fitted on the earlier part); and it is accepted only where it predicts that later
+      part no worse than the model without it;
     - ``simulation_size``, ``physics_size``: what the size of ``platkit simulate --effect
       NAME=SIZE`` means in the additive and in the time-domain simulator (:class:`SizeHelp`, its
       meaning and unit; None where the effect has no such simulation).
@@ -81,6 +86,7 @@ class Effect:
     direction: bool = False
     unsettled_holds: bool = False
     not_separable_advice: str = ""
+    forecast: bool = False
     simulation_size: SizeHelp | None = None
     physics_size: SizeHelp | None = None
 

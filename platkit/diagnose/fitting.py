@@ -12,6 +12,7 @@ import numpy as np
 from platkit.calibrate.estimate import CalibrationProblem, levenberg_marquardt, robust_fit
 from platkit.diagnose.locate import Location
 from platkit.diagnose.stats import bic
+from platkit.effects import history
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
@@ -83,6 +84,9 @@ class Options:
     # scored them with the effect still in the residual) are freed again when that predicts
     # held-out poses better; off: the calibration's free set stays
     reopen_geometry: bool = True
+    # a term that extrapolates in time (Effect.forecast) is judged on the last this share of the
+    # session by time, held out and predicted from a fit to the rest (rounds.best_variant, confirm)
+    later_share: float = 0.3
 
     @property
     def weak_alpha(self) -> float:
@@ -106,6 +110,7 @@ class Fit:
     n_params: int
     cv: np.ndarray | None = None  # (N,) held-out mean squared marker error per pose, m^2
     fit_weights: np.ndarray | None = None  # (N, M) the weights the fit itself used (robust)
+    later: float | None = None  # m, RMS over the later part of the session predicted from the earlier (_later)
 
     @property
     def bic(self) -> float:
@@ -215,6 +220,25 @@ def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: in
         seen = np.isfinite(d2).sum(axis=1)
         out[test] = np.where(seen > 0, np.nansum(d2, axis=1) / np.maximum(seen, 1), np.nan)
     return out
+
+def _later(fit: Fit, spec: PlatformSpec, poses: PoseSet, share: float, iterations: int) -> float:
+    """RMS (m) of the marker errors over the last ``share`` of the session by time (``elapsed``),
+    predicted by ``fit``'s model refitted on the poses before it: how the model forecasts in time.
+    NaN when either part is empty."""
+    t = np.asarray(history(poses, "elapsed"), float)
+    if t.size < 4 or not np.ptp(t) > 0:
+        return float("nan")
+    cut = np.min(t) + (1.0 - share) * np.ptp(t)
+    train, test = t <= cut, t > cut
+    if train.sum() < 2 or not test.any():
+        return float("nan")
+    sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
+    w = fit.weights if fit.fit_weights is None else fit.fit_weights
+    res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations)
+    r = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test)).r
+    keep = (fit.weights[test] > 0) & np.all(np.isfinite(r), axis=2)
+    return float(np.sqrt(np.sum(np.nan_to_num(r) ** 2 * keep[:, :, None]) / max(3 * int(keep.sum()), 1)))
+
 
 def _rms(cv: np.ndarray, mask: np.ndarray) -> float:
     """RMS (m) of the held-out errors ``cv`` (N,) (mean squares per pose) over the poses in ``mask``."""

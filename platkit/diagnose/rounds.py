@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from platkit.calibrate.estimate import CalibrationProblem
-from platkit.diagnose.fitting import Fit, Options, _fit, _obs, _rms, _where_text
+from platkit.diagnose.fitting import Fit, Options, _fit, _later, _obs, _rms, _where_text
 from platkit.diagnose.stats import column_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -60,11 +60,35 @@ def best_variant(i0: int, cands: list, scr: list, cur: Fit, spec: PlatformSpec, 
     """The variant of candidate ``i0``'s kind and place (a cooling time constant, a period, a
     slip's row) that fits best, as (index, fit). The score test ranks them at zero effect; a large
     effect may fit another better. ``opt.max_variants`` spread over them (in the library's order,
-    ``i0`` among them) are fitted, then the neighbours of the lowest BIC until it is a minimum."""
+    ``i0`` among them) are fitted, then the neighbours of the lowest BIC until it is a minimum.
+
+    An effect that extrapolates in time (``Effect.forecast``) has forms (``where['form']``): the
+    best variant of each form by BIC, then the form that predicts the later part of the session
+    best (fitting._later, each fit's ``later``; ``cur.later`` is set beside them)."""
     same = [j for j in range(len(cands)) if place(cands[j][1]) == place(cands[i0][1])
             and scr[j][2] >= opt.min_separability]
     if i0 not in same:
         same.append(i0)
+    if not cands[i0][0].forecast:
+        return _lowest_bic(i0, same, cands, cur, spec, poses, weights, opt)
+    forms: dict[str, list[int]] = {}
+    for j in same:
+        forms.setdefault(str(cands[j][1].where.get("form", "")), []).append(j)
+    if cur.later is None:
+        cur.later = _later(cur, spec, poses, opt.later_share, opt.lm_iterations)
+    best: list[tuple[int, Fit]] = []
+    for members in forms.values():
+        first = i0 if i0 in members else members[0]
+        j, f = _lowest_bic(first, members, cands, cur, spec, poses, weights, opt)
+        f.later = _later(f, spec, poses, opt.later_share, opt.lm_iterations)
+        best.append((j, f))
+    return min(best, key=lambda jf: (np.nan_to_num(jf[1].later, nan=np.inf), jf[1].bic))
+
+
+def _lowest_bic(i0: int, same: list[int], cands: list, cur: Fit, spec: PlatformSpec, poses: PoseSet,
+                weights: np.ndarray, opt: Options) -> tuple[int, Fit]:
+    """Of the candidates ``same`` (``i0`` among them), the one of lowest BIC: spread fits, then
+    the neighbours of the lowest until it is a minimum (see :func:`best_variant`)."""
     pick = {int(same[int(round(x))]) for x in np.linspace(0, len(same) - 1, max(1, min(opt.max_variants, len(same))))}
     pick.add(i0)
     fits: dict[int, Fit] = {}
@@ -129,6 +153,9 @@ def _failed(f: Fit, p_h: float, separability: float, cur: Fit, judged: np.ndarra
     its level divided by ``share``), in words; None when it does."""
     if f.bic >= cur.bic:
         return f"BIC {f.bic - cur.bic:+.1f}"
+    if f.later is not None and cur.later is not None and np.isfinite(cur.later) and not f.later <= cur.later:
+        return (f"it predicts the later {100 * opt.later_share:g}% of the session, held out, "
+                f"{f.later / cur.later:.2f} times as far off as the model without it")
     before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
     if after >= (1 - opt.min_relative_gain) * before:
         return f"held-out gain {100 * (1 - after / before):.1f}% (under {100 * opt.min_relative_gain:g}%)"

@@ -1,5 +1,16 @@
-"""thermal_drift: the actuators lengthen with the heat of the strokes they moved (cooling with a
-screened time constant), or the moving frame drifts linearly in time."""
+"""thermal_drift in three forms: the actuators lengthen with the heat of the work they do (the
+strokes they moved, cooling with a screened time constant), the actuators lengthen as the stand
+warms up with time since power-on towards an equilibrium (a screened time constant), or the
+moving frame drifts linearly in time. The three are variants of one place; diagnosis chooses among
+them by how each predicts the later part of the session from the earlier (``Effect.forecast``).
+
+Time: a term reads ``elapsed``, the seconds since the session's first command, which stands for
+the power-on (a warm-up's constant part before it is the geometry's). ``platkit predict`` sets
+``elapsed`` to the thermal state it is asked for (``--at-time``: seconds since power-on, or
+``--warm``: the equilibrium, ``inf``) and, for the heat of work, ``thermal_start_s``: the time
+since power-on of the first row, whose heat is that of work at the recorded session's rate
+(``where.work_rate_per_s``). Every term's ``where`` keeps ``recorded_s``, the span of the session
+it was fitted on, so that ``predict`` warns beyond it."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -19,6 +30,12 @@ from platkit_effects.physics import ThermalPhysics, thermal_state
 #: cooling time constants (s) a thermal drift is screened at, a factor sqrt(2) apart (the simulator
 #: draws 5 to 15 min); the score test picks among them
 COOLING_TAUS_S = tuple(float(round(150.0 * 2 ** (k / 2))) for k in range(11))  # 150 s to 80 min
+#: time constants (s) of a warm-up with time since power-on, screened like the cooling ones (the
+#: physical simulator's warm-up draws 5 to 20 min)
+WARMUP_TAUS_S = COOLING_TAUS_S
+#: the forms of a thermal drift (``where['form']``: the variants of one form compete by BIC, the
+#: forms by held-out prediction of the later part of the session)
+FORM_LINEAR, FORM_WORK, FORM_WARMUP = "linear in time", "heat from work", "warm-up with time"
 
 
 def motion_heat(poses: PoseSet, stroke: np.ndarray, tau_s: float) -> np.ndarray:
@@ -88,6 +105,38 @@ def remember_heat(poses: PoseSet, stroke: np.ndarray) -> None:
             poses.extras[key] = motion_heat(poses, stroke, tau)
 
 
+def _start_heat(poses: PoseSet, work_rate: np.ndarray | None, tau_s: float) -> np.ndarray | None:
+    """(n_u,) the heat at the first row when ``predict`` gave a thermal state (extras
+    'thermal_start_s', seconds since power-on at the first row, ``inf`` warm): that of work at
+    the recorded ``work_rate`` (strokes per second) since power-on, ``rate tau (1 - exp(-s / tau))``;
+    None when no state was given (the first row is cold) or the rate is unknown."""
+    start = poses.extras.get("thermal_start_s")
+    if start is None or work_rate is None or poses.n_poses == 0:
+        return None
+    s0 = float(np.asarray(start, float).reshape(-1)[0])
+    warmth = 1.0 if np.isinf(s0) else 1.0 - np.exp(-max(s0, 0.0) / tau_s)
+    return np.asarray(work_rate, float) * tau_s * warmth
+
+
+def work_rate(poses: PoseSet, stroke: np.ndarray) -> np.ndarray:
+    """(n_u,) the strokes each actuator moved per second over the session (rows in session order;
+    a gap in the rows counts its move across the gap)."""
+    t = history(poses, "elapsed")
+    span = float(np.ptp(t)) if t.size else 0.0
+    if poses.n_poses < 2 or not span > 0:
+        return np.zeros(poses.controls.shape[1])
+    order = np.argsort(history(poses, "row"), kind="stable")
+    U = np.asarray(poses.controls, float)[order] / stroke
+    return np.sum(np.abs(np.diff(U, axis=0)), axis=0) / span
+
+
+def warmth(poses: PoseSet, tau_s: float) -> np.ndarray:
+    """(N,) the share of the warm-up's equilibrium reached at each row, ``1 - exp(-elapsed / tau)``
+    (``elapsed`` ``inf``: warm, 1)."""
+    t = np.maximum(history(poses, "elapsed"), 0.0)
+    return 1.0 - np.exp(-t / tau_s)
+
+
 @dataclass
 class ThermalDriftTerm(ModelTerm):
     """The moving frame translated linearly in time (the additive simulator's drift)."""
@@ -104,10 +153,28 @@ class ThermalExpansionTerm(ModelTerm):
 
     tau_s: float = 600.0
     stroke: np.ndarray = field(default_factory=lambda: np.ones(1))
+    work_rate: np.ndarray | None = None
 
     def control_offset(self, theta, poses, n_u):
+        h0 = _start_heat(poses, self.work_rate, self.tau_s)
+        if h0 is not None and np.isinf(np.asarray(poses.extras["thermal_start_s"], float).reshape(-1)[0]):
+            return theta[0] * np.broadcast_to(h0[:n_u], (poses.n_poses, n_u)).copy()  # warm: work at the recorded rate
         heat = motion_heat(poses, self.stroke, self.tau_s)
+        if h0 is not None:  # the heat the first row starts with, cooling from there
+            t = history(poses, "elapsed")
+            heat = heat + h0[None] * np.exp(-(t - np.min(t)) / self.tau_s)[:, None]
         return theta[0] * heat[:, :n_u]
+
+
+@dataclass
+class ThermalWarmupTerm(ModelTerm):
+    """Every actuator j longer by theta_j times the warm-up reached, ``1 - exp(-elapsed / tau_s)``
+    (theta_j: its lengthening once warm, beyond what it had at the first command)."""
+
+    tau_s: float = 600.0
+
+    def control_offset(self, theta, poses, n_u):
+        return warmth(poses, self.tau_s)[:, None] * np.asarray(theta, float)[None, :n_u]
 
 
 def _strokes(spec: PlatformSpec) -> np.ndarray:
@@ -115,25 +182,57 @@ def _strokes(spec: PlatformSpec) -> np.ndarray:
     return np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, 1.0)
 
 
+def _recorded(poses: PoseSet) -> list[float]:
+    t = history(poses, "elapsed")
+    return [float(np.min(t)), float(np.max(t))] if t.size else [0.0, 0.0]
+
+
+def _recorded_from(where: dict) -> list[float] | None:
+    span = where.get("recorded_s")
+    if isinstance(span, list) and len(span) == 2 and all(isinstance(v, (int, float)) for v in span):
+        return [float(v) for v in span]
+    return None
+
+
 class ThermalDrift(Effect):
     name = "thermal_drift"
-    summary = "actuators that lengthen with the heat of their own motion, or a slow drift in time"
+    summary = ("actuators that lengthen with the heat of their own motion or as the stand warms up after power-on, "
+               "or a slow drift in time")
+    forecast = True
     simulation_size = SizeHelp("the drift of the moving frame, in a random horizontal-ish direction", "mm per hour")
     physics_size = SizeHelp("the largest lengthening of an actuator over the session, from heat that grows with the "
                             "distance each actuator moves and cools with a time constant of 5 to 15 minutes",
                             CONTROL_SIZE_UNIT)
 
-    def term(self):
-        return ThermalDriftTerm(self.name, ["vx", "vy", "vz"], np.zeros(3), ["m/s"] * 3,
-                                {"time": "the whole session, linear in the time since its first command"})
+    def term(self, recorded: list[float] | None = None):
+        where: dict = {"time": "the whole session, linear in the time since its first command", "form": FORM_LINEAR}
+        if recorded is not None:
+            where["recorded_s"] = recorded
+        return ThermalDriftTerm(self.name, ["vx", "vy", "vz"], np.zeros(3), ["m/s"] * 3, where)
 
-    def expansion(self, unit: str, stroke, tau_s: float):
+    def expansion(self, unit: str, stroke, tau_s: float, rate=None, recorded: list[float] | None = None):
         stroke = np.asarray(stroke, float)
         where = {"actuator": "all", "unit": unit, "cooling_time_constant_s": float(tau_s),
-                 "stroke": [float(s) for s in stroke],
+                 "stroke": [float(s) for s in stroke], "form": FORM_WORK,
                  "heat": "strokes each actuator moved, cooling with the time constant"}
+        if rate is not None:
+            where["work_rate_per_s"] = [float(r) for r in rate]
+        if recorded is not None:
+            where["recorded_s"] = recorded
         return ThermalExpansionTerm(self.name, ["expansion_per_stroke"], np.zeros(1), [unit], where,
-                                    tau_s=float(tau_s), stroke=stroke)
+                                    tau_s=float(tau_s), stroke=stroke,
+                                    work_rate=None if rate is None else np.asarray(rate, float))
+
+    def warmup(self, names: list[str], units: list[str], tau_s: float, recorded: list[float] | None = None):
+        """The warm-up with time since power-on: one amplitude per actuator (``names``, ``units``)."""
+        where: dict = {"actuator": "all", "form": FORM_WARMUP, "warmup_time_constant_s": float(tau_s),
+                       "actuators": list(names), "units": list(units),
+                       "warmup": "each actuator longer by its amplitude times 1 - exp(-t / tau), t the time since "
+                                 "the first command (which stands for the power-on)"}
+        if recorded is not None:
+            where["recorded_s"] = recorded
+        return ThermalWarmupTerm(self.name, [f"{n}_warm" for n in names], np.zeros(len(names)), list(units), where,
+                                 tau_s=float(tau_s))
 
     def candidates(self, spec, poses, residuals=None):
         if not np.ptp(history(poses, "elapsed")) > 0:
@@ -141,25 +240,36 @@ class ThermalDrift(Effect):
         stroke = _strokes(spec)
         remember_heat(poses, stroke)
         units = {c.unit for c in spec.controls}
-        out = [self.term()]
+        recorded = _recorded(poses)
+        out = [self.term(recorded)]
         if len(units) == 1 and np.ptp(poses.controls, axis=0).max() > 0:
-            out += [self.expansion(spec.controls[0].unit, stroke, tau) for tau in COOLING_TAUS_S]
+            rate = work_rate(poses, stroke)
+            out += [self.expansion(spec.controls[0].unit, stroke, tau, rate, recorded) for tau in COOLING_TAUS_S]
+        names, cunits = list(spec.control_names), [c.unit for c in spec.controls]
+        out += [self.warmup(names, cunits, tau, recorded) for tau in WARMUP_TAUS_S]
         return out
 
     def regressor(self, term, spec, poses):
         if isinstance(term, ThermalExpansionTerm):
             return np.mean(motion_heat(poses, term.stroke, term.tau_s), axis=1)
+        if isinstance(term, ThermalWarmupTerm):
+            return warmth(poses, term.tau_s)
         return history(poses, "elapsed")
 
     def regressor_label(self, term):
         if isinstance(term, ThermalExpansionTerm):
             return f"mean heat of the actuators (strokes moved, cooling over {term.tau_s:g} s)"
+        if isinstance(term, ThermalWarmupTerm):
+            return f"warm-up reached, 1 - exp(-t / {term.tau_s:g} s), t since the first command"
         return "time since the first command (s)"
 
     def from_dict(self, data, spec=None):
         where = _where(data)
+        recorded = _recorded_from(where)
+        if where.get("form") == FORM_WARMUP:
+            return self._warmup_from(where, spec, recorded)
         if "cooling_time_constant_s" not in where:
-            return self.term()
+            return self.term(recorded)
         tau = _number(where, "cooling_time_constant_s", self.name, positive=True)
         stroke = where.get("stroke")
         if not (isinstance(stroke, list) and stroke and all(isinstance(s, (int, float)) and s > 0 for s in stroke)):
@@ -168,7 +278,23 @@ class ThermalDrift(Effect):
             raise BadInput(f"effect 'thermal_drift': where.stroke has {len(stroke)} strokes, {spec.name} "
                            f"has {spec.n_u} actuators")
         unit = where.get("unit")
-        return self.expansion(unit if isinstance(unit, str) else "m", stroke, tau)
+        rate = where.get("work_rate_per_s")
+        if rate is not None and not (isinstance(rate, list) and len(rate) == len(stroke)
+                                     and all(isinstance(r, (int, float)) and r >= 0 for r in rate)):
+            raise BadInput("effect 'thermal_drift': where.work_rate_per_s must list each actuator's strokes per "
+                           "second (>= 0), one per stroke")
+        return self.expansion(unit if isinstance(unit, str) else "m", stroke, tau, rate, recorded)
+
+    def _warmup_from(self, where: dict, spec, recorded):
+        tau = _number(where, "warmup_time_constant_s", self.name, positive=True)
+        names, units = where.get("actuators"), where.get("units")
+        if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)
+                and isinstance(units, list) and len(units) == len(names) and all(isinstance(u, str) for u in units)):
+            raise BadInput("effect 'thermal_drift': a warm-up's where needs 'actuators' (names) and 'units', one each")
+        if spec is not None and list(names) != list(spec.control_names):
+            raise BadInput(f"effect 'thermal_drift': where.actuators {names} are not {spec.name}'s controls "
+                           f"({', '.join(spec.control_names)})")
+        return self.warmup(names, units, tau, recorded)
 
     def simulation_term(self, spec, size, rng, commands):
         """``size``: drift of the moving frame in mm per hour, in a random horizontal-ish direction."""
