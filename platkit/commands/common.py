@@ -47,6 +47,25 @@ def parse_vector(text: str, what: str, size: int | None = None) -> np.ndarray:
     return values
 
 
+#: a quaternion typed or written by a person is unit if its norm is within this of 1 (4 to 6 decimals
+#: pass); further off it is refused rather than normalised (a scaled or mistyped rotation), as the
+#: session readers and importers do
+QUATERNION_NORM_TOL = 1e-3
+
+
+def unit_quaternion(q, what: str) -> np.ndarray:
+    """``q`` (4,) w,x,y,z normalised; BadInput naming ``what`` (the option or file place) if it is
+    zero or its norm is further than QUATERNION_NORM_TOL from 1."""
+    q = np.asarray(q, float)
+    n = float(np.linalg.norm(q))
+    if n == 0:
+        raise BadInput(f"{what}: the quaternion is zero")
+    if abs(n - 1.0) > QUATERNION_NORM_TOL:
+        raise BadInput(f"{what}: the quaternion qw,qx,qy,qz has norm {n:.6g}, expected 1 (within "
+                       f"{QUATERNION_NORM_TOL:g}); give a unit quaternion, or the rotation as roll,pitch,yaw")
+    return q / n
+
+
 def pose_dict(q, X, unit: str) -> dict:
     """A pose as the spec's JSON: x, y, z (unit), qw..qz, roll, pitch, yaw (rad)."""
     s = length_scale(unit)

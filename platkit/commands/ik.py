@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, print_json, platform_from_args
+from platkit.commands.common import (add_platform_options, add_unit_option, parse_vector, platform_from_args, print_json,
+                                     unit_quaternion)
 from platkit.errors import BadInput, OutOfWorkspace
-from platkit.geometry import quat_conjugate, quat_from_rpy, quat_multiply, quat_normalize, rpy_from_quat
+from platkit.geometry import quat_conjugate, quat_from_rpy, quat_multiply, rpy_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_from_si, length_scale
 from platkit.plugins import get_platform
@@ -36,9 +37,7 @@ def run(args) -> int:
         if v.size == 6:
             q = quat_from_rpy(*v[3:6])
         elif v.size == 7:
-            if np.linalg.norm(v[3:]) == 0:
-                raise BadInput("--pose: the quaternion is zero")
-            q = quat_normalize(v[3:])
+            q = unit_quaternion(v[3:], "--pose")
         else:
             raise BadInput(f"--pose: expected 6 (x,y,z,roll,pitch,yaw) or 7 (x,y,z,qw,qx,qy,qz) numbers, got {v.size}")
         X = v[:3] * s

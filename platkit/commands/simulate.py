@@ -6,6 +6,7 @@ from pathlib import Path
 
 from platkit.commands.common import add_platform_options, parse_vector, platform_from_args
 from platkit.errors import BadInput
+from platkit.notices import said
 
 #: the additive simulator's defaults for the nuisances --physics draws per session
 ADDITIVE_DEFAULTS = {"noise_mm": 0.2, "occlusion": 0.02, "hold_s": 1.5}
@@ -180,7 +181,9 @@ def run(args) -> int:
                    n_base_markers=args.base_markers, imu=imu, perturbation=args.perturbation,
                    n_bodies=args.rigid_bodies)
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
-                        moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None))
+                        moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None),
+                        notes=notes_with_warnings(f"simulated by platkit (seed {sim.truth.seed}); the true stand is in "
+                                                  "truth.yaml"))
     kind = "settled poses" if args.poses_only else f"{len(sim.marker_t)} motion-capture samples"
     if sim.imu is not None:
         kind += f", {len(sim.imu['t'])} IMU samples"
@@ -193,6 +196,14 @@ def run(args) -> int:
     for e, theta in imu_effects:
         print(f"  hidden IMU effect {e.name}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(e.parameter_names, theta)))
     return 0
+
+
+def notes_with_warnings(notes: str) -> str:
+    """session.yaml's ``notes``: ``notes``, then every warning said while the session was simulated
+    (platkit.notices: a --plan control past a limit within the recording tolerance, ...), each as
+    "warning: <text>", so that the session's own file keeps what stderr said. (The writers append
+    the dropped-commands sentence themselves.)"""
+    return "; ".join([notes] + [f"warning: {w}" for w in said()])
 
 
 def say_dropped(plan_info: dict, n_kept: int) -> None:
@@ -235,7 +246,9 @@ def run_physics(args, spec, plan, effects) -> int:
                            **motion_options(args))
     out = write_physical_session(sim, args.out, description=args.description,
                                  moving_link=getattr(args, "moving_link", None),
-                                 base_link=getattr(args, "base_link", None))
+                                 base_link=getattr(args, "base_link", None),
+                                 notes=notes_with_warnings(f"simulated in the time domain by platkit (seed {sim.seed}); "
+                                                           "the truth is in truth.yaml and truth_settled.csv"))
     kind = f"{len(sim.marker_t)} motion-capture samples"
     if sim.imu is not None:
         kind += f", {len(sim.imu['t'])} IMU samples"

@@ -13,7 +13,9 @@ from platkit.chains.transforms import pose_from_xyz_rpy
 from platkit.commands.common import parse_vector, print_json
 from platkit.errors import BadInput, OutOfWorkspace
 from platkit.io.atomic import atomic_write_text, check_output_file
+from platkit.limits import RECORDING_TOLERANCE, ROUNDING
 from platkit.model import length_scale
+from platkit.notices import said, warn
 
 
 def add_parser(sub):
@@ -67,12 +69,13 @@ def add_parser(sub):
     return p
 
 
-def _start(chain: KinematicChain, text: str, s: float) -> np.ndarray:
+def _start(chain: KinematicChain, text: str, unit: str) -> np.ndarray:
     text = text.strip()
     if text == "mid":
         return chain.mid_range()
     if text == "zero":
         return chain.neutral()
+    s = length_scale(unit)
     prismatic = np.array([k == "prismatic" for k in chain.kinds])
     if "=" in text:
         theta = chain.mid_range()
@@ -89,10 +92,32 @@ def _start(chain: KinematicChain, text: str, s: float) -> np.ndarray:
     else:
         v = parse_vector(text, "--q0", chain.n)
         theta = np.where(prismatic, v * s, v)
-    outside = [n for n, t, lo, hi in zip(chain.joint_names, theta, chain.lower, chain.upper) if t < lo - 1e-12 or t > hi + 1e-12]
-    if outside:
-        raise BadInput(f"--q0: joints outside their limits: {', '.join(outside)}")
+    check_start(chain, theta, unit)
     return theta
+
+
+def check_start(chain: KinematicChain, theta: np.ndarray, length_unit: str) -> None:
+    """--q0 against the joint limits under platkit.limits' policy for a reading: past a limit by
+    at most RECORDING_TOLERANCE of the joint's range, a warning (the servo starts at the limit);
+    further, BadInput naming the joint, its value, its range and how far past it is. Prismatic
+    joints are shown in ``length_unit`` (--unit)."""
+    s = length_scale(length_unit)
+    for name, kind, t, lo, hi in zip(chain.joint_names, chain.kinds, theta, chain.lower, chain.upper):
+        rounding = ROUNDING * max([1.0] + [abs(v) for v in (lo, hi) if np.isfinite(v)])
+        if lo - rounding <= t <= hi + rounding:
+            continue
+        k, unit = (s, length_unit) if kind == "prismatic" else (1.0, "rad")
+        limit = lo if t < lo else hi
+        span = hi - lo
+        slack = RECORDING_TOLERANCE * span if np.isfinite(span) and span > 0 else 0.0
+        past = abs(t - limit)
+        where = (f"--q0 joint {name!r}: {t / k:.6g} is past the limit {limit / k:.6g} {unit} by {past / k:.3g} {unit}; "
+                 f"the range is [{lo / k:.6g}, {hi / k:.6g}] {unit}")
+        if past > slack:
+            raise BadInput(f"{where}; more than the recording tolerance ({slack / k:.3g} {unit}, "
+                           f"{RECORDING_TOLERANCE:.0%} of the range)")
+        warn(f"{where}; within the recording tolerance ({slack / k:.3g} {unit}, {RECORDING_TOLERANCE:.0%} of the "
+             "range: encoder noise or a soft limit): the servo starts at the limit")
 
 
 def _per_link(values: list[str] | None, n_links: int, option: str) -> list[str | None]:
@@ -187,7 +212,7 @@ def run(args) -> int:
     links = args.link
     for name in links + [args.base]:
         chain.frame_id(name)
-    theta0 = _start(chain, args.q0, s)
+    theta0 = _start(chain, args.q0, args.unit)
     for name, value in (("--tol-pos", args.tol_pos), ("--tol-rot", args.tol_rot), ("--max-seconds", args.max_seconds), ("--dt", args.dt)):
         if not value > 0:
             raise BadInput(f"{name}: must be positive, got {value}")
@@ -225,6 +250,7 @@ def run(args) -> int:
             "max_position_error": float(result.position_errors.max() / s),
             "max_rotation_error": float(result.rotation_errors.max()),
             "final_joints": _joints_dict(chain, result.thetas[-1], s),
+            "warnings": said(),  # every warning said while the verb ran (platkit.notices), on stderr too
         })
         if args.json:
             print_json(report)
@@ -254,6 +280,7 @@ def run(args) -> int:
         "secondary_cost": result.secondary_cost,
         "position_errors": [e / s for e in result.position_errors], "rotation_errors": result.rotation_errors,
         "final_joints": _joints_dict(chain, result.theta, s),
+        "warnings": said(),  # every warning said while the verb ran (platkit.notices), on stderr too
     })
     if args.json:
         print_json(report)

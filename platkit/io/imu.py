@@ -23,7 +23,7 @@ import numpy as np
 
 from platkit.errors import BadSession
 from platkit.io.atomic import atomic_write_text
-from platkit.io.session_checks import implausible
+from platkit.io.session_checks import MOCAP_RATE_FACTOR, implausible
 
 IMU_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
 
@@ -384,12 +384,14 @@ def check_units(stream: ImuStream, source: str, declared_rate_hz: float | None =
     rate = 1.0 / dt
     if declared_rate_hz is not None and declared_rate_hz > 0:
         ratio = declared_rate_hz / rate
-        if not 0.2 <= ratio <= 5.0:
+        if not 1 / MOCAP_RATE_FACTOR <= ratio <= MOCAP_RATE_FACTOR:  # the same rule as mocap_rate_hz's
             hint = ""
             if 300 <= ratio <= 3000:
                 hint = "; the times look like milliseconds: write seconds, or declare units: {time: ms} in session.yaml"
             elif 1 / 3000 <= ratio <= 1 / 300:
                 hint = "; the times look like seconds in a session declared in milliseconds"
+            else:
+                hint = "; correct the imu entry's rate_hz or the times"
             implausible(f"{source}: column 't': the median time step is {dt:.4g} s ({rate:.4g} Hz) but session.yaml "
                         f"declares the IMU at rate_hz {declared_rate_hz:g}; expected times in seconds at that "
                         f"rate{hint}", stream.notes)

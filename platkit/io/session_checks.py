@@ -355,3 +355,8 @@ def check_stream_times(stream_t: np.ndarray, stream_path: Path, time_unit: str, 
         implausible(f"{commands_path}: column 't' spans {span_c:.4g} s, {stream_path.name}'s {span_m:.4g} s "
                     f"({span_c / span_m:.3g} times as long): the two files' times are not in the same unit "
                     f"(session.yaml: units: time: {time_unit}); write both in it")
+    if stream_t[-1] < command_t[0] or command_t[-1] < stream_t[0]:  # one clock shared by the files (spec 1)
+        raise BadSession(f"{stream_path}: column 't' runs from {stream_t[0]:.6g} to {stream_t[-1]:.6g} s and "
+                         f"{Path(commands_path).name if commands_path else 'the command log'}'s from {command_t[0]:.6g} "
+                         f"to {command_t[-1]:.6g} s: the two clocks do not overlap, and the files must share one; "
+                         "shift one file's times onto the other's clock")

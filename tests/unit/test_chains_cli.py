@@ -68,7 +68,7 @@ def test_unreachable_target_exits_1_with_one_line_and_writes_nothing(tmp_path, c
     (["--link", "tool0", "--target", "1,2"], "--target: expected x,y,z"),
     (["--link", "tool0", "--target", "0.3,0.2,0.4", "--select", "xq"], "--select: unknown component"),
     (["--link", "tool0", "--target", "0.3,0.2,0.4", "--q0", "1,2"], "--q0: expected 6 numbers"),
-    (["--link", "tool0", "--target", "0.3,0.2,0.4", "--q0", "elbow_joint=9"], "--q0: joints outside their limits: elbow_joint"),
+    (["--link", "tool0", "--target", "0.3,0.2,0.4", "--q0", "elbow_joint=9"], "--q0 joint 'elbow_joint': 9 is past the limit"),
     (["--link", "tool0", "--link", "wrist_1_link", "--target", "0.3,0.2,0.4"], "--target: one per --link (2), got 1"),
     (["--link", "tool0", "--target", "0.3,0.2,0.4", "--lock", "knee"], "locked joints not in the chain: knee"),
 ])
