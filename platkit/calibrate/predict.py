@@ -10,6 +10,17 @@ quaternion, qw >= 0) in the motion-capture frame, then the pose ``x,y,z,qw,qx,qy
 lengths in the calibration's length unit. A command outside its control's stroke, a ``t``
 that decreases, or no ``t`` for a model with time-dependent terms, is bad input; rows whose forward kinematics fails inside the strokes are written
 with empty cells and counted.
+
+The thermal state (a model whose terms read the time, docs/diagnosis.md "Thermal drift"): the
+rows are predicted at a time since power-on, ``at_time`` for the first row and later rows by their
+``t`` (``--at-time``), or at the equilibrium (``warm``, ``--warm``); by default the first row is
+at power-on (cold), later rows by their ``t``. Where the calibration does not know its power-on,
+the first command of the session it was fitted on stands for it. Such a model's output has two
+more columns after the pose: ``since_power_on_s`` (the time each row is predicted at; ``inf``
+warm) and ``thermal_note`` (empty, or why the row is an extrapolation: beyond the recorded span,
+or a drift with no equilibrium asked for warm, predicted at the end of the recorded span). A
+model with no time-dependent term predicts the same at any time: the options are accepted and
+the result says so.
 """
 from __future__ import annotations
 
@@ -71,8 +82,11 @@ def _check_strokes(table, spec, U_file: np.ndarray, U_si: np.ndarray, length_uni
                   f"the calibration's lengths are in {length_unit}", warn)
 
 
-def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = None):
-    """(header, rows (N, cols), ok (N,)) of the predict output for controls U (N, n_u) SI."""
+def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = None,
+                     since_power_on: np.ndarray | None = None):
+    """(header, rows (N, cols), ok (N,)) of the predict output for controls U (N, n_u) SI.
+    ``since_power_on`` (N,) s: the thermal state of each row (``inf`` warm; see the module's
+    docstring), or None: the first row at power-on, later rows by ``t``."""
     N = U.shape[0]
     poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
                     marker_names=list(cal.marker_names), t=t, length_unit=cal.length_unit,
@@ -80,6 +94,9 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     if cal.terms:  # history- and time-dependent terms read the rows' order and times
 
         poses = with_history(poses, cal.spec)
+        if since_power_on is not None:
+            state = np.asarray(since_power_on, float)
+            poses.extras = dict(poses.extras, elapsed=state, thermal_start_s=np.full(N, state[0] if N else 0.0))
     markers, q, X, ok = predict_markers(cal, U, poses)
     s = length_scale(cal.length_unit)
     header = list(cal.spec.control_names)
@@ -128,23 +145,116 @@ def terms_reading_time(cal: Calibration, U: np.ndarray) -> list[str]:
     return names
 
 
-def predict_file(calibration: str | Path, commands: str | Path, out: str | Path) -> dict:
-    """Read a calibration.yaml and a commands CSV, write the prediction CSV atomically.
+def _term_offsets(cal: Calibration, U: np.ndarray, elapsed: float) -> np.ndarray:
+    """Every term's offsets (control, pose, marker; flattened) at controls U (N, n_u) SI, every
+    row at ``elapsed`` s since power-on (``inf``: warm)."""
+    N, n_u = U.shape
+    blank = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
+                    marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+    poses = with_history(blank, cal.spec)
+    poses.extras = dict(poses.extras, elapsed=np.full(N, elapsed), thermal_start_s=np.full(N, elapsed))
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
+    X = np.zeros((N, 3))
+    parts = []
+    for term, theta in zip(cal.terms, cal.theta):
+        theta = np.asarray(theta, float)
+        parts += [np.ravel(term.control_offset(theta, poses, n_u)), np.ravel(term.marker_offset(theta, poses)),
+                  np.ravel(term.pose_offset(theta, poses, q, X))]
+    return np.concatenate(parts) if parts else np.zeros(0)
 
-    Returns {'rows': N, 'failed': number of rows without a solution, 'out': path}.
+
+def recorded_span(cal: Calibration) -> tuple[float, float] | None:
+    """(first, last) s since power-on of the session the model's time-dependent terms were fitted
+    on (their ``where['recorded_s']``), or None where no term says it."""
+    spans = [t.where.get("recorded_s") for t in cal.terms]
+    spans = [s for s in spans if isinstance(s, (list, tuple)) and len(s) == 2]
+    if not spans:
+        return None
+    return float(min(s[0] for s in spans)), float(max(s[1] for s in spans))
+
+
+def thermal_state(cal: Calibration, U: np.ndarray, t: np.ndarray | None, at_time: float | None = None,
+                  warm: bool = False, commands: str | Path = "commands") -> dict:
+    """The thermal state ``predict`` predicts for (see the module's docstring): {'timed': the
+    effects whose terms read the time, 'since_power_on' (N,) s or None, 'notes' (N,) str,
+    'state': one sentence, 'warnings': [sentences]}. BadInput where the state cannot be given."""
+    N = len(U)
+    timed = terms_reading_time(cal, U)
+    if not timed:
+        state = "the model has no time-dependent term: the prediction is the same at any time"
+        if at_time is not None or warm:
+            state += f" (--{'warm' if warm else 'at-time'} changes nothing)"
+        return {"timed": [], "since_power_on": None, "notes": [""] * N, "state": state, "warnings": []}
+    if at_time is not None and not (np.isfinite(at_time) and at_time >= 0):
+        raise BadInput(f"--at-time must be a time since power-on in seconds (>= 0), got {at_time:g}")
+    if t is None and not warm and at_time is None:
+        raise BadInput(f"{commands}: no 't' column, but the calibration's model has time-dependent terms "
+                       f"({', '.join(timed)}); give t in seconds on the session's clock, or --at-time or --warm")
+    span = recorded_span(cal)
+    rel = np.zeros(N) if t is None else np.asarray(t, float) - float(t[0])
+    notes = [""] * N
+    warnings: list[str] = []
+    span_text = "unknown (the calibration does not say it)" if span is None else f"{span[0]:.6g} to {span[1]:.6g} s"
+    if warm:
+        if not np.allclose(_term_offsets(cal, U[:1], 1e8), _term_offsets(cal, U[:1], 1e9), rtol=1e-9, atol=1e-15):
+            if span is None:
+                raise BadInput(f"--warm: the model's {', '.join(timed)} has no equilibrium (it drifts without end) and "
+                               "the calibration does not say the span it was fitted on; give --at-time")
+            since = np.full(N, span[1])
+            note = (f"{', '.join(timed)} has no equilibrium (it drifts without end): predicted at the end of the "
+                    f"recorded span, {span[1]:.6g} s since power-on")
+            notes = [note] * N
+            warnings.append(note)
+            state = f"warm asked; {note}"
+        else:
+            since = np.full(N, np.inf)
+            state = "warm: the equilibrium the thermal terms reach (t since power-on -> inf)"
+            if span is not None:
+                end, far = _term_offsets(cal, U[:1], span[1]), _term_offsets(cal, U[:1], np.inf)
+                if np.max(np.abs(far - end), initial=0.0) > 0.05 * max(np.max(np.abs(far), initial=0.0), 1e-15):
+                    note = (f"the equilibrium lies beyond the recorded span ({span_text} since power-on): "
+                            "extrapolated by the model's thermal terms")
+                    notes = [note] * N
+                    warnings.append(note)
+        return {"timed": timed, "since_power_on": since, "notes": notes, "state": state, "warnings": warnings}
+    start = 0.0 if at_time is None else float(at_time)
+    since = start + rel
+    state = (f"{since[0]:.6g} s since power-on at the first row" + ("" if t is None else ", later rows by their t")
+             + ("" if at_time is not None else " (the default: cold at the first row; give --at-time or --warm)"))
+    if span is not None:
+        out = (since > span[1] * (1 + 1e-9) + 1e-9) | (since < span[0] - 1e-9)
+        if np.any(out):
+            note = (f"{since[out].min():.6g} to {since[out].max():.6g} s since power-on is beyond the recorded span "
+                    f"({span_text}): extrapolated by the model's thermal terms")
+            notes = [note if o else "" for o in out]
+            warnings.append(f"{int(out.sum())} of {N} rows: {note}")
+    return {"timed": timed, "since_power_on": since, "notes": notes, "state": state, "warnings": warnings}
+
+
+def predict_file(calibration: str | Path, commands: str | Path, out: str | Path, at_time: float | None = None,
+                 warm: bool = False) -> dict:
+    """Read a calibration.yaml and a commands CSV, write the prediction CSV atomically, at the
+    thermal state ``at_time`` (s since power-on at the first row) or ``warm`` (see the module's
+    docstring).
+
+    Returns {'rows': N, 'failed': number of rows without a solution, 'out': path, 'thermal': the
+    state said in one sentence, 'timed': the effects whose terms read the time, 'warnings': [sentences]}.
     """
+    if at_time is not None and warm:
+        raise BadInput("--at-time and --warm ask for two thermal states; give one")
     cal = read_calibration(calibration)
     U, t = read_commands(commands, cal)
-    if t is None:
-        timed = terms_reading_time(cal, U)
-        if timed:
-            raise BadInput(f"{commands}: no 't' column, but the calibration's model has time-dependent terms "
-                           f"({', '.join(timed)}); give t in seconds on the session's clock")
-    header, rows, ok = prediction_table(cal, U, t)
+    thermal = thermal_state(cal, U, t, at_time, warm, commands)
+    header, rows, ok = prediction_table(cal, U, t, thermal["since_power_on"])
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    for r in rows:
-        w.writerow(["" if not np.isfinite(v) else format(float(v), ".10g") for v in r])
+    timed = thermal["since_power_on"] is not None
+    w.writerow(header + (["since_power_on_s", "thermal_note"] if timed else []))
+    for k, r in enumerate(rows):
+        cells = ["" if not np.isfinite(v) else format(float(v), ".10g") for v in r]
+        if timed:
+            cells += [format(float(thermal["since_power_on"][k]), ".10g"), thermal["notes"][k]]
+        w.writerow(cells)
     atomic_write_text(out, buf.getvalue())
-    return {"rows": int(len(rows)), "failed": int(np.sum(~ok)), "out": str(out)}
+    return {"rows": int(len(rows)), "failed": int(np.sum(~ok)), "out": str(out), "thermal": thermal["state"],
+            "timed": list(thermal["timed"]), "warnings": list(thermal["warnings"])}

@@ -1,4 +1,6 @@
-"""platkit predict: markers (mocap frame) and poses (base frame) from a calibration, per command row."""
+"""platkit predict: markers (mocap frame) and poses (base frame) from a calibration, per command row,
+at a thermal state (``--at-time`` seconds since power-on, or ``--warm``) where the model has
+time-dependent terms."""
 from __future__ import annotations
 
 import sys
@@ -9,6 +11,14 @@ def add_parser(sub):
     p.add_argument("--calibration", required=True, help="calibration.yaml written by calibrate or diagnose")
     p.add_argument("--commands", required=True, help="CSV with one column per control (and optionally t)")
     p.add_argument("--out", required=True, help="CSV to write")
+    state = p.add_mutually_exclusive_group()
+    state.add_argument("--at-time", type=float, default=None, metavar="SECONDS",
+                       help="thermal state: the first row SECONDS after power-on, later rows by their t (where the "
+                            "calibration does not know its power-on, its session's first command stands for it); "
+                            "default: the first row at power-on")
+    state.add_argument("--warm", action="store_true",
+                       help="thermal state: the equilibrium the model's thermal terms reach (a drift with none: the "
+                            "end of the recorded span, with a warning)")
     return p
 
 
@@ -17,9 +27,13 @@ def run(args) -> int:
     from platkit.io.atomic import check_output_file
 
     check_output_file(args.out)
-    res = predict_file(args.calibration, args.commands, args.out)
+    res = predict_file(args.calibration, args.commands, args.out, at_time=args.at_time, warm=args.warm)
     if res["failed"]:
         print(f"platkit: warning: {res['failed']} of {res['rows']} rows have no forward-kinematics solution; "
               "their predicted cells are empty", file=sys.stderr)
+    for w in res["warnings"]:
+        print(f"platkit: warning: {w} (said in the column thermal_note)", file=sys.stderr)
+    if res["timed"] or args.at_time is not None or args.warm:
+        print(f"thermal state: {res['thermal']}")
     print(f"wrote {res['rows']} rows to {res['out']}")
     return 0
