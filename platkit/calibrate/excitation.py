@@ -37,8 +37,10 @@ D at motion-capture rate R is n(D) = (D - the first command interval) R (share s
 information per sample, and the covariance sigma^2 / n(D) times its inverse. The predicted error
 is the RMS over the stand's reference poses and the markers of the 3-D standard deviation of the
 predicted marker positions (gauge-free: the error `calibrate` makes predicting settled poses),
-the parameters' standard deviations those of the minimum-norm solution. The session length for a
-target is the shortest D whose predicted error meets it (the error falls as 1 / sqrt(D)); a target
+the parameters' standard deviations those of the minimum-norm solution; one session's error
+scatters about it, and its 90th percentile over sessions (the parameters' error drawn from their
+predicted covariance, QUANTILE_DRAWS draws) is said beside it. The session length for a target is
+the shortest D whose 90th percentile meets it (the error falls as 1 / sqrt(D)); a target
 that needs more than LONGEST_S is refused (NotIdentifiable, one line saying what LONGEST_S gives).
 """
 from __future__ import annotations
@@ -62,13 +64,17 @@ from platkit.model import PlatformSpec, controls_from_si
 from platkit.poses import PoseSet
 
 __all__ = ["Limits", "FourierFamily", "MotionInformation", "ExcitationDesign", "drive_limits", "trajectory",
-           "design_excitation", "limit_violations", "samples_fitted", "session_length_for", "RAMP_S"]
+           "design_excitation", "limit_violations", "samples_fitted", "session_length_for", "predict_trajectory",
+           "plan_excitation", "write_commands_csv", "RAMP_S"]
 
 #: the window's shortest rise (s), doubled until the limits hold while it rises (at most one period)
 RAMP_S = 2.0
-#: samples per period the design evaluates (at times not commensurate with the commands, so that
-#: each command's transient is seen at every phase)
-DESIGN_SAMPLES = 200
+#: the information a stream gives is counted from its slow part: in each window of SLOW_WINDOW_S,
+#: what polynomials of degree SLOW_DEGREE in time fit (the motion, not the commands' transients
+#: under the noise; calibrate reduces a stream so); WINDOW_SAMPLES samples a window
+SLOW_WINDOW_S, SLOW_DEGREE, WINDOW_SAMPLES = 0.5, 2, 8
+#: windows per period the design evaluates
+DESIGN_WINDOWS = 40
 #: commands before the period the design evaluates (s): the response starts at rest before them
 LEAD_S = 2.0
 #: amplitudes shrink by this factor until every command is reachable, at most SHRINK_TRIES times
@@ -80,6 +86,8 @@ MIN_AMPLITUDE_SHARE = 0.02
 LIMIT_RTOL = 1e-9
 #: the evolution strategy: starting step (relative to the coefficients' norm), its bounds
 STEP0, STEP_MIN, STEP_MAX = 0.3, 0.01, 1.0
+#: the 90th percentile of a session's error: from this many draws of the parameters' error, fixed seed
+QUANTILE_DRAWS, QUANTILE_SEED = 4000, 20261
 #: the longest session the target search considers (s)
 LONGEST_S = 3600.0
 
@@ -389,14 +397,26 @@ class MotionInformation:
         return out
 
     def per_sample(self, T, U, t) -> np.ndarray:
-        """(r, r) the information per sample (unit noise) in the identifiable basis."""
+        """(r, r) the information per sample (unit noise) in the identifiable basis of the samples at
+        times t (W, S): W windows of S samples each, every window's information its slow part
+        alone (the rows projected on polynomials of degree SLOW_DEGREE in time, per window)."""
+        t = np.atleast_2d(np.asarray(t, float))
+        W, S = t.shape
         with blas_threads(1):
-            J = self.jacobian(T, U, t)
-            return J.T @ J / len(t)
+            J = self.jacobian(T, U, t.ravel())
+            J = J.reshape(W, S, -1, J.shape[1])  # (window, sample, coordinate, column)
+            info = np.zeros((J.shape[3], J.shape[3]))
+            for w in range(W):
+                x = 2 * (t[w] - t[w, 0]) / max(float(t[w, -1] - t[w, 0]), 1e-12) - 1
+                Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, SLOW_DEGREE))
+                Jw = np.einsum("sk,scn->kcn", Q, J[w]).reshape(-1, J.shape[3])  # the slow part's coordinates
+                info += Jw.T @ Jw
+            return info / (W * S)
 
     def prediction(self, info_per_sample: np.ndarray, n_samples: float, sigma_m: float) -> dict:
         """The predicted uncertainty of a fit to ``n_samples`` samples with white marker noise
-        ``sigma_m`` (module docstring): 'marker_rms_m' (3-D, over the reference poses),
+        ``sigma_m`` (module docstring): 'marker_rms_m' (3-D, over the reference poses; its expected
+        square's root), 'marker_rms_p90_m' (its 90th percentile over sessions),
         'parameter_std' (SI, minimum-norm solution), 'logdet_per_sample'."""
         info = info_per_sample * n_samples
         sign, logdet = np.linalg.slogdet(info_per_sample)
@@ -412,9 +432,15 @@ class MotionInformation:
         std = np.sqrt(np.maximum(np.diag(cov_scaled), 0)) * scale
         c_static = cov_scaled[:len(self.static_cols), :len(self.static_cols)]
         with blas_threads(1):
-            var = np.einsum("ij,ji->i", self.J_ref, c_static @ self.J_ref.T)
-        rms3 = float(np.sqrt(3 * np.mean(np.maximum(var, 0))))
-        return {"identifiable": True, "logdet_per_sample": float(logdet), "marker_rms_m": rms3,
+            # the squared RMS over the reference markers is d^T G d for the parameters' error d ~ N(0, C):
+            # a sum of lambda_i z_i^2 over the eigenvalues of C^1/2 G C^1/2
+            G = self.J_ref.T @ self.J_ref / (len(self.J_ref) / 3)
+            d, Q = np.linalg.eigh(c_static)
+            half = (Q * np.sqrt(np.maximum(d, 0))) @ Q.T
+            lam = np.maximum(np.linalg.eigvalsh(half @ G @ half), 0)
+        draws = np.random.default_rng(QUANTILE_SEED).standard_normal((QUANTILE_DRAWS, len(lam))) ** 2 @ lam
+        return {"identifiable": True, "logdet_per_sample": float(logdet), "marker_rms_m": float(np.sqrt(lam.sum())),
+                "marker_rms_p90_m": float(np.sqrt(np.quantile(draws, 0.9))),
                 "parameter_std": {n: {"std": float(s), "unit": u} for n, s, u in zip(self.names, std, self.units)}}
 
 
@@ -440,13 +466,19 @@ class ExcitationDesign:
     history: list = field(default_factory=list)
 
 
-def _design_samples(family: FourierFamily, command_rate_hz: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(command times from -LEAD_S over one period, sample times over the period): the samples
-    evenly spaced at an interval not commensurate with the commands' (golden-ratio offset)."""
+def _windows(start: float, end: float, n_windows: int) -> np.ndarray:
+    """(W, WINDOW_SAMPLES) sample times: n_windows windows of SLOW_WINDOW_S spread evenly over
+    [start, end], each sampled evenly."""
+    span = max(end - start - SLOW_WINDOW_S, 0.0)
+    W = max(1, min(n_windows, int(span / SLOW_WINDOW_S) + 1))
+    a = start + np.arange(W) * (span / W) + 0.5 * (span / W if W > 1 else 0.0)
+    return a[:, None] + (np.arange(WINDOW_SAMPLES) + 0.5) * (SLOW_WINDOW_S / WINDOW_SAMPLES)
+
+
+def _design_samples(family: FourierFamily, command_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """(command times from -LEAD_S over one period, sample windows over the period (W, S))."""
     T = np.arange(-int(round(LEAD_S * command_rate_hz)), int(round(family.period_s * command_rate_hz))) / command_rate_hz
-    phase = (np.arange(n) * 0.6180339887498949) % 1.0
-    t = (np.arange(n) + phase) * family.period_s / n
-    return T, np.sort(t)
+    return T, _windows(0.0, family.period_s, DESIGN_WINDOWS)
 
 
 def design_excitation(spec: PlatformSpec, family: FourierFamily, limits: Limits, information: MotionInformation,
@@ -461,7 +493,7 @@ def design_excitation(spec: PlatformSpec, family: FourierFamily, limits: Limits,
         raise BadInput(f"--evaluations must be at least 1, got {evaluations}")
     model = information.model
     scaler = _Scaler(spec, family, limits, command_rate_hz, model, information.td)
-    T, t = _design_samples(family, command_rate_hz, DESIGN_SAMPLES)
+    T, t = _design_samples(family, command_rate_hz)
     Tp = (T % family.period_s)
 
     def score(coef):
@@ -503,7 +535,7 @@ def design_excitation(spec: PlatformSpec, family: FourierFamily, limits: Limits,
 
 def session_length_for(information: MotionInformation, info_per_sample: np.ndarray, target_m: float, sigma_m: float,
                        mocap_rate_hz: float, seen: float = 1.0, start_s: float = 0.0) -> dict:
-    """The shortest session (s) whose predicted marker error (3-D RMS) meets ``target_m`` with white
+    """The shortest session (s) whose predicted marker error (3-D RMS, 90th percentile) meets ``target_m`` with white
     noise ``sigma_m``: the samples it needs, the duration at ``mocap_rate_hz`` with share ``seen``
     of samples seen (fitted from ``start_s``). NotIdentifiable where it needs more than LONGEST_S."""
     if not target_m > 0:
@@ -511,10 +543,10 @@ def session_length_for(information: MotionInformation, info_per_sample: np.ndarr
     one = information.prediction(info_per_sample, 1.0, sigma_m)
     if not one["identifiable"]:
         raise NotIdentifiable("the excitation does not identify the parameters (the information stays singular)")
-    need = math.ceil((one["marker_rms_m"] / target_m) ** 2)  # error ~ 1 / sqrt(n)
+    need = math.ceil((one["marker_rms_p90_m"] / target_m) ** 2)  # error ~ 1 / sqrt(n)
     duration = start_s + need / (mocap_rate_hz * seen)
     if duration > LONGEST_S:
-        best = one["marker_rms_m"] / math.sqrt(samples_fitted(LONGEST_S, mocap_rate_hz, seen, start_s))
+        best = one["marker_rms_p90_m"] / math.sqrt(samples_fitted(LONGEST_S, mocap_rate_hz, seen, start_s))
         raise NotIdentifiable(f"--target-mm {target_m * 1e3:g}: needs {duration:.0f} s of motion capture at "
                               f"{mocap_rate_hz:g} samples per s with {sigma_m * 1e3:g} mm noise, over {LONGEST_S:.0f} s "
                               f"(which predicts {best * 1e3:.4g} mm): a larger target, more markers, a faster or quieter "
@@ -532,20 +564,18 @@ class ExcitationPlan:
     report: dict
 
 
-def _predict_trajectory(information: MotionInformation, U: np.ndarray, command_rate_hz: float, duration_s: float,
+def predict_trajectory(information: MotionInformation, U: np.ndarray, command_rate_hz: float, duration_s: float,
                         mocap_rate_hz: float, seen: float, sigma_m: float) -> tuple[dict, int]:
     """The prediction for the whole trajectory U streamed from t = 0: the samples calibrate fits
-    (from the second command on), 4 * DESIGN_SAMPLES of them evaluated evenly at most (the
-    information per sample, scaled to the samples fitted)."""
+    (from the second command on), 4 * DESIGN_WINDOWS windows of them evaluated evenly at most
+    (the information per sample, scaled to the samples fitted)."""
     T = np.arange(len(U)) / command_rate_hz
     start = T[1]
     n_fit = samples_fitted(duration_s, mocap_rate_hz, seen, start)
     if n_fit < 20:
         raise BadInput(f"a session of {duration_s:g} s at {mocap_rate_hz:g} samples per s gives {n_fit} samples; "
                        "calibrating from motion needs at least 20")
-    n_eval = min(n_fit, 4 * DESIGN_SAMPLES)
-    phase = (np.arange(n_eval) * 0.6180339887498949) % 1.0
-    t = start + (np.arange(n_eval) + phase) * (duration_s - start) / n_eval
+    t = _windows(start, duration_s, 4 * DESIGN_WINDOWS)
     return information.prediction(information.per_sample(T, U, t), n_fit, sigma_m), n_fit
 
 
@@ -588,13 +618,13 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
     for _ in range(8):
         U, meta = trajectory(spec, family, design.coef, limits, duration, command_rate_hz, information.model,
                              information.td)
-        pred, n_fit = _predict_trajectory(information, U, command_rate_hz, duration, mocap_rate_hz, seen, sigma_m)
-        if duration_s is not None or target_m is None or pred["marker_rms_m"] <= target_m:
+        pred, n_fit = predict_trajectory(information, U, command_rate_hz, duration, mocap_rate_hz, seen, sigma_m)
+        if duration_s is not None or target_m is None or pred["marker_rms_p90_m"] <= target_m:
             break
-        duration = min(LONGEST_S, duration * max(1.1, (pred["marker_rms_m"] / target_m) ** 2))
+        duration = min(LONGEST_S, duration * max(1.1, (pred["marker_rms_p90_m"] / target_m) ** 2))
     U_random, _ = trajectory(spec, family, design.start, limits, duration, command_rate_hz, information.model,
                              information.td)
-    pred_random, _ = _predict_trajectory(information, U_random, command_rate_hz, duration, mocap_rate_hz, seen, sigma_m)
+    pred_random, _ = predict_trajectory(information, U_random, command_rate_hz, duration, mocap_rate_hz, seen, sigma_m)
     t = np.arange(len(U)) / command_rate_hz
     report = {
         "kind": "excitation",
@@ -614,15 +644,17 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
                                 "frame, markers, response; gauges left out), fixed column scales"},
         "prediction": {"noise_m": float(sigma_m), "mocap_rate_hz": float(mocap_rate_hz), "seen": float(seen),
                        "samples_fitted": int(n_fit), "marker_rms_m": pred["marker_rms_m"],
-                       "marker_rms_m_random": pred_random["marker_rms_m"],
+                       "marker_rms_p90_m": pred["marker_rms_p90_m"], "marker_rms_m_random": pred_random["marker_rms_m"],
+                       "marker_rms_p90_m_random": pred_random["marker_rms_p90_m"],
                        "identifiable_rank": int(information.rank), "n_parameters": int(information.n_parameters),
                        "parameter_std": pred["parameter_std"],
                        "definition": "3-D RMS over the stand's reference poses and the markers of the standard deviation "
                                      "of the calibrated model's marker positions, white marker noise per coordinate and "
-                                     "sample, every sample calibrate fits"},
+                                     "sample, every sample calibrate fits; p90: the 90th percentile over sessions "
+                                     "(the error of the parameters drawn from their predicted covariance)"},
     }
     if target_m is not None:
-        report["target"] = {"target_m": float(target_m), "met": bool(pred["marker_rms_m"] <= target_m),
+        report["target"] = {"target_m": float(target_m), "met": bool(pred["marker_rms_p90_m"] <= target_m),
                             "duration_s": report["duration_s"], **({} if length is None else {
                                 "samples_needed": length["samples"]})}
     return ExcitationPlan(t, U, report)

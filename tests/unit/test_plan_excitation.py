@@ -75,16 +75,22 @@ def test_prediction_falls_as_one_over_root_samples(stewart, information, limits)
     family = ex.FourierFamily(20.0, 4, stewart.n_u)
     coef = family.random_multisine(np.random.default_rng(1))
     U, _ = ex.trajectory(stewart, family, coef, limits, 30.0, RATE_HZ)
+    pred, n = ex.predict_trajectory(information, U, RATE_HZ, 30.0, 100.0, 1.0, 2e-4)
+    assert n == 2995  # every sample from the second command on
     T = np.arange(len(U)) / RATE_HZ
-    info = information.per_sample(T, U, np.linspace(T[1], T[-1], 300))
+    info = information.per_sample(T, U, np.linspace(T[1], T[-1], 800).reshape(100, 8))
     one, four = information.prediction(info, 1000, 2e-4), information.prediction(info, 4000, 2e-4)
+    # the slow part of windows of 0.4 s: near the prediction from windows of 0.5 s
+    assert one["marker_rms_m"] / np.sqrt(2995 / 1000) == pytest.approx(pred["marker_rms_m"], rel=0.1)
     assert one["identifiable"]
     assert four["marker_rms_m"] == pytest.approx(one["marker_rms_m"] / 2, rel=1e-9)
-    length = ex.session_length_for(information, info, 0.5 * one["marker_rms_m"], 2e-4, 100.0)
+    assert four["marker_rms_p90_m"] == pytest.approx(one["marker_rms_p90_m"] / 2, rel=1e-9)
+    assert one["marker_rms_m"] < one["marker_rms_p90_m"] < 2 * one["marker_rms_m"]
+    length = ex.session_length_for(information, info, 0.5 * one["marker_rms_p90_m"], 2e-4, 100.0)
     assert length["samples"] == pytest.approx(4000, rel=1e-3)
     assert length["duration_s"] == pytest.approx(40.0, rel=1e-3)
     with pytest.raises(NotIdentifiable, match="over 3600 s"):
-        ex.session_length_for(information, info, 1e-3 * one["marker_rms_m"], 2e-4, 100.0)
+        ex.session_length_for(information, info, 1e-3 * one["marker_rms_p90_m"], 2e-4, 100.0)
 
 
 def test_limits_said_in_one_line(stewart):
