@@ -3,12 +3,13 @@
 The public face: :func:`settle` (a session -> PoseSet and SettleReport), :func:`load_poses` (a session
 folder -> the PoseSet every estimator takes), the options and report, and the few stream tools that
 diagnosis and simulation reuse. The search itself lives in the private modules: ``_still`` (the
-stillness test and noise), ``_approach`` (the fitted approach to rest), ``_tail`` (the tail the holds
-share), ``_unsettled`` and ``_attribution`` (what a session that never settles is said to be), and
-``_report`` (options, report, the dropped rows said).
+stillness test and noise), ``_approach`` (the fitted approach to rest), ``_fits`` (the approach fits,
+many holds at once), ``_tail`` (the tail the holds share), ``_unsettled`` and ``_attribution`` (what a
+session that never settles is said to be), and ``_report`` (options, report, the dropped rows said).
 """
-from platkit.settle._approach import Approach, fit_approach
+from platkit.settle._approach import Approach
 from platkit.settle._attribution import attribute_actuators
+from platkit.settle._fits import fit_approach
 from platkit.settle._report import (
     DROP_CATEGORIES,
     SettleOptions,

@@ -43,6 +43,7 @@ actuators and markers still moving and their time constant.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -51,16 +52,8 @@ from platkit.bodies import stream_for_settling, with_settled_bodies
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
 from platkit.poses import PoseSet
-from platkit.settle._approach import (
-    Approach,
-    _fit_tail,
-    _window_result,
-    extrapolation_checked,
-    fit_approach,
-    tail_free_window,
-    tail_regression,
-    tail_scale,
-)
+from platkit.settle._approach import Approach, _window_result, tail_free_window, tail_regression, tail_scale
+from platkit.settle._fits import extrapolation_checked, fit_approaches, fit_tails
 from platkit.settle._report import (
     SettleOptions,
     SettleReport,
@@ -102,6 +95,366 @@ def _nan_mean(x: np.ndarray) -> np.ndarray:
                     np.nan)
 
 
+@dataclass
+class _Stream:
+    """What every stage of the search reads: the stream, the commands, the noise at the scales
+    the tests look at (sigma white, sig_fast the still test's halves, sig_slow a few tenths of a
+    second: trends, decays, window means) and the sample counts the options come to."""
+
+    opt: SettleOptions
+    t: np.ndarray
+    X: np.ndarray
+    tc: np.ndarray
+    U: np.ndarray
+    dt: float
+    rate: float
+    sigma: float
+    sig_fast: float
+    sig_slow: float
+    slow_inflation: float
+    n: int
+    min_samples: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(commands N, markers M)."""
+        return self.U.shape[0], self.X.shape[1]
+
+
+@dataclass
+class _Hold:
+    """One command's hold: row i, its stretch (ts, seg), its last still run (None: none), the end
+    of what is averaged or fitted, and the start of the approach to rest (None: not found)."""
+
+    i: int
+    ts: np.ndarray
+    seg: np.ndarray
+    run: tuple[int, int] | None
+    end: int
+    k0: int | None
+
+    @property
+    def length(self) -> int:
+        return 0 if self.run is None else self.run[1] - self.run[0]
+
+
+@dataclass
+class _Search:
+    """The search's findings, row by row: results (row -> mean, held, cnt, std, start, end, tau,
+    remaining, extrapolated), dropped (row -> reason), the fitted approaches, the holds that
+    never settled with their stretches, the settled holds' windows (t, stretch, approach start,
+    window start, end), the windows deferred to the session's evidence on its tails (row -> cut,
+    correction, the tail's estimate) and that evidence (sum g y, sum g g); for the holds that never
+    settled the time constant of the end of their approach, the distance it still had to go (m)
+    and what the markers moved late in it (reversed, m); where the markers were held at each
+    command (the attribution's Jacobian) and how long each hold lasted (s)."""
+
+    N: int
+    M: int
+    results: dict[int, dict] = field(default_factory=dict)
+    dropped: dict[int, str] = field(default_factory=dict)
+    fits: dict[int, Approach] = field(default_factory=dict)
+    unsettled: list[int] = field(default_factory=list)
+    segments: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    windows: dict[int, tuple] = field(default_factory=dict)
+    deferred: dict[int, tuple] = field(default_factory=dict)
+    evidence: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    slow_taus: dict[int, float] = field(default_factory=dict)
+    slow_left: dict[int, float] = field(default_factory=dict)
+    slow_tail: dict[int, np.ndarray] = field(default_factory=dict)
+    held_at: np.ndarray = field(init=False)
+    hold_s: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        self.held_at = np.full((self.N, self.M, 3), np.nan)
+        self.hold_s = np.empty(self.N)
+
+
+def _stream(session: Session, opt: SettleOptions) -> _Stream:
+    """The stream and the noise levels of a session (:class:`_Stream`); BadSession without a
+    stream, a command log or two samples."""
+    if opt.extrapolate not in ("auto", "always", "never"):
+        raise ValueError(f"extrapolate must be 'auto', 'always' or 'never', not {opt.extrapolate!r}")
+    if session.markers is None:
+        raise BadSession(f"{session.folder}: the session has no motion-capture stream (markers.csv or a C3D file)")
+    if session.commands is None:
+        raise BadSession(f"{session.folder / 'commands.csv'}: file not found; settling needs the command log")
+    t, X = session.marker_t, session.markers
+    dt = np.median(np.diff(t)) if len(t) > 1 else np.nan
+    if not np.isfinite(dt) or dt <= 0:
+        raise BadSession(f"{session.markers_source}: fewer than two samples; cannot find settled windows")
+    rate = 1.0 / dt
+    sigma = opt.sigma_m if opt.sigma_m is not None else estimate_noise(X)
+    n = max(2, int(round(opt.window_s * rate)))
+    tc = session.command_t
+    quiet = _quiet_stretches(t, X, tc, n, sigma, opt.gap_samples)
+    slow_inflation = noise_inflation(quiet, sigma, max(n, int(round(SLOW_SCALE_S * rate))))
+    return _Stream(opt=opt, t=t, X=X, tc=tc, U=session.commands, dt=dt, rate=rate, sigma=sigma,
+                   sig_fast=sigma * np.sqrt(noise_inflation(quiet, sigma, n)),
+                   sig_slow=sigma * np.sqrt(slow_inflation), slow_inflation=slow_inflation, n=n,
+                   min_samples=max(3, int(np.ceil(opt.min_still_s * rate))))
+
+
+def _holds(st: _Stream, found: _Search) -> list[_Hold]:
+    """Every command's hold with enough samples that did not move again before the next
+    command: its last still run, with the first samples of a next move left out, and the start
+    of its approach; the others dropped with their reason."""
+    opt, t, dt, n, min_samples = st.opt, st.t, st.dt, st.n, st.min_samples
+    N = st.shape[0]
+    holds = []
+    for i in range(N):
+        t_end = st.tc[i + 1] if i + 1 < N else t[-1] + dt / 2
+        found.hold_s[i] = t_end - st.tc[i]
+        a, b = np.searchsorted(t, st.tc[i], side="left"), np.searchsorted(t, t_end, side="left")
+        if b - a < min_samples:
+            if b == a:
+                found.dropped[i] = f"no motion-capture samples: none between t={st.tc[i]:.3f} s and t={t_end:.3f} s"
+            else:
+                found.dropped[i] = f"too few samples: only {b - a} between t={st.tc[i]:.3f} s and t={t_end:.3f} s"
+            continue
+        seg, ts = st.X[a:b], t[a:b]
+        slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * st.rate)))
+        run = _last_still_run(still_mask(seg, n, st.sig_fast, opt.false_alarm), opt.gap_samples, min_samples, slack)
+        length = 0 if run is None else run[1] - run[0]
+        if run is not None and length >= min_samples and run[1] < (b - a) - slack:
+            found.dropped[i] = (f"moved again: {(b - a - run[1]) * dt:.2f} s before the next command "
+                                f"(after {length * dt:.2f} s still); the stand did not hold the command")
+            continue
+        end = (b - a) if run is None else run[1]
+        if run is not None and length - n >= min_samples:
+            # the next move starts smoothly (from rest, under an acceleration limit) and the still
+            # test sees it up to one half-window late; a clock offset between the files moves it
+            # into the hold: its first samples, drawn towards the next command, are left out
+            end -= n
+            run = (run[0], end)
+        holds.append(_Hold(i, ts, seg, run, end, approach_start(seg[:end], n, st.sig_fast)))
+    return holds
+
+
+def _fitted_tails(st: _Stream, holds: list[_Hold], found: _Search) -> list[Approach | None]:
+    """The approach of every hold whose start was found (:func:`fit_tails`, all at once)."""
+    fit_at = [h for h in holds if h.k0 is not None and h.end - h.k0 >= 8]
+    fits = dict(zip((h.i for h in fit_at), fit_tails([(h.ts, h.seg, h.k0, h.end, st.sig_slow) for h in fit_at])))
+    out = [fits.get(h.i) for h in holds]
+    for h, f in zip(holds, out):
+        if f is not None:
+            found.fits[h.i] = f
+    return out
+
+
+def _window(st: _Stream, h: _Hold, fit: Approach | None,
+            found: _Search) -> tuple[int | None, np.ndarray, Approach | None, str | None]:
+    """(window start, correction (M, 3), the tail's estimate, why the hold never settled or None)
+    of one hold. The still run's start, moved past the fitted tail: the window chosen by the upper
+    bound of the share of the tail the still stretch bears out (:func:`tail_scale`), a correction
+    by its estimate, the estimate deciding where the bound leaves under ``bound_keeps`` of the
+    stretch (deferred to the session's evidence down to ``bound_keeps_evident``); then the early
+    part dropped, a quarter at a time, while the window trends."""
+    opt, ts, seg, run, end, M = st.opt, h.ts, h.seg, h.run, h.end, st.shape[1]
+    correction = np.zeros((M, 3))
+    if run is None or h.length < st.min_samples:
+        return None, correction, fit, (f"never settled: still for {h.length * st.dt:.2f} s before the next command, "
+                                       f"{opt.min_still_s:.2f} s needed")
+    start = run[0]
+    bound = fit
+    if fit is not None and fit.significant:
+        # how much of the fitted tail the still stretch bears out: the window is chosen by its upper
+        # bound (a fit whose decay is off still marks where the approach ends; dropping it would
+        # start the window in the tail), a correction by its estimate
+        kappa, k_hi = tail_scale(fit, ts[run[0]:end], seg[run[0]:end], st.sig_slow)
+        num, den = tail_regression(fit.tail(ts[run[0]:end]), seg[run[0]:end])
+        found.evidence[0] += num
+        found.evidence[1] += den
+        bound = fit.scaled(k_hi)
+        fit = fit.scaled(kappa)
+    if fit is not None and bound is not None:
+        window = tail_free_window(bound, ts, run[0], end, st.sig_slow, opt.tail_fraction, st.min_samples, estimate=fit)
+        if bound is not fit and (window is None or end - window[0] < opt.bound_keeps * (end - run[0])):
+            if window is not None and end - window[0] >= opt.bound_keeps_evident * (end - run[0]):
+                found.deferred[h.i] = (window[0], window[1], fit)
+            # the bound leaves no clean window, or a small part of the still stretch (a decay the
+            # stretch hardly supports, a short hold): the estimate decides
+            window = (tail_free_window(fit, ts, run[0], end, st.sig_slow, opt.tail_fraction, st.min_samples)
+                      if fit.significant else (run[0], np.zeros((M, 3))))
+        if window is None:
+            return None, correction, fit, (f"never settled: the approach (time constant {fit.tau:.3g} s) still had "
+                                           f"{1e3 * float(np.nanmax(fit.remaining_m)):.3g} mm to go at the next command")
+        start, correction = window
+    p, v = trend_test(ts[start:end], seg[start:end], st.sig_slow)
+    while p < opt.trend_false_alarm and end - start >= 2 * st.min_samples:
+        # the early part goes (what is left of an approach), a quarter at a time
+        start += max(1, (end - start) // 4)
+        p, v = trend_test(ts[start:end], seg[start:end], st.sig_slow)
+        correction = np.zeros((M, 3))
+    if p < opt.trend_false_alarm:
+        return None, correction, fit, (f"never settled: still moving at {1e3 * v:.3g} mm/s across its "
+                                       f"{(end - start) * st.dt:.2f} s window (trend p = {p:.2g})")
+    return start, correction, fit, None
+
+
+def _never_settled(st: _Stream, h: _Hold, why: str, found: _Search) -> None:
+    """A hold that never settled: dropped with its reason, its stretch kept for extrapolation,
+    what its markers still moved late in it (its last third against the third before, which no
+    extrapolation enters; the sign: behind) and where they were held (its last ``min_still_s``)."""
+    i, ts, seg, end, k0 = h.i, h.ts, h.seg, h.end, h.k0
+    found.dropped[i] = why
+    found.unsettled.append(i)
+    found.segments[i] = (ts[:end], seg[:end])
+    k = (k0 if k0 is not None else 0) + (end - (k0 if k0 is not None else 0)) // 3
+    third = (end - k) // 2
+    if third >= 4:
+        found.slow_tail[i] = _nan_mean(seg[k:k + third]) - _nan_mean(seg[end - third:end])
+    found.held_at[i] = _nan_mean(seg[max(end - st.min_samples, 0):end])
+
+
+def _late_fits(st: _Stream, holds: list[_Hold], found: _Search) -> None:
+    """The time constant of the end of each unsettled hold's approach and the distance it still
+    had to go: the slowest actuator's shows once the others have arrived, in the second half of
+    what is left of the hold (fitted all at once)."""
+    late = [(h, h.k0 + (h.end - h.k0) // 2) for h in holds if h.i in found.segments and h.k0 is not None]
+    late = [(h, k) for h, k in late if h.end - k >= 16]
+    fits = fit_approaches([(h.ts[k:h.end], h.seg[k:h.end], st.sig_slow, h.ts[h.end - 1]) for h, k in late])
+    for (h, _k), f in zip(late, fits):
+        if f is not None and f.significant:
+            found.slow_taus[h.i] = f.tau
+            found.slow_left[h.i] = float(np.nanmax(f.remaining_m))
+
+
+def _search_holds(st: _Stream, found: _Search) -> None:
+    """Every hold's window or why it never settled (:func:`_window`), its pose averaged over the
+    window (the window at most ``max_window_s``, ending where the hold does)."""
+    opt, rate, min_samples, M = st.opt, st.rate, st.min_samples, st.shape[1]
+    holds = _holds(st, found)
+    for h, fit in zip(holds, _fitted_tails(st, holds, found)):
+        start, correction, fit, why = _window(st, h, fit, found)
+        if why is not None:
+            _never_settled(st, h, why, found)
+            continue
+        ts, seg, end = h.ts, h.seg, h.end
+        if opt.max_window_s is not None and end - start > max(min_samples, int(round(opt.max_window_s * rate))):
+            start = end - max(min_samples, int(round(opt.max_window_s * rate)))
+            correction = np.zeros((M, 3))
+        r = _window_result(ts, seg, start, end, correction, fit)
+        if r is None:
+            found.dropped[h.i] = "every marker occluded: no sample in the settled window"
+            continue
+        found.results[h.i] = r
+        found.windows[h.i] = (ts, seg, h.k0, start, end)
+    _late_fits(st, holds, found)
+    found.dropped = dict(sorted(found.dropped.items()))
+    found.unsettled.sort()
+
+
+def _shared_windows(st: _Stream, found: _Search) -> None:
+    """The windows the session moves: the deferred cuts where the still stretches, pooled, bear
+    out their fitted tails (``tail_evidence_z``), then every window moved past the tail the holds
+    share (:func:`shared_tail`: a start each hold could not justify alone still biases every pose
+    the same way, along its step)."""
+    opt, M, sig_slow = st.opt, st.shape[1], st.sig_slow
+    ev = found.evidence
+    z = ev[0] / (sig_slow * np.sqrt(ev[1])) if ev[1] > 0 else 0.0
+    if z >= opt.tail_evidence_z:
+        for i, (cut, corr, estimate) in found.deferred.items():
+            if i in found.windows and cut > found.windows[i][3]:
+                ts, seg, k0, _start, end = found.windows[i]
+                r = _window_result(ts, seg, cut, end, corr, estimate)
+                if r is not None:
+                    found.results[i] = r
+                    found.windows[i] = (ts, seg, k0, cut, end)
+    profile = shared_tail(found.windows, found.results, sig_slow, st.n)
+    if profile is not None:
+        for i, (ts, seg, _k0, start, end) in found.windows.items():
+            later = profile_start(profile, found.results[i]["arrival"], ts, start, end, sig_slow, opt.tail_fraction,
+                                  st.min_samples)
+            if later is not None and later > start:
+                r = _window_result(ts, seg, later, end, np.zeros((M, 3)), found.fits.get(i))
+                if r is not None:
+                    r["step"] = found.results[i]["step"]
+                    found.results[i] = r
+
+
+def _extrapolate(session: Session, st: _Stream, found: _Search, summary: dict) -> int:
+    """The holds that never settled replaced by their fitted rest positions where so many never
+    settle that the rest would be a remnant (``extrapolate``, ``max_unsettled_fraction``) and their
+    approach fits the stream and extrapolates within bounds; the number replaced. HoldsNeverSettle
+    when too few extrapolate, or when over half never settle and extrapolation is off."""
+    opt, N, M, found_r = st.opt, st.shape[0], st.shape[1], found.results
+    unsettled, fits, segments = found.unsettled, found.fits, found.segments
+    many = len(unsettled) > opt.max_unsettled_fraction * N and len(unsettled) >= 2  # one of a few is no pattern
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        moved = np.linalg.norm(np.diff(found.held_at, axis=0), axis=2)  # (N - 1, M)
+        step_m = np.concatenate([[0.0], np.where(np.isfinite(moved).any(axis=1),
+                                                 np.nanmax(np.where(np.isfinite(moved), moved, -np.inf), axis=1), 0.0)])
+    if not (unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many))):
+        if many and len(unsettled) > 0.5 * N and found_r:
+            raise HoldsNeverSettle(
+                f"{session.markers_source}: {summary['sentence']}; calibrating from the {N - len(found.dropped)} that "
+                "did would fit a remnant: record longer holds, or settle with extrapolation to rest")
+        return 0
+    good = [i for i in unsettled if i in fits and fits[i].good
+            and float(np.nanmax(fits[i].remaining_m)) <= max(opt.max_extrapolation_m,
+                                                             opt.max_extrapolation_share * step_m[i])
+            and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], st.sig_slow)]
+    if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
+        if found_r:
+            raise HoldsNeverSettle(
+                f"{session.markers_source}: {summary['sentence']}; the approach of only {len(good)} of them "
+                "fits the stream well enough to extrapolate to rest: record longer holds (or a slower plan)")
+        good = []  # nothing settled and little extrapolates: the recording never settles (settle says it)
+    for i in good:
+        f = fits[i]
+        var = np.nanmax(f.x_inf_std, axis=1) ** 2
+        # as many samples as would average to that variance (window means vary as sig_slow^2 / n)
+        cnt = np.where(np.isfinite(var) & (var > 0), st.sig_slow**2 / np.where(var > 0, var, 1.0), 0.0)
+        last = segments[i][1][-st.min_samples:]
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            held = np.nanmean(np.where(np.isfinite(last).all(axis=2)[..., None], last, np.nan), axis=0)
+        found_r[i] = dict(mean=f.x_inf, held=held, cnt=cnt, std=np.full(M, np.nan), start=np.nan, end=np.nan,
+                          tau=f.tau, remaining=float(np.nanmax(f.remaining_m)), extrapolated=1.0)
+        found.dropped.pop(i)
+    return len(good)
+
+
+def _pose_set(session: Session, st: _Stream, found: _Search, n_extrapolated: int, summary: dict) -> PoseSet:
+    """The PoseSet of the kept holds (settle's docstring); NeverSettles when none is kept."""
+    N = st.shape[0]
+    results, U, tc = found.results, st.U, st.tc
+    kept = sorted(results)
+    dropped_list = sorted(found.dropped.items())
+    if not kept:
+        reason = dropped_list[0][1] if dropped_list else "no commands"
+        raise NeverSettles(
+            f"{session.markers_source}: the recording never settles: none of {N} commands gave a still window "
+            f"(first: row {dropped_list[0][0] + 1 if dropped_list else 0}: {reason})"
+            + (f"; {summary['sentence']}" if summary else "")
+        )
+    kept_a = np.array(kept)
+    col = lambda key: np.array([results[i][key] for i in kept])  # noqa: E731
+    base = None
+    if session.base_markers is not None and session.base_markers.shape[1]:
+        with np.errstate(invalid="ignore"):
+            base = np.nanmean(session.base_markers, axis=0)
+    return PoseSet(
+        platform=session.platform, controls=U[kept_a], markers=col("mean"),
+        marker_names=list(session.marker_names),
+        description=None if session.description is None else str(session.description),
+        base_markers=base, t=tc[kept_a], n_samples=col("cnt"), length_unit=session.length_unit,
+        moving_link=session.moving_link, source=str(session.folder), dropped=dropped_list,
+        extras={
+            "row": kept_a, "direction": direction_of_last_motion(U)[kept_a], "last_step": last_step(U)[kept_a],
+            "elapsed": tc[kept_a] - tc[0], "settle_time": col("start") - tc[kept_a],
+            "window_start": col("start"), "window_end": col("end"), "marker_std": col("std"),
+            "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
+            "held_markers": col("held"),
+        },
+        settling={"sigma_m": float(st.sigma), "slow_noise_inflation": float(st.slow_inflation), "n_commands": N,
+                  "n_kept": len(kept), "n_extrapolated": n_extrapolated,
+                  "unsettled": summary},
+    )
+
+
 def settle(session: Session, options: SettleOptions | None = None) -> tuple[PoseSet, SettleReport]:
     """Settled poses of a session with a raw marker stream (markers.csv or C3D).
 
@@ -123,251 +476,29 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     Raises BadSession when no command settles, ComputationFailed when more than
     ``max_unsettled_fraction`` of the holds never settle and their approach cannot be extrapolated
     (or extrapolation is off): the message names the actuators and markers still moving.
+
+    The stages: the stream and its noise (:func:`_stream`), every hold's window or why it never
+    settled (:func:`_search_holds`), the windows the session moves (:func:`_shared_windows`), the
+    unsettled holds said (:func:`_unsettled_summary`) and extrapolated (:func:`_extrapolate`),
+    the PoseSet (:func:`_pose_set`).
     """
-    opt = options or SettleOptions()
-    if opt.extrapolate not in ("auto", "always", "never"):
-        raise ValueError(f"extrapolate must be 'auto', 'always' or 'never', not {opt.extrapolate!r}")
-    if session.markers is None:
-        raise BadSession(f"{session.folder}: the session has no motion-capture stream (markers.csv or a C3D file)")
-    if session.commands is None:
-        raise BadSession(f"{session.folder / 'commands.csv'}: file not found; settling needs the command log")
-    t, X = session.marker_t, session.markers
-    dt = np.median(np.diff(t)) if len(t) > 1 else np.nan
-    if not np.isfinite(dt) or dt <= 0:
-        raise BadSession(f"{session.markers_source}: fewer than two samples; cannot find settled windows")
-    rate = 1.0 / dt
-    sigma = opt.sigma_m if opt.sigma_m is not None else estimate_noise(X)
-    n = max(2, int(round(opt.window_s * rate)))
-    min_samples = max(3, int(np.ceil(opt.min_still_s * rate)))
-    tc, U = session.command_t, session.commands
-    # the noise at the scales the tests look at: the still test's halves (fast) and a few tenths
-    # of a second (slow: trends, decays, window means); white noise gives sigma at both
-    quiet = _quiet_stretches(t, X, tc, n, sigma, opt.gap_samples)
-    sig_fast = sigma * np.sqrt(noise_inflation(quiet, sigma, n))
-    slow_inflation = noise_inflation(quiet, sigma, max(n, int(round(SLOW_SCALE_S * rate))))
-    sig_slow = sigma * np.sqrt(slow_inflation)
-    N, M = U.shape[0], X.shape[1]
-    direction = direction_of_last_motion(U)
-    results: dict[int, dict] = {}  # row -> mean, cnt, std, start, end, tau, remaining, extrapolated
-    dropped: dict[int, str] = {}
-    fits: dict[int, Approach] = {}
-    unsettled: list[int] = []
-    segments: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # the stretches of the holds that never settled
-    windows: dict[int, tuple] = {}  # settled holds: (t, stretch, approach start, window start, end)
-    # holds whose tail bound cut the still stretch to between bound_keeps_evident and bound_keeps
-    # of it: row -> (that window start, its correction, the tail's estimate), taken when the
-    # session bears its tails out
-    deferred: dict[int, tuple] = {}
-    evidence = [0.0, 0.0]  # the still stretches regressed on their fitted tails, pooled: sum g y, sum g g
-    slow_taus: dict[int, float] = {}  # holds that never settled: the time constant of the end of their approach
-    slow_left: dict[int, float] = {}  # ... and the distance it still had to go (m)
-    slow_tail: dict[int, np.ndarray] = {}  # ... and what the markers moved late in it, reversed (m)
-    held_at = np.full((N, M, 3), np.nan)  # where the markers were held at each command (attribution's Jacobian)
-    hold_s = np.empty(N)
-    for i in range(N):
-        t_end = tc[i + 1] if i + 1 < N else t[-1] + dt / 2
-        hold_s[i] = t_end - tc[i]
-        a, b = np.searchsorted(t, tc[i], side="left"), np.searchsorted(t, t_end, side="left")
-        if b - a < min_samples:
-            if b == a:
-                dropped[i] = f"no motion-capture samples: none between t={tc[i]:.3f} s and t={t_end:.3f} s"
-            else:
-                dropped[i] = f"too few samples: only {b - a} between t={tc[i]:.3f} s and t={t_end:.3f} s"
-            continue
-        seg, ts = X[a:b], t[a:b]
-        slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * rate)))
-        run = _last_still_run(still_mask(seg, n, sig_fast, opt.false_alarm), opt.gap_samples, min_samples, slack)
-        length = 0 if run is None else run[1] - run[0]
-        if run is not None and length >= min_samples and run[1] < (b - a) - slack:
-            dropped[i] = (f"moved again: {(b - a - run[1]) * dt:.2f} s before the next command "
-                          f"(after {length * dt:.2f} s still); the stand did not hold the command")
-            continue
-        end = (b - a) if run is None else run[1]
-        if run is not None and length - n >= min_samples:
-            # the next move starts smoothly (from rest, under an acceleration limit) and the still
-            # test sees it up to one half-window late; a clock offset between the files moves it
-            # into the hold: its first samples, drawn towards the next command, are left out
-            end -= n
-            run = (run[0], end)
-            length = end - run[0]
-        k0 = approach_start(seg[:end], n, sig_fast)
-        fit = None
-        if k0 is not None and end - k0 >= 8:
-            fit = _fit_tail(ts, seg, k0, end, sig_slow)
-        if fit is not None:
-            fits[i] = fit
-        why = None
-        start = None
-        correction = np.zeros((M, 3))
-        if run is None or length < min_samples:
-            why = (f"never settled: still for {length * dt:.2f} s before the next command, "
-                   f"{opt.min_still_s:.2f} s needed")
-        else:
-            start = run[0]
-            bound = fit
-            if fit is not None and fit.significant:
-                # how much of the fitted tail the still stretch bears out: the window is chosen by
-                # its upper bound (a fit whose decay is off still marks where the approach ends;
-                # dropping it would start the window in the tail), a correction by its estimate
-                kappa, k_hi = tail_scale(fit, ts[run[0]:end], seg[run[0]:end], sig_slow)
-                num, den = tail_regression(fit.tail(ts[run[0]:end]), seg[run[0]:end])
-                evidence[0] += num
-                evidence[1] += den
-                bound = fit.scaled(k_hi)
-                fit = fit.scaled(kappa)
-            if fit is not None and bound is not None:
-                window = tail_free_window(bound, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples,
-                                          estimate=fit)
-                if bound is not fit and (window is None or end - window[0] < opt.bound_keeps * (end - run[0])):
-                    if window is not None and end - window[0] >= opt.bound_keeps_evident * (end - run[0]):
-                        deferred[i] = (window[0], window[1], fit)
-                    # the bound leaves no clean window, or a small part of the still stretch (a
-                    # decay the stretch hardly supports, a short hold): the estimate decides
-                    window = (tail_free_window(fit, ts, run[0], end, sig_slow, opt.tail_fraction, min_samples)
-                              if fit.significant else (run[0], np.zeros((M, 3))))
-                start = None if window is None else window[0]
-                if window is not None:
-                    correction = window[1]
-                if start is None:
-                    why = (f"never settled: the approach (time constant {fit.tau:.3g} s) still had "
-                           f"{1e3 * float(np.nanmax(fit.remaining_m)):.3g} mm to go at the next command")
-            if start is not None:
-                p, v = trend_test(ts[start:end], seg[start:end], sig_slow)
-                while p < opt.trend_false_alarm and end - start >= 2 * min_samples:
-                    # the early part goes (what is left of an approach), a quarter at a time
-                    start += max(1, (end - start) // 4)
-                    p, v = trend_test(ts[start:end], seg[start:end], sig_slow)
-                    correction = np.zeros((M, 3))
-                if p < opt.trend_false_alarm:
-                    why = (f"never settled: still moving at {1e3 * v:.3g} mm/s across its "
-                           f"{(end - start) * dt:.2f} s window (trend p = {p:.2g})")
-        if why is not None:
-            dropped[i] = why
-            unsettled.append(i)
-            segments[i] = (ts[:end], seg[:end])
-            if k0 is not None:
-                # the slowest actuator's time constant shows once the others have arrived: the
-                # second half of what is left of the hold
-                k = k0 + (end - k0) // 2
-                late = fit_approach(ts[k:end], seg[k:end], sig_slow, t_end=ts[end - 1]) if end - k >= 16 else None
-                if late is not None and late.significant:
-                    slow_taus[i] = late.tau
-                    slow_left[i] = float(np.nanmax(late.remaining_m))
-            # where the markers still go at the end of the hold (m): what they moved over its last
-            # third against the third before, which no extrapolation enters (its sign: behind)
-            k = (k0 if k0 is not None else 0) + (end - (k0 if k0 is not None else 0)) // 3
-            third = (end - k) // 2
-            if third >= 4:
-                slow_tail[i] = _nan_mean(seg[k:k + third]) - _nan_mean(seg[end - third:end])
-            held_at[i] = _nan_mean(seg[max(end - min_samples, 0):end])
-            continue
-        if opt.max_window_s is not None and end - start > max(min_samples, int(round(opt.max_window_s * rate))):
-            start = end - max(min_samples, int(round(opt.max_window_s * rate)))
-            correction = np.zeros((M, 3))
-        r = _window_result(ts, seg, start, end, correction, fit)
-        if r is None:
-            dropped[i] = "every marker occluded: no sample in the settled window"
-            continue
-        results[i] = r
-        windows[i] = (ts, seg, k0, start, end)
-    z = evidence[0] / (sig_slow * np.sqrt(evidence[1])) if evidence[1] > 0 else 0.0
-    if z >= opt.tail_evidence_z:
-        # the still stretches, pooled, bear out the fitted tails: the session's approaches have a
-        # real tail, and the bound's cut stands where a hold alone could not justify it
-        for i, (cut, corr, estimate) in deferred.items():
-            if i in windows and cut > windows[i][3]:
-                ts, seg, k0, _start, end = windows[i]
-                r = _window_result(ts, seg, cut, end, corr, estimate)
-                if r is not None:
-                    results[i] = r
-                    windows[i] = (ts, seg, k0, cut, end)
-    # the tail the holds share: a start each hold could not justify alone (its tail below its
-    # own noise) still biases every pose the same way, along its step
-    profile = shared_tail(windows, results, sig_slow, n)
-    if profile is not None:
-        for i, (ts, seg, _k0, start, end) in windows.items():
-            later = profile_start(profile, results[i]["arrival"], ts, start, end, sig_slow, opt.tail_fraction,
-                                  min_samples)
-            if later is not None and later > start:
-                r = _window_result(ts, seg, later, end, np.zeros((M, 3)), fits.get(i))
-                if r is not None:
-                    r["step"] = results[i]["step"]
-                    results[i] = r
+    st = _stream(session, options or SettleOptions())
+    N, M = st.shape
+    found = _Search(N, M)
+    _search_holds(st, found)
+    _shared_windows(st, found)
     names = (list(session.spec.control_names) if session.spec is not None
-             else [f"u{j + 1}" for j in range(U.shape[1])])
-    for i, r in results.items():
-        held_at[i] = r["mean"]
-    summary = _unsettled_summary(unsettled, fits, U, names, list(session.marker_names), hold_s, N,
-                                 set(dropped) - set(unsettled), slow_taus, slow_left, held_at, slow_tail)
-    many = len(unsettled) > opt.max_unsettled_fraction * N and len(unsettled) >= 2  # one of a few is no pattern
-    n_extrapolated = 0
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        moved = np.linalg.norm(np.diff(held_at, axis=0), axis=2)  # (N - 1, M)
-        step_m = np.concatenate([[0.0], np.where(np.isfinite(moved).any(axis=1),
-                                                 np.nanmax(np.where(np.isfinite(moved), moved, -np.inf), axis=1), 0.0)])
-    if unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many)):
-        good = [i for i in unsettled if i in fits and fits[i].good
-                and float(np.nanmax(fits[i].remaining_m)) <= max(opt.max_extrapolation_m,
-                                                                 opt.max_extrapolation_share * step_m[i])
-                and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], sig_slow)]
-        if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
-            if results:
-                raise HoldsNeverSettle(
-                    f"{session.markers_source}: {summary['sentence']}; the approach of only {len(good)} of them "
-                    "fits the stream well enough to extrapolate to rest: record longer holds (or a slower plan)")
-            good = []  # nothing settled and little extrapolates: the recording never settles (below)
-        for i in good:
-            f = fits[i]
-            var = np.nanmax(f.x_inf_std, axis=1) ** 2
-            # as many samples as would average to that variance (window means vary as sig_slow^2 / n)
-            cnt = np.where(np.isfinite(var) & (var > 0), sig_slow**2 / np.where(var > 0, var, 1.0), 0.0)
-            tail_t, tail_x = segments[i]
-            last = tail_x[-min_samples:]
-            with np.errstate(invalid="ignore"), warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                held = np.nanmean(np.where(np.isfinite(last).all(axis=2)[..., None], last, np.nan), axis=0)
-            results[i] = dict(mean=f.x_inf, held=held, cnt=cnt, std=np.full(M, np.nan), start=np.nan, end=np.nan,
-                              tau=f.tau, remaining=float(np.nanmax(f.remaining_m)), extrapolated=1.0)
-            dropped.pop(i)
-            n_extrapolated += 1
-    elif many and len(unsettled) > 0.5 * N and results:
-        raise HoldsNeverSettle(
-            f"{session.markers_source}: {summary['sentence']}; calibrating from the {N - len(dropped)} that did "
-            "would fit a remnant: record longer holds, or settle with extrapolation to rest")
-    kept = sorted(results)
-    dropped_list = sorted(dropped.items())
-    if not kept:
-        reason = dropped_list[0][1] if dropped_list else "no commands"
-        raise NeverSettles(
-            f"{session.markers_source}: the recording never settles: none of {N} commands gave a still window "
-            f"(first: row {dropped_list[0][0] + 1 if dropped_list else 0}: {reason})"
-            + (f"; {summary['sentence']}" if summary else "")
-        )
-    kept_a = np.array(kept)
-    col = lambda key: np.array([results[i][key] for i in kept])  # noqa: E731
-    base = None
-    if session.base_markers is not None and session.base_markers.shape[1]:
-        with np.errstate(invalid="ignore"):
-            base = np.nanmean(session.base_markers, axis=0)
-    poses = PoseSet(
-        platform=session.platform, controls=U[kept_a], markers=col("mean"),
-        marker_names=list(session.marker_names),
-        description=None if session.description is None else str(session.description),
-        base_markers=base, t=tc[kept_a], n_samples=col("cnt"), length_unit=session.length_unit,
-        moving_link=session.moving_link, source=str(session.folder), dropped=dropped_list,
-        extras={
-            "row": kept_a, "direction": direction[kept_a], "last_step": last_step(U)[kept_a],
-            "elapsed": tc[kept_a] - tc[0], "settle_time": col("start") - tc[kept_a],
-            "window_start": col("start"), "window_end": col("end"), "marker_std": col("std"),
-            "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
-            "held_markers": col("held"),
-        },
-        settling={"sigma_m": float(sigma), "slow_noise_inflation": float(slow_inflation), "n_commands": N,
-                  "n_kept": len(kept), "n_extrapolated": n_extrapolated,
-                  "unsettled": summary},
-    )
-    return poses, SettleReport(float(sigma), N, len(kept), dropped_list, float(rate), n_extrapolated, summary)
+             else [f"u{j + 1}" for j in range(st.U.shape[1])])
+    for i, r in found.results.items():
+        found.held_at[i] = r["mean"]
+    summary = _unsettled_summary(found.unsettled, found.fits, st.U, names, list(session.marker_names), found.hold_s, N,
+                                 set(found.dropped) - set(found.unsettled), found.slow_taus, found.slow_left,
+                                 found.held_at, found.slow_tail)
+    n_extrapolated = _extrapolate(session, st, found, summary)
+    poses = _pose_set(session, st, found, n_extrapolated, summary)
+    report = SettleReport(float(st.sigma), N, len(poses.controls), sorted(found.dropped.items()), float(st.rate),
+                          n_extrapolated, summary)
+    return poses, report
 
 
 def poses_from_table(session: Session) -> PoseSet:
@@ -399,10 +530,15 @@ def load_poses(folder: str | Path, platform: str | None = None, description: str
     if session.spec is None:
         raise BadSession(f"{Path(folder) / 'session.yaml'}: declares no platform (an IMU-only recording); "
                          "calibration needs a stand")
-    if session.markers is not None:  # rigid bodies: averaged over the windows found (calibrate.bodies)
-        return with_settled_bodies(session, settle(stream_for_settling(session), options)[0])
-    if session.poses is not None:
-        return with_settled_bodies(session, poses_from_table(session))
+    if session.markers is not None or session.poses is not None:
+        # rigid bodies: averaged over the windows found (calibrate.bodies)
+        poses = settle(stream_for_settling(session), options)[0] if session.markers is not None \
+            else poses_from_table(session)
+        poses = with_settled_bodies(session, poses)
+        since = session.since_power_on(poses.t)  # the time since power-on that a warm-up reads
+        if since is not None:
+            poses.extras["since_power_on"] = since
+        return poses
     raise BadSession(
         f"{folder}: the session has no markers: expected markers.csv, poses.csv or session.yaml's markers_file"
     )

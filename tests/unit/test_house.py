@@ -20,8 +20,6 @@ KNOWN_LONG_MODULES = {
 KNOWN_LONG_FUNCTIONS = {
     ("calibrate/estimate.py", "_calibrate"),
     ("commands/batch.py", "run"),
-    ("settle/_approach.py", "_fit"),
-    ("settle/_settle.py", "settle"),
 }
 
 
