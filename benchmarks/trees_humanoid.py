@@ -182,8 +182,14 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=300)
     ap.add_argument("--heldout", type=int, default=200)
     ap.add_argument("--bare", action="store_true", help="strip every inertia from the URDF the calibration sees")
+    ap.add_argument("--keep", default=None, help="keep each seed's sessions, calibrations and diagnosis under this folder")
     args = ap.parse_args()
     for seed in args.seeds:
+        if args.keep:
+            root = Path(args.keep) / f"seed{seed}{'_bare' if args.bare else ''}"
+            root.mkdir(parents=True, exist_ok=True)
+            run(seed, args.poses, args.heldout, args.bare, root)
+            continue
         with tempfile.TemporaryDirectory(prefix="platkit-trees-") as tmp:
             run(seed, args.poses, args.heldout, args.bare, Path(tmp))
 

@@ -22,11 +22,15 @@ from platkit.tree_loads import tree_loads
 from platkit_effects.physics import CompliancePhysics
 from platkit_effects.tree_compliance import (
     JointRotationTerm,
+    JointsComplianceTerm,
     MassMomentTerm,
     deflected_torque,
     joint_rotation_from_dict,
     joint_rotation_term,
+    joints_compliance_from_dict,
+    joints_compliance_term,
     load_state,
+    loaded_controls,
     mass_moment_basis,
     mass_moment_from_dict,
     mass_moment_term,
@@ -178,10 +182,12 @@ class Compliance(Effect):
             return out
         S = load_state(stand, poses.controls)
         tau = S.loads.torque
-        terms: list = [self.term(spec, i) for i, n in enumerate(stand.joints)
-                       if np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
+        loaded = loaded_controls(stand, poses.controls)
+        terms: list = [self.term(spec, i) for i in loaded]
         terms += [joint_rotation_term(self.name, spec, n, "axis") for n in stand.shared
                   if n in stand.loads.mimic and np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
+        if len(loaded) > 1 and len(stand.tracked) > 1:  # a tree gives at many joints at once: every loaded joint, one term
+            terms.append(joints_compliance_term(self.name, spec, loaded))
         return terms
 
     def untried(self, spec, poses):
@@ -189,6 +195,9 @@ class Compliance(Effect):
         return untried_compliance(spec, poses)
 
     def regressor(self, term, spec, poses):
+        if isinstance(term, JointsComplianceTerm):  # the joint whose load varies most
+            tau = actuator_loads(spec, poses.controls)[:, term.indices]
+            return tau[:, int(np.argmax(np.ptp(tau, axis=0)))]
         if isinstance(term, MassMomentTerm):
             return term.columns(poses.controls)[:, 0]
         if isinstance(term, JointRotationTerm):
@@ -200,6 +209,8 @@ class Compliance(Effect):
         return loads[:, term.index] if term.index is not None else loads @ np.sign(np.mean(loads, axis=0))
 
     def regressor_label(self, term):
+        if isinstance(term, JointsComplianceTerm):
+            return "gravity torque on the joint whose load varies most (N m)"
         if isinstance(term, MassMomentTerm):
             return f"gravity torque on {term.where['actuator']} per its best-determined mass-moment combination (N m)"
         if isinstance(term, JointRotationTerm):
@@ -210,6 +221,8 @@ class Compliance(Effect):
 
     def from_dict(self, data, spec=None):
         where = _where(data)
+        if "actuator_indices" in where:
+            return joints_compliance_from_dict(self.name, data, spec)
         if "basis" in where:
             return mass_moment_from_dict(self.name, data, spec)
         if "about" in where:

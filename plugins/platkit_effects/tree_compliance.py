@@ -11,9 +11,15 @@ Rules:
 - A deflection is the compliance times the load the joint holds (pinocchio's sign: the torque a
   motor must apply; a joint that gives under its weight has a negative compliance).
 - Joint elasticity of a control: a control offset ``c tau_j`` (platkit_effects.compliance), the
-  load taken at the deflected configuration (the fixed point ``d = c tau_j(q + d e_j)``) where
-  the deflection at the commands exceeds ``DEFLECTION_TOL``; below it the load changes by less
-  than about that fraction and the commanded configuration's load is used.
+  load taken at the deflected configuration: the fixed point ``d = c tau_j(q + d e_j)`` to first
+  order in d, ``tau_j / (1 - c g_j)`` with ``g_j = d tau_j / d q_j`` at the commands (a central
+  difference); what is left is second order in the deflection (1e-5 of the load at 10 mrad).
+- Joint elasticity of a tree: on a session with several tracked links, one compliance per control
+  whose load changes over the poses, all fitted together as one term
+  (:class:`JointsComplianceTerm`): a humanoid's torso and arms give at many joints at once, and
+  each joint named alone would take one of diagnosis's few rounds. On a chain (one tracked link)
+  it is not offered: there the joints are named one by one (on TIAGo's arm the term of every
+  joint ranked first by BIC and did not hold out, and crowded out the arm's proven backlash).
 - Joint elasticity of a mimic joint, and link bending (about the two axes across a joint's axis,
   ``c M_across``: the moment's part across the axis times one compliance, a link as stiff in both
   directions across it; two compliances let a link at a joint mimic the elasticity of the joint
@@ -44,8 +50,10 @@ from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
 from platkit.tree_loads import Loads, TreeLoads, tree_loads
 
-#: rad (m for prismatic joints): a deflection above which the load is taken at the deflected pose
-DEFLECTION_TOL = 1e-3
+#: rad (m for prismatic joints): the step of the central difference of a joint's load in its own value
+SLOPE_STEP = 1e-4
+#: |c g_j| above which the deflected load is found by fixed-point iteration, not to first order
+LINEAR_LIMIT = 0.05
 #: mass-moment combinations kept per joint when the URDF has no inertias
 MAX_MASS_COMBINATIONS = 3
 #: singular values below this share of the largest are not identifiable on the session
@@ -144,6 +152,25 @@ class LoadState:
     base_origin: np.ndarray
     base_rotation: np.ndarray
     links: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    slopes: dict[str, np.ndarray] = field(default_factory=dict)
+    regressor: np.ndarray | None = None
+
+    def torque_regressor(self, stand: TreeStand) -> np.ndarray:
+        """(N, J, 4 J) the torques' regressor in the mass moments (TreeLoads.torque_regressor), once."""
+        if self.regressor is None:
+            self.regressor = stand.loads.torque_regressor(self.Q, self.loads)
+        return self.regressor
+
+    def slope(self, stand: TreeStand, joint: str) -> np.ndarray:
+        """(N,) d tau_j / d q_j of ``joint``'s own load in its own value (central difference,
+        mimic joints held where they are)."""
+        if joint not in self.slopes:
+            j = stand.loads.index[joint]
+            up, down = self.Q.copy(), self.Q.copy()
+            up[:, j] += SLOPE_STEP
+            down[:, j] -= SLOPE_STEP
+            self.slopes[joint] = (stand.loads.loads(up).torque[:, j] - stand.loads.loads(down).torque[:, j]) / (2 * SLOPE_STEP)
+        return self.slopes[joint]
 
     def link_in_base(self, stand: TreeStand, link: str) -> tuple[np.ndarray, np.ndarray]:
         """(origin (N, 3), rotation (N, 3, 3)) of ``link`` in the base frame (nominal geometry)."""
@@ -177,22 +204,34 @@ def load_state(stand: TreeStand, controls: np.ndarray) -> LoadState:
 
 def deflected_torque(stand: TreeStand, controls: np.ndarray, joint: str, compliance: float) -> np.ndarray:
     """(N,) the load of ``joint`` at the equilibrium ``d = compliance * tau(q + d)`` of its own
-    deflection d (SI), where the deflection exceeds DEFLECTION_TOL (see the module docstring)."""
+    deflection d (SI): ``tau / (1 - compliance * g)`` to first order in d (g its load's slope in
+    its own value); where ``|compliance * g|`` exceeds LINEAR_LIMIT, by fixed-point iteration."""
     S = load_state(stand, controls)
     j = stand.loads.index[joint]
     tau = S.loads.torque[:, j]
-    d = compliance * tau
-    if not np.max(np.abs(d), initial=0.0) > DEFLECTION_TOL:
+    if compliance == 0:
         return tau
-    for _ in range(20):
+    cg = compliance * S.slope(stand, joint)
+    if np.max(np.abs(cg), initial=0.0) <= LINEAR_LIMIT:
+        return tau / (1.0 - cg)
+    d = compliance * tau
+    for _ in range(50):
         Q = S.Q.copy()
         Q[:, j] += d
         tau = stand.loads.loads(Q).torque[:, j]
         new = compliance * tau
-        if np.max(np.abs(new - d)) < 1e-4 * DEFLECTION_TOL:
+        if np.max(np.abs(new - d)) < 1e-10:
             break
         d = new
     return tau
+
+
+def deflected_slope(stand: TreeStand, controls: np.ndarray, joint: str, compliance: float) -> np.ndarray:
+    """(N,) d/dc of ``c * deflected_torque(c)`` at ``compliance``, to first order in the
+    deflection: ``tau / (1 - c g)^2``."""
+    S = load_state(stand, controls)
+    tau = S.loads.torque[:, stand.loads.index[joint]]
+    return tau / (1.0 - compliance * S.slope(stand, joint)) ** 2
 
 
 def across_axes(axis: np.ndarray) -> np.ndarray:
@@ -320,6 +359,78 @@ def joint_rotation_from_dict(effect: str, data: dict, spec: PlatformSpec | None)
     return term
 
 
+# ---------------------------------------------------------------------------- every joint
+@dataclass
+class JointsComplianceTerm(ModelTerm):
+    """The elasticity of many joints of a tree at once: control ``indices[k]`` (tree joint
+    ``joints[k]``) offset by ``theta_k tau_k``, each load at its joint's own deflected
+    configuration (:func:`deflected_torque`); theta in the control's unit per N m (N)."""
+
+    indices: list[int] = field(default_factory=list)
+    joints: list[str] = field(default_factory=list)
+    spec: PlatformSpec | None = field(default=None, repr=False)
+
+    def stand(self) -> TreeStand:
+        if self.spec is None:
+            self.spec = spec_from_where(self.where, self.effect)
+        stand = tree_stand(self.spec)
+        if stand is None or any(n not in stand.loads.index for n in self.joints):
+            raise BadInput(f"effect {self.effect!r}: joints {', '.join(self.joints)} are not all moving joints "
+                           "of the stand's URDF")
+        return stand
+
+    def control_offset(self, theta, poses, n_u):
+        stand = self.stand()
+        out = np.zeros((poses.n_poses, n_u))
+        for c, i, n in zip(theta, self.indices, self.joints):
+            out[:, i] = c * deflected_torque(stand, poses.controls, n, c * stand.scale[i])
+        return out
+
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        stand = self.stand()
+        N, K = poses.n_poses, len(theta)
+        control = np.zeros((N, n_u, K))
+        for k, (c, i, n) in enumerate(zip(theta, self.indices, self.joints)):
+            control[:, i, k] = deflected_slope(stand, poses.controls, n, c * stand.scale[i])
+        return control, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
+
+
+def loaded_controls(stand: TreeStand, controls: np.ndarray) -> list[int]:
+    """The controls whose joint's gravity load changes over ``controls`` (a vertical axis, a joint
+    that carries nothing: not)."""
+    tau = load_state(stand, controls).loads.torque
+    return [i for i, n in enumerate(stand.joints) if np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
+
+
+def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int]) -> JointsComplianceTerm:
+    stand = tree_stand(spec)
+    if stand is None:
+        raise BadInput(f"effect {effect!r}: the stand has no URDF")
+    joints = [stand.joints[i] for i in indices]
+    units = [f"{spec.controls[i].unit}/({'N' if spec.controls[i].unit == 'm' else 'N m'})" for i in indices]
+    where = {"joint": f"every loaded joint ({len(indices)})", "joints": joints,
+             "actuators": [spec.control_names[i] for i in indices], "actuator_indices": list(indices),
+             "load": "gravity torque of the whole tree about each joint's axis, from the URDF inertias"}
+    where.update(_stand_where(spec))
+    return JointsComplianceTerm(effect, [f"compliance_{spec.control_names[i]}" for i in indices],
+                                np.zeros(len(indices)), units, where, indices=list(indices), joints=joints, spec=spec)
+
+
+def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointsComplianceTerm:
+    where = _where(data)
+    try:
+        indices = [int(i) for i in where["actuator_indices"]]
+    except (KeyError, TypeError, ValueError):
+        raise BadInput(f"effect {effect!r}: where needs actuator_indices (the controls' indices)") from None
+    if spec is None:
+        spec = spec_from_where(where, effect)
+    if not all(0 <= i < spec.n_u for i in indices):
+        raise BadInput(f"effect {effect!r}: where.actuator_indices {indices} are not all controls of the stand")
+    term = joints_compliance_term(effect, spec, indices)
+    term.stand()
+    return term
+
+
 # ---------------------------------------------------------------------------- mass moments
 @dataclass
 class MassMomentTerm(ModelTerm):
@@ -343,7 +454,7 @@ class MassMomentTerm(ModelTerm):
         """(N, r) the joint's torque per unit of each kept combination."""
         stand = self.stand()
         S = load_state(stand, controls)
-        Y = stand.loads.torque_regressor(S.Q, S.loads)[:, stand.loads.index[self.joint]]
+        Y = S.torque_regressor(stand)[:, stand.loads.index[self.joint]]
         return Y @ self.basis
 
     def control_offset(self, theta, poses, n_u):
@@ -363,7 +474,7 @@ def mass_moment_basis(stand: TreeStand, controls: np.ndarray, joint: str) -> tup
     the r <= MAX_MASS_COMBINATIONS best determined, scaled so that each column's torque has unit
     RMS over the poses; rank: how many are identifiable at all."""
     S = load_state(stand, controls)
-    Y = stand.loads.torque_regressor(S.Q, S.loads)[:, stand.loads.index[joint]]
+    Y = S.torque_regressor(stand)[:, stand.loads.index[joint]]
     if not np.any(Y):
         return np.zeros((Y.shape[1], 0)), 0
     _, s, Vt = np.linalg.svd(Y, full_matrices=False)

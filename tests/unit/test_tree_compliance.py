@@ -13,8 +13,10 @@ from platkit_effects import Compliance, LinkBending
 from platkit_effects.compliance import actuator_loads
 from platkit_effects.tree_compliance import (
     JointRotationTerm,
+    JointsComplianceTerm,
     MassMomentTerm,
     across_axes,
+    deflected_slope,
     deflected_torque,
     load_state,
     tree_stand,
@@ -54,7 +56,7 @@ def test_loads_are_the_whole_trees_with_the_mimic_joint_following(arm):
 def test_a_mimic_joints_elasticity_turns_the_moving_frame_at_the_joint(arm):
     terms = Compliance().candidates(arm, _poses(arm, U))
     mimic = [t for t in terms if isinstance(t, JointRotationTerm)]
-    assert [t.joint for t in mimic] == ["t2"] and len(terms) == 4
+    assert [t.joint for t in mimic] == ["t2"] and len(terms) == 4  # a chain: no term of every joint
     stand = tree_stand(arm)
     T, S = stand.loads, load_state(stand, U)
     free = pin.buildModelFromUrdf(str(T.path))
@@ -98,16 +100,56 @@ def test_link_bending_turns_about_the_axes_across_under_the_moment_there(arm):
 
 def test_the_fixed_point_holds_the_load_at_the_deflected_pose(arm):
     stand = tree_stand(arm)
-    c = -0.01  # rad/(N m): a large sag, so the load changes with it
-    tau = deflected_torque(stand, U, "l1", c)
     T = stand.loads
-    Q = stand.configuration(U)
-    Q[:, T.index["l1"]] += c * tau
-    assert np.allclose(T.loads(Q).torque[:, T.index["l1"]], tau, atol=1e-6)
     plain = load_state(stand, U).loads.torque[:, T.index["l1"]]
-    assert np.abs(tau - plain).max() > 1e-3
-    # a small compliance keeps the commanded load exactly
-    assert np.array_equal(deflected_torque(stand, U, "l1", 1e-9), plain)
+
+    def held(c, tau):  # the load at the configuration deflected by c * tau
+        Q = stand.configuration(U)
+        Q[:, T.index["l1"]] += c * tau
+        return T.loads(Q).torque[:, T.index["l1"]]
+
+    # a large sag (|c g| past LINEAR_LIMIT): the fixed point itself, by iteration
+    c = -0.05
+    tau = deflected_torque(stand, U, "l1", c)
+    assert np.allclose(held(c, tau), tau, atol=1e-8) and np.abs(tau - plain).max() > 1e-3
+    # a sag of tens of mrad: to first order, what is left second order in the deflection
+    c = -0.004
+    tau = deflected_torque(stand, U, "l1", c)
+    d = np.abs(c * tau).max()
+    assert np.abs(tau - plain).max() > 1e-4 and d > 0.01
+    assert np.abs(held(c, tau) - tau).max() < d ** 2 * np.abs(plain).max()  # (1/2) tau'' d^2, |tau''| <= amplitude
+    assert np.abs(held(c, tau) - tau).max() < 0.1 * np.abs(held(c, plain) - plain).max()  # the commanded load's error
+    # and its slope in c is the derivative of c * tau(c)
+    h = 1e-7
+    fd = ((c + h) * deflected_torque(stand, U, "l1", c + h) - (c - h) * deflected_torque(stand, U, "l1", c - h)) / (2 * h)
+    assert np.allclose(deflected_slope(stand, U, "l1", c), fd, rtol=1e-6)
+    assert np.allclose(deflected_torque(stand, U, "l1", 1e-9), plain, rtol=1e-7, atol=0)
+
+
+def test_every_loaded_joint_in_one_term_is_the_joints_compliances_together(tmp_path):
+    tree = get_platform("urdf", _tree(tmp_path), moving_link={"L": "l_lo", "R": "r_lo"})
+    C = np.array([[0.3, 0.4, -0.7, 0.1, 0.5], [-1.0, -0.2, 1.1, -0.05, -0.8], [0.0, 1.2, 0.3, 0.2, 0.0],
+                  [0.6, -0.9, 0.2, -0.3, 0.4]])
+    poses = PoseSet(tree.name, C, np.zeros((4, 2, 3)), ["L", "R"], length_unit="m", moving_link={"L": "l_lo", "R": "r_lo"})
+    terms = Compliance().candidates(tree, poses)
+    group = [t for t in terms if isinstance(t, JointsComplianceTerm)]
+    assert len(group) == 1 and group[0].joints == tree_stand(tree).joints == ["t1", "l1", "l2", "r1", "r2"]
+    singles = {t.where["actuator"]: t for t in terms if type(t).__name__ == "ComplianceTerm"}
+    theta = np.array([-2e-3, -4e-3, 1e-3, -3e-3, 2e-3])
+    want = sum(singles[n].control_offset(np.array([c]), poses, 5) for n, c in zip(tree.control_names, theta))
+    got = group[0].control_offset(theta, poses, 5)
+    assert np.allclose(got, want, rtol=1e-12, atol=0) and np.abs(got).min(axis=0).max() > 1e-3
+    d_u, d_pose, d_m = group[0].offset_jacobians(theta, poses, 5, None, None)
+    h = 1e-8
+    for k in range(5):
+        step = np.zeros(5)
+        step[k] = h
+        fd = (group[0].control_offset(theta + step, poses, 5) - group[0].control_offset(theta - step, poses, 5)) / (2 * h)
+        assert np.allclose(d_u[..., k], fd, rtol=1e-6, atol=1e-12)
+    assert not d_pose.any() and not d_m.any()
+    back = Compliance().from_dict(group[0].to_dict(theta))
+    assert isinstance(back, JointsComplianceTerm) and back.joints == group[0].joints
+    assert np.allclose(back.control_offset(theta, poses, 5), got)
 
 
 def test_without_inertias_compliance_is_tried_through_the_mass_moments(tmp_path):
