@@ -262,32 +262,40 @@ def _parameterisation(args, options: dict, sessions, batch, client_for, say):
 
 
 def run(args) -> int:
-    from collections import Counter
-
-    from platkit.batch.engine import (
-        SCHEDULER_ENV,
-        Task,
-        cluster,
-        progress_line,
-        require_dask,
-        run_tasks,
-        scratch_folder,
-        terminate_as_interrupt,
-    )
+    """platkit batch VERB: the arguments and the matched sessions checked before any work, the
+    sessions not done before (by fingerprint) run on the cluster, the fleet summary written (with
+    --history, the stand's history too), one line said; 1 where a session failed."""
+    from platkit.batch.engine import require_dask
     from platkit.batch.fleet import write_summary
-    from platkit.batch.history import (
-        MAINTENANCE_FILE,
-        check_one_stand,
-        history_order,
-        read_maintenance,
-        session_when,
-    )
-    from platkit.batch.store import BatchFolder, fingerprint, match_sessions, why_redo
+    from platkit.batch.store import BatchFolder, match_sessions
     from platkit.io.atomic import check_output_dir
 
     require_dask()
     verb = args.batch_verb
     history = getattr(args, "history", False)
+    _check_arguments(args, verb, history)
+    check_output_dir(args.out)
+    sessions, skipped = match_sessions(args.session)
+    options = verb_options(args)
+    events = _check_sessions(args, verb, history, sessions, options)
+    batch = BatchFolder(args.out, verb, options)
+    say = (lambda line: None) if args.quiet else (lambda line: print(f"batch: {line}", file=sys.stderr, flush=True))
+    if skipped:
+        print(f"platkit: warning: {len(skipped)} matched folders hold no session.yaml and are not sessions "
+              f"(first: {skipped[0]})", file=sys.stderr)
+    start = time.perf_counter()
+    todo, why, failed = _run_sessions(args, verb, sessions, options, batch, say, start)
+    batch.start()
+    summary, written = write_summary(verb, sessions, batch)
+    if history:
+        written += _write_history(sessions, batch, events)
+    return _said(verb, sessions, summary, written, todo, why, failed, batch, start)
+
+
+def _check_arguments(args, verb: str, history: bool) -> None:
+    """The batch's own options, each bad one refused before any work (BadInput naming it)."""
+    from platkit.batch.engine import SCHEDULER_ENV
+
     if args.session is None:
         raise BadInput(f"platkit batch {verb}: give SESSION, a pattern of session folders such as 'fleet/*'")
     if args.workers is not None and args.workers < 1:
@@ -307,12 +315,22 @@ def run(args) -> int:
             raise BadInput(f"--reference {reference}: file not found")
     if getattr(args, "maintenance", None) is not None and not history:
         raise BadInput("--maintenance applies to --history")
-    check_output_dir(args.out)
-    sessions, skipped = match_sessions(args.session)
-    options = verb_options(args)
+
+
+def _check_sessions(args, verb: str, history: bool, sessions, options: dict) -> list[dict]:
+    """What the matched sessions must agree on, checked before any work: the path options'
+    placeholders, every session's date (a bad one names its file and field), with --history one
+    stand in date order and its maintenance events (returned), and for batch calibrate one stand."""
+    from platkit.batch.history import (
+        MAINTENANCE_FILE,
+        check_one_stand,
+        history_order,
+        read_maintenance,
+        session_when,
+    )
+
     for ref in sessions[:1]:  # a bad placeholder is bad input before any work
         session_options(options, str(ref.path), ref.name)
-    # every date checked before any work: a bad one names its file and field
     whens = [session_when(r.path) for r in sessions]
     events: list[dict] = []
     if history:
@@ -331,12 +349,19 @@ def run(args) -> int:
         if len(stands) > 1:
             raise BadInput(f"the sessions are of {len(stands)} stands ({', '.join(sorted(stands))}); a batch "
                            "calibrate compares one stand's parameters: run one batch per stand")
-    batch = BatchFolder(args.out, verb, options)
-    say = (lambda line: None) if args.quiet else (lambda line: print(f"batch: {line}", file=sys.stderr, flush=True))
-    if skipped:
-        print(f"platkit: warning: {len(skipped)} matched folders hold no session.yaml and are not sessions "
-              f"(first: {skipped[0]})", file=sys.stderr)
-    start = time.perf_counter()
+    return events
+
+
+def _run_sessions(args, verb: str, sessions, options: dict, batch, say, start: float):
+    """The sessions to run (a changed fingerprint, or --redo) run on the cluster, each written into
+    ``batch`` as it finishes; batch calibrate first settles the batch's parameterisation. The
+    cluster starts only where there is work for it; an interrupt or SIGTERM stops it and removes
+    the scratch folder. Returns (the sessions run, Counter of why they ran, the failed outcomes)."""
+    from collections import Counter
+
+    from platkit.batch.engine import Task, cluster, progress_line, run_tasks, scratch_folder, terminate_as_interrupt
+    from platkit.batch.store import fingerprint, why_redo
+
     failed = []
     with terminate_as_interrupt(), scratch_folder() as scratch, contextlib.ExitStack() as stack:
         clients: list = []
@@ -375,24 +400,32 @@ def run(args) -> int:
                                  on_outcome=keep, progress=None if args.quiet else progress_line("batch", start=start),
                                  timeout=args.task_timeout)
             failed = [o for o in outcomes if not o.ok]
-    batch.start()
-    summary, written = write_summary(verb, sessions, batch)
-    if history:
-        from platkit.batch.history import write_history
+    return todo, why, failed
 
-        hist, more = write_history(sessions, batch, events=events)
-        written += more
-        for ev in hist["events"]:
-            print(f"maintenance: {ev['date']} {ev['note']}" + (f" (before {ev['before_session']}: a new run of agreeing "
-                                                                f"sessions starts there)" if ev["before_session"] else ""))
-        for flag in hist["changes"]:
-            print(f"change: {flag['parameter']} in {flag['session']} by {flag['change']:+.4g} {flag['unit']} "
-                  f"({flag['z']:+.1f} sigma)")
-        partly = hist["tested_on"]["not_identified_in"]
-        if partly:
-            print(f"history: {len(partly)} parameters not identified in some sessions, tested only between those that "
-                  f"identify them: " + "; ".join(f"{p} (not in {', '.join(v)})" for p, v in list(partly.items())[:5])
-                  + (" ..." if len(partly) > 5 else ""))
+
+def _write_history(sessions, batch, events: list[dict]) -> list[Path]:
+    """The stand's history written into ``batch`` (platkit.batch.history), its maintenance events,
+    changes and parameters tested only where identified said on stdout; returns the files written."""
+    from platkit.batch.history import write_history
+
+    hist, written = write_history(sessions, batch, events=events)
+    for ev in hist["events"]:
+        print(f"maintenance: {ev['date']} {ev['note']}" + (f" (before {ev['before_session']}: a new run of agreeing "
+                                                            f"sessions starts there)" if ev["before_session"] else ""))
+    for flag in hist["changes"]:
+        print(f"change: {flag['parameter']} in {flag['session']} by {flag['change']:+.4g} {flag['unit']} "
+              f"({flag['z']:+.1f} sigma)")
+    partly = hist["tested_on"]["not_identified_in"]
+    if partly:
+        print(f"history: {len(partly)} parameters not identified in some sessions, tested only between those that "
+              f"identify them: " + "; ".join(f"{p} (not in {', '.join(v)})" for p, v in list(partly.items())[:5])
+              + (" ..." if len(partly) > 5 else ""))
+    return written
+
+
+def _said(verb: str, sessions, summary: dict, written: list, todo, why, failed, batch, start: float) -> int:
+    """The batch's one line on stdout (sessions done, from before, run and why, failed, time, files
+    written), each failure on stderr; the exit status: 1 where a session failed, else 0."""
     c = summary["counts"]
     ran = f", {len(todo)} run: " + ", ".join(f"{n} {w}" for w, n in why.items()) if todo else ""
     print(f"batch {verb}: {c['ok']} of {len(sessions)} sessions done ({len(sessions) - len(todo)} from before{ran}), "

@@ -19,7 +19,6 @@ KNOWN_LONG_MODULES = {
 #: (module relative to platkit/, qualified function name) over MAX_FUNCTION_LINES still to split
 KNOWN_LONG_FUNCTIONS = {
     ("calibrate/estimate.py", "_calibrate"),
-    ("commands/batch.py", "run"),
 }
 
 
