@@ -8,13 +8,17 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp
-from platkit.effects import actuator_where as _actuator_where
-from platkit.effects import control_size as _size
-from platkit.effects import stored_actuator as _actuator
-from platkit.effects import stored_where as _where
+from platkit.effects import (
+    CONTROL_SIZE_UNIT,
+    Effect,
+    SizeHelp,
+    actuator_where,
+    control_size,
+    stored_actuator,
+    stored_where,
+)
 from platkit.errors import BadInput
-from platkit.kinematics import platform_model as _platform_model
+from platkit.kinematics import platform_model
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
@@ -70,7 +74,7 @@ def parallel_actuator_forces(spec: PlatformSpec, controls: np.ndarray) -> np.nda
     virtual work J^T f = dz/dp. Unit: N per N of payload weight (counts, rad: per unit)."""
     import casadi as ca
 
-    model = _platform_model(spec)
+    model = platform_model(spec)
     fk = model.forward_batch(controls, strict=False)
     p = ca.SX.sym("p", spec.n_p)
     _, X = spec.pose(p)
@@ -161,7 +165,7 @@ class Compliance(Effect):
             where.update(_stand_where(spec))
             return ComplianceTerm(self.name, ["deflection_per_newton_payload"], np.zeros(1), [f"{unit}/N"], where,
                                   index=None, spec=spec)
-        where = _actuator_where(spec, i)
+        where = actuator_where(spec, i)
         load_unit = "N" if spec.controls[i].unit == "m" else "N m"
         where.update({"load": f"gravity torque from the URDF inertias ({load_unit})"})
         where.update(_stand_where(spec))
@@ -220,7 +224,7 @@ class Compliance(Effect):
         return f"gravity load on {term.where['actuator']} ({term.where['load'].split('(')[-1].rstrip(')')})"
 
     def from_dict(self, data, spec=None):
-        where = _where(data)
+        where = stored_where(data)
         if "actuator_indices" in where:
             return joints_compliance_from_dict(self.name, data, spec)
         if "basis" in where:
@@ -234,7 +238,7 @@ class Compliance(Effect):
             spec = get_platform(where["platform"], where.get("description"), **(where.get("platform_options") or {}))
         if where.get("actuator") == "all":
             return self.term(spec, None)
-        i, _, _ = _actuator(spec, data, self.name)
+        i, _, _ = stored_actuator(spec, data, self.name)
         return self.term(spec, i)
 
     def simulation_term(self, spec, size, rng, commands):
@@ -250,7 +254,7 @@ class Compliance(Effect):
         peak = float(np.max(np.abs(loads[:, j])))
         if not peak > 0:
             raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
-        return term, np.array([_size(spec, j, size, 1.0) / peak])
+        return term, np.array([control_size(spec, j, size, 1.0) / peak])
 
     def physics(self, spec, size, rng, plan):
         """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
@@ -265,4 +269,4 @@ class Compliance(Effect):
         peak = float(np.max(np.abs(loads[:, j])))
         if not peak > 0:
             raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
-        return CompliancePhysics(_size(spec, j, size, 1.0) / peak, loads, start, index, spec.controls[j].unit, where)
+        return CompliancePhysics(control_size(spec, j, size, 1.0) / peak, loads, start, index, spec.controls[j].unit, where)

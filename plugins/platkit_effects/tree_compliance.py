@@ -42,8 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.effects import Effect, SizeHelp
-from platkit.effects import stored_where as _where
+from platkit.effects import Effect, SizeHelp, stored_where
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
@@ -348,7 +347,7 @@ def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str)
 
 
 def joint_rotation_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointRotationTerm:
-    where = _where(data)
+    where = stored_where(data)
     joint, about = where.get("joint"), where.get("about")
     if not isinstance(joint, str) or about not in ("axis", "across"):
         raise BadInput(f"effect {effect!r}: where needs joint (a URDF joint name) and about ('axis' or 'across')")
@@ -417,7 +416,7 @@ def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int]) 
 
 
 def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointsComplianceTerm:
-    where = _where(data)
+    where = stored_where(data)
     try:
         indices = [int(i) for i in where["actuator_indices"]]
     except (KeyError, TypeError, ValueError):
@@ -496,7 +495,7 @@ def mass_moment_term(effect: str, spec: PlatformSpec, i: int, joint: str, basis:
 
 
 def mass_moment_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> MassMomentTerm:
-    where = _where(data)
+    where = stored_where(data)
     try:
         basis = np.asarray(where["basis"], float)
         i, joint = int(where["actuator_index"]), str(where["joint"])
