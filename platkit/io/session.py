@@ -117,6 +117,14 @@ class Session:
     def has_markers(self) -> bool:
         return self.markers is not None or self.poses is not None
 
+    def since_power_on(self, t: np.ndarray | None) -> np.ndarray | None:
+        """(N,) seconds since the stand was switched on (session.yaml's ``power_on_t``) at times
+        ``t`` (N,) s on the clock of t; None where the session does not say it or t is unknown."""
+        on = self.extras.get("power_on_t")
+        if on is None or t is None or not np.all(np.isfinite(np.asarray(t, float))):
+            return None
+        return np.asarray(t, float) - float(on)
+
 
 def load_session(folder: str | Path, platform: str | None = None, description: str | Path | None = None,
                  spec: PlatformSpec | None = None, imu_max_repair_s: float = DEFAULT_MAX_REPAIR_S,
@@ -164,6 +172,8 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     )
     tscale = TIME_UNITS[s.time_unit]
     lscale = LENGTH_UNITS[s.length_unit]
+    if y.get("power_on_t") is not None:  # s on the clock of t
+        s.extras["power_on_t"] = y["power_on_t"] * tscale
 
     # commands
     cpath = folder / "commands.csv"

@@ -13,6 +13,7 @@ SESSION_KEYS = (
     "platform", "description", "units", "markers", "base_markers", "mocap_rate_hz", "imu",
     "moving_link", "notes", "markers_file", "markers_time_offset", "base_link",
     "date",  # (platkit) when it was recorded, ISO 8601: orders a stand's history (platkit batch --history)
+    "power_on_t",  # (platkit) when the stand was switched on, on the clock of t: its warm-up (docs/session-format.md)
     "rigid_bodies", "rigid_body_noise",  # 6-DOF bodies (spec section 1) and (platkit) their declared noise
 )
 #: session.yaml ``rigid_body_noise`` keys: each sigma per axis, with its unit in the name
@@ -176,6 +177,11 @@ def read_session_yaml(folder: Path) -> dict:
     if isinstance(off, bool) or not isinstance(off, (int, float)) or not math.isfinite(off):
         raise BadSession(f"{path}: field 'markers_time_offset' must be a number of seconds, got {off!r}")
     out["markers_time_offset"] = float(off)
+    on = data.get("power_on_t")
+    if on is not None and (isinstance(on, bool) or not isinstance(on, (int, float)) or not math.isfinite(on)):
+        raise BadSession(f"{path}: field 'power_on_t' must be the time the stand was switched on, a number on the "
+                         f"clock of t in the session's time unit (negative: before t = 0), or null; got {on!r}")
+    out["power_on_t"] = None if on is None else float(on)
     return out
 
 
