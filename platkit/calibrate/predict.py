@@ -13,9 +13,12 @@ with empty cells and counted.
 
 The thermal state (a model whose terms read the time, docs/diagnosis.md "Thermal drift"): the
 rows are predicted at a time since power-on, ``at_time`` for the first row and later rows by their
-``t`` (``--at-time``), or at the equilibrium (``warm``, ``--warm``); by default the first row is
-at power-on (cold), later rows by their ``t``. Where the calibration does not know its power-on,
-the first command of the session it was fitted on stands for it. Such a model's output has two
+``t`` (``--at-time``), or at the equilibrium (``warm``, ``--warm``); by default the rows' ``t`` are
+read on the clock of the session the model was fitted on (its terms' ``where['first_command_t']``;
+a later session that continues that clock is predicted as warm as it is), else the first row is at
+power-on (cold), later rows by their ``t``. The power-on is the session's (session.yaml's
+``power_on_t``; a term's ``where['since_power_on_at_start_s']`` keeps it); where the session did not
+say it, the first command of the session the model was fitted on stands for it. Such a model's output has two
 more columns after the pose: ``since_power_on_s`` (the time each row is predicted at; ``inf``
 warm) and ``thermal_note`` (empty, or why the row is an extrapolation: beyond the recorded span,
 or a drift with no equilibrium asked for warm, predicted at the end of the recorded span). A
@@ -94,9 +97,10 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
     if cal.terms:  # history- and time-dependent terms read the rows' order and times
 
         poses = with_history(poses, cal.spec)
-        if since_power_on is not None:
+        if since_power_on is not None:  # the terms read the time since their session's first command
             state = np.asarray(since_power_on, float)
-            poses.extras = dict(poses.extras, elapsed=state, thermal_start_s=np.full(N, state[0] if N else 0.0))
+            poses.extras = dict(poses.extras, elapsed=state - power_on_offset(cal),
+                                thermal_start_s=np.full(N, state[0] if N else 0.0))
     markers, q, X, ok = predict_markers(cal, U, poses)
     s = length_scale(cal.length_unit)
     header = list(cal.spec.control_names)
@@ -163,9 +167,26 @@ def _term_offsets(cal: Calibration, U: np.ndarray, elapsed: float) -> np.ndarray
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
+def power_on_offset(cal: Calibration) -> float:
+    """Seconds from power-on to the first command of the session the model was fitted on (its
+    terms' ``where['since_power_on_at_start_s']``); 0 where none says it (the first command stands
+    for the power-on)."""
+    found = [t.where.get("since_power_on_at_start_s") for t in cal.terms]
+    found = [float(v) for v in found if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    return max(found) if found else 0.0
+
+
+def session_clock_start(cal: Calibration) -> float | None:
+    """The time t (s, on its own clock) of the first command of the session the model was fitted
+    on (its terms' ``where['first_command_t']``), or None where no term says it."""
+    found = [t.where.get("first_command_t") for t in cal.terms]
+    found = [float(v) for v in found if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    return min(found) if found else None
+
+
 def recorded_span(cal: Calibration) -> tuple[float, float] | None:
-    """(first, last) s since power-on of the session the model's time-dependent terms were fitted
-    on (their ``where['recorded_s']``), or None where no term says it."""
+    """(first, last) s since the first command of the session the model's time-dependent terms
+    were fitted on (their ``where['recorded_s']``), or None where no term says it."""
     spans = [t.where.get("recorded_s") for t in cal.terms]
     spans = [s for s in spans if isinstance(s, (list, tuple)) and len(s) == 2]
     if not spans:
@@ -190,19 +211,21 @@ def thermal_state(cal: Calibration, U: np.ndarray, t: np.ndarray | None, at_time
     if t is None and not warm and at_time is None:
         raise BadInput(f"{commands}: no 't' column, but the calibration's model has time-dependent terms "
                        f"({', '.join(timed)}); give t in seconds on the session's clock, or --at-time or --warm")
-    span = recorded_span(cal)
+    span = recorded_span(cal)  # since the session's first command
+    on = power_on_offset(cal)
     rel = np.zeros(N) if t is None else np.asarray(t, float) - float(t[0])
     notes = [""] * N
     warnings: list[str] = []
-    span_text = "unknown (the calibration does not say it)" if span is None else f"{span[0]:.6g} to {span[1]:.6g} s"
+    span_text = ("unknown (the calibration does not say it)" if span is None
+                 else f"{span[0] + on:.6g} to {span[1] + on:.6g} s")
     if warm:
         if not np.allclose(_term_offsets(cal, U[:1], 1e8), _term_offsets(cal, U[:1], 1e9), rtol=1e-9, atol=1e-15):
             if span is None:
                 raise BadInput(f"--warm: the model's {', '.join(timed)} has no equilibrium (it drifts without end) and "
                                "the calibration does not say the span it was fitted on; give --at-time")
-            since = np.full(N, span[1])
+            since = np.full(N, span[1] + on)
             note = (f"{', '.join(timed)} has no equilibrium (it drifts without end): predicted at the end of the "
-                    f"recorded span, {span[1]:.6g} s since power-on")
+                    f"recorded span, {span[1] + on:.6g} s since power-on")
             notes = [note] * N
             warnings.append(note)
             state = f"warm asked; {note}"
@@ -217,12 +240,18 @@ def thermal_state(cal: Calibration, U: np.ndarray, t: np.ndarray | None, at_time
                     notes = [note] * N
                     warnings.append(note)
         return {"timed": timed, "since_power_on": since, "notes": notes, "state": state, "warnings": warnings}
-    start = 0.0 if at_time is None else float(at_time)
-    since = start + rel
-    state = (f"{since[0]:.6g} s since power-on at the first row" + ("" if t is None else ", later rows by their t")
-             + ("" if at_time is not None else " (the default: cold at the first row; give --at-time or --warm)"))
+    t0 = session_clock_start(cal)
+    if at_time is None and t is not None and t0 is not None:  # the rows' t on the session's clock
+        since = np.asarray(t, float) - t0 + on
+        state = (f"{since[0]:.6g} s since power-on at the first row, the rows' t read on the clock of the session "
+                 "the model was fitted on (the default; give --at-time or --warm for another state)")
+    else:
+        since = (0.0 if at_time is None else float(at_time)) + rel
+        state = (f"{since[0]:.6g} s since power-on at the first row" + ("" if t is None else ", later rows by their t")
+                 + ("" if at_time is not None else " (the default: cold at the first row; give --at-time or --warm)"))
     if span is not None:
-        out = (since > span[1] * (1 + 1e-9) + 1e-9) | (since < span[0] - 1e-9)
+        first, last = span[0] + on, span[1] + on
+        out = (since > last * (1 + 1e-9) + 1e-9) | (since < first - 0.01 * (last - first) - 1e-9)
         if np.any(out):
             note = (f"{since[out].min():.6g} to {since[out].max():.6g} s since power-on is beyond the recorded span "
                     f"({span_text}): extrapolated by the model's thermal terms")

@@ -53,7 +53,7 @@ from platkit.simulate.continuous import continuous_plan
 from platkit.simulate.files import csv_text, dropped_note, fmt, write_imu_files
 from platkit.simulate.nuisance import Nuisances, coloured_noise, draw_nuisances, occlusion_mask
 from platkit.simulate.stand import make_plan, perturb_parameters
-from platkit.simulate.warmup import draw_warmup
+from platkit.simulate.warmup import WarmupPhysics, draw_warmup
 
 __all__ = ["PhysicalSession", "simulate_physics", "write_physical_session", "physics_of"]
 
@@ -421,7 +421,8 @@ def settled_table(sim: PhysicalSession) -> tuple[list[str], list[list[str]]]:
 def write_physical_session(sim: PhysicalSession, out: str | Path, description: str | Path | None = None,
                            notes: str = "", moving_link: str | None = None, base_link: str | None = None) -> Path:
     """Write the session folder (session.yaml, commands.csv, markers.csv, imu.csv with its truth
-    files when simulated) and its truth (truth.yaml, truth_settled.csv), whole or not at all."""
+    files when simulated) and its truth (truth.yaml, truth_settled.csv), whole or not at all.
+    A session with a warm-up says when the stand was switched on (session.yaml's ``power_on_t``)."""
     spec = sim.spec
     unit = sim.length_unit
     s = length_scale(unit)
@@ -440,6 +441,9 @@ def write_physical_session(sim: PhysicalSession, out: str | Path, description: s
             entry["notes"] = f"{entry['notes']}; {dropped}"
         if base_link is not None:
             entry["base_link"] = base_link
+        power_on = [p.power_on_s for _, p in sim.physics if isinstance(p, WarmupPhysics)]
+        if power_on:  # the stand warms up with time since then (commands clock, the clock of t)
+            entry["power_on_t"] = round(float(power_on[0]), 6)
         if description is not None:
             desc = Path(description)
             (tmp / desc.name).write_bytes(desc.read_bytes())

@@ -4,13 +4,16 @@ warms up with time since power-on towards an equilibrium (a screened time consta
 moving frame drifts linearly in time. The three are variants of one place; diagnosis chooses among
 them by how each predicts the later part of the session from the earlier (``Effect.forecast``).
 
-Time: a term reads ``elapsed``, the seconds since the session's first command, which stands for
-the power-on (a warm-up's constant part before it is the geometry's). ``platkit predict`` sets
-``elapsed`` to the thermal state it is asked for (``--at-time``: seconds since power-on, or
-``--warm``: the equilibrium, ``inf``) and, for the heat of work, ``thermal_start_s``: the time
-since power-on of the first row, whose heat is that of work at the recorded session's rate
-(``where.work_rate_per_s``). Every term's ``where`` keeps ``recorded_s``, the span of the session
-it was fitted on, so that ``predict`` warns beyond it."""
+Time: a term reads ``elapsed``, the seconds since the session's first command. The power-on is
+session.yaml's ``power_on_t`` where it says it (extras ``since_power_on``; a term's
+``where['since_power_on_at_start_s']`` keeps the time from power-on to the first command), else the
+first command stands for it (a warm-up's constant part before it is then the geometry's, and its
+amplitudes are what was left to warm). ``platkit predict`` sets ``elapsed`` to the thermal state
+it is asked for (``--at-time``: seconds since power-on, or ``--warm``: the equilibrium, ``inf``)
+and, for the heat of work, ``thermal_start_s``: the time since power-on of the first row, whose
+heat is that of work at the recorded session's rate (``where.work_rate_per_s``). Every term's
+``where`` keeps ``recorded_s``, the span of the session it was fitted on (seconds since its first
+command), so that ``predict`` warns beyond it."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -130,10 +133,11 @@ def work_rate(poses: PoseSet, stroke: np.ndarray) -> np.ndarray:
     return np.sum(np.abs(np.diff(U, axis=0)), axis=0) / span
 
 
-def warmth(poses: PoseSet, tau_s: float) -> np.ndarray:
-    """(N,) the share of the warm-up's equilibrium reached at each row, ``1 - exp(-elapsed / tau)``
+def warmth(poses: PoseSet, tau_s: float, start_s: float = 0.0) -> np.ndarray:
+    """(N,) the share of the warm-up's equilibrium reached at each row, ``1 - exp(-(elapsed +
+    start_s) / tau)``, ``start_s`` the time from power-on to the session's first command
     (``elapsed`` ``inf``: warm, 1)."""
-    t = np.maximum(history(poses, "elapsed"), 0.0)
+    t = np.maximum(history(poses, "elapsed") + start_s, 0.0)
     return 1.0 - np.exp(-t / tau_s)
 
 
@@ -168,13 +172,15 @@ class ThermalExpansionTerm(ModelTerm):
 
 @dataclass
 class ThermalWarmupTerm(ModelTerm):
-    """Every actuator j longer by theta_j times the warm-up reached, ``1 - exp(-elapsed / tau_s)``
-    (theta_j: its lengthening once warm, beyond what it had at the first command)."""
+    """Every actuator j longer by theta_j times the warm-up reached, ``1 - exp(-(elapsed + start_s) /
+    tau_s)`` (theta_j: its lengthening once warm; where the power-on is unknown, beyond what it had
+    at the first command)."""
 
     tau_s: float = 600.0
+    start_s: float = 0.0  # from power-on to the session's first command (0: the first command stands for it)
 
     def control_offset(self, theta, poses, n_u):
-        return warmth(poses, self.tau_s)[:, None] * np.asarray(theta, float)[None, :n_u]
+        return warmth(poses, self.tau_s, self.start_s)[:, None] * np.asarray(theta, float)[None, :n_u]
 
 
 def _strokes(spec: PlatformSpec) -> np.ndarray:
@@ -182,16 +188,30 @@ def _strokes(spec: PlatformSpec) -> np.ndarray:
     return np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, 1.0)
 
 
-def _recorded(poses: PoseSet) -> list[float]:
+def _clock(poses: PoseSet) -> dict:
+    """The session's clock a thermal term keeps in its ``where``: ``recorded_s`` (first, last
+    seconds since the first command), ``first_command_t`` (the time t of the first command, where
+    the rows have times) and, where the session says its power-on, ``since_power_on_at_start_s``."""
     t = history(poses, "elapsed")
-    return [float(np.min(t)), float(np.max(t))] if t.size else [0.0, 0.0]
+    out: dict = {"recorded_s": [float(np.min(t)), float(np.max(t))] if t.size else [0.0, 0.0]}
+    clock = np.asarray(poses.t, float) if poses.t is not None else np.full(t.shape, np.nan)
+    if clock.shape == t.shape and t.size and np.all(np.isfinite(clock)):
+        out["first_command_t"] = float(np.median(clock - t))  # the session's clock at its first command
+    since = poses.extras.get("since_power_on")
+    if since is not None and np.shape(since) == t.shape and t.size and np.all(np.isfinite(since)):
+        out["since_power_on_at_start_s"] = float(np.median(np.asarray(since, float) - t))
+    return out
 
 
-def _recorded_from(where: dict) -> list[float] | None:
+def _clock_from(where: dict) -> dict:
+    out: dict = {}
     span = where.get("recorded_s")
     if isinstance(span, list) and len(span) == 2 and all(isinstance(v, (int, float)) for v in span):
-        return [float(v) for v in span]
-    return None
+        out["recorded_s"] = [float(v) for v in span]
+    for key in ("first_command_t", "since_power_on_at_start_s"):
+        if key in where:
+            out[key] = _number(where, key, "thermal_drift")
+    return out
 
 
 class ThermalDrift(Effect):
@@ -204,35 +224,32 @@ class ThermalDrift(Effect):
                             "distance each actuator moves and cools with a time constant of 5 to 15 minutes",
                             CONTROL_SIZE_UNIT)
 
-    def term(self, recorded: list[float] | None = None):
-        where: dict = {"time": "the whole session, linear in the time since its first command", "form": FORM_LINEAR}
-        if recorded is not None:
-            where["recorded_s"] = recorded
+    def term(self, clock: dict | None = None):
+        where: dict = {"time": "the whole session, linear in the time since its first command", "form": FORM_LINEAR,
+                       **(clock or {})}
         return ThermalDriftTerm(self.name, ["vx", "vy", "vz"], np.zeros(3), ["m/s"] * 3, where)
 
-    def expansion(self, unit: str, stroke, tau_s: float, rate=None, recorded: list[float] | None = None):
+    def expansion(self, unit: str, stroke, tau_s: float, rate=None, clock: dict | None = None):
         stroke = np.asarray(stroke, float)
         where = {"actuator": "all", "unit": unit, "cooling_time_constant_s": float(tau_s),
                  "stroke": [float(s) for s in stroke], "form": FORM_WORK,
                  "heat": "strokes each actuator moved, cooling with the time constant"}
         if rate is not None:
             where["work_rate_per_s"] = [float(r) for r in rate]
-        if recorded is not None:
-            where["recorded_s"] = recorded
+        where.update(clock or {})
         return ThermalExpansionTerm(self.name, ["expansion_per_stroke"], np.zeros(1), [unit], where,
                                     tau_s=float(tau_s), stroke=stroke,
                                     work_rate=None if rate is None else np.asarray(rate, float))
 
-    def warmup(self, names: list[str], units: list[str], tau_s: float, recorded: list[float] | None = None):
+    def warmup(self, names: list[str], units: list[str], tau_s: float, clock: dict | None = None):
         """The warm-up with time since power-on: one amplitude per actuator (``names``, ``units``)."""
         where: dict = {"actuator": "all", "form": FORM_WARMUP, "warmup_time_constant_s": float(tau_s),
                        "actuators": list(names), "units": list(units),
                        "warmup": "each actuator longer by its amplitude times 1 - exp(-t / tau), t the time since "
-                                 "the first command (which stands for the power-on)"}
-        if recorded is not None:
-            where["recorded_s"] = recorded
+                                 "power-on (where the session does not say it, since the first command)", **(clock or {})}
+        start = float(where.get("since_power_on_at_start_s", 0.0))
         return ThermalWarmupTerm(self.name, [f"{n}_warm" for n in names], np.zeros(len(names)), list(units), where,
-                                 tau_s=float(tau_s))
+                                 tau_s=float(tau_s), start_s=start)
 
     def candidates(self, spec, poses, residuals=None):
         if not np.ptp(history(poses, "elapsed")) > 0:
@@ -240,36 +257,36 @@ class ThermalDrift(Effect):
         stroke = _strokes(spec)
         remember_heat(poses, stroke)
         units = {c.unit for c in spec.controls}
-        recorded = _recorded(poses)
-        out = [self.term(recorded)]
+        clock = _clock(poses)
+        out = [self.term(clock)]
         if len(units) == 1 and np.ptp(poses.controls, axis=0).max() > 0:
             rate = work_rate(poses, stroke)
-            out += [self.expansion(spec.controls[0].unit, stroke, tau, rate, recorded) for tau in COOLING_TAUS_S]
+            out += [self.expansion(spec.controls[0].unit, stroke, tau, rate, clock) for tau in COOLING_TAUS_S]
         names, cunits = list(spec.control_names), [c.unit for c in spec.controls]
-        out += [self.warmup(names, cunits, tau, recorded) for tau in WARMUP_TAUS_S]
+        out += [self.warmup(names, cunits, tau, clock) for tau in WARMUP_TAUS_S]
         return out
 
     def regressor(self, term, spec, poses):
         if isinstance(term, ThermalExpansionTerm):
             return np.mean(motion_heat(poses, term.stroke, term.tau_s), axis=1)
         if isinstance(term, ThermalWarmupTerm):
-            return warmth(poses, term.tau_s)
+            return warmth(poses, term.tau_s, term.start_s)
         return history(poses, "elapsed")
 
     def regressor_label(self, term):
         if isinstance(term, ThermalExpansionTerm):
             return f"mean heat of the actuators (strokes moved, cooling over {term.tau_s:g} s)"
         if isinstance(term, ThermalWarmupTerm):
-            return f"warm-up reached, 1 - exp(-t / {term.tau_s:g} s), t since the first command"
+            return f"warm-up reached, 1 - exp(-t / {term.tau_s:g} s), t since power-on"
         return "time since the first command (s)"
 
     def from_dict(self, data, spec=None):
         where = _where(data)
-        recorded = _recorded_from(where)
+        clock = _clock_from(where)
         if where.get("form") == FORM_WARMUP:
-            return self._warmup_from(where, spec, recorded)
+            return self._warmup_from(where, spec, clock)
         if "cooling_time_constant_s" not in where:
-            return self.term(recorded)
+            return self.term(clock)
         tau = _number(where, "cooling_time_constant_s", self.name, positive=True)
         stroke = where.get("stroke")
         if not (isinstance(stroke, list) and stroke and all(isinstance(s, (int, float)) and s > 0 for s in stroke)):
@@ -283,9 +300,9 @@ class ThermalDrift(Effect):
                                      and all(isinstance(r, (int, float)) and r >= 0 for r in rate)):
             raise BadInput("effect 'thermal_drift': where.work_rate_per_s must list each actuator's strokes per "
                            "second (>= 0), one per stroke")
-        return self.expansion(unit if isinstance(unit, str) else "m", stroke, tau, rate, recorded)
+        return self.expansion(unit if isinstance(unit, str) else "m", stroke, tau, rate, clock)
 
-    def _warmup_from(self, where: dict, spec, recorded):
+    def _warmup_from(self, where: dict, spec, clock: dict):
         tau = _number(where, "warmup_time_constant_s", self.name, positive=True)
         names, units = where.get("actuators"), where.get("units")
         if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)
@@ -294,7 +311,7 @@ class ThermalDrift(Effect):
         if spec is not None and list(names) != list(spec.control_names):
             raise BadInput(f"effect 'thermal_drift': where.actuators {names} are not {spec.name}'s controls "
                            f"({', '.join(spec.control_names)})")
-        return self.warmup(names, units, tau, recorded)
+        return self.warmup(names, units, tau, clock)
 
     def simulation_term(self, spec, size, rng, commands):
         """``size``: drift of the moving frame in mm per hour, in a random horizontal-ish direction."""

@@ -195,3 +195,56 @@ def test_the_options_on_a_model_without_time_are_accepted_with_a_note(calibratio
     assert rc == 0  # nothing reads the time: the number is not used
     rc, out = _predict(tmp_path, calibration.replace("terms: []\n", WARMUP), "--at-time", "-5")
     assert rc == 2 and "--at-time must be a time since power-on" in capsys.readouterr().err
+
+
+def test_a_session_says_its_power_on_and_the_thermal_terms_keep_it(stewart, tmp_path):
+    from platkit.settle import load_poses
+    from platkit.simulate.physics import write_physical_session
+
+    sim = simulate_physics(stewart, seed=4, n_poses=6, plan="random", warmup="visible")
+    (_, w), = [p for p in sim.physics if isinstance(p[1], WarmupPhysics)]
+    folder = write_physical_session(sim, tmp_path / "s")
+    assert f"power_on_t: {round(w.power_on_s, 6)}" in (folder / "session.yaml").read_text()
+    poses = load_poses(folder)
+    assert np.allclose(poses.extras["since_power_on"], poses.t - round(w.power_on_s, 6))
+    warm_up = [c for c in effect_library()["thermal_drift"].candidates(stewart, poses) if c.where["form"] == FORM_WARMUP]
+    start = poses.t[0] - round(w.power_on_s, 6)
+    assert all(c.start_s == pytest.approx(start) and c.where["since_power_on_at_start_s"] == pytest.approx(start)
+               for c in warm_up)
+    text = (folder / "session.yaml").read_text().replace(f"power_on_t: {round(w.power_on_s, 6)}", "power_on_t: soon")
+    (folder / "session.yaml").write_text(text)
+    with pytest.raises(BadInput, match="session.yaml: field 'power_on_t' must be the time the stand was switched on"):
+        load_poses(folder)
+
+
+def test_predict_reads_the_time_since_the_sessions_power_on(calibration, tmp_path, capsys):
+    # the session was switched on 100 s before its first command: --at-time 300 is 200 s after that command
+    cal = calibration.replace("terms: []\n", WARMUP.replace("recorded_s: [0.0, 1200.0]",
+                                                            "recorded_s: [0.0, 1200.0], since_power_on_at_start_s: 100.0"))
+    rc, out = _predict(tmp_path, cal, "--at-time", "1250")
+    assert rc == 0
+    _, rows = _rows(out)
+    assert rows[0]["thermal_note"] == "" and "beyond the recorded span (100 to 1300 s)" in rows[1]["thermal_note"]
+    # a drift linear in the time since the session's first command: 1250 s after power-on is 1150 s after it
+    keys = ("M1_x", "M1_y", "M1_z")
+    said = LINEAR.replace("recorded_s: [0.0, 1200.0]", "recorded_s: [0.0, 1200.0], since_power_on_at_start_s: 100.0")
+    rc, out = _predict(tmp_path, calibration.replace("terms: []\n", said), "--at-time", "1250")
+    first = [_rows(out)[1][0][k] for k in keys]
+    rc, out = _predict(tmp_path, calibration.replace("terms: []\n", LINEAR), "--at-time", "1150")
+    assert [_rows(out)[1][0][k] for k in keys] == first
+    rc, out = _predict(tmp_path, calibration.replace("terms: []\n", LINEAR), "--at-time", "1250")
+    assert [_rows(out)[1][0][k] for k in keys] != first
+
+
+def test_by_default_the_rows_t_are_read_on_the_sessions_clock(calibration, tmp_path, capsys):
+    # the session's first command at t = 50 s, switched on 100 s before it
+    cal = calibration.replace("terms: []\n", WARMUP.replace(
+        "recorded_s: [0.0, 1200.0]", "recorded_s: [0.0, 1200.0], first_command_t: 50.0, since_power_on_at_start_s: 100.0"))
+    (tmp_path / "cal.yaml").write_text(cal)
+    (tmp_path / "later.csv").write_text("t,A,B,C\n650,2047.2,2047.2,2047.2\n750,1900,2100,2000\n")
+    out = tmp_path / "p.csv"
+    assert main(["predict", "--calibration", str(tmp_path / "cal.yaml"), "--commands", str(tmp_path / "later.csv"),
+                 "--out", str(out)]) == 0
+    assert "700 s since power-on at the first row, the rows' t read on the clock of the session" in capsys.readouterr().out
+    _, rows = _rows(out)
+    assert [r["since_power_on_s"] for r in rows] == ["700", "800"]
