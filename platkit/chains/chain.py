@@ -51,6 +51,14 @@ def check_urdf_text(text: str, source: str) -> None:
         raise BadDescription(f"{source}: not well-formed XML ({exc})") from None
     if root.tag != "robot":
         raise BadDescription(f"{source}: the root element is <{root.tag}>, expected <robot>")
+    # a mimic joint whose master the file lacks: refused, as the URDF stand refuses it (pinocchio
+    # would read the joint as a free one)
+    names = {j.get("name") for j in root.findall("joint")}
+    for j in root.findall("joint"):
+        for mimic in j.findall("mimic"):
+            if mimic.get("joint") not in names:
+                raise BadDescription(f"{source}: joint {j.get('name')!r} <mimic joint={mimic.get('joint')!r}> names no "
+                                     "joint of the file")
 
 
 @dataclass(frozen=True)

@@ -137,3 +137,21 @@ def test_plan_json_lists_every_warning_said_while_planning(tmp_path, monkeypatch
     monkeypatch.setattr(pl, "evaluate_plan", evaluate)
     assert main(["plan", "--platform", "rotary", "--grid", "3", "--out", str(tmp_path / "p2.csv")]) == 0
     assert json.loads((tmp_path / "p2.json").read_text())["warnings"] == []
+
+
+# ------------------------------------------------------------------ a mimic joint whose master is missing
+def test_track_refuses_a_mimic_joint_whose_master_the_urdf_lacks_as_the_urdf_stand_does(tmp_path, capsys):
+    tag = '<joint name="arm_3_joint" type="revolute">'
+    text = TIAGO_URDF.read_text()
+    assert tag in text
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(text.replace(tag, tag + '<mimic joint="nosuch_joint"/>', 1))
+    out = tmp_path / "path.csv"
+    assert main(["track", "--urdf", str(urdf), "--link", "arm_tool_link", "--target", "0.6,0.2,0.8",
+                 "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert line == f"platkit: error: {urdf}: joint 'arm_3_joint' <mimic joint='nosuch_joint'> names no joint of the file"
+    assert not out.exists()
+    assert main(["fk", "--platform", "urdf", "--description", str(urdf), "--moving-link", "arm_tool_link",
+                 "--u", "0,0,0,0,0,0,0,0"]) == 2
+    assert "joint 'arm_3_joint' <mimic joint='nosuch_joint'> names no joint of the file" in capsys.readouterr().err
