@@ -20,10 +20,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.effects import CONTROL_SIZE_UNIT, Effect, SizeHelp, history
-from platkit.effects import control_size as _size
-from platkit.effects import stored_number as _number
-from platkit.effects import stored_where as _where
+from platkit.effects import (
+    CONTROL_SIZE_UNIT,
+    Effect,
+    SizeHelp,
+    control_size,
+    history,
+    stored_number,
+    stored_where,
+)
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -210,7 +215,7 @@ def _clock_from(where: dict) -> dict:
         out["recorded_s"] = [float(v) for v in span]
     for key in ("first_command_t", "since_power_on_at_start_s"):
         if key in where:
-            out[key] = _number(where, key, "thermal_drift")
+            out[key] = stored_number(where, key, "thermal_drift")
     return out
 
 
@@ -281,13 +286,13 @@ class ThermalDrift(Effect):
         return "time since the first command (s)"
 
     def from_dict(self, data, spec=None):
-        where = _where(data)
+        where = stored_where(data)
         clock = _clock_from(where)
         if where.get("form") == FORM_WARMUP:
             return self._warmup_from(where, spec, clock)
         if "cooling_time_constant_s" not in where:
             return self.term(clock)
-        tau = _number(where, "cooling_time_constant_s", self.name, positive=True)
+        tau = stored_number(where, "cooling_time_constant_s", self.name, positive=True)
         stroke = where.get("stroke")
         if not (isinstance(stroke, list) and stroke and all(isinstance(s, (int, float)) and s > 0 for s in stroke)):
             raise BadInput("effect 'thermal_drift': where.stroke must list each actuator's stroke (> 0)")
@@ -303,7 +308,7 @@ class ThermalDrift(Effect):
         return self.expansion(unit if isinstance(unit, str) else "m", stroke, tau, rate, clock)
 
     def _warmup_from(self, where: dict, spec, clock: dict):
-        tau = _number(where, "warmup_time_constant_s", self.name, positive=True)
+        tau = stored_number(where, "warmup_time_constant_s", self.name, positive=True)
         names, units = where.get("actuators"), where.get("units")
         if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)
                 and isinstance(units, list) and len(units) == len(names) and all(isinstance(u, str) for u in units)):
@@ -331,5 +336,5 @@ class ThermalDrift(Effect):
         peak = float(np.max(thermal_state(t, motor, stroke, tau)))
         if not peak > 0:
             raise BadInput("effect thermal_drift: the commands never move the stand, nothing heats")
-        largest = _size(spec, 0, size, 2.0)
+        largest = control_size(spec, 0, size, 2.0)
         return ThermalPhysics(largest / peak, tau, stroke, largest, spec.controls[0].unit)
