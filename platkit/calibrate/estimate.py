@@ -34,12 +34,12 @@ from platkit.calibrate.identifiability import (
 from platkit.calibrate.plan import reference_poses_for
 from platkit.calibrate.problem import (
     PLAUSIBLE_RANGE,
-    REJECT_K,
     CalibrationProblem,
     Progress,
     link_frames,
     parameter_scale,
 )
+from platkit.calibrate.robust import REJECT_K
 from platkit.calibrate.solve import _rms, _weighted, blas_threads, kfold, levenberg_marquardt, robust_fit
 from platkit.errors import BadInput, BadSession, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize

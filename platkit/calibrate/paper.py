@@ -34,6 +34,7 @@ from scipy.optimize import minimize
 
 from platkit.calibrate.estimate import CalibrationProblem, Progress, _rms, blas_threads, free_mask, parameter_scale
 from platkit.calibrate.identifiability import rotation_fixed_directions
+from platkit.calibrate.registration import markers_given_rotation
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import (
     matrix_from_quat,
@@ -288,7 +289,7 @@ def _calibrate_paper(poses, spec, free, fit_base, max_evaluations, progress, pla
     def registration(td_, A_):
         q, X, _, okk = problem.kinematics(td_, poses.controls)
         vis = problem.visible & okk[:, None]
-        m, b = problem._markers_given_rotation(A_, matrix_from_quat(q), X, poses.markers, vis)
+        m, b = markers_given_rotation(A_, matrix_from_quat(q), X, poses.markers, vis)
         z = np.zeros(problem.n_z)
         z[problem.i_td], z[problem.i_w], z[problem.i_t], z[problem.i_m] = td_, rotvec_from_matrix(A_), b, m.ravel()
         return z

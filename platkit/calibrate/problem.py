@@ -8,12 +8,12 @@ The observation of marker i at pose n is
     y_ni = exp(w) (X_n + exp(dth_n) R(q_n) (m_i + dm_ni) + dX_n) + t
 
 with (q_n, X_n) the forward kinematics of u_n + du_n under td, and (du, dX, dth, dm) the terms'
-offsets. Jacobians come from CasADi: for a stand with a closed-form ``forward`` it is
-differentiated directly; otherwise through the Newton solution by the implicit-function theorem,
-dp/dtd = -F_p^+ F_td and dp/du = -F_p^+ F_u. Terms' offsets are differentiated in theta by
-finite differences (they are numpy functions with few parameters) and chained with the exact
-Jacobians. The solvers are in :mod:`platkit.calibrate.solve`, the procedure in
-:mod:`platkit.calibrate.estimate`.
+offsets. Jacobians come from CasADi (:mod:`platkit.calibrate.observation`): for a stand with a
+closed-form ``forward`` it is differentiated directly; otherwise through the Newton solution by the
+implicit-function theorem, dp/dtd = -F_p^+ F_td and dp/du = -F_p^+ F_u. Terms' offsets are
+differentiated in theta by finite differences (they are numpy functions with few parameters) and
+chained with the exact Jacobians. The start of every fit is a rigid registration (:mod:`platkit.calibrate.registration`);
+the solvers are in :mod:`platkit.calibrate.solve`, the procedure in :mod:`platkit.calibrate.estimate`.
 
 Rigid bodies measured in 6 DOF (:mod:`platkit.bodies`): body b has an unknown placement
 (origin p_b, m, and rotation vector phi_b, rad, on the moving part) and two residual channels
@@ -25,18 +25,9 @@ J_r^-1(e) J_r(phi_b) for phi_b.
 """
 from __future__ import annotations
 
-import hashlib
-import os
-import shutil
-import subprocess
-import sys
-import tempfile
-import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
 from platkit.bodies import (
@@ -45,24 +36,14 @@ from platkit.bodies import (
     declared_rho,
     log_so3,
     placement_from_frame_points,
-    quat_mean,
     right_jacobian,
     right_jacobian_inv,
 )
+from platkit.calibrate.observation import observation_for
+from platkit.calibrate.registration import initial_rotation, register
 from platkit.errors import BadInput
-from platkit.geometry import (
-    ca_matrix_from_quat,
-    ca_matrix_from_rotvec,
-    matrix_from_quat,
-    matrix_from_rotvec,
-    quat_from_matrix,
-    rigid_fit,
-    rotvec_from_matrix,
-)
-from platkit.io.cache import c_compiler
-from platkit.kinematics import PlatformModel
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.model import PlatformSpec
-from platkit.native import compiled_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
@@ -70,10 +51,6 @@ from platkit.terms import ModelTerm
 #: 'iteration', 'robust', 'fold', 'done'; info carries 'iteration', 'rms' (m), ... as fitting.
 Progress = Callable[[str, dict], None]
 
-#: Median of the 3-D error norm of isotropic Gaussian noise, in units of the per-axis sigma.
-MAXWELL_MEDIAN = 1.5381722
-HUBER_K = 3.0  # Huber threshold on the 3-D error, in sigma
-REJECT_K = 4.5  # errors beyond this many sigma are outliers (P < 1e-3 for clean 3-D noise)
 #: td stays within nominal +- this many typical corrections (10 cm, 0.1 rad, 10%, 100 counts): a
 #: description is a drawing of the stand, not a guess; beyond, the fit pays a stiff hinge
 PLAUSIBLE_RANGE = 100.0
@@ -227,59 +204,9 @@ class CalibrationProblem:
 
     # ------------------------------------------------------------------ CasADi
     def _build(self) -> None:
-        """The observation functions of this stand and channel count, built once per (stand, M + B)
-        and shared by every problem of them, and the stand's PlatformModel, once per stand (a model
-        selection, k folds and a diagnosis build dozens of problems of one stand); per thread, as
-        their buffers are not to be shared between threads."""
-        thread = threading.get_ident()  # the maps' buffers and the model's are one thread's
-        key = (id(self.spec), self.M + self.B, self.B > 0, thread, self.point_links)
-        hit = _BUILT.get(key)
-        if hit is None or hit[0] is not self.spec:
-            if len(_BUILT) > 16:
-                _BUILT.clear()
-            model = next((h[2] for k, h in _BUILT.items() if h[0] is self.spec and k[3] == thread), None) \
-                or PlatformModel(self.spec)
-            hit = _BUILT[key] = (self.spec, _observation_functions(self.spec, self.M + self.B, self.B > 0,
-                                                                   self.point_links, self.B), model)
-        self._fns = hit[1]
-        self.model: PlatformModel = hit[2]  # its solvers keep only scratch buffers: one per stand
-
-    def _call(self, n: int, with_jac: bool, args: list[np.ndarray]) -> list[np.ndarray]:
-        """Evaluate the observation function over n poses, CHUNK poses (fewer for a small n) per
-        call of a CasADi map on preallocated buffers (a few maps per stand, whatever n: building
-        a map costs time in proportion to its length).
-
-        args: per-pose inputs as (n, size) C-ordered arrays, shared inputs (td, w, t, m) as 1-D
-        arrays. Returns each output as an (n, rows, cols) array, row-major per pose.
-        """
-        buf, run, ins, outs, shapes, per_pose, chunk, _ = self._fns.mapped(with_jac, n)
-        res = [np.empty((n,) + sh) for sh in shapes]
-        per = [np.ascontiguousarray(np.reshape(a, (n, -1)), dtype=float) if k in per_pose else np.ravel(a)
-               for k, a in enumerate(args)]
-        for k, a in enumerate(per):
-            if k not in per_pose:
-                ins[k][:] = a
-        for start in range(0, n, chunk):
-            stop = min(n, start + chunk)
-            m = stop - start
-            if m == chunk:  # the map reads and writes the arrays themselves: no copies
-                for k in per_pose:
-                    buf.set_arg(k, memoryview(per[k][start:stop].reshape(-1)))
-                for i, r in enumerate(res):
-                    buf.set_res(i, memoryview(r[start:stop].reshape(-1)))
-                run()
-                continue
-            for k in per_pose:  # a short chunk: through the map's own buffers
-                dst = ins[k].reshape(chunk, -1)
-                dst[:m] = per[k][start:stop]
-                dst[m:] = per[k][start]  # padded with the chunk's first pose: finite, and thrown away
-                buf.set_arg(k, memoryview(ins[k]))
-            for i, o in enumerate(outs):
-                buf.set_res(i, memoryview(o))
-            run()
-            for o, r, sh in zip(outs, res, shapes):
-                r[start:stop] = o.reshape((chunk,) + sh)[:m]
-        return res
+        """This problem's observation functions and the stand's model, shared with every problem of
+        the stand and point count in this thread (:func:`platkit.calibrate.observation.observation_for`)."""
+        self._fns, self.model = observation_for(self.spec, self.M, self.B, self.point_links)
 
     # ------------------------------------------------------------------ pieces
     def split(self, z):
@@ -343,7 +270,7 @@ class CalibrationProblem:
         if B:
             dm = np.concatenate([dm, np.zeros((N, B, 3))], axis=1)
         if self.spec.forward is not None:
-            outs = self._call(N, with_jac, [Uo, td, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
+            outs = self._fns.call(N, with_jac, [Uo, td, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
             ok = np.ones(N, bool)
         else:
             kin = self._kin
@@ -356,7 +283,7 @@ class CalibrationProblem:
             if own:
                 self._p_guess = np.where(ok[:, None], P, self._p_guess)
             P = np.where(ok[:, None], P, self._p_guess if own else self.spec.neutral_p())
-            outs = self._call(N, with_jac, [Uo, td, P, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
+            outs = self._fns.call(N, with_jac, [Uo, td, P, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
         nP3 = 3 * (M + B)
         measured = np.concatenate([poses.markers, _bodies(poses)[..., :3]], axis=1)
         if not with_jac:
@@ -451,7 +378,8 @@ class CalibrationProblem:
 
     # ------------------------------------------------------------------ initial values
     def initial_registration(self, td) -> np.ndarray:
-        """Transform and markers by rigid alignment at nominal kinematics: z (n_z,).
+        """Transform and markers by rigid alignment at the kinematics of ``td``
+        (:mod:`platkit.calibrate.registration`): z (n_z,), the terms at their initial values.
 
         A rigid body enters as three points of its frame (origin and two axis tips,
         :func:`~platkit.bodies.body_frame_points`); its placement is read back from them.
@@ -464,7 +392,7 @@ class CalibrationProblem:
         vis = np.concatenate([self.visible[:, :M], np.repeat(self.visible[:, M:M + B], 3, axis=1)], axis=1)
         vis &= ok[:, None]
         if self.point_links is None:
-            A = self._initial_rotation(R, X, Y, vis)
+            A = initial_rotation(R, X, Y, vis)
             R, X = R[:, None], X[:, None]  # one frame for every point
         else:  # each point on its link's frame; the rotation from the link that carries the most points
             links = np.array(list(self.point_links[:M]) + [k for k in self.point_links[M:] for _ in range(3)])
@@ -472,16 +400,8 @@ class CalibrationProblem:
             R, X = R_all[:, links], X_all[:, links]
             best = int(np.argmax(np.bincount(links, weights=vis.sum(axis=0))))
             on = links == best
-            A = self._initial_rotation(R_all[:, best], X_all[:, best], Y[:, on], vis[:, on])
-        keep = vis.copy()
-        for _ in range(6):  # alternate: markers by least squares, then Kabsch; gross outliers left out
-            mk, b = self._markers_given_rotation(A, R, X, Y, keep)
-            pts = X + np.einsum("nmab,mb->nma", R, mk)
-            d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
-            sigma = _robust_sigma(d[vis])
-            keep = vis & (d <= max(REJECT_K * sigma, 1e-12))
-            A, b = rigid_fit(pts[keep], Y[keep])
-        mk, b = self._markers_given_rotation(A, R, X, Y, keep)
+            A = initial_rotation(R_all[:, best], X_all[:, best], Y[:, on], vis[:, on])
+        A, b, mk = register(R, X, Y, vis, A)
         z = np.zeros(self.n_z)
         z[self.i_td] = td
         z[self.i_w] = rotvec_from_matrix(A)
@@ -497,286 +417,9 @@ class CalibrationProblem:
             k += len(term.initial)
         return z
 
-    def _initial_rotation(self, R, X, Y, vis) -> np.ndarray:
-        """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB).
-
-        Rm_n: the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
-        model's. A few references are tried and the one whose clouds fit best is kept, and pose
-        pairs whose clouds do not fit as a rigid body (a swapped or jumping marker) are left out.
-        """
-        N = len(R)
-        counts = vis.sum(axis=1)
-        best_seen = np.nonzero(counts == counts.max())[0]
-        refs = best_seen[np.unique(np.linspace(0, len(best_seen) - 1, min(len(best_seen), 5)).astype(int))]
-        # a few dozen well-seen poses fix a rotation; more only cost time
-        sample = np.unique(np.linspace(0, N - 1, min(N, 60)).astype(int))
-        best = None
-        for ref in refs:
-            rows, misfit = [], []
-            for n in sample:
-                common = vis[n] & vis[ref]
-                if n == ref or common.sum() < 3:
-                    continue
-                Rm, tm = rigid_fit(Y[ref, common], Y[n, common])
-                misfit.append(np.sqrt(np.mean(np.sum((Y[ref, common] @ Rm.T + tm - Y[n, common]) ** 2, axis=1))))
-                rows.append(np.kron(np.eye(3), Rm) - np.kron((R[n] @ R[ref].T).T, np.eye(3)))
-            if len(rows) < 2:
-                continue
-            misfit = np.array(misfit)
-            med = float(np.median(misfit))
-            good = misfit <= max(4.5 * med, 1e-12)
-            if best is None or med < best[0]:
-                best = (med, np.vstack([r for r, g in zip(rows, good) if g]))
-        if best is not None:
-            _, s, Vt = np.linalg.svd(best[1])
-            if s[-2] > 10 * s[-1] and s[-2] > 1e-3:
-                A = Vt[-1].reshape(3, 3, order="F")
-                if np.linalg.det(A) < 0:
-                    A = -A
-                U_, _, Vt_ = np.linalg.svd(A)
-                return U_ @ np.diag([1, 1, np.linalg.det(U_ @ Vt_)]) @ Vt_
-        # too little rotation: align the moving frame's path with the markers' centroid path
-        full = vis.all(axis=1)
-        if full.sum() >= 3:
-            A, _ = rigid_fit(X[full], Y[full].mean(axis=1))
-            return A
-        return np.eye(3)
-
     def link_frames(self, td, U) -> tuple[np.ndarray, np.ndarray]:
         """:func:`link_frames` of this problem's stand."""
         return link_frames(self.spec, td, U)
-
-    @staticmethod
-    def _markers_given_rotation(A, R, X, Y, vis):
-        """Linear least squares for marker positions m (M, 3) and translation b given A
-        (normal equations; the blocks (A R_n)^T (A R_n) are identities). R (N, M or 1, 3, 3) and
-        X (N, M or 1, 3): the frame each marker rides on; R (N, 3, 3) and X (N, 3): one for all."""
-        N, M = vis.shape
-        R = np.broadcast_to(R[:, None] if R.ndim == 3 else R, (N, M, 3, 3))
-        X = np.broadcast_to(X[:, None] if X.ndim == 2 else X, (N, M, 3))
-        H = np.zeros((3 * M + 3, 3 * M + 3))
-        g = np.zeros(3 * M + 3)
-        C = np.einsum("ab,nmbc->nmac", A, R)  # (N, M, 3, 3): d y / d m
-        res = Y - X @ A.T  # (N, M, 3)
-        for i in range(M):
-            v = vis[:, i]
-            k = slice(3 * i, 3 * i + 3)
-            H[k, k] = v.sum() * np.eye(3)
-            Ct = C[v, i].sum(axis=0).T
-            H[k, 3 * M:] = Ct
-            H[3 * M:, k] = Ct.T
-            g[k] = np.einsum("nba,nb->a", C[v, i], res[v, i])
-            g[3 * M:] += res[v, i].sum(axis=0)
-        H[3 * M:, 3 * M:] = vis.sum() * np.eye(3)
-        sol = np.linalg.lstsq(H, g, rcond=None)[0]
-        return sol[:3 * M].reshape(M, 3), sol[3 * M:]
-
-
-#: poses per call of the observation map (building a map costs in proportion to its length)
-CHUNK = 256
-_BUILT: dict = {}
-
-
-_compile_lock = threading.Lock()
-#: pose evaluations of one function (in one process) after which its compiled library is looked
-#: for in the cache, and after which it is compiled there. Compiling costs about as much as
-#: interpreting some 35,000 pose evaluations (4.4 s for the TIAGo arm's 52,000 instructions, 120
-#: us a pose interpreted; 0.6 s for the stewart stand's 7,900), once per machine: a calibration
-#: of 10,000 poses compiles at its first evaluation, a diagnosis of the 37 TIAGo postures
-#: (1,700 evaluations) after a fifth of its refits, and every later run finds the library; a
-#: test of 40 poses never waits for the compiler
-LOOK_AFTER, COMPILE_AFTER = 2_000, 10_000
-COMPILE_FLAGS = ["-O1", "-ffp-contract=off", "-fPIC", "-shared"]
-#: ... and for a function of at most SMALL_FUNCTION instructions: -O2, whose code gives the same
-#: numbers bit for bit (no contraction, no reassociation) and evaluates the stewart stand's
-#: Jacobians 1.6x as fast (22 against 36 ms for 10,000 poses), for a compile of 1.2 s instead of
-#: 0.7 s once per machine; the TIAGo arm's 52,000 instructions would take 16 s instead of 4.9 s
-#: (2026-11-25, 2-core machine at load 4), so larger functions keep -O1
-COMPILE_FLAGS_SMALL = ["-O2", "-ffp-contract=off", "-fPIC", "-shared"]
-SMALL_FUNCTION = 20_000
-
-
-_compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that tests may patch
-
-
-def compile_flags(f: ca.Function) -> list[str]:
-    """The compiler flags of ``f``: :data:`COMPILE_FLAGS_SMALL` up to SMALL_FUNCTION instructions."""
-    return COMPILE_FLAGS_SMALL if f.n_instructions() <= SMALL_FUNCTION else COMPILE_FLAGS
-
-
-def _compiled(f: ca.Function, compile_now: bool) -> ca.Function | None:
-    """``f`` compiled to C and loaded as an external function: from the cache, or, with
-    ``compile_now``, compiled with the system compiler and kept there
-    (:func:`platkit.native.compiled_library`, named by a hash of its C source, the compiler, the
-    flags and CasADi's version). None where there is no library and ``compile_now`` is false,
-    without a compiler, with PLATKIT_COMPILE=0, or when compiling fails (the caller keeps CasADi's
-    interpreter). The same operations, no floating-point contraction: the interpreter's numbers to
-    rounding (1e-15 m measured)."""
-    cc = _compiler()
-    if cc is None:
-        return None
-    cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-    cg.add(f)
-    with _compile_lock:
-        built = compiled_library(cg.dump(), "observe", compile_flags(f), cc=cc, salt=ca.__version__,
-                                 compile_now=compile_now, timeout=600)
-        if isinstance(built, str):
-            return None
-        try:
-            return ca.external(f.name(), str(built))
-        except RuntimeError:
-            return None
-
-
-def _chunk_for(n: int) -> int:
-    """Poses per map call for n poses: CHUNK, or n itself below it (no padding: a map of a few
-    dozen poses is built in milliseconds, and the folds and refits of a session reuse a few)."""
-    return min(CHUNK, max(1, n))
-
-
-class _ObservationFunctions:
-    """The CasADi observation functions of one stand and channel count and their maps.
-
-    The outputs are transposed so that a map lays each pose's block out row-major (rows, cols):
-    y, then J = [dy/dtd | dy/dw | dy/dt | dy/dm] in the unknowns' order of CalibrationProblem
-    (without model terms or rigid bodies' rotations it is the problem's Jacobian as it is), then
-    [dy/ddpose | dy/du] for the terms' offsets. Each function is interpreted by CasADi until it has
-    been evaluated on LOOK_AFTER poses, then taken compiled from the cache if there, and
-    compiled after COMPILE_AFTER poses (:func:`_compiled`)."""
-
-    def __init__(self, G: ca.Function, Yonly: ca.Function, shared: list[int]):
-        self.G, self.Yonly, self.shared = G, Yonly, shared
-        self._maps: dict = {}
-        self._native: dict = {}  # with_jac -> compiled function, or None once compiling was tried
-        self._evaluated = {True: 0, False: 0}
-        self._looked = {True: False, False: False}
-
-    def native(self, with_jac: bool) -> ca.Function:
-        """The function behind the maps now: compiled where the policy above has made it so."""
-        f = self.G if with_jac else self.Yonly
-        if with_jac in self._native:  # decided: compiled, or None where compiling failed
-            got = self._native[with_jac]
-            return f if got is None else got
-        n = self._evaluated[with_jac]
-        if n >= COMPILE_AFTER:
-            got = self._native[with_jac] = _compiled(f, compile_now=True)
-            return f if got is None else got
-        if n >= LOOK_AFTER and not self._looked[with_jac]:
-            self._looked[with_jac] = True
-            found = _compiled(f, compile_now=False)
-            if found is not None:
-                self._native[with_jac] = found
-                return found
-        return f
-
-    def mapped(self, with_jac: bool, n: int):
-        """(buffer, run, inputs, outputs, shapes, per-pose inputs, chunk) of the map for n poses."""
-        f = self.native(with_jac)
-        self._evaluated[with_jac] += n
-        chunk = _chunk_for(n)
-        key = (id(f), chunk)
-        entry = self._maps.get(key)
-        if entry is None:
-            if len(self._maps) > 64:
-                self._maps.clear()
-            fmap = f.map(f"{f.name()}_{chunk}", "serial", chunk, self.shared, [])
-            buf, run = fmap.buffer()
-            ins = [np.zeros(fmap.nnz_in(i)) for i in range(fmap.n_in())]
-            outs = [np.zeros(fmap.nnz_out(i)) for i in range(fmap.n_out())]
-            for i, a in enumerate(ins):
-                buf.set_arg(i, memoryview(a))
-            for i, a in enumerate(outs):
-                buf.set_res(i, memoryview(a))
-            shapes = [(fmap.size_out(i)[1] // chunk, fmap.size_out(i)[0]) for i in range(fmap.n_out())]
-            per_pose = [i for i in range(fmap.n_in()) if i not in self.shared]
-            entry = self._maps[key] = (buf, run, ins, outs, shapes, per_pose, chunk, f)
-        return entry
-
-
-def _observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
-                           point_links: tuple[int, ...] | None = None, n_bodies: int = 0) -> _ObservationFunctions:
-    """Build the observation function of ``spec`` for M points (markers, then bodies' origins).
-
-    ``point_links`` (M,): on a tree, the tracked link each point rides on (the last ``n_bodies``
-    are the bodies' origins; index in
-    ``spec.tracked_links``; :attr:`PlatformSpec.link_poses` gives their poses); the terms' pose
-    offsets act on each link's pose alike, and each body's orientation is read from its own
-    link (9 numbers per body instead of one 3x3 for all)."""
-    u = ca.SX.sym("u", spec.n_u)
-    td = ca.SX.sym("td", spec.n_td)
-    w = ca.SX.sym("w", 3)
-    t = ca.SX.sym("t", 3)
-    m = ca.SX.sym("m", 3 * M)
-    dpose = ca.SX.sym("dpose", 6)
-    dm = ca.SX.sym("dm", 3 * M)
-    A = ca_matrix_from_rotvec(w)
-
-    def observe(q, X):
-        R = ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q))
-        pts = [ca.mtimes(A, X + dpose[0:3] + ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t
-               for i in range(M)]
-        if with_bodies:  # Q = mocap_from_moving rotation, row by row, for the bodies' orientations
-            Q = ca.mtimes(A, R)
-            pts += [Q[i, j] for i in range(3) for j in range(3)]
-        return ca.vertcat(*pts)
-
-    def observe_links(qs, Xs):
-        Rs = [ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q)) for q in qs]
-        pts = []
-        for i in range(M):
-            k = point_links[i]
-            pts.append(ca.mtimes(A, Xs[k] + dpose[0:3] + ca.mtimes(Rs[k], m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3])) + t)
-        if with_bodies:  # each body's mocap_from_link rotation, row by row
-            for k in point_links[M - n_bodies:]:
-                Q = ca.mtimes(A, Rs[k])
-                pts += [Q[i, j] for i in range(3) for j in range(3)]
-        return ca.vertcat(*pts)
-
-    if spec.forward is not None and point_links is not None:
-        L = len(spec.tracked_links)
-        q_all, X_all = spec.link_poses(u, td)
-        y = observe_links([q_all[4 * k:4 * k + 4] for k in range(L)], [X_all[3 * k:3 * k + 3] for k in range(L)])
-        G = ca.Function(
-            "observe_tree", [u, td, w, t, m, dpose, dm],
-            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
-            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
-        return _ObservationFunctions(G, ca.Function("observe_tree_y", [u, td, w, t, m, dpose, dm], [y.T]),
-                                     [1, 2, 3, 4])
-    if point_links is not None:
-        raise BadInput(f"stand {spec.name!r}: markers on several links need a closed-form forward and link_poses")
-    if spec.forward is not None:
-        q, X = spec.forward(u, td)
-        y = observe(q, X)
-        G = ca.Function(
-            "observe_fwd", [u, td, w, t, m, dpose, dm],
-            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
-            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
-        return _ObservationFunctions(G, ca.Function("observe_fwd_y", [u, td, w, t, m, dpose, dm], [y.T]),
-                                     [1, 2, 3, 4])
-    # through the Newton solution p(u, td) of r(u, td, p) = 0: dp/d(td, u) = -F_p^+ [F_td F_u],
-    # solved per pose inside the function (F_p^+ = F_p^-1, or (F_p^T F_p)^-1 F_p^T with more
-    # residuals than pose coordinates)
-    p = ca.SX.sym("p", spec.n_p)
-    q, X = spec.pose(p)
-    y = observe(q, X)
-    r = spec.residual(u, td, q, X)
-    F_p = ca.jacobian(r, p)
-    F_rest = ca.horzcat(ca.jacobian(r, td), ca.jacobian(r, u))  # sparse: a leg's residual, its own parameters
-    Y_p = ca.jacobian(y, p)
-    if F_p.shape[0] == F_p.shape[1]:  # Y_p F_p^-1 first: fewer right-hand sides, then F_rest's sparsity
-        Z = ca.solve(F_p.T, Y_p.T).T
-    else:
-        Z = ca.mtimes(ca.solve(ca.mtimes(F_p.T, F_p), Y_p.T).T, F_p.T)
-    Y_rest = -ca.mtimes(Z, F_rest)
-    G = ca.Function(
-        "observe_ift", [u, td, p, w, t, m, dpose, dm],
-        [y.T, ca.densify(ca.horzcat(Y_rest[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-         ca.densify(ca.horzcat(ca.jacobian(y, dpose), Y_rest[:, spec.n_td:]).T)],
-        ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
-    return _ObservationFunctions(G, ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y.T]),
-                                 [1, 3, 4, 5])
 
 
 def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
@@ -794,9 +437,3 @@ def _bodies(poses: PoseSet) -> np.ndarray:
     """poses.bodies (N, B, 7); (N, 0, 7) for a pose set without bodies whatever its rows were
     changed to after it was made (controls and markers reassigned in place)."""
     return poses.bodies if poses.n_bodies else np.zeros((poses.n_poses, 0, 7))
-
-
-def _robust_sigma(d: np.ndarray) -> float:
-    """Per-axis noise sigma from 3-D error norms, robustly (median)."""
-    d = d[np.isfinite(d)]
-    return float(np.median(d) / MAXWELL_MEDIAN) if d.size else float("nan")

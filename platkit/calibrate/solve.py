@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from platkit.calibrate.problem import HUBER_K, MAXWELL_MEDIAN, REJECT_K, CalibrationProblem, FitState, Progress, _robust_sigma
+from platkit.calibrate.problem import CalibrationProblem, FitState, Progress
+from platkit.calibrate.robust import HUBER_K, MAXWELL_MEDIAN, REJECT_K, robust_sigma
 from platkit.errors import BadInput
 
 _controller: list[ThreadpoolController] = []
@@ -208,7 +209,7 @@ def robust_fit(problem: CalibrationProblem, z0, active, robust: bool = True, max
 
     for _ in range(3):  # Huber rounds
         d = standardized(res.state)
-        sigma = _robust_sigma(d[vis])
+        sigma = robust_sigma(d[vis])
         if not np.isfinite(sigma) or sigma <= 0:
             break
         c = HUBER_K * sigma
@@ -222,7 +223,7 @@ def robust_fit(problem: CalibrationProblem, z0, active, robust: bool = True, max
     keep_prev, recentred = None, False
     for _ in range(3):  # hard rejection rounds: inliers get full weight (no efficiency lost)
         d = standardized(res.state)
-        sigma = _robust_sigma(d[vis])
+        sigma = robust_sigma(d[vis])
         keep = vis & np.isfinite(d) & (d <= REJECT_K * sigma)
         if not recentred:  # once: a marker that would lose most of its observations is misplaced
             recentred = True

@@ -1,6 +1,6 @@
 """platkit's cache folder, and the parsed YAML kept there.
 
-Compiled solvers (platkit/native.py, platkit/calibrate/problem.py, platkit/chains/native_servo.py)
+Compiled solvers (platkit/native.py, platkit/calibrate/observation.py, platkit/chains/native_servo.py)
 and parsed YAML files are kept in one folder: ``$PLATKIT_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/platkit``, else ``~/.cache/platkit``.
 

@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from platkit.calibrate import problem as problem_module
-from platkit.calibrate.problem import CHUNK, COMPILE_AFTER, LOOK_AFTER, CalibrationProblem
+from platkit.calibrate import observation as observation_module
+from platkit.calibrate.observation import CHUNK, COMPILE_AFTER, LOOK_AFTER
+from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.solve import _normal_equations, _weighted, levenberg_marquardt
 from platkit.plugins import get_platform
 from platkit.simulate import simulate
@@ -43,7 +44,7 @@ def test_jacobian_matches_central_differences_across_chunks(name):
 
 
 def test_compiled_and_interpreted_give_the_same_numbers(monkeypatch, tmp_path):
-    monkeypatch.setattr(problem_module, "_BUILT", {})
+    monkeypatch.setattr(observation_module, "_BUILT", {})
     monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path))
     pb, z = _problem("stewart", 70)
     assert pb._fns.native(True) is pb._fns.G  # a few poses: interpreted, nothing compiled
@@ -51,7 +52,7 @@ def test_compiled_and_interpreted_give_the_same_numbers(monkeypatch, tmp_path):
     # the compiled path is what large calibrations run on; the machines platkit is tested on carry a
     # C compiler (CI's included), so its absence is a failure here, not a skip (the path without
     # one is the next test's)
-    assert problem_module._compiler() is not None, "no C compiler (cc, gcc or clang) to test the compiled path"
+    assert observation_module._compiler() is not None, "no C compiler (cc, gcc or clang) to test the compiled path"
     pb._fns._evaluated = {True: COMPILE_AFTER, False: COMPILE_AFTER}  # as after a long session
     pb._last = None
     compiled = pb.evaluate(z)
@@ -59,22 +60,22 @@ def test_compiled_and_interpreted_give_the_same_numbers(monkeypatch, tmp_path):
     np.testing.assert_allclose(interpreted.r, compiled.r, rtol=0, atol=1e-12)
     np.testing.assert_allclose(interpreted.J, compiled.J, rtol=0, atol=1e-11)
     # a new process finds the library in the cache once LOOK_AFTER poses were evaluated
-    monkeypatch.setattr(problem_module, "_BUILT", {})
+    monkeypatch.setattr(observation_module, "_BUILT", {})
     pb2 = CalibrationProblem(pb.spec, pb.poses)
     pb2._fns._evaluated = {True: LOOK_AFTER, False: LOOK_AFTER}
     assert pb2._fns.native(True) is not pb2._fns.G
     # PLATKIT_COMPILE=0: the interpreter whatever the count
     monkeypatch.setenv("PLATKIT_COMPILE", "0")
-    monkeypatch.setattr(problem_module, "_BUILT", {})
+    monkeypatch.setattr(observation_module, "_BUILT", {})
     pb3 = CalibrationProblem(pb.spec, pb.poses)
     pb3._fns._evaluated = {True: COMPILE_AFTER, False: COMPILE_AFTER}
     assert pb3._fns.native(True) is pb3._fns.G
 
 
 def test_without_a_compiler_the_interpreter_serves_whatever_the_count(monkeypatch, tmp_path):
-    monkeypatch.setattr(problem_module, "_BUILT", {})
+    monkeypatch.setattr(observation_module, "_BUILT", {})
     monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(problem_module, "_compiler", lambda: None)
+    monkeypatch.setattr(observation_module, "_compiler", lambda: None)
     pb, z = _problem("stewart", 70)
     interpreted = pb.evaluate(z)
     pb._fns._evaluated = {True: COMPILE_AFTER, False: COMPILE_AFTER}

@@ -1,0 +1,104 @@
+"""Rigid registration of the measured points to the stand's frames: the start of every fit.
+
+Given the frames the points ride on at some td (rotations R, positions X, from forward
+kinematics) and the measured points Y, find the base-to-mocap transform (A, b) and each point's
+position m on its frame such that Y_ni ~ A (X_n + R_n m_i) + b, without any other unknown: the
+rotation A first, from the relative motions (hand-eye calibration, AX = XB), then markers and
+transform alternately by linear least squares and Kabsch, gross outliers left out.
+:meth:`platkit.calibrate.problem.CalibrationProblem.initial_registration` puts the result in the
+problem's unknown vector.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from platkit.calibrate.robust import REJECT_K, robust_sigma
+from platkit.geometry import rigid_fit
+
+
+def register(R, X, Y, vis, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A (3, 3), b (3,), m (M, 3)): the transform and the points' positions on their frames,
+    from the rotation ``A`` by six rounds of markers by least squares then transform by Kabsch, the
+    points beyond REJECT_K robust sigma of the last round left out of the next. R (N, M, 3, 3) and
+    X (N, M, 3): each point's frame; Y (N, M, 3) measured, ``vis`` (N, M) where seen."""
+    keep = vis.copy()
+    for _ in range(6):
+        mk, b = markers_given_rotation(A, R, X, Y, keep)
+        pts = X + np.einsum("nmab,mb->nma", R, mk)
+        d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
+        sigma = robust_sigma(d[vis])
+        keep = vis & (d <= max(REJECT_K * sigma, 1e-12))
+        A, b = rigid_fit(pts[keep], Y[keep])
+    mk, b = markers_given_rotation(A, R, X, Y, keep)
+    return A, b, mk
+
+
+def initial_rotation(R, X, Y, vis) -> np.ndarray:
+    """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB).
+
+    Rm_n: the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
+    model's. A few references are tried and the one whose clouds fit best is kept, and pose
+    pairs whose clouds do not fit as a rigid body (a swapped or jumping marker) are left out.
+    """
+    N = len(R)
+    counts = vis.sum(axis=1)
+    best_seen = np.nonzero(counts == counts.max())[0]
+    refs = best_seen[np.unique(np.linspace(0, len(best_seen) - 1, min(len(best_seen), 5)).astype(int))]
+    # a few dozen well-seen poses fix a rotation; more only cost time
+    sample = np.unique(np.linspace(0, N - 1, min(N, 60)).astype(int))
+    best = None
+    for ref in refs:
+        rows, misfit = [], []
+        for n in sample:
+            common = vis[n] & vis[ref]
+            if n == ref or common.sum() < 3:
+                continue
+            Rm, tm = rigid_fit(Y[ref, common], Y[n, common])
+            misfit.append(np.sqrt(np.mean(np.sum((Y[ref, common] @ Rm.T + tm - Y[n, common]) ** 2, axis=1))))
+            rows.append(np.kron(np.eye(3), Rm) - np.kron((R[n] @ R[ref].T).T, np.eye(3)))
+        if len(rows) < 2:
+            continue
+        misfit = np.array(misfit)
+        med = float(np.median(misfit))
+        good = misfit <= max(4.5 * med, 1e-12)
+        if best is None or med < best[0]:
+            best = (med, np.vstack([r for r, g in zip(rows, good) if g]))
+    if best is not None:
+        _, s, Vt = np.linalg.svd(best[1])
+        if s[-2] > 10 * s[-1] and s[-2] > 1e-3:
+            A = Vt[-1].reshape(3, 3, order="F")
+            if np.linalg.det(A) < 0:
+                A = -A
+            U_, _, Vt_ = np.linalg.svd(A)
+            return U_ @ np.diag([1, 1, np.linalg.det(U_ @ Vt_)]) @ Vt_
+    # too little rotation: align the moving frame's path with the markers' centroid path
+    full = vis.all(axis=1)
+    if full.sum() >= 3:
+        A, _ = rigid_fit(X[full], Y[full].mean(axis=1))
+        return A
+    return np.eye(3)
+
+
+def markers_given_rotation(A, R, X, Y, vis):
+    """Linear least squares for marker positions m (M, 3) and translation b given A
+    (normal equations; the blocks (A R_n)^T (A R_n) are identities). R (N, M or 1, 3, 3) and
+    X (N, M or 1, 3): the frame each marker rides on; R (N, 3, 3) and X (N, 3): one for all."""
+    N, M = vis.shape
+    R = np.broadcast_to(R[:, None] if R.ndim == 3 else R, (N, M, 3, 3))
+    X = np.broadcast_to(X[:, None] if X.ndim == 2 else X, (N, M, 3))
+    H = np.zeros((3 * M + 3, 3 * M + 3))
+    g = np.zeros(3 * M + 3)
+    C = np.einsum("ab,nmbc->nmac", A, R)  # (N, M, 3, 3): d y / d m
+    res = Y - X @ A.T  # (N, M, 3)
+    for i in range(M):
+        v = vis[:, i]
+        k = slice(3 * i, 3 * i + 3)
+        H[k, k] = v.sum() * np.eye(3)
+        Ct = C[v, i].sum(axis=0).T
+        H[k, 3 * M:] = Ct
+        H[3 * M:, k] = Ct.T
+        g[k] = np.einsum("nba,nb->a", C[v, i], res[v, i])
+        g[3 * M:] += res[v, i].sum(axis=0)
+    H[3 * M:, 3 * M:] = vis.sum() * np.eye(3)
+    sol = np.linalg.lstsq(H, g, rcond=None)[0]
+    return sol[:3 * M].reshape(M, 3), sol[3 * M:]
