@@ -24,7 +24,9 @@ Its columns are the stand's free parameters, the motion-capture frame, the marke
 response; the directions no pose ever fixes (gauges: the null space of the same model's settled
 Jacobian over the stand's reference poses) are left out, so the D-criterion is log det of the
 information per sample in the identifiable subspace, with fixed column scales (differences of it
-are independent of the scales and the basis).
+are independent of the scales and the basis). The information is counted from the stream's slow
+part: each window of SLOW_WINDOW_S keeps what polynomials of degree SLOW_DEGREE in time fit of its
+Jacobian (the motion, not the commands' transients under the noise).
 
 The design maximises that criterion over the coefficients (a, b) by a (1+1) evolution strategy
 with the one-fifth success rule, from a random multisine (random phases, amplitude 1/sqrt(k)):

@@ -35,11 +35,13 @@ def add_parser(sub):
                          "--max-accel on every command, every command reachable")
     mo.add_argument("--duration-s", type=float, default=None, help="the session's length, s")
     mo.add_argument("--target-mm", type=float, default=None,
-                    help="the predicted marker error to reach (3-D RMS over the stand's reference poses, mm): the session "
-                         "is made as long as it needs (with --duration-s: that length, checked against the target)")
+                    help="the predicted marker error to reach in 90%% of sessions (3-D RMS over the stand's reference "
+                         "poses, mm): the session is made as long as it needs (with --duration-s: that length, checked "
+                         "against the target)")
     mo.add_argument("--max-rate", default=None, metavar="V[,V...]",
-                    help="the drives' rate limit: one number or one per control, in --unit per s for length controls "
-                         "(rad/s for angles); default: what the description declares (a URDF joint's velocity)")
+                    help="the drives' rate limit: one number or one per control, per s in the controls' own unit "
+                         "(--unit for length controls); default: what the description declares (a URDF joint's "
+                         "velocity)")
     mo.add_argument("--max-accel", default=None, metavar="A[,A...]",
                     help="the drives' acceleration limit, per s^2, as --max-rate")
     mo.add_argument("--period-s", type=float, default=40.0, help="the series' period, s (default 40)")
