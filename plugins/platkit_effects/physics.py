@@ -12,6 +12,8 @@ diagnosis fits.
   the stroke.
 - thermal_drift (drive): each actuator lengthens by k theta_j; theta_j heats with the distance
   it moves (in strokes) and cools with time constant tau: theta' = |m'| / stroke - theta / tau.
+  (The warm-up with time since power-on, the effect's other physical form, is a nuisance of the
+  recording drawn by the simulator itself: platkit.simulate.warmup.)
 - compliance (drive): each actuator yields by c f_j, f the load it carries (payload statics at
   the commanded pose, blended between poses along a move).
 - settling_lag (response): one actuator slow, its time constant a given share of the hold.
