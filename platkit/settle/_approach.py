@@ -109,15 +109,16 @@ def tail_regression(F: np.ndarray, markers: np.ndarray) -> tuple[float, float]:
 
 
 def tail_scale(approach: Approach, t: np.ndarray, markers: np.ndarray, sigma: float, z: float = 2.0,
-               floor_z: float = 3.0) -> tuple[float, float]:
+               floor_z: float = 3.0, sums: tuple[float, float] | None = None) -> tuple[float, float]:
     """(kappa, upper bound) of the share of the fitted tail that a still stretch (t (L,), markers
     (L, M, 3)) bears out: the data, centred, regressed on the tail's own shape over the stretch
     (kappa, standard error se against ``sigma``). The bound is kappa + z se, at least 0. A tail
     the stretch cannot tell from the noise (at its start below ``floor_z`` times its own standard
     error, over every marker coordinate) has kappa 0 but keeps the bound; a tail the stretch
-    bears out within 4 se keeps kappa 1."""
+    bears out within 4 se keeps kappa 1. ``sums``: :func:`tail_regression` of the stretch on the
+    tail when the caller has it."""
     F = approach.tail(t)
-    num, den = tail_regression(F, markers)
+    num, den = tail_regression(F, markers) if sums is None else sums
     if den <= 0:
         return 1.0, 1.0
     kappa, se = num / den, sigma / np.sqrt(den)

@@ -35,7 +35,10 @@ FINE_GRID = 12
 FINE_ROUNDS = 3
 
 #: samples x time constants of one batch of holds (the working arrays' size, 8 bytes each)
-BATCH_ELEMENTS = 1 << 20
+BATCH_ELEMENTS = 1 << 18
+
+#: stretches prepared and searched together
+CHUNK = 512
 
 _controller: list[ThreadpoolController] = []
 
@@ -276,17 +279,21 @@ def _approach(d: _Hold, tau: float, at_top: bool, coef: np.ndarray, G: np.ndarra
 
 def fit_approaches(stretches: Sequence[tuple]) -> list[Approach | None]:
     """:func:`fit_approach` of many stretches at once: each (t, markers, sigma[, t_end[, tau]]);
-    the same fits, their grids evaluated in batches."""
-    prepared = [_prepare(*(tuple(x) + (None, None))[:5]) for x in stretches]
-    holds = [d for d in prepared if d is not None]
-    out: list[Approach | None] = [None] * len(prepared)
-    if not holds:
-        return out
+    the same fits, their grids evaluated in batches, CHUNK stretches prepared at a time (a
+    prepared stretch is a centred copy of its markers)."""
+    out: list[Approach | None] = []
     with _one_blas_thread():
-        tau, top = _search(holds)
-        coef, G, rss = _solutions(holds, tau)
-    fits = iter(_approach(d, tau[h], top[h], coef[h], G[h], float(rss[h])) for h, d in enumerate(holds))
-    return [None if d is None else next(fits) for d in prepared]
+        for c in range(0, len(stretches), CHUNK):
+            prepared = [_prepare(*(tuple(x) + (None, None))[:5]) for x in stretches[c:c + CHUNK]]
+            holds = [d for d in prepared if d is not None]
+            if not holds:
+                out += [None] * len(prepared)
+                continue
+            tau, top = _search(holds)
+            coef, G, rss = _solutions(holds, tau)
+            fits = iter(_approach(d, tau[h], top[h], coef[h], G[h], float(rss[h])) for h, d in enumerate(holds))
+            out += [None if d is None else next(fits) for d in prepared]
+    return out
 
 
 def fit_approach(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float | None = None,

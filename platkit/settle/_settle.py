@@ -61,6 +61,7 @@ from platkit.settle._report import (
 from platkit.settle._still import (
     _last_still_run,
     _quiet_stretches,
+    _window_sums,
     approach_start,
     direction_of_last_motion,
     estimate_noise,
@@ -214,7 +215,9 @@ def _holds(st: _Stream, found: _Search) -> list[_Hold]:
             continue
         seg, ts = st.X[a:b], t[a:b]
         slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * st.rate)))
-        run = _last_still_run(still_mask(seg, n, st.sig_fast, opt.false_alarm), opt.gap_samples, min_samples, slack)
+        sums = _window_sums(seg)  # the still test's and the approach's window means
+        run = _last_still_run(still_mask(seg, n, st.sig_fast, opt.false_alarm, sums), opt.gap_samples, min_samples,
+                              slack)
         length = 0 if run is None else run[1] - run[0]
         if run is not None and length >= min_samples and run[1] < (b - a) - slack:
             found.dropped[i] = (f"moved again: {(b - a - run[1]) * dt:.2f} s before the next command "
@@ -227,7 +230,7 @@ def _holds(st: _Stream, found: _Search) -> list[_Hold]:
             # into the hold: its first samples, drawn towards the next command, are left out
             end -= n
             run = (run[0], end)
-        holds.append(_Hold(i, ts, seg, run, end, approach_start(seg[:end], n, st.sig_fast)))
+        holds.append(_Hold(i, ts, seg, run, end, approach_start(seg[:end], n, st.sig_fast, sums)))
     return holds
 
 
@@ -261,8 +264,8 @@ def _window(st: _Stream, h: _Hold, fit: Approach | None,
         # how much of the fitted tail the still stretch bears out: the window is chosen by its upper
         # bound (a fit whose decay is off still marks where the approach ends; dropping it would
         # start the window in the tail), a correction by its estimate
-        kappa, k_hi = tail_scale(fit, ts[run[0]:end], seg[run[0]:end], st.sig_slow)
         num, den = tail_regression(fit.tail(ts[run[0]:end]), seg[run[0]:end])
+        kappa, k_hi = tail_scale(fit, ts[run[0]:end], seg[run[0]:end], st.sig_slow, sums=(num, den))
         found.evidence[0] += num
         found.evidence[1] += den
         bound = fit.scaled(k_hi)

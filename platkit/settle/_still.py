@@ -2,8 +2,10 @@
 test and the last still stretch of a hold, the trend test of a window, and each command's last step."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc, gammaincinv
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6
@@ -17,11 +19,20 @@ def estimate_noise(markers: np.ndarray) -> float:
     """Marker noise sigma (m, per coordinate) of a stream ``markers`` (K, M, 3), NaN-aware,
     from the median absolute second difference (second differences of white noise have
     variance 6 sigma^2)."""
-    dd = markers[2:] - 2 * markers[1:-1] + markers[:-2]
-    dd = dd[np.isfinite(dd)]
+    # one working array the size of the stream (the medians select in place: their values do
+    # not depend on the order they leave behind)
+    dd = np.multiply(markers[1:-1], -2.0)
+    dd += markers[2:]
+    dd += markers[:-2]
+    finite = np.isfinite(dd)
+    if not finite.all():
+        dd = dd[finite]
+    del finite
     if dd.size < 10:
         return SIGMA_FLOOR_M
-    mad = np.median(np.abs(dd - np.median(dd)))
+    dd -= np.median(dd, overwrite_input=True)
+    np.abs(dd, out=dd)
+    mad = np.median(dd, overwrite_input=True)
     return max(1.4826 * mad / np.sqrt(6.0), SIGMA_FLOOR_M)
 
 
@@ -51,7 +62,13 @@ def noise_inflation(stretches: list[np.ndarray], sigma: float, L: int) -> float:
             q.append((((ms[0] - 2 * ms[1] + ms[2]) ** 2) / var[:, None])[use].ravel())
     if len(q) < 10:
         return 1.0
-    return float(np.clip(np.percentile(np.concatenate(q), 25) / chi2.ppf(0.25, 1), 1.0, MAX_INFLATION))
+    return float(np.clip(np.percentile(np.concatenate(q), 25) / _chi2_quantile(0.25, 1), 1.0, MAX_INFLATION))
+
+
+@functools.cache
+def _chi2_quantile(p: float, dof: int) -> float:
+    """The ``p`` quantile of chi-square with ``dof`` degrees of freedom."""
+    return float(2.0 * gammaincinv(dof / 2.0, p))
 
 
 def _quiet_stretches(t: np.ndarray, markers: np.ndarray, command_t: np.ndarray, n: int, sigma: float,
@@ -101,10 +118,11 @@ def _window_sums(x: np.ndarray):
     return S, C
 
 
-def _halves(markers: np.ndarray, n: int):
-    """Means of the n samples before and from each sample k: (mb, ma (K, M, 3), nb, na (K, M))."""
+def _halves(markers: np.ndarray, n: int, sums: tuple[np.ndarray, np.ndarray] | None = None):
+    """Means of the n samples before and from each sample k: (mb, ma (K, M, 3), nb, na (K, M)).
+    ``sums``: :func:`_window_sums` of a stretch that ``markers`` begins (its first K + 1 rows used)."""
     K = markers.shape[0]
-    S, C = _window_sums(markers)
+    S, C = _window_sums(markers) if sums is None else sums
     k = np.arange(K)
     a = np.maximum(k - n, 0)
     b = np.minimum(k + n, K)
@@ -115,19 +133,22 @@ def _halves(markers: np.ndarray, n: int):
     return mb, ma, nb, na
 
 
-def still_mask(markers: np.ndarray, n: int, sigma: float, false_alarm: float) -> np.ndarray:
+def still_mask(markers: np.ndarray, n: int, sigma: float, false_alarm: float,
+               sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(K,) True where the markers (K, M, 3), one command's stretch, are still at sample k.
 
-    Windows are clipped to the stretch; the first sample (no past) is never still.
+    Windows are clipped to the stretch; the first sample (no past) is never still. ``sums``: as
+    :func:`_halves` takes them.
     """
-    mb, ma, nb, na = _halves(markers, n)
+    mb, ma, nb, na = _halves(markers, n, sums)
     vis = (nb > 0) & (na > 0)
     scale2 = sigma**2 * (1.0 / np.maximum(nb, 1) + 1.0 / np.maximum(na, 1))
     z2 = np.where(vis, np.sum((ma - mb) ** 2, axis=2) / scale2, 0.0)
     m = vis.sum(axis=1)
     stat = z2.sum(axis=1) / np.maximum(m, 1)
-    limit = chi2.ppf(1 - false_alarm, 3 * np.maximum(m, 1)) / np.maximum(m, 1)
-    return (m > 0) & (stat < limit)
+    # the quantile of chi-square(3m) / m for each number m of visible markers
+    limits = np.array([_chi2_quantile(1 - false_alarm, 3 * k) / k for k in range(1, markers.shape[1] + 1)])
+    return (m > 0) & (stat < limits[np.maximum(m, 1) - 1])
 
 
 def _last_still_run(still: np.ndarray, gap: int, min_length: int = 0, tail: int = 0) -> tuple[int, int] | None:
@@ -149,11 +170,12 @@ def _last_still_run(still: np.ndarray, gap: int, min_length: int = 0, tail: int 
     return int(starts[-1]), int(ends[-1])
 
 
-def approach_start(markers: np.ndarray, n: int, sigma: float) -> int | None:
+def approach_start(markers: np.ndarray, n: int, sigma: float,
+                   sums: tuple[np.ndarray, np.ndarray] | None = None) -> int | None:
     """Index where the main motion of a hold's stretch (K, M, 3) has slowed to half its peak
     speed (the approach's tail begins; the peak itself when it never slows that much), or None
-    when the stretch shows no motion beyond the noise."""
-    mb, ma, nb, na = _halves(markers, n)
+    when the stretch shows no motion beyond the noise. ``sums``: as :func:`_halves` takes them."""
+    mb, ma, nb, na = _halves(markers, n, sums)
     vis = (nb > 0) & (na > 0)
     d = np.sqrt(np.sum(np.where(vis[..., None], ma - mb, 0.0) ** 2, axis=(1, 2)) / np.maximum(vis.sum(axis=1), 1))
     noise = sigma * np.sqrt(2.0 / n) * np.sqrt(3.0)
@@ -189,4 +211,4 @@ def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float,
         vmax = max(vmax, float(np.linalg.norm(slope)))
     if dof == 0:
         return 1.0, 0.0
-    return float(chi2.sf(stat, dof)), vmax
+    return float(chdtrc(dof, stat)), vmax
