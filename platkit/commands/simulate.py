@@ -99,9 +99,10 @@ def add_parser(sub):
                    help="--physics: white marker noise only (default: white plus a correlated part)")
     p.add_argument("--overshoot", action="store_true",
                    help="--physics: drives tuned below critical damping, so they overshoot their commands")
-    p.add_argument("--motion", default=None, choices=["multisine", "path", "cue"],
+    p.add_argument("--motion", default=None, metavar="multisine|path|cue|FILE",
                    help="--physics: commands streamed at a steady rate without holds (a multi-sine per actuator, a "
-                        "smooth random path, or motion-cue-like smoothed steps), instead of --poses held commands")
+                        "smooth random path, or motion-cue-like smoothed steps; or a commands.csv streamed as it is, "
+                        "e.g. platkit plan --motion's), instead of --poses held commands")
     p.add_argument("--duration-s", type=float, default=None,
                    help="--physics --motion: the session's length, s (default 200)")
     p.add_argument("--command-rate-hz", type=float, default=None,
@@ -243,7 +244,7 @@ def run_physics(args, spec, plan, effects) -> int:
                            coloured=not args.white_noise, overshoot=args.overshoot, imu=imu_options(args),
                            perturbation=args.perturbation,
                            description=None if args.description is None else Path(args.description).name,
-                           **motion_options(args))
+                           **motion_options(args, spec))
     out = write_physical_session(sim, args.out, description=args.description,
                                  moving_link=getattr(args, "moving_link", None),
                                  base_link=getattr(args, "base_link", None),
@@ -266,12 +267,22 @@ def run_physics(args, spec, plan, effects) -> int:
     return 0
 
 
-def motion_options(args) -> dict:
-    """simulate_physics's continuous-motion keywords from --motion, --duration-s, --command-rate-hz."""
+def motion_options(args, spec=None) -> dict:
+    """simulate_physics's continuous-motion keywords from --motion (a kind, or a commands file:
+    its commands and rate), --duration-s, --command-rate-hz."""
+    from platkit.simulate.continuous import KINDS, read_streamed_commands
+
     if args.motion is None:
         if args.duration_s is not None or args.command_rate_hz is not None:
             raise BadInput("--duration-s and --command-rate-hz apply to --motion")
         return {}
+    if args.motion not in KINDS:
+        if not Path(args.motion).is_file():
+            raise BadInput(f"--motion {args.motion}: neither {', '.join(KINDS)} nor a commands file")
+        if args.duration_s is not None or args.command_rate_hz is not None:
+            raise BadInput("--duration-s and --command-rate-hz: a --motion file sets both")
+        U, rate_hz = read_streamed_commands(Path(args.motion), spec, args.unit)
+        return {"motion": U, "command_rate_hz": rate_hz}
     out: dict = {"motion": args.motion}
     if args.duration_s is not None:
         out["duration_s"] = args.duration_s

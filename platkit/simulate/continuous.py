@@ -15,10 +15,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from platkit.calibrate.plan import feasible
-from platkit.errors import BadInput, NotIdentifiable
+from platkit.calibrate.plan import feasible, read_plan_csv
+from platkit.errors import BadInput, BadSession, NotIdentifiable
+from platkit.io.table import read_table
 
-__all__ = ["KINDS", "continuous_plan"]
+__all__ = ["KINDS", "continuous_plan", "read_streamed_commands"]
+
+#: a streamed command log's intervals may differ from their median by this much (s): the files keep
+#: microseconds
+STEADY_TOL_S = 2e-6
 
 KINDS = ("multisine", "path", "cue")
 MULTISINE_COMPONENTS, MULTISINE_BAND_HZ = 6, (0.02, 0.25)
@@ -108,3 +113,22 @@ def _given(spec, U: np.ndarray, rate_hz: float, rate: np.ndarray, accel: np.ndar
     a = np.abs(np.diff(U, 2, axis=0)).max(axis=0) * rate_hz ** 2 if len(U) > 2 else np.zeros(spec.n_u)
     return U, {"kind": "given", "duration_s": float(len(U) / rate_hz), "command_rate_hz": float(rate_hz),
                "drive_rate_share": float(np.max(v / rate)), "drive_accel_share": float(np.max(a / accel))}
+
+
+def read_streamed_commands(path, spec, length_unit: str) -> tuple[np.ndarray, float]:
+    """(U (N, n_u) internal units, commands per s) of a streamed command log (commands.csv: ``t``
+    at a steady rate, then the control columns in ``length_unit``), e.g. ``platkit plan --motion``'s;
+    BadSession naming the file where ``t`` is missing or its rate is not steady."""
+    table = read_table(path, "the streamed commands")
+    if "t" not in table.header:
+        raise BadSession(f"{path}: no 't' column; a streamed command log gives the time of every command")
+    t = table.column("t")
+    dt = np.diff(t)
+    if len(t) < 3 or not np.all(np.isfinite(t)) or not np.all(dt > 0):
+        raise BadSession(f"{path}: column 't' must hold at least 3 increasing times")
+    med = float(np.median(dt))
+    bad = np.nonzero(np.abs(dt - med) > STEADY_TOL_S + 1e-9 * med)[0]
+    if len(bad):
+        raise BadSession(f"{table.where(int(bad[0]) + 1, 't')}: the commands are not at a steady rate (interval "
+                         f"{dt[bad[0]]:.6g} s, the log's {med:.6g} s); the simulator streams commands at one rate")
+    return read_plan_csv(path, spec, length_unit), 1.0 / med

@@ -164,3 +164,29 @@ def test_motion_options_need_motion(tmp_path, capsys):
     assert main(["plan", "--platform", "stewart", "--grid", "2", "--out", str(tmp_path / "p.csv"),
                  "--max-rate", "200"]) == 2
     assert "--max-rate: only with --motion" in capsys.readouterr().err
+
+
+def test_simulate_streams_a_planned_commands_file(tmp_path, capsys):
+    plan = tmp_path / "commands.csv"
+    assert main(["plan", "--platform", "stewart", "--motion", "--out", str(plan), "--max-rate", "200",
+                 "--max-accel", "400", "--duration-s", "25", "--period-s", "20", "--harmonics", "3",
+                 "--evaluations", "2", "--quiet"]) == 0
+    session = tmp_path / "session"
+    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", str(plan), "--seed", "3",
+                 "--out", str(session)]) == 0
+    capsys.readouterr()
+    written = read_table(session / "commands.csv", "commands")
+    planned = read_table(plan, "plan")
+    assert len(written.data) == len(planned.data) == 500
+    np.testing.assert_allclose(written.data[:, 1:], planned.data[:, 1:], atol=5e-4 + 1e-9)  # the session keeps um
+    np.testing.assert_allclose(np.diff(written.column("t")), 0.05, atol=2e-6)
+    # a log whose rate is not steady is refused in one line naming the file and row
+    rows = plan.read_text().splitlines()
+    t, rest = rows[3].split(",", 1)
+    rows[3] = f"{float(t) + 0.01:.6f},{rest}"
+    uneven = tmp_path / "uneven.csv"
+    uneven.write_text("\n".join(rows) + "\n")
+    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", str(uneven),
+                 "--out", str(tmp_path / "s2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "uneven.csv row" in err[0] and "not at a steady rate" in err[0]
