@@ -35,7 +35,7 @@ import numpy as np
 from platkit.effects import Effect, SizeHelp
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat
-from platkit.kinematics import PlatformModel
+from platkit.kinematics import platform_model
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
@@ -49,18 +49,7 @@ SHIPPED_DESCRIPTION = Path(__file__).with_name("cable.yaml")
 #: distribution's middle: a pretension that keeps the cables taut over the workspace)
 PRETENSION = 1.0
 
-_MODELS: dict[int, tuple[PlatformSpec, PlatformModel]] = {}
 _GEOMETRY: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-
-
-def _model(spec: PlatformSpec) -> PlatformModel:
-    """One PlatformModel per spec object (building one compiles CasADi functions)."""
-    hit = _MODELS.get(id(spec))
-    if hit is None or hit[0] is not spec:
-        if len(_MODELS) > 8:
-            _MODELS.clear()
-        hit = _MODELS[id(spec)] = (spec, PlatformModel(spec))
-    return hit[1]
 
 
 def cable_geometry(spec: PlatformSpec, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -72,7 +61,7 @@ def cable_geometry(spec: PlatformSpec, controls: np.ndarray) -> tuple[np.ndarray
     if key not in _GEOMETRY:
         if len(_GEOMETRY) > 64:
             _GEOMETRY.clear()
-        model = _model(spec)
+        model = platform_model(spec)
         td = spec.nominal_td()
         A, b = td[0:24].reshape(N_CABLES, 3), td[24:48].reshape(N_CABLES, 3)
         fb = model.forward_batch(controls, strict=False)
