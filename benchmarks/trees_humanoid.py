@@ -141,6 +141,37 @@ def per_hand(pred: dict[str, np.ndarray], recorded: np.ndarray, sim) -> dict[str
     return out
 
 
+#: link bending named at these joints is at the place of the true bending at the key: torso_2_joint's
+#: origin is torso_1_joint's (a link of zero length), so a bend before torso_2 is one after torso_1
+SAME_PLACE = {"torso_2_joint": {"torso_1_joint"}}
+#: a fitted parameter counts as named when it is this many of its standard deviations from zero
+NAMED_SIGMA = 3.0
+
+
+def named_places(findings: list[dict]) -> list[tuple[str, str]]:
+    """(effect, joint) of every place a finding names: one per finding, and for a term of many
+    joints (compliance of every loaded joint) each joint whose compliance is NAMED_SIGMA from zero."""
+    out = []
+    for f in findings:
+        w = f["where"]
+        if "joints" in w:
+            for name, par in zip(w["joints"], f["parameters"].values()):
+                if par.get("std") and abs(par["value"]) > NAMED_SIGMA * par["std"]:
+                    out.append((f["effect"], name))
+        else:
+            out.append((f["effect"], str(w.get("actuator") or w.get("joint") or "")))
+    return out
+
+
+def right(effect: str, joint: str) -> bool | None:
+    """Whether a named place is a true one (None: an effect this benchmark does not plant)."""
+    if effect == "compliance":
+        return joint in ELASTIC
+    if effect == "link_bending":
+        return joint in BENT or any(joint in SAME_PLACE.get(b, ()) for b in BENT)
+    return False
+
+
 def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path) -> None:
     nominal = upper_body(root / "talos_upper.urdf")
     model_urdf = upper_body(root / "talos_upper_bare.urdf", bare=True) if bare else nominal
@@ -168,6 +199,10 @@ def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path) -> None:
                                     for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
     names = "; ".join(f"{f['effect']} ({f['where'].get('actuator') or f['where'].get('joint') or ''})"
                       for f in d["findings"])
+    places = named_places(d["findings"])
+    good = [p for p in places if right(*p)]
+    names += (f"\n  places named: {len(places)}, right {len(good)}"
+              f" ({', '.join(f'{e} {j}' for e, j in places if not right(e, j)) or 'none wrong'})")
     print(f"seed {seed}{' (no inertias)' if bare else ''}: held-out mean per hand, mm (left / right)\n"
           f"  elastic sag itself (rigid true robot vs elastic): {unmodelled['left']:.2f} / {unmodelled['right']:.2f}\n"
           f"  rigid calibration:     {rigid['left']:.2f} / {rigid['right']:.2f}\n"

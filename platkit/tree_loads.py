@@ -17,6 +17,12 @@ Rules:
   (``tau_master += multiplier * tau_mimic``): pinocchio's computeGeneralizedGravity of a model
   built with mimic joints gives the same.
 - A payload at a link (mass, centre of mass in the link's frame) adds to that link's body.
+- A URDF without inertias (every link massless) may be given the **prior of uniform links**
+  (``prior=True``): each link a slender body of ``PRIOR_KG_PER_M`` per metre of the mean distance
+  from its origin to its child joints (at least ``PRIOR_MIN_KG``), its centre of mass half way
+  there. Loads then have the shape a real arm's have (the farther a link reaches, the more it
+  weighs and the farther out its weight acts); their overall size is unknown, so a compliance
+  fitted on them carries it (``prior`` says the loads are this prior's).
 - Mass moments: gravity loads are linear in each body's mass and first mass moment
   ``(m, m c_x, m c_y, m c_z)`` (c in the body's joint frame). ``moment_regressor(Q)`` gives the
   moments' derivatives in them, so that loads of a URDF without (or with doubtful) inertias can be
@@ -35,6 +41,10 @@ from platkit.urdf import read_urdf
 
 #: a body heavier than this (kg) in a URDF is absurd for a robot on a calibration stand
 MAX_LINK_MASS = 1.0e4
+#: the prior of uniform links of a URDF without inertias: kg per metre of a link's reach ...
+PRIOR_KG_PER_M = 1.0
+#: ... and the least mass of a link (one that reaches no further joint: a hand, a tool)
+PRIOR_MIN_KG = 0.05
 
 
 @dataclass(frozen=True)
@@ -63,7 +73,7 @@ class Loads:
 class TreeLoads:
     """Gravity loads of the URDF at ``urdf`` (see the module docstring); ``payload`` optional."""
 
-    def __init__(self, urdf: str | Path, payload: Payload | None = None):
+    def __init__(self, urdf: str | Path, payload: Payload | None = None, prior: bool = False):
         import pinocchio as pin
 
         self.path = Path(urdf)
@@ -100,6 +110,9 @@ class TreeLoads:
             if not np.isfinite(m) or m < 0 or m > MAX_LINK_MASS:
                 raise BadDescription(f"{self.path}: the links moved by joint {model.names[jid]!r} have mass {m} kg; "
                                      f"masses must lie in [0, {MAX_LINK_MASS:g}] kg")
+        self.prior = bool(prior) and not any(model.inertias[j].mass > 0 for j in range(1, model.njoints))
+        if self.prior:
+            self._add_prior(model, tree)
         if payload is not None:
             self._add_payload(model, payload)
         self.model = model
@@ -114,6 +127,25 @@ class TreeLoads:
             while jid > 0:
                 self.subtree[jid - 1, b] = True
                 jid = model.parents[jid]
+
+    def _add_prior(self, model, tree) -> None:
+        """Every link's body of the prior of uniform links (see the module docstring)."""
+        import pinocchio as pin
+
+        reach: dict[str, list[np.ndarray]] = {}
+        for j in tree.joints.values():
+            reach.setdefault(j.parent, []).append(np.asarray(j.origin, float)[:3, 3])
+        for link in tree.links:
+            if not model.existFrame(link):
+                continue
+            ends = reach.get(link, [])
+            middle = 0.5 * np.mean(ends, axis=0) if ends else np.zeros(3)
+            mass = max(PRIOR_KG_PER_M * float(np.mean([np.linalg.norm(e) for e in ends])) if ends else 0.0, PRIOR_MIN_KG)
+            frame = model.frames[model.getFrameId(link)]
+            jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
+            if jid == 0:
+                continue
+            model.inertias[jid] = model.inertias[jid] + frame.placement.act(pin.Inertia(mass, middle, np.zeros((3, 3))))
 
     def _add_payload(self, model, payload: Payload) -> None:
         import pinocchio as pin
@@ -265,6 +297,6 @@ class TreeLoads:
 
 
 @functools.lru_cache(maxsize=8)
-def tree_loads(urdf: str, payload: Payload | None = None) -> TreeLoads:
-    """One :class:`TreeLoads` per URDF file and payload (building one parses the file)."""
-    return TreeLoads(urdf, payload)
+def tree_loads(urdf: str, payload: Payload | None = None, prior: bool = False) -> TreeLoads:
+    """One :class:`TreeLoads` per URDF file, payload and prior (building one parses the file)."""
+    return TreeLoads(urdf, payload, prior)

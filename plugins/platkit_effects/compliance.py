@@ -167,7 +167,10 @@ class Compliance(Effect):
                                   index=None, spec=spec)
         where = actuator_where(spec, i)
         load_unit = "N" if spec.controls[i].unit == "m" else "N m"
-        where.update({"load": f"gravity torque from the URDF inertias ({load_unit})"})
+        stand = tree_stand(spec)
+        source = "the prior of uniform links (the URDF has no inertias)" if stand is not None and stand.loads.prior \
+            else "the URDF inertias"
+        where.update({"load": f"gravity torque from {source} ({load_unit})"})
         where.update(_stand_where(spec))
         return ComplianceTerm(self.name, ["compliance"], np.zeros(1), [f"{where['unit']}/({load_unit})"], where,
                               index=i, spec=spec)
@@ -177,21 +180,21 @@ class Compliance(Effect):
         if stand is None:
             loads = cached_loads(spec, poses.controls)
             return [self.term(spec, None)] if np.ptp(loads) > 0 else []
-        if stand.loads.total_mass <= 0:  # no inertias: the loads through the mass moments
-            out = []
+        terms: list = []
+        if stand.loads.prior:  # no inertias: beside the prior's loads, through each joint's mass moments
             for i, joint in enumerate(stand.joints):
                 basis, rank = mass_moment_basis(stand, poses.controls, joint)
                 if basis.shape[1]:
-                    out.append(mass_moment_term(self.name, spec, i, joint, basis, rank))
-            return out
+                    terms.append(mass_moment_term(self.name, spec, i, joint, basis, rank))
         S = load_state(stand, poses.controls)
         tau = S.loads.torque
         loaded = loaded_controls(stand, poses.controls)
-        terms: list = [self.term(spec, i) for i in loaded]
+        terms += [self.term(spec, i) for i in loaded]
         terms += [joint_rotation_term(self.name, spec, n, "axis") for n in stand.shared
                   if n in stand.loads.mimic and np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
-        if len(loaded) > 1 and len(stand.tracked) > 1:  # a tree gives at many joints at once: every loaded joint, one term
-            terms.append(joints_compliance_term(self.name, spec, loaded))
+        seen = loaded_controls(stand, poses.controls, seen=True)
+        if len(seen) > 1 and len(stand.tracked) > 1:  # a tree gives at many joints at once: every loaded joint, one term
+            terms.append(joints_compliance_term(self.name, spec, seen))
         return terms
 
     def untried(self, spec, poses):

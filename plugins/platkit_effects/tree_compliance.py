@@ -103,6 +103,8 @@ def tree_stand(spec: PlatformSpec) -> TreeStand | None:
     stand = None
     if urdf is not None:
         T = tree_loads(urdf)
+        if T.total_mass <= 0:  # no inertias: the prior of uniform links (platkit.tree_loads)
+            T = tree_loads(urdf, prior=True)
         names = list(spec.control_names)
         if not all(n in T.recorded for n in names):
             one_dof = list(T.recorded)
@@ -337,11 +339,12 @@ class JointRotationTerm(ModelTerm):
 def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str) -> JointRotationTerm:
     where = {"joint": joint, "about": about}
     where.update(_stand_where(spec))
+    prior = ", of the prior of uniform links (the URDF has no inertias)" if tree_stand(spec).loads.prior else ""
     if about == "axis":
-        where["load"] = "gravity torque of the whole tree about the joint's axis (N m)"
+        where["load"] = f"gravity torque of the whole tree about the joint's axis{prior} (N m)"
         return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where, joint=joint,
                                  about=about, spec=spec)
-    where["load"] = "gravity moment of the whole tree across the joint's axis (N m)"
+    where["load"] = f"gravity moment of the whole tree across the joint's axis{prior} (N m)"
     return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where,
                              joint=joint, about=about, spec=spec)
 
@@ -394,11 +397,18 @@ class JointsComplianceTerm(ModelTerm):
         return control, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
 
 
-def loaded_controls(stand: TreeStand, controls: np.ndarray) -> list[int]:
+def loaded_controls(stand: TreeStand, controls: np.ndarray, seen: bool = False) -> list[int]:
     """The controls whose joint's gravity load changes over ``controls`` (a vertical axis, a joint
-    that carries nothing: not)."""
+    that carries nothing: not); ``seen``: only those that move a tracked link (a head's joints
+    carry no marker: their deflection cannot be seen, their loads still count)."""
     tau = load_state(stand, controls).loads.torque
-    return [i for i, n in enumerate(stand.joints) if np.ptp(tau[:, stand.loads.index[n]]) > 1e-9]
+    return [i for i, n in enumerate(stand.joints) if np.ptp(tau[:, stand.loads.index[n]]) > 1e-9
+            and (not seen or n in moved_by(stand))]
+
+
+def moved_by(stand: TreeStand) -> set[str]:
+    """The tree joints that move a tracked link."""
+    return set().union(*(ancestors(stand.loads, link) for link in stand.tracked)) if stand.tracked else set(stand.chain)
 
 
 def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int]) -> JointsComplianceTerm:
@@ -409,7 +419,8 @@ def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int]) 
     units = [f"{spec.controls[i].unit}/({'N' if spec.controls[i].unit == 'm' else 'N m'})" for i in indices]
     where = {"joint": f"every loaded joint ({len(indices)})", "joints": joints,
              "actuators": [spec.control_names[i] for i in indices], "actuator_indices": list(indices),
-             "load": "gravity torque of the whole tree about each joint's axis, from the URDF inertias"}
+             "load": "gravity torque of the whole tree about each joint's axis, from "
+                     + ("the prior of uniform links (the URDF has no inertias)" if stand.loads.prior else "the URDF inertias")}
     where.update(_stand_where(spec))
     return JointsComplianceTerm(effect, [f"compliance_{spec.control_names[i]}" for i in indices],
                                 np.zeros(len(indices)), units, where, indices=list(indices), joints=joints, spec=spec)
@@ -521,11 +532,11 @@ def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
         return []
     out = []
     T = stand.loads
-    if T.total_mass <= 0:
-        out.append("the URDF has no inertias: each joint's compliance is tried with its gravity load's "
-                   f"best-determined mass-moment combinations (at most {MAX_MASS_COMBINATIONS} per joint), "
-                   "not with the URDF's loads")
-        return out
+    if T.prior:
+        out.append("the URDF has no inertias: the loads are those of uniform links (mass in proportion to each link's "
+                   "reach, centred half way; their size carried by the compliances), and each joint's compliance is "
+                   f"also tried with its gravity load's best-determined mass-moment combinations (at most "
+                   f"{MAX_MASS_COMBINATIONS} per joint)")
     massless = [n for n in stand.chain if not T.model.inertias[T.index[n] + 1].mass > 0]
     if massless:
         out.append(f"the links moved by {_listed(massless)} have no mass in the URDF (doubtful where they are real "
@@ -535,6 +546,12 @@ def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
     if flat:
         out.append(f"the gravity load of {_listed(flat)} does not change over the poses (a vertical axis, or a "
                    "joint that carries nothing)")
+    unseen = sorted(set(stand.joints[i] for i in loaded_controls(stand, poses.controls))
+                    - set(stand.joints[i] for i in loaded_controls(stand, poses.controls, seen=True)), key=T.index.get)
+    if unseen:
+        many = len(unseen) > 1
+        out.append(f"{_listed(unseen)} move{'' if many else 's'} no tracked link: {'their' if many else 'its'} deflection "
+                   f"cannot be seen (the loads {'they carry' if many else 'it carries'} still count)")
     lone = [n for n in stand.chain + [m for m in T.mimic if m not in stand.chain]
             if n in T.mimic and n not in stand.shared and any(n in ancestors(T, link) for link in stand.tracked)]
     if lone:
@@ -549,9 +566,6 @@ def untried_bending(spec: PlatformSpec, poses) -> list[str]:
     if stand is None:
         return []
     T = stand.loads
-    if T.total_mass <= 0:
-        return ["the URDF has no inertias, so the moment across a joint is unknown (the mass moments are estimated "
-                "for compliance alone)"]
     lone = sorted({n for link in stand.tracked for n in ancestors(T, link)} - set(stand.shared),
                   key=lambda n: T.index[n])
     if lone:

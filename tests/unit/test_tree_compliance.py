@@ -158,8 +158,10 @@ def test_without_inertias_compliance_is_tried_through_the_mass_moments(tmp_path)
     bare_dir.mkdir()
     bare = get_platform("urdf", _tree(bare_dir, masses=False), moving_link="l_lo")
     terms = Compliance().candidates(bare, _poses(bare, U))
-    assert terms and all(isinstance(t, MassMomentTerm) for t in terms)
-    assert LinkBending().candidates(bare, _poses(bare, U)) == []
+    assert sum(isinstance(t, MassMomentTerm) for t in terms) == 3  # beside the prior's loads
+    assert "prior of uniform links" in next(t for t in terms if not isinstance(t, MassMomentTerm)).where["load"]
+    assert "prior of uniform links" in LinkBending().candidates(bare, _poses(bare, U))[0].where["load"]
+    terms = [t for t in terms if isinstance(t, MassMomentTerm)]
     # l2 (the forearm about an oblique axis) has 2 identifiable mass moments on these poses, both
     # kept: the true loads (the heavy URDF's) lie in their span exactly
     term = next(t for t in terms if t.joint == "l2")
@@ -174,6 +176,26 @@ def test_without_inertias_compliance_is_tried_through_the_mass_moments(tmp_path)
     back = Compliance().from_dict(term.to_dict(fit))
     assert isinstance(back, MassMomentTerm)
     assert np.allclose(back.control_offset(fit, _poses(bare, U), 3), term.control_offset(fit, _poses(bare, U), 3))
+
+
+def test_without_inertias_the_loads_are_the_prior_of_uniform_links(tmp_path):
+    from platkit.tree_loads import PRIOR_KG_PER_M, PRIOR_MIN_KG, TreeLoads
+
+    path = _tree(tmp_path, masses=False)
+    assert TreeLoads(path).total_mass == 0
+    T = TreeLoads(path, prior=True)
+    heavy = tmp_path / "heavy"
+    heavy.mkdir()
+    assert T.prior and not TreeLoads(_tree(heavy), prior=True).prior  # a URDF's own inertias stand
+    # l1's body: l_up, reaching l2's origin; l2's: l_lo, reaching nothing (the least mass, at its origin)
+    l2 = T.tree.joints["l2"].origin[:3, 3]
+    up = T.model.inertias[T.index["l1"] + 1]
+    assert np.isclose(up.mass, PRIOR_KG_PER_M * np.linalg.norm(l2)) and np.allclose(up.lever, 0.5 * l2)
+    assert np.isclose(T.model.inertias[T.index["l2"] + 1].mass, PRIOR_MIN_KG)
+    bare = get_platform("urdf", path, moving_link="l_lo")
+    assert tree_stand(bare).loads.prior
+    loads = actuator_loads(bare, U)  # t1 and l1 carry links that reach out; l2 a leaf's least mass at its axis
+    assert np.ptp(loads[:, :2], axis=0).min() > 0.1 and not loads[:, 2].any()
 
 
 def test_on_a_tree_rotations_are_offered_where_they_move_every_tracked_link(tmp_path):
@@ -213,8 +235,9 @@ def test_on_a_tree_rotations_are_offered_where_they_move_every_tracked_link(tmp_
 def test_what_cannot_be_tried_is_said(tmp_path):
     bare = get_platform("urdf", _tree(tmp_path, masses=False), moving_link="l_lo")
     poses = _poses(bare, U)
-    assert "no inertias" in LinkBending().untried(bare, poses)[0]
+    assert LinkBending().untried(bare, poses) == []  # tried on the prior's loads
     assert "mass-moment combinations" in Compliance().untried(bare, poses)[0]
+    assert "no inertias: the loads are those of uniform links" in Compliance().untried(bare, poses)[0]
     heavy_dir = tmp_path / "heavy"
     heavy_dir.mkdir()
     arm = get_platform("urdf", _tree(heavy_dir), moving_link="l_lo")
