@@ -129,16 +129,16 @@ def _normal_equations(holds: Sequence[_Hold], taus: Sequence[np.ndarray]):
     padded with its last to the batch's T): (the batch's holds, the normal equations of the design
     [1, e, (s / tau) e] per marker, regularised (unseen markers: the identity), as the six entries
     of the symmetric matrix (a00, a01, a02, a11, a12, a22), each (H, T, M), and the right-hand
-    sides (b0, b1, b2), each (H, T, M, 3))."""
+    sides (b0, b1, b2), each (H, T, M, 3)). The sums over the samples are taken over every sample
+    of a hold, less those over the samples where a marker is occluded (few: a product over them
+    alone); padded samples lie so late that their e and (s / tau) e are exactly zero."""
     for batch in _batches(holds, [len(x) for x in taus]):
         H = len(batch)
         K = max(len(holds[h].s) for h in batch)
         T = max(len(taus[h]) for h in batch)
         M = holds[batch[0]].w.shape[1]
-        every = holds[batch[0]].every
-        S = np.zeros((H, K))
         TAU = np.empty((H, T))
-        W = np.zeros((H, K, 1 if every else M))
+        S = np.empty((H, K))
         Y = np.zeros((H, K, 3 * M))
         for r, h in enumerate(batch):
             d = holds[h]
@@ -146,14 +146,27 @@ def _normal_equations(holds: Sequence[_Hold], taus: Sequence[np.ndarray]):
             S[r, :k] = d.s
             TAU[r, : len(taus[h])] = taus[h]
             TAU[r, len(taus[h]):] = taus[h][-1]
-            W[r, :k] = 1.0 if every else d.w
             Y[r, :k] = d.y.reshape(k, -1)
+            S[r, k:] = 1e3 * TAU[r].max()  # exp(-1000) is zero in double precision
         X = S[:, None, :] / TAU[:, :, None]  # (H, T, K)
         E = np.exp(-X)
         P = X * E
         shape = (H, T, M)
-        a = [np.broadcast_to(x, shape).copy() for x in
-             (W.sum(axis=1)[:, None, :], E @ W, P @ W, (E * E) @ W, (E * P) @ W, (P * P) @ W)]
+        a = [np.empty(shape) for _ in range(6)]
+        for x, v in zip(a, (np.array([len(holds[h].s) for h in batch], float)[:, None, None], E.sum(axis=2)[..., None],
+                            P.sum(axis=2)[..., None], np.einsum("htk,htk->ht", E, E)[..., None],
+                            np.einsum("htk,htk->ht", E, P)[..., None], np.einsum("htk,htk->ht", P, P)[..., None])):
+            x[...] = v
+        for r, h in enumerate(batch):
+            d = holds[h]
+            if d.every:
+                continue
+            occ = np.nonzero(d.w.min(axis=1) < 1)[0]  # samples where some marker is occluded
+            O = 1.0 - d.w[occ]  # (n, M)
+            a[0][r] -= O.sum(axis=0)
+            e, p = E[r][:, occ], P[r][:, occ]
+            for x, g in zip(a[1:], (e, p, e * e, e * p, p * p)):
+                x[r] -= g @ O
         b = [np.broadcast_to(x, (H, T, 3 * M)).reshape(H, T, M, 3) for x in (Y.sum(axis=1)[:, None, :], E @ Y, P @ Y)]
         unseen = ~np.stack([holds[h].seen for h in batch])[:, None, :]  # (H, 1, M)
         if unseen.any():
