@@ -131,7 +131,7 @@ def run(stand, n_poses, n_markers, sigma, paper_evaluations, seed, selection=Fal
         "held": len(cal.identifiability["held_at_nominal"]), "time": cal.time_s, "err": err, "crb": crb,
         "ratio": err / crb, "param_z": z_param, "n_gauge_free": int(sel.sum()), "err_dirty": err_dirty,
         "dirty_ratio": err_dirty / err, "rejected": dirty.n_rejected, "paper_time": t_paper, "paper_err": err_paper,
-        "paper_evals": pap.extras["paper"]["evaluations"],
+        "paper_evals": pap.paper["evaluations"],
         "chosen": (cal.identifiability.get("model_selection") or {}).get("chosen"),
     }
 

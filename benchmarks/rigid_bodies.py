@@ -53,10 +53,10 @@ def truth_bodies(sim, U) -> np.ndarray:
 
 def crb_ratio(cal, sim, U):
     test = PoseSet(cal.platform, U, np.zeros((len(U), 0, 3)), [], bodies=truth_bodies(sim, U), body_names=["T1"])
-    problem, z, active = cal.extras["problem"], cal.extras["z"], cal.extras["active"]
+    problem, z, active = cal.fit.problem, cal.fit.z, cal.fit.active
     st = problem.evaluate(z, with_jac=True, poses=test)
     J = st.J[..., active]
-    var = np.einsum("nmaj,jk,nmak->nm", J, cal.extras["cov"], J)
+    var = np.einsum("nmaj,jk,nmak->nm", J, cal.fit.cov, J)
     err = np.sqrt(np.mean(np.sum(st.r ** 2, axis=2), axis=0))
     return err, np.sqrt(np.mean(var, axis=0))
 

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from platkit.calibrate.estimate import free_mask
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL, select_identifiable
 from platkit.calibrate.plan import default_marker_layout, identification_jacobian, reference_poses_for
+from platkit.calibrate.stages import free_mask
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 

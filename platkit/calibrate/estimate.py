@@ -1,11 +1,12 @@
-"""Calibration of a stand from settled poses: the procedure, and prediction with the result.
+"""Calibration of a stand from settled poses: :func:`calibrate`, the checks of its result, and
+prediction with it.
 
 The observation model (unknowns, residuals, exact Jacobians) is
 :class:`platkit.calibrate.problem.CalibrationProblem`; the solvers (Levenberg-Marquardt, the
 robust fit, k-fold held-out errors) are in :mod:`platkit.calibrate.solve`; which parameter groups
 to free is chosen by :mod:`platkit.calibrate.selection` (the default of ``platkit calibrate``).
 
-Procedure (:func:`calibrate`):
+Procedure (:func:`calibrate`, its stages in :mod:`platkit.calibrate.stages`):
 1. poses by nominal forward kinematics; the transform and the markers by rigid alignment
    (Kabsch, with the rotation from the relative motions so that no translation is needed);
 2. registration only (transform and markers, td at nominal): gives ``rms_before``;
@@ -13,35 +14,23 @@ Procedure (:func:`calibrate`):
    parameters the data cannot fix are held at nominal and reported by name;
 4. Levenberg-Marquardt over everything identifiable, robust: Huber weights on each marker's
    3-D error (scale from the median error), then outliers beyond 4.5 sigma rejected outright;
-5. standard deviations from sigma^2 (J^T W J)^-1; optional k-fold held-out prediction error.
+5. standard deviations from sigma^2 (J^T W J)^-1; optional k-fold held-out prediction error;
+6. what a user should check before trusting the fit (:func:`fit_warnings`), and a rigid body
+   whose orientations were rejected en masse refused (:func:`check_body_orientations`).
 """
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
 
-from platkit.bodies import ROTATION_REJECTED_SHARE, estimate_rho, log_so3, rotation_refusal
-from platkit.calibrate.identifiability import (
-    DEFAULT_REL_TOL,
-    apply_marker_convention,
-    classify_held,
-    nuisance_gauge,
-    select_identifiable,
-    singular_values,
-)
-from platkit.calibrate.plan import reference_poses_for
-from platkit.calibrate.problem import (
-    PLAUSIBLE_RANGE,
-    CalibrationProblem,
-    Progress,
-    link_frames,
-    parameter_scale,
-)
+from platkit.bodies import ROTATION_REJECTED_SHARE, log_so3, rotation_refusal
+from platkit.calibrate.identifiability import DEFAULT_REL_TOL
+from platkit.calibrate.problem import PLAUSIBLE_RANGE, CalibrationProblem, Progress, link_frames, parameter_scale
 from platkit.calibrate.robust import REJECT_K
-from platkit.calibrate.solve import _rms, _weighted, blas_threads, kfold, levenberg_marquardt, robust_fit
-from platkit.errors import BadInput, BadSession, NoConvergence, NotIdentifiable
+from platkit.calibrate.solve import blas_threads, kfold, levenberg_marquardt, robust_fit
+from platkit.calibrate.stages import CalibrationOptions, fit_calibration
+from platkit.errors import BadInput, BadSession
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
 from platkit.io.calibration import Calibration
 from platkit.kinematics import PlatformModel
@@ -52,21 +41,6 @@ from platkit.terms import ModelTerm
 # ---------------------------------------------------------------------------- public
 
 
-def free_mask(spec: PlatformSpec, free: Sequence[str] | None) -> np.ndarray:
-    """Which td entries to fit: None = every parameter the stand marks free; otherwise names or
-    group names (e.g. ['offset', 'origin']). An empty list fits none (registration only)."""
-    if free is None:
-        return np.array([p.free for p in spec.parameters], bool)
-    wanted = set(free)
-    known = {p.name for p in spec.parameters} | {p.group for p in spec.parameters}
-    unknown = sorted(wanted - known)
-    if unknown:
-        groups = sorted({p.group for p in spec.parameters if p.group})
-        raise BadInput(f"free: {', '.join(unknown)} is neither a parameter nor a group of the {spec.name} stand "
-                       f"(groups: {', '.join(groups)})")
-    return np.array([(p.name in wanted or p.group in wanted) for p in spec.parameters], bool)
-
-
 def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (), free: Sequence[str] | None = None,
               robust: bool = True, folds: int = 0, rel_tol: float = DEFAULT_REL_TOL, max_iter: int = 60,
               progress: Progress | None = None, platform_options: dict | None = None,
@@ -75,7 +49,8 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     """Estimate td, the base-to-mocap transform, marker positions and term parameters.
 
     poses: settled poses (SI); spec: the stand (its nominal td is the starting point and the value
-    of every parameter held); terms: extra physics (ModelTerm); free: see :func:`free_mask`;
+    of every parameter held); terms: extra physics (ModelTerm); free: see
+    :func:`platkit.calibrate.stages.free_mask`;
     folds: K > 1 adds K-fold held-out prediction errors to ``Calibration.heldout``.
     ridge_m: optional shrinkage of td towards nominal (see CalibrationProblem.set_ridge); 0 (default)
     is plain (robust) least squares.
@@ -85,10 +60,12 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     Raises NotIdentifiable when not even the transform and markers can be fixed, NoConvergence
     when forward kinematics fails on most poses.
     """
+    opt = CalibrationOptions(free=free, robust=robust, folds=folds, rel_tol=rel_tol, max_iter=max_iter,
+                             progress=progress, platform_options=platform_options, td_start=td_start, ridge_m=ridge_m,
+                             plausible=plausible)
     with blas_threads(1):
-        cal = _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options,
-                         td_start, ridge_m, plausible)
-    cal.extras["warnings"] = fit_warnings(cal, poses)
+        cal = fit_calibration(poses, spec, terms, opt)
+    cal.warnings = fit_warnings(cal, poses)
     check_body_orientations(cal, poses)
     return cal
 
@@ -165,11 +142,10 @@ def rejected_by_body(cal: Calibration) -> dict[str, tuple[int, int, int]]:
     """{body: (observations rejected as outliers, of them by the orientation, observations seen)}
     for the rigid bodies with any rejected, from the robust fit's final weights: an observation
     (one pose of one body) is rejected where its origin or its orientation channel is."""
-    w = cal.extras.get("weights")
-    r = cal.extras.get("residuals_after")
     B = len(cal.body_names)
-    if w is None or r is None or not B:
+    if cal.fit is None or not B:
         return {}
+    w, r = cal.fit.weights, cal.fit.residuals_after
     M = len(cal.marker_names)
     w = np.asarray(w)
     seen = np.isfinite(r[:, M:M + B]).all(axis=2)
@@ -198,194 +174,13 @@ def check_body_orientations(cal: Calibration, poses: PoseSet) -> None:
 def rejected_by_marker(cal: Calibration) -> dict[str, tuple[int, int]]:
     """{marker: (observations rejected as outliers, observations seen)} for the markers with any
     rejected, from the robust fit's final weights; empty without them."""
-    w = cal.extras.get("weights")
-    r = cal.extras.get("residuals_after")
-    if w is None or r is None:
+    if cal.fit is None:
         return {}
+    w, r = cal.fit.weights, cal.fit.residuals_after
     M = len(cal.marker_names)
     seen = np.isfinite(r[:, :M]).all(axis=2)
     rej = seen & (np.asarray(w)[:, :M] <= 0)
     return {n: (int(rej[:, m].sum()), int(seen[:, m].sum())) for m, n in enumerate(cal.marker_names) if rej[:, m].any()}
-
-
-def _calibrate(poses, spec, terms, free, robust, folds, rel_tol, max_iter, progress, platform_options, td_start,
-               ridge_m, plausible) -> Calibration:
-    t0 = time.perf_counter()
-    free_td = free_mask(spec, free)  # bad names are bad input before any work
-    problem = CalibrationProblem(spec, poses, terms)
-    td0 = spec.nominal_td() if td_start is None else np.asarray(td_start, float)
-    z = problem.initial_registration(td0)
-    problem.set_ridge(ridge_m, z)
-    problem.set_plausible(plausible)
-    n_z = problem.n_z
-    nuisance = np.zeros(n_z, bool)
-    nuisance[problem.i_w] = nuisance[problem.i_t] = nuisance[problem.i_m] = True
-    nuisance[problem.i_body_pos] = nuisance[problem.i_body_rot] = True  # rigid bodies' placements
-    st = problem.evaluate(z, with_jac=False)
-    if np.mean(st.converged) < 0.5:
-        raise NoConvergence(f"{spec.name} forward kinematics at the nominal parameters", 0, float("nan"),
-                            f"{int(np.sum(~st.converged))} of {poses.n_poses} poses have no solution; "
-                            "check the platform and the control units")
-    candidates = nuisance.copy()
-    candidates[problem.i_td] = free_mask(spec, free)
-    candidates[problem.i_theta] = True
-    # stage 0: gauge freedoms (what no set of poses fixes, told apart from what these poses do not
-    # excite on the stand's reference poses); the transform and marker coordinates that are gauges
-    # are held, and fixed by the stated convention after the fit
-    gauge = nuisance_gauge(problem, z, candidates, nuisance, reference_poses_for(spec, problem.model), rel_tol)
-    nuisance[gauge.held] = False
-    candidates[gauge.held] = False
-    # stage 1: registration only (td held at its nominal), robustly
-    reg = robust_fit(problem, z, nuisance, robust, max_iter, progress, "registration")
-    rms_before = _rms(reg.state, reg.weights)
-    residuals_before = reg.state.r.copy()
-    # stage 2: identifiability at the registered start
-    st = problem.evaluate(reg.z)
-    cand_idx = np.nonzero(candidates)[0]
-    # seen and solved; what the registration rejected counts too: the model terms may be what
-    # explains it (a slipped marker's later half is an outlier only to the geometry), and a
-    # Jacobian column does not depend on the measured value
-    used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
-    Jc = (np.take(st.J, cand_idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
-    Jc = Jc.reshape(-1, len(cand_idx))
-    ident = select_identifiable(Jc, [problem.names[i] for i in cand_idx], problem.scale[cand_idx],
-                                problem.tiers[cand_idx].tolist(), rel_tol)
-    chosen = cand_idx[ident.chosen]
-    lost_nuisance = [h.name for h in ident.held if not h.name.startswith(("term.",)) and
-                     (h.name.startswith(("mocap.", "marker.", "body.")))]
-    if lost_nuisance:
-        raise NotIdentifiable(f"the poses cannot fix {', '.join(lost_nuisance)}: the platform must rotate about "
-                              "two axes or translate, and each marker be seen in several poses")
-    classify_held(ident, gauge, cand_idx, problem, rel_tol)
-    if progress is not None:
-        progress("identifiability", {"n_identifiable": len(chosen), "held": [h.name for h in ident.held]})
-    active = np.zeros(n_z, bool)
-    active[chosen] = True
-    # stage 3: the full robust fit
-    fit = robust_fit(problem, reg.z, active, robust, max_iter, progress, "iteration")
-    fit = refit_body_rho(problem, fit, active, robust, max_iter, progress)
-    z = fit.z
-    st = problem.evaluate(z)
-    weights = fit.weights
-    keep = (weights > 0) & np.isfinite(st.r).all(axis=2)
-    rms_after = _rms(st, weights)
-    # covariance over the active unknowns
-    rw, Jw = _weighted(st, weights, active)
-    n_obs = 3 * int(keep.sum())
-    dof = max(1, n_obs - int(active.sum()))
-    s2 = float(rw @ rw) / dof
-    JtJ = Jw.T @ Jw
-    if problem.prior_rows(z) is not None:  # posterior covariance: the prior rows count as data
-        _, Jp = _weighted(st, weights, active, problem.prior_rows(z))
-        JtJ = Jp.T @ Jp
-    try:
-        cov = s2 * np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        cov = s2 * np.linalg.pinv(JtJ)
-    std_full = np.full(n_z, np.nan)
-    std_full[active] = np.sqrt(np.clip(np.diag(cov), 0, None))
-    z, gauge_map = apply_marker_convention(problem, z, gauge)
-    if gauge.held and not np.array_equal(gauge_map, np.eye(n_z)):  # the covariance in the convention's gauge
-        cov_full = np.zeros((n_z, n_z))
-        cov_full[np.ix_(active, active)] = cov
-        cov_full = gauge_map @ cov_full @ gauge_map.T
-        cov = cov_full[np.ix_(active, active)]
-        moved = active | np.any(gauge_map != np.eye(n_z), axis=1)
-        std_full[moved] = np.sqrt(np.clip(np.diag(cov_full)[moved], 0, None))
-    sv = singular_values(Jw * problem.scale[active][None, :], blocked=True)  # reported only
-    # report
-    free_td = free_mask(spec, free)
-    held_names = {h.name for h in ident.held}
-    status = []
-    for p, f in zip(spec.parameters, free_td):
-        status.append("held_at_nominal" if p.name in held_names else ("estimated" if f else "fixed"))
-    td_std = std_full[problem.i_td].copy()
-    weak = [problem.names[i] for i in np.nonzero(active)[0]
-            if i < spec.n_td and std_full[i] > 10 * problem.scale[i]]
-    identifiability = ident.to_dict()
-    identifiability.update({
-        "singular_values_at_estimate": [float(x) for x in sv],
-        "scaled_by": "each parameter's typical correction: 1 mm for lengths, 1 mrad for angles, 1e-3 relative otherwise",
-        "weakly_identified": weak,
-        "at_plausible_limit": [n for n in problem.beyond_plausible(z) if active[problem.names.index(n)]],
-        "plausible_range": None if plausible is None else f"nominal +- {plausible:g} typical corrections",
-        "rel_tol": rel_tol,
-        "gauge": gauge.to_dict(),
-    })
-    td, w, t, m, theta = problem.split(z)
-    theta_std, k = [], problem.i_theta.start
-    for size in problem.theta_sizes:
-        theta_std.append(std_full[k:k + size])
-        k += size
-    cal = Calibration(
-        platform=spec.name, description=None if spec.description_path is None else str(spec.description_path),
-        spec=spec, td=td.copy(), td_std=td_std, td_nominal=spec.nominal_td(), td_status=status,
-        mocap_rotvec=w.copy(), mocap_translation=t.copy(),
-        mocap_std=np.concatenate([std_full[problem.i_w], std_full[problem.i_t]]),
-        marker_names=list(poses.marker_names), marker_positions=m.copy(),
-        marker_std=std_full[problem.i_m].reshape(-1, 3), rms_before=rms_before, rms_after=rms_after,
-        length_unit=poses.length_unit, platform_options=dict(spec.extras.get("platform_options") or platform_options or {}),
-        method="lsq",
-        converged=bool(fit.converged), iterations=int(fit.iterations), n_poses=poses.n_poses,
-        n_markers=poses.n_markers, n_observations=int(keep.sum()),
-        n_rejected=int(np.sum(problem.visible & ~keep)), noise_sigma=float(np.sqrt(s2)),
-        identifiability=identifiability, terms=list(terms), theta=[np.array(x) for x in theta], theta_std=theta_std,
-        marker_links=dict(poses.marker_links) if problem.point_links is not None else {},
-    )
-    cal.extras.update({
-        "residuals_before": residuals_before, "residuals_after": st.r.copy(), "weights": weights.copy(),
-        "weights_before": reg.weights.copy(), "singular_values": sv, "identifiability": ident,
-        "controls": poses.controls.copy(), "active": active, "z": z.copy(), "names": list(problem.names),
-        "cov": cov, "problem": problem, "ridge_m": ridge_m,
-    })
-    if problem.B:
-        set_body_placements(cal, problem, z, std_full)
-    if folds and folds > 1:
-        cal.heldout = kfold(problem, z, active, folds, robust, max_iter, progress)
-    cal.time_s = time.perf_counter() - t0
-    if progress is not None:
-        progress("done", {"rms_before": rms_before, "rms_after": rms_after, "time_s": cal.time_s})
-    return cal
-
-
-def refit_body_rho(problem: CalibrationProblem, fit, active, robust: bool, max_iter: int, progress: Progress | None):
-    """With rigid bodies and no declared noise: rho = sigma_position / sigma_rotation (m/rad) from the
-    bodies' residuals of ``fit`` (:func:`platkit.bodies.estimate_rho`), and the fit repeated
-    with it; twice, as rho moves little after the first. Each channel's scale is corrected for
-    what the fit absorbed of it (its rows' leverage: the stand's parameters take more of the
-    position noise than of the rotation noise). Returns the last fit (``fit`` unchanged without
-    bodies, with declared noise, or when the residuals say nothing)."""
-    if not problem.B or problem.rho_source == "declared":
-        return fit
-    M, B = problem.M, problem.B
-    for _ in range(2):
-        st = fit.state if fit.state.J is not None else problem.evaluate(fit.z)
-        keep = (fit.weights > 0) & np.isfinite(st.r).all(axis=2)
-        _, Jw = _weighted(st, fit.weights, active)
-        lev = np.einsum("ij,ij->i", Jw @ np.linalg.pinv(Jw.T @ Jw), Jw).reshape(st.r.shape).sum(axis=2)
-        dof = []
-        for ch in (slice(M, M + B), slice(M + B, M + 2 * B)):  # the bodies' origins, then their rotations
-            n = 3.0 * keep[:, ch].sum()
-            dof.append(np.sqrt(n / max(n - lev[:, ch][keep[:, ch]].sum(), 1.0)))
-        r = st.r * np.sqrt(problem.base_weights)[:, :, None]  # in units of a typical pose's noise
-        rho = estimate_rho(r[:, M:M + B][keep[:, M:M + B]] * dof[0],
-                           r[:, M + B:][keep[:, M + B:]] / problem.body_rho * dof[1])
-        if rho is None:
-            break
-        problem.body_rho, problem.rho_source = rho, "estimated"
-        fit = robust_fit(problem, fit.z, active, robust, max_iter, progress, "iteration")
-    return fit
-
-
-def set_body_placements(cal: Calibration, problem: CalibrationProblem, z: np.ndarray, std_full: np.ndarray) -> None:
-    """The rigid bodies' placements on the moving part (origin m, rotation vector rad), their std
-    (B, 6) and the weight rho (m/rad) of their rotation channel, from ``z`` into ``cal``."""
-    pos, rot = problem.split_bodies(z)
-    cal.body_names = list(problem.poses.body_names)
-    cal.body_positions, cal.body_rotvecs = pos.copy(), rot.copy()
-    cal.body_std = np.concatenate([std_full[problem.i_body_pos].reshape(-1, 3),
-                                   std_full[problem.i_body_rot].reshape(-1, 3)], axis=1)
-    cal.body_rho, cal.body_rho_source = float(problem.body_rho), problem.rho_source
 
 
 # ---------------------------------------------------------------------------- prediction
@@ -537,4 +332,4 @@ def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
 
 __all__ = ["calibrate", "kfold", "predict_markers", "predict_bodies", "predict_links", "point_errors",
            "second_session_errors",
-           "free_mask", "CalibrationProblem", "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]
+           "CalibrationProblem", "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]

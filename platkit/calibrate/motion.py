@@ -330,7 +330,6 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                          "sparser than the motion) or the log is another recording's")
     theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
     held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
-    names = term.parameter_names
     par = rmodel.split(theta)
     sd = rmodel.split(np.where(np.isfinite(theta_std), theta_std, np.nan))
     per = {}
@@ -360,7 +359,6 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         "held": [n for n in held if n.startswith("term.actuator_response.")],
         "time_s": time.perf_counter() - t0,
     }
-    cal.extras["response_names"] = names
     cal.terms, cal.theta, cal.theta_std = [], [], []  # settled poses need no response
     if progress is not None:
         progress("motion", {"response": cal.motion["response"]})

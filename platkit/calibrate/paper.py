@@ -32,9 +32,11 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import minimize
 
-from platkit.calibrate.estimate import CalibrationProblem, Progress, _rms, blas_threads, free_mask, parameter_scale
 from platkit.calibrate.identifiability import rotation_fixed_directions
+from platkit.calibrate.problem import CalibrationProblem, Progress, parameter_scale
 from platkit.calibrate.registration import markers_given_rotation
+from platkit.calibrate.solve import _rms, blas_threads
+from platkit.calibrate.stages import free_mask
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import (
     matrix_from_quat,
@@ -45,7 +47,7 @@ from platkit.geometry import (
     quat_normalize,
     rotvec_from_matrix,
 )
-from platkit.io.calibration import Calibration
+from platkit.io.calibration import Calibration, FitRecord
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -313,14 +315,11 @@ def _calibrate_paper(poses, spec, free, fit_base, max_evaluations, progress, pla
         n_observations=int(problem.visible.sum()), n_rejected=0,
         identifiability={"note": "the paper's method does not analyse identifiability; every free parameter is moved"},
     )
-    cal.extras.update({
-        "residuals_before": st_before.r, "residuals_after": st_after.r, "weights": ones, "weights_before": ones,
-        "controls": poses.controls.copy(),
-        "paper": {"J_before": float(J0), "J_after": float(J_final), "evaluations": int(state["evals"]),
-                  "poses_used": int(full.sum()), "procrustes_iterations": int(gpa_iterations),
-                  "q_delta": [float(v) for v in d], "q_base_in_mocap": [float(v) for v in a],
-                  "fit_base": bool(fit_base)},
-    })
+    cal.fit = FitRecord(residuals_before=st_before.r, residuals_after=st_after.r, weights_before=ones, weights=ones,
+                        controls=poses.controls.copy())
+    cal.paper = {"J_before": float(J0), "J_after": float(J_final), "evaluations": int(state["evals"]),
+                 "poses_used": int(full.sum()), "procrustes_iterations": int(gpa_iterations),
+                 "q_delta": [float(v) for v in d], "q_base_in_mocap": [float(v) for v in a], "fit_base": bool(fit_base)}
     cal.time_s = time.perf_counter() - t0
     if progress is not None:
         progress("done", {"rms_before": cal.rms_before, "rms_after": cal.rms_after, "time_s": cal.time_s})

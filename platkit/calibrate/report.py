@@ -69,7 +69,7 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         "at_plausible_limit": list(ident.get("at_plausible_limit", [])),
         "gauge": ident.get("gauge"),  # what no pose fixes, the conventions that fix it (docs/calibration.md)
         "model_selection": ident.get("model_selection"),  # which groups were freed, chosen by held-out prediction
-        "warnings": list(cal.extras.get("warnings", [])),  # what to check before trusting the fit
+        "warnings": list(cal.warnings),  # what to check before trusting the fit
         "rms_definition": "root mean square of the 3-D distance between predicted and measured markers, "
                           "over the observations kept by the robust loss",
     }
@@ -77,13 +77,13 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         out["settling"] = settling_summary(poses, cal.length_unit)  # every command: kept, extrapolated, or dropped and why
     if cal.motion:  # calibrated from motion: which samples served, the actuators' response fitted
         out["motion"] = cal.motion
-    after = cal.extras.get("residuals_after")
-    if after is not None:
-        pm = per_marker_rms(after, cal.extras.get("weights"))
+    if cal.fit is not None:
+        after = cal.fit.residuals_after
+        pm = per_marker_rms(after, cal.fit.weights)
         out["rms_after_per_marker"] = {n: _finite_or_none(v / s) for n, v in zip(channel_names(cal), pm)}
         if cal.marker_links:  # a tree: each tracked link's markers together (docs/trees.md)
             M = len(cal.marker_names)
-            keep = np.isfinite(after[:, :M]).all(axis=2) & (np.asarray(cal.extras.get("weights"))[:, :M] > 0)
+            keep = np.isfinite(after[:, :M]).all(axis=2) & (np.asarray(cal.fit.weights)[:, :M] > 0)
             d2 = np.sum(np.nan_to_num(after[:, :M]) ** 2, axis=2)
             out["rms_after_per_link"] = {}
             for link in dict.fromkeys(cal.marker_links[m] for m in cal.marker_names):
@@ -95,8 +95,8 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         out["max_error_after"] = _finite_or_none(np.nanmax(d) / s) if np.isfinite(d).any() else None
     if cal.heldout:
         out["heldout"] = heldout_in_unit(cal.heldout, cal.length_unit)
-    if "paper" in cal.extras:
-        out["paper"] = cal.extras["paper"]
+    if cal.paper:
+        out["paper"] = cal.paper
     return out
 
 
@@ -138,19 +138,17 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
     s = length_scale(cal.length_unit)
     lu = cal.length_unit
     out = []
-    before, after = cal.extras.get("residuals_before"), cal.extras.get("residuals_after")
-    w_after = cal.extras.get("weights")
-    if before is not None and after is not None:
+    if cal.fit is not None:
+        before, after, w_after = cal.fit.residuals_before, cal.fit.residuals_after, cal.fit.weights
         fig, ax = _subplots(figsize=(9, 3.2))
         db = np.sqrt(_finite_row_mean(np.sum(before ** 2, axis=2))) / s
         da = np.sqrt(_finite_row_mean(np.sum(after ** 2, axis=2))) / s
         n = np.arange(len(db))
         ax.plot(n, db, ".", ms=3, label=f"before (nominal td), RMS {cal.rms_before / s:.3g} {lu}", color="tab:red")
         ax.plot(n, da, ".", ms=3, label=f"after, RMS {cal.rms_after / s:.3g} {lu}", color="tab:blue")
-        if w_after is not None:
-            rej = np.nonzero(((w_after == 0) & np.isfinite(after).all(axis=2)).any(axis=1))[0]
-            if rej.size:
-                ax.plot(rej, da[rej], "x", color="k", label="pose with a rejected marker")
+        rej = np.nonzero(((w_after == 0) & np.isfinite(after).all(axis=2)).any(axis=1))[0]
+        if rej.size:
+            ax.plot(rej, da[rej], "x", color="k", label="pose with a rejected marker")
         ax.set_xlabel("pose (row)")
         ax.set_ylabel(f"RMS marker error [{lu}]")
         ax.set_yscale("log")
@@ -159,7 +157,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
 
         names = channel_names(cal)
         fig, ax = _subplots(figsize=(max(4, 0.7 * len(names) + 2), 3.2))
-        pb = per_marker_rms(before, cal.extras.get("weights_before")) / s
+        pb = per_marker_rms(before, cal.fit.weights_before) / s
         pa = per_marker_rms(after, w_after) / s
         x = np.arange(len(names))
         ax.bar(x - 0.2, pb, 0.4, label="before", color="tab:red")
@@ -212,7 +210,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
                     "by its parameter's typical correction (1 mm, 1 mrad). Values near zero are "
                     "combinations the data cannot fix; they are held at nominal and listed below.", _png(fig)))
 
-    controls = cal.extras.get("controls")
+    controls = None if cal.fit is None else cal.fit.controls
     if controls is not None and len(controls):
         try:
 
@@ -303,7 +301,7 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
         v = h["second_session"]
         parts.append(f"<p>Prediction of a second session ({html.escape(str(v['source']))}, {v['n_poses']} poses): "
                      f"RMS <b>{v['rms']:.4g} {lu}</b>.</p>")
-    for w in cal.extras.get("warnings", []):
+    for w in cal.warnings:
         parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
     if poses is not None:
         parts.append(_settling_html(rep["settling"]))
@@ -382,17 +380,17 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
     names = []
     with atomic_output_dir(out_dir) as tmp:
         names = ["calibration.yaml", "report.json"] + (["report.html"] if with_html else [])
+        urdf = None  # what report.json says of calibrated.urdf (URDF stands only)
         if cal.spec.extras.get("chain") is not None:
-
             try:
                 export_calibrated_urdf(cal.spec, cal.td, tmp / "calibrated.urdf")
                 names.append("calibrated.urdf")
-                cal.extras["calibrated_urdf"] = "calibrated.urdf"
+                urdf = "calibrated.urdf"
             except BadInput as exc:  # e.g. a joint scale other than 1 has no place in a URDF
-                cal.extras["calibrated_urdf"] = f"not written: {exc}"
+                urdf = f"not written: {exc}"
         rep = report_dict(cal, poses)
-        if "calibrated_urdf" in cal.extras:
-            rep["calibrated_urdf"] = cal.extras["calibrated_urdf"]
+        if urdf is not None:
+            rep["calibrated_urdf"] = urdf
         write_calibration_yaml(cal, tmp)  # with its description beside it: the folder travels
         (tmp / "report.json").write_text(jsonout.dumps(rep, indent=2) + "\n", encoding="utf-8")
         if with_html:

@@ -92,7 +92,7 @@ def heldout_errors(cal: Calibration) -> np.ndarray:
 
 
 def _heldout_errors(cal: Calibration) -> np.ndarray:
-    problem, z, active, weights = (cal.extras[k] for k in ("problem", "z", "active", "weights"))
+    problem, z, active, weights = cal.fit.problem, cal.fit.z, cal.fit.active, cal.fit.weights
     st = problem.evaluate(z)
     N, M = st.r.shape[:2]
     seen = np.isfinite(st.r).all(axis=2) & (weights > 0)
@@ -225,7 +225,7 @@ def group_significance(with_g: Calibration, without_g: Calibration) -> tuple[flo
     from scipy.stats import chi2
 
     def rss_dof(cal):
-        n_active = int(np.sum(cal.extras["active"]))
+        n_active = int(np.sum(cal.fit.active))
         dof = max(1, 3 * int(cal.n_observations) - n_active)
         return cal.noise_sigma ** 2 * dof, dof, n_active
 
@@ -271,12 +271,12 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
         return cal
     note(f"the most general model: every group free ({', '.join(labels)})")
     reference = calibrate(poses, spec, free=_names(groups, labels), robust=robust, progress=progress, **common)
-    kept = reference.extras["weights"] > 0
+    fit = reference.fit
+    kept = fit.weights > 0
     # a marker the robust fit rejected wholly (one that slipped) keeps one side of its step
-    kept = keep_one_side_of_a_lost_marker(kept, reference.extras["residuals_after"],
-                                          reference.extras["problem"], reference.extras["z"])[0]
+    kept = keep_one_side_of_a_lost_marker(kept, fit.residuals_after, fit.problem, fit.z)[0]
     M, B = poses.n_markers, poses.n_bodies  # channels: markers, then each body's origin and rotation
-    left_out = int(np.sum(reference.extras["problem"].visible & ~kept))
+    left_out = int(np.sum(fit.problem.visible & ~kept))
     clean = poses.subset(np.ones(poses.n_poses, bool))
     clean.markers = np.where(kept[:, :M, None], poses.markers, np.nan)
     if B:
@@ -346,8 +346,6 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     cal.identifiability["model_selection"] = sel.to_dict(unit)
     if terms:
         cal.identifiability["model_selection"]["beside_terms"] = [t.effect for t in terms]
-    # what the user fitted, for the statuses: parameters of held groups are 'fixed' by the selection
-    cal.extras["selection"] = sel
     note(f"chose {', '.join(chosen)}" + (f"; held {', '.join(held)}" if held else ""))
     return cal
 

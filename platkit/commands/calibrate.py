@@ -187,11 +187,11 @@ def run(args) -> int:
     if limit:
         warn(f"{', '.join(limit)} reached the edge of the plausible range (nominal +- 100 typical "
              "corrections): the geometric model is absorbing something it does not describe; run platkit diagnose")
-    fit_notes = list(cal.extras.get("warnings", []))
+    fit_notes = list(cal.warnings)
     for w in fit_notes:
         warn(w)
     failure = fit_failure(cal)  # in the report as a warning; on stderr as the error line at the end
-    cal.extras["warnings"] = all_warnings(notes, fit_notes, [failure] if failure else [])
+    cal.warnings = all_warnings(notes, fit_notes, [failure] if failure else [])
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
             f"({cal.n_poses} poses, {cal.n_markers} markers"
@@ -279,10 +279,10 @@ def run_motion(args, why: str, notes: list[str]) -> int:
                                   platform_options=options, ridge_m=ridge_m, reason=reason)
     if other is not None:
         cal.heldout["second_session"] = second_session_errors(cal, other)
-    fit_notes = list(cal.extras.get("warnings", []))
+    fit_notes = list(cal.warnings)
     for w in fit_notes:
         warn(w)
-    cal.extras["warnings"] = all_warnings(notes, [note], fit_notes)  # said before writing: the report lists them
+    cal.warnings = all_warnings(notes, [note], fit_notes)  # said before writing: the report lists them
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     sc = length_scale(cal.length_unit)
     r = cal.motion["response"]

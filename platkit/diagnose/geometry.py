@@ -36,7 +36,7 @@ def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] 
     td_now = cur.problem.split(cur.z)[0]
     cal = calibrate(poses, spec, terms=cur.terms, free=trial, td_start=td_now, robust=opt.robust,
                     platform_options=platform_options)
-    f = _fit(spec, poses, cur.terms, cal.extras["z"], cal.extras["active"], cur.weights, opt.lm_iterations, opt.robust)
+    f = _fit(spec, poses, cur.terms, cal.fit.z, cal.fit.active, cur.weights, opt.lm_iterations, opt.robust)
     f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
     p = paired_improvement(cur.cv[judged], f.cv[judged])
     before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
@@ -62,7 +62,7 @@ def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str
     chosen = [n for n, st in zip(spec.parameter_names, cal.td_status) if st == "estimated"]
     if set(chosen) == set(free):
         return None
-    f = _fit(spec, poses, cur.terms, cal.extras["z"], cal.extras["active"], cur.weights, opt.lm_iterations, opt.robust)
+    f = _fit(spec, poses, cur.terms, cal.fit.z, cal.fit.active, cur.weights, opt.lm_iterations, opt.robust)
     f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
     before, after = _rms(cur.cv, judged), _rms(f.cv, judged)
     if not after <= before:

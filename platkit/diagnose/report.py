@@ -147,8 +147,8 @@ def _plots(d: Diagnosis) -> list[tuple[str, str]]:
         ax[0].set_ylabel(f"measured - model, along the effect ({d.unit})")
         out.append((f"{f.effect}: {html.escape(json.dumps(strict(f.where)))}", _png(fig)))
     # residual norm in time order, before and after
-    r0 = np.linalg.norm(d.base.extras["residuals_after"], axis=2)
-    r1 = np.linalg.norm(d.final_fit.extras["residuals_after"], axis=2)
+    r0 = np.linalg.norm(d.base.fit.residuals_after, axis=2)
+    r1 = np.linalg.norm(d.final_fit.fit.residuals_after, axis=2)
     t = d.poses.extras.get("elapsed", np.arange(d.poses.n_poses))
     fig = Figure(figsize=(10, 3.2))
     ax = fig.subplots()

@@ -160,7 +160,7 @@ class Search:
         self.base_cal = calibrate(poses, spec, terms=self.prior, free=self.free, td_start=self.td_start,
                                   robust=opt.robust, platform_options=self.platform_options)
         self.weights = np.all(np.isfinite(poses.markers), axis=2).astype(float)
-        cur = _fit(spec, poses, self.prior, self.base_cal.extras["z"], self.base_cal.extras["active"], self.weights,
+        cur = _fit(spec, poses, self.prior, self.base_cal.fit.z, self.base_cal.fit.active, self.weights,
                    opt.lm_iterations, opt.robust)
         cur.cv = _cv(cur, spec, poses, opt.folds, opt.lm_iterations)
         self.cur = cur
@@ -456,10 +456,10 @@ class Search:
         for k, (finding, info) in enumerate(zip(self.modelled, self.accepted), start=len(self.prior)):
             theta, std = self.final_cal.theta[k], self.final_cal.theta_std[k]
             finding.parameters = _params(finding.term, theta, std)
-            finding.signature_after = _signature(info["J"], self.final_cal.extras["residuals_after"], theta,
+            finding.signature_after = _signature(info["J"], self.final_cal.fit.residuals_after, theta,
                                                  _offset_sign(finding.term, theta, info["fit"], self.poses))
             finding.evidence = _evidence(finding, self.poses, self.unit, folds=self.opt.folds)
-        self.locations = locate(self.final_cal.extras["residuals_after"], self.poses, self.spec, None, self.opt.alpha)
+        self.locations = locate(self.final_cal.fit.residuals_after, self.poses, self.spec, None, self.opt.alpha)
 
     def structure_left(self) -> None:
         """What the final model leaves: the probe that beat it (``unexplained``), structure the

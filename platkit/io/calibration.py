@@ -30,6 +30,36 @@ from platkit.plugins import get_platform, term_from_dict
 FORMAT = "platkit-calibration/1"
 
 
+@dataclass(frozen=True, slots=True)
+class FitRecord:
+    """What an estimator leaves beside its result, in memory only (calibration.yaml holds none of
+    it): for the report's figures, the checks of the fit, the model selection's held-out errors and
+    a diagnosis's refits. Channels C: the M markers, then each rigid body's origin, then each body's
+    scaled rotation error.
+
+    residuals_before, residuals_after: (N, C, 3) m, predicted minus measured (NaN where unseen),
+    after the registration alone (td at its start) and at the estimate; weights_before, weights:
+    (N, C) the robust loss's final weights of each fit (0: rejected); controls: (N, n_u) SI, the
+    poses' controls. The least-squares estimator's own (None from the paper's method): ``problem``,
+    the :class:`platkit.calibrate.problem.CalibrationProblem` fitted (typed loosely: calibrate sits
+    above io); ``z`` (n_z,) its unknowns at the estimate; ``active`` (n_z,) bool, those estimated;
+    ``cov`` (n_active, n_active) their covariance; ``identifiability``, the
+    :class:`platkit.calibrate.identifiability.Identifiability` that ``Calibration.identifiability``
+    reports.
+    """
+
+    residuals_before: np.ndarray
+    residuals_after: np.ndarray
+    weights_before: np.ndarray
+    weights: np.ndarray
+    controls: np.ndarray
+    problem: Any = None
+    z: np.ndarray | None = None
+    active: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    identifiability: Any = None
+
+
 @dataclass
 class Calibration:
     """What an estimator found. SI inside (metres, radians).
@@ -47,6 +77,9 @@ class Calibration:
     body_rho_source: 'declared' (session.yaml rigid_body_noise), 'estimated' or 'default'.
     marker_links: on a tree, {marker or body: the link it rides on}; marker and body positions
     are then in their own link's frame (empty: all on the moving frame).
+    warnings: what to check before trusting the fit, one sentence each (calibration.yaml's
+    ``warnings``); paper: the paper's method's own record (report.json's ``paper``); fit: what the
+    estimator left in memory (:class:`FitRecord`; None for a calibration read from its file).
     """
 
     platform: str
@@ -82,7 +115,6 @@ class Calibration:
     time_s: float = 0.0
     #: a calibration from motion (platkit.calibrate.motion): the samples used and the actuators' response
     motion: dict[str, Any] = field(default_factory=dict)
-    extras: dict[str, Any] = field(default_factory=dict)  # arrays for the report (not written)
     imu: dict[str, Any] = field(default_factory=dict)  # what an IMU diagnosis added (platkit.diagnose.imu), SI
     body_names: list[str] = field(default_factory=list)
     body_positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -91,6 +123,9 @@ class Calibration:
     body_rho: float = float("nan")
     body_rho_source: str = ""
     marker_links: dict[str, str] = field(default_factory=dict)  # tree: marker or body -> its link
+    warnings: list[str] = field(default_factory=list)
+    paper: dict[str, Any] = field(default_factory=dict)
+    fit: FitRecord | None = None
 
     # ------------------------------------------------------------------ derived
     @property
@@ -161,8 +196,8 @@ class Calibration:
             out["rigid_bodies"] = self._bodies_dict()
         if self.heldout:
             out["heldout"] = heldout_in_unit(self.heldout, self.length_unit)
-        if self.extras.get("warnings"):
-            out["warnings"] = [str(w) for w in self.extras["warnings"]]
+        if self.warnings:
+            out["warnings"] = [str(w) for w in self.warnings]
         if self.motion:  # the actuators' response fitted with the geometry (times s, controls' internal units)
             out["actuator_response"] = strict(self.motion)
         if self.imu:

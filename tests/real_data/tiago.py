@@ -153,7 +153,7 @@ def convert(csv_path: str | Path, out_session: str | Path, urdf: str | Path | No
 def pivot_order(cal) -> list[str]:
     """The stand's parameters a calibration estimated, strongest first (the order the pivoted
     orthogonalisation chose them; the last ones are the least well fixed)."""
-    ident = cal.extras["identifiability"]
+    ident = cal.fit.identifiability
     td = set(cal.spec.parameter_names)
     return [ident.names[i] for i in ident.chosen if ident.names[i] in td]
 

@@ -45,7 +45,7 @@ def test_its_jacobian_is_known_and_matches_finite_differences():
     spec = get_platform("stewart")
     poses = with_history(simulate(spec, seed=3, n_poses=32, raw=False, plan="random").poses, spec)
     cal = calibrate(poses, spec)
-    z0 = cal.extras["z"]
+    z0 = cal.fit.z
     fk_X = CalibrationProblem(spec, poses, []).kinematics(cal.td, poses.controls)[1]
     rng = np.random.default_rng(1)
     for probe in (marker_probe(poses), time_probe(poses), space_probe(fk_X)):

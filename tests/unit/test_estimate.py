@@ -151,7 +151,7 @@ def test_a_marker_that_slips_midway_keeps_the_place_most_of_its_observations_giv
     cal = calibrate(PoseSet("stewart", poses.controls, Y, poses.marker_names), stewart)
     assert prediction_error(cal, truth) < 10 * sigma
     assert cal.n_rejected == int(after.sum())
-    assert any(w.startswith(f"marker M1: {int(after.sum())} of its {n} observations rejected") for w in cal.extras["warnings"])
+    assert any(w.startswith(f"marker M1: {int(after.sum())} of its {n} observations rejected") for w in cal.warnings)
 
 
 def test_occluded_markers_are_skipped(stewart):
@@ -301,7 +301,7 @@ def test_plausible_range_stops_the_geometry_wandering_off():
     poses = with_history(sim.poses, spec)
 
     def departure(cal):
-        return np.max(np.abs(cal.td - spec.nominal_td()) / cal.extras["problem"].scale[:spec.n_td])
+        return np.max(np.abs(cal.td - spec.nominal_td()) / cal.fit.problem.scale[:spec.n_td])
 
     assert departure(calibrate(poses, spec, plausible=None)) > 1000
     kept = calibrate(poses, spec)

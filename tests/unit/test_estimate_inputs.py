@@ -113,11 +113,11 @@ def test_a_fit_that_stops_far_above_the_noise_warns_what_to_check(tmp_path, caps
     p = s.poses
     good = PoseSet("urdf", p["controls"], p["markers"], ["A", "B", "C"], length_unit="m")
     cal = calibrate(good, s.spec)
-    assert cal.converged and fit_warnings(cal, good) == [] and cal.extras["warnings"] == []
+    assert cal.converged and fit_warnings(cal, good) == [] and cal.warnings == []
     # the controls in the wrong order: a plausible-looking session the model cannot describe
     swapped = PoseSet("urdf", p["controls"][:, ::-1] * [0.1, 1], p["markers"], ["A", "B", "C"], length_unit="m")
     bad = calibrate(swapped, s.spec, free=[])
     assert bad.rms_after > MISFIT_ABSOLUTE_M
-    (warning,) = bad.extras["warnings"]
+    (warning,) = bad.warnings
     assert warning.startswith(f"rms_after {bad.rms_after:.4g} m is far above any measurement noise")
     assert "control columns are in the stand's order and units" in warning

@@ -82,7 +82,7 @@ def test_paper_lowers_its_functional_and_the_default_beats_it():
     Y[3, 1] = np.nan  # the paper leaves out poses with a missing marker
     poses = PoseSet("psvr", poses.controls, Y, poses.marker_names)
     pap = calibrate_paper(poses, spec, max_evaluations=400)
-    info = pap.extras["paper"]
+    info = pap.paper
     assert info["poses_used"] == poses.n_poses - 1 and info["evaluations"] <= 402
     assert info["J_after"] < 0.5 * info["J_before"]
     assert pap.rms_after < pap.rms_before

@@ -225,11 +225,11 @@ def test_a_session_with_both_markers_and_poses_says_which_is_used(tmp_path, caps
 def test_without_reference_poses_nothing_is_called_a_gauge(monkeypatch):
     """A stand where no random command is reachable gives no reference: what the data cannot fix
     is then judged as before the gauge analysis (transform and markers an error), and said."""
-    import platkit.calibrate.estimate as estimate
+    import platkit.calibrate.stages as stages
 
     spec = get_platform("urdf", GANTRY)
     empty = (np.zeros((0, spec.n_u)), np.zeros((0, spec.n_p)))
-    monkeypatch.setattr(estimate, "reference_poses_for", lambda spec, model=None: empty)
+    monkeypatch.setattr(stages, "reference_poses_for", lambda spec, model=None: empty)
     truth = Truth(spec, seed=3, n_markers=4, marker_spread=0.05)
     with pytest.raises(NotIdentifiable, match="the poses cannot fix marker"):
         calibrate(truth.poses(30, 1e-4, spread=0.45), spec)

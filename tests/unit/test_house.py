@@ -15,9 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[2] / "platkit"
 #: modules over MAX_MODULE_LINES still to split, relative to platkit/
 KNOWN_LONG_MODULES: set[str] = set()
 #: (module relative to platkit/, qualified function name) over MAX_FUNCTION_LINES still to split
-KNOWN_LONG_FUNCTIONS = {
-    ("calibrate/estimate.py", "_calibrate"),
-}
+KNOWN_LONG_FUNCTIONS: set[tuple[str, str]] = set()
 
 
 def _functions(tree: ast.AST, prefix: str = ""):

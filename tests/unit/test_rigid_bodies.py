@@ -79,10 +79,10 @@ def prediction_vs_crb(cal, test: PoseSet):
     """Per channel: (RMS 3-D error (m) of the calibration's predictions against the noise-free poses
     ``test``, RMS 3-D error the fit's covariance expects (its Cramer-Rao bound when the noise is
     declared right)). Channels as the estimator's: markers, bodies' origins, bodies' rotations * rho."""
-    problem, z, active = cal.extras["problem"], cal.extras["z"], cal.extras["active"]
+    problem, z, active = cal.fit.problem, cal.fit.z, cal.fit.active
     st = problem.evaluate(z, with_jac=True, poses=test)
     J = st.J[..., active]
-    var = np.einsum("nmaj,jk,nmak->nm", J, cal.extras["cov"], J)
+    var = np.einsum("nmaj,jk,nmak->nm", J, cal.fit.cov, J)
     return np.sqrt(np.mean(np.sum(st.r ** 2, axis=2), axis=0)), np.sqrt(np.mean(var, axis=0))
 
 

@@ -73,7 +73,7 @@ def test_heldout_errors_match_refitting_without_the_pose(arm):
         direct = point_errors(refit, poses.subset(~keep))[0]
         assert np.allclose(E[n], direct, rtol=0.02, atol=2e-6), (n, E[n], direct)
     # held out, a pose is predicted worse than when it is fitted
-    fitted = np.linalg.norm(cal.extras["residuals_after"], axis=2)
+    fitted = np.linalg.norm(cal.fit.residuals_after, axis=2)
     assert np.median(E) > np.median(fitted)
 
 

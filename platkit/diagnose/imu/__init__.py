@@ -43,6 +43,7 @@ from platkit.diagnose.imu.segments import Segments, model_rates, segments_from_s
 from platkit.diagnose.stats import holm, paired_improvement
 from platkit.effects import Effect, ImuEffect, imu_effects
 from platkit.inertial.command_aided import command_poses
+from platkit.io.calibration import Calibration
 from platkit.io.imu import ImuStream
 from platkit.kinematics import PlatformModel
 from platkit.plugins import effect_library
@@ -318,16 +319,16 @@ def _verdict(accepted, base: GyroFit, final: GyroFit, acc_base: AccFit | None, a
 
 
 # ---------------------------------------------------------------------------- a session
-def td_covariance(cal) -> np.ndarray:
+def td_covariance(cal: Calibration) -> np.ndarray:
     """(n_td, n_td) covariance of a Calibration's td: the estimator's full covariance when the
     calibration was fitted in this process, else its stds (NaN: held or fixed, 0)."""
     n = len(cal.td)
-    ex = getattr(cal, "extras", None) or {}
-    if "cov" in ex and "active" in ex:
-        active = np.asarray(ex["active"], bool)
+    fit = cal.fit
+    if fit is not None and fit.cov is not None and fit.active is not None:
+        active = np.asarray(fit.active, bool)
         full = np.zeros((len(active), len(active)))
         idx = np.nonzero(active)[0]
-        full[np.ix_(idx, idx)] = ex["cov"]
+        full[np.ix_(idx, idx)] = fit.cov
         return full[:n, :n]
     return np.diag(np.nan_to_num(np.asarray(cal.td_std, float)) ** 2)
 
