@@ -10,15 +10,26 @@ minus the starting ones, so geometry, markers, frame and response are one sparse
 problem of :func:`platkit.calibrate.estimate.calibrate`: the same exact Jacobians (CasADi) for
 the geometry, the same robust loss and outlier rule, the same identifiability (a response the
 data cannot tell from the geometry is held at its start and said). The response's own columns
-are central differences per actuator (each parameter moves one actuator, or all for the shift).
+are forward differences per actuator (each parameter moves one actuator, or all for the shift).
 
 Procedure (:func:`calibrate_motion`):
 1. checks: markers and at least three commands, on two clocks that overlap (BadSession naming
    commands.csv); after the fit (4.), markers off by more than MISFIT_RATIO times their own
    noise say that the log does not explain the motion (commands missing: a log sparser than the
    motion, or another recording's), BadSession naming commands.csv;
-2. the samples: every sample with a marker seen, from the second command on (the stand's place
-   before the first is not logged), decimated evenly to at most ``max_samples``;
+2. the samples: every sample from the second command on (the stand's place before the first is
+   not logged), reduced without losing what they say of the geometry (:func:`stream_windows`):
+   the stream is cut into windows of about WINDOW_S s; in each, every marker coordinate is fitted
+   by a polynomial of degree NODES - 1 in time and kept as its values at the window's NODES
+   Gauss-Legendre nodes, each weighted by the samples it stands for (at those nodes the values
+   are uncorrelated and their weights sum to the window's samples: the low-frequency content is
+   kept whole); the model of a node is the stand at the same windowed fit of the controls
+   reached (the response at every sample, projected alike), and the markers are corrected for
+   the kinematics' curvature (the fit of g(u) minus g at the fit of u, g the markers of the
+   controls, at the start's geometry: exact to first order in the model's error). The response's
+   timing shows in the fast content (each command's step response), which the fit leaves out:
+   whole windows, evenly spread, about RAW_SAMPLES samples in all (all of a short stream), are
+   kept as their samples;
 3. the response's start: the markers registered at the commanded controls (rigid alignment),
    each sample's pose by Kabsch, the actuators' travel by inverse kinematics at the nominal
    geometry, and the response fitted to that travel alone (a grid over the shift, then
@@ -33,13 +44,14 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 from scipy.optimize import least_squares
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import ResponseModel, actuator_positions
 from platkit.errors import BadSession, ComputationFailed, NotIdentifiable
-from platkit.geometry import matrix_from_rotvec, quat_from_matrix, rigid_fit
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, rigid_fit
 from platkit.io.calibration import Calibration
 from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
@@ -47,14 +59,22 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["ResponseTerm", "calibrate_motion", "motion_samples", "check_motion_session", "STREAMED_MAX_S"]
+__all__ = ["ResponseTerm", "StreamWindows", "calibrate_motion", "stream_windows", "check_motion_session",
+           "STREAMED_MAX_S"]
 
 #: a command log whose median interval is at most this (s) is streamed (step reference); longer
 #: intervals are point-to-point moves between holds (profile reference)
 STREAMED_MAX_S = 0.25
-#: samples fitted at most (decimated evenly), and used to start the response; rounds of the start;
-#: samples before the first command that say where a profile's actuators rest
-MAX_SAMPLES, START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 4000, 600, 2, 50
+#: the stream's reduction (2.): windows of about WINDOW_S s, each kept at NODES nodes; a marker
+#: seen in under MIN_SEEN_SHARE of a window's samples is left out of it; windows per block of the
+#: curvature correction
+WINDOW_S, NODES, MIN_SEEN_SHARE, CORRECTION_BLOCK = 1.0, 3, 0.5, 256
+#: samples kept as they are (whole windows, evenly spread): the response's timing shows in the
+#: motion's fast content (each command's step response), which the windows' fit leaves out
+RAW_SAMPLES = 1500
+#: samples that start the response; rounds of the start; samples before the first command that
+#: say where a profile's actuators rest
+START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 600, 2, 50
 #: starting response: time constant (s), damping; a profile's rate and acceleration from the
 #: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
 TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
@@ -72,10 +92,14 @@ SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
 
 class ResponseTerm(ModelTerm):
     """The actuators' response as a model term: control offset = the controls reached at each
-    sample (``poses.t``, motion-capture clock) minus ``poses.controls``."""
+    pose minus ``poses.controls``. The controls reached are those at ``poses.t`` (motion-capture
+    clock) or, with ``proj`` (a stream reduced to nodes, :class:`StreamWindows`), the same
+    windowed fit of the controls reached at every sample (``sample_t``) that the markers had,
+    at the nodes ``poses.extras['node']``."""
 
     def __init__(self, model: ResponseModel, T: np.ndarray, U: np.ndarray, control_names: list[str],
-                 theta0: np.ndarray, steps: np.ndarray, start: np.ndarray | None = None):
+                 theta0: np.ndarray, steps: np.ndarray, start: np.ndarray | None = None,
+                 proj: sparse.csr_matrix | None = None, sample_t: np.ndarray | None = None):
         units = []
         for name in model.names(control_names):
             block = name.split(".")[0]
@@ -84,48 +108,46 @@ class ResponseTerm(ModelTerm):
         super().__init__("actuator_response", model.names(control_names), np.asarray(theta0, float).copy(), units,
                          {"kind": model.kind, "reference": model.reference})
         self.model, self.T, self.U, self.steps, self.start = model, T, U, np.asarray(steps, float), start
+        self.proj, self.sample_t = proj, sample_t
         self._cache: tuple | None = None
+        self._positions: dict = {}  # actuator_positions' cache of this log
 
-    def reached(self, theta, t) -> np.ndarray:
-        key = (np.asarray(theta, float).tobytes(), id(t), len(t))
+    def _at(self, theta, poses: PoseSet, only: int | None = None) -> np.ndarray:
+        """The controls reached under ``theta`` at the poses (K, n_u), or actuator ``only``'s (K,)."""
+        if self.proj is None:
+            return actuator_positions(self.model, theta, self.T, self.U, poses.t, only=only, start=self.start,
+                                      cache=self._positions)
+        x = self.proj @ actuator_positions(self.model, theta, self.T, self.U, self.sample_t, only=only,
+                                           start=self.start, cache=self._positions)
+        node = poses.extras.get("node")
+        return x if node is None or (len(node) == len(x) and np.array_equal(node, np.arange(len(x)))) else x[node]
+
+    def reached(self, theta, poses: PoseSet) -> np.ndarray:
+        key = (np.asarray(theta, float).tobytes(), id(poses.t), len(poses.t))
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
-        x = actuator_positions(self.model, theta, self.T, self.U, t, start=self.start)
+        x = self._at(theta, poses)
         self._cache = (key, x)
         return x
 
     def control_offset(self, theta, poses: PoseSet, n_u: int) -> np.ndarray:
-        return self.reached(theta, poses.t) - poses.controls
+        return self.reached(theta, poses) - poses.controls
 
     def offset_jacobians(self, theta, poses: PoseSet, n_u: int, fk_q, fk_X):
         theta = np.asarray(theta, float)
         N, K = poses.n_poses, len(theta)
         d_u = np.zeros((N, n_u, K))
-        for k in range(K):
+        base = self.reached(theta, poses)
+        for k in range(K):  # forward differences: one evaluation per parameter, of its actuator alone
             h = self.steps[k]
-            up, dn = theta.copy(), theta.copy()
+            up = theta.copy()
             up[k] += h
-            dn[k] -= h
             j = self.model.actuator_of(k)
             if j is None:
-                d_u[:, :, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t, start=self.start)
-                                - actuator_positions(self.model, dn, self.T, self.U, poses.t, start=self.start)) / (2 * h)
+                d_u[:, :, k] = (self._at(up, poses) - base) / h
             else:
-                d_u[:, j, k] = (actuator_positions(self.model, up, self.T, self.U, poses.t, only=j, start=self.start)
-                                - actuator_positions(self.model, dn, self.T, self.U, poses.t, only=j, start=self.start)
-                                ) / (2 * h)
+                d_u[:, j, k] = (self._at(up, poses, j) - base[:, j]) / h
         return d_u, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
-
-
-@dataclass
-class MotionSamples:
-    """The samples a motion calibration fits: indices into the stream, and what was left out."""
-
-    index: np.ndarray
-    n_stream: int
-    n_unseen: int
-    n_before: int
-    stride: int
 
 
 def check_motion_session(session: Session) -> str:
@@ -172,17 +194,133 @@ def _check_gaps(tc, tm, Y, cmd_file, mk_file, med: float) -> None:
                              "log is sparser than the motion (commands missing)")
 
 
-def motion_samples(session: Session, reference: str, max_samples: int = MAX_SAMPLES) -> MotionSamples:
-    """The stream's samples to fit: a marker seen, after the second command is sent (the stand's
-    place before the first is not logged; a profile's first move starts from it), evenly
-    decimated to at most ``max_samples``."""
+@dataclass
+class StreamWindows:
+    """The stream reduced to nodes: the samples of each window of about ``window_s`` s, every
+    marker coordinate fitted by a polynomial of degree ``nodes`` - 1 in time and kept as its values
+    at the window's ``nodes`` Gauss-Legendre nodes (module docstring, 2.).
+
+    t (P,) the nodes' times (motion-capture clock); Y (P, M, 3) the fitted markers there (NaN where
+    a marker was left out of a window); n_eff (P, M) what each is worth in samples (the inverse of
+    its variance in units of one sample's, 0 where left out); proj (P, K) sparse: the same fit of
+    the controls (every sample of the window) from the K samples at ``sample_t``; data_proj: per
+    window (first node, first sample, samples, {marker: (rows within the window, (nodes, rows))});
+    counts of what served and what did not."""
+
+    t: np.ndarray
+    Y: np.ndarray
+    n_eff: np.ndarray
+    proj: sparse.csr_matrix
+    sample_t: np.ndarray
+    first: int
+    blocks: list
+    n_stream: int
+    n_used: int
+    n_raw: int
+    n_unseen: int
+    n_before: int
+    n_left_out: int
+    n_windows: int
+    n_raw_windows: int
+    window_s: float
+    nodes: int
+
+
+def _legendre(x: np.ndarray, n: int) -> np.ndarray:
+    """(len(x), n) Legendre polynomials P_0 .. P_(n-1) at x."""
+    return np.stack([np.polynomial.legendre.Legendre.basis(k)(x) for k in range(n)], axis=1)
+
+
+def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NODES,
+                   raw_samples: int = RAW_SAMPLES) -> StreamWindows:
+    """The stream from the second command on, cut into windows of equal length near ``window_s``
+    s, each reduced to ``nodes`` nodes (:class:`StreamWindows`), but one window in every so many
+    (evenly, about ``raw_samples`` samples in all; every window of a short stream) kept as its
+    samples. A marker seen in fewer than MIN_SEEN_SHARE of a window's samples (or fewer than 2
+    ``nodes``) is left out of that window; a window with fewer than 2 ``nodes`` samples (the
+    stream's end) is left out; both counted."""
     tm, Y = session.marker_t, session.markers
-    seen = np.isfinite(Y).all(axis=2).any(axis=1)
-    start = session.command_t[1] + (0.0 if reference == "step" else 0.0)
-    after = tm >= start
-    cand = np.nonzero(seen & after)[0]
-    stride = max(1, int(np.ceil(len(cand) / max(max_samples, 1))))
-    return MotionSamples(cand[::stride], len(tm), int((~seen).sum()), int((seen & ~after).sum()), stride)
+    M = Y.shape[1]
+    seen_any = np.isfinite(Y).all(axis=2).any(axis=1)
+    a0 = int(np.searchsorted(tm, session.command_t[1], side="left"))
+    span = float(tm[-1] - tm[a0]) if a0 < len(tm) else 0.0
+    n_win = max(1, int(round(span / window_s)))
+    edges = np.searchsorted(tm, tm[a0] + np.arange(n_win + 1) * (span / n_win), side="left")
+    edges[-1] = len(tm)
+    xg, _ = np.polynomial.legendre.leggauss(nodes)
+    Pn = _legendre(xg, nodes)
+    ts, Ys, ns, blocks = [], [], [], []
+    rows, cols, vals = [], [], []
+    left_out = 0
+    p = 0
+    sizes = np.diff(edges)
+    # whole windows kept raw, evenly spread, up to raw_samples samples
+    every = max(1, int(np.ceil(float(sizes.sum()) / max(raw_samples, 1))))
+    raw = (np.arange(n_win) % every == 0) if raw_samples > 0 else np.zeros(n_win, bool)
+    n_raw = 0
+    for w in range(n_win):
+        a, b = int(edges[w]), int(edges[w + 1])
+        if raw[w]:
+            k = np.nonzero(seen_any[a:b])[0]
+            if not len(k):
+                continue
+            rows.append(p + np.arange(len(k)))
+            cols.append(a - a0 + k)
+            vals.append(np.ones(len(k)))
+            ts.append(tm[a + k])
+            Ys.append(Y[a + k])
+            ns.append(np.isfinite(Y[a + k]).all(axis=2).astype(float))
+            blocks.append((p, a, b - a, None))
+            p += len(k)
+            n_raw += len(k)
+            continue
+        if b - a < 2 * nodes:
+            left_out += int(seen_any[a:b].sum())
+            continue
+        t = tm[a:b]
+        lo, hi = float(t[0]), float(t[-1])
+        x = 2.0 * (t - lo) / (hi - lo) - 1.0
+        Phi = _legendre(x, nodes)
+        Gi = np.linalg.inv(Phi.T @ Phi)
+        A = Pn @ Gi @ Phi.T  # (nodes, b - a): the fit's values at the nodes
+        r, c = np.nonzero(np.ones_like(A, bool))
+        rows.append(p + r)
+        cols.append(a - a0 + c)
+        vals.append(A.ravel())
+        Yw = Y[a:b]
+        vis = np.isfinite(Yw).all(axis=2)  # (b - a, M)
+        out = np.full((nodes, M, 3), np.nan)
+        n_eff = np.zeros((nodes, M))
+        per = {}
+        full = vis.all(axis=0)
+        if full.any():
+            out[:, full] = np.einsum("ik,kmc->imc", A, Yw[:, full])
+            n_eff[:, full] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gi, Pn)[:, None]
+            for m in np.nonzero(full)[0]:
+                per[int(m)] = (None, A)
+        for m in np.nonzero(~full)[0]:
+            k = np.nonzero(vis[:, m])[0]
+            if len(k) < max(2 * nodes, MIN_SEEN_SHARE * (b - a)):
+                left_out += len(k)
+                continue
+            Pm = Phi[k]
+            Gm = np.linalg.inv(Pm.T @ Pm)
+            Am = Pn @ Gm @ Pm.T
+            out[:, m] = Am @ Yw[k, m]
+            n_eff[:, m] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gm, Pn)
+            per[int(m)] = (k, Am)
+        ts.append(lo + (xg + 1.0) * 0.5 * (hi - lo))
+        Ys.append(out)
+        ns.append(n_eff)
+        blocks.append((p, a, b - a, per))
+        p += nodes
+    K = len(tm) - a0
+    proj = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(p, K))
+    n_unseen = int((~seen_any[a0:]).sum())
+    n_used = int(seen_any[a0:].sum()) - left_out
+    return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:], a0, blocks,
+                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:a0].sum()), left_out, len(blocks),
+                         int(raw.sum()), span / n_win, nodes)
 
 
 def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
@@ -236,9 +374,10 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     if len(t) < 10:
         return np.asarray(theta0, float)
     theta = np.asarray(theta0, float).copy()
+    cache: dict = {}
     theta[0] = 0.0  # every shift at once: the response at the shifted times
     shifted = (t[None, :] - SHIFT_GRID_S[:, None]).ravel()
-    X = actuator_positions(rmodel, theta, T, U, shifted, start=start).reshape(len(SHIFT_GRID_S), len(t), -1)
+    X = actuator_positions(rmodel, theta, T, U, shifted, start=start, cache=cache).reshape(len(SHIFT_GRID_S), len(t), -1)
     # each actuator's best shift, the median over them (a slow actuator's lag is not the clock's)
     moved = np.ptp(U, axis=0) > 0
     best = SHIFT_GRID_S[np.argmin(np.sum((X - travel[None]) ** 2, axis=1), axis=0)]
@@ -256,7 +395,8 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
             def res(x, j=j, ks=ks, scale=scale):
                 th = theta.copy()
                 th[ks] = x
-                return (actuator_positions(rmodel, th, T, U, t, only=j, start=start) - travel[:, j]) / scale
+                return (actuator_positions(rmodel, th, T, U, t, only=j, start=start, cache=cache)
+                        - travel[:, j]) / scale
 
             sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
                                 x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
@@ -270,56 +410,98 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     return theta
 
 
+def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, win: StreamWindows,
+                          X_samples: np.ndarray, X_nodes: np.ndarray) -> np.ndarray:
+    """(P, M, 3) what the windowed fit of the markers differs, under the model (stand ``td``,
+    frame A, b, markers ``mk``), from the markers at the windowed fit of the controls: the fit of
+    g(u(t)) at the nodes minus g(fit of u at the nodes), g the markers of the controls (nonlinear).
+    Subtracted from the fitted markers, it leaves the model of the nodes g(fit of u) exact to
+    first order in the model's own error. Evaluated CORRECTION_BLOCK windows at a time; 0 where
+    the kinematics fails."""
+    M = len(mk)
+    out = np.zeros((len(win.t), M, 3))
+
+    def markers(U, guess=None):
+        fb = model.forward_batch(U, td, guess=guess, strict=False)
+        pts = fb.X[:, None, :] + np.einsum("kab,mb->kma", matrix_from_quat(fb.q), mk)
+        y = pts @ A.T + b
+        y[~(fb.converged & fb.on_branch)] = np.nan
+        return y
+
+    g_nodes = markers(X_nodes)
+    for s in range(0, len(win.blocks), CORRECTION_BLOCK):
+        chunk = win.blocks[s:s + CORRECTION_BLOCK]
+        a0 = chunk[0][1] - win.first
+        a1 = chunk[-1][1] + chunk[-1][2] - win.first
+        g = markers(X_samples[a0:a1])
+        for p, a, n, per in chunk:
+            if per is None:  # a raw window: its samples are the model's own
+                continue
+            gw = g[a - win.first - a0:a - win.first - a0 + n]
+            for m, (k, Am) in per.items():
+                fit = Am @ (gw[:, m] if k is None else gw[k, m])
+                out[p:p + win.nodes, m] = fit - g_nodes[p:p + win.nodes, m]
+    return np.nan_to_num(out)
+
+
 def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "second_order", free=None,
-                     robust: bool = True, max_samples: int = MAX_SAMPLES, progress: Progress | None = None,
-                     platform_options: dict | None = None, ridge_m: float = 0.0, reason: str = "") -> tuple[Calibration, PoseSet]:
+                     robust: bool = True, window_s: float = WINDOW_S, nodes: int = NODES,
+                     raw_samples: int = RAW_SAMPLES, progress: Progress | None = None,
+                     platform_options: dict | None = None, ridge_m: float = 0.0,
+                     reason: str = "") -> tuple[Calibration, PoseSet]:
     """Calibrate ``spec`` from the whole stream of ``session`` (module docstring). Returns the
-    calibration (its ``motion`` says which samples served and the fitted response with its
-    uncertainty) and the pose set of the samples fitted. ``reason``: why the motion model serves
-    (said in the report)."""
+    calibration (its ``motion`` says which samples served, how they were reduced, and the fitted
+    response with its uncertainty) and the pose set of the nodes fitted. ``reason``: why the
+    motion model serves (said in the report)."""
     t0 = time.perf_counter()
     reference = check_motion_session(session)
     rmodel = ResponseModel(kind, reference, spec.n_u)
-    chosen = motion_samples(session, reference, max_samples)
-    idx = chosen.index
-    if len(idx) < 20:
-        raise BadSession(f"{session.markers_source}: only {len(idx)} samples with markers seen after the second "
-                         "command; calibrating from motion needs the stand moving under the markers")
+    win = stream_windows(session, window_s, nodes, raw_samples)
+    if len(win.t) < 20:
+        raise BadSession(f"{session.markers_source}: only {len(win.t)} nodes from the samples with markers seen "
+                         "after the second command; calibrating from motion needs the stand moving under the markers")
     T, U = session.command_t, session.commands
-    t = session.marker_t[idx]
-    Y = session.markers[idx]
+    t = win.t
     theta0 = _starting_theta(rmodel, spec)
     steps = _steps(rmodel, theta0)
+    names = list(session.marker_names)
     # 3. the response's start from the actuators' travel at the nominal geometry, twice (the
-    # second registration at the controls the first response gives); a profile's actuators rest
-    # before the first command where the samples before it put them
+    # second registration at the controls the first response gives), on START_SAMPLES samples of
+    # the stream; a profile's actuators rest before the first command where the samples before
+    # it put them
     theta_start, start = theta0, None
-    sub = np.unique(np.linspace(0, len(idx) - 1, min(len(idx), START_SAMPLES)).astype(int))
     seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
+    cand = win.first + np.nonzero(seen[win.first:])[0]
+    sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
     pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
     for _ in range(START_ROUNDS):
-        X0 = actuator_positions(rmodel, theta_start, T, U, t, start=start)
-        poses0 = PoseSet(platform=spec.name, controls=X0, markers=Y, marker_names=list(session.marker_names), t=t,
-                         length_unit=session.length_unit, source=str(session.folder))
+        X0 = win.proj @ actuator_positions(rmodel, theta_start, T, U, win.sample_t, start=start)
+        poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=t,
+                         n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder))
         problem = CalibrationProblem(spec, poses0)
         z = problem.initial_registration(spec.nominal_td())
         _, w, tr, mk, _ = problem.split(z)
         A = matrix_from_rotvec(w)
-        travel = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, Y[sub], X0[sub])
+        Xs = actuator_positions(rmodel, theta_start, T, U, session.marker_t[sub], start=start)
+        travel = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs)
         if reference == "profile" and len(pre):
             before = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
                              np.repeat(U[:1], len(pre), axis=0))
             if np.isfinite(before).all(axis=1).any():
                 start = np.nanmedian(before, axis=0)
-        theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, t[sub], travel, steps, start)
+        theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
     steps = _steps(rmodel, theta_start)
-    # 4. the full fit
-    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps, start)
-    X1 = actuator_positions(rmodel, theta_start, T, U, t, start=start)
-    poses = PoseSet(platform=spec.name, controls=X1, markers=Y, marker_names=list(session.marker_names), t=t,
+    # 4. the nodes' markers corrected for the kinematics' curvature at the start, and the full fit
+    X_samples = actuator_positions(rmodel, theta_start, T, U, win.sample_t, start=start)
+    X1 = win.proj @ X_samples
+    correction = _curvature_correction(spec, problem.model, spec.nominal_td(), A, tr, mk, win, X_samples, X1)
+    del X_samples
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps, start, win.proj, win.sample_t)
+    poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=names, t=t,
+                    n_samples=win.n_eff,
                     description=None if session.description is None else str(session.description),
                     length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
-                    extras={"row": idx, "elapsed": t - t[0]})
+                    extras={"node": np.arange(len(t)), "elapsed": t - t[0]})
     cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
                     platform_options=platform_options, ridge_m=ridge_m)
     floor = np.sqrt(3) * marker_noise_floor(poses)
@@ -335,11 +517,11 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     per = {}
     for j, c in enumerate(spec.control_names):
         entry = {}
-        for b in rmodel.blocks:
-            name = f"{b}.{c}"
+        for blk in rmodel.blocks:
+            name = f"{blk}.{c}"
             held_here = f"term.actuator_response.{name}" in held
-            entry[b] = {"value": float(par[b][j]), "std": None if held_here or not np.isfinite(sd[b][j])
-                        else float(sd[b][j]), "status": "held_at_start" if held_here else "estimated"}
+            entry[blk] = {"value": float(par[blk][j]), "std": None if held_here or not np.isfinite(sd[blk][j])
+                          else float(sd[blk][j]), "status": "held_at_start" if held_here else "estimated"}
         per[c] = entry
     shift_held = "term.actuator_response.shift_s" in held
     cal.motion = {
@@ -351,11 +533,15 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                          sd["shift_s"]) else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
                          "note": "the motion capture's clock minus the commands', with the stand's common delay"},
                      "actuators": per},
-        "samples": {"n_stream": chosen.n_stream, "n_fitted": int(len(idx)), "stride": chosen.stride,
-                    "n_unseen": chosen.n_unseen, "n_before_second_command": chosen.n_before,
-                    "n_rejected_as_outliers": int(cal.n_rejected),
-                    "rule": "every sample with a marker seen from the second command on, one in every "
-                            f"{chosen.stride}"},
+        "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
+                    "n_before_second_command": win.n_before, "n_marker_observations_left_out": win.n_left_out,
+                    "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
+                    "n_fitted": int(len(t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
+                    "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "
+                            f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
+                            f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
+                            f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
+                            f"{win.n_raw_windows} whole windows evenly spread ({win.n_raw} samples) kept as they are"},
         "held": [n for n in held if n.startswith("term.actuator_response.")],
         "time_s": time.perf_counter() - t0,
     }
@@ -368,7 +554,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
 
 
 def _steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:
-    """Central-difference steps: 1e-4 s for the shift, 1e-4 relative for the rest."""
+    """Finite-difference steps: 1e-4 s for the shift, 1e-4 relative for the rest."""
     h = 1e-4 * np.maximum(np.abs(np.asarray(theta, float)), 1e-2)
     h[0] = 1e-4
     return h

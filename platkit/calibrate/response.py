@@ -23,6 +23,7 @@ Internal units throughout (m for length controls).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,10 +96,11 @@ class ResponseModel:
 
 
 def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, accel: float,
-                        start: float | None = None) -> np.ndarray:
+                        start: float | None = None, seg: np.ndarray | None = None) -> np.ndarray:
     """One actuator's profile reference at commands-clock times ``s`` (K,): each command u_i (sent
     at T_i) starts a trapezoidal profile (rate, accel) from where the last one stood when it was
-    cut; before T_0 it rests at ``start`` (default u_0)."""
+    cut; before T_0 it rests at ``start`` (default u_0). ``seg``: the command in force at each of
+    ``s`` (searchsorted of T, right, minus 1), when the caller has it."""
     v, a = max(float(rate), 1e-12), max(float(accel), 1e-12)
     N = len(T)
     origin = np.empty(N)
@@ -108,14 +110,30 @@ def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float
         origin[i] = pos
         if i + 1 < N:
             d = float(u[i] - pos)
-            pos = pos + np.sign(d) * float(_covered(np.array([span[i]]), abs(d), v, a)[0])
-    seg = np.searchsorted(T, s, side="right") - 1
+            pos = pos + float(np.sign(d)) * _covered_one(float(span[i]), abs(d), v, a)
+    if seg is None:
+        seg = np.searchsorted(T, s, side="right") - 1
     out = np.where(seg < 0, origin[0], u[np.maximum(seg, 0)]).astype(float)
-    ok = seg >= 0
-    i = seg[ok]
+    # a profile that has ended stands on its command: only the times within a move are computed
+    d_all = np.abs(u - origin)
+    length = np.where(d_all < v * v / a, 2.0 * np.sqrt(d_all / a), d_all / v + v / a)
+    k = np.nonzero((seg >= 0) & (s - T[np.maximum(seg, 0)] < length[np.maximum(seg, 0)]))[0]
+    i = seg[k]
     d = u[i] - origin[i]
-    out[ok] = origin[i] + np.sign(d) * _covered(s[ok] - T[i], np.abs(d), v, a)
+    out[k] = origin[i] + np.sign(d) * _covered(s[k] - T[i], np.abs(d), v, a)
     return out
+
+
+def _covered_one(s: float, d: float, v: float, a: float) -> float:
+    """:func:`_covered` for one time and distance (plain floats)."""
+    ta = math.sqrt(d / a) if d < v * v / a else v / a
+    T = 2 * ta if d < v * v / a else d / v + v / a
+    s = max(s, 0.0)
+    if s <= ta:
+        return 0.5 * a * s * s
+    if s <= T - ta:
+        return 0.5 * a * ta * ta + a * ta * (s - ta)
+    return d - 0.5 * a * (T - s) ** 2 if s < T else d
 
 
 def _covered(s, d, v, a):
@@ -196,29 +214,100 @@ def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: flo
     return out
 
 
-def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None, rate: float,
-                 accel: float, start: float) -> np.ndarray:
-    """One actuator after a profile reference, on a fine grid from T_0 (first-order hold), at t."""
-    h = FINE_STEP_S
-    t_end = max(float(t.max()), float(T[-1])) + 2 * h
-    grid = T[0] + h * np.arange(int(np.ceil((t_end - T[0]) / h)) + 1)
-    r = trapezoid_reference(grid, T, u, rate, accel, start) - start
+def _foh_filter(tau: float, zeta: float | None, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """(num, den) of the response discretised with a first-order hold over steps of h (s): the
+    transfer function of the exact state update for a reference linear over each step (as
+    scipy.signal.cont2discrete(..., method='foh'), in closed form for one or two states)."""
     if zeta is None:
-        sys_c = ([1.0], [tau, 1.0])
+        A, B, C = np.array([[-1.0 / tau]]), np.array([[1.0 / tau]]), np.array([1.0])
     else:
         w = 1.0 / tau
-        sys_c = ([w * w], [1.0, 2 * zeta * w, w * w])
-    num, den, _ = signal.cont2discrete(sys_c, h, method="foh")
-    x = signal.lfilter(np.ravel(num), den, r) + start
+        A, B, C = np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]), np.array([[0.0], [w * w]]), np.array([1.0, 0.0])
+    n = A.shape[0]
+    # over one step from x0 with r(s) = r0 + (r1 - r0) s / h: x(h) = Phi x0 + G0 r0 + G1 (r1 - r0),
+    # Phi = exp(A h), G0 = A^-1 (Phi - I) B = sum_k A^k h^(k+1) / (k+1)! B,
+    # G1 = (A^-2 (Phi - I) / h - A^-1) B = sum_k A^k h^(k+1) / (k+2)! B
+    if zeta is None:
+        ad = np.array([[np.exp(-h / tau)]])
+    else:
+        pp, pv = _free(np.array(h), np.array(1.0), np.array(0.0), tau, zeta)
+        vp, vv = _free(np.array(h), np.array(0.0), np.array(1.0), tau, zeta)
+        ad = np.array([[float(pp), float(vp)], [float(pv), float(vv)]])
+    if np.abs(A).max() * h < 0.5:  # a step short beside the response: the series, free of cancellation
+        g0, g1, term = np.zeros((n, 1)), np.zeros((n, 1)), B * h
+        for k in range(1, 30):  # term = A^(k-1) h^k B / (k - 1)!
+            g0 += term / k
+            g1 += term / (k * (k + 1))
+            term = A @ term * (h / k)
+    else:
+        Ai = np.linalg.inv(A)
+        g0 = Ai @ (ad - np.eye(n)) @ B
+        g1 = (Ai @ Ai @ (ad - np.eye(n)) / h - Ai) @ B
+    # xi = x - G1 r: xi' = Phi xi + (G0 - G1 + Phi G1) r, x = xi + G1 r
+    bd = (g0 - g1 + ad @ g1)[:, 0]
+    dd = float(C @ g1[:, 0])
+    if n == 1:
+        den = np.array([1.0, -ad[0, 0]])
+        return dd * den + np.array([0.0, C[0] * bd[0]]), den
+    den = np.array([1.0, -np.trace(ad), np.linalg.det(ad)])
+    adj0 = np.array([[-ad[1, 1], ad[0, 1]], [ad[1, 0], -ad[0, 0]]])
+    return dd * den + np.array([0.0, C @ bd, C @ adj0 @ bd]), den
+
+
+def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None, rate: float,
+                 accel: float, start: float, cache: dict | None = None, key=None) -> np.ndarray:
+    """One actuator after a profile reference, on a fine grid from T_0 (first-order hold), at t.
+    The grid runs to whole seconds past the last time (a small shift leaves it as it is); with
+    ``cache``, the reference and the response on the grid are kept under ``key`` (the actuator)
+    and their parameters, at most CACHE_ENTRIES of them."""
+    h = FINE_STEP_S
+    t_end = float(np.ceil(max(float(t.max()), float(T[-1])) - float(T[0]) + 2 * h)) + float(T[0])
+    n = int(np.ceil((t_end - T[0]) / h)) + 1
+    grid = T[0] + h * np.arange(n)
+    rkey = ("ref", key, rate, accel, start, n)
+    xkey = ("x", key, rate, accel, start, n, tau, zeta)
+    x = None if cache is None else cache.get(xkey)
+    if x is None:
+        r = None if cache is None else cache.get(rkey)
+        if r is None:
+            seg = None if cache is None else cache.get(("seg", n))
+            if seg is None:
+                seg = np.searchsorted(T, grid, side="right") - 1
+                _keep(cache, ("seg", n), seg)
+            r = trapezoid_reference(grid, T, u, rate, accel, start, seg) - start
+            _keep(cache, rkey, r)
+        fkey = ("foh", tau, zeta)
+        filt = None if cache is None else cache.get(fkey)
+        if filt is None:
+            filt = _foh_filter(tau, zeta, h)
+            _keep(cache, fkey, filt)
+        num, den = filt
+        x = signal.lfilter(num, den, r) + start
+        _keep(cache, xkey, x)
     return np.interp(t, grid, x, left=float(start))
 
 
+#: entries a cache of :func:`actuator_positions` keeps (the oldest dropped first)
+CACHE_ENTRIES = 32
+
+
+def _keep(cache: dict | None, key, value) -> None:
+    if cache is None:
+        return
+    if len(cache) >= CACHE_ENTRIES:
+        old = next((k for k in cache if k[0] != "seg"), next(iter(cache)))  # the oldest, the grids' last
+        cache.pop(old)
+    cache[key] = value
+
+
 def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray, t: np.ndarray,
-                       only: int | None = None, start: np.ndarray | None = None) -> np.ndarray:
+                       only: int | None = None, start: np.ndarray | None = None, cache: dict | None = None) -> np.ndarray:
     """(K, n_u) the actuators' positions at motion-capture times t (K,) from the command log (T (N,)
     s on the commands clock, U (N, n_u)) under the response ``theta`` (see :class:`ResponseModel`).
     ``only``: that actuator's column alone, (K,). ``start`` (n_u,): where a profile's actuators
-    rest before the first command (default: on it; a step reference always starts on it)."""
+    rest before the first command (default: on it; a step reference always starts on it).
+    ``cache``: a dict the caller keeps between calls on the same log (a profile's reference and
+    response on its fine grid are reused where only the shift, or only the response, changed)."""
     par = model.split(theta)
     s = np.asarray(t, float) - float(par["shift_s"])
     cols = range(model.n_u) if only is None else [only]
@@ -230,5 +319,5 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
             out.append(_step_one(s, T, U[:, j], tau, zeta))
         else:
             out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), float(par["accel"][j]),
-                                    float(U[0, j] if start is None else start[j])))
+                                    float(U[0, j] if start is None else start[j]), cache, j))
     return out[0] if only is not None else np.stack(out, axis=1)
