@@ -17,15 +17,15 @@ def _diagnosis(poses, untried=None, rounds=None):
                      rounds=rounds or [], not_separable=[], unit="mm", poses=poses, untried=untried or {})
 
 
-def test_a_urdf_without_inertias_says_what_was_not_tried(tmp_path):
+def test_a_urdf_without_inertias_says_its_loads_are_the_priors(tmp_path):
     bare = get_platform("urdf", _tree(tmp_path, masses=False), moving_link="l_lo")
     U = np.array([[0.3, 0.4, -0.7], [-1.0, -0.2, 1.1], [0.0, 1.2, 0.3], [0.6, -0.9, 0.2]])
     poses = PoseSet(bare.name, U, np.zeros((4, 1, 3)), ["m"], length_unit="mm")
     untried = {e.name: r for e in (Compliance(), LinkBending()) if (r := e.untried(bare, poses))}
-    assert set(untried) == {"compliance", "link_bending"}
+    assert set(untried) == {"compliance"}  # link bending is tried, on the prior of uniform links
     text = verdict(_diagnosis(poses, untried))
-    assert "Not tried: link_bending where the URDF has no inertias, so the moment across a joint is unknown" in text
-    assert "Not tried: compliance where the URDF has no inertias: each joint's compliance is tried with" in text
+    assert "Not tried: compliance where the URDF has no inertias: the loads are those of uniform links" in text
+    assert "also tried with its gravity load's best-determined mass-moment combinations" in text
 
 
 def test_a_geometry_chosen_again_is_said(tmp_path):
