@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.cli import main as platkit_main
+from platkit.model import controls_from_si
 from platkit.plugins import get_platform
 from platkit.simulate.physics import PhysicalSession, simulate_physics, write_physical_session
 
@@ -84,7 +85,7 @@ def recorded_part(sim: PhysicalSession, n: int) -> PhysicalSession:
 
 def write_commands(path: Path, sim: PhysicalSession, rows: np.ndarray) -> None:
     spec = sim.spec
-    V = sim.commands[rows] / (1e-3 if sim.length_unit == "mm" else 1.0)
+    V = controls_from_si(spec, sim.commands[rows], sim.length_unit)
     with path.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["t"] + list(spec.control_names))

@@ -124,17 +124,21 @@ def prediction_table(cal: Calibration, U: np.ndarray, t: np.ndarray | None = Non
 def terms_reading_time(cal: Calibration, U: np.ndarray) -> list[str]:
     """Effects of ``cal``'s model terms whose offsets at controls U (N, n_u) SI change with the
     time since the first command (thermal drift, a marker slip): asked of each term through
-    ModelTerm's offsets under two different clocks, so any effect plugin is covered."""
+    ModelTerm's offsets under two different clocks (the second with a thermal state at its first
+    row), so any effect plugin is covered. The rows are U's, repeated in turn to at least three,
+    so that a heat that cools between moves shows its clock."""
     if not cal.terms:
         return []
 
+    U = U[np.arange(max(len(U), 3)) % len(U)] if len(U) else U
     N, n_u = U.shape
     blank = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, len(cal.marker_names), 3), np.nan),
                     marker_names=list(cal.marker_names), length_unit=cal.length_unit)
     clocks = []
-    for elapsed in (np.arange(N, dtype=float), 3.7 * np.arange(N, dtype=float) + 11.0):
+    for elapsed, state in ((np.arange(N, dtype=float), {}),
+                           (3.7 * np.arange(N, dtype=float) + 11.0, {"thermal_start_s": np.full(N, 11.0)})):
         poses = with_history(blank, cal.spec)
-        poses.extras = dict(poses.extras, elapsed=elapsed)
+        poses.extras = dict(poses.extras, elapsed=elapsed, **state)
         clocks.append(poses)
     q = np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
     X = np.zeros((N, 3))
@@ -160,10 +164,11 @@ def _term_offsets(cal: Calibration, U: np.ndarray, elapsed: float) -> np.ndarray
     q = np.tile([1.0, 0.0, 0.0, 0.0], (N, 1))
     X = np.zeros((N, 3))
     parts = []
-    for term, theta in zip(cal.terms, cal.theta):
-        theta = np.asarray(theta, float)
-        parts += [np.ravel(term.control_offset(theta, poses, n_u)), np.ravel(term.marker_offset(theta, poses)),
-                  np.ravel(term.pose_offset(theta, poses, q, X))]
+    with np.errstate(invalid="ignore", over="ignore"):  # a term that cannot take inf says so by a nan
+        for term, theta in zip(cal.terms, cal.theta):
+            theta = np.asarray(theta, float)
+            parts += [np.ravel(term.control_offset(theta, poses, n_u)), np.ravel(term.marker_offset(theta, poses)),
+                      np.ravel(term.pose_offset(theta, poses, q, X))]
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
@@ -230,6 +235,9 @@ def thermal_state(cal: Calibration, U: np.ndarray, t: np.ndarray | None, at_time
             warnings.append(note)
             state = f"warm asked; {note}"
         else:
+            if not np.all(np.isfinite(_term_offsets(cal, np.vstack([U[:1], U[:1]]), np.inf))):
+                raise BadInput(f"--warm: the model's {', '.join(timed)} cannot say its equilibrium (a calibration "
+                               "written before its terms kept the recorded work rate); give --at-time")
             since = np.full(N, np.inf)
             state = "warm: the equilibrium the thermal terms reach (t since power-on -> inf)"
             if span is not None:

@@ -248,3 +248,19 @@ def test_by_default_the_rows_t_are_read_on_the_sessions_clock(calibration, tmp_p
     assert "700 s since power-on at the first row, the rows' t read on the clock of the session" in capsys.readouterr().out
     _, rows = _rows(out)
     assert [r["since_power_on_s"] for r in rows] == ["700", "800"]
+
+
+def test_warm_with_a_heat_of_work_that_kept_no_work_rate_is_refused(calibration, tmp_path, capsys):
+    old = """terms:
+- effect: thermal_drift
+  where: {actuator: all, unit: count, cooling_time_constant_s: 600.0, stroke: [1600.0, 1600.0, 1600.0]}
+  parameters:
+    expansion_per_stroke: {value: 5.0, std: 0.1, unit: count}
+"""
+    rc, out = _predict(tmp_path, calibration.replace("terms: []\n", old), "--warm")
+    assert rc == 2 and not out.exists()
+    assert "--warm: the model's thermal_drift cannot say its equilibrium" in capsys.readouterr().err
+    rc, out = _predict(tmp_path, calibration.replace("terms: []\n", old), "--at-time", "60")
+    assert rc == 0
+    _, rows = _rows(out)
+    assert all(np.isfinite(float(r["M1_x"])) for r in rows)
