@@ -23,8 +23,9 @@ import time
 
 import numpy as np
 
-from platkit.calibrate.estimate import CalibrationProblem, calibrate, parameter_scale, predict_markers
+from platkit.calibrate.estimate import calibrate, predict_markers
 from platkit.calibrate.paper import calibrate_paper
+from platkit.calibrate.problem import CalibrationProblem, parameter_scale
 from platkit.calibrate.selection import select_model
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.kinematics import PlatformModel

@@ -26,9 +26,9 @@ import numpy as np
 
 from platkit.bodies import ROTATION_REJECTED_SHARE, log_so3, rotation_refusal
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL
-from platkit.calibrate.problem import PLAUSIBLE_RANGE, CalibrationProblem, Progress, link_frames, parameter_scale
+from platkit.calibrate.problem import PLAUSIBLE_RANGE, Progress, link_frames
 from platkit.calibrate.robust import REJECT_K
-from platkit.calibrate.solve import blas_threads, kfold, levenberg_marquardt, robust_fit
+from platkit.calibrate.solve import blas_threads
 from platkit.calibrate.stages import CalibrationOptions, fit_calibration
 from platkit.errors import BadInput, BadSession
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
@@ -330,6 +330,6 @@ def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
     return out
 
 
-__all__ = ["calibrate", "kfold", "predict_markers", "predict_bodies", "predict_links", "point_errors",
-           "second_session_errors",
-           "CalibrationProblem", "levenberg_marquardt", "robust_fit", "parameter_scale", "Progress"]
+__all__ = ["calibrate", "fit_warnings", "marker_noise_floor", "check_body_orientations", "rejected_by_body",
+           "rejected_by_marker", "predict_markers", "predict_bodies", "predict_links", "calibration_links", "point_errors",
+           "second_session_errors"]

@@ -305,7 +305,7 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
                    rel_tol: float = DEFAULT_REL_TOL) -> Gauge:
     """Which transform and marker coordinates are gauges, at the start ``z`` of a calibration.
 
-    problem: a :class:`~platkit.calibrate.estimate.CalibrationProblem`; candidates, nuisance: (n_z,)
+    problem: a :class:`~platkit.calibrate.problem.CalibrationProblem`; candidates, nuisance: (n_z,)
     masks of the unknowns the fit may estimate and of the transform and markers among them;
     reference: (controls (N, n_u), poses (N, n_p)) of the stand's reference poses
     (:func:`platkit.calibrate.plan.reference_poses_for`). The Jacobian over the reference poses

@@ -44,8 +44,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.calibrate.estimate import Progress, calibrate
+from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.identifiability import keep_one_side_of_a_lost_marker
+from platkit.calibrate.problem import Progress
 from platkit.calibrate.solve import blas_threads
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale

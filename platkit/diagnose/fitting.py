@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.estimate import CalibrationProblem, levenberg_marquardt, robust_fit
+from platkit.calibrate.problem import CalibrationProblem
+from platkit.calibrate.solve import levenberg_marquardt, robust_fit
 from platkit.diagnose.locate import Location
 from platkit.diagnose.stats import bic
 from platkit.effects import history

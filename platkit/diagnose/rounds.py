@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from platkit.calibrate.estimate import CalibrationProblem
+from platkit.calibrate.problem import CalibrationProblem
 from platkit.diagnose.fitting import Fit, Options, _fit, _later, _obs, _rms, _where_text
 from platkit.diagnose.stats import column_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec

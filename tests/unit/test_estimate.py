@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from platkit.calibrate.estimate import CalibrationProblem, calibrate, parameter_scale, point_errors, predict_markers
+from platkit.calibrate.estimate import calibrate, point_errors, predict_markers
+from platkit.calibrate.problem import CalibrationProblem, parameter_scale
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.kinematics import PlatformModel

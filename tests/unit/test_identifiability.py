@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 from test_estimate import Truth
 
-from platkit.calibrate.estimate import CalibrationProblem, calibrate
+from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.identifiability import null_space_combinations, select_identifiable, singular_values
+from platkit.calibrate.problem import CalibrationProblem
 from platkit.errors import NotIdentifiable
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from platkit.bodies import average_body, log_so3, quat_mean, right_jacobian, right_jacobian_inv
-from platkit.calibrate.estimate import calibrate, parameter_scale, predict_markers
+from platkit.calibrate.estimate import calibrate, predict_markers
 from platkit.calibrate.predict import predict_bodies, prediction_table
-from platkit.calibrate.problem import CalibrationProblem
+from platkit.calibrate.problem import CalibrationProblem, parameter_scale
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.calibration import read_calibration
