@@ -74,8 +74,8 @@ def main() -> None:
     family = FourierFamily(args.period_s, args.harmonics, spec.n_u)
     design = design_excitation(spec, family, limits, info, command_rate_hz, np.random.default_rng(args.design_seed),
                                evaluations=args.evaluations)
-    print(f"design: {args.evaluations} evaluations in {time.perf_counter() - t0:.0f} s; log det per sample "
-          f"{design.logdet_start:.2f} (random multisine) -> {design.logdet:.2f} (designed)")
+    print(f"design: {args.evaluations} evaluations in {time.perf_counter() - t0:.0f} s; criterion "
+          f"{design.criterion_start:.2f} (random multisine) -> {design.criterion:.2f} (designed)")
     sigma = args.noise_mm * 1e-3
     plans = {}
     for name, coef in (("designed", design.coef), ("random", design.start)):

@@ -22,9 +22,11 @@ second-order response, one clock shift), evaluated at the nominal geometry, the 
 layout and a starting response (time constant TAU0_S, damping ZETA0, no shift: motion.py's).
 Its columns are the stand's free parameters, the motion-capture frame, the markers and the
 response; the directions no pose ever fixes (gauges: the null space of the same model's settled
-Jacobian over the stand's reference poses) are left out, so the D-criterion is log det of the
-information per sample in the identifiable subspace, with fixed column scales (differences of it
-are independent of the scales and the basis). The information is counted from the stream's slow
+Jacobian over the stand's reference poses) are left out. The criterion is log det of the
+information per sample in the identifiable subspace plus RESPONSE_WEIGHT times log det of the
+response's part left after the geometry's (its Schur complement: how well the response is told
+apart from the geometry), with fixed column scales (differences of it are independent of the
+scales and the basis). The information is counted from the stream's slow
 part: each window of SLOW_WINDOW_S keeps what polynomials of degree SLOW_DEGREE in time fit of its
 Jacobian (the motion, not the commands' transients under the noise).
 
@@ -75,6 +77,10 @@ RAMP_S = 2.0
 #: what polynomials of degree SLOW_DEGREE in time fit (the motion, not the commands' transients
 #: under the noise; calibrate reduces a stream so); WINDOW_SAMPLES samples a window
 SLOW_WINDOW_S, SLOW_DEGREE, WINDOW_SAMPLES = 0.5, 2, 8
+#: the criterion's weight on the response's information left after the geometry's: a fit from
+#: motion needs the response told apart from the geometry (on the physical simulator a design for
+#: log det alone left fits that took a wrong clock shift, docs/planning.md)
+RESPONSE_WEIGHT = 2.0
 #: windows per period the design evaluates
 DESIGN_WINDOWS = 40
 #: commands before the period the design evaluates (s): the response starts at rest before them
@@ -415,6 +421,21 @@ class MotionInformation:
                 info += Jw.T @ Jw
             return info / (W * S)
 
+    def criterion(self, info: np.ndarray) -> float:
+        """The design's criterion of an information matrix (r, r): log det of it plus RESPONSE_WEIGHT
+        times log det of the response's information left after the geometry's (its Schur
+        complement); -inf where either is singular."""
+        sign, val = np.linalg.slogdet(info)
+        r = self.V_static.shape[1]
+        try:
+            left = info[r:, r:] - info[r:, :r] @ np.linalg.solve(info[:r, :r], info[:r, r:])
+        except np.linalg.LinAlgError:
+            return -np.inf
+        sign_r, val_r = np.linalg.slogdet(left)
+        if sign <= 0 or sign_r <= 0:
+            return -np.inf
+        return float(val + RESPONSE_WEIGHT * val_r)
+
     def prediction(self, info_per_sample: np.ndarray, n_samples: float, sigma_m: float) -> dict:
         """The predicted uncertainty of a fit to ``n_samples`` samples with white marker noise
         ``sigma_m`` (module docstring): 'marker_rms_m' (3-D, over the reference poses; its expected
@@ -454,14 +475,14 @@ def samples_fitted(duration_s: float, mocap_rate_hz: float, seen: float = 1.0, s
 
 @dataclass
 class ExcitationDesign:
-    """A designed excitation: the family, its coefficients, the start's, and the D-criterion of
-    each (log det of the information per sample, identifiable basis) with the evaluations run."""
+    """A designed excitation: the family, its coefficients, the start's, and the criterion of each
+    (:meth:`MotionInformation.criterion` of the information per sample) with the evaluations run."""
 
     family: FourierFamily
     coef: np.ndarray
     start: np.ndarray
-    logdet: float
-    logdet_start: float
+    criterion: float
+    criterion_start: float
     evaluations: int
     info_per_sample: np.ndarray
     info_start: np.ndarray
@@ -503,8 +524,7 @@ def design_excitation(spec: PlatformSpec, family: FourierFamily, limits: Limits,
         peak = np.max(np.abs(family.raw(coef, scaler.t_period)), axis=0)
         U = scaler.u0 + family.raw(coef, Tp) / peak * A
         info = information.per_sample(T, U, t)
-        sign, val = np.linalg.slogdet(info)
-        return (float(val) if sign > 0 else -np.inf), info
+        return information.criterion(info), info
 
     coef = family.random_multisine(rng) if start is None else np.asarray(start, float).reshape(family.n_u, family.harmonics, 2)
     best, info = score(coef)
@@ -640,10 +660,13 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
         "command_rate_hz": float(command_rate_hz), "duration_s": float(t[-1] + 1.0 / command_rate_hz),
         "n_commands": int(len(U)), "ramp_s": meta["ramp_s"], "amplitude": meta["amplitude"],
         "checked": {k: meta[k] for k in ("box", "rate", "accel", "rate_share", "accel_share")},
-        "design": {"evaluations": int(design.evaluations), "logdet_per_sample": design.logdet,
-                   "logdet_per_sample_random": design.logdet_start,
-                   "criterion": "log det of the information per sample in the identifiable subspace (free parameters, "
-                                "frame, markers, response; gauges left out), fixed column scales"},
+        "design": {"evaluations": int(design.evaluations), "criterion": design.criterion,
+                   "criterion_random": design.criterion_start,
+                   "logdet_per_sample": float(np.linalg.slogdet(design.info_per_sample)[1]),
+                   "logdet_per_sample_random": float(np.linalg.slogdet(design.info_start)[1]),
+                   "rule": "log det of the information per sample in the identifiable subspace (free parameters, "
+                           f"frame, markers, response; gauges left out) plus {RESPONSE_WEIGHT:g} times log det of the "
+                           "response's information left after the geometry's; fixed column scales"},
         "prediction": {"noise_m": float(sigma_m), "mocap_rate_hz": float(mocap_rate_hz), "seen": float(seen),
                        "samples_fitted": int(n_fit), "marker_rms_m": pred["marker_rms_m"],
                        "marker_rms_p90_m": pred["marker_rms_p90_m"], "marker_rms_m_random": pred_random["marker_rms_m"],

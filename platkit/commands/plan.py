@@ -193,8 +193,8 @@ def run_motion(args) -> int:
           f"and {out.with_suffix('.json')}")
     print(f"excitation: period {r['family']['period_s']:g} s, {r['family']['harmonics']} harmonics; rate "
           f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at most; "
-          f"log det per sample {r['design']['logdet_per_sample_random']:.2f} (random multisine) -> "
-          f"{r['design']['logdet_per_sample']:.2f} ({r['design']['evaluations']} evaluations)")
+          f"criterion {r['design']['criterion_random']:.2f} (random multisine) -> "
+          f"{r['design']['criterion']:.2f} ({r['design']['evaluations']} evaluations)")
     print(f"predicted marker error (3-D RMS over the reference poses, {p['samples_fitted']} samples of {args.noise_mm:g} mm "
           f"noise): {p['marker_rms_m'] / sc:.4f} mm, 90% of sessions under {p['marker_rms_p90_m'] / sc:.4f} mm (a random "
           f"multisine of the same duration and limits: {p['marker_rms_m_random'] / sc:.4f} mm, "
@@ -216,7 +216,7 @@ def _design_progress():
         now = time.perf_counter()
         if k == n or now - last[0] >= 2.0:
             last[0] = now
-            print(f"plan: excitation design {k}/{n}  log det per sample {logdet:.2f}", file=sys.stderr, flush=True)
+            print(f"plan: excitation design {k}/{n}  criterion {logdet:.2f}", file=sys.stderr, flush=True)
 
     return show
 
