@@ -49,8 +49,12 @@ def main() -> None:
     truth = float(np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2))))
     r = cal.motion["response"]
     taus = np.array([r["actuators"][c]["tau_s"]["value"] for c in spec.control_names])
+    smp = cal.motion["samples"]
     print(f"stream: {len(session.marker_t)} samples x {session.markers.shape[1]} markers, "
-          f"{stream_bytes / 1e6:.1f} MB; fitted {cal.motion['samples']['n_fitted']} samples")
+          f"{stream_bytes / 1e6:.1f} MB; {smp['n_used']} samples used ({smp['n_unseen']} with no marker seen, "
+          f"{smp['n_before_second_command']} before the second command, {smp['n_marker_observations_left_out']} "
+          f"marker observations left out), fitted as {smp['n_fitted']} poses: {smp['n_windows'] - smp['n_raw_windows']} "
+          f"windows of {smp['window_s']:.3g} s at 3 nodes each and {smp['n_kept_raw']} samples kept raw")
     print(f"fit CPU time {cpu:.1f} s against the goal 30 s: ratio {cpu / 30:.2f} (wall {wall:.1f} s on a shared "
           "machine; the fit runs on one core)")
     print(f"peak traced memory {peak / 1e6:.1f} MB against 3x the stream's array {3 * stream_bytes / 1e6:.1f} MB: "

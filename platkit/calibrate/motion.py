@@ -203,9 +203,12 @@ class StreamWindows:
     t (P,) the nodes' times (motion-capture clock); Y (P, M, 3) the fitted markers there (NaN where
     a marker was left out of a window); n_eff (P, M) what each is worth in samples (the inverse of
     its variance in units of one sample's, 0 where left out); proj (P, K) sparse: the same fit of
-    the controls (every sample of the window) from the K samples at ``sample_t``; data_proj: per
-    window (first node, first sample, samples, {marker: (rows within the window, (nodes, rows))});
-    counts of what served and what did not."""
+    the controls (every sample of the window) from the K samples at ``sample_t`` (the stream's
+    from ``first`` on); blocks: per window (first row, first sample, samples, {marker: (its rows
+    within the window or None for all, the fit (nodes, rows))}, or None for a window kept raw);
+    counts: the stream's samples, those used (a marker seen, in a window that served), kept raw,
+    with no marker seen, before the second command, in windows too short to fit (the stream's
+    end), and the marker observations left out (a marker seen too little in a window)."""
 
     t: np.ndarray
     Y: np.ndarray
@@ -219,6 +222,7 @@ class StreamWindows:
     n_raw: int
     n_unseen: int
     n_before: int
+    n_short: int
     n_left_out: int
     n_windows: int
     n_raw_windows: int
@@ -251,7 +255,7 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
     Pn = _legendre(xg, nodes)
     ts, Ys, ns, blocks = [], [], [], []
     rows, cols, vals = [], [], []
-    left_out = 0
+    left_out = short = 0
     p = 0
     sizes = np.diff(edges)
     # whole windows kept raw, evenly spread, up to raw_samples samples
@@ -275,10 +279,11 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
             n_raw += len(k)
             continue
         if b - a < 2 * nodes:
-            left_out += int(seen_any[a:b].sum())
+            short += int(seen_any[a:b].sum())
             continue
         t = tm[a:b]
-        lo, hi = float(t[0]), float(t[-1])
+        half = 0.5 * float(t[-1] - t[0]) / (b - a - 1)  # each sample stands for its interval: the nodes'
+        lo, hi = float(t[0]) - half, float(t[-1]) + half  # values are then uncorrelated to 1e-3
         x = 2.0 * (t - lo) / (hi - lo) - 1.0
         Phi = _legendre(x, nodes)
         Gi = np.linalg.inv(Phi.T @ Phi)
@@ -317,9 +322,9 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
     K = len(tm) - a0
     proj = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(p, K))
     n_unseen = int((~seen_any[a0:]).sum())
-    n_used = int(seen_any[a0:].sum()) - left_out
+    n_used = int(seen_any[a0:].sum()) - short
     return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:], a0, blocks,
-                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:a0].sum()), left_out, len(blocks),
+                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:a0].sum()), short, left_out, len(blocks),
                          int(raw.sum()), span / n_win, nodes)
 
 
@@ -534,7 +539,8 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                          "note": "the motion capture's clock minus the commands', with the stand's common delay"},
                      "actuators": per},
         "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
-                    "n_before_second_command": win.n_before, "n_marker_observations_left_out": win.n_left_out,
+                    "n_before_second_command": win.n_before, "n_in_short_windows": win.n_short,
+                    "n_marker_observations_left_out": win.n_left_out,
                     "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
                     "n_fitted": int(len(t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
                     "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "

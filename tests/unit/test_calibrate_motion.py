@@ -121,3 +121,28 @@ def test_slow_actuator_calibrated_with_its_time_constant(tmp_path):
     assert cal.rms_after < 0.5 * cal.rms_before
     pred, _, _, _ = predict_markers(cal, sim.commands)  # 12 poses fix the geometry to a few tenths of a mm
     assert np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2))) < 0.5e-3
+
+
+def test_windows_keep_every_sample_and_the_geometry_exactly(streamed, tmp_path):
+    """The stream reduced to windows: each window's nodes stand for its samples (their weights sum
+    to the window's samples), and a noise-free stream fitted from the windows alone (none kept
+    raw) gives the true settled poses to the files' micrometre (the curvature correction: without
+    it a window's quadratic fit of the markers is not the stand at the fit of the controls)."""
+    from platkit.calibrate.motion import stream_windows
+
+    _, session = streamed
+    win = stream_windows(session, raw_samples=0)
+    assert win.n_raw == 0 and len(win.t) == 3 * win.n_windows
+    p, a, n, per = win.blocks[1]
+    full = [m for m, (k, _) in per.items() if k is None]
+    assert full and np.allclose(win.n_eff[p:p + 3, full].sum(axis=0), n, rtol=2e-3)
+    assert np.allclose(np.asarray(win.proj.sum(axis=1)).ravel(), 1.0)  # a constant is fitted as itself
+    spec = get_platform("stewart")
+    sim = simulate_physics(spec, seed=4104, motion="multisine", duration_s=30.0, mocap_rate_hz=50.0, noise_mm=0.0,
+                           coloured=False, occlusion=0.0)
+    write_physical_session(sim, tmp_path / "clean")
+    clean = load_session(tmp_path / "clean")
+    cal, poses = calibrate_motion(clean, clean.spec, raw_samples=0)
+    assert cal.motion["samples"]["n_kept_raw"] == 0 and poses.n_poses == 3 * cal.motion["samples"]["n_windows"]
+    pred, _, _, _ = predict_markers(cal, sim.commands)
+    assert np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2))) < 1e-6
