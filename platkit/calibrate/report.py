@@ -178,7 +178,7 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
         panels = [p for p in panels if p[3]]
         fig, axes = _subplots(len(panels), 1, figsize=(max(6, 0.22 * max(len(p[3]) for p in panels) + 2),
                                                        3.4 * len(panels)), squeeze=False, bottom_in=1.2, gap_in=1.2)
-        for ax, (u, lab, k, idx) in zip(axes[:, 0], panels):
+        for ax, (_unit, lab, k, idx) in zip(axes[:, 0], panels):
             if k is None:
                 nom = np.where(cal.td_nominal[idx] != 0, np.abs(cal.td_nominal[idx]), 1.0)
                 dev = (cal.td[idx] - cal.td_nominal[idx]) / nom * 1e3
