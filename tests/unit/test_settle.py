@@ -482,3 +482,41 @@ def test_attribution_names_the_actuator_whose_column_the_late_motion_follows():
     assert named == [1] and table["positive"][1] > 0.9 and table["p"][1] < 1e-6
     noise = {i: rng.normal(size=(3, 3)) * 2e-5 for i in range(1, N)}  # nothing moves along any column
     assert attribute_actuators(U, held, noise)[0] == []
+
+
+def test_approach_fits_of_many_holds_at_once_are_each_holds_own_fit():
+    # stretches of different lengths, decays and noise, with and without occluded samples, a
+    # marker seen too little, one with its time constant given and one too short: fitted together
+    # (batched, padded) each gives the fit it gives alone
+    from platkit.settle import fit_approach
+    from platkit.settle._fits import fit_approaches
+
+    rng = np.random.default_rng(2801)
+    stretches = []
+    for j in range(12):
+        K = int(rng.integers(40, 400))
+        t = 3.0 + np.arange(K) / RATE
+        tau = float(rng.uniform(0.05, 1.0))
+        s = t - t[0]
+        amp = rng.normal(size=(4, 3)) * 1e-3 * (j % 3)  # every third without a decay
+        X = 0.1 * rng.normal(size=(1, 4, 3)) + amp[None] * ((1 + 2 * s / tau) * np.exp(-s / tau))[:, None, None]
+        X = X + rng.normal(size=X.shape) * SIGMA
+        if j % 2:
+            X[rng.random((K, 4)) < 0.1] = np.nan
+        if j == 5:
+            X[5:, 2] = np.nan  # a marker seen for five samples only
+        stretches.append((t, X, SIGMA, t[-1] + 0.05, 0.3 if j == 7 else None))
+    stretches.append((np.arange(6) / RATE, np.zeros((6, 4, 3)), SIGMA))  # too short to fit
+    together = fit_approaches(stretches)
+    assert together[-1] is None and fit_approach(*stretches[-1]) is None
+    assert together[7].tau == 0.3
+    assert {f.significant for f in together[:-1]} == {True, False}
+    for x, f in zip(stretches[:-1], together[:-1]):
+        alone = fit_approach(*x)
+        assert f.tau == pytest.approx(alone.tau, rel=1e-9) and f.significant == alone.significant
+        assert f.at_limit == alone.at_limit
+        np.testing.assert_allclose(f.x_inf, alone.x_inf, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f.a, alone.a, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f.b, alone.b, rtol=0, atol=1e-12)
+        assert f.chi2_per_dof == pytest.approx(alone.chi2_per_dof, rel=1e-9)
+    assert np.isnan(together[5].x_inf[2]).all() and np.isfinite(together[5].x_inf[[0, 1, 3]]).all()
