@@ -65,6 +65,9 @@ VERBS = ("calibrate", "predict", "diagnose", "fk", "ik", "simulate", "plan", "tr
 CLASSES = ("precise", "vague", "SILENT-WRONG", "TRACEBACK")
 TIAGO = ROOT.parent / "shared" / "data" / "real" / "tiago"
 IMPORTERS = ROOT / "tests" / "data" / "importers"
+BROAD = ROOT.parent / "shared" / "data" / "real" / "broad"
+#: a real BROAD trial (Laidig et al. 2021) with an opening rest
+BROAD_TRIAL = "24_disturbed_tapping_A.hdf5"
 
 
 # ------------------------------------------------------------------ what a case expects
@@ -242,6 +245,7 @@ class Fixtures:
     tiago_cal: Path | None = None
     bodies: Path | None = None                      # a simulated stewart session with a rigid body
     imu: Path | None = None                         # a simulated stewart session with an IMU
+    broad: dict = field(default_factory=dict)       # part name -> an IMU-only session from a real BROAD trial
     urdf: Path | None = None                        # the TIAGo URDF
 
     def copy(self, src: Path, work: Path, name: str = "s") -> Path:
@@ -298,7 +302,28 @@ def build_fixtures(root: Path, verbs: set[str]) -> Fixtures:
                               "--seed", "3"])
         if rc:
             raise SystemExit(f"sweep: simulate --imu failed: {err}")
+    if verbs & {"orient"} and BROAD.is_dir():
+        build_broad(fx, root / "broad")
     return fx
+
+
+def build_broad(fx: Fixtures, root: Path) -> None:
+    """IMU-only sessions from a real BROAD trial (tests/real_data/broad.py reads the HDF5 file):
+    its opening rest (a stationary recording) and its first 60 s of motion after the rest."""
+    from platkit.io.imu import write_imu_csv
+    sys.path.insert(0, str(ROOT / "tests"))  # tests/real_data is imported as real_data, as the golden tests do
+    from real_data.broad import read_broad
+
+    tr = read_broad(BROAD / BROAD_TRIAL)
+    start = int(np.argmax(tr.movement))
+    n60 = int(60 * tr.rate_hz)
+    for name, part in (("rest", slice(0, start - 300)), ("moving", slice(start, start + n60))):
+        folder = root / name
+        folder.mkdir(parents=True)
+        (folder / "session.yaml").write_text(f"platform: none\nunits: {{length: m, time: s}}\nmarkers: []\n"
+                                             f"imu: {{rate_hz: {tr.rate_hz:g}, frame: imu}}\n")
+        write_imu_csv(folder / "imu.csv", tr.imu.t[part], tr.imu.gyr[part], tr.imu.acc[part])
+        fx.broad[name] = folder
 
 
 # ------------------------------------------------------------------ reading what a verb wrote
@@ -643,6 +668,22 @@ def tiago_cases() -> list[Case]:
     ]
 
 
+def method_cases() -> list[Case]:
+    """calibrate --method paper on the shipped sessions: a method that fits worse than the
+    geometric model's own start says so in report.json, or fails."""
+    def make(stand):
+        def m(work: Path, fx: Fixtures) -> list[str]:
+            return ["calibrate", str(fx.clean[stand]), "--out", str(work / "out"), "--method", "paper", "--no-report",
+                    "--quiet"]
+        return m
+
+    def agrees_or_said(stand):
+        return calibration_agrees(stand)
+
+    return [Case("calibrate", f"{stand}: --method paper", make(stand), (accepted(), warning("paper"), error(1)),
+                 report_warnings("report.json"), agrees_or_said(stand)) for stand in ("stewart", "rotary")]
+
+
 def predict_cases() -> list[Case]:
     cases = _predict_cases("stewart") + _predict_cases("rotary")
     _predict_other_cases(cases)
@@ -948,6 +989,13 @@ def orient_cases() -> list[Case]:
             return ["orient", str(f), "--out", str(work / "out"), *extra]
         return Case("orient", name, make, tuple(expect), out)
 
+    def broad(part, name, edit, *expect):
+        def make(work: Path, fx: Fixtures) -> list[str]:
+            f = fx.copy(fx.broad[part], work)
+            edit(f)
+            return ["orient", str(f), "--out", str(work / "out")]
+        return Case("orient", name, make, tuple(expect), out)
+
     gyr = ("gyr_x", "gyr_y", "gyr_z")
     acc = ("acc_x", "acc_y", "acc_z")
 
@@ -973,6 +1021,14 @@ def orient_cases() -> list[Case]:
                                                                     "rate_hz": 600.0}),
                error(2, "rate_hz"), warning("rate")),
         orient("--max-repair-s -1", lambda f: None, error(2, "--max-repair-s"), extra=("--max-repair-s", "-1")),
+        broad("rest", "BROAD (real): a stationary recording, the trial's opening rest", lambda f: None, accepted(),
+              warning("imu.csv")),
+        broad("moving", "BROAD (real): 60 s of motion", lambda f: None, accepted()),
+        broad("moving", "BROAD (real): gyro in deg/s",
+              lambda f: scale_columns(f / "imu.csv", list(gyr), 180 / np.pi), error(2, "imu.csv", "deg/s")),
+        broad("moving", "BROAD (real): accelerometer in g",
+              lambda f: scale_columns(f / "imu.csv", list(acc), 1 / 9.80665), error(2, "imu.csv", "acc")),
+        broad("rest", "BROAD (real): times in ms", lambda f: scale_column(f / "imu.csv", "t", 1e3), error(2, "imu.csv")),
     ]
 
 
@@ -1052,7 +1108,7 @@ def batch_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
-    return (session_cases() + body_cases() + tiago_cases() + predict_cases() + diagnose_cases() + fk_ik_cases()
+    return (session_cases() + body_cases() + method_cases() + tiago_cases() + predict_cases() + diagnose_cases() + fk_ik_cases()
             + simulate_cases() + plan_cases() + track_cases() + orient_cases() + import_cases() + batch_cases())
 
 
@@ -1106,10 +1162,13 @@ def main_(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="platkit-sweep-") as tmp:
         root = Path(tmp)
         fx = build_fixtures(root / "fixtures", {c.verb for c in cases})
-        if fx.tiago is None:  # the real TIAGo data are not beside the checkout: its cases cannot run
-            skipped = [c for c in cases if "tiago" in c.name or c.verb == "track"]
+        # the real data are not beside the checkout: their cases cannot run, and are counted
+        for data, needs in ((TIAGO, lambda c: "tiago" in c.name or c.verb == "track"),
+                            (BROAD, lambda c: c.name.startswith("BROAD"))):
+            skipped = [c for c in cases if needs(c)] if not data.is_dir() else []
             cases = [c for c in cases if c not in skipped]
-            print(f"{len(skipped)} cases skipped: they need {TIAGO} (the shared data beside the checkout)")
+            if skipped:
+                print(f"{len(skipped)} cases skipped: they need {data} (the shared data beside the checkout)")
         for k, case in enumerate(cases):
             r = run_case(case, fx, root / f"case{k:03d}")
             results.append(r)
