@@ -117,7 +117,8 @@ def fit_warnings(cal: Calibration, poses: PoseSet) -> list[str]:
         out.append(f"rms_after {cal.rms_after / s:.4g} {lu} is far above any measurement noise ({noise}): the fit "
                    "stopped, but the model does not describe these data. Check that the session is for this stand "
                    "and description, that the control columns are in the stand's order and units (session.yaml "
-                   "units), that no marker columns are swapped, then run platkit diagnose")
+                   "units), that no marker columns are swapped, that the command log holds every command sent, then "
+                   "run platkit diagnose")
     lost = rejected_by_marker(cal)
     for name, (n_rej, n_seen) in lost.items():
         if n_rej >= max(3, MARKER_LOST_SHARE * n_seen):

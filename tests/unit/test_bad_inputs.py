@@ -155,3 +155,16 @@ def test_track_refuses_a_mimic_joint_whose_master_the_urdf_lacks_as_the_urdf_sta
     assert main(["fk", "--platform", "urdf", "--description", str(urdf), "--moving-link", "arm_tool_link",
                  "--u", "0,0,0,0,0,0,0,0"]) == 2
     assert "joint 'arm_3_joint' <mimic joint='nosuch_joint'> names no joint of the file" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ a command log sparser than the motion
+def test_a_command_log_missing_every_second_command_is_warned_of_in_report_json(tmp_path, capsys):
+    s = tmp_path / "s"
+    shutil.copytree(example_session("rotary"), s)
+    lines = (s / "commands.csv").read_text().splitlines()
+    (s / "commands.csv").write_text("\n".join(lines[:1] + lines[1::2]) + "\n")
+    assert main(["calibrate", str(s), "--out", str(tmp_path / "out"), "--no-selection", "--no-report", "--quiet"]) == 0
+    warnings = json.loads((tmp_path / "out" / "report.json").read_text())["warnings"]
+    (w,) = [w for w in warnings if "far above any measurement noise" in w]
+    assert "that the command log holds every command sent" in w
+    assert f"platkit: warning: {w}" in capsys.readouterr().err
