@@ -378,6 +378,9 @@ class Search:
             if again is not None:
                 again[2]["after"] = f"{eff.name} ({_where_text(term.where)})"
                 self.cur, self.free, self.rounds[-1]["geometry_reselected"] = again
+                # the final refit starts where the selection left the geometry: a group it holds is
+                # held at nominal, not at the value it took standing in for the physics
+                self.td_start = self.cur.problem.split(self.cur.z)[0].copy()
                 self.say(again[2]["text"])
 
     # ------------------------------------------------------------------------ the take-back steps
