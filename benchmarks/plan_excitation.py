@@ -1,7 +1,8 @@
 """Designed excitation against a random multisine: predicted and reached accuracy of calibration from motion.
 
-On the stewart stand: `plan --motion`'s design (platkit.calibrate.excitation: D-optimal over the
-Fourier family within the given rate, acceleration and stroke limits, from --design-seed) and the
+On the stewart stand: `plan --motion`'s design (platkit.calibrate.excitation: its criterion, log det
+of the information plus the response's part told apart from the geometry, over the Fourier family
+within the given rate, acceleration and stroke limits, from --design-seed) and the
 random multisine it starts from (the same family, duration and limits) are each streamed to the
 physical simulator (platkit.simulate.physics: the true stand drawn from the seed, its drives'
 responses, latency, clock offset, occlusion bursts; white marker noise of --noise-mm, or the

@@ -71,6 +71,19 @@ def test_the_design_improves_the_d_criterion_within_the_limits(stewart, informat
     check_every_command(stewart, U, limits)
 
 
+def test_the_criterion_weighs_the_response_told_apart_from_the_geometry(information):
+    rng = np.random.default_rng(4)
+    n = information.rank
+    A = rng.normal(size=(3 * n, n))
+    info = A.T @ A
+    r = information.V_static.shape[1]
+    left = info[r:, r:] - info[r:, :r] @ np.linalg.solve(info[:r, :r], info[:r, r:])
+    expected = np.linalg.slogdet(info)[1] + ex.RESPONSE_WEIGHT * np.linalg.slogdet(left)[1]
+    assert information.criterion(info) == pytest.approx(expected, rel=1e-12)
+    info[r:, r:] = info[r:, :r] @ np.linalg.solve(info[:r, :r], info[:r, r:])  # the response all in the geometry
+    assert information.criterion(info) == -np.inf
+
+
 def test_prediction_falls_as_one_over_root_samples(stewart, information, limits):
     family = ex.FourierFamily(20.0, 4, stewart.n_u)
     coef = family.random_multisine(np.random.default_rng(1))
