@@ -290,7 +290,8 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     slow = max(taus, key=lambda c: taus[c])
     line = (f"rms {cal.rms_before / sc:.4g} -> {cal.rms_after / sc:.4g} {cal.length_unit} from motion "
             f"({cal.motion['samples']['n_used']} of {cal.motion['samples']['n_stream']} samples as "
-            f"{cal.motion['samples']['n_fitted']} poses, {cal.n_markers} markers); response {r['kind']} after a {r['reference']} reference: shift {r['shift_s']['value']:.4g} s, "
+            f"{cal.motion['samples']['n_fitted']} poses, {cal.n_markers} markers); response {r['kind']} after a "
+            f"{r['reference']} reference: shift {r['shift_s']['value']:.4g} s, "
             f"slowest {slow} tau {taus[slow]:.4g} s")
     second = cal.heldout.get("second_session")
     if second is not None:
