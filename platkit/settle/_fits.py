@@ -291,9 +291,9 @@ def _approach(d: _Hold, tau: float, at_top: bool, coef: np.ndarray, G: np.ndarra
 
 
 def fit_approaches(stretches: Sequence[tuple]) -> list[Approach | None]:
-    """:func:`fit_approach` of many stretches at once: each (t, markers, sigma[, t_end[, tau]]);
-    the same fits, their grids evaluated in batches, CHUNK stretches prepared at a time (a
-    prepared stretch is a centred copy of its markers)."""
+    """:func:`fit_approach` of many stretches of one stream (the same markers) at once: each
+    (t, markers, sigma[, t_end[, tau]]); the same fits, their grids evaluated in batches, CHUNK
+    stretches prepared at a time (a prepared stretch is a centred copy of its markers)."""
     out: list[Approach | None] = []
     with _one_blas_thread():
         for c in range(0, len(stretches), CHUNK):
