@@ -3,7 +3,6 @@ fitted to the stream (platkit.settle._fits), the window its tail leaves free, th
 a still stretch, and a window's averaged result."""
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -140,10 +139,10 @@ def _window_result(ts: np.ndarray, seg: np.ndarray, start: int, end: int, correc
     cnt = ok.sum(axis=0)
     if not np.any(cnt):
         return None
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a marker occluded all window long
-        mean = np.nanmean(np.where(ok[..., None], w, np.nan), axis=0)
-        std = np.sqrt(np.nanmean(np.sum((w - mean) ** 2, axis=2), axis=0) / 3)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a marker occluded all window long: NaN
+        # the sums over the seen samples over their count, as numpy's nanmean takes them
+        mean = np.sum(np.where(ok[..., None], w, 0.0), axis=0) / cnt[:, None]
+        std = np.sqrt(np.sum(np.where(ok, np.sum((w - mean) ** 2, axis=2), 0.0), axis=0) / cnt / 3)
     held = mean.copy()
     mean = mean - correction  # the approach's share of the window mean (zero in a clean window)
     mean[cnt == 0] = np.nan
