@@ -320,6 +320,9 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
         blocks.append((p, a, b - a, per))
         p += nodes
     K = len(tm) - a0
+    if not ts:  # nothing to fit: the caller says so
+        ts, Ys, ns = [np.zeros(0)], [np.zeros((0, M, 3))], [np.zeros((0, M))]
+        rows, cols, vals = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0)]
     proj = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(p, K))
     n_unseen = int((~seen_any[a0:]).sum())
     n_used = int(seen_any[a0:].sum()) - short
