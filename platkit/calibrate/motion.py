@@ -466,7 +466,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     rmodel = ResponseModel(kind, reference, spec.n_u)
     win = stream_windows(session, window_s, nodes, raw_samples)
     if len(win.t) < 20:
-        raise BadSession(f"{session.markers_source}: only {len(win.t)} nodes from the samples with markers seen "
+        raise BadSession(f"{session.markers_source}: only {len(win.t)} poses from the samples with markers seen "
                          "after the second command; calibrating from motion needs the stand moving under the markers")
     T, U = session.command_t, session.commands
     t = win.t
