@@ -14,7 +14,9 @@ too) and bending links at the torso and the shoulders (stiffer one way than the 
 
 Per seed and hand, the held-out mean marker error (mm, against the recorded noisy markers) of:
 the rigid calibration, the calibration diagnose writes, and the true elastic model itself (the
-noise floor); plus the effects diagnose names.
+noise floor); plus the effects diagnose names, and the places they name scored against the truth
+(:func:`named_places`, :func:`right`: a joint of the every-joint compliance term counts where its
+compliance is 3 standard deviations from zero). ``--keep DIR`` keeps each seed's folders.
 """
 from __future__ import annotations
 
