@@ -169,8 +169,10 @@ def _free(tau_s: np.ndarray, e0: np.ndarray, v0: np.ndarray, tau: float, zeta: f
     return e0 * C + (v0 + a * e0) * S, v0 * C - (w * w * e0 + a * v0) * S
 
 
-def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None) -> np.ndarray:
-    """One actuator after a step reference, exactly, at commands-clock times t (K,)."""
+def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None,
+              seg: np.ndarray | None = None) -> np.ndarray:
+    """One actuator after a step reference, exactly, at commands-clock times t (K,); ``seg``: the
+    command in force at each of t (searchsorted of T, right, minus 1), when the caller has it."""
     N = len(T)
     p = np.empty(N)
     v = np.zeros(N)
@@ -202,7 +204,8 @@ def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: flo
         for i in range(N - 1):
             e, vel = _free(np.array(span[i]), np.array(p[i] - u[i]), np.array(v[i]), tau, zeta)
             p[i + 1], v[i + 1] = u[i] + float(e), float(vel)
-    seg = np.searchsorted(T, t, side="right") - 1
+    if seg is None:
+        seg = np.searchsorted(T, t, side="right") - 1
     out = np.full(len(t), float(u[0]))
     ok = seg >= 0
     i = seg[ok]
@@ -287,6 +290,19 @@ def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: 
     return np.interp(t, grid, x, left=float(start))
 
 
+def _segments(cache: dict | None, T: np.ndarray, s: np.ndarray, shift: float) -> np.ndarray | None:
+    """The command in force at each of the times s (= the samples' times minus ``shift``), kept in
+    ``cache`` for the same times and shift (None without a cache)."""
+    if cache is None or not len(s):
+        return None
+    key = ("stepseg", shift, len(s), hash(s.tobytes()))
+    seg = cache.get(key)
+    if seg is None:
+        seg = np.searchsorted(T, s, side="right") - 1
+        _keep(cache, key, seg)
+    return seg
+
+
 #: entries a cache of :func:`actuator_positions` keeps (the oldest dropped first)
 CACHE_ENTRIES = 32
 
@@ -316,7 +332,7 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
         tau = max(float(par["tau_s"][j]), TAU_MIN_S)
         zeta = max(float(par["damping"][j]), ZETA_MIN) if "damping" in par else None
         if model.reference == "step":
-            out.append(_step_one(s, T, U[:, j], tau, zeta))
+            out.append(_step_one(s, T, U[:, j], tau, zeta, _segments(cache, T, s, float(par["shift_s"]))))
         else:
             out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), float(par["accel"][j]),
                                     float(U[0, j] if start is None else start[j]), cache, j))
