@@ -19,7 +19,7 @@ Each case states what it expects, any one of:
 - ``warning(*names)``: exit 0 and a warning holding ``names`` in the verb's written outputs
   (report.json's ``warnings`` for calibrate and orient, diagnosis.json's for diagnose, plan.json's
   for plan, session.yaml's notes for simulate and import, task.json's for batch, the
-  ``--json`` object for track); verbs that write no report (predict, fk, ik) say it on stderr;
+  ``--json`` object for track and fk); verbs that write no report (predict, ik) say it on stderr;
 - ``accepted()``: exit 0 and a result that agrees with the truth where the case can check it.
 
 Classes:
@@ -817,7 +817,8 @@ def fk_ik_cases() -> list[Case]:
     cases: list[Case] = []
 
     def fk(name, argv, *expect, check=None):
-        cases.append(Case("fk", name, lambda w, fx, a=argv: ["fk", *a, "--json"], tuple(expect), None, check))
+        cases.append(Case("fk", name, lambda w, fx, a=argv: ["fk", *a, "--json"], tuple(expect), stdout_json_warnings,
+                          check))
 
     def ik(name, argv, *expect):
         cases.append(Case("ik", name, lambda w, fx, a=argv: ["ik", *a, "--json"], tuple(expect)))

@@ -6,6 +6,7 @@ import numpy as np
 from platkit.commands.common import add_platform_options, add_unit_option, parse_vector, pose_dict, print_json, platform_from_args
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_to_si, length_scale
+from platkit.notices import said
 from platkit.plugins import get_platform
 from platkit.urdf import link_pose_function
 
@@ -45,6 +46,7 @@ def run(args) -> int:
     links = link_poses(spec, u, args)
     if links:
         out["links"] = {name: pose_dict(q, X, args.unit) for name, (q, X) in links.items()}
+    out["warnings"] = said()  # every warning said while the verb ran (platkit.notices), on stderr too
     if args.json:
         print_json(out)
         return 0

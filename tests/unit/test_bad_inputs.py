@@ -168,3 +168,14 @@ def test_a_command_log_missing_every_second_command_is_warned_of_in_report_json(
     (w,) = [w for w in warnings if "far above any measurement noise" in w]
     assert "that the command log holds every command sent" in w
     assert f"platkit: warning: {w}" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ fk: warnings in its JSON object
+def test_fk_json_lists_the_warning_of_a_control_just_past_its_limit(capsys):
+    assert main(["fk", "--platform", "rotary", "--u", "181.8,0", "--json"]) == 0
+    cap = capsys.readouterr()
+    (w,) = json.loads(cap.out)["warnings"]
+    assert w.startswith("rotary: control u1: 181.8 is past the limit 180 deg by 1.8 deg; kept as recorded")
+    assert cap.err.strip() == f"platkit: warning: {w}"
+    assert main(["fk", "--platform", "rotary", "--u", "90,0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []
