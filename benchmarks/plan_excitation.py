@@ -25,17 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from platkit.calibrate.estimate import predict_markers
-from platkit.calibrate.excitation import (
-    FourierFamily,
-    MotionInformation,
-    design_excitation,
-    drive_limits,
-    limit_violations,
-    predict_trajectory,
-    trajectory,
-)
+from platkit.calibrate.excitation import MotionInformation, design_excitation, predict_trajectory
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.plan import default_marker_layout, reference_poses_for
+from platkit.calibrate.trajectories import FourierFamily, drive_limits, limit_violations, trajectory
 from platkit.geometry import matrix_from_quat
 from platkit.io.session import load_session
 from platkit.kinematics import PlatformModel

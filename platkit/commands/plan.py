@@ -137,6 +137,7 @@ def run_motion(args) -> int:
     the session's commands.csv, its report (<out stem>.json) beside it."""
     from platkit.calibrate import excitation as ex
     from platkit.calibrate import plan as pl
+    from platkit.calibrate import trajectories as tr
     from platkit.io import jsonout
     from platkit.io.atomic import atomic_output_dir, check_output_file
     from platkit.model import controls_to_si, length_scale
@@ -171,8 +172,14 @@ def run_motion(args) -> int:
             raise BadInput(f"{option}: every limit must be positive, got {text}")
         return controls_to_si(spec, np.broadcast_to(v, (spec.n_u,)), args.unit)
 
-    limits = ex.drive_limits(spec, limit(args.max_rate, "--max-rate"), limit(args.max_accel, "--max-accel"),
-                             args.margin)
+    try:
+        limits = tr.drive_limits(spec, limit(args.max_rate, "--max-rate"), limit(args.max_accel, "--max-accel"),
+                                 args.margin)
+    except BadInput as exc:  # a limit the stand does not declare is asked of its option, given or not
+        head, colon, rest = str(exc).partition(":")
+        if colon and head in ("max_rate", "max_accel"):
+            raise BadInput("--" + head.replace("_", "-") + ":" + rest) from None
+        raise
     markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))
     progress = None if args.quiet else _design_progress()
     result = ex.plan_excitation(spec, limits, period_s=args.period_s, harmonics=args.harmonics,

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from platkit.calibrate import excitation as ex
+from platkit.calibrate import trajectories as tr
 from platkit.calibrate.plan import default_marker_layout, feasible
 from platkit.cli import main
 from platkit.errors import BadInput, NotIdentifiable
@@ -29,7 +30,7 @@ def information(stewart):
 
 @pytest.fixture(scope="module")
 def limits(stewart):
-    return ex.drive_limits(stewart, np.array([0.2, 0.2, 0.25, 0.25, 0.3, 0.3]), 0.4, 0.1)
+    return tr.drive_limits(stewart, np.array([0.2, 0.2, 0.25, 0.25, 0.3, 0.3]), 0.4, 0.1)
 
 
 def check_every_command(spec, U, limits, rate_hz=RATE_HZ):
@@ -44,9 +45,9 @@ def check_every_command(spec, U, limits, rate_hz=RATE_HZ):
 
 
 def test_every_command_within_the_limits_and_reachable(stewart, limits):
-    family = ex.FourierFamily(20.0, 5, stewart.n_u)
+    family = tr.FourierFamily(20.0, 5, stewart.n_u)
     coef = family.random_multisine(np.random.default_rng(3))
-    U, meta = ex.trajectory(stewart, family, coef, limits, 30.0, RATE_HZ)
+    U, meta = tr.trajectory(stewart, family, coef, limits, 30.0, RATE_HZ)
     assert U.shape == (600, 6)
     v, a = check_every_command(stewart, U, limits)
     # starts and ends at rest on the neutral controls
@@ -62,12 +63,12 @@ def test_every_command_within_the_limits_and_reachable(stewart, limits):
 
 
 def test_the_design_improves_the_d_criterion_within_the_limits(stewart, information, limits):
-    family = ex.FourierFamily(20.0, 4, stewart.n_u)
+    family = tr.FourierFamily(20.0, 4, stewart.n_u)
     design = ex.design_excitation(stewart, family, limits, information, RATE_HZ, np.random.default_rng(5), evaluations=12)
     assert np.isfinite(design.criterion_start)
     assert design.criterion > design.criterion_start + 1.0
     assert design.history == sorted(design.history)  # the best so far never falls
-    U, _ = ex.trajectory(stewart, family, design.coef, limits, 25.0, RATE_HZ)
+    U, _ = tr.trajectory(stewart, family, design.coef, limits, 25.0, RATE_HZ)
     check_every_command(stewart, U, limits)
 
 
@@ -85,9 +86,9 @@ def test_the_criterion_weighs_the_response_told_apart_from_the_geometry(informat
 
 
 def test_prediction_falls_as_one_over_root_samples(stewart, information, limits):
-    family = ex.FourierFamily(20.0, 4, stewart.n_u)
+    family = tr.FourierFamily(20.0, 4, stewart.n_u)
     coef = family.random_multisine(np.random.default_rng(1))
-    U, _ = ex.trajectory(stewart, family, coef, limits, 30.0, RATE_HZ)
+    U, _ = tr.trajectory(stewart, family, coef, limits, 30.0, RATE_HZ)
     pred, n = ex.predict_trajectory(information, U, RATE_HZ, 30.0, 100.0, 1.0, 2e-4)
     assert n == 2995  # every sample from the second command on
     T = np.arange(len(U)) / RATE_HZ
@@ -107,27 +108,27 @@ def test_prediction_falls_as_one_over_root_samples(stewart, information, limits)
 
 
 def test_limits_said_in_one_line(stewart):
-    with pytest.raises(BadInput, match="--max-rate: the stewart stand's description declares no rate limit"):
-        ex.drive_limits(stewart, None, 1.0)
-    with pytest.raises(BadInput, match="--max-accel"):
-        ex.drive_limits(stewart, 0.2, None)
-    with pytest.raises(BadInput, match="--max-rate: expected 1 or 6 numbers"):
-        ex.drive_limits(stewart, np.array([0.1, 0.2]), 1.0)
+    with pytest.raises(BadInput, match="max_rate: the stewart stand's description declares no rate limit"):
+        tr.drive_limits(stewart, None, 1.0)
+    with pytest.raises(BadInput, match="max_accel"):
+        tr.drive_limits(stewart, 0.2, None)
+    with pytest.raises(BadInput, match="max_rate: expected 1 or 6 numbers"):
+        tr.drive_limits(stewart, np.array([0.1, 0.2]), 1.0)
     # a URDF declares its joints' velocity: the rate limit comes from it
     rotary = get_platform("rotary")
-    lim = ex.drive_limits(rotary, None, 2.0)
+    lim = tr.drive_limits(rotary, None, 2.0)
     np.testing.assert_allclose(lim.rate, [np.degrees(1.0)] * 2)  # velocity="1" rad/s, controls in degrees
     assert lim.source["rate"].startswith("description")
     # limits that leave the stand still
-    family = ex.FourierFamily(20.0, 4, stewart.n_u)
-    still = ex.drive_limits(stewart, 1e-6, 1e-6)
+    family = tr.FourierFamily(20.0, 4, stewart.n_u)
+    still = tr.drive_limits(stewart, 1e-6, 1e-6)
     with pytest.raises(BadInput, match=r"limits leave L\d .* of its room"):
-        ex.trajectory(stewart, family, family.random_multisine(np.random.default_rng(0)), still, 30.0, RATE_HZ)
+        tr.trajectory(stewart, family, family.random_multisine(np.random.default_rng(0)), still, 30.0, RATE_HZ)
 
 
 def test_given_commands_are_streamed_by_the_simulator(stewart, limits):
-    family = ex.FourierFamily(20.0, 4, stewart.n_u)
-    U, _ = ex.trajectory(stewart, family, family.random_multisine(np.random.default_rng(2)), limits, 25.0, RATE_HZ)
+    family = tr.FourierFamily(20.0, 4, stewart.n_u)
+    U, _ = tr.trajectory(stewart, family, family.random_multisine(np.random.default_rng(2)), limits, 25.0, RATE_HZ)
     out, info = continuous_plan(stewart, U, 0.0, RATE_HZ, np.random.default_rng(0), None, None, 2 * limits.rate,
                                 4 * limits.accel)
     assert out is U or np.array_equal(out, U)

@@ -1,0 +1,261 @@
+"""The drives' limits of a streamed plan and the periodic Fourier family its trajectories come
+from: each actuator j follows u_j(t) = u0_j + A_j w(t) s_j(t) around the neutral controls u0,
+s_j a Fourier series of H harmonics of 1 / ``period_s`` scaled to unit largest magnitude, w(t) a
+raised-cosine window that starts and ends at rest. The amplitude A_j is the largest that keeps
+every command (streamed at ``command_rate_hz``) inside the stroke box less ``margin``, its rate
+(first differences) within ``rate`` and its acceleration (second differences) within ``accel``;
+every command is then checked reachable and the amplitudes shrink together until it is. The
+window lasts long enough for the limits to hold while it rises. Used by
+:mod:`platkit.calibrate.excitation`, which designs the coefficients."""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from platkit.calibrate.plan import feasible
+from platkit.errors import BadInput, NotIdentifiable
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec
+
+__all__ = ["Limits", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S"]
+
+#: the window's shortest rise (s), doubled until the limits hold while it rises (at most one period)
+RAMP_S = 2.0
+#: amplitudes shrink by this factor until every command is reachable, at most SHRINK_TRIES times
+SHRINK, SHRINK_TRIES = 0.9, 40
+#: the smallest amplitude a control may be left with, as a share of its room around neutral: below
+#: it the limits leave the stand nearly still (refused, naming the control)
+MIN_AMPLITUDE_SHARE = 0.02
+#: relative tolerance of the limit checks (rounding of the written commands)
+LIMIT_RTOL = 1e-9
+
+
+@dataclass
+class Limits:
+    """What every command must keep (internal units): ``lower``/``upper`` (n_u,) the box, ``rate``
+    (n_u,) per s and ``accel`` (n_u,) per s^2 the drives' limits."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    rate: np.ndarray
+    accel: np.ndarray
+    source: dict = field(default_factory=dict)
+
+
+def _declared_rates(spec: PlatformSpec) -> np.ndarray | None:
+    """The controls' rate limits the stand's description declares, in the controls' units per s:
+    a URDF's ``<limit velocity>`` (SI: rad/s, m/s) of the chain's movable joints, one per control
+    in order; None where any is missing."""
+    path, chain = spec.extras.get("urdf_path"), spec.extras.get("chain")
+    if not path or chain is None:
+        return None
+    movable = [j.name for j in getattr(chain, "joints", []) if j.type not in ("fixed",) and j.mimic is None]
+    if len(movable) != spec.n_u:
+        return None
+    try:
+        root = ET.parse(str(path)).getroot()
+    except (OSError, ET.ParseError):
+        return None
+    rates = {}
+    for joint in root.iter("joint"):
+        lim = joint.find("limit")
+        if lim is not None and lim.get("velocity") is not None:
+            try:
+                rates[joint.get("name")] = float(lim.get("velocity", "nan"))
+            except ValueError:
+                continue
+    per_unit = {"deg": 180.0 / np.pi}  # the URDF's rad/s in a control counted in degrees
+    out = np.array([rates.get(n, np.nan) * per_unit.get(c.unit, 1.0) for n, c in zip(movable, spec.controls)], float)
+    return out if np.all(np.isfinite(out) & (out > 0)) else None
+
+
+def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.ndarray | None,
+                 margin: float = 0.1) -> Limits:
+    """The limits of a plan: the strokes less ``margin`` of each at both ends, and the rate and
+    acceleration limits given (internal units, one number or one per control), else those the
+    description declares (a URDF's joint ``velocity``); BadInput naming what is missing."""
+    lo, hi = spec.control_bounds()
+    if not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
+        bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and b > a)]
+        raise BadInput(f"{spec.name}: controls {', '.join(bad)} have no finite stroke; an excitation trajectory "
+                       "needs one for every control")
+    if not 0 <= margin < 0.5:
+        raise BadInput(f"margin: must be in [0, 0.5), got {margin}")
+    span = hi - lo
+    source = {}
+    rate = _per_control(spec, max_rate, "max_rate")
+    if rate is None:
+        rate = _declared_rates(spec)
+        if rate is None:
+            raise BadInput(f"max_rate: the {spec.name} stand's description declares no rate limit for its controls "
+                           f"({', '.join(spec.control_names)}); give the drives' limit (one number, or one per control)")
+        source["rate"] = "description (URDF joint velocity)"
+    else:
+        source["rate"] = "given (max_rate)"
+    accel = _per_control(spec, max_accel, "max_accel")
+    if accel is None:
+        raise BadInput(f"max_accel: the {spec.name} stand's description declares no acceleration limit for its "
+                       "controls; give the drives' limit (one number, or one per control)")
+    source["accel"] = "given (max_accel)"
+    u0 = spec.neutral_u()
+    lower, upper = lo + margin * span, hi - margin * span
+    if np.any(u0 <= lower) or np.any(u0 >= upper):
+        raise BadInput(f"margin: {margin:g} leaves the neutral controls of the {spec.name} stand outside the strokes "
+                       "less the margin; choose a smaller margin")
+    return Limits(lower, upper, rate, accel, source)
+
+
+def _per_control(spec: PlatformSpec, value, option: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    v = np.atleast_1d(np.asarray(value, float))
+    if v.size == 1:
+        v = np.full(spec.n_u, float(v[0]))
+    if v.size != spec.n_u:
+        raise BadInput(f"{option}: expected 1 or {spec.n_u} numbers (one per control: {', '.join(spec.control_names)}), "
+                       f"got {v.size}")
+    if not np.all(np.isfinite(v) & (v > 0)):
+        raise BadInput(f"{option}: every limit must be a positive number, got {', '.join(f'{x:g}' for x in v)}")
+    return v
+
+
+@dataclass
+class FourierFamily:
+    """The periodic family: ``period_s``, ``harmonics`` H, for ``n_u`` actuators; coefficients
+    (n_u, H, 2): (a, b) of sin and cos of each harmonic."""
+
+    period_s: float
+    harmonics: int
+    n_u: int
+
+    def __post_init__(self):
+        if not (self.period_s > 0 and math.isfinite(self.period_s)):
+            raise BadInput(f"period_s: must be a positive number of seconds, got {self.period_s:g}")
+        if self.harmonics < 1:
+            raise BadInput(f"harmonics: must be at least 1, got {self.harmonics}")
+
+    @property
+    def size(self) -> int:
+        return self.n_u * self.harmonics * 2
+
+    def random_multisine(self, rng: np.random.Generator) -> np.ndarray:
+        """Coefficients of a multisine with random phases and amplitude 1/sqrt(k) per harmonic k."""
+        k = np.arange(1, self.harmonics + 1)
+        ph = rng.uniform(0, 2 * np.pi, (self.n_u, self.harmonics))
+        amp = 1.0 / np.sqrt(k)[None, :]
+        return np.stack([amp * np.cos(ph), amp * np.sin(ph)], axis=2)
+
+    def raw(self, coef: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(K, n_u) the series at times t (K,), unscaled."""
+        w = 2 * np.pi / self.period_s * np.arange(1, self.harmonics + 1)
+        arg = np.asarray(t, float)[:, None] * w[None, :]
+        c = np.asarray(coef, float).reshape(self.n_u, self.harmonics, 2)
+        return np.sin(arg) @ c[:, :, 0].T + np.cos(arg) @ c[:, :, 1].T
+
+
+def _window(t: np.ndarray, duration_s: float, ramp_s: float) -> np.ndarray:
+    r = np.clip(np.minimum(t, duration_s - t) / ramp_s, 0, 1)
+    return 0.5 - 0.5 * np.cos(np.pi * r)
+
+
+def limit_violations(U: np.ndarray, command_rate_hz: float, limits: Limits) -> dict:
+    """Commands (N, n_u) streamed every 1/command_rate_hz s against the limits: the number of
+    samples past the box, the rate (first differences) and the acceleration (second differences),
+    and the largest share of each limit used."""
+    U = np.asarray(U, float)
+    v = np.abs(np.diff(U, axis=0)) * command_rate_hz
+    a = np.abs(np.diff(U, 2, axis=0)) * command_rate_hz ** 2
+    tol = 1 + LIMIT_RTOL
+    span = limits.upper - limits.lower
+    box = (U < limits.lower - LIMIT_RTOL * span) | (U > limits.upper + LIMIT_RTOL * span)
+    return {"box": int(np.sum(np.any(box, axis=1))), "rate": int(np.sum(np.any(v > limits.rate * tol, axis=1))),
+            "accel": int(np.sum(np.any(a > limits.accel * tol, axis=1))),
+            "rate_share": float(np.max(v / limits.rate)) if len(v) else 0.0,
+            "accel_share": float(np.max(a / limits.accel)) if len(a) else 0.0}
+
+
+class Scaler:
+    """Amplitudes within the limits, and reachability, of shapes of one family (module docstring)."""
+
+    def __init__(self, spec: PlatformSpec, family: FourierFamily, limits: Limits, command_rate_hz: float,
+                 model: PlatformModel, td: np.ndarray):
+        self.spec, self.family, self.limits, self.rate_hz, self.model, self.td = spec, family, limits, command_rate_hz, model, td
+        n = int(round(family.period_s * command_rate_hz))
+        if n < 8:
+            raise BadInput(f"period_s: {family.period_s:g} s gives fewer than 8 commands per period at {command_rate_hz:g} "
+                           "per s")
+        self.t_period = np.arange(n) / command_rate_hz
+        self.u0 = spec.neutral_u()
+        self.half = np.minimum(limits.upper - self.u0, self.u0 - limits.lower)
+
+    def amplitudes(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A (n_u,), shape over one period (n, n_u) of unit largest magnitude) within the box, rate
+        and acceleration limits (periodic differences), before reachability."""
+        s = self.family.raw(coef, self.t_period)
+        peak = np.max(np.abs(s), axis=0)
+        if np.any(peak <= 0):
+            raise BadInput("excitation: an actuator's series is zero everywhere")
+        s = s / peak
+        h = self.rate_hz
+        v = np.max(np.abs(np.roll(s, -1, axis=0) - s), axis=0) * h
+        a = np.max(np.abs(np.roll(s, -1, axis=0) - 2 * s + np.roll(s, 1, axis=0)), axis=0) * h * h
+        A = np.minimum(self.half, np.minimum(self.limits.rate / np.maximum(v, 1e-300),
+                                             self.limits.accel / np.maximum(a, 1e-300)))
+        small = A < MIN_AMPLITUDE_SHARE * self.half
+        if np.any(small):
+            j = int(np.argmax(small))
+            raise BadInput(f"{self.spec.name}: the rate and acceleration limits leave {self.spec.control_names[j]} "
+                           f"{100 * A[j] / self.half[j]:.2g}% of its room around neutral over a {self.family.period_s:g} s "
+                           "period: raise the rate or acceleration limits or lengthen the period")
+        return A, s
+
+    def reachable_period(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(A, shape) with every command of a period reachable (amplitudes shrunk together);
+        NotIdentifiable where no amplitude is."""
+        A, s = self.amplitudes(coef)
+        for _ in range(SHRINK_TRIES):
+            ok, _ = feasible(self.spec, self.u0 + s * A, self.td, self.model)
+            if ok.all():
+                return A, s
+            A = A * SHRINK
+        raise NotIdentifiable(f"{self.spec.name}: no excitation of this shape around the neutral controls stays "
+                              "reachable; a larger margin or fewer harmonics")
+
+
+def trajectory(spec: PlatformSpec, family: FourierFamily, coef: np.ndarray, limits: Limits, duration_s: float,
+               command_rate_hz: float, model: PlatformModel | None = None, td=None) -> tuple[np.ndarray, dict]:
+    """(U (N, n_u) commands every 1/command_rate_hz s for duration_s s, what it is): the family's
+    member ``coef`` within the limits (module docstring), windowed to start and end at rest on the
+    neutral controls. Every command is checked: reachable, inside the box, rate and acceleration
+    within the limits (NotIdentifiable if the window cannot rise within them in one period)."""
+    model = model or PlatformModel(spec)
+    td = spec.nominal_td() if td is None else np.asarray(td, float)
+    scaler = Scaler(spec, family, limits, command_rate_hz, model, td)
+    A, _ = scaler.reachable_period(coef)
+    t = np.arange(int(round(duration_s * command_rate_hz))) / command_rate_hz
+    end = float(t[-1]) if len(t) else 0.0
+    raw = family.raw(coef, t)
+    peak = np.max(np.abs(family.raw(coef, scaler.t_period)), axis=0)
+    ramp = RAMP_S
+    while True:
+        if ramp > min(family.period_s, 0.5 * end):
+            raise NotIdentifiable(f"{spec.name}: the session cannot rise to its excitation and back within the rate "
+                                  f"and acceleration limits in {duration_s:g} s (ramps up to {min(family.period_s, 0.5 * end):g} "
+                                  "s each); a longer session")
+        U = scaler.u0 + _window(t, end, ramp)[:, None] * raw / peak * A
+        bad = limit_violations(U, command_rate_hz, limits)
+        if not (bad["box"] or bad["rate"] or bad["accel"]):
+            break
+        ramp *= 1.5
+    for _ in range(SHRINK_TRIES):
+        ok, _ = feasible(spec, U, td, model)
+        if ok.all():
+            break
+        A = A * SHRINK
+        U = scaler.u0 + _window(t, end, ramp)[:, None] * raw / peak * A
+    else:
+        raise NotIdentifiable(f"{spec.name}: the excitation's commands do not all stay reachable")
+    return U, {"ramp_s": float(ramp), "amplitude": [float(x) for x in A], **limit_violations(U, command_rate_hz, limits)}
