@@ -75,6 +75,9 @@ class Effect:
       the variants compete by BIC, the forms by how each predicts the later part of the session
       held out (fitted on the earlier part); and it is accepted only where it predicts that later
       part no worse than the model without it;
+    - ``warm_up``: True for the effect a stand's warm-up with time since power-on is (the
+      time-domain simulator's ``warmup`` option lists its warm-up in the truth under this effect's
+      name; at most one installed effect says so);
     - ``simulation_size``, ``physics_size``: what the size of ``platkit simulate --effect
       NAME=SIZE`` means in the additive and in the time-domain simulator (:class:`SizeHelp`, its
       meaning and unit; None where the effect has no such simulation).
@@ -87,6 +90,7 @@ class Effect:
     unsettled_holds: bool = False
     not_separable_advice: str = ""
     forecast: bool = False
+    warm_up: bool = False
     simulation_size: SizeHelp | None = None
     physics_size: SizeHelp | None = None
 

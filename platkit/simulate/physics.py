@@ -240,7 +240,7 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
     warmup: None, or a warm-up with time since power-on (platkit.simulate.warmup: 'visible',
         switched on just before the first command; 'warm', long before), its size drawn from the
         seed like a nuisance; it acts after the effects' drives and is listed with them in the
-        truth (as thermal_drift, form 'warm-up with time').
+        truth under the effect that models a warm-up (``Effect.warm_up``), form 'warm-up with time'.
     """
     _check_options(n_markers, mocap_rate_hz, fine_step_s, length_unit)
     rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
@@ -318,6 +318,16 @@ def _commands(spec, model, seed, plan, n_poses, motion, hold_s, overshoot, pertu
     return U, plan_info, td, P_rest
 
 
+def _warm_up_effect(library: dict[str, Effect]) -> str:
+    """The name of the one installed effect that is a warm-up with time (``Effect.warm_up``)."""
+    names = sorted(name for name, e in library.items() if getattr(e, "warm_up", False))
+    if len(names) != 1:
+        raise BadInput("warmup: the simulator lists a warm-up under the effect that models it, and "
+                       + ("no installed effect models a warm-up with time" if not names
+                          else f"several installed effects say they do ({', '.join(names)})"))
+    return names[0]
+
+
 def _physics(spec, seed, effects, phys_plan: PhysicsPlan, nuisances: Nuisances, streamed: bool, library,
              warmup: str | None) -> tuple[list[tuple[str, EffectPhysics]], ActuatorResponse]:
     """The effects' physics (each from its own random stream), the warm-up's last, and the
@@ -325,7 +335,8 @@ def _physics(spec, seed, effects, phys_plan: PhysicsPlan, nuisances: Nuisances, 
     physics = [(name, physics_of(name, spec, size, np.random.default_rng([seed, 100 + k]), phys_plan, library))
                for k, (name, size) in enumerate(effects)]
     if warmup is not None:
-        w = draw_warmup(spec, warmup, np.random.default_rng([seed, 9]), float(phys_plan.command_t[0]))
+        w = draw_warmup(spec, warmup, np.random.default_rng([seed, 9]), float(phys_plan.command_t[0]),
+                        _warm_up_effect(effect_library() if library is None else library))
         physics.append((w.effect, w))
     r0 = nuisances.response
     response = ActuatorResponse(np.array(r0.tau_s, float), np.array(r0.damping, float), np.array(r0.rate, float),

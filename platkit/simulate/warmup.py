@@ -6,17 +6,18 @@ equilibrium whatever it does: each actuator lengthens by
     d_j(t) = A_j (1 - exp(-(t - power_on_s) / tau))      (0 before power-on)
 
 ``A_j`` its lengthening once warm, ``tau`` the warm-up's time constant. This is apart from the
-heat of the work the actuators do (thermal_drift's physics in the effect library, which stays as
-it is): a warm-up acts on a stand that stands still. Its size is a nuisance of the recording,
-drawn from the session's seed: the largest A_j 0.3 to 1.0 mm (length controls; 0.1% to 0.3% of
-the stroke otherwise), each actuator's a share 0.3 to 1 of it, tau 5 to 20 minutes. Two kinds:
+heat of the work the actuators do (an effect's physics in the effect library): a warm-up acts
+on a stand that stands still. Its size is a nuisance of the recording, drawn from the session's
+seed: the largest A_j 0.3 to 1.0 mm (length controls; 0.1% to 0.3% of the stroke otherwise), each
+actuator's a share 0.3 to 1 of it, tau 5 to 20 minutes. Two kinds:
 
 - ``'visible'``: switched on 0 to 60 s before the first command, so the session records the
   warm-up;
 - ``'warm'``: switched on 6 to 10 time constants before it, so the session is at the
   equilibrium throughout (the geometry absorbs the constant lengthening).
 
-The truth lists it under the effect name ``thermal_drift`` with ``form: warm-up with time``.
+The truth lists it under the name of the effect that says it is a warm-up (``Effect.warm_up``),
+with ``form: warm-up with time``.
 """
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ class WarmupPhysics(EffectPhysics):
     power_on_s: float
     unit: str
     kind: str = "visible"
-    effect: str = "thermal_drift"
+    effect: str = ""  # the effect it is listed under in the truth
 
     def parameters(self):
         return {"form": "warm-up with time", "actuator": "all", "kind": self.kind,
@@ -67,9 +68,11 @@ class WarmupPhysics(EffectPhysics):
         return series.motor + self.warmth(series.t)[:, None] * np.asarray(self.amplitude, float)[None]
 
 
-def draw_warmup(spec: PlatformSpec, kind: str, rng: np.random.Generator, first_command_s: float) -> WarmupPhysics:
+def draw_warmup(spec: PlatformSpec, kind: str, rng: np.random.Generator, first_command_s: float,
+                effect: str) -> WarmupPhysics:
     """A warm-up of ``kind`` ('visible' or 'warm', see the module's docstring) for a session whose
-    first command is sent at ``first_command_s`` (commands clock), drawn from ``rng``."""
+    first command is sent at ``first_command_s`` (commands clock), drawn from ``rng``, listed in
+    the truth under ``effect``."""
     if kind not in WARMUP_KINDS:
         raise BadInput(f"warm-up: kind must be one of {', '.join(WARMUP_KINDS)}, got {kind!r}")
     R = WARMUP_RANGES
@@ -87,4 +90,4 @@ def draw_warmup(spec: PlatformSpec, kind: str, rng: np.random.Generator, first_c
         before = float(rng.uniform(*R["warm_before_taus"])) * tau
     units = {c.unit for c in spec.controls}
     unit = units.pop() if len(units) == 1 else "the control's unit"
-    return WarmupPhysics(largest * share, tau, float(first_command_s) - before, unit, kind)
+    return WarmupPhysics(largest * share, tau, float(first_command_s) - before, unit, kind, effect=effect)

@@ -224,6 +224,7 @@ class ThermalDrift(Effect):
     summary = ("actuators that lengthen with the heat of their own motion or as the stand warms up after power-on, "
                "or a slow drift in time")
     forecast = True
+    warm_up = True
     simulation_size = SizeHelp("the drift of the moving frame, in a random horizontal-ish direction", "mm per hour")
     physics_size = SizeHelp("the largest lengthening of an actuator over the session, from heat that grows with the "
                             "distance each actuator moves and cools with a time constant of 5 to 15 minutes",

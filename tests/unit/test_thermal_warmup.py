@@ -39,7 +39,7 @@ def test_a_visible_warm_up_grows_in_the_session_and_a_warm_one_does_not(stewart)
 
 def test_an_unknown_warm_up_kind_is_bad_input(stewart):
     with pytest.raises(BadInput, match="warm-up: kind must be one of visible, warm"):
-        draw_warmup(stewart, "hot", np.random.default_rng(0), 0.5)
+        draw_warmup(stewart, "hot", np.random.default_rng(0), 0.5, "thermal_drift")
 
 
 def _poses(n=20, t_end=600.0, seed=0):
