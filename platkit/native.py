@@ -23,7 +23,7 @@ import casadi as ca
 from platkit.io.cache import c_compiler, cache_dir
 from platkit.model import PlatformSpec
 
-__all__ = ["cache_dir", "c_source", "compiled_library", "library_path", "native_for", "newton_functions", "NativeNewton", "CONVERGED", "MAX_ITERATIONS", "SINGULAR", "NOT_FINITE"]
+__all__ = ["c_source", "compiled_library", "library_path", "native_for", "newton_functions", "NativeNewton", "CONVERGED", "MAX_ITERATIONS", "SINGULAR", "NOT_FINITE"]
 
 #: status codes of the Newton driver (C and numpy alike)
 CONVERGED, MAX_ITERATIONS, SINGULAR, NOT_FINITE = 0, 1, 2, 3

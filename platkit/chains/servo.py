@@ -40,14 +40,10 @@ from platkit.chains.solve import (
     solve_pinv,
 )
 from platkit.chains.tasks import (
-    COMPONENTS,
-    SECONDARY_COSTS,
     ServoOptions,
     ServoResult,
     Task,
-    closest_text,
     failure_message,
-    parse_selection,
 )
 from platkit.chains.transforms import pose_error, rotation_action
 from platkit.errors import BadInput, OutOfWorkspace
@@ -492,5 +488,4 @@ def track(chain: KinematicChain, tasks: Sequence[Task] | Task, theta0: np.ndarra
     return result
 
 
-__all__ = ["COMPONENTS", "SECONDARY_COSTS", "Servo", "ServoOptions", "ServoResult", "Task", "closest_text",
-           "failure_message", "parse_selection", "track"]
+__all__ = ["Servo", "track"]

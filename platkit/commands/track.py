@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from platkit.chains import KinematicChain, ServoOptions, Task, follow_trajectory, parse_selection
-from platkit.chains.servo import SECONDARY_COSTS, Servo, failure_message
+from platkit.chains.servo import Servo
+from platkit.chains.tasks import SECONDARY_COSTS, failure_message
 from platkit.chains.transforms import pose_from_xyz_rpy
 from platkit.commands.common import parse_vector, print_json
 from platkit.errors import BadInput, OutOfWorkspace

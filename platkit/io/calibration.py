@@ -20,7 +20,7 @@ import numpy as np
 import yaml
 
 from platkit.errors import BadInput, PlatkitError
-from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, rotvec_from_quat, transform
+from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, transform
 from platkit.io.description import load_yaml
 from platkit.io.jsonout import strict
 from platkit.io.shipped import shipped_dir
@@ -474,5 +474,4 @@ def quat_of(cal: Calibration) -> np.ndarray:
     return quat_from_rotvec(cal.mocap_rotvec)
 
 
-__all__ = ["Calibration", "read_calibration", "write_calibration_yaml", "resolve_description", "FORMAT",
-           "rotvec_from_quat"]
+__all__ = ["Calibration", "read_calibration", "write_calibration_yaml", "resolve_description", "FORMAT"]
