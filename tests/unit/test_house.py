@@ -75,3 +75,34 @@ def test_the_known_exceptions_are_still_exceptions():
     assert not gone_modules, f"now within {MAX_MODULE_LINES} lines or gone: remove from KNOWN_LONG_MODULES: {gone_modules}"
     assert not gone_functions, (f"now within {MAX_FUNCTION_LINES} lines or gone: remove from KNOWN_LONG_FUNCTIONS: "
                                 f"{gone_functions}")
+
+
+def _reexported(path: Path) -> list[str]:
+    """The names a module lists in ``__all__`` without defining them (imported only to be handed on)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    defined, listed = set(), []
+    for node in tree.body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defined.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for target in targets:
+                for name in ast.walk(target):
+                    if isinstance(name, ast.Name):
+                        defined.add(name.id)
+                        if name.id == "__all__" and node.value is not None:
+                            listed = list(ast.literal_eval(node.value))
+    return [n for n in listed if n not in defined]
+
+
+def test_the_reexport_measure_sees_a_handed_on_name(tmp_path):
+    (tmp_path / "m.py").write_text("from os import sep\nX = 1\n\ndef f():\n    pass\n\n__all__ = ['X', 'f', 'sep']\n")
+    assert _reexported(tmp_path / "m.py") == ["sep"]
+
+
+def test_only_a_package_face_hands_names_on():
+    """Implementation modules list in ``__all__`` what they define; a subpackage's ``__init__`` is
+    its public face and may gather its modules' names."""
+    found = {path.relative_to(PACKAGE).as_posix(): names for path in sorted(PACKAGE.rglob("*.py"))
+             if path.name != "__init__.py" and (names := _reexported(path))}
+    assert not found, f"modules that hand on names they import (import them from where they are defined): {found}"
