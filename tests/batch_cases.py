@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -147,3 +148,11 @@ def run_cases(fn: Callable[[dict], dict], cases: Sequence[dict], *, jobs: int | 
         print(f"{len(lost)} cases lost with their workers: not written; run the same command again to run them",
               file=stream, flush=True)
     return [rows[i] for i in ids if i in rows]
+
+
+def hears_ctrl_c() -> None:
+    """Run in a child process before platkit starts: SIGINT at its default disposition, as under a
+    terminal. A shell that started the test run in the background leaves SIGINT ignored, and a
+    program keeps an ignored SIGINT ignored (the Unix rule for background jobs), so a Ctrl-C test
+    would then test nothing platkit does."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

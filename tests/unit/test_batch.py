@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from batch_cases import run_cases
+from batch_cases import hears_ctrl_c, run_cases
 
 from platkit.batch import engine
 from platkit.batch.store import find_sessions, match_sessions
@@ -367,6 +367,7 @@ def test_an_interrupted_batch_ends_in_one_line_and_leaves_nothing(tmp_path, how)
     proc = subprocess.Popen([sys.executable, "-m", "platkit.cli", "batch", "calibrate", str(tmp_path / "fleet" / "*"),
                              "--free", "origin", "--workers", "1", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=hears_ctrl_c,
                             env={**os.environ, "TMPDIR": str(scratch)})
     try:
         deadline = time.monotonic() + 180

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from batch_cases import hears_ctrl_c
 
 from platkit.batch import engine
 from platkit.batch.montecarlo import draw, draw_seed
@@ -82,7 +83,8 @@ def test_a_monte_carlo_interrupted_says_so_once(tmp_path):
     out = tmp_path / "g.csv"
     proc = subprocess.Popen([sys.executable, "-m", "platkit.cli", "plan", "--platform", "rotary", "--grid", "3", "--out",
                              str(out), "--monte-carlo", "2000", "--workers", "2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=hears_ctrl_c)
     try:
         deadline = time.monotonic() + 180
         draws = tmp_path / "g.montecarlo" / "draws"
