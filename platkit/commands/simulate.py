@@ -11,7 +11,8 @@ from platkit.notices import said
 #: the additive simulator's defaults for the nuisances --physics draws per session
 ADDITIVE_DEFAULTS = {"noise_mm": 0.2, "occlusion": 0.02, "hold_s": 1.5}
 #: options only the physical simulator reads
-PHYSICS_ONLY = ("latency_s", "clock_offset_s", "white_noise", "overshoot", "motion", "duration_s", "command_rate_hz")
+PHYSICS_ONLY = ("latency_s", "clock_offset_s", "white_noise", "overshoot", "motion", "duration_s", "command_rate_hz",
+                "warmup")
 
 #: IMU rate when --imu is given without --imu-rate-hz
 DEFAULT_IMU_RATE_HZ = 200.0
@@ -107,6 +108,10 @@ def add_parser(sub):
                    help="--physics --motion: the session's length, s (default 200)")
     p.add_argument("--command-rate-hz", type=float, default=None,
                    help="--physics --motion: commands per second (default 20)")
+    p.add_argument("--warmup", default=None, choices=["visible", "warm"],
+                   help="--physics: the stand warms up with time since power-on (its size and time constant drawn "
+                        "from the seed): visible (switched on just before the first command) or warm (long before); "
+                        "session.yaml says power_on_t")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of the session files (default mm)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--raw", dest="poses_only", action="store_false", help="write the raw markers.csv stream (default)")
@@ -242,7 +247,7 @@ def run_physics(args, spec, plan, effects) -> int:
                            length_unit=args.unit, hold_s=args.hold_s, noise_mm=args.noise_mm,
                            occlusion=args.occlusion, latency_s=args.latency_s, clock_offset_s=args.clock_offset_s,
                            coloured=not args.white_noise, overshoot=args.overshoot, imu=imu_options(args),
-                           perturbation=args.perturbation,
+                           perturbation=args.perturbation, warmup=args.warmup,
                            description=None if args.description is None else Path(args.description).name,
                            **motion_options(args, spec))
     out = write_physical_session(sim, args.out, description=args.description,

@@ -4,6 +4,7 @@ in time only where it predicts the later part of the session no worse than the m
 and predict states the thermal state it predicts for (and warns beyond the recorded span)."""
 import numpy as np
 import pytest
+import yaml
 
 from platkit.cli import main
 from platkit.diagnose.fitting import Fit, Options
@@ -264,3 +265,17 @@ def test_warm_with_a_heat_of_work_that_kept_no_work_rate_is_refused(calibration,
     assert rc == 0
     _, rows = _rows(out)
     assert all(np.isfinite(float(r["M1_x"])) for r in rows)
+
+
+def test_simulate_cli_plays_a_warm_up_and_says_its_power_on(tmp_path, capsys):
+    out = tmp_path / "s"
+    assert main(["simulate", "--platform", "stewart", "--physics", "--warmup", "visible", "--poses", "6", "--seed", "3",
+                 "--out", str(out)]) == 0
+    session = yaml.safe_load((out / "session.yaml").read_text())
+    truth = yaml.safe_load((out / "truth.yaml").read_text())
+    assert session["power_on_t"] < 0  # switched on before the first command
+    assert "form: warm-up with time" in (out / "truth.yaml").read_text()
+    assert "thermal_drift" in str(truth)
+    capsys.readouterr()
+    assert main(["simulate", "--platform", "stewart", "--warmup", "warm", "--out", str(tmp_path / "t")]) == 2
+    assert "--warmup: only with --physics" in capsys.readouterr().err
