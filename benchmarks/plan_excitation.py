@@ -23,26 +23,15 @@ import time
 from pathlib import Path
 
 import numpy as np
+from calibrate_motion import truth_error  # benchmarks/, the script's own folder on the path
 
-from platkit.calibrate.estimate import predict_markers
 from platkit.calibrate.excitation import MotionInformation, design_excitation, predict_trajectory
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.plan import default_marker_layout, reference_poses_for
 from platkit.calibrate.trajectories import FourierFamily, drive_limits, limit_violations, trajectory
-from platkit.geometry import matrix_from_quat
 from platkit.io.session import load_session
-from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
-
-
-def truth_error(cal, sim, U) -> float:
-    """RMS (m) of the calibration's markers against the true stand's at commands U (3-D)."""
-    fb = PlatformModel(sim.spec).forward_batch(U, td=sim.td, strict=False)
-    T = sim.mocap_from_base
-    true = (fb.X[:, None, :] + np.einsum("kij,mj->kmi", matrix_from_quat(fb.q), sim.marker_body)) @ T[:3, :3].T + T[:3, 3]
-    pred, _, _, _ = predict_markers(cal, U)
-    return float(np.sqrt(np.nanmean(np.sum((pred - true) ** 2, axis=2))))
 
 
 def main() -> None:

@@ -222,29 +222,27 @@ def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
                 pts += [Q[i, j] for i in range(3) for j in range(3)]
         return ca.vertcat(*pts)
 
+    def closed_form(name: str, y) -> ObservationFunctions:
+        """The observation y(u, td, w, t, m, dpose, dm) of a closed-form pose: y, its Jacobian in
+        (td, w, t, m) and in (dpose, u), by CasADi's exact derivatives."""
+        args = [u, td, w, t, m, dpose, dm]
+        G = ca.Function(
+            name, args,
+            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
+             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
+            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
+        return ObservationFunctions(G, ca.Function(f"{name}_y", args, [y.T]), [1, 2, 3, 4])
+
     if spec.forward is not None and point_links is not None:
         L = len(spec.tracked_links)
         q_all, X_all = spec.link_poses(u, td)
         y = observe_links([q_all[4 * k:4 * k + 4] for k in range(L)], [X_all[3 * k:3 * k + 3] for k in range(L)])
-        G = ca.Function(
-            "observe_tree", [u, td, w, t, m, dpose, dm],
-            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
-            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
-        return ObservationFunctions(G, ca.Function("observe_tree_y", [u, td, w, t, m, dpose, dm], [y.T]),
-                                     [1, 2, 3, 4])
+        return closed_form("observe_tree", y)
     if point_links is not None:
         raise BadInput(f"stand {spec.name!r}: markers on several links need a closed-form forward and link_poses")
     if spec.forward is not None:
         q, X = spec.forward(u, td)
-        y = observe(q, X)
-        G = ca.Function(
-            "observe_fwd", [u, td, w, t, m, dpose, dm],
-            [y.T, ca.densify(ca.horzcat(ca.jacobian(y, td), ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-             ca.densify(ca.horzcat(ca.jacobian(y, dpose), ca.jacobian(y, u)).T)],
-            ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
-        return ObservationFunctions(G, ca.Function("observe_fwd_y", [u, td, w, t, m, dpose, dm], [y.T]),
-                                     [1, 2, 3, 4])
+        return closed_form("observe_fwd", observe(q, X))
     # through the Newton solution p(u, td) of r(u, td, p) = 0: dp/d(td, u) = -F_p^+ [F_td F_u],
     # solved per pose inside the function (F_p^+ = F_p^-1, or (F_p^T F_p)^-1 F_p^T with more
     # residuals than pose coordinates)

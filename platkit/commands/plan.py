@@ -69,6 +69,16 @@ def _summary(info: dict) -> dict:
     return {k: v for k, v in info.items() if k != "parameter_std"}
 
 
+def _check_shared(args) -> None:
+    """The options both kinds of plan read: the stroke margin, the noise, the seed."""
+    if not 0 <= args.margin < 0.5:
+        raise BadInput(f"--margin must be in [0, 0.5), got {args.margin}")
+    if not args.noise_mm > 0:
+        raise BadInput("--noise-mm must be positive")
+    if args.seed < 0:
+        raise BadInput(f"--seed: must be 0 or more, got {args.seed}")
+
+
 def run(args) -> int:
     from platkit.calibrate import plan as pl
     from platkit.io import jsonout
@@ -81,12 +91,7 @@ def run(args) -> int:
         raise BadInput(f"{', '.join(used)}: only with --motion")
     if args.grid is None and args.optimal is None:
         raise BadInput("give --grid N or --optimal N (or both: the grid is then the candidate set)")
-    if not 0 <= args.margin < 0.5:
-        raise BadInput(f"--margin must be in [0, 0.5), got {args.margin}")
-    if not args.noise_mm > 0:
-        raise BadInput("--noise-mm must be positive")
-    if args.seed < 0:
-        raise BadInput(f"--seed: must be 0 or more, got {args.seed}")
+    _check_shared(args)
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name")
@@ -147,12 +152,7 @@ def run_motion(args) -> int:
                      ("--effect", bool(args.effect))):
         if on:
             raise BadInput(f"{flag}: applies to hold plans, not --motion")
-    if not 0 <= args.margin < 0.5:
-        raise BadInput(f"--margin must be in [0, 0.5), got {args.margin}")
-    if not args.noise_mm > 0:
-        raise BadInput("--noise-mm must be positive")
-    if args.seed < 0:
-        raise BadInput(f"--seed: must be 0 or more, got {args.seed}")
+    _check_shared(args)
     if args.target_mm is not None and not args.target_mm > 0:
         raise BadInput(f"--target-mm must be positive, got {args.target_mm:g}")
     out = Path(args.out)
