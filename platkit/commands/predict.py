@@ -3,7 +3,7 @@ at a thermal state (``--at-time`` seconds since power-on, or ``--warm``) where t
 time-dependent terms."""
 from __future__ import annotations
 
-import sys
+from platkit.notices import warn
 
 
 def add_parser(sub):
@@ -29,10 +29,10 @@ def run(args) -> int:
     check_output_file(args.out)
     res = predict_file(args.calibration, args.commands, args.out, at_time=args.at_time, warm=args.warm)
     if res["failed"]:
-        print(f"platkit: warning: {res['failed']} of {res['rows']} rows have no forward-kinematics solution; "
-              "their predicted cells are empty", file=sys.stderr)
+        warn(f"{res['failed']} of {res['rows']} rows have no forward-kinematics solution; "
+             "their predicted cells are empty")
     for w in res["warnings"]:
-        print(f"platkit: warning: {w} (said in the column thermal_note)", file=sys.stderr)
+        warn(f"{w} (said in the column thermal_note)")
     if res["timed"] or args.at_time is not None or args.warm:
         print(f"thermal state: {res['thermal']}")
     print(f"wrote {res['rows']} rows to {res['out']}")

@@ -81,3 +81,22 @@ def test_a_history_only_model_takes_rows_without_t(calibration, tmp_path, capsys
     cal = _with_terms(calibration, tmp_path, backlash_only)
     rc, out = _predict(cal, tmp_path, "A,B,C\n2047.2,2047.2,2047.2\n1900,2100,2000\n")
     assert rc == 0 and len(out.read_text().splitlines()) == 3
+
+
+def test_rows_without_a_solution_are_said_once_through_the_notices(calibration, tmp_path, capsys, monkeypatch):
+    """The verb's own warnings take the one route of every warning (platkit.notices): printed
+    once on stderr in the spec's form, never twice."""
+    import platkit.calibrate.predict as predict
+
+    real = predict.predict_file
+
+    def two_failed(*args, **kwargs):
+        res = real(*args, **kwargs)
+        return {**res, "failed": 2, "warnings": ["a note", "a note"]}
+
+    monkeypatch.setattr(predict, "predict_file", two_failed)
+    rc, out = _predict(calibration, tmp_path, "t,A,B,C\n0,2047.2,2047.2,2047.2\n1,1900,2100,2000\n")
+    err = capsys.readouterr().err.splitlines()
+    assert rc == 0 and out.exists()
+    assert err == ["platkit: warning: 2 of 2 rows have no forward-kinematics solution; their predicted cells are empty",
+                   "platkit: warning: a note (said in the column thermal_note)"], err
