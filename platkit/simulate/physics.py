@@ -307,7 +307,7 @@ def _commands(spec, model, seed, plan, n_poses, motion, hold_s, overshoot, pertu
         td_plan = perturb_parameters(spec, np.random.default_rng([seed, 1]), perturbation)
         U, plan_info = continuous_plan(spec, motion, duration_s, command_rate_hz, rng_plan, model, td_plan,
                                        draw.response.rate, draw.response.accel)
-    model.check_controls(U)
+        model.check_controls(U)
     td = perturb_parameters(spec, rng_stand, perturbation)
     ok, P_rest = feasible(spec, U, td, model)
     if not np.all(ok):

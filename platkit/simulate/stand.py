@@ -46,16 +46,17 @@ def make_plan(spec: PlatformSpec, plan: Any, n_poses: int, rng: np.random.Genera
               length_unit: str) -> tuple[np.ndarray, dict]:
     """(N, n_u) commands in internal units and what the plan was, from ``plan``: 'grid'
     (snake-ordered, about n_poses points), 'random', a Plan, an (N, n_u) array, or a plan.csv
-    path in ``length_unit``."""
+    path in ``length_unit``. Every kind is checked against the strokes once, under platkit.limits'
+    policy: a file's rows by the file's reader (named by file, row and column), the others here."""
     if isinstance(plan, Plan):
-        return plan.controls, {"kind": plan.kind, **plan.info}
+        return model.check_controls(plan.controls), {"kind": plan.kind, **plan.info}
     if isinstance(plan, np.ndarray):
-        return np.atleast_2d(plan).astype(float), {"kind": "given"}
+        return model.check_controls(np.atleast_2d(plan).astype(float)), {"kind": "given"}
     if plan in (None, "grid"):
         p = grid_plan_for(spec, n_poses, model=model)
-        return p.controls, {"kind": "grid", **p.info}
+        return model.check_controls(p.controls), {"kind": "grid", **p.info}
     if plan == "random":
         p = random_candidates(spec, n_poses, rng, model=model)
-        return p.controls, {"kind": "random"}
+        return model.check_controls(p.controls), {"kind": "random"}
     path = Path(str(plan))
     return read_plan_csv(path, spec, length_unit), {"kind": "file", "file": str(path)}

@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+import yaml
 
 from platkit.cli import main
 from platkit.errors import BadInput, BadSession, OutOfWorkspace
@@ -149,3 +150,18 @@ def test_diagnose_says_the_reading_and_writes_it_in_its_reports(tmp_path, capsys
     assert f"platkit: warning: {said}" in capsys.readouterr().err
     assert any(w.startswith(said) for w in json.loads((out / "diagnosis.json").read_text())["warnings"])
     assert html.escape(said) in (out / "report.html").read_text()
+
+
+@pytest.mark.parametrize("physics", [False, True])
+def test_simulate_says_a_plan_row_past_a_limit_once(tmp_path, capsys, physics):
+    """simulate --plan FILE: a row within the recording tolerance is said once, by file, row and
+    column (the plan's reader), not a second time by the simulator."""
+    plan = tmp_path / "plan.csv"
+    plan.write_text("A,B,C\n2047.2,2047.2,2047.2\n2850,2047.2,2047.2\n1900,2100,2000\n2000,2000,2000\n")
+    out = tmp_path / "s"
+    args = ["simulate", "--platform", "psvr", "--plan", str(plan), "--out", str(out)] + (["--physics"] if physics else [])
+    assert main(args) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if line.startswith("platkit: warning:")]
+    assert len(said) == 1 and "plan.csv row 2 (line 3) column 'A': 2850 is past the limit" in said[0], said
+    notes = yaml.safe_load((out / "session.yaml").read_text())["notes"]
+    assert "warning: " + said[0].removeprefix("platkit: warning: ") in notes
