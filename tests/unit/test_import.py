@@ -351,3 +351,22 @@ def test_a_vendor_export_saved_as_markers_csv_is_read_by_its_content(tmp_path):
     s = load_session(folder)
     assert any(n.startswith(f"{folder / 'markers.csv'}: Vicon CSV, 2085 samples") for n in s.extras["control_notes"])
     assert np.array_equal(s.markers, load_session(EXAMPLES / "rotary").markers, equal_nan=True)
+
+
+def test_vicon_section_names_in_capitals_and_the_older_layout_refused(tmp_path, capsys):
+    # section names in capitals read as the same export
+    caps = tmp_path / "caps.csv"
+    caps.write_text("\n".join(x.upper() if x.strip() in ("Trajectories", "Segments", "Devices") else x
+                              for x in (DATA / "vicon_nexus.csv").read_text().splitlines()) + "\n")
+    assert "TRAJECTORIES" in caps.read_text() and sniff(caps) == "vicon"
+    rec, ref = read_recording(caps), read("vicon_nexus.csv")
+    assert np.array_equal(rec.markers["M2"], ref.markers["M2"], equal_nan=True) and list(rec.bodies) == ["T"]
+    # the older layout (the one pyCGM 1.0's loadCSV reads: a 'Field #' column, no Sub Frame, no
+    # units row; hand-made here, no such export was found): refused in one line, nothing written
+    old = tmp_path / "old.csv"
+    old.write_text("TRAJECTORIES\n100\n,Stand:M1,,,Stand:M2,,\nField #,X,Y,Z,X,Y,Z\n"
+                   "1,1650.5,864.2,3553.6,1700.0,800.0,3500.0\n2,1650.6,864.3,3553.7,1700.1,800.1,3500.1\n")
+    assert main(["import", str(old), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "old.csv: line 4: an older Vicon CSV layout" in err, err
+    assert "does not say its length unit" in err and not (tmp_path / "out").exists()

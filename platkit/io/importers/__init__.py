@@ -51,7 +51,7 @@ def sniff(path: str | Path) -> str:
     cells = [c.strip() for c in first.replace("\t", ",").split(",")]
     if cells and cells[0] == "Format Version":
         return "motive"
-    if cells and cells[0] in ("Trajectories", "Segments", "Objects", "Devices", "Model Outputs", "Joints"):
+    if cells and vicon.section_name(cells[0]):
         return "vicon"
     if first.startswith("NO_OF_FRAMES"):
         return "qualisys"

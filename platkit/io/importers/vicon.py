@@ -13,9 +13,11 @@ The file is a list of sections, each:
 Trajectories groups are markers (X,Y,Z). Segments / Objects groups are rigid bodies
 (RX,RY,RZ,TX,TY,TZ): the translation TX,TY,TZ and the rotation as a helical (rotation-vector)
 angle RX,RY,RZ in the unit its units row gives (deg or rad). Other sections (Devices, Model
-Outputs, Joints) are left out, and said. Times are frame numbers over the rate. An empty cell
-is an occluded sample, and so is a marker at exactly 0,0,0 or a body with all six cells 0,
-which some exports write for a gap.
+Outputs, Joints) are left out, and said. Section names are read whatever their letter case; the
+older layout (a 'Field #' column, no Sub Frame column, no units row) is refused: it does not say
+its length unit. Times are frame numbers over the rate. An empty cell is an occluded sample, and
+so is a marker at exactly 0,0,0 or a body with all six cells 0, which some exports write for a
+gap.
 """
 from __future__ import annotations
 
@@ -32,6 +34,15 @@ LENGTHS = {"mm": 1.0, "m": 1.0, "cm": 10.0}  # cm is read as mm (x10)
 ANGLES = {"deg": np.pi / 180.0, "rad": 1.0}
 BODY_SECTIONS = ("Segments", "Objects")
 MARKER_SECTIONS = ("Trajectories",)
+#: every section name a Vicon CSV export starts a section with (read whatever its letter case:
+#: older exports write them in capitals, TRAJECTORIES)
+SECTIONS = MARKER_SECTIONS + BODY_SECTIONS + ("Devices", "Model Outputs", "Joints")
+_CANONICAL = {s.upper(): s for s in SECTIONS}
+
+
+def section_name(cell: str) -> str | None:
+    """The section a first cell starts (its canonical spelling), or None."""
+    return _CANONICAL.get(cell.strip().upper())
 
 
 def _blank(row: list[str]) -> bool:
@@ -55,7 +66,7 @@ def read_vicon_csv(path: str | Path) -> Recording:
         if _blank(rows[i]):
             i += 1
             continue
-        section = rows[i][0].strip()
+        section = section_name(rows[i][0]) or rows[i][0].strip()
         line = i + 1
         if len(rows) < i + 5:
             raise BadInput(f"{path}: line {line}: section {section!r} ends before its rate, name, component and "
@@ -75,6 +86,11 @@ def read_vicon_csv(path: str | Path) -> Recording:
                              "are motion capture")
             continue
         seen_section = True
+        if comps and comps[0].strip() == "Field #":
+            raise BadInput(f"{path}: line {line + 3}: an older Vicon CSV layout (a 'Field #' column, no Sub Frame "
+                           "column and no units row): it does not say its length unit; export the trial again "
+                           "with a units row (Vicon Nexus 2 or later), or write it as a plain table and import "
+                           "that with --unit")
         if [c.strip() for c in comps[:2]] != ["Frame", "Sub Frame"]:
             raise BadInput(f"{path}: line {line + 3}: expected 'Frame,Sub Frame,...' (the component row of section "
                            f"{section!r}), got {','.join(comps[:3])!r}")
