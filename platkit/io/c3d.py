@@ -17,6 +17,10 @@ from platkit.geometry import quat_from_matrix
 from platkit.io.recording import Recording, name_map
 
 C3D_UNITS = {"mm": 1e-3, "m": 1.0, "cm": 1e-2}
+#: the first three entries of a ROTATION transform's bottom row must be within this of 0 (a
+#: translation there means the matrix was stored transposed: read as it is, the body's position
+#: would be 0 and its rotation inverted)
+BOTTOM_TOL = 1e-6
 
 
 def _ezc3d():
@@ -96,7 +100,9 @@ def read_c3d_recording(path: str | Path) -> Recording:
     (the 6-DOF bodies Qualisys and Vicon can write: a 4x4 transform per body and frame, its
     translation in POINT:UNITS) as a rigid body, in the file's unit (cm read as mm). Samples with
     a negative residual or NaN coordinates, and rotations with NaN entries, are occluded and
-    counted. Times are frame numbers over the rate; the rotations must share the points' rate."""
+    counted. A transform whose bottom row is not 0, 0, 0, (1) or whose rotation is not orthonormal
+    is refused, naming the frame. Times are frame numbers over the rate; the rotations must share
+    the points' rate."""
     path = Path(path)
     if not path.is_file():
         raise BadSession(f"{path}: file not found")
@@ -138,6 +144,14 @@ def read_c3d_recording(path: str | Path) -> Recording:
             pos = np.where(gone[:, None], np.nan, T[:, :3, 3] * scale)
             q = np.full((n, 4), np.nan)
             if (~gone).any():
+                bottom = np.abs(T[~gone, 3, :3]).max(axis=1)
+                if bottom.max() > BOTTOM_TOL:
+                    f = int(np.nonzero(~gone)[0][np.argmax(bottom)])
+                    moved = np.abs(T[~gone, :3, 3]).max() > BOTTOM_TOL
+                    why = ("not a rigid transform" if moved else
+                           "its translation is in the bottom row: the matrix is stored transposed")
+                    raise BadSession(f"{path}: rotation {k!r}, frame {first + f}: the 4x4 transform's bottom row is "
+                                     f"{', '.join(f'{v:.6g}' for v in T[f, 3])}, not 0, 0, 0, 1 ({why})")
                 R = T[~gone, :3, :3]
                 err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
                 if err.max() > 1e-3:

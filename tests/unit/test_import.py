@@ -370,3 +370,25 @@ def test_vicon_section_names_in_capitals_and_the_older_layout_refused(tmp_path, 
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "old.csv: line 4: an older Vicon CSV layout" in err, err
     assert "does not say its length unit" in err and not (tmp_path / "out").exists()
+
+
+def test_a_c3d_transform_stored_transposed_is_refused_not_read_as_a_body_at_the_origin(tmp_path, capsys):
+    import ezc3d
+
+    c = ezc3d.c3d(str(DATA / "c3d_rigid.c3d"))
+    rot = np.asarray(c["data"]["rotations"], float)
+    assert np.abs(rot[:3, 3, 0, 0]).max() > 100  # the fixture's translation, where the reader takes it
+    new = ezc3d.c3d()
+    for group, name in (("POINT", "RATE"), ("POINT", "LABELS")):
+        new["parameters"][group][name]["value"] = c["parameters"][group][name]["value"]
+    new["data"]["points"] = np.asarray(c["data"]["points"], float)
+    new.add_parameter("POINT", "UNITS", "mm")
+    new["data"]["rotations"] = rot.transpose(1, 0, 2, 3)  # the translation in the bottom row
+    new.add_parameter("ROTATION", "LABELS", ("Stand:T",))
+    path = tmp_path / "transposed.c3d"
+    new.write(str(path))
+    assert main(["import", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "transposed.c3d: rotation 'Stand:T', frame 0: the 4x4 transform's bottom row is" in err, err
+    assert "its translation is in the bottom row: the matrix is stored transposed" in err and not (tmp_path / "out").exists()
