@@ -37,6 +37,7 @@ from platkit.calibrate.excitation import MotionInformation, design_excitation
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.plan import default_marker_layout, feasible
 from platkit.calibrate.trajectories import FourierFamily, drive_limits, limit_violations, trajectory
+from platkit.calibrate.via_points import design_via, via_trajectory
 from platkit.errors import PlatkitError
 from platkit.geometry import matrix_from_quat
 from platkit.io.session import load_session
@@ -49,7 +50,7 @@ from platkit.simulate.physics import simulate_physics, write_physical_session
 
 #: `plan --motion`'s defaults: the family, the margin, the evaluations; commands per s
 PERIOD_S, HARMONICS, MARGIN, EVALUATIONS, COMMAND_RATE_HZ = 40.0, 8, 0.1, 200, 20.0
-MOTIONS = ("multisine", "designed")
+MOTIONS = ("multisine", "designed", "via", "via-random")
 
 
 def truth_error(cal, sim, U) -> float:
@@ -93,6 +94,25 @@ class Designed:
         return U, limit_violations(U, COMMAND_RATE_HZ, self.limits)
 
 
+class Swept:
+    """`plan --motion --family via`'s sweep for ``spec`` within the same limits as :class:`Designed`,
+    designed for each session's duration from ``design_seed`` (whatever the session seed):
+    D-optimal via points, or (``random``) the candidates as drawn."""
+
+    def __init__(self, spec, design_seed: int, random: bool = False):
+        lo, hi = spec.control_bounds()
+        rate = LIMIT_SHARE * (hi - lo) / RANGES["stroke_time_s"][1]
+        accel = LIMIT_SHARE * (hi - lo) / RANGES["stroke_time_s"][1] / RANGES["accel_time_s"][1]
+        self.spec, self.limits, self.seed, self.random = spec, drive_limits(spec, rate, accel, MARGIN), design_seed, random
+        self.markers = default_marker_layout(spec, 5, np.random.default_rng(0))
+
+    def commands(self, duration_s: float) -> tuple[np.ndarray, dict]:
+        d = design_via(self.spec, self.limits, self.markers, duration_s, COMMAND_RATE_HZ,
+                       np.random.default_rng(self.seed), d_optimal_choice=not self.random)
+        U, _ = via_trajectory(d.path, self.limits, COMMAND_RATE_HZ)
+        return U, {**limit_violations(U, COMMAND_RATE_HZ, self.limits), **d.info}
+
+
 def stroke_share(spec, U) -> float:
     """The smallest over the controls of the share of the stroke the commands span."""
     lo, hi = spec.control_bounds()
@@ -116,6 +136,7 @@ def main() -> None:
         ap.error(f"--motion: each of {', '.join(MOTIONS)}, got {args.motion!r}")
     spec = get_platform("stewart")
     designed = Designed(spec, args.design_seed, args.period_s, args.harmonics) if "designed" in motions else None
+    swept = {m: Swept(spec, args.design_seed, m == "via-random") for m in motions if m.startswith("via")}
     head = "seed  holds_mm  " + "  ".join(f"{m}_mm" for m in motions) + "  " + "  ".join(
         f"{m}/holds(goal<=1.5)" for m in motions)
     if not args.no_slow:
@@ -137,12 +158,13 @@ def main() -> None:
             duration = float(held.marker_t[-1] - held.marker_t[0])
             e_m, share, notes = {}, [stroke_share(spec, held.commands)], []
             for m in motions:
-                if m == "designed":
-                    assert designed is not None
-                    Um, used = designed.commands(duration / 3)
+                if m == "designed" or m in swept:
+                    assert designed is not None or m in swept
+                    Um, used = swept[m].commands(duration / 3) if m in swept else designed.commands(duration / 3)
                     stream = simulate_physics(spec, seed=seed, motion=Um, command_rate_hz=COMMAND_RATE_HZ,
                                               mocap_rate_hz=100.0)
-                    notes.append(f"designed {len(Um)} commands, {used['rate_share']:.2f}/{used['accel_share']:.2f} of "
+                    vias = f" ({used['via_points']} via points)" if m in swept else ""
+                    notes.append(f"{m} {len(Um)} commands{vias}, {used['rate_share']:.2f}/{used['accel_share']:.2f} of "
                                  f"its rate/accel limits, {stream.plan_info['drive_rate_share']:.2f}/"
                                  f"{stream.plan_info['drive_accel_share']:.2f} of the drawn drives'"
                                  + (f", {stream.plan_info['unreachable_with_true_geometry']} unreachable dropped"

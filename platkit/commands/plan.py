@@ -44,6 +44,11 @@ def add_parser(sub):
                          "velocity)")
     mo.add_argument("--max-accel", default=None, metavar="A[,A...]",
                     help="the drives' acceleration limit, per s^2, as --max-rate")
+    mo.add_argument("--family", default=None, metavar="{fourier,via}",
+                    help="the trajectory family: 'fourier', a Fourier series per control with D-optimal coefficients "
+                         "(--period-s, --harmonics, --evaluations); 'via', sweeps through D-optimal via points at the "
+                         "drives' full rate and acceleration, joined by synchronised trapezoidal moves, passing each "
+                         "at rest without holding (default fourier)")
     mo.add_argument("--period-s", type=float, default=40.0, help="the series' period, s (default 40)")
     mo.add_argument("--harmonics", type=int, default=8, help="harmonics of the base frequency 1/period (default 8)")
     mo.add_argument("--command-rate-hz", type=float, default=20.0, help="commands per second (default 20)")
@@ -134,7 +139,7 @@ def run(args) -> int:
 
 
 #: options that apply to --motion alone (their defaults None)
-MOTION_ONLY = ("duration_s", "target_mm", "max_rate", "max_accel")
+MOTION_ONLY = ("duration_s", "target_mm", "max_rate", "max_accel", "family")
 
 
 def run_motion(args) -> int:
@@ -155,6 +160,8 @@ def run_motion(args) -> int:
     _check_shared(args)
     if args.target_mm is not None and not args.target_mm > 0:
         raise BadInput(f"--target-mm must be positive, got {args.target_mm:g}")
+    if args.family is not None and args.family not in ex.FAMILIES:
+        raise BadInput(f"--family: one of {', '.join(ex.FAMILIES)}, got {args.family!r}")
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name (the session's commands.csv)")
@@ -187,7 +194,7 @@ def run_motion(args) -> int:
                                 sigma_m=args.noise_mm * 1e-3, markers=markers, rng=np.random.default_rng(args.seed),
                                 duration_s=args.duration_s,
                                 target_m=None if args.target_mm is None else args.target_mm * 1e-3,
-                                evaluations=args.evaluations, progress=progress)
+                                evaluations=args.evaluations, progress=progress, family=args.family or "fourier")
     report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, "markers": args.markers,
               "marker_layout_m": markers.tolist(), "seed": args.seed, **result.report,
               "warnings": said()}  # every warning said while the verb ran (platkit.notices), on stderr too
@@ -198,13 +205,22 @@ def run_motion(args) -> int:
     sc = length_scale("mm")
     print(f"wrote {out} ({r['n_commands']} commands at {r['command_rate_hz']:g} per s, {r['duration_s']:.1f} s, no holds) "
           f"and {out.with_suffix('.json')}")
-    print(f"excitation: period {r['family']['period_s']:g} s, {r['family']['harmonics']} harmonics; rate "
-          f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at most; "
-          f"criterion {r['design']['criterion_random']:.2f} (random multisine) -> "
-          f"{r['design']['criterion']:.2f} ({r['design']['evaluations']} evaluations)")
+    fam = r["family"]
+    if fam["name"] == "via":
+        other = "a sweep through random via points"
+        print(f"excitation: a sweep through {fam['via_points']} D-optimal via points ({fam['tours']} tour(s), "
+              f"{fam['detours']} move(s) through neutral), {min(r['stroke_share']):.0%} of each stroke at least; rate "
+              f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at "
+              f"most; criterion {r['design']['criterion_random']:.2f} (random via points) -> {r['design']['criterion']:.2f}")
+    else:
+        other = "a random multisine"
+        print(f"excitation: period {fam['period_s']:g} s, {fam['harmonics']} harmonics; rate "
+              f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at "
+              f"most; criterion {r['design']['criterion_random']:.2f} (random multisine) -> "
+              f"{r['design']['criterion']:.2f} ({r['design']['evaluations']} evaluations)")
     print(f"predicted marker error (3-D RMS over the reference poses, {p['samples_fitted']} samples of {args.noise_mm:g} mm "
-          f"noise): {p['marker_rms_m'] / sc:.4f} mm, 90% of sessions under {p['marker_rms_p90_m'] / sc:.4f} mm (a random "
-          f"multisine of the same duration and limits: {p['marker_rms_m_random'] / sc:.4f} mm, "
+          f"noise): {p['marker_rms_m'] / sc:.4f} mm, 90% of sessions under {p['marker_rms_p90_m'] / sc:.4f} mm ({other} "
+          f"of the same duration and limits: {p['marker_rms_m_random'] / sc:.4f} mm, "
           f"{p['marker_rms_p90_m_random'] / sc:.4f} mm)")
     if "target" in r:
         tg = r["target"]

@@ -1,0 +1,226 @@
+"""Via-point sweeps: an excitation for calibration from motion that covers the whole stroke at the
+drives' full speed, without holds.
+
+The via points are the poses a hold-based D-optimal plan would hold (:func:`platkit.calibrate.plan.d_optimal`
+over the identification Jacobian of random reachable candidates inside the stroke box less the
+margin, half of them drawn towards the box's faces), visited in nearest-neighbour order from the
+neutral controls and back. Consecutive points are joined by a straight line in control space
+travelled by one trapezoidal velocity profile shared by every actuator (synchronised): its rate
+and acceleration are the largest that keep each actuator within its own limits, so the actuator
+with the longest move relative to its limits moves time-optimally and the others proportionally
+slower. A move ends at rest on its via point and the next starts at once (no hold): the stand
+passes through each via point at zero speed, decelerating into it and accelerating out of it.
+Commands are that profile sampled every 1 / ``command_rate_hz`` s; the first difference of a
+sampled profile is the mean of its speed over the interval and the second the mean of its
+acceleration over two, so sampling keeps every command within the limits the profile keeps.
+
+The number of via points is the largest whose tour (out from the neutral controls, through every
+point, back to them) fits the session; a session longer than a tour of MAX_VIAS points repeats
+that tour, back and forth. A move whose straight line leaves the reachable workspace goes through
+the neutral controls instead (counted); every command is checked reachable and within the box,
+rate and acceleration (:func:`platkit.calibrate.trajectories.limit_violations`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from platkit.calibrate.plan import _Subspace, d_optimal, feasible, identification_jacobian, nearest_neighbour_order
+from platkit.calibrate.trajectories import Limits, limit_violations
+from platkit.errors import BadInput, NotIdentifiable
+from platkit.kinematics import PlatformModel
+from platkit.model import PlatformSpec
+
+__all__ = ["ViaDesign", "design_via", "via_trajectory", "move_duration"]
+
+#: distinct via points at most (a longer session repeats the tour); candidates drawn per via point
+#: (at least MIN_CANDIDATES); share of the candidates drawn towards the box's faces (each control
+#: from a Beta(FACE_BETA, FACE_BETA) over the box, the rest uniform)
+MAX_VIAS, CANDIDATES_PER_VIA, MIN_CANDIDATES, FACE_SHARE, FACE_BETA = 60, 12, 400, 0.5, 0.3
+#: the fewest via points a sweep has
+MIN_VIAS = 2
+
+
+def move_duration(d: np.ndarray, rate: np.ndarray, accel: np.ndarray) -> tuple[float, float, float]:
+    """(duration s, rate, acceleration) of the synchronised move by ``d`` (n_u,): the share of the
+    move covered follows one trapezoidal profile (unit length) whose rate and acceleration are the
+    largest keeping every actuator within ``rate`` and ``accel``."""
+    d = np.abs(np.asarray(d, float))
+    moving = d > 0
+    if not moving.any():
+        return 0.0, math.inf, math.inf
+    v = float(np.min(rate[moving] / d[moving]))
+    a = float(np.min(accel[moving] / d[moving]))
+    if v * v >= a:  # triangular: the rate is never reached
+        return 2.0 * math.sqrt(1.0 / a), v, a
+    return 1.0 / v + v / a, v, a
+
+
+def _covered(s: np.ndarray, T: float, v: float, a: float) -> np.ndarray:
+    """Share (0..1) of a unit move covered s s after it starts (trapezoidal profile of duration T)."""
+    ta = min(v / a, 0.5 * T)
+    vp = a * ta
+    s = np.clip(s, 0.0, T)
+    acc = 0.5 * a * s ** 2
+    cruise = 0.5 * a * ta ** 2 + vp * (s - ta)
+    dec = 1.0 - 0.5 * a * (T - s) ** 2
+    return np.where(s <= ta, acc, np.where(s <= T - ta, cruise, dec))
+
+
+def via_trajectory(path: np.ndarray, limits: Limits, command_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """(U (N, n_u) commands every 1/command_rate_hz s, knots (len(path),) s when each point is
+    reached): the points ``path`` (P, n_u) joined by synchronised trapezoidal moves (module
+    docstring), the last command at rest on the last point."""
+    path = np.asarray(path, float)
+    T = np.zeros(len(path))
+    prof = []
+    for i in range(1, len(path)):
+        dur, v, a = move_duration(path[i] - path[i - 1], limits.rate, limits.accel)
+        T[i] = T[i - 1] + dur
+        prof.append((dur, v, a))
+    n = int(math.ceil(T[-1] * command_rate_hz - 1e-9)) + 1
+    t = np.arange(n) / command_rate_hz
+    seg = np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(path) - 2)
+    U = np.repeat(path[-1][None], n, axis=0)
+    for i in range(len(path) - 1):
+        k = np.nonzero((seg == i) & (t < T[-1]))[0]
+        dur, v, a = prof[i]
+        if len(k) and dur > 0:
+            U[k] = path[i] + _covered(t[k] - T[i], dur, v, a)[:, None] * (path[i + 1] - path[i])
+    return U, T
+
+
+def tour_duration(path: np.ndarray, limits: Limits) -> float:
+    return float(sum(move_duration(b - a, limits.rate, limits.accel)[0] for a, b in zip(path[:-1], path[1:])))
+
+
+@dataclass
+class ViaDesign:
+    """A via-point sweep: ``vias`` (K, n_u) the distinct points in tour order, ``path`` (P, n_u) every
+    point the commands pass through (neutral first and last; repeats and detours included), what
+    the design counted (candidates, detours through neutral, tours)."""
+
+    vias: np.ndarray
+    path: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def _candidates(spec: PlatformSpec, limits: Limits, n: int, rng: np.random.Generator, model, td) -> tuple:
+    lo, hi = limits.lower, limits.upper
+    U_out, P_out, drawn = [], [], 0
+    while sum(len(u) for u in U_out) < n:
+        if drawn > 50 * n:
+            raise NotIdentifiable(f"{spec.name}: fewer than {n} random commands inside the strokes less the margin "
+                                  "are reachable; a smaller margin")
+        k = max(2 * n, 64)
+        face = rng.uniform(size=k) < FACE_SHARE
+        x = np.where(face[:, None], rng.beta(FACE_BETA, FACE_BETA, (k, spec.n_u)), rng.uniform(size=(k, spec.n_u)))
+        U = lo + x * (hi - lo)
+        drawn += k
+        ok, P = feasible(spec, U, td, model)
+        U_out.append(U[ok])
+        P_out.append(P[ok])
+    return np.vstack(U_out)[:n], np.vstack(P_out)[:n], drawn
+
+
+def _tour(spec: PlatformSpec, vias: np.ndarray, u0: np.ndarray) -> np.ndarray:
+    order = nearest_neighbour_order(vias, spec, u0)
+    return np.vstack([u0[None], vias[order], u0[None]])
+
+
+def _repair(spec: PlatformSpec, path: np.ndarray, limits: Limits, command_rate_hz: float, model, td,
+            u0: np.ndarray) -> tuple[np.ndarray, int]:
+    """The path with every move whose commands leave the reachable workspace replaced by two moves
+    through the neutral controls; (path, detours). NotIdentifiable where a detour fails too."""
+    out, detours = [path[0]], 0
+    for b in path[1:]:
+        a = out[-1]
+        U, _ = via_trajectory(np.vstack([a, b]), limits, command_rate_hz)
+        ok, _ = feasible(spec, U, td, model)
+        if not ok.all():
+            U1, _ = via_trajectory(np.vstack([a, u0, b]), limits, command_rate_hz)
+            ok1, _ = feasible(spec, U1, td, model)
+            if not ok1.all():
+                raise NotIdentifiable(f"{spec.name}: a move between via points leaves the reachable workspace, "
+                                      "through the neutral controls too; a larger margin")
+            out.append(u0)
+            detours += 1
+        out.append(b)
+    return np.vstack(out), detours
+
+
+_RANKED: dict = {}
+
+
+def _ranked(spec: PlatformSpec, U_c: np.ndarray, P_c: np.ndarray, markers: np.ndarray, td: np.ndarray,
+            model) -> tuple[np.ndarray, np.ndarray]:
+    """(the D-optimal MAX_VIAS of the candidates, their reduced identification Jacobians), kept for
+    the same stand, candidates, markers and parameters (a design redone at another length)."""
+    key = (spec.name, U_c.tobytes(), np.asarray(markers, float).tobytes(), td.tobytes())
+    hit = _RANKED.get(key)
+    if hit is None:
+        ij = identification_jacobian(spec, U_c, markers, td=td, P=P_c, model=model)
+        Jr = _Subspace(ij.J).reduce(ij.J)
+        ranked = d_optimal(Jr, MAX_VIAS)
+        if len(_RANKED) >= 8:
+            _RANKED.pop(next(iter(_RANKED)))
+        _RANKED[key] = hit = (ranked, Jr[ranked])
+    return hit
+
+
+def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration_s: float, command_rate_hz: float,
+               rng: np.random.Generator, model: PlatformModel | None = None, td=None,
+               d_optimal_choice: bool = True) -> ViaDesign:
+    """The via-point sweep of ``duration_s`` s at most (module docstring): D-optimal via points
+    (``d_optimal_choice`` False: the candidates in the order drawn, a random sweep to compare with)
+    as many as fit, in tour order, repeated while a whole tour fits."""
+    model = model or PlatformModel(spec)
+    td = spec.nominal_td() if td is None else np.asarray(td, float)
+    if not (duration_s > 0 and math.isfinite(duration_s)):
+        raise BadInput(f"duration_s: must be a positive number of seconds, got {duration_s:g}")
+    u0 = spec.neutral_u()
+    n_cand = max(MIN_CANDIDATES, CANDIDATES_PER_VIA * MAX_VIAS)
+    U_c, P_c, drawn = _candidates(spec, limits, n_cand, rng, model, td)
+    if d_optimal_choice:  # the D-optimal set of MAX_VIAS; a shorter sweep takes a D-optimal subset of it
+        ranked, J_ranked = _ranked(spec, U_c, P_c, markers, td, model)
+    else:
+        ranked = np.arange(MAX_VIAS)
+
+    def choose(k: int) -> np.ndarray:
+        if not d_optimal_choice or k == MAX_VIAS:
+            return U_c[ranked[:k]]
+        return U_c[ranked[d_optimal(J_ranked, k)]]
+
+    def fits(k: int) -> tuple[bool, np.ndarray, int]:
+        path, detours = _repair(spec, _tour(spec, choose(k), u0), limits, command_rate_hz, model, td, u0)
+        return tour_duration(path, limits) <= duration_s, path, detours
+
+    ok, best, detours = fits(MIN_VIAS)
+    if not ok:
+        raise NotIdentifiable(f"{spec.name}: a sweep through {MIN_VIAS} via points and back takes "
+                              f"{tour_duration(best, limits):.1f} s within the rate and acceleration limits, over the "
+                              f"{duration_s:g} s session; a longer session")
+    lo_k, hi_k = MIN_VIAS, MAX_VIAS + 1
+    while hi_k - lo_k > 1:  # the most via points whose tour fits (its duration grows with them, nearly monotone)
+        mid = (lo_k + hi_k) // 2
+        ok, p, d = fits(mid)
+        if ok:
+            lo_k, best, detours = mid, p, d
+        else:
+            hi_k = mid
+    path, tours = best, 1
+    if lo_k == MAX_VIAS:  # repeat the tour back and forth while a whole one fits
+        tours = max(1, int(duration_s // tour_duration(best, limits)))
+        legs = [best if i % 2 == 0 else best[::-1] for i in range(tours)]
+        path = np.vstack([legs[0]] + [leg[1:] for leg in legs[1:]])
+        detours *= tours
+    U, _ = via_trajectory(path, limits, command_rate_hz)
+    bad = limit_violations(U, command_rate_hz, limits)
+    if bad["box"] or bad["rate"] or bad["accel"]:  # the profile keeps them by construction: a bug if not
+        raise NotIdentifiable(f"{spec.name}: the via-point sweep breaks its limits ({bad})")
+    vias = best[1:-1][np.any(best[1:-1] != u0, axis=1)]
+    return ViaDesign(vias, path, {"candidates": int(len(U_c)), "candidates_drawn": int(drawn),
+                                  "via_points": int(len(vias)), "tours": int(tours), "detours": int(detours),
+                                  "choice": "d_optimal" if d_optimal_choice else "random"})
