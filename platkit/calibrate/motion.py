@@ -49,7 +49,7 @@ from scipy.optimize import least_squares
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
 from platkit.calibrate.problem import CalibrationProblem, Progress
-from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.calibrate.response import ResponseModel, actuator_positions, lags
 from platkit.errors import BadSession, ComputationFailed, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, rigid_fit
 from platkit.io.calibration import Calibration
@@ -88,6 +88,10 @@ GAP_FACTOR, GAP_MOVE_M = 10.0, 1e-3
 OVERLAP_SHARE = 0.5
 #: the shifts (s) tried to start the response
 SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
+#: an actuator's own delay lies within +-DELAY_MAX_S of the shift; a streamed drive's rate limit
+#: at most RATE_FREE_FACTOR times the log's fastest step over its interval (there the slew takes
+#: a tenth of the interval: a limit that does not bind)
+DELAY_MAX_S, RATE_FREE_FACTOR = 0.5, 10.0
 
 
 class ResponseTerm(ModelTerm):
@@ -104,7 +108,7 @@ class ResponseTerm(ModelTerm):
         for name in model.names(control_names):
             block = name.split(".")[0]
             units.append({"shift_s": "s", "tau_s": "s", "damping": "1", "rate": "unit/s",
-                          "accel": "unit/s^2"}[block])
+                          "accel": "unit/s^2", "delay_s": "s"}[block])
         super().__init__("actuator_response", model.names(control_names), np.asarray(theta0, float).copy(), units,
                          {"kind": model.kind, "reference": model.reference})
         self.model, self.T, self.U, self.steps, self.start = model, T, U, np.asarray(steps, float), start
@@ -339,7 +343,18 @@ def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
         th.append(np.full(model.n_u, ZETA0))
     if model.reference == "profile":
         th += [span / STROKE_TIME_S, span / STROKE_TIME_S / ACCEL_TIME_S]
+    elif model.rate_limit:  # a streamed drive's rate limit: the caller starts it at the log's speed
+        th.append(span / STROKE_TIME_S)
+    if model.delays:
+        th.append(np.zeros(model.n_u))
     return np.concatenate(th)
+
+
+def command_speed(T: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """(n_u,) the fastest a streamed log asks of each actuator: the largest step over the log's
+    median interval (a slewed reference at this rate just reaches each command as the next
+    comes); 0 for an actuator never moved."""
+    return np.max(np.abs(np.diff(U, axis=0)), axis=0) / float(np.median(np.diff(T)))
 
 
 def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -350,6 +365,10 @@ def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, 
         lo[model.index("tau_s", j)], hi[model.index("tau_s", j)] = 2e-3, 20.0
         if model.kind == "second_order":
             lo[model.index("damping", j)], hi[model.index("damping", j)] = 0.2, 5.0
+        if model.delays:
+            lo[model.index("delay_s", j)], hi[model.index("delay_s", j)] = -DELAY_MAX_S, DELAY_MAX_S
+        if model.slewed:  # a rate limit that never binds: up to RATE_FREE_FACTOR times the start
+            hi[model.index("rate", j)] = RATE_FREE_FACTOR * max(float(theta0[model.index("rate", j)]), 1e-9)
     return lo, hi
 
 
@@ -383,6 +402,8 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
         return np.asarray(theta0, float)
     theta = np.asarray(theta0, float).copy()
     cache: dict = {}
+    if rmodel.delays:  # each actuator's own shift first, its delay the excess over their median after
+        theta[[rmodel.index("delay_s", j) for j in range(rmodel.n_u)]] = 0.0
     theta[0] = 0.0  # every shift at once: the response at the shifted times
     shifted = (t[None, :] - SHIFT_GRID_S[:, None]).ravel()
     X = actuator_positions(rmodel, theta, T, U, shifted, start=start, cache=cache).reshape(len(SHIFT_GRID_S), len(t), -1)
@@ -394,8 +415,10 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     theta = np.clip(theta, lo + 1e-12, hi - 1e-12)
     shifts = []
     for own_shift in (True, False):  # each actuator with a shift of its own, then all at their median
-        for j in range(rmodel.n_u):  # the damping held (the full fit frees it)
-            ks = ([0] if own_shift else []) + [rmodel.index(b, j) for b in rmodel.blocks if b != "damping"]
+        for j in range(rmodel.n_u):  # the damping held (the full fit frees it); a delay of its own
+            # with the common shift held (the actuator's own shift first, the delay its excess after)
+            ks = ([0] if own_shift else []) + [rmodel.index(b, j) for b in rmodel.blocks
+                                               if b != "damping" and not (own_shift and b == "delay_s")]
             scale = max(float(np.ptp(travel[:, j])), 1e-9)
             if not np.ptp(U[:, j]) > 0:
                 continue
@@ -409,12 +432,15 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
             sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
                                 x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
             if own_shift:
-                shifts.append(float(sol.x[0]))
+                shifts.append((j, float(sol.x[0])))
                 theta[ks[1:]] = sol.x[1:]
             else:
                 theta[ks] = sol.x
         if own_shift and shifts:
-            theta[0] = float(np.median(shifts))
+            theta[0] = float(np.median([x for _, x in shifts]))
+            if rmodel.delays:
+                for j, x in shifts:
+                    theta[rmodel.index("delay_s", j)] = float(np.clip(x - theta[0], -DELAY_MAX_S, DELAY_MAX_S))
     return theta
 
 
@@ -456,14 +482,16 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                      robust: bool = True, window_s: float = WINDOW_S, nodes: int = NODES,
                      raw_samples: int = RAW_SAMPLES, progress: Progress | None = None,
                      platform_options: dict | None = None, ridge_m: float = 0.0,
-                     reason: str = "") -> tuple[Calibration, PoseSet]:
+                     reason: str = "", delays: bool = False, rate_limit: bool = False) -> tuple[Calibration, PoseSet]:
     """Calibrate ``spec`` from the whole stream of ``session`` (module docstring). Returns the
     calibration (its ``motion`` says which samples served, how they were reduced, and the fitted
     response with its uncertainty) and the pose set of the nodes fitted. ``reason``: why the
-    motion model serves (said in the report)."""
+    motion model serves (said in the report). ``delays``: each actuator's own pure delay beyond
+    the shift; ``rate_limit``: a streamed log's actuators each with a speed limit, started at the
+    log's fastest step (a profile has its rate limit always) (platkit.calibrate.response)."""
     t0 = time.perf_counter()
     reference = check_motion_session(session)
-    rmodel = ResponseModel(kind, reference, spec.n_u)
+    rmodel = ResponseModel(kind, reference, spec.n_u, delays, rate_limit)
     win = stream_windows(session, window_s, nodes, raw_samples)
     if len(win.t) < 20:
         raise BadSession(f"{session.markers_source}: only {len(win.t)} poses from the samples with markers seen "
@@ -471,6 +499,10 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     T, U = session.command_t, session.commands
     t = win.t
     theta0 = _starting_theta(rmodel, spec)
+    if rmodel.slewed:
+        speed = command_speed(T, U)
+        theta0[[rmodel.index("rate", j) for j in range(spec.n_u)]] = np.where(speed > 0, speed, theta0[
+            [rmodel.index("rate", j) for j in range(spec.n_u)]])
     steps = _steps(rmodel, theta0)
     names = list(session.marker_names)
     # 3. the response's start from the actuators' travel at the nominal geometry, twice (the
@@ -530,6 +562,11 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
             held_here = f"term.actuator_response.{name}" in held
             entry[blk] = {"value": float(par[blk][j]), "std": None if held_here or not np.isfinite(sd[blk][j])
                           else float(sd[blk][j]), "status": "held_at_start" if held_here else "estimated"}
+        if rmodel.delays:
+            entry["lag_s"] = {"value": float(lags(rmodel, theta)[j]), "note": "shift + delay_s: what the markers fix"}
+        if rmodel.slewed:
+            need = np.abs(np.diff(U[:, j])) / np.diff(T)
+            entry["rate"]["binds_share"] = float(np.mean(need > par["rate"][j])) if len(need) else 0.0
         per[c] = entry
     shift_held = "term.actuator_response.shift_s" in held
     cal.motion = {
@@ -537,6 +574,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         "why": reason or "calibrated from the whole stream",
         "response": {"kind": kind, "reference": reference, "units": "s for times; controls' internal units "
                      "(m for length controls) per s for rates",
+                     "delays": bool(rmodel.delays), "rate_limit": bool(rmodel.reference == "profile" or rmodel.slewed),
                      "shift_s": {"value": float(par["shift_s"]), "std": None if shift_held or not np.isfinite(
                          sd["shift_s"]) else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
                          "note": "the motion capture's clock minus the commands', with the stand's common delay"},
@@ -563,7 +601,9 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
 
 
 def _steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:
-    """Finite-difference steps: 1e-4 s for the shift, 1e-4 relative for the rest."""
+    """Finite-difference steps: 1e-4 s for the shift and the delays, 1e-4 relative for the rest."""
     h = 1e-4 * np.maximum(np.abs(np.asarray(theta, float)), 1e-2)
     h[0] = 1e-4
+    if rmodel.delays:
+        h[[rmodel.index("delay_s", j) for j in range(rmodel.n_u)]] = 1e-4
     return h

@@ -11,11 +11,20 @@ commands clock, values u_i), through a linear response that starts at rest:
   w_j^2 r with w_j = 1 / tau_j (damping zeta_j; 1 critically damped, below 1 an overshoot);
 - one time shift s (the motion capture's clock minus the commands', with the stand's common
   delay: from the markers alone the two are one number): a sample stamped t sees the actuators
-  at t - s on the commands clock.
+  at t - s on the commands clock;
+- with ``delays``: each actuator's own pure delay d_j beyond the shift (actuator j at
+  t - s - d_j). The markers see only s + d_j per actuator: a constant added to every d_j and
+  taken from s changes nothing, so one of the n_u + 1 is held (calibrate's identifiability says
+  which) and the totals s + d_j are what the data fix (:func:`lags`);
+- with ``rate_limit`` on a step reference: each actuator's speed limit ``rate_j``: the
+  reference slews towards each command at rate_j from where it stood when the command came
+  (a trapezoid of infinite acceleration, cut by the next command), then the linear response.
+  A profile reference has its rate limit already (``rate``, with ``accel``).
 
 A step reference is integrated exactly at any time: the state at each command instant by the
 exact zero-order-hold recursion (a linear filter when the commands come at a steady rate), then
-the free response from there to each sample. A profile reference is integrated on a fine grid
+the free response from there to each sample. A profile reference, and a rate-limited step
+reference (a slew: a profile of infinite acceleration), is integrated on a fine grid
 with a first-order hold (exact for a reference linear over each step; the profile is smooth to
 its acceleration), and the actuators' position interpolated linearly at the samples. Before the
 first command every actuator rests on it (a profile's: where the caller says it rests).
@@ -31,7 +40,8 @@ from scipy import signal
 
 from platkit.errors import BadInput
 
-__all__ = ["ResponseModel", "REFERENCES", "KINDS", "actuator_positions", "trapezoid_reference"]
+__all__ = ["ResponseModel", "REFERENCES", "KINDS", "actuator_positions", "trapezoid_reference", "slew_reference",
+           "lags"]
 
 REFERENCES = ("step", "profile")
 KINDS = ("first_order", "second_order")
@@ -47,14 +57,19 @@ TAU_MIN_S, ZETA_MIN = 1e-3, 0.05
 
 @dataclass
 class ResponseModel:
-    """Which response (``kind``) after which reference (``reference``), for ``n_u`` actuators.
+    """Which response (``kind``) after which reference (``reference``), for ``n_u`` actuators;
+    ``delays``: each actuator's own pure delay beyond the shift; ``rate_limit``: a step
+    reference slewed at each actuator's rate limit (a profile reference has one always).
 
     theta (the fitted vector): [shift_s, tau_s (n_u), damping (n_u) for second_order, rate (n_u)
-    and accel (n_u) for a profile reference]."""
+    for a profile reference or a rate-limited step one, accel (n_u) for a profile reference,
+    delay_s (n_u) with ``delays``]."""
 
     kind: str
     reference: str
     n_u: int
+    delays: bool = False
+    rate_limit: bool = False
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -70,7 +85,16 @@ class ResponseModel:
             out.append("damping")
         if self.reference == "profile":
             out += ["rate", "accel"]
+        elif self.rate_limit:
+            out.append("rate")
+        if self.delays:
+            out.append("delay_s")
         return out
+
+    @property
+    def slewed(self) -> bool:
+        """A step reference slewed at a rate limit."""
+        return self.reference == "step" and self.rate_limit
 
     @property
     def size(self) -> int:
@@ -93,6 +117,37 @@ class ResponseModel:
     def actuator_of(self, k: int) -> int | None:
         """The actuator theta[k] belongs to (None: the shift, shared by all)."""
         return None if k == 0 else (k - 1) % self.n_u
+
+
+def lags(model: ResponseModel, theta) -> np.ndarray:
+    """(n_u,) each actuator's whole time lag s + d_j (s; the shift alone without ``delays``): what
+    the markers fix, whichever of the shift and the delays was held."""
+    par = model.split(theta)
+    d = par["delay_s"] if "delay_s" in par else np.zeros(model.n_u)
+    return float(par["shift_s"]) + np.asarray(d, float)
+
+
+def slew_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, start: float | None = None,
+                   seg: np.ndarray | None = None) -> np.ndarray:
+    """One actuator's rate-limited step reference at commands-clock times ``s`` (K,): from each
+    command u_i (sent at T_i) it moves at ``rate`` from where it stood towards u_i, and stands
+    there once reached, until the next command; before T_0 it rests at ``start`` (default u_0).
+    ``seg``: the command in force at each of ``s``, when the caller has it."""
+    v = max(float(rate), 1e-12)
+    N = len(T)
+    origin = np.empty(N)
+    origin[0] = float(u[0]) if start is None else float(start)
+    span = np.diff(T)
+    for i in range(N - 1):  # where each slew starts: a plain loop over the commands
+        d = float(u[i] - origin[i])
+        step = v * float(span[i])
+        origin[i + 1] = u[i] if abs(d) <= step else origin[i] + math.copysign(step, d)
+    if seg is None:
+        seg = np.searchsorted(T, s, side="right") - 1
+    i = np.maximum(seg, 0)
+    d = u[i] - origin[i]
+    moved = np.minimum(np.abs(d), v * np.maximum(s - T[i], 0.0))
+    return np.where(seg < 0, origin[0], origin[i] + np.sign(d) * moved)
 
 
 def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, accel: float,
@@ -258,8 +313,9 @@ def _foh_filter(tau: float, zeta: float | None, h: float) -> tuple[np.ndarray, n
 
 
 def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None, rate: float,
-                 accel: float, start: float, cache: dict | None = None, key=None) -> np.ndarray:
-    """One actuator after a profile reference, on a fine grid from T_0 (first-order hold), at t.
+                 accel: float | None, start: float, cache: dict | None = None, key=None) -> np.ndarray:
+    """One actuator after a profile reference (``accel`` None: a slewed step reference, rate
+    limited alone), on a fine grid from T_0 (first-order hold), at t.
     The grid runs to whole seconds past the last time (a small shift leaves it as it is); with
     ``cache``, the reference and the response on the grid are kept under ``key`` (the actuator)
     and their parameters, at most CACHE_ENTRIES of them."""
@@ -277,7 +333,8 @@ def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: 
             if seg is None:
                 seg = np.searchsorted(T, grid, side="right") - 1
                 _keep(cache, ("seg", n), seg)
-            r = trapezoid_reference(grid, T, u, rate, accel, start, seg) - start
+            r = (slew_reference(grid, T, u, rate, start, seg) if accel is None
+                 else trapezoid_reference(grid, T, u, rate, accel, start, seg)) - start
             _keep(cache, rkey, r)
         fkey = ("foh", tau, zeta)
         filt = None if cache is None else cache.get(fkey)
@@ -323,17 +380,21 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
     ``only``: that actuator's column alone, (K,). ``start`` (n_u,): where a profile's actuators
     rest before the first command (default: on it; a step reference always starts on it).
     ``cache``: a dict the caller keeps between calls on the same log (a profile's reference and
-    response on its fine grid are reused where only the shift, or only the response, changed)."""
+    response on its fine grid are reused where only the shift, or only the response, changed).
+    Actuator j is seen at t - shift - delay_j (:func:`lags`)."""
     par = model.split(theta)
-    s = np.asarray(t, float) - float(par["shift_s"])
+    lag = lags(model, theta)
+    t = np.asarray(t, float)
     cols = range(model.n_u) if only is None else [only]
     out = []
     for j in cols:
+        s = t - float(lag[j])
         tau = max(float(par["tau_s"][j]), TAU_MIN_S)
         zeta = max(float(par["damping"][j]), ZETA_MIN) if "damping" in par else None
-        if model.reference == "step":
-            out.append(_step_one(s, T, U[:, j], tau, zeta, _segments(cache, T, s, float(par["shift_s"]))))
+        if model.reference == "step" and not model.slewed:
+            out.append(_step_one(s, T, U[:, j], tau, zeta, _segments(cache, T, s, float(lag[j]))))
         else:
-            out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), float(par["accel"][j]),
-                                    float(U[0, j] if start is None else start[j]), cache, j))
+            accel = float(par["accel"][j]) if model.reference == "profile" else None
+            first = float(U[0, j] if start is None or model.reference == "step" else start[j])
+            out.append(_profile_one(s, T, U[:, j], tau, zeta, float(par["rate"][j]), accel, first, cache, j))
     return out[0] if only is not None else np.stack(out, axis=1)

@@ -12,7 +12,10 @@ system
 The follow is integrated exactly for a profile held constant over each fine step (zero-order
 hold discretisation, scipy.signal), so the approach after the profile ends decays as
 (a + b t) exp(-t / tau_s) for zeta = 1: settling is an event in the stream, of the length the
-time constant says. Internal units throughout (m for length controls, the control's unit
+time constant says. Optionally, each actuator has its own pure delay (``delay_s``: it acts on
+every command that much later than sent) and a speed limit of its own (``rate_limit``: a
+streamed drive slews towards each held command at that rate from where it stood, cut by the next
+command; a profile's rate is the smaller of the two). Internal units throughout (m for length controls, the control's unit
 otherwise), times in seconds.
 """
 from __future__ import annotations
@@ -24,7 +27,7 @@ from scipy import signal
 
 from platkit.errors import BadInput
 
-__all__ = ["ActuatorResponse", "profile_duration", "motion_profile", "follow", "actuator_motion"]
+__all__ = ["ActuatorResponse", "profile_duration", "motion_profile", "slewed", "follow", "actuator_motion"]
 
 
 @dataclass
@@ -33,24 +36,44 @@ class ActuatorResponse:
     approach (s); ``damping`` zeta; ``rate`` the profile's rate limit (control unit per s);
     ``accel`` its acceleration limit (control unit per s^2); ``streamed``: the drive follows each
     command as it comes (a step reference held to the next command, no profile: commands
-    streamed at a steady rate by a path or motion-cue follower)."""
+    streamed at a steady rate by a path or motion-cue follower); ``delay_s`` (n_u,) or None: each
+    actuator's pure delay (s, >= 0: it acts on each command that much after it is sent);
+    ``rate_limit`` (n_u,) or None: each actuator's speed limit (control unit per s; a streamed
+    drive slews at it towards each held command, a profile's rate is the smaller of the two)."""
 
     tau_s: np.ndarray
     damping: np.ndarray
     rate: np.ndarray
     accel: np.ndarray
     streamed: bool = False
+    delay_s: np.ndarray | None = None
+    rate_limit: np.ndarray | None = None
 
     def check(self) -> None:
-        for name in ("tau_s", "damping", "rate", "accel"):
+        for name in ("tau_s", "damping", "rate", "accel", "rate_limit"):
+            if getattr(self, name) is None:
+                continue
             v = np.asarray(getattr(self, name), float)
             if not np.all(np.isfinite(v) & (v > 0)):
                 raise BadInput(f"actuator response: {name} must be positive and finite, got {v.tolist()}")
+        if self.delay_s is not None:
+            d = np.asarray(self.delay_s, float)
+            if d.shape != np.shape(self.tau_s) or not np.all(np.isfinite(d) & (d >= 0)):
+                raise BadInput(f"actuator response: delay_s must be one finite delay >= 0 per actuator, got {d.tolist()}")
+        if self.rate_limit is not None and np.shape(self.rate_limit) != np.shape(self.tau_s):
+            raise BadInput("actuator response: rate_limit must be one rate per actuator")
 
     def to_dict(self, names: list[str]) -> dict:
-        """Per actuator name: tau_s, damping, rate, accel (plain floats, internal units)."""
-        return {n: {"tau_s": float(a), "damping": float(z), "rate_per_s": float(r), "accel_per_s2": float(c)}
-                for n, a, z, r, c in zip(names, self.tau_s, self.damping, self.rate, self.accel)}
+        """Per actuator name: tau_s, damping, rate, accel (plain floats, internal units), and
+        delay_s, rate_limit_per_s where set."""
+        out = {n: {"tau_s": float(a), "damping": float(z), "rate_per_s": float(r), "accel_per_s2": float(c)}
+               for n, a, z, r, c in zip(names, self.tau_s, self.damping, self.rate, self.accel)}
+        for j, n in enumerate(names):
+            if self.delay_s is not None:
+                out[n]["delay_s"] = float(self.delay_s[j])
+            if self.rate_limit is not None:
+                out[n]["rate_limit_per_s"] = float(self.rate_limit[j])
+        return out
 
 
 def profile_duration(distance: np.ndarray, rate: np.ndarray, accel: np.ndarray) -> np.ndarray:
@@ -125,20 +148,63 @@ def follow(reference: np.ndarray, dt: float, tau_s: np.ndarray, damping: np.ndar
     return out
 
 
+def slewed(t: np.ndarray, command_t: np.ndarray, commands: np.ndarray, start: np.ndarray,
+           rate: np.ndarray) -> np.ndarray:
+    """(K, n_u) each command held to the next, approached at ``rate`` (n_u,) from where the drive
+    stood when it came (a cut move leaves it short), at times ``t`` (K,); ``start`` before the
+    first command."""
+    N = len(command_t)
+    origin = np.empty_like(commands, dtype=float)
+    pos = np.asarray(start, float).copy()
+    rate = np.asarray(rate, float)
+    for i in range(N):
+        origin[i] = pos
+        if i + 1 < N:
+            d = commands[i] - pos
+            pos = pos + np.sign(d) * np.minimum(np.abs(d), rate * (command_t[i + 1] - command_t[i]))
+    seg = np.searchsorted(command_t, t + 1e-9, side="right") - 1
+    i = np.maximum(seg, 0)
+    d = commands[i] - origin[i]
+    moved = np.minimum(np.abs(d), rate[None] * np.maximum(t - command_t[i], 0.0)[:, None])
+    return np.where(seg[:, None] < 0, np.asarray(start, float)[None], origin[i] + np.sign(d) * moved)
+
+
+def _reference(fine: np.ndarray, command_t: np.ndarray, commands: np.ndarray, start: np.ndarray,
+               response: ActuatorResponse) -> np.ndarray:
+    """(K, n_u) the reference the actuators follow on the grid ``fine``, without their delays."""
+    if response.streamed and response.rate_limit is not None:
+        return slewed(fine, command_t, commands, start, response.rate_limit)
+    if response.streamed:  # each command held to the next, from the grid point it falls on
+        seg = np.searchsorted(command_t, fine + 1e-9, side="right") - 1
+        return np.where(seg[:, None] < 0, np.asarray(start, float)[None], commands[np.maximum(seg, 0)])
+    if response.rate_limit is not None:
+        limited = ActuatorResponse(response.tau_s, response.damping, np.minimum(response.rate, response.rate_limit),
+                                   response.accel)
+        return motion_profile(fine, command_t, commands, start, limited)
+    return motion_profile(fine, command_t, commands, start, response)
+
+
 def actuator_motion(t: np.ndarray, command_t: np.ndarray, commands: np.ndarray, start: np.ndarray,
                     response: ActuatorResponse, fine_step_s: float = 1e-3) -> np.ndarray:
     """(K, n_u) the actuators' true positions at times ``t`` (K,) sorted: the profile (or, for a
-    ``streamed`` response, each command held to the next) followed by the second-order response,
+    ``streamed`` response, each command held to the next, slewed at the rate limit where set),
+    each actuator's commands taken its delay late, followed by the second-order response,
     integrated every ``fine_step_s`` from 0 s and interpolated linearly to ``t``."""
     response.check()
     t = np.asarray(t, float)
-    t_end = float(max(t[-1], command_t[-1])) + fine_step_s
+    delay = None if response.delay_s is None else np.asarray(response.delay_s, float)
+    t_end = float(max(t[-1], command_t[-1] + (0.0 if delay is None else float(delay.max())))) + fine_step_s
     fine = np.arange(0.0, t_end + fine_step_s, fine_step_s)
-    if response.streamed:  # each command held to the next, from the grid point it falls on
-        seg = np.searchsorted(command_t, fine + 1e-9, side="right") - 1
-        ref = np.where(seg[:, None] < 0, np.asarray(start, float)[None], commands[np.maximum(seg, 0)])
-    else:
-        ref = motion_profile(fine, command_t, commands, start, response)
+    if delay is None:
+        ref = _reference(fine, command_t, commands, start, response)
+    else:  # each actuator on its own late copy of the command times
+        ref = np.empty((len(fine), commands.shape[1]))
+        for j in range(commands.shape[1]):
+            one = ActuatorResponse(response.tau_s[j:j + 1], response.damping[j:j + 1], response.rate[j:j + 1],
+                                   response.accel[j:j + 1], response.streamed, None,
+                                   None if response.rate_limit is None else response.rate_limit[j:j + 1])
+            ref[:, j] = _reference(fine, command_t + delay[j], commands[:, j:j + 1], np.asarray(start, float)[j:j + 1],
+                                   one)[:, 0]
     x = follow(ref, fine_step_s, response.tau_s, response.damping)
     out = np.empty((len(t), commands.shape[1]))
     for j in range(commands.shape[1]):

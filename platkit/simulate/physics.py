@@ -221,7 +221,7 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                      imu: dict | None = None, perturbation: float = 1.0, description: str | None = None,
                      fine_step_s: float = 2e-3, motion: str | None = None, duration_s: float = 200.0,
                      command_rate_hz: float = 20.0, library: dict[str, Effect] | None = None,
-                     warmup: str | None = None) -> PhysicalSession:
+                     warmup: str | None = None, actuator_delay_s=None, actuator_rate_limit=None) -> PhysicalSession:
     """Simulate a session of ``spec`` in the time domain (see the module's docstring).
 
     plan: 'grid', 'random', a plan.csv path, a Plan or an (N, n_u) array (internal units).
@@ -241,6 +241,10 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         switched on just before the first command; 'warm', long before), its size drawn from the
         seed like a nuisance; it acts after the effects' drives and is listed with them in the
         truth under the effect that models a warm-up (``Effect.warm_up``), form 'warm-up with time'.
+    actuator_delay_s, actuator_rate_limit: None, or one value per actuator (s; control's internal
+        unit per s): each actuator's own pure delay and speed limit (platkit.simulate.actuator),
+        explicit options (drawing them would move every seeded session), in the truth's
+        ``actuators_with_effects``.
     """
     _check_options(n_markers, mocap_rate_hz, fine_step_s, length_unit)
     rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
@@ -261,6 +265,11 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         hold_end = np.append(t_cmd[1:], t_cmd[-1] + nuisances.hold_s)
     phys_plan = PhysicsPlan(spec, t_cmd, U, spec.neutral_u(), nuisances.hold_s, float(hold_end[-1]), names)
     physics, response = _physics(spec, seed, effects, phys_plan, nuisances, motion is not None, library, warmup)
+    if actuator_delay_s is not None:
+        response.delay_s = np.broadcast_to(np.asarray(actuator_delay_s, float), (spec.n_u,)).copy()
+    if actuator_rate_limit is not None:
+        response.rate_limit = np.broadcast_to(np.asarray(actuator_rate_limit, float), (spec.n_u,)).copy()
+    response.check()
     tilt = np.zeros(2)
     for _, p in physics:
         w = p.base_tilt()
