@@ -60,7 +60,7 @@ from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
 __all__ = ["ResponseTerm", "StreamWindows", "calibrate_motion", "stream_windows", "check_motion_session",
-           "STREAMED_MAX_S"]
+           "STREAMED_MAX_S", "command_speed"]
 
 #: a command log whose median interval is at most this (s) is streamed (step reference); longer
 #: intervals are point-to-point moves between holds (profile reference)
