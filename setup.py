@@ -30,6 +30,7 @@ setup(
     package_data={
         "platkit": ["py.typed", "*.c"],  # C sources compiled on first use (platkit.native.compiled_library)
         "platkit.chains": ["*.c"],
+        "platkit.settle": ["*.c"],
         "platkit_data.descriptions": ["*.yaml", "*.urdf"],
         "platkit_data.sessions": ["README.md"],
         **{s: ["*.yaml", "*.csv", "*.c3d"] for s in SESSIONS},

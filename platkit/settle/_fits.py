@@ -23,6 +23,7 @@ from scipy.special import chdtrc, gammaincinv
 from threadpoolctl import ThreadpoolController
 
 from platkit.settle._approach import Approach
+from platkit.settle._native import Packed, fits_function
 
 #: probability that a still stretch is fitted a significant approach tail
 TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
@@ -202,17 +203,20 @@ def _residuals(holds: Sequence[_Hold], taus: Sequence[np.ndarray]) -> list[np.nd
     return out
 
 
-def _solutions(holds: Sequence[_Hold], taus: Sequence[float]):
+def _solutions(holds: Sequence[_Hold], taus: Sequence[float], packed: Packed | None = None):
     """Per hold at its time constant: (coef (M, 3, 3) [param, coord], the equations (M, 3, 3),
-    the residual sum of squares over the seen markers)."""
-    M = holds[0].w.shape[1]
-    G = np.empty((len(holds), M, 3, 3))
-    B = np.empty((len(holds), M, 3, 3))
-    for batch, a, b in _normal_equations(holds, [np.array([x]) for x in taus]):
-        for (i, j), x in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), a):
-            G[batch, :, i, j] = G[batch, :, j, i] = x[:, 0]
-        for i, x in enumerate(b):
-            B[batch, :, i, :] = x[:, 0]
+    the residual sum of squares over the seen markers). ``packed``: as :func:`_search` takes it."""
+    if packed is not None:
+        G, B = packed.equations(taus)
+    else:
+        M = holds[0].w.shape[1]
+        G = np.empty((len(holds), M, 3, 3))
+        B = np.empty((len(holds), M, 3, 3))
+        for batch, a, b in _normal_equations(holds, [np.array([x]) for x in taus]):
+            for (i, j), x in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), a):
+                G[batch, :, i, j] = G[batch, :, j, i] = x[:, 0]
+            for i, x in enumerate(b):
+                B[batch, :, i, :] = x[:, 0]
     coef = np.linalg.solve(G, B)
     rss = np.stack([d.yty for d in holds]) - np.einsum("hmic,hmic->hm", coef, B)
     seen = np.stack([d.seen for d in holds])
@@ -234,23 +238,30 @@ def _starts(d: _Hold, grid: np.ndarray, rss_g: np.ndarray) -> np.ndarray:
     return np.array(starts, float)
 
 
-def _search(holds: Sequence[_Hold]) -> tuple[list[float], list[bool]]:
+def _search(holds: Sequence[_Hold], packed: Packed | None = None) -> tuple[list[float], list[bool]]:
     """(tau, at the top of the coarse grid) of each hold: its own ``tau`` when given, else the
-    coarse grid and the finer rounds (the module's docstring), every hold's grid at once."""
+    coarse grid and the finer rounds (the module's docstring), every hold's grid at once.
+    ``packed``: the holds laid out for the compiled sums (None: numpy's)."""
     free = [h for h, d in enumerate(holds) if d.tau is None]
     tau = [float(d.tau) if d.tau is not None else np.nan for d in holds]
     top = [False] * len(holds)
     if not free:
         return tau, top
+    if packed is not None and len(free) < len(holds):
+        packed = Packed(packed.fn, [holds[h] for h in free])
+
+    def residuals(taus):
+        return _residuals([holds[h] for h in free], taus) if packed is None else packed.residuals(taus)
+
     grids = [np.geomspace(2 * holds[h].dt, 3 * holds[h].span, COARSE_GRID) for h in free]
-    coarse = _residuals([holds[h] for h in free], grids)
+    coarse = residuals(grids)
     bounds = [_starts(holds[h], g, r) for h, g, r in zip(free, grids, coarse)]
     for h, r in zip(free, coarse):
         top[h] = int(np.argmin(r)) == COARSE_GRID - 1
     ramp = np.linspace(0.0, 1.0, FINE_GRID)
     for _ in range(FINE_ROUNDS):
         fine = [np.exp(np.log(b[:, :1]) + np.log(b[:, 1:] / b[:, :1]) * ramp[None]) for b in bounds]  # (S, 12)
-        rss = _residuals([holds[h] for h in free], [f.ravel() for f in fine])
+        rss = residuals([f.ravel() for f in fine])
         for n, (f, r) in enumerate(zip(fine, rss)):
             k = np.argmin(r.reshape(f.shape), axis=1)
             rows = np.arange(len(f))
@@ -290,11 +301,14 @@ def _approach(d: _Hold, tau: float, at_top: bool, coef: np.ndarray, G: np.ndarra
     return fit
 
 
-def fit_approaches(stretches: Sequence[tuple]) -> list[Approach | None]:
+def fit_approaches(stretches: Sequence[tuple], compiled: bool = True) -> list[Approach | None]:
     """:func:`fit_approach` of many stretches of one stream (the same markers) at once: each
     (t, markers, sigma[, t_end[, tau]]); the same fits, their grids evaluated in batches, CHUNK
-    stretches prepared at a time (a prepared stretch is a centred copy of its markers)."""
+    stretches prepared at a time (a prepared stretch is a centred copy of its markers). The sums
+    over the samples are compiled (platkit.settle._native) where a C compiler is available and
+    ``compiled`` is true, else numpy's; the two agree to rounding."""
     out: list[Approach | None] = []
+    fn = fits_function() if compiled else "not asked for"
     with _one_blas_thread():
         for c in range(0, len(stretches), CHUNK):
             prepared = [_prepare(*(tuple(x) + (None, None))[:5]) for x in stretches[c:c + CHUNK]]
@@ -302,8 +316,9 @@ def fit_approaches(stretches: Sequence[tuple]) -> list[Approach | None]:
             if not holds:
                 out += [None] * len(prepared)
                 continue
-            tau, top = _search(holds)
-            coef, G, rss = _solutions(holds, tau)
+            packed = None if isinstance(fn, str) else Packed(fn, holds)
+            tau, top = _search(holds, packed)
+            coef, G, rss = _solutions(holds, tau, packed)
             fits = iter(_approach(d, tau[h], top[h], coef[h], G[h], float(rss[h])) for h, d in enumerate(holds))
             out += [None if d is None else next(fits) for d in prepared]
     return out

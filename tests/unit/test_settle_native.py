@@ -1,0 +1,120 @@
+"""The approach fits' compiled sums (platkit.settle._native) against numpy's, and the numpy path
+without a compiler or with PLATKIT_COMPILE=0."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from platkit.settle import _native, load_poses
+from platkit.settle._fits import fit_approaches
+from tests.unit.test_settle import RATE, SIGMA
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "sessions" / "stewart"
+
+
+@pytest.fixture(scope="module")
+def module_cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("settle_cache")
+
+
+@pytest.fixture
+def cache(monkeypatch, module_cache):
+    """The module's cache directory (the kernel is compiled there once) and nothing loaded yet."""
+    monkeypatch.setattr(_native, "_loaded", {})
+    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(module_cache))
+    return module_cache
+
+
+@pytest.fixture
+def empty_cache(monkeypatch, tmp_path):
+    """An empty cache directory and nothing loaded yet."""
+    monkeypatch.setattr(_native, "_loaded", {})
+    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path))
+    return tmp_path
+
+
+def _stretches(n_markers: int, seed: int) -> list[tuple]:
+    """Stretches of different lengths, decays and noise: with and without occluded samples, with
+    a jittered clock and a gap, a marker seen too little, one with its time constant given."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for j in range(10):
+        K = int(rng.integers(40, 500))
+        t = 3.0 + np.arange(K) / RATE
+        if j == 3:
+            t = t + rng.normal(size=K) * 1e-4  # a jittered clock: exp of every sample
+        if j == 4:
+            t[K // 2:] += 0.2  # a gap of twenty samples
+        tau = float(rng.uniform(0.05, 1.0))
+        s = t - t[0]
+        amp = rng.normal(size=(n_markers, 3)) * 1e-3 * (j % 3)  # every third without a decay
+        X = 0.1 * rng.normal(size=(1, n_markers, 3)) + amp[None] * ((1 + 2 * s / tau) * np.exp(-s / tau))[:, None, None]
+        X = X + rng.normal(size=X.shape) * SIGMA
+        if j % 2:
+            X[rng.random((K, n_markers)) < 0.1] = np.nan
+        if j == 5:
+            X[5:, 1] = np.nan  # a marker seen for five samples only
+        out.append((t, X, SIGMA, t[-1] + 0.05, 0.3 if j == 7 else None))
+    return out
+
+
+def _assert_same_fits(compiled, python):
+    for f, g in zip(compiled, python):
+        assert (f is None) == (g is None)
+        if f is None:
+            continue
+        assert f.tau == pytest.approx(g.tau, rel=1e-12)  # the same grid point
+        assert f.significant == g.significant and f.at_limit == g.at_limit
+        np.testing.assert_array_equal(np.isfinite(f.x_inf), np.isfinite(g.x_inf))
+        np.testing.assert_allclose(f.x_inf, g.x_inf, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f.a, g.a, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f.b, g.b, rtol=0, atol=1e-12)
+        assert f.chi2_per_dof == pytest.approx(g.chi2_per_dof, rel=1e-6)
+        np.testing.assert_allclose(f.x_inf_std, g.x_inf_std, rtol=1e-6)
+
+
+@pytest.mark.parametrize("n_markers", [4, 7])  # 12 and 21 columns: one and two groups of the kernel's 16
+def test_the_compiled_fits_are_numpys(cache, n_markers):
+    assert _native.compiled_fits_reason() == ""
+    stretches = _stretches(n_markers, 2800 + n_markers)
+    compiled = fit_approaches(stretches)
+    python = fit_approaches(stretches, compiled=False)
+    assert compiled[7].tau == 0.3 and {f.significant for f in compiled} == {True, False}
+    assert np.isnan(compiled[5].x_inf[1]).all()
+    _assert_same_fits(compiled, python)
+    assert any(cache.glob("settle_fits_*.so")), "the kernel is kept in the cache folder"
+
+
+def test_the_settled_poses_of_a_session_are_the_same_on_both_paths(cache, monkeypatch):
+    compiled = load_poses(EXAMPLE)
+    assert _native.compiled_fits_reason() == ""
+    monkeypatch.setattr(_native, "_loaded", {"fn": "switched off by the test"})
+    python = load_poses(EXAMPLE)
+    np.testing.assert_array_equal(compiled.markers, python.markers)
+    np.testing.assert_array_equal(compiled.n_samples, python.n_samples)
+    assert compiled.dropped == python.dropped
+    np.testing.assert_allclose(compiled.extras["approach_tau_s"], python.extras["approach_tau_s"], rtol=1e-12)
+
+
+def test_without_a_compiler_numpy_fits(empty_cache, monkeypatch):
+    monkeypatch.setattr(_native, "_compiler", lambda: None)
+    stretches = _stretches(4, 11)
+    fits = fit_approaches(stretches)
+    assert "no C compiler" in _native.compiled_fits_reason()
+    _assert_same_fits(fits, fit_approaches(stretches, compiled=False))
+    assert not any(empty_cache.iterdir()), "nothing is written without a compiler"
+
+
+def test_platkit_compile_0_keeps_numpy(empty_cache, monkeypatch):
+    monkeypatch.setenv("PLATKIT_COMPILE", "0")
+    fits = fit_approaches(_stretches(4, 12)[:3])
+    assert all(f is not None for f in fits)
+    assert "PLATKIT_COMPILE=0" in _native.compiled_fits_reason() and not any(empty_cache.iterdir())
+
+
+def test_the_compiler_is_there_for_the_compiled_path():
+    # CI and the development machines have a C compiler: its absence is a failure here, not a
+    # skip (the path without one is tested above with the compiler patched away)
+    assert _native._compiler() is not None, "no C compiler (cc, gcc or clang) to test the compiled path"
