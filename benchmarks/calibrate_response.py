@@ -112,11 +112,16 @@ def main() -> None:
                     print(f"    {n}  {1e3 * lag[j]:.1f} ({1e3 * true_lag[j]:.1f})  {1e3 * (lag[j] - true_lag[j]):+.1f}  "
                           f"{1e3 * rel[j]:.1f} ({1e3 * rel_true[j]:.1f})  {1e3 * tau:.1f} ({1e3 * sim.response.tau_s[j]:.1f})"
                           f"  {rtxt}")
-                summary.append((seed, np.abs(lag - true_lag).max(), np.abs(fit_rate[limited] / rate[limited] - 1).max()))
+                worst_rate = np.abs(fit_rate[limited] / rate[limited] - 1).max() if len(limited) else float("nan")
+                summary.append([seed, np.abs(lag - true_lag).max(), worst_rate])
         ratio = errors["old"] / errors["new"] if np.isfinite(errors.get("old", np.nan)) else float("nan")
         print(f"  old / new truth error: {ratio:.2f}" + (" (old refused)" if not np.isfinite(ratio) else ""), flush=True)
-    for seed, dl, dr in summary:
-        print(f"seed {seed}: worst lag error {1e3 * dl:.1f} ms, worst limited rate error {100 * dr:.1f}%")
+        if summary and summary[-1][0] == seed:
+            summary[-1] += [errors["old"], errors["new"]]
+    for seed, dl, dr, e_old, e_new in summary:
+        print(f"seed {seed}: truth old {1e3 * e_old:.4f} mm, new {1e3 * e_new:.4f} mm (old / new {e_old / e_new:.2f}); "
+              f"worst lag error {1e3 * dl:.1f} ms, worst limited rate error "
+              + (f"{100 * dr:.2f}%" if np.isfinite(dr) else "(no leg limited)"))
 
 
 if __name__ == "__main__":

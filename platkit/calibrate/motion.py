@@ -564,9 +564,13 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                           else float(sd[blk][j]), "status": "held_at_start" if held_here else "estimated"}
         if rmodel.delays:
             entry["lag_s"] = {"value": float(lags(rmodel, theta)[j]), "note": "shift + delay_s: what the markers fix"}
-        if rmodel.slewed:
+        if rmodel.slewed:  # a limit above every step the log asks is not seen: a lower bound, said so
             need = np.abs(np.diff(U[:, j])) / np.diff(T)
             entry["rate"]["binds_share"] = float(np.mean(need > par["rate"][j])) if len(need) else 0.0
+            if entry["rate"]["binds_share"] == 0:
+                entry["rate"].update(status="does_not_bind", std=None, note=(
+                    f"above the log's fastest step over its interval ({float(need.max()) if len(need) else 0.0:.4g} "
+                    "per s): the limit is not seen"))
         per[c] = entry
     shift_held = "term.actuator_response.shift_s" in held
     cal.motion = {

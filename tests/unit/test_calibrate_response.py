@@ -105,6 +105,8 @@ def test_delays_and_rate_limits_fitted(delayed):
     for j in (1, 4):  # the limited legs' rates, and the share of the log's steps the limit cut
         assert abs(r["actuators"][names[j]]["rate"]["value"] / rate[j] - 1) < 0.03
         assert r["actuators"][names[j]]["rate"]["binds_share"] > 0
+    for j in (0, 2, 3, 5):  # the free legs' limits are not seen, and said so
+        assert r["actuators"][names[j]]["rate"]["status"] == "does_not_bind"
     # exactly one of the shift and the six delays is held: the gauge, said
     gauge = [h for h in cal.motion["held"] if h.endswith("shift_s") or ".delay_s." in h]
     assert len(gauge) == 1, cal.motion["held"]
