@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 
 from platkit.calibrate.estimate import predict_markers
 from platkit.calibrate.motion import calibrate_motion, command_speed
 from platkit.calibrate.response import ResponseModel, actuator_positions, lags, slew_reference
+from platkit.io.calibration import read_calibration, write_calibration_yaml
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.simulate.actuator import ActuatorResponse, actuator_motion
@@ -93,9 +95,25 @@ def delayed(tmp_path_factory):
     return sim, load_session(folder), delay, rate
 
 
-def test_delays_and_rate_limits_fitted(delayed):
+def test_delays_and_rate_limits_fitted(delayed, tmp_path):
     sim, session, delay, rate = delayed
     cal, _ = calibrate_motion(session, session.spec, delays=True, rate_limit=True)
+    # calibration.yaml keeps the new keys, and a file of the old layout (without them) reads
+    (tmp_path / "new").mkdir()
+    back = read_calibration(write_calibration_yaml(cal, tmp_path / "new"))
+    assert back.motion["response"]["actuators"]["L2"]["lag_s"]["value"] == pytest.approx(
+        cal.motion["response"]["actuators"]["L2"]["lag_s"]["value"])
+    text = (tmp_path / "new" / "calibration.yaml").read_text()
+    data = yaml.safe_load(text)
+    response = data["actuator_response"]["response"]
+    for key in ("delays", "rate_limit"):
+        response.pop(key)
+    for entry in response["actuators"].values():
+        for key in ("delay_s", "lag_s", "rate"):
+            entry.pop(key)
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "calibration.yaml").write_text(yaml.safe_dump(data))
+    assert read_calibration(tmp_path / "old" / "calibration.yaml").motion["response"]["kind"] == "second_order"
     r = cal.motion["response"]
     assert r["delays"] and r["rate_limit"]
     names = list(session.spec.control_names)
