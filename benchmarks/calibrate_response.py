@@ -104,14 +104,17 @@ def main() -> None:
                 lag = np.array([r["actuators"][n]["lag_s"]["value"] for n in names])
                 fit_rate = np.array([r["actuators"][n]["rate"]["value"] for n in names])
                 rel, rel_true = lag - lag.min(), true_lag - true_lag.min()
-                print("    leg  lag_ms(true)  err_ms  beyond_fastest_ms(true)  tau_ms(true)  rate_mm/s(true)")
+                print("    leg  lag_ms(true)  err_ms  beyond_fastest_ms(true)  delay_std_ms  tau_ms(true)  tau_std_ms  "
+                      "rate_mm/s(true)")
                 for j, n in enumerate(names):
-                    tau = r["actuators"][n]["tau_s"]["value"]
+                    a = r["actuators"][n]
+                    tau = a["tau_s"]["value"]
+                    sd = [("held" if a[b]["std"] is None else f"{1e3 * a[b]['std']:.1f}") for b in ("delay_s", "tau_s")]
                     rtxt = (f"{1e3 * fit_rate[j]:.1f} ({1e3 * rate[j]:.1f}) {fit_rate[j] / rate[j]:.3f}" if j in limited
                             else f"{1e3 * fit_rate[j]:.0f} (none)")
                     print(f"    {n}  {1e3 * lag[j]:.1f} ({1e3 * true_lag[j]:.1f})  {1e3 * (lag[j] - true_lag[j]):+.1f}  "
-                          f"{1e3 * rel[j]:.1f} ({1e3 * rel_true[j]:.1f})  {1e3 * tau:.1f} ({1e3 * sim.response.tau_s[j]:.1f})"
-                          f"  {rtxt}")
+                          f"{1e3 * rel[j]:.1f} ({1e3 * rel_true[j]:.1f})  {sd[0]}  {1e3 * tau:.1f} "
+                          f"({1e3 * sim.response.tau_s[j]:.1f})  {sd[1]}  {rtxt}")
                 worst_rate = np.abs(fit_rate[limited] / rate[limited] - 1).max() if len(limited) else float("nan")
                 summary.append([seed, np.abs(lag - true_lag).max(), worst_rate])
         ratio = errors["old"] / errors["new"] if np.isfinite(errors.get("old", np.nan)) else float("nan")

@@ -34,6 +34,10 @@ def add_parser(sub):
     p.add_argument("--max-evaluations", type=int, default=None,
                    help="--method paper: Nelder-Mead budget (default 200 per parameter)")
     p.add_argument("--no-robust", action="store_true", help="plain least squares (no outlier down-weighting)")
+    p.add_argument("--response", default=None, metavar="PARTS",
+                   help="where the stand is calibrated from motion (holds that do not settle, or none): add to the "
+                        "actuators' response, comma-separated, 'delays' (each actuator's own pure delay beyond the "
+                        "common shift) and 'rate-limit' (a streamed drive's speed limit, fitted)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--no-report", action="store_true",
                    help="write calibration.yaml and report.json only, not report.html (its figures take longer "
@@ -134,6 +138,8 @@ def run(args) -> int:
         raise BadInput("--free already fits the groups named, without selection: leave out --no-selection")
     if args.prior_strength is not None and not (args.prior_strength > 0 and math.isfinite(args.prior_strength)):
         raise BadInput(f"--prior-strength {args.prior_strength}: use a positive length in the session's unit")
+    response = getattr(args, "response", None)  # a batch's options stored before the flag lack it
+    response_parts(response)  # bad parts are bad input before any work
     check_output_dir(args.out)
     notes: list[str] = []
     from platkit.settle import HoldsNeverSettle, NeverSettles
@@ -145,6 +151,10 @@ def run(args) -> int:
         if args.method == "paper":
             raise
         return run_motion(args, str(exc), notes)
+    if response is not None:  # the holds settled: no response is fitted, said
+        note = f"--response {response}: the holds settled, so no actuator response is fitted (not used)"
+        warn(note)
+        notes.append(note)
     other = None  # read before any work: a bad second session is bad input, found at once
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, spec.name, args.description, quiet=args.quiet)
@@ -251,6 +261,19 @@ def all_warnings(*groups: list[str]) -> list[str]:
     return out
 
 
+#: the parts --response adds to the actuators' response (platkit.calibrate.motion.calibrate_motion's options)
+RESPONSE_PARTS = {"delays": "delays", "rate-limit": "rate_limit"}
+
+
+def response_parts(text: str | None) -> dict[str, bool]:
+    """calibrate_motion's options of ``--response`` (BadInput naming an unknown part)."""
+    parts = [] if text is None else [x.strip() for x in text.split(",") if x.strip()]
+    unknown = [x for x in parts if x not in RESPONSE_PARTS]
+    if unknown or (text is not None and not parts):
+        raise BadInput(f"--response {text}: use {' and/or '.join(RESPONSE_PARTS)}, comma-separated")
+    return {RESPONSE_PARTS[x]: True for x in parts}
+
+
 def run_motion(args, why: str, notes: list[str]) -> int:
     """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
     markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
@@ -276,7 +299,8 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
     cal, poses = calibrate_motion(s, s.spec, free=free, robust=not args.no_robust,
                                   progress=None if args.quiet else progress_printer(s.length_unit),
-                                  platform_options=options, ridge_m=ridge_m, reason=reason)
+                                  platform_options=options, ridge_m=ridge_m, reason=reason,
+                                  **response_parts(getattr(args, "response", None)))
     if other is not None:
         cal.heldout["second_session"] = second_session_errors(cal, other)
     fit_notes = list(cal.warnings)

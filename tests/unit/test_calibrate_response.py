@@ -131,3 +131,21 @@ def test_delays_and_rate_limits_fitted(delayed, tmp_path):
     pred, _, _, _ = predict_markers(cal, sim.commands)
     truth = np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2)))
     assert truth < 0.05e-3, truth
+
+
+def test_cli_response_parts(tmp_path, capsys):
+    """platkit calibrate --response delays,rate-limit fits both on a session without holds; an
+    unknown part is one line of bad input before any work."""
+    from platkit.cli import main
+
+    folder, out = tmp_path / "session", tmp_path / "cal"
+    assert main(["calibrate", str(folder), "--response", "delay", "--out", str(out)]) != 0
+    assert "--response delay: use delays and/or rate-limit" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "12",
+                 "--rate-hz", "40", "--seed", "4112", "--out", str(folder)]) == 0
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--response", "delays,rate-limit",
+                 "--out", str(out)]) == 0
+    r = read_calibration(out / "calibration.yaml").motion["response"]
+    assert r["delays"] and r["rate_limit"]
+    assert all({"delay_s", "lag_s", "rate"} <= set(a) for a in r["actuators"].values())
