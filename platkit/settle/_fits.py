@@ -23,7 +23,7 @@ from scipy.special import chdtrc, gammaincinv
 from threadpoolctl import ThreadpoolController
 
 from platkit.settle._approach import Approach
-from platkit.settle._native import Packed, fits_function
+from platkit.settle._native import Kernels, Packed, fits_function
 
 #: probability that a still stretch is fitted a significant approach tail
 TAIL_FALSE_ALARM = 1e-5  # strict: the best of 64 time constants is tested
@@ -101,6 +101,26 @@ def _prepare(t: np.ndarray, markers: np.ndarray, sigma: float, t_end: float | No
     w = ok.astype(float)
     return _Hold(t=t, s=t - t[0], w=w, seen=seen, mean=mean, y=y, yty=np.sum(y**2, axis=(0, 2)),
                  every=bool(ok.all()), sigma=float(sigma), t_end=t_end, tau=tau)
+
+
+def _prepare_compiled(kernels: Kernels, chunk: Sequence[tuple]) -> tuple[list[_Hold | None], Packed | None]:
+    """:func:`_prepare` of every stretch of ``chunk`` (t, markers, sigma, t_end, tau) by the
+    compiled kernel: the holds (None where :func:`_prepare` gives none; y the kernel's (K, Jp)
+    rows) and the kept ones as the kernel lays them out (None: none kept)."""
+    index = [i for i, x in enumerate(chunk) if len(x[0]) >= 8]
+    prepared: list[_Hold | None] = [None] * len(chunk)
+    if not index:
+        return prepared, None
+    packed = Packed(kernels, [(np.asarray(chunk[i][0], float), np.asarray(chunk[i][1], float)) for i in index])
+    seen = packed.seen.astype(bool)
+    kept = [n for n in range(len(index)) if seen[n].any()]
+    for n in kept:
+        t, _, sigma, t_end, tau = chunk[index[n]]
+        a, b = packed.ks[n]
+        prepared[index[n]] = _Hold(t=np.asarray(t, float), s=packed.s[a:b], w=packed.w[a:b], seen=seen[n],
+                                   mean=packed.mean[n], y=packed.y[a:b], yty=packed.yty[n],
+                                   every=bool(packed.full[a:b].all()), sigma=float(sigma), t_end=t_end, tau=tau)
+    return prepared, (packed.subset(kept) if kept else None)
 
 
 def _batches(holds: Sequence[_Hold], n_taus: Sequence[int]) -> list[list[int]]:
@@ -205,7 +225,8 @@ def _residuals(holds: Sequence[_Hold], taus: Sequence[np.ndarray]) -> list[np.nd
 
 def _solutions(holds: Sequence[_Hold], taus: Sequence[float], packed: Packed | None = None):
     """Per hold at its time constant: (coef (M, 3, 3) [param, coord], the equations (M, 3, 3),
-    the residual sum of squares over the seen markers). ``packed``: as :func:`_search` takes it."""
+    the residual sum of squares over the seen markers). ``packed``: the holds as the compiled
+    kernel lays them out (None: numpy's sums)."""
     if packed is not None:
         G, B = packed.equations(taus)
     else:
@@ -238,36 +259,81 @@ def _starts(d: _Hold, grid: np.ndarray, rss_g: np.ndarray) -> np.ndarray:
     return np.array(starts, float)
 
 
-def _search(holds: Sequence[_Hold], packed: Packed | None = None) -> tuple[list[float], list[bool]]:
+def _search(holds: Sequence[_Hold]) -> tuple[list[float], list[bool]]:
     """(tau, at the top of the coarse grid) of each hold: its own ``tau`` when given, else the
-    coarse grid and the finer rounds (the module's docstring), every hold's grid at once.
-    ``packed``: the holds laid out for the compiled sums (None: numpy's)."""
+    coarse grid and the finer rounds (the module's docstring), every hold's grid at once."""
     free = [h for h, d in enumerate(holds) if d.tau is None]
     tau = [float(d.tau) if d.tau is not None else np.nan for d in holds]
     top = [False] * len(holds)
     if not free:
         return tau, top
-    if packed is not None and len(free) < len(holds):
-        packed = Packed(packed.fn, [holds[h] for h in free])
-
-    def residuals(taus):
-        return _residuals([holds[h] for h in free], taus) if packed is None else packed.residuals(taus)
-
     grids = [np.geomspace(2 * holds[h].dt, 3 * holds[h].span, COARSE_GRID) for h in free]
-    coarse = residuals(grids)
+    coarse = _residuals([holds[h] for h in free], grids)
     bounds = [_starts(holds[h], g, r) for h, g, r in zip(free, grids, coarse)]
     for h, r in zip(free, coarse):
         top[h] = int(np.argmin(r)) == COARSE_GRID - 1
     ramp = np.linspace(0.0, 1.0, FINE_GRID)
     for _ in range(FINE_ROUNDS):
         fine = [np.exp(np.log(b[:, :1]) + np.log(b[:, 1:] / b[:, :1]) * ramp[None]) for b in bounds]  # (S, 12)
-        rss = residuals([f.ravel() for f in fine])
+        rss = _residuals([holds[h] for h in free], [f.ravel() for f in fine])
         for n, (f, r) in enumerate(zip(fine, rss)):
             k = np.argmin(r.reshape(f.shape), axis=1)
             rows = np.arange(len(f))
             bounds[n] = np.column_stack([f[rows, np.maximum(k - 1, 0)], f[rows, np.minimum(k + 1, FINE_GRID - 1)]])
         for h, f, r in zip(free, fine, rss):
             tau[h] = float(f.ravel()[int(np.argmin(r))])
+    return tau, top
+
+
+def _search_compiled(holds: Sequence[_Hold], packed: Packed) -> tuple[list[float], list[bool]]:
+    """:func:`_search` with the compiled sums (``packed``: the holds as platkit.settle._native
+    lays them out), every stage over every hold in whole arrays: the same grids, the same
+    starts (:func:`_starts`, Prony's time constant from the kernel), the same choices."""
+    free = np.array([h for h, d in enumerate(holds) if d.tau is None], dtype=np.intp)
+    tau = [float(d.tau) if d.tau is not None else np.nan for d in holds]
+    top = [False] * len(holds)
+    if not len(free):
+        return tau, top
+    if len(free) < len(holds):
+        packed = packed.subset(free)
+    F = len(free)
+    dt = np.array([holds[h].dt for h in free])
+    span = np.array([holds[h].span for h in free])
+    grids = np.geomspace(2 * dt, 3 * span, COARSE_GRID, axis=1)  # (F, COARSE_GRID)
+    coarse = packed.residuals(grids.ravel(), np.arange(F + 1) * COARSE_GRID).reshape(F, COARSE_GRID)
+    # the starts: every local minimum within 20% of the best (at most four), then Prony's
+    j = np.argmin(coarse, axis=1)
+    rows = np.arange(F)
+    best = coarse[rows, j]
+    minima = np.zeros(coarse.shape, bool)
+    minima[rows, j] = True
+    minima[:, 1:-1] |= ((coarse[:, 1:-1] <= coarse[:, :-2]) & (coarse[:, 1:-1] <= coarse[:, 2:])
+                        & (coarse[:, 1:-1] <= 1.2 * best[:, None]))
+    minima &= np.cumsum(minima, axis=1) <= 4
+    owner, k = np.nonzero(minima)
+    lo = grids[owner, np.maximum(k - 1, 0)]
+    hi = grids[owner, np.minimum(k + 1, COARSE_GRID - 1)]
+    tp = packed.tp
+    prony = np.isfinite(tp) & (2 * dt <= tp) & (tp <= 3 * span)
+    owner = np.concatenate([owner, rows[prony]])
+    lo = np.concatenate([lo, tp[prony] / 1.2])
+    hi = np.concatenate([hi, tp[prony] * 1.2])
+    order = np.argsort(owner, kind="stable")  # each hold's grid minima, then its Prony start
+    owner, bounds = owner[order], np.column_stack([lo[order], hi[order]])
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(owner, minlength=F))]) * FINE_GRID
+    for h, r in zip(free, j):
+        top[h] = int(r) == COARSE_GRID - 1
+    ramp = np.linspace(0.0, 1.0, FINE_GRID)
+    S = np.arange(len(bounds))
+    for _ in range(FINE_ROUNDS):
+        fine = np.exp(np.log(bounds[:, :1]) + np.log(bounds[:, 1:] / bounds[:, :1]) * ramp[None])  # (S, 12)
+        rss = packed.residuals(fine.ravel(), offsets)
+        k = np.argmin(rss.reshape(fine.shape), axis=1)
+        bounds = np.column_stack([fine[S, np.maximum(k - 1, 0)], fine[S, np.minimum(k + 1, FINE_GRID - 1)]])
+    flat = fine.ravel()
+    for n, h in enumerate(free):
+        a, b = offsets[n], offsets[n + 1]
+        tau[h] = float(flat[a + int(np.argmin(rss[a:b]))])
     return tau, top
 
 
@@ -308,16 +374,20 @@ def fit_approaches(stretches: Sequence[tuple], compiled: bool = True) -> list[Ap
     over the samples are compiled (platkit.settle._native) where a C compiler is available and
     ``compiled`` is true, else numpy's; the two agree to rounding."""
     out: list[Approach | None] = []
-    fn = fits_function() if compiled else "not asked for"
+    kernels = fits_function() if compiled else "not asked for"
     with _one_blas_thread():
         for c in range(0, len(stretches), CHUNK):
-            prepared = [_prepare(*(tuple(x) + (None, None))[:5]) for x in stretches[c:c + CHUNK]]
+            chunk = [(tuple(x) + (None, None))[:5] for x in stretches[c:c + CHUNK]]
+            if isinstance(kernels, str):
+                packed = None
+                prepared = [_prepare(*x) for x in chunk]
+            else:
+                prepared, packed = _prepare_compiled(kernels, chunk)
             holds = [d for d in prepared if d is not None]
             if not holds:
                 out += [None] * len(prepared)
                 continue
-            packed = None if isinstance(fn, str) else Packed(fn, holds)
-            tau, top = _search(holds, packed)
+            tau, top = _search(holds) if packed is None else _search_compiled(holds, packed)
             coef, G, rss = _solutions(holds, tau, packed)
             fits = iter(_approach(d, tau[h], top[h], coef[h], G[h], float(rss[h])) for h, d in enumerate(holds))
             out += [None if d is None else next(fits) for d in prepared]

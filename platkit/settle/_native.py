@@ -28,7 +28,8 @@ _compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that te
 
 
 def fits_function():
-    """The compiled ``pk_settle_fits`` (compiled and loaded on first use), or why it is missing."""
+    """The compiled kernels (:class:`Kernels`, compiled and loaded on first use), or why they are
+    missing."""
     with _lock:
         hit = _loaded.get("fn")
         if hit is not None:
@@ -43,14 +44,10 @@ def fits_function():
             _loaded["fn"] = built
             return built
         try:
-            fn = ctypes.CDLL(str(built)).pk_settle_fits
-        except OSError as exc:
+            _loaded["fn"] = Kernels(ctypes.CDLL(str(built)))
+        except (OSError, AttributeError) as exc:
             _loaded["fn"] = f"loading the compiled approach fits failed ({exc})"
-            return _loaded["fn"]
-        fn.argtypes = [ctypes.c_int] * 3 + [ctypes.c_void_p] * 9 + [ctypes.c_int] + [ctypes.c_void_p] * 3
-        fn.restype = ctypes.c_int
-        _loaded["fn"] = fn
-        return fn
+        return _loaded["fn"]
 
 
 def compiled_fits_reason() -> str:
@@ -59,44 +56,75 @@ def compiled_fits_reason() -> str:
     return fn if isinstance(fn, str) else ""
 
 
+class Kernels:
+    """The library's two functions: ``pk_settle_prepare`` and ``pk_settle_fits``."""
+
+    def __init__(self, lib: ctypes.CDLL) -> None:
+        self.lib = lib
+        self.prepare = lib.pk_settle_prepare
+        self.prepare.argtypes = [ctypes.c_int] * 3 + [ctypes.c_void_p] * 11
+        self.prepare.restype = ctypes.c_int
+        self.fits = lib.pk_settle_fits
+        self.fits.argtypes = [ctypes.c_int] * 3 + [ctypes.c_void_p] * 9 + [ctypes.c_int] + [ctypes.c_void_p] * 3
+        self.fits.restype = ctypes.c_int
+
+
 class Packed:
-    """Holds (platkit.settle._fits._Hold) laid out for the compiled fits: their samples one after
-    another (times s, centred markers y (K, Jp), 3 M columns padded with zeros to a multiple of
-    16, weights w (K, M), every marker visible),
-    ks the offsets of each hold's samples, seen and yty (H, M)."""
+    """Stretches of one stream (the same M markers) prepared for the compiled fits by
+    ``pk_settle_prepare``, as platkit.settle._fits._prepare and _prony_tau prepare one: their
+    samples one after another, hold h at rows ks[h] = (first, end); per row the times s from
+    the hold's first sample, the markers centred per marker over its visible samples y (N, Jp)
+    (3 M columns padded with zeros to a multiple of 16, zero where occluded), the weights w
+    (N, M) (1 visible, 0 occluded), full (every marker visible); per hold the visible samples
+    nok, seen (nok >= 8), the markers' means (H, M, 3), yty (H, M) and Prony's time constant tp
+    (H,) (NaN: none). :meth:`subset` shares the rows."""
 
-    def __init__(self, fn, holds: Sequence) -> None:
-        self.fn = fn
-        self.M = holds[0].w.shape[1]
-        self.ks = np.concatenate([[0], np.cumsum([len(d.s) for d in holds])]).astype(np.int64)
-        self.s = np.ascontiguousarray(np.concatenate([d.s for d in holds]), dtype=float)
-        self.Jp = -(-3 * self.M // 16) * 16  # the columns padded to the kernel's 16
-        self.y = np.zeros((int(self.ks[-1]), self.Jp))
-        for d, k in zip(holds, self.ks):
-            self.y[k:k + len(d.s), :3 * self.M] = d.y.reshape(len(d.s), -1)
-        self.w = np.ascontiguousarray(np.concatenate([d.w for d in holds]), dtype=float)
-        self.full = np.ascontiguousarray(self.w.min(axis=1) >= 1, dtype=np.uint8)
-        self.seen = np.ascontiguousarray(np.stack([d.seen for d in holds]), dtype=np.uint8)
-        self.yty = np.ascontiguousarray(np.stack([d.yty for d in holds]), dtype=float)
-
-    def _call(self, taus: Sequence[np.ndarray], mode: int, *out: np.ndarray) -> np.ndarray:
-        ts = np.concatenate([[0], np.cumsum([len(x) for x in taus])]).astype(np.int64)
-        flat = np.ascontiguousarray(np.concatenate(taus), dtype=float)
-        rss, G, B = out
-        code = self.fn(len(self.ks) - 1, self.M, self.Jp, self.ks.ctypes.data, ts.ctypes.data, self.s.ctypes.data,
-                       self.y.ctypes.data, self.w.ctypes.data, self.full.ctypes.data, self.seen.ctypes.data,
-                       self.yty.ctypes.data, flat.ctypes.data, mode, rss.ctypes.data, G.ctypes.data, B.ctypes.data)
+    def __init__(self, kernels: Kernels, stretches: Sequence[tuple[np.ndarray, np.ndarray]]) -> None:
+        self.kernels = kernels
+        self.M = M = stretches[0][1].shape[1]
+        ends = np.cumsum([len(t) for t, _ in stretches])
+        self.ks = np.column_stack([ends - [len(t) for t, _ in stretches], ends]).astype(np.int64)
+        N, H = int(ends[-1]), len(stretches)
+        self.Jp = -(-3 * M // 16) * 16  # the columns padded to the kernel's 16
+        t = np.ascontiguousarray(np.concatenate([t for t, _ in stretches]), dtype=float)
+        X = np.ascontiguousarray(np.concatenate([x.reshape(len(x), 3 * M) for _, x in stretches]), dtype=float)
+        self.s, self.y, self.w = np.empty(N), np.empty((N, self.Jp)), np.empty((N, M))
+        self.full = np.empty(N, np.uint8)
+        self.nok, self.mean, self.yty, self.tp = np.empty((H, M)), np.empty((H, M, 3)), np.empty((H, M)), np.empty(H)
+        code = kernels.prepare(H, M, self.Jp, self.ks.ctypes.data, t.ctypes.data, X.ctypes.data, self.s.ctypes.data,
+                               self.y.ctypes.data, self.w.ctypes.data, self.full.ctypes.data, self.nok.ctypes.data,
+                               self.mean.ctypes.data, self.yty.ctypes.data, self.tp.ctypes.data)
         if code != 0:
             raise MemoryError("the compiled approach fits ran out of memory")
-        return ts
+        self.seen = np.ascontiguousarray(self.nok >= 8, dtype=np.uint8)
 
-    def residuals(self, taus: Sequence[np.ndarray]) -> list[np.ndarray]:
-        """(T_h,) the residual sum of squares over the seen markers of each hold at each of its
-        time constants (as platkit.settle._fits._residuals)."""
-        rss = np.empty(sum(len(x) for x in taus))
+    def subset(self, index: Sequence[int] | np.ndarray) -> Packed:
+        """The holds ``index`` (their rows shared)."""
+        out = object.__new__(Packed)
+        out.__dict__.update(self.__dict__)
+        index = np.asarray(index, dtype=np.intp)
+        for name in ("ks", "nok", "mean", "yty", "tp", "seen"):
+            setattr(out, name, np.ascontiguousarray(getattr(self, name)[index]))
+        return out
+
+    def _call(self, flat: np.ndarray, offsets: np.ndarray, mode: int, *out: np.ndarray) -> None:
+        rss, G, B = out
+        flat = np.ascontiguousarray(flat, dtype=float)
+        offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+        code = self.kernels.fits(len(self.ks), self.M, self.Jp, self.ks.ctypes.data, offsets.ctypes.data,
+                                 self.s.ctypes.data, self.y.ctypes.data, self.w.ctypes.data, self.full.ctypes.data,
+                                 self.seen.ctypes.data, self.yty.ctypes.data, flat.ctypes.data, mode, rss.ctypes.data,
+                                 G.ctypes.data, B.ctypes.data)
+        if code != 0:
+            raise MemoryError("the compiled approach fits ran out of memory")
+
+    def residuals(self, flat: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """The residual sum of squares over the seen markers (as platkit.settle._fits._residuals)
+        of hold h at its time constants flat[offsets[h]:offsets[h + 1]], in the same places."""
+        rss = np.empty(len(flat))
         empty = np.empty(1)
-        ts = self._call(taus, 0, rss, empty, empty)
-        return [rss[ts[h]:ts[h + 1]] for h in range(len(taus))]
+        self._call(flat, offsets, 0, rss, empty, empty)
+        return rss
 
     def equations(self, taus: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
         """(G, B) (H, M, 3, 3): each hold's normal equations at its time constant (regularised;
@@ -104,5 +132,5 @@ class Packed:
         H = len(taus)
         G = np.empty((H, self.M, 3, 3))
         B = np.empty((H, self.M, 3, 3))
-        self._call([np.array([float(x)]) for x in taus], 1, np.empty(1), G, B)
+        self._call(np.asarray(taus, float), np.arange(H + 1), 1, np.empty(1), G, B)
         return G, B

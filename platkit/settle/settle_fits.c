@@ -51,81 +51,150 @@ static void products(long long K, int Jp, const double *e, const double *p, cons
     }
 }
 
-/* hold h: samples [ks[h], ks[h+1]) of s (times from its first sample), y (rows of Jp >= 3 M
+/* the sums over the K samples of the Jp columns of y (K, Jp), Jp a multiple of WIDTH */
+PK_CLONES
+static void column_sums(long long K, int Jp, const double *y, double *out)
+{
+    for (int g = 0; g < Jp; g += WIDTH) {
+        v4 a0 = {0, 0, 0, 0}, a1 = a0, a2 = a0, a3 = a0;
+        for (long long k = 0; k < K; k++) {
+            const v4 *yk = (const v4 *)(y + g + k * Jp);
+            a0 += yk[0]; a1 += yk[1]; a2 += yk[2]; a3 += yk[3];
+        }
+        for (int c = 0; c < 4; c++) {
+            out[g + c] = a0[c]; out[g + 4 + c] = a1[c]; out[g + 8 + c] = a2[c]; out[g + 12 + c] = a3[c];
+        }
+    }
+}
+
+/* e_k = exp(-s_k / tau) and p_k = (s_k / tau) e_k of K samples whose clock deviates from even
+   spacing by dev_k (|dev_k| / tau below 1e-9): exp at the first sample of each block of BLOCK,
+   the others e_first tab[j] (1 - dev_k / tau), tab[j] = exp(-j dt / tau). */
+PK_CLONES
+static void even_blocks(long long K, const double *s, const double *dev, double inv, const double *tab, double *e,
+                        double *p)
+{
+    const v4 t0 = {tab[0], tab[1], tab[2], tab[3]}, t1 = {tab[4], tab[5], tab[6], tab[7]};
+    const v4 one = {1.0, 1.0, 1.0, 1.0}, iv = {inv, inv, inv, inv};
+    long long k = 0;
+    for (; k + BLOCK <= K; k += BLOCK) {
+        const double first = exp(-(s[k] * inv));
+        const v4 f = {first, first, first, first};
+        const v4 s0 = *(const v4 *)(s + k), s1 = *(const v4 *)(s + k + 4);
+        const v4 d0 = *(const v4 *)(dev + k), d1 = *(const v4 *)(dev + k + 4);
+        const v4 e0 = f * t0 * (one - d0 * iv), e1 = f * t1 * (one - d1 * iv);
+        *(v4 *)(e + k) = e0;
+        *(v4 *)(e + k + 4) = e1;
+        *(v4 *)(p + k) = s0 * iv * e0;
+        *(v4 *)(p + k + 4) = s1 * iv * e1;
+    }
+    if (k < K) {
+        const double first = exp(-(s[k] * inv));
+        for (int j = 0; k + j < K; j++) {
+            e[k + j] = first * tab[j] * (1.0 - dev[k + j] * inv);
+            p[k + j] = s[k + j] * inv * e[k + j];
+        }
+    }
+}
+
+/* (sum e, sum p, sum e e, sum e p, sum p p) over K samples */
+PK_CLONES
+static void moments(long long K, const double *e, const double *p, double *out)
+{
+    v4 a = {0, 0, 0, 0}, b = a, c = a, d = a, f = a;
+    long long k = 0;
+    for (; k + 4 <= K; k += 4) {
+        const v4 ev = *(const v4 *)(e + k), pv = *(const v4 *)(p + k);
+        a += ev; b += pv; c += ev * ev; d += ev * pv; f += pv * pv;
+    }
+    double r[5] = {a[0] + a[1] + a[2] + a[3], b[0] + b[1] + b[2] + b[3], c[0] + c[1] + c[2] + c[3],
+                   d[0] + d[1] + d[2] + d[3], f[0] + f[1] + f[2] + f[3]};
+    for (; k < K; k++) {
+        r[0] += e[k]; r[1] += p[k]; r[2] += e[k] * e[k]; r[3] += e[k] * p[k]; r[4] += p[k] * p[k];
+    }
+    for (int i = 0; i < 5; i++) out[i] = r[i];
+}
+
+/* hold h: samples [ks[2 h], ks[2 h + 1]) of s (times from its first sample), y (rows of Jp >= 3 M
    columns: centred markers, zero where occluded and past 3 M), w (rows of M: 1 visible, 0
    occluded), full (1 where every marker is visible); time constants [ts[h], ts[h+1]) of taus;
-   seen and yty (H, M). mode 0: rss[ts[h] + j]; mode 1: G and B at (ts[h] + j) * 9 M. Returns
-   0, or -1 when out of memory. */
+   seen and yty (H, M). mode 0: rss[ts[h] + j]; mode 1: G and B at (ts[h] + j) * 9 M. The
+   sums over a marker's visible samples are those over every sample less those over the samples
+   where it is occluded. Returns 0, or -1 when out of memory. */
 int pk_settle_fits(int H, int M, int Jp, const long long *ks, const long long *ts, const double *s, const double *y,
                    const double *w, const unsigned char *full, const unsigned char *seen, const double *yty,
                    const double *taus, int mode, double *rss, double *G, double *B)
 {
     long long Kmax = 1;
     for (int h = 0; h < H; h++)
-        if (ks[h + 1] - ks[h] > Kmax) Kmax = ks[h + 1] - ks[h];
-    double *work = malloc(sizeof(double) * (size_t)(3 * Jp + 6 * M + 2 * Kmax));
-    if (!work) return -1;
+        if (ks[2 * h + 1] - ks[2 * h] > Kmax) Kmax = ks[2 * h + 1] - ks[2 * h];
+    double *work = malloc(sizeof(double) * (size_t)(3 * Jp + 6 * M + 3 * Kmax));
+    long long *occ = malloc(sizeof(long long) * (size_t)Kmax);
+    if (!work || !occ) {
+        free(work);
+        free(occ);
+        return -1;
+    }
     double *bE = work, *bP = work + Jp, *sy = work + 2 * Jp, *am = work + 3 * Jp, *eb = am + 6 * M, *pb = eb + Kmax;
+    double *dev = pb + Kmax;
     for (int h = 0; h < H; h++) {
-        const long long k0 = ks[h], K = ks[h + 1] - ks[h];
+        const long long k0 = ks[2 * h], K = ks[2 * h + 1] - ks[2 * h];
         const double *sh = s + k0, *yh = y + k0 * Jp, *wh = w + k0 * M;
         const unsigned char *fh = full + k0;
         const double last = sh[K - 1] > 1e-9 ? sh[K - 1] : 1e-9;
         const double dt = last / (double)(K > 1 ? K - 1 : 1);
-        memset(sy, 0, sizeof(double) * (size_t)Jp);
-        for (long long k = 0; k < K; k++)
-            for (int c = 0; c < Jp; c++) sy[c] += yh[k * Jp + c];
+        column_sums(K, Jp, yh, sy);
+        long long nocc = 0;
+        double devmax = 0.0;
+        for (long long k = 0; k < K; k++) {
+            if (!fh[k]) occ[nocc++] = k;
+            const long long b = k - k % BLOCK;
+            dev[k] = sh[k] - sh[b] - (double)(k - b) * dt;
+            devmax = fmax(devmax, fabs(dev[k]));
+        }
         for (long long q = ts[h]; q < ts[h + 1]; q++) {
             const double tau = taus[q], inv = 1.0 / tau;
             double tab[BLOCK];
             for (int j = 0; j < BLOCK; j++) tab[j] = exp(-(j * dt) * inv);
-            double n0 = 0, sE = 0, sP = 0, sEE = 0, sEP = 0, sPP = 0;
-            memset(am, 0, sizeof(double) * (size_t)(6 * M));
-            double e0 = 0, s0 = 0;
-            for (long long k = 0; k < K; k++) {
-                const int j = (int)(k % BLOCK);
-                const double x = sh[k] * inv;
-                double e;
-                if (j == 0) {
-                    e0 = exp(-x);
-                    s0 = sh[k];
-                    e = e0;
-                } else {
-                    const double d = (sh[k] - s0 - j * dt) * inv;
-                    e = fabs(d) < 1e-9 ? e0 * tab[j] * (1.0 - d) : exp(-x);
-                }
-                const double p = x * e;
-                eb[k] = e;
-                pb[k] = p;
-                if (fh[k]) {
-                    n0 += 1.0;
-                    sE += e;
-                    sP += p;
-                    sEE += e * e;
-                    sEP += e * p;
-                    sPP += p * p;
-                } else {
-                    const double *wk = wh + k * M;
-                    for (int m = 0; m < M; m++) {
-                        const double v = wk[m];
-                        double *r = am + 6 * m;
-                        r[0] += v;
-                        r[1] += v * e;
-                        r[2] += v * p;
-                        r[3] += v * e * e;
-                        r[4] += v * e * p;
-                        r[5] += v * p * p;
-                    }
+            if (devmax * inv < 1e-9) {
+                even_blocks(K, sh, dev, inv, tab, eb, pb);
+            } else {
+                double e0 = 0;
+                for (long long k = 0; k < K; k++) {
+                    const int j = (int)(k % BLOCK);
+                    const double x = sh[k] * inv;
+                    if (j == 0) e0 = exp(-x);
+                    const double d = dev[k] * inv;
+                    eb[k] = j == 0 ? e0 : fabs(d) < 1e-9 ? e0 * tab[j] * (1.0 - d) : exp(-x);
+                    pb[k] = x * eb[k];
                 }
             }
+            double mom[5];
+            moments(K, eb, pb, mom);
+            memset(am, 0, sizeof(double) * (size_t)(6 * M));
+            for (long long i = 0; i < nocc; i++) {
+                const long long k = occ[i];
+                const double e = eb[k], p = pb[k], *wk = wh + k * M;
+                for (int m = 0; m < M; m++) {
+                    const double v = 1.0 - wk[m];
+                    double *r = am + 6 * m;
+                    r[0] += v;
+                    r[1] += v * e;
+                    r[2] += v * p;
+                    r[3] += v * (e * e);
+                    r[4] += v * (e * p);
+                    r[5] += v * (p * p);
+                }
+            }
+            const double n0 = (double)K, sE = mom[0], sP = mom[1], sEE = mom[2], sEP = mom[3], sPP = mom[4];
             products(K, Jp, eb, pb, yh, bE, bP);
             double total = 0.0;
             for (int m = 0; m < M; m++) {
                 const double *r = am + 6 * m;
                 double a00, a01, a02, a11, a12, a22;
                 if (seen[h * M + m]) {
-                    a00 = n0 + r[0]; a01 = sE + r[1]; a02 = sP + r[2];
-                    a11 = sEE + r[3]; a12 = sEP + r[4]; a22 = sPP + r[5];
+                    a00 = n0 - r[0]; a01 = sE - r[1]; a02 = sP - r[2];
+                    a11 = sEE - r[3]; a12 = sEP - r[4]; a22 = sPP - r[5];
                 } else {
                     a00 = 1.0; a01 = 0.0; a02 = 0.0; a11 = 1.0; a12 = 0.0; a22 = 1.0;
                 }
@@ -164,5 +233,134 @@ int pk_settle_fits(int H, int M, int Jp, const long long *ks, const long long *t
         }
     }
     free(work);
+    free(occ);
+    return 0;
+}
+
+/* numpy.linalg.lstsq of the n x 2 system A c = b from its normal equations N = A^T A (n00, n01,
+   n11) and r = A^T b: the singular values below eps max(n, 2) of the largest are dropped (the
+   minimum-norm solution), as lstsq's default rcond does. */
+static void lstsq2(double n00, double n01, double n11, double r0, double r1, long long n, double *c)
+{
+    const double tr = n00 + n11, det = n00 * n11 - n01 * n01;
+    const double half = 0.5 * tr, disc = sqrt(fmax(half * half - det, 0.0));
+    const double l1 = half + disc, l2 = fmax(half - disc, 0.0); /* eigenvalues: squared singular values */
+    const double rcond = 2.220446049250313e-16 * (double)(n > 2 ? n : 2);
+    c[0] = c[1] = 0.0;
+    if (!(l1 > 0.0)) return;
+    if (sqrt(l2) > rcond * sqrt(l1)) {
+        c[0] = (n11 * r0 - n01 * r1) / det;
+        c[1] = (n00 * r1 - n01 * r0) / det;
+        return;
+    }
+    /* rank one: along the eigenvector of l1 */
+    double v0 = n01, v1 = l1 - n00;
+    if (fabs(v0) + fabs(v1) == 0.0) { v0 = l1 - n11; v1 = n01; }
+    if (fabs(v0) + fabs(v1) == 0.0) { v0 = 1.0; v1 = 0.0; }
+    const double nv = sqrt(v0 * v0 + v1 * v1);
+    v0 /= nv; v1 /= nv;
+    const double a = (v0 * r0 + v1 * r1) / l1;
+    c[0] = a * v0;
+    c[1] = a * v1;
+}
+
+/* Each hold prepared for the fits, as platkit.settle._fits._prepare and _prony_tau do it: hold h
+   is rows [ks[2 h], ks[2 h + 1]) of t and X (rows of 3 M: markers, NaN where occluded); written
+   at the same rows: s (times from the hold's first), y (Jp columns: markers centred per marker
+   over its visible samples, zero where occluded and past 3 M), w (M: 1 visible, 0 occluded),
+   full (every marker visible); per hold: nok (M, visible samples), mean (M, 3), yty (M), and
+   Prony's time constant tp (NaN: none). Returns 0, or -1 when out of memory. */
+int pk_settle_prepare(int H, int M, int Jp, const long long *ks, const double *t, const double *X, double *s,
+                      double *y, double *w, unsigned char *full, double *nok, double *mean, double *yty, double *tp)
+{
+    const int J = 3 * M;
+    for (int h = 0; h < H; h++) {
+        const long long k0 = ks[2 * h], K = ks[2 * h + 1] - ks[2 * h];
+        double *nh = nok + (long long)h * M, *mh = mean + (long long)h * J;
+        for (int c = 0; c < J; c++) mh[c] = 0.0;
+        for (int m = 0; m < M; m++) nh[m] = 0.0;
+        for (long long k = k0; k < k0 + K; k++) {
+            const double *x = X + k * J;
+            int all = 1;
+            for (int m = 0; m < M; m++) {
+                const int ok = isfinite(x[3 * m]) && isfinite(x[3 * m + 1]) && isfinite(x[3 * m + 2]);
+                w[k * M + m] = ok ? 1.0 : 0.0;
+                all &= ok;
+                if (ok) {
+                    nh[m] += 1.0;
+                    for (int c = 0; c < 3; c++) mh[3 * m + c] += x[3 * m + c];
+                }
+            }
+            full[k] = (unsigned char)all;
+            s[k] = t[k] - t[k0];
+        }
+        for (int m = 0; m < M; m++)
+            for (int c = 0; c < 3; c++) mh[3 * m + c] /= (nh[m] > 1.0 ? nh[m] : 1.0);
+        double *qh = yty + (long long)h * M;
+        for (int m = 0; m < M; m++) qh[m] = 0.0;
+        for (long long k = k0; k < k0 + K; k++) {
+            const double *x = X + k * J;
+            double *yk = y + k * Jp;
+            for (int m = 0; m < M; m++) {
+                const int ok = w[k * M + m] > 0.0;
+                for (int c = 0; c < 3; c++) {
+                    const double v = ok ? x[3 * m + c] - mh[3 * m + c] : 0.0;
+                    yk[3 * m + c] = v;
+                    qh[m] += v * v;
+                }
+            }
+            for (int c = J; c < Jp; c++) yk[c] = 0.0;
+        }
+        /* Prony: block means of L = max(1, K / 30) samples, their differences over the markers
+           seen in every block, the second-order recurrence d[i+2] = c0 d[i+1] + c1 d[i] */
+        tp[h] = NAN;
+        const long long L = K / 30 > 1 ? K / 30 : 1, nb = K / L;
+        if (nb < 8) continue;
+        double *blocks = malloc(sizeof(double) * (size_t)(nb * J + nb * M));
+        if (!blocks) return -1;
+        double *cnt = blocks + nb * J;
+        for (long long b = 0; b < nb; b++) {
+            for (int m = 0; m < M; m++) {
+                double n = 0.0, acc[3] = {0.0, 0.0, 0.0};
+                for (long long k = k0 + b * L; k < k0 + (b + 1) * L; k++) {
+                    const double v = w[k * M + m];
+                    n += v;
+                    for (int c = 0; c < 3; c++) acc[c] += y[k * Jp + 3 * m + c] * v;
+                }
+                cnt[b * M + m] = n;
+                for (int c = 0; c < 3; c++) blocks[b * J + 3 * m + c] = acc[c] / (n > 1.0 ? n : 1.0);
+            }
+        }
+        int any = 0;
+        double n00 = 0, n01 = 0, n11 = 0, r0 = 0, r1 = 0;
+        long long rows = 0;
+        for (int m = 0; m < M; m++) {
+            int seen = 1;
+            for (long long b = 0; b < nb; b++) seen &= cnt[b * M + m] > 0.0;
+            if (!seen) continue;
+            any = 1;
+            for (int c = 0; c < 3; c++) {
+                const int col = 3 * m + c;
+                for (long long i = 0; i + 3 < nb; i++) {
+                    const double d0 = blocks[(i + 1) * J + col] - blocks[i * J + col];
+                    const double d1 = blocks[(i + 2) * J + col] - blocks[(i + 1) * J + col];
+                    const double d2 = blocks[(i + 3) * J + col] - blocks[(i + 2) * J + col];
+                    n00 += d1 * d1; n01 += d1 * d0; n11 += d0 * d0;
+                    r0 += d1 * d2; r1 += d0 * d2;
+                    rows++;
+                }
+            }
+        }
+        free(blocks);
+        if (!any) continue;
+        double coef[2];
+        lstsq2(n00, n01, n11, r0, r1, rows, coef);
+        const double c0 = coef[0], c1 = coef[1], disc = c0 * c0 + 4.0 * c1;
+        const double r = disc >= 0 ? (fabs(c0) + sqrt(disc)) / 2.0 : sqrt(-c1);
+        if (!(0 < r && r < 1)) continue;
+        const double last = s[k0 + K - 1] > 1e-9 ? s[k0 + K - 1] : 1e-9;
+        const double dt = last / (double)(K > 1 ? K - 1 : 1);
+        tp[h] = -(double)L * dt / log(r);
+    }
     return 0;
 }
