@@ -13,7 +13,11 @@ stand's reference poses (the poses the prediction is told on), 3-D RMS in mm. Pr
 predicted and reached error of each trajectory, reached / predicted (at most 1: the prediction
 holds), and random / designed (over 1: the design is better).
 
-    .venv/bin/python benchmarks/plan_excitation.py [--seeds 2700001,2700002] [--duration-s 60]
+    .venv/bin/python benchmarks/plan_excitation.py [--seeds 2700001,2700002] [--duration-s 60] [--family via]
+
+With ``--family via``: `plan --motion --family via`'s sweep (platkit.calibrate.via_points: D-optimal
+via points joined by time-optimal moves) against a sweep through random candidates, the same
+duration and limits.
 """
 from __future__ import annotations
 
@@ -29,6 +33,7 @@ from platkit.calibrate.excitation import MotionInformation, design_excitation, p
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.plan import default_marker_layout, reference_poses_for
 from platkit.calibrate.trajectories import FourierFamily, drive_limits, limit_violations, trajectory
+from platkit.calibrate.via_points import design_via, via_trajectory
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
@@ -47,6 +52,7 @@ def main() -> None:
     ap.add_argument("--noise-mm", type=float, default=0.2)
     ap.add_argument("--drawn-noise", action="store_true", help="the simulator's drawn white + correlated noise")
     ap.add_argument("--rate-hz", type=float, default=100.0)
+    ap.add_argument("--family", default="fourier", choices=["fourier", "via"])
     args = ap.parse_args()
     spec = get_platform("stewart")
     command_rate_hz = 20.0
@@ -54,15 +60,24 @@ def main() -> None:
     markers = default_marker_layout(spec, 5, np.random.default_rng(0))
     t0 = time.perf_counter()
     info = MotionInformation(spec, markers)
-    family = FourierFamily(args.period_s, args.harmonics, spec.n_u)
-    design = design_excitation(spec, family, limits, info, command_rate_hz, np.random.default_rng(args.design_seed),
-                               evaluations=args.evaluations)
-    print(f"design: {args.evaluations} evaluations in {time.perf_counter() - t0:.0f} s; criterion "
-          f"{design.criterion_start:.2f} (random multisine) -> {design.criterion:.2f} (designed)")
+    commands = {}
+    if args.family == "via":
+        for name, choice in (("designed", True), ("random", False)):
+            sweep = design_via(spec, limits, markers, args.duration_s, command_rate_hz,
+                               np.random.default_rng(args.design_seed), d_optimal_choice=choice)
+            commands[name] = via_trajectory(sweep.path, limits, command_rate_hz)[0]
+        print(f"design: via points in {time.perf_counter() - t0:.0f} s")
+    else:
+        family = FourierFamily(args.period_s, args.harmonics, spec.n_u)
+        design = design_excitation(spec, family, limits, info, command_rate_hz, np.random.default_rng(args.design_seed),
+                                   evaluations=args.evaluations)
+        print(f"design: {args.evaluations} evaluations in {time.perf_counter() - t0:.0f} s; criterion "
+              f"{design.criterion_start:.2f} (random multisine) -> {design.criterion:.2f} (designed)")
+        for name, coef in (("designed", design.coef), ("random", design.start)):
+            commands[name] = trajectory(spec, family, coef, limits, args.duration_s, command_rate_hz)[0]
     sigma = args.noise_mm * 1e-3
     plans = {}
-    for name, coef in (("designed", design.coef), ("random", design.start)):
-        U, meta = trajectory(spec, family, coef, limits, args.duration_s, command_rate_hz)
+    for name, U in commands.items():
         v = limit_violations(U, command_rate_hz, limits)
         p, n_fit = predict_trajectory(info, U, command_rate_hz, len(U) / command_rate_hz, args.rate_hz, 1.0, sigma)
         pred, p90 = p["marker_rms_m"], p["marker_rms_p90_m"]
