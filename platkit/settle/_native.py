@@ -57,7 +57,7 @@ def compiled_fits_reason() -> str:
 
 
 class Kernels:
-    """The library's two functions: ``pk_settle_prepare`` and ``pk_settle_fits``."""
+    """The library's functions: ``pk_settle_prepare``, ``pk_settle_fits``, ``pk_settle_halves``."""
 
     def __init__(self, lib: ctypes.CDLL) -> None:
         self.lib = lib
@@ -67,6 +67,24 @@ class Kernels:
         self.fits = lib.pk_settle_fits
         self.fits.argtypes = [ctypes.c_int] * 3 + [ctypes.c_void_p] * 9 + [ctypes.c_int] + [ctypes.c_void_p] * 3
         self.fits.restype = ctypes.c_int
+        self.halves = lib.pk_settle_halves
+        self.halves.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int] + [ctypes.c_void_p] * 5
+        self.halves.restype = ctypes.c_int
+
+
+def halves(markers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """platkit.settle._still._halves of a stretch (K, M, 3) by the compiled kernel, bit for bit:
+    (mb, ma (K, M, 3), nb, na (K, M)); None without the kernel."""
+    kernels = fits_function()
+    if isinstance(kernels, str):
+        return None
+    K, M = markers.shape[:2]
+    X = np.ascontiguousarray(markers, dtype=float)
+    mb, ma = np.empty((K, M, 3)), np.empty((K, M, 3))
+    nb, na = np.empty((K, M)), np.empty((K, M))
+    if kernels.halves(K, M, int(n), X.ctypes.data, mb.ctypes.data, ma.ctypes.data, nb.ctypes.data, na.ctypes.data):
+        raise MemoryError("the compiled still test ran out of memory")
+    return mb, ma, nb, na
 
 
 class Packed:

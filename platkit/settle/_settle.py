@@ -54,6 +54,7 @@ from platkit.io.session import Session, load_session
 from platkit.poses import PoseSet
 from platkit.settle._approach import Approach, _window_result, tail_free_window, tail_regression, tail_scale
 from platkit.settle._fits import extrapolation_checked, fit_approaches, fit_tails
+from platkit.settle._native import compiled_fits_reason
 from platkit.settle._report import (
     SettleOptions,
     SettleReport,
@@ -202,6 +203,7 @@ def _holds(st: _Stream, found: _Search) -> list[_Hold]:
     of its approach; the others dropped with their reason."""
     opt, t, dt, n, min_samples = st.opt, st.t, st.dt, st.n, st.min_samples
     N = st.shape[0]
+    compiled = compiled_fits_reason() == ""
     holds = []
     for i in range(N):
         t_end = st.tc[i + 1] if i + 1 < N else t[-1] + dt / 2
@@ -215,7 +217,8 @@ def _holds(st: _Stream, found: _Search) -> list[_Hold]:
             continue
         seg, ts = st.X[a:b], t[a:b]
         slack = max(opt.gap_samples + 1, int(round(opt.end_slack_s * st.rate)))
-        sums = _window_sums(seg)  # the still test's and the approach's window means
+        # the still test's and the approach's window means (the compiled kernel takes its own)
+        sums = None if compiled else _window_sums(seg)
         run = _last_still_run(still_mask(seg, n, st.sig_fast, opt.false_alarm, sums), opt.gap_samples, min_samples,
                               slack)
         length = 0 if run is None else run[1] - run[0]

@@ -7,6 +7,8 @@ import functools
 import numpy as np
 from scipy.special import chdtrc, gammaincinv
 
+from platkit.settle._native import halves
+
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6
 
@@ -118,9 +120,15 @@ def _window_sums(x: np.ndarray):
     return S, C
 
 
-def _halves(markers: np.ndarray, n: int, sums: tuple[np.ndarray, np.ndarray] | None = None):
+def _halves(markers: np.ndarray, n: int, sums: tuple[np.ndarray, np.ndarray] | None = None, compiled: bool = True):
     """Means of the n samples before and from each sample k: (mb, ma (K, M, 3), nb, na (K, M)).
-    ``sums``: :func:`_window_sums` of a stretch that ``markers`` begins (its first K + 1 rows used)."""
+    ``sums``: :func:`_window_sums` of a stretch that ``markers`` begins (its first K + 1 rows used).
+    The compiled kernel (platkit.settle._native.halves) gives the same numbers where it is
+    available and ``compiled`` is true."""
+    if compiled:
+        got = halves(markers, n)
+        if got is not None:
+            return got
     K = markers.shape[0]
     S, C = _window_sums(markers) if sums is None else sums
     k = np.arange(K)

@@ -364,3 +364,56 @@ int pk_settle_prepare(int H, int M, int Jp, const long long *ks, const double *t
     }
     return 0;
 }
+
+/* The still test's halves of one stretch, number for number as platkit.settle._still._halves
+   computes them with numpy (elementwise operations and running sums in sample order: the same
+   roundings): X (K, 3 M) markers (NaN: occluded); for each sample k the means of each marker over
+   the visible samples among the n before k (mb) and the n from k on (ma), both (K, M, 3), and
+   their counts nb, na (K, M); windows clipped to the stretch. Returns 0, or -1 when out of
+   memory. */
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("fp-contract=off")))
+#endif
+int pk_settle_halves(long long K, int M, int n, const double *X, double *mb, double *ma, double *nb, double *na)
+{
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    const int J = 3 * M;
+    double *S = malloc(sizeof(double) * (size_t)((K + 1) * J));
+    double *C = malloc(sizeof(double) * (size_t)((K + 1) * M));
+    if (!S || !C) {
+        free(S);
+        free(C);
+        return -1;
+    }
+    for (int c = 0; c < J; c++) S[c] = 0.0;
+    for (int m = 0; m < M; m++) C[m] = 0.0;
+    for (long long k = 0; k < K; k++) {
+        const double *x = X + k * J;
+        for (int m = 0; m < M; m++) {
+            const int ok = isfinite(x[3 * m]) && isfinite(x[3 * m + 1]) && isfinite(x[3 * m + 2]);
+            C[(k + 1) * M + m] = C[k * M + m] + (ok ? 1.0 : 0.0);
+            for (int c = 3 * m; c < 3 * m + 3; c++) {
+                const double v = ok ? x[c] : 0.0;
+                S[(k + 1) * J + c] = k == 0 ? v : S[k * J + c] + v; /* cumsum's first is the value itself */
+            }
+        }
+    }
+    for (long long k = 0; k < K; k++) {
+        const long long a = k - n > 0 ? k - n : 0, b = k + n < K ? k + n : K;
+        for (int m = 0; m < M; m++) {
+            const double cb = C[k * M + m] - C[a * M + m], ca = C[b * M + m] - C[k * M + m];
+            nb[k * M + m] = cb;
+            na[k * M + m] = ca;
+            const double db = cb > 1.0 ? cb : 1.0, da = ca > 1.0 ? ca : 1.0;
+            for (int c = 3 * m; c < 3 * m + 3; c++) {
+                mb[k * J + c] = (S[k * J + c] - S[a * J + c]) / db;
+                ma[k * J + c] = (S[b * J + c] - S[k * J + c]) / da;
+            }
+        }
+    }
+    free(S);
+    free(C);
+    return 0;
+}

@@ -118,3 +118,21 @@ def test_the_compiler_is_there_for_the_compiled_path():
     # CI and the development machines have a C compiler: its absence is a failure here, not a
     # skip (the path without one is tested above with the compiler patched away)
     assert _native._compiler() is not None, "no C compiler (cc, gcc or clang) to test the compiled path"
+
+
+def test_the_compiled_still_test_halves_are_numpys_bit_for_bit(cache):
+    # the still test decides the windows: its halves must be numpy's numbers, not close to them
+    from platkit.settle._still import _halves, _window_sums
+
+    rng = np.random.default_rng(2803)
+    X = rng.normal(size=(900, 5, 3))
+    X[rng.random((900, 5)) < 0.05] = np.nan
+    X[100:200, 2] = np.nan  # a marker occluded for a while
+    for n in (1, 5, 40, 2000):
+        for stretch in (X, X[:57], X[:1]):
+            got = _halves(stretch, n)
+            want = _halves(stretch, n, _window_sums(X), compiled=False)
+            for a, b in zip(got, want):
+                assert a.shape == b.shape
+                assert np.array_equal(a, b, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(b))
+    assert _native.halves(X, 5) is not None
