@@ -367,6 +367,46 @@ def _approach(d: _Hold, tau: float, at_top: bool, coef: np.ndarray, G: np.ndarra
     return fit
 
 
+def _approaches(holds: Sequence[_Hold], tau: Sequence[float], top: Sequence[bool], coef: np.ndarray, G: np.ndarray,
+                rss: np.ndarray, nok: np.ndarray) -> list[Approach]:
+    """:func:`_approach` of every hold at once (the compiled path: ``nok`` (H, M) the visible
+    samples of each marker), in whole arrays."""
+    seen = np.stack([d.seen for d in holds])  # (H, M)
+    sigma = np.array([d.sigma for d in holds])
+    sigma2 = sigma**2
+    n_seen = seen.sum(axis=1)
+    n_obs = 3 * np.where(seen, nok, 0.0).sum(axis=1)
+    dof = np.maximum(n_obs - 9 * n_seen - 1, 1)
+    chi = np.maximum(rss, 0.0) / dof / sigma2
+    inflate = np.maximum(chi, 1.0)
+    inv = np.linalg.inv(G)  # (H, M, 3, 3)
+    std = np.sqrt(np.maximum(inv[:, :, 0, 0], 0.0) * inflate[:, None]) * sigma[:, None]
+    mean = np.stack([d.mean for d in holds])
+    S = seen[:, :, None]
+    a = np.where(S, coef[:, :, 1, :], 0.0)
+    b = np.where(S, coef[:, :, 2, :], 0.0)
+    x_inf = np.where(S, mean + coef[:, :, 0, :], np.nan)
+    x_inf_std = np.where(S, std[:, :, None].repeat(3, axis=2), np.nan)
+    cov_ab = np.where(seen[:, :, None, None], inv[:, :, 1:, 1:] * inflate[:, None, None, None] * sigma2[:, None, None, None],
+                      0.0)
+    # a tail the stream does not show is none (as _approach)
+    rss0 = np.where(seen, np.stack([d.yty for d in holds]), 0.0).sum(axis=1)
+    shown = chdtrc(6 * n_seen + 1, np.maximum((rss0 - np.maximum(rss, 0.0)) / sigma2, 0.0)) < TAIL_FALSE_ALARM
+    a = np.where(shown[:, None, None], a, 0.0)
+    b = np.where(shown[:, None, None], b, 0.0)
+    x_inf = np.where(shown[:, None, None], x_inf, np.where(S, mean, np.nan))
+    t0 = np.array([float(d.t[0]) for d in holds])
+    t_end = np.array([float(d.t[-1]) if d.t_end is None else float(d.t_end) for d in holds])
+    taus = np.asarray(tau, float)
+    u = np.maximum(t_end - t0, 0.0)
+    e = np.exp(-u / taus)
+    remaining = np.linalg.norm((a + b * (u / taus)[:, None, None]) * e[:, None, None], axis=2)
+    return [Approach(tau=float(taus[h]), t0=float(t0[h]), x_inf=x_inf[h], x_inf_std=x_inf_std[h], a=a[h], b=b[h],
+                     chi2_per_dof=float(chi[h]), remaining_m=remaining[h], at_limit=d.tau is None and bool(top[h]),
+                     significant=bool(shown[h]), cov_ab=cov_ab[h])
+            for h, d in enumerate(holds)]
+
+
 def fit_approaches(stretches: Sequence[tuple], compiled: bool = True) -> list[Approach | None]:
     """:func:`fit_approach` of many stretches of one stream (the same markers) at once: each
     (t, markers, sigma[, t_end[, tau]]); the same fits, their grids evaluated in batches, CHUNK
@@ -389,7 +429,10 @@ def fit_approaches(stretches: Sequence[tuple], compiled: bool = True) -> list[Ap
                 continue
             tau, top = _search(holds) if packed is None else _search_compiled(holds, packed)
             coef, G, rss = _solutions(holds, tau, packed)
-            fits = iter(_approach(d, tau[h], top[h], coef[h], G[h], float(rss[h])) for h, d in enumerate(holds))
+            if packed is None:
+                fits = iter(_approach(d, tau[h], top[h], coef[h], G[h], float(rss[h])) for h, d in enumerate(holds))
+            else:
+                fits = iter(_approaches(holds, tau, top, coef, G, rss, packed.nok))
             out += [None if d is None else next(fits) for d in prepared]
     return out
 

@@ -73,6 +73,9 @@ def _assert_same_fits(compiled, python):
         np.testing.assert_allclose(f.b, g.b, rtol=0, atol=1e-12)
         assert f.chi2_per_dof == pytest.approx(g.chi2_per_dof, rel=1e-6)
         np.testing.assert_allclose(f.x_inf_std, g.x_inf_std, rtol=1e-6)
+        np.testing.assert_allclose(f.cov_ab, g.cov_ab, rtol=1e-6, atol=1e-30)
+        np.testing.assert_allclose(f.remaining_m, g.remaining_m, rtol=1e-6, atol=1e-12)
+        assert f.t0 == g.t0
 
 
 @pytest.mark.parametrize("n_markers", [4, 7])  # 12 and 21 columns: one and two groups of the kernel's 16
