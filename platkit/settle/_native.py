@@ -57,7 +57,8 @@ def compiled_fits_reason() -> str:
 
 
 class Kernels:
-    """The library's functions: ``pk_settle_prepare``, ``pk_settle_fits``, ``pk_settle_halves``."""
+    """The library's functions: ``pk_settle_prepare``, ``pk_settle_fits``, ``pk_settle_halves``,
+    ``pk_settle_still``."""
 
     def __init__(self, lib: ctypes.CDLL) -> None:
         self.lib = lib
@@ -70,6 +71,26 @@ class Kernels:
         self.halves = lib.pk_settle_halves
         self.halves.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int] + [ctypes.c_void_p] * 5
         self.halves.restype = ctypes.c_int
+        self.still = lib.pk_settle_still
+        self.still.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_double] + \
+            [ctypes.c_void_p] * 3
+        self.still.restype = ctypes.c_int
+
+
+def still_statistics(markers: np.ndarray, n: int, sigma2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """By the compiled kernel, numpy's numbers (platkit.settle._still.still_mask and
+    approach_start) for a stretch (K, M, 3): (stat, the still test's statistic (K,); num, the
+    sum of the squared differences of the halves over the markers seen in both (K,); m, how
+    many those are (K,) int); None without the kernel."""
+    kernels = fits_function()
+    if isinstance(kernels, str):
+        return None
+    K, M = markers.shape[:2]
+    X = np.ascontiguousarray(markers, dtype=float)
+    stat, num, m = np.empty(K), np.empty(K), np.empty(K)
+    if kernels.still(K, M, int(n), X.ctypes.data, float(sigma2), stat.ctypes.data, num.ctypes.data, m.ctypes.data):
+        raise MemoryError("the compiled still test ran out of memory")
+    return stat, num, m.astype(np.intp)
 
 
 def halves(markers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:

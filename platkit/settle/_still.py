@@ -7,7 +7,7 @@ import functools
 import numpy as np
 from scipy.special import chdtrc, gammaincinv
 
-from platkit.settle._native import halves
+from platkit.settle._native import halves, still_statistics
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6
@@ -142,18 +142,23 @@ def _halves(markers: np.ndarray, n: int, sums: tuple[np.ndarray, np.ndarray] | N
 
 
 def still_mask(markers: np.ndarray, n: int, sigma: float, false_alarm: float,
-               sums: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+               sums: tuple[np.ndarray, np.ndarray] | None = None, compiled: bool = True) -> np.ndarray:
     """(K,) True where the markers (K, M, 3), one command's stretch, are still at sample k.
 
     Windows are clipped to the stretch; the first sample (no past) is never still. ``sums``: as
-    :func:`_halves` takes them.
+    :func:`_halves` takes them. The statistic is the compiled kernel's where it is available and
+    ``compiled`` is true (platkit.settle._native.still_statistics: the same numbers).
     """
-    mb, ma, nb, na = _halves(markers, n, sums)
-    vis = (nb > 0) & (na > 0)
-    scale2 = sigma**2 * (1.0 / np.maximum(nb, 1) + 1.0 / np.maximum(na, 1))
-    z2 = np.where(vis, np.sum((ma - mb) ** 2, axis=2) / scale2, 0.0)
-    m = vis.sum(axis=1)
-    stat = z2.sum(axis=1) / np.maximum(m, 1)
+    got = still_statistics(markers, n, sigma**2) if compiled else None
+    if got is not None:
+        stat, _, m = got
+    else:
+        mb, ma, nb, na = _halves(markers, n, sums, compiled=False)
+        vis = (nb > 0) & (na > 0)
+        scale2 = sigma**2 * (1.0 / np.maximum(nb, 1) + 1.0 / np.maximum(na, 1))
+        z2 = np.where(vis, np.sum((ma - mb) ** 2, axis=2) / scale2, 0.0)
+        m = vis.sum(axis=1)
+        stat = z2.sum(axis=1) / np.maximum(m, 1)
     # the quantile of chi-square(3m) / m for each number m of visible markers
     limits = np.array([_chi2_quantile(1 - false_alarm, 3 * k) / k for k in range(1, markers.shape[1] + 1)])
     return (m > 0) & (stat < limits[np.maximum(m, 1) - 1])
@@ -179,13 +184,18 @@ def _last_still_run(still: np.ndarray, gap: int, min_length: int = 0, tail: int 
 
 
 def approach_start(markers: np.ndarray, n: int, sigma: float,
-                   sums: tuple[np.ndarray, np.ndarray] | None = None) -> int | None:
+                   sums: tuple[np.ndarray, np.ndarray] | None = None, compiled: bool = True) -> int | None:
     """Index where the main motion of a hold's stretch (K, M, 3) has slowed to half its peak
     speed (the approach's tail begins; the peak itself when it never slows that much), or None
-    when the stretch shows no motion beyond the noise. ``sums``: as :func:`_halves` takes them."""
-    mb, ma, nb, na = _halves(markers, n, sums)
-    vis = (nb > 0) & (na > 0)
-    d = np.sqrt(np.sum(np.where(vis[..., None], ma - mb, 0.0) ** 2, axis=(1, 2)) / np.maximum(vis.sum(axis=1), 1))
+    when the stretch shows no motion beyond the noise. ``sums``: as :func:`_halves` takes them;
+    ``compiled``: as :func:`still_mask` takes it."""
+    got = still_statistics(markers, n, sigma**2) if compiled else None
+    if got is not None:
+        d = np.sqrt(got[1] / np.maximum(got[2], 1))
+    else:
+        mb, ma, nb, na = _halves(markers, n, sums, compiled=False)
+        vis = (nb > 0) & (na > 0)
+        d = np.sqrt(np.sum(np.where(vis[..., None], ma - mb, 0.0) ** 2, axis=(1, 2)) / np.maximum(vis.sum(axis=1), 1))
     noise = sigma * np.sqrt(2.0 / n) * np.sqrt(3.0)
     full = np.zeros(len(d), bool)
     full[n:len(d) - n + 1] = True  # both halves whole: a clipped half sees less of the motion

@@ -417,3 +417,76 @@ int pk_settle_halves(long long K, int M, int n, const double *X, double *mb, dou
     free(C);
     return 0;
 }
+
+/* numpy's sum of n contiguous doubles (its reduction: 0 plus the pairwise sum, eight
+   accumulators in blocks of at most 128), the same roundings */
+static double np_pairwise(const double *a, long long n)
+{
+    if (n < 8) {
+        double r = 0.0;
+        for (long long i = 0; i < n; i++) r += a[i];
+        return r;
+    }
+    if (n <= 128) {
+        double r[8];
+        long long i;
+        for (int j = 0; j < 8; j++) r[j] = a[j];
+        for (i = 8; i < n - (n % 8); i += 8)
+            for (int j = 0; j < 8; j++) r[j] += a[i + j];
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) res += a[i];
+        return res;
+    }
+    long long n2 = n / 2;
+    n2 -= n2 % 8;
+    return np_pairwise(a, n2) + np_pairwise(a + n2, n - n2);
+}
+
+/* The still test's statistic and the approach's speed of one stretch, number for number as
+   platkit.settle._still.still_mask and approach_start compute them with numpy from the halves
+   (pk_settle_halves): per sample k, m[k] the markers visible in both halves, stat[k] the mean
+   over them of |ma - mb|^2 / (sigma2 (1 / nb + 1 / na)), num[k] the sum of |ma - mb|^2 over them.
+   Returns 0, or -1 when out of memory. */
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("fp-contract=off")))
+#endif
+int pk_settle_still(long long K, int M, int n, const double *X, double sigma2, double *stat, double *num, double *m)
+{
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    const int J = 3 * M;
+    double *mb = malloc(sizeof(double) * (size_t)(K * J)), *ma = malloc(sizeof(double) * (size_t)(K * J));
+    double *nb = malloc(sizeof(double) * (size_t)(K * M)), *na = malloc(sizeof(double) * (size_t)(K * M));
+    double *z = malloc(sizeof(double) * (size_t)(J + M));
+    int code = -1;
+    if (mb && ma && nb && na && z && pk_settle_halves(K, M, n, X, mb, ma, nb, na) == 0) {
+        double *sq = z + M;
+        for (long long k = 0; k < K; k++) {
+            int seen = 0;
+            for (int j = 0; j < M; j++) {
+                const double cb = nb[k * M + j], ca = na[k * M + j];
+                const int vis = cb > 0 && ca > 0;
+                double d2 = 0.0;
+                for (int c = 3 * j; c < 3 * j + 3; c++) {
+                    const double d = ma[k * J + c] - mb[k * J + c];
+                    sq[c] = vis ? d * d : 0.0;
+                    d2 += d * d;
+                }
+                const double scale2 = sigma2 * (1.0 / (cb > 1.0 ? cb : 1.0) + 1.0 / (ca > 1.0 ? ca : 1.0));
+                z[j] = vis ? d2 / scale2 : 0.0;
+                seen += vis;
+            }
+            m[k] = seen;
+            stat[k] = (0.0 + np_pairwise(z, M)) / (seen > 1 ? seen : 1);
+            num[k] = 0.0 + np_pairwise(sq, J);
+        }
+        code = 0;
+    }
+    free(mb);
+    free(ma);
+    free(nb);
+    free(na);
+    free(z);
+    return code;
+}

@@ -139,3 +139,27 @@ def test_the_compiled_still_test_halves_are_numpys_bit_for_bit(cache):
                 assert a.shape == b.shape
                 assert np.array_equal(a, b, equal_nan=True) and np.array_equal(np.signbit(a), np.signbit(b))
     assert _native.halves(X, 5) is not None
+
+
+@pytest.mark.parametrize("n_markers", [5, 9, 50])  # numpy's sums: sequential below 8, pairwise above, in blocks past 128
+def test_the_compiled_still_test_is_numpys_bit_for_bit(cache, n_markers):
+    from platkit.settle._still import _halves, approach_start, still_mask
+
+    rng = np.random.default_rng(2804 + n_markers)
+    X = np.cumsum(rng.normal(size=(500, n_markers, 3)) * 1e-4, axis=0) + rng.normal(size=(1, n_markers, 3))
+    X[rng.random((500, n_markers)) < 0.05] = np.nan
+    X[100:150, 0] = np.nan
+    sigma = 2.3e-4
+    for n in (2, 10, 60, 1000):
+        for stretch in (X, X[:33], X[:1]):
+            stat, num, m = _native.still_statistics(stretch, n, sigma**2)
+            mb, ma, nb, na = _halves(stretch, n, compiled=False)
+            vis = (nb > 0) & (na > 0)
+            z2 = np.where(vis, np.sum((ma - mb) ** 2, axis=2) / (sigma**2 * (1.0 / np.maximum(nb, 1)
+                                                                            + 1.0 / np.maximum(na, 1))), 0.0)
+            np.testing.assert_array_equal(m, vis.sum(axis=1))
+            np.testing.assert_array_equal(stat, z2.sum(axis=1) / np.maximum(m, 1))
+            np.testing.assert_array_equal(num, np.sum(np.where(vis[..., None], ma - mb, 0.0) ** 2, axis=(1, 2)))
+            np.testing.assert_array_equal(still_mask(stretch, n, sigma, 1e-3),
+                                          still_mask(stretch, n, sigma, 1e-3, compiled=False))
+            assert approach_start(stretch, n, sigma) == approach_start(stretch, n, sigma, compiled=False)
