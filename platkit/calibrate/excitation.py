@@ -389,8 +389,9 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
                     mocap_rate_hz: float, sigma_m: float, markers: np.ndarray, rng: np.random.Generator,
                     duration_s: float | None = None, target_m: float | None = None, evaluations: int = 200,
                     seen: float = 1.0, progress: Callable[[int, int, float], None] | None = None,
-                    family: str = "fourier") -> ExcitationPlan:
-    """Design the excitation (:func:`design_excitation`) and the session: ``duration_s`` as given,
+                    family: str = "via") -> ExcitationPlan:
+    """Design the excitation of ``family`` ('via': :func:`_plan_via`, via-point sweeps; 'fourier':
+    :func:`design_excitation`, described here) and the session: ``duration_s`` as given,
     else the shortest that meets ``target_m`` (:func:`session_length_for`, then lengthened until the
     whole trajectory's prediction meets it), at least 1.25 periods. The report holds the limits,
     the family and its coefficients, the D-criterion of the design and of the random multisine it

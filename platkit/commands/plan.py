@@ -30,9 +30,9 @@ def add_parser(sub):
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of plan.csv (default mm)")
     mo = p.add_argument_group("excitation for calibration from motion (--motion): --out is the session's commands.csv")
     mo.add_argument("--motion", action="store_true",
-                    help="design a streamed excitation trajectory without holds: a Fourier series per control, D-optimal "
-                         "for the model calibrate fits to a stream, within the strokes (less --margin), --max-rate and "
-                         "--max-accel on every command, every command reachable")
+                    help="design a streamed excitation trajectory without holds (--family: via-point sweeps or a Fourier "
+                         "series per control), D-optimal for the model calibrate fits, within the strokes (less "
+                         "--margin), --max-rate and --max-accel on every command, every command reachable")
     mo.add_argument("--duration-s", type=float, default=None, help="the session's length, s")
     mo.add_argument("--target-mm", type=float, default=None,
                     help="the predicted marker error to reach in 90%% of sessions (3-D RMS over the stand's reference "
@@ -45,10 +45,10 @@ def add_parser(sub):
     mo.add_argument("--max-accel", default=None, metavar="A[,A...]",
                     help="the drives' acceleration limit, per s^2, as --max-rate")
     mo.add_argument("--family", default=None, metavar="{fourier,via}",
-                    help="the trajectory family: 'fourier', a Fourier series per control with D-optimal coefficients "
-                         "(--period-s, --harmonics, --evaluations); 'via', sweeps through D-optimal via points at the "
-                         "drives' full rate and acceleration, joined by synchronised trapezoidal moves, passing each "
-                         "at rest without holding (default fourier)")
+                    help="the trajectory family: 'via', sweeps through D-optimal via points at the drives' full "
+                         "rate and acceleration, joined by synchronised trapezoidal moves, passing each at rest "
+                         "without holding (the whole stroke covered); 'fourier', a Fourier series per control with "
+                         "D-optimal coefficients (--period-s, --harmonics, --evaluations) (default via)")
     mo.add_argument("--period-s", type=float, default=40.0, help="the series' period, s (default 40)")
     mo.add_argument("--harmonics", type=int, default=8, help="harmonics of the base frequency 1/period (default 8)")
     mo.add_argument("--command-rate-hz", type=float, default=20.0, help="commands per second (default 20)")
@@ -194,7 +194,7 @@ def run_motion(args) -> int:
                                 sigma_m=args.noise_mm * 1e-3, markers=markers, rng=np.random.default_rng(args.seed),
                                 duration_s=args.duration_s,
                                 target_m=None if args.target_mm is None else args.target_mm * 1e-3,
-                                evaluations=args.evaluations, progress=progress, family=args.family or "fourier")
+                                evaluations=args.evaluations, progress=progress, family=args.family or "via")
     report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, "markers": args.markers,
               "marker_layout_m": markers.tolist(), "seed": args.seed, **result.report,
               "warnings": said()}  # every warning said while the verb ran (platkit.notices), on stderr too

@@ -139,7 +139,7 @@ def test_given_commands_are_streamed_by_the_simulator(stewart, limits):
 
 def test_plan_motion_writes_commands_and_report(tmp_path, capsys):
     out = tmp_path / "commands.csv"
-    code = main(["plan", "--platform", "stewart", "--motion", "--out", str(out), "--max-rate", "200",
+    code = main(["plan", "--platform", "stewart", "--motion", "--family", "fourier", "--out", str(out), "--max-rate", "200",
                  "--max-accel", "400", "--duration-s", "30", "--period-s", "20", "--harmonics", "4",
                  "--evaluations", "6", "--noise-mm", "0.2", "--quiet"])
     assert code == 0
@@ -166,8 +166,8 @@ def test_plan_motion_writes_commands_and_report(tmp_path, capsys):
 ])
 def test_plan_motion_bad_input_in_one_line(tmp_path, capsys, extra, code, said):
     out = tmp_path / "commands.csv"
-    args = ["plan", "--platform", "stewart", "--motion", "--out", str(out), "--period-s", "20", "--harmonics", "4",
-            "--evaluations", "3", "--quiet"] + extra
+    args = ["plan", "--platform", "stewart", "--motion", "--family", "fourier", "--out", str(out), "--period-s", "20",
+            "--harmonics", "4", "--evaluations", "3", "--quiet"] + extra
     assert main(args) == code
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and said in err[0]
@@ -182,7 +182,7 @@ def test_motion_options_need_motion(tmp_path, capsys):
 
 def test_simulate_streams_a_planned_commands_file(tmp_path, capsys):
     plan = tmp_path / "commands.csv"
-    assert main(["plan", "--platform", "stewart", "--motion", "--out", str(plan), "--max-rate", "200",
+    assert main(["plan", "--platform", "stewart", "--motion", "--family", "fourier", "--out", str(plan), "--max-rate", "200",
                  "--max-accel", "400", "--duration-s", "25", "--period-s", "20", "--harmonics", "3",
                  "--evaluations", "2", "--quiet"]) == 0
     session = tmp_path / "session"
