@@ -10,7 +10,10 @@ simulator draws (latency, clock offset, coloured noise, occlusion bursts):
   --design-seed, whatever the session seed) within the rate and acceleration the simulator's
   slowest drives allow (a full stroke in the longest stroke time it draws, that rate reached in
   the longest acceleration time), kept to the share of them the simulator's own multisine keeps;
-  both, comma-separated, side by side;
+  ``via`` `plan --motion --family via`'s sweep (platkit.calibrate.via_points: D-optimal via points
+  joined by time-optimal moves, designed for each session's length from --design-seed) within the
+  same limits, ``via-random`` the same sweep through random candidates; several, comma-separated,
+  side by side;
 - slow actuator: the holds session with one actuator's time constant half the hold
   (settling_lag physics): settling refuses it; calibrated from motion.
 Each calibration predicts --test random reachable commands; the error is against the true stand
@@ -21,7 +24,7 @@ slow actuator's error (goal <= 0.01 mm) and its fitted time constant over the tr
 smallest over the controls).
 
     .venv/bin/python benchmarks/calibrate_motion.py [--seeds 2600001,2600002] [--poses 80]
-        [--motion multisine,designed] [--no-slow]
+        [--motion multisine,designed,via,via-random] [--no-slow]
 """
 from __future__ import annotations
 
@@ -124,8 +127,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="2600001")
     ap.add_argument("--poses", type=int, default=80)
     ap.add_argument("--test", type=int, default=200)
-    ap.add_argument("--motion", default="multisine", help="the no-holds commands: multisine, designed, or both "
-                    "comma-separated")
+    ap.add_argument("--motion", default="multisine", help="the no-holds commands: multisine, designed, via, "
+                    "via-random, several comma-separated")
     ap.add_argument("--design-seed", type=int, default=0, help="the designed excitation's seed (default 0)")
     ap.add_argument("--period-s", type=float, default=PERIOD_S, help="the design's period, s (plan's default)")
     ap.add_argument("--harmonics", type=int, default=HARMONICS, help="the design's harmonics (plan's default)")
