@@ -13,10 +13,12 @@ against the true stand (geometry, markers, frame from the simulator; RMS over ma
 the fit was refused) and the ratio old / new; for the new model each leg's fitted lag (shift +
 delay: what the markers fix; the truth is the clock shift plus the leg's delay) and its error,
 the delay beyond the fastest leg against the truth's, the fitted rate limit against the truth on
-the limited legs, and what was held.
+the limited legs, and what was held. --holds N: a session of N random holds instead (a profile
+reference: both models fit each leg's rate and acceleration; the limited legs' limit is
+--limit-share times their drawn profile rate, so the truth's rate is the smaller of the two).
 
     .venv/bin/python benchmarks/calibrate_response.py [--seeds 2700001,2700002] [--duration-s 60]
-        [--mocap-hz 100] [--delays 0.02,0.12] [--limited 2] [--limit-share 0.8]
+        [--mocap-hz 100] [--delays 0.02,0.12] [--limited 2] [--limit-share 0.8] [--holds N]
 """
 from __future__ import annotations
 
@@ -59,6 +61,8 @@ def main() -> None:
     ap.add_argument("--limited", type=int, default=2, help="legs with a rate limit that binds")
     ap.add_argument("--limit-share", type=float, default=0.8, help="their limit over the fastest the log asks")
     ap.add_argument("--test", type=int, default=200)
+    ap.add_argument("--holds", type=int, default=0, help="instead of the multisine, this many random holds (a profile "
+                    "reference); the limited legs' limit --limit-share times their drawn profile rate")
     args = ap.parse_args()
     d_lo, d_hi = (float(x) for x in args.delays.split(","))
     spec = get_platform("stewart")
@@ -69,12 +73,14 @@ def main() -> None:
         rng = np.random.default_rng([seed, 77])
         delay = rng.uniform(d_lo, d_hi, spec.n_u)
         limited = np.sort(rng.choice(spec.n_u, args.limited, replace=False))
-        free = simulate_physics(spec, seed=seed, motion="multisine", duration_s=args.duration_s,
-                                mocap_rate_hz=args.mocap_hz)
+        plan = ({"n_poses": args.holds, "plan": "random"} if args.holds else
+                {"motion": "multisine", "duration_s": args.duration_s})
+        free = simulate_physics(spec, seed=seed, mocap_rate_hz=args.mocap_hz, **plan)
         rate = np.full(spec.n_u, FREE_RATE)
-        rate[limited] = args.limit_share * command_speed(free.command_t, free.commands)[limited]
-        sim = simulate_physics(spec, seed=seed, motion="multisine", duration_s=args.duration_s,
-                               mocap_rate_hz=args.mocap_hz, actuator_delay_s=delay, actuator_rate_limit=rate)
+        asked = free.response.rate if args.holds else command_speed(free.command_t, free.commands)
+        rate[limited] = args.limit_share * asked[limited]
+        sim = simulate_physics(spec, seed=seed, mocap_rate_hz=args.mocap_hz, actuator_delay_s=delay,
+                               actuator_rate_limit=rate, **plan)
         U = spec.neutral_u() + (rng.uniform(size=(4 * args.test, spec.n_u)) - 0.5) * 0.6 * (hi - lo)
         ok, _ = feasible(spec, U, sim.td)
         U = U[ok][:args.test]
@@ -110,12 +116,14 @@ def main() -> None:
                     a = r["actuators"][n]
                     tau = a["tau_s"]["value"]
                     sd = [("held" if a[b]["std"] is None else f"{1e3 * a[b]['std']:.1f}") for b in ("delay_s", "tau_s")]
-                    rtxt = (f"{1e3 * fit_rate[j]:.1f} ({1e3 * rate[j]:.1f}) {fit_rate[j] / rate[j]:.3f}" if j in limited
-                            else f"{1e3 * fit_rate[j]:.0f} (none)")
+                    true_rate = min(rate[j], sim.response.rate[j]) if args.holds else rate[j]
+                    rtxt = (f"{1e3 * fit_rate[j]:.1f} ({1e3 * true_rate:.1f}) {fit_rate[j] / true_rate:.3f}"
+                            if j in limited or args.holds else f"{1e3 * fit_rate[j]:.0f} (none)")
                     print(f"    {n}  {1e3 * lag[j]:.1f} ({1e3 * true_lag[j]:.1f})  {1e3 * (lag[j] - true_lag[j]):+.1f}  "
                           f"{1e3 * rel[j]:.1f} ({1e3 * rel_true[j]:.1f})  {sd[0]}  {1e3 * tau:.1f} "
                           f"({1e3 * sim.response.tau_s[j]:.1f})  {sd[1]}  {rtxt}")
-                worst_rate = np.abs(fit_rate[limited] / rate[limited] - 1).max() if len(limited) else float("nan")
+                true_rates = np.minimum(rate, sim.response.rate) if args.holds else rate
+                worst_rate = np.abs(fit_rate[limited] / true_rates[limited] - 1).max() if len(limited) else float("nan")
                 summary.append([seed, np.abs(lag - true_lag).max(), worst_rate])
         ratio = errors["old"] / errors["new"] if np.isfinite(errors.get("old", np.nan)) else float("nan")
         print(f"  old / new truth error: {ratio:.2f}" + (" (old refused)" if not np.isfinite(ratio) else ""), flush=True)
