@@ -1,7 +1,7 @@
 """A humanoid upper body that bends under its own weight: default `platkit calibrate`, then
 `platkit diagnose`, on settled poses from the elastic tree simulator (platkit.simulate.elastic_tree).
 
-    .venv/bin/python benchmarks/trees_humanoid.py [--seeds 1] [--poses 300 --heldout 200] [--bare]
+    .venv/bin/python benchmarks/trees_humanoid.py [--seeds 1] [--poses 300 --heldout 200] [--bare] [--later N]
 
 The robot: PAL's Talos (example-robot-data's talos_reduced.urdf, with its inertias: a public
 description not written here), legs removed, grippers fixed, both 7-joint arms and the head on a
@@ -16,7 +16,11 @@ Per seed and hand, the held-out mean marker error (mm, against the recorded nois
 the rigid calibration, the calibration diagnose writes, and the true elastic model itself (the
 noise floor); plus the effects diagnose names, and the places they name scored against the truth
 (:func:`named_places`, :func:`right`: a joint of the every-joint compliance term counts where its
-compliance is 3 standard deviations from zero). ``--keep DIR`` keeps each seed's folders.
+compliance is 3 standard deviations from zero; a link bending told apart from a joint's compliance
+within that term, ``bending_<joint>``, counts as link bending at that joint). ``--later N``: also a
+later session of the same robot, N new poses drawn from a stream of their own (the same truth,
+markers and mocap; the first session's poses and noise unchanged), predicted by both calibrations
+and never seen by calibrate or diagnose. ``--keep DIR`` keeps each seed's folders.
 """
 from __future__ import annotations
 
@@ -114,13 +118,23 @@ def draw(seed: int, nominal: Path, n: int) -> tuple[ElasticTruth, np.ndarray]:
                  for k in [rng.uniform(0.3, 1.0) * 1e-4]},
         origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in moving},
         offset={j: float(rng.normal(0, 2e-3)) for j in RECORDED})
+    return truth, commands(rng, lim, n)
+
+
+def later_commands(seed: int, nominal: Path, n: int) -> np.ndarray:
+    """The poses of a later session of the same robot: drawn like the first session's, from a
+    stream of their own (the truth, the markers and the mocap as they were)."""
+    return commands(np.random.default_rng([seed, 2]), limits(nominal), n)
+
+
+def commands(rng: np.random.Generator, lim: dict[str, tuple[float, float]], n: int) -> np.ndarray:
     cmd = np.zeros((n, len(RECORDED)))
     for i, j in enumerate(RECORDED):
         lo, hi = lim[j]
         share = 0.35 if j.startswith(("torso", "head")) else 0.6
         mid, half = (lo + hi) / 2, (hi - lo) / 2 * share
         cmd[:, i] = rng.uniform(mid - half, mid + half, n)
-    return truth, cmd
+    return cmd
 
 
 def predicted(cal: Path, commands: np.ndarray, names: list[str], work: Path) -> dict[str, np.ndarray]:
@@ -156,10 +170,17 @@ def named_places(findings: list[dict]) -> list[tuple[str, str]]:
     out = []
     for f in findings:
         w = f["where"]
-        if "joints" in w:
-            for name, par in zip(w["joints"], f["parameters"].values()):
-                if par.get("std") and abs(par["value"]) > NAMED_SIGMA * par["std"]:
-                    out.append((f["effect"], name))
+        if "joints" in w:  # compliance_<actuator>, then the link bending told apart from one: bending_<joint>[_u|_v]
+            joint_of = dict(zip(w["actuators"], w["joints"]))
+            for name, par in f["parameters"].items():
+                if not (par.get("std") and abs(par["value"]) > NAMED_SIGMA * par["std"]):
+                    continue
+                if name.startswith("bending_"):
+                    place = ("link_bending", name[len("bending_"):].removesuffix("_u").removesuffix("_v"))
+                else:
+                    place = (f["effect"], joint_of[name[len("compliance_"):]])
+                if place not in out:
+                    out.append(place)
         else:
             out.append((f["effect"], str(w.get("actuator") or w.get("joint") or "")))
     return out
@@ -174,10 +195,13 @@ def right(effect: str, joint: str) -> bool | None:
     return False
 
 
-def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path) -> None:
+def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path, n_later: int = 0) -> dict:
     nominal = upper_body(root / "talos_upper.urdf")
     model_urdf = upper_body(root / "talos_upper_bare.urdf", bare=True) if bare else nominal
     truth, cmd = draw(seed, nominal, n_fit + n_held)
+    # a later session's poses after the first's: the simulator draws the noise row by row, so the
+    # first session's poses and noise are the same with or without them
+    cmd = np.vstack([cmd, later_commands(seed, nominal, n_later)])
     markers = {f"{h[0].upper()}{k}": link for h, link in HANDS.items() for k in range(1, 4)}
     sim = simulate_elastic_tree(nominal, truth, cmd, RECORDED, markers, seed=seed + 1000, workdir=root)
     fit, held = np.arange(n_fit), np.arange(n_fit, n_fit + n_held)
@@ -193,12 +217,7 @@ def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path) -> None:
         raise SystemExit("diagnose failed")
     t2 = time.perf_counter()
     d = json.loads((root / "diag" / "diagnosis.json").read_text())
-    rigid = per_hand(predicted(root / "cal" / "calibration.yaml", cmd[held], sim.marker_names, root), sim.markers[held], sim)
-    after = per_hand(predicted(root / "diag" / "calibration.yaml", cmd[held], sim.marker_names, root), sim.markers[held], sim)
-    floor = {h: float(np.mean([np.linalg.norm(1e3 * (sim.exact[held, m] - sim.markers[held, m]), axis=1)
-                               for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
-    unmodelled = {h: float(np.mean([np.linalg.norm(1e3 * (sim.rigid[held, m] - sim.exact[held, m]), axis=1)
-                                    for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
+    rigid, after, floor, unmodelled = scores(root, cmd, held, sim)
     names = "; ".join(f"{f['effect']} ({f['where'].get('actuator') or f['where'].get('joint') or ''})"
                       for f in d["findings"])
     places = named_places(d["findings"])
@@ -211,6 +230,46 @@ def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path) -> None:
           f"  after diagnose:        {after['left']:.2f} / {after['right']:.2f}\n"
           f"  true elastic model:    {floor['left']:.2f} / {floor['right']:.2f} (noise floor)\n"
           f"  findings: {names or 'none'}\n  calibrate {t1 - t0:.0f} s, diagnose {t2 - t1:.0f} s", flush=True)
+    out = {"rigid": rigid, "after": after, "places": len(places), "right": len(good)}
+    if n_later:
+        rigid, after, floor, unmodelled = scores(root, cmd, np.arange(n_fit + n_held, len(cmd)), sim)
+        out.update(later_rigid=rigid, later_after=after)
+        print(f"  later session ({n_later} new poses, never seen by calibrate or diagnose), mm (left / right):\n"
+              f"    elastic sag itself: {unmodelled['left']:.2f} / {unmodelled['right']:.2f}\n"
+              f"    rigid calibration:  {rigid['left']:.2f} / {rigid['right']:.2f}\n"
+              f"    after diagnose:     {after['left']:.2f} / {after['right']:.2f}\n"
+              f"    true elastic model: {floor['left']:.2f} / {floor['right']:.2f} (noise floor)", flush=True)
+    return out
+
+
+def summary(results: list[dict]) -> str:
+    """The goals over the seeds: places named right, the held-out error's median fall per hand,
+    hands made worse; the same fall on the later session."""
+    def falls(before: str, after: str) -> list[float]:
+        return [1 - r[after][h] / r[before][h] for r in results if before in r for h in HANDS]
+
+    right, places = sum(r["right"] for r in results), sum(r["places"] for r in results)
+    down = falls("rigid", "after")
+    text = (f"over {len(results)} seeds: places named right {right} of {places} ({100 * right / max(places, 1):.0f} %, "
+            f"goal 90 %); held-out error down by a median of {100 * np.median(down):.1f} % per hand (goal 80 %), "
+            f"{sum(d < 0 for d in down)} hands made worse")
+    later = falls("later_rigid", "later_after")
+    if later:
+        text += (f"; later session: down by a median of {100 * np.median(later):.1f} % per hand, "
+                 f"{sum(d < 0 for d in later)} hands made worse")
+    return text
+
+
+def scores(root: Path, cmd: np.ndarray, rows: np.ndarray, sim) -> tuple[dict, dict, dict, dict]:
+    """Per hand, the mean marker error (mm) at ``rows`` of the rigid calibration's prediction, of
+    diagnose's, of the true elastic model (the noise floor), and of the rigid true robot."""
+    rigid = per_hand(predicted(root / "cal" / "calibration.yaml", cmd[rows], sim.marker_names, root), sim.markers[rows], sim)
+    after = per_hand(predicted(root / "diag" / "calibration.yaml", cmd[rows], sim.marker_names, root), sim.markers[rows], sim)
+    floor = {h: float(np.mean([np.linalg.norm(1e3 * (sim.exact[rows, m] - sim.markers[rows, m]), axis=1)
+                               for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
+    unmodelled = {h: float(np.mean([np.linalg.norm(1e3 * (sim.rigid[rows, m] - sim.exact[rows, m]), axis=1)
+                                    for m, lk in enumerate(sim.marker_links) if lk == link])) for h, link in HANDS.items()}
+    return rigid, after, floor, unmodelled
 
 
 def main() -> None:
@@ -219,16 +278,20 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=300)
     ap.add_argument("--heldout", type=int, default=200)
     ap.add_argument("--bare", action="store_true", help="strip every inertia from the URDF the calibration sees")
+    ap.add_argument("--later", type=int, default=0, metavar="N",
+                    help="also predict a later session of N new poses of the same robot (its truth, markers and mocap)")
     ap.add_argument("--keep", default=None, help="keep each seed's sessions, calibrations and diagnosis under this folder")
     args = ap.parse_args()
+    results = []
     for seed in args.seeds:
         if args.keep:
             root = Path(args.keep) / f"seed{seed}{'_bare' if args.bare else ''}"
             root.mkdir(parents=True, exist_ok=True)
-            run(seed, args.poses, args.heldout, args.bare, root)
+            results.append(run(seed, args.poses, args.heldout, args.bare, root, args.later))
             continue
         with tempfile.TemporaryDirectory(prefix="platkit-trees-") as tmp:
-            run(seed, args.poses, args.heldout, args.bare, Path(tmp))
+            results.append(run(seed, args.poses, args.heldout, args.bare, Path(tmp), args.later))
+    print(summary(results))
 
 
 if __name__ == "__main__":

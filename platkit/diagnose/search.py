@@ -371,6 +371,7 @@ class Search:
         self.accepted.append({"fit": best, "J": Jc})
         self.say(f"accepted {eff.name} ({_where_text(term.where)})")
         self.cur = best
+        self.tell_apart(finding, cur)
         sel = (self.start.identifiability.get("model_selection") or {}) if self.start is not None else {}
         chosen_free = bool(sel) and not str(sel.get("reason", "")).startswith("no selection")  # not the user's --free
         if opt.reopen_geometry and chosen_free and not eff.recording:  # the geometry chosen again beside the physics
@@ -382,6 +383,42 @@ class Search:
                 # held at nominal, not at the value it took standing in for the physics
                 self.td_start = self.cur.problem.split(self.cur.z)[0].copy()
                 self.say(again[2]["text"])
+
+    def tell_apart(self, finding: Finding, before: Fit) -> None:
+        """The term just accepted fitted in each other form of its physics it offers (a term's
+        ``alternatives(theta, poses, others)``: a joint's compliance or the bending of the link
+        before it, as many parameters), one at a time, each tried once; a form whose BIC is lower
+        is kept (the rule that chooses a candidate's variant). ``before``: the model without it
+        (the finding's signature columns are taken again there)."""
+        opt, k = self.opt, len(self.cur.terms) - 1
+        term = self.cur.terms[k]
+        offered = getattr(term, "alternatives", None)
+        tried: set[str] = set()
+        notes: list[dict] = []
+        while offered is not None:
+            theta = self.cur.theta(k)
+            forms = [(what, t) for what, t in offered(theta, self.poses, self.cur.terms[:k]) if what not in tried]
+            if not forms:
+                break
+            what, alt = forms[0]
+            tried.add(what)
+            K = len(theta)
+            f = _fit(self.spec, self.poses, self.cur.terms[:k] + [alt], self.cur.z[:-K], self.cur.active[:-K],
+                     self.weights, opt.lm_iterations, opt.robust)
+            kept = bool(f.bic < self.cur.bic)
+            notes.append({"change": what, "bic_change": float(f.bic - self.cur.bic), "kept": kept})
+            self.say(f"  {what}: BIC {f.bic - self.cur.bic:+.1f}{', kept' if kept else ''}")
+            if kept:
+                self.cur, term, offered = f, alt, getattr(alt, "alternatives", None)
+        if notes:
+            self.rounds[-1]["told_apart"] = notes
+        if term is finding.term:
+            return
+        self.cur.cv = _cv(self.cur, self.spec, self.poses, opt.folds, opt.lm_iterations)
+        finding.term, finding.where = term, dict(term.where)
+        finding.heldout_rms_after = self.cur.cv_rms
+        finding.bic_change = float(self.cur.bic - before.bic)
+        self.accepted[-1] = {"fit": self.cur, "J": screen(before, self.spec, self.poses, [term])[0][3]}
 
     # ------------------------------------------------------------------------ the take-back steps
     def take_back(self, taken: dict[int, float | None], round_name: str, about: dict[str, Any],

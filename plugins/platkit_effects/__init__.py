@@ -52,7 +52,8 @@ from platkit_effects.thermal import (
     motion_heat,
     remember_heat,
 )
-from platkit_effects.tree_compliance import JointRotationTerm, LinkBending, MassMomentTerm
+from platkit_effects.tree_bending import LinkBending
+from platkit_effects.tree_compliance import JointRotationTerm, MassMomentTerm
 
 #: every name imported from platkit_effects (the effects live in one module per family: drive,
 #: compliance, thermal, recording, base_tilt; their shared helpers in common)

@@ -26,13 +26,10 @@ from platkit.tree_loads import tree_loads
 from platkit_effects.physics import CompliancePhysics
 from platkit_effects.tree_compliance import (
     JointRotationTerm,
-    JointsComplianceTerm,
     MassMomentTerm,
     deflected_torque,
     joint_rotation_from_dict,
     joint_rotation_term,
-    joints_compliance_from_dict,
-    joints_compliance_term,
     load_state,
     loaded_controls,
     mass_moment_basis,
@@ -41,6 +38,7 @@ from platkit_effects.tree_compliance import (
     tree_stand,
     untried_compliance,
 )
+from platkit_effects.tree_joints import JointsComplianceTerm, joints_compliance_from_dict, joints_compliance_term
 
 
 def _urdf_of(spec: PlatformSpec) -> str | None:

@@ -15,21 +15,22 @@ Rules:
   order in d, ``tau_j / (1 - c g_j)`` with ``g_j = d tau_j / d q_j`` at the commands (a central
   difference); what is left is second order in the deflection (1e-5 of the load at 10 mrad).
 - Joint elasticity of a tree: on a session with several tracked links, one compliance per control
-  whose load changes over the poses, all fitted together as one term
-  (:class:`JointsComplianceTerm`): a humanoid's torso and arms give at many joints at once, and
-  each joint named alone would take one of diagnosis's few rounds. On a chain (one tracked link)
-  it is not offered: there the joints are named one by one (on TIAGo's arm the term of every
-  joint ranked first by BIC and did not hold out, and crowded out the arm's proven backlash).
+  whose load changes over the poses, all fitted together as one term, and its other forms (a
+  joint's compliance or the bending of the link before it): platkit_effects.tree_joints. On a
+  chain (one tracked link) it is not offered: there the joints are named one by one (on TIAGo's
+  arm the term of every joint ranked first by BIC and did not hold out, and crowded out the arm's
+  proven backlash).
 - Joint elasticity of a mimic joint, and link bending (about the two axes across a joint's axis,
   ``c M_across``: the moment's part across the axis times one compliance, a link as stiff in both
   directions across it; two compliances let a link at a joint mimic the elasticity of the joint
   next to it, whose axis lies across: on TIAGo's wrist such a term ranked above the drive's play
-  and was not proven): a small rotation at the joint's origin, of the moving frame
-  (a pose offset in the base frame), linear in the loads at the commanded configuration. On a
-  tree (several tracked links) a pose offset moves every tracked link alike, so these terms are
-  offered at the joints that carry every tracked link (the trunk), the translation each other
-  link misses added as a marker offset; a joint that carries only some (an arm's) is not offered
-  (:func:`untried`).
+  and was not proven; a tree's every-joint term may take the form with two, 'across2', where the
+  data choose it): a small rotation at the joint's origin, linear in the loads at the commanded
+  configuration. At a joint that carries every tracked link, a pose offset of the moving frame
+  (in the base frame), the translation each other tracked link misses added as a marker offset;
+  at one that carries only some (an arm's, on a two-handed session), the markers it carries
+  turned as marker offsets, at their places on their links registered from the session
+  (:func:`marker_points`).
 - A URDF without inertias: a control's gravity torque is linear in the mass moments of the bodies
   below it; the term's parameters are the compliance times the ``MAX_MASS_COMBINATIONS`` best
   determined combinations of them on the session's poses (the regressor's leading singular
@@ -42,8 +43,9 @@ from pathlib import Path
 
 import numpy as np
 
-from platkit.effects import Effect, SizeHelp, stored_where
+from platkit.effects import stored_where
 from platkit.errors import BadInput
+from platkit.geometry import rigid_fit
 from platkit.model import PlatformSpec
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
@@ -89,6 +91,10 @@ class TreeStand:
 
     def configuration(self, controls: np.ndarray) -> np.ndarray:
         return self.loads.configuration(self.joints, np.atleast_2d(np.asarray(controls, float)) * self.scale)
+
+    def carried(self, joint: str) -> list[str]:
+        """The tracked links ``joint`` carries (moves), in ``tracked``'s order."""
+        return [link for link in self.tracked if joint in ancestors(self.loads, link)]
 
 
 _STANDS: dict[int, tuple[PlatformSpec, TreeStand | None]] = {}
@@ -271,13 +277,21 @@ def spec_from_where(where: dict, effect: str) -> PlatformSpec:
 
 @dataclass
 class JointRotationTerm(ModelTerm):
-    """The moving frame turned at joint ``joint``: about its axis by ``c tau`` (``about``
+    """The links joint ``joint`` carries turned at it: about its axis by ``c tau`` (``about``
     'axis': a mimic joint's elasticity) or about the two axes across it by ``c M_across`` (the
-    moment's part across the axis; ``about`` 'across': link bending)."""
+    moment's part across the axis; ``about`` 'across': link bending).
+
+    At a joint that carries every tracked link, the moving frame's pose offset plus, on a tree,
+    each other link's missing translation as a marker offset. At a joint that carries only some
+    (an arm's, on a two-handed session) a pose offset would move the other links too: the turn is
+    a marker offset of the markers it carries, ``R_k^T (w x (X_k + R_k m - o))``, which needs each
+    marker's place m on its link: ``points`` (marker -> m in its link's frame, from
+    :func:`marker_points` on the session, stored in ``where``)."""
 
     joint: str = ""
     about: str = "axis"
     spec: PlatformSpec | None = field(default=None, repr=False)
+    points: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def stand(self) -> TreeStand:
         if self.spec is None:
@@ -287,16 +301,24 @@ class JointRotationTerm(ModelTerm):
             raise BadInput(f"effect {self.effect!r}: joint {self.joint!r} is not a moving joint of the stand's URDF")
         return stand
 
+    def partial(self, stand: TreeStand) -> bool:
+        """Whether the joint carries only some of the tracked links."""
+        return self.joint not in stand.shared
+
     def _unit_rotations(self, stand: TreeStand, S: LoadState) -> list[np.ndarray]:
         """Per parameter (one), (N, 3) rad of rotation per unit of it, in the joint's frame."""
         j = stand.loads.index[self.joint]
         if self.about == "axis":
             return [S.loads.torque[:, j][:, None] * stand.loads.axes[j][None]]
         U = across_axes(stand.loads.axes[j])
+        if self.about == "across2":  # stiffer one way than the other: a compliance per axis across
+            return [(S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U]
         return [sum((S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U)]
 
     def pose_offset(self, theta, poses, fk_q, fk_X):
         stand = self.stand()
+        if self.partial(stand):
+            return np.zeros((poses.n_poses, 6))
         S = load_state(stand, poses.controls)
         w = sum(t * r for t, r in zip(theta, self._unit_rotations(stand, S)))
         return _rotation_offset(S, stand.loads.index[self.joint], w, fk_X)
@@ -305,7 +327,28 @@ class JointRotationTerm(ModelTerm):
         stand = self.stand()
         S = load_state(stand, poses.controls)
         w = sum(t * r for t, r in zip(theta, self._unit_rotations(stand, S)))
+        if self.partial(stand):
+            return self._carried_markers(stand, S, stand.loads.index[self.joint], w, poses)
         return self._other_links(stand, S, stand.loads.index[self.joint], w, poses)
+
+    def _carried_markers(self, stand: TreeStand, S: LoadState, j: int, w_local: np.ndarray, poses) -> np.ndarray:
+        """(N, M, 3): each marker on a link the joint carries turned by ``w_local`` (N, 3) about the
+        joint's origin, ``R_k^T (w x (X_k + R_k m - o))`` in its link's frame; the others still."""
+        out = np.zeros((poses.n_poses, poses.n_markers, 3))
+        carried = set(stand.carried(self.joint))
+        w = np.einsum("nba,nb->na", S.base_rotation, np.einsum("nab,nb->na", S.loads.rotation[:, j], w_local))
+        o = np.einsum("nba,nb->na", S.base_rotation, S.loads.origin[:, j] - S.base_origin)
+        for m, name in enumerate(poses.marker_names):
+            link = poses.marker_links.get(name, stand.tracked[0] if stand.tracked else None)
+            if link not in carried:
+                continue
+            if name not in self.points:
+                raise BadInput(f"effect {self.effect!r} at {self.joint}: where.marker_points has no place for marker "
+                               f"{name!r}, which the joint carries")
+            Xk, Rk = S.link_in_base(stand, link)
+            P = Xk + np.einsum("nab,b->na", Rk, self.points[name])
+            out[:, m] = np.einsum("nba,nb->na", Rk, np.cross(w, P - o))
+        return out
 
     def _other_links(self, stand: TreeStand, S: LoadState, j: int, w_local: np.ndarray, poses) -> np.ndarray:
         """(N, M, 3): on a tree, where the pose offset (which moves every tracked link alike, by the
@@ -331,70 +374,93 @@ class JointRotationTerm(ModelTerm):
         S = load_state(stand, poses.controls)
         j = stand.loads.index[self.joint]
         units = self._unit_rotations(stand, S)
-        pose = np.stack([_rotation_offset(S, j, r, fk_X) for r in units], axis=-1)
-        marker = np.stack([self._other_links(stand, S, j, r, poses) for r in units], axis=-1)
+        if self.partial(stand):
+            pose = np.zeros((poses.n_poses, 6, len(theta)))
+            marker = np.stack([self._carried_markers(stand, S, j, r, poses) for r in units], axis=-1)
+        else:
+            pose = np.stack([_rotation_offset(S, j, r, fk_X) for r in units], axis=-1)
+            marker = np.stack([self._other_links(stand, S, j, r, poses) for r in units], axis=-1)
         return np.zeros((poses.n_poses, n_u, len(theta))), pose, marker
 
 
-def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str) -> JointRotationTerm:
-    where = {"joint": joint, "about": about}
+_POINTS: dict[tuple, dict[str, np.ndarray]] = {}
+
+
+def marker_points(stand: TreeStand, poses, iterations: int = 30) -> dict[str, np.ndarray]:
+    """Each marker's place on its link (m, in the link's frame), from the session: the markers
+    registered to the nominal kinematics at the commands, ``Y = A (X_k + R_k m) + b``: given the
+    rotation A the places and b by least squares (closed form: ``m_k = g_k - B_k c``, ``c = A^T b``
+    from a 3 x 3 system), then A by Kabsch, alternately, from the places at the links' origins;
+    once per (stand, session). Its error (millimetres: the nominal geometry and the elastic sag)
+    enters a rotation term times the rotation (milliradians): micrometres."""
+    Y = np.ascontiguousarray(poses.markers, float)
+    key = (id(stand), tuple(poses.marker_names), Y.shape, Y.tobytes(), np.ascontiguousarray(poses.controls).tobytes())
+    if key in _POINTS:
+        return _POINTS[key]
+    S = load_state(stand, poses.controls)
+    names = list(poses.marker_names)
+    frames = [S.link_in_base(stand, poses.marker_links.get(n, stand.tracked[0])) for n in names]
+    X = np.stack([f[0] for f in frames], axis=1)  # (N, M, 3)
+    R = np.stack([f[1] for f in frames], axis=1)  # (N, M, 3, 3)
+    seen = np.all(np.isfinite(Y), axis=2)
+    m = np.zeros((len(names), 3))
+    if seen.sum() >= 3:
+        w = seen.astype(float)
+        count = np.maximum(w.sum(axis=0), 1.0)
+        B = np.einsum("nm,nmba->mab", w, R) / count[:, None, None]  # mean R^T per marker
+        RB = np.einsum("nmab,mbc->nmac", R, B)
+        lhs = np.einsum("nm,ab->ab", w, np.eye(3)) - np.einsum("nm,nmab->ab", w, RB)
+        Yz = np.where(seen[..., None], Y, 0.0)
+        for _ in range(iterations):
+            A, b = rigid_fit((X + np.einsum("nmab,mb->nma", R, m))[seen], Y[seen])
+            D = np.where(seen[..., None], Yz @ A - X, 0.0)  # A^T Y - X
+            g = np.einsum("nm,nmba,nmb->ma", w, R, D) / count[:, None]
+            c = np.linalg.solve(lhs, np.einsum("nm,nma->a", w, D - np.einsum("nmab,mb->nma", R, g)))
+            new = g - np.einsum("mab,b->ma", B, c)
+            step, m = np.abs(new - m).max(), new
+            if step < 1e-10:
+                break
+    if len(_POINTS) > 16:
+        _POINTS.clear()
+    out = _POINTS[key] = {n: m[i] for i, n in enumerate(names)}
+    return out
+
+
+def joint_rotation_term(effect: str, spec: PlatformSpec, joint: str, about: str,
+                        points: dict[str, np.ndarray] | None = None) -> JointRotationTerm:
+    """The term at ``joint``; ``points`` (marker -> place on its link, m): the places of the markers
+    a joint that carries only some tracked links turns (:func:`marker_points`), kept in ``where``."""
+    where: dict = {"joint": joint, "about": about}
     where.update(_stand_where(spec))
     prior = ", of the prior of uniform links (the URDF has no inertias)" if tree_stand(spec).loads.prior else ""
-    if about == "axis":
-        where["load"] = f"gravity torque of the whole tree about the joint's axis{prior} (N m)"
-        return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where, joint=joint,
-                                 about=about, spec=spec)
-    where["load"] = f"gravity moment of the whole tree across the joint's axis{prior} (N m)"
-    return JointRotationTerm(effect, ["compliance"], np.zeros(1), ["rad/(N m)"], where,
-                             joint=joint, about=about, spec=spec)
+    what = "torque of the whole tree about the joint's axis" if about == "axis" else \
+        "moment of the whole tree across the joint's axis"
+    where["load"] = f"gravity {what}{prior} (N m)"
+    points = {n: np.asarray(v, float) for n, v in (points or {}).items()}
+    if points:
+        where["marker_points"] = {n: [round(float(x), 9) for x in v] for n, v in points.items()}
+    names = ["compliance_u", "compliance_v"] if about == "across2" else ["compliance"]
+    return JointRotationTerm(effect, names, np.zeros(len(names)), ["rad/(N m)"] * len(names), where, joint=joint,
+                             about=about, spec=spec, points=points)
 
 
 def joint_rotation_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointRotationTerm:
     where = stored_where(data)
     joint, about = where.get("joint"), where.get("about")
-    if not isinstance(joint, str) or about not in ("axis", "across"):
-        raise BadInput(f"effect {effect!r}: where needs joint (a URDF joint name) and about ('axis' or 'across')")
+    if not isinstance(joint, str) or about not in ("axis", "across", "across2"):
+        raise BadInput(f"effect {effect!r}: where needs joint (a URDF joint name) and about ('axis', 'across' or "
+                       "'across2')")
+    raw = where.get("marker_points") or {}
+    try:
+        points = {str(n): np.asarray(v, float).reshape(3) for n, v in dict(raw).items()}
+    except (TypeError, ValueError):
+        raise BadInput(f"effect {effect!r}: where.marker_points must map each marker to its place (3 numbers, m)") \
+            from None
     if spec is None:
         spec = spec_from_where(where, effect)
-    term = joint_rotation_term(effect, spec, joint, about)
+    term = joint_rotation_term(effect, spec, joint, about, points)
     term.stand()
     return term
-
-
-# ---------------------------------------------------------------------------- every joint
-@dataclass
-class JointsComplianceTerm(ModelTerm):
-    """The elasticity of many joints of a tree at once: control ``indices[k]`` (tree joint
-    ``joints[k]``) offset by ``theta_k tau_k``, each load at its joint's own deflected
-    configuration (:func:`deflected_torque`); theta in the control's unit per N m (N)."""
-
-    indices: list[int] = field(default_factory=list)
-    joints: list[str] = field(default_factory=list)
-    spec: PlatformSpec | None = field(default=None, repr=False)
-
-    def stand(self) -> TreeStand:
-        if self.spec is None:
-            self.spec = spec_from_where(self.where, self.effect)
-        stand = tree_stand(self.spec)
-        if stand is None or any(n not in stand.loads.index for n in self.joints):
-            raise BadInput(f"effect {self.effect!r}: joints {', '.join(self.joints)} are not all moving joints "
-                           "of the stand's URDF")
-        return stand
-
-    def control_offset(self, theta, poses, n_u):
-        stand = self.stand()
-        out = np.zeros((poses.n_poses, n_u))
-        for c, i, n in zip(theta, self.indices, self.joints):
-            out[:, i] = c * deflected_torque(stand, poses.controls, n, c * stand.scale[i])
-        return out
-
-    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
-        stand = self.stand()
-        N, K = poses.n_poses, len(theta)
-        control = np.zeros((N, n_u, K))
-        for k, (c, i, n) in enumerate(zip(theta, self.indices, self.joints)):
-            control[:, i, k] = deflected_slope(stand, poses.controls, n, c * stand.scale[i])
-        return control, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
 
 
 def loaded_controls(stand: TreeStand, controls: np.ndarray, seen: bool = False) -> list[int]:
@@ -409,36 +475,6 @@ def loaded_controls(stand: TreeStand, controls: np.ndarray, seen: bool = False) 
 def moved_by(stand: TreeStand) -> set[str]:
     """The tree joints that move a tracked link."""
     return set().union(*(ancestors(stand.loads, link) for link in stand.tracked)) if stand.tracked else set(stand.chain)
-
-
-def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int]) -> JointsComplianceTerm:
-    stand = tree_stand(spec)
-    if stand is None:
-        raise BadInput(f"effect {effect!r}: the stand has no URDF")
-    joints = [stand.joints[i] for i in indices]
-    units = [f"{spec.controls[i].unit}/({'N' if spec.controls[i].unit == 'm' else 'N m'})" for i in indices]
-    where = {"joint": f"every loaded joint ({len(indices)})", "joints": joints,
-             "actuators": [spec.control_names[i] for i in indices], "actuator_indices": list(indices),
-             "load": "gravity torque of the whole tree about each joint's axis, from "
-                     + ("the prior of uniform links (the URDF has no inertias)" if stand.loads.prior else "the URDF inertias")}
-    where.update(_stand_where(spec))
-    return JointsComplianceTerm(effect, [f"compliance_{spec.control_names[i]}" for i in indices],
-                                np.zeros(len(indices)), units, where, indices=list(indices), joints=joints, spec=spec)
-
-
-def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointsComplianceTerm:
-    where = stored_where(data)
-    try:
-        indices = [int(i) for i in where["actuator_indices"]]
-    except (KeyError, TypeError, ValueError):
-        raise BadInput(f"effect {effect!r}: where needs actuator_indices (the controls' indices)") from None
-    if spec is None:
-        spec = spec_from_where(where, effect)
-    if not all(0 <= i < spec.n_u for i in indices):
-        raise BadInput(f"effect {effect!r}: where.actuator_indices {indices} are not all controls of the stand")
-    term = joints_compliance_term(effect, spec, indices)
-    term.stand()
-    return term
 
 
 # ---------------------------------------------------------------------------- mass moments
@@ -558,73 +594,3 @@ def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
         out.append(f"the mimic joint{'s' if len(lone) > 1 else ''} {_listed(lone)} carr{'y' if len(lone) > 1 else 'ies'} "
                    "only some of the tracked links, and a model term's pose offset moves every tracked link alike")
     return out
-
-
-def untried_bending(spec: PlatformSpec, poses) -> list[str]:
-    """Why link bending is not tried at some joints of a URDF stand (one sentence each)."""
-    stand = tree_stand(spec)
-    if stand is None:
-        return []
-    T = stand.loads
-    lone = sorted({n for link in stand.tracked for n in ancestors(T, link)} - set(stand.shared),
-                  key=lambda n: T.index[n])
-    if lone:
-        return [f"{_listed(lone)} carr{'y' if len(lone) > 1 else 'ies'} only some of the tracked links, and a model "
-                "term's pose offset moves every tracked link alike"]
-    return []
-
-
-# ---------------------------------------------------------------------------- link bending
-class LinkBending(Effect):
-    name = "link_bending"
-    summary = "a link bends about the two axes across a joint's axis under the gravity moment there"
-    simulation_size = SizeHelp("the largest bending rotation over the commands (default 1)", "mrad")
-
-    def candidates(self, spec, poses, residuals=None):
-        stand = tree_stand(spec)
-        if stand is None or stand.loads.total_mass <= 0:
-            return []
-        S = load_state(stand, poses.controls)
-        out = []
-        for name in stand.shared:
-            j = stand.loads.index[name]
-            across = S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T
-            if np.max(np.ptp(across, axis=0)) > 1e-6:
-                out.append(joint_rotation_term(self.name, spec, name, "across"))
-        return out
-
-    def untried(self, spec, poses):
-        """Why link bending is not tried at some joints (see untried_bending)."""
-        return untried_bending(spec, poses)
-
-    def regressor(self, term, spec, poses):
-        stand = tree_stand(spec)
-        if stand is None:
-            return np.zeros(poses.n_poses)
-        S = load_state(stand, poses.controls)
-        j = stand.loads.index[term.where["joint"]]
-        across = S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T
-        return across[:, int(np.argmax(np.ptp(across, axis=0)))]
-
-    def regressor_label(self, term):
-        return f"gravity moment across joint {term.where['joint']} (N m)"
-
-    def from_dict(self, data, spec=None):
-        return joint_rotation_from_dict(self.name, data, spec)
-
-    def simulation_term(self, spec, size, rng, commands):
-        """``size``: the largest bending rotation over the commands (mrad), default 1."""
-        stand = tree_stand(spec)
-        if stand is None or stand.loads.total_mass <= 0:
-            return None
-        S = load_state(stand, commands.controls)
-        peaks = []
-        for name in stand.shared:
-            j = stand.loads.index[name]
-            peaks.append(np.max(np.abs(S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T)))
-        peaks = np.array(peaks)
-        if not peaks.size or not peaks.max() > 0:
-            return None
-        k = int(rng.choice(np.nonzero(peaks >= 0.5 * peaks.max())[0]))
-        c = (1.0 if size is None else float(size)) * 1e-3 / peaks[k]
-        return joint_rotation_term(self.name, spec, stand.shared[k], "across"), np.array([c])

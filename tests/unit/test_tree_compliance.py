@@ -13,7 +13,6 @@ from platkit_effects import Compliance, LinkBending
 from platkit_effects.compliance import actuator_loads
 from platkit_effects.tree_compliance import (
     JointRotationTerm,
-    JointsComplianceTerm,
     MassMomentTerm,
     across_axes,
     deflected_slope,
@@ -21,7 +20,8 @@ from platkit_effects.tree_compliance import (
     load_state,
     tree_stand,
 )
-from tests.unit.test_tree_loads import _tree
+from platkit_effects.tree_joints import JointsComplianceTerm
+from tests.unit.test_tree_loads import NAMES, _tree
 
 U = np.array([[0.3, 0.4, -0.7], [-1.0, -0.2, 1.1], [0.0, 1.2, 0.3], [0.6, -0.9, 0.2], [-0.4, 0.7, -1.2]])
 
@@ -198,7 +198,7 @@ def test_without_inertias_the_loads_are_the_prior_of_uniform_links(tmp_path):
     assert np.ptp(loads[:, :2], axis=0).min() > 0.1 and not loads[:, 2].any()
 
 
-def test_on_a_tree_rotations_are_offered_where_they_move_every_tracked_link(tmp_path):
+def test_on_a_tree_a_rotation_at_the_trunk_moves_every_tracked_link(tmp_path):
     path = _tree(tmp_path)
     tree = get_platform("urdf", path, moving_link={"L": "l_lo", "R": "r_lo"})
     stand = tree_stand(tree)
@@ -207,8 +207,8 @@ def test_on_a_tree_rotations_are_offered_where_they_move_every_tracked_link(tmp_
     poses = PoseSet(tree.name, C, np.zeros((3, 2, 3)), ["L", "R"], length_unit="m",
                     moving_link={"L": "l_lo", "R": "r_lo"})
     terms = LinkBending().candidates(tree, poses)
-    assert [t.joint for t in terms] == ["t1", "t2"]
-    assert "l1, l2, r1, r2 carry only some of the tracked links" in LinkBending().untried(tree, poses)[0]
+    assert [t.joint for t in terms] == ["t1", "t2", "l1", "l2", "r1", "r2"]  # an arm's joint: see below
+    assert [t.joint for t in terms if not t.partial(stand)] == ["t1", "t2"]
     # the pose offset (the moving link's) plus the marker offset put a marker at link k's origin
     # where the rotation at the joint takes it: w x (X_k - o)
     term = terms[1]
@@ -285,3 +285,48 @@ def test_predict_gives_the_terms_each_markers_link(tmp_path, monkeypatch):
                           marker_links={"L": "l_lo", "R": "r_lo"}, body_names=[])
     predict.prediction_table(cal, np.zeros((3, 5)))
     assert seen["links"] == {"L": "l_lo", "R": "r_lo"}
+
+
+def test_bending_at_a_joint_of_one_branch_turns_only_the_markers_it_carries(tmp_path):
+    """On a two-handed session, bending at an arm's joint (which carries one hand) is offered: the
+    markers it carries turned about the joint's origin (their places on the link registered from
+    the session), the other hand's still; to first order the physical simulator's deflection."""
+    from platkit.simulate.elastic_tree import ElasticTruth, simulate_elastic_tree
+
+    nominal = _tree(tmp_path)
+    links = {"L1": "l_lo", "L2": "l_lo", "L3": "l_lo", "R1": "r_lo", "R2": "r_lo", "R3": "r_lo"}
+    tree = get_platform("urdf", nominal, moving_link=links)
+    C = np.random.default_rng(3).uniform(-1.0, 1.0, size=(14, 5)) * [1.0, 1.0, 1.0, 0.1, 1.0]
+    c = 2e-4
+    rigid = simulate_elastic_tree(nominal, ElasticTruth(), C, NAMES, links, seed=5, noise_mm=0.0, workdir=tmp_path)
+    bent = simulate_elastic_tree(nominal, ElasticTruth(bending={"l1": (c, c)}), C, NAMES, links, seed=5,
+                                 noise_mm=0.0, workdir=tmp_path)
+    poses = PoseSet(tree.name, C, rigid.exact, list(links), length_unit="m", moving_link=links)
+    terms = {t.joint: t for t in LinkBending().candidates(tree, poses)}
+    assert list(terms) == ["t1", "t2", "l1", "l2", "r1", "r2"]
+    assert LinkBending().untried(tree, poses) == []
+    stand = tree_stand(tree)
+    S = load_state(stand, C)
+    term = terms["l1"]
+    for m, name in enumerate(links):  # the places registered from the rigid session put each marker back
+        X, R = S.link_in_base(stand, links[name])
+        seen = (X + np.einsum("nab,b->na", R, term.points[name])) @ rigid.mocap_from_base[:3, :3].T \
+            + rigid.mocap_from_base[:3, 3]
+        assert np.allclose(seen, rigid.exact[:, m], atol=1e-9)
+    assert not term.pose_offset(np.array([-c]), poses, None, None).any()
+    dm = term.marker_offset(np.array([-c]), poses)  # the simulator turns by -k M: a compliance of -k
+    assert not dm[:, 3:].any()  # the right hand does not move
+    A = rigid.mocap_from_base[:3, :3]
+    for m in range(3):
+        _, R = S.link_in_base(stand, "l_lo")
+        moved = np.einsum("nab,nb->na", R, dm[:, m]) @ A.T
+        sag = bent.exact[:, m] - rigid.exact[:, m]
+        assert np.abs(sag).max() > 3e-5
+        assert np.allclose(moved, sag, rtol=0, atol=1e-2 * np.abs(sag).max())
+    _, pose_jac, marker_jac = term.offset_jacobians(np.zeros(1), poses, 5, None, None)
+    assert not pose_jac.any() and np.allclose(marker_jac @ np.array([-c]), dm)
+    back = LinkBending().from_dict(term.to_dict(np.array([-c])))  # the places travel in where
+    assert np.allclose(back.marker_offset(np.array([-c]), poses), dm, rtol=0, atol=1e-12)
+    with_bodies = PoseSet(tree.name, C, rigid.exact, list(links), length_unit="m", moving_link=links,
+                          body_names=["B"], bodies=np.full((len(C), 1, 7), np.nan))
+    assert "rigid bodies" in LinkBending().untried(tree, with_bodies)[0]

@@ -1,0 +1,223 @@
+"""The elasticity of every loaded joint of a tree session in one term, and the other forms of it
+the data must choose between: a joint's compliance or the bending of the link before it.
+
+Rules:
+
+- On a session with several tracked links, one compliance per control whose load changes over the
+  poses and that moves a tracked link, fitted together (:class:`JointsComplianceTerm`): a
+  humanoid's torso and arms give at many joints at once, and each joint named alone would take one
+  of diagnosis's few rounds.
+- A joint that sits at its parent joint's origin with its axis across the parent's turns the
+  links it carries, to first order, as the parent's link bending does about that axis; the bending
+  also turns them about the third axis. The term offers, as its ``alternatives``, the joint's
+  compliance replaced by that bending (one compliance across, or one per axis across), and
+  diagnosis keeps a form whose BIC is lower (platkit.diagnose.search, ``tell_apart``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from platkit.effects import stored_where
+from platkit.errors import BadInput
+from platkit.model import PlatformSpec
+from platkit.terms import ModelTerm
+from platkit_effects.tree_compliance import (
+    JointRotationTerm,
+    TreeStand,
+    _stand_where,
+    across_axes,
+    deflected_slope,
+    deflected_torque,
+    joint_rotation_from_dict,
+    joint_rotation_term,
+    load_state,
+    marker_points,
+    moved_by,
+    spec_from_where,
+    tree_stand,
+)
+
+
+@dataclass
+class JointsComplianceTerm(ModelTerm):
+    """The elasticity of many joints of a tree at once: control ``indices[k]`` (tree joint
+    ``joints[k]``) offset by ``theta_k tau_k``, each load at its joint's own deflected
+    configuration (:func:`deflected_torque`); theta in the control's unit per N m (N). Then, one
+    parameter each, the link bending of ``bends`` (:class:`JointRotationTerm`, 'across'): a
+    joint's compliance the data told apart as its parent's bending (:meth:`alternatives`)."""
+
+    indices: list[int] = field(default_factory=list)
+    joints: list[str] = field(default_factory=list)
+    spec: PlatformSpec | None = field(default=None, repr=False)
+    bends: list[JointRotationTerm] = field(default_factory=list)
+
+    def stand(self) -> TreeStand:
+        if self.spec is None:
+            self.spec = spec_from_where(self.where, self.effect)
+        stand = tree_stand(self.spec)
+        if stand is None or any(n not in stand.loads.index for n in self.joints):
+            raise BadInput(f"effect {self.effect!r}: joints {', '.join(self.joints)} are not all moving joints "
+                           "of the stand's URDF")
+        return stand
+
+    def control_offset(self, theta, poses, n_u):
+        stand = self.stand()
+        out = np.zeros((poses.n_poses, n_u))
+        for c, i, n in zip(theta, self.indices, self.joints):
+            out[:, i] = c * deflected_torque(stand, poses.controls, n, c * stand.scale[i])
+        return out
+
+    def _bent(self, theta) -> list[tuple[slice, np.ndarray, JointRotationTerm]]:
+        """(columns, parameters, term) of each bend, after the compliances."""
+        out, k = [], len(self.indices)
+        for b in self.bends:
+            K = len(b.parameter_names)
+            out.append((slice(k, k + K), np.asarray(theta[k:k + K], float), b))
+            k += K
+        return out
+
+    def pose_offset(self, theta, poses, fk_q, fk_X):
+        out = np.zeros((poses.n_poses, 6))
+        for _, t, b in self._bent(theta):
+            out += b.pose_offset(t, poses, fk_q, fk_X)
+        return out
+
+    def marker_offset(self, theta, poses):
+        out = np.zeros((poses.n_poses, poses.n_markers, 3))
+        for _, t, b in self._bent(theta):
+            out += b.marker_offset(t, poses)
+        return out
+
+    def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
+        stand = self.stand()
+        N, K = poses.n_poses, len(theta)
+        control, pose = np.zeros((N, n_u, K)), np.zeros((N, 6, K))
+        marker = np.zeros((N, poses.n_markers, 3, K))
+        for k, (c, i, n) in enumerate(zip(theta, self.indices, self.joints)):
+            control[:, i, k] = deflected_slope(stand, poses.controls, n, c * stand.scale[i])
+        for cols, t, b in self._bent(theta):
+            _, pose[..., cols], marker[..., cols] = b.offset_jacobians(t, poses, n_u, fk_q, fk_X)
+        return control, pose, marker
+
+    def alternatives(self, theta, poses, others) -> list[tuple[str, ModelTerm]]:
+        """This term with one joint's compliance replaced by its parent joint's link bending, for each
+        joint that sits at its parent's origin with its axis across the parent's (to first order the
+        two turn the links the joint carries about the same axis at the same point under nearly the
+        same load; the bending turns them about the third axis too), in two forms: one compliance
+        across (as many parameters), one per axis across (a link stiffer one way than the other:
+        one more). As (what changed, the term), its start the fitted values, the bending's from the
+        compliance. Not where ``others`` (the model's other terms) bend there already, or where
+        the parent cannot be bent on the session (:func:`partial_bending_ok`)."""
+        stand = self.stand()
+        bent_already = {str(t.where.get("joint")) for t in others if t.effect == "link_bending"}
+        bent_already |= {b.joint for b in self.bends}
+        out = []
+        for k, (i, n) in enumerate(zip(self.indices, self.joints)):
+            parent = same_place_parent(stand, poses.controls, n)
+            if parent is None or parent in bent_already or (parent not in stand.shared
+                                                            and not partial_bending_ok(poses)):
+                continue
+            keep = [m for m in range(len(self.indices)) if m != k]
+            points = marker_points(stand, poses) if parent not in stand.shared else None
+            start = np.asarray(theta, float)
+            for about, what in (("across", ""), ("across2", ", stiffer one way than the other")):
+                bend = joint_rotation_term("link_bending", self.spec, parent, about, points)
+                alt = joints_compliance_term(self.effect, self.spec, [self.indices[m] for m in keep],
+                                             self.bends + [bend], label=self.where.get("joint"))
+                alt.initial = np.concatenate([start[keep], start[len(self.indices):],
+                                              np.full(len(bend.parameter_names), start[k] * stand.scale[i])])
+                out.append((f"{n}'s compliance told apart as link bending at {parent}{what}", alt))
+        for m, b in enumerate(self.bends):  # a bend told apart: the same, stiffer one way than the other
+            if b.about == "across":
+                two = joint_rotation_term("link_bending", self.spec, b.joint, "across2", b.points)
+                alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends[:m] + [two]
+                                             + self.bends[m + 1:], label=self.where.get("joint"))
+                cols = self._bent(theta)
+                alt.initial = np.concatenate([np.asarray(theta[:len(self.indices)], float)]
+                                             + [np.repeat(t, 2) if q == m else t for q, (_, t, _) in enumerate(cols)])
+                out.append((f"link bending at {b.joint}, stiffer one way than the other", alt))
+        return out
+
+
+def partial_bending_ok(poses) -> bool:
+    """Whether a joint that carries only some tracked links can be bent on ``poses``: its markers
+    mapped to their links, no rigid bodies (a body's orientation is no marker offset)."""
+    return bool(poses.marker_links) and not poses.n_bodies
+
+
+def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m: float = 1e-3,
+                      across_tol: float = 0.1) -> str | None:
+    """The moving joint before ``joint`` on its way to the root when ``joint`` sits at its origin
+    (within ``tol_m``) with its axis across the parent's (|cos| below ``across_tol``) and the
+    parent's moment across its axis changes over ``controls``; else None."""
+    T = stand.loads
+    link, parent = T.tree.joints[joint].parent, None
+    while link in T.tree.parent_joint:
+        j = T.tree.parent_joint[link]
+        if j in T.index:
+            parent = j
+            break
+        link = T.tree.joints[j].parent
+    if parent is None or parent not in moved_by(stand):
+        return None
+    S = load_state(stand, controls)
+    a, b = T.index[joint], T.index[parent]
+    axis_j = np.einsum("nab,b->na", S.loads.rotation[:, a], T.axes[a])
+    axis_p = np.einsum("nab,b->na", S.loads.rotation[:, b], T.axes[b])
+    if np.abs(S.loads.origin[:, a] - S.loads.origin[:, b]).max() > tol_m \
+            or np.abs(np.sum(axis_j * axis_p, axis=1)).max() > across_tol:
+        return None
+    across = S.loads.moment[:, b] @ across_axes(T.axes[b]).T
+    return parent if np.max(np.ptp(across, axis=0)) > 1e-6 else None
+
+
+def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int],
+                           bends: list[JointRotationTerm] | None = None, label: str | None = None) -> JointsComplianceTerm:
+    """The compliance of the controls ``indices``, then the link bending of ``bends``; ``label``
+    the place's name (``where['joint']``: a term told apart keeps the place it was named at)."""
+    stand = tree_stand(spec)
+    if stand is None:
+        raise BadInput(f"effect {effect!r}: the stand has no URDF")
+    bends = list(bends or [])
+    joints = [stand.joints[i] for i in indices]
+    units = [f"{spec.controls[i].unit}/({'N' if spec.controls[i].unit == 'm' else 'N m'})" for i in indices]
+    where = {"joint": label or f"every loaded joint ({len(indices)})", "joints": joints,
+             "actuators": [spec.control_names[i] for i in indices], "actuator_indices": list(indices),
+             "load": "gravity torque of the whole tree about each joint's axis, from "
+                     + ("the prior of uniform links (the URDF has no inertias)" if stand.loads.prior else "the URDF inertias")}
+    if bends:
+        where["bends"] = [b.joint for b in bends]
+        where["bends_about"] = [b.about for b in bends]
+        points = {n: v for b in bends for n, v in b.where.get("marker_points", {}).items()}
+        if points:
+            where["marker_points"] = points
+    where.update(_stand_where(spec))
+    names = [f"compliance_{spec.control_names[i]}" for i in indices] + \
+        [f"bending_{b.joint}" + (f"_{p.rsplit('_', 1)[1]}" if b.about == "across2" else "")
+         for b in bends for p in b.parameter_names]
+    return JointsComplianceTerm(effect, names, np.zeros(len(names)), units + ["rad/(N m)"] * (len(names) - len(units)),
+                                where, indices=list(indices), joints=joints, spec=spec, bends=bends)
+
+
+def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointsComplianceTerm:
+    where = stored_where(data)
+    try:
+        indices = [int(i) for i in where["actuator_indices"]]
+        bent = [str(n) for n in where.get("bends") or []]
+        abouts = [str(a) for a in where.get("bends_about") or ["across"] * len(bent)]
+    except (KeyError, TypeError, ValueError):
+        raise BadInput(f"effect {effect!r}: where needs actuator_indices (the controls' indices)") from None
+    if spec is None:
+        spec = spec_from_where(where, effect)
+    if not all(0 <= i < spec.n_u for i in indices):
+        raise BadInput(f"effect {effect!r}: where.actuator_indices {indices} are not all controls of the stand")
+    if len(abouts) != len(bent):
+        raise BadInput(f"effect {effect!r}: where.bends_about must give each of where.bends its form")
+    bends = [joint_rotation_from_dict("link_bending", {"where": {"joint": n, "about": a,
+                                                                 "marker_points": where.get("marker_points") or {}}},
+                                      spec) for n, a in zip(bent, abouts)]
+    term = joints_compliance_term(effect, spec, indices, bends, label=where.get("joint"))
+    term.stand()
+    return term
