@@ -13,6 +13,11 @@ Each row is a fresh process; the three are run in turns (one of each, then again
 of ``--repeat`` is kept, both wall-clock and CPU (user + system of the child: the machine is
 shared, and CPU seconds are what load inflates least). Without ``--session`` the stream is
 simulated first (stewart, seed 5, 840 commands at 200 Hz: 600,000 rows; about a minute, untimed).
+``--before DIR``: a fourth row in the same turns, the same raw calibrate with the ``platkit``
+package found in DIR first (PYTHONPATH; e.g. ``git archive REV platkit | tar -x -C DIR``), so that
+code before and after a change is timed side by side under the same load. The compiled kernels
+(platkit.settle) are compiled into the cache folder before the timing; ``PLATKIT_COMPILE=0``
+times the numpy path.
 """
 from __future__ import annotations
 
@@ -79,11 +84,11 @@ def settled_folder(raw: Path, out: Path) -> Path:
     return out
 
 
-def timed(cmd: list[str]) -> tuple[float, float]:
-    """(wall s, CPU s of the child) of one process."""
+def timed(cmd: list[str], env: dict | None = None) -> tuple[float, float]:
+    """(wall s, CPU s of the child) of one process (``env``: its environment, default ours)."""
     before = os.times()
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     wall = time.perf_counter() - t0
     after = os.times()
     return wall, (after.children_user - before.children_user) + (after.children_system - before.children_system)
@@ -93,6 +98,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--session", default=None, help="a raw session folder (default: simulate one)")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--before", default=None, help="a folder holding an earlier platkit package, timed beside ours")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -105,12 +111,22 @@ def main(argv=None) -> None:
             "platkit calibrate POSES": PLATKIT + ["calibrate", str(poses), "--out", str(tmp / "o_poses")],
             "pandas.read_csv(markers.csv)": [PYTHON, "-c", f"import pandas; pandas.read_csv({str(raw / 'markers.csv')!r})"],
         }
+        envs: dict[str, dict | None] = dict.fromkeys(cases)
+        if args.before:
+            before = str(Path(args.before).resolve())
+            if not (Path(before) / "platkit" / "__init__.py").is_file():
+                raise SystemExit(f"--before {args.before}: no platkit package there")
+            cases["before: platkit calibrate RAW"] = PLATKIT + ["calibrate", str(raw), "--out", str(tmp / "o_raw")]
+            envs["before: platkit calibrate RAW"] = dict(os.environ, PYTHONPATH=before)
+        from platkit.settle._native import compiled_fits_reason
+        why = compiled_fits_reason()  # compiled (and cached) here, not in a timed process
+        print(f"settling's compiled kernels: {why or 'in use'}")
         best = {k: [np.inf, np.inf] for k in cases}
         for _ in range(args.repeat):
             for name, cmd in cases.items():
                 for o in ("o_raw", "o_poses"):
                     shutil.rmtree(tmp / o, ignore_errors=True)
-                w, c = timed(cmd)
+                w, c = timed(cmd, envs[name])
                 best[name] = [min(best[name][0], w), min(best[name][1], c)]
         print(f"raw stream {raw}: {n_rows} rows, {n_poses} settled poses; best of {args.repeat}")
         width = max(map(len, cases))
@@ -121,6 +137,9 @@ def main(argv=None) -> None:
         ours = best["ours: platkit calibrate RAW"]
         print(f"{'reference (poses + pandas)':<{width}}  {ref[0]:7.2f}  {ref[1]:7.2f}")
         print(f"ratio ours / reference: wall {ours[0] / ref[0]:.2f}x, CPU {ours[1] / ref[1]:.2f}x (goal <= 1.5x)")
+        if args.before:
+            was = best["before: platkit calibrate RAW"]
+            print(f"ratio before / reference: wall {was[0] / ref[0]:.2f}x, CPU {was[1] / ref[1]:.2f}x")
 
 
 if __name__ == "__main__":
