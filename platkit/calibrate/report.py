@@ -44,6 +44,26 @@ def per_marker_rms(r: np.ndarray, weights: np.ndarray | None = None) -> np.ndarr
     return out
 
 
+def per_link_rms(residuals: np.ndarray, weights: np.ndarray | None, marker_names: list[str],
+                 marker_links: dict[str, str], scale: float = 1.0) -> dict[str, float | None]:
+    """{link: RMS of the 3-D marker errors of its markers} over the observations kept by the
+    robust loss (weight > 0, finite), in ``residuals``' unit over ``scale``; links in the order
+    first named, None for a link without a kept observation. ``residuals`` (N, C, 3): the markers'
+    channels first (bodies after them are not counted)."""
+    M = len(marker_names)
+    r = np.asarray(residuals, float)[:, :M]
+    keep = np.isfinite(r).all(axis=2)
+    if weights is not None:
+        keep &= np.asarray(weights)[:, :M] > 0
+    d2 = np.sum(np.nan_to_num(r) ** 2, axis=2)
+    out: dict[str, float | None] = {}
+    for link in dict.fromkeys(marker_links[m] for m in marker_names if m in marker_links):
+        on = np.array([marker_links.get(m) == link for m in marker_names])
+        sel = keep[:, on]
+        out[link] = _finite_or_none(np.sqrt(np.mean(d2[:, on][sel])) / scale) if sel.any() else None
+    return out
+
+
 def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
     """report.json as a dict; lengths in the session's unit (``unit``)."""
     s = length_scale(cal.length_unit)
@@ -82,15 +102,7 @@ def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
         pm = per_marker_rms(after, cal.fit.weights)
         out["rms_after_per_marker"] = {n: _finite_or_none(v / s) for n, v in zip(channel_names(cal), pm)}
         if cal.marker_links:  # a tree: each tracked link's markers together (docs/trees.md)
-            M = len(cal.marker_names)
-            keep = np.isfinite(after[:, :M]).all(axis=2) & (np.asarray(cal.fit.weights)[:, :M] > 0)
-            d2 = np.sum(np.nan_to_num(after[:, :M]) ** 2, axis=2)
-            out["rms_after_per_link"] = {}
-            for link in dict.fromkeys(cal.marker_links[m] for m in cal.marker_names):
-                on = np.array([cal.marker_links[m] == link for m in cal.marker_names])
-                sel = keep[:, on]
-                out["rms_after_per_link"][link] = _finite_or_none(np.sqrt(np.mean(d2[:, on][sel])) / s) if sel.any() \
-                    else None
+            out["rms_after_per_link"] = per_link_rms(after, cal.fit.weights, cal.marker_names, cal.marker_links, s)
         d = np.linalg.norm(after, axis=2)
         out["max_error_after"] = _finite_or_none(np.nanmax(d) / s) if np.isfinite(d).any() else None
     if cal.heldout:
@@ -303,6 +315,10 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
                      f"RMS <b>{v['rms']:.4g} {lu}</b>.</p>")
     for w in cal.warnings:
         parts.append(f"<p><b>Warning:</b> {html.escape(w)}</p>")
+    if rep.get("rms_after_per_link"):  # a tree: each tracked link's markers together (docs/trees.md)
+        rows = [(link, ", ".join(m for m in cal.marker_names if cal.marker_links.get(m) == link),
+                 "" if v is None else f"{v:.4g}") for link, v in rep["rms_after_per_link"].items()]
+        parts.append("<h2>Tracked links</h2>" + _table(rows, ["link", "markers", f"RMS after ({lu})"]))
     if poses is not None:
         parts.append(_settling_html(rep["settling"]))
     sel = (cal.identifiability or {}).get("model_selection") or {}
@@ -347,16 +363,26 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
     parts.append("<h2>Parameters</h2>" + _table(rows, ["name", "value", "std", "nominal", "deviation", "unit", "status"]))
     rows = [(n, *(f"{x / s:.4f}" for x in pos), *("" if not np.isfinite(x) else f"{x / s:.3g}" for x in sd))
             for n, pos, sd in zip(cal.marker_names, cal.marker_positions, cal.marker_std)]
-    parts.append(f"<h2>Markers on the moving part ({lu}, moving frame)</h2>"
-                 + _table(rows, ["marker", "x", "y", "z", "std x", "std y", "std z"]))
+    if cal.marker_links:  # a tree: each marker sits in its own link's frame
+        rows = [(r[0], cal.marker_links.get(r[0], ""), *r[1:]) for r in rows]
+        parts.append(f"<h2>Markers on the tracked links ({lu}, each in its link's frame)</h2>"
+                     + _table(rows, ["marker", "link", "x", "y", "z", "std x", "std y", "std z"]))
+    else:
+        parts.append(f"<h2>Markers on the moving part ({lu}, moving frame)</h2>"
+                     + _table(rows, ["marker", "x", "y", "z", "std x", "std y", "std z"]))
     if cal.body_names:
         rows = [(n, *(f"{x / s:.4f}" for x in pos), *(f"{x:.6f}" for x in rv),
                  *("" if not np.isfinite(x) else f"{x / s:.3g}" for x in sd[:3]),
                  *("" if not np.isfinite(x) else f"{x:.3g}" for x in sd[3:]))
                 for n, pos, rv, sd in zip(cal.body_names, cal.body_positions, cal.body_rotvecs, cal.body_std)]
-        parts.append(f"<h2>Rigid bodies on the moving part (origin {lu}, rotation vector rad, moving frame)</h2>"
-                     + _table(rows, ["body", "x", "y", "z", "rx", "ry", "rz", "std x", "std y", "std z",
-                                     "std rx", "std ry", "std rz"])
+        head = ["body", "x", "y", "z", "rx", "ry", "rz", "std x", "std y", "std z", "std rx", "std ry", "std rz"]
+        where = "moving part", "moving frame"
+        if cal.marker_links:  # a tree: each body sits in its own link's frame
+            rows = [(r[0], cal.marker_links.get(r[0], ""), *r[1:]) for r in rows]
+            head.insert(1, "link")
+            where = "tracked links", "each in its link's frame"
+        parts.append(f"<h2>Rigid bodies on the {where[0]} (origin {lu}, rotation vector rad, {where[1]})</h2>"
+                     + _table(rows, head)
                      + f"<p>Rotation errors weigh as position errors through rho = {cal.body_rho / s:.4g} {lu}/rad "
                        f"({html.escape(cal.body_rho_source)}).</p>")
     T = cal.mocap_from_base

@@ -65,7 +65,7 @@ def run(args) -> int:
 
 
 def link_poses(spec, u, args) -> dict:
-    """{link: (q (4,), X (3,) m)} in the base frame: a tree's tracked links, then those of --link."""
+    """{link: (q (4,), w >= 0; X (3,) m)} in the base frame: a tree's tracked links, then those of --link."""
     names = list(spec.tracked_links)
     if args.link:
         names += [n.strip() for n in args.link.split(",") if n.strip() and n.strip() not in names]
@@ -73,7 +73,8 @@ def link_poses(spec, u, args) -> dict:
         return {}
     q, X = link_pose_function(spec, names)(u, spec.nominal_td())
     q, X = np.asarray(q).ravel(), np.asarray(X).ravel()
-    return {n: (q[4 * k:4 * k + 4], X[3 * k:3 * k + 3]) for k, n in enumerate(names)}
+    # each quaternion with w >= 0, as the moving frame's and predict's: one rotation, one way of writing it
+    return {n: (q[4 * k:4 * k + 4] * (-1.0 if q[4 * k] < 0 else 1.0), X[3 * k:3 * k + 3]) for k, n in enumerate(names)}
 
 
 def _misfit_rows(spec, res, unit: str) -> dict | None:

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from platkit.calibrate.report import per_link_rms
 from platkit.diagnose.fitting import Diagnosis, Finding
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.calibration import write_calibration_yaml
@@ -80,6 +81,22 @@ def finding_dict(f: Finding, unit: str) -> dict[str, Any]:
     return out
 
 
+def rms_per_link(d: Diagnosis) -> dict[str, dict[str, float | None]]:
+    """On a tree, {link: {"geometric": RMS, "final": RMS}} of its markers' fit errors (the
+    session's unit) under the geometric model and the final one; {} on a single moving link."""
+    links = d.calibration.marker_links or d.poses.marker_links
+    if not links:
+        return {}
+    s = length_scale(d.unit)
+    names = list(d.poses.marker_names)
+    before = per_link_rms(d.base.fit.residuals_after, d.base.fit.weights, names, links, s) \
+        if d.base.fit is not None else {}
+    fin = d.final_fit.fit
+    after = per_link_rms(fin.residuals_after, fin.weights, names, links, s) if fin is not None else {}
+    return {link: {"geometric": before.get(link), "final": after.get(link)}
+            for link in dict.fromkeys(links[m] for m in names if m in links)}
+
+
 def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
     s = length_scale(d.unit)
     out = {
@@ -108,6 +125,9 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
                    "the K-fold held-out error falls significantly (one-sided Wilcoxon, Holm) and BIC falls, unless a "
                    "generic probe predicts significantly better (then: unexplained)"),
     }
+    per_link = rms_per_link(d)
+    if per_link:  # a tree: each tracked link's markers together (docs/trees.md)
+        out["rms_per_link"] = per_link
     if d.imu is not None:
         # IMU findings (platkit.diagnose.imu): gyro in deg/s, accelerometer in m/s^2, each finding says its unit
         out["findings"] += strict(list(d.imu.get("findings", [])))
@@ -208,8 +228,22 @@ def report_html(d: Diagnosis) -> str:
             f"<h1>Diagnosis of the {html.escape(d.calibration.platform)} stand</h1>"
             f"<p>{html.escape(d.verdict)}</p>" + (f"<p>{html.escape(d.imu.get('verdict', ''))}</p>" if d.imu else "")
             + "".join(f"<p><b>Warning:</b> {html.escape(w)}</p>" for w in said())
-            + f"<h2>Findings</h2>{table}<h2>Where the residual was structured</h2>"
+            + _links_html(d, table) + f"<h2>Where the residual was structured</h2>"
             f"{imgs}</body></html>")
+
+
+def _links_html(d: Diagnosis, table: str) -> str:
+    """The findings' table, then on a tree each tracked link's fit RMS before and after."""
+    out = f"<h2>Findings</h2>{table}"
+    per_link = rms_per_link(d)
+    if per_link:
+        def cell(v):
+            return "" if v is None else f"{v:.4g}"
+        rows = "".join(f"<tr><td>{html.escape(link)}</td><td>{cell(v['geometric'])}</td><td>{cell(v['final'])}</td></tr>"
+                       for link, v in per_link.items())
+        out += ("<h2>Tracked links</h2><table border=1 cellpadding=4><tr><th>link</th>"
+                f"<th>fit RMS, geometric model ({d.unit})</th><th>final model</th></tr>{rows}</table>")
+    return out
 
 
 def write_outputs(d: Diagnosis, out_dir: str | Path) -> list[Path]:

@@ -151,10 +151,10 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         raise BadSession(f"{ypath}: the session is for the {name!r} stand, not {platform!r}")
     name = name or platform
     desc_path = Path(description) if description is not None else y["description"]
+    joints_file = None
     if spec is None and name is not None:
 
         options = {k: y[k] for k in ("moving_link", "base_link") if y[k]}
-        joints_file = None
         if isinstance(y["moving_link"], dict):  # a tree: the recorded joints are the controls
             joints_file, options["joints"] = recorded_joints(folder, y)
         try:
@@ -170,6 +170,8 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         mocap_rate_hz=y["mocap_rate_hz"], imu=y["imu"], moving_link=y["moving_link"], notes=y["notes"],
         body_names=y["rigid_bodies"], body_noise=y["rigid_body_noise"],
     )
+    if isinstance(y["moving_link"], dict) and spec is not None:  # a tree, however its stand was built
+        _say_held_joints(s, joints_file or _joints_file(folder))
     tscale = TIME_UNITS[s.time_unit]
     lscale = LENGTH_UNITS[s.length_unit]
     if y.get("power_on_t") is not None:  # s on the clock of t
@@ -248,11 +250,32 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
 JOINTS_WHERE = "urdf stand option 'joints'"
 
 
+def _joints_file(folder: Path) -> Path:
+    """The file whose columns are a tree session's recorded joints: commands.csv, or poses.csv
+    without it."""
+    cpath = folder / "commands.csv"
+    return cpath if cpath.is_file() or not (folder / "poses.csv").is_file() else folder / "poses.csv"
+
+
+def _say_held_joints(s: Session, joints_file: Path) -> None:
+    """On a tree session: the joints below a recorded joint that the file does not record (held
+    at their zero), said among the control notes, since the loads of the joints above them take
+    that pose (docs/trees.md)."""
+    chain = s.spec.extras.get("chain") if s.spec is not None else None
+    held = chain.held_under_recorded() if chain is not None and hasattr(chain, "held_under_recorded") else []
+    if held:
+        shown = ", ".join(held[:12]) + (f" and {len(held) - 12} more" if len(held) > 12 else "")
+        s.extras.setdefault("control_notes", []).append(
+            f"{joints_file}: not recorded, below recorded joints: {shown}; held at their zero (a mimic joint at its "
+            "offset): they move no tracked link, but the gravity loads of the recorded joints above them are "
+            "computed in that pose")
+
+
 def recorded_joints(folder: Path, y: dict) -> tuple[Path, list[str]]:
     """(file, joint names) of a tree session: the columns of commands.csv but ``t`` (of poses.csv
     without commands.csv: but ``t`` and the marker, count and rigid-body columns)."""
     cpath = folder / "commands.csv"
-    path = cpath if cpath.is_file() or not (folder / "poses.csv").is_file() else folder / "poses.csv"
+    path = _joints_file(folder)
     if not path.is_file():
         raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
     header, _ = _read_header(path)

@@ -1,5 +1,6 @@
 """Reading a URDF safely: no DTD, no entities, no network, no huge trees, meshes never loaded;
-every number of every joint checked, naming the joint and element on error."""
+every number of every joint and every link's inertial checked, naming the joint or link and element
+on error."""
 from __future__ import annotations
 
 import io
@@ -13,6 +14,8 @@ from platkit.urdf._tree import ACTUATED_TYPES, UrdfJoint, UrdfTree
 #: Largest URDF file read (bytes); real robot descriptions are well under 1 MB without meshes.
 MAX_URDF_BYTES = 32 * 1024 * 1024
 KNOWN_TYPES = ACTUATED_TYPES + ("fixed", "floating", "planar")
+#: The heaviest link a URDF may declare (kg); a mass outside [0, this] is a typo or a unit slip.
+MAX_LINK_MASS = 1.0e4
 
 
 def _floats(text: str | None, n: int, path: Path, where: str, default: str) -> np.ndarray:
@@ -79,11 +82,38 @@ def parse_urdf_xml(path: Path, keep_comments: bool = False):
     return tree, data
 
 
+def _check_inertial(link, path: Path) -> None:
+    """A link's <inertial>, if any: its mass a number in [0, MAX_LINK_MASS] kg, its inertia and
+    origin finite numbers (the loads of a tree are built from them, by every verb alike)."""
+    inertial = link.find("inertial")
+    if inertial is None:
+        return
+    where = f"link {link.get('name')!r} <inertial>"
+    mass = inertial.find("mass")
+    if mass is not None:
+        raw = mass.get("value")
+        m = _optional_float(raw, path, f"{where} <mass value>")
+        if m is None or not np.isfinite(m) or not 0.0 <= m <= MAX_LINK_MASS:
+            raise BadDescription(f"{path}: {where} <mass value={raw!r}>: a link's mass must be a number of kg "
+                                 f"in [0, {MAX_LINK_MASS:g}]")
+    inertia = inertial.find("inertia")
+    if inertia is not None:
+        for attr in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+            v = _optional_float(inertia.get(attr), path, f"{where} <inertia {attr}>")
+            if v is not None and not np.isfinite(v):
+                raise BadDescription(f"{path}: {where} <inertia {attr}> must be a finite number, got {inertia.get(attr)!r}")
+    origin = inertial.find("origin")
+    if origin is not None:
+        _floats(origin.get("xyz"), 3, path, f"{where} <origin xyz>", "0 0 0")
+        _floats(origin.get("rpy"), 3, path, f"{where} <origin rpy>", "0 0 0")
+
+
 def read_urdf(path: str | Path) -> UrdfTree:
     """Read a URDF's kinematic tree safely: no DTD or entities, no network, meshes never loaded.
 
-    The XML is checked strictly with lxml first (every number of every joint, naming the joint
-    and element on error), then handed to yourdfpy for the tree. Raises BadDescription.
+    The XML is checked strictly with lxml first (every number of every joint and of every link's
+    inertial, naming the joint or link and element on error), then handed to yourdfpy for the
+    tree. Raises BadDescription.
     """
     import yourdfpy
 
@@ -131,6 +161,8 @@ def read_urdf(path: str | Path) -> UrdfTree:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise BadDescription(f"{path}: joint names used twice: {dup}")
+    for el in root.findall("link"):
+        _check_inertial(el, path)
     try:
         model = yourdfpy.URDF.load(io.BytesIO(data), build_scene_graph=False, load_meshes=False,
                                    build_collision_scene_graph=False, load_collision_meshes=False)

@@ -189,6 +189,29 @@ class KinematicTree:
             link = joint.parent
         return out[::-1]
 
+    def held_under_recorded(self) -> list[str]:
+        """The moving joints that are not controls and follow none (an actuated joint not recorded,
+        held at its zero; a mimic joint of such a joint, held at its offset) and hang below a
+        recorded joint: they move no tracked link, but the gravity loads of the recorded joints
+        above them depend on them. Depth-first."""
+        rec = set(self.recorded)
+
+        def moves(j: UrdfJoint) -> bool:
+            return j.name in rec or (j.mimic is not None and j.type in ACTUATED_TYPES and j.mimic[0] in rec)
+
+        out = []
+        for j in self.joints:
+            if j.type not in ACTUATED_TYPES or moves(j):
+                continue
+            link = j.parent
+            while link != self.base_link and link in self.tree.parent_joint:
+                above = self.tree.joints[self.tree.parent_joint[link]]
+                if moves(above):
+                    out.append(j.name)
+                    break
+                link = above.parent
+        return out
+
     def required(self) -> dict[str, str]:
         """{joint: tracked link it moves} of the actuated joints that must be controls: those on
         a tracked link's path, and the masters of the mimic joints there."""

@@ -1,0 +1,109 @@
+"""Trees (issue 24) as a new user meets them from the command line: a link's mass negative or
+absurd refused in one line by every verb (calibrate accepted it, diagnose refused it later naming
+a joint); fk's link quaternions written like every other pose's (w >= 0); reports per tracked
+link in report.html and diagnosis.json; a joint below a recorded one that commands.csv leaves out
+said as a warning (it was held at zero silently, its load on the joints above it with it). The
+tree and its helpers are test_urdf_tree's."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_urdf_tree import MARKERS, URDF, commands, observe, tree_spec, true_td, write_session
+
+from platkit.cli import main
+from platkit.urdf import link_pose_function
+
+
+def _session(tmp_path, n=24, columns=None, seed=7):
+    spec = tree_spec()
+    rng = np.random.default_rng(seed)
+    U = commands(spec, n, rng)
+    return write_session(tmp_path / "s", spec, U, observe(spec, true_td(spec, rng), U, rng), columns)
+
+
+@pytest.mark.parametrize("mass", ["-1.5", "2e6", "nan"])
+def test_a_link_mass_negative_or_absurd_is_refused_in_one_line_by_every_verb(tmp_path, capsys, mass):
+    session = _session(tmp_path)
+    urdf = session / "robot.urdf"
+    urdf.write_text(URDF.read_text().replace('<link name="left_2"><inertial><origin xyz="0 0 -0.12"/><mass value="1.5"/>',
+                                             f'<link name="left_2"><inertial><origin xyz="0 0 -0.12"/><mass value="{mass}"/>'))
+    expected = "robot.urdf: link 'left_2' <inertial> <mass value"
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(session), "--quiet", "--no-report", "--no-selection", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
+    assert not out.exists()
+    assert main(["fk", "--platform", "urdf", "--description", str(urdf), "--moving-link", "right_tcp,left_tcp",
+                 "--u", ",".join(["0.1"] * 9)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
+
+
+def test_fk_writes_every_link_quaternion_with_w_nonnegative(capsys):
+    spec = tree_spec()
+    links = ["right_tcp", "left_tcp", "head"]
+    f = link_pose_function(spec, links)
+    rng = np.random.default_rng(3)
+    # controls where some link's quaternion comes out of the kinematics with w < 0
+    for _ in range(200):
+        u = commands(spec, 1, rng)[0]
+        q = np.asarray(f(u, spec.nominal_td())[0]).reshape(-1, 4)
+        if np.any(q[:, 0] < 0):
+            break
+    assert np.any(q[:, 0] < 0)
+    assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
+                 "--u", ",".join(format(v, ".17g") for v in u), "--link", "head", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for k, link in enumerate(links):
+        got = np.array([out["links"][link][a] for a in ("qw", "qx", "qy", "qz")])
+        assert got[0] >= 0 and np.allclose(got, q[k] * np.sign(q[k, 0] or 1.0), atol=1e-12)
+    # the moving frame's pose and its link's entry are the same numbers
+    assert all(out[a] == pytest.approx(out["links"]["right_tcp"][a], abs=1e-12) for a in ("qw", "qx", "qy", "qz"))
+
+
+def test_reports_of_a_tree_give_each_tracked_link(tmp_path, capsys):
+    session = _session(tmp_path, n=30)
+    cal = tmp_path / "cal"
+    assert main(["calibrate", str(session), "--quiet", "--no-selection", "--out", str(cal)]) == 0
+    page = (cal / "report.html").read_text()
+    per_link = json.loads((cal / "report.json").read_text())["rms_after_per_link"]
+    assert "<h2>Tracked links</h2>" in page and "each in its link's frame" in page
+    for link in ("right_tcp", "left_tcp"):
+        markers = ", ".join(m for m, (lk, _) in MARKERS.items() if lk == link)
+        assert f"<td>{link}</td><td>{markers}</td><td>{per_link[link]:.4g}</td>" in page
+    assert "<td>L2</td><td>left_tcp</td>" in page  # each marker with its link
+    diag = tmp_path / "diag"
+    assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--quiet",
+                 "--out", str(diag)]) == 0
+    d = json.loads((diag / "diagnosis.json").read_text())
+    assert list(d["rms_per_link"]) == ["right_tcp", "left_tcp"]
+    for link, v in d["rms_per_link"].items():
+        assert v["geometric"] == pytest.approx(per_link[link], rel=1e-6) and v["final"] > 0
+        assert f"<td>{link}</td><td>{v['geometric']:.4g}</td>" in (diag / "report.html").read_text()
+
+
+def test_a_joint_below_recorded_ones_left_out_of_commands_is_said_in_every_report(tmp_path, capsys):
+    """head_yaw hangs on the torso and moves no tracked link: a session may leave it out, but it is
+    then held at zero and the torso's gravity load is computed with it there: said, in report.json
+    and report.html, by calibrate and diagnose alike."""
+    spec = tree_spec()
+    columns = [c for c in spec.control_names if c != "head_yaw"]
+    session = _session(tmp_path, n=24, columns=columns)
+    cal = tmp_path / "cal"
+    assert main(["calibrate", str(session), "--quiet", "--no-selection", "--out", str(cal)]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "head_yaw" in line]
+    assert len(said) == 1 and said[0].startswith("platkit: warning: ") and "commands.csv: not recorded" in said[0]
+    text = said[0].removeprefix("platkit: warning: ")
+    assert text in json.loads((cal / "report.json").read_text())["warnings"]
+    assert "head_yaw" in (cal / "report.html").read_text()
+    diag = tmp_path / "diag"
+    assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--quiet",
+                 "--out", str(diag)]) == 0
+    assert text in json.loads((diag / "diagnosis.json").read_text())["warnings"]
+    # every joint recorded: nothing said
+    capsys.readouterr()
+    full = _session(tmp_path / "full", n=24)
+    assert main(["calibrate", str(full), "--quiet", "--no-report", "--no-selection", "--out", str(tmp_path / "c2")]) == 0
+    assert "not recorded" not in capsys.readouterr().err
