@@ -58,7 +58,7 @@ def compiled_fits_reason() -> str:
 
 class Kernels:
     """The library's functions: ``pk_settle_prepare``, ``pk_settle_fits``, ``pk_settle_halves``,
-    ``pk_settle_still``."""
+    ``pk_settle_still``, ``pk_settle_trend``."""
 
     def __init__(self, lib: ctypes.CDLL) -> None:
         self.lib = lib
@@ -75,6 +75,26 @@ class Kernels:
         self.still.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_double] + \
             [ctypes.c_void_p] * 3
         self.still.restype = ctypes.c_int
+        self.trend = lib.pk_settle_trend
+        self.trend.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double] + \
+            [ctypes.c_void_p] * 3
+        self.trend.restype = ctypes.c_int
+
+
+def trend_statistic(t: np.ndarray, markers: np.ndarray, sigma2: float) -> tuple[float, int, float] | None:
+    """(chi-square of the slopes, degrees of freedom, largest speed) of a window (t (K,), markers
+    (K, M, 3)) by the compiled kernel, as platkit.settle._still.trend_test takes them (to
+    rounding); None without the kernel."""
+    kernels = fits_function()
+    if isinstance(kernels, str):
+        return None
+    X = np.ascontiguousarray(markers, dtype=float)
+    T = np.ascontiguousarray(t, dtype=float)
+    stat, dof, vmax = ctypes.c_double(), ctypes.c_double(), ctypes.c_double()
+    if kernels.trend(X.shape[0], X.shape[1], T.ctypes.data, X.ctypes.data, float(sigma2), ctypes.addressof(stat),
+                     ctypes.addressof(dof), ctypes.addressof(vmax)):
+        raise MemoryError("the compiled trend test ran out of memory")
+    return stat.value, int(dof.value), vmax.value
 
 
 def still_statistics(markers: np.ndarray, n: int, sigma2: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

@@ -7,7 +7,7 @@ import functools
 import numpy as np
 from scipy.special import chdtrc, gammaincinv
 
-from platkit.settle._native import halves, still_statistics
+from platkit.settle._native import halves, still_statistics, trend_statistic
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6
@@ -210,9 +210,14 @@ def approach_start(markers: np.ndarray, n: int, sigma: float,
     return k_peak if below.size == 0 else k_peak + int(below[0])
 
 
-def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float) -> tuple[float, float]:
+def trend_test(t: np.ndarray, markers: np.ndarray, sigma: float, compiled: bool = True) -> tuple[float, float]:
     """Regression on time over a whole window: (p-value of "no trend", largest speed in m/s).
-    Chi-square of the slopes of every seen marker coordinate (3 per marker)."""
+    Chi-square of the slopes of every seen marker coordinate (3 per marker). The compiled kernel
+    (platkit.settle._native.trend_statistic, the same sums to rounding) where it is available
+    and ``compiled`` is true."""
+    got = trend_statistic(t, markers, sigma**2) if compiled else None
+    if got is not None:
+        return (1.0, 0.0) if got[1] == 0 else (float(chdtrc(got[1], got[0])), got[2])
     ok = np.isfinite(markers).all(axis=2)
     stat, dof, vmax = 0.0, 0, 0.0
     for m in range(markers.shape[1]):

@@ -490,3 +490,57 @@ int pk_settle_still(long long K, int M, int n, const double *X, double sigma2, d
     free(z);
     return code;
 }
+
+/* The trend test of a window (platkit.settle._still.trend_test): t (K) times, X (K, 3 M)
+   markers (NaN: occluded); per marker seen in at least 4 samples whose times spread, the
+   regression of each coordinate on time over those samples: *stat the chi-square of the slopes
+   against sigma2 (sum of slope^2 sxx / sigma2), *dof 3 per such marker, *vmax the largest speed
+   |slope|. The means and the sum of squares of the times are numpy's (pairwise) sums; the
+   products with the markers are summed in sample order (numpy's are BLAS's): the statistic
+   agrees to rounding. Returns 0, or -1 when out of memory. */
+int pk_settle_trend(long long K, int M, const double *t, const double *X, double sigma2, double *stat, double *dof,
+                    double *vmax)
+{
+    double *tt = malloc(sizeof(double) * (size_t)(K > 0 ? 4 * K : 1));
+    if (!tt) return -1;
+    double *xs = tt + K;
+    *stat = 0.0;
+    *dof = 0.0;
+    *vmax = 0.0;
+    for (int m = 0; m < M; m++) {
+        long long n = 0;
+        for (long long k = 0; k < K; k++) {
+            const double *x = X + k * 3 * M + 3 * m;
+            if (isfinite(x[0]) && isfinite(x[1]) && isfinite(x[2])) {
+                tt[n] = t[k];
+                for (int c = 0; c < 3; c++) xs[c * K + n] = x[c];
+                n++;
+            }
+        }
+        if (n < 4) continue;
+        const double tm = np_pairwise(tt, n) / (double)n;
+        for (long long i = 0; i < n; i++) tt[i] -= tm;
+        double sxx = 0.0, slope[3];
+        {
+            double *sq = malloc(sizeof(double) * (size_t)n);
+            if (!sq) { free(tt); return -1; }
+            for (long long i = 0; i < n; i++) sq[i] = tt[i] * tt[i];
+            sxx = np_pairwise(sq, n);
+            free(sq);
+        }
+        if (!(sxx > 0)) continue;
+        for (int c = 0; c < 3; c++) {
+            const double *col = xs + c * K;
+            const double mean = np_pairwise(col, n) / (double)n;
+            double acc = 0.0;
+            for (long long i = 0; i < n; i++) acc += tt[i] * (col[i] - mean);
+            slope[c] = acc / sxx;
+        }
+        *stat += (slope[0] * slope[0] + slope[1] * slope[1] + slope[2] * slope[2]) * sxx / sigma2;
+        *dof += 3.0;
+        const double v = sqrt(slope[0] * slope[0] + slope[1] * slope[1] + slope[2] * slope[2]);
+        *vmax = v > *vmax ? v : *vmax;
+    }
+    free(tt);
+    return 0;
+}

@@ -163,3 +163,18 @@ def test_the_compiled_still_test_is_numpys_bit_for_bit(cache, n_markers):
             np.testing.assert_array_equal(still_mask(stretch, n, sigma, 1e-3),
                                           still_mask(stretch, n, sigma, 1e-3, compiled=False))
             assert approach_start(stretch, n, sigma) == approach_start(stretch, n, sigma, compiled=False)
+
+
+def test_the_compiled_trend_test_is_numpys_to_rounding(cache):
+    from platkit.settle._still import trend_test
+
+    rng = np.random.default_rng(2805)
+    for n_markers in (1, 5, 9):
+        for K in (3, 5, 40, 700):
+            for speed in (0.0, 1e-4, 1e-2):
+                t = 10 + np.arange(K) / 200.0
+                X = rng.normal(size=(K, n_markers, 3)) * 1e-4 + speed * t[:, None, None]
+                X[rng.random((K, n_markers)) < 0.1] = np.nan
+                (p, v), (p0, v0) = trend_test(t, X, 1e-4), trend_test(t, X, 1e-4, compiled=False)
+                assert p == pytest.approx(p0, rel=1e-9, abs=1e-300) and v == pytest.approx(v0, rel=1e-9, abs=1e-300)
+                assert (speed >= 1e-2 and K >= 40) <= (p0 < 1e-6)  # the test sees a clear trend
