@@ -39,6 +39,7 @@ from platkit.calibrate.estimate import calibrate, predict_markers
 from platkit.calibrate.excitation import MotionInformation, design_excitation
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.plan import default_marker_layout, feasible
+from platkit.calibrate.sweeps import design_sweep
 from platkit.calibrate.trajectories import FourierFamily, drive_limits, limit_violations, trajectory
 from platkit.calibrate.via_points import design_via, via_trajectory
 from platkit.errors import PlatkitError
@@ -108,12 +109,18 @@ class Swept:
         accel = LIMIT_SHARE * (hi - lo) / RANGES["stroke_time_s"][1] / RANGES["accel_time_s"][1]
         self.spec, self.limits, self.seed, self.random = spec, drive_limits(spec, rate, accel, MARGIN), design_seed, random
         self.markers = default_marker_layout(spec, 5, np.random.default_rng(0))
+        self.information = None if random else MotionInformation(spec, self.markers)
 
     def commands(self, duration_s: float) -> tuple[np.ndarray, dict]:
-        d = design_via(self.spec, self.limits, self.markers, duration_s, COMMAND_RATE_HZ,
-                       np.random.default_rng(self.seed), d_optimal_choice=not self.random)
-        U, _ = via_trajectory(d.path, self.limits, COMMAND_RATE_HZ)
-        return U, {**limit_violations(U, COMMAND_RATE_HZ, self.limits), **d.info}
+        if self.random:  # random candidates in the whole box
+            d = design_via(self.spec, self.limits, self.markers, duration_s, COMMAND_RATE_HZ,
+                           np.random.default_rng(self.seed), d_optimal_choice=False)
+            U, scale = via_trajectory(d.path, self.limits, COMMAND_RATE_HZ)[0], 1.0
+        else:  # plan --motion --family via's choice (platkit.calibrate.sweeps.design_sweep)
+            chosen, _ = design_sweep(self.spec, self.limits, self.information, duration_s, COMMAND_RATE_HZ, 100.0, 1.0,
+                                     2e-4, self.seed)
+            d, U, scale = chosen.design, chosen.U, chosen.scale
+        return U, {**limit_violations(U, COMMAND_RATE_HZ, self.limits), **d.info, "box_share": scale}
 
 
 def stroke_share(spec, U) -> float:
@@ -166,7 +173,8 @@ def main() -> None:
                     Um, used = swept[m].commands(duration / 3) if m in swept else designed.commands(duration / 3)
                     stream = simulate_physics(spec, seed=seed, motion=Um, command_rate_hz=COMMAND_RATE_HZ,
                                               mocap_rate_hz=100.0)
-                    vias = f" ({used['via_points']} via points)" if m in swept else ""
+                    vias = (f" ({used['via_points']} {used['choice']} via points in {used['box_share']:.0%} of the box)"
+                            if m in swept else "")
                     notes.append(f"{m} {len(Um)} commands{vias}, {used['rate_share']:.2f}/{used['accel_share']:.2f} of "
                                  f"its rate/accel limits, {stream.plan_info['drive_rate_share']:.2f}/"
                                  f"{stream.plan_info['drive_accel_share']:.2f} of the drawn drives'"

@@ -1,7 +1,6 @@
-"""Excitation trajectories for calibration from motion: D-optimal over a Fourier family, or
-via-point sweeps (:mod:`platkit.calibrate.via_points`: D-optimal settled poses joined by
-time-optimal moves, ``family='via'``), within the drives' limits, and how long a session must be
-for a target accuracy. The information and the prediction below serve both families.
+"""Excitation trajectories for calibration from motion: D-optimal over a Fourier family within
+the drives' limits, and how long a session must be for a target accuracy. The information and
+the prediction below serve the via-point sweeps too (:mod:`platkit.calibrate.sweeps`).
 
 The family (as in dynamic identification): each actuator j follows a periodic Fourier series of
 base frequency f0 = 1 / ``period_s`` with H harmonics,
@@ -67,10 +66,8 @@ from platkit.calibrate.trajectories import (
     FourierFamily,
     Limits,
     Scaler,
-    limit_violations,
     trajectory,
 )
-from platkit.calibrate.via_points import design_via, via_trajectory
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec, controls_from_si
@@ -78,11 +75,7 @@ from platkit.poses import PoseSet
 
 __all__ = ["MotionInformation", "ExcitationDesign", "ExcitationPlan", "design_excitation", "samples_fitted",
            "session_length_for", "predict_trajectory", "trajectory_information", "plan_excitation",
-           "write_commands_csv", "FAMILIES"]
-
-#: the trajectory families of ``plan --motion``: a Fourier series per control (D-optimal
-#: coefficients), or via-point sweeps (:mod:`platkit.calibrate.via_points`)
-FAMILIES = ("fourier", "via")
+           "write_commands_csv"]
 
 #: the information a stream gives is counted from its slow part: in each window of SLOW_WINDOW_S,
 #: what polynomials of degree SLOW_DEGREE in time fit (the motion, not the commands' transients
@@ -388,10 +381,9 @@ def trajectory_information(information: MotionInformation, U: np.ndarray, comman
 def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harmonics: int, command_rate_hz: float,
                     mocap_rate_hz: float, sigma_m: float, markers: np.ndarray, rng: np.random.Generator,
                     duration_s: float | None = None, target_m: float | None = None, evaluations: int = 200,
-                    seen: float = 1.0, progress: Callable[[int, int, float], None] | None = None,
-                    family: str = "via") -> ExcitationPlan:
-    """Design the excitation of ``family`` ('via': :func:`_plan_via`, via-point sweeps; 'fourier':
-    :func:`design_excitation`, described here) and the session: ``duration_s`` as given,
+                    seen: float = 1.0, progress: Callable[[int, int, float], None] | None = None) -> ExcitationPlan:
+    """Design the Fourier family's excitation (:func:`design_excitation`; the via-point family's:
+    :func:`platkit.calibrate.sweeps.plan_sweep`) and the session: ``duration_s`` as given,
     else the shortest that meets ``target_m`` (:func:`session_length_for`, then lengthened until the
     whole trajectory's prediction meets it), at least 1.25 periods. The report holds the limits,
     the family and its coefficients, the D-criterion of the design and of the random multisine it
@@ -408,11 +400,6 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
         raise BadInput(f"duration_s: must be a positive number of seconds, got {duration_s:g}")
     if duration_s is not None and duration_s > LONGEST_S:
         raise BadInput(f"duration_s: {duration_s:g} s, at most {LONGEST_S:g} s")
-    if family not in FAMILIES:
-        raise BadInput(f"family: one of {', '.join(FAMILIES)}, got {family!r}")
-    if family == "via":
-        return _plan_via(spec, limits, command_rate_hz=command_rate_hz, mocap_rate_hz=mocap_rate_hz, sigma_m=sigma_m,
-                         markers=markers, rng=rng, duration_s=duration_s, target_m=target_m, seen=seen)
     series = FourierFamily(period_s, harmonics, spec.n_u)
     if harmonics / period_s > 0.25 * command_rate_hz:
         raise BadInput(f"harmonics: {harmonics} of a {period_s:g} s period reach {harmonics / period_s:g} Hz, over a "
@@ -474,84 +461,6 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
                             "duration_s": report["duration_s"], **({} if length is None else {
                                 "samples_needed": length["samples"]})}
     return ExcitationPlan(t, U, report)
-
-
-def _plan_via(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mocap_rate_hz: float, sigma_m: float,
-              markers: np.ndarray, rng: np.random.Generator, duration_s: float | None, target_m: float | None,
-              seen: float) -> ExcitationPlan:
-    """:func:`plan_excitation` of the via-point family (:mod:`platkit.calibrate.via_points`): the
-    sweep of ``duration_s`` s at most, else redesigned at the length the target needs (from the
-    information per sample of the sweep before) until its prediction meets it; beside it a sweep
-    through random candidates of the same duration and limits."""
-    information = MotionInformation(spec, markers)
-    model, td = information.model, information.td
-    seed = int(rng.integers(2 ** 31))
-
-    def sweep(duration: float, d_optimal_choice: bool = True):
-        design = design_via(spec, limits, markers, duration, command_rate_hz, np.random.default_rng(seed), model, td,
-                            d_optimal_choice)
-        U, _ = via_trajectory(design.path, limits, command_rate_hz)
-        return design, U, len(U) / command_rate_hz
-
-    duration = float(duration_s) if duration_s is not None else 60.0
-    length: dict | None = None
-    for _ in range(8):
-        try:
-            design, U, actual = sweep(duration)
-        except NotIdentifiable:  # for a target, a session too short for a sweep is lengthened
-            if duration_s is not None or duration >= LONGEST_S:
-                raise
-            duration = min(LONGEST_S, 2 * duration)
-            continue
-        info, n_fit = trajectory_information(information, U, command_rate_hz, actual, mocap_rate_hz, seen)
-        pred = information.prediction(info, n_fit, sigma_m)
-        if duration_s is not None or target_m is None or (pred["identifiable"] and pred["marker_rms_p90_m"] <= target_m):
-            break
-        length = session_length_for(information, info, target_m, sigma_m, mocap_rate_hz, seen, 1.0 / command_rate_hz)
-        duration = min(LONGEST_S, max(duration * 1.1, length["duration_s"]))
-    if not pred["identifiable"]:
-        raise NotIdentifiable(f"{spec.name}: the via-point sweep does not identify the parameters (the information "
-                              "stays singular); a longer session")
-    random_design, U_random, _ = sweep(actual, d_optimal_choice=False)
-    info_random, _ = trajectory_information(information, U_random, command_rate_hz, actual, mocap_rate_hz, seen)
-    pred_random = information.prediction(info_random, n_fit, sigma_m)
-    checked = limit_violations(U, command_rate_hz, limits)
-    report = {
-        "kind": "excitation",
-        "family": {"name": "via", **design.info, "random_via_points": random_design.info["via_points"],
-                   "path": design.path.tolist(),
-                   "rule": "via points D-optimal over reachable settled poses inside the box (as plan --optimal "
-                           "chooses holds), visited in nearest-neighbour order from the neutral controls and back, "
-                           "joined by straight moves in control space on one trapezoidal profile per move at the "
-                           "largest rate and acceleration every actuator's limits allow; no holds"},
-        "limits": {"lower": limits.lower.tolist(), "upper": limits.upper.tolist(), "rate": limits.rate.tolist(),
-                   "accel": limits.accel.tolist(), "source": limits.source,
-                   "units": "controls' internal units (m for length controls), per s and per s^2"},
-        "command_rate_hz": float(command_rate_hz), "duration_s": float(actual), "n_commands": int(len(U)),
-        "stroke_share": (np.ptp(U, axis=0) / (limits.upper - limits.lower)).tolist(),
-        "checked": {k: checked[k] for k in ("box", "rate", "accel", "rate_share", "accel_share")},
-        "design": {"criterion": information.criterion(info), "criterion_random": information.criterion(info_random),
-                   "logdet_per_sample": pred["logdet_per_sample"],
-                   "logdet_per_sample_random": pred_random["logdet_per_sample"],
-                   "rule": "the via points: log det of the settled poses' information (plan --optimal's); the "
-                           f"criterion said: the stream's, as the Fourier family's (log det plus {RESPONSE_WEIGHT:g} "
-                           "times the response's information left after the geometry's)"},
-        "prediction": {"noise_m": float(sigma_m), "mocap_rate_hz": float(mocap_rate_hz), "seen": float(seen),
-                       "samples_fitted": int(n_fit), "marker_rms_m": pred["marker_rms_m"],
-                       "marker_rms_p90_m": pred["marker_rms_p90_m"],
-                       "marker_rms_m_random": pred_random.get("marker_rms_m"),
-                       "marker_rms_p90_m_random": pred_random.get("marker_rms_p90_m"),
-                       "random": "a sweep through random reachable candidates, the same duration and limits",
-                       "identifiable_rank": int(information.rank), "n_parameters": int(information.n_parameters),
-                       "parameter_std": pred["parameter_std"],
-                       "definition": "3-D RMS over the stand's reference poses and the markers of the standard deviation "
-                                     "of the calibrated model's marker positions, white marker noise per coordinate and "
-                                     "sample, every sample calibrate fits; p90: the 90th percentile over sessions"},
-    }
-    if target_m is not None:
-        report["target"] = {"target_m": float(target_m), "met": bool(pred["marker_rms_p90_m"] <= target_m),
-                            "duration_s": float(actual), **({} if length is None else {"samples_needed": length["samples"]})}
-    return ExcitationPlan(np.arange(len(U)) / command_rate_hz, U, report)
 
 
 def write_commands_csv(path, spec: PlatformSpec, t: np.ndarray, U: np.ndarray, length_unit: str) -> None:

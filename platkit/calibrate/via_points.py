@@ -15,8 +15,9 @@ sampled profile is the mean of its speed over the interval and the second the me
 acceleration over two, so sampling keeps every command within the limits the profile keeps.
 
 The number of via points is the largest whose tour (out from the neutral controls, through every
-point, back to them) fits the session; a session longer than a tour of MAX_VIAS points repeats
-that tour, back and forth. A move whose straight line leaves the reachable workspace goes through
+point, back to them) fits the session; a session longer than a tour of MAX_VIAS points goes
+back and forth over that tour (every move one of the tour's) while the next point and the way
+back to neutral fit. A move whose straight line leaves the reachable workspace goes through
 the neutral controls instead (counted); every command is checked reachable and within the box,
 rate and acceleration (:func:`platkit.calibrate.trajectories.limit_violations`).
 """
@@ -151,6 +152,34 @@ def _repair(spec: PlatformSpec, path: np.ndarray, limits: Limits, command_rate_h
     return np.vstack(out), detours
 
 
+def _fill(spec: PlatformSpec, tour: np.ndarray, limits: Limits, duration_s: float, command_rate_hz: float, model, td,
+          u0: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """(path, tours, detours of the way back): from the neutral controls over the tour's points
+    (``tour``: neutral, points, neutral; its moves reachable) forth and back, every move one of the
+    tour's, while the next point and the way back to neutral from it fit in ``duration_s``; then
+    back to neutral (through it detoured where the straight way leaves the workspace)."""
+    pts = tour[1:-1]
+    k = len(pts)
+    order = np.concatenate([np.arange(k), np.arange(k - 2, 0, -1)]) if k > 1 else np.zeros(1, int)
+    out, t, i = [u0], 0.0, 0
+    while True:
+        p = pts[order[i % len(order)]]
+        step = move_duration(p - out[-1], limits.rate, limits.accel)[0]
+        back = move_duration(u0 - p, limits.rate, limits.accel)[0]
+        if t + step + back > duration_s:
+            break
+        out.append(p)
+        t += step
+        i += 1
+    while True:
+        last, detours = _repair(spec, np.vstack([out[-1], u0]), limits, command_rate_hz, model, td, u0)
+        path = np.vstack(out[:-1] + list(last))
+        if tour_duration(path, limits) <= duration_s or len(out) <= 2:
+            return path, i / max(k, 1), detours
+        out.pop()
+        i -= 1
+
+
 _RANKED: dict = {}
 
 
@@ -183,6 +212,12 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
     u0 = spec.neutral_u()
     n_cand = max(MIN_CANDIDATES, CANDIDATES_PER_VIA * MAX_VIAS)
     U_c, P_c, drawn = _candidates(spec, limits, n_cand, rng, model, td)
+    near = U_c[np.argsort([move_duration(u - u0, limits.rate, limits.accel)[0] for u in U_c])[:MIN_VIAS]]
+    shortest = _tour(spec, near, u0)
+    if tour_duration(shortest, limits) > duration_s:  # not even the candidates nearest neutral fit
+        raise NotIdentifiable(f"{spec.name}: a sweep through {MIN_VIAS} via points and back takes at least "
+                              f"{tour_duration(shortest, limits):.1f} s within the rate and acceleration limits, over "
+                              f"the {duration_s:g} s session; a longer session")
     if d_optimal_choice:  # the D-optimal set of MAX_VIAS; a shorter sweep takes a D-optimal subset of it
         ranked, J_ranked = _ranked(spec, U_c, P_c, markers, td, model)
     else:
@@ -210,17 +245,15 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
             lo_k, best, detours = mid, p, d
         else:
             hi_k = mid
-    path, tours = best, 1
-    if lo_k == MAX_VIAS:  # repeat the tour back and forth while a whole one fits
-        tours = max(1, int(duration_s // tour_duration(best, limits)))
-        legs = [best if i % 2 == 0 else best[::-1] for i in range(tours)]
-        path = np.vstack([legs[0]] + [leg[1:] for leg in legs[1:]])
-        detours *= tours
+    path, tours = best, 1.0
+    if lo_k == MAX_VIAS:  # a longer session goes back and forth over the tour
+        path, tours, back = _fill(spec, best, limits, duration_s, command_rate_hz, model, td, u0)
+        detours = int(round(detours * tours)) + back
     U, _ = via_trajectory(path, limits, command_rate_hz)
     bad = limit_violations(U, command_rate_hz, limits)
     if bad["box"] or bad["rate"] or bad["accel"]:  # the profile keeps them by construction: a bug if not
         raise NotIdentifiable(f"{spec.name}: the via-point sweep breaks its limits ({bad})")
     vias = best[1:-1][np.any(best[1:-1] != u0, axis=1)]
     return ViaDesign(vias, path, {"candidates": int(len(U_c)), "candidates_drawn": int(drawn),
-                                  "via_points": int(len(vias)), "tours": int(tours), "detours": int(detours),
+                                  "via_points": int(len(vias)), "tours": round(float(tours), 3), "detours": int(detours),
                                   "choice": "d_optimal" if d_optimal_choice else "random"})

@@ -147,6 +147,7 @@ def run_motion(args) -> int:
     the session's commands.csv, its report (<out stem>.json) beside it."""
     from platkit.calibrate import excitation as ex
     from platkit.calibrate import plan as pl
+    from platkit.calibrate import sweeps as sw
     from platkit.calibrate import trajectories as tr
     from platkit.io import jsonout
     from platkit.io.atomic import atomic_output_dir, check_output_file
@@ -160,8 +161,8 @@ def run_motion(args) -> int:
     _check_shared(args)
     if args.target_mm is not None and not args.target_mm > 0:
         raise BadInput(f"--target-mm must be positive, got {args.target_mm:g}")
-    if args.family is not None and args.family not in ex.FAMILIES:
-        raise BadInput(f"--family: one of {', '.join(ex.FAMILIES)}, got {args.family!r}")
+    if args.family is not None and args.family not in sw.FAMILIES:
+        raise BadInput(f"--family: one of {', '.join(sw.FAMILIES)}, got {args.family!r}")
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         raise BadInput(f"--out {out}: expected a .csv file name (the session's commands.csv)")
@@ -189,12 +190,17 @@ def run_motion(args) -> int:
         raise
     markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))
     progress = None if args.quiet else _design_progress()
-    result = ex.plan_excitation(spec, limits, period_s=args.period_s, harmonics=args.harmonics,
-                                command_rate_hz=args.command_rate_hz, mocap_rate_hz=args.rate_hz,
-                                sigma_m=args.noise_mm * 1e-3, markers=markers, rng=np.random.default_rng(args.seed),
-                                duration_s=args.duration_s,
-                                target_m=None if args.target_mm is None else args.target_mm * 1e-3,
-                                evaluations=args.evaluations, progress=progress, family=args.family or "via")
+    target_m = None if args.target_mm is None else args.target_mm * 1e-3
+    if (args.family or "via") == "via":
+        result = sw.plan_sweep(spec, limits, command_rate_hz=args.command_rate_hz, mocap_rate_hz=args.rate_hz,
+                               sigma_m=args.noise_mm * 1e-3, markers=markers, rng=np.random.default_rng(args.seed),
+                               duration_s=args.duration_s, target_m=target_m, seen=1.0)
+    else:
+        result = ex.plan_excitation(spec, limits, period_s=args.period_s, harmonics=args.harmonics,
+                                    command_rate_hz=args.command_rate_hz, mocap_rate_hz=args.rate_hz,
+                                    sigma_m=args.noise_mm * 1e-3, markers=markers,
+                                    rng=np.random.default_rng(args.seed), duration_s=args.duration_s,
+                                    target_m=target_m, evaluations=args.evaluations, progress=progress)
     report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, "markers": args.markers,
               "marker_layout_m": markers.tolist(), "seed": args.seed, **result.report,
               "warnings": said()}  # every warning said while the verb ran (platkit.notices), on stderr too
@@ -207,11 +213,17 @@ def run_motion(args) -> int:
           f"and {out.with_suffix('.json')}")
     fam = r["family"]
     if fam["name"] == "via":
-        other = "a sweep through random via points"
-        print(f"excitation: a sweep through {fam['via_points']} D-optimal via points ({fam['tours']} tour(s), "
+        mine, theirs = ("D-optimal", "random") if fam["choice"] == "d_optimal" else ("random", "D-optimal")
+        other = f"a sweep through {theirs} via points"
+        if fam["choice"] != "d_optimal":  # the random sweep predicts better: written, the D-optimal one said beside it
+            p = {**p, "marker_rms_m_random": p["marker_rms_m_d_optimal"],
+                 "marker_rms_p90_m_random": p["marker_rms_p90_m_d_optimal"]}
+        print(f"excitation: a sweep through {fam['via_points']} {mine} via points in {fam['box_share']:.0%} of the box "
+              f"({fam['tours']:g} tour(s), "
               f"{fam['detours']} move(s) through neutral), {min(r['stroke_share']):.0%} of each stroke at least; rate "
               f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at "
-              f"most; criterion {r['design']['criterion_random']:.2f} (random via points) -> {r['design']['criterion']:.2f}")
+              f"most; criterion {r['design']['criterion_random']:.2f} (random via points), "
+              f"{r['design']['criterion_d_optimal']:.2f} (D-optimal)")
     else:
         other = "a random multisine"
         print(f"excitation: period {fam['period_s']:g} s, {fam['harmonics']} harmonics; rate "

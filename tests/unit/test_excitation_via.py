@@ -6,6 +6,8 @@ import json
 import numpy as np
 import pytest
 
+from platkit.calibrate import excitation as ex
+from platkit.calibrate import sweeps as sw
 from platkit.calibrate import trajectories as tr
 from platkit.calibrate import via_points as vp
 from platkit.calibrate.plan import _Subspace, default_marker_layout, feasible, identification_jacobian
@@ -123,13 +125,28 @@ def test_a_long_session_repeats_the_tour(stewart, limits, markers):
     d = vp.design_via(stewart, fast, markers, 150.0, RATE_HZ, np.random.default_rng(2))
     assert d.info["via_points"] == vp.MAX_VIAS and d.info["tours"] >= 2
     U, _ = vp.via_trajectory(d.path, fast, RATE_HZ)
-    assert len(U) / RATE_HZ <= 150.0 + 1 / RATE_HZ
+    assert 140.0 < len(U) / RATE_HZ <= 150.0 + 1 / RATE_HZ  # the session filled, not cut at a whole tour
     within_limits(stewart, U, fast)
 
 
 def test_a_session_too_short_for_a_sweep_is_refused(stewart, limits, markers):
     with pytest.raises(NotIdentifiable, match="a longer session"):
-        vp.design_via(stewart, limits, markers, 3.0, RATE_HZ, np.random.default_rng(1))
+        vp.design_via(stewart, limits, markers, 1.0, RATE_HZ, np.random.default_rng(1))
+
+
+def test_slow_drives_sweep_a_smaller_box(stewart, markers, monkeypatch):
+    # at 50 mm/s two via points fit a minute in the whole box; a box a third as wide fits more
+    slow = tr.drive_limits(stewart, 0.05, 0.2, 0.1)
+    information = ex.MotionInformation(stewart, markers)
+    monkeypatch.setattr(sw, "VIA_SCALES", (1.0, 0.35))
+    chosen, other = sw.design_sweep(stewart, slow, information, 60.0, RATE_HZ, 100.0, 1.0, 1e-4, 0)
+    assert chosen.scale == 0.35 and chosen.design.info["via_points"] > 2
+    monkeypatch.setattr(sw, "VIA_SCALES", (1.0,))
+    whole, _ = sw.design_sweep(stewart, slow, information, 60.0, RATE_HZ, 100.0, 1.0, 1e-4, 0)
+    assert chosen.p90 < 0.2 * whole.p90  # the prediction chose it
+    assert chosen.p90 <= other.p90
+    within_limits(stewart, chosen.U, slow)
+    assert len(chosen.U) / RATE_HZ <= 60.0 + 1 / RATE_HZ
 
 
 def test_plan_motion_family_via_writes_commands_and_report(tmp_path, capsys):
@@ -167,7 +184,7 @@ def test_plan_motion_family_via_for_a_target(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args, code, said", [
-    (["--motion", "--family", "via", "--max-rate", "200", "--max-accel", "500", "--duration-s", "3"], 1,
+    (["--motion", "--family", "via", "--max-rate", "200", "--max-accel", "500", "--duration-s", "1"], 1,
      "a longer session"),
     (["--motion", "--family", "spline", "--max-rate", "200", "--max-accel", "500", "--duration-s", "30"], 2,
      "--family"),
