@@ -5,7 +5,7 @@ import sys
 from pathlib import Path
 
 from platkit.commands.common import add_platform_options, parse_vector, platform_from_args
-from platkit.errors import BadInput
+from platkit.errors import BadInput, NotIdentifiable
 from platkit.notices import said
 
 #: the additive simulator's defaults for the nuisances --physics draws per session
@@ -62,7 +62,9 @@ def add_parser(sub):
                    help="how far the true stand lies from the description: SCALE times 2 mm, 2 mrad (0.1%% of other "
                         "values) per parameter, drawn from the seed (default 1); 0: the description is the true stand")
     p.add_argument("--poses", type=int, default=80, help="number of commands (default 80)")
-    p.add_argument("--plan", default="grid", help="grid (snake-ordered grid), random, or a plan.csv file (default grid)")
+    p.add_argument("--plan", default=None,
+                   help="grid (snake-ordered grid), random, or a plan.csv file (default grid; random poses, said, "
+                        "where the stand has no grid of --poses reachable poses, as with a tree's many joints)")
     p.add_argument("--physics", action="store_true",
                    help="simulate the stand's physics in time (platkit.simulate.physics) instead of adding model "
                         "terms; writes truth_settled.csv, the true settled pose of every command")
@@ -161,7 +163,7 @@ def run(args) -> int:
         raise BadInput(f"--latency-s must be 0 or more, got {args.latency_s:g}")
     spec = platform_from_args(args)
     plan = args.plan
-    if plan not in ("grid", "random"):
+    if plan not in (None, "grid", "random"):
         if not Path(plan).exists():
             raise BadInput(f"--plan: {plan}: file not found (give grid, random or a plan CSV file)")
         if not Path(plan).is_file():
@@ -180,12 +182,12 @@ def run(args) -> int:
     if imu_effects and not args.imu:
         raise BadInput(f"--effect {imu_effects[0][0].name}: an IMU effect needs --imu")
     imu = imu_hook(args, imu_effects)
-    sim = simulate(spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm,
-                   occlusion=args.occlusion, n_markers=args.markers, raw=not args.poses_only, effects=effects,
-                   mocap_rate_hz=args.rate_hz, hold_s=args.hold_s, length_unit=args.unit,
-                   description=None if args.description is None else Path(args.description).name,
-                   n_base_markers=args.base_markers, imu=imu, perturbation=args.perturbation,
-                   n_bodies=args.rigid_bodies)
+    sim = planned(plan, lambda plan: simulate(
+        spec, seed=args.seed, n_poses=args.poses, plan=plan, noise_mm=args.noise_mm, occlusion=args.occlusion,
+        n_markers=args.markers, raw=not args.poses_only, effects=effects, mocap_rate_hz=args.rate_hz,
+        hold_s=args.hold_s, length_unit=args.unit,
+        description=None if args.description is None else Path(args.description).name,
+        n_base_markers=args.base_markers, imu=imu, perturbation=args.perturbation, n_bodies=args.rigid_bodies))
     out = write_session(sim, args.out, poses_only=args.poses_only, description=args.description,
                         moving_link=getattr(args, "moving_link", None), base_link=getattr(args, "base_link", None),
                         notes=notes_with_warnings(f"simulated by platkit (seed {sim.truth.seed}); the true stand is in "
@@ -202,6 +204,21 @@ def run(args) -> int:
     for e, theta in imu_effects:
         print(f"  hidden IMU effect {e.name}: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(e.parameter_names, theta)))
     return 0
+
+
+def planned(plan, simulate_with):
+    """``simulate_with(plan)`` with the --plan given; without one, the grid, or, where the stand
+    has no grid of enough reachable poses (a tree's many joints: even two values per joint are
+    too many points), random poses, said on stderr."""
+    if plan is not None:
+        return simulate_with(plan)
+    try:
+        return simulate_with("grid")
+    except NotIdentifiable as exc:
+        if "grid" not in str(exc):
+            raise
+        print(f"simulate: {exc}: random poses instead (--plan random)", file=sys.stderr, flush=True)
+        return simulate_with("random")
 
 
 def notes_with_warnings(notes: str) -> str:
@@ -242,14 +259,14 @@ def run_physics(args, spec, plan, effects) -> int:
     """``platkit simulate --physics``: the time-domain stand, written with its truth."""
     from platkit.simulate.physics import simulate_physics, write_physical_session
 
-    sim = simulate_physics(spec, seed=args.seed, n_poses=args.poses, plan=plan, effects=effects,
-                           n_markers=args.markers, n_base_markers=args.base_markers, mocap_rate_hz=args.rate_hz,
-                           length_unit=args.unit, hold_s=args.hold_s, noise_mm=args.noise_mm,
-                           occlusion=args.occlusion, latency_s=args.latency_s, clock_offset_s=args.clock_offset_s,
-                           coloured=not args.white_noise, overshoot=args.overshoot, imu=imu_options(args),
-                           perturbation=args.perturbation, warmup=args.warmup,
-                           description=None if args.description is None else Path(args.description).name,
-                           **motion_options(args, spec))
+    motion = motion_options(args, spec)
+    sim = planned(plan, lambda plan: simulate_physics(
+        spec, seed=args.seed, n_poses=args.poses, plan=plan, effects=effects, n_markers=args.markers,
+        n_base_markers=args.base_markers, mocap_rate_hz=args.rate_hz, length_unit=args.unit, hold_s=args.hold_s,
+        noise_mm=args.noise_mm, occlusion=args.occlusion, latency_s=args.latency_s,
+        clock_offset_s=args.clock_offset_s, coloured=not args.white_noise, overshoot=args.overshoot,
+        imu=imu_options(args), perturbation=args.perturbation, warmup=args.warmup,
+        description=None if args.description is None else Path(args.description).name, **motion))
     out = write_physical_session(sim, args.out, description=args.description,
                                  moving_link=getattr(args, "moving_link", None),
                                  base_link=getattr(args, "base_link", None),

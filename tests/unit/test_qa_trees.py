@@ -107,3 +107,21 @@ def test_a_joint_below_recorded_ones_left_out_of_commands_is_said_in_every_repor
     full = _session(tmp_path / "full", n=24)
     assert main(["calibrate", str(full), "--quiet", "--no-report", "--no-selection", "--out", str(tmp_path / "c2")]) == 0
     assert "not recorded" not in capsys.readouterr().err
+
+
+def test_simulate_a_humanoid_without_plan_takes_random_poses_and_says_so(tmp_path, capsys):
+    """PAL's Talos (example-robot-data, not written here): 32 recorded joints, too many for even a
+    grid of two values each; simulate's default plan was refused ("no grid with 5 reachable
+    points"), now random poses, said on stderr. An explicit --plan grid is still refused."""
+    from importlib import metadata
+
+    urdf = metadata.distribution("example-robot-data").locate_file(
+        "cmeel.prefix/share/example-robot-data/robots/talos_data/robots/talos_reduced.urdf")
+    base = ["simulate", "--platform", "urdf", "--description", str(urdf), "--moving-link",
+            "gripper_left_base_link,gripper_right_base_link", "--poses-only", "--poses", "5", "--seed", "3"]
+    assert main(base + ["--out", str(tmp_path / "s")]) == 0
+    err = capsys.readouterr().err
+    assert "no grid with 5 reachable points" in err and "random poses instead (--plan random)" in err
+    assert len((tmp_path / "s" / "poses.csv").read_text().splitlines()) == 6
+    assert main(base + ["--plan", "grid", "--out", str(tmp_path / "g")]) == 1
+    assert not (tmp_path / "g").exists() or not any((tmp_path / "g").iterdir())
