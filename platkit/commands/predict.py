@@ -28,6 +28,7 @@ def run(args) -> int:
 
     check_output_file(args.out)
     res = predict_file(args.calibration, args.commands, args.out, at_time=args.at_time, warm=args.warm)
+    say_joint_columns_ignored(args.calibration, args.commands)
     if res["failed"]:
         warn(f"{res['failed']} of {res['rows']} rows have no forward-kinematics solution; "
              "their predicted cells are empty")
@@ -37,3 +38,33 @@ def run(args) -> int:
         print(f"thermal state: {res['thermal']}")
     print(f"wrote {res['rows']} rows to {res['out']}")
     return 0
+
+
+def say_joint_columns_ignored(calibration, commands) -> None:
+    """A URDF stand's commands file may carry other columns (predict reads the controls and t),
+    but a column naming a moving joint of the URDF that is not a control is read by nobody: a
+    mimic joint (it follows its master) or a joint the calibration does not record (held at
+    zero, as in the fit). Said, one warning per kind, so that no one believes the value was used."""
+    from pathlib import Path
+
+    from platkit.io.calibration import read_calibration
+    from platkit.io.table import _read_header
+
+    spec = read_calibration(calibration).spec  # the stand is cached: read again, not rebuilt
+    chain = spec.extras.get("chain")
+    if chain is None:
+        return
+    joints = chain.tree.joints
+    controls = set(spec.control_names)
+    header, _ = _read_header(Path(commands))
+    odd = [c for c in header if c in joints and c not in controls and joints[c].type != "fixed"]
+    mimic = [c for c in odd if joints[c].mimic is not None]
+    held = [c for c in odd if joints[c].mimic is None]
+    if mimic:
+        warn(f"{commands}: column{'s' if len(mimic) > 1 else ''} "
+             + ", ".join(f"{c!r} (a mimic joint of {joints[c].mimic[0]!r})" for c in mimic)
+             + ": ignored, a mimic joint follows its master through the calibration's multiplier and offset")
+    if held:
+        warn(f"{commands}: column{'s' if len(held) > 1 else ''} {', '.join(repr(c) for c in held)}: "
+             f"{'joints' if len(held) > 1 else 'a joint'} of the URDF that the calibration does not record: ignored, "
+             "held at zero as in the fit")

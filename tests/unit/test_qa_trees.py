@@ -125,3 +125,29 @@ def test_simulate_a_humanoid_without_plan_takes_random_poses_and_says_so(tmp_pat
     assert len((tmp_path / "s" / "poses.csv").read_text().splitlines()) == 6
     assert main(base + ["--plan", "grid", "--out", str(tmp_path / "g")]) == 1
     assert not (tmp_path / "g").exists() or not any((tmp_path / "g").iterdir())
+
+
+def test_predict_says_which_joint_columns_it_ignores(tmp_path, capsys):
+    """predict reads the controls (and t) of a commands file and lets other columns be; a column
+    naming a mimic joint or a joint the calibration does not record was ignored silently (calibrate
+    refuses a mimic column): now said, once per kind, and the prediction is the same."""
+    spec = tree_spec()
+    session = _session(tmp_path, n=20, columns=[c for c in spec.control_names if c != "head_yaw"])
+    cal = tmp_path / "cal"
+    assert main(["calibrate", str(session), "--quiet", "--no-report", "--no-selection", "--out", str(cal)]) == 0
+    lines = (session / "commands.csv").read_text().splitlines()
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(lines) + "\n")
+    odd = tmp_path / "odd.csv"
+    odd.write_text("\n".join([lines[0] + ",torso_pitch_2,head_yaw"] + [r + ",0.3,0.4" for r in lines[1:]]) + "\n")
+    capsys.readouterr()
+    assert main(["predict", "--calibration", str(cal / "calibration.yaml"), "--commands", str(plain),
+                 "--out", str(tmp_path / "p1.csv")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert main(["predict", "--calibration", str(cal / "calibration.yaml"), "--commands", str(odd),
+                 "--out", str(tmp_path / "p2.csv")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2, err
+    assert "column 'torso_pitch_2' (a mimic joint of 'torso_pitch'): ignored" in err[0]
+    assert "column 'head_yaw': a joint of the URDF that the calibration does not record: ignored" in err[1]
+    assert (tmp_path / "p1.csv").read_text() == (tmp_path / "p2.csv").read_text()
