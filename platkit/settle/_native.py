@@ -58,7 +58,7 @@ def compiled_fits_reason() -> str:
 
 class Kernels:
     """The library's functions: ``pk_settle_prepare``, ``pk_settle_fits``, ``pk_settle_halves``,
-    ``pk_settle_still``, ``pk_settle_trend``."""
+    ``pk_settle_still``, ``pk_settle_trend``, ``pk_settle_mad``."""
 
     def __init__(self, lib: ctypes.CDLL) -> None:
         self.lib = lib
@@ -69,16 +69,35 @@ class Kernels:
         self.fits.argtypes = [ctypes.c_int] * 3 + [ctypes.c_void_p] * 9 + [ctypes.c_int] + [ctypes.c_void_p] * 3
         self.fits.restype = ctypes.c_int
         self.halves = lib.pk_settle_halves
-        self.halves.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int] + [ctypes.c_void_p] * 5
+        self.halves.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_longlong] + \
+            [ctypes.c_void_p] * 4
         self.halves.restype = ctypes.c_int
         self.still = lib.pk_settle_still
-        self.still.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_double] + \
-            [ctypes.c_void_p] * 3
+        self.still.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_int, ctypes.c_void_p, ctypes.c_longlong,
+                               ctypes.c_double] + [ctypes.c_void_p] * 3
         self.still.restype = ctypes.c_int
         self.trend = lib.pk_settle_trend
-        self.trend.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double] + \
-            [ctypes.c_void_p] * 3
+        self.trend.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong,
+                               ctypes.c_double] + [ctypes.c_void_p] * 3
         self.trend.restype = ctypes.c_int
+        self.mad = lib.pk_settle_mad
+        self.mad.argtypes = [ctypes.c_longlong, ctypes.c_int, ctypes.c_void_p, ctypes.c_longlong] + [ctypes.c_void_p] * 2
+        self.mad.restype = ctypes.c_int
+
+
+def second_difference_mad(markers: np.ndarray) -> tuple[float, int] | None:
+    """(median absolute deviation, count) of the finite second differences of a stream (K, M,
+    3) by the compiled kernel, numpy's numbers (platkit.settle._still.estimate_noise; the MAD is
+    NaN under 10 differences); None without the kernel."""
+    kernels = fits_function()
+    if isinstance(kernels, str):
+        return None
+    X, ld = _rows(markers)
+    mad, count = ctypes.c_double(), ctypes.c_longlong()
+    if kernels.mad(X.shape[0], 3 * X.shape[1], X.ctypes.data, ld, ctypes.addressof(mad),
+                   ctypes.addressof(count)):
+        raise MemoryError("the compiled noise estimate ran out of memory")
+    return mad.value, count.value
 
 
 def trend_statistic(t: np.ndarray, markers: np.ndarray, sigma2: float) -> tuple[float, int, float] | None:
@@ -88,10 +107,10 @@ def trend_statistic(t: np.ndarray, markers: np.ndarray, sigma2: float) -> tuple[
     kernels = fits_function()
     if isinstance(kernels, str):
         return None
-    X = np.ascontiguousarray(markers, dtype=float)
+    X, ld = _rows(markers)
     T = np.ascontiguousarray(t, dtype=float)
     stat, dof, vmax = ctypes.c_double(), ctypes.c_double(), ctypes.c_double()
-    if kernels.trend(X.shape[0], X.shape[1], T.ctypes.data, X.ctypes.data, float(sigma2), ctypes.addressof(stat),
+    if kernels.trend(X.shape[0], X.shape[1], T.ctypes.data, X.ctypes.data, ld, float(sigma2), ctypes.addressof(stat),
                      ctypes.addressof(dof), ctypes.addressof(vmax)):
         raise MemoryError("the compiled trend test ran out of memory")
     return stat.value, int(dof.value), vmax.value
@@ -106,11 +125,21 @@ def still_statistics(markers: np.ndarray, n: int, sigma2: float) -> tuple[np.nda
     if isinstance(kernels, str):
         return None
     K, M = markers.shape[:2]
-    X = np.ascontiguousarray(markers, dtype=float)
+    X, ld = _rows(markers)
     stat, num, m = np.empty(K), np.empty(K), np.empty(K)
-    if kernels.still(K, M, int(n), X.ctypes.data, float(sigma2), stat.ctypes.data, num.ctypes.data, m.ctypes.data):
+    if kernels.still(K, M, int(n), X.ctypes.data, ld, float(sigma2), stat.ctypes.data, num.ctypes.data, m.ctypes.data):
         raise MemoryError("the compiled still test ran out of memory")
     return stat, num, m.astype(np.intp)
+
+
+def _rows(markers: np.ndarray) -> tuple[np.ndarray, int]:
+    """A stream (K, M, 3) as the kernels read it: (array, ld), each row's 3 M values contiguous
+    and rows ld doubles apart (a view of a wider table as it is; a copy otherwise)."""
+    x = markers
+    if not (x.dtype == np.float64 and x.ndim == 3 and x.shape[0] > 0 and x.strides[1:] == (24, 8)
+            and x.strides[0] >= 24 * x.shape[1] and x.strides[0] % 8 == 0):
+        x = np.ascontiguousarray(markers, dtype=float).reshape(len(markers), -1, 3)
+    return x, (x.strides[0] // 8 if x.shape[0] > 1 else 3 * x.shape[1])
 
 
 def halves(markers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -120,10 +149,10 @@ def halves(markers: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndar
     if isinstance(kernels, str):
         return None
     K, M = markers.shape[:2]
-    X = np.ascontiguousarray(markers, dtype=float)
+    X, ld = _rows(markers)
     mb, ma = np.empty((K, M, 3)), np.empty((K, M, 3))
     nb, na = np.empty((K, M)), np.empty((K, M))
-    if kernels.halves(K, M, int(n), X.ctypes.data, mb.ctypes.data, ma.ctypes.data, nb.ctypes.data, na.ctypes.data):
+    if kernels.halves(K, M, int(n), X.ctypes.data, ld, mb.ctypes.data, ma.ctypes.data, nb.ctypes.data, na.ctypes.data):
         raise MemoryError("the compiled still test ran out of memory")
     return mb, ma, nb, na
 

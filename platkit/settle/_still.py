@@ -7,7 +7,7 @@ import functools
 import numpy as np
 from scipy.special import chdtrc, gammaincinv
 
-from platkit.settle._native import halves, still_statistics, trend_statistic
+from platkit.settle._native import halves, second_difference_mad, still_statistics, trend_statistic
 
 #: sigma below this (1 micrometre) is not believed: noise-free or quantised streams
 SIGMA_FLOOR_M = 1e-6
@@ -17,10 +17,14 @@ SIGMA_FLOOR_M = 1e-6
 MAX_INFLATION = 30.0
 
 
-def estimate_noise(markers: np.ndarray) -> float:
+def estimate_noise(markers: np.ndarray, compiled: bool = True) -> float:
     """Marker noise sigma (m, per coordinate) of a stream ``markers`` (K, M, 3), NaN-aware,
     from the median absolute second difference (second differences of white noise have
-    variance 6 sigma^2)."""
+    variance 6 sigma^2). The compiled kernel (platkit.settle._native.second_difference_mad)
+    gives the same number where it is available and ``compiled`` is true."""
+    got = second_difference_mad(markers) if compiled and markers.ndim == 3 else None
+    if got is not None:
+        return SIGMA_FLOOR_M if got[1] < 10 else max(1.4826 * got[0] / np.sqrt(6.0), SIGMA_FLOOR_M)
     # one working array the size of the stream (the medians select in place: their values do
     # not depend on the order they leave behind)
     dd = np.multiply(markers[1:-1], -2.0)

@@ -367,14 +367,15 @@ int pk_settle_prepare(int H, int M, int Jp, const long long *ks, const double *t
 
 /* The still test's halves of one stretch, number for number as platkit.settle._still._halves
    computes them with numpy (elementwise operations and running sums in sample order: the same
-   roundings): X (K, 3 M) markers (NaN: occluded); for each sample k the means of each marker over
+   roundings): X (K, 3 M) markers (NaN: occluded; rows ld apart); for each sample k the means of each marker over
    the visible samples among the n before k (mb) and the n from k on (ma), both (K, M, 3), and
    their counts nb, na (K, M); windows clipped to the stretch. Returns 0, or -1 when out of
    memory. */
 #if defined(__GNUC__) && !defined(__clang__)
 __attribute__((optimize("fp-contract=off")))
 #endif
-int pk_settle_halves(long long K, int M, int n, const double *X, double *mb, double *ma, double *nb, double *na)
+int pk_settle_halves(long long K, int M, int n, const double *X, long long ld, double *mb, double *ma, double *nb,
+                     double *na)
 {
 #if defined(__clang__)
 #pragma clang fp contract(off)
@@ -390,7 +391,7 @@ int pk_settle_halves(long long K, int M, int n, const double *X, double *mb, dou
     for (int c = 0; c < J; c++) S[c] = 0.0;
     for (int m = 0; m < M; m++) C[m] = 0.0;
     for (long long k = 0; k < K; k++) {
-        const double *x = X + k * J;
+        const double *x = X + k * ld;
         for (int m = 0; m < M; m++) {
             const int ok = isfinite(x[3 * m]) && isfinite(x[3 * m + 1]) && isfinite(x[3 * m + 2]);
             C[(k + 1) * M + m] = C[k * M + m] + (ok ? 1.0 : 0.0);
@@ -450,7 +451,8 @@ static double np_pairwise(const double *a, long long n)
 #if defined(__GNUC__) && !defined(__clang__)
 __attribute__((optimize("fp-contract=off")))
 #endif
-int pk_settle_still(long long K, int M, int n, const double *X, double sigma2, double *stat, double *num, double *m)
+int pk_settle_still(long long K, int M, int n, const double *X, long long ld, double sigma2, double *stat, double *num,
+                    double *m)
 {
 #if defined(__clang__)
 #pragma clang fp contract(off)
@@ -460,7 +462,7 @@ int pk_settle_still(long long K, int M, int n, const double *X, double sigma2, d
     double *nb = malloc(sizeof(double) * (size_t)(K * M)), *na = malloc(sizeof(double) * (size_t)(K * M));
     double *z = malloc(sizeof(double) * (size_t)(J + M));
     int code = -1;
-    if (mb && ma && nb && na && z && pk_settle_halves(K, M, n, X, mb, ma, nb, na) == 0) {
+    if (mb && ma && nb && na && z && pk_settle_halves(K, M, n, X, ld, mb, ma, nb, na) == 0) {
         double *sq = z + M;
         for (long long k = 0; k < K; k++) {
             int seen = 0;
@@ -492,14 +494,14 @@ int pk_settle_still(long long K, int M, int n, const double *X, double sigma2, d
 }
 
 /* The trend test of a window (platkit.settle._still.trend_test): t (K) times, X (K, 3 M)
-   markers (NaN: occluded); per marker seen in at least 4 samples whose times spread, the
+   markers (NaN: occluded; rows ld apart); per marker seen in at least 4 samples whose times spread, the
    regression of each coordinate on time over those samples: *stat the chi-square of the slopes
    against sigma2 (sum of slope^2 sxx / sigma2), *dof 3 per such marker, *vmax the largest speed
    |slope|. The means and the sum of squares of the times are numpy's (pairwise) sums; the
    products with the markers are summed in sample order (numpy's are BLAS's): the statistic
    agrees to rounding. Returns 0, or -1 when out of memory. */
-int pk_settle_trend(long long K, int M, const double *t, const double *X, double sigma2, double *stat, double *dof,
-                    double *vmax)
+int pk_settle_trend(long long K, int M, const double *t, const double *X, long long ld, double sigma2, double *stat,
+                    double *dof, double *vmax)
 {
     double *tt = malloc(sizeof(double) * (size_t)(K > 0 ? 4 * K : 1));
     if (!tt) return -1;
@@ -510,7 +512,7 @@ int pk_settle_trend(long long K, int M, const double *t, const double *X, double
     for (int m = 0; m < M; m++) {
         long long n = 0;
         for (long long k = 0; k < K; k++) {
-            const double *x = X + k * 3 * M + 3 * m;
+            const double *x = X + k * ld + 3 * m;
             if (isfinite(x[0]) && isfinite(x[1]) && isfinite(x[2])) {
                 tt[n] = t[k];
                 for (int c = 0; c < 3; c++) xs[c * K + n] = x[c];
@@ -544,3 +546,164 @@ int pk_settle_trend(long long K, int M, const double *t, const double *X, double
     free(tt);
     return 0;
 }
+
+/* the k-th smallest of x[0..n) (x reordered: none larger before k, none smaller after) */
+static double select_kth(double *x, long long n, long long k)
+{
+    long long lo = 0, hi = n - 1;
+    while (hi > lo) {
+        const long long mid = lo + (hi - lo) / 2;
+        const double a = x[lo], b = x[mid], c = x[hi];
+        const double pivot = a < b ? (b < c ? b : (a < c ? c : a)) : (a < c ? a : (b < c ? c : b));
+        long long i = lo, j = hi;
+        while (i <= j) {
+            while (x[i] < pivot) i++;
+            while (x[j] > pivot) j--;
+            if (i <= j) {
+                const double t = x[i];
+                x[i] = x[j];
+                x[j] = t;
+                i++;
+                j--;
+            }
+        }
+        if (k <= j) hi = j;
+        else if (k >= i) lo = i;
+        else return x[k];
+    }
+    return x[k];
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    const double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* the second difference at row k (1 <= k < K - 1), column c of X (K, J), as numpy takes it:
+   x[k] (-2), plus x[k+1], plus x[k-1] */
+#define SECOND_DIFF(k, c) (((X[(k) * ld + (c)] * -2.0) + X[((k) + 1) * ld + (c)]) + X[((k) - 1) * ld + (c)])
+
+/* numpy.median of the n finite values v of the second differences of X (absolute: of |v - shift|):
+   the middle order statistic, or the two middle ones' sum over 2. The order statistics are found
+   among the values between two quantiles of the sample (ns sorted values of the same kind), one
+   pass counting those below and gathering those between into buf (room for cap); 0 when they
+   fall outside (the caller then selects over every value). */
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("fp-contract=off")))
+#endif
+static int median_between(long long K, int J, const double *X, long long ld, long long n, double shift, int absolute,
+                          const double *sample, int ns, double *buf, long long cap, double *out)
+{
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    const long long h = n / 2, first = n % 2 ? h : h - 1;
+    const int margin = 64 + ns / 16;
+    const long long q = (long long)((double)h / (double)n * ns);
+    const double lo = sample[q - margin > 0 ? q - margin : 0], hi = sample[q + margin < ns - 1 ? q + margin : ns - 1];
+    long long below = 0, m = 0;
+    for (long long k = 1; k + 1 < K; k++)
+        for (int c = 0; c < J; c++) {
+            double v = SECOND_DIFF(k, c);
+            if (!isfinite(v)) continue;
+            if (absolute) v = fabs(v - shift);
+            if (v < lo) below++;
+            else if (v <= hi) {
+                if (m == cap) return 0;
+                buf[m++] = v;
+            }
+        }
+    if (!(below <= first && h < below + m)) return 0;
+    const double upper = select_kth(buf, m, h - below);
+    if (n % 2) {
+        *out = upper;
+        return 1;
+    }
+    double lower = buf[0];
+    for (long long i = 1; i < h - below; i++) lower = buf[i] > lower ? buf[i] : lower;
+    *out = (lower + upper) / 2.0;
+    return 1;
+}
+
+/* numpy.median over every finite value (absolute: of |v - shift|), by selection (x: room for n) */
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("fp-contract=off")))
+#endif
+static double median_all(long long K, int J, const double *X, long long ld, long long n, double shift, int absolute,
+                         double *x)
+{
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    long long m = 0;
+    for (long long k = 1; k + 1 < K; k++)
+        for (int c = 0; c < J; c++) {
+            const double v = SECOND_DIFF(k, c);
+            if (isfinite(v)) x[m++] = absolute ? fabs(v - shift) : v;
+        }
+    const long long h = n / 2;
+    const double upper = select_kth(x, n, h);
+    if (n % 2) return upper;
+    double lower = x[0];
+    for (long long i = 1; i < h; i++) lower = x[i] > lower ? x[i] : lower;
+    return (lower + upper) / 2.0;
+}
+
+/* The median absolute deviation of the second differences of a stream X (K rows of J values,
+   ld apart; NaN: occluded) over every finite one, as platkit.settle._still.estimate_noise takes it with
+   numpy (the same differences, medians being order statistics): *mad (NaN under 10 values) and
+   the count of finite differences. The differences are computed in each pass, not kept.
+   Returns 0, or -1 when out of memory. */
+#if defined(__GNUC__) && !defined(__clang__)
+__attribute__((optimize("fp-contract=off")))
+#endif
+int pk_settle_mad(long long K, int J, const double *X, long long ld, double *mad, long long *count)
+{
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#endif
+    enum { SAMPLE = 4096 };
+    double sample[SAMPLE];
+    *count = 0;
+    *mad = NAN;
+    if (K < 3) return 0;
+    const long long total = (K - 2) * J, step = total / SAMPLE > 1 ? total / SAMPLE : 1;
+    long long n = 0, next = 0, at = 0;
+    int ns = 0;
+    for (long long k = 1; k + 1 < K; k++)
+        for (int c = 0; c < J; c++, at++) {
+            const double v = SECOND_DIFF(k, c);
+            if (!isfinite(v)) continue;
+            if (at >= next && ns < SAMPLE) {
+                sample[ns++] = v;
+                next = at + step;
+            }
+            n++;
+        }
+    *count = n;
+    if (n < 10) return 0;
+    const long long cap = n / 4 + 1024 < n ? n / 4 + 1024 : n;
+    double *buf = malloc(sizeof(double) * (size_t)cap), *all = NULL;
+    if (!buf) return -1;
+    double med, out;
+    qsort(sample, (size_t)ns, sizeof(double), cmp_double);
+    if (ns >= 256 && median_between(K, J, X, ld, n, 0.0, 0, sample, ns, buf, cap, &out)) {
+        med = out;
+    } else {
+        if (!(all = malloc(sizeof(double) * (size_t)n))) { free(buf); return -1; }
+        med = median_all(K, J, X, ld, n, 0.0, 0, all);
+    }
+    for (int i = 0; i < ns; i++) sample[i] = fabs(sample[i] - med);
+    qsort(sample, (size_t)ns, sizeof(double), cmp_double);
+    if (ns >= 256 && median_between(K, J, X, ld, n, med, 1, sample, ns, buf, cap, &out)) {
+        *mad = out;
+    } else {
+        if (!all && !(all = malloc(sizeof(double) * (size_t)n))) { free(buf); return -1; }
+        *mad = median_all(K, J, X, ld, n, med, 1, all);
+    }
+    free(buf);
+    free(all);
+    return 0;
+}
+#undef SECOND_DIFF

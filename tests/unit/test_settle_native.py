@@ -123,12 +123,21 @@ def test_the_compiler_is_there_for_the_compiled_path():
     assert _native._compiler() is not None, "no C compiler (cc, gcc or clang) to test the compiled path"
 
 
+def _view(X: np.ndarray) -> np.ndarray:
+    """X (K, M, 3) as a view of a wider table (a time column first), as a session's stream is."""
+    table = np.empty((X.shape[0], 1 + X[0].size))
+    table[:, 1:] = X.reshape(len(X), -1)
+    view = table[:, 1:].reshape(X.shape)
+    assert not view.flags["C_CONTIGUOUS"] and np.shares_memory(view, table)
+    return view
+
+
 def test_the_compiled_still_test_halves_are_numpys_bit_for_bit(cache):
     # the still test decides the windows: its halves must be numpy's numbers, not close to them
     from platkit.settle._still import _halves, _window_sums
 
     rng = np.random.default_rng(2803)
-    X = rng.normal(size=(900, 5, 3))
+    X = _view(rng.normal(size=(900, 5, 3)))
     X[rng.random((900, 5)) < 0.05] = np.nan
     X[100:200, 2] = np.nan  # a marker occluded for a while
     for n in (1, 5, 40, 2000):
@@ -149,6 +158,7 @@ def test_the_compiled_still_test_is_numpys_bit_for_bit(cache, n_markers):
     X = np.cumsum(rng.normal(size=(500, n_markers, 3)) * 1e-4, axis=0) + rng.normal(size=(1, n_markers, 3))
     X[rng.random((500, n_markers)) < 0.05] = np.nan
     X[100:150, 0] = np.nan
+    X = _view(X) if n_markers == 5 else X
     sigma = 2.3e-4
     for n in (2, 10, 60, 1000):
         for stretch in (X, X[:33], X[:1]):
@@ -175,6 +185,20 @@ def test_the_compiled_trend_test_is_numpys_to_rounding(cache):
                 t = 10 + np.arange(K) / 200.0
                 X = rng.normal(size=(K, n_markers, 3)) * 1e-4 + speed * t[:, None, None]
                 X[rng.random((K, n_markers)) < 0.1] = np.nan
+                X = _view(X) if K % 2 else X
                 (p, v), (p0, v0) = trend_test(t, X, 1e-4), trend_test(t, X, 1e-4, compiled=False)
                 assert p == pytest.approx(p0, rel=1e-9, abs=1e-300) and v == pytest.approx(v0, rel=1e-9, abs=1e-300)
                 assert (speed >= 1e-2 and K >= 40) <= (p0 < 1e-6)  # the test sees a clear trend
+
+
+def test_the_compiled_noise_estimate_is_numpys_bit_for_bit(cache):
+    from platkit.settle._still import estimate_noise
+
+    rng = np.random.default_rng(2806)
+    for K in (2, 3, 7, 12, 1001, 30000):  # under 10 differences, a few, and enough for the sampled medians
+        for occluded in (0.0, 0.1, 0.95):
+            X = rng.normal(size=(K, 5, 3)) * 1e-3
+            X[rng.random((K, 5)) < occluded] = np.nan
+            for stream in (X, np.round(X, 5), _view(X)):  # quantised: many ties
+                assert estimate_noise(stream) == estimate_noise(stream, compiled=False)
+    assert _native.second_difference_mad(X)[1] > 0
