@@ -45,17 +45,30 @@ def run(args) -> int:
         "n_parameters": len(params),
         "closed_form_inverse": spec.inverse is not None, "closed_form_forward": spec.forward is not None,
     }
+    chain = spec.extras.get("chain")
+    if chain is not None:  # a URDF stand: the links it tracks, and the joints that follow a control
+        out["tracked_links"] = list(spec.tracked_links or [chain.moving_link])
+        out["mimic_joints"] = [{"joint": j.name, "master": j.mimic[0], "multiplier": j.mimic[1], "offset": j.mimic[2]}
+                               for j in chain.calibrated if j.mimic is not None]
     if args.json:
         print_json(out)
         return 0
     print(f"{spec.name}: {spec.title}")
     print(f"description: {out['description']}")
     print(f"controls ({len(controls)}):")
+    wc = max([12] + [len(c["name"]) for c in controls])  # columns as wide as the longest name (a URDF's joints)
     for c in controls:
-        print(f"  {c['name']:<12} [{c['lower']:.6g}, {c['upper']:.6g}] {c['unit']}  neutral {c['neutral']:.6g}")
+        print(f"  {c['name']:<{wc}} [{c['lower']:.6g}, {c['upper']:.6g}] {c['unit']}  neutral {c['neutral']:.6g}")
+    if chain is not None:
+        links = out["tracked_links"]
+        print(f"tracked links: {', '.join(links)} (the pose is the first's)" if len(links) > 1
+              else f"moving link: {links[0]}")
+        for m in out["mimic_joints"]:
+            print(f"  mimic joint {m['joint']} = {m['multiplier']:.6g} * {m['master']} + {m['offset']:.6g}")
     print(f"pose coordinates ({len(coords)}): " + ", ".join(f"{c['name']} [{c['unit']}]" for c in coords))
     print(f"parameters ({len(params)}):")
+    wp = max([16] + [len(p["name"]) for p in params])
     for p in params:
         flag = "" if p["free"] else "  (fixed)"
-        print(f"  {p['name']:<16} {p['nominal']:>14.6g} {p['unit']:<10} {p['group']}{flag}")
+        print(f"  {p['name']:<{wp}} {p['nominal']:>14.6g} {p['unit']:<10} {p['group']}{flag}")
     return 0

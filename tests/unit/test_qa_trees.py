@@ -151,3 +151,26 @@ def test_predict_says_which_joint_columns_it_ignores(tmp_path, capsys):
     assert "column 'torso_pitch_2' (a mimic joint of 'torso_pitch'): ignored" in err[0]
     assert "column 'head_yaw': a joint of the URDF that the calibration does not record: ignored" in err[1]
     assert (tmp_path / "p1.csv").read_text() == (tmp_path / "p2.csv").read_text()
+
+
+def test_describe_a_tree_names_its_tracked_links_and_mimic_joints(tmp_path, capsys):
+    """describe on a tree said neither the links it tracks nor the joints that follow another (a
+    mimic coupling across the arms here), and its columns ran out of line with a URDF's long names."""
+    urdf = tmp_path / "cross.urdf"
+    urdf.write_text(URDF.read_text().replace(
+        '<joint name="left_3_joint" type="revolute"><parent link="left_2"/><child link="left_3"/>',
+        '<joint name="left_3_joint" type="revolute"><parent link="left_2"/><child link="left_3"/>'
+        '<mimic joint="right_3_joint" multiplier="-1" offset="0.1"/>'))
+    args = ["describe", "--platform", "urdf", "--description", str(urdf), "--moving-link", "right_tcp,left_tcp"]
+    assert main(args) == 0
+    text = capsys.readouterr().out.splitlines()
+    assert "tracked links: right_tcp, left_tcp (the pose is the first's)" in text
+    assert "  mimic joint left_3_joint = -1 * right_3_joint + 0.1" in text
+    assert "  mimic joint torso_pitch_2 = 0.5 * torso_pitch + 0" in text
+    params = [line for line in text if line.startswith("  ") and " origin" in line and "." in line.split()[0]]
+    assert len({line.index(" mm ") if " mm " in line else line.index(" rad ") for line in params}) == 1  # one column
+    assert main(args + ["--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["tracked_links"] == ["right_tcp", "left_tcp"]
+    assert {"joint": "left_3_joint", "master": "right_3_joint", "multiplier": -1.0, "offset": 0.1} in out["mimic_joints"]
+    assert "left_3_joint" not in [c["name"] for c in out["controls"]]
