@@ -19,7 +19,8 @@ import numpy as np
 from platkit.io.cache import c_compiler
 from platkit.native import c_source, compiled_library
 
-COMPILE_FLAGS = ("-O2", "-fPIC", "-shared")
+#: -ffp-contract=off: the kernels that give numpy's numbers bit for bit round each operation as numpy does
+COMPILE_FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
 
 _lock = threading.Lock()
 _loaded: dict[str, object] = {}  # "fn" -> the ctypes function, or the reason it is missing

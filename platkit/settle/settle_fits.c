@@ -23,8 +23,13 @@
 
 typedef double v4 __attribute__((vector_size(32), aligned(8)));
 
+/* The library is compiled with -ffp-contract=off: the kernels that must give numpy's numbers
+   (halves, still, trend, mad) round every product and sum on their own. The fits' sums, which
+   need only agree to rounding, may fuse them (PK_FAST). */
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
-#define PK_CLONES __attribute__((target_clones("fma", "default")))
+#define PK_CLONES __attribute__((target_clones("fma", "default"), optimize("fp-contract=fast")))
+#elif defined(__GNUC__) && !defined(__clang__)
+#define PK_CLONES __attribute__((optimize("fp-contract=fast")))
 #else
 #define PK_CLONES
 #endif
