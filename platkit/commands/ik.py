@@ -9,6 +9,7 @@ from platkit.errors import BadInput, OutOfWorkspace
 from platkit.geometry import quat_conjugate, quat_from_rpy, quat_multiply, rpy_from_quat
 from platkit.kinematics import PlatformModel
 from platkit.model import controls_from_si, length_scale
+from platkit.notices import said, warn
 from platkit.plugins import get_platform
 
 
@@ -42,16 +43,42 @@ def run(args) -> int:
             raise BadInput(f"--pose: expected 6 (x,y,z,roll,pitch,yaw) or 7 (x,y,z,qw,qx,qy,qz) numbers, got {v.size}")
         X = v[:3] * s
         _check_pose_is_the_stands(model, q, X, args.unit)
-    u = model.inverse(q, X)
+    u = _off_the_moving_link_at_neutral(spec, model.inverse(q, X))
+    if spec.n_u > spec.n_p:
+        warn(f"{spec.name}: {spec.n_u} controls for {spec.n_p} pose coordinates: these controls are one solution of "
+             "many that give the pose")
     u_out = controls_from_si(spec, u, args.unit)
     names = spec.control_names
     units = [args.unit if c.unit == "m" else c.unit for c in spec.controls]
     if args.json:
-        print_json({"platform": spec.name, "controls": dict(zip(names, u_out.tolist())), "units": dict(zip(names, units))})
+        print_json({"platform": spec.name, "controls": dict(zip(names, u_out.tolist())), "units": dict(zip(names, units)),
+                    "warnings": said()})  # every warning said while the verb ran, on stderr too
         return 0
+    width = max([10] + [len(n) for n in names])
     for n, v, un in zip(names, u_out, units):
-        print(f"{n:<10} {v:.6f} {un}")
+        print(f"{n:<{width}} {v:.6f} {un}")
     return 0
+
+
+def _off_the_moving_link_at_neutral(spec, u: np.ndarray) -> np.ndarray:
+    """On a URDF tree the pose asked is the moving link's (the first tracked): the joints that do
+    not move it (the other arm, the head) are given at their neutral (within their strokes), not
+    where the solver left them, and said."""
+    chain = spec.extras.get("chain")
+    if chain is None or len(spec.tracked_links) < 2 or not hasattr(chain, "required"):
+        return u
+    moving = {n for n, link in chain.required().items() if link == chain.moving_link}
+    off = [i for i, n in enumerate(spec.control_names) if n not in moving]
+    if not off:
+        return u
+    u = np.array(u, float)
+    for i in off:
+        c = spec.controls[i]
+        u[i] = min(max(c.neutral, c.lower), c.upper)
+    shown = ", ".join(spec.control_names[i] for i in off[:12]) + (f" and {len(off) - 12} more" if len(off) > 12 else "")
+    warn(f"{spec.name}: the pose is that of the moving link {chain.moving_link!r}; the {len(off)} joints that do not "
+         f"move it ({shown}) are given at their neutral")
+    return u
 
 
 def _check_pose_is_the_stands(model: PlatformModel, q, X, unit: str) -> None:

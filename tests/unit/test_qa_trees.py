@@ -174,3 +174,25 @@ def test_describe_a_tree_names_its_tracked_links_and_mimic_joints(tmp_path, caps
     assert out["tracked_links"] == ["right_tcp", "left_tcp"]
     assert {"joint": "left_3_joint", "master": "right_3_joint", "multiplier": -1.0, "offset": 0.1} in out["mimic_joints"]
     assert "left_3_joint" not in [c["name"] for c in out["controls"]]
+
+
+def test_ik_on_a_tree_gives_the_joints_off_the_moving_link_at_neutral_and_says_so(capsys):
+    """ik on a tree solves for the moving link (the first tracked); the other arm and the head were
+    left wherever the solver put them (at a stroke's end, some), with nothing said."""
+    chain = ["--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp"]
+    u = [0.2, 0.1, 0.4, 0.3, -0.2, 0.5, -0.6, 0.7, 0.3]
+    assert main(["fk", *chain, "--u", ",".join(map(str, u)), "--json"]) == 0
+    fk = json.loads(capsys.readouterr().out)
+    pose = ",".join(repr(fk[k]) for k in ("x", "y", "z", "qw", "qx", "qy", "qz"))
+    assert main(["ik", *chain, "--pose", pose, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    spec = tree_spec()
+    off = ["head_yaw", "left_1_joint", "left_2_joint", "left_3_joint"]
+    assert all(out["controls"][n] == 0.0 for n in off)  # their neutral
+    assert any(f"the 4 joints that do not move it ({', '.join(off)}) are given at their neutral" in w
+               for w in out["warnings"])
+    assert any("9 controls for 6 pose coordinates" in w for w in out["warnings"])
+    u_ik = [out["controls"][n] for n in spec.control_names]
+    assert main(["fk", *chain, "--u", ",".join(map(repr, u_ik)), "--json"]) == 0
+    back = json.loads(capsys.readouterr().out)
+    assert [back[k] for k in ("x", "y", "z")] == pytest.approx([fk[k] for k in ("x", "y", "z")], abs=1e-6)
