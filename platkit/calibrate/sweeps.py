@@ -39,6 +39,8 @@ FAMILIES = ("via", "fourier")
 #: the via-point family's boxes: the stroke box less the margin scaled about the neutral controls by
 #: each share in turn, while the prediction improves (slow drives: a smaller box fits more via points)
 VIA_SCALES = (1.0, 0.7, 0.5, 0.35, 0.25)
+#: for a target, a sweep designed shorter that misses it is lengthened by this factor at a time
+SHRUNK_STEP = 1.4
 
 
 @dataclass
@@ -102,14 +104,17 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
               markers: np.ndarray, rng: np.random.Generator, duration_s: float | None, target_m: float | None,
               seen: float) -> ExcitationPlan:
     """``plan --motion``'s via-point family (:func:`design_sweep`): the sweep of
-    ``duration_s`` s at most, else redesigned at the length the target needs (from the information
-    per sample of the sweep before) until its prediction meets it; beside it the other choice of
-    via points in its box."""
+    ``duration_s`` s at most; for ``target_m`` alone, the sweep of 60 s, then designed again at
+    the length its information per sample says the target needs (shorter or longer), lengthened
+    until its prediction meets the target (the shortest that met is kept); beside it the other
+    choice of via points in its box."""
     information = MotionInformation(spec, markers)
     seed = int(rng.integers(2 ** 31))
     duration = float(duration_s) if duration_s is not None else 60.0
     length: dict | None = None
-    for _ in range(8):
+    met: tuple[Sweep, Sweep] | None = None  # the shortest sweep so far that meets the target
+    shrunk = False
+    for _ in range(12):
         try:
             chosen, other = design_sweep(spec, limits, information, duration, command_rate_hz, mocap_rate_hz, seen,
                                          sigma_m, seed)
@@ -118,11 +123,34 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
                 raise
             duration = min(LONGEST_S, 2 * duration)
             continue
-        if duration_s is not None or target_m is None or chosen.p90 <= target_m:
+        if duration_s is not None or target_m is None:
             break
-        length = session_length_for(information, chosen.info, target_m, sigma_m, mocap_rate_hz, seen,
-                                    1.0 / command_rate_hz)
-        duration = min(LONGEST_S, max(duration * 1.1, length["duration_s"]))
+        if chosen.p90 <= target_m:
+            if met is None or chosen.duration_s < met[0].duration_s:
+                met = (chosen, other)
+            length = session_length_for(information, chosen.info, target_m, sigma_m, mocap_rate_hz, seen,
+                                        1.0 / command_rate_hz)
+            if shrunk or length["duration_s"] >= 0.9 * chosen.duration_s:
+                break
+            shrunk, duration = True, length["duration_s"]  # shorter suffices by its information: designed again
+            continue
+        if shrunk:  # a shorter sweep has fewer via points, less information per sample: lengthened step by step
+            duration *= SHRUNK_STEP
+        else:
+            length = session_length_for(information, chosen.info, target_m, sigma_m, mocap_rate_hz, seen,
+                                        1.0 / command_rate_hz)
+            duration = max(duration * 1.1, length["duration_s"])
+        duration = min(LONGEST_S, duration)
+        if met is not None and duration >= met[0].duration_s:  # lengthened back to one that met
+            break
+    if met is not None:
+        chosen, other = met
+    if target_m is not None and duration_s is None:  # what the sweep written needs, for the report
+        try:
+            length = session_length_for(information, chosen.info, target_m, sigma_m, mocap_rate_hz, seen,
+                                        1.0 / command_rate_hz)
+        except NotIdentifiable:
+            length = None
     if not chosen.pred["identifiable"]:
         raise NotIdentifiable(f"{spec.name}: the via-point sweep does not identify the parameters (the information "
                               "stays singular); a longer session")
