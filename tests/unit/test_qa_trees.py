@@ -63,12 +63,22 @@ def test_fk_writes_every_link_quaternion_with_w_nonnegative(capsys):
     assert all(out[a] == pytest.approx(out["links"]["right_tcp"][a], abs=1e-12) for a in ("qw", "qx", "qy", "qz"))
 
 
-def test_reports_of_a_tree_give_each_tracked_link(tmp_path, capsys):
-    session = _session(tmp_path, n=30)
+def test_reports_of_a_tree_give_each_tracked_link_and_say_a_joint_left_out(tmp_path, capsys):
+    """report.html of a tree named no link; diagnosis.json had no per-link figure. And head_yaw,
+    which hangs on the torso and moves no tracked link, may be left out of commands.csv, but it is
+    then held at zero and the torso's gravity load is computed with it there: it was silent; now
+    said, in report.json and report.html, by calibrate and diagnose alike."""
+    spec = tree_spec()
+    session = _session(tmp_path, n=30, columns=[c for c in spec.control_names if c != "head_yaw"])
     cal = tmp_path / "cal"
     assert main(["calibrate", str(session), "--quiet", "--no-selection", "--out", str(cal)]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "head_yaw" in line]
+    assert len(said) == 1 and said[0].startswith("platkit: warning: ") and "commands.csv: not recorded" in said[0]
+    text = said[0].removeprefix("platkit: warning: ")
+    report = json.loads((cal / "report.json").read_text())
     page = (cal / "report.html").read_text()
-    per_link = json.loads((cal / "report.json").read_text())["rms_after_per_link"]
+    assert text in report["warnings"] and "head_yaw" in page
+    per_link = report["rms_after_per_link"]
     assert "<h2>Tracked links</h2>" in page and "each in its link's frame" in page
     for link in ("right_tcp", "left_tcp"):
         markers = ", ".join(m for m, (lk, _) in MARKERS.items() if lk == link)
@@ -78,30 +88,11 @@ def test_reports_of_a_tree_give_each_tracked_link(tmp_path, capsys):
     assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--quiet",
                  "--out", str(diag)]) == 0
     d = json.loads((diag / "diagnosis.json").read_text())
+    assert text in d["warnings"]
     assert list(d["rms_per_link"]) == ["right_tcp", "left_tcp"]
     for link, v in d["rms_per_link"].items():
         assert v["geometric"] == pytest.approx(per_link[link], rel=1e-6) and v["final"] > 0
         assert f"<td>{link}</td><td>{v['geometric']:.4g}</td>" in (diag / "report.html").read_text()
-
-
-def test_a_joint_below_recorded_ones_left_out_of_commands_is_said_in_every_report(tmp_path, capsys):
-    """head_yaw hangs on the torso and moves no tracked link: a session may leave it out, but it is
-    then held at zero and the torso's gravity load is computed with it there: said, in report.json
-    and report.html, by calibrate and diagnose alike."""
-    spec = tree_spec()
-    columns = [c for c in spec.control_names if c != "head_yaw"]
-    session = _session(tmp_path, n=24, columns=columns)
-    cal = tmp_path / "cal"
-    assert main(["calibrate", str(session), "--quiet", "--no-selection", "--out", str(cal)]) == 0
-    said = [line for line in capsys.readouterr().err.splitlines() if "head_yaw" in line]
-    assert len(said) == 1 and said[0].startswith("platkit: warning: ") and "commands.csv: not recorded" in said[0]
-    text = said[0].removeprefix("platkit: warning: ")
-    assert text in json.loads((cal / "report.json").read_text())["warnings"]
-    assert "head_yaw" in (cal / "report.html").read_text()
-    diag = tmp_path / "diag"
-    assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--quiet",
-                 "--out", str(diag)]) == 0
-    assert text in json.loads((diag / "diagnosis.json").read_text())["warnings"]
     # every joint recorded: nothing said
     capsys.readouterr()
     full = _session(tmp_path / "full", n=24)
