@@ -106,3 +106,15 @@ def test_only_a_package_face_hands_names_on():
     found = {path.relative_to(PACKAGE).as_posix(): names for path in sorted(PACKAGE.rglob("*.py"))
              if path.name != "__init__.py" and (names := _reexported(path))}
     assert not found, f"modules that hand on names they import (import them from where they are defined): {found}"
+
+
+def test_every_benchmark_is_listed_in_the_docs_index():
+    """docs/README.md's table of benchmarks names every script in benchmarks/ (a proof no reader
+    can find is not a proof), and names none that is gone."""
+    root = PACKAGE.parent
+    scripts = {p.name for p in (root / "benchmarks").glob("*.py") if not p.name.startswith("_")}
+    index = (root / "docs" / "README.md").read_text(encoding="utf-8")
+    listed = {line.split("|")[1].strip() for line in index.splitlines()
+              if line.startswith("| ") and line.split("|")[1].strip().endswith(".py")}
+    assert scripts - listed == set(), f"benchmarks not in docs/README.md: {sorted(scripts - listed)}"
+    assert listed - scripts == set(), f"docs/README.md lists benchmarks that are gone: {sorted(listed - scripts)}"
