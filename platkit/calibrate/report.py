@@ -13,6 +13,7 @@ import html
 from pathlib import Path
 
 import numpy as np
+import yaml
 from matplotlib.figure import Figure
 
 from platkit.errors import BadInput
@@ -64,13 +65,14 @@ def per_link_rms(residuals: np.ndarray, weights: np.ndarray | None, marker_names
     return out
 
 
-def report_dict(cal: Calibration, poses: PoseSet | None = None) -> dict:
-    """report.json as a dict; lengths in the session's unit (``unit``)."""
+def report_dict(cal: Calibration, poses: PoseSet | None = None, description: str | None = None) -> dict:
+    """report.json as a dict; lengths in the session's unit (``unit``). ``description``: the
+    description as calibration.yaml beside it names it (default the calibration's own)."""
     s = length_scale(cal.length_unit)
     ident = cal.identifiability or {}
     out = {
         "platform": cal.platform,
-        "description": cal.description,
+        "description": cal.description if description is None else description,
         "method": cal.method,
         "unit": cal.length_unit,
         "rms_before": _finite_or_none(cal.rms_before / s),
@@ -286,8 +288,8 @@ def channel_names(cal: Calibration) -> list[str]:
             + [f"{b} rotation" for b in cal.body_names])
 
 
-def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
-    rep = report_dict(cal, poses)
+def report_html(cal: Calibration, poses: PoseSet | None = None, description: str | None = None) -> str:
+    rep = report_dict(cal, poses, description)
     s = length_scale(cal.length_unit)
     lu = cal.length_unit
     parts = [
@@ -297,7 +299,7 @@ def report_html(cal: Calibration, poses: PoseSet | None = None) -> str:
         "table{border-collapse:collapse;font-size:13px}td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}"
         "th{background:#eee}td:first-child{text-align:left}img{max-width:100%}</style></head><body>",
         f"<h1>Calibration of the {html.escape(cal.platform)} stand</h1>",
-        f"<p>Method <b>{html.escape(cal.method)}</b>; description {html.escape(str(cal.description))}; "
+        f"<p>Method <b>{html.escape(cal.method)}</b>; description {html.escape(str(rep['description']))}; "
         f"{cal.n_poses} poses, {cal.n_markers} markers, {cal.n_observations} marker observations kept, "
         f"{cal.n_rejected} rejected as outliers; {'converged' if cal.converged else '<b>NOT converged</b>'} "
         f"after {cal.iterations} iterations in {cal.time_s:.2f} s.</p>",
@@ -414,11 +416,13 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
                 urdf = "calibrated.urdf"
             except BadInput as exc:  # e.g. a joint scale other than 1 has no place in a URDF
                 urdf = f"not written: {exc}"
-        rep = report_dict(cal, poses)
+        write_calibration_yaml(cal, tmp)  # with its description beside it: the folder travels
+        # the reports name the description as calibration.yaml does (relative to the folder, or shipped:)
+        described = (yaml.safe_load((tmp / "calibration.yaml").read_text(encoding="utf-8")) or {}).get("description")
+        rep = report_dict(cal, poses, described)
         if urdf is not None:
             rep["calibrated_urdf"] = urdf
-        write_calibration_yaml(cal, tmp)  # with its description beside it: the folder travels
         (tmp / "report.json").write_text(jsonout.dumps(rep, indent=2) + "\n", encoding="utf-8")
         if with_html:
-            (tmp / "report.html").write_text(report_html(cal, poses), encoding="utf-8")
+            (tmp / "report.html").write_text(report_html(cal, poses, described), encoding="utf-8")
     return [out_dir / n for n in names]

@@ -78,6 +78,9 @@ def test_reports_of_a_tree_give_each_tracked_link_and_say_a_joint_left_out(tmp_p
     report = json.loads((cal / "report.json").read_text())
     page = (cal / "report.html").read_text()
     assert text in report["warnings"] and "head_yaw" in page
+    # the reports name the description as calibration.yaml does: the copy beside them, which travels
+    assert report["description"] == "description/robot.urdf" and (cal / report["description"]).is_file()
+    assert "description description/robot.urdf;" in page
     per_link = report["rms_after_per_link"]
     assert "<h2>Tracked links</h2>" in page and "each in its link's frame" in page
     for link in ("right_tcp", "left_tcp"):
