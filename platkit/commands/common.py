@@ -34,14 +34,16 @@ def add_unit_option(parser) -> None:
     parser.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of lengths in and out (default mm)")
 
 
-def parse_vector(text: str, what: str, size: int | None = None) -> np.ndarray:
-    """'1,2,3' -> array; BadInput naming the option on anything else."""
+def parse_vector(text: str, what: str, size: int | None = None, names: list[str] | None = None) -> np.ndarray:
+    """'1,2,3' -> array; BadInput naming the option on anything else (and, given ``names``, the
+    ``size`` values expected in their order: a URDF tree's controls are many)."""
     try:
         values = np.array([float(v) for v in text.replace(";", ",").split(",") if v.strip() != ""])
     except ValueError:
         raise BadInput(f"{what}: expected comma-separated numbers, got {text!r}") from None
     if size is not None and values.size != size:
-        raise BadInput(f"{what}: expected {size} numbers, got {values.size}")
+        raise BadInput(f"{what}: expected {size} numbers, got {values.size}"
+                       + (f" ({', '.join(names)}, in this order)" if names else ""))
     if not np.all(np.isfinite(values)):
         raise BadInput(f"{what}: numbers must be finite")
     return values

@@ -28,7 +28,7 @@ def add_parser(sub):
 def run(args) -> int:
     spec = platform_from_args(args)
     model = PlatformModel(spec, length_unit=args.unit)
-    u = controls_to_si(spec, parse_vector(args.u, "--u", spec.n_u), args.unit)
+    u = controls_to_si(spec, parse_vector(args.u, "--u", spec.n_u, spec.control_names), args.unit)
     guess = None
     if args.guess:
         guess = parse_vector(args.guess, "--guess", spec.n_p)

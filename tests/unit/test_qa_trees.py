@@ -190,3 +190,14 @@ def test_ik_on_a_tree_gives_the_joints_off_the_moving_link_at_neutral_and_says_s
     assert main(["fk", *chain, "--u", ",".join(map(repr, u_ik)), "--json"]) == 0
     back = json.loads(capsys.readouterr().out)
     assert [back[k] for k in ("x", "y", "z")] == pytest.approx([fk[k] for k in ("x", "y", "z")], abs=1e-6)
+
+
+def test_fk_with_the_wrong_count_of_controls_names_them_in_order(capsys):
+    """A tree's controls are its recorded joints depth-first: a count mismatch now says which, in
+    which order (it said only '--u: expected 9 numbers, got 2')."""
+    assert main(["fk", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
+                 "--u", "0,0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        "--u: expected 9 numbers, got 2 (torso_yaw, torso_pitch, head_yaw, right_1_joint, right_2_joint, "
+        "right_3_joint, left_1_joint, left_2_joint, left_3_joint, in this order)"), err
