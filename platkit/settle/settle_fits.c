@@ -1,4 +1,7 @@
-/* The approach fits' normal equations compiled (platkit.settle._native, package data).
+/* Settling's kernels (platkit.settle._native, package data): the approach fits' normal
+   equations (pk_settle_prepare, pk_settle_fits), and numpy's numbers bit for bit for the still
+   test (pk_settle_halves, pk_settle_still) and the noise estimate (pk_settle_mad); the trend
+   test's regression to rounding (pk_settle_trend).
 
    For every hold h and each of its time constants tau: the normal equations of the design
    [1, e, (s / tau) e], e = exp(-s / tau), per marker over its visible samples (weights w), as
@@ -11,9 +14,11 @@
    BLOCK samples, the others from it times exp(-j dt / tau) (a table per tau, dt the hold's
    mean spacing) times 1 - d / tau, d = s_k - s_block - j dt, where |d| / tau is below 1e-9 (the
    neglected term below 1e-18 of e); elsewhere (jitter, gaps) exp itself. The sums against the
-   markers run over the samples with the right-hand sides of 16 columns in registers (y is laid
-   out with its columns padded to a multiple of 16 with zeros); on x86-64 with GCC the kernel is
-   also built for AVX and FMA, picked at load time where the processor has them. */
+   markers run over the samples with the right-hand sides in registers (y is laid out with its
+   columns padded to a multiple of 16 with zeros): 16 columns in AVX vectors with fused
+   multiply-adds where an x86-64 processor has them (checked at run time), else 8 in vectors of
+   two; with GCC on x86-64 Linux the fits' other loops are also built for AVX and FMA and picked
+   at load time. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
