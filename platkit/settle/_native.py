@@ -139,7 +139,7 @@ def _rows(markers: np.ndarray) -> tuple[np.ndarray, int]:
     x = markers
     if not (x.dtype == np.float64 and x.ndim == 3 and x.shape[0] > 0 and x.strides[1:] == (24, 8)
             and x.strides[0] >= 24 * x.shape[1] and x.strides[0] % 8 == 0):
-        x = np.ascontiguousarray(markers, dtype=float).reshape(len(markers), -1, 3)
+        x = np.ascontiguousarray(markers, dtype=float)
     return x, (x.strides[0] // 8 if x.shape[0] > 1 else 3 * x.shape[1])
 
 
