@@ -42,7 +42,7 @@ from platkit.io.session_checks import (
     check_times,
     checked_marker_block,
 )
-from platkit.io.session_yaml import TIME_UNITS, read_session_yaml
+from platkit.io.session_yaml import TIME_UNITS, _link_mapping, read_session_yaml
 from platkit.io.shipped import shipped_dir
 from platkit.io.table import _read_header, read_table
 from platkit.model import LENGTH_UNITS, PlatformSpec
@@ -152,18 +152,23 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     name = name or platform
     desc_path = Path(description) if description is not None else y["description"]
     joints_file = None
+    built = False
     if spec is None and name is not None:
 
         options = {k: y[k] for k in ("moving_link", "base_link") if y[k]}
         if isinstance(y["moving_link"], dict):  # a tree: the recorded joints are the controls
             joints_file, options["joints"] = recorded_joints(folder, y)
-        try:
-            spec = get_platform(name, desc_path, **options)
-        except BadInput as exc:
-            text = str(exc)
-            if joints_file is not None and text.startswith(JOINTS_WHERE):
-                raise BadSession(f"{joints_file}{text[len(JOINTS_WHERE):]}") from None
-            raise BadSession(f"{ypath}: {exc}") from None
+        spec = _stand(name, desc_path, options, joints_file, ypath)
+        built = True
+    mapping = (spec.extras.get("platform_options") or {}).get("moving_link") if spec is not None else None
+    if spec is not None and not isinstance(y["moving_link"], dict) and isinstance(mapping, dict):
+        # the stand's description (or the calibration read with it) maps the markers to links: a
+        # tree, the session's mapping as if session.yaml had said it, its recorded joints the controls
+        y = dict(y, moving_link=_link_mapping(dict(mapping), y["markers"], y["rigid_bodies"],
+                                              Path(spec.description_path or desc_path or ypath)))
+        if built:
+            joints_file, options["joints"] = recorded_joints(folder, y)
+            spec = _stand(name, desc_path, options, joints_file, ypath)
     s = Session(
         folder=folder, platform=name, spec=spec, description=desc_path, length_unit=y["length_unit"],
         time_unit=y["time_unit"], marker_names=y["markers"], base_marker_names=y["base_markers"],
@@ -248,6 +253,18 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
 
 #: how the urdf stand names the recorded joints in its errors (replaced by the file that listed them)
 JOINTS_WHERE = "urdf stand option 'joints'"
+
+
+def _stand(name: str, description, options: dict, joints_file: Path | None, ypath: Path) -> PlatformSpec:
+    """The stand a session names, its errors as BadSession naming session.yaml (or the file whose
+    columns are a tree's recorded joints, for errors about them)."""
+    try:
+        return get_platform(name, description, **options)
+    except BadInput as exc:
+        text = str(exc)
+        if joints_file is not None and text.startswith(JOINTS_WHERE):
+            raise BadSession(f"{joints_file}{text[len(JOINTS_WHERE):]}") from None
+        raise BadSession(f"{ypath}: {exc}") from None
 
 
 def _joints_file(folder: Path) -> Path:

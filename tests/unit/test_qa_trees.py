@@ -10,7 +10,8 @@ import json
 
 import numpy as np
 import pytest
-from test_urdf_tree import MARKERS, URDF, commands, observe, tree_spec, true_td, write_session
+import yaml
+from test_urdf_tree import MAPPING, MARKERS, URDF, commands, observe, tree_spec, true_td, write_session
 
 from platkit.cli import main
 from platkit.urdf import link_pose_function
@@ -201,3 +202,25 @@ def test_fk_with_the_wrong_count_of_controls_names_them_in_order(capsys):
     assert len(err) == 1 and err[0].endswith(
         "--u: expected 9 numbers, got 2 (torso_yaw, torso_pitch, head_yaw, right_1_joint, right_2_joint, "
         "right_3_joint, left_1_joint, left_2_joint, left_3_joint, in this order)"), err
+
+
+def test_a_mapping_in_the_description_yaml_serves_the_session_in_calibrate_and_diagnose(tmp_path, capsys):
+    """The urdf stand's YAML description may map markers to links (moving_link: {R1: right_tcp,
+    ...}); a session naming that description without a mapping of its own was fitted with every
+    marker on the first link (on Talos: 564 -> 285 mm, exit 0), and diagnose did the same. The
+    description's mapping now serves the session, and its recorded joints are the controls."""
+    session = _session(tmp_path, n=24)
+    (session / "robot.yaml").write_text(yaml.safe_dump({"urdf": "robot.urdf", "moving_link": MAPPING}))
+    y = yaml.safe_load((session / "session.yaml").read_text())
+    y.update(description="robot.yaml", moving_link=None)
+    (session / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
+    cal = tmp_path / "cal"
+    assert main(["calibrate", str(session), "--quiet", "--no-report", "--no-selection", "--out", str(cal)]) == 0
+    report = json.loads((cal / "report.json").read_text())
+    assert report["rms_after"] < 0.2 and set(report["rms_after_per_link"]) == {"right_tcp", "left_tcp"}
+    assert yaml.safe_load((cal / "calibration.yaml").read_text())["markers"]["L2"]["link"] == "left_tcp"
+    diag = tmp_path / "diag"
+    assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--quiet",
+                 "--out", str(diag)]) == 0
+    d = json.loads((diag / "diagnosis.json").read_text())
+    assert d["rms_geometric"] == pytest.approx(report["rms_after"], rel=1e-6)
