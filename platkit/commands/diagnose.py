@@ -69,6 +69,7 @@ def run(args) -> int:
         if platform is not None and platform != cal.platform:
             raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
         sessions[folder] = load_session(folder, spec=cal.spec, quiet=args.quiet)
+        _same_links(sessions[folder].moving_link, cal.marker_links, folder, args.calibration)
         for note in sessions[folder].extras.get("control_notes", []):  # readings kept (platkit.limits)
             warn(note)
         return markers_only(load_poses(folder, spec=cal.spec, session=sessions[folder]), folder)
@@ -95,6 +96,19 @@ def run(args) -> int:
     print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {d.final_fit.rms_after / s:.4g} {d.unit}; "
           f"wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _same_links(session_links, cal_links: dict, folder, calibration) -> None:
+    """A tree session's markers on the links the calibration has them on: a marker that
+    session.yaml maps to another link than the calibration is bad input (the calibration's link
+    was used, the session's mapping ignored, with nothing said)."""
+    if not isinstance(session_links, dict) or not cal_links:
+        return
+    for name, link in session_links.items():
+        if name in cal_links and cal_links[name] != link:
+            raise BadInput(f"{Path(folder) / 'session.yaml'}: field 'moving_link' maps {name!r} to {link!r}, the "
+                           f"calibration {calibration} to {cal_links[name]!r}; a diagnosis keeps the calibration's "
+                           "markers where they are")
 
 
 def _diagnose_imu(session, cal, say, td_status=None, read=None) -> tuple[dict, dict]:

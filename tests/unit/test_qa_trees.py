@@ -224,3 +224,21 @@ def test_a_mapping_in_the_description_yaml_serves_the_session_in_calibrate_and_d
                  "--out", str(diag)]) == 0
     d = json.loads((diag / "diagnosis.json").read_text())
     assert d["rms_geometric"] == pytest.approx(report["rms_after"], rel=1e-6)
+
+
+def test_diagnose_refuses_a_session_that_maps_a_marker_to_another_link_than_the_calibration(tmp_path, capsys):
+    """diagnose kept the calibration's link for a marker that session.yaml maps elsewhere, and said
+    nothing of the session's mapping: now one line naming the file, the marker and both links."""
+    session = _session(tmp_path, n=20)
+    cal = tmp_path / "cal"
+    assert main(["calibrate", str(session), "--quiet", "--no-report", "--no-selection", "--out", str(cal)]) == 0
+    y = yaml.safe_load((session / "session.yaml").read_text())
+    y["moving_link"]["L1"] = "right_tcp"
+    (session / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
+    capsys.readouterr()
+    assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--quiet",
+                 "--out", str(tmp_path / "diag")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "session.yaml: field 'moving_link' maps 'L1' to 'right_tcp', the calibration" in err[0] \
+        and "to 'left_tcp'" in err[0], err
+    assert not (tmp_path / "diag").exists()
