@@ -6,13 +6,18 @@ platkit.calibrate.motion.calibrate_motion. Prints the fit's CPU time (one core: 
 thread) beside the 30 s goal, and the peak traced memory of a second fit (tracemalloc, numpy's
 allocations included) beside the stream's marker array
 (K x 5 x 3 doubles), as ratios, and the held-out error of every command's settled pose
-against the truth.
+against the truth. Traced memory counts what the fit allocates through Python and numpy (the
+session, loaded before, and the interpreter and libraries are not in it, nor CasADi's own C++
+buffers); beside it, where Linux allows, the process's resident memory before the second fit
+and its peak during it (VmHWM, reset first through /proc/self/clear_refs): interpreter,
+libraries, simulation left-overs and the session included.
 
     .venv/bin/python benchmarks/calibrate_motion_speed.py [--seed N] [--minutes M]
 """
 from __future__ import annotations
 
 import argparse
+import re
 import tempfile
 import time
 import tracemalloc
@@ -25,6 +30,25 @@ from platkit.calibrate.motion import calibrate_motion
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
+
+
+def _rss_mb(field: str) -> float | None:
+    """VmRSS or VmHWM of this process in MB (Linux), None elsewhere."""
+    try:
+        text = Path("/proc/self/status").read_text()
+    except OSError:
+        return None
+    m = re.search(rf"^{field}:\s+(\d+) kB", text, re.M)
+    return int(m.group(1)) / 1e3 if m else None
+
+
+def _reset_peak_rss() -> bool:
+    """Reset the process's peak resident memory to the present (Linux 4.0+)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
 
 
 def main() -> None:
@@ -42,10 +66,12 @@ def main() -> None:
         t0, c0 = time.perf_counter(), time.process_time()
         cal, _ = calibrate_motion(session, session.spec)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        rss0, reset = _rss_mb("VmRSS"), _reset_peak_rss()
         tracemalloc.start()  # memory on a second fit: tracing slows numpy's allocations
         calibrate_motion(session, session.spec)
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
+        hwm = _rss_mb("VmHWM") if reset else None
     pred, _, _, _ = predict_markers(cal, sim.commands)
     truth = float(np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2))))
     r = cal.motion["response"]
@@ -59,7 +85,11 @@ def main() -> None:
     print(f"fit CPU time {cpu:.1f} s against the goal 30 s: ratio {cpu / 30:.2f} (wall {wall:.1f} s on a shared "
           "machine; the fit runs on one core)")
     print(f"peak traced memory {peak / 1e6:.1f} MB against 3x the stream's array {3 * stream_bytes / 1e6:.1f} MB: "
-          f"ratio {peak / (3 * stream_bytes):.2f}")
+          f"ratio {peak / (3 * stream_bytes):.2f} ({peak / stream_bytes:.2f} times the array)")
+    if rss0 is not None and hwm is not None:
+        print(f"resident memory of the process: {rss0:.0f} MB before the second fit (interpreter, libraries, "
+              f"session, the first fit's result), peak {hwm:.0f} MB during it (+{hwm - rss0:.0f} MB, "
+              f"{(hwm - rss0) * 1e6 / stream_bytes:.1f} times the array)")
     print(f"held-out error of the settled poses against the truth {truth * 1e3:.4f} mm; shift "
           f"{r['shift_s']['value']:.4f} s (truth {sim.nuisances.time_shift_s:.4f}); tau/true "
           f"{np.round(taus / sim.response.tau_s, 3).tolist()}")

@@ -45,7 +45,7 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
               robust: bool = True, folds: int = 0, rel_tol: float = DEFAULT_REL_TOL, max_iter: int = 60,
               progress: Progress | None = None, platform_options: dict | None = None,
               td_start: np.ndarray | None = None, ridge_m: float = 0.0,
-              plausible: float | None = PLAUSIBLE_RANGE) -> Calibration:
+              plausible: float | None = PLAUSIBLE_RANGE, row_block: int | None = None) -> Calibration:
     """Estimate td, the base-to-mocap transform, marker positions and term parameters.
 
     poses: settled poses (SI); spec: the stand (its nominal td is the starting point and the value
@@ -57,12 +57,15 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     plausible: td is kept within nominal +- this many typical corrections (see
     CalibrationProblem.set_plausible; the names that reach the edge are in
     ``identifiability['at_plausible_limit']``); None lets td go anywhere.
+    row_block: None (default) takes the Jacobian of every pose at once; a number of poses takes
+    it that many at a time (normal equations summed block by block: memory of one block whatever
+    the poses, the sums in another order: the same fit to rounding).
     Raises NotIdentifiable when not even the transform and markers can be fixed, NoConvergence
     when forward kinematics fails on most poses.
     """
     opt = CalibrationOptions(free=free, robust=robust, folds=folds, rel_tol=rel_tol, max_iter=max_iter,
                              progress=progress, platform_options=platform_options, td_start=td_start, ridge_m=ridge_m,
-                             plausible=plausible)
+                             plausible=plausible, row_block=row_block)
     with blas_threads(1):
         cal = fit_calibration(poses, spec, terms, opt)
     cal.warnings = fit_warnings(cal, poses)

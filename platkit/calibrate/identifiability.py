@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from platkit.calibrate.solve import weighted_factor
 from platkit.errors import NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.poses import PoseSet
@@ -265,7 +266,17 @@ class Gauge:
 
 
 def _weighted_jacobian(problem, z, idx) -> np.ndarray:
-    """Scaled Jacobian (rows, len(idx)) of the problem's seen observations, weighted as the fit."""
+    """Scaled Jacobian (rows, len(idx)) of the problem's seen observations, weighted as the fit; of
+    a problem solved block by block (``row_block``), an R factor of it (the same column inner
+    products, hence spans and pivoting, to rounding)."""
+    if getattr(problem, "row_block", None) is not None:
+        st = problem.evaluate(z, with_jac=False)
+        used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
+        mask = np.zeros(problem.n_z, bool)
+        mask[idx] = True
+        order = np.argsort(np.argsort(idx))  # the factor's columns in idx's order
+        return weighted_factor(problem, z, st, np.where(used, problem.base_weights, 0.0), mask)[:, order] \
+            * problem.scale[idx][None, :]
     st = problem.evaluate(z)
     used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
     J = (np.take(st.J, idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
@@ -327,6 +338,8 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
             if n in idx_of:
                 z_ref[k] = z[idx_of[n]]
         st = ref_problem.evaluate(z_ref)
+        if getattr(problem, "row_block", None) is not None:  # bounded memory: the reference problem, kept
+            ref_problem.forget()  # per stand, keeps no Jacobian after this
         lacking = st.converged.sum() < MIN_REFERENCE_POSES
     if lacking:
         # nothing to tell a gauge from a gap in the plan: every direction the data cannot fix is

@@ -68,7 +68,7 @@ STREAMED_MAX_S = 0.25
 #: the stream's reduction (2.): windows of about WINDOW_S s, each kept at NODES nodes; a marker
 #: seen in under MIN_SEEN_SHARE of a window's samples is left out of it; windows per block of the
 #: curvature correction
-WINDOW_S, NODES, MIN_SEEN_SHARE, CORRECTION_BLOCK = 1.0, 3, 0.5, 256
+WINDOW_S, NODES, MIN_SEEN_SHARE, CORRECTION_BLOCK = 1.0, 3, 0.5, 32
 #: samples kept as they are (whole windows, evenly spread): the response's timing shows in the
 #: motion's fast content (each command's step response), which the windows' fit leaves out
 RAW_SAMPLES = 1500
@@ -88,6 +88,10 @@ GAP_FACTOR, GAP_MOVE_M = 10.0, 1e-3
 OVERLAP_SHARE = 0.5
 #: the shifts (s) tried to start the response
 SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
+#: the fit takes the Jacobian this many nodes at a time (normal equations summed over the blocks:
+#: the memory of one block however long the stream); the controls reached at the samples are
+#: evaluated about PROJ_SAMPLES samples at a time (:func:`projected_positions`)
+ROW_BLOCK, PROJ_SAMPLES = 32, 16384
 #: an actuator's own delay lies within +-DELAY_MAX_S of the shift; a streamed drive's rate limit
 #: at most RATE_FREE_FACTOR times the log's fastest step over its interval (there the slew takes
 #: a tenth of the interval: a limit that does not bind)
@@ -114,15 +118,18 @@ class ResponseTerm(ModelTerm):
         self.model, self.T, self.U, self.steps, self.start = model, T, U, np.asarray(steps, float), start
         self.proj, self.sample_t = proj, sample_t
         self._cache: tuple | None = None
-        self._positions: dict = {}  # actuator_positions' cache of this log
+        # actuator_positions' cache of this log: a profile's (or a slewed step's) reference and
+        # response on the fine grid; a plain step reference keeps none (what it would keep, each
+        # sample's command, is an array over the samples per shift tried, quickly found again)
+        self._positions: dict | None = {} if model.reference == "profile" or model.slewed else None
 
     def _at(self, theta, poses: PoseSet, only: int | None = None) -> np.ndarray:
         """The controls reached under ``theta`` at the poses (K, n_u), or actuator ``only``'s (K,)."""
         if self.proj is None:
             return actuator_positions(self.model, theta, self.T, self.U, poses.t, only=only, start=self.start,
                                       cache=self._positions)
-        x = self.proj @ actuator_positions(self.model, theta, self.T, self.U, self.sample_t, only=only,
-                                           start=self.start, cache=self._positions)
+        x = projected_positions(self.proj, self.model, theta, self.T, self.U, self.sample_t, only=only,
+                                start=self.start, cache=self._positions)
         node = poses.extras.get("node")
         return x if node is None or (len(node) == len(x) and np.array_equal(node, np.arange(len(x)))) else x[node]
 
@@ -151,7 +158,33 @@ class ResponseTerm(ModelTerm):
                 d_u[:, :, k] = (self._at(up, poses) - base) / h
             else:
                 d_u[:, j, k] = (self._at(up, poses, j) - base[:, j]) / h
-        return d_u, np.zeros((N, 6, K)), np.zeros((N, poses.n_markers, 3, K))
+        return d_u, None, None  # no pose or marker offset: no arrays of zeros
+
+
+def projected_positions(proj: sparse.csr_matrix, model: ResponseModel, theta, T: np.ndarray, U: np.ndarray,
+                        sample_t: np.ndarray, only: int | None = None, start: np.ndarray | None = None,
+                        cache: dict | None = None) -> np.ndarray:
+    """``proj @ actuator_positions(model, theta, T, U, sample_t, ...)`` (P, n_u), or (P,) for
+    ``only``, for nodes whose rows run forward in time (:class:`StreamWindows`): the positions
+    are evaluated for one block of nodes at a time (about PROJ_SAMPLES samples), at the samples
+    its rows span, so that no array over every sample is made; each node's sum is the whole
+    product's, term for term in the same order."""
+    P = proj.shape[0]
+    ip, ix, data = proj.indptr, proj.indices, proj.data
+    out = np.zeros((P,) if only is not None else (P, model.n_u))
+    if not len(ix):
+        return out
+    first = np.maximum.accumulate(ix[np.minimum(ip[:-1], len(ix) - 1)])  # each row's first sample
+    cuts = np.searchsorted(first, np.arange(PROJ_SAMPLES, int(first[-1]) + 1, PROJ_SAMPLES), side="left")
+    for r0, r1 in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [P]])):
+        lo, hi = int(ip[r0]), int(ip[r1])
+        if lo == hi:
+            continue
+        c0, c1 = int(ix[lo:hi].min()), int(ix[lo:hi].max()) + 1
+        block = sparse.csr_matrix((data[lo:hi], ix[lo:hi] - c0, ip[r0:r1 + 1] - lo), shape=(r1 - r0, c1 - c0))
+        out[r0:r1] = block @ actuator_positions(model, theta, T, U, sample_t[c0:c1], only=only, start=start,
+                                                cache=cache)
+    return out
 
 
 def check_motion_session(session: Session) -> str:
@@ -209,7 +242,8 @@ class StreamWindows:
     its variance in units of one sample's, 0 where left out); proj (P, K) sparse: the same fit of
     the controls (every sample of the window) from the K samples at ``sample_t`` (the stream's
     from ``first`` on); blocks: per window (first row, first sample, samples, {marker: (its rows
-    within the window or None for all, the fit (nodes, rows))}, or None for a window kept raw);
+    within the window and the fit (nodes, rows), or (None, None) for all rows and the window's own
+    fit, its rows of proj)}, or None for a window kept raw);
     counts: the stream's samples, those used (a marker seen, in a window that served), kept raw,
     with no marker seen, before the second command, in windows too short to fit (the stream's
     end), and the marker observations left out (a marker seen too little in a window)."""
@@ -306,7 +340,7 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
             out[:, full] = np.einsum("ik,kmc->imc", A, Yw[:, full])
             n_eff[:, full] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gi, Pn)[:, None]
             for m in np.nonzero(full)[0]:
-                per[int(m)] = (None, A)
+                per[int(m)] = (None, None)  # the window's own fit: its rows of proj
         for m in np.nonzero(~full)[0]:
             k = np.nonzero(vis[:, m])[0]
             if len(k) < max(2 * nodes, MIN_SEEN_SHARE * (b - a)):
@@ -445,13 +479,13 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
 
 
 def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, win: StreamWindows,
-                          X_samples: np.ndarray, X_nodes: np.ndarray) -> np.ndarray:
+                          X_nodes: np.ndarray, reached) -> np.ndarray:
     """(P, M, 3) what the windowed fit of the markers differs, under the model (stand ``td``,
     frame A, b, markers ``mk``), from the markers at the windowed fit of the controls: the fit of
     g(u(t)) at the nodes minus g(fit of u at the nodes), g the markers of the controls (nonlinear).
     Subtracted from the fitted markers, it leaves the model of the nodes g(fit of u) exact to
-    first order in the model's own error. Evaluated CORRECTION_BLOCK windows at a time; 0 where
-    the kinematics fails."""
+    first order in the model's own error. Evaluated CORRECTION_BLOCK windows at a time, ``reached(a,
+    b)`` the controls reached at samples a to b of ``win.sample_t``; 0 where the kinematics fails."""
     M = len(mk)
     out = np.zeros((len(win.t), M, 3))
 
@@ -467,12 +501,14 @@ def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk
         chunk = win.blocks[s:s + CORRECTION_BLOCK]
         a0 = chunk[0][1] - win.first
         a1 = chunk[-1][1] + chunk[-1][2] - win.first
-        g = markers(X_samples[a0:a1])
+        g = markers(reached(a0, a1))
         for p, a, n, per in chunk:
             if per is None:  # a raw window: its samples are the model's own
                 continue
             gw = g[a - win.first - a0:a - win.first - a0 + n]
             for m, (k, Am) in per.items():
+                if Am is None:  # the window's own fit, read from its rows of proj (each of n samples)
+                    Am = win.proj.data[win.proj.indptr[p]:win.proj.indptr[p + win.nodes]].reshape(win.nodes, n)
                 fit = Am @ (gw[:, m] if k is None else gw[k, m])
                 out[p:p + win.nodes, m] = fit - g_nodes[p:p + win.nodes, m]
     return np.nan_to_num(out)
@@ -515,7 +551,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
     pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
     for _ in range(START_ROUNDS):
-        X0 = win.proj @ actuator_positions(rmodel, theta_start, T, U, win.sample_t, start=start)
+        X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
         poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=t,
                          n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder))
         problem = CalibrationProblem(spec, poses0)
@@ -532,10 +568,9 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
     steps = _steps(rmodel, theta_start)
     # 4. the nodes' markers corrected for the kinematics' curvature at the start, and the full fit
-    X_samples = actuator_positions(rmodel, theta_start, T, U, win.sample_t, start=start)
-    X1 = win.proj @ X_samples
-    correction = _curvature_correction(spec, problem.model, spec.nominal_td(), A, tr, mk, win, X_samples, X1)
-    del X_samples
+    X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
+    correction = _curvature_correction(spec, problem.model, spec.nominal_td(), A, tr, mk, win, X1, lambda a, b: (
+        actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)))
     term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps, start, win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=names, t=t,
                     n_samples=win.n_eff,
@@ -543,7 +578,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                     length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
                     extras={"node": np.arange(len(t)), "elapsed": t - t[0]})
     cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
-                    platform_options=platform_options, ridge_m=ridge_m)
+                    platform_options=platform_options, ridge_m=ridge_m, row_block=ROW_BLOCK)
     floor = np.sqrt(3) * marker_noise_floor(poses)
     if np.isfinite(floor) and floor > 0 and cal.rms_after > MISFIT_RATIO * floor:
         raise BadSession(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "

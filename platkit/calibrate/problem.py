@@ -157,6 +157,10 @@ class CalibrationProblem:
         self.set_plausible(PLAUSIBLE_RANGE)
         self._last: tuple[np.ndarray, float, FitState] | None = None
         self._kin: tuple | None = None  # (td, controls, P, converged) of the last solve
+        #: None: the solvers take the Jacobian of every pose at once; a number of poses: they take
+        #: it that many poses at a time (:meth:`evaluate_blocks`: normal equations and R factors
+        #: summed over the blocks), and no evaluation keeps a Jacobian of every pose
+        self.row_block: int | None = None
         self._build()
 
     def set_plausible(self, corrections: float | None) -> None:
@@ -252,15 +256,38 @@ class CalibrationProblem:
             self._last = (z.copy(), self.body_rho, state)
         return state
 
+    def forget(self) -> None:
+        """Drop the evaluation kept by :meth:`evaluate` (its Jacobian's memory)."""
+        self._last = None
+
     def _evaluate(self, z, with_jac: bool, poses: PoseSet | None) -> FitState:
         own = poses is None
         poses = self.poses if own else poses
+        pre = self._prepare(z, poses, own)
+        return self._rows(pre, slice(0, poses.n_poses), with_jac, self._term_jacobians(pre) if with_jac else [])
+
+    def evaluate_blocks(self, z, block: int):
+        """The residuals and Jacobian of the problem's own poses, ``block`` poses at a time: yields
+        (rows, FitState of those poses). The kinematics of every pose and the terms' offsets and
+        their Jacobians in theta are evaluated once; the observation function and the Jacobian's
+        assembly per block, so that no array of every pose's Jacobian is ever made. Each block's
+        rows are those :meth:`evaluate` gives for them."""
+        pre = self._prepare(np.asarray(z, float), self.poses, True)
+        jacs = self._term_jacobians(pre)
+        for s in range(0, self.N, block):
+            rows = slice(s, min(self.N, s + block))
+            yield rows, self._rows(pre, rows, True, jacs)
+
+    def _prepare(self, z, poses: PoseSet, own: bool) -> dict:
+        """What every pose's rows need: the unknowns split, the terms' offsets, the controls
+        reached, the poses' solution P (a stand without a closed-form forward) and which solved."""
         N, M, B = poses.n_poses, self.M, self.B
         td, w, t, m, theta = self.split(z)
         p_body, phi_body = self.split_bodies(z)
         m = np.concatenate([m, p_body])  # the bodies' origins ride as points after the markers
         U = poses.controls
         guess = self._p_guess if own else None
+        q0 = X0 = None
         if self.terms:
             q0, X0, p0, _ = self.kinematics(td, U, guess)
             du, dpose, dm = self._term_offsets(theta, q0, X0, poses)
@@ -269,8 +296,8 @@ class CalibrationProblem:
         Uo = U + du
         if B:
             dm = np.concatenate([dm, np.zeros((N, B, 3))], axis=1)
+        P = None
         if self.spec.forward is not None:
-            outs = self._fns.call(N, with_jac, [Uo, td, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
             ok = np.ones(N, bool)
         else:
             kin = self._kin
@@ -283,62 +310,98 @@ class CalibrationProblem:
             if own:
                 self._p_guess = np.where(ok[:, None], P, self._p_guess)
             P = np.where(ok[:, None], P, self._p_guess if own else self.spec.neutral_p())
-            outs = self._fns.call(N, with_jac, [Uo, td, P, w, t, m.ravel(), dpose, dm.reshape(N, -1)])
-        nP3 = 3 * (M + B)
         measured = np.concatenate([poses.markers, _bodies(poses)[..., :3]], axis=1)
+        return {"poses": poses, "td": td, "w": w, "t": t, "m": m.ravel(), "theta": theta, "phi_body": phi_body,
+                "q0": q0, "X0": X0, "Uo": Uo, "dpose": dpose, "dm": dm.reshape(N, -1), "P": P, "ok": ok,
+                "measured": measured}
+
+    def _term_jacobians(self, pre: dict) -> list:
+        """Each term's offsets differentiated in its parameters, for every pose: ('known', K, d_u,
+        d_pose, d_mk) from the term's own Jacobians (d_pose or d_mk None: zero), or ('columns', K,
+        [(d_u, d_pose, d_m) per parameter]) by forward differences."""
+        poses, N, B, n_u = pre["poses"], pre["poses"].n_poses, self.B, self.spec.n_u
+        q0, X0 = pre["q0"], pre["X0"]
+        out: list = []
+        for term, th in zip(self.terms, pre["theta"]):
+            K = len(th)
+            known = term.offset_jacobians(th, poses, n_u, q0, X0)
+            if known is not None:  # a term linear in theta: its columns in one product each
+                d_u, d_pose, d_mk = known
+                if d_mk is not None:
+                    if B:
+                        d_mk = np.concatenate([d_mk, np.zeros((N, B, 3, K))], axis=1)
+                    d_mk = d_mk.reshape(N, -1, K)
+                out.append(("known", K, d_u, d_pose, d_mk))
+                continue
+            base = (term.control_offset(th, poses, n_u), term.pose_offset(th, poses, q0, X0), term.marker_offset(th, poses))
+            cols = []
+            for j in range(K):
+                h = 1e-6 * max(1.0, abs(th[j]))
+                thp = np.array(th, float).copy()
+                thp[j] += h
+                d_u = (term.control_offset(thp, poses, n_u) - base[0]) / h
+                d_pose = (term.pose_offset(thp, poses, q0, X0) - base[1]) / h
+                d_m = (term.marker_offset(thp, poses) - base[2]) / h
+                if B:
+                    d_m = np.concatenate([d_m, np.zeros((N, B, 3))], axis=1)
+                cols.append((d_u, d_pose, d_m.reshape(N, -1)))
+            out.append(("columns", K, cols))
+        return out
+
+    def _rows(self, pre: dict, rows: slice, with_jac: bool, jacs: list) -> FitState:
+        """Residuals (and the Jacobian) of the poses ``rows`` from :meth:`_prepare`'s ``pre`` and,
+        with the Jacobian, :meth:`_term_jacobians`' ``jacs``."""
+        poses = pre["poses"]
+        n, M, B = rows.stop - rows.start, self.M, self.B
+        args = [pre["Uo"][rows], pre["td"]] + ([] if pre["P"] is None else [pre["P"][rows]]) + [
+            pre["w"], pre["t"], pre["m"], pre["dpose"][rows], pre["dm"][rows]]
+        outs = self._fns.call(n, with_jac, args)
+        ok = pre["ok"][rows]
+        nP3 = 3 * (M + B)
+        measured = pre["measured"][rows]
+        bodies = _bodies(poses)[rows]
         if not with_jac:
-            y = outs[0].reshape(N, -1)
-            r = y[:, :nP3].reshape(N, M + B, 3) - measured
+            y = outs[0].reshape(n, -1)
+            r = y[:, :nP3].reshape(n, M + B, 3) - measured
             if B:
-                e = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(N)), phi_body, poses)
+                e = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(n)), pre["phi_body"], bodies)
                 r = np.concatenate([r, self.body_rho * e], axis=1)
             r[~ok] = np.nan
             return FitState(r, None, ok)
         y = outs[0][:, :, 0]
-        J_main, J_offsets = outs[1], outs[2]  # (N, 3 (M + B) [+ 9], cols), row-major per pose
+        J_main, J_offsets = outs[1], outs[2]  # (n, 3 (M + B) [+ 9], cols), row-major per pose
         Y_m = J_main[:, :, self.i_m.start:]
         Y_dpose, Y_u = J_offsets[:, :, :6], J_offsets[:, :, 6:]
-        r = y[:, :nP3].reshape(N, M + B, 3) - measured
+        r = y[:, :nP3].reshape(n, M + B, 3) - measured
         if self.n_z == J_main.shape[2]:  # td, w, t, markers only: the function's output as it is
             J = J_main
         else:
-            J = np.empty((N, y.shape[1], self.n_z))
+            J = np.empty((n, y.shape[1], self.n_z))
             J[:, :, :self.i_m.stop] = J_main[:, :, :self.i_m.stop]  # td, w, t, markers: one block
             J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
             J[:, :, self.i_body_rot] = 0.0
             J[:, :, self.i_theta] = 0.0
-        if self.terms:
-            k = self.i_theta.start
-            for term, th in zip(self.terms, theta):
-                known = term.offset_jacobians(th, poses, self.spec.n_u, q0, X0)
-                if known is not None:  # a term linear in theta: its columns in one product each
-                    K = len(th)
-                    d_u, d_pose, d_mk = known
-                    if B:
-                        d_mk = np.concatenate([d_mk, np.zeros((N, B, 3, K))], axis=1)
-                    J[:, :, k:k + K] = (np.einsum("nak,nkj->naj", Y_u, d_u) + np.einsum("nak,nkj->naj", Y_dpose, d_pose)
-                                        + np.einsum("nak,nkj->naj", Y_m, d_mk.reshape(N, -1, K)))
-                    k += K
-                    continue
-                base = (term.control_offset(th, poses, self.spec.n_u), term.pose_offset(th, poses, q0, X0),
-                        term.marker_offset(th, poses))
-                for j in range(len(th)):
-                    h = 1e-6 * max(1.0, abs(th[j]))
-                    thp = np.array(th, float).copy()
-                    thp[j] += h
-                    d_u = (term.control_offset(thp, poses, self.spec.n_u) - base[0]) / h
-                    d_pose = (term.pose_offset(thp, poses, q0, X0) - base[1]) / h
-                    d_m = (term.marker_offset(thp, poses) - base[2]) / h
-                    if B:
-                        d_m = np.concatenate([d_m, np.zeros((N, B, 3))], axis=1)
-                    col = (np.einsum("nak,nk->na", Y_u, d_u) + np.einsum("nak,nk->na", Y_dpose, d_pose)
-                           + np.einsum("nak,nk->na", Y_m, d_m.reshape(N, -1)))
-                    J[:, :, k] = col
-                    k += 1
-        J_pts = J[:, :nP3].reshape(N, M + B, 3, self.n_z)
+        k = self.i_theta.start
+        for jac in jacs:
+            K = jac[1]
+            if jac[0] == "known":
+                d_u, d_pose, d_mk = jac[2][rows], jac[3], jac[4]
+                col = np.einsum("nak,nkj->naj", Y_u, d_u)
+                if d_pose is not None:
+                    col = col + np.einsum("nak,nkj->naj", Y_dpose, d_pose[rows])
+                if d_mk is not None:
+                    col = col + np.einsum("nak,nkj->naj", Y_m, d_mk[rows])
+                J[:, :, k:k + K] = col
+                k += K
+                continue
+            for d_u, d_pose, d_m in jac[2]:
+                J[:, :, k] = (np.einsum("nak,nk->na", Y_u, d_u[rows]) + np.einsum("nak,nk->na", Y_dpose, d_pose[rows])
+                              + np.einsum("nak,nk->na", Y_m, d_m[rows]))
+                k += 1
+        J_pts = J[:, :nP3].reshape(n, M + B, 3, self.n_z)
         if B:
-            e, J_rot = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(N)), phi_body, poses,
-                                                  J[:, nP3:].reshape(self._Q_shape(N) + (self.n_z,)))
+            e, J_rot = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(n)), pre["phi_body"], bodies,
+                                                  J[:, nP3:].reshape(self._Q_shape(n) + (self.n_z,)))
             r = np.concatenate([r, self.body_rho * e], axis=1)
             J_pts = np.concatenate([J_pts, self.body_rho * J_rot], axis=1)
         r[~ok] = np.nan
@@ -349,8 +412,9 @@ class CalibrationProblem:
         all, or on a tree one per body (N, B, 3, 3)."""
         return (N, 3, 3) if self.point_links is None else (N, self.B, 3, 3)
 
-    def _body_rotation_errors(self, Q, phi_body, poses: PoseSet, dQ=None):
-        """Each body's orientation error e = log(R_meas^T Q exp(phi_b)) (N, B, 3) rad (NaN unseen) and,
+    def _body_rotation_errors(self, Q, phi_body, bodies: np.ndarray, dQ=None):
+        """Each body's orientation error e = log(R_meas^T Q exp(phi_b)) (N, B, 3) rad (NaN unseen;
+        ``bodies`` (N, B, 7) the poses' measured bodies) and,
         with dQ (N, 3, 3, n_z) the derivatives of Q = mocap_from_moving rotation, de/dz (N, B, 3, n_z).
         On a tree Q (N, B, 3, 3) and dQ (N, B, 3, 3, n_z): each body's own link."""
         N, B = Q.shape[0], self.B
@@ -359,8 +423,8 @@ class CalibrationProblem:
             if dQ is not None:
                 dQ = np.broadcast_to(dQ[:, None], (N, B) + dQ.shape[1:])
         Rb = matrix_from_rotvec(phi_body)  # (B, 3, 3)
-        seen = np.all(np.isfinite(poses.bodies), axis=2)
-        Rm = matrix_from_quat(np.where(seen[..., None], poses.bodies[..., 3:], np.array([1.0, 0, 0, 0])))
+        seen = np.all(np.isfinite(bodies), axis=2)
+        Rm = matrix_from_quat(np.where(seen[..., None], bodies[..., 3:], np.array([1.0, 0, 0, 0])))
         pred = np.einsum("nkab,kbc->nkac", Q, Rb)
         e = log_so3(np.einsum("nkba,nkbc->nkac", Rm, pred))  # (N, B, 3)
         e[~seen] = np.nan

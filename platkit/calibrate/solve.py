@@ -5,6 +5,12 @@ The problem (residuals, Jacobians, priors) is :class:`platkit.calibrate.problem.
 - :func:`robust_fit`: Huber weights on each marker's 3-D error (scale from the median error),
   then outliers beyond REJECT_K sigma rejected outright and the fit repeated at full weight;
 - :func:`kfold`: K-fold held-out prediction error (refits on K-1 folds).
+
+A problem with ``row_block`` set (a fit of thousands of poses from a motion stream) is solved
+from normal equations and R factors summed over blocks of that many poses
+(:meth:`CalibrationProblem.evaluate_blocks`, :func:`weighted_factor`): no Jacobian of every pose
+is made, the sums run in another order (the same fit to rounding). Without it (the default) the
+arithmetic is the whole Jacobian's, in its order.
 """
 from __future__ import annotations
 
@@ -116,6 +122,47 @@ def _normal_equations(state: FitState, weights, active, prior=None, scratch: dic
     rw, Jw = _weighted(state, weights, active, scratch=scratch)
     H = Jw.T @ Jw
     g = Jw.T @ rw
+    return _with_prior(rw, H, g, active, prior)
+
+
+def _normal_equations_blocked(problem: CalibrationProblem, z, state: FitState, weights, active, prior=None):
+    """:func:`_normal_equations` of a problem solved block by block (``problem.row_block`` poses
+    at a time, :meth:`CalibrationProblem.evaluate_blocks`): H and g summed over the blocks, so that
+    the memory is one block's Jacobian whatever the poses; ``state``: the residuals at ``z``."""
+    rw, _ = _weighted(state, weights, active)
+    n = int(np.count_nonzero(active))
+    H, g = np.zeros((n, n)), np.zeros(n)
+    for rows, part in problem.evaluate_blocks(z, problem.row_block):
+        rb, Jb = _weighted(part, weights[rows], active)
+        H += Jb.T @ Jb
+        g += Jb.T @ rb
+    return _with_prior(rw, H, g, active, prior)
+
+
+def weighted_factor(problem: CalibrationProblem, z, state: FitState, weights, active, prior=None) -> np.ndarray:
+    """An upper-triangular R (n_active, n_active) with R^T R = Jw^T Jw, Jw the weighted Jacobian
+    of :func:`_weighted` at ``z`` (``state``: the residuals there; the prior rows stacked below
+    where given), from the blocks of :meth:`CalibrationProblem.evaluate_blocks` (the R factor of
+    each block stacked on the last R: QR of n_active + a block's rows at a time). R has Jw's
+    column inner products, singular values and spans; it stands in for Jw where a problem is
+    solved block by block."""
+    n = int(np.count_nonzero(active))
+    R = np.zeros((0, n))
+    for rows, part in problem.evaluate_blocks(z, problem.row_block):
+        _, Jb = _weighted(part, weights[rows], active)
+        R = np.linalg.qr(np.vstack([R, Jb]), mode="r")
+    if prior is not None:
+        val, idx, slope = prior
+        on = active[idx]  # a prior on a held unknown is a constant: no row
+        if on.any():
+            P = np.zeros((int(on.sum()), n))
+            P[np.arange(P.shape[0]), (np.cumsum(active) - 1)[idx[on]]] = slope[on]
+            R = np.linalg.qr(np.vstack([R, P]), mode="r")
+    return R
+
+
+def _with_prior(rw, H, g, active, prior):
+    """The prior rows, one unknown each, added to H's diagonal and g, their values to rw."""
     if prior is not None:
         val, idx, slope = prior
         on = active[idx]
@@ -142,9 +189,13 @@ def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_it
 def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, progress, stage, it0) -> LMResult:
     z = np.array(z0, float)
     active = np.asarray(active, bool)
-    st = problem.evaluate(z)
+    blocked = problem.row_block is not None  # the normal equations summed block by block
+    st = problem.evaluate(z, with_jac=not blocked)
     scratch: dict = {}  # the weighted Jacobian's array, reused by every step of this run
-    rw, H, g = _normal_equations(st, weights, active, problem.prior_rows(z), scratch)
+    if blocked:
+        rw, H, g = _normal_equations_blocked(problem, z, st, weights, active, problem.prior_rows(z))
+    else:
+        rw, H, g = _normal_equations(st, weights, active, problem.prior_rows(z), scratch)
     cost = 0.5 * rw @ rw
     lam = 1e-5
     converged = False
@@ -175,8 +226,10 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
         small_step = np.linalg.norm(step * np.sqrt(D)) <= xtol * (np.linalg.norm(rw) + xtol)
         small_gain = (cost - cost_new) <= ftol * max(cost, 1e-300)
         done = small_step or small_gain or it == max_iter
-        st_new = problem.evaluate(z_new)  # the Jacobian: for the next iteration or the next round
-        if not done:
+        st_new = problem.evaluate(z_new, with_jac=not blocked)  # the Jacobian: for the next iteration or round
+        if not done and blocked:
+            rw_new, H, g = _normal_equations_blocked(problem, z_new, st_new, weights, active, problem.prior_rows(z_new))
+        elif not done:
             rw_new, H, g = _normal_equations(st_new, weights, active, problem.prior_rows(z_new), scratch)
         z, st, rw, cost = z_new, st_new, rw_new, cost_new
         lam = max(lam / 10, 1e-12)
@@ -229,7 +282,7 @@ def robust_fit(problem: CalibrationProblem, z0, active, robust: bool = True, max
             recentred = True
             z = _recentred_markers(problem, res, keep, active)
             if z is not None:
-                state = problem.evaluate(z, with_jac=True)
+                state = problem.evaluate(z, with_jac=problem.row_block is None)
                 res = LMResult(z, state, res.weights, res.iterations, res.converged, res.cost)
                 d = standardized(state)
                 keep = vis & np.isfinite(d) & (d <= REJECT_K * sigma)
@@ -254,7 +307,8 @@ def _recentred_markers(problem: CalibrationProblem, res: LMResult, keep: np.ndar
     the Huber rounds, between its two places, where every one of its observations can lie beyond
     REJECT_K sigma and rejection would leave it there, at neither place. From the median, the
     larger share of its observations is kept and the rest rejected (and counted)."""
-    state = res.state if res.state.J is not None else problem.evaluate(res.z, with_jac=True)
+    blocked = problem.row_block is not None  # a marker's columns then come block by block, if asked
+    state = res.state if res.state.J is not None or blocked else problem.evaluate(res.z, with_jac=True)
     r, J = state.r, state.J
     seen_all = problem.visible[:, :problem.M] & np.isfinite(r[:, :problem.M]).all(axis=2)
     z, moved = res.z.copy(), False
@@ -265,7 +319,13 @@ def _recentred_markers(problem: CalibrationProblem, res: LMResult, keep: np.ndar
         cols = np.arange(problem.i_m.start + 3 * m, problem.i_m.start + 3 * m + 3)
         if not active[cols].any():
             continue
-        Jm = J[seen, m][:, :, cols]  # (n, 3, 3): the predicted marker against its place
+        if J is not None:
+            Jm = J[seen, m][:, :, cols]  # (n, 3, 3): the predicted marker against its place
+        else:
+            Jm = np.empty((problem.N, 3, 3))
+            for rows, part in problem.evaluate_blocks(res.z, problem.row_block):
+                Jm[rows] = part.J[:, m][:, :, cols]
+            Jm = Jm[seen]
         step = -np.einsum("nij,nj->ni", np.linalg.pinv(Jm), r[seen, m])  # where each observation puts it
         shift = np.median(step, axis=0)
         z[cols[active[cols]]] += shift[active[cols]]
@@ -300,6 +360,7 @@ def kfold(problem: CalibrationProblem, z, active, folds: int, robust: bool = Tru
         sub.prior_center, sub.prior_scale = problem.prior_center, problem.prior_scale
         sub.half_width = problem.half_width
         sub.body_rho, sub.rho_source = problem.body_rho, problem.rho_source
+        sub.row_block = problem.row_block
         fit = robust_fit(sub, z, active, robust, max_iter)
         st = sub.evaluate(fit.z, with_jac=False, poses=test)
         d = np.linalg.norm(st.r, axis=2)

@@ -33,7 +33,7 @@ from platkit.calibrate.identifiability import (
 )
 from platkit.calibrate.plan import reference_poses_for
 from platkit.calibrate.problem import PLAUSIBLE_RANGE, CalibrationProblem, FitState, Progress
-from platkit.calibrate.solve import _rms, _weighted, kfold, robust_fit
+from platkit.calibrate.solve import _rms, _weighted, kfold, robust_fit, weighted_factor
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.io.calibration import Calibration, FitRecord
 from platkit.model import PlatformSpec
@@ -71,6 +71,7 @@ class CalibrationOptions:
     td_start: np.ndarray | None = None
     ridge_m: float = 0.0
     plausible: float | None = PLAUSIBLE_RANGE
+    row_block: int | None = None
 
 
 def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm],
@@ -125,6 +126,7 @@ def _start(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm], opt: 
     the stated convention after the fit. NoConvergence where forward kinematics fails on most poses."""
     free_td = free_mask(spec, opt.free)  # bad names are bad input before any work
     problem = CalibrationProblem(spec, poses, terms)
+    problem.row_block = opt.row_block
     td0 = spec.nominal_td() if opt.td_start is None else np.asarray(opt.td_start, float)
     z = problem.initial_registration(td0)
     problem.set_ridge(opt.ridge_m, z)
@@ -151,14 +153,17 @@ def _identifiable(problem: CalibrationProblem, z: np.ndarray, start: _Start,
     """Stage 2: which candidates the poses fix, by pivoted orthogonalisation of the scaled Jacobian
     at ``z`` (the registered start); returns the analysis and the active unknowns (n_z,) bool.
     NotIdentifiable where not even the transform and the markers are fixed."""
-    st = problem.evaluate(z)
+    st = problem.evaluate(z, with_jac=problem.row_block is None)
     cand_idx = np.nonzero(start.candidates)[0]
     # seen and solved; what the registration rejected counts too: the model terms may be what
     # explains it (a slipped marker's later half is an outlier only to the geometry), and a
     # Jacobian column does not depend on the measured value
     used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
-    Jc = (np.take(st.J, cand_idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
-    Jc = Jc.reshape(-1, len(cand_idx))
+    if st.J is None:  # solved block by block: an R with the Jacobian's column inner products
+        Jc = weighted_factor(problem, z, st, np.where(used, problem.base_weights, 0.0), start.candidates)
+    else:
+        Jc = (np.take(st.J, cand_idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
+        Jc = Jc.reshape(-1, len(cand_idx))
     ident = select_identifiable(Jc, [problem.names[i] for i in cand_idx], problem.scale[cand_idx],
                                 problem.tiers[cand_idx].tolist(), opt.rel_tol)
     chosen = cand_idx[ident.chosen]
@@ -203,17 +208,21 @@ def _uncertainty(problem: CalibrationProblem, fit, active: np.ndarray, gauge: Ga
     covariance."""
     n_z = problem.n_z
     z = fit.z
-    st = problem.evaluate(z)
+    st = problem.evaluate(z, with_jac=problem.row_block is None)
     weights = fit.weights
     keep = (weights > 0) & np.isfinite(st.r).all(axis=2)
     rms_after = _rms(st, weights)
     rw, Jw = _weighted(st, weights, active)
+    if Jw is None:  # solved block by block: an R with R^T R = Jw^T Jw stands in for Jw
+        Jw = weighted_factor(problem, z, st, weights, active)
     n_obs = 3 * int(keep.sum())
     dof = max(1, n_obs - int(active.sum()))
     s2 = float(rw @ rw) / dof
     JtJ = Jw.T @ Jw
     if problem.prior_rows(z) is not None:  # posterior covariance: the prior rows count as data
         _, Jp = _weighted(st, weights, active, problem.prior_rows(z))
+        if Jp is None:
+            Jp = weighted_factor(problem, z, st, weights, active, problem.prior_rows(z))
         JtJ = Jp.T @ Jp
     try:
         cov = s2 * np.linalg.inv(JtJ)
