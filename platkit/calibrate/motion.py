@@ -41,7 +41,6 @@ Procedure (:func:`calibrate_motion`):
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
@@ -50,6 +49,16 @@ from scipy.optimize import least_squares
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import ResponseModel, actuator_positions, lags
+from platkit.calibrate.stream import (
+    MIN_SEEN_SHARE,
+    NODES,
+    RAW_SAMPLES,
+    WINDOW_S,
+    StreamWindows,
+    check_motion_session,
+    projected_positions,
+    stream_windows,
+)
 from platkit.errors import BadSession, ComputationFailed, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, rigid_fit
 from platkit.io.calibration import Calibration
@@ -59,19 +68,10 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["ResponseTerm", "StreamWindows", "calibrate_motion", "stream_windows", "check_motion_session",
-           "STREAMED_MAX_S", "command_speed"]
+__all__ = ["ResponseTerm", "calibrate_motion", "command_speed"]
 
-#: a command log whose median interval is at most this (s) is streamed (step reference); longer
-#: intervals are point-to-point moves between holds (profile reference)
-STREAMED_MAX_S = 0.25
-#: the stream's reduction (2.): windows of about WINDOW_S s, each kept at NODES nodes; a marker
-#: seen in under MIN_SEEN_SHARE of a window's samples is left out of it; windows per block of the
-#: curvature correction
-WINDOW_S, NODES, MIN_SEEN_SHARE, CORRECTION_BLOCK = 1.0, 3, 0.5, 32
-#: samples kept as they are (whole windows, evenly spread): the response's timing shows in the
-#: motion's fast content (each command's step response), which the windows' fit leaves out
-RAW_SAMPLES = 1500
+#: windows per block of the curvature correction
+CORRECTION_BLOCK = 32
 #: samples that start the response; rounds of the start; samples before the first command that
 #: say where a profile's actuators rest
 START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 600, 2, 50
@@ -81,17 +81,11 @@ TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
 #: a fit whose RMS is this many times the markers' own 3-D noise (from the distances between
 #: them) does not describe the stream: the command log does not say where the stand was sent
 MISFIT_RATIO = 5.0
-#: in a streamed log, an interval this many times the median is a gap; markers moving more than
-#: GAP_MOVE_M (m) in its second half, long after any response, mean commands are missing there
-GAP_FACTOR, GAP_MOVE_M = 10.0, 1e-3
-#: the two clocks must share at least this part of the shorter file's span
-OVERLAP_SHARE = 0.5
 #: the shifts (s) tried to start the response
 SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
 #: the fit takes the Jacobian this many nodes at a time (normal equations summed over the blocks:
-#: the memory of one block however long the stream); the controls reached at the samples are
-#: evaluated about PROJ_SAMPLES samples at a time (:func:`projected_positions`)
-ROW_BLOCK, PROJ_SAMPLES = 32, 16384
+#: the memory of one block however long the stream)
+ROW_BLOCK = 32
 #: an actuator's own delay lies within +-DELAY_MAX_S of the shift; a streamed drive's rate limit
 #: at most RATE_FREE_FACTOR times the log's fastest step over its interval (there the slew takes
 #: a tenth of the interval: a limit that does not bind)
@@ -159,214 +153,6 @@ class ResponseTerm(ModelTerm):
             else:
                 d_u[:, j, k] = (self._at(up, poses, j) - base[:, j]) / h
         return d_u, None, None  # no pose or marker offset: no arrays of zeros
-
-
-def projected_positions(proj: sparse.csr_matrix, model: ResponseModel, theta, T: np.ndarray, U: np.ndarray,
-                        sample_t: np.ndarray, only: int | None = None, start: np.ndarray | None = None,
-                        cache: dict | None = None) -> np.ndarray:
-    """``proj @ actuator_positions(model, theta, T, U, sample_t, ...)`` (P, n_u), or (P,) for
-    ``only``, for nodes whose rows run forward in time (:class:`StreamWindows`): the positions
-    are evaluated for one block of nodes at a time (about PROJ_SAMPLES samples), at the samples
-    its rows span, so that no array over every sample is made; each node's sum is the whole
-    product's, term for term in the same order."""
-    P = proj.shape[0]
-    ip, ix, data = proj.indptr, proj.indices, proj.data
-    out = np.zeros((P,) if only is not None else (P, model.n_u))
-    if not len(ix):
-        return out
-    first = np.maximum.accumulate(ix[np.minimum(ip[:-1], len(ix) - 1)])  # each row's first sample
-    cuts = np.searchsorted(first, np.arange(PROJ_SAMPLES, int(first[-1]) + 1, PROJ_SAMPLES), side="left")
-    for r0, r1 in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [P]])):
-        lo, hi = int(ip[r0]), int(ip[r1])
-        if lo == hi:
-            continue
-        c0, c1 = int(ix[lo:hi].min()), int(ix[lo:hi].max()) + 1
-        block = sparse.csr_matrix((data[lo:hi], ix[lo:hi] - c0, ip[r0:r1 + 1] - lo), shape=(r1 - r0, c1 - c0))
-        out[r0:r1] = block @ actuator_positions(model, theta, T, U, sample_t[c0:c1], only=only, start=start,
-                                                cache=cache)
-    return out
-
-
-def check_motion_session(session: Session) -> str:
-    """The reference the command log calls for ('step': streamed, 'profile': holds), after the
-    checks: markers and commands present, on clocks that overlap. BadSession naming the file
-    otherwise."""
-    cmd_file = session.folder / "commands.csv"
-    mk_file = session.markers_source or session.folder / "markers.csv"
-    if session.markers is None or session.marker_t is None:
-        raise BadSession(f"{session.folder}: the session has no motion-capture stream; calibrating from motion "
-                         "needs markers.csv or a C3D file")
-    if session.commands is None or session.command_t is None or len(session.command_t) < 3:
-        raise BadSession(f"{cmd_file}: fewer than 3 commands; calibrating from motion needs the command log")
-    tc, tm = session.command_t, session.marker_t
-    last = float(tc[-1] + np.median(np.diff(tc)))  # the last command is held about as long as the others
-    overlap = min(float(tm[-1]), last) - max(float(tm[0]), float(tc[0]))
-    if overlap < OVERLAP_SHARE * min(last - float(tc[0]), float(tm[-1] - tm[0])):
-        raise BadSession(f"{cmd_file}: its times ({tc[0]:.3f} to {tc[-1]:.3f} s) and those of {mk_file} "
-                         f"({tm[0]:.3f} to {tm[-1]:.3f} s) do not overlap: the two files are on clocks that do not "
-                         "meet (write both from one clock, or shift one by the known offset)")
-    span = np.diff(tc)
-    med = float(np.median(span))
-    reference = "step" if med <= STREAMED_MAX_S else "profile"
-    if reference == "step":
-        _check_gaps(tc, tm, session.markers, cmd_file, mk_file, med)
-    return reference
-
-
-def _check_gaps(tc, tm, Y, cmd_file, mk_file, med: float) -> None:
-    """A streamed log with an interval over GAP_FACTOR times its median, in whose second half the
-    markers' centroid moves more than GAP_MOVE_M: commands are missing there (BadSession)."""
-    c = np.nanmean(Y, axis=1) if Y.shape[1] else np.zeros((len(tm), 3))
-    for i in np.nonzero(np.diff(tc) > GAP_FACTOR * med)[0]:
-        a, b = float(tc[i]), float(tc[i + 1])
-        mid = 0.5 * (a + b)
-        first = c[(tm >= mid) & (tm < mid + 0.2 * (b - a))]
-        last = c[(tm >= b - 0.2 * (b - a)) & (tm < b)]
-        if not (np.isfinite(first).all(axis=1).any() and np.isfinite(last).all(axis=1).any()):
-            continue
-        moved = float(np.linalg.norm(np.nanmean(last, axis=0) - np.nanmean(first, axis=0)))
-        if moved > GAP_MOVE_M:
-            raise BadSession(f"{cmd_file}: no command from t={a:.3f} to t={b:.3f} s ({b - a:.3g} s, the log's interval is "
-                             f"{med:.3g} s) while the markers in {mk_file} moved {1e3 * moved:.3g} mm late in it: the "
-                             "log is sparser than the motion (commands missing)")
-
-
-@dataclass
-class StreamWindows:
-    """The stream reduced to nodes: the samples of each window of about ``window_s`` s, every
-    marker coordinate fitted by a polynomial of degree ``nodes`` - 1 in time and kept as its values
-    at the window's ``nodes`` Gauss-Legendre nodes (module docstring, 2.).
-
-    t (P,) the nodes' times (motion-capture clock); Y (P, M, 3) the fitted markers there (NaN where
-    a marker was left out of a window); n_eff (P, M) what each is worth in samples (the inverse of
-    its variance in units of one sample's, 0 where left out); proj (P, K) sparse: the same fit of
-    the controls (every sample of the window) from the K samples at ``sample_t`` (the stream's
-    from ``first`` on); blocks: per window (first row, first sample, samples, {marker: (its rows
-    within the window and the fit (nodes, rows), or (None, None) for all rows and the window's own
-    fit, its rows of proj)}, or None for a window kept raw);
-    counts: the stream's samples, those used (a marker seen, in a window that served), kept raw,
-    with no marker seen, before the second command, in windows too short to fit (the stream's
-    end), and the marker observations left out (a marker seen too little in a window)."""
-
-    t: np.ndarray
-    Y: np.ndarray
-    n_eff: np.ndarray
-    proj: sparse.csr_matrix
-    sample_t: np.ndarray
-    first: int
-    blocks: list
-    n_stream: int
-    n_used: int
-    n_raw: int
-    n_unseen: int
-    n_before: int
-    n_short: int
-    n_left_out: int
-    n_windows: int
-    n_raw_windows: int
-    window_s: float
-    nodes: int
-
-
-def _legendre(x: np.ndarray, n: int) -> np.ndarray:
-    """(len(x), n) Legendre polynomials P_0 .. P_(n-1) at x."""
-    return np.stack([np.polynomial.legendre.Legendre.basis(k)(x) for k in range(n)], axis=1)
-
-
-def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NODES,
-                   raw_samples: int = RAW_SAMPLES) -> StreamWindows:
-    """The stream from the second command on, cut into windows of equal length near ``window_s``
-    s, each reduced to ``nodes`` nodes (:class:`StreamWindows`), but one window in every so many
-    (evenly, about ``raw_samples`` samples in all; every window of a short stream) kept as its
-    samples. A marker seen in fewer than MIN_SEEN_SHARE of a window's samples (or fewer than 2
-    ``nodes``) is left out of that window; a window with fewer than 2 ``nodes`` samples (the
-    stream's end) is left out; both counted."""
-    tm, Y = session.marker_t, session.markers
-    M = Y.shape[1]
-    seen_any = np.isfinite(Y).all(axis=2).any(axis=1)
-    a0 = int(np.searchsorted(tm, session.command_t[1], side="left"))
-    span = float(tm[-1] - tm[a0]) if a0 < len(tm) else 0.0
-    n_win = max(1, int(round(span / window_s)))
-    edges = np.searchsorted(tm, tm[a0] + np.arange(n_win + 1) * (span / n_win), side="left")
-    edges[-1] = len(tm)
-    xg, _ = np.polynomial.legendre.leggauss(nodes)
-    Pn = _legendre(xg, nodes)
-    ts, Ys, ns, blocks = [], [], [], []
-    rows, cols, vals = [], [], []
-    left_out = short = 0
-    p = 0
-    sizes = np.diff(edges)
-    # whole windows kept raw, evenly spread, up to raw_samples samples
-    every = max(1, int(np.ceil(float(sizes.sum()) / max(raw_samples, 1))))
-    raw = (np.arange(n_win) % every == 0) if raw_samples > 0 else np.zeros(n_win, bool)
-    n_raw = 0
-    for w in range(n_win):
-        a, b = int(edges[w]), int(edges[w + 1])
-        if raw[w]:
-            k = np.nonzero(seen_any[a:b])[0]
-            if not len(k):
-                continue
-            rows.append(p + np.arange(len(k)))
-            cols.append(a - a0 + k)
-            vals.append(np.ones(len(k)))
-            ts.append(tm[a + k])
-            Ys.append(Y[a + k])
-            ns.append(np.isfinite(Y[a + k]).all(axis=2).astype(float))
-            blocks.append((p, a, b - a, None))
-            p += len(k)
-            n_raw += len(k)
-            continue
-        if b - a < 2 * nodes:
-            short += int(seen_any[a:b].sum())
-            continue
-        t = tm[a:b]
-        half = 0.5 * float(t[-1] - t[0]) / (b - a - 1)  # each sample stands for its interval: the nodes'
-        lo, hi = float(t[0]) - half, float(t[-1]) + half  # values are then uncorrelated to 1e-3
-        x = 2.0 * (t - lo) / (hi - lo) - 1.0
-        Phi = _legendre(x, nodes)
-        Gi = np.linalg.inv(Phi.T @ Phi)
-        A = Pn @ Gi @ Phi.T  # (nodes, b - a): the fit's values at the nodes
-        r, c = np.nonzero(np.ones_like(A, bool))
-        rows.append(p + r)
-        cols.append(a - a0 + c)
-        vals.append(A.ravel())
-        Yw = Y[a:b]
-        vis = np.isfinite(Yw).all(axis=2)  # (b - a, M)
-        out = np.full((nodes, M, 3), np.nan)
-        n_eff = np.zeros((nodes, M))
-        per = {}
-        full = vis.all(axis=0)
-        if full.any():
-            out[:, full] = np.einsum("ik,kmc->imc", A, Yw[:, full])
-            n_eff[:, full] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gi, Pn)[:, None]
-            for m in np.nonzero(full)[0]:
-                per[int(m)] = (None, None)  # the window's own fit: its rows of proj
-        for m in np.nonzero(~full)[0]:
-            k = np.nonzero(vis[:, m])[0]
-            if len(k) < max(2 * nodes, MIN_SEEN_SHARE * (b - a)):
-                left_out += len(k)
-                continue
-            Pm = Phi[k]
-            Gm = np.linalg.inv(Pm.T @ Pm)
-            Am = Pn @ Gm @ Pm.T
-            out[:, m] = Am @ Yw[k, m]
-            n_eff[:, m] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gm, Pn)
-            per[int(m)] = (k, Am)
-        ts.append(lo + (xg + 1.0) * 0.5 * (hi - lo))
-        Ys.append(out)
-        ns.append(n_eff)
-        blocks.append((p, a, b - a, per))
-        p += nodes
-    K = len(tm) - a0
-    if not ts:  # nothing to fit: the caller says so
-        ts, Ys, ns = [np.zeros(0)], [np.zeros((0, M, 3))], [np.zeros((0, M))]
-        rows, cols, vals = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0)]
-    proj = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(p, K))
-    n_unseen = int((~seen_any[a0:]).sum())
-    n_used = int(seen_any[a0:].sum()) - short
-    return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:], a0, blocks,
-                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:a0].sum()), short, left_out, len(blocks),
-                         int(raw.sum()), span / n_win, nodes)
 
 
 def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
@@ -585,8 +371,38 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                          f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
                          f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
                          "sparser than the motion) or the log is another recording's")
-    theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
     held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
+    cal.motion = {
+        "used": "motion",
+        "why": reason or "calibrated from the whole stream",
+        "response": _response_report(rmodel, spec, cal, held, T, U, kind, reference),
+        "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
+                    "n_before_second_command": win.n_before, "n_in_short_windows": win.n_short,
+                    "n_marker_observations_left_out": win.n_left_out,
+                    "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
+                    "n_fitted": int(len(t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
+                    "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "
+                            f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
+                            f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
+                            f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
+                            f"{win.n_raw_windows} whole windows evenly spread ({win.n_raw} samples) kept as they are"},
+        "held": [n for n in held if n.startswith("term.actuator_response.")],
+        "time_s": time.perf_counter() - t0,
+    }
+    cal.terms, cal.theta, cal.theta_std = [], [], []  # settled poses need no response
+    if progress is not None:
+        progress("motion", {"response": cal.motion["response"]})
+    if not np.isfinite(cal.rms_after):
+        raise NotIdentifiable(f"{session.folder}: the motion model did not fit the stream")
+    return cal, poses
+
+
+def _response_report(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration, held: list[str], T: np.ndarray,
+                     U: np.ndarray, kind: str, reference: str) -> dict:
+    """The fitted response as the report gives it: per actuator each parameter with its std or
+    'held_at_start' (held by identifiability), a delay's lag (what the markers fix), a streamed
+    rate limit's share of the log's steps it cuts ('does_not_bind' where none); the shift."""
+    theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
     par = rmodel.split(theta)
     sd = rmodel.split(np.where(np.isfinite(theta_std), theta_std, np.nan))
     per = {}
@@ -608,35 +424,13 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                     "per s): the limit is not seen"))
         per[c] = entry
     shift_held = "term.actuator_response.shift_s" in held
-    cal.motion = {
-        "used": "motion",
-        "why": reason or "calibrated from the whole stream",
-        "response": {"kind": kind, "reference": reference, "units": "s for times; controls' internal units "
-                     "(m for length controls) per s for rates",
-                     "delays": bool(rmodel.delays), "rate_limit": bool(rmodel.reference == "profile" or rmodel.slewed),
-                     "shift_s": {"value": float(par["shift_s"]), "std": None if shift_held or not np.isfinite(
-                         sd["shift_s"]) else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
-                         "note": "the motion capture's clock minus the commands', with the stand's common delay"},
-                     "actuators": per},
-        "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
-                    "n_before_second_command": win.n_before, "n_in_short_windows": win.n_short,
-                    "n_marker_observations_left_out": win.n_left_out,
-                    "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
-                    "n_fitted": int(len(t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
-                    "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "
-                            f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
-                            f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
-                            f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
-                            f"{win.n_raw_windows} whole windows evenly spread ({win.n_raw} samples) kept as they are"},
-        "held": [n for n in held if n.startswith("term.actuator_response.")],
-        "time_s": time.perf_counter() - t0,
-    }
-    cal.terms, cal.theta, cal.theta_std = [], [], []  # settled poses need no response
-    if progress is not None:
-        progress("motion", {"response": cal.motion["response"]})
-    if not np.isfinite(cal.rms_after):
-        raise NotIdentifiable(f"{session.folder}: the motion model did not fit the stream")
-    return cal, poses
+    shift = {"value": float(par["shift_s"]), "std": None if shift_held or not np.isfinite(sd["shift_s"])
+             else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
+             "note": "the motion capture's clock minus the commands', with the stand's common delay"}
+    return {"kind": kind, "reference": reference,
+            "units": "s for times; controls' internal units (m for length controls) per s for rates",
+            "delays": bool(rmodel.delays), "rate_limit": bool(rmodel.reference == "profile" or rmodel.slewed),
+            "shift_s": shift, "actuators": per}
 
 
 def _steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:

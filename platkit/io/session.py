@@ -206,25 +206,7 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
         s.command_t = t
 
     # motion-capture markers: markers.csv, a C3D file, or the reduced poses.csv
-    if y["markers_file"]:
-        mpath = folder / y["markers_file"]
-        fmt = export_format(mpath) or ("c3d" if mpath.suffix.lower() == ".c3d" and s.body_names else None)
-        if fmt is not None:  # a vendor export, recognised by its content; a C3D file's bodies are its rotations
-            _read_markers_export(s, mpath, fmt, y["markers_time_offset"])
-        elif mpath.suffix.lower() == ".c3d":
-            _read_markers_c3d(s, mpath, y["markers_time_offset"])
-        elif mpath.suffix.lower() == ".csv":
-            _read_markers_csv(s, mpath, lscale, tscale, y["markers_time_offset"], quiet)
-        else:
-            raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, or a Vicon, Qualisys "
-                             f"or Motive export, got {y['markers_file']!r}")
-    elif (folder / "markers.csv").is_file() and export_format(folder / "markers.csv"):
-        # a vendor export saved as markers.csv: read by its content (docs/importers.md)
-        _read_markers_export(s, folder / "markers.csv", export_format(folder / "markers.csv") or "", y["markers_time_offset"])
-    elif (folder / "markers.csv").is_file():
-        _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
-    elif poses_path.is_file():
-        _read_poses_csv(s, poses_path, lscale, tscale)
+    _read_markers(s, y, folder, lscale, tscale, quiet)
     if s.marker_t is not None and s.markers_source is not None:  # its times against mocap_rate_hz and the commands
         check_stream_times(s.marker_t, s.markers_source, s.time_unit, s.mocap_rate_hz, s.command_t, cpath)
     if s.markers is not None and poses_path.is_file():  # said, so that nobody believes the other file was used
@@ -249,6 +231,33 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     if s.commands is None and s.poses is None and s.imu_t is None:
         raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
     return s
+
+
+def _read_markers(s: Session, y: dict, folder: Path, lscale: float, tscale: float, quiet: bool) -> None:
+    """The session's motion capture into ``s``: session.yaml's markers_file (a vendor export,
+    recognised by its content; a C3D file; a CSV), else markers.csv (a vendor export saved under
+    that name, or the spec's table), else the reduced poses.csv; none is left for the caller."""
+    ypath = folder / "session.yaml"
+    poses_path = folder / "poses.csv"
+    if y["markers_file"]:
+        mpath = folder / y["markers_file"]
+        fmt = export_format(mpath) or ("c3d" if mpath.suffix.lower() == ".c3d" and s.body_names else None)
+        if fmt is not None:  # a vendor export, recognised by its content; a C3D file's bodies are its rotations
+            _read_markers_export(s, mpath, fmt, y["markers_time_offset"])
+        elif mpath.suffix.lower() == ".c3d":
+            _read_markers_c3d(s, mpath, y["markers_time_offset"])
+        elif mpath.suffix.lower() == ".csv":
+            _read_markers_csv(s, mpath, lscale, tscale, y["markers_time_offset"], quiet)
+        else:
+            raise BadSession(f"{ypath}: field 'markers_file' must name a .csv or .c3d file, or a Vicon, Qualisys "
+                             f"or Motive export, got {y['markers_file']!r}")
+    elif (folder / "markers.csv").is_file() and export_format(folder / "markers.csv"):
+        # a vendor export saved as markers.csv: read by its content (docs/importers.md)
+        _read_markers_export(s, folder / "markers.csv", export_format(folder / "markers.csv") or "", y["markers_time_offset"])
+    elif (folder / "markers.csv").is_file():
+        _read_markers_csv(s, folder / "markers.csv", lscale, tscale, y["markers_time_offset"], quiet)
+    elif poses_path.is_file():
+        _read_poses_csv(s, poses_path, lscale, tscale)
 
 
 #: how the urdf stand names the recorded joints in its errors (replaced by the file that listed them)

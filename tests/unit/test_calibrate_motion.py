@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.estimate import predict_markers
-from platkit.calibrate.motion import calibrate_motion, check_motion_session
+from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.calibrate.stream import check_motion_session
 from platkit.errors import BadSession
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
@@ -129,7 +130,7 @@ def test_windows_keep_every_sample_and_the_geometry_exactly(streamed, tmp_path):
     to the window's samples), and a noise-free stream fitted from the windows alone (none kept
     raw) gives the true settled poses to the files' micrometre (the curvature correction: without
     it a window's quadratic fit of the markers is not the stand at the fit of the controls)."""
-    from platkit.calibrate.motion import stream_windows
+    from platkit.calibrate.stream import stream_windows
 
     _, session = streamed
     win = stream_windows(session, raw_samples=0)

@@ -1,0 +1,252 @@
+"""The motion-capture stream of a calibration from motion (:mod:`platkit.calibrate.motion`): its
+checks, and its reduction to nodes that keep what it says of the geometry.
+
+- :func:`check_motion_session`: markers and at least three commands, on two clocks that overlap,
+  and a streamed log with no gap the markers move through (BadSession naming commands.csv);
+  which reference the log calls for ('step': streamed, 'profile': holds);
+- :func:`stream_windows`: the stream cut into windows of about WINDOW_S s, each marker
+  coordinate fitted by a polynomial of degree NODES - 1 in time and kept at the window's NODES
+  Gauss-Legendre nodes, weighted by the samples it stands for; whole windows, evenly spread,
+  about RAW_SAMPLES samples in all, kept as their samples (the response's timing shows in the
+  fast content the windows' fit leaves out);
+- :func:`projected_positions`: the same projection of the controls reached at every sample,
+  evaluated a block of nodes at a time, so that no array over every sample is made.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+
+from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.errors import BadSession
+from platkit.io.session import Session
+
+__all__ = ["StreamWindows", "check_motion_session", "projected_positions", "stream_windows", "STREAMED_MAX_S"]
+
+#: a command log whose median interval is at most this (s) is streamed (step reference); longer
+#: intervals are point-to-point moves between holds (profile reference)
+STREAMED_MAX_S = 0.25
+#: the stream's reduction: windows of about WINDOW_S s, each kept at NODES nodes; a marker seen in
+#: under MIN_SEEN_SHARE of a window's samples is left out of it
+WINDOW_S, NODES, MIN_SEEN_SHARE = 1.0, 3, 0.5
+#: samples kept as they are (whole windows, evenly spread): the response's timing shows in the
+#: motion's fast content (each command's step response), which the windows' fit leaves out
+RAW_SAMPLES = 1500
+#: in a streamed log, an interval this many times the median is a gap; markers moving more than
+#: GAP_MOVE_M (m) in its second half, long after any response, mean commands are missing there
+GAP_FACTOR, GAP_MOVE_M = 10.0, 1e-3
+#: the two clocks must share at least this part of the shorter file's span
+OVERLAP_SHARE = 0.5
+#: the controls reached at the samples are evaluated about PROJ_SAMPLES samples at a time
+#: (:func:`projected_positions`)
+PROJ_SAMPLES = 16384
+
+
+def projected_positions(proj: sparse.csr_matrix, model: ResponseModel, theta, T: np.ndarray, U: np.ndarray,
+                        sample_t: np.ndarray, only: int | None = None, start: np.ndarray | None = None,
+                        cache: dict | None = None) -> np.ndarray:
+    """``proj @ actuator_positions(model, theta, T, U, sample_t, ...)`` (P, n_u), or (P,) for
+    ``only``, for nodes whose rows run forward in time (:class:`StreamWindows`): the positions
+    are evaluated for one block of nodes at a time (about PROJ_SAMPLES samples), at the samples
+    its rows span, so that no array over every sample is made; each node's sum is the whole
+    product's, term for term in the same order."""
+    P = proj.shape[0]
+    ip, ix, data = proj.indptr, proj.indices, proj.data
+    out = np.zeros((P,) if only is not None else (P, model.n_u))
+    if not len(ix):
+        return out
+    first = np.maximum.accumulate(ix[np.minimum(ip[:-1], len(ix) - 1)])  # each row's first sample
+    cuts = np.searchsorted(first, np.arange(PROJ_SAMPLES, int(first[-1]) + 1, PROJ_SAMPLES), side="left")
+    for r0, r1 in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [P]])):
+        lo, hi = int(ip[r0]), int(ip[r1])
+        if lo == hi:
+            continue
+        c0, c1 = int(ix[lo:hi].min()), int(ix[lo:hi].max()) + 1
+        block = sparse.csr_matrix((data[lo:hi], ix[lo:hi] - c0, ip[r0:r1 + 1] - lo), shape=(r1 - r0, c1 - c0))
+        out[r0:r1] = block @ actuator_positions(model, theta, T, U, sample_t[c0:c1], only=only, start=start,
+                                                cache=cache)
+    return out
+
+
+def check_motion_session(session: Session) -> str:
+    """The reference the command log calls for ('step': streamed, 'profile': holds), after the
+    checks: markers and commands present, on clocks that overlap. BadSession naming the file
+    otherwise."""
+    cmd_file = session.folder / "commands.csv"
+    mk_file = session.markers_source or session.folder / "markers.csv"
+    if session.markers is None or session.marker_t is None:
+        raise BadSession(f"{session.folder}: the session has no motion-capture stream; calibrating from motion "
+                         "needs markers.csv or a C3D file")
+    if session.commands is None or session.command_t is None or len(session.command_t) < 3:
+        raise BadSession(f"{cmd_file}: fewer than 3 commands; calibrating from motion needs the command log")
+    tc, tm = session.command_t, session.marker_t
+    last = float(tc[-1] + np.median(np.diff(tc)))  # the last command is held about as long as the others
+    overlap = min(float(tm[-1]), last) - max(float(tm[0]), float(tc[0]))
+    if overlap < OVERLAP_SHARE * min(last - float(tc[0]), float(tm[-1] - tm[0])):
+        raise BadSession(f"{cmd_file}: its times ({tc[0]:.3f} to {tc[-1]:.3f} s) and those of {mk_file} "
+                         f"({tm[0]:.3f} to {tm[-1]:.3f} s) do not overlap: the two files are on clocks that do not "
+                         "meet (write both from one clock, or shift one by the known offset)")
+    span = np.diff(tc)
+    med = float(np.median(span))
+    reference = "step" if med <= STREAMED_MAX_S else "profile"
+    if reference == "step":
+        _check_gaps(tc, tm, session.markers, cmd_file, mk_file, med)
+    return reference
+
+
+def _check_gaps(tc, tm, Y, cmd_file, mk_file, med: float) -> None:
+    """A streamed log with an interval over GAP_FACTOR times its median, in whose second half the
+    markers' centroid moves more than GAP_MOVE_M: commands are missing there (BadSession)."""
+    c = np.nanmean(Y, axis=1) if Y.shape[1] else np.zeros((len(tm), 3))
+    for i in np.nonzero(np.diff(tc) > GAP_FACTOR * med)[0]:
+        a, b = float(tc[i]), float(tc[i + 1])
+        mid = 0.5 * (a + b)
+        first = c[(tm >= mid) & (tm < mid + 0.2 * (b - a))]
+        last = c[(tm >= b - 0.2 * (b - a)) & (tm < b)]
+        if not (np.isfinite(first).all(axis=1).any() and np.isfinite(last).all(axis=1).any()):
+            continue
+        moved = float(np.linalg.norm(np.nanmean(last, axis=0) - np.nanmean(first, axis=0)))
+        if moved > GAP_MOVE_M:
+            raise BadSession(f"{cmd_file}: no command from t={a:.3f} to t={b:.3f} s ({b - a:.3g} s, the log's interval is "
+                             f"{med:.3g} s) while the markers in {mk_file} moved {1e3 * moved:.3g} mm late in it: the "
+                             "log is sparser than the motion (commands missing)")
+
+
+@dataclass
+class StreamWindows:
+    """The stream reduced to nodes: the samples of each window of about ``window_s`` s, every
+    marker coordinate fitted by a polynomial of degree ``nodes`` - 1 in time and kept as its values
+    at the window's ``nodes`` Gauss-Legendre nodes (module docstring, 2.).
+
+    t (P,) the nodes' times (motion-capture clock); Y (P, M, 3) the fitted markers there (NaN where
+    a marker was left out of a window); n_eff (P, M) what each is worth in samples (the inverse of
+    its variance in units of one sample's, 0 where left out); proj (P, K) sparse: the same fit of
+    the controls (every sample of the window) from the K samples at ``sample_t`` (the stream's
+    from ``first`` on); blocks: per window (first row, first sample, samples, {marker: (its rows
+    within the window and the fit (nodes, rows), or (None, None) for all rows and the window's own
+    fit, its rows of proj)}, or None for a window kept raw);
+    counts: the stream's samples, those used (a marker seen, in a window that served), kept raw,
+    with no marker seen, before the second command, in windows too short to fit (the stream's
+    end), and the marker observations left out (a marker seen too little in a window)."""
+
+    t: np.ndarray
+    Y: np.ndarray
+    n_eff: np.ndarray
+    proj: sparse.csr_matrix
+    sample_t: np.ndarray
+    first: int
+    blocks: list
+    n_stream: int
+    n_used: int
+    n_raw: int
+    n_unseen: int
+    n_before: int
+    n_short: int
+    n_left_out: int
+    n_windows: int
+    n_raw_windows: int
+    window_s: float
+    nodes: int
+
+
+def _legendre(x: np.ndarray, n: int) -> np.ndarray:
+    """(len(x), n) Legendre polynomials P_0 .. P_(n-1) at x."""
+    return np.stack([np.polynomial.legendre.Legendre.basis(k)(x) for k in range(n)], axis=1)
+
+
+def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NODES,
+                   raw_samples: int = RAW_SAMPLES) -> StreamWindows:
+    """The stream from the second command on, cut into windows of equal length near ``window_s``
+    s, each reduced to ``nodes`` nodes (:class:`StreamWindows`), but one window in every so many
+    (evenly, about ``raw_samples`` samples in all; every window of a short stream) kept as its
+    samples. A marker seen in fewer than MIN_SEEN_SHARE of a window's samples (or fewer than 2
+    ``nodes``) is left out of that window; a window with fewer than 2 ``nodes`` samples (the
+    stream's end) is left out; both counted."""
+    tm, Y = session.marker_t, session.markers
+    M = Y.shape[1]
+    seen_any = np.isfinite(Y).all(axis=2).any(axis=1)
+    a0 = int(np.searchsorted(tm, session.command_t[1], side="left"))
+    span = float(tm[-1] - tm[a0]) if a0 < len(tm) else 0.0
+    n_win = max(1, int(round(span / window_s)))
+    edges = np.searchsorted(tm, tm[a0] + np.arange(n_win + 1) * (span / n_win), side="left")
+    edges[-1] = len(tm)
+    xg, _ = np.polynomial.legendre.leggauss(nodes)
+    Pn = _legendre(xg, nodes)
+    ts, Ys, ns, blocks = [], [], [], []
+    rows, cols, vals = [], [], []
+    left_out = short = 0
+    p = 0
+    sizes = np.diff(edges)
+    # whole windows kept raw, evenly spread, up to raw_samples samples
+    every = max(1, int(np.ceil(float(sizes.sum()) / max(raw_samples, 1))))
+    raw = (np.arange(n_win) % every == 0) if raw_samples > 0 else np.zeros(n_win, bool)
+    n_raw = 0
+    for w in range(n_win):
+        a, b = int(edges[w]), int(edges[w + 1])
+        if raw[w]:
+            k = np.nonzero(seen_any[a:b])[0]
+            if not len(k):
+                continue
+            rows.append(p + np.arange(len(k)))
+            cols.append(a - a0 + k)
+            vals.append(np.ones(len(k)))
+            ts.append(tm[a + k])
+            Ys.append(Y[a + k])
+            ns.append(np.isfinite(Y[a + k]).all(axis=2).astype(float))
+            blocks.append((p, a, b - a, None))
+            p += len(k)
+            n_raw += len(k)
+            continue
+        if b - a < 2 * nodes:
+            short += int(seen_any[a:b].sum())
+            continue
+        t = tm[a:b]
+        half = 0.5 * float(t[-1] - t[0]) / (b - a - 1)  # each sample stands for its interval: the nodes'
+        lo, hi = float(t[0]) - half, float(t[-1]) + half  # values are then uncorrelated to 1e-3
+        x = 2.0 * (t - lo) / (hi - lo) - 1.0
+        Phi = _legendre(x, nodes)
+        Gi = np.linalg.inv(Phi.T @ Phi)
+        A = Pn @ Gi @ Phi.T  # (nodes, b - a): the fit's values at the nodes
+        r, c = np.nonzero(np.ones_like(A, bool))
+        rows.append(p + r)
+        cols.append(a - a0 + c)
+        vals.append(A.ravel())
+        Yw = Y[a:b]
+        vis = np.isfinite(Yw).all(axis=2)  # (b - a, M)
+        out = np.full((nodes, M, 3), np.nan)
+        n_eff = np.zeros((nodes, M))
+        per = {}
+        full = vis.all(axis=0)
+        if full.any():
+            out[:, full] = np.einsum("ik,kmc->imc", A, Yw[:, full])
+            n_eff[:, full] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gi, Pn)[:, None]
+            for m in np.nonzero(full)[0]:
+                per[int(m)] = (None, None)  # the window's own fit: its rows of proj
+        for m in np.nonzero(~full)[0]:
+            k = np.nonzero(vis[:, m])[0]
+            if len(k) < max(2 * nodes, MIN_SEEN_SHARE * (b - a)):
+                left_out += len(k)
+                continue
+            Pm = Phi[k]
+            Gm = np.linalg.inv(Pm.T @ Pm)
+            Am = Pn @ Gm @ Pm.T
+            out[:, m] = Am @ Yw[k, m]
+            n_eff[:, m] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gm, Pn)
+            per[int(m)] = (k, Am)
+        ts.append(lo + (xg + 1.0) * 0.5 * (hi - lo))
+        Ys.append(out)
+        ns.append(n_eff)
+        blocks.append((p, a, b - a, per))
+        p += nodes
+    K = len(tm) - a0
+    if not ts:  # nothing to fit: the caller says so
+        ts, Ys, ns = [np.zeros(0)], [np.zeros((0, M, 3))], [np.zeros((0, M))]
+        rows, cols, vals = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0)]
+    proj = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(p, K))
+    n_unseen = int((~seen_any[a0:]).sum())
+    n_used = int(seen_any[a0:].sum()) - short
+    return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:], a0, blocks,
+                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:a0].sum()), short, left_out, len(blocks),
+                         int(raw.sum()), span / n_win, nodes)
