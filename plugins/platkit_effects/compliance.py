@@ -27,6 +27,7 @@ from platkit_effects.physics import CompliancePhysics
 from platkit_effects.tree_compliance import (
     JointRotationTerm,
     MassMomentTerm,
+    _stand_where,
     deflected_torque,
     joint_rotation_from_dict,
     joint_rotation_term,
@@ -139,15 +140,6 @@ class ComplianceTerm(ModelTerm):
         i = self.index
         out[:, i] = theta[0] * deflected_torque(stand, poses.controls, stand.joints[i], theta[0] * stand.scale[i])
         return out
-
-
-def _stand_where(spec: PlatformSpec) -> dict:
-    chain = spec.extras.get("chain")
-    options = {}
-    if chain is not None and spec.name == "urdf":
-        options = {"base_link": chain.base_link, "moving_link": chain.moving_link}
-    return {"platform": spec.name, "description": None if spec.description_path is None else str(spec.description_path),
-            "platform_options": options}
 
 
 class Compliance(Effect):
