@@ -225,6 +225,20 @@ class TreeLoads:
                           np.einsum("njk,jk->nj", moment, self.axes))
         return Loads(torque, moment, force, origin, rotation)
 
+    def slopes(self, Q: np.ndarray) -> np.ndarray:
+        """(N, J) each joint's gravity torque's slope in its own value, the others held (mimic
+        joints too): the diagonal of pinocchio's derivative of the generalized gravity at ``Q``
+        (N, J), N m per rad (N per m for a prismatic joint)."""
+        import pinocchio as pin
+
+        Q = np.atleast_2d(np.asarray(Q, float))
+        v = [self.model.joints[j + 1].idx_v for j in range(len(self.joints))]
+        out = np.zeros(Q.shape)
+        for k in range(len(Q)):
+            out[k] = np.diagonal(pin.computeGeneralizedGravityDerivatives(self.model, self.data,
+                                                                          self.pinocchio_q(Q[k])))[v]
+        return out
+
     def link_placements(self, Q: np.ndarray, link: str) -> tuple[np.ndarray, np.ndarray]:
         """(origin (N, 3), rotation (N, 3, 3)): ``link``'s frame in the root frame at ``Q`` (N, J)."""
         import pinocchio as pin

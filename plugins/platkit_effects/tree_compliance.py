@@ -12,8 +12,8 @@ Rules:
   motor must apply; a joint that gives under its weight has a negative compliance).
 - Joint elasticity of a control: a control offset ``c tau_j`` (platkit_effects.compliance), the
   load taken at the deflected configuration: the fixed point ``d = c tau_j(q + d e_j)`` to first
-  order in d, ``tau_j / (1 - c g_j)`` with ``g_j = d tau_j / d q_j`` at the commands (a central
-  difference); what is left is second order in the deflection (1e-5 of the load at 10 mrad).
+  order in d, ``tau_j / (1 - c g_j)`` with ``g_j = d tau_j / d q_j`` at the commands (pinocchio's
+  gravity derivatives); what is left is second order in the deflection (1e-5 of the load at 10 mrad).
 - Joint elasticity of a tree: on a session with several tracked links, one compliance per control
   whose load changes over the poses, all fitted together as one term, and its other forms (a
   joint's compliance or the bending of the link before it): platkit_effects.tree_joints. On a
@@ -51,8 +51,6 @@ from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
 from platkit.tree_loads import Loads, TreeLoads, tree_loads
 
-#: rad (m for prismatic joints): the step of the central difference of a joint's load in its own value
-SLOPE_STEP = 1e-4
 #: |c g_j| above which the deflected load is found by fixed-point iteration, not to first order
 LINEAR_LIMIT = 0.05
 #: mass-moment combinations kept per joint when the URDF has no inertias
@@ -169,15 +167,11 @@ class LoadState:
         return self.regressor
 
     def slope(self, stand: TreeStand, joint: str) -> np.ndarray:
-        """(N,) d tau_j / d q_j of ``joint``'s own load in its own value (central difference,
-        mimic joints held where they are)."""
-        if joint not in self.slopes:
-            j = stand.loads.index[joint]
-            up, down = self.Q.copy(), self.Q.copy()
-            up[:, j] += SLOPE_STEP
-            down[:, j] -= SLOPE_STEP
-            self.slopes[joint] = (stand.loads.loads(up).torque[:, j] - stand.loads.loads(down).torque[:, j]) / (2 * SLOPE_STEP)
-        return self.slopes[joint]
+        """(N,) d tau_j / d q_j of ``joint``'s own load in its own value (mimic joints held where
+        they are): TreeLoads.slopes, every joint's at once, once per state."""
+        if "all" not in self.slopes:
+            self.slopes["all"] = stand.loads.slopes(self.Q)
+        return self.slopes["all"][:, stand.loads.index[joint]]
 
     def link_in_base(self, stand: TreeStand, link: str) -> tuple[np.ndarray, np.ndarray]:
         """(origin (N, 3), rotation (N, 3, 3)) of ``link`` in the base frame (nominal geometry)."""

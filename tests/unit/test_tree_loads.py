@@ -172,3 +172,16 @@ def test_a_floating_joint_is_held_at_rest(tmp_path):
     assert F.held == ["neck"] and F.joints == T.joints
     Q = T.configuration(NAMES, CONFIGS)
     assert np.allclose(F.loads(Q).torque, T.loads(Q).torque, atol=1e-12)
+
+
+def test_each_joints_slope_is_its_torques_derivative_in_its_own_value(tmp_path):
+    T = TreeLoads(_tree(tmp_path))
+    Q = T.configuration(NAMES, CONFIGS)
+    S = T.slopes(Q)
+    h = 1e-6
+    for j in range(len(T.joints)):  # the coupled t2 held where it is, as every other joint
+        up, down = Q.copy(), Q.copy()
+        up[:, j] += h
+        down[:, j] -= h
+        assert np.allclose(S[:, j], (T.loads(up).torque[:, j] - T.loads(down).torque[:, j]) / (2 * h), atol=1e-6)
+    assert np.abs(S).max() > 1.0
