@@ -401,7 +401,12 @@ def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, pr
     judged = [h for h in ident.held if h.name in by_name and int(by_name[h.name]) in pos]
     outside = _outside_span(gauge.J_ref, chosen_ref, [pos[int(by_name[h.name])] for h in judged]) if judged else []
     for h, frac in zip(judged, outside):
-        if frac < rel_tol:
+        if frac < rel_tol and not np.any(gauge.J_ref[:, pos[int(by_name[h.name])]]):
+            h.kind = GAUGE  # no marker depends on it at any pose: nothing tracked hangs on it
+            h.reason += ("; no marker moves with it at any pose the stand can take (a part of the stand no tracked "
+                         "link or marker hangs on): held at nominal")
+            td_gauge.append(h.name)
+        elif frac < rel_tol:
             h.kind = GAUGE
             h.reason += "; no set of poses the stand can take fixes it (a symmetry): held at nominal by convention"
             td_gauge.append(h.name)
@@ -432,7 +437,8 @@ def classify_held(ident: Identifiability, gauge: Gauge, cand_idx: np.ndarray, pr
                 "frame with the markers about the only axis the stand turns about, or a plane it moves in): "
                 f"{', '.join(gauge.held_names)} held at the initial rigid registration, the others measured against them")
     if td_gauge:
-        gauge.conventions.append(f"stand parameters in a symmetry held at nominal: {', '.join(td_gauge)}")
+        gauge.conventions.append(f"stand parameters no pose can fix (a symmetry, or no marker moves with them) held at "
+                                 f"nominal: {', '.join(td_gauge)}")
 
 
 def apply_marker_convention(problem, z, gauge: Gauge) -> tuple[np.ndarray, np.ndarray]:
