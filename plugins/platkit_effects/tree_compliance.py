@@ -563,10 +563,10 @@ def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
     out = []
     T = stand.loads
     if T.prior:
-        out.append("the URDF has no inertias: the loads are those of uniform links (mass in proportion to each link's "
-                   "reach, centred half way; their size carried by the compliances), and each joint's compliance is "
-                   f"also tried with its gravity load's best-determined mass-moment combinations (at most "
-                   f"{MAX_MASS_COMBINATIONS} per joint)")
+        out.append("the URDF has no inertias: not with the URDF's loads, but with those of uniform links (mass in "
+                   "proportion to each link's reach, centred half way; their size carried by the compliances), and "
+                   "each joint's compliance also with its gravity load's best-determined mass-moment combinations (at "
+                   f"most {MAX_MASS_COMBINATIONS} per joint)")
     massless = [n for n in stand.chain if not T.model.inertias[T.index[n] + 1].mass > 0]
     if massless:
         out.append(f"the links moved by {_listed(massless)} have no mass in the URDF (doubtful where they are real "

@@ -237,7 +237,7 @@ def test_what_cannot_be_tried_is_said(tmp_path):
     poses = _poses(bare, U)
     assert LinkBending().untried(bare, poses) == []  # tried on the prior's loads
     assert "mass-moment combinations" in Compliance().untried(bare, poses)[0]
-    assert "no inertias: the loads are those of uniform links" in Compliance().untried(bare, poses)[0]
+    assert "no inertias: not with the URDF's loads, but with those of uniform links" in Compliance().untried(bare, poses)[0]
     heavy_dir = tmp_path / "heavy"
     heavy_dir.mkdir()
     arm = get_platform("urdf", _tree(heavy_dir), moving_link="l_lo")
