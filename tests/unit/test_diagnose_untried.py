@@ -24,7 +24,8 @@ def test_a_urdf_without_inertias_says_its_loads_are_the_priors(tmp_path):
     untried = {e.name: r for e in (Compliance(), LinkBending()) if (r := e.untried(bare, poses))}
     assert set(untried) == {"compliance"}  # link bending is tried, on the prior of uniform links
     text = verdict(_diagnosis(poses, untried))
-    assert "Not tried: compliance where the URDF has no inertias: not with the URDF's loads, but with those of uniform links" in text
+    assert ("Not tried: compliance where the URDF has no inertias: not with the URDF's loads, but with those of "
+            "uniform links") in text
     assert "each joint's compliance also with its gravity load's best-determined mass-moment combinations" in text
 
 
