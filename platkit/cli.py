@@ -119,6 +119,22 @@ def as_flag(message: str, argv: list[str]) -> str:
     return f"{flag}:{rest}" if colon and head.isidentifier() and given else message
 
 
+def _stdout_to_devnull() -> None:
+    """After a reader stopped early: the process's own standard output (sys.__stdout__'s file
+    descriptor) points at /dev/null, so that the flush at exit does not complain again. A
+    standard output another program put in its place (a test harness, a host application) is left
+    to it: its descriptor is not the process's to close."""
+    if sys.stdout is not sys.__stdout__ or sys.__stdout__ is None:
+        return
+    try:
+        fd = sys.__stdout__.fileno()
+    except (OSError, ValueError):  # io.UnsupportedOperation is an OSError and a ValueError
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command line; the exit status. Ctrl-C at any point, start-up included, ends
     with one line on stderr and 130."""
@@ -144,8 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"platkit: error: {as_flag(str(exc), argv)}", file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # the reader stopped early (`platkit describe ... | head`): not an error
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())  # so the flush at exit does not complain again
+        _stdout_to_devnull()
         return 0
     except OSError as exc:  # a path the system refused (permissions, a file where a folder must be)
         if debug:

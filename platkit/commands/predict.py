@@ -48,7 +48,7 @@ def say_joint_columns_ignored(calibration, commands) -> None:
     from pathlib import Path
 
     from platkit.io.calibration import read_calibration
-    from platkit.io.table import _read_header
+    from platkit.io.table import read_header
 
     spec = read_calibration(calibration).spec  # the stand is cached: read again, not rebuilt
     chain = spec.extras.get("chain")
@@ -56,7 +56,7 @@ def say_joint_columns_ignored(calibration, commands) -> None:
         return
     joints = chain.tree.joints
     controls = set(spec.control_names)
-    header, _ = _read_header(Path(commands))
+    header, _ = read_header(Path(commands))
     odd = [c for c in header if c in joints and c not in controls and joints[c].type != "fixed"]
     mimic = [c for c in odd if joints[c].mimic is not None]
     held = [c for c in odd if joints[c].mimic is None]

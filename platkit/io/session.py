@@ -44,7 +44,7 @@ from platkit.io.session_checks import (
 )
 from platkit.io.session_yaml import TIME_UNITS, _link_mapping, read_session_yaml
 from platkit.io.shipped import shipped_dir
-from platkit.io.table import _read_header, read_table
+from platkit.io.table import read_header, read_table
 from platkit.model import LENGTH_UNITS, PlatformSpec
 from platkit.plugins import get_platform
 
@@ -304,7 +304,7 @@ def recorded_joints(folder: Path, y: dict) -> tuple[Path, list[str]]:
     path = _joints_file(folder)
     if not path.is_file():
         raise BadSession(f"{cpath}: file not found; a session needs commands.csv (or poses.csv)")
-    header, _ = _read_header(path)
+    header, _ = read_header(path)
     if path == cpath:
         return path, [h for h in header if h != "t"]
     taken = {"t"}

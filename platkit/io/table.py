@@ -58,7 +58,7 @@ def read_table(path: Path, what: str = "", quiet: bool = False) -> Table:
         sep = _separator(path)
         if sep != ",":
             return _read_separated(path, sep)
-        header, body_start = _read_header(path)
+        header, body_start = read_header(path)
         progress = _Progress(path, quiet)  # says so at once for a large file, before counting its lines
         mid = _split_offset(path, body_start)
         n_lines, n_commas, rows_first = _count_body(path, body_start, mid)
@@ -187,7 +187,7 @@ NAN_CELLS = ["", "nan", "NaN", "NAN", "-nan", "-NaN"]
 _BLOCK_BYTES = 16 * 2**20
 
 
-def _read_header(path: Path) -> tuple[list[str], int]:
+def read_header(path: Path) -> tuple[list[str], int]:
     """(header names, byte offset of the first data line); BadSession for an empty file or
     an empty or duplicated column name."""
     with path.open("rb") as fh:

@@ -132,3 +132,17 @@ def test_join_negative_values_leaves_everything_else_alone():
     argv = ["fk", "--platform", "rotary", "--u", "-10,20", "--json", "--guess=-1,2", "--unit", "mm", "-h"]
     assert join_negative_values(argv) == ["fk", "--platform", "rotary", "--u=-10,20", "--json", "--guess=-1,2",
                                           "--unit", "mm", "-h"]
+
+
+def test_a_reader_that_stops_early_is_no_error_in_a_real_process():
+    """The process's own stdout, whose reader is gone before platkit writes: exit 0, nothing on
+    stderr (neither from the verb nor from the flush at exit)."""
+    import subprocess
+    import sys
+
+    child = subprocess.Popen([sys.executable, "-c", "import sys; from platkit.cli import main; sys.exit(main())",
+                              "describe", "--platform", "stewart"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    child.stdout.close()  # the reader stops before the first line
+    err = child.stderr.read().decode()
+    assert child.wait(timeout=60) == 0 and err == "", err
