@@ -28,28 +28,17 @@ import time
 from pathlib import Path
 
 import numpy as np
+from calibrate_motion import truth_error  # benchmarks/, the script's own folder on the path
 
-from platkit.calibrate.estimate import predict_markers
 from platkit.calibrate.motion import calibrate_motion, command_speed
 from platkit.calibrate.plan import feasible
 from platkit.errors import PlatkitError
-from platkit.geometry import matrix_from_quat
 from platkit.io.session import load_session
-from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
 from platkit.simulate.physics import simulate_physics, write_physical_session
 
 #: a leg without a rate limit is simulated with this one (m/s): never reached
 FREE_RATE = 1e3
-
-
-def truth_error(cal, sim, U) -> float:
-    """RMS (m) of the calibration's markers against the true stand's at commands U."""
-    fb = PlatformModel(sim.spec).forward_batch(U, td=sim.td, strict=False)
-    T = sim.mocap_from_base
-    true = (fb.X[:, None, :] + np.einsum("kij,mj->kmi", matrix_from_quat(fb.q), sim.marker_body)) @ T[:3, :3].T + T[:3, 3]
-    pred, _, _, _ = predict_markers(cal, U)
-    return float(np.sqrt(np.nanmean(np.sum((pred - true) ** 2, axis=2))))
 
 
 def main() -> None:
