@@ -6,32 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from native_cache import native_cache_fixtures
 from reference_robots import example_robot_urdf
 
 from platkit.chains import KinematicChain, Servo, ServoOptions, Task, native_servo
 
 ROBOTS = [("ur_description/urdf/ur5_robot.urdf", "tool0"), ("panda_description/urdf/panda.urdf", "panda_hand")]
 
-
-@pytest.fixture(scope="module")
-def module_cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("servo_cache")
-
-
-@pytest.fixture
-def cache(monkeypatch, module_cache):
-    """The module's cache directory (the loop is compiled there once) and nothing loaded yet."""
-    monkeypatch.setattr(native_servo, "_loaded", {})
-    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(module_cache))
-    return module_cache
-
-
-@pytest.fixture
-def empty_cache(monkeypatch, tmp_path):
-    """An empty cache directory and nothing loaded yet."""
-    monkeypatch.setattr(native_servo, "_loaded", {})
-    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path))
-    return tmp_path
+module_cache, cache, empty_cache = native_cache_fixtures(native_servo, "servo_cache")
 
 
 def _both(chain, task, theta0, **options):

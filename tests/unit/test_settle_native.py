@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from native_cache import native_cache_fixtures
 
 from platkit.settle import _native, load_poses
 from platkit.settle._fits import fit_approaches
@@ -13,26 +14,7 @@ from tests.unit.test_settle import RATE, SIGMA
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "sessions" / "stewart"
 
-
-@pytest.fixture(scope="module")
-def module_cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("settle_cache")
-
-
-@pytest.fixture
-def cache(monkeypatch, module_cache):
-    """The module's cache directory (the kernel is compiled there once) and nothing loaded yet."""
-    monkeypatch.setattr(_native, "_loaded", {})
-    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(module_cache))
-    return module_cache
-
-
-@pytest.fixture
-def empty_cache(monkeypatch, tmp_path):
-    """An empty cache directory and nothing loaded yet."""
-    monkeypatch.setattr(_native, "_loaded", {})
-    monkeypatch.setenv("PLATKIT_CACHE_DIR", str(tmp_path))
-    return tmp_path
+module_cache, cache, empty_cache = native_cache_fixtures(_native, "settle_cache")
 
 
 def _stretches(n_markers: int, seed: int) -> list[tuple]:
