@@ -10,11 +10,12 @@ from platkit.calibrate import excitation as ex
 from platkit.calibrate import sweeps as sw
 from platkit.calibrate import trajectories as tr
 from platkit.calibrate import via_points as vp
-from platkit.calibrate.plan import _Subspace, default_marker_layout, feasible, identification_jacobian
+from platkit.calibrate.plan import _Subspace, default_marker_layout, identification_jacobian
 from platkit.cli import main
 from platkit.errors import NotIdentifiable
 from platkit.io.table import read_table
 from platkit.plugins import get_platform
+from tests.unit.test_plan_excitation import check_every_command as within_limits  # inside the box, rate, accel, reachable
 
 RATE_HZ = 20.0
 
@@ -38,18 +39,6 @@ def markers(stewart):
 @pytest.fixture(scope="module")
 def sweep(stewart, limits, markers):
     return vp.design_via(stewart, limits, markers, 60.0, RATE_HZ, np.random.default_rng(1))
-
-
-def within_limits(spec, U, limits, rate_hz=RATE_HZ):
-    """Every command inside the box, its rate and acceleration within the limits, reachable."""
-    v = np.abs(np.diff(U, axis=0)) * rate_hz
-    a = np.abs(np.diff(U, 2, axis=0)) * rate_hz ** 2
-    assert np.all(v <= limits.rate * (1 + 1e-9))
-    assert np.all(a <= limits.accel * (1 + 1e-9))
-    assert np.all((U >= limits.lower - 1e-12) & (U <= limits.upper + 1e-12))
-    ok, _ = feasible(spec, U)
-    assert ok.all()
-    return v, a
 
 
 def test_a_move_is_time_optimal_within_each_actuators_limits(stewart, limits):
