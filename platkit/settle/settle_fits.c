@@ -41,34 +41,42 @@ typedef double v4 __attribute__((vector_size(32), aligned(8)));
 
 typedef double v2 __attribute__((vector_size(16), aligned(8)));
 
-/* sums over the K samples of e_k y_k and p_k y_k for the Jp columns of y (K, Jp), Jp a multiple
-   of WIDTH: bE, bP (Jp). Eight columns at a time in vectors of two (sixteen registers) */
+/* The body of products_narrow and products_wide, written once: the sums over the K samples of
+   e_k y_k and p_k y_k for the Jp columns of y (K, Jp), Jp a multiple of WIDTH, into bE, bP (Jp);
+   4 L columns at a time in four vectors VT of L lanes each, the right-hand sides in registers. */
+#define PK_PRODUCTS(VT, L)                                                                       \
+    for (int g = 0; g < Jp; g += 4 * (L)) {                                                     \
+        const VT zero = {0};                                                                    \
+        VT e0 = zero, e1 = e0, e2 = e0, e3 = e0, p0 = e0, p1 = e0, p2 = e0, p3 = e0;            \
+        const double *yg = y + g;                                                               \
+        for (long long k = 0; k < K; k++) {                                                     \
+            const VT *yk = (const VT *)(yg + k * Jp);                                           \
+            const VT ev = zero + e[k], pv = zero + p[k]; /* e_k, p_k in every lane */           \
+            const VT y0 = yk[0], y1 = yk[1], y2 = yk[2], y3 = yk[3];                            \
+            e0 += ev * y0; e1 += ev * y1; e2 += ev * y2; e3 += ev * y3;                         \
+            p0 += pv * y0; p1 += pv * y1; p2 += pv * y2; p3 += pv * y3;                         \
+        }                                                                                       \
+        for (int c = 0; c < (L); c++) {                                                         \
+            bE[g + c] = e0[c]; bE[g + (L) + c] = e1[c]; bE[g + 2 * (L) + c] = e2[c];            \
+            bE[g + 3 * (L) + c] = e3[c];                                                        \
+            bP[g + c] = p0[c]; bP[g + (L) + c] = p1[c]; bP[g + 2 * (L) + c] = p2[c];            \
+            bP[g + 3 * (L) + c] = p3[c];                                                        \
+        }                                                                                       \
+    }
+
+/* PK_PRODUCTS eight columns at a time in vectors of two (sixteen registers) */
 #if defined(__GNUC__) && !defined(__clang__)
 __attribute__((optimize("fp-contract=fast")))
 #endif
 static void products_narrow(long long K, int Jp, const double *e, const double *p, const double *y, double *bE,
                             double *bP)
 {
-    for (int g = 0; g < Jp; g += 8) {
-        v2 e0 = {0, 0}, e1 = e0, e2 = e0, e3 = e0, p0 = e0, p1 = e0, p2 = e0, p3 = e0;
-        const double *yg = y + g;
-        for (long long k = 0; k < K; k++) {
-            const v2 *yk = (const v2 *)(yg + k * Jp);
-            const v2 ev = {e[k], e[k]}, pv = {p[k], p[k]};
-            const v2 y0 = yk[0], y1 = yk[1], y2 = yk[2], y3 = yk[3];
-            e0 += ev * y0; e1 += ev * y1; e2 += ev * y2; e3 += ev * y3;
-            p0 += pv * y0; p1 += pv * y1; p2 += pv * y2; p3 += pv * y3;
-        }
-        for (int c = 0; c < 2; c++) {
-            bE[g + c] = e0[c]; bE[g + 2 + c] = e1[c]; bE[g + 4 + c] = e2[c]; bE[g + 6 + c] = e3[c];
-            bP[g + c] = p0[c]; bP[g + 2 + c] = p1[c]; bP[g + 4 + c] = p2[c]; bP[g + 6 + c] = p3[c];
-        }
-    }
+    PK_PRODUCTS(v2, 2)
 }
 
 #if defined(__GNUC__) && defined(__x86_64__)
 #define PK_WIDE 1
-/* products_narrow with sixteen columns at a time in AVX vectors of four, fused multiply-adds */
+/* PK_PRODUCTS sixteen columns at a time in AVX vectors of four, fused multiply-adds */
 #if defined(__clang__)
 __attribute__((target("avx,fma")))
 #else
@@ -77,21 +85,7 @@ __attribute__((target("avx,fma"), optimize("fp-contract=fast")))
 static void products_wide(long long K, int Jp, const double *e, const double *p, const double *y, double *bE,
                           double *bP)
 {
-    for (int g = 0; g < Jp; g += WIDTH) {
-        v4 e0 = {0, 0, 0, 0}, e1 = e0, e2 = e0, e3 = e0, p0 = e0, p1 = e0, p2 = e0, p3 = e0;
-        const double *yg = y + g;
-        for (long long k = 0; k < K; k++) {
-            const v4 *yk = (const v4 *)(yg + k * Jp);
-            const v4 ev = {e[k], e[k], e[k], e[k]}, pv = {p[k], p[k], p[k], p[k]};
-            const v4 y0 = yk[0], y1 = yk[1], y2 = yk[2], y3 = yk[3];
-            e0 += ev * y0; e1 += ev * y1; e2 += ev * y2; e3 += ev * y3;
-            p0 += pv * y0; p1 += pv * y1; p2 += pv * y2; p3 += pv * y3;
-        }
-        for (int c = 0; c < 4; c++) {
-            bE[g + c] = e0[c]; bE[g + 4 + c] = e1[c]; bE[g + 8 + c] = e2[c]; bE[g + 12 + c] = e3[c];
-            bP[g + c] = p0[c]; bP[g + 4 + c] = p1[c]; bP[g + 8 + c] = p2[c]; bP[g + 12 + c] = p3[c];
-        }
-    }
+    PK_PRODUCTS(v4, 4)
 }
 #endif
 
