@@ -191,14 +191,19 @@ def grid_plan_for(spec: PlatformSpec, n_poses: int, margin: float = 0.1, td=None
 
 
 def random_candidates(spec: PlatformSpec, n: int, rng: np.random.Generator, margin: float = 0.1, td=None,
-                      model: PlatformModel | None = None) -> Plan:
+                      model: PlatformModel | None = None, hold_idle: bool = False) -> Plan:
     """``n`` feasible controls drawn uniformly from the control box (rejection sampling); for a
-    stand whose pose space is free, ``n`` poses drawn from the pose box and their controls."""
+    stand whose pose space is free, ``n`` poses drawn from the pose box and their controls.
+    ``hold_idle``: the controls that move no tracked link (:func:`idle_controls`: a humanoid's legs
+    and head when its hands are tracked) keep their neutral command instead."""
     model = model or PlatformModel(spec)
     if spec.pose_free:
         P, U, drawn = sample_poses(model, n, rng, margin, td)
         return Plan(U, "random", {"margin": margin, "space": "pose", "infeasible_dropped": int(drawn - n)}, P)
     lo, hi = control_box(spec, margin)
+    if hold_idle:
+        idle = idle_controls(spec)
+        lo, hi = np.where(idle, spec.neutral_u(), lo), np.where(idle, spec.neutral_u(), hi)
     U_out, P_out = [], []
     tries = 0
     while sum(len(u) for u in U_out) < n:
@@ -228,6 +233,49 @@ def nearest_neighbour_order(U: np.ndarray, spec: PlatformSpec, start: np.ndarray
         order.append(j)
         cur = Z[j]
     return np.array(order, int)
+
+
+# ----------------------------------------------------------------------------- trees
+
+
+def controls_moving_links(spec: PlatformSpec) -> dict[str, np.ndarray]:
+    """Per tracked link (a chain: its moving frame), which controls (n_u,) bool move it: its pose
+    depends on them (structurally: through the joints on its path, and a mimic joint's master)."""
+    if spec.link_poses is None or len(spec.tracked_links) < 2:
+        return {spec.moving_frame: np.ones(spec.n_u, bool)}
+    key = ("moving", id(spec))
+    hit = _MARKER_FUNCTIONS.get(key)
+    if hit is not None and hit[0] is spec:
+        return hit[1]
+    u, t = ca.SX.sym("u", spec.n_u), ca.SX.sym("td", spec.n_td)
+    q, X = spec.link_poses(u, t)
+    out = {link: np.array(ca.which_depends(ca.vertcat(q[4 * k:4 * k + 4], X[3 * k:3 * k + 3]), u, 1, False), bool)
+           for k, link in enumerate(spec.tracked_links)}
+    _MARKER_FUNCTIONS[key] = (spec, out)
+    return out
+
+
+def idle_controls(spec: PlatformSpec) -> np.ndarray:
+    """(n_u,) bool: the controls that move no tracked link (a tree's joints off every tracked
+    branch, recorded for the loads); none on a chain."""
+    moving = np.zeros(spec.n_u, bool)
+    for m in controls_moving_links(spec).values():
+        moving |= m
+    return ~moving
+
+
+def marker_links(spec: PlatformSpec, n_markers: int) -> list[str]:
+    """The link each planned marker rides on: on a tree marker k on tracked link k mod L (so that
+    every branch is planned for, as the simulator places them); on a chain the moving frame."""
+    links = spec.tracked_links if spec.link_poses is not None and len(spec.tracked_links) > 1 else [spec.moving_frame]
+    return [links[k % len(links)] for k in range(n_markers)]
+
+
+def default_marker_count(spec: PlatformSpec) -> int:
+    """Markers a plan places by default: 5 on one moving link; on a tree 3 on each tracked link
+    (marker k on link k mod L), the fewest that fix each link's pose on its own."""
+    links = set(marker_links(spec, len(spec.tracked_links) or 1))
+    return 5 if len(links) < 2 else 3 * len(links)
 
 
 # ----------------------------------------------------------------------------- markers
@@ -433,7 +481,8 @@ def d_optimal(Jr: np.ndarray, n: int, exchange_passes: int = 2, ridge: float = 1
 
 
 def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float, names: list[str],
-                     units: list[str], sub: _Subspace | None = None) -> dict:
+                     units: list[str], sub: _Subspace | None = None, links: list[str] | None = None,
+                     n_td: int | None = None) -> dict:
     """Predicted uncertainty of the parameters estimated from poses J_plan (N, 3M, n_theta)
     with marker noise ``sigma`` (m per coordinate).
 
@@ -441,6 +490,11 @@ def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float,
     candidates J_candidates), the plan's own rank, log det of the scaled information, the
     per-parameter std of the minimum-norm solution (SI units), and 'predicted_marker_rms_m':
     the RMS std of the predicted marker positions over the candidate poses (gauge-free).
+
+    ``links`` (M,), the link each marker rides on, naming two or more links (a tree): 'links' too,
+    per link (:func:`_per_link`) the same figures over its own markers and how many directions
+    they see; ``n_td``: the stand's columns, first (default: the columns not named mocap_ or
+    marker).
     """
     sub = sub or _Subspace(J_candidates)
     Jr = sub.reduce(J_plan).reshape(-1, sub.rank)
@@ -455,8 +509,11 @@ def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float,
         "plan_rank": plan_rank,
         "sigma_m": float(sigma),
     }
+    per_link = links is not None and len(set(links)) > 1
     if plan_rank < sub.rank:
         out.update(logdet=None, predicted_marker_rms_m=None, parameter_std={}, identifiable=False)
+        if per_link:
+            out["links"] = _per_link(J_plan, J_candidates, sub, links, None, _stand_columns(names, n_td))
         return out
     cov_r = sigma**2 * np.linalg.inv(info)
     cov_s = sub.V @ cov_r @ sub.V.T
@@ -472,6 +529,56 @@ def plan_uncertainty(J_plan: np.ndarray, J_candidates: np.ndarray, sigma: float,
         predicted_marker_max_m=float(np.sqrt(np.max(np.maximum(pred_var, 0)))),
         parameter_std={n: {"std": float(s), "unit": u} for n, s, u in zip(names, std, units)},
     )
+    if per_link:
+        out["links"] = _per_link(J_plan, J_candidates, sub, links, pred_var, _stand_columns(names, n_td))
+    return out
+
+
+def _stand_columns(names: list[str], n_td: int | None) -> int:
+    if n_td is not None:
+        return int(n_td)
+    return sum(1 for n in names if not (n.startswith("mocap_") or n.startswith("marker")))
+
+
+def _rank(A: np.ndarray, scale: np.ndarray, rtol: float = 1e-7) -> int:
+    """Rank of the rows A (rows, n_theta), columns scaled as the stand's subspace, at its cut."""
+    A = A / scale
+    if not np.any(A):
+        return 0
+    Rfac = np.linalg.qr(A, mode="r") if A.shape[0] > A.shape[1] else A
+    sv = np.linalg.svd(Rfac, compute_uv=False)
+    return int(np.sum(sv > rtol * sv[0]))
+
+
+def _per_link(J_plan: np.ndarray, J_candidates: np.ndarray, sub: _Subspace, links: list[str],
+              pred_var: np.ndarray | None, n_td: int) -> dict:
+    """Per tracked link, over its own markers' rows: 'markers'; 'stand_parameters', the stand's
+    free parameters that move it (a column nonzero at some reference pose); 'identifiable_rank',
+    the directions its markers see over the reference poses (the stand's, the motion-capture
+    frame's and its markers' placements; the trunk's shared with the other links), and
+    'plan_rank', those the plan's poses see; 'identifiable' where they agree; and, when the whole
+    plan identifies the model, 'predicted_marker_rms_m' and 'predicted_marker_max_m', the std of
+    its markers' predicted positions over the reference poses (per coordinate, as the whole
+    figure)."""
+    M = len(links)
+    rows_c = J_candidates.reshape(J_candidates.shape[0], M, 3, -1)
+    rows_p = J_plan.reshape(J_plan.shape[0], M, 3, -1)
+    var = None if pred_var is None else np.maximum(pred_var, 0).reshape(J_candidates.shape[0], M, 3)
+    out: dict = {}
+    for link in dict.fromkeys(links):
+        mine = np.array([lk == link for lk in links])
+        A_c = rows_c[:, mine].reshape(-1, rows_c.shape[-1])
+        A_p = rows_p[:, mine].reshape(-1, rows_p.shape[-1])
+        ref_rank, plan_rank = _rank(A_c, sub.scale), _rank(A_p, sub.scale)
+        d = {"markers": int(mine.sum()),
+             "stand_parameters": int(np.sum(np.any(A_c[:, :n_td] != 0, axis=0))),
+             "identifiable_rank": ref_rank, "plan_rank": plan_rank, "identifiable": bool(plan_rank >= ref_rank)}
+        if var is not None:
+            v = var[:, mine]
+            d.update(predicted_marker_rms_m=float(np.sqrt(np.mean(v))), predicted_marker_max_m=float(np.sqrt(np.max(v))))
+        else:
+            d.update(predicted_marker_rms_m=None, predicted_marker_max_m=None)
+        out[link] = d
     return out
 
 
@@ -544,7 +651,7 @@ def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.G
     stand's :func:`reference_poses`."""
     model = PlatformModel(spec)
     markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
-    cand = candidates or random_candidates(spec, n_candidates, rng, margin, model=model)
+    cand = candidates or random_candidates(spec, n_candidates, rng, margin, model=model, hold_idle=True)
     ij = identification_jacobian(spec, cand.controls, markers, P=cand.poses, model=model)
     sub = _Subspace(ij.J)
     sel = d_optimal(sub.reduce(ij.J), n)
@@ -552,10 +659,11 @@ def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.G
     ref = reference_poses(spec, margin, model)
     J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
     ref_sub = _Subspace(J_ref)
-    info = plan_uncertainty(ij.J[sel], J_ref, sigma, ij.names, ij.units, ref_sub)
+    links = marker_links(spec, len(markers))
+    info = plan_uncertainty(ij.J[sel], J_ref, sigma, ij.names, ij.units, ref_sub, links, ij.n_td)
     first = np.arange(min(n, len(cand.controls))) if candidates is None else np.unique(
         np.round(np.linspace(0, len(cand.controls) - 1, n)).astype(int))
-    baseline = plan_uncertainty(ij.J[first], J_ref, sigma, ij.names, ij.units, ref_sub)
+    baseline = plan_uncertainty(ij.J[first], J_ref, sigma, ij.names, ij.units, ref_sub, links, ij.n_td)
     info.update(kind="d_optimal", candidates=int(len(cand.controls)))
     info.update(gauge_counts(ij.J[sel], J_ref, ij.names, ij.units, ij.n_td))
     return Plan(cand.controls[sel], "d_optimal", info, cand.poses[sel]), baseline
@@ -569,7 +677,7 @@ def evaluate_plan(spec: PlatformSpec, plan: Plan, sigma: float, n_markers: int =
     ij = identification_jacobian(spec, plan.controls, markers, P=plan.poses, model=model)
     ref = reference_poses(spec, margin, model)
     J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
-    out = plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units)
+    out = plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units, links=marker_links(spec, len(markers)), n_td=ij.n_td)
     out.update(gauge_counts(ij.J, J_ref, ij.names, ij.units, ij.n_td))
     return out
 

@@ -24,7 +24,9 @@ def add_parser(sub):
                    help="random feasible candidates for --optimal (default 500; with --grid the grid is the candidate set)")
     p.add_argument("--noise-mm", type=float, default=0.1,
                    help="marker noise per coordinate of a settled pose (with --motion: of each sample), mm (default 0.1)")
-    p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
+    p.add_argument("--markers", type=int, default=None,
+                   help="markers on the moving part (default 5; on a tree, --moving-link A,B: 3 on each tracked link, "
+                        "marker k on link k mod L)")
     p.add_argument("--margin", type=float, default=0.1, help="fraction of each stroke kept clear at both ends (default 0.1)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of plan.csv (default mm)")
@@ -70,6 +72,24 @@ def add_parser(sub):
     return p
 
 
+def _markers(args, spec) -> tuple[np.ndarray, dict]:
+    """The planned marker layout (--markers, default :func:`platkit.calibrate.plan.default_marker_count`)
+    and the report's keys for it: 'markers', 'marker_layout_m' (each in its link's frame) and, on a
+    tree, 'marker_links' (marker k on tracked link k mod L)."""
+    from platkit.calibrate import plan as pl
+
+    n = pl.default_marker_count(spec) if args.markers is None else args.markers
+    links = pl.marker_links(spec, n)
+    if len(set(links)) < len(set(pl.marker_links(spec, 64))):
+        raise BadInput(f"--markers {n}: a tree of {len(set(pl.marker_links(spec, 64)))} tracked links needs a marker "
+                       "on each (marker k rides on link k mod L)")
+    markers = pl.default_marker_layout(spec, n, np.random.default_rng(0))
+    out: dict = {"markers": n, "marker_layout_m": markers.tolist()}
+    if len(set(links)) > 1:
+        out["marker_links"] = links
+    return markers, out
+
+
 def _summary(info: dict) -> dict:
     return {k: v for k, v in info.items() if k != "parameter_std"}
 
@@ -105,11 +125,11 @@ def run(args) -> int:
     spec = platform_from_args(args)
     sigma = args.noise_mm * 1e-3
     rng = np.random.default_rng(args.seed)
-    markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))
-    report: dict = {"platform": spec.name, "noise_mm": args.noise_mm, "markers": args.markers,
-                    "reference": f"predicted errors are RMS over {pl.REFERENCE_POSES} random reachable poses "
-                                 f"(seed {pl.REFERENCE_SEED}), the same for every plan of this stand",
-                    "marker_layout_m": markers.tolist(), "unit": args.unit}
+    markers, report = _markers(args, spec)
+    report = {"platform": spec.name, "noise_mm": args.noise_mm, **report,
+              "reference": f"predicted errors are RMS over {pl.REFERENCE_POSES} random reachable poses "
+                           f"(seed {pl.REFERENCE_SEED}), the same for every plan of this stand",
+              "unit": args.unit}
     if args.optimal is not None:
         cands = pl.grid_plan(spec, args.grid, args.margin) if args.grid else None
         if args.optimal < 1:
@@ -146,7 +166,6 @@ def run_motion(args) -> int:
     """``platkit plan --motion``: the excitation trajectory (platkit.calibrate.excitation) written as
     the session's commands.csv, its report (<out stem>.json) beside it."""
     from platkit.calibrate import excitation as ex
-    from platkit.calibrate import plan as pl
     from platkit.calibrate import sweeps as sw
     from platkit.calibrate import trajectories as tr
     from platkit.io import jsonout
@@ -188,7 +207,7 @@ def run_motion(args) -> int:
         if colon and head in ("max_rate", "max_accel"):
             raise BadInput("--" + head.replace("_", "-") + ":" + rest) from None
         raise
-    markers = pl.default_marker_layout(spec, args.markers, np.random.default_rng(0))
+    markers, marker_report = _markers(args, spec)
     progress = None if args.quiet else _design_progress()
     target_m = None if args.target_mm is None else args.target_mm * 1e-3
     if (args.family or "via") == "via":
@@ -201,8 +220,8 @@ def run_motion(args) -> int:
                                     sigma_m=args.noise_mm * 1e-3, markers=markers,
                                     rng=np.random.default_rng(args.seed), duration_s=args.duration_s,
                                     target_m=target_m, evaluations=args.evaluations, progress=progress)
-    report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, "markers": args.markers,
-              "marker_layout_m": markers.tolist(), "seed": args.seed, **result.report,
+    report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, **marker_report,
+              "seed": args.seed, **result.report,
               "warnings": said()}  # every warning said while the verb ran (platkit.notices), on stderr too
     with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
         ex.write_commands_csv(tmp / out.name, spec, result.t, result.controls, args.unit)
@@ -336,10 +355,21 @@ def _print(info: dict, baseline: dict | None, out: Path, n: int) -> None:
                 f"{d['predicted_marker_rms_m'] * 1e3:.4f} mm (max {d['predicted_marker_max_m'] * 1e3:.4f} mm); "
                 f"log det {d['logdet']:.2f}")
 
+    def per_link(d):
+        for link, e in (d.get("links") or {}).items():
+            seen = (f"{e['plan_rank']} of the {e['identifiable_rank']} directions its markers see"
+                    + ("" if e["identifiable"] else " (NOT all excited)"))
+            rms = ("" if e["predicted_marker_rms_m"] is None else
+                   f"; predicted marker RMS {e['predicted_marker_rms_m'] * 1e3:.4f} mm "
+                   f"(max {e['predicted_marker_max_m'] * 1e3:.4f} mm)")
+            print(f"  {link}: {e['markers']} markers, {e['stand_parameters']} stand parameters move it; {seen}{rms}")
+
     print(f"wrote {out} ({n} commands) and {out.with_suffix('.json')}")
     print(line(info.get("kind", "plan"), info))
+    per_link(info)
     if baseline is not None:
         print(line("baseline", baseline))
+        per_link(baseline)
     if info.get("identifiable"):
         worst = sorted(info["parameter_std"].items(), key=lambda kv: -kv[1]["std"] * (1e3 if kv[1]["unit"] in ("m", "rad") else 1))[:3]
         print("largest parameter std (minimum-norm gauge): " + ", ".join(
