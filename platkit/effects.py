@@ -200,9 +200,18 @@ def stored_number(where: dict[str, Any], key: str, effect: str, positive: bool =
 
 
 def control_size(spec: PlatformSpec, i: int, size: float | None, default: float) -> float:
-    """A simulated size on control ``i`` in SI (``size`` None: ``default``): mm -> m for a length
-    control, else the control's own unit (:data:`CONTROL_SIZE_UNIT`)."""
-    size = default if size is None else float(size)
+    """A simulated size on control ``i`` in SI: a given ``size`` in mm for a length control (-> m),
+    else in the control's own unit (:data:`CONTROL_SIZE_UNIT`).
+
+    ``size`` None: ``default``, whose number counts mm on a length control and mrad on a control
+    counted in radians (a URDF's revolute joint): at a lever of about a metre the same motion of
+    the tool, and the size of a real joint's effect (a geared joint's play or its deflection under
+    gravity, 1 mrad by the effects' default of 1; a harmonic drive's cyclic error, 0.3 mrad).
+    Other units (a stand's own, e.g. degrees) take ``default`` in that unit."""
+    if size is None:
+        unit = spec.controls[i].unit
+        return default * 1e-3 if unit in ("m", "rad") else default
+    size = float(size)
     return size * 1e-3 if spec.controls[i].unit == "m" else size
 
 
