@@ -16,6 +16,15 @@ def add_parser(sub):
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--heldout", default=None, help="another session of the same stand and mocap frame, scored "
                                                    "before and after (never used to choose)")
+    p.add_argument("--heldout-register", type=int, default=None, metavar="K",
+                   help="the --heldout session was recorded in a motion-capture set-up of its own (another day: the "
+                        "cameras calibrated again, the robot moved): score it also with each model re-registered to "
+                        "that set-up, K consecutive poses fitting the base-to-mocap transform (every other parameter "
+                        "held) and the other poses scored, the blocks rotating so that every pose is scored "
+                        "(diagnosis.json heldout_session.registered)")
+    p.add_argument("--register-markers", action="store_true",
+                   help="with --heldout-register: re-fit the marker places on their links too (a marker body mounted "
+                        "again)")
     p.add_argument("--folds", type=int, default=5, help="K of the K-fold held-out test (default 5)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
@@ -82,10 +91,17 @@ def run(args) -> int:
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None
+    if args.heldout_register is not None or args.register_markers:
+        _check_register(args, cal, heldout)
     say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects,
                                          reopen_geometry=not args.keep_geometry),
                  heldout=heldout, progress=say, start=cal)
+    if args.heldout_register is not None and d.heldout_session is not None:
+        from platkit.diagnose.registered import registered_heldout
+
+        d.heldout_session["registered"] = registered_heldout(d.base, d.calibration, heldout, args.heldout_register,
+                                                             args.register_markers)
     if (Path(args.session) / "imu.csv").is_file():
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
@@ -95,7 +111,26 @@ def run(args) -> int:
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
     print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {d.final_fit.rms_after / s:.4g} {d.unit}; "
           f"wrote {', '.join(str(p) for p in written)}")
+    if d.heldout_session is not None and "registered" in d.heldout_session:
+        h, r = d.heldout_session, d.heldout_session["registered"]
+        print(f"held-out session rms {h['rms_before'] / s:.4g} -> {h['rms_after'] / s:.4g} {d.unit} as is; "
+              f"re-registered on {r['k']} poses at a time: {r['rms_before'] / s:.4g} -> {r['rms_after'] / s:.4g} "
+              f"{d.unit} (paired p = {r['p_improvement']:.2g})")
     return 0
+
+
+def _check_register(args, cal, heldout) -> None:
+    """--heldout-register K: bad input in one line without --heldout, with K that leaves no pose
+    to score, or a block of K poses that cannot fix the set-up (tried on the given calibration,
+    before the diagnosis runs)."""
+    from platkit.calibrate.reregister import rotated_scores
+
+    if args.heldout_register is None:
+        raise BadInput("--register-markers: give --heldout-register K (it says what the re-registration fits)")
+    if heldout is None:
+        raise BadInput(f"--heldout-register {args.heldout_register}: give --heldout SESSION (the session to "
+                       "re-register and score)")
+    rotated_scores(cal, heldout, args.heldout_register, args.register_markers)
 
 
 def _same_links(session_links, cal_links: dict, folder, calibration) -> None:

@@ -12,6 +12,7 @@ import numpy as np
 
 from platkit.calibrate.report import per_link_rms
 from platkit.diagnose.fitting import Diagnosis, Finding
+from platkit.diagnose.registered import registered_in_unit
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.calibration import write_calibration_yaml
 from platkit.io.figures import png_base64 as _png
@@ -139,6 +140,8 @@ def diagnosis_dict(d: Diagnosis) -> dict[str, Any]:
         out["heldout_session"] = {"rms_before": _num(h["rms_before"] / s), "rms_after": _num(h["rms_after"] / s),
                                   "p_improvement": _num(h["p_improvement"]), "n_poses": h["n_poses"],
                                   "per_marker": {k: [_num(a / s), _num(b / s)] for k, (a, b) in h["per_marker"].items()}}
+        if "registered" in h:  # --heldout-register: the same session, each model re-registered to its set-up
+            out["heldout_session"]["registered"] = registered_in_unit(h["registered"], s)
     return out
 
 

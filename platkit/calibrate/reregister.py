@@ -1,0 +1,324 @@
+"""Re-registration: a calibration used in another motion-capture set-up.
+
+The base-to-mocap transform (and, on a marker body mounted again, the markers' places on their
+links) belongs to a set-up: the cameras' calibration, where the robot stands, how the marker body
+sits on the hand. The stand's geometry and its physics (td, the model terms) do not. Re-registering
+a calibration to a new session estimates only the set-up from that session's poses, every other
+parameter held as the calibration has it:
+
+    y_ni = A (X_ni + R_ni (m_i + dm_ni)) + b
+
+with the tracked links' frames R, X and the terms' marker offsets dm predicted by the calibration
+(``platkit.calibrate.estimate``), unknowns A (a rotation), b and, with ``markers=True``, the
+places m. A rigid body's origin counts as one more point (its orientation is not fitted; its
+placement is held, or its origin re-estimated with the markers). The fit: closed form (Kabsch)
+for the transform alone, then Gauss-Newton over every unknown, gross outliers (beyond REJECT_K
+robust sigma) left out and counted. The poses must fix the unknowns: the Jacobian, rotations
+scaled by the points' spread, must have full rank (relative singular value above
+DEFAULT_REL_TOL); else bad input in one line (a transform needs three points off a line; marker
+places need the link to turn about two axes).
+
+Scoring by rotation (:func:`rotated_scores`): blocks of K consecutive poses, in recording order,
+re-register in turn (the last block wraps to the first poses), the session's other poses are
+scored under each; a pose's error is the mean square over the blocks it was scored in. Every
+pose is scored, never by a registration that saw it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from platkit.calibrate.estimate import _predicted_frames, calibration_links
+from platkit.calibrate.identifiability import DEFAULT_REL_TOL
+from platkit.calibrate.robust import REJECT_K, robust_sigma
+from platkit.effects import with_history
+from platkit.errors import BadInput
+from platkit.geometry import matrix_from_rotvec, rigid_fit, rotvec_from_matrix, skew
+from platkit.io.calibration import Calibration
+from platkit.kinematics import PlatformModel
+from platkit.model import length_scale
+from platkit.poses import PoseSet
+
+#: Gauss-Newton stops when no unknown moves by more than this (m, or rad times the spread)
+_STEP_TOL_M = 1e-10
+
+
+@dataclass(frozen=True)
+class SessionPoints:
+    """A session's points against a calibration: P (N, C, 3) m, each point's base-frame position
+    with its place on the link at zero (the link's origin, plus the terms' marker offset turned
+    into the base frame); Rk (N, C, 3, 3) each point's link rotation; Y (N, C, 3) m measured in
+    the mocap frame; seen (N, C) where measured and predicted. C = the calibration's markers, then
+    its rigid bodies' origins; ``names`` the C names."""
+
+    P: np.ndarray
+    Rk: np.ndarray
+    Y: np.ndarray
+    seen: np.ndarray
+    names: list[str]
+
+
+@dataclass(frozen=True)
+class Registration:
+    """A set-up fitted on some poses: the transform mocap_from_base (``rotvec`` rad, ``translation``
+    m, their ``std`` (6,)), the points' places on their links (C, 3) m (the calibration's where
+    held), ``rms`` (m) of the fit on the poses used, ``n_poses`` used, ``n_rejected`` points left
+    out as outliers, ``markers`` whether the places were fitted."""
+
+    rotvec: np.ndarray
+    translation: np.ndarray
+    std: np.ndarray
+    places: np.ndarray
+    rms: float
+    n_poses: int
+    n_points: int
+    n_rejected: int
+    markers: bool
+
+    def apply(self, cal: Calibration) -> Calibration:
+        """``cal`` with this set-up: its transform and (fitted) places; every other value as it was."""
+        M = len(cal.marker_names)
+        out = replace(cal, mocap_rotvec=self.rotvec.copy(), mocap_translation=self.translation.copy(),
+                      mocap_std=self.std.copy(), fit=None)
+        if self.markers:
+            out = replace(out, marker_positions=self.places[:M].copy(), marker_std=np.full((M, 3), np.nan),
+                          body_positions=self.places[M:].copy())
+        return out
+
+    def shift(self, cal: Calibration) -> tuple[float, float]:
+        """(rad, m): the turn and the move of this transform from ``cal``'s, at the base frame's origin."""
+        turn = matrix_from_rotvec(self.rotvec) @ matrix_from_rotvec(cal.mocap_rotvec).T
+        return float(np.linalg.norm(rotvec_from_matrix(turn))), float(np.linalg.norm(self.translation
+                                                                                     - cal.mocap_translation))
+
+    def to_dict(self, cal: Calibration) -> dict:
+        """What a report shows, in ``cal``'s length unit (angles in rad)."""
+        s = length_scale(cal.length_unit)
+        turn, move = self.shift(cal)
+        return {"rotation_vector": [float(x) for x in self.rotvec],
+                "translation": [float(x / s) for x in self.translation],
+                "std_rotation_vector": [_num(x) for x in self.std[:3]],
+                "std_translation": [_num(x / s) for x in self.std[3:]],
+                "turn_from_calibration_rad": turn, "move_from_calibration": move / s,
+                "rms_on_registration_poses": self.rms / s, "n_poses": self.n_poses,
+                "n_rejected_as_outliers": self.n_rejected, "marker_places_refitted": self.markers,
+                "unit": cal.length_unit}
+
+
+def _num(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def session_points(cal: Calibration, poses: PoseSet) -> SessionPoints:
+    """The calibration's prediction of ``poses`` up to the set-up (:class:`SessionPoints`),
+    history- and time-dependent terms read from the whole session's row order. Markers and
+    bodies are matched by name; one the session lacks is bad input."""
+    missing = [m for m in cal.marker_names if m not in poses.marker_names]
+    missing += [b for b in cal.body_names if b not in poses.body_names]
+    if missing:
+        raise BadInput(f"{poses.source or 'the session'}: has no marker or rigid body {missing[0]!r} of the calibration "
+                       f"({', '.join(list(cal.marker_names) + list(cal.body_names))})")
+    order = [poses.marker_names.index(m) for m in cal.marker_names]
+    sub = PoseSet(poses.platform, poses.controls, poses.markers[:, order], list(cal.marker_names), t=poses.t,
+                  length_unit=poses.length_unit, source=poses.source, extras=dict(poses.extras),
+                  marker_links=dict(cal.marker_links))
+    sub = with_history(sub, cal.spec)
+    spec = cal.calibrated_spec()
+    R_all, X_all, dm, ok = _predicted_frames(cal, spec, PlatformModel(spec), sub.controls, sub)
+    links = np.array(calibration_links(cal), int)
+    N = sub.n_poses
+    dm = np.concatenate([dm, np.zeros((N, len(cal.body_names), 3))], axis=1)
+    Rk, Xk = R_all[:, links], X_all[:, links]
+    P = Xk + np.einsum("ncab,ncb->nca", Rk, dm)
+    Y = sub.markers
+    if cal.body_names:
+        Y = np.concatenate([Y, poses.bodies[:, [poses.body_names.index(b) for b in cal.body_names], :3]], axis=1)
+    seen = np.isfinite(Y).all(axis=2) & np.isfinite(P).all(axis=2) & ok[:, None]
+    return SessionPoints(P=P, Rk=Rk, Y=Y, seen=seen, names=list(cal.marker_names) + list(cal.body_names))
+
+
+def _places(cal: Calibration) -> np.ndarray:
+    return np.concatenate([np.asarray(cal.marker_positions, float).reshape(-1, 3),
+                           np.asarray(cal.body_positions, float).reshape(-1, 3)])
+
+
+def _jacobian(pts_centred, Rk_seen, A, idx_points, C: int, markers: bool, spread: float) -> np.ndarray:
+    """(3 n, 6 [+ 3 C]) the residual's derivative in (w spread, db[, places]) at n points, the
+    mocap predictions minus their centroid ``pts_centred`` (n, 3): y -> exp([w]) (y - c) + c + db,
+    rotation columns scaled by ``spread`` (m) so that every column is a length. Rk_seen (n, 3, 3)
+    and idx_points (n,): each point's link rotation and which of the C places it is."""
+    n = len(pts_centred)
+    cols = 6 + (3 * C if markers else 0)
+    J = np.zeros((n, 3, cols))
+    J[:, :, :3] = -skew_batch(pts_centred) * spread
+    J[:, :, 3:6] = np.eye(3)
+    if markers:
+        AR = np.einsum("ab,kbc->kac", A, Rk_seen)
+        for row, c in enumerate(idx_points):
+            J[row, :, 6 + 3 * c:9 + 3 * c] = AR[row]
+    return J.reshape(3 * n, cols)
+
+
+def skew_batch(v: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) the cross-product matrices of v (K, 3)."""
+    return np.stack([skew(x) for x in v]) if len(v) else np.zeros((0, 3, 3))
+
+
+def fit_setup(cal: Calibration, pts: SessionPoints, rows, markers: bool = False, what: str = "the poses",
+              robust: bool = True) -> Registration:
+    """The set-up (:class:`Registration`) fitted on the poses ``rows`` (indices into ``pts``),
+    everything else held at ``cal``'s values; ``robust``: gross outliers left out (else plain
+    least squares). BadInput where those poses cannot fix it (``what`` names them in the line)."""
+    rows = np.asarray(rows, int)
+    start = _places(cal)
+    seen = pts.seen[rows]
+    Rk, Y, P = pts.Rk[rows], pts.Y[rows], pts.P[rows]
+    if seen.sum() < 3:
+        raise BadInput(f"{what}: {int(seen.sum())} points seen and predicted; fixing the base-to-mocap transform needs "
+                       "3 or more off one line")
+    A, b = rigid_fit((P + np.einsum("ncab,cb->nca", Rk, start))[seen], Y[seen])
+    unknown = "the base-to-mocap transform" + (" and the marker places" if markers else "")
+    keep = seen
+    for _ in range(4):  # fit, then leave out the gross outliers of that fit, until none changes
+        A, b, places, cov_wb = _gauss_newton(A, b, start, P, Rk, Y, keep, markers, what, unknown, len(rows))
+        pred = (P + np.einsum("ncab,cb->nca", Rk, places)) @ A.T + b
+        d = np.linalg.norm(np.where(seen[..., None], pred - Y, 0.0), axis=2)
+        sigma = robust_sigma(d[seen])
+        new_keep = seen & (d <= max(REJECT_K * sigma, 1e-12))
+        if not robust or np.array_equal(new_keep, keep) or new_keep.sum() < 3:
+            break
+        keep = new_keep
+    std = np.sqrt(np.clip(np.diag(cov_wb), 0.0, None))
+    return Registration(rotvec=rotvec_from_matrix(A), translation=b, std=std, places=places,
+                        rms=float(np.sqrt(np.mean(d[keep] ** 2))), n_poses=len(rows), n_points=int(keep.sum()),
+                        n_rejected=int(seen.sum() - keep.sum()), markers=markers)
+
+
+def _gauss_newton(A, b, places, P, Rk, Y, keep, markers: bool, what: str, unknown: str, n_rows: int,
+                  max_iter: int = 30):
+    """(A, b, places, cov): least squares over the transform (and places) on the points ``keep``,
+    from the start given; cov (6, 6) of (rotation vector, translation) from the residual's
+    variance. BadInput where the Jacobian has not full rank."""
+    idx = np.nonzero(keep)
+    Rk_seen, Y_seen, P_seen = Rk[idx], Y[idx], P[idx]
+    C = keep.shape[1]
+    places = places.copy()
+    for it in range(max_iter + 1):
+        y = (P_seen + np.einsum("kab,kb->ka", Rk_seen, places[idx[1]])) @ A.T + b
+        c = y.mean(axis=0)
+        spread = float(np.sqrt(np.mean(np.sum((y - c) ** 2, axis=1)))) or 1.0
+        J = _jacobian(y - c, Rk_seen, A, idx[1], C, markers, 1.0 / spread)
+        r = (y - Y_seen).ravel()
+        if it == 0:
+            s = np.linalg.svd(J, compute_uv=False)
+            if J.shape[0] < J.shape[1] or s[-1] <= DEFAULT_REL_TOL * s[0]:
+                need = ("the link to turn about two different axes among them" if markers
+                        else "3 or more points off one line")
+                raise BadInput(f"{what}: {n_rows} pose{'s' if n_rows != 1 else ''} cannot fix {unknown} (it needs {need}); "
+                               "give more poses")
+        if it == max_iter:
+            break
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        turn = matrix_from_rotvec(step[:3] / spread)
+        A = turn @ A
+        b = turn @ (b - c) + c + step[3:6]
+        if markers:
+            places = places + step[6:].reshape(-1, 3)
+        if np.max(np.abs(step)) < _STEP_TOL_M:
+            break
+    dof = max(J.shape[0] - J.shape[1], 1)
+    cov_s = float(r @ r) / dof * np.linalg.pinv(J.T @ J)[:6, :6]
+    # (w, b) from the step's (w spread, db) about the centroid c: b moves by -[b - c]x w + db
+    L = np.zeros((6, 6))
+    L[:3, :3] = np.eye(3) / spread
+    L[3:, :3] = -skew(b - c) / spread
+    L[3:, 3:] = np.eye(3)
+    return A, b, places, L @ cov_s @ L.T
+
+
+def reregister(cal: Calibration, poses: PoseSet, markers: bool = False,
+               robust: bool = True) -> tuple[Calibration, Registration]:
+    """``cal`` re-registered to the set-up of ``poses`` (every pose used): the calibration with the
+    fitted transform (and places), and the fit's record."""
+    pts = session_points(cal, poses)
+    reg = fit_setup(cal, pts, np.arange(poses.n_poses), markers,
+                    what=f"{poses.source or 'the session'}", robust=robust)
+    return reg.apply(cal), reg
+
+
+def registration_blocks(n_poses: int, k: int) -> list[np.ndarray]:
+    """The rotation's blocks: runs of k consecutive poses (wrapping from the last pose to the
+    first) starting every min(k, N - k) poses, as many as make every pose fall outside one: with
+    k <= N / 2 the blocks tile the poses, beyond it the poses left out do."""
+    step = min(k, n_poses - k)
+    return [(np.arange(k) + j * step) % n_poses for j in range(-(-n_poses // step))]
+
+
+@dataclass(frozen=True)
+class RotatedScore:
+    """A calibration scored on a session by rotation (see the module's docstring): ``sq`` (N, C)
+    m^2 each pose's and point's mean squared error over the blocks it was scored in (NaN
+    unseen), ``registrations`` one per block, ``blocks`` the poses of each, ``names`` the C points."""
+
+    sq: np.ndarray
+    registrations: list[Registration]
+    blocks: list[np.ndarray]
+    names: list[str]
+
+    @property
+    def rms(self) -> float:
+        """m, over every point and pose scored."""
+        return float(np.sqrt(np.nanmean(self.sq)))
+
+    def rms_of(self, name: str) -> float:
+        """m, of one point (a marker's name) over the poses where it was scored."""
+        return float(np.sqrt(np.nanmean(self.sq[:, self.names.index(name)])))
+
+    def per_pose(self) -> np.ndarray:
+        """(N,) m^2 each pose's mean squared error over its points (NaN where none was scored)."""
+        ok = np.isfinite(self.sq)
+        n = ok.sum(axis=1)
+        return np.divide(np.where(ok, self.sq, 0.0).sum(axis=1), n, out=np.full(len(n), np.nan), where=n > 0)
+
+
+def check_block_size(k: int, n_poses: int, option: str, source: str) -> None:
+    """Bad input in one line where ``k`` poses cannot re-register and leave poses to score."""
+    if k < 1:
+        raise BadInput(f"{option} {k}: give a number of poses, 1 or more")
+    if k >= n_poses:
+        raise BadInput(f"{option} {k}: {source} has {n_poses} poses; re-registering on {k} leaves none to score "
+                       f"(give fewer than {n_poses})")
+
+
+def rotated_scores(cal: Calibration, poses: PoseSet, k: int, markers: bool = False,
+                   option: str = "--heldout-register", robust: bool = True) -> RotatedScore:
+    """``cal`` scored on ``poses`` with its set-up re-registered on each block of ``k`` poses
+    and the others scored (see the module's docstring)."""
+    source = poses.source or "the session"
+    check_block_size(k, poses.n_poses, option, source)
+    pts = session_points(cal, poses)
+    N, C = pts.seen.shape
+    total = np.zeros((N, C))
+    count = np.zeros((N, C))
+    regs, blocks = [], registration_blocks(N, k)
+    for blk in blocks:
+        rows = (f"poses {blk[0] + 1}-{blk[-1] + 1}" if blk[-1] >= blk[0]
+                else f"poses {blk[0] + 1}-{N} and 1-{blk[-1] + 1}")
+        reg = fit_setup(cal, pts, blk, markers, what=f"{option} {k}: {source}, {rows}", robust=robust)
+        regs.append(reg)
+        score = np.ones(N, bool)
+        score[blk] = False
+        A = matrix_from_rotvec(reg.rotvec)
+        pred = (pts.P + np.einsum("ncab,cb->nca", pts.Rk, reg.places)) @ A.T + reg.translation
+        d2 = np.sum((pred - pts.Y) ** 2, axis=2)
+        use = pts.seen & score[:, None]
+        total[use] += d2[use]
+        count[use] += 1
+    with np.errstate(invalid="ignore"):
+        sq = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    return RotatedScore(sq=sq, registrations=regs, blocks=blocks, names=pts.names)
+
+
+__all__ = ["Registration", "RotatedScore", "SessionPoints", "check_block_size", "fit_setup", "registration_blocks",
+           "reregister", "rotated_scores", "session_points"]

@@ -1,0 +1,214 @@
+"""Re-registration (platkit.calibrate.reregister): a calibration carried to another motion-capture
+set-up. The shipped stewart session's truth (truth.yaml) records a second session of the same stand
+whose mocap transform moved (and, for the marker places, whose marker body was mounted again); the
+calibration of the first session, re-registered on the second one's poses, recovers the new
+set-up and predicts that session's markers as the truth does."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from platkit.calibrate.estimate import calibrate, predict_markers
+from platkit.calibrate.plan import random_candidates
+from platkit.calibrate.reregister import registration_blocks, reregister, rotated_scores
+from platkit.errors import BadInput
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
+from platkit.io.session import example_session
+from platkit.kinematics import PlatformModel
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+from platkit.settle import load_poses
+
+NOISE_M = 0.05e-3
+
+
+@pytest.fixture(scope="module")
+def stand():
+    folder = example_session("stewart")
+    spec = get_platform("stewart")
+    truth = yaml.safe_load((folder / "truth.yaml").read_text())
+    td = np.array([truth["parameters"][n]["value"] for n in spec.parameter_names])
+    T = np.array(truth["mocap_from_base"])
+    names = sorted(truth["markers"])
+    S = np.array([truth["markers"][m] for m in names])
+    cal = calibrate(load_poses(folder), spec)
+    return spec, td, T, names, S, cal
+
+
+def _session(spec, td, T, S, names, n, seed) -> PoseSet:
+    """n new poses of the true stand seen through mocap_from_base T with markers S, noisy."""
+    rng = np.random.default_rng(seed)
+    U = random_candidates(spec, n, rng).controls
+    Y = _true(spec, td, T, S, U) + rng.normal(0.0, NOISE_M, (n, len(names), 3))
+    return PoseSet("stewart", U, Y, list(names), length_unit="mm", source="day2")
+
+
+def _true(spec, td, T, S, U):
+    fb = PlatformModel(spec).forward_batch(U, td=td, strict=False)
+    Y = fb.X[:, None] + np.einsum("kij,mj->kmi", matrix_from_quat(fb.q), S)
+    return Y @ T[:3, :3].T + T[:3, 3]
+
+
+def _moved(T):
+    """The set-up of another day: the cameras turned 0.4 rad and moved 0.3 m."""
+    M = np.eye(4)
+    M[:3, :3] = matrix_from_rotvec(np.array([0.1, -0.3, 0.25]))
+    M[:3, 3] = [0.3, -0.1, 0.05]
+    return M @ T
+
+
+def test_reregistration_recovers_the_moved_mocap_transform(stand):
+    spec, td, T, names, S, cal = stand
+    T2 = _moved(T)
+    day2 = _session(spec, td, T2, S, names, 12, seed=7)
+    before, _, _, _ = predict_markers(cal, day2.controls)
+    assert np.sqrt(np.mean(np.sum((before - day2.markers) ** 2, axis=2))) > 0.05  # as is: decimetres off
+    moved, reg = reregister(cal, day2)
+    # the set-up's move, applied to the calibration's own transform (its base frame is the
+    # calibration's, a gauge away from the truth's: within a milliradian here)
+    expected = T2 @ np.linalg.inv(T) @ cal.mocap_from_base
+    turn = matrix_from_rotvec(reg.rotvec) @ expected[:3, :3].T
+    assert np.linalg.norm(rotvec_from_matrix(turn)) < 5e-5  # measured 1e-5 rad
+    assert np.linalg.norm(reg.translation - expected[:3, 3]) < 0.1e-3  # measured 0.04 mm
+    assert reg.std[:3].max() < 3e-5 and reg.std[3:].max() < 0.06e-3  # 1e-5 rad, 0.03 mm: the errors' size
+    assert not reg.markers and np.array_equal(moved.td, cal.td) and np.array_equal(moved.marker_positions,
+                                                                                  cal.marker_positions)
+    fresh = random_candidates(spec, 30, np.random.default_rng(11)).controls
+    pred, _, _, ok = predict_markers(moved, fresh)
+    err = np.linalg.norm(pred - _true(spec, td, T2, S, fresh), axis=2)
+    assert ok.all() and np.sqrt(np.mean(err ** 2)) < 0.05e-3  # measured 0.017 mm; the first day's calibration, in the new frame
+    assert reg.to_dict(cal)["turn_from_calibration_rad"] == pytest.approx(0.40, abs=0.01)
+
+
+def test_marker_places_refitted_for_a_marker_body_mounted_again(stand):
+    spec, td, T, names, S, cal = stand
+    T2 = _moved(T)
+    R = matrix_from_rotvec(np.array([0.0, 0.05, 0.02]))
+    S2 = S @ R.T + [0.004, -0.003, 0.002]  # the body turned 3 degrees and moved 5 mm on the platform
+    day2 = _session(spec, td, T2, S2, names, 20, seed=8)
+    fresh = random_candidates(spec, 30, np.random.default_rng(12)).controls
+    truth = _true(spec, td, T2, S2, fresh)
+
+    def rms(c):
+        pred, _, _, _ = predict_markers(c, fresh)
+        return np.sqrt(np.mean(np.sum((pred - truth) ** 2, axis=2)))
+
+    transform_only, _ = reregister(cal, day2)
+    with_places, reg = reregister(cal, day2, markers=True)
+    assert rms(transform_only) > 5e-3  # a transform alone cannot move the markers on the platform (22 mm)
+    assert rms(with_places) < 0.06e-3  # measured 0.028 mm
+    assert reg.markers and np.array_equal(with_places.td, cal.td)
+
+
+def test_rotation_scores_every_pose_out_of_its_registration(stand):
+    spec, td, T, names, S, cal = stand
+    day2 = _session(spec, td, _moved(T), S, names, 23, seed=9)
+    for k in (1, 5, 11, 20):
+        blocks = registration_blocks(23, k)
+        left_out = np.zeros(23, int)
+        for blk in blocks:
+            assert len(blk) == k
+            left_out[np.setdiff1d(np.arange(23), blk)] += 1
+        assert left_out.min() >= 1
+    score = rotated_scores(cal, day2, 5)
+    assert np.isfinite(score.sq).all() and len(score.registrations) == 5
+    assert score.rms < 0.15e-3  # measured 0.095 mm; noise 0.05 mm per axis: 0.087 mm 3-D, plus the calibration's own error
+
+
+def test_bad_input_one_line(stand):
+    spec, td, T, names, S, cal = stand
+    day2 = _session(spec, td, _moved(T), S, names, 10, seed=10)
+    with pytest.raises(BadInput, match=r"--heldout-register 10: day2 has 10 poses; re-registering on 10 leaves none"):
+        rotated_scores(cal, day2, 10)
+    with pytest.raises(BadInput, match=r"--heldout-register 0: give a number of poses"):
+        rotated_scores(cal, day2, 0)
+    with pytest.raises(BadInput, match=r"day2, poses 1-1: 1 pose cannot fix the base-to-mocap transform and the "
+                                       r"marker places \(it needs the link to turn about two different axes"):
+        rotated_scores(cal, day2, 1, markers=True)
+    one = PoseSet("stewart", day2.controls[:1], day2.markers[:1, :2], names[:2], source="day2")
+    with pytest.raises(BadInput, match=f"day2: has no marker or rigid body {names[2]!r} of the calibration"):
+        reregister(cal, one)
+    hidden = PoseSet("stewart", day2.controls[:1], np.where(np.arange(len(names))[None, :, None] < 2,
+                                                            day2.markers[:1], np.nan), names, source="day2")
+    with pytest.raises(BadInput, match="day2: 2 points seen and predicted; fixing the base-to-mocap transform needs"):
+        reregister(cal, hidden)
+
+
+# ---------------------------------------------------------------------------- the command line
+
+
+def _split_session(full, train, day2, n_train: int, move) -> None:
+    """Rows before ``n_train`` of a simulated session as ``train``; the others as ``day2``, their
+    markers seen through the set-up moved by ``move`` (4, 4), the poses' lengths in mm."""
+    import csv
+
+    for folder in (train, day2):
+        folder.mkdir()
+        (folder / "session.yaml").write_text((full / "session.yaml").read_text())
+    for name in ("commands.csv", "poses.csv"):
+        rows = list(csv.reader((full / name).open()))
+        header, body = rows[0], rows[1:]
+        for folder, part in ((train, body[:n_train]), (day2, body[n_train:])):
+            if folder is day2 and name == "poses.csv":
+                part = [list(r) for r in part]
+                for r in part:
+                    for m in ("M1", "M2", "M3", "M4", "M5"):
+                        k = header.index(f"{m}_x")
+                        p = move[:3, :3] @ np.array([float(x) for x in r[k:k + 3]]) + move[:3, 3] * 1e3
+                        r[k:k + 3] = [f"{x:.4f}" for x in p]
+            with (folder / name).open("w", newline="") as fh:
+                csv.writer(fh, lineterminator="\n").writerows([header] + part)
+
+
+@pytest.fixture(scope="module")
+def two_days(tmp_path_factory):
+    from platkit.cli import main
+
+    root = tmp_path_factory.mktemp("reregister")
+    full, train, day2 = root / "full", root / "train", root / "day2"
+    assert main(["simulate", "--platform", "stewart", "--out", str(full), "--effect", "backlash:1.0", "--seed", "5",
+                 "--poses", "60", "--plan", "random", "--poses-only"]) == 0
+    _split_session(full, train, day2, 40, _moved(np.eye(4)))
+    assert main(["calibrate", str(train), "--out", str(root / "cal"), "--quiet", "--no-report"]) == 0
+    return root, train, day2, root / "cal" / "calibration.yaml"
+
+
+def test_diagnose_scores_a_heldout_day_re_registered(two_days):
+    import json
+
+    from platkit.cli import main
+
+    root, train, day2, cal = two_days
+    out = root / "diag"
+    assert main(["diagnose", str(train), "--calibration", str(cal), "--heldout", str(day2), "--heldout-register", "5",
+                 "--out", str(out), "--quiet"]) == 0
+    h = json.loads((out / "diagnosis.json").read_text())["heldout_session"]
+    r = h["registered"]
+    assert [f["effect"] for f in json.loads((out / "diagnosis.json").read_text())["findings"]] == ["backlash"]
+    assert h["rms_after"] > 100.0  # mm: the training day's set-up, as is, on the moved one
+    assert r["k"] == 5 and r["n_registrations"] == 4 and not r["marker_places_refitted"]
+    assert r["median_turn_from_calibration_rad"] == pytest.approx(0.40, abs=0.01)
+    # measured 0.078 against 0.27 mm: the backlash holds out on the new set-up
+    assert r["rms_after"] < 0.12 and r["rms_after"] < 0.5 * r["rms_before"]
+    assert set(r["per_marker"]) == {"M1", "M2", "M3", "M4", "M5"}
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--heldout-register", "5"], "--heldout-register 5: give --heldout SESSION"),
+    (["--heldout", "DAY2", "--heldout-register", "20"], "--heldout-register 20: DAY2 has 20 poses; re-registering on "
+                                                        "20 leaves none to score (give fewer than 20)"),
+    (["--heldout", "DAY2", "--heldout-register", "1", "--register-markers"],
+     "--heldout-register 1: DAY2, poses 1-1: 1 pose cannot fix the base-to-mocap transform and the marker places"),
+    (["--heldout", "DAY2", "--register-markers"], "--register-markers: give --heldout-register K"),
+])
+def test_diagnose_register_bad_input(two_days, tmp_path, capsys, extra, message):
+    from platkit.cli import main
+
+    root, train, day2, cal = two_days
+    extra = [str(day2) if x == "DAY2" else x for x in extra]
+    assert main(["diagnose", str(train), "--calibration", str(cal), "--out", str(tmp_path / "d"), "--quiet",
+                 *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert message.replace("DAY2", str(day2)) in err[-1] and len([e for e in err if "error" in e]) == 1
+    assert not (tmp_path / "d").exists()
