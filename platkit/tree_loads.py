@@ -16,7 +16,8 @@ Rules:
   joints), a mimic joint's torque folded into its master's by the chain rule
   (``tau_master += multiplier * tau_mimic``): pinocchio's computeGeneralizedGravity of a model
   built with mimic joints gives the same.
-- A payload at a link (mass, centre of mass in the link's frame) adds to that link's body.
+- A payload at a link (mass, centre of mass in the link's frame) adds to that link's body; several
+  payloads (one in each hand) each to its own link.
 - A URDF without inertias (every link massless) may be given the **prior of uniform links**
   (``prior=True``): each link a slender body of ``PRIOR_KG_PER_M`` per metre of the mean distance
   from its origin to its child joints (at least ``PRIOR_MIN_KG``), its centre of mass half way
@@ -56,6 +57,48 @@ class Payload:
     com: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+#: the keys of a payload as a session, a description or an option gives it
+PAYLOAD_KEYS = ("link", "mass_kg", "com_m")
+
+
+def parse_payload(value, where: str, error: type[Exception] = BadInput) -> tuple[Payload, ...]:
+    """A payload as a session, a description or an option gives it: a mapping ``{link, mass_kg,
+    com_m}`` (``com_m`` the centre of mass [x, y, z] in the link's frame, metres, default its
+    origin) or a list of them (one in each hand); None or an empty list for none. ``error`` (one
+    line naming ``where`` and the field) if it is not such a value or a mass is negative, absurd
+    (over MAX_LINK_MASS) or not a number. Whether the link is in the URDF is checked where the
+    URDF is read."""
+    if value is None:
+        return ()
+    items = value if isinstance(value, list) else [value]
+    out = []
+    for k, item in enumerate(items):
+        at = f"{where}[{k}]" if isinstance(value, list) else where
+        if not isinstance(item, dict):
+            raise error(f"{at} must be a mapping like {{link: tool0, mass_kg: 1.5, com_m: [0, 0, 0.05]}}, got {item!r}")
+        unknown = sorted(set(item) - set(PAYLOAD_KEYS), key=str)
+        if unknown:
+            raise error(f"{at} has unknown key {unknown[0]!r}; a payload has {', '.join(PAYLOAD_KEYS)}")
+        link = item.get("link")
+        if not isinstance(link, str) or not link.strip():
+            raise error(f"{at}.link must be the name of the link that carries the payload, got {link!r}")
+        mass = item.get("mass_kg")
+        if isinstance(mass, bool) or not isinstance(mass, (int, float)) or not np.isfinite(mass) \
+                or not 0 <= mass <= MAX_LINK_MASS:
+            raise error(f"{at}.mass_kg must be a mass in [0, {MAX_LINK_MASS:g}] kg, got {mass!r}")
+        com = item.get("com_m", [0.0, 0.0, 0.0])
+        if not isinstance(com, (list, tuple)) or len(com) != 3 or not all(
+                not isinstance(c, bool) and isinstance(c, (int, float)) and np.isfinite(c) for c in com):
+            raise error(f"{at}.com_m must be the centre of mass [x, y, z] in metres in the link's frame, got {com!r}")
+        out.append(Payload(link.strip(), float(mass), (float(com[0]), float(com[1]), float(com[2]))))
+    return tuple(out)
+
+
+def payload_option(payload: tuple[Payload, ...]) -> list[dict]:
+    """The payloads as parse_payload reads them (plain lists and floats: YAML, an option)."""
+    return [{"link": p.link, "mass_kg": p.mass, "com_m": list(p.com)} for p in payload]
+
+
 @dataclass
 class Loads:
     """Gravity loads at N configurations over the tree's joints (``TreeLoads.joints`` order):
@@ -73,7 +116,7 @@ class Loads:
 class TreeLoads:
     """Gravity loads of the URDF at ``urdf`` (see the module docstring); ``payload`` optional."""
 
-    def __init__(self, urdf: str | Path, payload: Payload | None = None, prior: bool = False):
+    def __init__(self, urdf: str | Path, payload: Payload | tuple[Payload, ...] | None = None, prior: bool = False):
         import pinocchio as pin
 
         self.path = Path(urdf)
@@ -113,8 +156,9 @@ class TreeLoads:
         self.prior = bool(prior) and not any(model.inertias[j].mass > 0 for j in range(1, model.njoints))
         if self.prior:
             self._add_prior(model, tree)
-        if payload is not None:
-            self._add_payload(model, payload)
+        self.payloads = payloads(payload)
+        for one in self.payloads:
+            self._add_payload(model, one)
         self.model = model
         self.data = model.createData()
         self.prismatic = np.array([tree.joints[n].type == "prismatic" for n in self.joints])
@@ -310,7 +354,14 @@ class TreeLoads:
         return out
 
 
+def payloads(payload: Payload | tuple[Payload, ...] | list[Payload] | None) -> tuple[Payload, ...]:
+    """None, one payload or several, as a tuple (a cache key)."""
+    if payload is None:
+        return ()
+    return (payload,) if isinstance(payload, Payload) else tuple(payload)
+
+
 @functools.lru_cache(maxsize=8)
-def tree_loads(urdf: str, payload: Payload | None = None, prior: bool = False) -> TreeLoads:
+def tree_loads(urdf: str, payload: Payload | tuple[Payload, ...] | None = None, prior: bool = False) -> TreeLoads:
     """One :class:`TreeLoads` per URDF file, payload and prior (building one parses the file)."""
     return TreeLoads(urdf, payload, prior)

@@ -44,6 +44,9 @@ from platkit.model import controls_from_si, controls_to_si, length_scale
 from platkit.notices import warn
 from platkit.poses import PoseSet
 
+#: effects whose terms move with the gravity loads (a payload changes their prediction)
+LOADED_EFFECTS = ("compliance", "link_bending")
+
 
 def read_commands(path: str | Path, cal: Calibration) -> tuple[np.ndarray, np.ndarray | None]:
     """Controls (N, n_u) in internal units and t (N,) or None from a commands CSV."""
@@ -269,17 +272,24 @@ def thermal_state(cal: Calibration, U: np.ndarray, t: np.ndarray | None, at_time
 
 
 def predict_file(calibration: str | Path, commands: str | Path, out: str | Path, at_time: float | None = None,
-                 warm: bool = False) -> dict:
+                 warm: bool = False, payload: list | None = None) -> dict:
     """Read a calibration.yaml and a commands CSV, write the prediction CSV atomically, at the
     thermal state ``at_time`` (s since power-on at the first row) or ``warm`` (see the module's
-    docstring).
+    docstring); ``payload`` (a list of {link, mass_kg, com_m}, empty for none) the load the stand
+    carries in place of its calibration session's (URDF stands: it changes the loads of the
+    compliance terms).
 
     Returns {'rows': N, 'failed': number of rows without a solution, 'out': path, 'thermal': the
-    state said in one sentence, 'timed': the effects whose terms read the time, 'warnings': [sentences]}.
+    state said in one sentence, 'timed': the effects whose terms read the time, 'warnings': [sentences],
+    'loaded': whether a term moves with the loads (LOADED_EFFECTS)}.
     """
     if at_time is not None and warm:
         raise BadInput("--at-time and --warm ask for two thermal states; give one")
     cal = read_calibration(calibration)
+    if payload is not None:
+        if cal.spec.name != "urdf":
+            raise BadInput(f"--payload: the {cal.spec.name} stand of {calibration} carries no payload (URDF stands do)")
+        cal = read_calibration(calibration, {"payload": payload})
     U, t = read_commands(commands, cal)
     thermal = thermal_state(cal, U, t, at_time, warm, commands)
     header, rows, ok = prediction_table(cal, U, t, thermal["since_power_on"])
@@ -294,4 +304,5 @@ def predict_file(calibration: str | Path, commands: str | Path, out: str | Path,
         w.writerow(cells)
     atomic_write_text(out, buf.getvalue())
     return {"rows": int(len(rows)), "failed": int(np.sum(~ok)), "out": str(out), "thermal": thermal["state"],
-            "timed": list(thermal["timed"]), "warnings": list(thermal["warnings"])}
+            "timed": list(thermal["timed"]), "warnings": list(thermal["warnings"]),
+            "loaded": any(term.effect in LOADED_EFFECTS for term in cal.terms)}

@@ -19,7 +19,33 @@ def add_parser(sub):
     state.add_argument("--warm", action="store_true",
                        help="thermal state: the equilibrium the model's thermal terms reach (a drift with none: the "
                             "end of the recorded span, with a warning)")
+    p.add_argument("--payload", action="append", default=None, metavar="LINK:KG[:X,Y,Z]",
+                   help="the load the stand carries, in place of its calibration session's (URDF stands): MASS kg at "
+                        "LINK, its centre of mass X,Y,Z m in the link's frame (default the link's origin); once per "
+                        "load; 'none' for none. It moves the prediction through the model's compliance terms")
     return p
+
+
+def parse_payload_args(values: list[str]) -> list[dict]:
+    """``--payload`` values (LINK:KG[:X,Y,Z], or none) as session.yaml's payload list; BadInput naming the value."""
+    from platkit.errors import BadInput
+
+    if values == ["none"]:
+        return []
+    out = []
+    for v in values:
+        parts = v.split(":")
+        try:
+            if v == "none" or len(parts) not in (2, 3) or not parts[0]:
+                raise ValueError
+            com = [float(x) for x in parts[2].split(",")] if len(parts) == 3 else [0.0, 0.0, 0.0]
+            if len(com) != 3:
+                raise ValueError
+            out.append({"link": parts[0], "mass_kg": float(parts[1]), "com_m": com})
+        except ValueError:
+            raise BadInput(f"--payload {v!r}: give LINK:KG or LINK:KG:X,Y,Z (kg, m in the link's frame), or none "
+                           "alone") from None
+    return out
 
 
 def run(args) -> int:
@@ -27,7 +53,11 @@ def run(args) -> int:
     from platkit.io.atomic import check_output_file
 
     check_output_file(args.out)
-    res = predict_file(args.calibration, args.commands, args.out, at_time=args.at_time, warm=args.warm)
+    payload = None if args.payload is None else parse_payload_args(args.payload)
+    res = predict_file(args.calibration, args.commands, args.out, at_time=args.at_time, warm=args.warm,
+                       payload=payload)
+    if payload is not None and not res["loaded"]:
+        warn(f"--payload: the model of {args.calibration} has no compliance term: the payload changes no prediction")
     say_joint_columns_ignored(args.calibration, args.commands)
     if res["failed"]:
         warn(f"{res['failed']} of {res['rows']} rows have no forward-kinematics solution; "

@@ -344,8 +344,10 @@ def _numbers(value, path: Path, where: str, size: int) -> np.ndarray:
     return arr
 
 
-def read_calibration(path: str | Path) -> Calibration:
-    """Read a calibration.yaml (as written by :meth:`Calibration.to_yaml`) and rebuild the stand.
+def read_calibration(path: str | Path, options: dict | None = None) -> Calibration:
+    """Read a calibration.yaml (as written by :meth:`Calibration.to_yaml`) and rebuild the stand;
+    ``options`` replace its platform options (``payload``: the stand carrying another load, for
+    prediction; the parameters are the calibration's).
 
     Model terms are rebuilt by the diagnosis effect library when one is installed
     (``platkit.plugins.term_from_dict``); BadInput names the file and field otherwise.
@@ -357,9 +359,11 @@ def read_calibration(path: str | Path) -> Calibration:
         raise BadInput(f"{path}: field 'format' must be {FORMAT!r} (is this a platkit calibration.yaml?)")
     platform = _field(data, "platform", path, str)
     description = resolve_description(data.get("description"), path)
+    options_given = options
     options = data.get("platform_options") or {}
     if not isinstance(options, dict):
         raise BadInput(f"{path}: field 'platform_options' must be a mapping")
+    options = {**options, **(options_given or {})}
     spec = get_platform(platform, description, **{k: v for k, v in options.items()})
     lu = _field(data, "length_unit", path, str)
     s = length_scale(lu)

@@ -155,11 +155,13 @@ def load_session(folder: str | Path, platform: str | None = None, description: s
     built = False
     if spec is None and name is not None:
 
-        options = {k: y[k] for k in ("moving_link", "base_link") if y[k]}
+        options = {k: y[k] for k in ("moving_link", "base_link", "payload") if y[k]}
         if isinstance(y["moving_link"], dict):  # a tree: the recorded joints are the controls
             joints_file, options["joints"] = recorded_joints(folder, y)
         spec = _stand(name, desc_path, options, joints_file, ypath)
         built = True
+    if spec is not None and not built:
+        _same_payload(spec, y["payload"], ypath)
     mapping = (spec.extras.get("platform_options") or {}).get("moving_link") if spec is not None else None
     if spec is not None and not isinstance(y["moving_link"], dict) and isinstance(mapping, dict):
         # the stand's description (or the calibration read with it) maps the markers to links: a
@@ -274,6 +276,19 @@ def _stand(name: str, description, options: dict, joints_file: Path | None, ypat
         if joints_file is not None and text.startswith(JOINTS_WHERE):
             raise BadSession(f"{joints_file}{text[len(JOINTS_WHERE):]}") from None
         raise BadSession(f"{ypath}: {exc}") from None
+
+
+def _same_payload(spec: PlatformSpec, payload: list | None, ypath: Path) -> None:
+    """A session read with a stand already built (a calibration's) carries that stand's payload:
+    BadSession otherwise, since its loads would be another's (predict takes another payload)."""
+    given = (spec.extras.get("platform_options") or {}).get("payload") or None
+    if (payload or None) == given:
+        return
+    def said(p):
+        return "none" if not p else ", ".join(f"{q['mass_kg']:g} kg at {q['link']}" for q in p)
+    raise BadSession(f"{ypath}: field 'payload': the session carries {said(payload)}, the stand it is read with "
+                     f"(its calibration's) {said(given)}; a fit's sessions carry one payload (to predict another: "
+                     "platkit predict --payload)")
 
 
 def _joints_file(folder: Path) -> Path:

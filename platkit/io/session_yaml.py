@@ -7,6 +7,7 @@ from pathlib import Path
 from platkit.errors import BadSession
 from platkit.io.description import load_yaml
 from platkit.model import LENGTH_UNITS
+from platkit.tree_loads import parse_payload, payload_option
 
 #: session.yaml keys platkit reads; any other key is a typo or a newer format, and an error.
 SESSION_KEYS = (
@@ -15,6 +16,7 @@ SESSION_KEYS = (
     "date",  # (platkit) when it was recorded, ISO 8601: orders a stand's history (platkit batch --history)
     "power_on_t",  # (platkit) when the stand was switched on, on the clock of t: its warm-up (docs/session-format.md)
     "rigid_bodies", "rigid_body_noise",  # 6-DOF bodies (spec section 1) and (platkit) their declared noise
+    "payload",  # (platkit) a load the robot carries in this session: {link, mass_kg, com_m} or a list (URDF stands)
 )
 #: session.yaml ``rigid_body_noise`` keys: each sigma per axis, with its unit in the name
 BODY_NOISE_KEYS = {"position_mm": 1e-3, "position_m": 1.0, "rotation_deg": math.pi / 180, "rotation_rad": 1.0}
@@ -167,6 +169,8 @@ def read_session_yaml(folder: Path) -> dict:
             raise BadSession(f"{path}: field {key!r} must be a link name or null"
                              + (", or on a tree a mapping {marker: link}" if key == "moving_link" else ""))
         out[key] = link
+    payload = parse_payload(data.get("payload"), f"{path}: field 'payload'", BadSession)
+    out["payload"] = payload_option(payload) if payload else None
     notes = data.get("notes")
     out["notes"] = "" if notes is None else str(notes)
     mfile = data.get("markers_file")

@@ -31,8 +31,8 @@ from platkit.errors import BadInput, NoConvergence
 from platkit.geometry import matrix_from_rpy
 from platkit.io.atomic import atomic_output_dir
 from platkit.simulate.stand import random_mocap_from_base
-from platkit.tree_loads import TreeLoads
-from platkit.urdf import urdf_rpy
+from platkit.tree_loads import Payload, TreeLoads, payload_option
+from platkit.urdf import read_urdf, urdf_rpy
 
 #: largest fixed-point iterations of the equilibrium
 MAX_ITERATIONS = 200
@@ -121,9 +121,10 @@ def equilibrium(T: TreeLoads, Q_cmd: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 @dataclass
 class ElasticSession:
-    """Settled poses of the elastic tree: ``commands`` (N, R) of ``joints`` (rad); ``markers``
-    (N, M, 3) m in the mocap frame, noisy; ``exact`` the same without noise; ``marker_names``,
-    ``marker_links``; ``rigid`` (N, M, 3) m where the rigid true robot (no elasticity) would put them."""
+    """Settled poses of the elastic tree: ``commands`` (N, R) of ``joints`` (rad; m for a prismatic
+    joint); ``markers`` (N, M, 3) m in the mocap frame, noisy; ``exact`` the same without noise;
+    ``marker_names``, ``marker_links``; ``rigid`` (N, M, 3) m where the rigid true robot (no
+    elasticity) would put them; ``payload`` what the robot carried."""
 
     joints: list[str]
     commands: np.ndarray
@@ -133,6 +134,7 @@ class ElasticSession:
     marker_names: list[str]
     marker_links: list[str]
     mocap_from_base: np.ndarray
+    payload: tuple[Payload, ...] = ()
 
 
 def simulate_elastic_tree(nominal: Path, truth: ElasticTruth, commands: np.ndarray, joints: list[str],
@@ -170,13 +172,17 @@ def simulate_elastic_tree(nominal: Path, truth: ElasticTruth, commands: np.ndarr
     exact, rigid = markers(Q), markers(Q_cmd)
     noisy = exact + rng.normal(scale=noise_mm * 1e-3, size=exact.shape)
     return ElasticSession(list(joints), np.asarray(commands, float), noisy, exact, rigid, names,
-                          [marker_links[n] for n in names], M)
+                          [marker_links[n] for n in names], M, T.payloads)
 
 
 def write_elastic_session(sim: ElasticSession, nominal: Path, out: Path, moving_link: str | dict,
                           rows: np.ndarray | None = None) -> Path:
-    """A session folder (poses.csv in mm, the nominal URDF beside it) of the rows ``rows`` (default all)."""
+    """A session folder (poses.csv in mm, the nominal URDF beside it) of the rows ``rows`` (default
+    all): the session's length unit is every length's, a prismatic joint's command too (mm); the
+    payload the robot carried, if any, in session.yaml."""
     rows = np.arange(len(sim.commands)) if rows is None else np.asarray(rows)
+    joints = read_urdf(Path(nominal)).joints
+    unit = np.array([1e3 if joints[n].type == "prismatic" else 1.0 for n in sim.joints])
     if not len(rows):
         raise BadInput("elastic tree: no rows to write")
     with atomic_output_dir(out) as tmp:
@@ -185,11 +191,13 @@ def write_elastic_session(sim: ElasticSession, nominal: Path, out: Path, moving_
         meta = {"platform": "urdf", "description": nominal.name, "units": {"length": "mm", "time": "s"},
                 "markers": sim.marker_names, "mocap_rate_hz": 100, "moving_link": moving_link,
                 "notes": "platkit.simulate.elastic_tree: settled poses of an elastic tree"}
+        if sim.payload:
+            meta["payload"] = payload_option(sim.payload)
         (tmp / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
         head = ["t", *sim.joints] + [f"{n}_{a}" for n in sim.marker_names for a in "xyz"]
         lines = [",".join(head)]
         for r, k in enumerate(rows):
-            vals = [f"{float(r):.1f}", *(f"{v:.10g}" for v in sim.commands[k]),
+            vals = [f"{float(r):.1f}", *(f"{v:.10g}" for v in sim.commands[k] * unit),
                     *(f"{1e3 * v:.6f}" for v in sim.markers[k].ravel())]
             lines.append(",".join(vals))
         (tmp / "poses.csv").write_text("\n".join(lines) + "\n")

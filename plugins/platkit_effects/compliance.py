@@ -102,10 +102,11 @@ _LOADS: dict[tuple, np.ndarray] = {}
 
 
 def cached_loads(spec: PlatformSpec, controls: np.ndarray) -> np.ndarray:
-    """actuator_loads, once per (stand, controls array): terms ask for them at every evaluation."""
+    """actuator_loads, once per (stand, payload, controls array): terms ask for them at every evaluation."""
     chain = spec.extras.get("chain")
     key = (spec.name, str(spec.description_path), tuple(spec.control_names), getattr(chain, "base_link", None),
-           getattr(chain, "moving_link", None), tuple(spec.tracked_links), np.ascontiguousarray(controls, float).tobytes())
+           getattr(chain, "moving_link", None), tuple(spec.tracked_links), tuple(spec.extras.get("payload") or ()),
+           np.ascontiguousarray(controls, float).tobytes())
     if key not in _LOADS:
         if len(_LOADS) > 256:
             _LOADS.clear()

@@ -106,9 +106,11 @@ def tree_stand(spec: PlatformSpec) -> TreeStand | None:
     urdf = urdf_of(spec)
     stand = None
     if urdf is not None:
+        payload = tuple(spec.extras.get("payload") or ())  # what the robot carries (the urdf stand's option)
         T = tree_loads(urdf)
-        if T.total_mass <= 0:  # no inertias: the prior of uniform links (platkit.tree_loads)
-            T = tree_loads(urdf, prior=True)
+        prior = T.total_mass <= 0  # no inertias: the prior of uniform links (platkit.tree_loads)
+        if prior or payload:
+            T = tree_loads(urdf, payload, prior=prior)
         names = list(spec.control_names)
         if not all(n in T.recorded for n in names):
             one_dof = list(T.recorded)
@@ -182,14 +184,16 @@ class LoadState:
         return self.links[link]
 
 
-_STATES: dict[tuple, LoadState] = {}
+_STATES: dict[tuple, tuple[TreeStand, LoadState]] = {}
 
 
 def load_state(stand: TreeStand, controls: np.ndarray) -> LoadState:
-    """The loads of ``stand`` at ``controls`` (N, n_u), once per (stand, controls array)."""
+    """The loads of ``stand`` at ``controls`` (N, n_u), once per (stand, controls array); the
+    stand is kept with them, so that a new stand at a freed one's address is not served its loads."""
     controls = np.ascontiguousarray(np.atleast_2d(controls), float)
     key = (id(stand), controls.shape, controls.tobytes())
-    hit = _STATES.get(key)
+    kept = _STATES.get(key)
+    hit = kept[1] if kept is not None and kept[0] is stand else None
     if hit is None:
         Q = stand.configuration(controls)
         L = stand.loads.loads(Q)
@@ -199,7 +203,8 @@ def load_state(stand: TreeStand, controls: np.ndarray) -> LoadState:
             o, R = stand.loads.link_placements(Q, stand.base_link)
         if len(_STATES) > 128:
             _STATES.clear()
-        hit = _STATES[key] = LoadState(Q, L, o, R)
+        hit = LoadState(Q, L, o, R)
+        _STATES[key] = (stand, hit)
     return hit
 
 

@@ -8,7 +8,12 @@ The description is a URDF file (the chain runs from ``base_link``, default the r
     moving_link: tool0        # optional
 
 Options (from a session or the command line) ``base_link`` and ``moving_link`` override the
-description's. A tree (several tracked links, :func:`platkit.urdf.kinematic_tree`): ``moving_link``
+description's. ``payload`` (a session's, a description's or an option): a load the robot carries,
+``{link, mass_kg, com_m}`` or a list of them (:func:`platkit.tree_loads.parse_payload`), added to
+that link's body in the gravity loads of the tree (compliance); kept in ``extras["payload"]`` and
+in the platform options, so a calibration rebuilds its stand with it.
+
+A tree (several tracked links, :func:`platkit.urdf.kinematic_tree`): ``moving_link``
 a mapping {marker or rigid body: link} (the first link named is the moving frame, the spec's
 pose), and ``joints`` the recorded actuated joints (the columns of commands.csv; default every
 actuated joint below the base link), which are then the controls. Controls of a chain: its
@@ -26,13 +31,14 @@ from platkit.errors import BadDescription, BadInput
 from platkit.hookspecs import hookimpl
 from platkit.io.description import default_description, load_yaml, require
 from platkit.model import PlatformFactory, PlatformSpec
+from platkit.tree_loads import parse_payload, payload_option
 from platkit.urdf import chain_spec, kinematic_tree, read_urdf, serial_chain
 
 TITLE = "Serial chain from a URDF"
-OPTIONS = ("base_link", "moving_link", "joints")
+OPTIONS = ("base_link", "moving_link", "joints", "payload")
 #: how errors about the recorded joints name their source (a session names its commands.csv instead)
 JOINTS_WHERE = "urdf stand option 'joints'"
-YAML_FIELDS = ("urdf", "base_link", "moving_link", "notes")
+YAML_FIELDS = ("urdf", "base_link", "moving_link", "notes", "payload")
 
 
 def _text(value, path: Path, field: str) -> str | None:
@@ -54,6 +60,8 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
                 raise BadInput(f"urdf stand option 'joints' must be a list of joint names, got {v!r}")
         elif k == "moving_link" and isinstance(v, dict):
             tracked_links(v, "urdf stand option 'moving_link'")
+        elif k == "payload":
+            options[k] = payload_option(parse_payload(v, "urdf stand option 'payload'"))
         elif not isinstance(v, str) or not v:
             raise BadInput(f"urdf stand option {k!r} must be a link name, got {v!r}")
     path = path or default_description("urdf_default_arm.urdf")
@@ -74,12 +82,19 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
                 chosen[k] = v
             else:
                 chosen[k] = _text(v, path, k)
+        if data.get("payload") is not None:
+            chosen["payload"] = payload_option(parse_payload(data["payload"], f"{path}: field 'payload'",
+                                                             BadDescription))
         description = dict(data)
     else:
         urdf_path = path
         description = {}
     chosen.update(options)
     tree = read_urdf(urdf_path)
+    payload = parse_payload(chosen.get("payload") or None, "urdf stand option 'payload'")
+    for k, p in enumerate(payload):
+        if p.link not in tree.links:
+            raise BadInput(f"payload{'' if len(payload) == 1 else f'[{k}]'}.link: link {p.link!r} is not in {urdf_path}")
     moving = chosen.get("moving_link")
     if isinstance(moving, dict) or chosen.get("joints") is not None:
         links = tracked_links(moving, "urdf stand option 'moving_link'") if isinstance(moving, dict) else (
@@ -103,7 +118,9 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
         description_path=path,
     )
     # what rebuilds this stand (calibration.yaml's platform_options, effects that rebuild it)
-    spec.extras["platform_options"] = {k: v for k, v in chosen.items() if v is not None and k in OPTIONS}
+    spec.extras["platform_options"] = {k: v for k, v in chosen.items()
+                                       if v is not None and k in OPTIONS and not (k == "payload" and not v)}
+    spec.extras["payload"] = payload
     return spec
 
 
