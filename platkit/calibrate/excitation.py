@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from platkit.calibrate.motion import TAU0_S, ZETA0, ResponseTerm
-from platkit.calibrate.plan import reference_poses_for
+from platkit.calibrate.plan import idle_controls, marker_links, reference_poses_for
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.response import ResponseModel, actuator_positions
 from platkit.calibrate.solve import blas_threads
@@ -101,7 +101,9 @@ class MotionInformation:
     """The information per sample of a streamed session about the parameters calibrate fits from
     motion (module docstring), at the nominal geometry.
 
-    ``markers`` (M, 3) m on the moving part; ``tau_s``, ``damping`` the assumed response."""
+    ``markers`` (M, 3) m on the moving part (on a tree, marker k on tracked link k mod L, as plan
+    places them); ``tau_s``, ``damping`` the assumed response. The response of a control that moves
+    no tracked link (a tree's legs and head) is no column: no marker sees it."""
 
     def __init__(self, spec: PlatformSpec, markers: np.ndarray, *, tau_s: float = TAU0_S, damping: float = ZETA0,
                  model: PlatformModel | None = None):
@@ -113,6 +115,11 @@ class MotionInformation:
         self.steps = 1e-4 * np.maximum(np.abs(self.theta), 1e-2)
         self.steps[0] = 1e-4
         self.M = len(self.markers)
+        self.links = marker_links(spec, self.M)
+        self.mapping = ({f"M{k + 1}": link for k, link in enumerate(self.links)} if len(set(self.links)) > 1
+                        else None)
+        seen_controls = ~idle_controls(spec)
+        self.theta_cols = np.nonzero(np.concatenate([[True]] + [seen_controls] * len(self.rmodel.blocks)))[0]
         free = np.array([p.free for p in spec.parameters], bool)
         self.free = free
         # the settled model over the reference poses: its scales, gauges and the poses the error is told on
@@ -131,19 +138,19 @@ class MotionInformation:
         rank = int(np.sum(sv > 1e-7 * sv[0]))
         self.V_static = Vt[:rank].T  # (n_static, r): the identifiable directions (scaled)
         self.J_ref = A  # (rows, n_static) scaled
-        self.n_theta = self.rmodel.size
+        self.n_theta = len(self.theta_cols)
         self.names = ([p.name for p in spec.parameters if p.free] + ["mocap.rx", "mocap.ry", "mocap.rz", "mocap.x",
                       "mocap.y", "mocap.z"] + [f"marker{k + 1}.{a}" for k in range(self.M) for a in "xyz"]
-                      + [f"response.{n}" for n in self.rmodel.names(spec.control_names)])
+                      + [f"response.{n}" for n in np.array(self.rmodel.names(spec.control_names))[self.theta_cols]])
         self.units = ([p.unit for p in spec.parameters if p.free] + ["rad"] * 3 + ["m"] * 3 + ["m"] * (3 * self.M)
-                      + ["s"] + ["s"] * spec.n_u + ["1"] * spec.n_u)
+                      + list(np.array(["s"] + ["s"] * spec.n_u + ["1"] * spec.n_u)[self.theta_cols]))
         self.rank = rank + self.n_theta
         self.n_parameters = len(self.static_cols) + self.n_theta
 
     def _problem(self, U, t=None, term: ResponseTerm | None = None) -> CalibrationProblem:
         N = len(U)
         poses = PoseSet(platform=self.spec.name, controls=U, markers=np.zeros((N, self.M, 3)),
-                        marker_names=[f"M{k + 1}" for k in range(self.M)], t=t)
+                        marker_names=[f"M{k + 1}" for k in range(self.M)], t=t, moving_link=self.mapping)
         return CalibrationProblem(self.spec, poses, [] if term is None else [term])
 
     def _z(self, problem, theta=None):
@@ -164,7 +171,7 @@ class MotionInformation:
         if not np.all(state.converged):
             raise NotIdentifiable(f"{self.spec.name}: forward kinematics failed at {int((~state.converged).sum())} "
                                   "samples of the excitation")
-        cols = np.concatenate([self.static_cols, np.arange(problem.i_theta.start, problem.i_theta.stop)])
+        cols = np.concatenate([self.static_cols, problem.i_theta.start + self.theta_cols])
         scale = np.concatenate([self.scale_static, np.full(self.n_theta, 1e-3)])
         J = state.J[..., cols].reshape(-1, len(cols)) * scale
         r = self.V_static.shape[1]
@@ -209,7 +216,8 @@ class MotionInformation:
         """The predicted uncertainty of a fit to ``n_samples`` samples with white marker noise
         ``sigma_m`` (module docstring): 'marker_rms_m' (3-D, over the reference poses; its expected
         square's root), 'marker_rms_p90_m' (its 90th percentile over sessions),
-        'parameter_std' (SI, minimum-norm solution), 'logdet_per_sample'."""
+        'parameter_std' (SI, minimum-norm solution), 'logdet_per_sample'; on a tree 'links', per tracked
+        link its 'markers' and 'marker_rms_m' (the same figure over its own markers)."""
         info = info_per_sample * n_samples
         sign, logdet = np.linalg.slogdet(info_per_sample)
         if sign <= 0 or not np.isfinite(logdet):
@@ -231,9 +239,18 @@ class MotionInformation:
             half = (Q * np.sqrt(np.maximum(d, 0))) @ Q.T
             lam = np.maximum(np.linalg.eigvalsh(half @ G @ half), 0)
         draws = np.random.default_rng(QUANTILE_SEED).standard_normal((QUANTILE_DRAWS, len(lam))) ** 2 @ lam
-        return {"identifiable": True, "logdet_per_sample": float(logdet), "marker_rms_m": float(np.sqrt(lam.sum())),
-                "marker_rms_p90_m": float(np.sqrt(np.quantile(draws, 0.9))),
-                "parameter_std": {n: {"std": float(s), "unit": u} for n, s, u in zip(self.names, std, self.units)}}
+        out = {"identifiable": True, "logdet_per_sample": float(logdet), "marker_rms_m": float(np.sqrt(lam.sum())),
+               "marker_rms_p90_m": float(np.sqrt(np.quantile(draws, 0.9))),
+               "parameter_std": {n: {"std": float(s), "unit": u} for n, s, u in zip(self.names, std, self.units)}}
+        if self.mapping is not None:  # a tree: the same figure over each tracked link's markers
+            rows = self.J_ref.reshape(-1, self.M, 3, self.J_ref.shape[1])
+            out["links"] = {}
+            for link in dict.fromkeys(self.links):
+                J_l = rows[:, [lk == link for lk in self.links]].reshape(-1, self.J_ref.shape[1])
+                G_l = J_l.T @ J_l / (len(J_l) / 3)
+                out["links"][link] = {"markers": self.links.count(link),
+                                      "marker_rms_m": float(np.sqrt(max(np.sum(c_static * G_l), 0.0)))}
+        return out
 
 
 def samples_fitted(duration_s: float, mocap_rate_hz: float, seen: float = 1.0, start_s: float = 0.0) -> int:
@@ -451,6 +468,7 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
                        "marker_rms_p90_m_random": pred_random["marker_rms_p90_m"],
                        "identifiable_rank": int(information.rank), "n_parameters": int(information.n_parameters),
                        "parameter_std": pred["parameter_std"],
+                       **({"links": pred["links"]} if "links" in pred else {}),  # a tree: per tracked link
                        "definition": "3-D RMS over the stand's reference poses and the markers of the standard deviation "
                                      "of the calibrated model's marker positions, white marker noise per coordinate and "
                                      "sample, every sample calibrate fits; p90: the 90th percentile over sessions "

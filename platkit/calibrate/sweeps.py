@@ -25,7 +25,7 @@ from platkit.calibrate.excitation import (
     session_length_for,
     trajectory_information,
 )
-from platkit.calibrate.trajectories import Limits, limit_violations
+from platkit.calibrate.trajectories import Limits, home_controls, limit_violations
 from platkit.calibrate.via_points import ViaDesign, design_via, via_trajectory
 from platkit.errors import NotIdentifiable
 from platkit.model import PlatformSpec
@@ -70,12 +70,12 @@ def design_sweep(spec: PlatformSpec, limits: Limits, information: MotionInformat
     length and limits), each predicted; the smallest predicted error (90th percentile) is kept,
     and the boxes stop shrinking when a box predicts worse than the best so far. NotIdentifiable
     (a longer session) where no box fits a sweep in ``duration_s``."""
-    u0 = spec.neutral_u()
+    u0 = home_controls(spec, limits)
     best: tuple[Sweep, Sweep] | None = None
     error: NotIdentifiable | None = None
     for scale in VIA_SCALES:
         box = Limits(u0 - scale * (u0 - limits.lower), u0 + scale * (limits.upper - u0), limits.rate, limits.accel,
-                     limits.source)
+                     limits.source, limits.home)
         pair = []
         for choice in (True, False):
             try:
@@ -168,14 +168,16 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
                    "rule": "via points D-optimal over reachable settled poses inside the box (as plan --optimal "
                            "chooses holds; 'choice': random where a sweep through random candidates of the same "
                            "length and limits predicts a smaller error, 90th percentile), visited in "
-                           "nearest-neighbour order from the neutral controls and back, "
+                           "nearest-neighbour order from the home controls (limits.home: neutral, or the box's middle for a "
+                           "control whose neutral is on or past the box) and back, "
                            "joined by straight moves in control space on one trapezoidal profile per move at the "
                            "largest rate and acceleration every actuator's limits allow; no holds"},
         "limits": {"lower": limits.lower.tolist(), "upper": limits.upper.tolist(), "rate": limits.rate.tolist(),
                    "accel": limits.accel.tolist(), "source": limits.source,
                    "units": "controls' internal units (m for length controls), per s and per s^2"},
         "command_rate_hz": float(command_rate_hz), "duration_s": float(actual), "n_commands": int(len(U)),
-        "stroke_share": (np.ptp(U, axis=0) / (limits.upper - limits.lower)).tolist(),
+        "stroke_share": [None if w <= 0 else float(r / w)  # None: a control held (it moves no tracked link)
+                         for r, w in zip(np.ptp(U, axis=0), limits.upper - limits.lower)],
         "checked": {k: checked[k] for k in ("box", "rate", "accel", "rate_share", "accel_share")},
         "design": {"criterion": information.criterion(info), "criterion_random": information.criterion(info_random),
                    "criterion_d_optimal": information.criterion(info_d_optimal),
@@ -194,6 +196,7 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
                        "random": "a sweep through random reachable candidates, the same duration and limits",
                        "identifiable_rank": int(information.rank), "n_parameters": int(information.n_parameters),
                        "parameter_std": pred["parameter_std"],
+                       **({"links": pred["links"]} if "links" in pred else {}),  # a tree: per tracked link
                        "definition": "3-D RMS over the stand's reference poses and the markers of the standard deviation "
                                      "of the calibrated model's marker positions, white marker noise per coordinate and "
                                      "sample, every sample calibrate fits; p90: the 90th percentile over sessions"},

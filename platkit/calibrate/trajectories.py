@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.calibrate.plan import feasible
+from platkit.calibrate.plan import feasible, idle_controls
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
@@ -36,13 +36,21 @@ LIMIT_RTOL = 1e-9
 @dataclass
 class Limits:
     """What every command must keep (internal units): ``lower``/``upper`` (n_u,) the box, ``rate``
-    (n_u,) per s and ``accel`` (n_u,) per s^2 the drives' limits."""
+    (n_u,) per s and ``accel`` (n_u,) per s^2 the drives' limits; ``home`` (n_u,) the controls the
+    session starts and ends at rest on and its excitation moves about (None: the stand's neutral
+    controls; :func:`drive_limits` says)."""
 
     lower: np.ndarray
     upper: np.ndarray
     rate: np.ndarray
     accel: np.ndarray
     source: dict = field(default_factory=dict)
+    home: np.ndarray | None = None
+
+
+def home_controls(spec: PlatformSpec, limits: Limits) -> np.ndarray:
+    """The controls a motion session starts and ends on (``limits.home``, else neutral)."""
+    return spec.neutral_u() if limits.home is None else np.asarray(limits.home, float)
 
 
 def _declared_rates(spec: PlatformSpec) -> np.ndarray | None:
@@ -76,7 +84,13 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
                  margin: float = 0.1) -> Limits:
     """The limits of a plan: the strokes less ``margin`` of each at both ends, and the rate and
     acceleration limits given (internal units, one number or one per control), else those the
-    description declares (a URDF's joint ``velocity``); BadInput naming what is missing."""
+    description declares (a URDF's joint ``velocity``); BadInput naming what is missing.
+
+    The home (``Limits.home``): the neutral controls, but a control whose neutral lies on or
+    outside the box (a URDF joint whose zero is a limit: an elbow) is homed at the box's middle
+    (``source['home']`` names it). A control that moves no tracked link (a tree's legs and head,
+    :func:`platkit.calibrate.plan.idle_controls`) keeps its neutral command: its box is that
+    point."""
     lo, hi = spec.control_bounds()
     if not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
         bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and b > a)]
@@ -102,10 +116,16 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
     source["accel"] = "given (max_accel)"
     u0 = spec.neutral_u()
     lower, upper = lo + margin * span, hi - margin * span
-    if np.any(u0 <= lower) or np.any(u0 >= upper):
-        raise BadInput(f"margin: {margin:g} leaves the neutral controls of the {spec.name} stand outside the strokes "
-                       "less the margin; choose a smaller margin")
-    return Limits(lower, upper, rate, accel, source)
+    idle = idle_controls(spec)
+    outside = ((u0 <= lower) | (u0 >= upper)) & ~idle
+    home = np.where(outside, 0.5 * (lower + upper), u0)
+    if np.any(outside):
+        source["home"] = ("the middle of the box for " + ", ".join(np.array(spec.control_names)[outside])
+                          + " (neutral on or outside the strokes less the margin), neutral for the others")
+    if np.any(idle):
+        lower, upper = np.where(idle, u0, lower), np.where(idle, u0, upper)
+        source["held"] = ("at neutral (they move no tracked link): " + ", ".join(np.array(spec.control_names)[idle]))
+    return Limits(lower, upper, rate, accel, source, home)
 
 
 def _per_control(spec: PlatformSpec, value, option: str) -> np.ndarray | None:
@@ -188,7 +208,7 @@ class Scaler:
             raise BadInput(f"period_s: {family.period_s:g} s gives fewer than 8 commands per period at {command_rate_hz:g} "
                            "per s")
         self.t_period = np.arange(n) / command_rate_hz
-        self.u0 = spec.neutral_u()
+        self.u0 = home_controls(spec, limits)
         self.half = np.minimum(limits.upper - self.u0, self.u0 - limits.lower)
 
     def amplitudes(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from platkit.calibrate.plan import _Subspace, d_optimal, feasible, identification_jacobian, nearest_neighbour_order
-from platkit.calibrate.trajectories import Limits, limit_violations
+from platkit.calibrate.trajectories import Limits, home_controls, limit_violations
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
@@ -209,7 +209,7 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
     td = spec.nominal_td() if td is None else np.asarray(td, float)
     if not (duration_s > 0 and math.isfinite(duration_s)):
         raise BadInput(f"duration_s: must be a positive number of seconds, got {duration_s:g}")
-    u0 = spec.neutral_u()
+    u0 = home_controls(spec, limits)
     n_cand = max(MIN_CANDIDATES, CANDIDATES_PER_VIA * MAX_VIAS)
     U_c, P_c, drawn = _candidates(spec, limits, n_cand, rng, model, td)
     near = U_c[np.argsort([move_duration(u - u0, limits.rate, limits.accel)[0] for u in U_c])[:MIN_VIAS]]

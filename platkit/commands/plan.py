@@ -239,7 +239,7 @@ def run_motion(args) -> int:
                  "marker_rms_p90_m_random": p["marker_rms_p90_m_d_optimal"]}
         print(f"excitation: a sweep through {fam['via_points']} {mine} via points in {fam['box_share']:.0%} of the box "
               f"({fam['tours']:g} tour(s), "
-              f"{fam['detours']} move(s) through neutral), {min(r['stroke_share']):.0%} of each stroke at least; rate "
+              f"{fam['detours']} move(s) through neutral), {min(v for v in r['stroke_share'] if v is not None):.0%} of each stroke at least; rate "
               f"{r['checked']['rate_share']:.0%} and acceleration {r['checked']['accel_share']:.0%} of the limits at "
               f"most; criterion {r['design']['criterion_random']:.2f} (random via points), "
               f"{r['design']['criterion_d_optimal']:.2f} (D-optimal)")
@@ -253,6 +253,8 @@ def run_motion(args) -> int:
           f"noise): {p['marker_rms_m'] / sc:.4f} mm, 90% of sessions under {p['marker_rms_p90_m'] / sc:.4f} mm ({other} "
           f"of the same duration and limits: {p['marker_rms_m_random'] / sc:.4f} mm, "
           f"{p['marker_rms_p90_m_random'] / sc:.4f} mm)")
+    for link, e in (p.get("links") or {}).items():
+        print(f"  {link}: {e['markers']} markers; predicted marker error {e['marker_rms_m'] / sc:.4f} mm")
     if "target" in r:
         tg = r["target"]
         print(f"target {tg['target_m'] / sc:g} mm (90% of sessions): {'met' if tg['met'] else 'NOT met'} by a session of "

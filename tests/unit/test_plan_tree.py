@@ -97,3 +97,36 @@ def test_per_link_prediction_agrees_with_the_heldout_error_of_a_seeded_calibrati
         achieved = np.sqrt(np.mean(err[:, links == link] ** 2))
         expected = np.sqrt(3) * plan.info["links"][link]["predicted_marker_rms_m"]
         assert 0.5 < achieved / expected < 2.0, (link, achieved, expected)
+
+
+def test_plan_motion_on_a_tree_whose_elbow_rests_at_a_limit(tmp_path, capsys):
+    """`plan --motion` on the tree, with right_2_joint's stroke [0, 1.5] (its zero, the neutral, a
+    limit, as Talos' elbows): once refused ('leaves the neutral controls outside the strokes'), and
+    on a tree singular (every marker on the first link, the head's response unseen). Now: the
+    elbow homed at the middle of its box, the head held at neutral, the prediction per link."""
+    text = URDF.read_text()
+    old = '<origin xyz="0 0 -0.25"/><axis xyz="1 0 0"/><limit lower="-1.5" upper="1.5" effort="50" velocity="1"/>'
+    assert text.count(old) == 2  # right_2_joint's, then left_2_joint's
+    urdf = tmp_path / "elbow.urdf"
+    urdf.write_text(text.replace(old, old.replace('lower="-1.5"', 'lower="0"'), 1))
+    out = tmp_path / "session" / "commands.csv"
+    assert main(["plan", "--platform", "urdf", "--description", str(urdf), "--moving-link", ",".join(LINKS),
+                 "--motion", "--max-accel", "2", "--duration-s", "25", "--quiet", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert "right_2_joint" in report["limits"]["source"]["home"] and "head_yaw" in report["limits"]["source"]["held"]
+    header = out.read_text().splitlines()[0].split(",")
+    U = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert np.all(U[:, header.index("head_yaw")] == 0.0)
+    elbow = U[:, header.index("right_2_joint")]
+    assert elbow[0] == pytest.approx(0.75) and elbow[-1] == pytest.approx(0.75)  # home: the middle of [0.15, 1.35]
+    assert np.all((elbow >= 0.15 - 1e-9) & (elbow <= 1.35 + 1e-9))
+    assert report["stroke_share"][header.index("head_yaw") - 1] is None
+    pred = report["prediction"]
+    per = pred["links"]
+    assert set(per) == set(LINKS) and all(per[k]["markers"] == 3 and per[k]["marker_rms_m"] > 0 for k in LINKS)
+    pooled = np.sqrt(sum(per[k]["marker_rms_m"] ** 2 for k in LINKS) / 2)
+    assert pooled == pytest.approx(pred["marker_rms_m"], rel=1e-6)
+    assert not any(n.startswith("response.") and n.endswith(".head_yaw") for n in pred["parameter_std"])
+    for link in LINKS:
+        assert f"  {link}: 3 markers; predicted marker error" in printed
