@@ -3,6 +3,7 @@ at a thermal state (``--at-time`` seconds since power-on, or ``--warm``) where t
 time-dependent terms."""
 from __future__ import annotations
 
+from platkit.commands.reregister import add_arguments as add_register_arguments
 from platkit.notices import warn
 
 
@@ -11,6 +12,7 @@ def add_parser(sub):
     p.add_argument("--calibration", required=True, help="calibration.yaml written by calibrate or diagnose")
     p.add_argument("--commands", required=True, help="CSV with one column per control (and optionally t)")
     p.add_argument("--out", required=True, help="CSV to write")
+    add_register_arguments(p)
     state = p.add_mutually_exclusive_group()
     state.add_argument("--at-time", type=float, default=None, metavar="SECONDS",
                        help="thermal state: the first row SECONDS after power-on, later rows by their t (where the "
@@ -49,6 +51,15 @@ def parse_payload_args(values: list[str]) -> list[dict]:
 
 
 def run(args) -> int:
+    if getattr(args, "register", None) is not None:  # the calibration re-registered, then this path
+        from platkit.commands.reregister import run_registered
+
+        return run_registered(args, run)
+    if getattr(args, "register_markers", False) or getattr(args, "registered_calibration", None) is not None:
+        from platkit.errors import BadInput
+
+        raise BadInput(f"--{'register-markers' if args.register_markers else 'registered-calibration'}: give "
+                       "--register SESSION (the session whose set-up to fit)")
     from platkit.calibrate.predict import predict_file
     from platkit.io.atomic import check_output_file
 

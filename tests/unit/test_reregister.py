@@ -212,3 +212,48 @@ def test_diagnose_register_bad_input(two_days, tmp_path, capsys, extra, message)
     err = capsys.readouterr().err.strip().splitlines()
     assert message.replace("DAY2", str(day2)) in err[-1] and len([e for e in err if "error" in e]) == 1
     assert not (tmp_path / "d").exists()
+
+
+def test_predict_register_predicts_in_the_new_set_up(two_days, tmp_path, capsys):
+    import csv
+
+    from platkit.cli import main
+    from platkit.io.calibration import read_calibration
+
+    root, train, day2, cal = two_days
+    out, kept = tmp_path / "pred.csv", tmp_path / "registered"
+    assert main(["predict", "--calibration", str(cal), "--commands", str(day2 / "commands.csv"), "--out", str(out),
+                 "--register", str(day2), "--registered-calibration", str(kept)]) == 0
+    said = capsys.readouterr().out
+    assert f"re-registered on {day2} (20 poses" in said and "mocap_from_base turned 40" in said  # 0.40 rad, in mrad
+    pred = list(csv.DictReader(out.open()))
+    seen = list(csv.DictReader((day2 / "poses.csv").open()))
+    err = [float(p[f"{m}_{a}"]) - float(s[f"{m}_{a}"]) for p, s in zip(pred, seen) for m in ("M1", "M5") for a in "xyz"]
+    assert len(pred) == 20 and np.sqrt(np.mean(np.square(err))) < 0.5  # mm, in day 2's frame (decimetres as is)
+    text = (kept / "calibration.yaml").read_text()
+    assert "registration:" in text and f"session: {day2}" in text
+    again = read_calibration(kept / "calibration.yaml")
+    first = read_calibration(cal)
+    assert np.array_equal(again.td, first.td) and not np.allclose(again.mocap_translation, first.mocap_translation)
+    # the kept calibration predicts the same without --register
+    assert main(["predict", "--calibration", str(kept / "calibration.yaml"), "--commands", str(day2 / "commands.csv"),
+                 "--out", str(tmp_path / "again.csv")]) == 0
+    assert (tmp_path / "again.csv").read_text() == out.read_text()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--register-markers"], "--register-markers: give --register SESSION"),
+    (["--registered-calibration", "KEPT"], "--registered-calibration: give --register SESSION"),
+    (["--register", "NOWHERE"], "NOWHERE"),
+])
+def test_predict_register_bad_input(two_days, tmp_path, capsys, extra, message):
+    from platkit.cli import main
+
+    root, train, day2, cal = two_days
+    subst = {"KEPT": str(tmp_path / "kept"), "NOWHERE": str(tmp_path / "nowhere")}
+    extra = [subst.get(x, x) for x in extra]
+    assert main(["predict", "--calibration", str(cal), "--commands", str(day2 / "commands.csv"),
+                 "--out", str(tmp_path / "p.csv"), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and subst.get(message, message) in err[0]
+    assert not (tmp_path / "p.csv").exists() and not (tmp_path / "kept").exists()

@@ -1,0 +1,86 @@
+"""``platkit predict --register SESSION``: the calibration re-registered to that session's set-up,
+then predicted as any other (not a verb of its own: predict's option, kept apart from its module)."""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from platkit.errors import BadInput
+
+
+def add_arguments(p) -> None:
+    """predict's options for re-registration."""
+    p.add_argument("--register", default=None, metavar="SESSION",
+                   help="a session recorded in the motion-capture set-up to predict in (another day: the cameras "
+                        "calibrated again, the robot moved): its poses re-fit the base-to-mocap transform, every "
+                        "geometric and effect parameter held, and the markers are predicted in its frame")
+    p.add_argument("--register-markers", action="store_true",
+                   help="with --register: re-fit the marker places on their links too (a marker body mounted again)")
+    p.add_argument("--registered-calibration", default=None, metavar="DIR",
+                   help="with --register: also write the re-registered calibration to DIR/calibration.yaml (its "
+                        "'registration' says what was re-fitted, on which session), for predict without --register")
+
+
+def run_registered(args, run) -> int:
+    """Re-register ``args.calibration`` on ``args.register``, say the set-up found in one line, then
+    ``run`` predict's plain path with the re-registered calibration (written to
+    ``--registered-calibration`` whole, or to a folder removed afterwards)."""
+    from platkit.calibrate.reregister import reregister
+    from platkit.io.atomic import atomic_output_dir, check_output_dir, check_output_file
+    from platkit.io.calibration import read_calibration
+    from platkit.io.session import load_session
+    from platkit.io.session_yaml import read_session_yaml
+    from platkit.model import length_scale
+    from platkit.notices import warn
+    from platkit.settle import load_poses
+
+    check_output_file(args.out)
+    if args.registered_calibration is not None:
+        check_output_dir(args.registered_calibration)
+    if not Path(args.calibration).is_file():
+        raise BadInput(f"{args.calibration}: calibration file not found")
+    cal = read_calibration(args.calibration)
+    folder = Path(args.register)
+    platform = read_session_yaml(folder).get("platform")
+    if platform is not None and platform != cal.platform:
+        raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
+    session = load_session(folder, spec=cal.spec, quiet=True)
+    for note in session.extras.get("control_notes", []):
+        warn(note)
+    poses = load_poses(folder, spec=cal.spec, session=session)
+    moved, reg = reregister(cal, poses, markers=args.register_markers)
+    s = length_scale(cal.length_unit)
+    turn, move = reg.shift(cal)
+    print(f"re-registered on {folder} ({reg.n_poses} poses, {reg.n_points} points"
+          + (f", {reg.n_rejected} left out as outliers" if reg.n_rejected else "") + "): mocap_from_base turned "
+          f"{turn * 1e3:.4g} mrad and moved {move / s:.4g} {cal.length_unit} from the calibration's"
+          + (", the marker places re-fitted" if reg.markers else "") + f"; rms on those poses {reg.rms / s:.4g} "
+          f"{cal.length_unit}")
+    record = {"registration": {"session": str(folder), "calibration": str(args.calibration),
+                               "note": "the set-up (mocap_from_base" + (" and the marker places" if reg.markers else "")
+                                       + ") re-fitted on the session's poses; every other value is the calibration's",
+                               **reg.to_dict(cal)}}
+    args.register, args.register_markers, out_dir = None, False, args.registered_calibration
+    args.registered_calibration = None
+    if out_dir is None:
+        with tempfile.TemporaryDirectory(prefix="platkit-registered-") as tmp:
+            args.calibration = str(_write(moved, Path(tmp), record))
+            return run(args)
+    with atomic_output_dir(out_dir) as tmp:
+        args.calibration = str(_write(moved, tmp, record))
+        code = run(args)
+    args.calibration = str(Path(out_dir) / "calibration.yaml")
+    print(f"wrote {args.calibration}")
+    return code
+
+
+def _write(cal, folder: Path, record: dict) -> Path:
+    """calibration.yaml of ``cal`` in ``folder`` (travelling, as calibrate writes it), ``record`` after it."""
+    from platkit.io.calibration import write_calibration_yaml
+
+    path = write_calibration_yaml(cal, folder)
+    with path.open("a", encoding="utf-8") as fh:
+        fh.write(yaml.safe_dump(record, sort_keys=False, default_flow_style=None, width=120))
+    return path
