@@ -85,7 +85,8 @@ def grid_points(spec: PlatformSpec, points_per_control: int, margin: float = 0.1
     if k < 2:
         raise BadInput(f"--grid must be at least 2 points per control, got {k}")
     if k ** spec.n_u > 2_000_000:
-        raise BadInput(f"--grid {k} gives {k ** spec.n_u} points for {spec.n_u} controls; choose fewer")
+        raise BadInput(f"--grid {k} gives {k ** spec.n_u} points for {spec.n_u} controls; choose fewer, or "
+                       "--optimal N (N poses chosen D-optimally from random candidates)")
     lo, hi = control_box(spec, margin)
     axes = [np.linspace(a, b, k) for a, b in zip(lo, hi)]
     idx = snake_order([k] * spec.n_u)
