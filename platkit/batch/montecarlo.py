@@ -25,7 +25,7 @@ import numpy as np
 from platkit.batch.engine import Outcome, Task, cluster, run_tasks
 from platkit.batch.store import BatchFolder
 from platkit.calibrate.estimate import calibrate, predict_markers
-from platkit.calibrate.plan import reference_poses
+from platkit.calibrate.plan import marker_links, reference_poses
 from platkit.errors import ComputationFailed
 from platkit.io.jsonout import dumps
 from platkit.plugins import get_platform
@@ -38,7 +38,15 @@ HOLD_S = 1.5
 
 @functools.lru_cache(maxsize=8)
 def _spec(platform: str, description: str | None, options: tuple):
-    return get_platform(platform, description, **dict(options))
+    """The stand of ``options`` as :func:`options_key` made it hashable (a tree's moving_link
+    mapping as its pairs)."""
+    return get_platform(platform, description, **{k: dict(v) if isinstance(v, tuple) else v for k, v in options})
+
+
+def options_key(options: dict) -> tuple:
+    """The stand options as a hashable key (sorted items; a mapping, a tree's moving_link, as its
+    pairs): what :func:`draw` is given."""
+    return tuple(sorted((k, tuple(v.items()) if isinstance(v, dict) else v) for k, v in options.items()))
 
 
 def draw(platform: str, description: str | None, options: tuple, controls: np.ndarray, markers: np.ndarray,
@@ -46,7 +54,8 @@ def draw(platform: str, description: str | None, options: tuple, controls: np.nd
     """One Monte-Carlo draw (runs on a worker). ``controls`` (N, n_u) internal units, the plan;
     ``markers`` (M, 3) m, the marker layout on the moving part; ``effects`` ((name, size), ...).
     Returns heldout_rms_m, fit_rms_m, converged, parameter_error (n_td,) (SI; NaN where held),
-    parameter names, and the truth's seed."""
+    parameter names, and the truth's seed; on a tree (markers on tracked link k mod L, as plan
+    places them) also heldout_rms_m_links, the held-out error over each link's markers."""
     spec = _spec(platform, description, options)
     # one motion-capture sample per settled pose (rate 2 / hold): noise_mm is then a settled pose's noise
     common = dict(seed=seed, raw=False, occlusion=0.0, n_markers=len(markers), markers=np.asarray(markers, float),
@@ -65,9 +74,14 @@ def draw(platform: str, description: str | None, options: tuple, controls: np.nd
     err = np.linalg.norm(predicted - ref.poses.markers, axis=2)[np.asarray(ok, bool)]
     estimated = np.array([st == "estimated" for st in cal.td_status])
     perr = np.where(estimated, cal.td - sim.truth.td, np.nan)
-    return {"seed": int(seed), "heldout_rms_m": float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan"),
-            "heldout_poses": int(np.sum(ok)), "fit_rms_m": float(cal.rms_after), "converged": bool(cal.converged),
-            "parameter_error": perr.tolist(), "parameter_names": [p.name for p in spec.parameters]}
+    out = {"seed": int(seed), "heldout_rms_m": float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan"),
+           "heldout_poses": int(np.sum(ok)), "fit_rms_m": float(cal.rms_after), "converged": bool(cal.converged),
+           "parameter_error": perr.tolist(), "parameter_names": [p.name for p in spec.parameters]}
+    links = np.array(marker_links(spec, len(markers)))
+    if len(set(links)) > 1:
+        out["heldout_rms_m_links"] = {str(k): float(np.sqrt(np.mean(err[:, links == k] ** 2))) if err.size else float("nan")
+                                      for k in dict.fromkeys(links)}
+    return out
 
 
 def summarise_draws(results: list[dict], units: list[str]) -> dict:
@@ -79,6 +93,12 @@ def summarise_draws(results: list[dict], units: list[str]) -> dict:
                               "p90": float(np.nanpercentile(h, 90)), "p95": float(np.nanpercentile(h, 95)),
                               "max": float(np.nanmax(h))},
            "parameter_error": {}}
+    if "heldout_rms_m_links" in results[0]:  # a tree: the same quantiles over each tracked link's markers
+        out["heldout_rms_mm_links"] = {}
+        for link in results[0]["heldout_rms_m_links"]:
+            h_l = np.array([r["heldout_rms_m_links"][link] for r in results], float) * 1e3
+            out["heldout_rms_mm_links"][link] = {"mean": float(np.nanmean(h_l)), "median": float(np.nanmedian(h_l)),
+                                                 "p90": float(np.nanpercentile(h_l, 90)), "max": float(np.nanmax(h_l))}
     E = np.array([r["parameter_error"] for r in results], float)
     for j, name in enumerate(results[0]["parameter_names"]):
         e = E[:, j]
@@ -112,7 +132,7 @@ def evaluate_plans(platform: str, description: str | None, options: dict, plans:
     tasks, each draw's result written to ``folder``/draws/<plan>__draw<d>/draw.json as it finishes
     (a re-run skips the draws there); return ``{name: summary}`` (summarise_draws, plus n_poses,
     the draws and, for every other plan, the fraction of draws this one beats it in)."""
-    spec = _spec(platform, description, tuple(sorted(options.items())))
+    spec = _spec(platform, description, options_key(options))
     units = [p.unit for p in spec.parameters]
     record = {"platform": platform, "description": description, "options": options, "noise_mm": noise_mm,
               "effects": [list(e) for e in effects], "seed": seed,
@@ -121,7 +141,7 @@ def evaluate_plans(platform: str, description: str | None, options: dict, plans:
                         for k, v in plans.items()}}
     store = BatchFolder(folder, "plan --monte-carlo", record, items="draws")
     key = {(name, d): f"{name}__draw{d:05d}" for name in plans for d in range(n_draws)}
-    todo = [Task(k, (platform, description, tuple(sorted(options.items())), plans[name], np.asarray(markers, float),
+    todo = [Task(k, (platform, description, options_key(options), plans[name], np.asarray(markers, float),
                      draw_seed(seed, d), noise_mm, tuple(effects)))
             for (name, d), k in key.items() if not store.done(k)]
 

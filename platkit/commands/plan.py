@@ -294,6 +294,15 @@ def _monte_carlo_inputs(args) -> bool:
     return True
 
 
+def stand_options(args) -> dict:
+    """The stand options given (--base-link, --moving-link) as get_platform takes them: a tree's
+    comma-separated links as a mapping (as platform_from_args reads them)."""
+    options = {k: getattr(args, k) for k in ("base_link", "moving_link") if getattr(args, k, None) is not None}
+    if "," in options.get("moving_link", ""):
+        options["moving_link"] = {n.strip(): n.strip() for n in options["moving_link"].split(",") if n.strip()}
+    return options
+
+
 def _monte_carlo(args, spec, plan, markers, out: Path) -> dict:
     """Score the plan (and the --compare plans) on the same --monte-carlo true stands; the draws
     are kept in <out stem>.montecarlo/ (a re-run skips them). Returns plan.json's monte_carlo."""
@@ -309,7 +318,7 @@ def _monte_carlo(args, spec, plan, markers, out: Path) -> dict:
             raise BadInput(f"--compare {c}: two plans are named {name!r}; give the files different names")
         plans[name] = pl.read_plan_csv(Path(c), spec, args.unit)
     effects = tuple(parse_effect(e) for e in args.effect)
-    options = {k: getattr(args, k) for k in ("base_link", "moving_link") if getattr(args, k, None) is not None}
+    options = stand_options(args)
     description = None if args.description is None else str(Path(args.description).resolve())
     folder = out.parent / f"{out.stem}.montecarlo"
     if not args.quiet:
@@ -337,6 +346,10 @@ def _print_monte_carlo(mc: dict, info: dict, out: Path) -> None:
     if info.get("predicted_marker_rms_m"):
         print(f"linear prediction for {names[0]}: {info['predicted_marker_rms_m'] * 1e3 * 3 ** 0.5:.4f} mm (3-D, "
               f"sqrt(3) x the per-coordinate {info['predicted_marker_rms_m'] * 1e3:.4f} mm)")
+    for link, h in (mc["plans"][names[0]].get("heldout_rms_mm_links") or {}).items():
+        pred = (info.get("links") or {}).get(link, {}).get("predicted_marker_rms_m")
+        print(f"  {link}: held-out median {h['median']:.4f} mm, p90 {h['p90']:.4f} mm"
+              + ("" if pred is None else f"; linear prediction {pred * 1e3 * 3 ** 0.5:.4f} mm"))
     worst = sorted(((k, v) for k, v in mc["plans"][names[0]]["parameter_error"].items() if v["p95_abs"] is not None),
                    key=lambda kv: -kv[1]["p95_abs"])[:4]
     if worst:

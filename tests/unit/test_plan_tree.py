@@ -130,3 +130,24 @@ def test_plan_motion_on_a_tree_whose_elbow_rests_at_a_limit(tmp_path, capsys):
     assert not any(n.startswith("response.") and n.endswith(".head_yaw") for n in pred["parameter_std"])
     for link in LINKS:
         assert f"  {link}: 3 markers; predicted marker error" in printed
+
+
+def test_monte_carlo_draw_of_a_tree_scores_each_link(spec):
+    """plan --monte-carlo on a tree: the stand options keep the mapping (the comma-separated
+    --moving-link was passed on as one link name and refused), and each draw scores every tracked
+    link's markers; the summary gives their quantiles."""
+    import argparse
+
+    from platkit.batch.montecarlo import draw, options_key, summarise_draws
+    from platkit.commands.plan import stand_options
+
+    options = stand_options(argparse.Namespace(base_link=None, moving_link=" right_tcp, left_tcp"))
+    assert options == {"moving_link": {"right_tcp": "right_tcp", "left_tcp": "left_tcp"}}
+    markers = pl.default_marker_layout(spec, 6, np.random.default_rng(0))
+    plan, _ = pl.optimal_plan(spec, 24, 80, np.random.default_rng(1), 1e-4, markers=markers)
+    r = draw("urdf", str(URDF), options_key(options), plan.controls, markers, 7, 0.1)
+    per = r["heldout_rms_m_links"]
+    assert set(per) == set(LINKS) and all(0 < v < 5 * r["heldout_rms_m"] for v in per.values())
+    assert np.sqrt(np.mean([v ** 2 for v in per.values()])) == pytest.approx(r["heldout_rms_m"], rel=1e-9)
+    summary = summarise_draws([r, r], [p.unit for p in spec.parameters])
+    assert summary["heldout_rms_mm_links"]["left_tcp"]["median"] == pytest.approx(per["left_tcp"] * 1e3)
