@@ -257,3 +257,31 @@ def test_predict_register_bad_input(two_days, tmp_path, capsys, extra, message):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and subst.get(message, message) in err[0]
     assert not (tmp_path / "p.csv").exists() and not (tmp_path / "kept").exists()
+
+
+def test_rigid_bodies_follow_the_new_set_up(tmp_path):
+    """A body's origin is one more point of the fit; its orientation, never fitted, comes out right
+    through the new transform."""
+    from platkit.calibrate.estimate import predict_bodies
+    from platkit.cli import main
+    from platkit.geometry import quat_from_matrix
+    from platkit.io.calibration import read_calibration
+
+    assert main(["simulate", "--platform", "stewart", "--out", str(tmp_path / "s"), "--seed", "3", "--poses", "30",
+                 "--plan", "random", "--poses-only", "--rigid-bodies", "1"]) == 0
+    assert main(["calibrate", str(tmp_path / "s"), "--out", str(tmp_path / "c"), "--quiet", "--no-report"]) == 0
+    cal = read_calibration(tmp_path / "c" / "calibration.yaml")
+    poses = load_poses(tmp_path / "s", spec=cal.spec)
+    T2 = _moved(np.eye(4))
+    poses.markers = poses.markers @ T2[:3, :3].T + T2[:3, 3]
+    bodies = poses.bodies.copy()
+    bodies[..., :3] = bodies[..., :3] @ T2[:3, :3].T + T2[:3, 3]
+    bodies[..., 3:] = quat_from_matrix(np.einsum("ab,nkbc->nkac", T2[:3, :3], matrix_from_quat(bodies[..., 3:])))
+    poses.bodies = bodies
+    moved, reg = reregister(cal, poses)
+    assert reg.n_points + reg.n_rejected == 30 * 6  # five markers and the body's origin
+    pred, q, X, _ = predict_markers(moved, poses.controls, poses)
+    body = predict_bodies(moved, q, X, poses.controls, poses)
+    assert np.sqrt(np.mean(np.sum((pred - poses.markers) ** 2, axis=2))) < 0.06e-3  # measured 0.04 mm
+    assert np.sqrt(np.mean(np.sum((body[..., :3] - bodies[..., :3]) ** 2, axis=2))) < 0.04e-3  # 0.02 mm
+    assert np.max(1 - np.abs(np.sum(body[..., 3:] * bodies[..., 3:], axis=2))) < 1e-6  # the same orientation
