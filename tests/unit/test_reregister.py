@@ -285,3 +285,25 @@ def test_rigid_bodies_follow_the_new_set_up(tmp_path):
     assert np.sqrt(np.mean(np.sum((pred - poses.markers) ** 2, axis=2))) < 0.06e-3  # measured 0.04 mm
     assert np.sqrt(np.mean(np.sum((body[..., :3] - bodies[..., :3]) ** 2, axis=2))) < 0.04e-3  # 0.02 mm
     assert np.max(1 - np.abs(np.sum(body[..., 3:] * bodies[..., 3:], axis=2))) < 1e-6  # the same orientation
+
+
+def test_a_tree_re_registers_both_hands_with_one_transform():
+    """Markers on two tracked links (test_urdf_tree's two-armed torso): one transform for both
+    hands, each marker's place on its own link."""
+    from test_urdf_tree import MAPPING, MARKERS, SIGMA, commands, observe, tree_spec, true_td
+
+    spec = tree_spec()
+    rng = np.random.default_rng(21)
+    td = true_td(spec, rng)
+    U = commands(spec, 90, rng)
+    Y = observe(spec, td, U, rng)
+    cal = calibrate(PoseSet("urdf", U[:60], Y[:60], list(MARKERS), moving_link=MAPPING), spec)
+    T2 = _moved(np.eye(4))
+    day2 = PoseSet("urdf", U[60:], Y[60:] @ T2[:3, :3].T + T2[:3, 3], list(MARKERS), moving_link=MAPPING,
+                   source="day2")
+    for markers in (False, True):
+        moved, reg = reregister(cal, day2.subset(np.arange(15)), markers=markers)
+        pred, _, _, _ = predict_markers(moved, day2.controls[15:], day2.subset(np.arange(15, 30)))
+        err = np.linalg.norm(pred - day2.markers[15:], axis=2)
+        assert np.mean(err) < 2.2 * SIGMA, markers  # as the same set-up's held-out poses (test_urdf_tree)
+        assert reg.shift(cal)[0] == pytest.approx(np.linalg.norm([0.1, -0.3, 0.25]), abs=1e-3)  # _moved's turn
