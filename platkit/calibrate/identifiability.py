@@ -294,8 +294,13 @@ _REFERENCE_PROBLEMS: dict = {}
 
 def _reference_problem(problem, U_ref: np.ndarray):
     """A term-free problem of the same class over the reference controls, with the problem's
-    marker count (kept per stand object: a model selection fits one stand many times)."""
-    key = (id(problem.spec), problem.M, problem.poses.n_bodies, type(problem), getattr(problem, "point_links", None))
+    markers and rigid bodies: their names (the unknowns are matched by name), links and count.
+    Kept per stand object and per that marker set (a model selection fits one stand many times);
+    a problem of the stand with other markers gets its own, never one built for other names."""
+    poses = problem.poses
+    key = (id(problem.spec), problem.M, tuple(poses.marker_names), tuple(poses.body_names),
+           tuple(sorted(poses.marker_links.items())), poses.length_unit, type(problem),
+           getattr(problem, "point_links", None))
     hit = _REFERENCE_PROBLEMS.get(key)
     if hit is not None and hit[0] is problem.spec and hit[1] is U_ref:
         return hit[2]

@@ -22,6 +22,7 @@ from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
 from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
+from platkit.poses import PoseSet
 
 REPO = Path(__file__).resolve().parents[2]
 GANTRY = REPO / "descriptions" / "gantry_xyz.urdf"
@@ -68,6 +69,21 @@ def test_plan_and_calibrate_agree_on_the_gantry_and_the_stewart():
         planned = evaluate_plan(spec, Plan(poses.controls, "given", {}, P), 1e-4, n_markers=4)
         assert planned["identifiable"] is True and planned["not_excited"] == 0 == cal.identifiability["gauge"]["not_excited"]
         assert planned["never_identifiable"] == planned["gauge_dimensions"] == cal.identifiability["gauge"]["dimensions"]
+
+
+def test_what_calibrate_decides_does_not_hang_on_an_earlier_calibration_with_other_marker_names(builtin_host):
+    """What a calibration decides (gauge and unexcited directions) is the same whatever calibrations
+    of the same stand object came before: the reference problem kept between them matches the
+    unknowns by name, so one built for other marker names is not lent (it counted 3 of the
+    Stewart's directions not excited, where plan and a fresh process count 0)."""
+    spec = builtin_host.build("stewart")  # a stand object no other test has calibrated
+    poses = Truth(spec, seed=5, n_markers=4, marker_spread=0.05).poses(40, 1e-4, spread=0.3)
+    renamed = PoseSet(spec.name, poses.controls, poses.markers, ["A", "B", "C", "D"], length_unit="mm")
+    counts = []
+    for session in (renamed, poses):  # the same data, the markers named otherwise first
+        gauge = calibrate(session, spec).identifiability["gauge"]
+        counts.append((gauge["dimensions"], gauge["not_excited"]))
+    assert counts == [(12, 0), (12, 0)]
 
 
 def test_poses_that_do_not_excite_the_markers_are_an_error_and_plan_says_so():
