@@ -1,12 +1,13 @@
 """`platkit plan` on a tree, per tracked link: the predicted marker error of each hand against what
 calibration achieves on held-out poses (issue 24: plan works per link).
 
-    .venv/bin/python benchmarks/plan_tree.py [--poses 60] [--seeds 1,2,3] [--noise-mm 0.1]
+    .venv/bin/python benchmarks/plan_tree.py [--poses 60] [--seeds 1,2,3] [--noise-mm 0.1] [--markers N]
 
 The robot: PAL's Talos (example-robot-data's talos_reduced.urdf, a public description not written
 here), both grippers tracked, every actuated joint below base_link a control (the legs and head
 move no marker: plan holds them at neutral). The plan: `plan --optimal N` (D-optimal from 500
-random candidates, seed 0, 3 markers per hand in plan's default layout). Each seed draws a true
+random candidates, seed 0, 3 markers per hand in plan's default layout; --markers N: N in all,
+marker k on hand k mod 2, so that the hands' predictions differ). Each seed draws a true
 stand around the description as `platkit simulate` does (2 mm, 2 mrad per parameter, a random
 motion-capture frame), simulates the plan as settled poses with the plan's markers and the given
 noise per coordinate of a settled pose, calibrates as `platkit calibrate` does by default (model
@@ -56,10 +57,12 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", type=int, default=60)
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--noise-mm", type=float, default=0.1)
+    ap.add_argument("--markers", type=int, default=None, help="markers in all (default: plan's, 3 per hand)")
     args = ap.parse_args(argv)
     urdf = example_robot_urdf("talos_data/robots/talos_reduced.urdf")
     spec = get_platform("urdf", urdf, moving_link={h: h for h in HANDS})
-    markers = pl.default_marker_layout(spec, pl.default_marker_count(spec), np.random.default_rng(0))
+    n_markers = pl.default_marker_count(spec) if args.markers is None else args.markers
+    markers = pl.default_marker_layout(spec, n_markers, np.random.default_rng(0))
     plan, _ = pl.optimal_plan(spec, args.poses, 500, np.random.default_rng(0), args.noise_mm * 1e-3, markers=markers)
     pred = {link: d["predicted_marker_rms_m"] * np.sqrt(3) for link, d in plan.info["links"].items()}
     print(f"Talos, both hands: {spec.n_u} controls, {spec.n_td} parameters; plan --optimal {args.poses}, "
