@@ -21,7 +21,8 @@ places need the link to turn about two axes).
 Scoring by rotation (:func:`rotated_scores`): blocks of K consecutive poses, in recording order,
 re-register in turn (the last block wraps to the first poses), the session's other poses are
 scored under each; a pose's error is the mean square over the blocks it was scored in. Every
-pose is scored, never by a registration that saw it.
+pose is scored, never by a registration that saw it. Spread blocks take their K poses across the
+recording instead (as a registration set chosen to span the workspace would be).
 """
 from __future__ import annotations
 
@@ -247,12 +248,18 @@ def reregister(cal: Calibration, poses: PoseSet, markers: bool = False,
     return reg.apply(cal), reg
 
 
-def registration_blocks(n_poses: int, k: int) -> list[np.ndarray]:
+def registration_blocks(n_poses: int, k: int, spread: bool = False) -> list[np.ndarray]:
     """The rotation's blocks: runs of k consecutive poses (wrapping from the last pose to the
-    first) starting every min(k, N - k) poses, as many as make every pose fall outside one: with
-    k <= N / 2 the blocks tile the poses, beyond it the poses left out do."""
+    first) starting every min(k, N - k) poses, as many (B) as make every pose fall outside one: with
+    k <= N / 2 the blocks tile the poses, beyond it the poses left out do. ``spread``: the same
+    runs over the poses taken B apart (0, B, 2B, ..., 1, B + 1, ...), so that a block's poses lie
+    across the whole recording."""
     step = min(k, n_poses - k)
-    return [(np.arange(k) + j * step) % n_poses for j in range(-(-n_poses // step))]
+    blocks = [(np.arange(k) + j * step) % n_poses for j in range(-(-n_poses // step))]
+    if not spread:
+        return blocks
+    order = np.argsort(np.arange(n_poses) % len(blocks), kind="stable")
+    return [np.sort(order[b]) for b in blocks]
 
 
 @dataclass(frozen=True)
@@ -292,18 +299,20 @@ def check_block_size(k: int, n_poses: int, option: str, source: str) -> None:
 
 
 def rotated_scores(cal: Calibration, poses: PoseSet, k: int, markers: bool = False,
-                   option: str = "--heldout-register", robust: bool = True) -> RotatedScore:
+                   option: str = "--heldout-register", robust: bool = True, spread: bool = False) -> RotatedScore:
     """``cal`` scored on ``poses`` with its set-up re-registered on each block of ``k`` poses
-    and the others scored (see the module's docstring)."""
+    (consecutive, or ``spread`` across the recording: :func:`registration_blocks`) and the others
+    scored (see the module's docstring)."""
     source = poses.source or "the session"
     check_block_size(k, poses.n_poses, option, source)
     pts = session_points(cal, poses)
     N, C = pts.seen.shape
     total = np.zeros((N, C))
     count = np.zeros((N, C))
-    regs, blocks = [], registration_blocks(N, k)
+    regs, blocks = [], registration_blocks(N, k, spread)
     for blk in blocks:
-        rows = (f"poses {blk[0] + 1}-{blk[-1] + 1}" if blk[-1] >= blk[0]
+        rows = (f"poses {', '.join(str(i + 1) for i in blk)}" if spread
+                else f"poses {blk[0] + 1}-{blk[-1] + 1}" if blk[-1] >= blk[0]
                 else f"poses {blk[0] + 1}-{N} and 1-{blk[-1] + 1}")
         reg = fit_setup(cal, pts, blk, markers, what=f"{option} {k}: {source}, {rows}", robust=robust)
         regs.append(reg)

@@ -25,6 +25,9 @@ def add_parser(sub):
     p.add_argument("--register-markers", action="store_true",
                    help="with --heldout-register: re-fit the marker places on their links too (a marker body mounted "
                         "again)")
+    p.add_argument("--register-spread", action="store_true",
+                   help="with --heldout-register: each block's K poses taken across the recording (every B-th pose), "
+                        "as a registration set that spans the workspace, instead of K consecutive ones")
     p.add_argument("--folds", type=int, default=5, help="K of the K-fold held-out test (default 5)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
@@ -91,7 +94,7 @@ def run(args) -> int:
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None
-    if args.heldout_register is not None or args.register_markers:
+    if args.heldout_register is not None or args.register_markers or args.register_spread:
         _check_register(args, cal, heldout)
     say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects,
@@ -101,7 +104,7 @@ def run(args) -> int:
         from platkit.diagnose.registered import registered_heldout
 
         d.heldout_session["registered"] = registered_heldout(d.base, d.calibration, heldout, args.heldout_register,
-                                                             args.register_markers)
+                                                             args.register_markers, spread=args.register_spread)
     if (Path(args.session) / "imu.csv").is_file():
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
@@ -114,8 +117,8 @@ def run(args) -> int:
     if d.heldout_session is not None and "registered" in d.heldout_session:
         h, r = d.heldout_session, d.heldout_session["registered"]
         print(f"held-out session rms {h['rms_before'] / s:.4g} -> {h['rms_after'] / s:.4g} {d.unit} as is; "
-              f"re-registered on {r['k']} poses at a time: {r['rms_before'] / s:.4g} -> {r['rms_after'] / s:.4g} "
-              f"{d.unit} (paired p = {r['p_improvement']:.2g})")
+              f"re-registered on {r['k']} {'spread ' if r['spread'] else ''}poses at a time: "
+              f"{r['rms_before'] / s:.4g} -> {r['rms_after'] / s:.4g} {d.unit} (paired p = {r['p_improvement']:.2g})")
     return 0
 
 
@@ -126,11 +129,12 @@ def _check_register(args, cal, heldout) -> None:
     from platkit.calibrate.reregister import rotated_scores
 
     if args.heldout_register is None:
-        raise BadInput("--register-markers: give --heldout-register K (it says what the re-registration fits)")
+        raise BadInput(f"--register-{'markers' if args.register_markers else 'spread'}: give --heldout-register K "
+                       "(the poses each re-registration fits)")
     if heldout is None:
         raise BadInput(f"--heldout-register {args.heldout_register}: give --heldout SESSION (the session to "
                        "re-register and score)")
-    rotated_scores(cal, heldout, args.heldout_register, args.register_markers)
+    rotated_scores(cal, heldout, args.heldout_register, args.register_markers, spread=args.register_spread)
 
 
 def _same_links(session_links, cal_links: dict, folder, calibration) -> None:

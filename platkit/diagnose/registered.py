@@ -22,15 +22,17 @@ from platkit.poses import PoseSet
 
 
 def registered_heldout(base: Calibration, final: Calibration, heldout: PoseSet, k: int, markers: bool = False,
-                       robust: bool = True) -> dict[str, Any]:
+                       robust: bool = True, spread: bool = False) -> dict[str, Any]:
     """{'k', 'marker_places_refitted', 'n_registrations', 'rms_before', 'rms_after' (m),
     'per_marker' {name: (before, after) m}, 'p_improvement', 'turn_rad' and 'move' (m): the
     median over the registrations of how far the diagnosed model's transform moved from its own,
-    'n_rejected' points left out as outliers over them}."""
-    before = rotated_scores(base, heldout, k, markers, robust=robust)
-    after = rotated_scores(final, heldout, k, markers, robust=robust)
+    'n_rejected' points left out as outliers over them, 'spread' whether a block's poses lie across
+    the recording}."""
+    before = rotated_scores(base, heldout, k, markers, robust=robust, spread=spread)
+    after = rotated_scores(final, heldout, k, markers, robust=robust, spread=spread)
     shifts = np.array([r.shift(final) for r in after.registrations])
-    return {"k": int(k), "marker_places_refitted": bool(markers), "n_registrations": len(after.blocks),
+    return {"k": int(k), "marker_places_refitted": bool(markers), "spread": bool(spread),
+            "n_registrations": len(after.blocks),
             "rms_before": before.rms, "rms_after": after.rms,
             "per_marker": {n: (before.rms_of(n), after.rms_of(n)) for n in after.names},
             "p_improvement": paired_improvement(before.per_pose(), after.per_pose()),
@@ -44,13 +46,15 @@ def registered_in_unit(h: dict[str, Any], scale: float) -> dict[str, Any]:
     def num(v: float) -> float | None:
         return float(v) if np.isfinite(v) else None
 
-    return {"k": h["k"], "marker_places_refitted": h["marker_places_refitted"],
+    return {"k": h["k"], "marker_places_refitted": h["marker_places_refitted"], "spread": h["spread"],
             "n_registrations": h["n_registrations"], "rms_before": num(h["rms_before"] / scale),
             "rms_after": num(h["rms_after"] / scale), "p_improvement": num(h["p_improvement"]),
             "per_marker": {n: [num(a / scale), num(b / scale)] for n, (a, b) in h["per_marker"].items()},
             "median_turn_from_calibration_rad": num(h["turn_rad"]),
             "median_move_from_calibration": num(h["move"] / scale), "n_rejected_as_outliers": h["n_rejected"],
-            "protocol": (f"blocks of {h['k']} consecutive poses re-register the base-to-mocap transform"
+            "protocol": (f"blocks of {h['k']} "
+                         + ("poses taken across the recording" if h["spread"] else "consecutive poses")
+                         + " re-register the base-to-mocap transform"
                          + (" and the marker places" if h["marker_places_refitted"] else "")
                          + ", every other parameter held; the session's other poses are scored; the blocks rotate so "
                            "that every pose is scored, a pose's error the mean over its scorings")}

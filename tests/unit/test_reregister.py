@@ -105,14 +105,17 @@ def test_rotation_scores_every_pose_out_of_its_registration(stand):
     spec, td, T, names, S, cal = stand
     day2 = _session(spec, td, _moved(T), S, names, 23, seed=9)
     for k in (1, 5, 11, 20):
-        blocks = registration_blocks(23, k)
-        left_out = np.zeros(23, int)
-        for blk in blocks:
-            assert len(blk) == k
-            left_out[np.setdiff1d(np.arange(23), blk)] += 1
-        assert left_out.min() >= 1
+        for spread in (False, True):
+            blocks = registration_blocks(23, k, spread)
+            left_out = np.zeros(23, int)
+            for blk in blocks:
+                assert len(set(blk)) == k
+                left_out[np.setdiff1d(np.arange(23), blk)] += 1
+            assert left_out.min() >= 1
+    assert list(registration_blocks(23, 5, spread=True)[1]) == [1, 6, 11, 16, 21]  # across the recording
     score = rotated_scores(cal, day2, 5)
     assert np.isfinite(score.sq).all() and len(score.registrations) == 5
+    assert np.isfinite(rotated_scores(cal, day2, 5, spread=True).sq).all()
     assert score.rms < 0.15e-3  # measured 0.095 mm; noise 0.05 mm per axis: 0.087 mm 3-D, plus the calibration's own error
 
 
@@ -201,6 +204,7 @@ def test_diagnose_scores_a_heldout_day_re_registered(two_days):
     (["--heldout", "DAY2", "--heldout-register", "1", "--register-markers"],
      "--heldout-register 1: DAY2, poses 1-1: 1 pose cannot fix the base-to-mocap transform and the marker places"),
     (["--heldout", "DAY2", "--register-markers"], "--register-markers: give --heldout-register K"),
+    (["--heldout", "DAY2", "--register-spread"], "--register-spread: give --heldout-register K"),
 ])
 def test_diagnose_register_bad_input(two_days, tmp_path, capsys, extra, message):
     from platkit.cli import main
