@@ -74,7 +74,8 @@ def add_parser(sub):
     p.add_argument("--occlusion", type=float, default=None,
                    help=f"fraction of marker samples occluded (default {ADDITIVE_DEFAULTS['occlusion']:g}; with "
                         "--physics drawn per session, in bursts)")
-    p.add_argument("--markers", type=int, default=5, help="markers on the moving part (default 5)")
+    p.add_argument("--markers", type=int, default=None,
+                   help="markers on the moving part (default 5; on a tree 3 on each tracked link, as plan places them)")
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
     p.add_argument("--rigid-bodies", type=int, default=0,
                    help="rigid bodies measured in 6 DOF on the moving part, T1, T2, ... (default 0; 0.1 mm and "
@@ -141,7 +142,7 @@ def run(args) -> int:
         raise BadInput(f"--rigid-bodies must be 0 or more, got {args.rigid_bodies}")
     if args.rigid_bodies and args.physics:
         raise BadInput("--rigid-bodies: the physical simulator (--physics) does not simulate rigid bodies yet")
-    if args.markers < 3:
+    if args.markers is not None and args.markers < 3:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
     if args.seed < 0:
         raise BadInput(f"--seed must be 0 or more, got {args.seed}")
@@ -162,6 +163,10 @@ def run(args) -> int:
     if args.latency_s is not None and args.latency_s < 0:
         raise BadInput(f"--latency-s must be 0 or more, got {args.latency_s:g}")
     spec = platform_from_args(args)
+    if args.markers is None:
+        from platkit.calibrate.plan import default_marker_count
+
+        args.markers = default_marker_count(spec)
     plan = args.plan
     if plan not in (None, "grid", "random"):
         if not Path(plan).exists():

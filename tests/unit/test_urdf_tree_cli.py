@@ -135,14 +135,14 @@ def test_a_joint_reading_just_past_its_limit_warns_alike_in_calibrate_and_predic
 
 def test_simulate_a_tree_then_calibrate_it(tmp_path, capsys):
     """`platkit simulate --moving-link a,b --poses-only` writes a tree session (markers on every
-    tracked link, the mapping in session.yaml) that calibrate fits to its noise; a raw stream of a
-    tree is refused in one line."""
+    tracked link, by default 3 on each as plan places them, the mapping in session.yaml) that
+    calibrate fits to its noise; a raw stream of a tree is refused in one line."""
     folder = tmp_path / "sim"
     base = ["simulate", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
-            "--seed", "3", "--markers", "6"]
+            "--seed", "3"]
     assert main(base + ["--out", str(folder), "--poses-only"]) == 0
     mapping = yaml.safe_load((folder / "session.yaml").read_text())["moving_link"]
-    assert sorted(set(mapping.values())) == ["left_tcp", "right_tcp"] and len(mapping) == 6
+    assert sorted(mapping.values()) == ["left_tcp"] * 3 + ["right_tcp"] * 3
     out = tmp_path / "cal"
     assert main(["calibrate", str(folder), "--quiet", "--no-report", "--no-selection", "--out", str(out)]) == 0
     truth = yaml.safe_load((folder / "truth.yaml").read_text())
