@@ -59,10 +59,10 @@ class ModelTerm:
         return None
 
     def offset_jacobians(self, theta: np.ndarray, poses: PoseSet, n_u: int, fk_q: np.ndarray,
-                         fk_X: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None:
+                         fk_X: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None] | None:
         """The offsets' derivatives in ``theta`` (K,): (control (N, n_u, K), pose (N, 6, K),
-        marker (N, M, 3, K)), for a term that knows them (a term linear in theta; pose or marker
-        None where the term has no such offset: zero); None, the default: the estimator takes
+        marker (N, M, 3, K)), for a term that knows them (a term linear in theta; control, pose or
+        marker None where the term has no such offset: zero); None, the default: the estimator takes
         them by finite differences."""
         return None
 

@@ -317,7 +317,7 @@ class CalibrationProblem:
 
     def _term_jacobians(self, pre: dict) -> list:
         """Each term's offsets differentiated in its parameters, for every pose: ('known', K, d_u,
-        d_pose, d_mk) from the term's own Jacobians (d_pose or d_mk None: zero), or ('columns', K,
+        d_pose, d_mk) from the term's own Jacobians (any of the three None: zero), or ('columns', K,
         [(d_u, d_pose, d_m) per parameter]) by forward differences."""
         poses, N, B, n_u = pre["poses"], pre["poses"].n_poses, self.B, self.spec.n_u
         q0, X0 = pre["q0"], pre["X0"]
@@ -385,13 +385,14 @@ class CalibrationProblem:
         for jac in jacs:
             K = jac[1]
             if jac[0] == "known":
-                d_u, d_pose, d_mk = jac[2][rows], jac[3], jac[4]
-                col = np.einsum("nak,nkj->naj", Y_u, d_u)
-                if d_pose is not None:
-                    col = col + np.einsum("nak,nkj->naj", Y_dpose, d_pose[rows])
-                if d_mk is not None:
-                    col = col + np.einsum("nak,nkj->naj", Y_m, d_mk[rows])
-                J[:, :, k:k + K] = col
+                # each pose's block by a (BLAS) matrix product; a part the term has no offset
+                # of (None) is skipped, not multiplied by zeros
+                col = None
+                for Y, d in ((Y_u, jac[2]), (Y_dpose, jac[3]), (Y_m, jac[4])):
+                    if d is not None:
+                        part = np.matmul(Y, d[rows])
+                        col = part if col is None else col + part
+                J[:, :, k:k + K] = 0.0 if col is None else col
                 k += K
                 continue
             for d_u, d_pose, d_m in jac[2]:

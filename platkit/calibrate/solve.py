@@ -176,17 +176,23 @@ def _with_prior(rw, H, g, active, prior):
 
 
 def levenberg_marquardt(problem: CalibrationProblem, z0, active, weights, max_iter=60, ftol=1e-10, xtol=1e-10,
-                        progress: Progress | None = None, stage: str = "iteration", it0: int = 0) -> LMResult:
+                        progress: Progress | None = None, stage: str = "iteration", it0: int = 0,
+                        jacobian_at_end: bool = True) -> LMResult:
     """Minimise 1/2 sum_nm w_nm |r_nm(z)|^2 over z[active], from z0 (Marquardt-scaled LM).
 
     A trial step is judged on residuals alone; the Jacobian is evaluated only where a step is
-    accepted and another iteration follows (the problem keeps its last evaluation, so the next
-    robust round starts from it without evaluating again)."""
+    accepted and another iteration follows, or, with ``jacobian_at_end``, at the last accepted
+    step too (the problem keeps its last evaluation, so the next robust round, the
+    identifiability and the covariance start from it without evaluating again). A caller that
+    reads only the solution and its residuals (a held-out refit) passes False: the result's
+    state then has no Jacobian, its residuals are the same."""
     with blas_threads(1):
-        return _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, progress, stage, it0)
+        return _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, progress, stage, it0,
+                                    jacobian_at_end)
 
 
-def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, progress, stage, it0) -> LMResult:
+def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, progress, stage, it0,
+                         jacobian_at_end=True) -> LMResult:
     z = np.array(z0, float)
     active = np.asarray(active, bool)
     blocked = problem.row_block is not None  # the normal equations summed block by block
@@ -226,7 +232,8 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
         small_step = np.linalg.norm(step * np.sqrt(D)) <= xtol * (np.linalg.norm(rw) + xtol)
         small_gain = (cost - cost_new) <= ftol * max(cost, 1e-300)
         done = small_step or small_gain or it == max_iter
-        st_new = problem.evaluate(z_new, with_jac=not blocked)  # the Jacobian: for the next iteration or round
+        if not done or jacobian_at_end:  # the Jacobian: for the next iteration or round
+            st_new = problem.evaluate(z_new, with_jac=not blocked)
         if not done and blocked:
             rw_new, H, g = _normal_equations_blocked(problem, z_new, st_new, weights, active, problem.prior_rows(z_new))
         elif not done:

@@ -46,7 +46,7 @@ class TimeProbe(ModelTerm):
         for a in range(3):
             rows = np.flatnonzero(b >= 1)
             d_pose[rows, a, 3 * (b[rows] - 1) + a] = 1.0
-        return np.zeros((N, n_u, K)), d_pose, np.zeros((N, poses.n_markers, 3, K))
+        return None, d_pose, None  # no control or marker offset
 
 
 def time_probe(poses: PoseSet, bins: int = 6) -> TimeProbe | None:
@@ -83,7 +83,7 @@ class SpaceProbe(ModelTerm):
         for i in range(6):
             for a in range(3):
                 d_pose[:, a, 3 * i + a] = mono[:, i]
-        return np.zeros((N, n_u, K)), d_pose, np.zeros((N, poses.n_markers, 3, K))
+        return None, d_pose, None  # no control or marker offset
 
 
 def space_probe(fk_X: np.ndarray) -> SpaceProbe | None:
@@ -126,7 +126,7 @@ class MarkerProbe(ModelTerm):
             for a in range(3):
                 k = (3 * m + a) * F
                 d_m[:, m, a, k:k + F] = f
-        return np.zeros((N, n_u, len(theta))), np.zeros((N, 6, len(theta))), d_m
+        return None, None, d_m  # no control or pose offset
 
 
 def marker_probe(poses: PoseSet) -> MarkerProbe | None:

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from platkit.calibrate.problem import CalibrationProblem
+from platkit.calibrate.solve import blas_threads
 from platkit.diagnose.fitting import Fit, Options, _fit, _later, _obs, _rms, _where_text
 from platkit.diagnose.stats import column_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec
@@ -30,23 +31,28 @@ def _weighted_system(fit: Fit, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
            candidates: list[ModelTerm]) -> list[tuple[float, float, float, np.ndarray]]:
-    """Score test of each candidate at the current fit: [(F, p, separability, J columns (N, M, 3, k))]."""
+    """Score test of each candidate at the current fit: [(F, p, separability, J columns (N, M, 3, k))].
+
+    The decompositions run on one BLAS thread, as the estimator's products do
+    (platkit.calibrate.solve.blas_threads): a hundred SVDs of thousands of rows by a few columns,
+    which worker threads only make spin."""
     if not candidates:
         return []
     problem = CalibrationProblem(spec, poses, fit.terms + list(candidates))
     z = np.concatenate([fit.z, np.concatenate([np.asarray(c.initial, float) * 0 for c in candidates])])
-    st = problem.evaluate(z, with_jac=True)
-    n_base = len(fit.z)
-    r, J = _weighted_system(fit, st.J)
-    Jb = J[:, :n_base][:, fit.active]
-    dof = len(r) - int(fit.active.sum())
-    basis = column_basis(Jb)
-    out, k = [], n_base
-    for c in candidates:
-        K = len(c.initial)
-        F, p, sep = score_test(r, Jb, J[:, k:k + K], dof, basis=basis)
-        out.append((F, p, sep, st.J[..., k:k + K]))
-        k += K
+    with blas_threads(1):
+        st = problem.evaluate(z, with_jac=True)
+        n_base = len(fit.z)
+        r, J = _weighted_system(fit, st.J)
+        Jb = J[:, :n_base][:, fit.active]
+        dof = len(r) - int(fit.active.sum())
+        basis = column_basis(Jb)
+        out, k = [], n_base
+        for c in candidates:
+            K = len(c.initial)
+            F, p, sep = score_test(r, Jb, J[:, k:k + K], dof, basis=basis)
+            out.append((F, p, sep, st.J[..., k:k + K]))
+            k += K
     return out
 
 def place(term: ModelTerm) -> tuple:

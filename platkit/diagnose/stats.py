@@ -102,9 +102,11 @@ def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int,
     Jp = J_new - U @ (U.T @ J_new)
     size = np.linalg.norm(J_new, axis=0)
     sep = float(np.min(np.linalg.norm(Jp, axis=0) / np.maximum(size, 1e-300))) if J_new.size else 0.0
+    if sep < 1e-6:  # inside J_base's span, or no columns at all (a term no marker moves with): no test
+        return 0.0, 1.0, sep
     Q, s2, _ = np.linalg.svd(Jp, full_matrices=False)
     keep = s2 > (s2[0] if s2.size else 0) * 1e-8
-    if not keep.any() or sep < 1e-6:
+    if not keep.any():
         return 0.0, 1.0, sep
     Q = Q[:, keep]
     k = Q.shape[1]
