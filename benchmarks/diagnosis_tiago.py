@@ -16,7 +16,7 @@ Two protocols, side by side:
 - re-registered (platkit.calibrate.reregister, `platkit diagnose --heldout-register K`): K
   consecutive validation poses re-fit the set-up (the transform; "+ places": the marker places too),
   every geometric and effect parameter held; the other poses are scored; the blocks rotate so that
-  every pose is scored. A different protocol: it uses K poses of the validation day. The paired p
+  every pose is scored ("spread": each block's K poses taken across the day, `--register-spread`). A different protocol: it uses K poses of the validation day. The paired p
   says whether the diagnosed model beats the rigid one once both are re-registered (one-sided
   Wilcoxon over the poses).
 """
@@ -47,16 +47,16 @@ def registered_table(before, after, poses, robust: bool = True) -> list[str]:
     """Lines: validation-day BL (mm) of the rigid and the diagnosed calibration, as is and
     re-registered on K poses (transform; transform and marker places), with the paired p (BL's
     per-pose errors, one-sided: the diagnosed smaller)."""
-    lines = [f"    {'protocol':<34}{'rigid':>8}{'diagnosed':>11}{'paired p':>10}"]
+    lines = [f"    {'protocol':<38}{'rigid':>8}{'diagnosed':>11}{'paired p':>10}"]
     as_is = (bl_rmse_mm(before, poses), bl_rmse_mm(after, poses))
-    lines.append(f"    {'as is (FIGAROH protocol)':<34}{as_is[0]:>8.2f}{as_is[1]:>11.2f}{'':>10}")
-    for markers in (False, True):
+    lines.append(f"    {'as is (FIGAROH protocol)':<38}{as_is[0]:>8.2f}{as_is[1]:>11.2f}{'':>10}")
+    for spread, markers in ((False, False), (False, True), (True, False), (True, True)):
         for k in BLOCKS:
-            a = rotated_scores(before, poses, k, markers, robust=robust)
-            b = rotated_scores(after, poses, k, markers, robust=robust)
+            a = rotated_scores(before, poses, k, markers, robust=robust, spread=spread)
+            b = rotated_scores(after, poses, k, markers, robust=robust, spread=spread)
             p = paired_improvement(a.sq[:, a.names.index("BL")], b.sq[:, b.names.index("BL")])
-            label = f"re-registered on {k}" + (" + places" if markers else "")
-            lines.append(f"    {label:<34}{1e3 * a.rms_of('BL'):>8.2f}{1e3 * b.rms_of('BL'):>11.2f}{p:>10.2g}")
+            label = f"re-registered on {k}" + (" spread" if spread else "") + (" + places" if markers else "")
+            lines.append(f"    {label:<38}{1e3 * a.rms_of('BL'):>8.2f}{1e3 * b.rms_of('BL'):>11.2f}{p:>10.2g}")
     return lines
 
 
