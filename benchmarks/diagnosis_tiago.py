@@ -16,9 +16,10 @@ Two protocols, side by side:
 - re-registered (platkit.calibrate.reregister, `platkit diagnose --heldout-register K`): K
   consecutive validation poses re-fit the set-up (the transform; "+ places": the marker places too),
   every geometric and effect parameter held; the other poses are scored; the blocks rotate so that
-  every pose is scored ("spread": each block's K poses taken across the day, `--register-spread`). A different protocol: it uses K poses of the validation day. The paired p
-  says whether the diagnosed model beats the rigid one once both are re-registered (one-sided
-  Wilcoxon over the poses).
+  every pose is scored ("spread": each block's K poses taken across the day, `--register-spread`).
+  A different protocol: it uses K poses of the validation day. The paired p says whether the
+  diagnosed model beats the rigid one once both are re-registered (one-sided Wilcoxon over the
+  poses).
 """
 from __future__ import annotations
 
