@@ -42,6 +42,10 @@ class ModelTerm:
     initial: np.ndarray
     units: list[str] = field(default_factory=list)
     where: dict[str, Any] = field(default_factory=dict)
+    #: whether the term reads the forward kinematics (``fk_q``, ``fk_X`` of :meth:`pose_offset` and
+    #: :meth:`offset_jacobians`); a term that never does sets False: the estimator then passes
+    #: None for them and, where no term of a model reads them, does not compute them
+    uses_kinematics = True  # a class attribute (not a field): no annotation
 
     def control_offset(self, theta: np.ndarray, poses: PoseSet, n_u: int) -> np.ndarray:
         return np.zeros((poses.n_poses, n_u))

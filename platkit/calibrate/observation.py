@@ -37,8 +37,11 @@ _compile_lock = threading.Lock()
 #: us a pose interpreted; 0.6 s for the stewart stand's 7,900), once per machine: a calibration
 #: of 10,000 poses compiles at its first evaluation, a diagnosis of the 37 TIAGo postures
 #: (1,700 evaluations) after a fifth of its refits, and every later run finds the library; a
-#: test of 40 poses never waits for the compiler
-LOOK_AFTER, COMPILE_AFTER = 2_000, 10_000
+#: test of 40 poses never waits for the compiler. Looking costs the C source's generation, about
+#: as much as interpreting 400 poses (0.35 s for the Talos tree's 82,000 instructions, 0.93 ms a
+#: pose interpreted; 0.18 s for its 9-joint arm's 40,000, 0.43 ms a pose): after 500
+#: poses, a session of 300 interprets two evaluations of its Jacobian, not seven
+LOOK_AFTER, COMPILE_AFTER = 500, 10_000
 COMPILE_FLAGS = ["-O1", "-ffp-contract=off", "-fPIC", "-shared"]
 #: ... and for a function of at most SMALL_FUNCTION instructions: -O2, whose code gives the same
 #: numbers bit for bit (no contraction, no reassociation) and evaluates the stewart stand's

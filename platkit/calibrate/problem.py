@@ -289,7 +289,8 @@ class CalibrationProblem:
         guess = self._p_guess if own else None
         q0 = X0 = None
         if self.terms:
-            q0, X0, p0, _ = self.kinematics(td, U, guess)
+            if any(term.uses_kinematics for term in self.terms):
+                q0, X0, _, _ = self.kinematics(td, U, guess)
             du, dpose, dm = self._term_offsets(theta, q0, X0, poses)
         else:
             du, dpose, dm = np.zeros((N, self.spec.n_u)), np.zeros((N, 6)), np.zeros((N, M, 3))
@@ -379,20 +380,23 @@ class CalibrationProblem:
             J = np.empty((n, y.shape[1], self.n_z))
             J[:, :, :self.i_m.stop] = J_main[:, :, :self.i_m.stop]  # td, w, t, markers: one block
             J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
-            J[:, :, self.i_body_rot] = 0.0
-            J[:, :, self.i_theta] = 0.0
+            J[:, :, self.i_body_rot] = 0.0  # the terms' columns: each term's below
         k = self.i_theta.start
         for jac in jacs:
             K = jac[1]
             if jac[0] == "known":
-                # each pose's block by a (BLAS) matrix product; a part the term has no offset
-                # of (None) is skipped, not multiplied by zeros
-                col = None
+                # each pose's block by a (BLAS) matrix product written in place; a part the term
+                # has no offset of (None) is skipped, not multiplied by zeros
+                col, first = J[:, :, k:k + K], True
                 for Y, d in ((Y_u, jac[2]), (Y_dpose, jac[3]), (Y_m, jac[4])):
                     if d is not None:
-                        part = np.matmul(Y, d[rows])
-                        col = part if col is None else col + part
-                J[:, :, k:k + K] = 0.0 if col is None else col
+                        if first:
+                            np.matmul(Y, d[rows], out=col)
+                        else:
+                            col += np.matmul(Y, d[rows])
+                        first = False
+                if first:
+                    col[...] = 0.0
                 k += K
                 continue
             for d_u, d_pose, d_m in jac[2]:

@@ -28,6 +28,7 @@ from platkit.terms import ModelTerm
 @dataclass
 class TimeProbe(ModelTerm):
     t_edges: np.ndarray | None = None
+    uses_kinematics = False
 
     def pose_offset(self, theta, poses, fk_q, fk_X):
         t = history(poses, "elapsed")
@@ -104,6 +105,7 @@ class MarkerProbe(ModelTerm):
     mid: np.ndarray | None = None
     half: np.ndarray | None = None
     n_markers: int = 0
+    uses_kinematics = False
 
     def features(self, poses: PoseSet) -> np.ndarray:
         """(N, n_u + 1) the controls from the middle of their range (in half ranges) and the mean
