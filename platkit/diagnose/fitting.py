@@ -214,7 +214,7 @@ def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: in
         train, test = fold != k, fold == k
         sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
         w = fit.weights if fit.fit_weights is None else fit.fit_weights
-        res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations)
+        res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations, jacobian_at_end=False)
         st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
         d2 = np.sum(st.r**2, axis=2)
         d2[fit.weights[test] <= 0] = np.nan
@@ -235,7 +235,7 @@ def _later(fit: Fit, spec: PlatformSpec, poses: PoseSet, share: float, iteration
         return float("nan")
     sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
     w = fit.weights if fit.fit_weights is None else fit.fit_weights
-    res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations)
+    res = levenberg_marquardt(sub, fit.z, fit.active, w[train], max_iter=iterations, jacobian_at_end=False)
     r = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test)).r
     keep = (fit.weights[test] > 0) & np.all(np.isfinite(r), axis=2)
     return float(np.sqrt(np.sum(np.nan_to_num(r) ** 2 * keep[:, :, None]) / max(3 * int(keep.sum()), 1)))
