@@ -14,6 +14,9 @@ link's origin along its z axis: a held tool or part); its session.yaml says so. 
 and hand, the later session's mean marker error (mm): the rigid calibration, diagnose's model
 without the payload (as if the hand were empty) and with it (`predict --payload`), and the true
 elastic model (the noise floor); and the payload's own sag (the truth with and without it).
+``--bare``: the calibration sees the URDF without inertias; diagnose then fits compliance on a
+prior of loads of unknown size, and `predict --payload` must be refused (it was 4x worse than no
+payload before it was).
 """
 from __future__ import annotations
 
@@ -72,11 +75,19 @@ def run(seed: int, n_fit: int, n_held: int, n_later: int, mass: float, bare: boo
     told = ["--payload", f"{LINK}:{mass}:{','.join(str(c) for c in COM)}"]
     rigid = per_hand(predicted(root / "cal" / "calibration.yaml", later, names, root, []), loaded.markers, loaded)
     blind = per_hand(predicted(root / "diag" / "calibration.yaml", later, names, root, []), loaded.markers, loaded)
-    aware = per_hand(predicted(root / "diag" / "calibration.yaml", later, names, root, told), loaded.markers, loaded)
     floor = {h: float(np.mean([np.linalg.norm(1e3 * (loaded.exact[:, m] - loaded.markers[:, m]), axis=1)
                                for m, lk in enumerate(loaded.marker_links) if lk == link])) for h, link in HANDS.items()}
     sag = {h: float(np.mean([np.linalg.norm(1e3 * (loaded.exact[:, m] - unloaded.exact[:, m]), axis=1)
                              for m, lk in enumerate(loaded.marker_links) if lk == link])) for h, link in HANDS.items()}
+    if bare:  # the loads are a prior of unknown size: predict refuses a payload in kg beside them
+        if cli(["predict", "--calibration", str(root / "diag" / "calibration.yaml"), "--commands",
+                str(root / "commands.csv"), "--out", str(root / "refused.csv"), *told]) != 2:
+            raise SystemExit("predict --payload on a URDF without inertias was not refused")
+        print(f"seed {seed} (no inertias): predict --payload refused, as it must be; diagnosed with empty hands "
+              f"{blind['left']:.2f} / {blind['right']:.2f} mm (left / right), the payload's sag "
+              f"{sag['left']:.2f} / {sag['right']:.2f}", flush=True)
+        return {}
+    aware = per_hand(predicted(root / "diag" / "calibration.yaml", later, names, root, told), loaded.markers, loaded)
     found = ", ".join(sorted({f["effect"] for f in d["findings"]})) or "none"
     print(f"seed {seed}{' (no inertias)' if bare else ''}, {mass:g} kg in the left hand; findings: {found}\n"
           f"  later session, mean marker error per hand, mm (left / right):\n"
@@ -95,13 +106,15 @@ def main() -> None:
     ap.add_argument("--heldout", type=int, default=20)
     ap.add_argument("--later", type=int, default=20)
     ap.add_argument("--mass", type=float, default=2.0, help="kg in the left hand in the later session")
-    ap.add_argument("--bare", action="store_true", help="strip every inertia from the URDF the calibration sees")
+    ap.add_argument("--bare", action="store_true",
+                    help="strip every inertia from the URDF the calibration sees (predict --payload must be refused)")
     args = ap.parse_args()
     results = []
     for seed in args.seeds:
         with tempfile.TemporaryDirectory(prefix="platkit-payload-") as tmp:
             results.append(run(seed, args.poses, args.heldout, args.later, args.mass, args.bare, Path(tmp)))
-    for hand in HANDS:
+    results = [r for r in results if r]
+    for hand in HANDS if results else ():
         cut = [1 - r["aware"][hand] / r["blind"][hand] for r in results]
         print(f"over {len(results)} seeds, the {hand} hand: predict --payload cuts the error of diagnose's model taken "
               f"with empty hands by a median of {100 * np.median(cut):.0f} % (per seed: "

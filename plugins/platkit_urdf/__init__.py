@@ -11,7 +11,9 @@ Options (from a session or the command line) ``base_link`` and ``moving_link`` o
 description's. ``payload`` (a session's, a description's or an option): a load the robot carries,
 ``{link, mass_kg, com_m}`` or a list of them (:func:`platkit.tree_loads.parse_payload`), added to
 that link's body in the gravity loads of the tree (compliance); kept in ``extras["payload"]`` and
-in the platform options, so a calibration rebuilds its stand with it.
+in the platform options, so a calibration rebuilds its stand with it. Refused on a URDF without
+inertias: compliance is then fitted on the prior of uniform links, whose size is unknown, and a
+payload in kg beside it would be weighed wrong (predictions 4x worse than without it).
 
 A tree (several tracked links, :func:`platkit.urdf.kinematic_tree`): ``moving_link``
 a mapping {marker or rigid body: link} (the first link named is the moving frame, the spec's
@@ -31,7 +33,7 @@ from platkit.errors import BadDescription, BadInput
 from platkit.hookspecs import hookimpl
 from platkit.io.description import default_description, load_yaml, require
 from platkit.model import PlatformFactory, PlatformSpec
-from platkit.tree_loads import parse_payload, payload_option
+from platkit.tree_loads import parse_payload, payload_option, tree_loads
 from platkit.urdf import chain_spec, kinematic_tree, read_urdf, serial_chain
 
 TITLE = "Serial chain from a URDF"
@@ -95,6 +97,9 @@ def build(path: Path | None, options: dict | None = None) -> PlatformSpec:
     for k, p in enumerate(payload):
         if p.link not in tree.links:
             raise BadInput(f"payload{'' if len(payload) == 1 else f'[{k}]'}.link: link {p.link!r} is not in {urdf_path}")
+    if payload and tree_loads(str(urdf_path)).total_mass <= 0:
+        raise BadInput(f"payload: {urdf_path} has no inertias, so its loads are a prior of unknown size and a payload's "
+                       "kilograms cannot be weighed against them; give the URDF its links' masses")
     moving = chosen.get("moving_link")
     if isinstance(moving, dict) or chosen.get("joints") is not None:
         links = tracked_links(moving, "urdf stand option 'moving_link'") if isinstance(moving, dict) else (

@@ -66,6 +66,10 @@ def test_session_and_option_errors_name_the_file_and_field(tmp_path):
         read_session_yaml(folder)
     with pytest.raises(BadInput, match=r"payload\.link: link 'nowhere' is not in .*tree\.urdf"):
         get_platform("urdf", _tree(tmp_path), moving_link=HANDS, payload={"link": "nowhere", "mass_kg": 1})
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    with pytest.raises(BadInput, match=r"payload: .*tree\.urdf has no inertias, so its loads are a prior"):
+        get_platform("urdf", _tree(bare, masses=False), moving_link=HANDS, payload=HELD)
 
 
 def test_the_payload_is_predicted_through_the_compliance_diagnosis_fitted_without_it(tmp_path, capsys):
