@@ -35,6 +35,9 @@ ROUND_NEIGHBOURS = "neighbours"
 #: stream whose holds settled
 FROM_SLOW_APPROACH = "the slow actuator's extrapolated approach"
 FROM_SETTLED_STREAM = "the stream, which shows the holds settled"
+#: a term no marker moves with at any pose of the session (on a tree: at a joint no tracked link
+#: hangs on, the head's): not tested, said apart from what the geometry absorbs
+FROM_NO_MARKER = "no marker: the term moves none at any pose"
 
 
 def extrapolated(poses: PoseSet) -> np.ndarray:

@@ -49,6 +49,7 @@ import numpy as np
 
 from platkit.calibrate.estimate import calibrate
 from platkit.diagnose.fitting import (
+    FROM_NO_MARKER,
     FROM_SLOW_APPROACH,
     ROUND_BESIDE_PROBE,
     ROUND_BESIDE_TIME,
@@ -260,13 +261,14 @@ class Search:
         scr = screen(self.cur, self.spec, self.poses, [t for _, t in cands])
         p_adj = holm(np.array([s[1] for s in scr])) if scr else np.zeros(0)
         table = []
-        for (eff, term), (F, p, sep, _), pa in zip(cands, scr, p_adj):
+        for (eff, term), (F, p, sep, J), pa in zip(cands, scr, p_adj):
             table.append({"effect": eff.name, "where": _where_text(term.where), "F": F, "p_adjusted": float(pa),
                           "separability": sep})
             if sep < opt.min_separability:
                 key = (eff.name, _where_text(term.where))
+                moves_none = not np.any(np.nan_to_num(np.asarray(J, float)))
                 self.not_separable[key] = {"effect": eff.name, "where": term.where, "separability": sep,
-                                           "from": "motion capture"}
+                                           "from": FROM_NO_MARKER if moves_none else "motion capture"}
         order = [i for i in np.argsort([s[1] for s in scr])
                  if p_adj[i] < opt.alpha and scr[i][2] >= opt.min_separability]
         # the best candidate of each kind and place (one split per marker, one period per

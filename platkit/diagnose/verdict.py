@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from platkit.diagnose.fitting import (
+    FROM_NO_MARKER,
     FROM_SETTLED_STREAM,
     FROM_SLOW_APPROACH,
     ROUND_BESIDE_PROBE,
@@ -148,13 +149,18 @@ def _not_separable(d: Diagnosis) -> list[str]:
     parts: list[str] = []
     echo = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SLOW_APPROACH)]
     stream = [x for x in d.not_separable if str(x.get("from", "")).startswith(FROM_SETTLED_STREAM)]
-    geometry = [x for x in d.not_separable if x not in echo and x not in stream]
+    unseen = [x for x in d.not_separable if x.get("from") == FROM_NO_MARKER]
+    geometry = [x for x in d.not_separable if x not in echo and x not in stream and x not in unseen]
     if stream:
         parts.append("Not named, proven only weakly while the stream shows the holds settled: "
                      + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in stream) + ".")
     if echo:
         parts.append("Not told apart from the slow actuator's unfinished approach (not named): "
                      + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in echo) + ".")
+    if unseen:
+        parts.append("Not seen: no marker moves with these at any pose of the session (a joint no tracked link "
+                     "hangs on; not tested): " + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in unseen[:5])
+                     + (f" and {len(unseen) - 5} more" if len(unseen) > 5 else "") + ".")
     if geometry:
         parts.append("Not separable from the geometry on this design (not tested further): "
                      + ", ".join(f"{x['effect']} ({_where_text(x['where'])})" for x in geometry[:5])
