@@ -69,15 +69,25 @@ def change_point_test(x: np.ndarray, n_perm: int = 199, rng: np.random.Generator
     return k, s, (1 + exceed) / (n_perm + 1)
 
 
-def _region(values: np.ndarray, resid: np.ndarray, bins: int = 4) -> str:
-    """The quarter of ``values`` where |mean residual| is largest, as 'lo..hi'."""
+def _region(values: np.ndarray, resid: np.ndarray, bins: int = 4, kept: dict | None = None) -> str:
+    """The quarter of ``values`` where |mean residual| is largest, as 'lo..hi'. ``kept``: a dict
+    for one ``values`` array, which keeps its quarters per set of finite residuals (the many
+    residual columns of one session share them)."""
     ok = np.isfinite(values) & np.isfinite(resid)
-    v, r = values[ok], resid[ok]
-    if v.size < bins:
-        return "all"
-    edges = np.quantile(v, np.linspace(0, 1, bins + 1))
-    which = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, bins - 1)
-    means = np.array([abs(np.mean(r[which == b])) if np.any(which == b) else 0.0 for b in range(bins)])
+    key = ok.tobytes()
+    got = None if kept is None else kept.get(key)
+    if got is None:
+        v = values[ok]
+        if v.size < bins:
+            return "all"
+        edges = np.quantile(v, np.linspace(0, 1, bins + 1))
+        which = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, bins - 1)
+        got = (edges, [(which == b) if np.any(which == b) else None for b in range(bins)])
+        if kept is not None:
+            kept[key] = got
+    edges, members = got
+    r = resid[ok]
+    means = np.array([abs(np.mean(r[sel])) if sel is not None else 0.0 for sel in members])
     b = int(np.argmax(means))
     return f"{edges[b]:.6g}..{edges[b + 1]:.6g}"
 
@@ -97,6 +107,8 @@ def locate(residuals: np.ndarray, poses: PoseSet, spec: PlatformSpec, weights: n
     order_t = np.argsort(t, kind="stable")
     tests: list[Location] = []
     names = poses.marker_names
+    orders = [np.argsort(poses.controls[:, i], kind="stable") for i in range(len(spec.controls))]
+    quarters: list[dict] = [{} for _ in spec.controls]
     for m in range(M):
         for a in range(3):
             x = r[:, m, a]
@@ -109,9 +121,8 @@ def locate(residuals: np.ndarray, poses: PoseSet, spec: PlatformSpec, weights: n
             z, p = runs_test(x[order_t])
             tests.append(Location("runs along time", dict(base), z, p, detail={"order": "time"}))
             for i, c in enumerate(spec.controls):
-                order = np.argsort(poses.controls[:, i], kind="stable")
-                z, p = runs_test(x[order])
-                where = dict(base, control=c.name, region=_region(poses.controls[:, i], x) + f" {c.unit}")
+                z, p = runs_test(x[orders[i]])
+                where = dict(base, control=c.name, region=_region(poses.controls[:, i], x, kept=quarters[i]) + f" {c.unit}")
                 tests.append(Location(f"runs along {c.name}", where, z, p, detail={"order": c.name}))
     rng = np.random.default_rng(12345)
     for m in range(M):
