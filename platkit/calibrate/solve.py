@@ -116,9 +116,52 @@ def _weighted_columns(J2: np.ndarray, rows: np.ndarray, active: np.ndarray, scra
     return out
 
 
+#: active unknowns from which :func:`_normal_equations` tries the sum point by point
+#: (:func:`_gram_by_point`)
+GRAM_BY_POINT_FROM = 256
+
+
+def _gram_by_point(state: FitState, weights, active):
+    """(rw, H, g) of :func:`_weighted`'s rows summed point by point: each point's rows (a marker's,
+    a rigid body's channel's) on the columns that move it, where most columns move few points (a
+    probe with each marker's own offsets: 378 of 460 unknowns on a two-armed tree with six
+    markers, each moving one marker's rows). None with fewer than GRAM_BY_POINT_FROM active
+    unknowns, or where the points' blocks would cost more than half the whole product. H and g
+    are the whole product's to rounding (the sums run point by point)."""
+    J = state.J
+    cols = np.flatnonzero(active)
+    n = cols.size
+    if J is None or J.ndim != 4 or n < GRAM_BY_POINT_FROM:
+        return None
+    N, P = J.shape[:2]
+    w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)
+    sw = np.sqrt(w)
+    rw = (np.nan_to_num(state.r) * sw[:, :, None]).ravel()
+    parts = []
+    for p in range(P):
+        Jp = J[:, p][:, :, cols]  # (N, 3, n), a copy
+        Jp *= sw[:, p, None, None]
+        Jp = Jp.reshape(-1, n)
+        parts.append((np.flatnonzero(np.any(Jp != 0, axis=0)), Jp))
+    if sum(s.size ** 2 for s, _ in parts) > 0.5 * P * n * n:
+        return None
+    H, g = np.zeros((n, n)), np.zeros(n)
+    r = rw.reshape(N, P, 3)
+    for p, (s, Jp) in enumerate(parts):
+        A = Jp[:, s]
+        H[np.ix_(s, s)] += A.T @ A
+        g[s] += A.T @ r[:, p].ravel()
+    return rw, H, g
+
+
 def _normal_equations(state: FitState, weights, active, prior=None, scratch: dict | None = None):
     """(rw, H = Jw^T Jw, g = Jw^T rw) of :func:`_weighted` without keeping Jw: the prior rows,
-    one unknown each, are added to H's diagonal and g directly. ``scratch``: see :func:`_weighted`."""
+    one unknown each, are added to H's diagonal and g directly. ``scratch``: see :func:`_weighted`.
+    A large model whose columns each move few points is summed point by point
+    (:func:`_gram_by_point`)."""
+    by_point = _gram_by_point(state, weights, active)
+    if by_point is not None:
+        return _with_prior(*by_point, active, prior)
     rw, Jw = _weighted(state, weights, active, scratch=scratch)
     H = Jw.T @ Jw
     g = Jw.T @ rw

@@ -1,10 +1,11 @@
 """Work the estimator skips gives the numbers it gave before (issue 24's speed): the forward
 kinematics where no term reads them, the last Jacobian of a refit that reads only its solution,
-the score test of columns inside the geometry's span."""
+the score test of columns inside the geometry's span, the normal equations' products of zeros."""
 import numpy as np
 
+from platkit.calibrate import solve
 from platkit.calibrate.estimate import calibrate
-from platkit.calibrate.problem import CalibrationProblem
+from platkit.calibrate.problem import CalibrationProblem, FitState
 from platkit.calibrate.solve import levenberg_marquardt
 from platkit.diagnose.probes import marker_probe, space_probe, time_probe
 from platkit.diagnose.stats import column_basis, score_test
@@ -72,3 +73,33 @@ def test_columns_inside_the_span_or_zero_give_no_test_and_no_decomposition():
     assert (F, p) == (0.0, 1.0) and sep < 1e-6  # the geometry's own column
     F, p, sep = score_test(r, J, rng.normal(size=(60, 1)), 55, basis=basis)
     assert F > 0 and 0 < p < 1 and sep > 0.5
+
+
+def test_normal_equations_point_by_point_equal_the_whole_product():
+    # a model of 300 unknowns: 30 move every marker (the geometry), 45 each move one marker's rows
+    # only (a probe's offsets), as the marker probe's do on a tree
+    rng = np.random.default_rng(6)
+    N, P, shared, own = 40, 6, 30, 45
+    n = shared + P * own
+    J = np.zeros((N, P, 3, n))
+    J[..., :shared] = rng.normal(size=(N, P, 3, shared))
+    for p in range(P):
+        J[:, p, :, shared + p * own:shared + (p + 1) * own] = rng.normal(size=(N, 3, own))
+    r = rng.normal(size=(N, P, 3))
+    r[3, 2] = np.nan  # an unseen marker: its rows weigh nothing
+    weights = rng.uniform(0.5, 1.5, (N, P))
+    active = np.ones(n, bool)
+    active[[0, 40, 299]] = False
+    state = FitState(r, J, np.ones(N, bool))
+    assert solve._gram_by_point(state, weights, active) is not None
+    rw, H, g = solve._normal_equations(state, weights, active)
+    rw0, Jw = solve._weighted(state, weights, active)
+    np.testing.assert_array_equal(rw, rw0)
+    np.testing.assert_allclose(H, Jw.T @ Jw, rtol=0, atol=1e-12 * np.abs(H).max())
+    np.testing.assert_allclose(g, Jw.T @ rw0, rtol=0, atol=1e-12 * np.abs(g).max())
+    # every unknown moving every point: the whole product, as before
+    dense = FitState(r, rng.normal(size=(N, P, 3, n)), np.ones(N, bool))
+    assert solve._gram_by_point(dense, weights, active) is None
+    _, H, g = solve._normal_equations(dense, weights, active)
+    rw0, Jw = solve._weighted(dense, weights, active)
+    np.testing.assert_array_equal(H, Jw.T @ Jw)
