@@ -94,9 +94,10 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
             for b in basis:
                 rest[j] -= b * (b @ rest[j])
         while pending:
-            frac = {j: (np.linalg.norm(rest[j]) / norms[j] if norms[j] > 0 else 0.0) for j in pending}
-            best = max(pending, key=lambda j: (np.linalg.norm(rest[j]), -j))
-            if frac[best] < rel_tol or norms[best] == 0:
+            size = {j: np.sqrt(rest[j].dot(rest[j])) for j in pending}  # np.linalg.norm's own arithmetic
+            best = max(pending, key=lambda j: (size[j], -j))
+            frac = size[best] / norms[best] if norms[best] > 0 else 0.0
+            if frac < rel_tol or norms[best] == 0:
                 break
             v = rest[best]
             # twice for numerical orthogonality
