@@ -181,18 +181,27 @@ def identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarr
         _, F_p, _, F_td = (np.asarray(a) for a in model.F_jac(U[i], td, P[i]))
         dp_dtd = -np.linalg.pinv(F_p) @ F_td[:, free]
         m, m_p, m_s = (np.asarray(a) for a in mfun(P[i], s_flat))
-        m = m.reshape(M, 3)
         J[i, :, : free.sum()] = m_p @ dp_dtd
-        k = free.sum()
-        J[i, :, k:k + 3] = np.tile(np.eye(3), (M, 1))
-        J[i, :, k + 3:k + 6] = np.vstack([-skew(mk) for mk in m])
-        J[i, :, k + 6:] = m_s
+        _nuisance_columns(J[i], int(free.sum()), m.reshape(M, 3), m_s)
+    return _identification_jacobian(spec, J, M, int(free.sum()))
+
+
+def _nuisance_columns(J: np.ndarray, k: int, m: np.ndarray, m_s: np.ndarray) -> None:
+    """One pose's columns after its ``k`` stand columns: a small motion of the base-to-mocap
+    transform (translation, rotation vector) at the markers ``m`` (M, 3), then their places (m_s)."""
+    J[:, k:k + 3] = np.tile(np.eye(3), (len(m), 1))
+    J[:, k + 3:k + 6] = np.vstack([-skew(mk) for mk in m])
+    J[:, k + 6:] = m_s
+
+
+def _identification_jacobian(spec: PlatformSpec, J: np.ndarray, M: int, n_free: int) -> IdentificationJacobian:
+    """J with its unknowns' names and units: the stand's free parameters, the mocap motion, the markers."""
     names = [p.name for p in spec.parameters if p.free] + ["mocap_x", "mocap_y", "mocap_z", "mocap_rx", "mocap_ry", "mocap_rz"]
     units = [p.unit for p in spec.parameters if p.free] + ["m"] * 3 + ["rad"] * 3
     for k in range(M):
         names += [f"marker{k + 1}_{a}" for a in "xyz"]
         units += ["m"] * 3
-    return IdentificationJacobian(J, names, units, int(free.sum()))
+    return IdentificationJacobian(J, names, units, n_free)
 
 
 def _tree_identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarray, td: np.ndarray,
@@ -214,17 +223,9 @@ def _tree_identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np
     s_flat = markers.reshape(-1)
     for i in range(N):
         mv, m_td, m_s = (np.asarray(a) for a in f(U[i], td, s_flat))
-        mv = mv.reshape(M, 3)
         J[i, :, :n_free] = m_td[:, free]
-        J[i, :, n_free:n_free + 3] = np.tile(np.eye(3), (M, 1))
-        J[i, :, n_free + 3:n_free + 6] = np.vstack([-skew(mk) for mk in mv])
-        J[i, :, n_free + 6:] = m_s
-    names = [p.name for p in spec.parameters if p.free] + ["mocap_x", "mocap_y", "mocap_z", "mocap_rx", "mocap_ry", "mocap_rz"]
-    units = [p.unit for p in spec.parameters if p.free] + ["m"] * 3 + ["rad"] * 3
-    for k in range(M):
-        names += [f"marker{k + 1}_{a}" for a in "xyz"]
-        units += ["m"] * 3
-    return IdentificationJacobian(J, names, units, n_free)
+        _nuisance_columns(J[i], n_free, mv.reshape(M, 3), m_s)
+    return _identification_jacobian(spec, J, M, n_free)
 
 
 class _Subspace:
