@@ -17,11 +17,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from platkit.errors import BadInput, PlatkitError
 from platkit.geometry import matrix_from_rotvec, quat_from_rotvec, transform
-from platkit.io.description import load_yaml
+from platkit.io.description import dump_yaml, load_yaml
 from platkit.io.jsonout import strict
 from platkit.io.shipped import shipped_dir
 from platkit.model import PlatformSpec, length_scale
@@ -228,8 +227,8 @@ class Calibration:
         """calibration.yaml's text: of :meth:`to_dict`, or of ``data`` (that dict, edited)."""
         header = (f"# platkit calibration of the {self.platform} stand. Lengths in {self.length_unit}, "
                   "angles in rad, other parameters in the unit beside them.\n")
-        return header + yaml.safe_dump(strict(self.to_dict() if data is None else data), sort_keys=False,
-                                       default_flow_style=None, width=120)
+        return header + dump_yaml(strict(self.to_dict() if data is None else data), sort_keys=False,
+                                  default_flow_style=None, width=120)
 
 
 #: the folder, beside calibration.yaml, that holds a copy of the description it was made with
