@@ -7,31 +7,24 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import yaml
 
 from platkit.calibrate.estimate import calibrate, predict_markers
 from platkit.calibrate.plan import random_candidates
 from platkit.calibrate.reregister import registration_blocks, reregister, rotated_scores
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
-from platkit.io.session import example_session
-from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
 from platkit.settle import load_poses
+from tests.unit.test_simulate_calibrate import example_truth, true_markers
 
 NOISE_M = 0.05e-3
 
 
 @pytest.fixture(scope="module")
 def stand():
-    folder = example_session("stewart")
     spec = get_platform("stewart")
-    truth = yaml.safe_load((folder / "truth.yaml").read_text())
-    td = np.array([truth["parameters"][n]["value"] for n in spec.parameter_names])
-    T = np.array(truth["mocap_from_base"])
-    names = sorted(truth["markers"])
-    S = np.array([truth["markers"][m] for m in names])
+    folder, td, T, names, S = example_truth(spec)
     cal = calibrate(load_poses(folder), spec)
     return spec, td, T, names, S, cal
 
@@ -40,14 +33,8 @@ def _session(spec, td, T, S, names, n, seed) -> PoseSet:
     """n new poses of the true stand seen through mocap_from_base T with markers S, noisy."""
     rng = np.random.default_rng(seed)
     U = random_candidates(spec, n, rng).controls
-    Y = _true(spec, td, T, S, U) + rng.normal(0.0, NOISE_M, (n, len(names), 3))
+    Y = true_markers(spec, td, T, S, U) + rng.normal(0.0, NOISE_M, (n, len(names), 3))
     return PoseSet("stewart", U, Y, list(names), length_unit="mm", source="day2")
-
-
-def _true(spec, td, T, S, U):
-    fb = PlatformModel(spec).forward_batch(U, td=td, strict=False)
-    Y = fb.X[:, None] + np.einsum("kij,mj->kmi", matrix_from_quat(fb.q), S)
-    return Y @ T[:3, :3].T + T[:3, 3]
 
 
 def _moved(T):
@@ -76,7 +63,7 @@ def test_reregistration_recovers_the_moved_mocap_transform(stand):
                                                                                   cal.marker_positions)
     fresh = random_candidates(spec, 30, np.random.default_rng(11)).controls
     pred, _, _, ok = predict_markers(moved, fresh)
-    err = np.linalg.norm(pred - _true(spec, td, T2, S, fresh), axis=2)
+    err = np.linalg.norm(pred - true_markers(spec, td, T2, S, fresh), axis=2)
     assert ok.all() and np.sqrt(np.mean(err ** 2)) < 0.05e-3  # measured 0.017 mm; the first day's calibration, in the new frame
     assert reg.to_dict(cal)["turn_from_calibration_rad"] == pytest.approx(0.40, abs=0.01)
 
@@ -88,7 +75,7 @@ def test_marker_places_refitted_for_a_marker_body_mounted_again(stand):
     S2 = S @ R.T + [0.004, -0.003, 0.002]  # the body turned 3 degrees and moved 5 mm on the platform
     day2 = _session(spec, td, T2, S2, names, 20, seed=8)
     fresh = random_candidates(spec, 30, np.random.default_rng(12)).controls
-    truth = _true(spec, td, T2, S2, fresh)
+    truth = true_markers(spec, td, T2, S2, fresh)
 
     def rms(c):
         pred, _, _, _ = predict_markers(c, fresh)
