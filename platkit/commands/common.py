@@ -86,3 +86,39 @@ def print_json(obj) -> None:
 
     sys.stdout.write(dumps(obj, indent=2) + "\n")
 
+
+def read_with_calibration(folder, cal, calibration, quiet: bool = False):
+    """(session, settled poses) of the session ``folder`` read with the stand of ``cal`` (read from
+    ``calibration``): its platform must be the calibration's, a tree's markers on the links the
+    calibration has them on (:func:`same_links`); the control readings kept beside a limit are said.
+    Its streams are read once."""
+    from pathlib import Path
+
+    from platkit.io.session import load_session
+    from platkit.io.session_yaml import read_session_yaml
+    from platkit.notices import warn
+    from platkit.settle import load_poses
+
+    platform = read_session_yaml(Path(folder)).get("platform")
+    if platform is not None and platform != cal.platform:
+        raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
+    session = load_session(folder, spec=cal.spec, quiet=quiet)
+    same_links(session.moving_link, cal.marker_links, folder, calibration)
+    for note in session.extras.get("control_notes", []):  # readings kept (platkit.limits)
+        warn(note)
+    return session, load_poses(folder, spec=cal.spec, session=session)
+
+
+def same_links(session_links, cal_links: dict, folder, calibration) -> None:
+    """A tree session's markers on the links the calibration has them on: a marker that
+    session.yaml maps to another link than the calibration is bad input (the calibration's link
+    would be used, the session's mapping ignored, with nothing said)."""
+    from pathlib import Path
+
+    if not isinstance(session_links, dict) or not cal_links:
+        return
+    for name, link in session_links.items():
+        if name in cal_links and cal_links[name] != link:
+            raise BadInput(f"{Path(folder) / 'session.yaml'}: field 'moving_link' maps {name!r} to {link!r}, the "
+                           f"calibration {calibration} to {cal_links[name]!r}; a diagnosis keeps the calibration's "
+                           "markers where they are")

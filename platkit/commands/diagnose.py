@@ -54,14 +54,12 @@ def markers_only(poses, folder):
 
 
 def run(args) -> int:
+    from platkit.commands.common import read_with_calibration
     from platkit.diagnose import Options, diagnose
     from platkit.diagnose.report import write_outputs
     from platkit.io.atomic import check_output_dir
     from platkit.io.calibration import read_calibration
-    from platkit.io.session import load_session
-    from platkit.io.session_yaml import read_session_yaml
     from platkit.model import length_scale
-    from platkit.settle import load_poses
 
     check_output_dir(args.out)
     if args.folds < 2:
@@ -77,14 +75,8 @@ def run(args) -> int:
     sessions = {}  # folder -> the session as read: its streams are read once
 
     def poses_of(folder):
-        platform = read_session_yaml(Path(folder)).get("platform")
-        if platform is not None and platform != cal.platform:
-            raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
-        sessions[folder] = load_session(folder, spec=cal.spec, quiet=args.quiet)
-        _same_links(sessions[folder].moving_link, cal.marker_links, folder, args.calibration)
-        for note in sessions[folder].extras.get("control_notes", []):  # readings kept (platkit.limits)
-            warn(note)
-        return markers_only(load_poses(folder, spec=cal.spec, session=sessions[folder]), folder)
+        sessions[folder], poses = read_with_calibration(folder, cal, args.calibration, args.quiet)
+        return markers_only(poses, folder)
 
     poses = poses_of(args.session)
     from platkit.commands.calibrate import settling_notes
@@ -135,19 +127,6 @@ def _check_register(args, cal, heldout) -> None:
         raise BadInput(f"--heldout-register {args.heldout_register}: give --heldout SESSION (the session to "
                        "re-register and score)")
     rotated_scores(cal, heldout, args.heldout_register, args.register_markers, spread=args.register_spread)
-
-
-def _same_links(session_links, cal_links: dict, folder, calibration) -> None:
-    """A tree session's markers on the links the calibration has them on: a marker that
-    session.yaml maps to another link than the calibration is bad input (the calibration's link
-    was used, the session's mapping ignored, with nothing said)."""
-    if not isinstance(session_links, dict) or not cal_links:
-        return
-    for name, link in session_links.items():
-        if name in cal_links and cal_links[name] != link:
-            raise BadInput(f"{Path(folder) / 'session.yaml'}: field 'moving_link' maps {name!r} to {link!r}, the "
-                           f"calibration {calibration} to {cal_links[name]!r}; a diagnosis keeps the calibration's "
-                           "markers where they are")
 
 
 def _diagnose_imu(session, cal, say, td_status=None, read=None) -> tuple[dict, dict]:

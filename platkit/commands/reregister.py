@@ -5,8 +5,6 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-import yaml
-
 from platkit.errors import BadInput
 
 
@@ -28,13 +26,10 @@ def run_registered(args, run) -> int:
     ``run`` predict's plain path with the re-registered calibration (written to
     ``--registered-calibration`` whole, or to a folder removed afterwards)."""
     from platkit.calibrate.reregister import reregister
+    from platkit.commands.common import read_with_calibration
     from platkit.io.atomic import atomic_output_dir, check_output_dir, check_output_file
     from platkit.io.calibration import read_calibration
-    from platkit.io.session import load_session
-    from platkit.io.session_yaml import read_session_yaml
     from platkit.model import length_scale
-    from platkit.notices import warn
-    from platkit.settle import load_poses
 
     check_output_file(args.out)
     if args.registered_calibration is not None:
@@ -43,13 +38,7 @@ def run_registered(args, run) -> int:
         raise BadInput(f"{args.calibration}: calibration file not found")
     cal = read_calibration(args.calibration)
     folder = Path(args.register)
-    platform = read_session_yaml(folder).get("platform")
-    if platform is not None and platform != cal.platform:
-        raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
-    session = load_session(folder, spec=cal.spec, quiet=True)
-    for note in session.extras.get("control_notes", []):
-        warn(note)
-    poses = load_poses(folder, spec=cal.spec, session=session)
+    _, poses = read_with_calibration(folder, cal, args.calibration, quiet=True)
     moved, reg = reregister(cal, poses, markers=args.register_markers)
     s = length_scale(cal.length_unit)
     turn, move = reg.shift(cal)
@@ -79,8 +68,9 @@ def run_registered(args, run) -> int:
 def _write(cal, folder: Path, record: dict) -> Path:
     """calibration.yaml of ``cal`` in ``folder`` (travelling, as calibrate writes it), ``record`` after it."""
     from platkit.io.calibration import write_calibration_yaml
+    from platkit.io.description import dump_yaml
 
     path = write_calibration_yaml(cal, folder)
     with path.open("a", encoding="utf-8") as fh:
-        fh.write(yaml.safe_dump(record, sort_keys=False, default_flow_style=None, width=120))
+        fh.write(dump_yaml(record, sort_keys=False, default_flow_style=None, width=120))
     return path
