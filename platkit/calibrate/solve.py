@@ -59,9 +59,7 @@ def _weighted(state: FitState, weights, active, prior=None, scratch: dict | None
 
     ``scratch``: a dict that keeps the weighted Jacobian's array from one call to the next (see
     :func:`_weighted_columns`); the array returned is overwritten by the next call with it."""
-    w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)  # (N, M)
-    sw = np.sqrt(w)
-    rw = (np.nan_to_num(state.r) * sw[:, :, None]).ravel()
+    sw, rw = _weighted_residuals(state, weights)
     Jw = None
     if state.J is not None:
         # one pass over the rows in 2-D (the Jacobian is often a strided view of the observation
@@ -88,6 +86,12 @@ def _weighted(state: FitState, weights, active, prior=None, scratch: dict | None
                 P[np.arange(idx.size), cols[idx]] = slope
                 Jw = np.vstack([Jw, P])
     return rw, Jw
+
+
+def _weighted_residuals(state: FitState, weights):
+    """(sqrt of the weights (N, M), an unseen point's 0; the residuals times them, flat)."""
+    sw = np.sqrt(np.where(np.isfinite(state.r).all(axis=2), weights, 0.0))
+    return sw, (np.nan_to_num(state.r) * sw[:, :, None]).ravel()
 
 
 #: rows per block of the column gather in :func:`_weighted_columns`
@@ -134,9 +138,7 @@ def _gram_by_point(state: FitState, weights, active):
     if J is None or J.ndim != 4 or n < GRAM_BY_POINT_FROM:
         return None
     N, P = J.shape[:2]
-    w = np.where(np.isfinite(state.r).all(axis=2), weights, 0.0)
-    sw = np.sqrt(w)
-    rw = (np.nan_to_num(state.r) * sw[:, :, None]).ravel()
+    sw, rw = _weighted_residuals(state, weights)
     parts = []
     for p in range(P):
         Jp = J[:, p][:, :, cols]  # (N, 3, n), a copy
