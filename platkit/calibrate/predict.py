@@ -271,6 +271,18 @@ def thermal_state(cal: Calibration, U: np.ndarray, t: np.ndarray | None, at_time
     return {"timed": timed, "since_power_on": since, "notes": notes, "state": state, "warnings": warnings}
 
 
+def read_carrying(calibration, payload: list | None):
+    """The calibration at ``calibration`` with its stand carrying ``payload`` (a list of {link,
+    mass_kg, com_m}, empty for none; None: the load it was calibrated with). Only URDF stands carry
+    one; BadInput otherwise."""
+    cal = read_calibration(calibration)
+    if payload is None:
+        return cal
+    if cal.spec.name != "urdf":
+        raise BadInput(f"--payload: the {cal.spec.name} stand of {calibration} carries no payload (URDF stands do)")
+    return read_calibration(calibration, {"payload": payload})
+
+
 def predict_file(calibration: str | Path, commands: str | Path, out: str | Path, at_time: float | None = None,
                  warm: bool = False, payload: list | None = None) -> dict:
     """Read a calibration.yaml and a commands CSV, write the prediction CSV atomically, at the
@@ -285,11 +297,7 @@ def predict_file(calibration: str | Path, commands: str | Path, out: str | Path,
     """
     if at_time is not None and warm:
         raise BadInput("--at-time and --warm ask for two thermal states; give one")
-    cal = read_calibration(calibration)
-    if payload is not None:
-        if cal.spec.name != "urdf":
-            raise BadInput(f"--payload: the {cal.spec.name} stand of {calibration} carries no payload (URDF stands do)")
-        cal = read_calibration(calibration, {"payload": payload})
+    cal = read_carrying(calibration, payload)
     U, t = read_commands(commands, cal)
     thermal = thermal_state(cal, U, t, at_time, warm, commands)
     header, rows, ok = prediction_table(cal, U, t, thermal["since_power_on"])

@@ -51,10 +51,11 @@ def parse_payload_args(values: list[str]) -> list[dict]:
 
 
 def run(args) -> int:
+    payload = None if args.payload is None else parse_payload_args(args.payload)
     if getattr(args, "register", None) is not None:  # the calibration re-registered, then this path
         from platkit.commands.reregister import run_registered
 
-        return run_registered(args, run)
+        return run_registered(args, run, payload)
     if getattr(args, "register_markers", False) or getattr(args, "registered_calibration", None) is not None:
         from platkit.errors import BadInput
 
@@ -64,7 +65,6 @@ def run(args) -> int:
     from platkit.io.atomic import check_output_file
 
     check_output_file(args.out)
-    payload = None if args.payload is None else parse_payload_args(args.payload)
     res = predict_file(args.calibration, args.commands, args.out, at_time=args.at_time, warm=args.warm,
                        payload=payload)
     if payload is not None and not res["loaded"]:

@@ -21,14 +21,16 @@ def add_arguments(p) -> None:
                         "'registration' says what was re-fitted, on which session), for predict without --register")
 
 
-def run_registered(args, run) -> int:
+def run_registered(args, run, payload: list | None = None) -> int:
     """Re-register ``args.calibration`` on ``args.register``, say the set-up found in one line, then
     ``run`` predict's plain path with the re-registered calibration (written to
-    ``--registered-calibration`` whole, or to a folder removed afterwards)."""
+    ``--registered-calibration`` whole, or to a folder removed afterwards). ``payload`` (``--payload``,
+    parsed): the load the register session was recorded with, so its poses are read and fitted
+    with the stand carrying it (through the calibration's compliances)."""
+    from platkit.calibrate.predict import read_carrying
     from platkit.calibrate.reregister import reregister
     from platkit.commands.common import read_with_calibration
     from platkit.io.atomic import atomic_output_dir, check_output_dir, check_output_file
-    from platkit.io.calibration import read_calibration
     from platkit.model import length_scale
 
     check_output_file(args.out)
@@ -36,7 +38,7 @@ def run_registered(args, run) -> int:
         check_output_dir(args.registered_calibration)
     if not Path(args.calibration).is_file():
         raise BadInput(f"{args.calibration}: calibration file not found")
-    cal = read_calibration(args.calibration)
+    cal = read_carrying(args.calibration, payload)
     folder = Path(args.register)
     _, poses = read_with_calibration(folder, cal, args.calibration, quiet=True)
     moved, reg = reregister(cal, poses, markers=args.register_markers)

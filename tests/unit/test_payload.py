@@ -113,6 +113,13 @@ def test_the_payload_is_predicted_through_the_compliance_diagnosis_fitted_withou
     without, told = error_mm(), error_mm("--payload", "l_lo:3:0.15,0,0")
     assert sag > 1.0 and without > 0.8 * sag and told < 0.2 * sag
     assert error_mm("--payload", "none") == without
+    # re-registered on the loaded session itself: its poses read and fitted with the stand carrying
+    # the load they were recorded with (and refused, in one line, without it)
+    registered = error_mm("--register", str(later), "--payload", "l_lo:3:0.15,0,0")
+    assert registered < 0.2 * sag and abs(registered - told) < 0.1 * sag
+    assert main(["predict", "--calibration", str(cal), "--commands", str(commands), "--out", str(tmp_path / "r.csv"),
+                 "--register", str(later)]) == 2
+    assert "the session carries 3 kg at l_lo" in capsys.readouterr().err
     assert read_calibration(cal, {"payload": [HELD]}).spec.extras["payload"] == (held,)
 
 
