@@ -166,7 +166,8 @@ NAMED_SIGMA = 3.0
 
 def named_places(findings: list[dict]) -> list[tuple[str, str]]:
     """(effect, joint) of every place a finding names: one per finding, and for a term of many
-    joints (compliance of every loaded joint) each joint whose compliance is NAMED_SIGMA from zero."""
+    joints (compliance of every loaded joint) each joint whose compliance is NAMED_SIGMA from zero
+    (its estimated mass moments, on a URDF without inertias, name no place)."""
     out = []
     for f in findings:
         w = f["where"]
@@ -174,6 +175,8 @@ def named_places(findings: list[dict]) -> list[tuple[str, str]]:
             joint_of = dict(zip(w["actuators"], w["joints"]))
             for name, par in f["parameters"].items():
                 if not (par.get("std") and abs(par["value"]) > NAMED_SIGMA * par["std"]):
+                    continue
+                if name.startswith("mass_moments_"):  # the tree's mass moments, estimated: no place
                     continue
                 if name.startswith("bending_"):
                     place = ("link_bending", name[len("bending_"):].removesuffix("_u").removesuffix("_v"))

@@ -12,6 +12,15 @@ Rules:
   also turns them about the third axis. The term offers, as its ``alternatives``, the joint's
   compliance replaced by that bending (one compliance across, or one per axis across), and
   diagnosis keeps a form whose BIC is lower (platkit.diagnose.search, ``tell_apart``).
+- A URDF without inertias: the loads are the prior of uniform links', whose shape (how the mass
+  lies along each branch, how much each branch weighs against the trunk) is not the robot's. The
+  term then also offers, as a form, the whole tree's mass moments estimated with the compliances:
+  ``pi = pi_prior + B delta`` in every joint's load ``Y_j(q) pi``, one ``pi`` for the tree (so an
+  arm's weight is the same in its own joints' loads and in the torso's). ``B`` holds the
+  combinations that change the deflections in a way no joint's compliance can (the regressor
+  weighted by the fitted compliances, its part along each joint's own load projected out: the
+  scale the compliances carry), best determined first; ``MASS_STEPS`` of them in turn, each form
+  kept on a lower BIC; ``where`` says how many are identifiable at all.
 """
 from __future__ import annotations
 
@@ -24,6 +33,8 @@ from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.terms import ModelTerm
 from platkit_effects.tree_compliance import (
+    LINEAR_LIMIT,
+    RANK_TOL,
     JointRotationTerm,
     TreeStand,
     _stand_where,
@@ -39,6 +50,9 @@ from platkit_effects.tree_compliance import (
     tree_stand,
 )
 
+#: the tree's mass-moment combinations the every-joint term's forms estimate in turn (no inertias)
+MASS_STEPS = (4, 8, 16)
+
 
 @dataclass
 class JointsComplianceTerm(ModelTerm):
@@ -46,12 +60,16 @@ class JointsComplianceTerm(ModelTerm):
     ``joints[k]``) offset by ``theta_k tau_k``, each load at its joint's own deflected
     configuration (:func:`deflected_torque`); theta in the control's unit per N m (N). Then, one
     parameter each, the link bending of ``bends`` (:class:`JointRotationTerm`, 'across'): a
-    joint's compliance the data told apart as its parent's bending (:meth:`alternatives`)."""
+    joint's compliance the data told apart as its parent's bending (:meth:`alternatives`). Last,
+    on a URDF without inertias, ``masses`` (4 J, K): the tree's mass moments' change from the
+    prior's, ``B delta``, one parameter per column, added to every joint's load (``Y_j B delta``,
+    at the deflected configuration to the same first order)."""
 
     indices: list[int] = field(default_factory=list)
     joints: list[str] = field(default_factory=list)
     spec: PlatformSpec | None = field(default=None, repr=False)
     bends: list[JointRotationTerm] = field(default_factory=list)
+    masses: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
 
     def stand(self) -> TreeStand:
         if self.spec is None:
@@ -62,11 +80,38 @@ class JointsComplianceTerm(ModelTerm):
                            "of the stand's URDF")
         return stand
 
+    @property
+    def n_masses(self) -> int:
+        return int(self.masses.shape[1]) if self.masses.size else 0
+
+    def _mass_loads(self, theta, controls) -> tuple[np.ndarray, np.ndarray]:
+        """((N, J_t) each joint's load change ``Y_j B delta``, (N, J_t, K) per unit of each delta)."""
+        K = self.n_masses
+        N = len(np.atleast_2d(controls))
+        if not K:
+            return np.zeros((N, len(self.joints))), np.zeros((N, len(self.joints), 0))
+        stand = self.stand()
+        Y = load_state(stand, controls).torque_regressor(stand)[:, [stand.loads.index[n] for n in self.joints]]
+        per = Y @ self.masses
+        return per @ np.asarray(theta[-K:], float), per
+
+    def _gain(self, stand, controls, joint: str, c_si: float) -> np.ndarray:
+        """(N,) the deflected configuration's factor on a load change, ``1 / (1 - c g)`` (1 where
+        ``|c g|`` passes LINEAR_LIMIT: there the change is taken at the commands)."""
+        cg = c_si * load_state(stand, controls).slope(stand, joint)
+        if c_si == 0 or np.max(np.abs(cg), initial=0.0) > LINEAR_LIMIT:
+            return np.ones(len(cg))
+        return 1.0 / (1.0 - cg)
+
     def control_offset(self, theta, poses, n_u):
         stand = self.stand()
         out = np.zeros((poses.n_poses, n_u))
-        for c, i, n in zip(theta, self.indices, self.joints):
-            out[:, i] = c * deflected_torque(stand, poses.controls, n, c * stand.scale[i])
+        extra, _ = self._mass_loads(theta, poses.controls)
+        for k, (c, i, n) in enumerate(zip(theta, self.indices, self.joints)):
+            tau = deflected_torque(stand, poses.controls, n, c * stand.scale[i])
+            if self.n_masses:
+                tau = tau + extra[:, k] * self._gain(stand, poses.controls, n, c * stand.scale[i])
+            out[:, i] = c * tau
         return out
 
     def _bent(self, theta) -> list[tuple[slice, np.ndarray, JointRotationTerm]]:
@@ -95,8 +140,14 @@ class JointsComplianceTerm(ModelTerm):
         N, K = poses.n_poses, len(theta)
         control, pose = np.zeros((N, n_u, K)), np.zeros((N, 6, K))
         marker = np.zeros((N, poses.n_markers, 3, K))
+        extra, per = self._mass_loads(theta, poses.controls)
+        K = self.n_masses
         for k, (c, i, n) in enumerate(zip(theta, self.indices, self.joints)):
             control[:, i, k] = deflected_slope(stand, poses.controls, n, c * stand.scale[i])
+            if K:
+                gain = self._gain(stand, poses.controls, n, c * stand.scale[i])
+                control[:, i, k] += extra[:, k] * gain ** 2
+                control[:, i, len(theta) - K:] = c * gain[:, None] * per[:, k]
         for cols, t, b in self._bent(theta):
             _, pose[..., cols], marker[..., cols] = b.offset_jacobians(t, poses, n_u, fk_q, fk_X)
         return control, pose, marker
@@ -114,6 +165,20 @@ class JointsComplianceTerm(ModelTerm):
         bent_already = {str(t.where.get("joint")) for t in others if t.effect == "link_bending"}
         bent_already |= {b.joint for b in self.bends}
         out = []
+        K, nb = self.n_masses, len(self.parameter_names) - len(self.indices) - self.n_masses
+        start = np.asarray(theta, float)
+        deltas = start[len(start) - K:] if K else np.zeros(0)
+        more = [k for k in MASS_STEPS if k > K]
+        if stand.loads.prior and more:  # the tree's mass moments estimated with the compliances
+            scales = np.array([stand.scale[i] for i in self.indices])
+            basis, rank = tree_mass_basis(stand, poses.controls, self.joints, start[:len(self.indices)] * scales, more[0])
+            if basis.shape[1] > K:
+                alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends, label=self.where.get("joint"),
+                                             masses=basis, identifiable=rank)
+                was = self.masses @ deltas if K else np.zeros(basis.shape[0])
+                alt.initial = np.concatenate([start[:len(start) - K], np.linalg.lstsq(basis, was, rcond=None)[0]])
+                out.append((f"the tree's mass moments estimated with the compliances ({basis.shape[1]} combinations)",
+                            alt))
         for k, (i, n) in enumerate(zip(self.indices, self.joints)):
             parent = same_place_parent(stand, poses.controls, n)
             if parent is None or parent in bent_already or (parent not in stand.shared
@@ -121,24 +186,63 @@ class JointsComplianceTerm(ModelTerm):
                 continue
             keep = [m for m in range(len(self.indices)) if m != k]
             points = marker_points(stand, poses) if parent not in stand.shared else None
-            start = np.asarray(theta, float)
             for about, what in (("across", ""), ("across2", ", stiffer one way than the other")):
                 bend = joint_rotation_term("link_bending", self.spec, parent, about, points)
                 alt = joints_compliance_term(self.effect, self.spec, [self.indices[m] for m in keep],
-                                             self.bends + [bend], label=self.where.get("joint"))
-                alt.initial = np.concatenate([start[keep], start[len(self.indices):],
-                                              np.full(len(bend.parameter_names), start[k] * stand.scale[i])])
+                                             self.bends + [bend], label=self.where.get("joint"),
+                                             masses=self._masses_without(k), identifiable=self.where.get(
+                                                 "identifiable_mass_moments"))
+                alt.initial = np.concatenate([start[keep], start[len(self.indices):len(self.indices) + nb],
+                                              np.full(len(bend.parameter_names), start[k] * stand.scale[i]), deltas])
                 out.append((f"{n}'s compliance told apart as link bending at {parent}{what}", alt))
         for m, b in enumerate(self.bends):  # a bend told apart: the same, stiffer one way than the other
             if b.about == "across":
                 two = joint_rotation_term("link_bending", self.spec, b.joint, "across2", b.points)
                 alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends[:m] + [two]
-                                             + self.bends[m + 1:], label=self.where.get("joint"))
+                                             + self.bends[m + 1:], label=self.where.get("joint"), masses=self.masses,
+                                             identifiable=self.where.get("identifiable_mass_moments"))
                 cols = self._bent(theta)
                 alt.initial = np.concatenate([np.asarray(theta[:len(self.indices)], float)]
-                                             + [np.repeat(t, 2) if q == m else t for q, (_, t, _) in enumerate(cols)])
+                                             + [np.repeat(t, 2) if q == m else t for q, (_, t, _) in enumerate(cols)]
+                                             + [deltas])
                 out.append((f"link bending at {b.joint}, stiffer one way than the other", alt))
         return out
+
+
+    def _masses_without(self, k: int) -> np.ndarray:
+        """``masses`` for the term without joint k's compliance: the same combinations (the loads
+        are the tree's, whichever joints give under them)."""
+        return self.masses
+
+
+def tree_mass_basis(stand: TreeStand, controls: np.ndarray, joints: list[str], compliances: np.ndarray,
+                    count: int) -> tuple[np.ndarray, int]:
+    """(B (4 J, r), rank): the tree's mass-moment combinations that change the deflections of
+    ``joints`` (compliances ``compliances``, rad/(N m), as fitted on the prior's loads) in a way no
+    joint's compliance can: the torque regressor of each joint weighted by its compliance, its
+    part along each joint's own prior load projected out, the ``count`` best-determined right
+    singular directions (r <= count); each column scaled so that its load change has the RMS of
+    the prior's loads over the joints and poses. rank: how many are identifiable at all (singular
+    values above RANK_TOL of the largest). All compliances zero: the joints weighed alike."""
+    S = load_state(stand, controls)
+    cols = [stand.loads.index[n] for n in joints]
+    Y = S.torque_regressor(stand)[:, cols]                 # (N, J_t, P)
+    N, J, P = Y.shape
+    tau = Y @ stand.loads.mass_moments()                    # the prior's loads
+    w = np.abs(np.asarray(compliances, float))
+    w = np.ones(J) if not np.any(w) else w
+    A = (Y * w[None, :, None]).reshape(N * J, P)
+    C = np.zeros((N, J, J))
+    C[:, np.arange(J), np.arange(J)] = tau * w
+    Q, _ = np.linalg.qr(C.reshape(N * J, J))
+    A = A - Q @ (Q.T @ A)
+    if not np.any(A):
+        return np.zeros((P, 0)), 0
+    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    rank = int(np.sum(s > RANK_TOL * s[0]))
+    B = Vt[:min(rank, count)].T
+    size = np.sqrt(np.mean((Y.reshape(N * J, P) @ B) ** 2, axis=0))
+    return B * (np.sqrt(np.mean(tau ** 2)) / np.where(size > 0, size, 1.0)), rank
 
 
 def partial_bending_ok(poses) -> bool:
@@ -174,8 +278,11 @@ def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m:
 
 
 def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int],
-                           bends: list[JointRotationTerm] | None = None, label: str | None = None) -> JointsComplianceTerm:
-    """The compliance of the controls ``indices``, then the link bending of ``bends``; ``label``
+                           bends: list[JointRotationTerm] | None = None, label: str | None = None,
+                           masses: np.ndarray | None = None, identifiable: int | None = None) -> JointsComplianceTerm:
+    """The compliance of the controls ``indices``, then the link bending of ``bends``, then the
+    tree's mass moments' change along the columns of ``masses`` (4 J, K) (a URDF without
+    inertias; ``identifiable``: how many combinations the session determines at all); ``label``
     the place's name (``where['joint']``: a term told apart keeps the place it was named at)."""
     stand = tree_stand(spec)
     if stand is None:
@@ -193,12 +300,21 @@ def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int],
         points = {n: v for b in bends for n, v in b.where.get("marker_points", {}).items()}
         if points:
             where["marker_points"] = points
+    masses = np.zeros((0, 0)) if masses is None or not np.size(masses) else np.asarray(masses, float)
+    K = masses.shape[1] if masses.size else 0
+    if K:
+        if masses.shape[0] != 4 * len(stand.loads.joints):
+            raise BadInput(f"effect {effect!r}: where.mass_basis must have 4 rows per moving joint of the stand's URDF")
+        where["load"] += ", the tree's mass moments estimated with the compliances"
+        where["mass_basis"] = np.round(masses, 12).tolist()
+        where["identifiable_mass_moments"] = int(identifiable if identifiable is not None else K)
     where.update(_stand_where(spec))
     names = [f"compliance_{spec.control_names[i]}" for i in indices] + \
         [f"bending_{b.joint}" + (f"_{p.rsplit('_', 1)[1]}" if b.about == "across2" else "")
-         for b in bends for p in b.parameter_names]
-    return JointsComplianceTerm(effect, names, np.zeros(len(names)), units + ["rad/(N m)"] * (len(names) - len(units)),
-                                where, indices=list(indices), joints=joints, spec=spec, bends=bends)
+         for b in bends for p in b.parameter_names] + [f"mass_moments_{k + 1}" for k in range(K)]
+    units += ["rad/(N m)"] * (len(names) - len(units) - K) + ["share of the prior's load RMS"] * K
+    return JointsComplianceTerm(effect, names, np.zeros(len(names)), units, where, indices=list(indices),
+                                joints=joints, spec=spec, bends=bends, masses=masses)
 
 
 def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointsComplianceTerm:
@@ -218,6 +334,13 @@ def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | No
     bends = [joint_rotation_from_dict("link_bending", {"where": {"joint": n, "about": a,
                                                                  "marker_points": where.get("marker_points") or {}}},
                                       spec) for n, a in zip(bent, abouts)]
-    term = joints_compliance_term(effect, spec, indices, bends, label=where.get("joint"))
+    try:
+        masses = np.asarray(where.get("mass_basis") or np.zeros((0, 0)), float)
+    except (TypeError, ValueError):
+        raise BadInput(f"effect {effect!r}: where.mass_basis must be a matrix (4 rows per moving joint)") from None
+    if masses.size and masses.ndim != 2:
+        raise BadInput(f"effect {effect!r}: where.mass_basis must be a matrix (4 rows per moving joint)")
+    term = joints_compliance_term(effect, spec, indices, bends, label=where.get("joint"), masses=masses,
+                                  identifiable=where.get("identifiable_mass_moments"))
     term.stand()
     return term
