@@ -47,7 +47,7 @@ from scipy import sparse
 from scipy.optimize import least_squares
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
-from platkit.calibrate.problem import CalibrationProblem, Progress
+from platkit.calibrate.problem import CalibrationProblem, Progress, link_frames
 from platkit.calibrate.response import ResponseModel, actuator_positions, lags
 from platkit.calibrate.stream import (
     MIN_SEEN_SHARE,
@@ -90,6 +90,9 @@ ROW_BLOCK = 32
 #: at most RATE_FREE_FACTOR times the log's fastest step over its interval (there the slew takes
 #: a tenth of the interval: a limit that does not bind)
 DELAY_MAX_S, RATE_FREE_FACTOR = 0.5, 10.0
+#: a tree's travel by inverse kinematics of its markers: Gauss-Newton rounds, the controls' forward
+#: difference step (internal units), and the RMS marker miss (m) past which a sample is left out
+TRAVEL_ROUNDS, TRAVEL_STEP, TRAVEL_MISS_M = 6, 1e-6, 0.01
 
 
 class ResponseTerm(ModelTerm):
@@ -192,13 +195,62 @@ def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, 
     return lo, hi
 
 
-def _travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarray, guess_u: np.ndarray):
+def _marker_points(spec: PlatformSpec, model: PlatformModel, td, mk, links, U: np.ndarray, guess=None):
+    """(K, M, 3) the markers ``mk`` (M, 3) in the base frame at controls U (K, n_u) and parameters
+    td, each on its link: the moving frame, or on a tree (``links`` (M,) indices in
+    ``spec.tracked_links``) its tracked link; NaN where the kinematics fails."""
+    if links is not None:
+        R, X = link_frames(spec, td, U)
+        k = np.asarray(links)
+        return X[:, k] + np.einsum("kmab,mb->kma", R[:, k], mk)
+    fb = model.forward_batch(U, td, guess=guess, strict=False)
+    pts = fb.X[:, None, :] + np.einsum("kab,mb->kma", matrix_from_quat(fb.q), mk)
+    pts[~(fb.converged & fb.on_branch)] = np.nan
+    return pts
+
+
+def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray) -> np.ndarray:
+    """A tree's actuators' travel (K, n_u): at each sample the controls whose markers (each on its
+    tracked link) come nearest the sample's in the base frame ``Yb`` (K, M, 3), by damped
+    Gauss-Newton from ``guess_u`` (forward differences over the controls, every sample at once); a
+    joint that moves no marker stays at its guess; NaN rows where fewer than three markers are seen
+    or the markers stay off by more than TRAVEL_MISS_M."""
+    seen = np.isfinite(Yb).all(axis=2)
+    y = np.where(seen[..., None], Yb, 0.0)
+    u = np.array(guess_u, float)
+    K, n_u = u.shape
+    lo, hi = spec.control_bounds()
+
+    def resid(U):
+        return np.where(seen[..., None], _marker_points(spec, None, td, mk, links, U) - y, 0.0).reshape(K, -1)
+
+    r = resid(u)
+    for _ in range(TRAVEL_ROUNDS):
+        J = np.empty((K, r.shape[1], n_u))
+        for j in range(n_u):
+            up = u.copy()
+            up[:, j] += TRAVEL_STEP
+            J[:, :, j] = (resid(up) - r) / TRAVEL_STEP
+        JtJ = np.einsum("kij,kil->kjl", J, J)
+        damp = 1e-6 * np.maximum(np.trace(JtJ, axis1=1, axis2=2), 1e-12)[:, None, None] * np.eye(n_u)
+        du = -np.linalg.solve(JtJ + damp, np.einsum("kij,ki->kj", J, r)[..., None])[..., 0]
+        u = np.clip(u + du, lo, hi)
+        r = resid(u)
+    miss = np.sqrt(np.sum(r ** 2, axis=1) / np.maximum(seen.sum(axis=1), 1))
+    u[(seen.sum(axis=1) < 3) | ~(miss < TRAVEL_MISS_M)] = np.nan
+    return u
+
+
+def _travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarray, guess_u: np.ndarray, links=None):
     """The actuators' travel (K, n_u) at each sample by inverse kinematics of the pose the markers
-    give (Kabsch of the marker layout ``mk`` onto the sample, in the base frame); NaN rows where
-    fewer than three markers are seen or the pose is out of reach."""
+    give (Kabsch of the marker layout ``mk`` onto the sample, in the base frame; on a tree, with
+    ``links`` each marker's tracked link, :func:`_tree_travel`); NaN rows where fewer than three
+    markers are seen or the pose is out of reach."""
     K = len(Y)
     out = np.full((K, spec.n_u), np.nan)
     Yb = (Y - b) @ A  # base frame: A^T (y - b)
+    if links is not None:
+        return _tree_travel(spec, td, mk, links, Yb, guess_u)
     for k in range(K):
         vis = np.isfinite(Yb[k]).all(axis=1)
         if vis.sum() < 3:
@@ -265,22 +317,19 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
 
 
 def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, win: StreamWindows,
-                          X_nodes: np.ndarray, reached) -> np.ndarray:
+                          X_nodes: np.ndarray, reached, links=None) -> np.ndarray:
     """(P, M, 3) what the windowed fit of the markers differs, under the model (stand ``td``,
     frame A, b, markers ``mk``), from the markers at the windowed fit of the controls: the fit of
     g(u(t)) at the nodes minus g(fit of u at the nodes), g the markers of the controls (nonlinear).
     Subtracted from the fitted markers, it leaves the model of the nodes g(fit of u) exact to
     first order in the model's own error. Evaluated CORRECTION_BLOCK windows at a time, ``reached(a,
-    b)`` the controls reached at samples a to b of ``win.sample_t``; 0 where the kinematics fails."""
+    b)`` the controls reached at samples a to b of ``win.sample_t``; 0 where the kinematics fails.
+    On a tree (``links``: each marker's tracked link) each marker moves with its own link."""
     M = len(mk)
     out = np.zeros((len(win.t), M, 3))
 
-    def markers(U, guess=None):
-        fb = model.forward_batch(U, td, guess=guess, strict=False)
-        pts = fb.X[:, None, :] + np.einsum("kab,mb->kma", matrix_from_quat(fb.q), mk)
-        y = pts @ A.T + b
-        y[~(fb.converged & fb.on_branch)] = np.nan
-        return y
+    def markers(U):
+        return _marker_points(spec, model, td, mk, links, U) @ A.T + b
 
     g_nodes = markers(X_nodes)
     for s in range(0, len(win.blocks), CORRECTION_BLOCK):
@@ -339,16 +388,18 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     for _ in range(START_ROUNDS):
         X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
         poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=t,
-                         n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder))
+                         n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder),
+                         moving_link=session.moving_link)
         problem = CalibrationProblem(spec, poses0)
+        links = problem.point_links  # a tree: each marker's tracked link
         z = problem.initial_registration(spec.nominal_td())
         _, w, tr, mk, _ = problem.split(z)
         A = matrix_from_rotvec(w)
         Xs = actuator_positions(rmodel, theta_start, T, U, session.marker_t[sub], start=start)
-        travel = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs)
+        travel = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs, links)
         if reference == "profile" and len(pre):
             before = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
-                             np.repeat(U[:1], len(pre), axis=0))
+                             np.repeat(U[:1], len(pre), axis=0), links)
             if np.isfinite(before).all(axis=1).any():
                 start = np.nanmedian(before, axis=0)
         theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
@@ -356,7 +407,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     # 4. the nodes' markers corrected for the kinematics' curvature at the start, and the full fit
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
     correction = _curvature_correction(spec, problem.model, spec.nominal_td(), A, tr, mk, win, X1, lambda a, b: (
-        actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)))
+        actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)), links)
     term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps, start, win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=names, t=t,
                     n_samples=win.n_eff,

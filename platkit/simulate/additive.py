@@ -10,7 +10,8 @@ Each of these is one function below; :func:`simulate` runs them in order.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Unpack
 
@@ -123,6 +124,12 @@ class TrueStand:
     body_noise: dict
     body_rng: np.random.Generator
     marker_links: list[int] | None = None  # a tree: the tracked link each marker rides on (spec.tracked_links)
+
+    def moving_link(self, spec: PlatformSpec) -> dict[str, str] | None:
+        """A tree's mapping marker -> tracked link (session.yaml's moving_link); None on a chain."""
+        if self.marker_links is None:
+            return None
+        return {m: spec.tracked_links[k] for m, k in zip(self.marker_names, self.marker_links)}
 
     @property
     def base_markers_mocap(self) -> np.ndarray | None:
@@ -283,8 +290,7 @@ def settled_poses_directly(spec: PlatformSpec, model: PlatformModel, options: Si
         off = hidden.pose_offsets(hidden.commands, q, X)
         q, X = _apply_pose_offset(q, X, off)
         if frames is not None:  # the pose offsets move every tracked link alike (as the model's do)
-            frames = (np.einsum("kab,klbc->klac", matrix_from_rotvec(off[:, 3:]), frames[0]),
-                      frames[1] + off[:, None, :3])
+            frames = _offset_frames(frames, off)
     noise = rec.noise_mm * 1e-3
     n_avg = max(1, int(0.5 * rec.hold_s * rec.mocap_rate_hz))
     counts = rng.binomial(n_avg, 1 - rec.occlusion, size=(N, n_markers)).astype(float)
@@ -306,9 +312,7 @@ def settled_poses_directly(spec: PlatformSpec, model: PlatformModel, options: Si
                            "last_step": commands.extras["last_step"], "elapsed": commands.extras["elapsed"],
                            "settle_time": np.full(N, 0.5 * rec.hold_s)},
                    bodies=bod, body_names=stand.body_names, n_body_samples=body_counts if n_bodies else None,
-                   body_noise=dict(stand.body_noise),
-                   moving_link=None if stand.marker_links is None else
-                   {m: spec.tracked_links[k] for m, k in zip(stand.marker_names, stand.marker_links)})
+                   body_noise=dict(stand.body_noise), moving_link=stand.moving_link(spec))
 
 
 @dataclass
@@ -338,7 +342,8 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
     pose_path = spec.pose_free and spec.inverse is not None
     prev_poses = np.vstack([spec.neutral_p()[None], stand.poses[:-1]])
 
-    def evaluate(t):
+    def state(t):
+        """(q, X, moff, u the true controls, off the pose offsets or None) at times t."""
         i = np.clip(np.searchsorted(t_cmd, t, side="right") - 1, 0, N - 1)
         before = t < t_cmd[0]
         s = _min_jerk((t - t_cmd[i]) / move[i])
@@ -357,13 +362,41 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
             bad = int(np.nonzero(~fb.converged)[0][0])
             raise NotIdentifiable(f"{spec.name}: forward kinematics failed along the path at t={t[bad]:.3f} s")
         q, X = fb.q, fb.X
+        off = None
         if hidden.moves_pose:
             rows = hidden.commands.subset(i)
-            off = hidden.pose_offsets(rows, q, X)
-            q, X = _apply_pose_offset(q, X, off * np.where(before, 0.0, 1.0)[:, None])
+            off = hidden.pose_offsets(rows, q, X) * np.where(before, 0.0, 1.0)[:, None]
+            q, X = _apply_pose_offset(q, X, off)
+        return q, X, moff, u, off
+
+    def evaluate(t):
+        q, X, moff, _, _ = state(t)
         return q, X, moff
 
-    return Trajectory(t_cmd, stand.controls, t_arrive, schedule.end_t, evaluate)
+    if stand.marker_links is None:
+        return Trajectory(t_cmd, stand.controls, t_arrive, schedule.end_t, evaluate)
+
+    def frames(t):  # every tracked link, the pose offsets moving each alike (as the model terms do)
+        _, _, _, u, off = state(t)
+        return _offset_frames(link_frames(spec, stand.td, u), off)
+
+    return TreeTrajectory(t_cmd, stand.controls, t_arrive, schedule.end_t, evaluate, frames=frames)
+
+
+@dataclass
+class TreeTrajectory(Trajectory):
+    """The true motion of a tree: besides the moving frame, frames(t) -> (R (K, L, 3, 3),
+    X (K, L, 3)), every tracked link in the base frame at times t (K,), effects included."""
+
+    frames: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] = field(repr=False, kw_only=True)
+
+
+def _offset_frames(frames, off):
+    """Tracked links' frames (R (K, L, 3, 3), X (K, L, 3)) moved by the pose offsets off (K, 6)
+    or None: every link alike, as the model terms' pose offsets move them."""
+    if off is None or not np.any(off):
+        return frames
+    return (np.einsum("kab,klbc->klac", matrix_from_rotvec(off[:, 3:]), frames[0]), frames[1] + off[:, None, :3])
 
 
 def _pose_path_controls(spec: PlatformSpec, P0: np.ndarray, P1: np.ndarray, U0: np.ndarray, U1: np.ndarray,
@@ -394,7 +427,8 @@ def record_stream(options: SimulationOptions, rng: np.random.Generator, stand: T
     dt = 1.0 / rec.mocap_rate_hz
     tm = np.round(np.arange(0.0, trajectory.end_t, dt), 6)
     q, X, moff = trajectory.evaluate(tm)
-    Y = stand.markers_of(q, X, moff) + rng.normal(size=(len(tm), n_markers, 3)) * noise
+    frames = trajectory.frames(tm) if isinstance(trajectory, TreeTrajectory) else None
+    Y = stand.markers_of(q, X, moff, frames) + rng.normal(size=(len(tm), n_markers, 3)) * noise
     Y[_occlusion_mask(rng, len(tm), n_markers, rec.occlusion, burst)] = np.nan
     # keep 1 um steps, as the files do, so in-memory and written sessions agree
     Y = np.round(Y * 1e6) / 1e6
@@ -422,7 +456,7 @@ def settle_stream(spec: PlatformSpec, options: SimulationOptions, stand: TrueSta
     sess = Session(folder=Path("simulated"), platform=spec.name, spec=spec, description=None,
                    length_unit=rec.length_unit, time_unit="s", marker_names=stand.marker_names,
                    base_marker_names=stand.base_marker_names, mocap_rate_hz=rec.mocap_rate_hz, imu=None,
-                   moving_link=None, notes="", command_t=schedule.command_t, commands=stand.controls,
+                   moving_link=stand.moving_link(spec), notes="", command_t=schedule.command_t, commands=stand.controls,
                    marker_t=stream.marker_t, markers=stream.markers, base_markers=stream.base_markers,
                    markers_source=Path("simulated"), body_names=stand.body_names, body_noise=dict(stand.body_noise),
                    bodies=stream.bodies)
@@ -458,11 +492,9 @@ def simulate(spec: PlatformSpec, options: SimulationOptions | None = None,
     rec.check()
     if opts.imu is not None and not opts.raw:
         raise BadInput("an IMU stream needs the simulated motion: simulate with raw=True (not poses only)")
-    if opts.raw and spec.link_poses is not None:
-        raise BadInput(f"a tree ({', '.join(spec.tracked_links)}) is simulated as settled poses: give --poses-only "
-                       "(raw=False)")
-    if spec.link_poses is not None and (opts.recording.n_bodies or opts.recording.n_base_markers):
-        raise BadInput("a simulated tree carries markers only (no rigid bodies or base markers)")
+    if spec.link_poses is not None and opts.recording.n_bodies:
+        raise BadInput(f"a simulated tree ({', '.join(spec.tracked_links)}) carries markers on its links and base "
+                       "markers, no rigid bodies: leave out --rigid-bodies (n_bodies=0)")
     rng = np.random.default_rng(opts.seed)
     model = PlatformModel(spec)
     U, plan_info = plan_commands(spec, opts.plan, rng, model, rec.length_unit)

@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
+from platkit.calibrate.problem import link_frames
 from platkit.effects import Effect, EffectPhysics, PhysicsPlan, PhysicsSeries
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, transform
@@ -101,6 +102,7 @@ class PhysicalSession:
     description: str | None = None
     hold_end_t: np.ndarray | None = None
     settled_controls: np.ndarray | None = None
+    moving_link: dict[str, str] | None = None  # a tree: each marker's tracked link (session.yaml's mapping)
 
     def truth(self) -> dict:
         """The truth.yaml mapping (SI: metres, radians, seconds on the commands clock)."""
@@ -115,6 +117,7 @@ class PhysicalSession:
                            for n, v, v0 in zip(spec.parameter_names, self.td, spec.nominal_td())},
             "mocap_from_base": [[float(x) for x in row] for row in self.mocap_from_base],
             "markers": {n: [float(x) for x in s] for n, s in zip(self.marker_names, self.marker_body)},
+            **({"marker_links": dict(self.moving_link)} if self.moving_link else {}),
             "base_markers": {n: [float(x) for x in s] for n, s in zip(
                 self.base_marker_names, () if self.base_marker_body is None else self.base_marker_body)},
             "effects": [{"effect": name, "physics": plain(p.parameters())} for name, p in self.physics],
@@ -185,6 +188,13 @@ class _Stand:
             motor = out
         return motor, seg
 
+    def frames(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """A tree's tracked links (R (K, L, 3, 3), X (K, L, 3)) in the base frame at true actuator
+        travel u (K, n_u); None on a stand with one moving link."""
+        if self.spec.link_poses is None:
+            return None
+        return link_frames(self.spec, self.td, u)
+
     def pose(self, u: np.ndarray, seg: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         guess = np.where(seg[:, None] < 0, self.spec.neutral_p(), self.P_rest[np.maximum(seg, 0)])
         fb = self.model.forward_batch(u, td=self.td, guess=guess, strict=False)
@@ -253,6 +263,8 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                                          duration_s, command_rate_hz, length_unit, rng_plan, rng_stand)
     S = default_marker_layout(spec, n_markers, rng_stand)
     names = [f"M{k + 1}" for k in range(n_markers)]
+    # a tree: marker k on tracked link k mod L (as the additive simulator and plan place them)
+    links = [k % len(spec.tracked_links) for k in range(n_markers)] if spec.link_poses is not None else None
     size_m = stand_length_scale(spec) / 0.6
     mocap_from_level = _level_mocap(rng_stand, size_m)
     nuisances = draw_nuisances(spec, rng_nuis, hold_s=hold_s, noise_mm=noise_mm, occlusion=occlusion,
@@ -277,7 +289,7 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
             tilt = tilt + np.asarray(w, float)[:2]
     level_from_base = transform(matrix_from_rotvec(np.array([tilt[0], tilt[1], 0.0])), np.zeros(3))
     rec = _Recorder(_Stand(spec, model, td, phys_plan, response, physics, P_rest, fine_step_s), S,
-                    mocap_from_level @ level_from_base, mocap_rate_hz)
+                    mocap_from_level @ level_from_base, mocap_rate_hz, links)
     marker_t, Y = rec.stream(nuisances, rng_noise, rng_occ)
     last = np.clip(np.searchsorted(rec.t_exp, hold_end, side="left") - 1, 0, len(rec.t_exp) - 1)
     q_s, X_s, settled_markers, u_settled = rec.rest(last)
@@ -292,7 +304,8 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
     plan_info.update(commands=int(len(U)))
     return PhysicalSession(spec, seed, length_unit, mocap_rate_hz, t_cmd, U, names, marker_t, Y, q_s, X_s,
                            settled_markers, td, rec.T, S, physics, nuisances, response, plan_info, base_names, YB, B,
-                           imu_data, description, hold_end, u_settled)
+                           imu_data, description, hold_end, u_settled,
+                           None if links is None else {n: spec.tracked_links[k] for n, k in zip(names, links)})
 
 
 def _check_options(n_markers: int, mocap_rate_hz: float, fine_step_s: float, length_unit: str) -> None:
@@ -358,10 +371,11 @@ def _physics(spec, seed, effects, phys_plan: PhysicsPlan, nuisances: Nuisances, 
 
 class _Recorder:
     """The motion capture of the true stand: ``T`` (4, 4) mocap_from_base, markers at ``S``
-    (M, 3) on the moving part, exposures ``t_exp`` every 1/rate on the commands clock."""
+    (M, 3) on the moving part (a tree: marker m on tracked link ``links[m]``), exposures ``t_exp``
+    every 1/rate on the commands clock."""
 
-    def __init__(self, stand: _Stand, S: np.ndarray, T: np.ndarray, rate_hz: float):
-        self.stand, self.S, self.T, self.rate = stand, S, T, rate_hz
+    def __init__(self, stand: _Stand, S: np.ndarray, T: np.ndarray, rate_hz: float, links: list[int] | None = None):
+        self.stand, self.S, self.T, self.rate, self.links = stand, S, T, rate_hz, links
         self.t_exp = np.arange(0.0, stand.plan.end_s, 1.0 / rate_hz)
 
     def offsets(self, t: np.ndarray) -> np.ndarray:
@@ -372,9 +386,16 @@ class _Recorder:
                 off = off + np.asarray(o, float)
         return off
 
-    def to_mocap(self, q: np.ndarray, X: np.ndarray, t: np.ndarray) -> np.ndarray:
-        R = matrix_from_quat(q)
-        base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, self.S[None] + self.offsets(t))
+    def to_mocap(self, q: np.ndarray, X: np.ndarray, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """(K, M, 3) the markers in the mocap frame: on the moving frame (q, X), or on a tree each
+        on its tracked link at the true actuator travel u (K, n_u)."""
+        body = self.S[None] + self.offsets(t)
+        frames = self.stand.frames(u) if self.links is not None else None
+        if frames is not None:
+            k = np.asarray(self.links)
+            base = frames[1][:, k] + np.einsum("kmij,kmj->kmi", frames[0][:, k], body)
+        else:
+            base = X[:, None, :] + np.einsum("kij,kmj->kmi", matrix_from_quat(q), body)
         return base @ self.T[:3, :3].T + self.T[:3, 3]
 
     def stream(self, nuisances: Nuisances, rng_noise, rng_occ) -> tuple[np.ndarray, np.ndarray]:
@@ -383,7 +404,7 @@ class _Recorder:
         t_exp = self.t_exp
         u, seg = self.stand.controls(t_exp)
         q, X = self.stand.pose(u, seg, t_exp)
-        Y = self.to_mocap(q, X, t_exp)
+        Y = self.to_mocap(q, X, t_exp, u)
         Y = Y + rng_noise.normal(size=Y.shape) * nuisances.noise_m
         Y = Y + coloured_noise(rng_noise, Y.shape, 1.0 / self.rate, nuisances.coloured_m, nuisances.correlation_s)
         Y[occlusion_mask(rng_occ, len(t_exp), len(self.S), nuisances.occlusion, self.burst(nuisances))] = np.nan
@@ -400,7 +421,7 @@ class _Recorder:
         u_rest, seg_rest = self.stand.controls(self.t_exp, rest=True)
         t_rest = self.t_exp[last]
         q_s, X_s = self.stand.pose(u_rest[last], seg_rest[last], t_rest)
-        return q_s, X_s, self.to_mocap(q_s, X_s, t_rest), u_rest[last]
+        return q_s, X_s, self.to_mocap(q_s, X_s, t_rest, u_rest[last]), u_rest[last]
 
 
 def _base_markers(n: int, size_m: float, rec: _Recorder, nuisances: Nuisances, rng_base):
@@ -452,7 +473,8 @@ def write_physical_session(sim: PhysicalSession, out: str | Path, description: s
         entry: dict = {
             "platform": spec.name, "description": None, "units": {"length": unit, "time": "s"},
             "markers": list(sim.marker_names), "base_markers": list(sim.base_marker_names),
-            "mocap_rate_hz": float(sim.mocap_rate_hz), "imu": None, "moving_link": moving_link,
+            "mocap_rate_hz": float(sim.mocap_rate_hz), "imu": None,
+            "moving_link": sim.moving_link if sim.moving_link else moving_link,
             "notes": notes or f"simulated in the time domain by platkit (seed {sim.seed}); the truth is in "
                               "truth.yaml and truth_settled.csv",
         }
