@@ -88,32 +88,33 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
     tiers = np.asarray(tiers)
     for tier in sorted(set(tiers.tolist())):
         pending = [j for j in range(n) if tiers[j] == tier]
-        rest = {j: Js[:, j].copy() for j in pending}
-        # re-orthogonalise remaining columns against the basis built so far
-        for j in pending:
-            for b in basis:
-                rest[j] -= b * (b @ rest[j])
+        # the remaining columns as the rows of one array, in pending's order, each re-orthogonalised
+        # against the basis built so far, one basis vector after the other
+        rest = np.ascontiguousarray(Js[:, pending].T)
+        for b in basis:
+            rest -= _dots(rest, b)[:, None] * b[None, :]
         while pending:
-            size = {j: np.sqrt(rest[j].dot(rest[j])) for j in pending}  # np.linalg.norm's own arithmetic
-            best = max(pending, key=lambda j: (size[j], -j))
-            frac = size[best] / norms[best] if norms[best] > 0 else 0.0
+            size = np.sqrt(_dots(rest, rest))
+            k = int(np.argmax(size))  # the largest; of equal ones the first, the lowest index
+            best = pending[k]
+            frac = size[k] / norms[best] if norms[best] > 0 else 0.0
             if frac < rel_tol or norms[best] == 0:
                 break
-            v = rest[best]
+            v = rest[k]
             # twice for numerical orthogonality
             for b in basis:
                 v = v - b * (b @ v)
             v = v / np.linalg.norm(v)
             basis.append(v)
             chosen.append(best)
-            pending.remove(best)
-            for j in pending:
-                rest[j] = rest[j] - v * (v @ rest[j])
+            del pending[k]
+            rest = np.delete(rest, k, axis=0)
+            rest = rest - _dots(rest, v)[:, None] * v[None, :]
         if pending and chosen:
             C = Js[:, chosen]
             coefs = np.linalg.solve(C.T @ C, C.T @ Js[:, pending])  # (n_chosen, n_pending)
         for jj, j in enumerate(pending):
-            remaining = float(np.linalg.norm(rest[j]) / norms[j]) if norms[j] > 0 else 0.0
+            remaining = float(np.linalg.norm(rest[jj]) / norms[j]) if norms[j] > 0 else 0.0
             if norms[j] == 0:
                 reason = "the data do not depend on it at all"
                 combo = {names[j]: 1.0}
@@ -133,6 +134,15 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
     else:
         cond = float("nan")
     return Identifiability(chosen, held, sv, cond, list(names))
+
+
+def _dots(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Each row of R dotted with v (or, v 2-D, with its own row of v), each by one vector dot
+    product as ``R[j].dot(v)`` takes it (numpy's matmul of a stack of 1 x m rows by m x 1): the
+    same sums in the same order, where a matrix-vector product (BLAS gemv) may sum otherwise, and
+    a greedy choice between columns equal but for rounding would follow that rounding."""
+    other = v[:, :, None] if v.ndim == 2 else v[:, None]
+    return np.matmul(R[:, None, :], other)[:, 0, 0]
 
 
 def singular_values(A: np.ndarray, blocked: bool = False) -> np.ndarray:
