@@ -34,7 +34,9 @@ Rules:
 - A URDF without inertias: a control's gravity torque is linear in the mass moments of the bodies
   below it; the term's parameters are the compliance times the ``MAX_MASS_COMBINATIONS`` best
   determined combinations of them on the session's poses (the regressor's leading singular
-  directions), the rank of the rest said in ``where``.
+  directions), the rank of the rest said in ``where``. The whole tree's mass moments, one set for
+  every joint, are estimated with the compliances in a form of the every-joint term
+  (platkit_effects.tree_joints).
 """
 from __future__ import annotations
 
@@ -161,11 +163,18 @@ class LoadState:
     links: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     slopes: dict[str, np.ndarray] = field(default_factory=dict)
     regressor: np.ndarray | None = None
+    moments: np.ndarray | None = None
+
+    def moment_regressor(self, stand: TreeStand) -> np.ndarray:
+        """(N, J, 3, 4 J) the moments' regressor in the mass moments (TreeLoads.moment_regressor), once."""
+        if self.moments is None:
+            self.moments = stand.loads.moment_regressor(self.Q, self.loads)
+        return self.moments
 
     def torque_regressor(self, stand: TreeStand) -> np.ndarray:
         """(N, J, 4 J) the torques' regressor in the mass moments (TreeLoads.torque_regressor), once."""
         if self.regressor is None:
-            self.regressor = stand.loads.torque_regressor(self.Q, self.loads)
+            self.regressor = stand.loads.torque_regressor(self.Q, self.loads, self.moment_regressor(stand))
         return self.regressor
 
     def slope(self, stand: TreeStand, joint: str) -> np.ndarray:
@@ -304,15 +313,30 @@ class JointRotationTerm(ModelTerm):
         """Whether the joint carries only some of the tracked links."""
         return self.joint not in stand.shared
 
-    def _unit_rotations(self, stand: TreeStand, S: LoadState) -> list[np.ndarray]:
-        """Per parameter (one), (N, 3) rad of rotation per unit of it, in the joint's frame."""
+    def _unit_rotations(self, stand: TreeStand, S: LoadState, moment: np.ndarray | None = None) -> list[np.ndarray]:
+        """Per parameter (one), (N, 3) rad of rotation per unit of it, in the joint's frame;
+        ``moment`` (N, 3): the moment at the joint in its frame, if not the loads' own."""
         j = stand.loads.index[self.joint]
+        M = S.loads.moment[:, j] if moment is None else moment
         if self.about == "axis":
-            return [S.loads.torque[:, j][:, None] * stand.loads.axes[j][None]]
+            tau = S.loads.torque[:, j] if moment is None else M @ stand.loads.axes[j]
+            return [tau[:, None] * stand.loads.axes[j][None]]
         U = across_axes(stand.loads.axes[j])
         if self.about == "across2":  # stiffer one way than the other: a compliance per axis across
-            return [(S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U]
-        return [sum((S.loads.moment[:, j] @ u)[:, None] * u[None] for u in U)]
+            return [(M @ u)[:, None] * u[None] for u in U]
+        return [sum((M @ u)[:, None] * u[None] for u in U)]
+
+    def turned(self, theta, moment: np.ndarray, poses, fk_X) -> tuple[np.ndarray, np.ndarray]:
+        """(pose (N, 6), marker (N, M, 3)) offsets of the links this joint carries turned by the
+        compliances ``theta`` under ``moment`` (N, 3) at the joint, in its frame (linear in it)."""
+        stand = self.stand()
+        S = load_state(stand, poses.controls)
+        j = stand.loads.index[self.joint]
+        w = sum(t * r for t, r in zip(theta, self._unit_rotations(stand, S, moment)))
+        if self.partial(stand):
+            return np.zeros((poses.n_poses, 6)), self._carried_markers(stand, S, j, w, poses)
+        pose = np.zeros((poses.n_poses, 6)) if fk_X is None else _rotation_offset(S, j, w, fk_X)
+        return pose, self._other_links(stand, S, j, w, poses)
 
     def pose_offset(self, theta, poses, fk_q, fk_X):
         stand = self.stand()

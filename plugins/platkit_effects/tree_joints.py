@@ -15,12 +15,14 @@ Rules:
 - A URDF without inertias: the loads are the prior of uniform links', whose shape (how the mass
   lies along each branch, how much each branch weighs against the trunk) is not the robot's. The
   term then also offers, as a form, the whole tree's mass moments estimated with the compliances:
-  ``pi = pi_prior + B delta`` in every joint's load ``Y_j(q) pi``, one ``pi`` for the tree (so an
-  arm's weight is the same in its own joints' loads and in the torso's). ``B`` holds the
+  ``pi = pi_prior + B delta`` in every joint's load ``Y_j(q) pi`` and in the moment every bend of
+  the term turns under, one ``pi`` for the tree (so an arm's weight is the same in its own joints'
+  loads and in the torso's). ``B`` holds the
   combinations that change the deflections in a way no joint's compliance can (the regressor
   weighted by the fitted compliances, its part along each joint's own load projected out: the
-  scale the compliances carry), best determined first; ``MASS_STEPS`` of them in turn, each form
-  kept on a lower BIC; ``where`` says how many are identifiable at all.
+  scale the compliances carry), best determined first; each count of ``MASS_STEPS`` offered as a
+  form, tried in turn (one that is not kept does not stop a larger one), each kept on a lower BIC;
+  ``where`` says how many are identifiable at all.
 """
 from __future__ import annotations
 
@@ -63,7 +65,8 @@ class JointsComplianceTerm(ModelTerm):
     joint's compliance the data told apart as its parent's bending (:meth:`alternatives`). Last,
     on a URDF without inertias, ``masses`` (4 J, K): the tree's mass moments' change from the
     prior's, ``B delta``, one parameter per column, added to every joint's load (``Y_j B delta``,
-    at the deflected configuration to the same first order)."""
+    at the deflected configuration to the same first order) and to the moment each bend turns
+    under (``M_b B delta``, M_b the moment's regressor at its joint)."""
 
     indices: list[int] = field(default_factory=list)
     joints: list[str] = field(default_factory=list)
@@ -123,16 +126,34 @@ class JointsComplianceTerm(ModelTerm):
             k += K
         return out
 
+    def _bend_moments(self, theta, controls) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per bend, (the moment's change ``M_b B delta`` (N, 3), per unit of each delta (N, 3, K)) at
+        its joint in its frame: the bends turn under the tree's estimated loads too."""
+        stand = self.stand()
+        R = load_state(stand, controls).moment_regressor(stand)
+        deltas = np.asarray(theta[len(theta) - self.n_masses:], float)
+        out = []
+        for b in self.bends:
+            per = R[:, stand.loads.index[b.joint]] @ self.masses
+            out.append((per @ deltas, per))
+        return out
+
     def pose_offset(self, theta, poses, fk_q, fk_X):
         out = np.zeros((poses.n_poses, 6))
         for _, t, b in self._bent(theta):
             out += b.pose_offset(t, poses, fk_q, fk_X)
+        if self.n_masses:
+            for (_, t, b), (dM, _) in zip(self._bent(theta), self._bend_moments(theta, poses.controls)):
+                out += b.turned(t, dM, poses, fk_X)[0]
         return out
 
     def marker_offset(self, theta, poses):
         out = np.zeros((poses.n_poses, poses.n_markers, 3))
         for _, t, b in self._bent(theta):
             out += b.marker_offset(t, poses)
+        if self.n_masses:
+            for (_, t, b), (dM, _) in zip(self._bent(theta), self._bend_moments(theta, poses.controls)):
+                out += b.turned(t, dM, poses, None)[1]
         return out
 
     def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
@@ -150,6 +171,18 @@ class JointsComplianceTerm(ModelTerm):
                 control[:, i, len(theta) - K:] = c * gain[:, None] * per[:, k]
         for cols, t, b in self._bent(theta):
             _, pose[..., cols], marker[..., cols] = b.offset_jacobians(t, poses, n_u, fk_q, fk_X)
+        if K:
+            for (cols, t, b), (dM, per) in zip(self._bent(theta), self._bend_moments(theta, poses.controls)):
+                for m in range(len(t)):  # the bend's compliances under the moment's change
+                    unit = np.zeros(len(t))
+                    unit[m] = 1.0
+                    p, q = b.turned(unit, dM, poses, fk_X)
+                    pose[..., cols.start + m] += p
+                    marker[..., cols.start + m] += q
+                for k in range(K):  # each delta through the bend
+                    p, q = b.turned(t, per[..., k], poses, fk_X)
+                    pose[..., len(theta) - K + k] += p
+                    marker[..., len(theta) - K + k] += q
         return control, pose, marker
 
     def alternatives(self, theta, poses, others) -> list[tuple[str, ModelTerm]]:
@@ -168,17 +201,18 @@ class JointsComplianceTerm(ModelTerm):
         K, nb = self.n_masses, len(self.parameter_names) - len(self.indices) - self.n_masses
         start = np.asarray(theta, float)
         deltas = start[len(start) - K:] if K else np.zeros(0)
-        more = [k for k in MASS_STEPS if k > K]
-        if stand.loads.prior and more:  # the tree's mass moments estimated with the compliances
-            scales = np.array([stand.scale[i] for i in self.indices])
-            basis, rank = tree_mass_basis(stand, poses.controls, self.joints, start[:len(self.indices)] * scales, more[0])
-            if basis.shape[1] > K:
-                alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends, label=self.where.get("joint"),
-                                             masses=basis, identifiable=rank)
-                was = self.masses @ deltas if K else np.zeros(basis.shape[0])
-                alt.initial = np.concatenate([start[:len(start) - K], np.linalg.lstsq(basis, was, rcond=None)[0]])
-                out.append((f"the tree's mass moments estimated with the compliances ({basis.shape[1]} combinations)",
-                            alt))
+        scales = np.array([stand.scale[i] for i in self.indices])
+        offered = K
+        for step in (k for k in MASS_STEPS if k > K and stand.loads.prior):  # the tree's mass moments, each count
+            basis, rank = tree_mass_basis(stand, poses.controls, self.joints, start[:len(self.indices)] * scales, step)
+            if basis.shape[1] <= offered:
+                break
+            offered = basis.shape[1]
+            alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends, label=self.where.get("joint"),
+                                         masses=basis, identifiable=rank)
+            was = self.masses @ deltas if K else np.zeros(basis.shape[0])
+            alt.initial = np.concatenate([start[:len(start) - K], np.linalg.lstsq(basis, was, rcond=None)[0]])
+            out.append((f"the tree's mass moments estimated with the compliances ({offered} combinations)", alt))
         for k, (i, n) in enumerate(zip(self.indices, self.joints)):
             parent = same_place_parent(stand, poses.controls, n)
             if parent is None or parent in bent_already or (parent not in stand.shared
