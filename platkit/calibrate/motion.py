@@ -212,9 +212,9 @@ def _marker_points(spec: PlatformSpec, model: PlatformModel, td, mk, links, U: n
 def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray) -> np.ndarray:
     """A tree's actuators' travel (K, n_u): at each sample the controls whose markers (each on its
     tracked link) come nearest the sample's in the base frame ``Yb`` (K, M, 3), by damped
-    Gauss-Newton from ``guess_u`` (forward differences over the controls, every sample at once); a
-    joint that moves no marker stays at its guess; NaN rows where fewer than three markers are seen
-    or the markers stay off by more than TRAVEL_MISS_M."""
+    Gauss-Newton from ``guess_u`` (forward differences over the controls, every sample at once); NaN
+    rows where fewer than three markers are seen or the markers stay off by more than TRAVEL_MISS_M,
+    and a NaN column for a joint that moves no marker (its travel is not seen)."""
     seen = np.isfinite(Yb).all(axis=2)
     y = np.where(seen[..., None], Yb, 0.0)
     u = np.array(guess_u, float)
@@ -225,12 +225,14 @@ def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.
         return np.where(seen[..., None], _marker_points(spec, None, td, mk, links, U) - y, 0.0).reshape(K, -1)
 
     r = resid(u)
+    unseen = np.zeros(n_u, bool)
     for _ in range(TRAVEL_ROUNDS):
         J = np.empty((K, r.shape[1], n_u))
         for j in range(n_u):
             up = u.copy()
             up[:, j] += TRAVEL_STEP
             J[:, :, j] = (resid(up) - r) / TRAVEL_STEP
+        unseen = ~(np.abs(J).max(axis=(0, 1)) > 0)
         JtJ = np.einsum("kij,kil->kjl", J, J)
         damp = 1e-6 * np.maximum(np.trace(JtJ, axis1=1, axis2=2), 1e-12)[:, None, None] * np.eye(n_u)
         du = -np.linalg.solve(JtJ + damp, np.einsum("kij,ki->kj", J, r)[..., None])[..., 0]
@@ -238,6 +240,7 @@ def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.
         r = resid(u)
     miss = np.sqrt(np.sum(r ** 2, axis=1) / np.maximum(seen.sum(axis=1), 1))
     u[(seen.sum(axis=1) < 3) | ~(miss < TRAVEL_MISS_M)] = np.nan
+    u[:, unseen] = np.nan
     return u
 
 
@@ -267,8 +270,10 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     """The response fitted to the actuators' travel alone: the shift by a grid (each actuator's best,
     their median), then each actuator's least squares (soft L1) with a shift of its own, the shift
     at the median of theirs, and each actuator's again with it held. Actuators that never move
-    keep theta0."""
-    ok = np.isfinite(travel).all(axis=1)
+    keep theta0, and so do those whose travel is not seen (a NaN column: a tree's joint that moves no
+    marker)."""
+    seen = np.isfinite(travel).any(axis=0)
+    ok = np.isfinite(travel[:, seen]).all(axis=1)
     t, travel = t[ok], travel[ok]
     if len(t) < 10:
         return np.asarray(theta0, float)
@@ -280,7 +285,7 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
     shifted = (t[None, :] - SHIFT_GRID_S[:, None]).ravel()
     X = actuator_positions(rmodel, theta, T, U, shifted, start=start, cache=cache).reshape(len(SHIFT_GRID_S), len(t), -1)
     # each actuator's best shift, the median over them (a slow actuator's lag is not the clock's)
-    moved = np.ptp(U, axis=0) > 0
+    moved = (np.ptp(U, axis=0) > 0) & seen
     best = SHIFT_GRID_S[np.argmin(np.sum((X - travel[None]) ** 2, axis=1), axis=0)]
     theta[0] = float(np.median(best[moved])) if moved.any() else 0.0
     lo, hi = _lower_upper(rmodel, theta)
@@ -292,7 +297,7 @@ def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, step
             ks = ([0] if own_shift else []) + [rmodel.index(b, j) for b in rmodel.blocks
                                                if b != "damping" and not (own_shift and b == "delay_s")]
             scale = max(float(np.ptp(travel[:, j])), 1e-9)
-            if not np.ptp(U[:, j]) > 0:
+            if not moved[j]:
                 continue
 
             def res(x, j=j, ks=ks, scale=scale):
@@ -400,8 +405,9 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         if reference == "profile" and len(pre):
             before = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
                              np.repeat(U[:1], len(pre), axis=0), links)
-            if np.isfinite(before).all(axis=1).any():
-                start = np.nanmedian(before, axis=0)
+            cols = np.isfinite(before).any(axis=0)  # a joint that moves no marker rests at its first command
+            if cols.any() and np.isfinite(before[:, cols]).all(axis=1).any():
+                start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
         theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
     steps = _steps(rmodel, theta_start)
     # 4. the nodes' markers corrected for the kinematics' curvature at the start, and the full fit
