@@ -42,7 +42,7 @@ from platkit.terms import ModelTerm
 
 __all__ = ["simulate", "plan_commands", "draw_true_stand", "command_schedule", "hidden_effects",
            "settled_poses_directly", "true_trajectory", "record_stream", "settle_stream", "TrueStand", "Schedule",
-           "HiddenEffects", "RecordedStream"]
+           "HiddenEffects", "RecordedStream", "TreeTrajectory"]
 
 
 def _min_jerk(s):
