@@ -14,7 +14,7 @@ import hashlib
 import os
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from importlib import resources
 from pathlib import Path
 
@@ -39,30 +39,39 @@ def c_source(package: str, name: str) -> str:
 
 
 def library_path(source: str, name: str, flags: Sequence[str], cc: str, salt: str = "") -> Path:
-    """Where :func:`compiled_library` keeps the library of ``source``: ``<name>_<key>.so`` in the
-    cache folder (:func:`cache_dir`), the key a hash of the source, the compiler, the flags, the
-    platform and ``salt`` (what else the library depends on, e.g. a code generator's version)."""
+    """Where :func:`compiled_library` keeps the library of ``source`` (or of the source a text
+    determines): ``<name>_<key>.so`` in the cache folder (:func:`cache_dir`), the key a hash of that
+    text, the compiler, the flags, the platform and ``salt`` (what else the library depends on,
+    e.g. a code generator's version)."""
     key = hashlib.sha256((source + cc + " ".join(flags) + sys.platform + salt).encode()).hexdigest()[:24]
     return cache_dir() / f"{name}_{key}.so"
 
 
-def compiled_library(source: str, name: str, flags: Sequence[str], *, cc: str | None = None, salt: str = "",
-                     compile_now: bool = True, timeout: float = 600) -> Path | str:
+def compiled_library(source: str | Callable[[], str], name: str, flags: Sequence[str], *, cc: str | None = None,
+                     salt: str = "", compile_now: bool = True, timeout: float = 600,
+                     key: str | None = None) -> Path | str:
     """The shared library compiled from the C ``source``: from the cache folder
     (:func:`library_path`), else compiled there with the C compiler ``cc`` (default: the system
     one, :func:`platkit.io.cache.c_compiler`) and ``flags`` (and ``-lm``), atomically: other
     processes see the whole library or none. Returns its path, or why there is none: no compiler
     (or ``PLATKIT_COMPILE=0``), not in the cache and ``compile_now`` false, or the compiler
-    failed (its last line). subprocess and tempfile are imported on a cache miss only, not by every
-    start-up that loads a cached library."""
+    failed (its last line). ``key``: a text that determines the source (with ``salt``), named by
+    instead of the source, which may then be a function that writes it, called on a cache miss
+    only. subprocess and tempfile are imported on a cache miss only, not by every start-up that
+    loads a cached library."""
     cc = c_compiler() if cc is None else cc
     if cc is None:
         return "no C compiler (or PLATKIT_COMPILE=0)"
-    lib = library_path(source, name, flags, cc, salt)
+    named_by = source if key is None else key
+    if not isinstance(named_by, str):
+        raise TypeError("compiled_library: a source given as a function needs a key")
+    lib = library_path(named_by, name, flags, cc, salt)
     if lib.is_file():
         return lib
     if not compile_now:
         return f"{lib.name} is not compiled yet"
+    if not isinstance(source, str):
+        source = source()
     import subprocess
     import tempfile
 

@@ -32,16 +32,18 @@ _BUILT: dict = {}
 
 _compile_lock = threading.Lock()
 #: pose evaluations of one function (in one process) after which its compiled library is looked
-#: for in the cache, and after which it is compiled there. Compiling costs about as much as
+#: for in the cache (before the call that would pass the count: a session of 300 poses looks
+#: before its first), and after which it is compiled there. Compiling costs about as much as
 #: interpreting some 35,000 pose evaluations (4.4 s for the TIAGo arm's 52,000 instructions, 120
 #: us a pose interpreted; 0.6 s for the stewart stand's 7,900), once per machine: a calibration
 #: of 10,000 poses compiles at its first evaluation, a diagnosis of the 37 TIAGo postures
 #: (1,700 evaluations) after a fifth of its refits, and every later run finds the library; a
-#: test of 40 poses never waits for the compiler. Looking costs the C source's generation, about
-#: as much as interpreting 400 poses (0.35 s for the Talos tree's 82,000 instructions, 0.93 ms a
-#: pose interpreted; 0.18 s for its 9-joint arm's 40,000, 0.43 ms a pose): after 500
-#: poses, a session of 300 interprets two evaluations of its Jacobian, not seven
-LOOK_AFTER, COMPILE_AFTER = 500, 10_000
+#: test of 40 poses never waits for the compiler. The library is named by the function's
+#: serialization (which, with CasADi's version, determines its C source); looking costs that
+#: serialization, about as much as interpreting 200 poses (0.16-0.23 s for the Talos tree's
+#: 82,000 instructions, 0.93 ms a pose interpreted; the C source's generation, written only to
+#: compile, 0.41-0.50 s)
+LOOK_AFTER, COMPILE_AFTER = 200, 10_000
 COMPILE_FLAGS = ["-O1", "-ffp-contract=off", "-fPIC", "-shared"]
 #: ... and for a function of at most SMALL_FUNCTION instructions: -O2, whose code gives the same
 #: numbers bit for bit (no contraction, no reassociation) and evaluates the stewart stand's
@@ -63,19 +65,23 @@ def compile_flags(f: ca.Function) -> list[str]:
 def _compiled(f: ca.Function, compile_now: bool) -> ca.Function | None:
     """``f`` compiled to C and loaded as an external function: from the cache, or, with
     ``compile_now``, compiled with the system compiler and kept there
-    (:func:`platkit.native.compiled_library`, named by a hash of its C source, the compiler, the
-    flags and CasADi's version). None where there is no library and ``compile_now`` is false,
-    without a compiler, with PLATKIT_COMPILE=0, or when compiling fails (the caller keeps CasADi's
-    interpreter). The same operations, no floating-point contraction: the interpreter's numbers to
-    rounding (1e-15 m measured)."""
+    (:func:`platkit.native.compiled_library`, named by a hash of its serialization, the compiler,
+    the flags and CasADi's version; its C source generated only to compile it). None where there
+    is no library and ``compile_now`` is false, without a compiler, with PLATKIT_COMPILE=0, or
+    when compiling fails (the caller keeps CasADi's interpreter). The same operations, no
+    floating-point contraction: the interpreter's numbers to rounding (1e-15 m measured)."""
     cc = _compiler()
     if cc is None:
         return None
-    cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
-    cg.add(f)
+
+    def source() -> str:
+        cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
+        cg.add(f)
+        return cg.dump()
+
     with _compile_lock:
-        built = compiled_library(cg.dump(), "observe", compile_flags(f), cc=cc, salt=ca.__version__,
-                                 compile_now=compile_now, timeout=600)
+        built = compiled_library(source, "observe", compile_flags(f), cc=cc, salt=ca.__version__,
+                                 compile_now=compile_now, timeout=600, key=f.serialize())
         if isinstance(built, str):
             return None
         try:
@@ -107,13 +113,14 @@ class ObservationFunctions:
         self._evaluated = {True: 0, False: 0}
         self._looked = {True: False, False: False}
 
-    def native(self, with_jac: bool) -> ca.Function:
-        """The function behind the maps now: compiled where the policy above has made it so."""
+    def native(self, with_jac: bool, poses: int = 0) -> ca.Function:
+        """The function behind the maps for a call of ``poses`` poses: compiled where the policy
+        above has made it so."""
         f = self.G if with_jac else self.Yonly
         if with_jac in self._native:  # decided: compiled, or None where compiling failed
             got = self._native[with_jac]
             return f if got is None else got
-        n = self._evaluated[with_jac]
+        n = self._evaluated[with_jac] + poses
         if n >= COMPILE_AFTER:
             got = self._native[with_jac] = _compiled(f, compile_now=True)
             return f if got is None else got
@@ -127,7 +134,7 @@ class ObservationFunctions:
 
     def mapped(self, with_jac: bool, n: int):
         """(buffer, run, inputs, outputs, shapes, per-pose inputs, chunk) of the map for n poses."""
-        f = self.native(with_jac)
+        f = self.native(with_jac, n)
         self._evaluated[with_jac] += n
         chunk = _chunk_for(n)
         key = (id(f), chunk)
