@@ -595,7 +595,10 @@ def untried_compliance(spec: PlatformSpec, poses) -> list[str]:
         out.append("the URDF has no inertias: not with the URDF's loads, but with those of uniform links (mass in "
                    "proportion to each link's reach, centred half way; their size carried by the compliances), and "
                    "each joint's compliance also with its gravity load's best-determined mass-moment combinations (at "
-                   f"most {MAX_MASS_COMBINATIONS} per joint)")
+                   f"most {MAX_MASS_COMBINATIONS} per joint)"
+                   + ("; on a session of several tracked links the whole tree's mass moments are estimated with the "
+                      "compliances of every loaded joint and the bends of that term, while link bending named on its "
+                      "own and a single joint's compliance stay on the prior's loads" if len(stand.tracked) > 1 else ""))
     massless = [n for n in stand.chain if not T.model.inertias[T.index[n] + 1].mass > 0]
     if massless:
         out.append(f"the links moved by {_listed(massless)} have no mass in the URDF (doubtful where they are real "

@@ -193,7 +193,11 @@ class JointsComplianceTerm(ModelTerm):
         across (as many parameters), one per axis across (a link stiffer one way than the other:
         one more). As (what changed, the term), its start the fitted values, the bending's from the
         compliance. Not where ``others`` (the model's other terms) bend there already, or where
-        the parent cannot be bent on the session (:func:`partial_bending_ok`)."""
+        the parent cannot be bent on the session (:func:`partial_bending_ok`). On a URDF without
+        inertias, first the tree's mass moments estimated with the compliances (each count of
+        MASS_STEPS), then, once they are, the bending of each joint that carries every tracked
+        link under the estimated loads (one compliance across; beside another term's bend there,
+        which turns under the prior's)."""
         stand = self.stand()
         bent_already = {str(t.where.get("joint")) for t in others if t.effect == "link_bending"}
         bent_already |= {b.joint for b in self.bends}
@@ -213,6 +217,19 @@ class JointsComplianceTerm(ModelTerm):
             was = self.masses @ deltas if K else np.zeros(basis.shape[0])
             alt.initial = np.concatenate([start[:len(start) - K], np.linalg.lstsq(basis, was, rcond=None)[0]])
             out.append((f"the tree's mass moments estimated with the compliances ({offered} combinations)", alt))
+        if K:  # the trunk's bending under the estimated loads (beside a bend under the prior's, if another term has one)
+            S = load_state(stand, poses.controls)
+            for n in stand.shared:
+                j = stand.loads.index[n]
+                if n in {b.joint for b in self.bends} or n not in moved_by(stand) \
+                        or not np.max(np.ptp(S.loads.moment[:, j] @ across_axes(stand.loads.axes[j]).T, axis=0)) > 1e-6:
+                    continue
+                bend = joint_rotation_term("link_bending", self.spec, n, "across")
+                alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends + [bend],
+                                             label=self.where.get("joint"), masses=self.masses,
+                                             identifiable=self.where.get("identifiable_mass_moments"))
+                alt.initial = np.concatenate([start[:len(start) - K], [0.0], deltas])
+                out.append((f"link bending at {n} under the tree's estimated loads", alt))
         for k, (i, n) in enumerate(zip(self.indices, self.joints)):
             parent = same_place_parent(stand, poses.controls, n)
             if parent is None or parent in bent_already or (parent not in stand.shared

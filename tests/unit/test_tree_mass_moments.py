@@ -74,6 +74,12 @@ def test_without_inertias_the_every_joint_term_offers_the_trees_mass_moments(tmp
     # the next form keeps more combinations and starts where this one left the mass moments
     more = [t for w, t in alt.alternatives(full, poses, []) if "mass moments" in w]
     assert more and more[0].n_masses == min(MASS_STEPS[1], alt.where["identifiable_mass_moments"])
+    # once the mass moments are estimated: the trunk's bending under them (t1 and t2, the mimic joint,
+    # carry both hands)
+    trunk = [(w, t) for w, t in alt.alternatives(full, poses, []) if "under the tree's estimated loads" in w]
+    assert [w for w, _ in trunk] == [f"link bending at {n} under the tree's estimated loads" for n in ("t1", "t2")]
+    assert trunk[0][1].bends[0].joint == "t1" and np.allclose(trunk[0][1].initial, np.concatenate([theta, [0.0], delta]))
+    assert not [w for w, _ in group.alternatives(theta, poses, []) if "under the tree's estimated loads" in w]
     K2 = more[0].n_masses
     assert np.allclose(more[0].masses @ more[0].initial[-K2:], alt.masses @ delta, atol=1e-9 * np.abs(pi).max())
 
