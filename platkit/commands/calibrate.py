@@ -310,7 +310,10 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
     sc = length_scale(cal.length_unit)
     r = cal.motion["response"]
-    taus = {c: e["tau_s"]["value"] for c, e in r["actuators"].items()}
+    # the slowest of the actuators whose response the markers saw (a tree's joint that moves no
+    # marker keeps the start, held)
+    taus = {c: e["tau_s"]["value"] for c, e in r["actuators"].items() if e["tau_s"]["status"] == "estimated"} or {
+        c: e["tau_s"]["value"] for c, e in r["actuators"].items()}
     slow = max(taus, key=lambda c: taus[c])
     line = (f"rms {cal.rms_before / sc:.4g} -> {cal.rms_after / sc:.4g} {cal.length_unit} from motion "
             f"({cal.motion['samples']['n_used']} of {cal.motion['samples']['n_stream']} samples as "
