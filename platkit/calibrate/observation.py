@@ -91,9 +91,14 @@ def _compiled(f: ca.Function, compile_now: bool) -> ca.Function | None:
 
 
 def _chunk_for(n: int) -> int:
-    """Poses per map call for n poses: CHUNK, or n itself below it (no padding: a map of a few
-    dozen poses is built in milliseconds, and the folds and refits of a session reuse a few)."""
-    return min(CHUNK, max(1, n))
+    """Poses per map call for n poses: n split evenly over the fewest calls of at most CHUNK
+    poses (n itself up to CHUNK; 300 poses two calls of 150), so that the last call pads at most
+    one pose per call: a map evaluates its whole length, and 300 poses in calls of 256 evaluated
+    512. A map of a few hundred poses is built in milliseconds, and the folds and refits of a
+    session reuse a few."""
+    n = max(1, n)
+    calls = -(-n // CHUNK)
+    return -(-n // calls)
 
 
 class ObservationFunctions:
