@@ -8,7 +8,10 @@ CUE_HOLD_S on average) pulled back to neutral by a washout of CUE_WASHOUT_S. Eve
 and ends at the neutral controls at rest (a raised-cosine ramp of RAMP_S), and its amplitude
 is the largest up to AMPLITUDE_SHARE of each half-stroke (slow and wide: the geometry is seen over
 the workspace) that keeps every rate and acceleration
-within LIMIT_SHARE of the drives' limits and every command reachable by the true stand.
+within LIMIT_SHARE of the drives' limits and every command reachable by the true stand. A control
+whose neutral rests on a limit (a URDF joint's zero clipped into its limits) moves about the
+middle of its stroke instead, reached from its neutral along the same ramp (its rate and
+acceleration counted in the limits); the plan says which (``about_mid_stroke``).
 """
 from __future__ import annotations
 
@@ -78,23 +81,42 @@ def continuous_plan(spec, kind: str | np.ndarray, duration_s: float, rate_hz: fl
         raise BadInput(f"continuous motion: a command rate of {rate_hz:g} per s is out of range (0, 1000]")
     t = np.arange(int(round(duration_s * rate_hz))) / rate_hz
     shape = _shape(kind, t, spec.n_u, rate_hz, rng)
-    ramp = np.clip(np.minimum(t, t[-1] - t) / RAMP_S, 0, 1)
-    shape = shape * (0.5 - 0.5 * np.cos(np.pi * ramp))[:, None]
     lo = np.array([c.lower for c in spec.controls], float)
     hi = np.array([c.upper for c in spec.controls], float)
     u0 = spec.neutral_u()
-    half = np.minimum(hi - u0, u0 - lo)
+    # a control whose neutral rests on a limit (a URDF joint's zero clipped into its limits, as
+    # Talos' elbows) moves about the middle of its stroke, reached from its neutral and back along
+    # the ramp, which is then long enough for that move to take at most half of LIMIT_SHARE of the
+    # drive's rate and acceleration; the others about their neutral
+    center = np.where(~(np.minimum(hi - u0, u0 - lo) > 0) & np.isfinite(hi - lo), 0.5 * (lo + hi), u0)
+    D = np.abs(center - u0)
+    ramp_s = max([RAMP_S] + [max(np.pi / 2 * d / (0.5 * LIMIT_SHARE * r), np.pi * np.sqrt(d / (LIMIT_SHARE * ac)))
+                             for d, r, ac in zip(D, rate, accel) if d > 0])
+    if not duration_s > 3 * ramp_s:
+        raise BadInput(f"continuous motion: a duration of {duration_s:g} s is too short for the controls that move "
+                       f"from a limit to mid-stroke (more than {3 * ramp_s:.3g} s)")
+    ramp = np.clip(np.minimum(t, t[-1] - t) / ramp_s, 0, 1)
+    w = (0.5 - 0.5 * np.cos(np.pi * ramp))[:, None]
+    shape = shape * w
+    home = u0 + w * (center - u0)
+    half = np.minimum(hi - center, center - lo)
     amp = AMPLITUDE_SHARE * np.where(np.isfinite(half) & (half > 0), half, 0.0)
     v = np.abs(np.diff(shape, axis=0)).max(axis=0) * rate_hz
     a = np.abs(np.diff(shape, 2, axis=0)).max(axis=0) * rate_hz ** 2
-    amp = np.minimum(amp, np.minimum(LIMIT_SHARE * rate / np.maximum(v, 1e-12),
-                                     LIMIT_SHARE * accel / np.maximum(a, 1e-12)))
+    v_home = np.abs(np.diff(home, axis=0)).max(axis=0) * rate_hz
+    a_home = np.abs(np.diff(home, 2, axis=0)).max(axis=0) * rate_hz ** 2
+    amp = np.minimum(amp, np.minimum(np.maximum(LIMIT_SHARE * rate - v_home, 0.0) / np.maximum(v, 1e-12),
+                                     np.maximum(LIMIT_SHARE * accel - a_home, 0.0) / np.maximum(a, 1e-12)))
     for _ in range(8):
-        U = u0 + shape * amp
+        U = home + shape * amp
         ok, _ = feasible(spec, U, td, model)
         if ok.all():
-            return U, {"kind": kind, "duration_s": float(duration_s), "command_rate_hz": float(rate_hz),
-                       "amplitude": [float(x) for x in amp]}
+            info = {"kind": kind, "duration_s": float(duration_s), "command_rate_hz": float(rate_hz),
+                    "amplitude": [float(x) for x in amp]}
+            moved = [c for c, x, x0 in zip(spec.control_names, center, u0) if x != x0]
+            if moved:  # said where it differs from the rule of every other control
+                info["about_mid_stroke"] = moved
+            return U, info
         amp = 0.7 * amp
     raise NotIdentifiable(f"{spec.name}: no {kind} motion around the neutral pose stays reachable")
 

@@ -156,3 +156,26 @@ def test_what_a_simulated_tree_still_refuses_is_one_line(urdf, tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no rigid bodies: leave out --rigid-bodies" in err[0]
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
+
+
+def test_a_joint_resting_on_a_limit_is_streamed_about_mid_stroke(urdf, tmp_path):
+    """The simulator's continuous motion moves a joint whose zero is its lower limit (as Talos'
+    elbows) about the middle of its stroke, from and back to rest at zero within its limits and the
+    drives' limits, and says so; the others keep their neutral as the centre."""
+    from platkit.simulate.physics import simulate_physics
+
+    bent = tmp_path / "bent.urdf"
+    bent.write_text(urdf.read_text().replace('<limit lower="-1.2" upper="1.2" effort="50" velocity="1"/></joint>\n'
+                                             '  <joint name="r_tcp"',
+                                             '<limit lower="0" upper="2.4" effort="50" velocity="1"/></joint>\n'
+                                             '  <joint name="r_tcp"'))
+    spec = stand(bent)
+    j = spec.control_names.index("r2_joint")
+    assert spec.neutral_u()[j] == 0.0 and spec.control_bounds()[0][j] == 0.0
+    sim = simulate_physics(spec, seed=3, motion="multisine", duration_s=40, n_markers=6)
+    assert sim.plan_info["about_mid_stroke"] == ["r2_joint"]
+    U = sim.commands
+    assert np.ptp(U[:, j]) > 0.5 and U[0, j] == 0.0 and abs(U[-1, j]) < 1e-9 and U[:, j].min() >= 0.0
+    assert abs(np.median(U[:, j]) - 1.2) < 0.3  # about mid-stroke
+    rate, accel = sim.nuisances.response.rate[j], sim.nuisances.response.accel[j]
+    assert np.abs(np.diff(U[:, j])).max() * 20 <= rate and np.abs(np.diff(U[:, j], 2)).max() * 400 <= accel
