@@ -139,18 +139,18 @@ def _gram_by_point(state: FitState, weights, active):
         return None
     N, P = J.shape[:2]
     sw, rw = _weighted_residuals(state, weights)
-    parts = []
+    # each point's columns: those with a nonzero entry on a row of nonzero weight (the weighted
+    # column's nonzeros), found on the Jacobian's zero pattern; only they are gathered and weighted
+    supports = []
     for p in range(P):
-        Jp = J[:, p][:, :, cols]  # (N, 3, n), a copy
-        Jp *= sw[:, p, None, None]
-        Jp = Jp.reshape(-1, n)
-        parts.append((np.flatnonzero(np.any(Jp != 0, axis=0)), Jp))
-    if sum(s.size ** 2 for s, _ in parts) > 0.5 * P * n * n:
+        nonzero = J[:, p][sw[:, p] != 0] != 0  # (rows weighed, 3, n_z)
+        supports.append(np.flatnonzero(np.any(nonzero, axis=(0, 1))[cols]))
+    if sum(s.size ** 2 for s in supports) > 0.5 * P * n * n:
         return None
     H, g = np.zeros((n, n)), np.zeros(n)
     r = rw.reshape(N, P, 3)
-    for p, (s, Jp) in enumerate(parts):
-        A = Jp[:, s]
+    for p, s in enumerate(supports):
+        A = (J[:, p][:, :, cols[s]] * sw[:, p, None, None]).reshape(-1, s.size)
         H[np.ix_(s, s)] += A.T @ A
         g[s] += A.T @ r[:, p].ravel()
     return rw, H, g
