@@ -104,6 +104,7 @@ def main_(argv=None) -> int:
     print(f"tree: {tree.n_u} joints, {tree.n_td} parameters; chain: {chain.n_u} joints, {chain.n_td} parameters; "
           f"{args.poses} poses", flush=True)
     out: dict[str, dict[str, float]] = {}
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         stands = (("chain", chain, chain_map, {"moving_link": HANDS["L"]}),
@@ -119,7 +120,8 @@ def main_(argv=None) -> int:
                                              "--quiet", "--out", str(diag)])
                 out[name] = {verb: min(s, out.get(name, {}).get(verb, s)) for verb, s in got.items()}
     print("CPU seconds of each verb, its compiler's included"
-          + (f"; the least of {args.repeat} runs" if args.repeat > 1 else ""))
+          + (f"; the least of {args.repeat} runs" if args.repeat > 1 else "")
+          + f"; load average {load_before:.2f} before, {os.getloadavg()[0]:.2f} after (the machine's other work)")
     print(f"{'verb':<10} {'chain s':>9} {'tree s':>9} {'chain ms/pose':>14} {'tree ms/pose':>13} {'tree/chain':>11}")
     for verb in out["chain"]:
         c, t = out["chain"][verb], out["tree"][verb]
