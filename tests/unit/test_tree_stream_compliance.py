@@ -14,7 +14,13 @@ import numpy as np
 import yaml
 
 from platkit.cli import main
-from platkit.simulate.elastic_stream import commanded, simulate_elastic_stream, write_elastic_stream
+from platkit.simulate.elastic_stream import (
+    commanded,
+    simulate_elastic_motion,
+    simulate_elastic_stream,
+    slow_multisine,
+    write_elastic_stream,
+)
 from platkit.simulate.elastic_tree import ElasticTruth, equilibrium, true_urdf
 from platkit.tree_loads import TreeLoads
 
@@ -75,3 +81,39 @@ def test_diagnose_names_compliance_in_a_slow_stream_of_a_tree(tmp_path):
     joints = {j for f in named for j in f["where"].get("joints", [f["where"].get("joint")])}
     assert joints & {"torso_pitch", "torso_pitch_2", "right_1_joint"}
     assert d["rms_final"] < 0.2 * d["rms_geometric"]
+
+
+def test_without_holds_every_sample_is_the_equilibrium_at_the_drives_positions(tmp_path):
+    """Streamed without holds (a slow multisine, each drive a first-order lag behind its step-held
+    commands, the motion capture's clock behind): without noise, every sample, solved or splined,
+    is where the tree's own equilibrium at the drives' positions of that instant puts it."""
+    truth, _ = truth_and_commands(3, 1)
+    tc, U = slow_multisine(np.array([0.6 * LIMIT[j] for j in JOINTS]), 8.0, 50.0, np.random.default_rng(4),
+                           ramp_s=2.0)
+    assert np.allclose(U[0], 0) and np.allclose(U[-1], 0, atol=1e-9) and np.abs(U).max(axis=0).min() > 0.1
+    sim = simulate_elastic_motion(URDF, truth, tc, U, JOINTS, MARKERS, seed=7, noise_mm=0.0, tau_s=0.05, delay_s=0.03,
+                                  workdir=tmp_path)
+    assert not (np.diff(sim.commands, axis=0) == 0).all(axis=1).any()  # no hold: every command moves
+    T = TreeLoads(true_urdf(URDF, truth, tmp_path / "check.urdf"))
+    k = np.zeros(len(T.joints))
+    for n, c in ELASTIC.items():
+        k[T.index[n]] = c
+    offset = np.array([truth.offset.get(n, 0.0) for n in JOINTS])
+    pick = np.array([101, 102, 203, 254, 307])  # solved (every fifth) and splined samples, moving
+    # the drives' positions by their first-order lag, integrated finely here (not the module's recursion)
+    fine = np.arange(0.0, sim.marker_t[pick].max(), 1e-4)
+    x = np.zeros((len(fine), len(JOINTS)))
+    step = U[np.clip(np.searchsorted(tc, fine, side="right") - 1, 0, None)]
+    for i in range(1, len(fine)):
+        x[i] = x[i - 1] + (step[i - 1] - x[i - 1]) * (1 - np.exp(-1e-4 / 0.05))
+    drives = np.array([x[np.searchsorted(fine, t - 0.03 - 1e-9)] for t in sim.marker_t[pick]])
+    Q = equilibrium(T, T.configuration(JOINTS, drives - offset), k)
+    o, R = T.link_placements(Q, "right_tcp")
+    A, b = sim.mocap_from_base[:3, :3], sim.mocap_from_base[:3, 3]
+    place = np.einsum("nba,nb->na", R, (sim.markers[pick, 0] - b) @ A - o)
+    assert np.ptp(place, axis=0).max() < 5e-6  # the fine integration's own error, on a marker ~1 m out
+    assert np.max(np.abs(sim.settled - sim.rigid)) > 1e-3
+    assert len(sim.settled) == len(tc)
+    folder = write_elastic_stream(sim, URDF, tmp_path / "m")
+    assert yaml.safe_load((folder / "truth.yaml").read_text())["holds"] is False
+    assert len((folder / "commands.csv").read_text().splitlines()) == len(tc) + 1
