@@ -454,6 +454,52 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     return cal, poses
 
 
+def motion_poses(session: Session, cal: Calibration) -> PoseSet:
+    """The poses a calibration from motion (``cal``: its ``motion``, calibration.yaml's
+    ``actuator_response``) sees in ``session``'s stream: the stream's windows as calibrate_motion
+    cuts them, every window reduced to its nodes (none kept as raw samples: those served the
+    response's timing, held here), each node at the controls the calibrated response reached there and its markers
+    corrected for the kinematics' curvature at the calibration's geometry, frame and markers; the
+    response held as calibrated. What a diagnosis of a stream without holds reads in place of
+    settled poses. A profile reference's actuators rest on the first command before it (the rest
+    calibrate_motion read from the samples before it is not kept)."""
+    r = (cal.motion or {}).get("response")
+    if not isinstance(r, dict) or not isinstance(r.get("actuators"), dict):
+        raise BadSession(f"{session.folder}: the calibration was not fitted from motion (no actuator_response): a "
+                         "stream without settled holds is read through the response calibrate fitted to it")
+    spec = cal.spec
+    rmodel = ResponseModel(r["kind"], r["reference"], spec.n_u, bool(r.get("delays")),
+                           bool(r.get("rate_limit")) and r["reference"] == "step")
+    theta = np.zeros(rmodel.size)
+    theta[0] = float(r["shift_s"]["value"])
+    for j, c in enumerate(spec.control_names):
+        if c not in r["actuators"]:
+            raise BadSession(f"{session.folder}: the calibration's actuator_response has no actuator {c!r}")
+        for blk in rmodel.blocks:
+            theta[rmodel.index(blk, j)] = float(r["actuators"][c][blk]["value"])
+    check_motion_session(session)
+    win = stream_windows(session, raw_samples=0)
+    T, U = session.command_t, session.commands
+    X = projected_positions(win.proj, rmodel, theta, T, U, win.sample_t)
+    names = list(session.marker_names)
+    poses = PoseSet(platform=spec.name, controls=X, markers=win.Y, marker_names=names, t=win.t,
+                    n_samples=win.n_eff,
+                    description=None if session.description is None else str(session.description),
+                    length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
+                    extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})
+    problem = CalibrationProblem(spec, poses)
+    order = [cal.marker_names.index(n) for n in names if n in cal.marker_names]
+    if len(order) != len(names):
+        raise BadSession(f"{session.folder}: markers {sorted(set(names) - set(cal.marker_names))} are not the "
+                         "calibration's")
+    correction = _curvature_correction(spec, problem.model, cal.td, matrix_from_rotvec(cal.mocap_rotvec),
+                                       cal.mocap_translation, cal.marker_positions[order], win, X, lambda a, b: (
+                                           actuator_positions(rmodel, theta, T, U, win.sample_t[a:b])),
+                                       problem.point_links)
+    poses.markers = win.Y - correction
+    return poses
+
+
 def _response_report(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration, held: list[str], T: np.ndarray,
                      U: np.ndarray, kind: str, reference: str) -> dict:
     """The fitted response as the report gives it: per actuator each parameter with its std or

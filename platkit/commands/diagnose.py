@@ -78,11 +78,18 @@ def run(args) -> int:
         sessions[folder], poses = read_with_calibration(folder, cal, args.calibration, args.quiet)
         return markers_only(poses, folder)
 
-    poses = poses_of(args.session)
     from platkit.commands.calibrate import settling_notes
+    from platkit.settle import HoldsNeverSettle, NeverSettles
 
-    for note in settling_notes(poses, args.session):  # dropped commands by reason, holds extrapolated to rest
-        warn(note)
+    try:
+        poses = poses_of(args.session)
+        for note in settling_notes(poses, args.session):  # dropped commands by reason, holds extrapolated to rest
+            warn(note)
+    except (HoldsNeverSettle, NeverSettles) as exc:  # no settled holds: a calibration from motion reads the stream
+        if not cal.motion:
+            raise type(exc)(f"{exc}; a stream without settled holds is diagnosed with its calibration from motion "
+                            "(platkit calibrate on it)") from exc
+        poses = _motion_poses(args.session, cal, sessions)
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None
@@ -112,6 +119,19 @@ def run(args) -> int:
               f"re-registered on {r['k']} {'spread ' if r['spread'] else ''}poses at a time: "
               f"{r['rms_before'] / s:.4g} -> {r['rms_after'] / s:.4g} {d.unit} (paired p = {r['p_improvement']:.2g})")
     return 0
+
+
+def _motion_poses(folder, cal, sessions):
+    """The stream of ``folder`` as the poses its calibration from motion saw (the windows' nodes at
+    the controls the calibrated response reached: platkit.calibrate.motion.motion_poses), said."""
+    from platkit.calibrate.motion import motion_poses
+    from platkit.io.session import load_session
+
+    sessions[folder] = load_session(folder, spec=cal.spec, quiet=True)
+    poses = markers_only(motion_poses(sessions[folder], cal), folder)
+    warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses at the controls the "
+         "calibration's actuator response reached (held as calibrated)")
+    return poses
 
 
 def _check_register(args, cal, heldout) -> None:
