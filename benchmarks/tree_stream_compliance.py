@@ -9,7 +9,16 @@ torso pitch and the right shoulder elastic (2e-4 and 4e-4 rad/(N m)); 30 random 
 rigid true one at rest), the holds settled, the effects named with their joints, and diagnose's
 held-out RMS (its cross-validation over the settled poses, mm) before (geometry) and after.
 
+``--no-holds``: the same tree streamed without holds instead (simulate_elastic_motion: a slow
+multisine of every recorded joint, 0.03-0.2 Hz, ``--duration`` s, each drive a first-order lag of
+20 ms behind its step-held commands, the motion capture's clock 30 ms behind), calibrated from
+motion, diagnosed on the stream with ``--heldout`` a session of the same set-up (the seed's markers
+and mocap transform, noise of its own) with ``--poses`` held commands, settled. Prints per seed the
+effects named and, per hand, the held-out session's RMS (mm, 3-D, over its markers) with the
+calibration from motion (rigid) and after diagnosis.
+
     .venv/bin/python benchmarks/tree_stream_compliance.py [--seeds 2900101,2900102,2900103]
+    .venv/bin/python benchmarks/tree_stream_compliance.py --no-holds --seeds 2900201,2900202,2900203
 """
 from __future__ import annotations
 
@@ -22,7 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from platkit.cli import main as cli
-from platkit.simulate.elastic_stream import simulate_elastic_stream, write_elastic_stream
+from platkit.simulate.elastic_stream import (
+    simulate_elastic_motion,
+    simulate_elastic_stream,
+    slow_multisine,
+    write_elastic_stream,
+)
 from platkit.simulate.elastic_tree import ElasticTruth
 
 URDF = Path(__file__).resolve().parents[1] / "tests" / "data" / "trees" / "two_arm_torso.urdf"
@@ -37,7 +51,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="2900101,2900102,2900103")
     ap.add_argument("--poses", type=int, default=30)
+    ap.add_argument("--no-holds", action="store_true", help="stream without holds, calibrated from motion")
+    ap.add_argument("--duration", type=float, default=40.0, help="--no-holds: the stream's length, s")
     args = ap.parse_args()
+    if args.no_holds:
+        return no_holds(args)
     print("seed: largest sag mm | holds settled | named (joints) | diagnose held-out RMS mm: geometry -> final")
     for seed in (int(s) for s in args.seeds.split(",")):
         rng = np.random.default_rng(seed)
@@ -61,6 +79,43 @@ def main() -> None:
         final = d["findings"][-1]["heldout_rms_after"] if d["findings"] else d["heldout_rms_geometric"]
         print(f"{seed}: {1e3 * np.abs(sim.settled - sim.rigid).max():.2f} | {d['n_poses']}/{args.poses} | {named} | "
               f"{d['heldout_rms_geometric']:.3f} -> {final:.4f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def no_holds(args) -> None:
+    print("seed: largest sag mm | poses diagnosed | named (joints) | per hand, held-out session RMS mm: calibrated "
+          "from motion (rigid) -> diagnosed")
+    amplitude = np.array([0.6 * LIMIT[j] for j in JOINTS])
+    for seed in (int(s) for s in args.seeds.split(",")):
+        rng = np.random.default_rng(seed)
+        truth = ElasticTruth(joint_compliance=dict(ELASTIC),
+                             origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in JOINTS},
+                             offset={j: float(rng.normal(0, 2e-3)) for j in JOINTS})
+        U = np.column_stack([rng.uniform(-0.6 * LIMIT[j], 0.6 * LIMIT[j], args.poses) for j in JOINTS])
+        tc, C = slow_multisine(amplitude, args.duration, 50.0, rng)
+        with tempfile.TemporaryDirectory() as tmp:
+            tmp = Path(tmp)
+            t0 = time.perf_counter()
+            sim = simulate_elastic_motion(URDF, truth, tc, C, JOINTS, MARKERS, seed=seed + 1000, noise_seed=seed + 2000,
+                                          tau_s=0.02, delay_s=0.03, workdir=tmp)
+            write_elastic_stream(sim, URDF, tmp / "m")
+            held = simulate_elastic_stream(URDF, truth, U, JOINTS, MARKERS, seed=seed + 1000, workdir=tmp)
+            write_elastic_stream(held, URDF, tmp / "h")
+            if cli(["calibrate", str(tmp / "m"), "--quiet", "--no-report", "--no-selection", "--out", str(tmp / "cal")]):
+                raise SystemExit("calibrate failed")
+            if cli(["diagnose", str(tmp / "m"), "--calibration", str(tmp / "cal" / "calibration.yaml"), "--heldout",
+                    str(tmp / "h"), "--out", str(tmp / "diag"), "--quiet"]):
+                raise SystemExit("diagnose failed")
+            d = json.loads((tmp / "diag" / "diagnosis.json").read_text())
+        named = "; ".join(f"{f['effect']} ({', '.join(f['where'].get('joints') or [str(f['where'].get('joint'))])})"
+                          for f in d["findings"]) or "none"
+        per = d["heldout_session"]["per_marker"]
+        hands = []
+        for link in dict.fromkeys(MARKERS.values()):
+            v = np.array([per[m] for m, lk in MARKERS.items() if lk == link])
+            before, after = np.sqrt(np.mean(v**2, axis=0))
+            hands.append(f"{link} {before:.3f} -> {after:.3f}")
+        print(f"{seed}: {1e3 * np.abs(sim.settled - sim.rigid).max():.2f} | {d['n_poses']} | {named} | "
+              f"{'; '.join(hands)} ({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
 if __name__ == "__main__":
