@@ -31,9 +31,8 @@ from scipy.interpolate import CubicSpline
 
 from platkit.errors import BadInput
 from platkit.io.atomic import atomic_output_dir
-from platkit.simulate.elastic_tree import ElasticTruth, equilibrium, true_urdf
+from platkit.simulate.elastic_tree import ElasticTruth, equilibrium, placed_markers, true_urdf
 from platkit.simulate.files import csv_text
-from platkit.simulate.stand import random_mocap_from_base
 from platkit.tree_loads import TreeLoads, payload_option
 from platkit.urdf import read_urdf
 
@@ -221,16 +220,7 @@ def _observed(T: TreeLoads, Q, Q_rest, Q_rest_cmd, joints, command_t, cmd, t, ma
     """The markers (random places on their links, a random mocap transform, both from ``rng``) at
     the configurations Q with white noise (from ``noise_rng``), and at rest (Q_rest, Q_rest_cmd)."""
     names = list(marker_links)
-    places = rng.uniform(-marker_spread_m, marker_spread_m, size=(len(names), 3))
-    M = random_mocap_from_base(rng, 2.0)
-
-    def markers(Qs: np.ndarray) -> np.ndarray:
-        out = np.zeros((len(Qs), len(names), 3))
-        for m, n in enumerate(names):
-            o, R = T.link_placements(Qs, marker_links[n])
-            out[:, m] = o + np.einsum("nab,b->na", R, places[m])
-        return out @ M[:3, :3].T + M[:3, 3]
-
+    markers, M = placed_markers(T, marker_links, rng, marker_spread_m)
     stream = markers(Q) + noise_rng.normal(scale=noise_mm * 1e-3, size=(len(t), len(names), 3))
     return ElasticStream(joints, command_t, cmd, t, stream, markers(Q_rest), markers(Q_rest_cmd), names,
                          [marker_links[n] for n in names], M, truth, seed, noise_mm * 1e-3, T.payloads)

@@ -137,6 +137,24 @@ class ElasticSession:
     payload: tuple[Payload, ...] = ()
 
 
+def placed_markers(T: TreeLoads, marker_links: dict[str, str], rng: np.random.Generator, spread_m: float):
+    """The markers ``marker_links`` (name -> link) at random places within ``spread_m`` of their
+    link's origin and a random mocap transform M (4x4), drawn from ``rng`` in that order: (markers,
+    M), markers(Q) (N, M, 3) m in the mocap frame at the configurations Q (N, T.nq)."""
+    names = list(marker_links)
+    places = rng.uniform(-spread_m, spread_m, size=(len(names), 3))
+    M = random_mocap_from_base(rng, 2.0)
+
+    def markers(Qs: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(Qs), len(names), 3))
+        for m, n in enumerate(names):
+            o, R = T.link_placements(Qs, marker_links[n])
+            out[:, m] = o + np.einsum("nab,b->na", R, places[m])
+        return out @ M[:3, :3].T + M[:3, 3]
+
+    return markers, M
+
+
 def simulate_elastic_tree(nominal: Path, truth: ElasticTruth, commands: np.ndarray, joints: list[str],
                           marker_links: dict[str, str], seed: int, noise_mm: float = 0.1,
                           marker_spread_m: float = 0.05, workdir: Path | None = None,
@@ -159,16 +177,7 @@ def simulate_elastic_tree(nominal: Path, truth: ElasticTruth, commands: np.ndarr
         k[T.index[f"{n}__bend_u"]], k[T.index[f"{n}__bend_v"]] = cu, cv
     Q = equilibrium(T, Q_cmd, k)
     names = list(marker_links)
-    places = rng.uniform(-marker_spread_m, marker_spread_m, size=(len(names), 3))
-    M = random_mocap_from_base(rng, 2.0)
-
-    def markers(Qs: np.ndarray) -> np.ndarray:
-        out = np.zeros((len(Qs), len(names), 3))
-        for m, n in enumerate(names):
-            o, R = T.link_placements(Qs, marker_links[n])
-            out[:, m] = o + np.einsum("nab,b->na", R, places[m])
-        return out @ M[:3, :3].T + M[:3, 3]
-
+    markers, M = placed_markers(T, marker_links, rng, marker_spread_m)
     exact, rigid = markers(Q), markers(Q_cmd)
     noisy = exact + rng.normal(scale=noise_mm * 1e-3, size=exact.shape)
     return ElasticSession(list(joints), np.asarray(commands, float), noisy, exact, rigid, names,
