@@ -203,6 +203,42 @@ def _cross_columns(U, v):
     return ca.vertcat(U[1, :] * v[2] - U[2, :] * v[1], U[2, :] * v[0] - U[0, :] * v[2], U[0, :] * v[1] - U[1, :] * v[0])
 
 
+def _motion_jacobian(qs, Xs, rows_links, z_sym, A, dpose, m, dm):
+    """d y / d (td, u) of a closed-form pose: each link's motion under a change of (td, u)
+    (``qs``, ``Xs``: each link's quaternion and position) taken once, its angular velocity
+    from the quaternion's derivative (w = 2 vec(dq q*) / |q|^2, q of any norm), then each
+    point's rows as A (dX + w x R (m + dm)) and each rotation's as (A w) x its columns.
+    ``rows_links``: ('point', i, link) and ('rotation', link) in y's order; ``z_sym`` the symbols
+    (td, u), A the mocap rotation, ``dpose``, ``m``, ``dm`` the pose offset's, markers' and marker
+    offsets' symbols. The same derivative as CasADi's of every marker through the whole chain of
+    transforms, to rounding, in fewer instructions (each link's motion differentiated once)."""
+    Rd = ca_matrix_from_rotvec(dpose[3:6])
+    frames: dict = {}
+
+    def frame(k):
+        if k not in frames:
+            q, X = qs[k], Xs[k]
+            R = ca.mtimes(Rd, ca_matrix_from_quat(q))
+            Jq = ca.jacobian(q, z_sym)
+            conj = ca.vertcat(-q[1], -q[2], -q[3])  # the vector part of q*
+            om = (2.0 / ca.dot(q, q)) * (ca.mtimes(conj, Jq[0, :]) + q[0] * Jq[1:4, :] + _cross_columns(Jq[1:4, :], conj))
+            frames[k] = (R, ca.mtimes(A, ca.jacobian(X, z_sym)), ca.mtimes(A, ca.mtimes(Rd, om)))
+        return frames[k]
+
+    rows = []
+    for entry in rows_links:
+        if entry[0] == "point":
+            _, i, k = entry
+            R, AJX, Aom = frame(k)
+            rows.append(AJX + _cross_columns(Aom, ca.mtimes(A, ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3]))))
+        else:  # a rotation's rows Q[i, j], Q = A R row by row: dQ[:, j] = (A w) x Q[:, j]
+            R, _, Aom = frame(entry[1])
+            Q = ca.mtimes(A, R)
+            cols = [_cross_columns(Aom, Q[:, j]) for j in range(3)]
+            rows += [cols[j][i, :] for i in range(3) for j in range(3)]
+    return ca.vertcat(*rows)
+
+
 def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
                           point_links: tuple[int, ...] | None = None, n_bodies: int = 0) -> ObservationFunctions:
     """Build the observation function of ``spec`` for M points (markers, then bodies' origins).
@@ -220,6 +256,7 @@ def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
     dpose = ca.SX.sym("dpose", 6)
     dm = ca.SX.sym("dm", 3 * M)
     A = ca_matrix_from_rotvec(w)
+    symbols = (ca.vertcat(td, u), A, dpose, m, dm)  # what _motion_jacobian differentiates and reads
 
     def observe(q, X):
         R = ca.mtimes(ca_matrix_from_rotvec(dpose[3:6]), ca_matrix_from_quat(q))
@@ -242,44 +279,9 @@ def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
                 pts += [Q[i, j] for i in range(3) for j in range(3)]
         return ca.vertcat(*pts)
 
-    def motion_jacobian(qs, Xs, rows_links):
-        """d y / d (td, u) of a closed-form pose: each link's motion under a change of (td, u)
-        (``qs``, ``Xs``: each link's quaternion and position) taken once, its angular velocity
-        from the quaternion's derivative (w = 2 vec(dq q*) / |q|^2, q of any norm), then each
-        point's rows as A (dX + w x R (m + dm)) and each rotation's as (A w) x its columns.
-        ``rows_links``: ('point', i, link) and ('rotation', link) in y's order. CasADi's
-        derivative of every marker through the whole chain of transforms costs twice the
-        instructions (82,000 against ~50,000 for the Talos tree); the same derivative, to rounding."""
-        z_sym = ca.vertcat(td, u)
-        Rd = ca_matrix_from_rotvec(dpose[3:6])
-        frames: dict = {}
-
-        def frame(k):
-            if k not in frames:
-                q, X = qs[k], Xs[k]
-                R = ca.mtimes(Rd, ca_matrix_from_quat(q))
-                Jq = ca.jacobian(q, z_sym)
-                conj = ca.vertcat(-q[1], -q[2], -q[3])  # the vector part of q*
-                om = (2.0 / ca.dot(q, q)) * (ca.mtimes(conj, Jq[0, :]) + q[0] * Jq[1:4, :] + _cross_columns(Jq[1:4, :], conj))
-                frames[k] = (R, ca.mtimes(A, ca.jacobian(X, z_sym)), ca.mtimes(A, ca.mtimes(Rd, om)))
-            return frames[k]
-
-        rows = []
-        for entry in rows_links:
-            if entry[0] == "point":
-                _, i, k = entry
-                R, AJX, Aom = frame(k)
-                rows.append(AJX + _cross_columns(Aom, ca.mtimes(A, ca.mtimes(R, m[3 * i:3 * i + 3] + dm[3 * i:3 * i + 3]))))
-            else:  # a rotation's rows Q[i, j], Q = A R row by row: dQ[:, j] = (A w) x Q[:, j]
-                R, _, Aom = frame(entry[1])
-                Q = ca.mtimes(A, R)
-                cols = [_cross_columns(Aom, Q[:, j]) for j in range(3)]
-                rows += [cols[j][i, :] for i in range(3) for j in range(3)]
-        return ca.vertcat(*rows)
-
     def closed_form(name: str, y, Jz) -> ObservationFunctions:
         """The observation y(u, td, w, t, m, dpose, dm) of a closed-form pose: y, its Jacobian in
-        (td, w, t, m) and in (dpose, u); ``Jz``: its Jacobian in (td, u) (:func:`motion_jacobian`),
+        (td, w, t, m) and in (dpose, u); ``Jz``: its Jacobian in (td, u) (:func:`_motion_jacobian`),
         the rest by CasADi's exact derivatives."""
         args = [u, td, w, t, m, dpose, dm]
         G = ca.Function(
@@ -296,13 +298,13 @@ def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
         rows_links = [("point", i, point_links[i]) for i in range(M)]
         if with_bodies:
             rows_links += [("rotation", k) for k in point_links[M - n_bodies:]]
-        return closed_form("observe_tree", observe_links(qs, Xs), motion_jacobian(qs, Xs, rows_links))
+        return closed_form("observe_tree", observe_links(qs, Xs), _motion_jacobian(qs, Xs, rows_links, *symbols))
     if point_links is not None:
         raise BadInput(f"stand {spec.name!r}: markers on several links need a closed-form forward and link_poses")
     if spec.forward is not None:
         q, X = spec.forward(u, td)
         rows_links = [("point", i, 0) for i in range(M)] + ([("rotation", 0)] if with_bodies else [])
-        return closed_form("observe_fwd", observe(q, X), motion_jacobian([q], [X], rows_links))
+        return closed_form("observe_fwd", observe(q, X), _motion_jacobian([q], [X], rows_links, *symbols))
     # through the Newton solution p(u, td) of r(u, td, p) = 0: dp/d(td, u) = -F_p^+ [F_td F_u],
     # solved per pose inside the function (F_p^+ = F_p^-1, or (F_p^T F_p)^-1 F_p^T with more
     # residuals than pose coordinates)
