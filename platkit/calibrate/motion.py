@@ -41,6 +41,7 @@ Procedure (:func:`calibrate_motion`):
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 from scipy import sparse
@@ -68,7 +69,7 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["ResponseTerm", "calibrate_motion", "command_speed"]
+__all__ = ["ResponseTerm", "calibrate_motion", "command_speed", "motion_poses", "motion_stream", "without_response"]
 
 #: windows per block of the curvature correction
 CORRECTION_BLOCK = 32
@@ -100,7 +101,8 @@ class ResponseTerm(ModelTerm):
     pose minus ``poses.controls``. The controls reached are those at ``poses.t`` (motion-capture
     clock) or, with ``proj`` (a stream reduced to nodes, :class:`StreamWindows`), the same
     windowed fit of the controls reached at every sample (``sample_t``) that the markers had,
-    at the nodes ``poses.extras['node']``."""
+    at the nodes ``poses.extras['node']``; with ``proj``, poses without nodes are not the stream's
+    (settled poses, a held-out session): no offset there."""
 
     def __init__(self, model: ResponseModel, T: np.ndarray, U: np.ndarray, control_names: list[str],
                  theta0: np.ndarray, steps: np.ndarray, start: np.ndarray | None = None,
@@ -130,6 +132,11 @@ class ResponseTerm(ModelTerm):
         node = poses.extras.get("node")
         return x if node is None or (len(node) == len(x) and np.array_equal(node, np.arange(len(x)))) else x[node]
 
+    def control_offset(self, theta, poses: PoseSet, n_u: int) -> np.ndarray:
+        if self.proj is not None and "node" not in poses.extras:  # not the stream's nodes: settled, no response
+            return np.zeros_like(poses.controls)
+        return self.reached(theta, poses) - poses.controls
+
     def reached(self, theta, poses: PoseSet) -> np.ndarray:
         key = (np.asarray(theta, float).tobytes(), id(poses.t), len(poses.t))
         if self._cache is not None and self._cache[0] == key:
@@ -138,13 +145,12 @@ class ResponseTerm(ModelTerm):
         self._cache = (key, x)
         return x
 
-    def control_offset(self, theta, poses: PoseSet, n_u: int) -> np.ndarray:
-        return self.reached(theta, poses) - poses.controls
-
     def offset_jacobians(self, theta, poses: PoseSet, n_u: int, fk_q, fk_X):
         theta = np.asarray(theta, float)
         N, K = poses.n_poses, len(theta)
         d_u = np.zeros((N, n_u, K))
+        if self.proj is not None and "node" not in poses.extras:
+            return d_u, None, None
         base = self.reached(theta, poses)
         for k in range(K):  # forward differences: one evaluation per parameter, of its actuator alone
             h = self.steps[k]
@@ -455,6 +461,11 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
 
 
 def motion_poses(session: Session, cal: Calibration) -> PoseSet:
+    """:func:`motion_stream`'s poses alone (the response held as calibrated)."""
+    return motion_stream(session, cal)[0]
+
+
+def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, ResponseTerm]:
     """The poses a calibration from motion (``cal``: its ``motion``, calibration.yaml's
     ``actuator_response``) sees in ``session``'s stream: the stream's windows as calibrate_motion
     cuts them, every window reduced to its nodes (none kept as raw samples: those served the
@@ -462,7 +473,9 @@ def motion_poses(session: Session, cal: Calibration) -> PoseSet:
     corrected for the kinematics' curvature at the calibration's geometry, frame and markers; the
     response held as calibrated. What a diagnosis of a stream without holds reads in place of
     settled poses. A profile reference's actuators rest on the first command before it (the rest
-    calibrate_motion read from the samples before it is not kept)."""
+    calibrate_motion read from the samples before it is not kept). Returns the poses and the
+    response as a term at the calibration's values (its control offset zero there), which a fit
+    that carries it frees again, as calibrate_motion did."""
     r = (cal.motion or {}).get("response")
     if not isinstance(r, dict) or not isinstance(r.get("actuators"), dict):
         raise BadSession(f"{session.folder}: the calibration was not fitted from motion (no actuator_response): a "
@@ -497,7 +510,26 @@ def motion_poses(session: Session, cal: Calibration) -> PoseSet:
                                            actuator_positions(rmodel, theta, T, U, win.sample_t[a:b])),
                                        problem.point_links)
     poses.markers = win.Y - correction
-    return poses
+    return poses, ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), None, win.proj,
+                               win.sample_t)
+
+
+def without_response(cal: Calibration, session: Session) -> Calibration:
+    """``cal`` (a fit that carried :func:`motion_stream`'s response as a term) with the response
+    out of its terms and in its ``motion`` (calibration.yaml's ``actuator_response``) at the
+    values fitted, as calibrate_motion leaves its own: settled poses need no response. ``cal``
+    itself where it carries none."""
+    k = next((i for i, t in enumerate(cal.terms) if isinstance(t, ResponseTerm)), None)
+    if k is None:
+        return cal
+    term = cal.terms[k]
+    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
+    one = replace(cal, terms=[term], theta=[cal.theta[k]], theta_std=[cal.theta_std[k]])
+    response = _response_report(term.model, cal.spec, one, held,
+                                session.command_t, session.commands, term.model.kind, term.model.reference)
+    keep = [i for i in range(len(cal.terms)) if i != k]
+    return replace(cal, terms=[cal.terms[i] for i in keep], theta=[cal.theta[i] for i in keep],
+                   theta_std=[cal.theta_std[i] for i in keep], motion={**(cal.motion or {}), "response": response})
 
 
 def _response_report(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration, held: list[str], T: np.ndarray,

@@ -81,6 +81,7 @@ def run(args) -> int:
     from platkit.commands.calibrate import settling_notes
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
+    streamed = False  # the session read as a stream through its calibrated response
     try:
         poses = poses_of(args.session)
         for note in settling_notes(poses, args.session):  # dropped commands by reason, holds extrapolated to rest
@@ -89,7 +90,8 @@ def run(args) -> int:
         if not cal.motion:
             raise type(exc)(f"{exc}; a stream without settled holds is diagnosed with its calibration from motion "
                             "(platkit calibrate on it)") from exc
-        poses = _motion_poses(args.session, cal, sessions)
+        poses, cal = _motion_poses(args.session, cal, sessions)
+        streamed = True
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None
@@ -99,6 +101,10 @@ def run(args) -> int:
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects,
                                          reopen_geometry=not args.keep_geometry),
                  heldout=heldout, progress=say, start=cal)
+    if streamed:
+        from platkit.calibrate.motion import without_response  # the response back into actuator_response
+
+        d.calibration = without_response(d.calibration, sessions[args.session])
     if args.heldout_register is not None and d.heldout_session is not None:
         from platkit.diagnose.registered import registered_heldout
 
@@ -123,15 +129,23 @@ def run(args) -> int:
 
 def _motion_poses(folder, cal, sessions):
     """The stream of ``folder`` as the poses its calibration from motion saw (the windows' nodes at
-    the controls the calibrated response reached: platkit.calibrate.motion.motion_poses), said."""
-    from platkit.calibrate.motion import motion_poses
+    the controls the calibrated response reached: platkit.calibrate.motion.motion_stream), said,
+    and the calibration with that response as a term: every fit of the diagnosis frees it again
+    with the geometry, so that an effect and the response are told apart by the data."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from platkit.calibrate.motion import motion_stream
     from platkit.io.session import load_session
 
     sessions[folder] = load_session(folder, spec=cal.spec, quiet=True)
-    poses = markers_only(motion_poses(sessions[folder], cal), folder)
-    warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses at the controls the "
-         "calibration's actuator response reached (held as calibrated)")
-    return poses
+    poses, term = motion_stream(sessions[folder], cal)
+    poses = markers_only(poses, folder)
+    warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
+         "calibration's actuator response, fitted again with every effect tried")
+    return poses, replace(cal, terms=[*cal.terms, term], theta=[*cal.theta, term.initial.copy()],
+                          theta_std=[*cal.theta_std, np.full(len(term.initial), np.nan)])
 
 
 def _check_register(args, cal, heldout) -> None:

@@ -121,11 +121,11 @@ def test_without_holds_every_sample_is_the_equilibrium_at_the_drives_positions(t
 
 def test_diagnose_a_stream_without_holds_calibrated_from_motion(tmp_path):
     """A tree streamed without holds is calibrated from motion; `platkit diagnose` reads the
-    stream as the windows' nodes at the controls the calibrated response reached (it refused
-    before: no settled pose), screens compliance first, and the held-out session of the same
-    set-up (held commands, settled) is predicted better. (Compliance is not named here: the
-    response, held as calibrated from motion without it, leaves structure that only
-    `unexplained` takes; docs/trees.md.)"""
+    stream as the windows' nodes through the calibrated response (it refused before: no settled
+    pose), the response fitted again with every effect tried (held as calibrated, the lags had
+    absorbed part of the sag and compliance was not named); compliance is named at the elastic
+    joints and the held-out session of the same set-up (held commands, settled) falls below a
+    fifth; the calibration written keeps the response refitted as actuator_response, no term."""
     truth, U = truth_and_commands(5, 12)
     tc, C = slow_multisine(np.array([0.6 * LIMIT[j] for j in JOINTS]), 20.0, 50.0, np.random.default_rng(55),
                            ramp_s=2.0)
@@ -141,5 +141,11 @@ def test_diagnose_a_stream_without_holds_calibrated_from_motion(tmp_path):
     d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert 40 <= d["n_poses"] <= 80  # ~3 nodes a second of the stream after its second command
     assert d["rounds"][0]["top"][0]["effect"] == "compliance", d["rounds"][0]["top"]
+    named = [f for f in d["findings"] if f["effect"] == "compliance"]
+    assert named, d["findings"]
+    assert {j for f in named for j in f["where"].get("joints", [f["where"].get("joint")])} >= {"torso_pitch",
+                                                                                             "right_1_joint"}
     h = d["heldout_session"]
-    assert h["n_poses"] == 12 and h["rms_after"] < 0.6 * h["rms_before"]
+    assert h["n_poses"] == 12 and h["rms_after"] < 0.2 * h["rms_before"]
+    written = yaml.safe_load((tmp_path / "diag" / "calibration.yaml").read_text())
+    assert "actuator_response" in written and all(t["effect"] != "actuator_response" for t in written["terms"])
