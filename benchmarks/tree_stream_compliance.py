@@ -59,10 +59,7 @@ def main() -> None:
     print("seed: largest sag mm | holds settled | named (joints) | diagnose held-out RMS mm: geometry -> final")
     for seed in (int(s) for s in args.seeds.split(",")):
         rng = np.random.default_rng(seed)
-        truth = ElasticTruth(joint_compliance=dict(ELASTIC),
-                             origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in JOINTS},
-                             offset={j: float(rng.normal(0, 2e-3)) for j in JOINTS})
-        U = np.column_stack([rng.uniform(-0.6 * LIMIT[j], 0.6 * LIMIT[j], args.poses) for j in JOINTS])
+        truth, U = drawn(rng, args.poses)
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
             t0 = time.perf_counter()
@@ -81,16 +78,22 @@ def main() -> None:
               f"{d['heldout_rms_geometric']:.3f} -> {final:.4f} ({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
+def drawn(rng: np.random.Generator, poses: int):
+    """The seed's true elastic tree (the planted compliances, origin and offset errors) and ``poses``
+    held commands within 0.6 of each joint's limit, drawn from ``rng`` in that order."""
+    truth = ElasticTruth(joint_compliance=dict(ELASTIC),
+                         origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in JOINTS},
+                         offset={j: float(rng.normal(0, 2e-3)) for j in JOINTS})
+    return truth, np.column_stack([rng.uniform(-0.6 * LIMIT[j], 0.6 * LIMIT[j], poses) for j in JOINTS])
+
+
 def no_holds(args) -> None:
     print("seed: largest sag mm | poses diagnosed | named (joints) | per hand, held-out session RMS mm: calibrated "
           "from motion (rigid) -> diagnosed")
     amplitude = np.array([0.6 * LIMIT[j] for j in JOINTS])
     for seed in (int(s) for s in args.seeds.split(",")):
         rng = np.random.default_rng(seed)
-        truth = ElasticTruth(joint_compliance=dict(ELASTIC),
-                             origin_error={j: (rng.normal(0, 0.5e-3, 3), rng.normal(0, 1e-3, 3)) for j in JOINTS},
-                             offset={j: float(rng.normal(0, 2e-3)) for j in JOINTS})
-        U = np.column_stack([rng.uniform(-0.6 * LIMIT[j], 0.6 * LIMIT[j], args.poses) for j in JOINTS])
+        truth, U = drawn(rng, args.poses)
         tc, C = slow_multisine(amplitude, args.duration, 50.0, rng)
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
