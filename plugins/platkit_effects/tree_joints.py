@@ -241,7 +241,7 @@ class JointsComplianceTerm(ModelTerm):
                 bend = joint_rotation_term("link_bending", self.spec, parent, about, points)
                 alt = joints_compliance_term(self.effect, self.spec, [self.indices[m] for m in keep],
                                              self.bends + [bend], label=self.where.get("joint"),
-                                             masses=self._masses_without(k), identifiable=self.where.get(
+                                             masses=self.masses, identifiable=self.where.get(
                                                  "identifiable_mass_moments"))
                 alt.initial = np.concatenate([start[keep], start[len(self.indices):len(self.indices) + nb],
                                               np.full(len(bend.parameter_names), start[k] * stand.scale[i]), deltas])
@@ -259,11 +259,6 @@ class JointsComplianceTerm(ModelTerm):
                 out.append((f"link bending at {b.joint}, stiffer one way than the other", alt))
         return out
 
-
-    def _masses_without(self, k: int) -> np.ndarray:
-        """``masses`` for the term without joint k's compliance: the same combinations (the loads
-        are the tree's, whichever joints give under them)."""
-        return self.masses
 
 
 def tree_mass_basis(stand: TreeStand, controls: np.ndarray, joints: list[str], compliances: np.ndarray,
