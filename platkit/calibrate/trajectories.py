@@ -48,6 +48,13 @@ class Limits:
     home: np.ndarray | None = None
 
 
+def homed_at_middle(u0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """(n_u,) bool: the controls whose neutral ``u0`` lies on or outside their box (lower, upper)
+    (a URDF joint whose zero is a limit: an elbow), which a motion takes about the box's middle
+    instead of their neutral; a box without finite ends never."""
+    return ~((u0 > lower) & (u0 < upper)) & np.isfinite(upper - lower)
+
+
 def home_controls(spec: PlatformSpec, limits: Limits) -> np.ndarray:
     """The controls a motion session starts and ends on (``limits.home``, else neutral)."""
     return spec.neutral_u() if limits.home is None else np.asarray(limits.home, float)
@@ -117,7 +124,7 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
     u0 = spec.neutral_u()
     lower, upper = lo + margin * span, hi - margin * span
     idle = idle_controls(spec)
-    outside = ((u0 <= lower) | (u0 >= upper)) & ~idle
+    outside = homed_at_middle(u0, lower, upper) & ~idle
     home = np.where(outside, 0.5 * (lower + upper), u0)
     if np.any(outside):
         source["home"] = ("the middle of the box for " + ", ".join(np.array(spec.control_names)[outside])

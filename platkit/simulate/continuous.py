@@ -19,6 +19,7 @@ import numpy as np
 from scipy import signal
 
 from platkit.calibrate.plan import feasible, read_plan_csv
+from platkit.calibrate.trajectories import homed_at_middle
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.io.table import read_table
 
@@ -88,7 +89,7 @@ def continuous_plan(spec, kind: str | np.ndarray, duration_s: float, rate_hz: fl
     # Talos' elbows) moves about the middle of its stroke, reached from its neutral and back along
     # the ramp, which is then long enough for that move to take at most half of LIMIT_SHARE of the
     # drive's rate and acceleration; the others about their neutral
-    center = np.where(~(np.minimum(hi - u0, u0 - lo) > 0) & np.isfinite(hi - lo), 0.5 * (lo + hi), u0)
+    center = np.where(homed_at_middle(u0, lo, hi), 0.5 * (lo + hi), u0)
     D = np.abs(center - u0)
     ramp_s = max([RAMP_S] + [max(np.pi / 2 * d / (0.5 * LIMIT_SHARE * r), np.pi * np.sqrt(d / (LIMIT_SHARE * ac)))
                              for d, r, ac in zip(D, rate, accel) if d > 0])
