@@ -44,6 +44,7 @@ from platkit.calibrate.plan_information import default_marker_layout as default_
 from platkit.calibrate.plan_information import feasible as feasible
 from platkit.calibrate.plan_information import identification_jacobian as identification_jacobian
 from platkit.calibrate.plan_information import idle_controls as idle_controls
+from platkit.calibrate.plan_information import marker_link_indices as marker_link_indices
 from platkit.calibrate.plan_information import marker_links as marker_links
 from platkit.calibrate.plan_information import plan_uncertainty as plan_uncertainty
 from platkit.calibrate.plan_information import stand_length_scale as stand_length_scale

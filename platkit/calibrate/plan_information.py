@@ -75,11 +75,24 @@ def idle_controls(spec: PlatformSpec) -> np.ndarray:
     return ~moving
 
 
+def marker_link_indices(spec: PlatformSpec, n_markers: int) -> list[int] | None:
+    """The rule that places planned and simulated markers on a stand whose links are tracked
+    (``spec.link_poses``, a tree): marker k rides on tracked link k mod L (``spec.tracked_links``),
+    so that every branch is seen; None on a stand without tracked links (one moving frame).
+    Plan, the additive and the physical simulators all place markers by it."""
+    if spec.link_poses is None:
+        return None
+    L = len(spec.tracked_links)
+    return [k % L for k in range(n_markers)]
+
+
 def marker_links(spec: PlatformSpec, n_markers: int) -> list[str]:
-    """The link each planned marker rides on: on a tree marker k on tracked link k mod L (so that
-    every branch is planned for, as the simulator places them); on a chain the moving frame."""
-    links = spec.tracked_links if spec.link_poses is not None and len(spec.tracked_links) > 1 else [spec.moving_frame]
-    return [links[k % len(links)] for k in range(n_markers)]
+    """The link each planned marker rides on: on a tree (two or more tracked links) by
+    :func:`marker_link_indices`, as the simulators place them; otherwise the moving frame."""
+    index = marker_link_indices(spec, n_markers)
+    if index is None or len(spec.tracked_links) < 2:
+        return [spec.moving_frame] * n_markers
+    return [spec.tracked_links[k] for k in index]
 
 
 def default_marker_count(spec: PlatformSpec) -> int:
@@ -206,16 +219,17 @@ def _identification_jacobian(spec: PlatformSpec, J: np.ndarray, M: int, n_free: 
 
 def _tree_identification_jacobian(spec: PlatformSpec, U: np.ndarray, markers: np.ndarray, td: np.ndarray,
                                    free: np.ndarray) -> IdentificationJacobian:
-    """:func:`identification_jacobian` of a tree (several tracked links): marker k rides on tracked
-    link k mod L, so that every branch is planned for; closed form through ``spec.link_poses``."""
-    M, L = len(markers), len(spec.tracked_links)
+    """:func:`identification_jacobian` of a tree (several tracked links): each marker on its link
+    by :func:`marker_link_indices`, so that every branch is planned for; closed form through
+    ``spec.link_poses``."""
+    M = len(markers)
+    index = marker_link_indices(spec, M) or [0] * M
     u = ca.SX.sym("u", spec.n_u)
     t = ca.SX.sym("td", spec.n_td)
     S = ca.SX.sym("s", 3 * M)
     q_all, X_all = spec.link_poses(u, t)
-    m = ca.vertcat(*[X_all[3 * (k % L):3 * (k % L) + 3]
-                     + ca.mtimes(ca_matrix_from_quat(q_all[4 * (k % L):4 * (k % L) + 4]), S[3 * k:3 * k + 3])
-                     for k in range(M)])
+    m = ca.vertcat(*[X_all[3 * i:3 * i + 3] + ca.mtimes(ca_matrix_from_quat(q_all[4 * i:4 * i + 4]), S[3 * k:3 * k + 3])
+                     for k, i in enumerate(index)])
     f = ca.Function("tree_markers", [u, t, S], [m, ca.jacobian(m, t), ca.jacobian(m, S)])
     N = len(U)
     n_free = int(free.sum())

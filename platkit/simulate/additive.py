@@ -18,7 +18,7 @@ from typing import Unpack
 import numpy as np
 
 from platkit.bodies import stream_for_settling, with_settled_bodies
-from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
+from platkit.calibrate.plan import default_marker_layout, feasible, marker_link_indices, stand_length_scale
 from platkit.calibrate.problem import link_frames
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
@@ -239,8 +239,7 @@ def draw_true_stand(spec: PlatformSpec, seed: int, truth: TruthOptions, recordin
     body_rv = body_rng.normal(0, 1.0, (n_bodies, 3))
     body_noise = ({"position_m": recording.body_noise_mm * 1e-3, "rotation_rad": np.deg2rad(recording.body_noise_deg)}
                   if n_bodies else {})
-    # a tree (several tracked links): marker k on tracked link k mod L, so that every branch is seen
-    links = [k % len(spec.tracked_links) for k in range(n_markers)] if spec.link_poses is not None else None
+    links = marker_link_indices(spec, n_markers)  # a tree: each marker's tracked link, as plan places them
     return TrueStand(td_true, U, P_true, names, S, T, base_names, B, brng, body_names, body_o, body_rv, body_noise,
                      body_rng, links)
 

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from platkit.calibrate.plan import default_marker_layout, feasible, stand_length_scale
+from platkit.calibrate.plan import default_marker_layout, feasible, marker_link_indices, stand_length_scale
 from platkit.calibrate.problem import link_frames
 from platkit.effects import Effect, EffectPhysics, PhysicsPlan, PhysicsSeries
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
@@ -263,8 +263,7 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                                          duration_s, command_rate_hz, length_unit, rng_plan, rng_stand)
     S = default_marker_layout(spec, n_markers, rng_stand)
     names = [f"M{k + 1}" for k in range(n_markers)]
-    # a tree: marker k on tracked link k mod L (as the additive simulator and plan place them)
-    links = [k % len(spec.tracked_links) for k in range(n_markers)] if spec.link_poses is not None else None
+    links = marker_link_indices(spec, n_markers)  # a tree: each marker's tracked link, as plan places them
     size_m = stand_length_scale(spec) / 0.6
     mocap_from_level = _level_mocap(rng_stand, size_m)
     nuisances = draw_nuisances(spec, rng_nuis, hold_s=hold_s, noise_mm=noise_mm, occlusion=occlusion,
