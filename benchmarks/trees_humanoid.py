@@ -227,6 +227,13 @@ def run(seed: int, n_fit: int, n_held: int, bare: bool, root: Path, n_later: int
     good = [p for p in places if right(*p)]
     names += (f"\n  places named: {len(places)}, right {len(good)}"
               f" ({', '.join(f'{e} {j}' for e, j in places if not right(e, j)) or 'none wrong'})")
+    for f in d["findings"]:  # the tree's mass moments estimated (no inertias): the data against the prior
+        said = f["where"].get("mass_prior") or {}
+        if "determined_by_data" in said:
+            bad = {**said["negative_masses_kg"], **said["centres_beyond_twice_length_m"]}
+            names += (f"\n  mass moments: {said['determined_by_data']} of {len(said['posterior_std'])} combinations "
+                      f"determined by the data beyond the prior; "
+                      + ("physical" if said["physical"] else f"not physical at {', '.join(bad)}"))
     print(f"seed {seed}{' (no inertias)' if bare else ''}: held-out mean per hand, mm (left / right)\n"
           f"  elastic sag itself (rigid true robot vs elastic): {unmodelled['left']:.2f} / {unmodelled['right']:.2f}\n"
           f"  rigid calibration:     {rigid['left']:.2f} / {rigid['right']:.2f}\n"

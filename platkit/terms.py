@@ -56,6 +56,13 @@ class ModelTerm:
     def marker_offset(self, theta: np.ndarray, poses: PoseSet) -> np.ndarray:
         return np.zeros((poses.n_poses, poses.n_markers, 3))
 
+    def prior(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(centre (K,), weight (K,)): a Gaussian prior on theta, entered by the estimator as rows
+        ``weight * (theta - centre)`` beside the marker residuals (metres), like the calibration's
+        ridge on td (CalibrationProblem.prior_rows): weight = marker noise (m) / the parameter's
+        prior standard deviation; 0 where a parameter has none. None (the default): no prior."""
+        return None
+
     def level_tilt(self, theta: np.ndarray) -> np.ndarray | None:
         """(2,) rad: how far the term turns the whole stand about its base's x and y axes in the
         level world, or None (the default) for a term that does not. The motion capture cannot see

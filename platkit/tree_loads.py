@@ -24,6 +24,12 @@ Rules:
   there. Loads then have the shape a real arm's have (the farther a link reaches, the more it
   weighs and the farther out its weight acts); their overall size is unknown, so a compliance
   fitted on them carries it (``prior`` says the loads are this prior's).
+- The prior's spread (``prior_spread()``), for an estimate of the mass moments about it: each
+  body's mass known to ``PRIOR_SPREAD`` times its prior mass (the rule of uniform links gets a
+  link's weight to its order of magnitude, not its value), at least that share of the mean prior
+  body's (a hand, given the least mass, may carry a gripper); each first moment to that mass
+  spread times the body's length (its reach, at least the mean body's): the centre anywhere along
+  the link. Independent, Gaussian.
 - Mass moments: gravity loads are linear in each body's mass and first mass moment
   ``(m, m c_x, m c_y, m c_z)`` (c in the body's joint frame). ``moment_regressor(Q)`` gives the
   moments' derivatives in them, so that loads of a URDF without (or with doubtful) inertias can be
@@ -46,6 +52,8 @@ MAX_LINK_MASS = 1.0e4
 PRIOR_KG_PER_M = 1.0
 #: ... and the least mass of a link (one that reaches no further joint: a hand, a tool)
 PRIOR_MIN_KG = 0.05
+#: the prior's spread: a body's mass known to this share of its prior mass (prior_spread)
+PRIOR_SPREAD = 1.0
 
 
 @dataclass(frozen=True)
@@ -154,6 +162,7 @@ class TreeLoads:
                 raise BadDescription(f"{self.path}: the links moved by joint {model.names[jid]!r} have mass {m} kg; "
                                      f"masses must lie in [0, {MAX_LINK_MASS:g}] kg")
         self.prior = bool(prior) and not any(model.inertias[j].mass > 0 for j in range(1, model.njoints))
+        self._length = np.zeros(model.njoints - 1)  # each body's reach under the prior (m)
         if self.prior:
             self._add_prior(model, tree)
         self.payloads = payloads(payload)
@@ -189,6 +198,8 @@ class TreeLoads:
             jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
             if jid == 0:
                 continue
+            self._length[jid - 1] = max(self._length[jid - 1], float(np.mean([np.linalg.norm(e) for e in ends]))
+                                        if ends else 0.0)
             model.inertias[jid] = model.inertias[jid] + frame.placement.act(pin.Inertia(mass, middle, np.zeros((3, 3))))
 
     def _add_payload(self, model, payload: Payload) -> None:
@@ -316,6 +327,28 @@ class TreeLoads:
             I = self.model.inertias[j + 1]
             out[j] = [I.mass, *(I.mass * np.asarray(I.lever))]
         return out.ravel()
+
+    def prior_spread(self) -> np.ndarray:
+        """(4 J,) the standard deviation of each of ``mass_moments()`` under the prior of uniform
+        links (module docstring): ``PRIOR_SPREAD`` times each body's mass (at least the mean
+        body's) for its mass, that times its length (at least the mean body's) for its first
+        moments. Zeros where the loads are no prior's (the URDF's own inertias)."""
+        if not self.prior:
+            return np.zeros(4 * len(self.joints))
+        m = np.array([self.model.inertias[j + 1].mass for j in range(len(self.joints))]) - self._payload_mass()
+        sd = PRIOR_SPREAD * np.maximum(m, m.mean())
+        arm = np.maximum(self._length, self._length.mean())
+        return np.column_stack([sd, sd * arm, sd * arm, sd * arm]).ravel()
+
+    def _payload_mass(self) -> np.ndarray:
+        """(J,) the payloads' mass on each body (kg)."""
+        out = np.zeros(len(self.joints))
+        for p in self.payloads:
+            frame = self.model.frames[self.model.getFrameId(p.link)]
+            jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
+            if jid > 0:
+                out[jid - 1] += p.mass
+        return out
 
     def moment_regressor(self, Q: np.ndarray, loads: Loads | None = None) -> np.ndarray:
         """(N, J, 3, 4 J): d(moment of joint j, in its frame) / d(mass moments), so that

@@ -151,6 +151,7 @@ class CalibrationProblem:
         self._p_guess = np.broadcast_to(spec.neutral_p(), (self.N, spec.n_p)).copy()
         self.prior_center = np.zeros(self.n_z)
         self.prior_scale = np.zeros(self.n_z)  # rows prior_scale * (z - prior_center); 0 = none
+        self._term_priors()
         # the plausible range of td: nominal +- PLAUSIBLE_RANGE typical corrections (see set_plausible)
         self.nominal = np.concatenate([spec.nominal_td(), np.zeros(self.n_z - spec.n_td)])
         self.half_width = np.full(self.n_z, np.inf)
@@ -188,6 +189,17 @@ class CalibrationProblem:
         self.prior_scale = np.zeros(self.n_z)
         if ridge_m > 0:
             self.prior_scale[self.i_td] = ridge_m / self.scale[self.i_td]
+        self._term_priors()
+
+    def _term_priors(self) -> None:
+        """The terms' own priors on their parameters (ModelTerm.prior), in the same rows."""
+        k = self.i_theta.start
+        for term, size in zip(self.terms, self.theta_sizes):
+            p = term.prior()
+            if p is not None:
+                self.prior_center[k:k + size] = np.asarray(p[0], float)
+                self.prior_scale[k:k + size] = np.asarray(p[1], float)
+            k += size
 
     def prior_rows(self, z):
         """(values (R,), indices (R,), slopes (R,)): the rows the priors add, each depending on one

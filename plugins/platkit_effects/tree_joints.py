@@ -12,6 +12,11 @@ Rules:
   also turns them about the third axis. The term offers, as its ``alternatives``, the joint's
   compliance replaced by that bending (one compliance across, or one per axis across), and
   diagnosis keeps a form whose BIC is lower (platkit.diagnose.search, ``tell_apart``).
+- A joint that drives mimic joints (a coupled joint) gives, in the control's compliance, with
+  its mimic joints following (an elastic drive ahead of the coupling); the term also offers, as a
+  form, its own joint giving alone, the mimic joints held where commanded (``where['alone']``;
+  platkit_effects.tree_mimic): left out, the bending of the link below the master takes the
+  difference, a name the physics does not hold.
 - A URDF without inertias: the loads are the prior of uniform links', whose shape (how the mass
   lies along each branch, how much each branch weighs against the trunk) is not the robot's. The
   term then also offers, as a form, the whole tree's mass moments estimated with the compliances:
@@ -23,10 +28,28 @@ Rules:
   scale the compliances carry), best determined first; each count of ``MASS_STEPS`` offered as a
   form, tried in turn (one that is not kept does not stop a larger one), each kept on a lower BIC;
   ``where`` says how many are identifiable at all.
+- The estimate has a prior: ``pi`` Gaussian about ``pi_prior`` with the prior of uniform links'
+  spread (platkit.tree_loads, ``prior_spread``: each body's mass to 100 % of its prior mass, its
+  first moments to that times its length), independent. ``B``'s combinations are taken in that
+  prior's metric (the regressor's columns scaled by the spreads before the SVD: best determined
+  against the prior first), each column one prior standard deviation, so that the prior on
+  ``delta`` is ``N(0, I)`` and enters the estimator as one row ``sigma delta_k`` per combination
+  beside the marker residuals (ModelTerm.prior, the rows of the calibration's ridge; sigma the
+  marker noise per coordinate: the session's settled noise where it says it, else
+  ``MASS_PRIOR_NOISE_M``). A combination the data barely see stays near the prior instead of
+  wandering. The BIC that keeps a count scores the residuals of that fit, every combination a
+  whole parameter: the prior can only raise a form's residuals and never lowers its count, so it
+  makes a larger count no easier to keep.
+- Stored with its standard deviations (calibration.yaml, diagnosis.json's finding), the term says
+  in ``where['mass_prior']`` each combination's posterior standard deviation (in prior standard
+  deviations), how many the data determine beyond the prior (posterior below ``DETERMINED``
+  of the prior's: the data weigh more than the prior), and where the estimate is not physical: a
+  body whose implied mass is negative, or whose centre lies beyond twice its length, by more than
+  two posterior spreads, where the data moved it (its mass's posterior spread below its prior's).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,6 +57,7 @@ from platkit.effects import stored_where
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.terms import ModelTerm
+from platkit.tree_loads import PRIOR_SPREAD
 from platkit_effects.tree_compliance import (
     LINEAR_LIMIT,
     RANK_TOL,
@@ -51,9 +75,28 @@ from platkit_effects.tree_compliance import (
     spec_from_where,
     tree_stand,
 )
+from platkit_effects.tree_mimic import coupled, held_mimic_offsets
 
 #: the tree's mass-moment combinations the every-joint term's forms estimate in turn (no inertias)
 MASS_STEPS = (4, 8, 16)
+#: marker noise per coordinate (m) the mass moments' prior is weighed against where the session
+#: does not say its own (a motion-capture system's typical 0.1 mm)
+MASS_PRIOR_NOISE_M = 1e-4
+#: a combination whose posterior standard deviation is below this share of its prior's is
+#: determined by the data (their information exceeds the prior's)
+DETERMINED = 1.0 / np.sqrt(2.0)
+
+
+def marker_noise(poses) -> float:
+    """The marker noise per coordinate (m) of a settled pose of ``poses``: the settling search's
+    sigma over the root of the samples averaged, where the session says them; else
+    MASS_PRIOR_NOISE_M."""
+    sigma = (getattr(poses, "settling", None) or {}).get("sigma_m")
+    n = getattr(poses, "n_samples", None)
+    if sigma is None or n is None or not np.any(np.asarray(n, float) > 0):
+        return MASS_PRIOR_NOISE_M
+    n = np.asarray(n, float)
+    return float(sigma) / float(np.sqrt(np.mean(n[n > 0])))
 
 
 @dataclass
@@ -73,6 +116,53 @@ class JointsComplianceTerm(ModelTerm):
     spec: PlatformSpec | None = field(default=None, repr=False)
     bends: list[JointRotationTerm] = field(default_factory=list)
     masses: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    noise_m: float = MASS_PRIOR_NOISE_M
+
+    def prior(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The mass moments' prior (module docstring): ``N(0, 1)`` on each delta, weighed against
+        the marker noise ``noise_m``; none on the compliances and bends."""
+        if not self.n_masses:
+            return None
+        n = len(self.parameter_names)
+        weight = np.zeros(n)
+        weight[n - self.n_masses:] = self.noise_m
+        return np.zeros(n), weight
+
+    def to_dict(self, theta, std=None) -> dict:
+        """As ModelTerm's; with ``std`` and mass moments, ``where['mass_prior']`` (the same dict
+        object as the term's, which a finding's copy of ``where`` shares) filled in with the
+        estimate's posterior against its prior (:meth:`mass_estimate`)."""
+        if self.n_masses and std is not None and "mass_prior" in self.where:
+            self.where["mass_prior"].update(self.mass_estimate(np.asarray(theta, float), np.asarray(std, float)))
+        return super().to_dict(theta, std)
+
+    def mass_estimate(self, theta: np.ndarray, std: np.ndarray) -> dict:
+        """The mass moments' estimate against its prior: each combination's posterior standard
+        deviation in prior standard deviations, the count below DETERMINED, and the bodies (by
+        the joint that carries them) where the implied ``pi_prior + B delta`` is not physical
+        while the data moved it (mass posterior spread below its prior's), each by more than two
+        posterior spreads: a negative mass ([kg, its spread], in the prior's scale: the
+        compliances carry the overall size), a centre (m) beyond twice the body's length."""
+        K = self.n_masses
+        stand = self.stand()
+        T = stand.loads
+        delta, sd = theta[len(theta) - K:], np.abs(std[len(std) - K:])
+        pi = (T.mass_moments() + self.masses @ delta).reshape(-1, 4)
+        spread = T.prior_spread().reshape(-1, 4)
+        sd_pi = np.sqrt(((self.masses * sd) ** 2).sum(axis=1)).reshape(-1, 4)  # combinations taken apart
+        moved = np.isfinite(sd_pi[:, 0]) & (sd_pi[:, 0] < spread[:, 0])
+        length = np.where(spread[:, 0] > 0, spread[:, 1] / np.where(spread[:, 0] > 0, spread[:, 0], 1.0), 0.0)
+        negative = {T.joints[j]: [round(float(pi[j, 0]), 6), round(float(sd_pi[j, 0]), 6)]
+                    for j in np.nonzero(moved & (pi[:, 0] + 2 * sd_pi[:, 0] < 0))[0]}
+        far = {}  # the first moment beyond twice the length times the mass by two of its spreads
+        for j in np.nonzero(moved & (pi[:, 0] > 0))[0]:
+            beyond = np.linalg.norm(pi[j, 1:]) - 2 * length[j] * pi[j, 0]
+            if beyond > 2 * np.linalg.norm(sd_pi[j, 1:]):
+                far[T.joints[j]] = round(float(np.linalg.norm(pi[j, 1:]) / pi[j, 0]), 6)
+        post = [None if not np.isfinite(v) else round(float(v), 4) for v in sd]
+        return {"posterior_std": post, "determined_by_data": int(np.sum(np.isfinite(sd) & (sd < DETERMINED))),
+                "negative_masses_kg": negative, "centres_beyond_twice_length_m": far,
+                "physical": not negative and not far}
 
     def stand(self) -> TreeStand:
         if self.spec is None:
@@ -138,6 +228,18 @@ class JointsComplianceTerm(ModelTerm):
             out.append((per @ deltas, per))
         return out
 
+    @property
+    def alone(self) -> list[str]:
+        """The joints of the term whose elasticity is their own joint's alone, their mimic joints
+        held where commanded (``where['alone']``; platkit_effects.tree_mimic)."""
+        return [n for n in self.where.get("alone") or [] if n in self.joints]
+
+    def _held(self, theta, poses, fk_X) -> tuple[np.ndarray, np.ndarray]:
+        """The offsets that hold the mimic joints of :attr:`alone` (tree_mimic.held_mimic_offsets)."""
+        stand = self.stand()
+        D = self.control_offset(theta, poses, stand.spec.n_u)[:, self.indices] * stand.scale[self.indices]
+        return held_mimic_offsets(self.spec, stand, self.joints, self.alone, D, poses, fk_X)
+
     def pose_offset(self, theta, poses, fk_q, fk_X):
         out = np.zeros((poses.n_poses, 6))
         for _, t, b in self._bent(theta):
@@ -145,6 +247,8 @@ class JointsComplianceTerm(ModelTerm):
         if self.n_masses:
             for (_, t, b), (dM, _) in zip(self._bent(theta), self._bend_moments(theta, poses.controls)):
                 out += b.turned(t, dM, poses, fk_X)[0]
+        if self.alone:
+            out += self._held(theta, poses, fk_X)[0]
         return out
 
     def marker_offset(self, theta, poses):
@@ -154,6 +258,8 @@ class JointsComplianceTerm(ModelTerm):
         if self.n_masses:
             for (_, t, b), (dM, _) in zip(self._bent(theta), self._bend_moments(theta, poses.controls)):
                 out += b.turned(t, dM, poses, None)[1]
+        if self.alone:
+            out += self._held(theta, poses, None)[1]
         return out
 
     def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
@@ -183,6 +289,12 @@ class JointsComplianceTerm(ModelTerm):
                     p, q = b.turned(t, per[..., k], poses, fk_X)
                     pose[..., len(theta) - K + k] += p
                     marker[..., len(theta) - K + k] += q
+        for col in range(len(theta)) if self.alone else ():  # the mimic joints held: linear in the deflections
+            D = control[:, self.indices, col] * stand.scale[self.indices]
+            if np.any(D):
+                p, q = held_mimic_offsets(self.spec, stand, self.joints, self.alone, D, poses, fk_X)
+                pose[..., col] += p
+                marker[..., col] += q
         return control, pose, marker
 
     def alternatives(self, theta, poses, others) -> list[tuple[str, ModelTerm]]:
@@ -213,9 +325,12 @@ class JointsComplianceTerm(ModelTerm):
                 break
             offered = basis.shape[1]
             alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends, label=self.where.get("joint"),
-                                         masses=basis, identifiable=rank)
+                                         masses=basis, identifiable=rank, noise_m=marker_noise(poses))
             was = self.masses @ deltas if K else np.zeros(basis.shape[0])
-            alt.initial = np.concatenate([start[:len(start) - K], np.linalg.lstsq(basis, was, rcond=None)[0]])
+            spread = stand.loads.prior_spread()  # the last form's change in the prior's metric
+            spread = np.where(spread > 0, spread, 1.0)
+            alt.initial = np.concatenate([start[:len(start) - K],
+                                          np.linalg.lstsq(basis / spread[:, None], was / spread, rcond=None)[0]])
             out.append((f"the tree's mass moments estimated with the compliances ({offered} combinations)", alt))
         if K:  # the trunk's bending under the estimated loads (beside a bend under the prior's, if another term has one)
             S = load_state(stand, poses.controls)
@@ -227,7 +342,7 @@ class JointsComplianceTerm(ModelTerm):
                 bend = joint_rotation_term("link_bending", self.spec, n, "across")
                 alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends + [bend],
                                              label=self.where.get("joint"), masses=self.masses,
-                                             identifiable=self.where.get("identifiable_mass_moments"))
+                                             identifiable=self.where.get("identifiable_mass_moments"), noise_m=self.noise_m)
                 alt.initial = np.concatenate([start[:len(start) - K], [0.0], deltas])
                 out.append((f"link bending at {n} under the tree's estimated loads", alt))
         for k, (i, n) in enumerate(zip(self.indices, self.joints)):
@@ -242,21 +357,28 @@ class JointsComplianceTerm(ModelTerm):
                 alt = joints_compliance_term(self.effect, self.spec, [self.indices[m] for m in keep],
                                              self.bends + [bend], label=self.where.get("joint"),
                                              masses=self.masses, identifiable=self.where.get(
-                                                 "identifiable_mass_moments"))
+                                                 "identifiable_mass_moments"), noise_m=self.noise_m)
                 alt.initial = np.concatenate([start[keep], start[len(self.indices):len(self.indices) + nb],
                                               np.full(len(bend.parameter_names), start[k] * stand.scale[i]), deltas])
                 out.append((f"{n}'s compliance told apart as link bending at {parent}{what}", alt))
+        for n in self.joints:  # a coupled joint's elasticity in its own joint alone, its mimic joints held
+            if n not in self.alone and coupled(stand, n):
+                alt = replace(self, where={**self.where, "alone": self.alone + [n]}, initial=start.copy())
+                out.append((f"{n}'s compliance in its own joint alone, its mimic joints held where commanded", alt))
         for m, b in enumerate(self.bends):  # a bend told apart: the same, stiffer one way than the other
             if b.about == "across":
                 two = joint_rotation_term("link_bending", self.spec, b.joint, "across2", b.points)
                 alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends[:m] + [two]
                                              + self.bends[m + 1:], label=self.where.get("joint"), masses=self.masses,
-                                             identifiable=self.where.get("identifiable_mass_moments"))
+                                             identifiable=self.where.get("identifiable_mass_moments"), noise_m=self.noise_m)
                 cols = self._bent(theta)
                 alt.initial = np.concatenate([np.asarray(theta[:len(self.indices)], float)]
                                              + [np.repeat(t, 2) if q == m else t for q, (_, t, _) in enumerate(cols)]
                                              + [deltas])
                 out.append((f"link bending at {b.joint}, stiffer one way than the other", alt))
+        for _, t in out:  # every other form keeps the joints this one turns alone
+            if self.alone and isinstance(t, JointsComplianceTerm) and "alone" not in t.where:
+                t.where["alone"] = [n for n in self.alone if n in t.joints]
         return out
 
 
@@ -266,10 +388,12 @@ def tree_mass_basis(stand: TreeStand, controls: np.ndarray, joints: list[str], c
     """(B (4 J, r), rank): the tree's mass-moment combinations that change the deflections of
     ``joints`` (compliances ``compliances``, rad/(N m), as fitted on the prior's loads) in a way no
     joint's compliance can: the torque regressor of each joint weighted by its compliance, its
-    part along each joint's own prior load projected out, the ``count`` best-determined right
-    singular directions (r <= count); each column scaled so that its load change has the RMS of
-    the prior's loads over the joints and poses. rank: how many are identifiable at all (singular
-    values above RANK_TOL of the largest). All compliances zero: the joints weighed alike."""
+    part along each joint's own prior load projected out, its columns scaled by the prior's spread
+    (TreeLoads.prior_spread: S), the ``count`` best-determined right singular directions v (r <=
+    count), each column ``S v``: one prior standard deviation, ``B^T S^-2 B = I`` (the prior on
+    delta N(0, I)). rank: how many are identifiable at all (singular values above RANK_TOL of the
+    largest). All compliances zero: the joints weighed alike. Loads with no prior spread (a URDF
+    with inertias): S = 1."""
     S = load_state(stand, controls)
     cols = [stand.loads.index[n] for n in joints]
     Y = S.torque_regressor(stand)[:, cols]                 # (N, J_t, P)
@@ -277,6 +401,8 @@ def tree_mass_basis(stand: TreeStand, controls: np.ndarray, joints: list[str], c
     tau = Y @ stand.loads.mass_moments()                    # the prior's loads
     w = np.abs(np.asarray(compliances, float))
     w = np.ones(J) if not np.any(w) else w
+    spread = stand.loads.prior_spread()
+    spread = np.where(spread > 0, spread, 1.0) if np.any(spread > 0) else np.ones(P)
     A = (Y * w[None, :, None]).reshape(N * J, P)
     C = np.zeros((N, J, J))
     C[:, np.arange(J), np.arange(J)] = tau * w
@@ -284,11 +410,9 @@ def tree_mass_basis(stand: TreeStand, controls: np.ndarray, joints: list[str], c
     A = A - Q @ (Q.T @ A)
     if not np.any(A):
         return np.zeros((P, 0)), 0
-    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    _, s, Vt = np.linalg.svd(A * spread[None, :], full_matrices=False)
     rank = int(np.sum(s > RANK_TOL * s[0]))
-    B = Vt[:min(rank, count)].T
-    size = np.sqrt(np.mean((Y.reshape(N * J, P) @ B) ** 2, axis=0))
-    return B * (np.sqrt(np.mean(tau ** 2)) / np.where(size > 0, size, 1.0)), rank
+    return spread[:, None] * Vt[:min(rank, count)].T, rank
 
 
 def partial_bending_ok(poses) -> bool:
@@ -325,10 +449,12 @@ def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m:
 
 def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int],
                            bends: list[JointRotationTerm] | None = None, label: str | None = None,
-                           masses: np.ndarray | None = None, identifiable: int | None = None) -> JointsComplianceTerm:
+                           masses: np.ndarray | None = None, identifiable: int | None = None,
+                           noise_m: float = MASS_PRIOR_NOISE_M) -> JointsComplianceTerm:
     """The compliance of the controls ``indices``, then the link bending of ``bends``, then the
     tree's mass moments' change along the columns of ``masses`` (4 J, K) (a URDF without
-    inertias; ``identifiable``: how many combinations the session determines at all); ``label``
+    inertias; ``identifiable``: how many combinations the session determines at all; ``noise_m``:
+    the marker noise their prior is weighed against, module docstring); ``label``
     the place's name (``where['joint']``: a term told apart keeps the place it was named at)."""
     stand = tree_stand(spec)
     if stand is None:
@@ -354,13 +480,17 @@ def joints_compliance_term(effect: str, spec: PlatformSpec, indices: list[int],
         where["load"] += ", the tree's mass moments estimated with the compliances"
         where["mass_basis"] = np.round(masses, 12).tolist()
         where["identifiable_mass_moments"] = int(identifiable if identifiable is not None else K)
+        where["mass_prior"] = {"noise_m": float(noise_m), "prior_std": 1.0,
+                               "rule": f"each body's mass to {PRIOR_SPREAD:g} of its prior mass (at least the mean "
+                                       "body's), its first moments to that times its length; each combination one "
+                                       "prior standard deviation"}
     where.update(_stand_where(spec))
     names = [f"compliance_{spec.control_names[i]}" for i in indices] + \
         [f"bending_{b.joint}" + (f"_{p.rsplit('_', 1)[1]}" if b.about == "across2" else "")
          for b in bends for p in b.parameter_names] + [f"mass_moments_{k + 1}" for k in range(K)]
-    units += ["rad/(N m)"] * (len(names) - len(units) - K) + ["share of the prior's load RMS"] * K
+    units += ["rad/(N m)"] * (len(names) - len(units) - K) + ["prior standard deviations"] * K
     return JointsComplianceTerm(effect, names, np.zeros(len(names)), units, where, indices=list(indices),
-                                joints=joints, spec=spec, bends=bends, masses=masses)
+                                joints=joints, spec=spec, bends=bends, masses=masses, noise_m=float(noise_m))
 
 
 def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | None) -> JointsComplianceTerm:
@@ -386,7 +516,19 @@ def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | No
         raise BadInput(f"effect {effect!r}: where.mass_basis must be a matrix (4 rows per moving joint)") from None
     if masses.size and masses.ndim != 2:
         raise BadInput(f"effect {effect!r}: where.mass_basis must be a matrix (4 rows per moving joint)")
+    try:
+        noise = float((where.get("mass_prior") or {}).get("noise_m", MASS_PRIOR_NOISE_M))
+    except (AttributeError, TypeError, ValueError):
+        raise BadInput(f"effect {effect!r}: where.mass_prior.noise_m must be a marker noise in metres") from None
+    if masses.size and not (np.isfinite(noise) and noise > 0):
+        raise BadInput(f"effect {effect!r}: where.mass_prior.noise_m must be a positive marker noise in metres")
     term = joints_compliance_term(effect, spec, indices, bends, label=where.get("joint"), masses=masses,
-                                  identifiable=where.get("identifiable_mass_moments"))
+                                  identifiable=where.get("identifiable_mass_moments"), noise_m=noise)
+    alone = where.get("alone") or []
+    if not isinstance(alone, list) or not all(isinstance(n, str) and n in term.joints and coupled(term.stand(), n)
+                                              for n in alone):
+        raise BadInput(f"effect {effect!r}: where.alone must list joints of where.joints that drive mimic joints")
+    if alone:
+        term.where["alone"] = list(alone)
     term.stand()
     return term
