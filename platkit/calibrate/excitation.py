@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from platkit.calibrate.motion import TAU0_S, ZETA0, ResponseTerm
-from platkit.calibrate.plan import idle_controls, marker_links, reference_poses_for
+from platkit.calibrate.plan import idle_controls, marker_links, pin_held, reference_poses_for
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.response import ResponseModel, actuator_positions
 from platkit.calibrate.solve import blas_threads
@@ -103,10 +103,13 @@ class MotionInformation:
 
     ``markers`` (M, 3) m on the moving part (on a tree, marker k on tracked link k mod L, as plan
     places them); ``tau_s``, ``damping`` the assumed response. The response of a control that moves
-    no tracked link (a tree's legs and head) is no column: no marker sees it."""
+    no tracked link (a tree's legs and head) is no column: no marker sees it. ``limits``, where
+    given: a control whose box is a point (held by the plan, :func:`platkit.calibrate.trajectories.drive_limits`)
+    has no response column either, and the reference poses hold it there too (the error is told
+    where the session's stand goes: :func:`platkit.calibrate.plan.pin_held`)."""
 
     def __init__(self, spec: PlatformSpec, markers: np.ndarray, *, tau_s: float = TAU0_S, damping: float = ZETA0,
-                 model: PlatformModel | None = None):
+                 model: PlatformModel | None = None, limits: Limits | None = None):
         self.spec, self.markers = spec, np.asarray(markers, float)
         self.model = model or PlatformModel(spec)
         self.td = spec.nominal_td()
@@ -118,12 +121,16 @@ class MotionInformation:
         self.links = marker_links(spec, self.M)
         self.mapping = ({f"M{k + 1}": link for k, link in enumerate(self.links)} if len(set(self.links)) > 1
                         else None)
-        seen_controls = ~idle_controls(spec)
+        held = (np.zeros(spec.n_u, bool) if limits is None else
+                np.asarray(limits.lower, float) == np.asarray(limits.upper, float))
+        seen_controls = ~idle_controls(spec) & ~held
         self.theta_cols = np.nonzero(np.concatenate([[True]] + [seen_controls] * len(self.rmodel.blocks)))[0]
         free = np.array([p.free for p in spec.parameters], bool)
         self.free = free
         # the settled model over the reference poses: its scales, gauges and the poses the error is told on
         U_ref, P_ref = reference_poses_for(spec, self.model)
+        if limits is not None and np.any(held):
+            U_ref, P_ref = pin_held(spec, U_ref, P_ref, (held, np.asarray(limits.lower, float)), self.model)
         if len(U_ref) < 3:
             raise NotIdentifiable(f"{spec.name}: fewer than 3 reference poses are reachable")
         self.U_ref = U_ref
@@ -421,7 +428,7 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
     if harmonics / period_s > 0.25 * command_rate_hz:
         raise BadInput(f"harmonics: {harmonics} of a {period_s:g} s period reach {harmonics / period_s:g} Hz, over a "
                        f"quarter of the command rate ({command_rate_hz:g} per s)")
-    information = MotionInformation(spec, markers)
+    information = MotionInformation(spec, markers, limits=limits)
     design = design_excitation(spec, series, limits, information, command_rate_hz, rng, evaluations, progress)
     shortest = 1.25 * period_s
     length: dict | None = None

@@ -42,10 +42,13 @@ from platkit.calibrate.plan_information import d_optimal as d_optimal
 from platkit.calibrate.plan_information import default_marker_count as default_marker_count
 from platkit.calibrate.plan_information import default_marker_layout as default_marker_layout
 from platkit.calibrate.plan_information import feasible as feasible
+from platkit.calibrate.plan_information import held_at_home as held_at_home
+from platkit.calibrate.plan_information import homed_at_middle as homed_at_middle
 from platkit.calibrate.plan_information import identification_jacobian as identification_jacobian
 from platkit.calibrate.plan_information import idle_controls as idle_controls
 from platkit.calibrate.plan_information import marker_link_indices as marker_link_indices
 from platkit.calibrate.plan_information import marker_links as marker_links
+from platkit.calibrate.plan_information import pin_held as pin_held
 from platkit.calibrate.plan_information import plan_uncertainty as plan_uncertainty
 from platkit.calibrate.plan_information import stand_length_scale as stand_length_scale
 from platkit.errors import BadInput, BadSession, NotIdentifiable
@@ -93,17 +96,22 @@ def snake_order(counts: list[int]) -> np.ndarray:
     return np.vstack(blocks)
 
 
-def grid_points(spec: PlatformSpec, points_per_control: int, margin: float = 0.1) -> np.ndarray:
-    """(k^n_u, n_u) uniform grid over the control box, in snake order."""
+def grid_points(spec: PlatformSpec, points_per_control: int, margin: float = 0.1,
+                held: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(k^n, n_u) uniform grid over the control box, in snake order: k values of each of the n
+    controls that move, the ``held`` ones (mask, values: :func:`held_at_home`) at their value."""
     k = int(points_per_control)
     if k < 2:
         raise BadInput(f"--grid must be at least 2 points per control, got {k}")
-    if k ** spec.n_u > 2_000_000:
-        raise BadInput(f"--grid {k} gives {k ** spec.n_u} points for {spec.n_u} controls; choose fewer, or "
+    mask = np.zeros(spec.n_u, bool) if held is None else np.asarray(held[0], bool)
+    n = int((~mask).sum())
+    if k ** n > 2_000_000:
+        raise BadInput(f"--grid {k} gives {k ** n} points for {n} controls; choose fewer, or "
                        "--optimal N (N poses chosen D-optimally from random candidates)")
     lo, hi = control_box(spec, margin)
-    axes = [np.linspace(a, b, k) for a, b in zip(lo, hi)]
-    idx = snake_order([k] * spec.n_u)
+    axes = [np.array([held[1][j]]) if mask[j] and held is not None else np.linspace(a, b, k)
+            for j, (a, b) in enumerate(zip(lo, hi))]
+    idx = snake_order([len(a) for a in axes])
     return np.stack([axes[j][idx[:, j]] for j in range(spec.n_u)], axis=1)
 
 
@@ -132,13 +140,17 @@ def pose_grid_plan(spec: PlatformSpec, points_per_coordinate: int, margin: float
 
 
 def grid_plan(spec: PlatformSpec, points_per_control: int, margin: float = 0.1, td=None,
-              model: PlatformModel | None = None) -> Plan:
-    """The paper's plan: the uniform grid in snake order, infeasible points dropped. A stand whose
-    pose space is free (``spec.free_space == 'pose'``) takes the grid over its poses instead
+              model: PlatformModel | None = None, held: tuple[np.ndarray, np.ndarray] | None = None) -> Plan:
+    """The paper's plan: the uniform grid in snake order, infeasible points dropped; ``held``
+    controls (mask, values: :func:`held_at_home`) kept at their value. A stand whose pose space is
+    free (``spec.free_space == 'pose'``) takes the grid over its poses instead
     (:func:`pose_grid_plan`, ``points_per_control`` values per coordinate)."""
     if spec.pose_free:
+        if held is not None:
+            raise BadInput(f"{spec.name}: its pose space is free (controls from poses through IK); a plan that holds "
+                           "some controls is not made for it")
         return pose_grid_plan(spec, points_per_control, margin, td, model)
-    U = grid_points(spec, points_per_control, margin)
+    U = grid_points(spec, points_per_control, margin, held)
     ok, P = feasible(spec, U, td, model)
     if not np.any(ok):
         raise NotIdentifiable(f"{spec.name}: no point of the {points_per_control}-per-control grid is reachable"
@@ -178,11 +190,14 @@ def grid_plan_for(spec: PlatformSpec, n_poses: int, margin: float = 0.1, td=None
 
 
 def random_candidates(spec: PlatformSpec, n: int, rng: np.random.Generator, margin: float = 0.1, td=None,
-                      model: PlatformModel | None = None, hold_idle: bool = False) -> Plan:
+                      model: PlatformModel | None = None, hold_idle: bool = False,
+                      held: tuple[np.ndarray, np.ndarray] | None = None) -> Plan:
     """``n`` feasible controls drawn uniformly from the control box (rejection sampling); for a
     stand whose pose space is free, ``n`` poses drawn from the pose box and their controls.
     ``hold_idle``: the controls that move no tracked link (:func:`idle_controls`: a humanoid's legs
-    and head when its hands are tracked) keep their neutral command instead."""
+    and head when its hands are tracked) keep their neutral command instead; ``held`` (mask, values:
+    :func:`held_at_home`), the controls a plan does not move, keep their value (this before
+    ``hold_idle``)."""
     model = model or PlatformModel(spec)
     if spec.pose_free:
         P, U, drawn = sample_poses(model, n, rng, margin, td)
@@ -191,6 +206,8 @@ def random_candidates(spec: PlatformSpec, n: int, rng: np.random.Generator, marg
     if hold_idle:
         idle = idle_controls(spec)
         lo, hi = np.where(idle, spec.neutral_u(), lo), np.where(idle, spec.neutral_u(), hi)
+    if held is not None:
+        lo, hi = np.where(held[0], held[1], lo), np.where(held[0], held[1], hi)
     U_out, P_out = [], []
     tries = 0
     while sum(len(u) for u in U_out) < n:
@@ -284,20 +301,23 @@ def gauge_counts(J_plan: np.ndarray, J_reference: np.ndarray, names: list[str], 
 
 def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.Generator, sigma: float,
                  n_markers: int = 5, markers: np.ndarray | None = None, candidates: Plan | None = None,
-                 margin: float = 0.1) -> tuple[Plan, dict]:
+                 margin: float = 0.1, held: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Plan, dict]:
     """A D-optimal plan of ``n`` poses from ``n_candidates`` random feasible candidates (or the
     given ``candidates``), ordered by nearest neighbour. Returns the plan and, for comparison,
     the uncertainty of ``n`` random candidates (the first n drawn). Uncertainties are over the
-    stand's :func:`reference_poses`."""
+    stand's :func:`reference_poses`. ``held`` (mask, values: :func:`held_at_home`): the controls
+    the plan does not move, at their value in the candidates and in the reference poses
+    (:func:`pin_held`)."""
     model = PlatformModel(spec)
     markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
-    cand = candidates or random_candidates(spec, n_candidates, rng, margin, model=model, hold_idle=True)
+    cand = candidates or random_candidates(spec, n_candidates, rng, margin, model=model, hold_idle=True, held=held)
     ij = identification_jacobian(spec, cand.controls, markers, P=cand.poses, model=model)
     sub = _Subspace(ij.J)
     sel = d_optimal(sub.reduce(ij.J), n)
     sel = sel[nearest_neighbour_order(cand.controls[sel], spec)]
     ref = reference_poses(spec, margin, model)
-    J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
+    U_ref, P_ref = pin_held(spec, ref.controls, ref.poses, held, model)
+    J_ref = identification_jacobian(spec, U_ref, markers, P=P_ref, model=model).J
     ref_sub = _Subspace(J_ref)
     links = marker_links(spec, len(markers))
     info = plan_uncertainty(ij.J[sel], J_ref, sigma, ij.names, ij.units, ref_sub, links, ij.n_td)
@@ -310,13 +330,15 @@ def optimal_plan(spec: PlatformSpec, n: int, n_candidates: int, rng: np.random.G
 
 
 def evaluate_plan(spec: PlatformSpec, plan: Plan, sigma: float, n_markers: int = 5, markers=None,
-                  margin: float = 0.1) -> dict:
-    """Predicted uncertainty of ``plan``, over the stand's :func:`reference_poses`."""
+                  margin: float = 0.1, held: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Predicted uncertainty of ``plan``, over the stand's :func:`reference_poses` (the ``held``
+    controls at their value there: :func:`pin_held`)."""
     model = PlatformModel(spec)
     markers = default_marker_layout(spec, n_markers, np.random.default_rng(0)) if markers is None else markers
     ij = identification_jacobian(spec, plan.controls, markers, P=plan.poses, model=model)
     ref = reference_poses(spec, margin, model)
-    J_ref = identification_jacobian(spec, ref.controls, markers, P=ref.poses, model=model).J
+    U_ref, P_ref = pin_held(spec, ref.controls, ref.poses, held, model)
+    J_ref = identification_jacobian(spec, U_ref, markers, P=P_ref, model=model).J
     out = plan_uncertainty(ij.J, J_ref, sigma, ij.names, ij.units, links=marker_links(spec, len(markers)), n_td=ij.n_td)
     out.update(gauge_counts(ij.J, J_ref, ij.names, ij.units, ij.n_td))
     return out

@@ -75,6 +75,43 @@ def idle_controls(spec: PlatformSpec) -> np.ndarray:
     return ~moving
 
 
+def homed_at_middle(u0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """(n_u,) bool: the controls whose neutral ``u0`` lies on or outside their box (lower, upper)
+    (a URDF joint whose zero is a limit: an elbow), which a motion takes about the box's middle
+    instead of their neutral; a box without finite ends never."""
+    return ~((u0 > lower) & (u0 < upper)) & np.isfinite(upper - lower)
+
+
+def held_at_home(spec: PlatformSpec, moving: np.ndarray, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """(held (n_u,) bool, values (n_u,)): a plan that moves only the controls ``moving`` (n_u,) bool
+    holds every other control at its home: its neutral, or the middle of its stroke less ``margin``
+    at both ends where the neutral lies on or outside that box (:func:`homed_at_middle`, the home a
+    motion starts from). ``values`` is the home of every control."""
+    moving = np.asarray(moving, bool)
+    if moving.shape != (spec.n_u,):
+        raise BadInput(f"moving: expected {spec.n_u} flags (one per control), got {moving.shape}")
+    lo, hi = spec.control_bounds()
+    span = hi - lo
+    lower, upper = lo + margin * span, hi - margin * span
+    u0 = spec.neutral_u()
+    with np.errstate(invalid="ignore"):
+        home = np.where(homed_at_middle(u0, lower, upper), 0.5 * (lower + upper), u0)
+    return ~moving, home
+
+
+def pin_held(spec: PlatformSpec, U: np.ndarray, P: np.ndarray, held: tuple[np.ndarray, np.ndarray] | None,
+             model: PlatformModel | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (U (N, n_u), P (N, n_p)) with the ``held`` controls (mask, values: :func:`held_at_home`)
+    set to their values, the poses solved again; those then out of reach dropped. Controls that move
+    no tracked link change no marker, so pinning them alone returns U, P as given."""
+    if held is None or not np.any(held[0] & ~idle_controls(spec)):
+        return U, P
+    U = np.array(U, float)
+    U[:, held[0]] = held[1][held[0]]
+    ok, P = feasible(spec, U, model=model)
+    return U[ok], P[ok]
+
+
 def marker_link_indices(spec: PlatformSpec, n_markers: int) -> list[int] | None:
     """The rule that places planned and simulated markers on a stand whose links are tracked
     (``spec.link_poses``, a tree): marker k rides on tracked link k mod L (``spec.tracked_links``),

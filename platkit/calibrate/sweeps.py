@@ -108,7 +108,7 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
     the length its information per sample says the target needs (shorter or longer), lengthened
     until its prediction meets the target (the shortest that met is kept); beside it the other
     choice of via points in its box."""
-    information = MotionInformation(spec, markers)
+    information = MotionInformation(spec, markers, limits=limits)
     seed = int(rng.integers(2 ** 31))
     duration = float(duration_s) if duration_s is not None else 60.0
     length: dict | None = None

@@ -15,12 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.calibrate.plan import feasible, idle_controls
+from platkit.calibrate.plan import feasible, held_at_home, homed_at_middle, idle_controls
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 
-__all__ = ["Limits", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S"]
+__all__ = ["Limits", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S",
+           "homed_at_middle"]
 
 #: the window's shortest rise (s), doubled until the limits hold while it rises (at most one period)
 RAMP_S = 2.0
@@ -46,13 +47,6 @@ class Limits:
     accel: np.ndarray
     source: dict = field(default_factory=dict)
     home: np.ndarray | None = None
-
-
-def homed_at_middle(u0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """(n_u,) bool: the controls whose neutral ``u0`` lies on or outside their box (lower, upper)
-    (a URDF joint whose zero is a limit: an elbow), which a motion takes about the box's middle
-    instead of their neutral; a box without finite ends never."""
-    return ~((u0 > lower) & (u0 < upper)) & np.isfinite(upper - lower)
 
 
 def home_controls(spec: PlatformSpec, limits: Limits) -> np.ndarray:
@@ -88,7 +82,7 @@ def _declared_rates(spec: PlatformSpec) -> np.ndarray | None:
 
 
 def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.ndarray | None,
-                 margin: float = 0.1) -> Limits:
+                 margin: float = 0.1, moving: np.ndarray | None = None) -> Limits:
     """The limits of a plan: the strokes less ``margin`` of each at both ends, and the rate and
     acceleration limits given (internal units, one number or one per control), else those the
     description declares (a URDF's joint ``velocity``); BadInput naming what is missing.
@@ -97,7 +91,9 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
     outside the box (a URDF joint whose zero is a limit: an elbow) is homed at the box's middle
     (``source['home']`` names it). A control that moves no tracked link (a tree's legs and head,
     :func:`platkit.calibrate.plan.idle_controls`) keeps its neutral command: its box is that
-    point."""
+    point. ``moving`` (n_u,) bool, where given: the controls the session moves; every other is held
+    at its home (:func:`platkit.calibrate.plan.held_at_home`: neutral, or the box's middle as
+    above), its box that point (``source['held']`` names them)."""
     lo, hi = spec.control_bounds()
     if not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
         bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and b > a)]
@@ -123,15 +119,21 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
     source["accel"] = "given (max_accel)"
     u0 = spec.neutral_u()
     lower, upper = lo + margin * span, hi - margin * span
-    idle = idle_controls(spec)
-    outside = homed_at_middle(u0, lower, upper) & ~idle
-    home = np.where(outside, 0.5 * (lower + upper), u0)
+    names = np.array(spec.control_names)
+    if moving is None:
+        idle = idle_controls(spec)
+        outside = homed_at_middle(u0, lower, upper) & ~idle
+        home = np.where(outside, 0.5 * (lower + upper), u0)
+    else:
+        idle, home = held_at_home(spec, moving, margin)
+        outside = homed_at_middle(u0, lower, upper)
     if np.any(outside):
-        source["home"] = ("the middle of the box for " + ", ".join(np.array(spec.control_names)[outside])
+        source["home"] = ("the middle of the box for " + ", ".join(names[outside])
                           + " (neutral on or outside the strokes less the margin), neutral for the others")
     if np.any(idle):
-        lower, upper = np.where(idle, u0, lower), np.where(idle, u0, upper)
-        source["held"] = ("at neutral (they move no tracked link): " + ", ".join(np.array(spec.control_names)[idle]))
+        lower, upper = np.where(idle, home, lower), np.where(idle, home, upper)
+        source["held"] = ("at neutral (they move no tracked link): " + ", ".join(names[idle]) if moving is None
+                          else "at home (not moved by the plan): " + ", ".join(names[idle]))
     return Limits(lower, upper, rate, accel, source, home)
 
 

@@ -28,6 +28,12 @@ def add_parser(sub):
                    help="markers on the moving part (default 5; on a tree, --moving-link A,B: 3 on each tracked link, "
                         "marker k on link k mod L)")
     p.add_argument("--margin", type=float, default=0.1, help="fraction of each stroke kept clear at both ends (default 0.1)")
+    p.add_argument("--move", default=None, metavar="NAME[,NAME...]",
+                   help="the controls the session moves: names or shell-style patterns ('arm_*'), comma separated; "
+                        "every other control is held at its home (its neutral, or the middle of its stroke less "
+                        "--margin where the neutral lies on or outside it) in every command, and the prediction is "
+                        "told at the reference poses with them held there (default: every control that moves a "
+                        "tracked link; those that move none are held at neutral)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--unit", default="mm", choices=["mm", "m"], help="length unit of plan.csv (default mm)")
     mo = p.add_argument_group("excitation for calibration from motion (--motion): --out is the session's commands.csv")
@@ -90,6 +96,46 @@ def _markers(args, spec) -> tuple[np.ndarray, dict]:
     return markers, out
 
 
+def moving_controls(spec, text: str | None) -> np.ndarray | None:
+    """--move: (n_u,) bool, the controls named or matched (shell-style, case-sensitive) by its
+    comma-separated items; None where not given. BadInput naming the option and the item that
+    matches no control, or an empty list."""
+    from fnmatch import fnmatchcase
+
+    if text is None:
+        return None
+    items = [x.strip() for x in text.split(",")]
+    if not any(items):
+        raise BadInput("--move: no control named (give names or patterns, comma separated)")
+    if "" in items:
+        raise BadInput(f"--move {text!r}: an empty name between commas")
+    names = list(spec.control_names)
+    moving = np.zeros(spec.n_u, bool)
+    for item in items:
+        hit = np.array([fnmatchcase(n, item) for n in names], bool)
+        if not hit.any():
+            raise BadInput(f"--move: {item!r} is not a control of the {spec.name} stand (nor matches one); its "
+                           f"controls: {', '.join(names)}")
+        moving |= hit
+    return moving
+
+
+def _held_report(spec, moving: np.ndarray | None, held) -> dict:
+    """plan.json's 'move' (the controls moved) and 'held' (each held control's value, SI) for --move."""
+    if moving is None:
+        return {}
+    names = np.array(spec.control_names)
+    return {"move": list(names[moving]), "held": {str(n): float(v) for n, v in zip(names[held[0]], held[1][held[0]])}}
+
+
+def _print_held(report: dict) -> None:
+    """The printed line of --move: how many controls move, which are held (the first few)."""
+    if "held" in report:
+        held = list(report["held"])
+        shown = ", ".join(held[:8]) + (f" and {len(held) - 8} more" if len(held) > 8 else "")
+        print(f"moves {len(report['move'])} controls (--move); holds {len(held)} at home: {shown or 'none'}")
+
+
 def _summary(info: dict) -> dict:
     return {k: v for k, v in info.items() if k != "parameter_std"}
 
@@ -122,28 +168,32 @@ def run(args) -> int:
         raise BadInput(f"--out {out}: expected a .csv file name")
     check_output_file(out)
     study = _monte_carlo_inputs(args) if args.monte_carlo is not None or args.compare or args.effect else None
+    if study is not None and args.move is not None:
+        raise BadInput("--move: not with --monte-carlo (its held-out poses move every control)")
     spec = platform_from_args(args)
+    moving = moving_controls(spec, args.move)
+    held = None if moving is None else pl.held_at_home(spec, moving, args.margin)
     sigma = args.noise_mm * 1e-3
     rng = np.random.default_rng(args.seed)
     markers, report = _markers(args, spec)
     report = {"platform": spec.name, "noise_mm": args.noise_mm, **report,
               "reference": f"predicted errors are RMS over {pl.REFERENCE_POSES} random reachable poses "
                            f"(seed {pl.REFERENCE_SEED}), the same for every plan of this stand",
-              "unit": args.unit}
+              "unit": args.unit, **_held_report(spec, moving, held)}
     if args.optimal is not None:
-        cands = pl.grid_plan(spec, args.grid, args.margin) if args.grid else None
+        cands = pl.grid_plan(spec, args.grid, args.margin, held=held) if args.grid else None
         if args.optimal < 1:
             raise BadInput("--optimal must be at least 1")
         if cands is None and args.candidates < args.optimal:
             raise BadInput(f"--candidates {args.candidates}: must be at least --optimal ({args.optimal})")
         plan, baseline = pl.optimal_plan(spec, args.optimal, args.candidates, rng, sigma, markers=markers,
-                                         candidates=cands, margin=args.margin)
+                                         candidates=cands, margin=args.margin, held=held)
         report["plan"] = plan.info
         report["baseline"] = {"kind": "first N random candidates" if cands is None else "N grid points evenly along the path", **baseline}
     else:
-        plan = pl.grid_plan(spec, args.grid, args.margin)
+        plan = pl.grid_plan(spec, args.grid, args.margin, held=held)
         plan.info.update(kind="grid")
-        plan.info.update(pl.evaluate_plan(spec, plan, sigma, markers=markers, margin=args.margin))
+        plan.info.update(pl.evaluate_plan(spec, plan, sigma, markers=markers, margin=args.margin, held=held))
         report["plan"] = plan.info
     report["n_poses"] = int(len(plan.controls))
     if study is not None:
@@ -153,6 +203,7 @@ def run(args) -> int:
         pl.write_plan_csv(tmp / out.name, spec, plan.controls, args.unit)
         (tmp / (out.stem + ".json")).write_text(jsonout.dumps(report, indent=2, default=float) + "\n", encoding="utf-8")
     _print(plan.info, report.get("baseline"), out, len(plan.controls))
+    _print_held(report)
     if study is not None:
         _print_monte_carlo(report["monte_carlo"], report["plan"], out)
     return 0
@@ -187,6 +238,7 @@ def run_motion(args) -> int:
         raise BadInput(f"--out {out}: expected a .csv file name (the session's commands.csv)")
     check_output_file(out)
     spec = platform_from_args(args)
+    moving = moving_controls(spec, args.move)
 
     def limit(text, option):
         if text is None:
@@ -201,7 +253,7 @@ def run_motion(args) -> int:
 
     try:
         limits = tr.drive_limits(spec, limit(args.max_rate, "--max-rate"), limit(args.max_accel, "--max-accel"),
-                                 args.margin)
+                                 args.margin, moving)
     except BadInput as exc:  # a limit the stand does not declare is asked of its option, given or not
         head, colon, rest = str(exc).partition(":")
         if colon and head in ("max_rate", "max_accel"):
@@ -220,8 +272,9 @@ def run_motion(args) -> int:
                                     sigma_m=args.noise_mm * 1e-3, markers=markers,
                                     rng=np.random.default_rng(args.seed), duration_s=args.duration_s,
                                     target_m=target_m, evaluations=args.evaluations, progress=progress)
+    held = None if moving is None else (~moving, limits.lower)
     report = {"platform": spec.name, "unit": args.unit, "noise_mm": args.noise_mm, **marker_report,
-              "seed": args.seed, **result.report,
+              "seed": args.seed, **_held_report(spec, moving, held), **result.report,
               "warnings": said()}  # every warning said while the verb ran (platkit.notices), on stderr too
     with atomic_output_dir(out.parent if str(out.parent) else Path(".")) as tmp:
         ex.write_commands_csv(tmp / out.name, spec, result.t, result.controls, args.unit)
@@ -230,6 +283,7 @@ def run_motion(args) -> int:
     sc = length_scale("mm")
     print(f"wrote {out} ({r['n_commands']} commands at {r['command_rate_hz']:g} per s, {r['duration_s']:.1f} s, no holds) "
           f"and {out.with_suffix('.json')}")
+    _print_held(report)
     fam = r["family"]
     if fam["name"] == "via":
         mine, theirs = ("D-optimal", "random") if fam["choice"] == "d_optimal" else ("random", "D-optimal")
