@@ -124,12 +124,16 @@ class TrueStand:
     body_noise: dict
     body_rng: np.random.Generator
     marker_links: list[int] | None = None  # a tree: the tracked link each marker rides on (spec.tracked_links)
+    body_links: list[int] | None = None  # a tree: the tracked link each rigid body rides on, as the markers
 
     def moving_link(self, spec: PlatformSpec) -> dict[str, str] | None:
-        """A tree's mapping marker -> tracked link (session.yaml's moving_link); None on a chain."""
+        """A tree's mapping marker or rigid body -> tracked link (session.yaml's moving_link); None
+        on a chain."""
         if self.marker_links is None:
             return None
-        return {m: spec.tracked_links[k] for m, k in zip(self.marker_names, self.marker_links)}
+        out = {m: spec.tracked_links[k] for m, k in zip(self.marker_names, self.marker_links)}
+        out.update({b: spec.tracked_links[k] for b, k in zip(self.body_names, self.body_links or [])})
+        return out
 
     @property
     def base_markers_mocap(self) -> np.ndarray | None:
@@ -152,16 +156,23 @@ class TrueStand:
         base = X[:, None, :] + np.einsum("kij,kmj->kmi", R, body)
         return base @ T[:3, :3].T + T[:3, 3]
 
-    def bodies_of(self, q: np.ndarray, X: np.ndarray, shrink=1.0) -> np.ndarray:
-        """(K, n_bodies, 7) in the mocap frame, noise divided by ``shrink`` ((K, n_bodies) or 1)."""
+    def bodies_of(self, q: np.ndarray, X: np.ndarray, shrink=1.0, frames=None) -> np.ndarray:
+        """(K, n_bodies, 7) in the mocap frame, noise divided by ``shrink`` ((K, n_bodies) or 1); on
+        a tree each body on its link of ``frames`` (R (K, L, 3, 3), X (K, L, 3), as :meth:`markers_of`)."""
         T, n_bodies, noise = self.mocap_from_base, len(self.body_names), self.body_noise
-        R = T[:3, :3] @ matrix_from_quat(q)  # (K, 3, 3) mocap_from_moving
-        o = (X @ T[:3, :3].T + T[:3, 3])[:, None] + np.einsum("kab,mb->kma", R, self.body_origins)
+        if self.body_links is not None and frames is not None:
+            k = np.asarray(self.body_links, int)
+            R = np.einsum("ab,kmbc->kmac", T[:3, :3], frames[0][:, k])  # (K, B, 3, 3) mocap_from_link
+            origin = frames[1][:, k] @ T[:3, :3].T + T[:3, 3]  # (K, B, 3)
+        else:
+            R = np.broadcast_to((T[:3, :3] @ matrix_from_quat(q))[:, None], (len(q), n_bodies, 3, 3))
+            origin = np.broadcast_to((X @ T[:3, :3].T + T[:3, 3])[:, None], (len(q), n_bodies, 3))
+        o = origin + np.einsum("kmab,mb->kma", R, self.body_origins)
         shape = (len(q), n_bodies, 3)
         k = np.broadcast_to(np.asarray(shrink, float), shape[:2])[..., None]
         o = o + self.body_rng.normal(size=shape) * noise.get("position_m", 0.0) / k
         turn = matrix_from_rotvec(self.body_rng.normal(size=shape) * noise.get("rotation_rad", 0.0) / k)
-        Rw = np.einsum("kab,mbc,kmcd->kmad", R, matrix_from_rotvec(self.body_rotvecs), turn)
+        Rw = np.einsum("kmab,mbc,kmcd->kmad", R, matrix_from_rotvec(self.body_rotvecs), turn)
         return np.concatenate([o, quat_from_matrix(Rw)], axis=2)
 
 
@@ -241,7 +252,7 @@ def draw_true_stand(spec: PlatformSpec, seed: int, truth: TruthOptions, recordin
                   if n_bodies else {})
     links = marker_link_indices(spec, n_markers)  # a tree: each marker's tracked link, as plan places them
     return TrueStand(td_true, U, P_true, names, S, T, base_names, B, brng, body_names, body_o, body_rv, body_noise,
-                     body_rng, links)
+                     body_rng, links, marker_link_indices(spec, n_bodies))
 
 
 def command_schedule(spec: PlatformSpec, U: np.ndarray, hold_s: float) -> Schedule:
@@ -301,7 +312,7 @@ def settled_poses_directly(spec: PlatformSpec, model: PlatformModel, options: Si
     if B_mocap is not None:
         base_avg = B_mocap + stand.base_rng.normal(size=B_mocap.shape) * noise / np.sqrt(n_avg * N)
     body_counts = stand.body_rng.binomial(n_avg, 1 - rec.occlusion, size=(N, n_bodies)).astype(float)
-    bod = stand.bodies_of(q, X, np.sqrt(np.maximum(body_counts, 1)))
+    bod = stand.bodies_of(q, X, np.sqrt(np.maximum(body_counts, 1)), frames)
     bod[body_counts == 0] = np.nan
     commands = hidden.commands
     return PoseSet(platform=spec.name, controls=U, markers=Y, marker_names=stand.marker_names,
@@ -439,7 +450,7 @@ def record_stream(options: SimulationOptions, rng: np.random.Generator, stand: T
         YB = np.round(YB * 1e6) / 1e6
     bod = None
     if stand.body_names:
-        bod = stand.bodies_of(q, X)
+        bod = stand.bodies_of(q, X, frames=frames)
         bod[_occlusion_mask(stand.body_rng, len(tm), len(stand.body_names), rec.occlusion, burst)] = np.nan
         bod[..., :3] = np.round(bod[..., :3] * 1e6) / 1e6
         bod[..., 3:] = np.round(bod[..., 3:] * 1e9) / 1e9
@@ -491,9 +502,6 @@ def simulate(spec: PlatformSpec, options: SimulationOptions | None = None,
     rec.check()
     if opts.imu is not None and not opts.raw:
         raise BadInput("an IMU stream needs the simulated motion: simulate with raw=True (not poses only)")
-    if spec.link_poses is not None and opts.recording.n_bodies:
-        raise BadInput(f"a simulated tree ({', '.join(spec.tracked_links)}) carries markers on its links and base "
-                       "markers, no rigid bodies: leave out --rigid-bodies (n_bodies=0)")
     rng = np.random.default_rng(opts.seed)
     model = PlatformModel(spec)
     U, plan_info = plan_commands(spec, opts.plan, rng, model, rec.length_unit)

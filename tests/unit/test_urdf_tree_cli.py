@@ -136,8 +136,8 @@ def test_a_joint_reading_just_past_its_limit_warns_alike_in_calibrate_and_predic
 def test_simulate_a_tree_then_calibrate_it(tmp_path, capsys):
     """`platkit simulate --moving-link a,b --poses-only` writes a tree session (markers on every
     tracked link, by default 3 on each as plan places them, the mapping in session.yaml) that
-    calibrate fits to its noise; rigid bodies on a simulated tree are refused in one line (its raw
-    streams: test_tree_stream.py)."""
+    calibrate fits to its noise (rigid bodies on a simulated tree: test_simulate_tree_bodies.py; its
+    raw streams: test_tree_stream.py)."""
     folder = tmp_path / "sim"
     base = ["simulate", "--platform", "urdf", "--description", str(URDF), "--moving-link", "right_tcp,left_tcp",
             "--seed", "3"]
@@ -149,7 +149,3 @@ def test_simulate_a_tree_then_calibrate_it(tmp_path, capsys):
     truth = yaml.safe_load((folder / "truth.yaml").read_text())
     rms = yaml.safe_load((out / "calibration.yaml").read_text())["residual"]["rms_after"]
     assert rms < truth["marker_noise_m"] * 1e3  # below one sample's noise per axis: the settled poses average many
-    capsys.readouterr()
-    assert main(base + ["--out", str(tmp_path / "raw"), "--rigid-bodies", "1", "--poses-only"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "no rigid bodies: leave out --rigid-bodies" in err[0]
