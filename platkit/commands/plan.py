@@ -102,6 +102,8 @@ def moving_controls(spec, text: str | None) -> np.ndarray | None:
     matches no control, or an empty list."""
     from fnmatch import fnmatchcase
 
+    from platkit.calibrate.plan import idle_controls
+
     if text is None:
         return None
     items = [x.strip() for x in text.split(",")]
@@ -117,6 +119,9 @@ def moving_controls(spec, text: str | None) -> np.ndarray | None:
             raise BadInput(f"--move: {item!r} is not a control of the {spec.name} stand (nor matches one); its "
                            f"controls: {', '.join(names)}")
         moving |= hit
+    if spec.link_poses is not None and not np.any(moving & ~idle_controls(spec)):
+        raise BadInput(f"--move {text!r}: moves no control that moves a tracked link ({', '.join(spec.tracked_links)}); "
+                       "the markers would never move on the stand")
     return moving
 
 

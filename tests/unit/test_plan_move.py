@@ -91,6 +91,7 @@ def test_held_joint_whose_zero_is_a_limit_sits_mid_stroke_in_a_motion(tmp_path, 
     ("arm_*", "--move: 'arm_*' is not a control of the urdf stand"),
     ("right_1_joint,nope", "--move: 'nope' is not a control of the urdf stand"),
     (" , ", "--move: no control named"),
+    ("head_*", "--move 'head_*': moves no control that moves a tracked link (right_tcp, left_tcp)"),
     ("right_1_joint,,left_1_joint", "--move 'right_1_joint,,left_1_joint': an empty name between commas"),
 ])
 def test_bad_move_is_one_line_naming_the_option_and_name(tmp_path, capsys, move, expected):
