@@ -6,7 +6,8 @@ each, 0.1 mm white noise per sample at 50 Hz), the head commanded too; per seed,
 joint origins moved (0.5 mm, 1 mrad RMS) and every recorded joint's zero offset (2 mrad), the
 torso pitch and the right shoulder elastic (2e-4 and 4e-4 rad/(N m)); 30 random held commands
 (1.5 s min-jerk moves, 2 s holds). Prints per seed the largest sag (the elastic robot against the
-rigid true one at rest), the holds settled, the effects named with their joints, and diagnose's
+rigid true one at rest), the holds settled, the effects named with their joints, the places named
+scored against the truth (:func:`scored`: right, false, planted but missed), and diagnose's
 held-out RMS (its cross-validation over the settled poses, mm) before (geometry) and after.
 
 ``--no-holds``: the same tree streamed without holds instead (simulate_elastic_motion: a slow
@@ -14,7 +15,7 @@ multisine of every recorded joint, 0.03-0.2 Hz, ``--duration`` s, each drive a f
 20 ms behind its step-held commands, the motion capture's clock 30 ms behind), calibrated from
 motion, diagnosed on the stream with ``--heldout`` a session of the same set-up (the seed's markers
 and mocap transform, noise of its own) with ``--poses`` held commands, settled. Prints per seed the
-effects named and, per hand, the held-out session's RMS (mm, 3-D, over its markers) with the
+effects named (scored the same way) and, per hand, the held-out session's RMS (mm, 3-D, over its markers) with the
 calibration from motion (rigid) and after diagnosis.
 
     .venv/bin/python benchmarks/tree_stream_compliance.py [--seeds 2900101,2900102,2900103]
@@ -45,6 +46,57 @@ JOINTS = ["torso_yaw", "torso_pitch", "head_yaw", "right_1_joint", "right_2_join
 LIMIT = dict(zip(JOINTS, [1.5, 0.5, 1.0, 2.0, 1.5, 2.0, 2.0, 1.5, 2.0]))
 MARKERS = {f"R{k}": "right_tcp" for k in (1, 2, 3)} | {f"L{k}": "left_tcp" for k in (1, 2, 3)}
 ELASTIC = {"torso_pitch": 2e-4, "right_1_joint": 4e-4}
+#: a joint of the every-joint compliance term names its place where its compliance is this many
+#: standard deviations from zero
+NAMED_SIGMA = 3.0
+
+
+def named_places(findings: list[dict]) -> list[tuple[str, str]]:
+    """(effect, joint) of every place a finding names: one per finding (its actuator or joint);
+    for the every-joint compliance term each joint whose compliance is NAMED_SIGMA from zero and
+    each bend told apart in it (``bending_<joint>``: link bending there). ``unexplained`` names no
+    place."""
+    out: list[tuple[str, str]] = []
+    for f in findings:
+        w = f["where"]
+        if f["effect"] == "unexplained":
+            continue
+        if "joints" in w and "actuators" in w:
+            joint_of = dict(zip(w["actuators"], w["joints"]))
+            for name, par in f["parameters"].items():
+                if name.startswith("bending_"):
+                    place = ("link_bending", name[len("bending_"):].removesuffix("_u").removesuffix("_v"))
+                elif name.startswith("compliance_") and par.get("std") and abs(par["value"]) > NAMED_SIGMA * par["std"]:
+                    place = (f["effect"], joint_of[name[len("compliance_"):]])
+                else:
+                    continue
+                if place not in out:
+                    out.append(place)
+        else:
+            out.append((f["effect"], str(w.get("actuator") or w.get("joint") or "")))
+    return out
+
+
+def listed(findings: list[dict]) -> str:
+    """Each finding's effect and the joints (or the actuator or joint) it names."""
+    out = []
+    for f in findings:
+        w = f["where"]
+        out.append(f"{f['effect']} ({', '.join(w.get('joints') or [str(w.get('actuator') or w.get('joint'))])})")
+    return "; ".join(out) or "none"
+
+
+def scored(findings: list[dict]) -> str:
+    """The places named against the truth: right (compliance at a joint ELASTIC plants: the
+    simulator's joint compliance, at torso_pitch its own joint alone), false (any other place or
+    effect: the seed plants no link bending, no mimic joint's elasticity, nothing else), missed (a
+    planted joint not named)."""
+    places = named_places(findings)
+    right = [p for p in places if p[0] == "compliance" and p[1] in ELASTIC]
+    false = [f"{e} at {j}" for e, j in places if (e, j) not in right]
+    missed = [j for j in ELASTIC if ("compliance", j) not in right]
+    return (f"right {len(right)}/{len(ELASTIC)}, false {len(false)}" + (f" ({', '.join(false)})" if false else "")
+            + (f", missed {', '.join(missed)}" if missed else ""))
 
 
 def main() -> None:
@@ -56,7 +108,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.no_holds:
         return no_holds(args)
-    print("seed: largest sag mm | holds settled | named (joints) | diagnose held-out RMS mm: geometry -> final")
+    print("seed: largest sag mm | holds settled | named (joints) | places named: right, false | diagnose held-out RMS "
+          "mm: geometry -> final")
     for seed in (int(s) for s in args.seeds.split(",")):
         rng = np.random.default_rng(seed)
         truth, U = drawn(rng, args.poses)
@@ -71,11 +124,11 @@ def main() -> None:
                     str(tmp / "diag"), "--quiet"]):
                 raise SystemExit("diagnose failed")
             d = json.loads((tmp / "diag" / "diagnosis.json").read_text())
-        named = "; ".join(f"{f['effect']} ({', '.join(f['where'].get('joints') or [str(f['where'].get('joint'))])})"
-                          for f in d["findings"]) or "none"
+        named = listed(d["findings"])
         final = d["findings"][-1]["heldout_rms_after"] if d["findings"] else d["heldout_rms_geometric"]
         print(f"{seed}: {1e3 * np.abs(sim.settled - sim.rigid).max():.2f} | {d['n_poses']}/{args.poses} | {named} | "
-              f"{d['heldout_rms_geometric']:.3f} -> {final:.4f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+              f"{scored(d['findings'])} | {d['heldout_rms_geometric']:.3f} -> {final:.4f} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
 def drawn(rng: np.random.Generator, poses: int):
@@ -88,8 +141,8 @@ def drawn(rng: np.random.Generator, poses: int):
 
 
 def no_holds(args) -> None:
-    print("seed: largest sag mm | poses diagnosed | named (joints) | per hand, held-out session RMS mm: calibrated "
-          "from motion (rigid) -> diagnosed")
+    print("seed: largest sag mm | poses diagnosed | named (joints) | places named: right, false | per hand, held-out "
+          "session RMS mm: calibrated from motion (rigid) -> diagnosed")
     amplitude = np.array([0.6 * LIMIT[j] for j in JOINTS])
     for seed in (int(s) for s in args.seeds.split(",")):
         rng = np.random.default_rng(seed)
@@ -109,8 +162,7 @@ def no_holds(args) -> None:
                     str(tmp / "h"), "--out", str(tmp / "diag"), "--quiet"]):
                 raise SystemExit("diagnose failed")
             d = json.loads((tmp / "diag" / "diagnosis.json").read_text())
-        named = "; ".join(f"{f['effect']} ({', '.join(f['where'].get('joints') or [str(f['where'].get('joint'))])})"
-                          for f in d["findings"]) or "none"
+        named = listed(d["findings"])
         per = d["heldout_session"]["per_marker"]
         hands = []
         for link in dict.fromkeys(MARKERS.values()):
@@ -118,7 +170,7 @@ def no_holds(args) -> None:
             before, after = np.sqrt(np.mean(v**2, axis=0))
             hands.append(f"{link} {before:.3f} -> {after:.3f}")
         print(f"{seed}: {1e3 * np.abs(sim.settled - sim.rigid).max():.2f} | {d['n_poses']} | {named} | "
-              f"{'; '.join(hands)} ({time.perf_counter() - t0:.0f} s)", flush=True)
+              f"{scored(d['findings'])} | {'; '.join(hands)} ({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
 if __name__ == "__main__":
