@@ -78,8 +78,9 @@ def add_parser(sub):
                    help="markers on the moving part (default 5; on a tree 3 on each tracked link, as plan places them)")
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
     p.add_argument("--rigid-bodies", type=int, default=0,
-                   help="rigid bodies measured in 6 DOF on the moving part, T1, T2, ... (default 0; 0.1 mm and "
-                        "0.05 deg noise per sample; not with --physics)")
+                   help="rigid bodies measured in 6 DOF on the moving part, T1, T2, ... (on a tree, body b on "
+                        "tracked link b mod L, as the markers; default 0; 0.1 mm and 0.05 deg noise per sample; not "
+                        "with --physics)")
     p.add_argument("--imu", action="store_true",
                    help="also simulate an IMU on the moving part: imu.csv, session.yaml's imu entry, and the truth "
                         "files platkit orient scores against (truth_orientation.csv, truth_imu.yaml); any --imu-* "
