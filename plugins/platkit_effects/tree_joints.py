@@ -75,7 +75,7 @@ from platkit_effects.tree_compliance import (
     spec_from_where,
     tree_stand,
 )
-from platkit_effects.tree_mimic import coupled, held_mimic_offsets
+from platkit_effects.tree_mimic import coupled, coupled_offsets, held_mimic_offsets
 
 #: the tree's mass-moment combinations the every-joint term's forms estimate in turn (no inertias)
 MASS_STEPS = (4, 8, 16)
@@ -197,6 +197,14 @@ class JointsComplianceTerm(ModelTerm):
         return 1.0 / (1.0 - cg)
 
     def control_offset(self, theta, poses, n_u):
+        """Each control's deflection under its own load (:meth:`_own_offset`), each load taken
+        where the other joints of the term have given too, to first order
+        (tree_mimic.coupled_offsets)."""
+        own = self._own_offset(theta, poses, n_u)
+        return own + coupled_offsets(self.stand(), poses.controls, self.indices, self.joints, self.alone, theta, own)
+
+    def _own_offset(self, theta, poses, n_u):
+        """Each control's deflection under its own load at its own deflected configuration."""
         stand = self.stand()
         out = np.zeros((poses.n_poses, n_u))
         extra, _ = self._mass_loads(theta, poses.controls)
@@ -275,6 +283,8 @@ class JointsComplianceTerm(ModelTerm):
                 gain = self._gain(stand, poses.controls, n, c * stand.scale[i])
                 control[:, i, k] += extra[:, k] * gain ** 2
                 control[:, i, len(theta) - K:] = c * gain[:, None] * per[:, k]
+        control += coupled_offsets(stand, poses.controls, self.indices, self.joints, self.alone, theta,
+                                   self._own_offset(theta, poses, n_u), control)[1]
         for cols, t, b in self._bent(theta):
             _, pose[..., cols], marker[..., cols] = b.offset_jacobians(t, poses, n_u, fk_q, fk_X)
         if K:

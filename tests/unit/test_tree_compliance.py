@@ -21,6 +21,7 @@ from platkit_effects.tree_compliance import (
     tree_stand,
 )
 from platkit_effects.tree_joints import JointsComplianceTerm
+from platkit_effects.tree_mimic import coupled_offsets
 from tests.unit.test_tree_loads import NAMES, _tree
 
 U = np.array([[0.3, 0.4, -0.7], [-1.0, -0.2, 1.1], [0.0, 1.2, 0.3], [0.6, -0.9, 0.2], [-0.4, 0.7, -1.2]])
@@ -138,7 +139,10 @@ def test_every_loaded_joint_in_one_term_is_the_joints_compliances_together(tmp_p
     theta = np.array([-2e-3, -4e-3, 1e-3, -3e-3, 2e-3])
     want = sum(singles[n].control_offset(np.array([c]), poses, 5) for n, c in zip(tree.control_names, theta))
     got = group[0].control_offset(theta, poses, 5)
-    assert np.allclose(got, want, rtol=1e-12, atol=0) and np.abs(got).min(axis=0).max() > 1e-3
+    # each under its own load, then each load where the others have given (first order)
+    cross = coupled_offsets(tree_stand(tree), C, group[0].indices, group[0].joints, [], theta, want)
+    assert np.allclose(got, want + cross, rtol=1e-12, atol=0) and np.abs(got).min(axis=0).max() > 1e-3
+    assert 1e-7 < np.abs(cross).max() < 0.05 * np.abs(want).max()
     d_u, d_pose, d_m = group[0].offset_jacobians(theta, poses, 5, None, None)
     h = 1e-8
     for k in range(5):

@@ -14,7 +14,7 @@ from platkit.calibrate.estimate import calibrate
 from platkit.diagnose.stats import bic
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
-from platkit.simulate.elastic_tree import ElasticTruth, simulate_elastic_tree
+from platkit.simulate.elastic_tree import ElasticTruth, equilibrium, simulate_elastic_tree
 from platkit_effects import Compliance
 from platkit_effects.tree_compliance import load_state, tree_stand
 from platkit_effects.tree_joints import JointsComplianceTerm
@@ -52,8 +52,9 @@ def test_the_master_alone_turns_its_mimic_joint_back(tmp_path):
     theta = np.where(np.array(term.joints) == "torso_pitch", -2e-4, -1e-4)
     S = load_state(stand, poses.controls)
     X, _ = S.link_in_base(stand, stand.tracked[0])  # the moving link's origin
-    # the same control offsets; the difference is torso_pitch_2 turned back by half the deflection
-    assert np.allclose(alone.control_offset(theta, poses, spec.n_u), term.control_offset(theta, poses, spec.n_u))
+    # the same deflections under each joint's own load (the others' differ where the mimic is held);
+    # the pose offset is torso_pitch_2 turned back by half torso_pitch's deflection
+    assert np.allclose(alone._own_offset(theta, poses, spec.n_u), term._own_offset(theta, poses, spec.n_u))
     d = alone.control_offset(theta, poses, spec.n_u)[:, JOINTS.index("torso_pitch")]
     j = stand.loads.index["torso_pitch_2"]
     w = np.einsum("nab,b->na", S.loads.rotation[:, j], stand.loads.axes[j]) * (-0.5 * d)[:, None]
@@ -61,16 +62,34 @@ def test_the_master_alone_turns_its_mimic_joint_back(tmp_path):
     pose = alone.pose_offset(theta, poses, None, X)
     assert np.allclose(pose[:, 3:], w_base, atol=1e-15) and np.abs(w_base).max() > 1e-4
     assert not term.pose_offset(theta, poses, None, X).any()
-    # the Jacobians are the offsets' derivatives (the offsets are linear in the deflections)
-    _, J_pose, J_marker = alone.offset_jacobians(theta, poses, spec.n_u, None, X)
+    # the Jacobians are the offsets' derivatives (the held mimic's linear in the deflections)
+    J_control, J_pose, J_marker = alone.offset_jacobians(theta, poses, spec.n_u, None, X)
     for k in (term.joints.index("torso_pitch"), term.joints.index("right_1_joint")):
         h = np.zeros(len(theta))
         h[k] = 1e-6
+        fd = (alone.control_offset(theta + h, poses, spec.n_u) - alone.control_offset(theta - h, poses, spec.n_u)) / 2e-6
+        assert np.allclose(J_control[..., k], fd, rtol=1e-5, atol=1e-9)
         fd_pose = (alone.pose_offset(theta + h, poses, None, X) - alone.pose_offset(theta - h, poses, None, X)) / 2e-6
         fd_mark = (alone.marker_offset(theta + h, poses) - alone.marker_offset(theta - h, poses)) / 2e-6
         assert np.allclose(J_pose[..., k], fd_pose, rtol=1e-5, atol=1e-9)
         assert np.allclose(J_marker[..., k], fd_mark, rtol=1e-5, atol=1e-9)
     assert np.abs(J_pose[..., term.joints.index("torso_pitch")]).max() > 1.0
+    # the deflections are the tree's equilibrium to second order: each load where every joint of the
+    # term has given (the master alone, its mimic held), as the simulator solves it
+    truth = {"torso_pitch": 2e-4, "right_1_joint": 4e-4, "left_2_joint": 3e-4}
+    c = np.array([-truth.get(n, 0.0) for n in term.joints])
+    T = stand.loads
+    k = np.zeros(len(T.joints))
+    for n, v in truth.items():
+        k[T.index[n]] = v
+    Qc = stand.configuration(poses.controls)
+    Q = equilibrium(T, Qc, k)
+    cols, tree = [JOINTS.index(n) for n in term.joints], [T.index[n] for n in term.joints]
+    assert np.abs(Q - Qc).max() > 4e-3
+    assert np.abs(alone.control_offset(c, poses, spec.n_u)[:, cols] - (Q - Qc)[:, tree]).max() < 1e-6
+    # each load at its own joint's deflection alone misses the others' by more than ten times that
+    assert np.abs(alone._own_offset(c, poses, spec.n_u)[:, cols] - (Q - Qc)[:, tree]).max() > 1e-5
+    assert np.abs((Q - Qc)[:, T.index["torso_pitch_2"]]).max() == 0.0  # the simulator holds the mimic
     # calibration.yaml keeps the form; a form that is not the stand's is refused in one line
     back = Compliance().from_dict(alone.to_dict(theta))
     assert back.alone == ["torso_pitch"] and np.allclose(back.pose_offset(theta, poses, None, X), pose)
