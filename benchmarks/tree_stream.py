@@ -4,9 +4,9 @@ The stand: a URDF tree tracked on several links in one session, the two-arm tors
 tests/data/trees (a torso yaw, a pitch with a mimic-coupled second pitch, a head that moves no
 marker and two 3-joint arms, both hands tracked; 9 recorded joints); or, ``--robot talos``, PAL's
 Talos (example-robot-data's talos_reduced.urdf, not written here), both grippers tracked, the
-torso, head and arms recorded (17 joints; the legs not). `plan` takes no recorded-joints option
-on the command line (it would record the legs too), so Talos streams the simulator's multisine
-(its elbows and second shoulder joints, which rest on a limit, about mid-stroke) and its errors
+torso, head and arms recorded (17 joints; the legs not). Talos streams the simulator's multisine
+(`plan --motion --move` on the whole 32-joint Talos: benchmarks/plan_talos_stream.py) (its elbows
+and second shoulder joints, which rest on a limit, about mid-stroke) and its errors
 are at 200 random commands within half of each stroke about its middle, with no prediction.
 
 Once: `platkit plan --motion` on the tree (design seed --design-seed) gives the streamed commands
