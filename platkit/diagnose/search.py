@@ -178,6 +178,7 @@ class Search:
         self.floor = noise_floor(poses, int(cur.active.sum()))
         n_seen = int(np.all(np.isfinite(poses.markers), axis=2).sum())
         factor = max(opt.noise_floor_factor, 1.0 + 1.5 * np.sqrt(2.0 / (3.0 * max(n_seen, 1))))
+        self.floor_factor = factor
         self.at_floor = self.floor is not None and cur.cv_rms <= factor * self.floor
         if self.floor is not None:
             self.say(f"noise floor of held-out prediction: {_fmt_rms(self.floor, self.unit)}"
@@ -227,10 +228,19 @@ class Search:
 
     # ------------------------------------------------------------------------ the rounds
     def select(self) -> None:
-        """Rounds of forward selection until one accepts nothing, a probe beats the named model, or
-        ``max_effects`` are named."""
+        """Rounds of forward selection until one accepts nothing, a probe beats the named model,
+        ``max_effects`` are named, or the model named so far predicts held-out poses at the noise
+        floor (the geometric model's rule: what is left there is noise, or a remnant of the
+        physics named that any further term would only take a slice of)."""
         while len(self.findings) < self.opt.max_effects and not self.stop:
             if not self.round():
+                break
+            if self.floor is not None and self.findings and self.naming \
+                    and self.cur.cv_rms <= self.floor_factor * self.floor:
+                text = (f"the model predicts held-out poses at {_fmt_rms(self.cur.cv_rms, self.unit)}, at the noise "
+                        f"floor ({_fmt_rms(self.floor, self.unit)}): nothing left to find")
+                self.rounds.append({"round": len(self.rounds) + 1, "at_noise_floor": text})
+                self.say(text)
                 break
 
     def candidates(self) -> list[tuple[Effect, ModelTerm]]:
