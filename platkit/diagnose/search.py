@@ -35,7 +35,8 @@ poses better than one from where the stream was at the end of those holds.
 
 Nothing is named when the geometric model already predicts held-out poses at the noise floor
 (the averaging noise of the settled poses, from the stream's noise and the samples averaged):
-an effect of any shape the geometry absorbs on this plan leaves nothing to find. With nothing
+an effect of any shape the geometry absorbs on this plan leaves nothing to find. Likewise nothing
+more is named once the model named so far predicts them at the floor (:meth:`Search.select`). With nothing
 found, a geometric model more than ``lack_of_fit_factor`` times the floor is a lack of fit
 (``unexplained``); below that, where held-out prediction cannot tell a weak effect from noise,
 residuals alike at poses next in time or with near commands are (locate.neighbour_tests); both
