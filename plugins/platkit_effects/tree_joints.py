@@ -37,9 +37,11 @@ Rules:
   beside the marker residuals (ModelTerm.prior, the rows of the calibration's ridge; sigma the
   marker noise per coordinate: the session's settled noise where it says it, else
   ``MASS_PRIOR_NOISE_M``). A combination the data barely see stays near the prior instead of
-  wandering. The BIC that keeps a count scores the residuals of that fit, every combination a
-  whole parameter: the prior can only raise a form's residuals and never lowers its count, so it
-  makes a larger count no easier to keep.
+  wandering. The BIC that keeps a count scores that fit's marker residuals (the prior's rows left
+  out) with every combination a whole parameter: a combination the prior holds costs its whole
+  log n and buys little fit, so a larger count is kept only for what the data determine beyond
+  the prior (conservative: the data's share of each combination, an effective count, would
+  charge it less).
 - Stored with its standard deviations (calibration.yaml, diagnosis.json's finding), the term says
   in ``where['mass_prior']`` each combination's posterior standard deviation (in prior standard
   deviations), how many the data determine beyond the prior (posterior below ``DETERMINED``
