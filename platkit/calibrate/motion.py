@@ -69,7 +69,8 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["ResponseTerm", "calibrate_motion", "command_speed", "motion_poses", "motion_stream", "without_response"]
+__all__ = ["LocalResponseTerm", "ResponseTerm", "calibrate_motion", "command_speed", "motion_poses", "motion_stream",
+           "without_response"]
 
 #: windows per block of the curvature correction
 CORRECTION_BLOCK = 32
@@ -103,6 +104,8 @@ class ResponseTerm(ModelTerm):
     windowed fit of the controls reached at every sample (``sample_t``) that the markers had,
     at the nodes ``poses.extras['node']``; with ``proj``, poses without nodes are not the stream's
     (settled poses, a held-out session): no offset there."""
+
+    uses_kinematics = False  # its offsets read the controls and times alone
 
     def __init__(self, model: ResponseModel, T: np.ndarray, U: np.ndarray, control_names: list[str],
                  theta0: np.ndarray, steps: np.ndarray, start: np.ndarray | None = None,
@@ -162,6 +165,67 @@ class ResponseTerm(ModelTerm):
             else:
                 d_u[:, j, k] = (self._at(up, poses, j) - base[:, j]) / h
         return d_u, None, None  # no pose or marker offset: no arrays of zeros
+
+
+#: the Jacobian of :class:`LocalResponseTerm` is taken again where the response's change since it
+#: was taken departs from its linear prediction by more than LINEAR_SHARE of that change plus
+#: LINEAR_FLOOR (controls' internal units, max over nodes and actuators)
+LINEAR_SHARE, LINEAR_FLOOR = 0.1, 1e-7
+
+
+class LocalResponseTerm(ResponseTerm):
+    """The response of a stream reduced to nodes (``proj`` given), as a diagnosis frees it: its
+    control offset exact (:class:`ResponseTerm`'s), its Jacobian kept while the response stays
+    linear. The Jacobian D (forward differences per actuator, as ResponseTerm's) is taken at some
+    theta_J and reused at theta while the controls reached there, X(theta), differ from
+    X(theta_J) + D (theta - theta_J) by at most LINEAR_SHARE of X(theta) - X(theta_J) plus
+    LINEAR_FLOOR; it is taken again at theta otherwise. A fit thus converges to the exact
+    response's optimum (its residuals are exact) with the Jacobian of a nearby theta, which
+    differs from the exact one by at most that share. Positions and derivatives are of every node,
+    a subset of the nodes reads its rows; poses without nodes are not the stream's (settled poses,
+    a held-out session): no offset there."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._jac: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (theta_J, X(theta_J), D)
+
+    def _nodes(self, theta) -> np.ndarray:
+        """The controls reached at every node under ``theta`` (P, n_u), the last kept."""
+        key = np.asarray(theta, float).tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        x = projected_positions(self.proj, self.model, theta, self.T, self.U, self.sample_t, start=self.start,
+                                cache=self._positions)
+        self._cache = (key, x)
+        return x
+
+    def reached(self, theta, poses: PoseSet) -> np.ndarray:
+        return self._nodes(theta)[np.asarray(poses.extras["node"])]
+
+    def offset_jacobians(self, theta, poses: PoseSet, n_u: int, fk_q, fk_X):
+        theta = np.asarray(theta, float)
+        if "node" not in poses.extras:
+            return np.zeros((poses.n_poses, n_u, len(theta))), None, None
+        x = self._nodes(theta).copy()
+        if self._jac is not None:
+            th_j, x_j, d = self._jac
+            miss = np.abs(x - x_j - d @ (theta - th_j)).max()
+            if miss <= LINEAR_SHARE * np.abs(x - x_j).max() + LINEAR_FLOOR:
+                return d[np.asarray(poses.extras["node"])], None, None
+        d = np.zeros((len(x), n_u, len(theta)))
+        for k in range(len(theta)):
+            h = self.steps[k]
+            up = theta.copy()
+            up[k] += h
+            j = self.model.actuator_of(k)
+            if j is None:
+                d[:, :, k] = (projected_positions(self.proj, self.model, up, self.T, self.U, self.sample_t,
+                                                  start=self.start, cache=self._positions) - x) / h
+            else:
+                d[:, j, k] = (projected_positions(self.proj, self.model, up, self.T, self.U, self.sample_t, only=j,
+                                                  start=self.start, cache=self._positions) - x[:, j]) / h
+        self._jac = (theta.copy(), x, d)
+        return d[np.asarray(poses.extras["node"])], None, None
 
 
 def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
@@ -465,7 +529,7 @@ def motion_poses(session: Session, cal: Calibration) -> PoseSet:
     return motion_stream(session, cal)[0]
 
 
-def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, ResponseTerm]:
+def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalResponseTerm]:
     """The poses a calibration from motion (``cal``: its ``motion``, calibration.yaml's
     ``actuator_response``) sees in ``session``'s stream: the stream's windows as calibrate_motion
     cuts them, every window reduced to its nodes (none kept as raw samples: those served the
@@ -475,7 +539,8 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, Response
     settled poses. A profile reference's actuators rest on the first command before it (the rest
     calibrate_motion read from the samples before it is not kept). Returns the poses and the
     response as a term at the calibration's values (its control offset zero there), which a fit
-    that carries it frees again, as calibrate_motion did."""
+    that carries it frees again, as calibrate_motion did (:class:`LocalResponseTerm`: the same
+    response, its Jacobian reused while the response stays linear)."""
     r = (cal.motion or {}).get("response")
     if not isinstance(r, dict) or not isinstance(r.get("actuators"), dict):
         raise BadSession(f"{session.folder}: the calibration was not fitted from motion (no actuator_response): a "
@@ -510,8 +575,8 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, Response
                                            actuator_positions(rmodel, theta, T, U, win.sample_t[a:b])),
                                        problem.point_links)
     poses.markers = win.Y - correction
-    return poses, ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), None, win.proj,
-                               win.sample_t)
+    return poses, LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), None,
+                                    win.proj, win.sample_t)
 
 
 def without_response(cal: Calibration, session: Session) -> Calibration:

@@ -87,11 +87,12 @@ def print_json(obj) -> None:
     sys.stdout.write(dumps(obj, indent=2) + "\n")
 
 
-def read_with_calibration(folder, cal, calibration, quiet: bool = False):
+def read_with_calibration(folder, cal, calibration, quiet: bool = False, read: dict | None = None):
     """(session, settled poses) of the session ``folder`` read with the stand of ``cal`` (read from
     ``calibration``): its platform must be the calibration's, a tree's markers on the links the
     calibration has them on (:func:`same_links`); the control readings kept beside a limit are said.
-    Its streams are read once."""
+    Its streams are read once: ``read``, where given, gets the session under ``folder`` before it
+    is settled (a caller whose settling fails reads the stream otherwise, not from the files again)."""
     from pathlib import Path
 
     from platkit.io.session import load_session
@@ -104,6 +105,8 @@ def read_with_calibration(folder, cal, calibration, quiet: bool = False):
         raise BadInput(f"{folder}: the session is of the {platform} stand, the calibration of {cal.platform}")
     session = load_session(folder, spec=cal.spec, quiet=quiet)
     same_links(session.moving_link, cal.marker_links, folder, calibration)
+    if read is not None:
+        read[folder] = session
     for note in session.extras.get("control_notes", []):  # readings kept (platkit.limits)
         warn(note)
     return session, load_poses(folder, spec=cal.spec, session=session)

@@ -75,7 +75,7 @@ def run(args) -> int:
     sessions = {}  # folder -> the session as read: its streams are read once
 
     def poses_of(folder):
-        sessions[folder], poses = read_with_calibration(folder, cal, args.calibration, args.quiet)
+        poses = read_with_calibration(folder, cal, args.calibration, args.quiet, read=sessions)[1]
         return markers_only(poses, folder)
 
     from platkit.commands.calibrate import settling_notes
@@ -128,18 +128,18 @@ def run(args) -> int:
 
 
 def _motion_poses(folder, cal, sessions):
-    """The stream of ``folder`` as the poses its calibration from motion saw (the windows' nodes at
-    the controls the calibrated response reached: platkit.calibrate.motion.motion_stream), said,
-    and the calibration with that response as a term: every fit of the diagnosis frees it again
-    with the geometry, so that an effect and the response are told apart by the data."""
+    """The stream of ``folder`` (``sessions[folder]``: the session as read before its settling
+    failed) as the poses its calibration from motion saw (the windows' nodes at the controls the
+    calibrated response reached: platkit.calibrate.motion.motion_stream), said, and the calibration
+    with that response as a term (platkit.calibrate.motion.LocalResponseTerm: its Jacobian reused
+    while the response stays linear): every fit of the diagnosis frees it again with the geometry,
+    so that an effect and the response are told apart by the data."""
     from dataclasses import replace
 
     import numpy as np
 
     from platkit.calibrate.motion import motion_stream
-    from platkit.io.session import load_session
 
-    sessions[folder] = load_session(folder, spec=cal.spec, quiet=True)
     poses, term = motion_stream(sessions[folder], cal)
     poses = markers_only(poses, folder)
     warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+import platkit.io.session as session_module
 from platkit.cli import main
 from platkit.simulate.elastic_stream import (
     commanded,
@@ -119,13 +120,15 @@ def test_without_holds_every_sample_is_the_equilibrium_at_the_drives_positions(t
     assert len((folder / "commands.csv").read_text().splitlines()) == len(tc) + 1
 
 
-def test_diagnose_a_stream_without_holds_calibrated_from_motion(tmp_path):
+def test_diagnose_a_stream_without_holds_calibrated_from_motion(tmp_path, monkeypatch):
     """A tree streamed without holds is calibrated from motion; `platkit diagnose` reads the
     stream as the windows' nodes through the calibrated response (it refused before: no settled
     pose), the response fitted again with every effect tried (held as calibrated, the lags had
     absorbed part of the sag and compliance was not named); compliance is named at the elastic
     joints and the held-out session of the same set-up (held commands, settled) falls below a
-    fifth; the calibration written keeps the response refitted as actuator_response, no term."""
+    fifth; the calibration written keeps the response refitted as actuator_response, no term.
+    Each session's files are read once (the stream's settling fails, then it is read as a stream
+    from the session already loaded)."""
     truth, U = truth_and_commands(5, 12)
     tc, C = slow_multisine(np.array([0.6 * LIMIT[j] for j in JOINTS]), 20.0, 50.0, np.random.default_rng(55),
                            ramp_s=2.0)
@@ -136,8 +139,13 @@ def test_diagnose_a_stream_without_holds_calibrated_from_motion(tmp_path):
     cal = tmp_path / "cal"
     assert main(["calibrate", str(tmp_path / "m"), "--quiet", "--no-report", "--no-selection", "--out", str(cal)]) == 0
     assert "actuator_response" in yaml.safe_load((cal / "calibration.yaml").read_text())  # from motion
+    reads: list[str] = []
+    load = session_module.load_session
+    monkeypatch.setattr(session_module, "load_session", lambda folder, *a, **k: reads.append(str(folder)) or load(
+        folder, *a, **k))
     assert main(["diagnose", str(tmp_path / "m"), "--calibration", str(cal / "calibration.yaml"), "--heldout",
                  str(tmp_path / "h"), "--out", str(tmp_path / "diag"), "--quiet"]) == 0
+    assert sorted(reads) == sorted([str(tmp_path / "m"), str(tmp_path / "h")])
     d = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert 40 <= d["n_poses"] <= 80  # ~3 nodes a second of the stream after its second command
     assert d["rounds"][0]["top"][0]["effect"] == "compliance", d["rounds"][0]["top"]
