@@ -36,7 +36,11 @@ Procedure (:func:`calibrate_motion`):
    least squares): an actuator that moved too little to show its response keeps the start;
 4. the full fit with :func:`calibrate` and the response as a term; the term leaves the
    calibration afterwards (calibration.yaml keeps it as ``actuator_response``; prediction of
-   settled poses needs no response).
+   settled poses needs no response);
+5. the curvature correction taken again at the fit (stand, frame, markers, response) and the fit
+   repeated from it while the correction moves the nodes by more than CORRECTION_SHARE of their
+   own noise (at most CORRECTION_REFITS times): taken at the start, its error is first order in
+   the start's, which on a fast stream exceeds the nodes' noise.
 """
 from __future__ import annotations
 
@@ -92,6 +96,13 @@ ROW_BLOCK = 32
 #: at most RATE_FREE_FACTOR times the log's fastest step over its interval (there the slew takes
 #: a tenth of the interval: a limit that does not bind)
 DELAY_MAX_S, RATE_FREE_FACTOR = 0.5, 10.0
+#: the curvature correction (step 2) is taken at the start's geometry and response, exact to first
+#: order in their error; on a fast stream that error can exceed the nodes' own noise (the fit then
+#: rejects them as outliers and leans on the raw samples). After the fit it is taken again at the
+#: fit, and the fit repeated, while it moves the nodes by more than CORRECTION_SHARE of their own
+#: noise (RMS over the nodes' coordinates, each in units of the fit's noise over the root of the
+#: samples it stands for), at most CORRECTION_REFITS times
+CORRECTION_SHARE, CORRECTION_REFITS = 0.5, 2
 #: a tree's travel by inverse kinematics of its markers: Gauss-Newton rounds, the controls' forward
 #: difference step (internal units), and the RMS marker miss (m) past which a sample is left out
 TRAVEL_ROUNDS, TRAVEL_STEP, TRAVEL_MISS_M = 6, 1e-6, 0.01
@@ -498,6 +509,27 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
                          f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
                          f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
                          "sparser than the motion) or the log is another recording's")
+    # 5. the correction taken again at the fit (stand, frame, markers, response) while it moves the
+    # nodes by more than CORRECTION_SHARE of their own noise, and the fit repeated from there
+    rms_before = cal.rms_before  # at the nominal geometry, as a fit from settled poses says it
+    for _ in range(CORRECTION_REFITS):
+        theta = np.asarray(cal.theta[0], float)
+        X2 = projected_positions(win.proj, rmodel, theta, T, U, win.sample_t, start=start)
+        again = _curvature_correction(spec, problem.model, cal.td, matrix_from_rotvec(cal.mocap_rotvec),
+                                      cal.mocap_translation, cal.marker_positions, win, X2, lambda a, b, th=theta: (
+                                          actuator_positions(rmodel, th, T, U, win.sample_t[a:b], start=start)), links)
+        node = win.n_eff > 1.0  # the windows' nodes (a raw sample has no correction)
+        moved = (again - correction)[node] * np.sqrt(win.n_eff[node])[:, None] / cal.noise_sigma
+        if not (np.isfinite(cal.noise_sigma) and cal.noise_sigma > 0 and moved.size
+                and np.sqrt(np.mean(moved ** 2)) > CORRECTION_SHARE):
+            break
+        correction = again
+        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), start, win.proj,
+                            win.sample_t)
+        poses = replace(poses, controls=X2, markers=win.Y - correction)
+        cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
+                        platform_options=platform_options, ridge_m=ridge_m, row_block=ROW_BLOCK, td_start=cal.td)
+        cal.rms_before = rms_before
     held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
     cal.motion = {
         "used": "motion",
