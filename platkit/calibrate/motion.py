@@ -30,7 +30,8 @@ Procedure (:func:`calibrate_motion`):
    timing shows in the fast content (each command's step response), which the fit leaves out:
    whole windows, evenly spread, about RAW_SAMPLES samples in all (all of a short stream), are
    kept as their samples;
-3. the response's start: the markers registered at the commanded controls (rigid alignment),
+3. the response's start (:mod:`platkit.calibrate.motion_start`): the markers registered at the
+   commanded controls (rigid alignment),
    each sample's pose by Kabsch, the actuators' travel by inverse kinematics at the nominal
    geometry, and the response fitted to that travel alone (a grid over the shift, then
    least squares): an actuator that moved too little to show its response keeps the start;
@@ -49,10 +50,10 @@ from dataclasses import replace
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import least_squares
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
-from platkit.calibrate.problem import CalibrationProblem, Progress, link_frames
+from platkit.calibrate.motion_start import actuator_travel, marker_points, response_from_travel
+from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import ResponseModel, actuator_positions, lags
 from platkit.calibrate.stream import (
     MIN_SEEN_SHARE,
@@ -64,8 +65,8 @@ from platkit.calibrate.stream import (
     projected_positions,
     stream_windows,
 )
-from platkit.errors import BadSession, ComputationFailed, NotIdentifiable
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, rigid_fit
+from platkit.errors import BadSession, NotIdentifiable
+from platkit.geometry import matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
@@ -87,15 +88,9 @@ TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
 #: a fit whose RMS is this many times the markers' own 3-D noise (from the distances between
 #: them) does not describe the stream: the command log does not say where the stand was sent
 MISFIT_RATIO = 5.0
-#: the shifts (s) tried to start the response
-SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
 #: the fit takes the Jacobian this many nodes at a time (normal equations summed over the blocks:
 #: the memory of one block however long the stream)
 ROW_BLOCK = 32
-#: an actuator's own delay lies within +-DELAY_MAX_S of the shift; a streamed drive's rate limit
-#: at most RATE_FREE_FACTOR times the log's fastest step over its interval (there the slew takes
-#: a tenth of the interval: a limit that does not bind)
-DELAY_MAX_S, RATE_FREE_FACTOR = 0.5, 10.0
 #: the curvature correction (step 2) is taken at the start's geometry and response, exact to first
 #: order in their error; on a fast stream that error can exceed the nodes' own noise (the fit then
 #: rejects them as outliers and leans on the raw samples). After the fit it is taken again at the
@@ -103,9 +98,6 @@ DELAY_MAX_S, RATE_FREE_FACTOR = 0.5, 10.0
 #: noise (RMS over the nodes' coordinates, each in units of the fit's noise over the root of the
 #: samples it stands for), at most CORRECTION_REFITS times
 CORRECTION_SHARE, CORRECTION_REFITS = 0.5, 2
-#: a tree's travel by inverse kinematics of its markers: Gauss-Newton rounds, the controls' forward
-#: difference step (internal units), and the RMS marker miss (m) past which a sample is left out
-TRAVEL_ROUNDS, TRAVEL_STEP, TRAVEL_MISS_M = 6, 1e-6, 0.01
 
 
 class ResponseTerm(ModelTerm):
@@ -261,146 +253,6 @@ def command_speed(T: np.ndarray, U: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.diff(U, axis=0)), axis=0) / float(np.median(np.diff(T)))
 
 
-def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    lo = np.full(model.size, 1e-9)
-    hi = np.full(model.size, np.inf)
-    lo[0], hi[0] = -5.0, 5.0
-    for j in range(model.n_u):
-        lo[model.index("tau_s", j)], hi[model.index("tau_s", j)] = 2e-3, 20.0
-        if model.kind == "second_order":
-            lo[model.index("damping", j)], hi[model.index("damping", j)] = 0.2, 5.0
-        if model.delays:
-            lo[model.index("delay_s", j)], hi[model.index("delay_s", j)] = -DELAY_MAX_S, DELAY_MAX_S
-        if model.slewed:  # a rate limit that never binds: up to RATE_FREE_FACTOR times the start
-            hi[model.index("rate", j)] = RATE_FREE_FACTOR * max(float(theta0[model.index("rate", j)]), 1e-9)
-    return lo, hi
-
-
-def _marker_points(spec: PlatformSpec, model: PlatformModel, td, mk, links, U: np.ndarray, guess=None):
-    """(K, M, 3) the markers ``mk`` (M, 3) in the base frame at controls U (K, n_u) and parameters
-    td, each on its link: the moving frame, or on a tree (``links`` (M,) indices in
-    ``spec.tracked_links``) its tracked link; NaN where the kinematics fails."""
-    if links is not None:
-        R, X = link_frames(spec, td, U)
-        k = np.asarray(links)
-        return X[:, k] + np.einsum("kmab,mb->kma", R[:, k], mk)
-    fb = model.forward_batch(U, td, guess=guess, strict=False)
-    pts = fb.X[:, None, :] + np.einsum("kab,mb->kma", matrix_from_quat(fb.q), mk)
-    pts[~(fb.converged & fb.on_branch)] = np.nan
-    return pts
-
-
-def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray) -> np.ndarray:
-    """A tree's actuators' travel (K, n_u): at each sample the controls whose markers (each on its
-    tracked link) come nearest the sample's in the base frame ``Yb`` (K, M, 3), by damped
-    Gauss-Newton from ``guess_u`` (forward differences over the controls, every sample at once); NaN
-    rows where fewer than three markers are seen or the markers stay off by more than TRAVEL_MISS_M,
-    and a NaN column for a joint that moves no marker (its travel is not seen)."""
-    seen = np.isfinite(Yb).all(axis=2)
-    y = np.where(seen[..., None], Yb, 0.0)
-    u = np.array(guess_u, float)
-    K, n_u = u.shape
-    lo, hi = spec.control_bounds()
-
-    def resid(U):
-        return np.where(seen[..., None], _marker_points(spec, None, td, mk, links, U) - y, 0.0).reshape(K, -1)
-
-    r = resid(u)
-    unseen = np.zeros(n_u, bool)
-    for _ in range(TRAVEL_ROUNDS):
-        J = np.empty((K, r.shape[1], n_u))
-        for j in range(n_u):
-            up = u.copy()
-            up[:, j] += TRAVEL_STEP
-            J[:, :, j] = (resid(up) - r) / TRAVEL_STEP
-        unseen = ~(np.abs(J).max(axis=(0, 1)) > 0)
-        JtJ = np.einsum("kij,kil->kjl", J, J)
-        damp = 1e-6 * np.maximum(np.trace(JtJ, axis1=1, axis2=2), 1e-12)[:, None, None] * np.eye(n_u)
-        du = -np.linalg.solve(JtJ + damp, np.einsum("kij,ki->kj", J, r)[..., None])[..., 0]
-        u = np.clip(u + du, lo, hi)
-        r = resid(u)
-    miss = np.sqrt(np.sum(r ** 2, axis=1) / np.maximum(seen.sum(axis=1), 1))
-    u[(seen.sum(axis=1) < 3) | ~(miss < TRAVEL_MISS_M)] = np.nan
-    u[:, unseen] = np.nan
-    return u
-
-
-def _travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarray, guess_u: np.ndarray, links=None):
-    """The actuators' travel (K, n_u) at each sample by inverse kinematics of the pose the markers
-    give (Kabsch of the marker layout ``mk`` onto the sample, in the base frame; on a tree, with
-    ``links`` each marker's tracked link, :func:`_tree_travel`); NaN rows where fewer than three
-    markers are seen or the pose is out of reach."""
-    K = len(Y)
-    out = np.full((K, spec.n_u), np.nan)
-    Yb = (Y - b) @ A  # base frame: A^T (y - b)
-    if links is not None:
-        return _tree_travel(spec, td, mk, links, Yb, guess_u)
-    for k in range(K):
-        vis = np.isfinite(Yb[k]).all(axis=1)
-        if vis.sum() < 3:
-            continue
-        R, X = rigid_fit(mk[vis], Yb[k, vis])
-        try:
-            out[k] = model.inverse(quat_from_matrix(R), X, td, strict=False, guess=guess_u[k])
-        except ComputationFailed:  # a pose out of reach is left out (NaN)
-            continue
-    return out
-
-
-def _fit_response_to_travel(rmodel: ResponseModel, theta0, T, U, t, travel, steps, start=None):
-    """The response fitted to the actuators' travel alone: the shift by a grid (each actuator's best,
-    their median), then each actuator's least squares (soft L1) with a shift of its own, the shift
-    at the median of theirs, and each actuator's again with it held. Actuators that never move
-    keep theta0, and so do those whose travel is not seen (a NaN column: a tree's joint that moves no
-    marker)."""
-    seen = np.isfinite(travel).any(axis=0)
-    ok = np.isfinite(travel[:, seen]).all(axis=1)
-    t, travel = t[ok], travel[ok]
-    if len(t) < 10:
-        return np.asarray(theta0, float)
-    theta = np.asarray(theta0, float).copy()
-    cache: dict = {}
-    if rmodel.delays:  # each actuator's own shift first, its delay the excess over their median after
-        theta[[rmodel.index("delay_s", j) for j in range(rmodel.n_u)]] = 0.0
-    theta[0] = 0.0  # every shift at once: the response at the shifted times
-    shifted = (t[None, :] - SHIFT_GRID_S[:, None]).ravel()
-    X = actuator_positions(rmodel, theta, T, U, shifted, start=start, cache=cache).reshape(len(SHIFT_GRID_S), len(t), -1)
-    # each actuator's best shift, the median over them (a slow actuator's lag is not the clock's)
-    moved = (np.ptp(U, axis=0) > 0) & seen
-    best = SHIFT_GRID_S[np.argmin(np.sum((X - travel[None]) ** 2, axis=1), axis=0)]
-    theta[0] = float(np.median(best[moved])) if moved.any() else 0.0
-    lo, hi = _lower_upper(rmodel, theta)
-    theta = np.clip(theta, lo + 1e-12, hi - 1e-12)
-    shifts = []
-    for own_shift in (True, False):  # each actuator with a shift of its own, then all at their median
-        for j in range(rmodel.n_u):  # the damping held (the full fit frees it); a delay of its own
-            # with the common shift held (the actuator's own shift first, the delay its excess after)
-            ks = ([0] if own_shift else []) + [rmodel.index(b, j) for b in rmodel.blocks
-                                               if b != "damping" and not (own_shift and b == "delay_s")]
-            scale = max(float(np.ptp(travel[:, j])), 1e-9)
-            if not moved[j]:
-                continue
-
-            def res(x, j=j, ks=ks, scale=scale):
-                th = theta.copy()
-                th[ks] = x
-                return (actuator_positions(rmodel, th, T, U, t, only=j, start=start, cache=cache)
-                        - travel[:, j]) / scale
-
-            sol = least_squares(res, theta[ks], bounds=(lo[ks], hi[ks]), loss="soft_l1", f_scale=0.01,
-                                x_scale=np.maximum(steps[ks] * 1e3, 1e-6), max_nfev=20)
-            if own_shift:
-                shifts.append((j, float(sol.x[0])))
-                theta[ks[1:]] = sol.x[1:]
-            else:
-                theta[ks] = sol.x
-        if own_shift and shifts:
-            theta[0] = float(np.median([x for _, x in shifts]))
-            if rmodel.delays:
-                for j, x in shifts:
-                    theta[rmodel.index("delay_s", j)] = float(np.clip(x - theta[0], -DELAY_MAX_S, DELAY_MAX_S))
-    return theta
-
 
 def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, win: StreamWindows,
                           X_nodes: np.ndarray, reached, links=None) -> np.ndarray:
@@ -415,7 +267,7 @@ def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk
     out = np.zeros((len(win.t), M, 3))
 
     def markers(U):
-        return _marker_points(spec, model, td, mk, links, U) @ A.T + b
+        return marker_points(spec, model, td, mk, links, U) @ A.T + b
 
     g_nodes = markers(X_nodes)
     for s in range(0, len(win.blocks), CORRECTION_BLOCK):
@@ -482,14 +334,14 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         _, w, tr, mk, _ = problem.split(z)
         A = matrix_from_rotvec(w)
         Xs = actuator_positions(rmodel, theta_start, T, U, session.marker_t[sub], start=start)
-        travel = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs, links)
+        travel = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs, links)
         if reference == "profile" and len(pre):
-            before = _travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
+            before = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
                              np.repeat(U[:1], len(pre), axis=0), links)
             cols = np.isfinite(before).any(axis=0)  # a joint that moves no marker rests at its first command
             if cols.any() and np.isfinite(before[:, cols]).all(axis=1).any():
                 start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
-        theta_start = _fit_response_to_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
+        theta_start = response_from_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
     steps = _steps(rmodel, theta_start)
     # 4. the nodes' markers corrected for the kinematics' curvature at the start, and the full fit
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)

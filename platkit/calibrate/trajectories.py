@@ -20,8 +20,7 @@ from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 
-__all__ = ["Limits", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S",
-           "homed_at_middle"]
+__all__ = ["Limits", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S"]
 
 #: the window's shortest rise (s), doubled until the limits hold while it rises (at most one period)
 RAMP_S = 2.0

@@ -3,13 +3,16 @@ held-out poses better than the named model takes its place as ``unexplained``; a
 weakly beside a lack of fit, one that proves nothing beside the probe that still beats the named
 model at the end, or one that proves nothing beside a model of the structure in time the
 location tests still find beside a lack of fit, is not named. ``_without`` refits a model with
-some of its terms left out, and ``_unnamed`` takes their findings back (used by the search and
-the recording rules)."""
+some of its terms left out, ``_unnamed`` takes their findings back (used by the search and
+the recording rules), and ``_take_back`` does so for a round of the search, said."""
 from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from platkit.diagnose.fitting import Finding, Fit, Options, _cv, _fit, _fmt_rms, _rms
+from platkit.diagnose.fitting import Finding, Fit, Options, _cv, _fit, _fmt_rms, _rms, _where_text
 from platkit.diagnose.locate import locate, located
 from platkit.diagnose.probes import marker_probe, space_probe, time_probe
 from platkit.diagnose.stats import paired_improvement
@@ -149,3 +152,21 @@ def _weak_beside_lack_of_fit(cur: Fit, poses: PoseSet, spec: PlatformSpec, findi
     if not weak or not located(locate(cur.r, poses, spec, weights, opt.alpha), opt.alpha * 0.1):
         return set()
     return weak
+
+
+def _take_back(cur: Fit, taken: dict[int, float | None], round_name: str, about: dict[str, Any],
+               why: Callable[[float | None], str], findings: list[Finding], accepted_info: list[dict],
+               rounds: list[dict], say: Callable[[str], None]) -> tuple[list[Finding], list[dict]]:
+    """Takes back the names of the terms ``cur.terms[k]`` for k in ``taken`` (k -> the paired p of
+    the test that took it back, or None): a round ``round_name`` in ``rounds`` (their names, the
+    paired p-values if any, then ``about``), one progress line each (``why(p)``), and the findings
+    and fit records without them (the caller refits the model without the terms)."""
+    ks = sorted(taken)
+    names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in ks]
+    entry: dict[str, Any] = {"round": round_name, "not_named": names}
+    if any(taken[k] is not None for k in ks):
+        entry["paired_p"] = {n: taken[k] for n, k in zip(names, ks)}
+    rounds.append({**entry, **about})
+    for n, k in zip(names, ks):
+        say(f"{n}: {why(taken[k])}: a slice of physics the library does not hold; not named")
+    return _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in ks})

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import signal
 
 from platkit.calibrate.plan import feasible, read_plan_csv
-from platkit.calibrate.trajectories import homed_at_middle
+from platkit.calibrate.plan_information import homed_at_middle
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.io.table import read_table
 
