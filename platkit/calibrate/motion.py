@@ -153,21 +153,27 @@ class ResponseTerm(ModelTerm):
 
     def offset_jacobians(self, theta, poses: PoseSet, n_u: int, fk_q, fk_X):
         theta = np.asarray(theta, float)
-        N, K = poses.n_poses, len(theta)
-        d_u = np.zeros((N, n_u, K))
         if self.proj is not None and "node" not in poses.extras:
-            return d_u, None, None
-        base = self.reached(theta, poses)
-        for k in range(K):  # forward differences: one evaluation per parameter, of its actuator alone
+            return np.zeros((poses.n_poses, n_u, len(theta))), None, None
+        # no pose or marker offset: no arrays of zeros
+        d_u = self._differences(theta, self.reached(theta, poses), lambda th, j: self._at(th, poses, j))
+        return d_u, None, None
+
+    def _differences(self, theta: np.ndarray, base: np.ndarray, at) -> np.ndarray:
+        """(P, n_u, K) the controls reached ``base`` (P, n_u) differentiated by forward differences:
+        one evaluation per parameter, of its actuator alone (``at(theta, j)``: actuator j's (P,),
+        or with j None every actuator's (P, n_u), for the shift)."""
+        d = np.zeros(base.shape + (len(theta),))
+        for k in range(len(theta)):
             h = self.steps[k]
             up = theta.copy()
             up[k] += h
             j = self.model.actuator_of(k)
             if j is None:
-                d_u[:, :, k] = (self._at(up, poses) - base) / h
+                d[:, :, k] = (at(up, None) - base) / h
             else:
-                d_u[:, j, k] = (self._at(up, poses, j) - base[:, j]) / h
-        return d_u, None, None  # no pose or marker offset: no arrays of zeros
+                d[:, j, k] = (at(up, j) - base[:, j]) / h
+        return d
 
 
 #: the Jacobian of :class:`LocalResponseTerm` is taken again where the response's change since it
@@ -215,18 +221,8 @@ class LocalResponseTerm(ResponseTerm):
             miss = np.abs(x - x_j - d @ (theta - th_j)).max()
             if miss <= LINEAR_SHARE * np.abs(x - x_j).max() + LINEAR_FLOOR:
                 return d[np.asarray(poses.extras["node"])], None, None
-        d = np.zeros((len(x), n_u, len(theta)))
-        for k in range(len(theta)):
-            h = self.steps[k]
-            up = theta.copy()
-            up[k] += h
-            j = self.model.actuator_of(k)
-            if j is None:
-                d[:, :, k] = (projected_positions(self.proj, self.model, up, self.T, self.U, self.sample_t,
-                                                  start=self.start, cache=self._positions) - x) / h
-            else:
-                d[:, j, k] = (projected_positions(self.proj, self.model, up, self.T, self.U, self.sample_t, only=j,
-                                                  start=self.start, cache=self._positions) - x[:, j]) / h
+        d = self._differences(theta, x, lambda th, j: projected_positions(
+            self.proj, self.model, th, self.T, self.U, self.sample_t, only=j, start=self.start, cache=self._positions))
         self._jac = (theta.copy(), x, d)
         return d[np.asarray(poses.extras["node"])], None, None
 
