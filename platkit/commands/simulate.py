@@ -79,8 +79,8 @@ def add_parser(sub):
     p.add_argument("--base-markers", type=int, default=0, help="markers fixed on the base (default 0)")
     p.add_argument("--rigid-bodies", type=int, default=0,
                    help="rigid bodies measured in 6 DOF on the moving part, T1, T2, ... (on a tree, body b on "
-                        "tracked link b mod L, as the markers; default 0; 0.1 mm and 0.05 deg noise per sample; not "
-                        "with --physics)")
+                        "tracked link b mod L, as the markers; default 0; 0.1 mm and 0.05 deg noise per sample; with "
+                        "--physics the markers' noise on the origin, the same over 0.1 m on the orientation)")
     p.add_argument("--imu", action="store_true",
                    help="also simulate an IMU on the moving part: imu.csv, session.yaml's imu entry, and the truth "
                         "files platkit orient scores against (truth_orientation.csv, truth_imu.yaml); any --imu-* "
@@ -141,8 +141,6 @@ def run(args) -> int:
         raise BadInput(f"--base-markers must be 0 or more, got {args.base_markers}")
     if args.rigid_bodies < 0:
         raise BadInput(f"--rigid-bodies must be 0 or more, got {args.rigid_bodies}")
-    if args.rigid_bodies and args.physics:
-        raise BadInput("--rigid-bodies: the physical simulator (--physics) does not simulate rigid bodies yet")
     if args.markers is not None and args.markers < 3:
         raise BadInput(f"--markers must be at least 3, got {args.markers}")
     if args.seed < 0:
@@ -272,7 +270,8 @@ def run_physics(args, spec, plan, effects) -> int:
         noise_mm=args.noise_mm, occlusion=args.occlusion, latency_s=args.latency_s,
         clock_offset_s=args.clock_offset_s, coloured=not args.white_noise, overshoot=args.overshoot,
         imu=imu_options(args), perturbation=args.perturbation, warmup=args.warmup,
-        description=None if args.description is None else Path(args.description).name, **motion))
+        description=None if args.description is None else Path(args.description).name, n_bodies=args.rigid_bodies,
+        **motion))
     out = write_physical_session(sim, args.out, description=args.description,
                                  moving_link=getattr(args, "moving_link", None),
                                  base_link=getattr(args, "base_link", None),

@@ -37,6 +37,7 @@ from platkit.simulate.options import (
     options_from_keywords,
 )
 from platkit.simulate.results import Simulation, Trajectory, Truth
+from platkit.simulate.rigid_bodies import BodyLayout, body_samples, draw_bodies, links_in_mocap, round_bodies
 from platkit.simulate.stand import make_plan, perturb_parameters, random_mocap_from_base
 from platkit.terms import ModelTerm
 
@@ -159,21 +160,17 @@ class TrueStand:
     def bodies_of(self, q: np.ndarray, X: np.ndarray, shrink=1.0, frames=None) -> np.ndarray:
         """(K, n_bodies, 7) in the mocap frame, noise divided by ``shrink`` ((K, n_bodies) or 1); on
         a tree each body on its link of ``frames`` (R (K, L, 3, 3), X (K, L, 3), as :meth:`markers_of`)."""
-        T, n_bodies, noise = self.mocap_from_base, len(self.body_names), self.body_noise
-        if self.body_links is not None and frames is not None:
-            k = np.asarray(self.body_links, int)
-            R = np.einsum("ab,kmbc->kmac", T[:3, :3], frames[0][:, k])  # (K, B, 3, 3) mocap_from_link
-            origin = frames[1][:, k] @ T[:3, :3].T + T[:3, 3]  # (K, B, 3)
-        else:
-            R = np.broadcast_to((T[:3, :3] @ matrix_from_quat(q))[:, None], (len(q), n_bodies, 3, 3))
-            origin = np.broadcast_to((X @ T[:3, :3].T + T[:3, 3])[:, None], (len(q), n_bodies, 3))
-        o = origin + np.einsum("kmab,mb->kma", R, self.body_origins)
-        shape = (len(q), n_bodies, 3)
+        noise, layout = self.body_noise, self.body_layout
+        R, origin = links_in_mocap(self.mocap_from_base, q, X, len(self.body_names), self.body_links, frames)
+        shape = (len(q), len(self.body_names), 3)
         k = np.broadcast_to(np.asarray(shrink, float), shape[:2])[..., None]
-        o = o + self.body_rng.normal(size=shape) * noise.get("position_m", 0.0) / k
-        turn = matrix_from_rotvec(self.body_rng.normal(size=shape) * noise.get("rotation_rad", 0.0) / k)
-        Rw = np.einsum("kmab,mbc,kmcd->kmad", R, matrix_from_rotvec(self.body_rotvecs), turn)
-        return np.concatenate([o, quat_from_matrix(Rw)], axis=2)
+        dpos = self.body_rng.normal(size=shape) * noise.get("position_m", 0.0) / k
+        drot = self.body_rng.normal(size=shape) * noise.get("rotation_rad", 0.0) / k
+        return body_samples(R, origin, layout, dpos, drot)
+
+    @property
+    def body_layout(self) -> BodyLayout:
+        return BodyLayout(self.body_names, self.body_origins, self.body_rotvecs, self.body_links)
 
 
 @dataclass
@@ -245,14 +242,12 @@ def draw_true_stand(spec: PlatformSpec, seed: int, truth: TruthOptions, recordin
         B = np.stack([rho * np.cos(ang), rho * np.sin(ang), brng.uniform(0, 0.05, n_base_markers) * rho], axis=1)
     n_bodies = recording.n_bodies
     body_rng = np.random.default_rng([seed, 11])
-    body_names = [f"T{k + 1}" for k in range(n_bodies)]
-    body_o = body_rng.normal(0, 0.3 * stand_length_scale(spec), (n_bodies, 3))
-    body_rv = body_rng.normal(0, 1.0, (n_bodies, 3))
+    bodies = draw_bodies(spec, n_bodies, body_rng)
     body_noise = ({"position_m": recording.body_noise_mm * 1e-3, "rotation_rad": np.deg2rad(recording.body_noise_deg)}
                   if n_bodies else {})
     links = marker_link_indices(spec, n_markers)  # a tree: each marker's tracked link, as plan places them
-    return TrueStand(td_true, U, P_true, names, S, T, base_names, B, brng, body_names, body_o, body_rv, body_noise,
-                     body_rng, links, marker_link_indices(spec, n_bodies))
+    return TrueStand(td_true, U, P_true, names, S, T, base_names, B, brng, bodies.names, bodies.origins,
+                     bodies.rotvecs, body_noise, body_rng, links, bodies.links)
 
 
 def command_schedule(spec: PlatformSpec, U: np.ndarray, hold_s: float) -> Schedule:
@@ -452,8 +447,7 @@ def record_stream(options: SimulationOptions, rng: np.random.Generator, stand: T
     if stand.body_names:
         bod = stand.bodies_of(q, X, frames=frames)
         bod[_occlusion_mask(stand.body_rng, len(tm), len(stand.body_names), rec.occlusion, burst)] = np.nan
-        bod[..., :3] = np.round(bod[..., :3] * 1e6) / 1e6
-        bod[..., 3:] = np.round(bod[..., 3:] * 1e9) / 1e9
+        round_bodies(bod)
     imu_data = options.imu(trajectory, rng) if options.imu is not None else None
     return RecordedStream(tm, Y, YB, bod, trajectory, imu_data)
 

@@ -53,13 +53,18 @@ from platkit.simulate.actuator import ActuatorResponse, actuator_motion, profile
 from platkit.simulate.continuous import continuous_plan
 from platkit.simulate.files import csv_text, dropped_note, fmt, write_imu_files
 from platkit.simulate.nuisance import Nuisances, coloured_noise, draw_nuisances, occlusion_mask
+from platkit.simulate.rigid_bodies import BodyLayout, bodies_truth, body_samples, draw_bodies, links_in_mocap, round_bodies
 from platkit.simulate.stand import make_plan, perturb_parameters
 from platkit.simulate.warmup import WarmupPhysics, draw_warmup
+from platkit.simulate.write import body_columns, body_entry, body_row
 
 __all__ = ["PhysicalSession", "simulate_physics", "write_physical_session", "physics_of"]
 
 #: seconds from the start of the recording to the first command
 LEAD_IN_S = 0.5
+#: m: a rigid body's rotation noise (rad) is its position noise over this lever, the spread of a
+#: typical motion-capture body's markers (0.2 mm of noise: 2 mrad, 0.11 deg, per axis and sample)
+BODY_LEVER_M = 0.1
 
 
 @dataclass
@@ -73,7 +78,9 @@ class PhysicalSession:
     the true parameters; mocap_from_base (4, 4); marker_body (M, 3) m the markers' places on
     the moving part at the start; physics [(name, EffectPhysics)]; nuisances; imu or None;
     hold_end_t (N,) when each hold ends (commands clock); settled_controls (N, n_u) the true
-    actuator travel at rest (what the kinematics saw for the settled pose).
+    actuator travel at rest (what the kinematics saw for the settled pose). Rigid bodies (or
+    None): their placements, stream and settled poses, sampled with the markers (see
+    :func:`simulate_physics`).
     """
 
     spec: PlatformSpec
@@ -102,7 +109,10 @@ class PhysicalSession:
     description: str | None = None
     hold_end_t: np.ndarray | None = None
     settled_controls: np.ndarray | None = None
-    moving_link: dict[str, str] | None = None  # a tree: each marker's tracked link (session.yaml's mapping)
+    moving_link: dict[str, str] | None = None  # a tree: each marker's and body's tracked link (session.yaml's)
+    bodies: BodyLayout | None = None  # the rigid bodies' placements (platkit.simulate.rigid_bodies), or None
+    body_stream: np.ndarray | None = None  # (K, B, 7) their samples (origin m, quaternion), mocap frame
+    settled_bodies: np.ndarray | None = None  # (N, B, 7) each at rest at the end of each hold, no noise
 
     def truth(self) -> dict:
         """The truth.yaml mapping (SI: metres, radians, seconds on the commands clock)."""
@@ -120,12 +130,22 @@ class PhysicalSession:
             **({"marker_links": dict(self.moving_link)} if self.moving_link else {}),
             "base_markers": {n: [float(x) for x in s] for n, s in zip(
                 self.base_marker_names, () if self.base_marker_body is None else self.base_marker_body)},
+            **({} if self.bodies is None else bodies_truth(self.bodies.names, self.bodies.origins,
+                                                             self.bodies.rotvecs, self.body_noise())),
             "effects": [{"effect": name, "physics": plain(p.parameters())} for name, p in self.physics],
             "nuisances": self.nuisances.to_dict(),
             "actuators_with_effects": self.response.to_dict(spec.control_names),
             "settled": "truth_settled.csv: where the stand comes to rest for every command (no transient), at "
                        "the end of its hold",
         }
+
+
+    def body_noise(self) -> dict:
+        """The bodies' white noise per axis and sample ({'position_m', 'rotation_rad'}); their
+        correlated part is the markers' (truth.yaml's nuisances), the rotation's over
+        :data:`BODY_LEVER_M`."""
+        n = self.nuisances
+        return {"position_m": n.noise_m, "rotation_rad": n.noise_m / BODY_LEVER_M}
 
 
 def physics_of(name: str, spec: PlatformSpec, size: float | None, rng: np.random.Generator,
@@ -231,7 +251,8 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
                      imu: dict | None = None, perturbation: float = 1.0, description: str | None = None,
                      fine_step_s: float = 2e-3, motion: str | None = None, duration_s: float = 200.0,
                      command_rate_hz: float = 20.0, library: dict[str, Effect] | None = None,
-                     warmup: str | None = None, actuator_delay_s=None, actuator_rate_limit=None) -> PhysicalSession:
+                     warmup: str | None = None, actuator_delay_s=None, actuator_rate_limit=None,
+                     n_bodies: int = 0) -> PhysicalSession:
     """Simulate a session of ``spec`` in the time domain (see the module's docstring).
 
     plan: 'grid', 'random', a plan.csv path, a Plan or an (N, n_u) array (internal units).
@@ -255,8 +276,15 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
         unit per s): each actuator's own pure delay and speed limit (platkit.simulate.actuator),
         explicit options (drawing them would move every seeded session), in the truth's
         ``actuators_with_effects``.
+    n_bodies: rigid bodies T1, T2, ... on the moving part (a tree: body b on tracked link b mod L),
+        placed by platkit.simulate.rigid_bodies from their own random stream (as the additive
+        simulator places them) and sampled with the markers: the true link's pose at every
+        exposure, the markers' white and correlated noise on the origin, the same over
+        :data:`BODY_LEVER_M` (rad) on the orientation, bursts of occlusion of the same law.
     """
     _check_options(n_markers, mocap_rate_hz, fine_step_s, length_unit)
+    if n_bodies < 0:
+        raise BadInput(f"rigid bodies: 0 or more, got {n_bodies}")
     rng_stand, rng_plan, rng_nuis, rng_noise, rng_occ, rng_base = (np.random.default_rng([seed, k]) for k in range(1, 7))
     model = PlatformModel(spec)
     U, plan_info, td, P_rest = _commands(spec, model, seed, plan, n_poses, motion, hold_s, overshoot, perturbation,
@@ -292,6 +320,9 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
     marker_t, Y = rec.stream(nuisances, rng_noise, rng_occ)
     last = np.clip(np.searchsorted(rec.t_exp, hold_end, side="left") - 1, 0, len(rec.t_exp) - 1)
     q_s, X_s, settled_markers, u_settled = rec.rest(last)
+    body_rng = np.random.default_rng([seed, 11])
+    layout = draw_bodies(spec, n_bodies, body_rng) if n_bodies else None
+    body_stream, settled_bodies = (None, None) if layout is None else rec.bodies(layout, nuisances, body_rng)
     base_names = [f"B{k + 1}" for k in range(n_base_markers)]
     B, YB = _base_markers(n_base_markers, size_m, rec, nuisances, rng_base)
     imu_data = None
@@ -301,10 +332,12 @@ def simulate_physics(spec: PlatformSpec, *, seed: int = 0, n_poses: int = 240, p
             options["base_tilt"] = tilt + np.asarray(options.get("base_tilt", np.zeros(2)), float)
         imu_data = imu_for_trajectory(**options)(_Trajectory(rec.stand, phys_plan.end_s), np.random.default_rng([seed, 8]))
     plan_info.update(commands=int(len(U)))
+    mapping = None if links is None else {n: spec.tracked_links[k] for n, k in zip(names, links)}
+    if mapping is not None and layout is not None and layout.links is not None:
+        mapping.update({b: spec.tracked_links[k] for b, k in zip(layout.names, layout.links)})
     return PhysicalSession(spec, seed, length_unit, mocap_rate_hz, t_cmd, U, names, marker_t, Y, q_s, X_s,
                            settled_markers, td, rec.T, S, physics, nuisances, response, plan_info, base_names, YB, B,
-                           imu_data, description, hold_end, u_settled,
-                           None if links is None else {n: spec.tracked_links[k] for n, k in zip(names, links)})
+                           imu_data, description, hold_end, u_settled, mapping, layout, body_stream, settled_bodies)
 
 
 def _check_options(n_markers: int, mocap_rate_hz: float, fine_step_s: float, length_unit: str) -> None:
@@ -385,12 +418,11 @@ class _Recorder:
                 off = off + np.asarray(o, float)
         return off
 
-    def to_mocap(self, q: np.ndarray, X: np.ndarray, t: np.ndarray, u: np.ndarray) -> np.ndarray:
+    def to_mocap(self, q: np.ndarray, X: np.ndarray, t: np.ndarray, frames) -> np.ndarray:
         """(K, M, 3) the markers in the mocap frame: on the moving frame (q, X), or on a tree each
-        on its tracked link at the true actuator travel u (K, n_u)."""
+        on its tracked link of ``frames`` (:meth:`_Stand.frames`)."""
         body = self.S[None] + self.offsets(t)
-        frames = self.stand.frames(u) if self.links is not None else None
-        if frames is not None:
+        if frames is not None and self.links is not None:
             k = np.asarray(self.links)
             base = frames[1][:, k] + np.einsum("kmij,kmj->kmi", frames[0][:, k], body)
         else:
@@ -403,7 +435,8 @@ class _Recorder:
         t_exp = self.t_exp
         u, seg = self.stand.controls(t_exp)
         q, X = self.stand.pose(u, seg, t_exp)
-        Y = self.to_mocap(q, X, t_exp, u)
+        self.exposed = (q, X, self.stand.frames(u) if self.links is not None else None)  # the bodies' true links
+        Y = self.to_mocap(q, X, t_exp, self.exposed[2])
         Y = Y + rng_noise.normal(size=Y.shape) * nuisances.noise_m
         Y = Y + coloured_noise(rng_noise, Y.shape, 1.0 / self.rate, nuisances.coloured_m, nuisances.correlation_s)
         Y[occlusion_mask(rng_occ, len(t_exp), len(self.S), nuisances.occlusion, self.burst(nuisances))] = np.nan
@@ -420,7 +453,23 @@ class _Recorder:
         u_rest, seg_rest = self.stand.controls(self.t_exp, rest=True)
         t_rest = self.t_exp[last]
         q_s, X_s = self.stand.pose(u_rest[last], seg_rest[last], t_rest)
-        return q_s, X_s, self.to_mocap(q_s, X_s, t_rest, u_rest[last]), u_rest[last]
+        self.rested = (q_s, X_s, self.stand.frames(u_rest[last]) if self.links is not None else None)
+        return q_s, X_s, self.to_mocap(q_s, X_s, t_rest, self.rested[2]), u_rest[last]
+
+    def bodies(self, layout: BodyLayout, nuisances: Nuisances, rng) -> tuple[np.ndarray, np.ndarray]:
+        """(stream (K, B, 7), settled (N, B, 7)) of the rigid bodies after :meth:`stream` and
+        :meth:`rest`: at every exposure on their true links with the markers' white and correlated
+        noise (over :data:`BODY_LEVER_M` on the orientation), occluded in bursts (NaN) and in the
+        files' steps; at rest without noise."""
+        T, B = self.T, len(layout.names)
+        R, origin = links_in_mocap(T, *self.exposed[:2], B, layout.links, self.exposed[2])
+        shape, dt = origin.shape, 1.0 / self.rate
+        error = [rng.normal(size=shape) * nuisances.noise_m
+                 + coloured_noise(rng, shape, dt, nuisances.coloured_m, nuisances.correlation_s) for _ in range(2)]
+        stream = body_samples(R, origin, layout, error[0], error[1] / BODY_LEVER_M)
+        stream[occlusion_mask(rng, shape[0], B, nuisances.occlusion, self.burst(nuisances))] = np.nan
+        settled = body_samples(*links_in_mocap(T, *self.rested[:2], B, layout.links, self.rested[2]), layout)
+        return round_bodies(stream), settled
 
 
 def _base_markers(n: int, size_m: float, rec: _Recorder, nuisances: Nuisances, rng_base):
@@ -447,12 +496,14 @@ def settled_table(sim: PhysicalSession) -> tuple[list[str], list[list[str]]]:
     V = controls_from_si(spec, sim.commands, sim.length_unit)
     cdig = [ldig if c.unit == "m" else 9 for c in spec.controls]
     header = ["row", "t", "t_rest"] + list(spec.control_names) + [f"{m}_{a}" for m in sim.marker_names for a in "xyz"]
+    header += body_columns(sim.bodies.names if sim.bodies is not None else [])
     header += ["x", "y", "z", "qw", "qx", "qy", "qz"]
     rows = []
     for i in range(len(sim.commands)):
         r = [str(i), f"{sim.command_t[i]:.6f}", f"{sim.hold_end_t[i]:.6f}"]
         r += [fmt(v, d) for v, d in zip(V[i], cdig)]
         r += [fmt(v / s, ldig) for v in sim.settled_markers[i].reshape(-1)]
+        r += [] if sim.settled_bodies is None else body_row(sim.settled_bodies[i], s, ldig)
         r += [fmt(v / s, ldig) for v in sim.settled_X[i]] + [f"{v:.10f}" for v in sim.settled_q[i]]
         rows.append(r)
     return header, rows
@@ -480,6 +531,8 @@ def write_physical_session(sim: PhysicalSession, out: str | Path, description: s
         dropped = dropped_note(sim.plan_info, len(sim.commands))
         if dropped is not None:  # said where the user reads, whatever notes were given
             entry["notes"] = f"{entry['notes']}; {dropped}"
+        if sim.bodies is not None:  # their noise is not declared: drawn per session, as the markers'
+            entry.update(body_entry(sim.bodies.names, {}))
         if base_link is not None:
             entry["base_link"] = base_link
         power_on = [p.power_on_s for _, p in sim.physics if isinstance(p, WarmupPhysics)]
@@ -498,8 +551,11 @@ def write_physical_session(sim: PhysicalSession, out: str | Path, description: s
         cols = [f"{m}_{a}" for m in list(sim.marker_names) + list(sim.base_marker_names) for a in "xyz"]
         # one format per row: the stream is long (an occluded sample is written 'nan', as the format allows)
         line = "%.6f" + f",%.{ldig}f" * Y.shape[1]
-        text = "\n".join(line % tuple(r) for r in np.column_stack([sim.marker_t, Y]).tolist())
-        (tmp / "markers.csv").write_text(",".join(["t"] + cols) + "\n" + text + "\n", encoding="utf-8")
+        lines = [line % tuple(r) for r in np.column_stack([sim.marker_t, Y]).tolist()]
+        if sim.bodies is not None and sim.body_stream is not None:  # the additive writer's cells
+            cols += body_columns(sim.bodies.names)
+            lines = [",".join([r] + body_row(b, s, ldig)) for r, b in zip(lines, sim.body_stream)]
+        (tmp / "markers.csv").write_text(",".join(["t"] + cols) + "\n" + "\n".join(lines) + "\n", encoding="utf-8")
         if sim.imu is not None:
             entry["imu"] = write_imu_files(sim.imu, tmp)
         (tmp / "session.yaml").write_text(yaml.safe_dump(entry, sort_keys=False), encoding="utf-8")

@@ -10,6 +10,7 @@ import numpy as np
 from platkit.io.jsonout import plain
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
+from platkit.simulate.rigid_bodies import bodies_truth
 from platkit.terms import ModelTerm
 
 __all__ = ["Truth", "Trajectory", "Simulation"]
@@ -63,9 +64,7 @@ class Truth:
             "effects": [plain(term.to_dict(theta)) for term, theta in self.terms],
             "marker_noise_m": float(self.noise_m),
             "occlusion": float(self.occlusion),
-            **({"rigid_bodies": {n: {"position": [float(x) for x in o], "rotation_vector": [float(x) for x in r]}
-                                 for n, o, r in zip(self.body_names, self.body_origins, self.body_rotvecs)},
-                "rigid_body_noise": {k: float(v) for k, v in self.body_noise.items()}} if self.body_names else {}),
+            **bodies_truth(self.body_names, self.body_origins, self.body_rotvecs, self.body_noise),
         }
 
 

@@ -13,7 +13,7 @@ from platkit.model import controls_from_si, length_scale
 from platkit.simulate.files import csv_text, dropped_note, fmt, truth_imu, write_imu_files
 from platkit.simulate.results import Simulation
 
-__all__ = ["write_session"]
+__all__ = ["write_session", "body_entry", "body_columns", "body_row"]
 
 
 def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, description: str | Path | None = None,
@@ -58,15 +58,8 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
         if base_link is not None:
             entry["base_link"] = base_link
         bnames_6dof = list(sim.truth.body_names)
-        if bnames_6dof:
-            entry["rigid_bodies"] = bnames_6dof
-            entry["rigid_body_noise"] = {"position_mm": float(sim.truth.body_noise["position_m"] * 1e3),
-                                         "rotation_deg": float(np.rad2deg(sim.truth.body_noise["rotation_rad"]))}
-        bcols = [f"{b}_{a}" for b in bnames_6dof for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
-
-        def body_cells(row7):  # (B, 7) -> cells: origins in the unit, quaternions to 9 digits, empty if unseen
-            return ["" if not np.isfinite(v) else (fmt(v / s, ldig) if j % 7 < 3 else f"{v:.9f}")
-                    for j, v in enumerate(row7.reshape(-1))]
+        entry.update(body_entry(bnames_6dof, sim.truth.body_noise))
+        bcols = body_columns(bnames_6dof)
         if description is not None:
             desc = Path(description)
             (tmp / desc.name).write_bytes(desc.read_bytes())
@@ -87,7 +80,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
                     r += [fmt(v / s, ldig) for v in p.base_markers.reshape(-1)]
                 r += [str(int(n)) for n in p.n_samples[i]]
                 if bnames_6dof:
-                    r += body_cells(p.bodies[i]) + [str(int(n)) for n in p.n_body_samples[i]]
+                    r += body_row(p.bodies[i], s, ldig) + [str(int(n)) for n in p.n_body_samples[i]]
                 rows.append(r)
             header = (spec.control_names + mcols + [f"{m}_n" for m in names] + bcols
                       + [f"{b}_n" for b in bnames_6dof])
@@ -97,7 +90,7 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             Y = Y.reshape(len(sim.marker_t), -1) / s
             rows = [[f"{t:.6f}"] + [fmt(v, ldig) for v in row] for t, row in zip(sim.marker_t, Y)]
             if bnames_6dof:
-                rows = [r + body_cells(b) for r, b in zip(rows, sim.bodies)]
+                rows = [r + body_row(b, s, ldig) for r, b in zip(rows, sim.bodies)]
             (tmp / "markers.csv").write_text(csv_text(["t"] + mcols + bcols, rows), encoding="utf-8")
         if sim.imu is not None:
             entry["imu"] = write_imu_files(sim.imu, tmp)
@@ -110,3 +103,28 @@ def write_session(sim: Simulation, out: str | Path, poses_only: bool = False, de
             "# The true stand behind this simulated session (SI units). Calibration should recover it.\n"
             + yaml.safe_dump(truth, sort_keys=False), encoding="utf-8")
     return out
+
+
+def body_entry(names: list[str], noise: dict) -> dict:
+    """session.yaml's rigid-body entries: ``rigid_bodies`` (the names) and, where the noise of a
+    sample is declared ({'position_m', 'rotation_rad'} per axis), ``rigid_body_noise``; empty
+    without bodies."""
+    if not names:
+        return {}
+    out: dict = {"rigid_bodies": list(names)}
+    if noise:
+        out["rigid_body_noise"] = {"position_mm": float(noise["position_m"] * 1e3),
+                                   "rotation_deg": float(np.rad2deg(noise["rotation_rad"]))}
+    return out
+
+
+def body_columns(names: list[str]) -> list[str]:
+    """The seven columns of every body (spec section 1): origin, then unit quaternion."""
+    return [f"{b}_{a}" for b in names for a in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+
+
+def body_row(row7: np.ndarray, s: float, ldig: int) -> list[str]:
+    """One row's body cells from (B, 7) (m, quaternion): origins in the length unit of scale ``s``
+    m with ``ldig`` decimals, quaternions to 9 decimals, an unseen body's cells empty."""
+    return ["" if not np.isfinite(v) else (fmt(v / s, ldig) if j % 7 < 3 else f"{v:.9f}")
+            for j, v in enumerate(row7.reshape(-1))]

@@ -2,7 +2,7 @@
 body b on tracked link b mod L (the markers' rule), maps it in session.yaml's moving_link, and
 `platkit calibrate` reads it back: each body's placement on its link agrees with the truth's
 (distances to the markers on the same link, which no choice of the link's frame changes), the fit
-at the noise. The physical simulator still simulates no rigid body: one line.
+at the noise. The physical simulator's bodies: test_simulate_physics_bodies.py.
 
 The tree is tests/data/trees/two_arm_torso.urdf, both hands tracked."""
 from __future__ import annotations
@@ -42,7 +42,7 @@ def test_bodies_on_a_simulated_tree_are_calibrated_back(tmp_path):
             assert abs(d_fit - d_true) < 0.05, (body, m, d_fit, d_true)  # mm
 
 
-def test_the_physical_simulator_refuses_bodies_in_one_line(tmp_path, capsys):
-    assert main(BASE + ["--physics", "--rigid-bodies", "1", "--out", str(tmp_path / "p")]) == 2
+def test_a_negative_body_count_is_refused_in_one_line(tmp_path, capsys):
+    assert main(BASE + ["--physics", "--rigid-bodies", "-1", "--out", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--rigid-bodies: the physical simulator (--physics) does not simulate rigid bodies" in err[0]
+    assert len(err) == 1 and "--rigid-bodies must be 0 or more, got -1" in err[0]

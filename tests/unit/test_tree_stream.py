@@ -152,9 +152,9 @@ def test_a_tree_stream_with_holds_settles_and_fits_every_link(urdf, tmp_path):
 
 
 def test_what_a_simulated_tree_still_refuses_is_one_line(urdf, tmp_path, capsys):
-    assert simulate(urdf, tmp_path / "a", "--physics", "--rigid-bodies", "1") == 2
+    assert simulate(urdf, tmp_path / "a", "--physics", "--rigid-bodies", "-1") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "the physical simulator (--physics) does not simulate rigid bodies" in err[0]
+    assert len(err) == 1 and "--rigid-bodies must be 0 or more, got -1" in err[0]
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
 
 
