@@ -344,7 +344,7 @@ class CalibrationProblem:
                     if B:
                         d_mk = np.concatenate([d_mk, np.zeros((N, B, 3, K))], axis=1)
                     d_mk = d_mk.reshape(N, -1, K)
-                out.append(("known", K, d_u, d_pose, d_mk))
+                out.append(("known", K, d_u, d_pose, d_mk, None if d_mk is None else _one_row_columns(d_mk)))
                 continue
             base = (term.control_offset(th, poses, n_u), term.pose_offset(th, poses, q0, X0), term.marker_offset(th, poses))
             cols = []
@@ -402,7 +402,9 @@ class CalibrationProblem:
                 col, first = J[:, :, k:k + K], True
                 for Y, d in ((Y_u, jac[2]), (Y_dpose, jac[3]), (Y_m, jac[4])):
                     if d is not None:
-                        if first:
+                        if d is jac[4] and jac[5] is not None and _by_rows(Y, d[rows], jac[5], col, first):
+                            pass
+                        elif first:
                             np.matmul(Y, d[rows], out=col)
                         else:
                             col += np.matmul(Y, d[rows])
@@ -512,6 +514,53 @@ def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
     q_all = np.asarray(q_all).T.reshape(N, L, 4)
     X_all = np.asarray(X_all).T.reshape(N, L, 3)
     return matrix_from_quat(q_all), X_all
+
+
+def _one_row_columns(d: np.ndarray) -> list[tuple[int, np.ndarray]] | None:
+    """Where every column of the term's marker offsets d (N, rows, K) is nonzero in at most one
+    row (the same for every pose): each such row's index with its columns, else None (and for
+    fewer than 8 columns, where a matrix product costs no more)."""
+    used = (d != 0).any(axis=0)  # (rows, K)
+    if d.shape[2] < 8 or used.sum(axis=0).max(initial=0) > 1:
+        return None
+    return [(int(b), _contiguous(np.flatnonzero(used[b]))) for b in np.flatnonzero(used.any(axis=1))]
+
+
+def _contiguous(idx: np.ndarray):
+    """``idx`` (sorted indices) as a slice where they are a contiguous run (a view, not a copy)."""
+    if len(idx) and idx[-1] - idx[0] == len(idx) - 1:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
+def _by_rows(Y: np.ndarray, d: np.ndarray, pattern: list, out: np.ndarray, first: bool) -> bool:
+    """out = Y @ d (``first``) or out += Y @ d, (n, a, b) @ (n, b, K), where each column of d is
+    nonzero in one row b at most (``pattern``, :func:`_one_row_columns`): each column the product
+    of its one entry with Y's column b, written only into the rows where that column of Y is
+    nonzero. The same numbers as the matrix product (a sum of one product and exact zeros) but
+    the sign of some zeros; False (nothing written) where Y is not finite (0 * inf is NaN there)."""
+    if not np.isfinite(Y).all():
+        return False
+    Ynz = (Y != 0).any(axis=0)  # (a, b): the rows each column of Y reaches
+    if first:
+        out[...] = 0.0
+    for b, cols in pattern:
+        rows = _contiguous(np.flatnonzero(Ynz[:, b]))
+        if not isinstance(rows, slice) and len(rows) == 0:
+            continue
+        block = Y[:, rows, b][:, :, None] * d[:, b, cols][:, None, :]
+        ix = (slice(None), rows, cols) if isinstance(rows, slice) and isinstance(cols, slice) else \
+            np.ix_(np.arange(out.shape[0]), _indices(rows, out.shape[1]), _indices(cols, out.shape[2]))
+        if first:
+            out[ix] = block
+        else:
+            out[ix] += block
+    return True
+
+
+def _indices(idx, n: int) -> np.ndarray:
+    """A slice or index array of :func:`_contiguous` as an index array (for ``np.ix_``)."""
+    return np.arange(n)[idx] if isinstance(idx, slice) else idx
 
 
 def _bodies(poses: PoseSet) -> np.ndarray:
