@@ -105,6 +105,9 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=30)
     ap.add_argument("--no-holds", action="store_true", help="stream without holds, calibrated from motion")
     ap.add_argument("--duration", type=float, default=40.0, help="--no-holds: the stream's length, s")
+    ap.add_argument("--response-kinds", default="auto",
+                    help="--no-holds: calibrate's --response-kind, comma-separated: each calibrates and diagnoses the "
+                         "same stream (e.g. auto,second-order: the choice against the second order forced)")
     args = ap.parse_args()
     if args.no_holds:
         return no_holds(args)
@@ -156,21 +159,29 @@ def no_holds(args) -> None:
             write_elastic_stream(sim, URDF, tmp / "m")
             held = simulate_elastic_stream(URDF, truth, U, JOINTS, MARKERS, seed=seed + 1000, workdir=tmp)
             write_elastic_stream(held, URDF, tmp / "h")
-            if cli(["calibrate", str(tmp / "m"), "--quiet", "--no-report", "--no-selection", "--out", str(tmp / "cal")]):
-                raise SystemExit("calibrate failed")
-            if cli(["diagnose", str(tmp / "m"), "--calibration", str(tmp / "cal" / "calibration.yaml"), "--heldout",
-                    str(tmp / "h"), "--out", str(tmp / "diag"), "--quiet"]):
-                raise SystemExit("diagnose failed")
-            d = json.loads((tmp / "diag" / "diagnosis.json").read_text())
-        named = listed(d["findings"])
-        per = d["heldout_session"]["per_marker"]
-        hands = []
-        for link in dict.fromkeys(MARKERS.values()):
-            v = np.array([per[m] for m, lk in MARKERS.items() if lk == link])
-            before, after = np.sqrt(np.mean(v**2, axis=0))
-            hands.append(f"{link} {before:.3f} -> {after:.3f}")
-        print(f"{seed}: {1e3 * np.abs(sim.settled - sim.rigid).max():.2f} | {d['n_poses']} | {named} | "
-              f"{scored(d['findings'])} | {'; '.join(hands)} ({time.perf_counter() - t0:.0f} s)", flush=True)
+            sag = 1e3 * np.abs(sim.settled - sim.rigid).max()
+            for kind in args.response_kinds.split(","):
+                t1 = time.perf_counter()
+                cal, diag = tmp / f"cal-{kind}", tmp / f"diag-{kind}"
+                if cli(["calibrate", str(tmp / "m"), "--quiet", "--no-report", "--no-selection", "--response-kind",
+                        kind, "--out", str(cal)]):
+                    raise SystemExit("calibrate failed")
+                response = json.loads((cal / "report.json").read_text())["motion"]["response"]
+                if cli(["diagnose", str(tmp / "m"), "--calibration", str(cal / "calibration.yaml"), "--heldout",
+                        str(tmp / "h"), "--out", str(diag), "--quiet"]):
+                    raise SystemExit("diagnose failed")
+                d = json.loads((diag / "diagnosis.json").read_text())
+                named = listed(d["findings"])
+                per = d["heldout_session"]["per_marker"]
+                hands = []
+                for link in dict.fromkeys(MARKERS.values()):
+                    v = np.array([per[m] for m, lk in MARKERS.items() if lk == link])
+                    before, after = np.sqrt(np.mean(v**2, axis=0))
+                    hands.append(f"{link} {before:.3f} -> {after:.3f}")
+                print(f"{seed} [{kind}: {response['kind']}]: {sag:.2f} | {d['n_poses']} | {named} | "
+                      f"{scored(d['findings'])} | {'; '.join(hands)} ({time.perf_counter() - t1:.0f} s; simulation "
+                      f"{t1 - t0:.0f} s)", flush=True)
+                t0 = t1 = time.perf_counter()
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ are forward differences per actuator (each parameter moves one actuator, or all 
 
 Procedure (:func:`calibrate_motion`):
 1. checks: markers and at least three commands, on two clocks that overlap (BadSession naming
-   commands.csv); after the fit (4.), markers off by more than MISFIT_RATIO times their own
+   commands.csv); after the fit kept (4.-6.), markers off by more than MISFIT_RATIO times their own
    noise say that the log does not explain the motion (commands missing: a log sparser than the
    motion, or another recording's), BadSession naming commands.csv;
 2. the samples: every sample from the second command on (the stand's place before the first is
@@ -41,7 +41,11 @@ Procedure (:func:`calibrate_motion`):
 5. the curvature correction taken again at the fit (stand, frame, markers, response) and the fit
    repeated from it while the correction moves the nodes by more than CORRECTION_SHARE of their
    own noise (at most CORRECTION_REFITS times): taken at the start, its error is first order in
-   the start's, which on a fast stream exceeds the nodes' noise.
+   the start's, which on a fast stream exceeds the nodes' noise;
+6. the response's kind (unless the caller names it): 3-5 run with the first order, the second
+   order tried from that fit and kept per actuator where the data determine it and at all where
+   the information criterion says so (:mod:`platkit.calibrate.motion_kind`); an actuator whose
+   fitted response is degenerate is said (report and warning).
 """
 from __future__ import annotations
 
@@ -52,9 +56,19 @@ import numpy as np
 from scipy import sparse
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
+from platkit.calibrate.motion_kind import (
+    DAMPING_MAX,
+    Z_DETERMINED,
+    fast_content,
+    information,
+    response_from_report,
+    response_report,
+    second_order_kept,
+    theta_by_name,
+)
 from platkit.calibrate.motion_start import actuator_travel, marker_points, response_from_travel
 from platkit.calibrate.problem import CalibrationProblem, Progress
-from platkit.calibrate.response import ResponseModel, actuator_positions, lags
+from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions
 from platkit.calibrate.stream import (
     MIN_SEEN_SHARE,
     NODES,
@@ -65,7 +79,7 @@ from platkit.calibrate.stream import (
     projected_positions,
     stream_windows,
 )
-from platkit.errors import BadSession, NotIdentifiable
+from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.geometry import matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.io.session import Session
@@ -232,7 +246,7 @@ def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
     span = np.where(np.isfinite(span) & (span > 0), span, 1.0)
     th = [np.zeros(1), np.full(model.n_u, TAU0_S)]
     if model.kind == "second_order":
-        th.append(np.full(model.n_u, ZETA0))
+        th.append(np.full(sum(model.is_second(j) for j in range(model.n_u)), ZETA0))
     if model.reference == "profile":
         th += [span / STROKE_TIME_S, span / STROKE_TIME_S / ACCEL_TIME_S]
     elif model.rate_limit:  # a streamed drive's rate limit: the caller starts it at the log's speed
@@ -283,26 +297,87 @@ def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk
     return np.nan_to_num(out)
 
 
-def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "second_order", free=None,
+#: the options of every fit of one stream (platkit.calibrate.estimate.calibrate's)
+_FitOptions = dict
+
+
+def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto", free=None,
                      robust: bool = True, window_s: float = WINDOW_S, nodes: int = NODES,
                      raw_samples: int = RAW_SAMPLES, progress: Progress | None = None,
                      platform_options: dict | None = None, ridge_m: float = 0.0,
                      reason: str = "", delays: bool = False, rate_limit: bool = False) -> tuple[Calibration, PoseSet]:
     """Calibrate ``spec`` from the whole stream of ``session`` (module docstring). Returns the
     calibration (its ``motion`` says which samples served, how they were reduced, and the fitted
-    response with its uncertainty) and the pose set of the nodes fitted. ``reason``: why the
-    motion model serves (said in the report). ``delays``: each actuator's own pure delay beyond
-    the shift; ``rate_limit``: a streamed log's actuators each with a speed limit, started at the
-    log's fastest step (a profile has its rate limit always) (platkit.calibrate.response)."""
+    response with its uncertainty) and the pose set of the nodes fitted. ``kind``: the actuators'
+    response, 'first_order', 'second_order', or 'auto' (the default: chosen from the data, per
+    actuator, :mod:`platkit.calibrate.motion_kind`; the report's ``motion.response.choice`` says
+    which and why). ``reason``: why the motion model serves (said in the report). ``delays``:
+    each actuator's own pure delay beyond the shift; ``rate_limit``: a streamed log's actuators
+    each with a speed limit, started at the log's fastest step (a profile has its rate limit
+    always) (platkit.calibrate.response)."""
     t0 = time.perf_counter()
+    if kind not in ("auto",) + KINDS:
+        raise BadInput(f"actuator response: kind must be auto or one of {', '.join(KINDS)}, not {kind!r}")
     reference = check_motion_session(session)
-    rmodel = ResponseModel(kind, reference, spec.n_u, delays, rate_limit)
     win = stream_windows(session, window_s, nodes, raw_samples)
     if len(win.t) < 20:
         raise BadSession(f"{session.markers_source}: only {len(win.t)} poses from the samples with markers seen "
                          "after the second command; calibrating from motion needs the stand moving under the markers")
+    opts: _FitOptions = {"free": free, "robust": robust, "progress": progress, "platform_options": platform_options,
+                         "ridge_m": ridge_m, "row_block": ROW_BLOCK}
+    rmodel = ResponseModel("first_order" if kind == "auto" else kind, reference, spec.n_u, delays, rate_limit)
+    theta_start, start, geom = _response_start(session, spec, rmodel, win)
+    cal, poses = _fit_stream(session, spec, rmodel, win, theta_start, start, geom, opts)
+    sample_dt = float(np.median(np.diff(session.marker_t)))
+    choice: dict = {"asked": kind, "rule": "named by the caller"}
+    if kind == "auto":
+        rmodel, cal, poses, choice = _choose_kind(session, spec, rmodel, win, cal, poses, start, geom[:2], opts,
+                                                  sample_dt)
+    floor = np.sqrt(3) * marker_noise_floor(poses)
+    if np.isfinite(floor) and floor > 0 and cal.rms_after > MISFIT_RATIO * floor:
+        raise BadSession(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "
+                         f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
+                         f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
+                         "sparser than the motion) or the log is another recording's")
+    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
+    response = response_report(rmodel, spec, cal, session.command_t, session.commands, sample_dt)
+    response["choice"] = choice
+    cal.motion = {
+        "used": "motion",
+        "why": reason or "calibrated from the whole stream",
+        "response": response,
+        "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
+                    "n_before_second_command": win.n_before, "n_in_short_windows": win.n_short,
+                    "n_marker_observations_left_out": win.n_left_out,
+                    "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
+                    "n_fitted": int(len(win.t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
+                    "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "
+                            f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
+                            f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
+                            f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
+                            f"{win.n_raw_windows} whole windows evenly spread ({win.n_raw} samples) kept as they are"},
+        "held": [n for n in held if n.startswith("term.actuator_response.")],
+        "time_s": time.perf_counter() - t0,
+    }
+    for c, why in response["not_determined"].items():
+        cal.warnings.append(f"actuator {c}: its response is not determined by the stream ({why}); its lag is what "
+                            "the data fix (report: motion.response)")
+    cal.terms, cal.theta, cal.theta_std = [], [], []  # settled poses need no response
+    if progress is not None:
+        progress("motion", {"response": cal.motion["response"]})
+    if not np.isfinite(cal.rms_after):
+        raise NotIdentifiable(f"{session.folder}: the motion model did not fit the stream")
+    return cal, poses
+
+
+def _response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows):
+    """Step 3: the response's start from the actuators' travel at the nominal geometry, twice (the
+    second registration at the controls the first response gives), on START_SAMPLES samples of
+    the stream; a profile's actuators rest before the first command where the samples before it
+    put them. Returns the start, the profile's rest (None: on the first command) and the
+    geometry the curvature correction is first taken at: (kinematic model, each marker's link,
+    td, A, b, markers)."""
     T, U = session.command_t, session.commands
-    t = win.t
     theta0 = _starting_theta(rmodel, spec)
     if rmodel.slewed:
         speed = command_speed(T, U)
@@ -310,10 +385,6 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
             [rmodel.index("rate", j) for j in range(spec.n_u)]])
     steps = _steps(rmodel, theta0)
     names = list(session.marker_names)
-    # 3. the response's start from the actuators' travel at the nominal geometry, twice (the
-    # second registration at the controls the first response gives), on START_SAMPLES samples of
-    # the stream; a profile's actuators rest before the first command where the samples before
-    # it put them
     theta_start, start = theta0, None
     seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
     cand = win.first + np.nonzero(seen[win.first:])[0]
@@ -321,7 +392,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
     pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
     for _ in range(START_ROUNDS):
         X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
-        poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=t,
+        poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=win.t,
                          n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder),
                          moving_link=session.moving_link)
         problem = CalibrationProblem(spec, poses0)
@@ -331,39 +402,41 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         A = matrix_from_rotvec(w)
         Xs = actuator_positions(rmodel, theta_start, T, U, session.marker_t[sub], start=start)
         travel = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs, links)
-        if reference == "profile" and len(pre):
+        if rmodel.reference == "profile" and len(pre):
             before = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
-                             np.repeat(U[:1], len(pre), axis=0), links)
+                                     np.repeat(U[:1], len(pre), axis=0), links)
             cols = np.isfinite(before).any(axis=0)  # a joint that moves no marker rests at its first command
             if cols.any() and np.isfinite(before[:, cols]).all(axis=1).any():
                 start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
         theta_start = response_from_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
-    steps = _steps(rmodel, theta_start)
-    # 4. the nodes' markers corrected for the kinematics' curvature at the start, and the full fit
+    return theta_start, start, (problem.model, links, spec.nominal_td(), A, tr, mk)
+
+
+def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows, theta_start,
+                start, geom, opts: _FitOptions, td_start=None) -> tuple[Calibration, PoseSet]:
+    """Steps 4 and 5: the nodes' markers corrected for the kinematics' curvature at ``geom``
+    (kinematic model, links, td, A, b, markers) and the response ``theta_start``, the full fit
+    (from ``td_start``, default nominal), and the correction taken again at the fit (stand, frame,
+    markers, response) while it moves the nodes by more than CORRECTION_SHARE of their own noise,
+    the fit repeated from there. The calibration keeps the response as its term."""
+    T, U = session.command_t, session.commands
+    model, links, td0, A, tr, mk = geom
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
-    correction = _curvature_correction(spec, problem.model, spec.nominal_td(), A, tr, mk, win, X1, lambda a, b: (
+    correction = _curvature_correction(spec, model, td0, A, tr, mk, win, X1, lambda a, b: (
         actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)), links)
-    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, steps, start, win.proj, win.sample_t)
-    poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=names, t=t,
-                    n_samples=win.n_eff,
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, _steps(rmodel, theta_start), start,
+                        win.proj, win.sample_t)
+    poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=list(session.marker_names),
+                    t=win.t, n_samples=win.n_eff,
                     description=None if session.description is None else str(session.description),
                     length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
-                    extras={"node": np.arange(len(t)), "elapsed": t - t[0]})
-    cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
-                    platform_options=platform_options, ridge_m=ridge_m, row_block=ROW_BLOCK)
-    floor = np.sqrt(3) * marker_noise_floor(poses)
-    if np.isfinite(floor) and floor > 0 and cal.rms_after > MISFIT_RATIO * floor:
-        raise BadSession(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "
-                         f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
-                         f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
-                         "sparser than the motion) or the log is another recording's")
-    # 5. the correction taken again at the fit (stand, frame, markers, response) while it moves the
-    # nodes by more than CORRECTION_SHARE of their own noise, and the fit repeated from there
-    rms_before = cal.rms_before  # at the nominal geometry, as a fit from settled poses says it
+                    extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})
+    cal = calibrate(poses, spec, terms=[term], td_start=td_start, **opts)
+    rms_before = cal.rms_before  # at the start's geometry, as a fit from settled poses says it
     for _ in range(CORRECTION_REFITS):
         theta = np.asarray(cal.theta[0], float)
         X2 = projected_positions(win.proj, rmodel, theta, T, U, win.sample_t, start=start)
-        again = _curvature_correction(spec, problem.model, cal.td, matrix_from_rotvec(cal.mocap_rotvec),
+        again = _curvature_correction(spec, model, cal.td, matrix_from_rotvec(cal.mocap_rotvec),
                                       cal.mocap_translation, cal.marker_positions, win, X2, lambda a, b, th=theta: (
                                           actuator_positions(rmodel, th, T, U, win.sample_t[a:b], start=start)), links)
         node = win.n_eff > 1.0  # the windows' nodes (a raw sample has no correction)
@@ -375,33 +448,74 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "secon
         term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), start, win.proj,
                             win.sample_t)
         poses = replace(poses, controls=X2, markers=win.Y - correction)
-        cal = calibrate(poses, spec, terms=[term], free=free, robust=robust, progress=progress,
-                        platform_options=platform_options, ridge_m=ridge_m, row_block=ROW_BLOCK, td_start=cal.td)
+        cal = calibrate(poses, spec, terms=[term], td_start=cal.td, **opts)
         cal.rms_before = rms_before
-    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
-    cal.motion = {
-        "used": "motion",
-        "why": reason or "calibrated from the whole stream",
-        "response": _response_report(rmodel, spec, cal, held, T, U, kind, reference),
-        "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
-                    "n_before_second_command": win.n_before, "n_in_short_windows": win.n_short,
-                    "n_marker_observations_left_out": win.n_left_out,
-                    "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
-                    "n_fitted": int(len(t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
-                    "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "
-                            f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
-                            f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
-                            f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
-                            f"{win.n_raw_windows} whole windows evenly spread ({win.n_raw} samples) kept as they are"},
-        "held": [n for n in held if n.startswith("term.actuator_response.")],
-        "time_s": time.perf_counter() - t0,
-    }
-    cal.terms, cal.theta, cal.theta_std = [], [], []  # settled poses need no response
-    if progress is not None:
-        progress("motion", {"response": cal.motion["response"]})
-    if not np.isfinite(cal.rms_after):
-        raise NotIdentifiable(f"{session.folder}: the motion model did not fit the stream")
     return cal, poses
+
+
+def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win: StreamWindows, cal1: Calibration,
+                 poses1: PoseSet, start, kin, opts: _FitOptions, sample_dt: float):
+    """The response's kind chosen from the data (platkit.calibrate.motion_kind's rules), from the
+    first-order fit ``cal1``: the second order tried from it, kept per actuator where determined,
+    and kept at all only where better by the information criterion. Returns the model, the
+    calibration and poses kept, and the report's ``choice``."""
+    names = list(spec.control_names)
+    v1 = dict(zip(first.names(names), np.asarray(cal1.theta[0], float)))
+    second = ResponseModel("second_order", first.reference, spec.n_u, first.delays, first.rate_limit)
+    halved = {f"tau_s.{c}": 0.5 * v1[f"tau_s.{c}"] if v1[f"tau_s.{c}"] > 2 * TAU_MIN_S else TAU0_S for c in names}
+    th2 = theta_by_name(second, names, halved, v1, default=ZETA0)  # the same lag (2 zeta tau) at low frequency
+
+    def at(cal):
+        return (*kin, cal.td, matrix_from_rotvec(cal.mocap_rotvec), cal.mocap_translation, cal.marker_positions)
+
+    cal2, poses2 = _fit_stream(session, spec, second, win, th2, start, at(cal1), opts, td_start=cal1.td)
+    moved = np.ptp(session.commands, axis=0) > 0
+    keep, why = second_order_kept(second, spec, cal2, sample_dt, moved)
+    n_ref = 3 * int(cal1.n_observations)
+    bic1 = information(cal1, n_ref)
+    choice: dict = {"asked": "auto", "first_order_actuators": why,
+                    "rule": (f"first order fitted; second order tried from it and kept for an actuator whose time "
+                             f"constant and damping are each determined (over {Z_DETERMINED:g} standard deviations) and "
+                             f"physical (damping at most {DAMPING_MAX:g}), and at all only where the information "
+                             "criterion (BIC) is lower than the first order's on the stream's fast content (what the "
+                             "response alone shapes)"),
+                    "bic": {"first_order": bic1}}
+    if not keep[moved].any():
+        choice["why"] = "first order: no actuator's second-order response is determined by the stream"
+        return first, cal1, poses1, choice
+    rmodel, cal, poses = second, cal2, poses2
+    if not keep[moved].all():  # some keep the second order: the others refitted as first order within it
+        rmodel = ResponseModel("second_order", first.reference, spec.n_u, first.delays, first.rate_limit,
+                               tuple(np.nonzero(~keep)[0]))
+        v2 = dict(zip(second.names(names), np.asarray(cal2.theta[0], float)))
+        own = {f"tau_s.{c}": v1[f"tau_s.{c}"] for j, c in enumerate(names) if not keep[j]}
+        th = theta_by_name(rmodel, names, own, v2)
+        cal, poses = _fit_stream(session, spec, rmodel, win, th, start, at(cal2), opts, td_start=cal2.td)
+    label = "second_order" if keep[moved].all() else "per_actuator"
+    added = sum(1 for j, c in enumerate(names) if rmodel.has("damping", j) and
+                f"term.actuator_response.damping.{c}" not in {h["name"] for h in
+                                                             cal.identifiability.get("held_at_nominal", [])})
+    (rss1, rss2), n_fast = fast_content([cal1, cal], win)
+    if n_fast > added:  # judged on the fast content, where a static effect left out has little power
+        bic1 = n_fast * float(np.log(max(rss1, 1e-300) / n_fast))
+        bic2 = n_fast * float(np.log(max(rss2, 1e-300) / n_fast)) + added * float(np.log(n_fast))
+        choice["criterion"] = (f"BIC of the residuals' fast content ({n_fast} coordinates of the windows kept as "
+                               "samples, each marker coordinate less its polynomial in time per window), the "
+                               f"second order charged its {added} dampings")
+        choice["bic"] = {"first_order": bic1}
+    else:
+        bic2 = information(cal, n_ref)
+        choice["criterion"] = "BIC of the whole fit (no window kept as samples)"
+    choice["bic"][label] = bic2
+    if not bic2 < bic1:
+        choice["why"] = (f"first order: the second order for {', '.join(c for j, c in enumerate(names) if keep[j])} "
+                         f"is determined but not better by BIC ({bic2:.1f} against {bic1:.1f})")
+        return first, cal1, poses1, choice
+    choice["why"] = (f"{label.replace('_', ' ')}: second order for "
+                     f"{', '.join(c for j, c in enumerate(names) if keep[j] and moved[j])}, better by BIC "
+                     f"({bic2:.1f} against {bic1:.1f})")
+    cal.rms_before = cal1.rms_before  # at the start's geometry, as the first fit said it
+    return rmodel, cal, poses, choice
 
 
 def motion_poses(session: Session, cal: Calibration) -> PoseSet:
@@ -426,15 +540,10 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
         raise BadSession(f"{session.folder}: the calibration was not fitted from motion (no actuator_response): a "
                          "stream without settled holds is read through the response calibrate fitted to it")
     spec = cal.spec
-    rmodel = ResponseModel(r["kind"], r["reference"], spec.n_u, bool(r.get("delays")),
-                           bool(r.get("rate_limit")) and r["reference"] == "step")
-    theta = np.zeros(rmodel.size)
-    theta[0] = float(r["shift_s"]["value"])
-    for j, c in enumerate(spec.control_names):
-        if c not in r["actuators"]:
-            raise BadSession(f"{session.folder}: the calibration's actuator_response has no actuator {c!r}")
-        for blk in rmodel.blocks:
-            theta[rmodel.index(blk, j)] = float(r["actuators"][c][blk]["value"])
+    try:
+        rmodel, theta = response_from_report(r, spec, str(session.folder))
+    except ValueError as exc:
+        raise BadSession(str(exc)) from None
     check_motion_session(session)
     win = stream_windows(session, raw_samples=0)
     T, U = session.command_t, session.commands
@@ -468,49 +577,14 @@ def without_response(cal: Calibration, session: Session) -> Calibration:
     if k is None:
         return cal
     term = cal.terms[k]
-    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
     one = replace(cal, terms=[term], theta=[cal.theta[k]], theta_std=[cal.theta_std[k]])
-    response = _response_report(term.model, cal.spec, one, held,
-                                session.command_t, session.commands, term.model.kind, term.model.reference)
+    response = response_report(term.model, cal.spec, one, session.command_t, session.commands,
+                               float(np.median(np.diff(session.marker_t))))
+    if "choice" in ((cal.motion or {}).get("response") or {}):  # the kind as calibrate chose it
+        response["choice"] = cal.motion["response"]["choice"]
     keep = [i for i in range(len(cal.terms)) if i != k]
     return replace(cal, terms=[cal.terms[i] for i in keep], theta=[cal.theta[i] for i in keep],
                    theta_std=[cal.theta_std[i] for i in keep], motion={**(cal.motion or {}), "response": response})
-
-
-def _response_report(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration, held: list[str], T: np.ndarray,
-                     U: np.ndarray, kind: str, reference: str) -> dict:
-    """The fitted response as the report gives it: per actuator each parameter with its std or
-    'held_at_start' (held by identifiability), a delay's lag (what the markers fix), a streamed
-    rate limit's share of the log's steps it cuts ('does_not_bind' where none); the shift."""
-    theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
-    par = rmodel.split(theta)
-    sd = rmodel.split(np.where(np.isfinite(theta_std), theta_std, np.nan))
-    per = {}
-    for j, c in enumerate(spec.control_names):
-        entry = {}
-        for blk in rmodel.blocks:
-            name = f"{blk}.{c}"
-            held_here = f"term.actuator_response.{name}" in held
-            entry[blk] = {"value": float(par[blk][j]), "std": None if held_here or not np.isfinite(sd[blk][j])
-                          else float(sd[blk][j]), "status": "held_at_start" if held_here else "estimated"}
-        if rmodel.delays:
-            entry["lag_s"] = {"value": float(lags(rmodel, theta)[j]), "note": "shift + delay_s: what the markers fix"}
-        if rmodel.slewed:  # a limit above every step the log asks is not seen: a lower bound, said so
-            need = np.abs(np.diff(U[:, j])) / np.diff(T)
-            entry["rate"]["binds_share"] = float(np.mean(need > par["rate"][j])) if len(need) else 0.0
-            if entry["rate"]["binds_share"] == 0:
-                entry["rate"].update(status="does_not_bind", std=None, note=(
-                    f"above the log's fastest step over its interval ({float(need.max()) if len(need) else 0.0:.4g} "
-                    "per s): the limit is not seen"))
-        per[c] = entry
-    shift_held = "term.actuator_response.shift_s" in held
-    shift = {"value": float(par["shift_s"]), "std": None if shift_held or not np.isfinite(sd["shift_s"])
-             else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
-             "note": "the motion capture's clock minus the commands', with the stand's common delay"}
-    return {"kind": kind, "reference": reference,
-            "units": "s for times; controls' internal units (m for length controls) per s for rates",
-            "delays": bool(rmodel.delays), "rate_limit": bool(rmodel.reference == "profile" or rmodel.slewed),
-            "shift_s": shift, "actuators": per}
 
 
 def _steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:

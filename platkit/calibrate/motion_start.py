@@ -43,7 +43,7 @@ def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, 
     lo[0], hi[0] = -5.0, 5.0
     for j in range(model.n_u):
         lo[model.index("tau_s", j)], hi[model.index("tau_s", j)] = 2e-3, 20.0
-        if model.kind == "second_order":
+        if model.has("damping", j):
             lo[model.index("damping", j)], hi[model.index("damping", j)] = 0.2, 5.0
         if model.delays:
             lo[model.index("delay_s", j)], hi[model.index("delay_s", j)] = -DELAY_MAX_S, DELAY_MAX_S

@@ -8,7 +8,9 @@ commands clock, values u_i), through a linear response that starts at rest:
   profile (rate limit ``rate_j``, acceleration limit ``accel_j``) from where the previous one
   stood when it was cut (a point-to-point drive moving between holds);
 - response ``first_order``: tau_j x' + x = r; ``second_order``: x'' + 2 zeta_j w_j x' + w_j^2 x =
-  w_j^2 r with w_j = 1 / tau_j (damping zeta_j; 1 critically damped, below 1 an overshoot);
+  w_j^2 r with w_j = 1 / tau_j (damping zeta_j; 1 critically damped, below 1 an overshoot); a
+  second-order response may name actuators that follow the first order all the same (the kind
+  chosen per actuator, :mod:`platkit.calibrate.motion_kind`);
 - one time shift s (the motion capture's clock minus the commands', with the stand's common
   delay: from the markers alone the two are one number): a sample stamped t sees the actuators
   at t - s on the commands clock;
@@ -59,17 +61,20 @@ TAU_MIN_S, ZETA_MIN = 1e-3, 0.05
 class ResponseModel:
     """Which response (``kind``) after which reference (``reference``), for ``n_u`` actuators;
     ``delays``: each actuator's own pure delay beyond the shift; ``rate_limit``: a step
-    reference slewed at each actuator's rate limit (a profile reference has one always).
+    reference slewed at each actuator's rate limit (a profile reference has one always);
+    ``first``: with kind ``second_order``, the actuators that follow a first-order response all
+    the same (no damping of their own: a response chosen per actuator).
 
-    theta (the fitted vector): [shift_s, tau_s (n_u), damping (n_u) for second_order, rate (n_u)
-    for a profile reference or a rate-limited step one, accel (n_u) for a profile reference,
-    delay_s (n_u) with ``delays``]."""
+    theta (the fitted vector): [shift_s, tau_s (n_u), damping (one per second-order actuator, in
+    actuator order) for second_order, rate (n_u) for a profile reference or a rate-limited step
+    one, accel (n_u) for a profile reference, delay_s (n_u) with ``delays``]."""
 
     kind: str
     reference: str
     n_u: int
     delays: bool = False
     rate_limit: bool = False
+    first: tuple[int, ...] = ()
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -77,6 +82,21 @@ class ResponseModel:
         if self.reference not in REFERENCES:
             raise BadInput(f"actuator response: reference must be one of {', '.join(REFERENCES)}, "
                            f"not {self.reference!r}")
+        self.first = tuple(sorted({int(j) for j in self.first}))
+        if self.first and (self.kind != "second_order" or not all(0 <= j < self.n_u for j in self.first)):
+            raise BadInput("actuator response: first-order actuators are named within a second-order response, "
+                           f"by index below {self.n_u}")
+        self._layout = [(b, j) for b in self.blocks for j in range(self.n_u) if b != "damping" or self.is_second(j)]
+        self._where = {key: 1 + k for k, key in enumerate(self._layout)}
+
+    def is_second(self, j: int) -> bool:
+        """Whether actuator j follows the second-order response (it has a damping)."""
+        return self.kind == "second_order" and j not in self.first
+
+    @property
+    def kinds(self) -> list[str]:
+        """Each actuator's response, 'first_order' or 'second_order'."""
+        return ["second_order" if self.is_second(j) else "first_order" for j in range(self.n_u)]
 
     @property
     def blocks(self) -> list[str]:
@@ -91,6 +111,10 @@ class ResponseModel:
             out.append("delay_s")
         return out
 
+    def has(self, block: str, j: int) -> bool:
+        """Whether actuator j has a parameter of ``block`` (a first-order one has no damping)."""
+        return (block, j) in self._where
+
     @property
     def slewed(self) -> bool:
         """A step reference slewed at a rate limit."""
@@ -98,25 +122,30 @@ class ResponseModel:
 
     @property
     def size(self) -> int:
-        return 1 + self.n_u * len(self.blocks)
+        return 1 + len(self._layout)
 
     def names(self, control_names: list[str]) -> list[str]:
-        return ["shift_s"] + [f"{b}.{c}" for b in self.blocks for c in control_names]
+        return ["shift_s"] + [f"{b}.{control_names[j]}" for b, j in self._layout]
 
     def split(self, theta) -> dict[str, np.ndarray]:
-        """{'shift_s': float array (), block: (n_u,)} of theta."""
+        """{'shift_s': float array (), block: (n_u,)} of theta; a first-order actuator's damping
+        is NaN."""
         theta = np.asarray(theta, float)
         out = {"shift_s": theta[0]}
-        for k, b in enumerate(self.blocks):
-            out[b] = theta[1 + k * self.n_u:1 + (k + 1) * self.n_u]
+        for b in self.blocks:
+            v = np.full(self.n_u, np.nan)
+            for j in range(self.n_u):
+                if (b, j) in self._where:
+                    v[j] = theta[self._where[(b, j)]]
+            out[b] = v
         return out
 
     def index(self, block: str, j: int) -> int:
-        return 1 + self.blocks.index(block) * self.n_u + j
+        return self._where[(block, j)]
 
     def actuator_of(self, k: int) -> int | None:
         """The actuator theta[k] belongs to (None: the shift, shared by all)."""
-        return None if k == 0 else (k - 1) % self.n_u
+        return None if k == 0 else self._layout[k - 1][1]
 
 
 def lags(model: ResponseModel, theta) -> np.ndarray:
@@ -390,7 +419,7 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
     for j in cols:
         s = t - float(lag[j])
         tau = max(float(par["tau_s"][j]), TAU_MIN_S)
-        zeta = max(float(par["damping"][j]), ZETA_MIN) if "damping" in par else None
+        zeta = max(float(par["damping"][j]), ZETA_MIN) if model.is_second(j) else None
         if model.reference == "step" and not model.slewed:
             out.append(_step_one(s, T, U[:, j], tau, zeta, _segments(cache, T, s, float(lag[j]))))
         else:

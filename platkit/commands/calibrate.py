@@ -38,6 +38,11 @@ def add_parser(sub):
                    help="where the stand is calibrated from motion (holds that do not settle, or none): add to the "
                         "actuators' response, comma-separated, 'delays' (each actuator's own pure delay beyond the "
                         "common shift) and 'rate-limit' (a streamed drive's speed limit, fitted)")
+    p.add_argument("--response-kind", default="auto", type=lambda x: x.replace("_", "-"),
+                   choices=["auto", "first-order", "second-order"],
+                   help="where the stand is calibrated from motion: the actuators' response, 'first-order' (a lag), "
+                        "'second-order' (time constant and damping), or 'auto' (default: the second order for the "
+                        "actuators whose data determine it and where it fits better by BIC, the first otherwise)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument("--no-report", action="store_true",
                    help="write calibration.yaml and report.json only, not report.html (its figures take longer "
@@ -151,10 +156,12 @@ def run(args) -> int:
         if args.method == "paper":
             raise
         return run_motion(args, str(exc), notes)
-    if response is not None:  # the holds settled: no response is fitted, said
-        note = f"--response {response}: the holds settled, so no actuator response is fitted (not used)"
-        warn(note)
-        notes.append(note)
+    kind = getattr(args, "response_kind", "auto")
+    for flag, value in (("--response", response), ("--response-kind", None if kind == "auto" else kind)):
+        if value is not None:  # the holds settled: no response is fitted, said
+            note = f"{flag} {value}: the holds settled, so no actuator response is fitted (not used)"
+            warn(note)
+            notes.append(note)
     other = None  # read before any work: a bad second session is bad input, found at once
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, spec.name, args.description, quiet=args.quiet)
@@ -300,6 +307,7 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     cal, poses = calibrate_motion(s, s.spec, free=free, robust=not args.no_robust,
                                   progress=None if args.quiet else progress_printer(s.length_unit),
                                   platform_options=options, ridge_m=ridge_m, reason=reason,
+                                  kind=getattr(args, "response_kind", "auto").replace("-", "_"),
                                   **response_parts(getattr(args, "response", None)))
     if other is not None:
         cal.heldout["second_session"] = second_session_errors(cal, other)
@@ -318,13 +326,29 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     line = (f"rms {cal.rms_before / sc:.4g} -> {cal.rms_after / sc:.4g} {cal.length_unit} from motion "
             f"({cal.motion['samples']['n_used']} of {cal.motion['samples']['n_stream']} samples as "
             f"{cal.motion['samples']['n_fitted']} poses, {cal.n_markers} markers); response {r['kind']} after a "
-            f"{r['reference']} reference: shift {r['shift_s']['value']:.4g} s, "
+            f"{r['reference']} reference ({_kind_said(r)}): shift {r['shift_s']['value']:.4g} s, "
             f"slowest {slow} tau {taus[slow]:.4g} s")
+    if r.get("not_determined"):
+        line += f"; not determined: {', '.join(r['not_determined'])}"
     second = cal.heldout.get("second_session")
     if second is not None:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / sc:.4g} {cal.length_unit}"
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _kind_said(r: dict) -> str:
+    """How the response's kind was chosen, in a few words (report: motion.response.choice)."""
+    choice = r.get("choice") or {}
+    if choice.get("asked") != "auto":
+        return "named"
+    bic = choice.get("bic") or {}
+    if r["kind"] == "first_order":
+        tried = [k for k in bic if k != "first_order"]
+        return ("chosen: second order not better by BIC" if tried
+                else "chosen: no actuator's second order determined")
+    n2 = sum(1 for e in r["actuators"].values() if e.get("kind") == "second_order")
+    return f"chosen: second order for {n2} of {len(r['actuators'])} actuators, lower BIC"
 
 
 #: a second session this many times worse than the fit is most likely in another mocap frame
