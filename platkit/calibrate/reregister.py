@@ -12,11 +12,14 @@ with the tracked links' frames R, X and the terms' marker offsets dm predicted b
 (``platkit.calibrate.estimate``), unknowns A (a rotation), b and, with ``markers=True``, the
 places m. A rigid body's origin counts as one more point (its orientation is not fitted; its
 placement is held, or its origin re-estimated with the markers). The fit: closed form (Kabsch)
-for the transform alone, then Gauss-Newton over every unknown, gross outliers (beyond REJECT_K
-robust sigma) left out and counted. The poses must fix the unknowns: the Jacobian, rotations
-scaled by the points' spread, must have full rank (relative singular value above
-DEFAULT_REL_TOL); else bad input in one line (a transform needs three points off a line; marker
-places need the link to turn about two axes).
+for the transform alone, then scipy.optimize.least_squares (Levenberg-Marquardt, the exact
+Jacobian) over every unknown, gross outliers (beyond REJECT_K robust sigma, calibrate's rejection
+rule) left out, counted, and the rest fitted again, until the points left out stay the same
+(calibrate's Huber rounds are not run: docs/calibration.md says what they would change). The
+poses must fix the unknowns: the Jacobian, rotations scaled by the points' spread, must have full
+rank (relative singular value above DEFAULT_REL_TOL); else bad input in one line (a transform
+needs three points off a line; marker places need the link to turn about two axes).
+:func:`check_registration` makes these checks for every block without fitting.
 
 Scoring by rotation (:func:`rotated_scores`): blocks of K consecutive poses, in recording order,
 re-register in turn (the last block wraps to the first poses), the session's other poses are
@@ -29,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from platkit.calibrate.estimate import _predicted_frames, calibration_links
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL
@@ -41,8 +45,8 @@ from platkit.kinematics import PlatformModel
 from platkit.model import length_scale
 from platkit.poses import PoseSet
 
-#: Gauss-Newton stops when no unknown moves by more than this (m, or rad times the spread)
-_STEP_TOL_M = 1e-10
+#: least_squares' tolerances: relative change of the unknowns (m, or rad times the spread) and of the cost
+_XTOL, _FTOL = 1e-12, 1e-14
 
 
 @dataclass(frozen=True)
@@ -163,7 +167,45 @@ def _jacobian(pts_centred, Rk_seen, A, idx_points, C: int, markers: bool, spread
 
 def skew_batch(v: np.ndarray) -> np.ndarray:
     """(K, 3, 3) the cross-product matrices of v (K, 3)."""
-    return np.stack([skew(x) for x in v]) if len(v) else np.zeros((0, 3, 3))
+    return skew(np.asarray(v, float).reshape(-1, 3))
+
+
+def _left_jacobian(phi: np.ndarray) -> np.ndarray:
+    """(3, 3) SO(3)'s left Jacobian at the rotation vector phi: exp([phi + d]) ~ exp([J d]) exp([phi])."""
+    theta = float(np.linalg.norm(phi))
+    W = skew(phi)
+    if theta < 1e-8:
+        return np.eye(3) + 0.5 * W
+    return np.eye(3) + (1 - np.cos(theta)) / theta**2 * W + (theta - np.sin(theta)) / theta**3 * W @ W
+
+
+def _check_fixes(J: np.ndarray, markers: bool, what: str, unknown: str, n_rows: int) -> None:
+    """BadInput where the Jacobian J (rotations scaled by the points' spread) has not full rank."""
+    s = np.linalg.svd(J, compute_uv=False)
+    if J.shape[0] < J.shape[1] or s[-1] <= DEFAULT_REL_TOL * s[0]:
+        need = "the link to turn about two different axes among them" if markers else "3 or more points off one line"
+        raise BadInput(f"{what}: {n_rows} pose{'s' if n_rows != 1 else ''} cannot fix {unknown} (it needs {need}); "
+                       "give more poses")
+
+
+def _check_seen(seen: np.ndarray, what: str) -> None:
+    if seen.sum() < 3:
+        raise BadInput(f"{what}: {int(seen.sum())} points seen and predicted; fixing the base-to-mocap transform needs "
+                       "3 or more off one line")
+
+
+def _unknown(markers: bool) -> str:
+    return "the base-to-mocap transform" + (" and the marker places" if markers else "")
+
+
+def _linearised(A, b, places, P, Rk, keep, markers: bool):
+    """(J, y, c, spread) at the set-up (A, b, places) on the points ``keep``: the Jacobian of
+    :func:`_jacobian` about the predictions' centroid c, the predictions y (n, 3)."""
+    idx = np.nonzero(keep)
+    y = (P[idx] + np.einsum("kab,kb->ka", Rk[idx], places[idx[1]])) @ A.T + b
+    c = y.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.sum((y - c) ** 2, axis=1)))) or 1.0
+    return _jacobian(y - c, Rk[idx], A, idx[1], keep.shape[1], markers, 1.0 / spread), y, c, spread
 
 
 def fit_setup(cal: Calibration, pts: SessionPoints, rows, markers: bool = False, what: str = "the poses",
@@ -175,67 +217,78 @@ def fit_setup(cal: Calibration, pts: SessionPoints, rows, markers: bool = False,
     start = _places(cal)
     seen = pts.seen[rows]
     Rk, Y, P = pts.Rk[rows], pts.Y[rows], pts.P[rows]
-    if seen.sum() < 3:
-        raise BadInput(f"{what}: {int(seen.sum())} points seen and predicted; fixing the base-to-mocap transform needs "
-                       "3 or more off one line")
+    _check_seen(seen, what)
     A, b = rigid_fit((P + np.einsum("ncab,cb->nca", Rk, start))[seen], Y[seen])
-    unknown = "the base-to-mocap transform" + (" and the marker places" if markers else "")
+    args = (P, Rk, Y, markers, what, len(rows))
+
+    def distances(A, b, places):
+        pred = (P + np.einsum("ncab,cb->nca", Rk, places)) @ A.T + b
+        return np.linalg.norm(np.where(seen[..., None], pred - Y, 0.0), axis=2)
+
     keep = seen
     for _ in range(4):  # fit, then leave out the gross outliers of that fit, until none changes
-        A, b, places, cov_wb = _gauss_newton(A, b, start, P, Rk, Y, keep, markers, what, unknown, len(rows))
-        pred = (P + np.einsum("ncab,cb->nca", Rk, places)) @ A.T + b
-        d = np.linalg.norm(np.where(seen[..., None], pred - Y, 0.0), axis=2)
-        sigma = robust_sigma(d[seen])
-        new_keep = seen & (d <= max(REJECT_K * sigma, 1e-12))
+        A, b, places = _least_squares(A, b, start, keep, *args)
+        fitted, d = keep, distances(A, b, places)
+        new_keep = seen & (d <= max(REJECT_K * robust_sigma(d[seen]), 1e-12))
         if not robust or np.array_equal(new_keep, keep) or new_keep.sum() < 3:
             break
         keep = new_keep
-    std = np.sqrt(np.clip(np.diag(cov_wb), 0.0, None))
-    return Registration(rotvec=rotvec_from_matrix(A), translation=b, std=std, places=places,
-                        rms=float(np.sqrt(np.mean(d[keep] ** 2))), n_poses=len(rows), n_points=int(keep.sum()),
-                        n_rejected=int(seen.sum() - keep.sum()), markers=markers)
+    return Registration(rotvec=rotvec_from_matrix(A), translation=b,
+                        std=_covariance_std(A, b, places, *args[:3], fitted, markers),
+                        places=places, rms=float(np.sqrt(np.mean(d[keep] ** 2))), n_poses=len(rows),
+                        n_points=int(keep.sum()), n_rejected=int(seen.sum() - keep.sum()), markers=markers)
 
 
-def _gauss_newton(A, b, places, P, Rk, Y, keep, markers: bool, what: str, unknown: str, n_rows: int,
-                  max_iter: int = 30):
-    """(A, b, places, cov): least squares over the transform (and places) on the points ``keep``,
-    from the start given; cov (6, 6) of (rotation vector, translation) from the residual's
-    variance. BadInput where the Jacobian has not full rank."""
+def _least_squares(A, b, places, keep, P, Rk, Y, markers: bool, what: str, n_rows: int):
+    """(A, b, places): least squares (scipy.optimize.least_squares, Levenberg-Marquardt with the
+    exact Jacobian) over the transform (and places) on the points ``keep``, from the start given.
+    The unknowns: a turn w (times the points' spread) about their centroid c, a move db, the
+    places' changes: y -> exp([w]) (y - c) + c + db. BadInput where the Jacobian at the start has
+    not full rank."""
+    J0, y0, c, spread = _linearised(A, b, places, P, Rk, keep, markers)
+    _check_fixes(J0, markers, what, _unknown(markers), n_rows)
     idx = np.nonzero(keep)
-    Rk_seen, Y_seen, P_seen = Rk[idx], Y[idx], P[idx]
-    C = keep.shape[1]
-    places = places.copy()
-    for it in range(max_iter + 1):
-        y = (P_seen + np.einsum("kab,kb->ka", Rk_seen, places[idx[1]])) @ A.T + b
-        c = y.mean(axis=0)
-        spread = float(np.sqrt(np.mean(np.sum((y - c) ** 2, axis=1)))) or 1.0
-        J = _jacobian(y - c, Rk_seen, A, idx[1], C, markers, 1.0 / spread)
-        r = (y - Y_seen).ravel()
-        if it == 0:
-            s = np.linalg.svd(J, compute_uv=False)
-            if J.shape[0] < J.shape[1] or s[-1] <= DEFAULT_REL_TOL * s[0]:
-                need = ("the link to turn about two different axes among them" if markers
-                        else "3 or more points off one line")
-                raise BadInput(f"{what}: {n_rows} pose{'s' if n_rows != 1 else ''} cannot fix {unknown} (it needs {need}); "
-                               "give more poses")
-        if it == max_iter:
-            break
-        step = np.linalg.lstsq(J, -r, rcond=None)[0]
-        turn = matrix_from_rotvec(step[:3] / spread)
-        A = turn @ A
-        b = turn @ (b - c) + c + step[3:6]
+    Rk_seen, Y_seen = Rk[idx], Y[idx]
+    v0 = y0 - c  # the start's predictions about the centroid; with places fitted they move by A Rk dm
+    AR = np.einsum("ab,kbc->kac", A, Rk_seen)
+
+    def state(x):
+        turn = matrix_from_rotvec(x[:3] / spread)
+        v = v0 + (np.einsum("kab,kb->ka", AR, x[6:].reshape(-1, 3)[idx[1]]) if markers else 0.0)
+        return turn, v
+
+    def fun(x):
+        turn, v = state(x)
+        return (v @ turn.T + c + x[3:6] - Y_seen).ravel()
+
+    def jac(x):
+        turn, v = state(x)
+        J = J0.reshape(len(v0), 3, -1).copy()
+        J[:, :, :3] = -skew_batch(v @ turn.T) @ _left_jacobian(x[:3] / spread) / spread
         if markers:
-            places = places + step[6:].reshape(-1, 3)
-        if np.max(np.abs(step)) < _STEP_TOL_M:
-            break
+            TAR = np.einsum("ab,kbc->kac", turn, AR)
+            for row, cc in enumerate(idx[1]):
+                J[row, :, 6 + 3 * cc:9 + 3 * cc] = TAR[row]
+        return J.reshape(J0.shape)
+
+    x = least_squares(fun, np.zeros(J0.shape[1]), jac=jac, method="lm", xtol=_XTOL, ftol=_FTOL).x
+    turn = matrix_from_rotvec(x[:3] / spread)
+    return turn @ A, turn @ (b - c) + c + x[3:6], places + x[6:].reshape(-1, 3) if markers else places
+
+
+def _covariance_std(A, b, places, P, Rk, Y, keep, markers: bool) -> np.ndarray:
+    """(6,) the standard deviations of (rotation vector, translation) at the set-up fitted on the
+    points ``keep``, from the residual's variance and the Jacobian there."""
+    J, y, c, spread = _linearised(A, b, places, P, Rk, keep, markers)
+    r = (y - Y[np.nonzero(keep)]).ravel()
     dof = max(J.shape[0] - J.shape[1], 1)
     cov_s = float(r @ r) / dof * np.linalg.pinv(J.T @ J)[:6, :6]
-    # (w, b) from the step's (w spread, db) about the centroid c: b moves by -[b - c]x w + db
+    # (w, b) from the unknowns' (w spread, db) about the centroid c: b moves by -[b - c]x w + db
     L = np.zeros((6, 6))
     L[:3, :3] = np.eye(3) / spread
     L[3:, :3] = -skew(b - c) / spread
     L[3:, 3:] = np.eye(3)
-    return A, b, places, L @ cov_s @ L.T
+    return np.sqrt(np.clip(np.diag(L @ cov_s @ L.T), 0.0, None))
 
 
 def reregister(cal: Calibration, poses: PoseSet, markers: bool = False,
@@ -298,6 +351,33 @@ def check_block_size(k: int, n_poses: int, option: str, source: str) -> None:
                        f"(give fewer than {n_poses})")
 
 
+def _block_label(blk: np.ndarray, n_poses: int, spread: bool) -> str:
+    """A block's poses as a line names them (1-based)."""
+    if spread:
+        return f"poses {', '.join(str(i + 1) for i in blk)}"
+    if blk[-1] >= blk[0]:
+        return f"poses {blk[0] + 1}-{blk[-1] + 1}"
+    return f"poses {blk[0] + 1}-{n_poses} and 1-{blk[-1] + 1}"
+
+
+def check_registration(cal: Calibration, poses: PoseSet, k: int, markers: bool = False,
+                       option: str = "--heldout-register", spread: bool = False) -> None:
+    """Bad input in one line where :func:`rotated_scores` would refuse at the start: ``k`` that
+    leaves no pose to score, a marker or body of ``cal`` the session lacks, a block whose poses
+    cannot fix the set-up (too few points seen, or a Jacobian without full rank). Nothing is
+    fitted: the session's points are predicted once and each block's Jacobian taken at ``cal``'s
+    own set-up (its rank does not depend on where the transform is)."""
+    source = poses.source or "the session"
+    check_block_size(k, poses.n_poses, option, source)
+    pts = session_points(cal, poses)
+    A, b, places = matrix_from_rotvec(cal.mocap_rotvec), np.asarray(cal.mocap_translation, float), _places(cal)
+    for blk in registration_blocks(poses.n_poses, k, spread):
+        what = f"{option} {k}: {source}, {_block_label(blk, poses.n_poses, spread)}"
+        _check_seen(pts.seen[blk], what)
+        J = _linearised(A, b, places, pts.P[blk], pts.Rk[blk], pts.seen[blk], markers)[0]
+        _check_fixes(J, markers, what, _unknown(markers), len(blk))
+
+
 def rotated_scores(cal: Calibration, poses: PoseSet, k: int, markers: bool = False,
                    option: str = "--heldout-register", robust: bool = True, spread: bool = False) -> RotatedScore:
     """``cal`` scored on ``poses`` with its set-up re-registered on each block of ``k`` poses
@@ -311,10 +391,8 @@ def rotated_scores(cal: Calibration, poses: PoseSet, k: int, markers: bool = Fal
     count = np.zeros((N, C))
     regs, blocks = [], registration_blocks(N, k, spread)
     for blk in blocks:
-        rows = (f"poses {', '.join(str(i + 1) for i in blk)}" if spread
-                else f"poses {blk[0] + 1}-{blk[-1] + 1}" if blk[-1] >= blk[0]
-                else f"poses {blk[0] + 1}-{N} and 1-{blk[-1] + 1}")
-        reg = fit_setup(cal, pts, blk, markers, what=f"{option} {k}: {source}, {rows}", robust=robust)
+        reg = fit_setup(cal, pts, blk, markers, what=f"{option} {k}: {source}, {_block_label(blk, N, spread)}",
+                        robust=robust)
         regs.append(reg)
         score = np.ones(N, bool)
         score[blk] = False
@@ -329,5 +407,5 @@ def rotated_scores(cal: Calibration, poses: PoseSet, k: int, markers: bool = Fal
     return RotatedScore(sq=sq, registrations=regs, blocks=blocks, names=pts.names)
 
 
-__all__ = ["Registration", "RotatedScore", "SessionPoints", "check_block_size", "fit_setup", "registration_blocks",
-           "reregister", "rotated_scores", "session_points"]
+__all__ = ["Registration", "RotatedScore", "SessionPoints", "check_block_size", "check_registration", "fit_setup",
+           "registration_blocks", "reregister", "rotated_scores", "session_points"]

@@ -150,9 +150,9 @@ def _motion_poses(folder, cal, sessions):
 
 def _check_register(args, cal, heldout) -> None:
     """--heldout-register K: bad input in one line without --heldout, with K that leaves no pose
-    to score, or a block of K poses that cannot fix the set-up (tried on the given calibration,
-    before the diagnosis runs)."""
-    from platkit.calibrate.reregister import rotated_scores
+    to score, or a block of K poses that cannot fix the set-up (checked on the given calibration
+    before the diagnosis runs, without fitting: the re-registrations run once, after it)."""
+    from platkit.calibrate.reregister import check_registration
 
     if args.heldout_register is None:
         raise BadInput(f"--register-{'markers' if args.register_markers else 'spread'}: give --heldout-register K "
@@ -160,7 +160,7 @@ def _check_register(args, cal, heldout) -> None:
     if heldout is None:
         raise BadInput(f"--heldout-register {args.heldout_register}: give --heldout SESSION (the session to "
                        "re-register and score)")
-    rotated_scores(cal, heldout, args.heldout_register, args.register_markers, spread=args.register_spread)
+    check_registration(cal, heldout, args.heldout_register, args.register_markers, spread=args.register_spread)
 
 
 def _diagnose_imu(session, cal, say, td_status=None, read=None) -> tuple[dict, dict]:

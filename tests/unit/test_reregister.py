@@ -10,7 +10,7 @@ import pytest
 
 from platkit.calibrate.estimate import calibrate, predict_markers
 from platkit.calibrate.plan import random_candidates
-from platkit.calibrate.reregister import registration_blocks, reregister, rotated_scores
+from platkit.calibrate.reregister import check_registration, registration_blocks, reregister, rotated_scores
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.plugins import get_platform
@@ -116,6 +116,9 @@ def test_bad_input_one_line(stand):
     with pytest.raises(BadInput, match=r"day2, poses 1-1: 1 pose cannot fix the base-to-mocap transform and the "
                                        r"marker places \(it needs the link to turn about two different axes"):
         rotated_scores(cal, day2, 1, markers=True)
+    with pytest.raises(BadInput, match=r"day2, poses 1-1: 1 pose cannot fix the base-to-mocap transform and the "
+                                       r"marker places \(it needs the link to turn about two different axes"):
+        check_registration(cal, day2, 1, markers=True)  # the same line, nothing fitted
     one = PoseSet("stewart", day2.controls[:1], day2.markers[:1, :2], names[:2], source="day2")
     with pytest.raises(BadInput, match=f"day2: has no marker or rigid body {names[2]!r} of the calibration"):
         reregister(cal, one)
@@ -182,6 +185,22 @@ def test_diagnose_scores_a_heldout_day_re_registered(two_days):
     # measured 0.078 against 0.27 mm: the backlash holds out on the new set-up
     assert r["rms_after"] < 0.12 and r["rms_after"] < 0.5 * r["rms_before"]
     assert set(r["per_marker"]) == {"M1", "M2", "M3", "M4", "M5"}
+
+
+def test_diagnose_re_registers_each_block_once_per_model(two_days, tmp_path, monkeypatch):
+    """--heldout-register K checks its blocks without fitting (check_registration), then fits each
+    block once for the geometric model and once for the diagnosed one: 2 x 4 blocks of 5 poses
+    among day 2's 20."""
+    import platkit.calibrate.reregister as rr
+    from platkit.cli import main
+
+    root, train, day2, cal = two_days
+    fits = []
+    fit_setup = rr.fit_setup
+    monkeypatch.setattr(rr, "fit_setup", lambda *a, **k: fits.append(a[2]) or fit_setup(*a, **k))
+    assert main(["diagnose", str(train), "--calibration", str(cal), "--heldout", str(day2), "--heldout-register", "5",
+                 "--out", str(tmp_path / "d"), "--quiet"]) == 0
+    assert len(fits) == 8
 
 
 @pytest.mark.parametrize("extra, message", [
