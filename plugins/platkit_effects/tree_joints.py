@@ -311,6 +311,32 @@ class JointsComplianceTerm(ModelTerm):
                 marker[..., col] += q
         return control, pose, marker
 
+    def _given_back(self, stand, poses, start: np.ndarray) -> list[tuple[str, ModelTerm]]:
+        """This term with the compliance of a joint it lacks given back beside the bending of that
+        joint's parent, for each joint that sits at the origin of a parent this term bends
+        (:func:`same_place_parent`) and holds a load that changes over the poses: a joint and the
+        link before it may both give (a compliance told apart as the bending took the joint's
+        place; the two differ once the parent turns). Its start: the fitted values, the joint's
+        compliance zero."""
+        out = []
+        mine = {b.joint for b in self.bends}
+        S = load_state(stand, poses.controls) if mine else None
+        for i, n in enumerate(stand.joints):
+            if not mine or i in self.indices or n not in stand.loads.index \
+                    or not np.ptp(S.loads.torque[:, stand.loads.index[n]]) > 1e-6:
+                continue
+            parent = same_place_parent(stand, poses.controls, n)
+            if parent not in mine:
+                continue
+            indices = sorted([*self.indices, i])
+            at = indices.index(i)
+            alt = joints_compliance_term(self.effect, self.spec, indices, self.bends, label=self.where.get("joint"),
+                                         masses=self.masses, identifiable=self.where.get("identifiable_mass_moments"),
+                                         noise_m=self.noise_m)
+            alt.initial = np.insert(np.asarray(start, float), at, 0.0)
+            out.append((f"{n}'s compliance given back beside the link bending at {parent}", alt))
+        return out
+
     def alternatives(self, theta, poses, others) -> list[tuple[str, ModelTerm]]:
         """This term with one joint's compliance replaced by its parent joint's link bending, for each
         joint that sits at its parent's origin with its axis across the parent's (to first order the
@@ -323,7 +349,10 @@ class JointsComplianceTerm(ModelTerm):
         inertias, first the tree's mass moments estimated with the compliances (each count of
         MASS_STEPS), then, once they are, the bending of each joint that carries every tracked
         link under the estimated loads (one compliance across; beside another term's bend there,
-        which turns under the prior's)."""
+        which turns under the prior's). Before the joints told apart: a compliance told apart
+        given back beside its parent's bending (:meth:`_given_back`); after each joint's two
+        forms, its parent's bending added beside its compliance (once per parent; the two differ
+        once the parent turns)."""
         stand = self.stand()
         bent_already = {str(t.where.get("joint")) for t in others if t.effect == "link_bending"}
         bent_already |= {b.joint for b in self.bends}
@@ -359,6 +388,8 @@ class JointsComplianceTerm(ModelTerm):
                                              identifiable=self.where.get("identifiable_mass_moments"), noise_m=self.noise_m)
                 alt.initial = np.concatenate([start[:len(start) - K], [0.0], deltas])
                 out.append((f"link bending at {n} under the tree's estimated loads", alt))
+        out += self._given_back(stand, poses, start)
+        beside: set[str] = set()
         for k, (i, n) in enumerate(zip(self.indices, self.joints)):
             parent = same_place_parent(stand, poses.controls, n)
             if parent is None or parent in bent_already or (parent not in stand.shared
@@ -375,6 +406,14 @@ class JointsComplianceTerm(ModelTerm):
                 alt.initial = np.concatenate([start[keep], start[len(self.indices):len(self.indices) + nb],
                                               np.full(len(bend.parameter_names), start[k] * stand.scale[i]), deltas])
                 out.append((f"{n}'s compliance told apart as link bending at {parent}{what}", alt))
+            if parent not in beside:  # both give: the bending added, every compliance kept
+                beside.add(parent)
+                bend = joint_rotation_term("link_bending", self.spec, parent, "across", points)
+                alt = joints_compliance_term(self.effect, self.spec, self.indices, self.bends + [bend],
+                                             label=self.where.get("joint"), masses=self.masses, identifiable=self.where.get(
+                                                 "identifiable_mass_moments"), noise_m=self.noise_m)
+                alt.initial = np.concatenate([start[:len(start) - K], [0.0], deltas])
+                out.append((f"link bending at {parent} beside {n}'s compliance", alt))
         for n in self.joints:  # a coupled joint's elasticity in its own joint alone, its mimic joints held
             if n not in self.alone and coupled(stand, n):
                 alt = replace(self, where={**self.where, "alone": self.alone + [n]}, initial=start.copy())

@@ -72,8 +72,14 @@ def test_the_compliance_of_a_joint_at_its_parents_origin_has_the_parents_bending
     alts = term.alternatives(np.arange(1.0, len(term.joints) + 1), poses, [])
     assert [w for w, _ in alts] == ["l2's compliance told apart as link bending at l1",
                                     "l2's compliance told apart as link bending at l1, stiffer one way than the other",
+                                    "link bending at l1 beside l2's compliance",
                                     "r2's compliance told apart as link bending at r1",
-                                    "r2's compliance told apart as link bending at r1, stiffer one way than the other"]
+                                    "r2's compliance told apart as link bending at r1, stiffer one way than the other",
+                                    "link bending at r1 beside r2's compliance"]
+    both = alts[2][1]  # the bending added, every compliance kept, the bending from zero
+    assert both.joints == term.joints and both.where["bends"] == ["l1"] and both.parameter_names[-1] == "bending_l1"
+    assert np.array_equal(both.initial, np.arange(1.0, len(term.joints) + 2) * (np.arange(len(term.joints) + 1)
+                                                                               < len(term.joints)))
     assert alts[1][1].parameter_names[-2:] == ["bending_l1_u", "bending_l1_v"]
     alt = alts[0][1]
     assert alt.where["joint"] == term.where["joint"] and alt.where["bends"] == ["l1"]  # the same place
@@ -90,10 +96,16 @@ def test_the_compliance_of_a_joint_at_its_parents_origin_has_the_parents_bending
     assert back.bends[0].joint == "l1" and back.joints == alt.joints
     assert np.allclose(back.marker_offset(theta, poses), bend, rtol=0, atol=1e-11)  # the places kept to 1 nm
     assert np.allclose(back.control_offset(theta, poses, 7), alt.control_offset(theta, poses, 7))
-    # told apart once: the bent joint offers no second bending there, only its form with two compliances
+    # told apart once: the bent joint offers no second bending there, only its form with two compliances;
+    # first, l2's compliance given back beside the bending (both may give), starting from zero
     again = alt.alternatives(alt.initial, poses, [])
-    assert [w for w, _ in again] == [alts[2][0], alts[3][0], "link bending at l1, stiffer one way than the other"]
-    two = again[2][1]
+    assert [w for w, _ in again] == ["l2's compliance given back beside the link bending at l1", *[w for w, _ in alts[3:]],
+                                     "link bending at l1, stiffer one way than the other"]
+    back_l2 = again[0][1]
+    assert back_l2.joints == term.joints and back_l2.where["bends"] == ["l1"]
+    assert back_l2.initial[k] == 0.0 and np.allclose(np.delete(back_l2.initial, k), alt.initial)
+    assert not any("given back" in w for w, _ in back_l2.alternatives(back_l2.initial, poses, []))  # once
+    two = again[4][1]
     assert two.where["bends_about"] == ["across2"] and np.allclose(two.initial[-2:], alt.initial[-1])
     theta2 = np.concatenate([theta, [-3e-4]])
     assert np.allclose(two.marker_offset(theta2, poses), bend)  # equal compliances: the same bend
