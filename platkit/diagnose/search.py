@@ -101,6 +101,9 @@ from platkit.terms import ModelTerm
 
 __all__ = ["diagnose", "Search"]
 
+#: a form of an accepted term is kept where its BIC is lower by this much (a tie is chance)
+FORM_BIC_MARGIN = 2.0
+
 
 # ---------------------------------------------------------------------------- the search
 def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
@@ -400,9 +403,9 @@ class Search:
     def tell_apart(self, finding: Finding, before: Fit) -> None:
         """The term just accepted fitted in each other form of its physics it offers (a term's
         ``alternatives(theta, poses, others)``: a joint's compliance or the bending of the link
-        before it, as many parameters), one at a time, each tried once; a form whose BIC is lower
-        is kept (the rule that chooses a candidate's variant). ``before``: the model without it
-        (the finding's signature columns are taken again there)."""
+        before it, as many parameters), one at a time, each tried once; a form whose BIC is lower by
+        FORM_BIC_MARGIN is kept (a tie would trade a place for one the data do not tell from it).
+        ``before``: the model without it (the finding's signature columns are taken again there)."""
         opt, k = self.opt, len(self.cur.terms) - 1
         term = self.cur.terms[k]
         offered = getattr(term, "alternatives", None)
@@ -418,7 +421,7 @@ class Search:
             K = len(theta)
             f = _fit(self.spec, self.poses, self.cur.terms[:k] + [alt], self.cur.z[:-K], self.cur.active[:-K],
                      self.weights, opt.lm_iterations, opt.robust)
-            kept = bool(f.bic < self.cur.bic)
+            kept = bool(f.bic < self.cur.bic - FORM_BIC_MARGIN)
             notes.append({"change": what, "bic_change": float(f.bic - self.cur.bic), "kept": kept})
             self.say(f"  {what}: BIC {f.bic - self.cur.bic:+.1f}{', kept' if kept else ''}")
             if kept:
