@@ -8,7 +8,8 @@ leg its own pure delay, drawn uniformly in --delays (s, from the seed), and on -
 (its largest step over the command interval): a limit that binds on the log's fastest moves.
 Each session is calibrated twice (platkit.calibrate.motion): the old response model (one common
 shift, second-order response of a step reference) and the new one (delays=True,
-rate_limit=True). Printed per seed and model: the error of --test random reachable commands
+rate_limit=True), both second order (named: the kind's choice from the data is not measured
+here). Printed per seed and model: the error of --test random reachable commands
 against the true stand (geometry, markers, frame from the simulator; RMS over markers, mm; or why
 the fit was refused) and the ratio old / new; for the new model each leg's fitted lag (shift +
 delay: what the markers fix; the truth is the clock shift plus the leg's delay) and its error,
@@ -82,7 +83,8 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             write_physical_session(sim, Path(tmp) / "s")
             s = load_session(Path(tmp) / "s")
-            for label, opts in (("old", {}), ("new", {"delays": True, "rate_limit": True})):
+            for label, opts in (("old", {"kind": "second_order"}),
+                                ("new", {"kind": "second_order", "delays": True, "rate_limit": True})):
                 t0 = time.perf_counter()
                 try:
                     cal, _ = calibrate_motion(s, s.spec, **opts)

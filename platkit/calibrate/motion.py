@@ -462,7 +462,9 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
     names = list(spec.control_names)
     v1 = dict(zip(first.names(names), np.asarray(cal1.theta[0], float)))
     second = ResponseModel("second_order", first.reference, spec.n_u, first.delays, first.rate_limit)
-    halved = {f"tau_s.{c}": 0.5 * v1[f"tau_s.{c}"] if v1[f"tau_s.{c}"] > 2 * TAU_MIN_S else TAU0_S for c in names}
+    held1 = {h["name"] for h in cal1.identifiability.get("held_at_nominal", [])}
+    halved = {f"tau_s.{c}": 0.5 * v1[f"tau_s.{c}"] if v1[f"tau_s.{c}"] > 2 * TAU_MIN_S else TAU0_S for c in names
+              if f"term.actuator_response.tau_s.{c}" not in held1}  # one the markers do not see stays at its start
     th2 = theta_by_name(second, names, halved, v1, default=ZETA0)  # the same lag (2 zeta tau) at low frequency
 
     def at(cal):
