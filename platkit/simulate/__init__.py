@@ -15,7 +15,7 @@ their true parameters: ``terms=[(term, theta), ...]``.
 The modules: options (what a simulation is drawn from, grouped: PlanOptions, TruthOptions,
 RecordingOptions, SimulationOptions), additive (:func:`simulate` and its steps), results
 (Simulation, Truth, Trajectory), write (:func:`write_session`), physics (the time-domain
-simulator), and the pieces both share (stand, effects, files, actuator, nuisance).
+simulator), and the pieces both share (stand, effects, files, actuator, nuisance, rigid_bodies).
 
 Only the PlatformSpec / PlatformModel API is used: nothing here knows a particular stand.
 """
