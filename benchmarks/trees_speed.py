@@ -14,7 +14,8 @@ time, per pose, and the tree / chain ratio (the goal: within 2x per pose). ``--r
 verbs N times on the same sessions, chain and tree in turn, each verb's least CPU time of the N
 (on a machine shared with other work, the CPU time of one run swings by a third with the load
 the other processes put on the same cores); the later runs find the stands' observation functions
-built and loaded in this process, so the least is a warm process's time, both sides alike.
+built and loaded in this process, so the least is a warm process's time, both sides alike; each
+run's own total tree / chain ratio is printed after the table (the spread the least hides).
 """
 from __future__ import annotations
 
@@ -104,6 +105,7 @@ def main_(argv=None) -> int:
     print(f"tree: {tree.n_u} joints, {tree.n_td} parameters; chain: {chain.n_u} joints, {chain.n_td} parameters; "
           f"{args.poses} poses", flush=True)
     out: dict[str, dict[str, float]] = {}
+    runs: list[dict[str, float]] = []  # each run's total CPU seconds per side: the spread beside the least
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
@@ -112,6 +114,7 @@ def main_(argv=None) -> int:
         folders = {name: session(root / name, urdf, spec, mapping, args.poses, args.seed, options)
                    for name, spec, mapping, options in stands}
         for k in range(max(1, args.repeat)):
+            runs.append({})
             for name, folder in folders.items():
                 cal, diag = root / f"{name}_cal{k}", root / f"{name}_diag{k}"
                 got = {"calibrate": timed(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(cal)])}
@@ -119,6 +122,7 @@ def main_(argv=None) -> int:
                     got["diagnose"] = timed(["diagnose", str(folder), "--calibration", str(cal / "calibration.yaml"),
                                              "--quiet", "--out", str(diag)])
                 out[name] = {verb: min(s, out.get(name, {}).get(verb, s)) for verb, s in got.items()}
+                runs[-1][name] = sum(got.values())
     print("CPU seconds of each verb, its compiler's included"
           + (f"; the least of {args.repeat} runs" if args.repeat > 1 else "")
           + f"; load average {load_before:.2f} before, {os.getloadavg()[0]:.2f} after (the machine's other work)")
@@ -128,6 +132,8 @@ def main_(argv=None) -> int:
         print(f"{verb:<10} {c:9.2f} {t:9.2f} {1e3 * c / args.poses:14.2f} {1e3 * t / args.poses:13.2f} {t / c:11.2f}")
     c, t = sum(out["chain"].values()), sum(out["tree"].values())
     print(f"{'total':<10} {c:9.2f} {t:9.2f} {1e3 * c / args.poses:14.2f} {1e3 * t / args.poses:13.2f} {t / c:11.2f}")
+    if len(runs) > 1:  # the spread: each run's own tree / chain (the first pays the process's start)
+        print("each run's total tree/chain: " + ", ".join(f"{r['tree'] / r['chain']:.2f}" for r in runs))
     return 0
 
 

@@ -520,8 +520,10 @@ def _one_row_columns(d: np.ndarray) -> list[tuple[int, np.ndarray]] | None:
     """Where every column of the term's marker offsets d (N, rows, K) is nonzero in at most one
     row (the same for every pose): each such row's index with its columns, else None (and for
     fewer than 8 columns, where a matrix product costs no more)."""
+    if d.shape[2] < 8:
+        return None
     used = (d != 0).any(axis=0)  # (rows, K)
-    if d.shape[2] < 8 or used.sum(axis=0).max(initial=0) > 1:
+    if used.sum(axis=0).max(initial=0) > 1:
         return None
     return [(int(b), _contiguous(np.flatnonzero(used[b]))) for b in np.flatnonzero(used.any(axis=1))]
 
