@@ -210,9 +210,19 @@ def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndar
 
 def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
     """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds."""
+    return _per_pose(_cv_channels(fit, spec, poses, folds, iterations))
+
+def _per_pose(d2: np.ndarray) -> np.ndarray:
+    """(N,) mean over each pose's scored channels of ``d2`` (N, C); NaN for a pose with none."""
+    seen = np.isfinite(d2).sum(axis=1)
+    return np.where(seen > 0, np.nansum(d2, axis=1) / np.maximum(seen, 1), np.nan)
+
+def _cv_channels(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
+    """(N, C) held-out squared error (m^2) of each pose's channel (marker, then rigid body) from K
+    interleaved folds; NaN where the channel is unseen or not scored."""
     N = poses.n_poses
     fold = np.arange(N) % folds
-    out = np.full(N, np.nan)
+    out = np.full((N, fit.weights.shape[1]), np.nan)
     for k in range(folds):
         train, test = fold != k, fold == k
         sub = CalibrationProblem(spec, poses.subset(train), fit.terms)
@@ -221,8 +231,7 @@ def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: in
         st = sub.evaluate(res.z, with_jac=False, poses=poses.subset(test))
         d2 = np.sum(st.r**2, axis=2)
         d2[fit.weights[test] <= 0] = np.nan
-        seen = np.isfinite(d2).sum(axis=1)
-        out[test] = np.where(seen > 0, np.nansum(d2, axis=1) / np.maximum(seen, 1), np.nan)
+        out[test] = d2
     return out
 
 def _later(fit: Fit, spec: PlatformSpec, poses: PoseSet, share: float, iterations: int) -> float:

@@ -391,14 +391,16 @@ class Search:
         sel = (self.start.identifiability.get("model_selection") or {}) if self.start is not None else {}
         chosen_free = bool(sel) and not str(sel.get("reason", "")).startswith("no selection")  # not the user's --free
         if opt.reopen_geometry and chosen_free and not eff.recording:  # the geometry chosen again beside the physics
-            again = _reselected(self.spec, self.poses, self.cur, self.free, self.judged, opt, self.platform_options)
+            again = _reselected(self.spec, self.poses, self.cur, self.free, self.judged, opt, self.platform_options,
+                                f"{eff.name} ({_where_text(term.where)})")
             if again is not None:
-                again[2]["after"] = f"{eff.name} ({_where_text(term.where)})"
-                self.cur, self.free, self.rounds[-1]["geometry_reselected"] = again
+                self.say(again[2]["text"])
+                self.rounds[-1]["geometry_reselected" if again[0] is not None else "geometry_kept"] = again[2]
+            if again is not None and again[0] is not None:
+                self.cur, self.free = again[0], again[1]
                 # the final refit starts where the selection left the geometry: a group it holds is
                 # held at nominal, not at the value it took standing in for the physics
                 self.td_start = self.cur.problem.split(self.cur.z)[0].copy()
-                self.say(again[2]["text"])
 
     def tell_apart(self, finding: Finding, before: Fit) -> None:
         """The term just accepted fitted in each other form of its physics it offers (a term's

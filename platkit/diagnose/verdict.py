@@ -46,6 +46,12 @@ def verdict(d: Diagnosis) -> str:
                          f"selection was made again beside it: it frees {', '.join(note['chosen']) or 'no group'} and "
                          f"holds {', '.join(note['held']) or 'none'} (held-out {_fmt_rms(note['heldout_rms_before'], unit)} "
                          f"-> {_fmt_rms(note['heldout_rms_after'], unit)}); calibration.yaml estimates that set.")
+        note = r.get("geometry_kept")
+        if note:
+            parts.append(f"After {note['after']} was accepted, the geometry's model selection made again would free "
+                         f"{', '.join(note['chosen']) or 'no group'} and hold {', '.join(note['held']) or 'none'}, but it "
+                         f"predicts {', '.join(w['link'] for w in note['links_worse'])} worse held out: the "
+                         "calibration's free set is kept.")
     corrected = [f for f in named if f.corrected]
     if corrected:
         parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
