@@ -55,8 +55,8 @@ def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str
     model selection made again beside the accepted terms
     (platkit.calibrate.selection.reselect_geometry), as (fit, free names, note), when it chooses
     another free set that predicts the held-out ``judged`` poses no worse than ``cur``, in all and
-    on every tracked link; (None, free names, note) when it predicts a tracked link worse (the
-    calibration's free set kept); else None. A group chosen with the physics still in the residual
+    on every tracked link; (None, ``free``, note) when it predicts a tracked link worse (the free
+    set in force kept); else None. A group chosen with the physics still in the residual
     may stand in for it (a torso joint's scale for its gravity sag): beside the physics it no longer
     earns its place. But a group shared by the branches may stand in for physics the accepted terms
     do not model (the torso's sag seen from the other arm): holding it then predicts that branch's
@@ -84,7 +84,7 @@ def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str
         said = ", ".join(f"{w['link']} {_fmt_rms(w['heldout_rms_before'], unit)} -> "
                          f"{_fmt_rms(w['heldout_rms_after'], unit)}" for w in worse)
         note.update(links_worse=worse, text=f"geometry chosen again beside {after}: {groups} not taken: it predicts "
-                    f"a tracked link worse held out ({said}); the calibration's free set kept")
+                    f"a tracked link worse held out ({said}); the free set in force kept")
         return None, list(free), note
     note["text"] = (f"geometry chosen again beside {after}: {groups}, held-out RMS {_fmt_rms(before, unit)} -> "
                     f"{_fmt_rms(now, unit)}; --keep-geometry keeps the calibration's free set")

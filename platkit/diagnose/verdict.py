@@ -50,8 +50,8 @@ def verdict(d: Diagnosis) -> str:
         if note:
             parts.append(f"After {note['after']} was accepted, the geometry's model selection made again would free "
                          f"{', '.join(note['chosen']) or 'no group'} and hold {', '.join(note['held']) or 'none'}, but it "
-                         f"predicts {', '.join(w['link'] for w in note['links_worse'])} worse held out: the "
-                         "calibration's free set is kept.")
+                         f"predicts {', '.join(w['link'] for w in note['links_worse'])} worse held out: the free "
+                         "set in force is kept.")
     corrected = [f for f in named if f.corrected]
     if corrected:
         parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "

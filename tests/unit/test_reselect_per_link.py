@@ -79,4 +79,4 @@ def test_the_verdict_says_the_free_set_was_kept(monkeypatch):
     d = Diagnosis(findings=[], verdict="", calibration=None, base=None, locations=[], locations_before=[],
                   rounds=[{"round": 1, "geometry_kept": note}], not_separable=[], unit="mm", poses=poses)
     assert ("After compliance (joint j) was accepted, the geometry's model selection made again would free origin "
-            "and hold scale, but it predicts l_hand worse held out: the calibration's free set is kept.") in verdict(d)
+            "and hold scale, but it predicts l_hand worse held out: the free set in force is kept.") in verdict(d)
