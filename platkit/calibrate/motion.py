@@ -56,6 +56,7 @@ import numpy as np
 from scipy import sparse
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
+from platkit.calibrate.motion_bodies import say_unused_bodies
 from platkit.calibrate.motion_kind import (
     DAMPING_MAX,
     Z_DETERMINED,
@@ -263,7 +264,6 @@ def command_speed(T: np.ndarray, U: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.diff(U, axis=0)), axis=0) / float(np.median(np.diff(T)))
 
 
-
 def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, win: StreamWindows,
                           X_nodes: np.ndarray, reached, links=None) -> np.ndarray:
     """(P, M, 3) what the windowed fit of the markers differs, under the model (stand ``td``,
@@ -359,6 +359,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
         "held": [n for n in held if n.startswith("term.actuator_response.")],
         "time_s": time.perf_counter() - t0,
     }
+    say_unused_bodies(session, cal)  # nothing dropped silently: the bodies the fit from motion leaves out
     for c, why in response["not_determined"].items():
         cal.warnings.append(f"actuator {c}: its response is not determined by the stream ({why}); its lag is what "
                             "the data fix (report: motion.response)")
