@@ -93,12 +93,15 @@ def main() -> None:
     ap.add_argument("--response-kinds", default="auto",
                     help="calibrate's --response-kind, comma-separated: each calibrates the same stream (e.g. "
                          "auto,second-order: the kind chosen from the data against the second order forced)")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep the plan, sessions (truth.yaml) and calibrations in this folder (created)")
     args = ap.parse_args()
     urdf = talos_urdf()
     stand = ["--platform", "urdf", "--description", str(urdf), "--moving-link", ",".join(LINKS)]
     spec = get_platform("urdf", urdf, moving_link={n: n for n in LINKS})
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = Path(scratch) if args.keep is None else args.keep
+        tmp.mkdir(parents=True, exist_ok=True)
         plan_csv = tmp / "plan" / "commands.csv"
         t0 = time.perf_counter()
         cli("plan", *stand, "--motion", "--move", MOVE, "--max-accel", str(args.max_accel), "--duration-s",
