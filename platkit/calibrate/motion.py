@@ -56,7 +56,7 @@ import numpy as np
 from scipy import sparse
 
 from platkit.calibrate.estimate import calibrate, marker_noise_floor
-from platkit.calibrate.motion_bodies import say_unused_bodies
+from platkit.calibrate.motion_bodies import bodies_at_samples, say_bodies
 from platkit.calibrate.motion_kind import (
     DAMPING_MAX,
     Z_DETERMINED,
@@ -359,7 +359,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
         "held": [n for n in held if n.startswith("term.actuator_response.")],
         "time_s": time.perf_counter() - t0,
     }
-    say_unused_bodies(session, cal)  # nothing dropped silently: the bodies the fit from motion leaves out
+    say_bodies(session, win, cal)  # nothing dropped silently: the body samples used, and the others
     for c, why in response["not_determined"].items():
         cal.warnings.append(f"actuator {c}: its response is not determined by the stream ({why}); its lag is what "
                             "the data fix (report: motion.response)")
@@ -428,7 +428,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
     term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, _steps(rmodel, theta_start), start,
                         win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=list(session.marker_names),
-                    t=win.t, n_samples=win.n_eff,
+                    t=win.t, n_samples=win.n_eff, **bodies_at_samples(session, win),  # raw windows' body samples
                     description=None if session.description is None else str(session.description),
                     length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
                     extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})

@@ -330,9 +330,9 @@ def run_motion(args, why: str, notes: list[str]) -> int:
             f"slowest {slow} tau {taus[slow]:.4g} s")
     if r.get("not_determined"):
         line += f"; not determined: {', '.join(r['not_determined'])}"
-    unused = cal.motion["samples"].get("rigid_bodies_not_used")
-    if unused:  # the fit from motion reads markers alone (platkit.calibrate.motion_bodies)
-        line += f"; rigid bodies {', '.join(unused['bodies'])} not used ({unused['n_body_samples']} body samples)"
+    bodies = cal.motion["samples"].get("rigid_bodies")
+    if bodies:  # the body samples of the windows kept as samples serve (platkit.calibrate.motion_bodies)
+        line += f"; rigid bodies {', '.join(bodies['bodies'])} from {bodies['n_used']} of {bodies['n_samples']} samples"
     second = cal.heldout.get("second_session")
     if second is not None:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / sc:.4g} {cal.length_unit}"
