@@ -60,7 +60,9 @@ from platkit.calibrate.motion_bodies import bodies_at_samples, say_bodies
 from platkit.calibrate.motion_kind import (
     DAMPING_MAX,
     Z_DETERMINED,
+    bic,
     fast_content,
+    held_names,
     information,
     response_from_report,
     response_report,
@@ -339,7 +341,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
                          f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
                          f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
                          "sparser than the motion) or the log is another recording's")
-    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]
+    held = [h["name"] for h in cal.identifiability.get("held_at_nominal", [])]  # in identifiability's order
     response = response_report(rmodel, spec, cal, session.command_t, session.commands, sample_dt)
     response["choice"] = choice
     cal.motion = {
@@ -463,7 +465,7 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
     names = list(spec.control_names)
     v1 = dict(zip(first.names(names), np.asarray(cal1.theta[0], float)))
     second = ResponseModel("second_order", first.reference, spec.n_u, first.delays, first.rate_limit)
-    held1 = {h["name"] for h in cal1.identifiability.get("held_at_nominal", [])}
+    held1 = held_names(cal1)
     halved = {f"tau_s.{c}": 0.5 * v1[f"tau_s.{c}"] if v1[f"tau_s.{c}"] > 2 * TAU_MIN_S else TAU0_S for c in names
               if f"term.actuator_response.tau_s.{c}" not in held1}  # one the markers do not see stays at its start
     th2 = theta_by_name(second, names, halved, v1, default=ZETA0)  # the same lag (2 zeta tau) at low frequency
@@ -495,13 +497,12 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
         th = theta_by_name(rmodel, names, own, v2)
         cal, poses = _fit_stream(session, spec, rmodel, win, th, start, at(cal2), opts, td_start=cal2.td)
     label = "second_order" if keep[moved].all() else "per_actuator"
-    added = sum(1 for j, c in enumerate(names) if rmodel.has("damping", j) and
-                f"term.actuator_response.damping.{c}" not in {h["name"] for h in
-                                                             cal.identifiability.get("held_at_nominal", [])})
+    held = held_names(cal)
+    added = sum(1 for j, c in enumerate(names) if rmodel.has("damping", j)
+                and f"term.actuator_response.damping.{c}" not in held)
     (rss1, rss2), n_fast = fast_content([cal1, cal], win)
     if n_fast > added:  # judged on the fast content, where a static effect left out has little power
-        bic1 = n_fast * float(np.log(max(rss1, 1e-300) / n_fast))
-        bic2 = n_fast * float(np.log(max(rss2, 1e-300) / n_fast)) + added * float(np.log(n_fast))
+        bic1, bic2 = bic(n_fast, rss1 / n_fast, 0), bic(n_fast, rss2 / n_fast, added)
         choice["criterion"] = (f"BIC of the residuals' fast content ({n_fast} coordinates of the windows kept as "
                                "samples, each marker coordinate less its polynomial in time per window), the "
                                f"second order charged its {added} dampings")

@@ -27,7 +27,8 @@ from platkit.calibrate.response import TAU_MIN_S, ZETA_MIN, ResponseModel, lags
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec
 
-__all__ = ["DAMPING_MAX", "TAU_SAMPLE_SHARE", "Z_DETERMINED", "fast_content", "information", "not_determined",
+__all__ = ["DAMPING_MAX", "TAU_SAMPLE_SHARE", "Z_DETERMINED", "bic", "fast_content", "held_names", "information",
+           "not_determined",
            "response_from_report", "response_report", "second_order_kept", "theta_by_name"]
 
 #: a damping above this is no drive's (a first order's lag taken by a second order far overdamped)
@@ -48,11 +49,17 @@ def information(cal: Calibration, n_ref: int) -> float:
     observations), each by its own variance: a fit that rejects fewer observations is not
     charged for the residuals it keeps."""
     k = int(np.sum(cal.fit.active)) if cal.fit is not None and cal.fit.active is not None else 0
-    s2 = max(float(cal.noise_sigma) ** 2, 1e-300)
-    return float(n_ref * np.log(s2) + k * np.log(max(n_ref, 2)))
+    return bic(n_ref, float(cal.noise_sigma) ** 2, k)
 
 
-def _held(cal: Calibration) -> set[str]:
+def bic(n: int, variance: float, k: int) -> float:
+    """The Bayesian information criterion of ``n`` observations of residual ``variance`` with ``k``
+    unknowns: n ln(variance) + k ln(n)."""
+    return float(n * np.log(max(variance, 1e-300)) + k * np.log(max(n, 2)))
+
+
+def held_names(cal: Calibration) -> set[str]:
+    """The names of the parameters identifiability held at their start (nominal)."""
     return {h["name"] for h in cal.identifiability.get("held_at_nominal", [])}
 
 
@@ -62,7 +69,7 @@ def not_determined(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration, 
     samples show or any drive has. Parameters held at their start are not judged."""
     theta = np.asarray(cal.theta[0], float)
     par = rmodel.split(theta)
-    held = _held(cal)
+    held = held_names(cal)
     tau_floor = max(TAU_MIN_S, TAU_SAMPLE_SHARE * sample_dt)
     out = {}
     for j, c in enumerate(spec.control_names):
@@ -87,7 +94,7 @@ def second_order_kept(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibratio
     least Z_DETERMINED standard deviations from zero, and not degenerate (:func:`not_determined`)."""
     theta = np.asarray(cal.theta[0], float)
     std = np.asarray(cal.theta_std[0], float)
-    held = _held(cal)
+    held = held_names(cal)
     bad = not_determined(rmodel, spec, cal, sample_dt)
     keep = np.zeros(spec.n_u, bool)
     why = {}
@@ -134,7 +141,7 @@ def response_report(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration,
     ``determined`` False with the reason where the response is degenerate (:func:`not_determined`,
     with ``sample_dt`` the motion capture's sample interval); the shift. ``kind``: 'first_order',
     'second_order', or 'per_actuator' (some of each)."""
-    held = _held(cal)
+    held = held_names(cal)
     theta, theta_std = np.asarray(cal.theta[0], float), np.asarray(cal.theta_std[0], float)
     par = rmodel.split(theta)
     sd = rmodel.split(np.where(np.isfinite(theta_std), theta_std, np.nan))
