@@ -34,6 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import least_squares
 
+from platkit.bodies import right_jacobian
 from platkit.calibrate.estimate import _predicted_frames, calibration_links
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL
 from platkit.calibrate.robust import REJECT_K, robust_sigma
@@ -170,15 +171,6 @@ def skew_batch(v: np.ndarray) -> np.ndarray:
     return skew(np.asarray(v, float).reshape(-1, 3))
 
 
-def _left_jacobian(phi: np.ndarray) -> np.ndarray:
-    """(3, 3) SO(3)'s left Jacobian at the rotation vector phi: exp([phi + d]) ~ exp([J d]) exp([phi])."""
-    theta = float(np.linalg.norm(phi))
-    W = skew(phi)
-    if theta < 1e-8:
-        return np.eye(3) + 0.5 * W
-    return np.eye(3) + (1 - np.cos(theta)) / theta**2 * W + (theta - np.sin(theta)) / theta**3 * W @ W
-
-
 def _check_fixes(J: np.ndarray, markers: bool, what: str, unknown: str, n_rows: int) -> None:
     """BadInput where the Jacobian J (rotations scaled by the points' spread) has not full rank."""
     s = np.linalg.svd(J, compute_uv=False)
@@ -264,7 +256,8 @@ def _least_squares(A, b, places, keep, P, Rk, Y, markers: bool, what: str, n_row
     def jac(x):
         turn, v = state(x)
         J = J0.reshape(len(v0), 3, -1).copy()
-        J[:, :, :3] = -skew_batch(v @ turn.T) @ _left_jacobian(x[:3] / spread) / spread
+        # SO(3)'s left Jacobian at phi (exp([phi + d]) ~ exp([J d]) exp([phi])) is the right one at -phi
+        J[:, :, :3] = -skew_batch(v @ turn.T) @ right_jacobian(-x[:3] / spread) / spread
         if markers:
             TAR = np.einsum("ab,kbc->kac", turn, AR)
             for row, cc in enumerate(idx[1]):
