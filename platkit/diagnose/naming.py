@@ -37,7 +37,7 @@ def _best_probe(spec, poses, cur: Fit, best: Fit | None, opt: Options,
     when the two cannot be told apart significantly."""
     ref = best if best is not None else cur
     fk_X = cur.problem.kinematics(cur.problem.split(cur.z)[0], poses.controls)[1]
-    probes = [p for p in (time_probe(poses), space_probe(fk_X), marker_probe(poses)) if p is not None]
+    probes = [p for p in (time_probe(poses), space_probe(fk_X), marker_probe(poses, spec)) if p is not None]
     results = []
     for probe in probes:
         f = _fit(spec, poses, cur.terms + [probe], cur.z, cur.active, cur.weights, opt.lm_iterations, opt.robust)

@@ -12,15 +12,19 @@ probe's ``where``. Probes are never written to calibration.yaml.
 - :class:`MarkerProbe`: each marker moved on the moving frame by its own offset, linear in the
   controls and in their mean squared distance from the middle of the strokes (n_u + 1 terms per
   marker and axis): a marker plate or mount that is not rigid, bending with the pose (the frame
-  probes move every marker together and cannot see it).
+  probes move every marker together and cannot see it). On a tree each marker's offset reads only
+  the controls that move the link it rides on (a joint off the path from the base to that link
+  cannot bend its mount): those controls and their mean squared distance, per marker.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from platkit.effects import history
+from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
@@ -105,6 +109,9 @@ class MarkerProbe(ModelTerm):
     mid: np.ndarray | None = None
     half: np.ndarray | None = None
     n_markers: int = 0
+    #: on a tree, each marker's controls (indices), those that move its link; None: every control
+    #: for every marker
+    movers: tuple[np.ndarray, ...] | None = None
     uses_kinematics = False
 
     def features(self, poses: PoseSet) -> np.ndarray:
@@ -113,39 +120,81 @@ class MarkerProbe(ModelTerm):
         u = (np.asarray(poses.controls, float) - self.mid) / self.half
         return np.hstack([u, np.mean(u * u, axis=1, keepdims=True)])
 
+    def marker_features(self, poses: PoseSet) -> list[np.ndarray]:
+        """Each marker's features (N, F_m): :meth:`features` without ``movers``; with them, the
+        marker's own controls and the mean of their squares (none for a marker no control moves)."""
+        if self.movers is None:
+            return [self.features(poses)] * self.n_markers
+        u = (np.asarray(poses.controls, float) - self.mid) / self.half
+        return [np.hstack([u[:, c], np.mean(u[:, c] ** 2, axis=1, keepdims=True)]) if len(c)
+                else np.zeros((len(u), 0)) for c in self.movers]
+
     def marker_offset(self, theta, poses):
-        f = self.features(poses)
-        A = np.asarray(theta, float).reshape(self.n_markers, 3, f.shape[1])
-        return np.einsum("nf,maf->nma", f, A)
+        if self.movers is None:
+            f = self.features(poses)
+            A = np.asarray(theta, float).reshape(self.n_markers, 3, f.shape[1])
+            return np.einsum("nf,maf->nma", f, A)
+        theta = np.asarray(theta, float)
+        out = np.zeros((poses.n_poses, self.n_markers, 3))
+        k = 0
+        for m, f in enumerate(self.marker_features(poses)):
+            F = f.shape[1]
+            out[:, m] = f @ theta[k:k + 3 * F].reshape(3, F).T
+            k += 3 * F
+        return out
 
     def offset_jacobians(self, theta, poses, n_u, fk_q, fk_X):
-        """Linear in theta: marker m, axis a moves by the features through its own block of
+        """Linear in theta: marker m, axis a moves by its features through its own block of
         theta ((m, a, feature) order)."""
-        f = self.features(poses)
-        N, F = f.shape
-        d_m = np.zeros((N, self.n_markers, 3, self.n_markers * 3 * F))
-        for m in range(self.n_markers):
+        feats = self.marker_features(poses)
+        N = poses.n_poses
+        d_m = np.zeros((N, self.n_markers, 3, len(theta)))
+        k = 0
+        for m, f in enumerate(feats):
+            F = f.shape[1]
             for a in range(3):
-                k = (3 * m + a) * F
                 d_m[:, m, a, k:k + F] = f
+                k += F
         return None, None, d_m  # no control or pose offset
 
 
-def marker_probe(poses: PoseSet) -> MarkerProbe | None:
-    """A :class:`MarkerProbe` over ``poses``' control range; None with fewer than 30 poses, or
-    with fewer poses than 4 times the parameters' share of one marker's (too few to judge it)."""
+def link_movers(spec: PlatformSpec | None, poses: PoseSet) -> tuple[np.ndarray, ...] | None:
+    """Each marker's controls that move the link it rides on (indices, from the structural
+    sparsity of ``spec.link_poses`` in the controls: a joint off the path from the base to the
+    link cannot move it); None where the markers ride on one moving frame, or where every control
+    moves every marker's link."""
+    if spec is None or spec.link_poses is None or not poses.marker_links:
+        return None
+    L = len(spec.tracked_links)
+    q = np.array(ca.DM(spec.link_poses.sparsity_jac(0, 0), 1)).reshape(L, 4, spec.n_u)
+    x = np.array(ca.DM(spec.link_poses.sparsity_jac(0, 1), 1)).reshape(L, 3, spec.n_u)
+    moved = (q != 0).any(axis=1) | (x != 0).any(axis=1)  # (L, n_u)
+    links = poses.links_of(spec.tracked_links)[:poses.n_markers]
+    if moved[links].all():
+        return None
+    return tuple(np.flatnonzero(moved[k]) for k in links)
+
+
+def marker_probe(poses: PoseSet, spec: PlatformSpec | None = None) -> MarkerProbe | None:
+    """A :class:`MarkerProbe` over ``poses``' control range (on a tree, ``spec``'s: each marker
+    with the controls that move its link, :func:`link_movers`); None with fewer than 30 poses, or
+    with fewer marker coordinates than 4 times the parameters (too few to judge it)."""
     U = np.asarray(poses.controls, float)
     M = poses.n_markers
     if len(U) < 30 or M < 2 or U.ndim != 2:
         return None
-    n_f = U.shape[1] + 1
-    if len(U) * M * 3 < 4 * M * 3 * n_f:
+    movers = link_movers(spec, poses)
+    cols = [np.arange(U.shape[1])] * M if movers is None else list(movers)
+    n_f = [len(c) + 1 if len(c) else 0 for c in cols]
+    if len(U) * M * 3 < 4 * 3 * sum(n_f):
         return None
     lo, hi = U.min(axis=0), U.max(axis=0)
     half = np.where(hi > lo, 0.5 * (hi - lo), 1.0)
-    names = [f"{m}_{a}_{f}" for m in poses.marker_names for a in "xyz"
-             for f in [f"u{j + 1}" for j in range(n_f - 1)] + ["reach"]]
-    return MarkerProbe("unexplained", names, np.zeros(len(names)), ["m"] * len(names),
-                       {"markers": "each marker its own offset, linear in the controls and in their squared "
-                                   "distance from the middle of the strokes"},
-                       mid=0.5 * (lo + hi), half=half, n_markers=M)
+    names = [f"{m}_{a}_{f}" for m, c in zip(poses.marker_names, cols) if len(c) for a in "xyz"
+             for f in [f"u{j + 1}" for j in c] + ["reach"]]
+    where = ("each marker its own offset, linear in the controls and in their squared distance from the middle "
+             "of the strokes") if movers is None else (
+             "each marker its own offset, linear in the controls that move its link and in their squared "
+             "distance from the middle of the strokes")
+    return MarkerProbe("unexplained", names, np.zeros(len(names)), ["m"] * len(names), {"markers": where},
+                       mid=0.5 * (lo + hi), half=half, n_markers=M, movers=movers)
