@@ -40,7 +40,7 @@ from platkit.bodies import (
     right_jacobian_inv,
 )
 from platkit.calibrate.observation import observation_for
-from platkit.calibrate.registration import initial_rotation, register
+from platkit.calibrate.registration import registered
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.model import PlatformSpec
@@ -475,7 +475,7 @@ class CalibrationProblem:
         vis = np.concatenate([self.visible[:, :M], np.repeat(self.visible[:, M:M + B], 3, axis=1)], axis=1)
         vis &= ok[:, None]
         if self.point_links is None:
-            A = initial_rotation(R, X, Y, vis)
+            rotation_from = (R, X, Y, vis)
             R, X = R[:, None], X[:, None]  # one frame for every point
         else:  # each point on its link's frame; the rotation from the link that carries the most points
             links = np.array(list(self.point_links[:M]) + [k for k in self.point_links[M:] for _ in range(3)])
@@ -483,8 +483,8 @@ class CalibrationProblem:
             R, X = R_all[:, links], X_all[:, links]
             best = int(np.argmax(np.bincount(links, weights=vis.sum(axis=0))))
             on = links == best
-            A = initial_rotation(R_all[:, best], X_all[:, best], Y[:, on], vis[:, on])
-        A, b, mk = register(R, X, Y, vis, A)
+            rotation_from = (R_all[:, best], X_all[:, best], Y[:, on], vis[:, on])
+        A, b, mk = registered(R, X, Y, vis, rotation_from)
         z = np.zeros(self.n_z)
         z[self.i_td] = td
         z[self.i_w] = rotvec_from_matrix(A)
