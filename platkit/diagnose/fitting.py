@@ -115,6 +115,9 @@ class Fit:
     cv: np.ndarray | None = None  # (N,) held-out mean squared marker error per pose, m^2
     fit_weights: np.ndarray | None = None  # (N, M) the weights the fit itself used (robust)
     later: float | None = None  # m, RMS over the later part of the session predicted from the earlier (_later)
+    #: what :func:`_cv` computed cv from: (poses, folds, iterations, the cv it returned, its (N, C)
+    #: channels); :func:`_cv_channels_of` returns the channels again while cv is still that array
+    cv_from: tuple | None = field(default=None, repr=False, compare=False)
 
     @property
     def bic(self) -> float:
@@ -209,8 +212,21 @@ def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndar
                fit_weights=res.weights)
 
 def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
-    """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds."""
-    return _per_pose(_cv_channels(fit, spec, poses, folds, iterations))
+    """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds; the
+    channels it came from kept on ``fit`` (:func:`_cv_channels_of`)."""
+    ch = _cv_channels(fit, spec, poses, folds, iterations)
+    cv = _per_pose(ch)
+    fit.cv_from = (poses, folds, iterations, cv, ch)
+    return cv
+
+def _kept_channels(fit: Fit, poses: PoseSet, folds: int, iterations: int) -> np.ndarray | None:
+    """The (N, C) channels :func:`_cv` computed ``fit.cv`` from, where ``fit.cv`` is still the
+    array it returned for these poses, folds and iterations (:func:`_cv_channels` would give the
+    same numbers again); else None. Callers must not write into the result."""
+    kept = getattr(fit, "cv_from", None)
+    if kept is not None and kept[0] is poses and kept[1:3] == (folds, iterations) and kept[3] is fit.cv:
+        return kept[4]
+    return None
 
 def _per_pose(d2: np.ndarray) -> np.ndarray:
     """(N,) mean over each pose's scored channels of ``d2`` (N, C); NaN for a pose with none."""

@@ -9,7 +9,7 @@ import numpy as np
 
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.selection import parameter_groups, reselect_geometry
-from platkit.diagnose.fitting import Fit, Options, _cv, _cv_channels, _fit, _fmt_rms, _per_pose, _rms
+from platkit.diagnose.fitting import Fit, Options, _cv, _cv_channels, _fit, _fmt_rms, _kept_channels, _per_pose, _rms
 from platkit.diagnose.stats import paired_improvement
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -78,8 +78,10 @@ def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str
     groups = (f"free {', '.join(sel.get('chosen', [])) or 'none'} (held {', '.join(sel.get('held', [])) or 'none'})")
     note = {"after": after, "chosen": list(sel.get("chosen", [])), "held": list(sel.get("held", [])),
             "heldout_rms_before": before, "heldout_rms_after": now}
-    worse = [w for w in per_link_change(_cv_channels(cur, spec, poses, opt.folds, opt.lm_iterations), ch, poses, judged)
-             if w["heldout_rms_after"] > w["heldout_rms_before"]]
+    ch_cur = _kept_channels(cur, poses, opt.folds, opt.lm_iterations)  # what cur.cv was computed from
+    if ch_cur is None:
+        ch_cur = _cv_channels(cur, spec, poses, opt.folds, opt.lm_iterations)
+    worse = [w for w in per_link_change(ch_cur, ch, poses, judged) if w["heldout_rms_after"] > w["heldout_rms_before"]]
     if worse:
         said = ", ".join(f"{w['link']} {_fmt_rms(w['heldout_rms_before'], unit)} -> "
                          f"{_fmt_rms(w['heldout_rms_after'], unit)}" for w in worse)
