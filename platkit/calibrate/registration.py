@@ -9,26 +9,45 @@ transform alternately by linear least squares and Kabsch, gross outliers left ou
 problem's unknown vector.
 
 Both steps are pure functions of their arrays, and a model selection starts each of its candidate
-models from the same poses at the same nominal parameters: :func:`registered` keeps the last few
-results by the exact bytes of their inputs and returns a copy of a result again for the same
-inputs, bit for bit what computing it again gives.
+models from the same poses at the same nominal parameters: within :func:`kept_registrations` (a
+selection), :func:`registered` keeps the last few results by the exact bytes of their inputs and
+returns a copy of a result again for the same inputs, bit for bit what computing it again gives;
+outside it, or once the selection is over, it computes every registration.
 """
 from __future__ import annotations
 
 import hashlib
 import threading
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
 from platkit.calibrate.robust import REJECT_K, robust_sigma
 from platkit.geometry import rigid_fit
 
-#: the registrations kept (by their inputs' bytes): a selection's two pose sets (all poses, and
-#: the cleaned ones its candidates share) with room for a diagnosis's
+#: the registrations kept (by their inputs' bytes) while a selection runs: its two pose sets (all
+#: poses, and the cleaned ones its candidates share), with room for a selection inside another
 _KEPT: OrderedDict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
 _KEEP = 4
 _LOCK = threading.Lock()
+_OPEN = [0]  # the kept_registrations contexts open (in any thread)
+
+
+@contextmanager
+def kept_registrations() -> Iterator[None]:
+    """Registrations are kept (:func:`registered`) while this is open; forgotten when the last
+    one open closes."""
+    with _LOCK:
+        _OPEN[0] += 1
+    try:
+        yield
+    finally:
+        with _LOCK:
+            _OPEN[0] -= 1
+            if _OPEN[0] == 0:
+                _KEPT.clear()
 
 
 def _key(*arrays) -> bytes:
@@ -43,8 +62,11 @@ def _key(*arrays) -> bytes:
 
 def registered(R, X, Y, vis, rotation_from: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`register` from :func:`initial_rotation` of ``rotation_from`` (its (R, X, Y, vis)),
-    each point on its frame (R (N, P, 3, 3), X (N, P, 3)): (A, b, m), copies of a kept result where
-    the same inputs were registered before (the module docstring)."""
+    each point on its frame (R (N, P, 3, 3), X (N, P, 3)): (A, b, m); within
+    :func:`kept_registrations`, copies of a kept result where the same inputs were registered
+    before (the module docstring)."""
+    if not _OPEN[0]:
+        return register(R, X, Y, vis, initial_rotation(*rotation_from))
     key = _key(R, X, Y, vis, *rotation_from)
     with _LOCK:
         got = _KEPT.get(key)
@@ -54,9 +76,10 @@ def registered(R, X, Y, vis, rotation_from: tuple) -> tuple[np.ndarray, np.ndarr
         A, b, m = register(R, X, Y, vis, initial_rotation(*rotation_from))
         got = (A.copy(), b.copy(), m.copy())
         with _LOCK:
-            _KEPT[key] = got
-            while len(_KEPT) > _KEEP:
-                _KEPT.popitem(last=False)
+            if _OPEN[0]:
+                _KEPT[key] = got
+                while len(_KEPT) > _KEEP:
+                    _KEPT.popitem(last=False)
     return got[0].copy(), got[1].copy(), got[2].copy()
 
 

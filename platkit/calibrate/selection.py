@@ -47,6 +47,7 @@ import numpy as np
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.identifiability import keep_one_side_of_a_lost_marker
 from platkit.calibrate.problem import Progress
+from platkit.calibrate.registration import kept_registrations
 from platkit.calibrate.solve import blas_threads
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
@@ -248,8 +249,17 @@ def select_model(poses: PoseSet, spec: PlatformSpec, robust: bool = True, progre
     was chosen, what each candidate scored and why (lengths in the session's unit).
     ``folds``: K-fold held-out errors of the chosen model, as :func:`calibrate`.
     ``terms``: model terms (accepted physics) fitted with every candidate, so that the geometry is
-    chosen beside them (:func:`reselect_geometry`).
+    chosen beside them (:func:`reselect_geometry`). Its candidates start from the same rigid
+    registrations: they are kept while it runs (:func:`~platkit.calibrate.registration.kept_registrations`).
     """
+    with kept_registrations():
+        return _select_model(poses, spec, robust, progress, platform_options, ridge_m, folds, tolerance, terms)
+
+
+def _select_model(poses: PoseSet, spec: PlatformSpec, robust: bool, progress: Progress | None,
+                  platform_options: dict | None, ridge_m: float, folds: int, tolerance: float,
+                  terms: Sequence[ModelTerm]) -> Calibration:
+    """:func:`select_model`'s procedure."""
     t0 = time.perf_counter()
     groups = parameter_groups(spec)
     labels = list(groups)

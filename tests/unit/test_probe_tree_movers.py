@@ -1,7 +1,7 @@
 """On a tree the marker probe reads each marker's own controls: the joints that move the link it
 rides on (a joint off the path from the base to that link cannot bend its mount); on a chain it
-is the probe it always was. The rigid registration kept by its inputs returns what computing it
-again returns. A fit's held-out channels are reused only while its held-out errors are theirs.
+is the probe it always was. The rigid registration kept by its inputs during a model selection
+returns what computing it again returns. A fit's held-out channels are reused only while its held-out errors are theirs.
 
 The tree is tests/data/trees/two_arm_torso.urdf (a torso yaw and pitch with a coupled second
 pitch, a head that moves no marker, two 3-joint arms)."""
@@ -91,20 +91,25 @@ def test_a_kept_registration_is_what_computing_it_again_gives_and_cannot_be_chan
     vis = np.ones((N, M), bool)
     vis[3, 1] = False
     fresh = registration.register(R[:, None], X[:, None], Y, vis, registration.initial_rotation(R, X, Y, vis))
-    registration._KEPT.clear()
-    first = registration.registered(R[:, None], X[:, None], Y, vis, (R, X, Y, vis))
-    assert len(registration._KEPT) == 1
-    for a in first:
-        a[...] = 7.0  # the user writes into what it got
-    again = registration.registered(R[:, None], X[:, None], Y, vis, (R, X, Y, vis))
-    assert len(registration._KEPT) == 1  # kept, not computed again
-    for a, b in zip(fresh, again):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_allclose(again[0], A_true, atol=1e-4)
-    Y2 = Y.copy()
-    Y2[0, 0, 0] += 1e-3  # other inputs: computed, not the kept result
-    other = registration.registered(R[:, None], X[:, None], Y2, vis, (R, X, Y2, vis))
-    assert len(registration._KEPT) == 2 and not np.array_equal(other[2], again[2])
+    args = (R[:, None], X[:, None], Y, vis, (R, X, Y, vis))
+    registration.registered(*args)
+    assert not registration._KEPT  # outside a selection nothing is kept
+    with registration.kept_registrations():
+        first = registration.registered(*args)
+        assert len(registration._KEPT) == 1
+        for a in first:
+            a[...] = 7.0  # the user writes into what it got
+        with registration.kept_registrations():  # a selection inside another
+            again = registration.registered(*args)
+        assert len(registration._KEPT) == 1  # kept, not computed again
+        for a, b in zip(fresh, again):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_allclose(again[0], A_true, atol=1e-4)
+        Y2 = Y.copy()
+        Y2[0, 0, 0] += 1e-3  # other inputs: computed, not the kept result
+        other = registration.registered(R[:, None], X[:, None], Y2, vis, (R, X, Y2, vis))
+        assert len(registration._KEPT) == 2 and not np.array_equal(other[2], again[2])
+    assert not registration._KEPT  # forgotten when the selection is over
 
 
 def test_a_fits_held_out_channels_are_kept_only_while_its_held_out_errors_are_theirs(monkeypatch):
