@@ -34,7 +34,11 @@ Procedure (:func:`calibrate_motion`):
    commanded controls (rigid alignment),
    each sample's pose by Kabsch, the actuators' travel by inverse kinematics at the nominal
    geometry, and the response fitted to that travel alone (a grid over the shift, then
-   least squares): an actuator that moved too little to show its response keeps the start;
+   least squares): an actuator that moved too little to show its response keeps the start; then
+   the first command's transient left out (:mod:`platkit.calibrate.motion_transient`: the
+   stand's state before the first command is not logged, so the samples from the second command
+   on whose residuals are gross at the start, and those after until that bound has decayed to the
+   markers' noise at the slowest response, do not drive the fit; counted and said);
 4. the full fit with :func:`calibrate` and the response as a term; the term leaves the
    calibration afterwards (calibration.yaml keeps it as ``actuator_response``; prediction of
    settled poses needs no response);
@@ -69,7 +73,9 @@ from platkit.calibrate.motion_kind import (
     second_order_kept,
     theta_by_name,
 )
-from platkit.calibrate.motion_start import actuator_travel, marker_points, response_from_travel
+from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start
+from platkit.calibrate.motion_start import command_speed as command_speed  # calibrate_motion's public helper
+from platkit.calibrate.motion_transient import say_transient, start_transient
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions
 from platkit.calibrate.stream import (
@@ -91,17 +97,11 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["LocalResponseTerm", "ResponseTerm", "calibrate_motion", "command_speed", "motion_poses", "motion_stream",
+__all__ = ["LocalResponseTerm", "ResponseTerm", "calibrate_motion", "motion_poses", "motion_stream",
            "without_response"]
 
 #: windows per block of the curvature correction
 CORRECTION_BLOCK = 32
-#: samples that start the response; rounds of the start; samples before the first command that
-#: say where a profile's actuators rest
-START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 600, 2, 50
-#: starting response: time constant (s), damping; a profile's rate and acceleration from the
-#: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
-TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
 #: a fit whose RMS is this many times the markers' own 3-D noise (from the distances between
 #: them) does not describe the stream: the command log does not say where the stand was sent
 MISFIT_RATIO = 5.0
@@ -244,28 +244,6 @@ class LocalResponseTerm(ResponseTerm):
         return d[np.asarray(poses.extras["node"])], None, None
 
 
-def _starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
-    span = np.array([c.upper - c.lower for c in spec.controls], float)
-    span = np.where(np.isfinite(span) & (span > 0), span, 1.0)
-    th = [np.zeros(1), np.full(model.n_u, TAU0_S)]
-    if model.kind == "second_order":
-        th.append(np.full(sum(model.is_second(j) for j in range(model.n_u)), ZETA0))
-    if model.reference == "profile":
-        th += [span / STROKE_TIME_S, span / STROKE_TIME_S / ACCEL_TIME_S]
-    elif model.rate_limit:  # a streamed drive's rate limit: the caller starts it at the log's speed
-        th.append(span / STROKE_TIME_S)
-    if model.delays:
-        th.append(np.zeros(model.n_u))
-    return np.concatenate(th)
-
-
-def command_speed(T: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """(n_u,) the fastest a streamed log asks of each actuator: the largest step over the log's
-    median interval (a slewed reference at this rate just reaches each command as the next
-    comes); 0 for an actuator never moved."""
-    return np.max(np.abs(np.diff(U, axis=0)), axis=0) / float(np.median(np.diff(T)))
-
-
 def _curvature_correction(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, win: StreamWindows,
                           X_nodes: np.ndarray, reached, links=None) -> np.ndarray:
     """(P, M, 3) what the windowed fit of the markers differs, under the model (stand ``td``,
@@ -328,7 +306,10 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
     opts: _FitOptions = {"free": free, "robust": robust, "progress": progress, "platform_options": platform_options,
                          "ridge_m": ridge_m, "row_block": ROW_BLOCK}
     rmodel = ResponseModel("first_order" if kind == "auto" else kind, reference, spec.n_u, delays, rate_limit)
-    theta_start, start, geom = _response_start(session, spec, rmodel, win)
+    theta_start, start, geom = response_start(session, spec, rmodel, win)
+    transient = start_transient(session, spec, rmodel, theta_start, geom, win.first, start)
+    if transient["n_samples"]:  # the first command's transient left out (its samples counted)
+        win = stream_windows(session, window_s, nodes, raw_samples, start_t=transient["until_s"])
     cal, poses = _fit_stream(session, spec, rmodel, win, theta_start, start, geom, opts)
     sample_dt = float(np.median(np.diff(session.marker_t)))
     choice: dict = {"asked": kind, "rule": "named by the caller"}
@@ -349,11 +330,13 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
         "why": reason or "calibrated from the whole stream",
         "response": response,
         "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
-                    "n_before_second_command": win.n_before, "n_in_short_windows": win.n_short,
+                    "n_before_second_command": win.n_before, "n_in_start_transient": win.n_start_transient,
+                    "start_transient": transient, "n_in_short_windows": win.n_short,
                     "n_marker_observations_left_out": win.n_left_out,
                     "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
                     "n_fitted": int(len(win.t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
-                    "rule": f"every sample from the second command on, in windows of {win.window_s:.3g} s; in each, "
+                    "rule": f"every sample from the second command on (but the first command's transient: "
+                            f"start_transient), in windows of {win.window_s:.3g} s; in each, "
                             f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
                             f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
                             f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
@@ -362,6 +345,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
         "time_s": time.perf_counter() - t0,
     }
     say_bodies(session, win, cal)  # nothing dropped silently: the body samples used, and the others
+    say_transient(transient, cal)
     for c, why in response["not_determined"].items():
         cal.warnings.append(f"actuator {c}: its response is not determined by the stream ({why}); its lag is what "
                             "the data fix (report: motion.response)")
@@ -371,48 +355,6 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
     if not np.isfinite(cal.rms_after):
         raise NotIdentifiable(f"{session.folder}: the motion model did not fit the stream")
     return cal, poses
-
-
-def _response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows):
-    """Step 3: the response's start from the actuators' travel at the nominal geometry, twice (the
-    second registration at the controls the first response gives), on START_SAMPLES samples of
-    the stream; a profile's actuators rest before the first command where the samples before it
-    put them. Returns the start, the profile's rest (None: on the first command) and the
-    geometry the curvature correction is first taken at: (kinematic model, each marker's link,
-    td, A, b, markers)."""
-    T, U = session.command_t, session.commands
-    theta0 = _starting_theta(rmodel, spec)
-    if rmodel.slewed:
-        speed = command_speed(T, U)
-        theta0[[rmodel.index("rate", j) for j in range(spec.n_u)]] = np.where(speed > 0, speed, theta0[
-            [rmodel.index("rate", j) for j in range(spec.n_u)]])
-    steps = _steps(rmodel, theta0)
-    names = list(session.marker_names)
-    theta_start, start = theta0, None
-    seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
-    cand = win.first + np.nonzero(seen[win.first:])[0]
-    sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
-    pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
-    for _ in range(START_ROUNDS):
-        X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
-        poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=win.t,
-                         n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder),
-                         moving_link=session.moving_link)
-        problem = CalibrationProblem(spec, poses0)
-        links = problem.point_links  # a tree: each marker's tracked link
-        z = problem.initial_registration(spec.nominal_td())
-        _, w, tr, mk, _ = problem.split(z)
-        A = matrix_from_rotvec(w)
-        Xs = actuator_positions(rmodel, theta_start, T, U, session.marker_t[sub], start=start)
-        travel = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs, links)
-        if rmodel.reference == "profile" and len(pre):
-            before = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
-                                     np.repeat(U[:1], len(pre), axis=0), links)
-            cols = np.isfinite(before).any(axis=0)  # a joint that moves no marker rests at its first command
-            if cols.any() and np.isfinite(before[:, cols]).all(axis=1).any():
-                start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
-        theta_start = response_from_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
-    return theta_start, start, (problem.model, links, spec.nominal_td(), A, tr, mk)
 
 
 def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows, theta_start,
@@ -427,7 +369,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
     correction = _curvature_correction(spec, model, td0, A, tr, mk, win, X1, lambda a, b: (
         actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)), links)
-    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, _steps(rmodel, theta_start), start,
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, fd_steps(rmodel, theta_start), start,
                         win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=list(session.marker_names),
                     t=win.t, n_samples=win.n_eff, **bodies_at_samples(session, win),  # raw windows' body samples
@@ -448,7 +390,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
                 and np.sqrt(np.mean(moved ** 2)) > CORRECTION_SHARE):
             break
         correction = again
-        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), start, win.proj,
+        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), start, win.proj,
                             win.sample_t)
         poses = replace(poses, controls=X2, markers=win.Y - correction)
         cal = calibrate(poses, spec, terms=[term], td_start=cal.td, **opts)
@@ -568,7 +510,7 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
                                            actuator_positions(rmodel, theta, T, U, win.sample_t[a:b])),
                                        problem.point_links)
     poses.markers = win.Y - correction
-    return poses, LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), None,
+    return poses, LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), None,
                                     win.proj, win.sample_t)
 
 
@@ -589,12 +531,3 @@ def without_response(cal: Calibration, session: Session) -> Calibration:
     keep = [i for i in range(len(cal.terms)) if i != k]
     return replace(cal, terms=[cal.terms[i] for i in keep], theta=[cal.theta[i] for i in keep],
                    theta_std=[cal.theta_std[i] for i in keep], motion={**(cal.motion or {}), "response": response})
-
-
-def _steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:
-    """Finite-difference steps: 1e-4 s for the shift and the delays, 1e-4 relative for the rest."""
-    h = 1e-4 * np.maximum(np.abs(np.asarray(theta, float)), 1e-2)
-    h[0] = 1e-4
-    if rmodel.delays:
-        h[[rmodel.index("delay_s", j) for j in range(rmodel.n_u)]] = 1e-4
-    return h

@@ -65,17 +65,20 @@ def bodies_at_samples(session: Session, win: StreamWindows) -> dict:
 def body_samples_said(session: Session, win: StreamWindows) -> dict | None:
     """The session's body samples (a body seen at a sample: origin and orientation finite), per
     body and in all: ``n_samples`` in the stream, ``n_used`` (:func:`bodies_at_samples`), and those
-    not used: ``n_before_second_command`` and ``n_not_kept_as_samples`` (from the second command
-    on, in windows reduced to nodes, too short to fit, or at a sample with no marker seen). None
-    without bodies."""
+    not used: ``n_before_second_command``, ``n_in_start_transient`` (the first command's
+    transient, left out of the stream) and ``n_not_kept_as_samples`` (after it, in windows
+    reduced to nodes, too short to fit, or at a sample with no marker seen). None without bodies."""
     if not session.body_names or session.bodies is None:
         return None
     seen = np.isfinite(np.asarray(session.bodies, float)).all(axis=2)  # (K, B)
     raw = np.zeros(len(seen), bool)
     raw[_row_samples(win, _raw_rows(win))] = True
-    before = (np.arange(len(seen)) < win.first)[:, None]
+    idx = np.arange(len(seen))
+    second = win.second if win.second >= 0 else win.first
+    before = (idx < second)[:, None]
+    transient = ((idx >= second) & (idx < win.first))[:, None]  # the first command's transient, left out
     parts = {"n_samples": seen, "n_used": seen & raw[:, None], "n_before_second_command": seen & before,
-             "n_not_kept_as_samples": seen & ~raw[:, None] & ~before}
+             "n_in_start_transient": seen & transient, "n_not_kept_as_samples": seen & ~raw[:, None] & ~before & ~transient}
     per_body = {str(b): {k: int(v[:, j].sum()) for k, v in parts.items()} for j, b in enumerate(session.body_names)}
     return {"bodies": list(per_body), **{k: int(v.sum()) for k, v in parts.items()}, "per_body": per_body,
             "rule": RULE}
@@ -95,4 +98,5 @@ def say_bodies(session: Session, win: StreamWindows, cal: Calibration) -> None:
             f"rigid bodies {', '.join(said['bodies'])}: {said['n_used']} of {said['n_samples']} body samples used (the "
             f"samples of the windows kept as samples); {left} not used ({said['n_not_kept_as_samples']} in windows "
             f"reduced to nodes, where a body's orientation has no reduction, or at samples with no marker seen; "
-            f"{said['n_before_second_command']} before the second command) (report: motion.samples.rigid_bodies)")
+            f"{said['n_before_second_command']} before the second command, {said['n_in_start_transient']} in the first "
+            "command's transient) (report: motion.samples.rigid_bodies)")

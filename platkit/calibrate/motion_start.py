@@ -16,15 +16,26 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from platkit.calibrate.problem import link_frames
+from platkit.calibrate.problem import CalibrationProblem, link_frames
 from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.calibrate.stream import StreamWindows, projected_positions
 from platkit.errors import ComputationFailed
-from platkit.geometry import matrix_from_quat, quat_from_matrix, rigid_fit
+from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, rigid_fit
+from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.poses import PoseSet
 
-__all__ = ["DELAY_MAX_S", "RATE_FREE_FACTOR", "SHIFT_GRID_S", "actuator_travel", "marker_points",
-           "response_from_travel"]
+__all__ = ["ACCEL_TIME_S", "DELAY_MAX_S", "PRE_SAMPLES", "RATE_FREE_FACTOR", "SHIFT_GRID_S", "START_ROUNDS",
+           "START_SAMPLES", "STROKE_TIME_S", "TAU0_S", "ZETA0", "actuator_travel", "command_speed", "fd_steps",
+           "marker_points", "response_from_travel", "response_start", "starting_theta"]
+
+#: samples that start the response; rounds of the start; samples before the first command that
+#: say where a profile's actuators rest
+START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 600, 2, 50
+#: starting response: time constant (s), damping; a profile's rate and acceleration from the
+#: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
+TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
 
 #: the shifts (s) tried to start the response
 SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
@@ -177,3 +188,77 @@ def response_from_travel(rmodel: ResponseModel, theta0, T, U, t, travel, steps, 
                     theta[rmodel.index("delay_s", j)] = float(np.clip(x - theta[0], -DELAY_MAX_S, DELAY_MAX_S))
     return theta
 
+
+def starting_theta(model: ResponseModel, spec: PlatformSpec) -> np.ndarray:
+    """The response every fit starts from: no shift, every time constant TAU0_S (damping ZETA0), a
+    profile's rate and acceleration from the strokes, no delay."""
+    span = np.array([c.upper - c.lower for c in spec.controls], float)
+    span = np.where(np.isfinite(span) & (span > 0), span, 1.0)
+    th = [np.zeros(1), np.full(model.n_u, TAU0_S)]
+    if model.kind == "second_order":
+        th.append(np.full(sum(model.is_second(j) for j in range(model.n_u)), ZETA0))
+    if model.reference == "profile":
+        th += [span / STROKE_TIME_S, span / STROKE_TIME_S / ACCEL_TIME_S]
+    elif model.rate_limit:  # a streamed drive's rate limit: the caller starts it at the log's speed
+        th.append(span / STROKE_TIME_S)
+    if model.delays:
+        th.append(np.zeros(model.n_u))
+    return np.concatenate(th)
+
+
+def command_speed(T: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """(n_u,) the fastest a streamed log asks of each actuator: the largest step over the log's
+    median interval (a slewed reference at this rate just reaches each command as the next
+    comes); 0 for an actuator never moved."""
+    return np.max(np.abs(np.diff(U, axis=0)), axis=0) / float(np.median(np.diff(T)))
+
+
+def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows):
+    """Step 3: the response's start from the actuators' travel at the nominal geometry, twice (the
+    second registration at the controls the first response gives), on START_SAMPLES samples of
+    the stream; a profile's actuators rest before the first command where the samples before it
+    put them. Returns the start, the profile's rest (None: on the first command) and the
+    geometry the curvature correction is first taken at: (kinematic model, each marker's link,
+    td, A, b, markers)."""
+    T, U = session.command_t, session.commands
+    theta0 = starting_theta(rmodel, spec)
+    if rmodel.slewed:
+        speed = command_speed(T, U)
+        theta0[[rmodel.index("rate", j) for j in range(spec.n_u)]] = np.where(speed > 0, speed, theta0[
+            [rmodel.index("rate", j) for j in range(spec.n_u)]])
+    steps = fd_steps(rmodel, theta0)
+    names = list(session.marker_names)
+    theta_start, start = theta0, None
+    seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
+    cand = win.first + np.nonzero(seen[win.first:])[0]
+    sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
+    pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
+    for _ in range(START_ROUNDS):
+        X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
+        poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=win.t,
+                         n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder),
+                         moving_link=session.moving_link)
+        problem = CalibrationProblem(spec, poses0)
+        links = problem.point_links  # a tree: each marker's tracked link
+        z = problem.initial_registration(spec.nominal_td())
+        _, w, tr, mk, _ = problem.split(z)
+        A = matrix_from_rotvec(w)
+        Xs = actuator_positions(rmodel, theta_start, T, U, session.marker_t[sub], start=start)
+        travel = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[sub], Xs, links)
+        if rmodel.reference == "profile" and len(pre):
+            before = actuator_travel(spec, problem.model, spec.nominal_td(), A, tr, mk, session.markers[pre],
+                                     np.repeat(U[:1], len(pre), axis=0), links)
+            cols = np.isfinite(before).any(axis=0)  # a joint that moves no marker rests at its first command
+            if cols.any() and np.isfinite(before[:, cols]).all(axis=1).any():
+                start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
+        theta_start = response_from_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
+    return theta_start, start, (problem.model, links, spec.nominal_td(), A, tr, mk)
+
+
+def fd_steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:
+    """Finite-difference steps: 1e-4 s for the shift and the delays, 1e-4 relative for the rest."""
+    h = 1e-4 * np.maximum(np.abs(np.asarray(theta, float)), 1e-2)
+    h[0] = 1e-4
+    if rmodel.delays:
+        h[[rmodel.index("delay_s", j) for j in range(rmodel.n_u)]] = 1e-4
+    return h

@@ -134,7 +134,10 @@ class StreamWindows:
     fit, its rows of proj)}, or None for a window kept raw);
     counts: the stream's samples, those used (a marker seen, in a window that served), kept raw,
     with no marker seen, before the second command, in windows too short to fit (the stream's
-    end), and the marker observations left out (a marker seen too little in a window)."""
+    end), and the marker observations left out (a marker seen too little in a window); with a
+    start given, the samples from the second command to it (``n_start_transient``: the first
+    command's transient, :mod:`platkit.calibrate.motion_transient`), and ``second``: the first
+    sample at or after the second command."""
 
     t: np.ndarray
     Y: np.ndarray
@@ -154,6 +157,8 @@ class StreamWindows:
     n_raw_windows: int
     window_s: float
     nodes: int
+    n_start_transient: int = 0
+    second: int = -1
 
 
 def _legendre(x: np.ndarray, n: int) -> np.ndarray:
@@ -162,8 +167,9 @@ def _legendre(x: np.ndarray, n: int) -> np.ndarray:
 
 
 def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NODES,
-                   raw_samples: int = RAW_SAMPLES) -> StreamWindows:
-    """The stream from the second command on, cut into windows of equal length near ``window_s``
+                   raw_samples: int = RAW_SAMPLES, start_t: float | None = None) -> StreamWindows:
+    """The stream from the second command on (from ``start_t`` on, motion-capture clock, where that
+    is later: the samples between counted), cut into windows of equal length near ``window_s``
     s, each reduced to ``nodes`` nodes (:class:`StreamWindows`), but one window in every so many
     (evenly, about ``raw_samples`` samples in all; every window of a short stream) kept as its
     samples. A marker seen in fewer than MIN_SEEN_SHARE of a window's samples (or fewer than 2
@@ -172,7 +178,8 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
     tm, Y = session.marker_t, session.markers
     M = Y.shape[1]
     seen_any = np.isfinite(Y).all(axis=2).any(axis=1)
-    a0 = int(np.searchsorted(tm, session.command_t[1], side="left"))
+    second = int(np.searchsorted(tm, session.command_t[1], side="left"))
+    a0 = second if start_t is None else max(second, int(np.searchsorted(tm, start_t, side="left")))
     span = float(tm[-1] - tm[a0]) if a0 < len(tm) else 0.0
     n_win = max(1, int(round(span / window_s)))
     edges = np.searchsorted(tm, tm[a0] + np.arange(n_win + 1) * (span / n_win), side="left")
@@ -253,5 +260,5 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
     n_unseen = int((~seen_any[a0:]).sum())
     n_used = int(seen_any[a0:].sum()) - short
     return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:], a0, blocks,
-                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:a0].sum()), short, left_out, len(blocks),
-                         int(raw.sum()), span / n_win, nodes)
+                         len(tm), n_used, n_raw, n_unseen, int(seen_any[:second].sum()), short, left_out, len(blocks),
+                         int(raw.sum()), span / n_win, nodes, int(seen_any[second:a0].sum()), second)
