@@ -330,6 +330,9 @@ def run_motion(args, why: str, notes: list[str]) -> int:
             f"slowest {slow} tau {taus[slow]:.4g} s")
     if r.get("not_determined"):
         line += f"; not determined: {', '.join(r['not_determined'])}"
+    left = cal.motion["samples"].get("n_in_start_transient")
+    if left:  # the first command's transient, left out of the fit (platkit.calibrate.motion_transient)
+        line += f"; {left} samples of the first command's transient left out"
     bodies = cal.motion["samples"].get("rigid_bodies")
     if bodies:  # the body samples of the windows kept as samples serve (platkit.calibrate.motion_bodies)
         line += f"; rigid bodies {', '.join(bodies['bodies'])} from {bodies['n_used']} of {bodies['n_samples']} samples"
