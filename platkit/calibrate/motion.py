@@ -73,8 +73,9 @@ from platkit.calibrate.motion_kind import (
     second_order_kept,
     theta_by_name,
 )
-from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start
+from platkit.calibrate.motion_start import TAU0_S, ZETA0, marker_points, response_start
 from platkit.calibrate.motion_start import command_speed as command_speed  # calibrate_motion's public helper
+from platkit.calibrate.motion_start import fd_steps as _steps  # the response's finite-difference steps
 from platkit.calibrate.motion_transient import say_transient, start_transient
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions
@@ -214,6 +215,7 @@ class LocalResponseTerm(ResponseTerm):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self._jac: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (theta_J, X(theta_J), D)
+        self.start_transient: dict | None = None  # motion_stream's: the first command's transient left out
 
     def _nodes(self, theta) -> np.ndarray:
         """The controls reached at every node under ``theta`` (P, n_u), the last kept."""
@@ -369,7 +371,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
     correction = _curvature_correction(spec, model, td0, A, tr, mk, win, X1, lambda a, b: (
         actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)), links)
-    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, fd_steps(rmodel, theta_start), start,
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, _steps(rmodel, theta_start), start,
                         win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=list(session.marker_names),
                     t=win.t, n_samples=win.n_eff, **bodies_at_samples(session, win),  # raw windows' body samples
@@ -390,7 +392,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
                 and np.sqrt(np.mean(moved ** 2)) > CORRECTION_SHARE):
             break
         correction = again
-        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), start, win.proj,
+        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), start, win.proj,
                             win.sample_t)
         poses = replace(poses, controls=X2, markers=win.Y - correction)
         cal = calibrate(poses, spec, terms=[term], td_start=cal.td, **opts)
@@ -477,7 +479,9 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
     corrected for the kinematics' curvature at the calibration's geometry, frame and markers; the
     response held as calibrated. What a diagnosis of a stream without holds reads in place of
     settled poses. A profile reference's actuators rest on the first command before it (the rest
-    calibrate_motion read from the samples before it is not kept). Returns the poses and the
+    calibrate_motion read from the samples before it is not kept). The first command's transient
+    is left out by calibrate_motion's rule at the calibration's geometry and response
+    (:mod:`platkit.calibrate.motion_transient`; the term's ``start_transient`` says what). Returns the poses and the
     response as a term at the calibration's values (its control offset zero there), which a fit
     that carries it frees again, as calibrate_motion did (:class:`LocalResponseTerm`: the same
     response, its Jacobian reused while the response stays linear)."""
@@ -491,27 +495,39 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
     except ValueError as exc:
         raise BadSession(str(exc)) from None
     check_motion_session(session)
-    win = stream_windows(session, raw_samples=0)
-    T, U = session.command_t, session.commands
-    X = projected_positions(win.proj, rmodel, theta, T, U, win.sample_t)
     names = list(session.marker_names)
-    poses = PoseSet(platform=spec.name, controls=X, markers=win.Y, marker_names=names, t=win.t,
-                    n_samples=win.n_eff,
-                    description=None if session.description is None else str(session.description),
-                    length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
-                    extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})
-    problem = CalibrationProblem(spec, poses)
     order = [cal.marker_names.index(n) for n in names if n in cal.marker_names]
     if len(order) != len(names):
         raise BadSession(f"{session.folder}: markers {sorted(set(names) - set(cal.marker_names))} are not the "
                          "calibration's")
-    correction = _curvature_correction(spec, problem.model, cal.td, matrix_from_rotvec(cal.mocap_rotvec),
-                                       cal.mocap_translation, cal.marker_positions[order], win, X, lambda a, b: (
-                                           actuator_positions(rmodel, theta, T, U, win.sample_t[a:b])),
-                                       problem.point_links)
+    T, U = session.command_t, session.commands
+    A, b, mk = matrix_from_rotvec(cal.mocap_rotvec), cal.mocap_translation, cal.marker_positions[order]
+    win = stream_windows(session, raw_samples=0)
+    X, poses = _node_poses(session, spec, rmodel, theta, win)
+    problem = CalibrationProblem(spec, poses)
+    # the first command's transient left out as calibrate_motion leaves it, at the calibration
+    transient = start_transient(session, spec, rmodel, theta, (problem.model, problem.point_links, cal.td, A, b, mk),
+                                win.first)
+    if transient["n_samples"]:
+        win = stream_windows(session, raw_samples=0, start_t=transient["until_s"])
+        X, poses = _node_poses(session, spec, rmodel, theta, win)
+    correction = _curvature_correction(spec, problem.model, cal.td, A, b, mk, win, X, lambda i, j: (
+        actuator_positions(rmodel, theta, T, U, win.sample_t[i:j])), problem.point_links)
     poses.markers = win.Y - correction
-    return poses, LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), None,
-                                    win.proj, win.sample_t)
+    term = LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), None, win.proj,
+                             win.sample_t)
+    term.start_transient = transient
+    return poses, term
+
+
+def _node_poses(session: Session, spec: PlatformSpec, rmodel: ResponseModel, theta, win: StreamWindows):
+    """The controls reached at the windows' nodes under ``theta`` and the nodes as poses (their
+    markers as fitted, before the curvature correction)."""
+    X = projected_positions(win.proj, rmodel, theta, session.command_t, session.commands, win.sample_t)
+    return X, PoseSet(platform=spec.name, controls=X, markers=win.Y, marker_names=list(session.marker_names), t=win.t,
+                      n_samples=win.n_eff, description=None if session.description is None else str(session.description),
+                      length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
+                      extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})
 
 
 def without_response(cal: Calibration, session: Session) -> Calibration:

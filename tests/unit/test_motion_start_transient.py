@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from platkit.calibrate.estimate import predict_markers
-from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion import calibrate_motion, motion_stream
 from platkit.calibrate.motion_start import response_start
 from platkit.calibrate.motion_transient import start_transient
 from platkit.calibrate.response import ResponseModel
@@ -68,3 +68,7 @@ def test_the_first_commands_transient_is_left_out_counted_and_said(streamed):
     assert samples["n_fitted_rejected_as_outliers"] < 20
     pred, _, _, _ = predict_markers(cal, sim.commands)
     assert np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2))) < 0.08e-3
+    # a diagnosis reads the same stream without it (the rule at the calibration), and says so
+    poses, term = motion_stream(far, cal)
+    assert term.start_transient["n_samples"] > 0
+    assert poses.t.min() >= term.start_transient["until_s"] - 1e-9
