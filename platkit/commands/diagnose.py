@@ -142,8 +142,11 @@ def _motion_poses(folder, cal, sessions):
 
     poses, term = motion_stream(sessions[folder], cal)
     poses = markers_only(poses, folder)
+    left = (term.start_transient or {}).get("n_samples", 0)  # platkit.calibrate.motion_transient's rule
     warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
-         "calibration's actuator response, fitted again with every effect tried")
+         "calibration's actuator response, fitted again with every effect tried"
+         + (f"; {left} samples of the first command's transient left out (the stand's state before the first "
+            "command is not logged)" if left else ""))
     return poses, replace(cal, terms=[*cal.terms, term], theta=[*cal.theta, term.initial.copy()],
                           theta_std=[*cal.theta_std, np.full(len(term.initial), np.nan)])
 
