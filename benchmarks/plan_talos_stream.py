@@ -139,10 +139,13 @@ def main() -> None:
                 at_ref = link_errors(spec, truth, cal, U_ref)
                 r = cal.motion["response"]
                 shift = r["shift_s"]["value"]
+                left = cal.motion["samples"].get("n_in_start_transient", 0)  # the first command's transient
                 print(f"seed {seed} [{kind}: {r['kind']}, {sum(e.get('kind') == 'second_order' for e in r['actuators'].values())}"
                       f" second order; not determined: {', '.join(r.get('not_determined') or []) or 'none'}] "
                       f"(simulation {t2 - t1:.0f} s, calibration {time.perf_counter() - t2:.0f} s; fitted clock shift "
-                      f"{1e3 * shift:.1f} ms, true {1e3 * truth['nuisances']['markers_time_minus_exposure_time_s']:.1f} ms)",
+                      f"{1e3 * shift:.1f} ms, true {1e3 * truth['nuisances']['markers_time_minus_exposure_time_s']:.1f} ms; "
+                      f"{left} samples of the first command's transient left out, "
+                      f"{cal.motion['samples']['n_fitted_rejected_as_outliers']} observations rejected)",
                       flush=True)
                 for link in spec.tracked_links:
                     achieved.append(errors[link])

@@ -14,7 +14,7 @@ import pytest
 from platkit.calibrate.estimate import predict_markers
 from platkit.calibrate.motion import calibrate_motion, motion_stream
 from platkit.calibrate.motion_start import response_start
-from platkit.calibrate.motion_transient import start_transient
+from platkit.calibrate.motion_transient import noise_3d, settle_time_s, start_transient
 from platkit.calibrate.response import ResponseModel
 from platkit.calibrate.stream import stream_windows
 from platkit.io.session import load_session
@@ -72,3 +72,23 @@ def test_the_first_commands_transient_is_left_out_counted_and_said(streamed):
     poses, term = motion_stream(far, cal)
     assert term.start_transient["n_samples"] > 0
     assert poses.t.min() >= term.start_transient["until_s"] - 1e-9
+
+
+def test_the_transients_decay_bound_and_the_markers_noise():
+    """The slowest free response among the actuators moved (a first order's tau; a second
+    order's tau max(2 zeta, 1 / zeta)), and the markers' 3-D noise from pairs on one link alone."""
+    first = ResponseModel("first_order", "step", 3)
+    assert settle_time_s(first, [0.0, 0.05, 0.2, 0.1], np.array([True, False, True])) == pytest.approx(0.1)
+    second = ResponseModel("second_order", "step", 2)  # theta: shift, tau (2), damping (2)
+    assert settle_time_s(second, [0.0, 0.05, 0.04, 2.0, 1.0], np.array([True, True])) == pytest.approx(0.2)
+    assert settle_time_s(second, [0.0, 0.05, 0.04, 0.25, 1.0], np.array([True, True])) == pytest.approx(0.2)
+    rng = np.random.default_rng(0)
+    K, sigma = 4000, 2e-4
+    # two links, two markers each; the links move apart (pairs across links are not rigid)
+    base = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.0, 0, 0], [0.0, 0.1, 0]])
+    move = np.zeros((K, 4, 3))
+    move[:, 2:] = rng.uniform(-0.3, 0.3, (K, 1, 3))
+    Y = base + move + rng.normal(0, sigma, (K, 4, 3))
+    assert noise_3d(Y, np.array([0, 0, 1, 1])) == pytest.approx(np.sqrt(3) * sigma, rel=0.1)
+    assert np.isnan(noise_3d(Y[:, [0, 2]], np.array([0, 1])))  # no link carries two markers
+
