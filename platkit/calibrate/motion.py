@@ -374,7 +374,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
     term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, _steps(rmodel, theta_start), start,
                         win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=list(session.marker_names),
-                    t=win.t, n_samples=win.n_eff, **bodies_at_samples(session, win),  # raw windows' body samples
+                    t=win.t, n_samples=win.n_eff, **bodies_at_samples(session, win),  # body samples, raw and at nodes
                     description=None if session.description is None else str(session.description),
                     length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
                     extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})

@@ -23,7 +23,8 @@ from platkit.calibrate.response import ResponseModel, actuator_positions
 from platkit.errors import BadSession
 from platkit.io.session import Session
 
-__all__ = ["StreamWindows", "check_motion_session", "projected_positions", "stream_windows", "STREAMED_MAX_S"]
+__all__ = ["StreamWindows", "check_motion_session", "projected_positions", "stream_windows", "window_fit",
+           "STREAMED_MAX_S"]
 
 #: a command log whose median interval is at most this (s) is streamed (step reference); longer
 #: intervals are point-to-point moves between holds (profile reference)
@@ -166,6 +167,29 @@ def _legendre(x: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.polynomial.legendre.Legendre.basis(k)(x) for k in range(n)], axis=1)
 
 
+def _window_span(t: np.ndarray) -> tuple[float, float]:
+    """The span a window's samples ``t`` stand for: each sample its interval, so that the values of
+    the window's fit at its nodes are uncorrelated (to about 1e-3)."""
+    half = 0.5 * float(t[-1] - t[0]) / (len(t) - 1)
+    return float(t[0]) - half, float(t[-1]) + half
+
+
+def window_fit(t: np.ndarray, nodes: int, k: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The windowed fit of :class:`StreamWindows` for a window whose samples are at times ``t``
+    (motion-capture clock), from its samples ``k`` alone (indices into ``t``; all where None):
+    ``A`` (nodes, len(k)), the polynomial of degree ``nodes`` - 1 fitted by least squares to those
+    samples, read at the window's Gauss-Legendre nodes, and ``n_eff`` (nodes,), what each value is
+    worth in samples (the inverse of its variance in units of one sample's)."""
+    lo, hi = _window_span(t)
+    xg, _ = np.polynomial.legendre.leggauss(nodes)
+    Pn = _legendre(xg, nodes)
+    Phi = _legendre(2.0 * (t - lo) / (hi - lo) - 1.0, nodes)
+    if k is not None:
+        Phi = Phi[k]
+    G = np.linalg.inv(Phi.T @ Phi)
+    return Pn @ G @ Phi.T, 1.0 / np.einsum("ij,jk,ik->i", Pn, G, Pn)
+
+
 def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NODES,
                    raw_samples: int = RAW_SAMPLES, start_t: float | None = None) -> StreamWindows:
     """The stream from the second command on (from ``start_t`` on, motion-capture clock, where that
@@ -185,7 +209,6 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
     edges = np.searchsorted(tm, tm[a0] + np.arange(n_win + 1) * (span / n_win), side="left")
     edges[-1] = len(tm)
     xg, _ = np.polynomial.legendre.leggauss(nodes)
-    Pn = _legendre(xg, nodes)
     ts, Ys, ns, blocks = [], [], [], []
     rows, cols, vals = [], [], []
     left_out = short = 0
@@ -214,13 +237,8 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
         if b - a < 2 * nodes:
             short += int(seen_any[a:b].sum())
             continue
-        t = tm[a:b]
-        half = 0.5 * float(t[-1] - t[0]) / (b - a - 1)  # each sample stands for its interval: the nodes'
-        lo, hi = float(t[0]) - half, float(t[-1]) + half  # values are then uncorrelated to 1e-3
-        x = 2.0 * (t - lo) / (hi - lo) - 1.0
-        Phi = _legendre(x, nodes)
-        Gi = np.linalg.inv(Phi.T @ Phi)
-        A = Pn @ Gi @ Phi.T  # (nodes, b - a): the fit's values at the nodes
+        lo, hi = _window_span(tm[a:b])
+        A, n_full = window_fit(tm[a:b], nodes)  # (nodes, b - a): the fit's values at the nodes
         r, c = np.nonzero(np.ones_like(A, bool))
         rows.append(p + r)
         cols.append(a - a0 + c)
@@ -233,7 +251,7 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
         full = vis.all(axis=0)
         if full.any():
             out[:, full] = np.einsum("ik,kmc->imc", A, Yw[:, full])
-            n_eff[:, full] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gi, Pn)[:, None]
+            n_eff[:, full] = n_full[:, None]
             for m in np.nonzero(full)[0]:
                 per[int(m)] = (None, None)  # the window's own fit: its rows of proj
         for m in np.nonzero(~full)[0]:
@@ -241,11 +259,8 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
             if len(k) < max(2 * nodes, MIN_SEEN_SHARE * (b - a)):
                 left_out += len(k)
                 continue
-            Pm = Phi[k]
-            Gm = np.linalg.inv(Pm.T @ Pm)
-            Am = Pn @ Gm @ Pm.T
+            Am, n_eff[:, m] = window_fit(tm[a:b], nodes, k)
             out[:, m] = Am @ Yw[k, m]
-            n_eff[:, m] = 1.0 / np.einsum("ij,jk,ik->i", Pn, Gm, Pn)
             per[int(m)] = (k, Am)
         ts.append(lo + (xg + 1.0) * 0.5 * (hi - lo))
         Ys.append(out)

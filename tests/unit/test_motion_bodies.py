@@ -27,6 +27,7 @@ import pytest
 import yaml
 
 from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion_bodies import CAUSES
 from platkit.cli import main
 from platkit.errors import BadSession
 from platkit.geometry import matrix_from_rotvec
@@ -65,7 +66,8 @@ def test_bodies_in_a_fit_from_motion_are_used_counted_and_read_back(streamed, tm
     for k, b in enumerate(("T1", "T2")):
         mine = bodies["per_body"][b]
         assert mine["n_samples"] == int(seen[k])
-        assert mine["n_used"] + mine["n_before_second_command"] + mine["n_not_kept_as_samples"] == mine["n_samples"]
+        assert set(mine) == {"n_samples", "n_used", *CAUSES}  # the transient's count among them
+        assert mine["n_used"] + sum(mine[c] for c in CAUSES) == mine["n_samples"]  # every sample said once
         assert mine["n_used"] > 0.9 * mine["n_samples"]  # a short stream: every window kept as samples
     left = bodies["n_samples"] - bodies["n_used"]
     assert left > 0  # those before the second command at least: said
