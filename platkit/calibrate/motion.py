@@ -476,8 +476,9 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
     ``actuator_response``) sees in ``session``'s stream: the stream's windows as calibrate_motion
     cuts them, every window reduced to its nodes (none kept as raw samples: those served the
     response's timing, held here), each node at the controls the calibrated response reached there and its markers
-    corrected for the kinematics' curvature at the calibration's geometry, frame and markers; the
-    response held as calibrated. What a diagnosis of a stream without holds reads in place of
+    corrected for the kinematics' curvature at the calibration's geometry, frame and markers, a
+    rigid body's samples reduced to the nodes as calibrate_motion reduces them; the response held
+    as calibrated. What a diagnosis of a stream without holds reads in place of
     settled poses. A profile reference's actuators rest on the first command before it (the rest
     calibrate_motion read from the samples before it is not kept). The first command's transient
     is left out by calibrate_motion's rule at the calibration's geometry and response
@@ -522,10 +523,12 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
 
 def _node_poses(session: Session, spec: PlatformSpec, rmodel: ResponseModel, theta, win: StreamWindows):
     """The controls reached at the windows' nodes under ``theta`` and the nodes as poses (their
-    markers as fitted, before the curvature correction)."""
+    markers as fitted, before the curvature correction; the rigid bodies' samples reduced to the
+    nodes, :func:`platkit.calibrate.motion_bodies.bodies_at_samples`)."""
     X = projected_positions(win.proj, rmodel, theta, session.command_t, session.commands, win.sample_t)
     return X, PoseSet(platform=spec.name, controls=X, markers=win.Y, marker_names=list(session.marker_names), t=win.t,
-                      n_samples=win.n_eff, description=None if session.description is None else str(session.description),
+                      n_samples=win.n_eff, **bodies_at_samples(session, win),
+                      description=None if session.description is None else str(session.description),
                       length_unit=session.length_unit, moving_link=session.moving_link, source=str(session.folder),
                       extras={"node": np.arange(len(win.t)), "elapsed": win.t - win.t[0]})
 

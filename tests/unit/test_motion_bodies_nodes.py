@@ -11,6 +11,8 @@ nodes reduces a body's samples to its pose at the nodes, and a calibration from 
    sample is said once (used, or one cause), and each body's placement comes back within three
    sigmas of the samples served (tests/unit/test_motion_bodies.py's bound: 3 (sqrt(6) sigma_p +
    sqrt(2) sigma_r r) / sqrt(N), a marker r from the body's origin).
+3. The stream a diagnosis reads (motion_stream: every window at its nodes) carries the bodies there,
+   reduced as calibrate_motion reduces them.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion import calibrate_motion, motion_stream
 from platkit.calibrate.motion_bodies import CAUSES, bodies_at_samples
 from platkit.calibrate.stream import stream_windows
 from platkit.cli import main
@@ -77,9 +79,15 @@ def _in_body(origin, rotvec, point) -> np.ndarray:
     return matrix_from_rotvec(np.asarray(rotvec, float)).T @ (np.asarray(point, float) - np.asarray(origin, float))
 
 
-def test_bodies_at_the_nodes_serve_a_calibration_from_motion(streamed):
+@pytest.fixture(scope="module")
+def fitted(streamed):
+    session, _ = streamed
+    return calibrate_motion(session, session.spec, kind="first_order", raw_samples=100)[0]
+
+
+def test_bodies_at_the_nodes_serve_a_calibration_from_motion(streamed, fitted):
     session, truth = streamed
-    cal, _ = calibrate_motion(session, session.spec, kind="first_order", raw_samples=100)
+    cal = fitted
     said = cal.motion["samples"]["rigid_bodies"]
     scale = 1e3  # the calibration in SI, the placements compared in mm
     for j, body in enumerate(session.body_names):
@@ -95,3 +103,14 @@ def test_bodies_at_the_nodes_serve_a_calibration_from_motion(streamed):
             tol = 3.0 * (np.sqrt(6.0) * SIGMA_P_MM + np.sqrt(2.0) * SIGMA_R_RAD * np.linalg.norm(v_true)) / np.sqrt(
                 mine["n_used"])
             assert np.linalg.norm(v_fit - v_true) < tol, (body, m, v_fit, v_true, tol)
+
+
+def test_the_stream_a_diagnosis_reads_carries_the_bodies_at_its_nodes(streamed, fitted):
+    session, _ = streamed
+    poses, term = motion_stream(session, fitted)
+    assert poses.body_names == ["T1", "T2"] and poses.bodies.shape == (poses.n_poses, 2, 7)
+    seen = poses.n_body_samples > 0
+    assert seen.mean() > 0.9 and np.isfinite(poses.bodies[seen]).all() and np.isnan(poses.bodies[~seen]).all()
+    win = stream_windows(session, raw_samples=0, start_t=(term.start_transient or {}).get("until_s"))
+    np.testing.assert_array_equal(poses.t, win.t)  # the same nodes, the bodies as calibrate_motion reduces them
+    np.testing.assert_allclose(poses.bodies[seen], bodies_at_samples(session, win)["bodies"][seen], atol=1e-12)
