@@ -77,11 +77,11 @@ def check_motion_session(session: Session) -> str:
     overlap. BadSession naming the file otherwise."""
     cmd_file = session.folder / "commands.csv"
     mk_file = session.markers_source or session.folder / "markers.csv"
-    if session.body_names and not session.marker_names:  # the windows' reduction is of points
+    if session.body_names and not session.marker_names:  # the windows and the response's start read markers
         raise BadSession(f"{session.folder / 'session.yaml'}: no markers, only rigid bodies "
-                         f"{', '.join(session.body_names)}: calibrating from motion reads markers (a body's "
-                         "orientation is not reduced to the stream's nodes); add markers, or record holds that "
-                         "settle (settled poses calibrate the bodies)")
+                         f"{', '.join(session.body_names)}: calibrating from motion reads markers (the stream's "
+                         "samples and the response's start are found from them); add markers, or record holds "
+                         "that settle (settled poses calibrate the bodies)")
     if session.markers is None or session.marker_t is None:
         raise BadSession(f"{session.folder}: the session has no motion-capture stream; calibrating from motion "
                          "needs markers.csv or a C3D file")
