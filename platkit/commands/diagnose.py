@@ -36,6 +36,9 @@ def add_parser(sub):
                         "before a term mostly inside the geometry would be named, when that predicts held-out poses "
                         "better)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--no-report", action="store_true",
+                   help="write diagnosis.json and calibration.yaml only, not report.html (its figures take "
+                        "longer than a small diagnosis)")
     return p
 
 
@@ -114,7 +117,7 @@ def run(args) -> int:
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
                                                  read=sessions[args.session])
-    written = write_outputs(d, args.out)
+    written = write_outputs(d, args.out, with_html=not args.no_report)
     s = length_scale(d.unit)
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
     print(f"{names}; geometric rms {d.base.rms_after / s:.4g} -> {d.final_fit.rms_after / s:.4g} {d.unit}; "

@@ -249,14 +249,16 @@ def _links_html(d: Diagnosis, table: str) -> str:
     return out
 
 
-def write_outputs(d: Diagnosis, out_dir: str | Path) -> list[Path]:
-    """Write diagnosis.json, calibration.yaml and report.html into ``out_dir``, all or none
-    (:func:`platkit.io.atomic.atomic_output_dir`). calibration.yaml is ``d.calibration``, the
-    stand's: recording artefacts left out (``d.fitted`` holds the model fitted to the data), its
-    description copied beside it unless shipped (:func:`platkit.io.calibration.write_calibration_yaml`).
-    Returns the three paths."""
+def write_outputs(d: Diagnosis, out_dir: str | Path, with_html: bool = True) -> list[Path]:
+    """Write diagnosis.json, calibration.yaml and (``with_html``) report.html into ``out_dir``,
+    all or none (:func:`platkit.io.atomic.atomic_output_dir`). calibration.yaml is
+    ``d.calibration``, the stand's: recording artefacts left out (``d.fitted`` holds the model
+    fitted to the data), its description copied beside it unless shipped
+    (:func:`platkit.io.calibration.write_calibration_yaml`). Returns the paths written."""
+    names = ["diagnosis.json", "calibration.yaml"] + (["report.html"] if with_html else [])
     with atomic_output_dir(out_dir) as tmp:
         (tmp / "diagnosis.json").write_text(json.dumps(diagnosis_dict(d), indent=2) + "\n", encoding="utf-8")
         write_calibration_yaml(d.calibration, tmp)  # with its description beside it: the folder travels
-        (tmp / "report.html").write_text(report_html(d), encoding="utf-8")
-    return [Path(out_dir) / n for n in ("diagnosis.json", "calibration.yaml", "report.html")]
+        if with_html:
+            (tmp / "report.html").write_text(report_html(d), encoding="utf-8")
+    return [Path(out_dir) / n for n in names]

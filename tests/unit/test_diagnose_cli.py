@@ -66,3 +66,17 @@ def test_bad_input_exits_2_with_one_line(diagnosed, tmp_path, capsys):
     assert main(["diagnose", str(tmp_path / "missing"), "--calibration", str(cal / "calibration.yaml"), "--out",
                  str(tmp_path / "o")]) == 2
     assert not (tmp_path / "o").exists()
+
+
+def test_no_report_writes_the_same_diagnosis_without_report_html(diagnosed, tmp_path, capsys):
+    session, cal, out = diagnosed
+    quiet = tmp_path / "quiet"
+    assert main(["diagnose", str(session), "--calibration", str(cal / "calibration.yaml"), "--out", str(quiet),
+                 "--quiet", "--no-report"]) == 0
+    assert sorted(p.name for p in quiet.iterdir() if p.suffix != ".urdf") == ["calibration.yaml", "diagnosis.json"]
+    assert "report.html" not in capsys.readouterr().out
+    full, bare = (json.loads((d / "diagnosis.json").read_text()) for d in (out, quiet))
+    assert [f["effect"] for f in bare["findings"]] == [f["effect"] for f in full["findings"]] == ["backlash"]
+    assert bare["verdict"] == full["verdict"]
+    assert yaml.safe_load((quiet / "calibration.yaml").read_text())["terms"] == \
+        yaml.safe_load((out / "calibration.yaml").read_text())["terms"]
