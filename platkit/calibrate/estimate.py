@@ -81,20 +81,26 @@ MISFIT_ABSOLUTE_M = 0.005
 
 
 def marker_noise_floor(poses: PoseSet) -> float:
-    """The markers' own noise per axis (m), from the poses alone, without any model of the stand.
+    """The markers' own noise per axis (m), from the poses alone, without any model of the stand:
+    :func:`pair_noise` over every pair of markers (they ride one rigid part). Points computed from
+    one tracked rigid body give about 0."""
+    return pair_noise(poses.markers)
 
-    The markers ride one rigid part, so the distance between two of them is the same in every
-    pose; its spread (1.4826 MAD over the poses where both were seen) is sqrt(2) sigma for
-    isotropic noise sigma per axis. Median over the marker pairs; NaN with fewer than two markers
-    or three poses seen together. Points computed from one tracked rigid body give about 0.
-    """
-    Y = poses.markers
+
+def pair_noise(Y: np.ndarray, links=None) -> float:
+    """The markers' noise per axis (m) from samples or poses Y (K, M, 3): the distance between two
+    markers on one rigid part is the same at every sample, so its spread (1.4826 MAD over the
+    samples where both were seen) is sqrt(2) sigma for isotropic noise sigma per axis. Median over
+    the pairs on one link (``links`` (M,); None: every pair); NaN with no such pair seen together
+    at three samples."""
+    M = Y.shape[1]
+    same = None if links is None else np.equal.outer(np.asarray(links), np.asarray(links))
     vis = np.all(np.isfinite(Y), axis=2)
     per_pair = []
-    for i in range(poses.n_markers):
-        for j in range(i + 1, poses.n_markers):
+    for i in range(M):
+        for j in range(i + 1, M):
             both = vis[:, i] & vis[:, j]
-            if both.sum() < 3:
+            if (same is not None and not same[i, j]) or both.sum() < 3:
                 continue
             d = np.linalg.norm(Y[both, i] - Y[both, j], axis=1)
             per_pair.append(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2))
@@ -334,6 +340,6 @@ def second_session_errors(cal: Calibration, poses: PoseSet) -> dict:
     return out
 
 
-__all__ = ["calibrate", "fit_warnings", "marker_noise_floor", "check_body_orientations", "rejected_by_body",
+__all__ = ["calibrate", "fit_warnings", "marker_noise_floor", "pair_noise", "check_body_orientations", "rejected_by_body",
            "rejected_by_marker", "predict_markers", "predict_bodies", "predict_links", "calibration_links", "point_errors",
            "second_session_errors"]

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from platkit.calibrate.estimate import pair_noise
 from platkit.calibrate.motion_start import marker_points
 from platkit.calibrate.response import ResponseModel, actuator_positions
 from platkit.calibrate.robust import MAXWELL_MEDIAN, REJECT_K
@@ -66,22 +67,11 @@ def settle_time_s(rmodel: ResponseModel, theta, moved: np.ndarray) -> float:
 
 
 def noise_3d(Y: np.ndarray, links) -> float:
-    """The markers' own 3-D noise RMS (m) from samples Y (K, M, 3): the spread (1.4826 MAD) of the
-    distance between two markers on one link (``links`` (M,), None: one body) is sqrt(2) sigma
-    per axis; median over the pairs, times sqrt(3). NaN where no link carries two markers seen
+    """The markers' own 3-D noise RMS (m) from samples Y (K, M, 3): sqrt(3) times the per-axis
+    noise of the distances between markers on one link (:func:`platkit.calibrate.estimate.
+    pair_noise`; ``links`` (M,), None: one body). NaN where no link carries two markers seen
     together in three samples."""
-    M = Y.shape[1]
-    same = np.ones((M, M), bool) if links is None else np.equal.outer(np.asarray(links), np.asarray(links))
-    vis = np.isfinite(Y).all(axis=2)
-    per_pair = []
-    for i in range(M):
-        for j in range(i + 1, M):
-            both = vis[:, i] & vis[:, j]
-            if not same[i, j] or both.sum() < 3:
-                continue
-            d = np.linalg.norm(Y[both, i] - Y[both, j], axis=1)
-            per_pair.append(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2))
-    return float(np.sqrt(3) * np.median(per_pair)) if per_pair else float("nan")
+    return float(np.sqrt(3) * pair_noise(Y, links))
 
 
 def _residuals(session: Session, spec: PlatformSpec, rmodel: ResponseModel, theta, geom, k: np.ndarray,
