@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 from calibrate_motion import truth_error  # benchmarks/, the script's own folder on the path
 
-from platkit.calibrate.motion import calibrate_motion, command_speed
+from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion_start import command_speed
 from platkit.calibrate.plan import feasible
 from platkit.errors import PlatkitError
 from platkit.io.session import load_session

@@ -73,9 +73,7 @@ from platkit.calibrate.motion_kind import (
     second_order_kept,
     theta_by_name,
 )
-from platkit.calibrate.motion_start import TAU0_S, ZETA0, marker_points, response_start
-from platkit.calibrate.motion_start import command_speed as command_speed  # calibrate_motion's public helper
-from platkit.calibrate.motion_start import fd_steps as _steps  # the response's finite-difference steps
+from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start
 from platkit.calibrate.motion_transient import say_transient, start_transient
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions
@@ -371,7 +369,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
     correction = _curvature_correction(spec, model, td0, A, tr, mk, win, X1, lambda a, b: (
         actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)), links)
-    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, _steps(rmodel, theta_start), start,
+    term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta_start, fd_steps(rmodel, theta_start), start,
                         win.proj, win.sample_t)
     poses = PoseSet(platform=spec.name, controls=X1, markers=win.Y - correction, marker_names=list(session.marker_names),
                     t=win.t, n_samples=win.n_eff, **bodies_at_samples(session, win),  # body samples, raw and at nodes
@@ -392,7 +390,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
                 and np.sqrt(np.mean(moved ** 2)) > CORRECTION_SHARE):
             break
         correction = again
-        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), start, win.proj,
+        term = ResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), start, win.proj,
                             win.sample_t)
         poses = replace(poses, controls=X2, markers=win.Y - correction)
         cal = calibrate(poses, spec, terms=[term], td_start=cal.td, **opts)
@@ -515,7 +513,7 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
     correction = _curvature_correction(spec, problem.model, cal.td, A, b, mk, win, X, lambda i, j: (
         actuator_positions(rmodel, theta, T, U, win.sample_t[i:j])), problem.point_links)
     poses.markers = win.Y - correction
-    term = LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, _steps(rmodel, theta), None, win.proj,
+    term = LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), None, win.proj,
                              win.sample_t)
     term.start_transient = transient
     return poses, term

@@ -9,7 +9,8 @@ import pytest
 import yaml
 
 from platkit.calibrate.estimate import predict_markers
-from platkit.calibrate.motion import calibrate_motion, command_speed
+from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion_start import command_speed
 from platkit.calibrate.response import ResponseModel, actuator_positions, lags, slew_reference
 from platkit.io.calibration import read_calibration, write_calibration_yaml
 from platkit.io.session import load_session

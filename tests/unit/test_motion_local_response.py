@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-from platkit.calibrate.motion import LINEAR_FLOOR, LINEAR_SHARE, LocalResponseTerm, ResponseTerm, _steps
+from platkit.calibrate.motion import LINEAR_FLOOR, LINEAR_SHARE, LocalResponseTerm, ResponseTerm
+from platkit.calibrate.motion_start import fd_steps
 from platkit.calibrate.response import ResponseModel
 from platkit.poses import PoseSet
 
@@ -26,7 +27,7 @@ def _stream(cls=LocalResponseTerm):
     P = len(sample_t) // per
     proj = sparse.csr_matrix((np.full(P * per, 1 / per), np.arange(P * per), np.arange(0, P * per + 1, per)),
                              shape=(P, len(sample_t)))
-    term = cls(model, T, U, ["a", "b"], theta0, _steps(model, theta0), proj=proj, sample_t=sample_t)
+    term = cls(model, T, U, ["a", "b"], theta0, fd_steps(model, theta0), proj=proj, sample_t=sample_t)
     nodes = PoseSet(platform="x", controls=np.zeros((P, 2)), markers=np.zeros((P, 1, 3)), marker_names=["m"],
                     t=proj @ sample_t, extras={"node": np.arange(P)})
     nodes.controls = ResponseTerm.reached(term, theta0, nodes).copy()
