@@ -54,6 +54,12 @@ def controls_moving_links(spec: PlatformSpec) -> dict[str, np.ndarray]:
     depends on them (structurally: through the joints on its path, and a mimic joint's master)."""
     if spec.link_poses is None or len(spec.tracked_links) < 2:
         return {spec.moving_frame: np.ones(spec.n_u, bool)}
+    return link_controls(spec)
+
+
+def link_controls(spec: PlatformSpec) -> dict[str, np.ndarray]:
+    """Per tracked link of a stand with ``link_poses`` (a tree, one tracked link or more), which
+    controls (n_u,) bool its pose depends on, structurally (kept per spec)."""
     key = ("moving", id(spec))
     hit = _MARKER_FUNCTIONS.get(key)
     if hit is not None and hit[0] is spec:

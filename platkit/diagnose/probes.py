@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
+from platkit.calibrate.plan_information import link_controls
 from platkit.effects import history
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -160,15 +160,13 @@ class MarkerProbe(ModelTerm):
 
 def link_movers(spec: PlatformSpec | None, poses: PoseSet) -> tuple[np.ndarray, ...] | None:
     """Each marker's controls that move the link it rides on (indices, from the structural
-    sparsity of ``spec.link_poses`` in the controls: a joint off the path from the base to the
-    link cannot move it); None where the markers ride on one moving frame, or where every control
-    moves every marker's link."""
+    dependence of ``spec.link_poses`` on the controls, :func:`platkit.calibrate.plan_information.
+    link_controls`: a joint off the path from the base to the link cannot move it); None where
+    the markers ride on one moving frame, or where every control moves every marker's link."""
     if spec is None or spec.link_poses is None or not poses.marker_links:
         return None
-    L = len(spec.tracked_links)
-    q = np.array(ca.DM(spec.link_poses.sparsity_jac(0, 0), 1)).reshape(L, 4, spec.n_u)
-    x = np.array(ca.DM(spec.link_poses.sparsity_jac(0, 1), 1)).reshape(L, 3, spec.n_u)
-    moved = (q != 0).any(axis=1) | (x != 0).any(axis=1)  # (L, n_u)
+    by_link = link_controls(spec)
+    moved = np.array([by_link[link] for link in spec.tracked_links])  # (L, n_u)
     links = poses.links_of(spec.tracked_links)[:poses.n_markers]
     if moved[links].all():
         return None
