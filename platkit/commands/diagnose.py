@@ -42,23 +42,26 @@ def add_parser(sub):
     return p
 
 
-def markers_only(poses, folder):
-    """Diagnosis reads markers only: a session's rigid bodies are left out, and said; a session of
-    bodies alone is refused in one line."""
+def with_body_points(poses, folder, session=None):
+    """A session's rigid bodies as diagnosis reads them: each body as three points rigidly
+    attached to it (platkit.diagnose.bodies.as_points: ``<body>.o``, ``<body>.x``, ``<body>.y``, its
+    origin and axis tips), beside the markers, their noise measured on the recording's body
+    stream (``session``, the session as read) where it has one; said in one line."""
     if not poses.n_bodies:
         return poses
-    bodies = ", ".join(poses.body_names)
-    if not poses.n_markers:
-        raise BadInput(f"{folder}: diagnose reads markers only, and this session has rigid bodies alone ({bodies}); "
-                       "calibrate and predict read them")
-    warn(f"{folder}: rigid bodies {bodies} left out: diagnose reads the markers only")
-    poses.body_names, poses.bodies, poses.n_body_samples = [], None, None
-    return poses
+    from platkit.diagnose.bodies import LEVER_M, as_points, point_names
+
+    stream = None if session is None or session.bodies is None or session.poses is not None else session.bodies
+    said = ", ".join(f"{b} as {'/'.join(point_names(b))}" for b in poses.body_names)
+    warn(f"{folder}: rigid bodies diagnosed as three points each, origin and axis tips at "
+         f"{LEVER_M * 1e3:g} mm ({said})")
+    return as_points(poses, stream, str(folder))
 
 
 def run(args) -> int:
     from platkit.commands.common import read_with_calibration
     from platkit.diagnose import Options, diagnose
+    from platkit.diagnose.bodies import body_calibration, point_calibration
     from platkit.diagnose.report import write_outputs
     from platkit.io.atomic import check_output_dir
     from platkit.io.calibration import read_calibration
@@ -79,7 +82,7 @@ def run(args) -> int:
 
     def poses_of(folder):
         poses = read_with_calibration(folder, cal, args.calibration, args.quiet, read=sessions)[1]
-        return markers_only(poses, folder)
+        return with_body_points(poses, folder, sessions.get(folder))
 
     from platkit.commands.calibrate import settling_notes
     from platkit.settle import HoldsNeverSettle, NeverSettles
@@ -98,6 +101,7 @@ def run(args) -> int:
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
     heldout = poses_of(args.heldout) if args.heldout else None
+    given, cal = cal, point_calibration(cal)  # the bodies' points placed where the bodies' placements put them
     if args.heldout_register is not None or args.register_markers or args.register_spread:
         _check_register(args, cal, heldout)
     say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
@@ -117,6 +121,7 @@ def run(args) -> int:
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
                                                  read=sessions[args.session])
+    d.calibration = body_calibration(d.calibration, given, cal)  # the bodies again, placed from their points
     written = write_outputs(d, args.out, with_html=not args.no_report)
     s = length_scale(d.unit)
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"
@@ -144,7 +149,7 @@ def _motion_poses(folder, cal, sessions):
     from platkit.calibrate.motion import motion_stream
 
     poses, term = motion_stream(sessions[folder], cal)
-    poses = markers_only(poses, folder)
+    poses = with_body_points(poses, folder)  # the windows' bodies; their noise not measured on the stream
     left = (term.start_transient or {}).get("n_samples", 0)  # platkit.calibrate.motion_transient's rule
     warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
          "calibration's actuator response, fitted again with every effect tried"

@@ -9,19 +9,23 @@ from platkit.poses import PoseSet
 
 def noise_floor(poses: PoseSet, n_params: int) -> float | None:
     """The held-out RMS (m, of the 3-D marker error) that marker noise alone gives: each settled
-    marker averages n samples of noise sigma per coordinate (sigma from the settling search), and
-    a refit on the other folds adds its own error (about n_params / n_observations of it); a
-    coloured noise averages less (its slow part, ``slow_noise_inflation`` of settle). None
-    when the poses did not come from a stream (no sigma) or carry no sample counts."""
-    sigma = (poses.settling or {}).get("sigma_m")
-    if sigma is None or poses.n_samples is None:
+    marker averages n samples of noise sigma per coordinate (sigma from the settling search; a
+    point standing for a rigid body, platkit.diagnose.bodies, its own from
+    ``settling['point_sigma_m']``), and a refit on the other folds adds its own error (about
+    n_params / n_observations of it); a coloured noise averages less (its slow part,
+    ``slow_noise_inflation`` of settle). None when a seen marker has no sigma (poses not from a
+    stream, no declared body noise) or the poses carry no sample counts."""
+    settling = poses.settling or {}
+    sigma, own = settling.get("sigma_m"), settling.get("point_sigma_m") or {}
+    if poses.n_samples is None:
         return None
-    sigma = sigma * np.sqrt((poses.settling or {}).get("slow_noise_inflation", 1.0))  # coloured noise averages less
+    col = np.array([own.get(name, np.nan if sigma is None else sigma) for name in poses.marker_names], float)
+    col = col * np.sqrt(settling.get("slow_noise_inflation", 1.0))  # coloured noise averages less
     n = np.asarray(poses.n_samples, float)
     seen = np.all(np.isfinite(poses.markers), axis=2) & (n > 0)
-    if not seen.any():
+    if not seen.any() or not np.all(np.isfinite(col[seen.any(axis=0)])):
         return None
-    ms = float(np.mean(3.0 * sigma**2 / n[seen]))
+    ms = float(np.mean((3.0 * col[None, :] ** 2 / np.where(seen, n, 1.0))[seen]))
     return float(np.sqrt(ms * (1.0 + n_params / (3.0 * seen.sum()))))
 
 

@@ -456,19 +456,24 @@ def test_validate_with_bodies_reports_their_errors(fitted, stewart):
         second_session_errors(cal, renamed)
 
 
-def test_diagnose_leaves_bodies_out_and_says_so(fitted, capsys):
-    from platkit.commands.diagnose import markers_only
+def test_diagnose_reads_bodies_as_points_and_says_so(fitted, capsys):
+    """diagnose reads a session's rigid bodies as three points each beside its markers
+    (platkit.diagnose.bodies; tests/unit/test_diagnose_bodies.py diagnoses with them)."""
+    from platkit.commands.diagnose import with_body_points
+    from platkit.notices import collecting
     _, poses, _ = fitted
-    with pytest.raises(BadInput, match="diagnose reads markers only, and this session has rigid bodies alone"):
-        markers_only(poses.subset(np.arange(5)), "s")
+    with collecting() as said:
+        alone = with_body_points(poses.subset(np.arange(5)), "s")
+    assert alone.n_bodies == 0 and alone.marker_names == ["T1.o", "T1.x", "T1.y"]
+    assert np.allclose(alone.markers[:, 0], poses.bodies[:5, 0, :3])
+    assert said == ["s: rigid bodies diagnosed as three points each, origin and axis tips at 100 mm "
+                    "(T1 as T1.o/T1.x/T1.y)"]
     both = as_markers(poses, 0.1).subset(np.arange(5))
     both.bodies, both.body_names = poses.bodies[:5], ["T1"]
-    from platkit.notices import collecting
-    with collecting() as said:  # as the command line runs a verb: printed, and kept for the report
-        out = markers_only(both, "s")
-    assert said == ["s: rigid bodies T1 left out: diagnose reads the markers only"]
-    assert out.n_bodies == 0 and out.n_markers == 4
-    assert "rigid bodies T1 left out" in capsys.readouterr().err
+    with collecting():
+        out = with_body_points(both, "s")
+    assert out.n_bodies == 0 and out.n_markers == 4 + 3 and out.marker_names[4:] == ["T1.o", "T1.x", "T1.y"]
+    assert "rigid bodies diagnosed as three points each" in capsys.readouterr().err
 
 
 def test_markers_and_a_body_together(stewart):
