@@ -16,10 +16,14 @@ verbs N times on the same sessions, chain and tree in turn, each verb's least CP
 the other processes put on the same cores); the later runs find the stands' observation functions
 built and loaded in this process, so the least is a warm process's time, both sides alike; each
 run's own total tree / chain ratio is printed after the table (the spread the least hides).
+``--keep DIR``: the sessions and every run's outputs are written under DIR (new or empty) and
+kept, to compare two versions' outputs (calibration.yaml, report.json, diagnosis.json); without
+it, a temporary folder.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import tempfile
@@ -96,6 +100,7 @@ def main_(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--diagnose", action="store_true", help="also time platkit diagnose")
     ap.add_argument("--repeat", type=int, default=1, help="run the verbs N times, keep each one's least CPU time")
+    ap.add_argument("--keep", type=Path, default=None, help="write the sessions and outputs under this new folder, kept")
     args = ap.parse_args(argv)
     urdf = example_robot_urdf("talos_data/robots/talos_reduced.urdf")
     tree_map = {f"{h}{k}": link for h, link in HANDS.items() for k in range(1, 4)}
@@ -107,7 +112,9 @@ def main_(argv=None) -> int:
     out: dict[str, dict[str, float]] = {}
     runs: list[dict[str, float]] = []  # each run's total CPU seconds per side: the spread beside the least
     load_before = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory() as tmp:
+    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
+        raise SystemExit(f"--keep {args.keep}: not empty")
+    with (contextlib.nullcontext(str(args.keep)) if args.keep is not None else tempfile.TemporaryDirectory()) as tmp:
         root = Path(tmp)
         stands = (("chain", chain, chain_map, {"moving_link": HANDS["L"]}),
                   ("tree", tree, tree_map, {"moving_link": tree_map}))

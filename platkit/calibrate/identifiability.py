@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from platkit.calibrate.registration import digest, kept
 from platkit.calibrate.solve import weighted_factor
 from platkit.errors import NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec
@@ -328,6 +329,45 @@ def _reference_problem(problem, U_ref: np.ndarray):
     return ref_problem
 
 
+def problem_digest(problem, z) -> bytes | None:
+    """A digest of everything an evaluation of ``problem`` at ``z`` reads (its stand and terms by
+    identity, its poses, weights, scales, tiers and priors by value, z), for :func:`kept`; None for
+    a stand solved by Newton's method, whose solutions start from the problem's last ones (its
+    results are computed, never kept)."""
+    spec, poses = problem.spec, problem.poses
+    if spec.forward is None:
+        return None
+    bodies = poses.bodies if poses.bodies is not None else np.zeros(0)
+    return digest(type(problem).__name__, id(spec), tuple(id(t) for t in problem.terms), poses.controls, poses.markers,
+                  np.asarray(bodies, float), None if poses.n_samples is None else np.asarray(poses.n_samples, float),
+                  None if poses.n_body_samples is None else np.asarray(poses.n_body_samples, float),
+                  tuple(poses.marker_names), tuple(poses.body_names), tuple(sorted(poses.marker_links.items())),
+                  poses.length_unit, problem.point_links, tuple(problem.names), problem.base_weights, problem.scale,
+                  problem.tiers, problem.prior_center, problem.prior_scale, problem.nominal, problem.half_width,
+                  float(problem.body_rho), problem.rho_source, getattr(problem, "row_block", None),
+                  np.asarray(z, float))
+
+
+def _kept_for(problem, key: bytes | None, kind: str, compute, copy):
+    """:func:`kept` of ``compute`` under ``kind`` for ``key`` (its stand and terms held beside the
+    result, so that their identities in the key stay theirs), or ``compute()`` where ``key`` is None."""
+    if key is None:
+        return compute()
+
+    def compute_held():
+        return problem.spec, tuple(problem.terms), compute()
+
+    return kept(kind, key, compute_held, lambda got: (got[0], got[1], copy(got[2])))[2]
+
+
+def _data_view(problem, z, nuis_idx: np.ndarray, rel_tol: float) -> list[int]:
+    """The columns of ``nuis_idx`` (the transform and markers) the data of ``problem`` fix at
+    ``z``, in the order chosen (:func:`select_identifiable` of their scaled weighted Jacobian)."""
+    Jn = _compress(_weighted_jacobian(problem, z, nuis_idx))
+    return list(select_identifiable(Jn, [problem.names[i] for i in nuis_idx], np.ones(len(nuis_idx)),
+                                    [0] * len(nuis_idx), rel_tol).chosen)
+
+
 def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, reference: tuple[np.ndarray, np.ndarray],
                    rel_tol: float = DEFAULT_REL_TOL) -> Gauge:
     """Which transform and marker coordinates are gauges, at the start ``z`` of a calibration.
@@ -372,14 +412,15 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     else:
         R = np.zeros((0, 3, 3))
     shift = rotation_fixed_directions(R)
-    # the data's own view of the transform and markers
+    # the data's own view of the transform and markers: the same for every candidate set of a
+    # selection (kept while it runs)
     nuis_idx = np.nonzero(nuisance)[0]
-    Jn = _compress(_weighted_jacobian(problem, z, nuis_idx))
-    ident = select_identifiable(Jn, [names[i] for i in nuis_idx], np.ones(len(nuis_idx)), [0] * len(nuis_idx), rel_tol)
+    key = problem_digest(problem, z)
+    chosen = set(_kept_for(problem, None if key is None else digest(key, nuis_idx, rel_tol), "gauge_data",
+                           lambda: _data_view(problem, z, nuis_idx, rel_tol), list))
     pos = {int(i): k for k, i in enumerate(ref_idx)}
     known = [k for k, i in enumerate(nuis_idx) if int(i) in pos]  # judged on the reference poses
     Jr = J_ref[:, [pos[int(nuis_idx[k])] for k in known]]
-    chosen = set(ident.chosen)
     chosen_known = [j for j, k in enumerate(known) if k in chosen]
     unchosen_known = [j for j, k in enumerate(known) if k not in chosen]
     outside = _outside_span(Jr, chosen_known, unchosen_known) if unchosen_known else np.zeros(0)

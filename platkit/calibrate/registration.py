@@ -12,33 +12,39 @@ Both steps are pure functions of their arrays, and a model selection starts each
 models from the same poses at the same nominal parameters: within :func:`kept_registrations` (a
 selection), :func:`registered` keeps the last few results by the exact bytes of their inputs and
 returns a copy of a result again for the same inputs, bit for bit what computing it again gives;
-outside it, or once the selection is over, it computes every registration.
+outside it, or once the selection is over, it computes every registration. :func:`kept` is that
+memo for any pure step of a selection's start (the gauge analysis and the registration-only fit
+of :mod:`platkit.calibrate.stages` use it too), each kind of result in its own few places, keyed
+by :func:`digest` of everything the step reads.
 """
 from __future__ import annotations
 
 import hashlib
 import threading
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any, TypeVar
 
 import numpy as np
 
 from platkit.calibrate.robust import REJECT_K, robust_sigma
 from platkit.geometry import rigid_fit
 
-#: the registrations kept (by their inputs' bytes) while a selection runs: its two pose sets (all
-#: poses, and the cleaned ones its candidates share), with room for a selection inside another
-_KEPT: OrderedDict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+#: the results kept while a selection runs, by (kind, their inputs' digest); registrations: its two
+#: pose sets (all poses, and the cleaned ones its candidates share), with room for a selection
+#: inside another
+_KEPT: OrderedDict[tuple[str, bytes], Any] = OrderedDict()
 _KEEP = 4
 _LOCK = threading.Lock()
 _OPEN = [0]  # the kept_registrations contexts open (in any thread)
+T = TypeVar("T")
 
 
 @contextmanager
 def kept_registrations() -> Iterator[None]:
-    """Registrations are kept (:func:`registered`) while this is open; forgotten when the last
-    one open closes."""
+    """Registrations (:func:`registered`) and the other results of :func:`kept` are kept while
+    this is open; forgotten when the last one open closes."""
     with _LOCK:
         _OPEN[0] += 1
     try:
@@ -50,14 +56,47 @@ def kept_registrations() -> Iterator[None]:
                 _KEPT.clear()
 
 
-def _key(*arrays) -> bytes:
-    """A digest of the arrays' dtypes, shapes and bytes (equal inputs, equal keys)."""
+def digest(*parts) -> bytes:
+    """A digest of ``parts``: of each array its dtype, shape and bytes, of anything else its type
+    and repr (equal inputs, equal keys; an array and a list of its numbers differ)."""
     h = hashlib.blake2b(digest_size=32)
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype.str}{a.shape}".encode())
-        h.update(a.tobytes())
+    for a in parts:
+        if isinstance(a, np.ndarray):
+            a = np.ascontiguousarray(a)
+            h.update(f"array{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        else:
+            h.update(f"{type(a).__name__}:{a!r};".encode())
     return h.digest()
+
+
+_key = digest  # the registrations' key (a name kept for callers of the first version)
+
+
+def kept(kind: str, key: bytes, compute: Callable[[], T], copy: Callable[[T], T], keep: int = _KEEP) -> T:
+    """``compute()``, or within :func:`kept_registrations` the result kept for ``key`` under
+    ``kind`` where there is one: ``copy`` of it, so that no caller writes into what is kept. The
+    ``keep`` last results of a kind are kept. ``key`` must say everything ``compute`` reads
+    (:func:`digest` of it); an exception is not kept (the next call computes again)."""
+    if not _OPEN[0]:
+        return compute()
+    with _LOCK:
+        got = _KEPT.get((kind, key))
+        if got is not None:
+            _KEPT.move_to_end((kind, key))
+    if got is None:
+        got = copy(compute())
+        with _LOCK:
+            if _OPEN[0]:
+                _KEPT[(kind, key)] = got
+                mine = [k for k in _KEPT if k[0] == kind]  # oldest first
+                for k in mine[:max(0, len(mine) - keep)]:
+                    del _KEPT[k]
+    return copy(got)
+
+
+def _copies(arrays: tuple) -> tuple:
+    return tuple(a.copy() for a in arrays)
 
 
 def registered(R, X, Y, vis, rotation_from: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -65,22 +104,8 @@ def registered(R, X, Y, vis, rotation_from: tuple) -> tuple[np.ndarray, np.ndarr
     each point on its frame (R (N, P, 3, 3), X (N, P, 3)): (A, b, m); within
     :func:`kept_registrations`, copies of a kept result where the same inputs were registered
     before (the module docstring)."""
-    if not _OPEN[0]:
-        return register(R, X, Y, vis, initial_rotation(*rotation_from))
-    key = _key(R, X, Y, vis, *rotation_from)
-    with _LOCK:
-        got = _KEPT.get(key)
-        if got is not None:
-            _KEPT.move_to_end(key)
-    if got is None:
-        A, b, m = register(R, X, Y, vis, initial_rotation(*rotation_from))
-        got = (A.copy(), b.copy(), m.copy())
-        with _LOCK:
-            if _OPEN[0]:
-                _KEPT[key] = got
-                while len(_KEPT) > _KEEP:
-                    _KEPT.popitem(last=False)
-    return got[0].copy(), got[1].copy(), got[2].copy()
+    return kept("registration", digest(R, X, Y, vis, *rotation_from),
+                lambda: register(R, X, Y, vis, initial_rotation(*rotation_from)), _copies)
 
 
 def register(R, X, Y, vis, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

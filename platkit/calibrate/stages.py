@@ -11,12 +11,21 @@
 4. standard deviations from sigma^2 (J^T W J)^-1, in the gauge's convention;
 then the :class:`~platkit.io.calibration.Calibration` and, with ``folds``, k-fold held-out errors.
 How it runs is :class:`CalibrationOptions`.
+
+Within a model selection (:func:`~platkit.calibrate.registration.kept_registrations`) the gauge
+analysis and stage 1 are kept by everything they read
+(:func:`~platkit.calibrate.identifiability.problem_digest`, the masks, the options): the
+selection's candidates start from the same poses at the same z, and stage 1 fits only the
+transform and markers, so a candidate whose start another has computed takes a copy of it, bit
+for bit what computing it again gives. Not where a fit reports its progress (its lines are
+told), nor on a stand solved by Newton's method (its solutions start from its last ones).
 """
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -28,12 +37,14 @@ from platkit.calibrate.identifiability import (
     apply_marker_convention,
     classify_held,
     nuisance_gauge,
+    problem_digest,
     select_identifiable,
     singular_values,
 )
 from platkit.calibrate.plan import reference_poses_for
 from platkit.calibrate.problem import PLAUSIBLE_RANGE, CalibrationProblem, FitState, Progress
-from platkit.calibrate.solve import _rms, _weighted, kfold, robust_fit, weighted_factor
+from platkit.calibrate.registration import digest, kept
+from platkit.calibrate.solve import LMResult, _rms, _weighted, kfold, robust_fit, weighted_factor
 from platkit.errors import BadInput, NoConvergence, NotIdentifiable
 from platkit.io.calibration import Calibration, FitRecord
 from platkit.model import PlatformSpec
@@ -82,7 +93,7 @@ def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTer
     start = _start(poses, spec, terms, opt)
     problem = start.problem
     # stage 1: registration only (td held at its nominal), robustly
-    reg = robust_fit(problem, start.z, start.nuisance, opt.robust, opt.max_iter, opt.progress, "registration")
+    reg = _registration_only(start, opt)
     rms_before = _rms(reg.state, reg.weights)
     residuals_before = reg.state.r.copy()
     # stage 2: identifiability at the registered start
@@ -142,10 +153,39 @@ def _start(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm], opt: 
     candidates = nuisance.copy()
     candidates[problem.i_td] = free_td
     candidates[problem.i_theta] = True
-    gauge = nuisance_gauge(problem, z, candidates, nuisance, reference_poses_for(spec, problem.model), opt.rel_tol)
+    reference = reference_poses_for(spec, problem.model)
+    key = problem_digest(problem, z)
+    if key is None:
+        gauge = nuisance_gauge(problem, z, candidates, nuisance, reference, opt.rel_tol)
+    else:
+        gauge = kept("gauge", digest(key, candidates, nuisance, *reference, opt.rel_tol),
+                     lambda: (spec, tuple(terms), nuisance_gauge(problem, z, candidates, nuisance, reference, opt.rel_tol)),
+                     lambda got: (got[0], got[1], copy.deepcopy(got[2])))[2]
     nuisance[gauge.held] = False
     candidates[gauge.held] = False
     return _Start(problem, z, nuisance, candidates, gauge)
+
+
+def _registration_only(start: _Start, opt: CalibrationOptions) -> LMResult:
+    """Stage 1: the robust fit of the nuisance unknowns from ``start.z``; within a selection, a
+    copy of the one kept for the same problem, start and options (the module docstring)."""
+    problem = start.problem
+    key = None if opt.progress is not None else problem_digest(problem, start.z)
+
+    def fit():
+        return robust_fit(problem, start.z, start.nuisance, opt.robust, opt.max_iter, opt.progress, "registration")
+
+    if key is None:
+        return fit()
+
+    def copied(got: tuple) -> tuple:
+        reg = got[2]
+        state = FitState(reg.state.r.copy(), None if reg.state.J is None else reg.state.J.copy(),
+                         reg.state.converged.copy())
+        return got[0], got[1], replace(reg, z=reg.z.copy(), state=state, weights=reg.weights.copy())
+
+    return kept("registration_only", digest(key, start.nuisance, bool(opt.robust), int(opt.max_iter)),
+                lambda: (problem.spec, tuple(problem.terms), fit()), copied)[2]
 
 
 def _identifiable(problem: CalibrationProblem, z: np.ndarray, start: _Start,
