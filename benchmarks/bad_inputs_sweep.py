@@ -808,8 +808,8 @@ def diagnose_cases() -> list[Case]:
              (error(2, "markers.csv"),), out),
         Case("diagnose", "rotary: --folds 1", make("rotary", extra=("--folds", "1")), (error(2, "--folds"),), out),
         Case("diagnose", "rotary: --alpha 2", make("rotary", extra=("--alpha", "2")), (error(2, "--alpha"),), out),
-        Case("diagnose", "bodies: rigid bodies left out", make("bodies", cal=bodies_cal),
-             (warning("T1", "left out"),), out),
+        Case("diagnose", "bodies: rigid bodies read as points", make("bodies", cal=bodies_cal),
+             (warning("T1", "three points"),), out),
     ]
 
 
