@@ -61,7 +61,7 @@ def with_body_points(poses, folder, session=None):
 def run(args) -> int:
     from platkit.commands.common import read_with_calibration
     from platkit.diagnose import Options, diagnose
-    from platkit.diagnose.bodies import body_calibration, point_calibration
+    from platkit.diagnose.bodies import body_calibration, on_bodies, point_calibration
     from platkit.diagnose.report import write_outputs
     from platkit.io.atomic import check_output_dir
     from platkit.io.calibration import read_calibration
@@ -122,6 +122,7 @@ def run(args) -> int:
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
                                                  read=sessions[args.session])
     d.calibration = body_calibration(d.calibration, given, cal)  # the bodies again, placed from their points
+    on_bodies(d.findings, given.body_names)  # a finding at a body's point names the body too
     written = write_outputs(d, args.out, with_html=not args.no_report)
     s = length_scale(d.unit)
     names = ", ".join([f.effect for f in d.findings] + [f["effect"] for f in (d.imu or {}).get("findings", [])]) or "no finding"

@@ -41,6 +41,16 @@ def point_names(body: str) -> list[str]:
     return [f"{body}.{s}" for s in SUFFIXES]
 
 
+def on_bodies(findings, body_names: list[str]) -> None:
+    """Each finding located at a body's point (``where['marker']``, e.g. ``T1.x``) also names the
+    body (``where['rigid_body']``), in place."""
+    owner = {p: b for b in body_names for p in point_names(b)}
+    for f in findings:
+        body = owner.get(f.where.get("marker"))
+        if body is not None:
+            f.where = {**f.where, "rigid_body": body}
+
+
 def point_sigmas(body_names: list[str], stream: np.ndarray | None, body_noise: dict) -> dict[str, float]:
     """{point: noise sigma per coordinate of one sample (m)} of each body's points: from ``stream``
     (K, B, 7), the recording's body samples, by the settling search's estimator

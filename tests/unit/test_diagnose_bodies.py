@@ -222,6 +222,9 @@ def test_a_tree_of_bodies_alone_finds_the_joint(tmp_path):
     assert (top[0]["effect"], top[0]["where"]) == ("backlash", f"actuator {truth}")
     assert top[0]["F"] > 20 * top[1]["F"]
     assert d["findings"] and d["findings"][0]["effect"] in ("backlash", "unexplained")
+    where = d["findings"][0]["where"]
+    if "marker" in where:  # located at a body's point: the body named too
+        assert where["rigid_body"] == where["marker"].split(".")[0]
     assert d["heldout_rms_geometric"] > 1.5 * d["noise_floor"]
     bodies = yaml.safe_load((tmp_path / "diag" / "calibration.yaml").read_text())["rigid_bodies"]["bodies"]
     assert {b: e["link"] for b, e in bodies.items()} == {"T1": "right_tcp", "T2": "left_tcp"}
