@@ -20,7 +20,7 @@ with the held joints held) and docs/trees.md's figures for the simulator's multi
 mm) and 40 settled commands (0.009-0.011 mm) on seeds 2900011-2900012.
 
     .venv/bin/python benchmarks/plan_talos_stream.py [--seeds 2900021,2900022] [--duration-s 60]
-        [--response-kinds auto,second-order]
+        [--response-kinds auto,second-order] [--keep DIR [--reuse]]
 """
 from __future__ import annotations
 
@@ -95,7 +95,12 @@ def main() -> None:
                          "auto,second-order: the kind chosen from the data against the second order forced)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="keep the plan, sessions (truth.yaml) and calibrations in this folder (created)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="with --keep: the plan and each seed's session already kept there are read back, not made "
+                         "again (the same design seed, duration and noise; calibrations are always made again)")
     args = ap.parse_args()
+    if args.reuse and args.keep is None:
+        ap.error("--reuse reads back what --keep kept: name the folder with --keep")
     urdf = talos_urdf()
     stand = ["--platform", "urdf", "--description", str(urdf), "--moving-link", ",".join(LINKS)]
     spec = get_platform("urdf", urdf, moving_link={n: n for n in LINKS})
@@ -104,9 +109,10 @@ def main() -> None:
         tmp.mkdir(parents=True, exist_ok=True)
         plan_csv = tmp / "plan" / "commands.csv"
         t0 = time.perf_counter()
-        cli("plan", *stand, "--motion", "--move", MOVE, "--max-accel", str(args.max_accel), "--duration-s",
-            str(args.duration_s), "--noise-mm", str(args.noise_mm), "--seed", str(args.design_seed), "--quiet",
-            "--out", str(plan_csv))
+        if not (args.reuse and plan_csv.exists()):
+            cli("plan", *stand, "--motion", "--move", MOVE, "--max-accel", str(args.max_accel), "--duration-s",
+                str(args.duration_s), "--noise-mm", str(args.noise_mm), "--seed", str(args.design_seed), "--quiet",
+                "--out", str(plan_csv))
         report = json.loads(plan_csv.with_suffix(".json").read_text())
         predicted = {k: v["marker_rms_m"] for k, v in report["prediction"]["links"].items()}
         header = plan_csv.read_text().splitlines()[0].split(",")[1:]
@@ -127,8 +133,9 @@ def main() -> None:
         for seed in (int(s) for s in args.seeds.split(",")):
             t1 = time.perf_counter()
             session, out = tmp / f"s{seed}", tmp / f"c{seed}"
-            cli("simulate", *stand, "--physics", "--motion", str(plan_csv), "--seed", str(seed), "--noise-mm",
-                str(args.noise_mm), "--white-noise", "--markers", "6", "--out", str(session))
+            if not (args.reuse and (session / "truth.yaml").exists()):
+                cli("simulate", *stand, "--physics", "--motion", str(plan_csv), "--seed", str(seed), "--noise-mm",
+                    str(args.noise_mm), "--white-noise", "--markers", "6", "--out", str(session))
             truth = yaml.safe_load((session / "truth.yaml").read_text())
             for kind in args.response_kinds.split(","):
                 t2 = time.perf_counter()
