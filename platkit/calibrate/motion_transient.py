@@ -17,9 +17,10 @@ registered, the response fitted to the travel):
 3. the tail: where the residuals stop being gross the transient is still up to GROSS m, and it
    decays at least as fast as the slowest response of the actuators the stream moves (a first
    order's time constant tau; a second order's tau max(2 zeta, 1 / zeta), the larger of its lag
-   and its envelope); the samples are left out until that bound has fallen to the markers'
-   own 3-D noise (from the distances between markers on one link; the scale m where no link
-   carries two markers);
+   and its envelope); the samples are left out until that bound has fallen to TAIL_NOISE_SHARE
+   of the markers' own 3-D noise (from the distances between markers on one link; the scale m
+   where no link carries two markers): what is left of the transient then adds at most
+   TAIL_NOISE_SHARE squared to a sample's noise variance;
 4. at most MAX_SHARE of the stream: a start gross for longer is not a transient the response
    explains; it is said and nothing is left out (the fit's outlier rule and misfit check judge).
 
@@ -37,7 +38,7 @@ from platkit.calibrate.robust import MAXWELL_MEDIAN, REJECT_K
 from platkit.io.session import Session
 from platkit.model import PlatformSpec
 
-__all__ = ["GROSS", "MAX_SHARE", "RUN", "SCALE_SAMPLES", "noise_3d", "say_transient", "settle_time_s",
+__all__ = ["GROSS", "MAX_SHARE", "RUN", "SCALE_SAMPLES", "TAIL_NOISE_SHARE", "noise_3d", "say_transient", "settle_time_s",
            "start_transient"]
 
 #: a residual beyond GROSS times the stream's median is gross (the 3-D outlier bound: REJECT_K
@@ -49,6 +50,9 @@ RUN = 5
 SCALE_SAMPLES = 600
 #: the most of the stream's samples a start transient may span
 MAX_SHARE = 0.25
+#: the tail lasts until the transient's bound is this share of the markers' 3-D noise (a tenth:
+#: at most 1 % of a sample's noise variance left to the transient)
+TAIL_NOISE_SHARE = 0.1
 
 
 def settle_time_s(rmodel: ResponseModel, theta, moved: np.ndarray) -> float:
@@ -128,7 +132,7 @@ def start_transient(session: Session, spec: PlatformSpec, rmodel: ResponseModel,
     Y = session.markers[spread]
     noise = noise_3d(Y, mk_links)
     floor = noise if np.isfinite(noise) and 0 < noise < GROSS * scale else scale
-    tail = tau * float(np.log(GROSS * scale / floor))
+    tail = tau * float(np.log(GROSS * scale / (TAIL_NOISE_SHARE * floor)))
     until = float(tm[cand[end]]) + tail
     n = int(np.sum(tm[cand] < until))
     if n > limit:
@@ -144,7 +148,8 @@ def _rule() -> str:
     return (f"the stand's state before the first command is not logged: from the second command on, the samples "
             f"whose residual at the response's start (runs of {RUN}, median) is over {GROSS:.3g} times the stream's "
             "median residual are the first command's transient, and so are those after, until that bound has "
-            "decayed to the markers' own 3-D noise at the slowest response of the actuators moved; at most "
+            f"decayed to {TAIL_NOISE_SHARE:g} of the markers' own 3-D noise at the slowest response of the actuators "
+            "moved; at most "
             f"{MAX_SHARE:.0%} of the stream")
 
 
@@ -157,6 +162,7 @@ def say_transient(transient: dict, cal) -> None:
             f"({transient['n_samples']} samples) left out of the fit: the stand's state before the first command is "
             "not logged and the first command's transient spans them (its residuals over "
             f"{GROSS:.3g} times the stream's median until {transient['gross_until_s']:.3f} s, then "
-            f"{transient['tail_s']:.3g} s for it to decay to the markers' noise) (report: motion.samples.start_transient)")
+            f"{transient['tail_s']:.3g} s for it to decay to {TAIL_NOISE_SHARE:g} of the markers' noise) "
+            "(report: motion.samples.start_transient)")
     elif transient.get("said"):
         cal.warnings.append(f"the stream's start: {transient['said']} (report: motion.samples.start_transient)")

@@ -14,7 +14,7 @@ import pytest
 from platkit.calibrate.estimate import predict_markers
 from platkit.calibrate.motion import calibrate_motion, motion_stream
 from platkit.calibrate.motion_start import response_start
-from platkit.calibrate.motion_transient import noise_3d, settle_time_s, start_transient
+from platkit.calibrate.motion_transient import GROSS, noise_3d, settle_time_s, start_transient
 from platkit.calibrate.response import ResponseModel
 from platkit.calibrate.stream import stream_windows
 from platkit.io.session import load_session
@@ -55,6 +55,11 @@ def test_the_first_commands_transient_is_left_out_counted_and_said(streamed):
     # the samples it spans: from the second command until the free response has decayed
     assert transient["from_s"] < transient["gross_until_s"] < transient["until_s"]
     assert n == int(np.sum((far.marker_t >= far.command_t[1]) & (far.marker_t < transient["until_s"])))
+    # the tail: until the gross bound has decayed, at the slowest response, to a tenth of the
+    # markers' own 3-D noise (not to the noise: the transient left would be as large as the noise)
+    assert 0 < transient["noise_3d_m"] < GROSS * transient["residual_scale_m"]
+    decay = np.log(GROSS * transient["residual_scale_m"] / (0.1 * transient["noise_3d_m"]))
+    assert transient["tail_s"] == pytest.approx(transient["settle_tau_s"] * decay, rel=1e-9)
     # every sample counted once: used, in the transient, before the second command, unseen or short
     assert (samples["n_used"] + n + samples["n_before_second_command"] + samples["n_unseen"]
             + samples["n_in_short_windows"]) == samples["n_stream"]
