@@ -12,9 +12,6 @@ by every problem of them (:func:`observation_for`).
 """
 from __future__ import annotations
 
-import ctypes
-import os
-import sys
 import threading
 
 import casadi as ca
@@ -58,32 +55,6 @@ SMALL_FUNCTION = 20_000
 
 
 _compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that tests may patch
-
-#: glibc's allocator, set once at import (:func:`_keep_freed_memory`): blocks up to MMAP_BELOW
-#: bytes come from the heap, and its free top is returned to the system only beyond TRIM_ABOVE
-MMAP_BELOW, TRIM_ABOVE = 32 * 2 ** 20, 512 * 2 ** 20
-
-
-def _keep_freed_memory() -> bool:
-    """Keep freed memory in the process for the next evaluation (glibc only; not where the user
-    set MALLOC_MMAP_THRESHOLD_ or MALLOC_TRIM_THRESHOLD_). A model selection or diagnosis of a tree
-    allocates and frees the observation's arrays hundreds of times (its Jacobian of 300 poses is
-    8 MB, 20 MB with a probe's terms); by default glibc maps blocks of its adapted threshold and
-    above afresh and returns its heap's free top once it exceeds twice that threshold, so that the
-    next evaluation faults every page in again and the kernel zeroes it. Returns whether set."""
-    if sys.platform != "linux" or any(k in os.environ for k in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")):
-        return False
-    try:
-        libc = ctypes.CDLL(None)
-        if not hasattr(libc, "gnu_get_libc_version"):  # not glibc (musl, ...): its own policy
-            return False
-        m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
-        return bool(libc.mallopt(m_mmap_threshold, MMAP_BELOW)) and bool(libc.mallopt(m_trim_threshold, TRIM_ABOVE))
-    except (OSError, AttributeError):  # no C library to load, or no mallopt in it
-        return False
-
-
-_keep_freed_memory()
 
 
 def compile_flags(f: ca.Function) -> list[str]:
