@@ -3,7 +3,11 @@
 0. the problem (:class:`~platkit.calibrate.problem.CalibrationProblem`) and its start: the
    transform and the markers by rigid registration at the starting td, the priors, and the gauge
    freedoms of the transform and markers held (:func:`~platkit.calibrate.identifiability.nuisance_gauge`);
-1. registration only (transform and markers, td at its start), robustly: gives ``rms_before``;
+1. registration only (transform and markers, td at its start), robustly: its residuals give
+   ``rms_before``, over the observations the final fit keeps (step 3's robust weights), so that
+   before and after are RMS over the same observations: the registration's own weights judge
+   residuals at a td not yet fitted (a rigid body's declared noise, far below them, rejects most
+   of its origins there);
 2. identifiability: pivoted orthogonalisation of the scaled Jacobian at the registered start; the
    parameters the data cannot fix are held at nominal and reported by name;
 3. Levenberg-Marquardt over everything identifiable, robust (:func:`~platkit.calibrate.solve.robust_fit`),
@@ -94,7 +98,6 @@ def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTer
     problem = start.problem
     # stage 1: registration only (td held at its nominal), robustly
     reg = _registration_only(start, opt)
-    rms_before = _rms(reg.state, reg.weights)
     residuals_before = reg.state.r.copy()
     # stage 2: identifiability at the registered start
     ident, active = _identifiable(problem, reg.z, start, opt)
@@ -103,6 +106,7 @@ def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTer
     fit = refit_body_rho(problem, fit, active, opt.robust, opt.max_iter, opt.progress)
     # stage 4: the uncertainty of the estimate, in the stated gauge
     est = _uncertainty(problem, fit, active, start.gauge)
+    rms_before = _rms(reg.state, est.weights)  # over the observations the fit kept (module docstring, 1.)
     cal = _calibration(poses, spec, terms, problem, ident, start.gauge, est, rms_before, opt)
     cal.fit = FitRecord(residuals_before=residuals_before, residuals_after=est.state.r.copy(),
                         weights_before=reg.weights.copy(), weights=est.weights.copy(), controls=poses.controls.copy(),

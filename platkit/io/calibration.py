@@ -69,7 +69,8 @@ class Calibration:
     vector, rad; translation, m) and their std (6,). marker_positions: (M, 3) m in the moving
     frame, marker_std (M, 3). terms/theta/theta_std: model terms and their parameters.
     rms_before: point RMS (m) with nominal td after fitting only the transform and markers;
-    rms_after: point RMS (m) at the estimate (both over the observations kept by the robust loss).
+    rms_after: point RMS (m) at the estimate (both over the observations the final fit's robust
+    loss kept).
     body_names, body_positions (B, 3) m, body_rotvecs (B, 3) rad: rigid bodies' placements on the
     moving part (body frame -> moving frame), body_std (B, 6) (origin m, rotation vector rad);
     body_rho (m/rad): the weight of their rotation errors against position errors, and
