@@ -19,24 +19,32 @@ def needs_shared(path: Path) -> bool:
     return '"shared"' in text or "from real_data" in text or "/work/shared" in text
 
 
-#: the test modules this run collects, those that fail to import included
-_COLLECTED: set[Path] = set()
+def _asked_files(config) -> list[Path]:
+    """The test modules the run's arguments name (a file, or every test_*.py under a folder;
+    ``file::test`` counts as its file), before any is collected or imported."""
+    out: set[Path] = set()
+    for arg in config.args:
+        path = Path(config.invocation_params.dir, str(arg).split("::")[0])
+        if path.is_dir():
+            out.update(path.rglob("test_*.py"))
+        elif path.suffix == ".py":
+            out.add(path)
+    return sorted(out)
 
 
-def pytest_collect_file(file_path, parent):
-    if file_path.suffix == ".py" and file_path.name.startswith("test_"):
-        _COLLECTED.add(Path(file_path))
-
-
-def pytest_collection_modifyitems(session, config, items):
-    """Without the shared real data, a run that collected tests reading it stops before any test
-    with one line that says what is missing and where it comes from (rather than failures and
-    errors one by one, or tests skipped, which would pass where the data are broken)."""
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session):
+    """Without the shared real data, a run whose arguments name tests reading it stops before any
+    test with one line that says what is missing and where it comes from (rather than failures
+    and errors one by one, or tests skipped, which would pass where the data are broken). At the
+    session's start, from the arguments: in a run split over processes (pytest-xdist) it is said
+    once, by the process that starts the others, before any starts."""
     if SHARED_DATA.is_dir():
         return
-    files = sorted(f for f in _COLLECTED if needs_shared(f))
+    files = [f for f in _asked_files(session.config) if needs_shared(f)]
     if files:
-        names = ", ".join(f.relative_to(Path(__file__).resolve().parent).as_posix() for f in files[:3])
+        here = Path(__file__).resolve().parent
+        names = ", ".join(f.resolve().relative_to(here).as_posix() for f in files[:3])
         more = f" and {len(files) - 3} more" if len(files) > 3 else ""
         pytest.exit(f"the real data these tests read are missing: {SHARED_DATA} (TIAGo, BROAD) is not there; "
                     f"{len(files)} test files need it ({names}{more}). It is the project's shared/ folder, laid "
