@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from platkit.geometry import matrix_from_quat, quat_from_matrix, skew
+from platkit.geometry import matrix_from_quat, quat_from_matrix, rotvec_from_matrix, skew
 from platkit.io.session import Session
 from platkit.poses import PoseSet
 
@@ -129,6 +129,29 @@ def placement_from_frame_points(points: np.ndarray) -> tuple[np.ndarray, np.ndar
     y -= np.sum(x * y, axis=1, keepdims=True) * x
     y /= np.linalg.norm(y, axis=1, keepdims=True)
     return o, np.stack([x, y, np.cross(x, y)], axis=2)
+
+
+#: the suffixes of a body's three frame points as named points (``<body>.o``, ``<body>.x``,
+#: ``<body>.y``): its origin and the tips of its x and y axes, :func:`body_frame_points`' order
+FRAME_POINT_SUFFIXES = ("o", "x", "y")
+
+
+def frame_point_names(body: str) -> list[str]:
+    """The names of ``body``'s three frame points as markers: ``<body>.o``, ``<body>.x``, ``<body>.y``."""
+    return [f"{body}.{s}" for s in FRAME_POINT_SUFFIXES]
+
+
+def placement_from_point_fit(points: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A body's placement read back from its three frame points fitted as free points (3, 3) m and
+    their std (3, 3) m: origin (3,), rotation vector (3,) (:func:`placement_from_frame_points`) and
+    std (6,): the origin's per axis, and the rotation's the tips' variance beyond the origin's
+    (mean over the tips' coordinates) over the lever, one number for the three axes (a turn about
+    one axis moves two of a tip's three coordinates: 1.5 times that variance; the points' fitted
+    correlations are not kept)."""
+    o, R = placement_from_frame_points(np.asarray(points, float)[None])
+    s = np.asarray(std, float)
+    extra = max(float(np.mean(s[1:] ** 2) - np.mean(s[0] ** 2)), 0.0)
+    return o[0], rotvec_from_matrix(R[0]), np.concatenate([s[0], np.full(3, np.sqrt(1.5 * extra) / AXIS_LENGTH_M)])
 
 
 # ---------------------------------------------------------------------------- settled poses

@@ -285,7 +285,8 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
                      robust: bool = True, window_s: float = WINDOW_S, nodes: int = NODES,
                      raw_samples: int = RAW_SAMPLES, progress: Progress | None = None,
                      platform_options: dict | None = None, ridge_m: float = 0.0,
-                     reason: str = "", delays: bool = False, rate_limit: bool = False) -> tuple[Calibration, PoseSet]:
+                     reason: str = "", delays: bool = False, rate_limit: bool = False,
+                     noise_floor_m: float | None = None) -> tuple[Calibration, PoseSet]:
     """Calibrate ``spec`` from the whole stream of ``session`` (module docstring). Returns the
     calibration (its ``motion`` says which samples served, how they were reduced, and the fitted
     response with its uncertainty) and the pose set of the nodes fitted. ``kind``: the actuators'
@@ -294,7 +295,9 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
     which and why). ``reason``: why the motion model serves (said in the report). ``delays``:
     each actuator's own pure delay beyond the shift; ``rate_limit``: a streamed log's actuators
     each with a speed limit, started at the log's fastest step (a profile has its rate limit
-    always) (platkit.calibrate.response)."""
+    always) (platkit.calibrate.response). ``noise_floor_m``: the markers' own noise per axis (m) the
+    misfit rule (1.) compares with, where the caller knows it and the distances between the markers
+    cannot tell it (points computed from one rigid body: platkit.calibrate.motion_points)."""
     t0 = time.perf_counter()
     if kind not in ("auto",) + KINDS:
         raise BadInput(f"actuator response: kind must be auto or one of {', '.join(KINDS)}, not {kind!r}")
@@ -316,7 +319,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
     if kind == "auto":
         rmodel, cal, poses, choice = _choose_kind(session, spec, rmodel, win, cal, poses, start, geom[:2], opts,
                                                   sample_dt)
-    floor = np.sqrt(3) * marker_noise_floor(poses)
+    floor = np.sqrt(3) * (marker_noise_floor(poses) if noise_floor_m is None else noise_floor_m)
     if np.isfinite(floor) and floor > 0 and cal.rms_after > MISFIT_RATIO * floor:
         raise BadSession(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "
                          f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "

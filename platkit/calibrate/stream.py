@@ -73,15 +73,15 @@ def projected_positions(proj: sparse.csr_matrix, model: ResponseModel, theta, T:
 
 def check_motion_session(session: Session) -> str:
     """The reference the command log calls for ('step': streamed, 'profile': holds), after the
-    checks: markers (rigid bodies alone are not enough) and commands present, on clocks that
-    overlap. BadSession naming the file otherwise."""
+    checks: markers (rigid bodies alone are read as points first: platkit.calibrate.motion_points)
+    and commands present, on clocks that overlap. BadSession naming the file otherwise."""
     cmd_file = session.folder / "commands.csv"
     mk_file = session.markers_source or session.folder / "markers.csv"
     if session.body_names and not session.marker_names:  # the windows and the response's start read markers
         raise BadSession(f"{session.folder / 'session.yaml'}: no markers, only rigid bodies "
-                         f"{', '.join(session.body_names)}: calibrating from motion reads markers (the stream's "
-                         "samples and the response's start are found from them); add markers, or record holds "
-                         "that settle (settled poses calibrate the bodies)")
+                         f"{', '.join(session.body_names)}: this fit from motion reads markers (the stream's samples "
+                         "and the response's start are found from them); the bodies alone are calibrated from "
+                         "motion as three points each (platkit.calibrate.motion_points, what platkit calibrate does)")
     if session.markers is None or session.marker_t is None:
         raise BadSession(f"{session.folder}: the session has no motion-capture stream; calibrating from motion "
                          "needs markers.csv or a C3D file")
@@ -105,7 +105,11 @@ def check_motion_session(session: Session) -> str:
 def _check_gaps(tc, tm, Y, cmd_file, mk_file, med: float) -> None:
     """A streamed log with an interval over GAP_FACTOR times its median, in whose second half the
     markers' centroid moves more than GAP_MOVE_M: commands are missing there (BadSession)."""
-    c = np.nanmean(Y, axis=1) if Y.shape[1] else np.zeros((len(tm), 3))
+    if Y.shape[1]:  # the centroid of the markers seen; NaN at a sample with none seen
+        n = np.isfinite(Y).sum(axis=1)
+        c = np.where(n > 0, np.nansum(Y, axis=1) / np.maximum(n, 1), np.nan)
+    else:
+        c = np.zeros((len(tm), 3))
     for i in np.nonzero(np.diff(tc) > GAP_FACTOR * med)[0]:
         a, b = float(tc[i]), float(tc[i + 1])
         mid = 0.5 * (a + b)

@@ -287,6 +287,7 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     with the stand's default free parameters (``--free`` as given)."""
     from platkit.calibrate.estimate import second_session_errors
     from platkit.calibrate.motion import calibrate_motion
+    from platkit.calibrate.motion_points import bodies_alone, calibrate_motion_bodies
     from platkit.calibrate.report import write_outputs
     from platkit.io.session import example_session, load_session
 
@@ -304,11 +305,12 @@ def run_motion(args, why: str, notes: list[str]) -> int:
             "fitted response instead (report: motion)")
     warn(note)
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
-    cal, poses = calibrate_motion(s, s.spec, free=free, robust=not args.no_robust,
-                                  progress=None if args.quiet else progress_printer(s.length_unit),
-                                  platform_options=options, ridge_m=ridge_m, reason=reason,
-                                  kind=getattr(args, "response_kind", "auto").replace("-", "_"),
-                                  **response_parts(getattr(args, "response", None)))
+    fit = calibrate_motion_bodies if bodies_alone(s) else calibrate_motion  # bodies alone: as points
+    cal, poses = fit(s, s.spec, free=free, robust=not args.no_robust,
+                     progress=None if args.quiet else progress_printer(s.length_unit),
+                     platform_options=options, ridge_m=ridge_m, reason=reason,
+                     kind=getattr(args, "response_kind", "auto").replace("-", "_"),
+                     **response_parts(getattr(args, "response", None)))
     if other is not None:
         cal.heldout["second_session"] = second_session_errors(cal, other)
     fit_notes = list(cal.warnings)
@@ -325,7 +327,7 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     slow = max(taus, key=lambda c: taus[c])
     line = (f"rms {cal.rms_before / sc:.4g} -> {cal.rms_after / sc:.4g} {cal.length_unit} from motion "
             f"({cal.motion['samples']['n_used']} of {cal.motion['samples']['n_stream']} samples as "
-            f"{cal.motion['samples']['n_fitted']} poses, {cal.n_markers} markers); response {r['kind']} after a "
+            f"{cal.motion['samples']['n_fitted']} poses, {_observed(cal)}); response {r['kind']} after a "
             f"{r['reference']} reference ({_kind_said(r)}): shift {r['shift_s']['value']:.4g} s, "
             f"slowest {slow} tau {taus[slow]:.4g} s")
     if r.get("not_determined"):
@@ -341,6 +343,16 @@ def run_motion(args, why: str, notes: list[str]) -> int:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / sc:.4g} {cal.length_unit}"
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _observed(cal) -> str:
+    """What the fit observed, in a few words: its markers, or the rigid bodies read as points
+    (platkit.calibrate.motion_points)."""
+    points = cal.motion.get("bodies_as_points")
+    if points:
+        return (f"no markers: rigid bodies {', '.join(points['bodies'])} read as {len(points['points'])} points, "
+                f"placements read back")
+    return f"{cal.n_markers} markers"
 
 
 def _kind_said(r: dict) -> str:

@@ -95,3 +95,4 @@ def test_a_stream_of_bodies_alone_is_refused_in_one_line(streamed):
         calibrate_motion(bodies_only, session.spec)
     text = str(err.value)
     assert "\n" not in text and "session.yaml" in text and "T1, T2" in text and "reads markers" in text
+    assert "platkit.calibrate.motion_points" in text  # the route that calibrates bodies alone, named

@@ -1,0 +1,116 @@
+"""Calibration from motion of a stream of rigid bodies alone (platkit.calibrate.motion_points).
+
+A streamed session of the physical simulator with two rigid bodies (`platkit simulate --physics
+--motion path --rigid-bodies 2 --noise-mm 0.2 --white-noise`, 10 s at 40 Hz), its markers stripped
+(markers.csv: the time and the bodies' columns; session.yaml: no markers): `platkit calibrate` reads
+each body as three points, calibrates from motion, and writes the bodies' placements read back.
+
+What is compared does not depend on the link frame the fit chose: body T2 seen from body T1's frame
+(the origin R1^T (o2 - o1) and the rotation R1^T R2), fitted against true. Tolerance from the noise
+(tests/unit/test_motion_bodies.py's reasoning): sigma_p = 0.2 mm per axis on a body's origin,
+sigma_r = 2 mrad on its orientation; N body samples place an origin to sigma_p / sqrt(N) and an
+orientation to sigma_r / sqrt(N); the relative origin is within 3 (sqrt(6) sigma_p + sqrt(2)
+sigma_r r) / sqrt(N) (r the distance between the bodies), the relative rotation within 3 sqrt(6)
+sigma_r / sqrt(N). A placement read back wrongly (an axis swapped, a rotation transposed) is off by
+tens of mrad or more.
+
+With one body, the distances between its points are rigid by construction: the markers' noise from
+pair distances reads about 0, and the misfit rule against it refuses the fit; against the points'
+own noise (measured on the stream) the fit is kept.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import yaml
+
+from platkit.calibrate.estimate import marker_noise_floor
+from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion_points import calibrate_motion_bodies, point_session
+from platkit.cli import main
+from platkit.errors import BadSession
+from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix
+from platkit.io.session import load_session
+
+SIGMA_P_MM, SIGMA_R_RAD = 0.2, 0.002
+
+
+@pytest.fixture(scope="module")
+def bodies_only(tmp_path_factory):
+    root = tmp_path_factory.mktemp("alone")
+    sim = root / "sim"
+    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10",
+                 "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
+                 "--out", str(sim)]) == 0
+    out = root / "bodies"
+    out.mkdir()
+    y = yaml.safe_load((sim / "session.yaml").read_text())
+    y["markers"] = []
+    (out / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
+    (out / "commands.csv").write_text((sim / "commands.csv").read_text())
+    rows = list(csv.reader((sim / "markers.csv").open()))
+    keep = [i for i, h in enumerate(rows[0]) if h == "t" or h.split("_")[0] in ("T1", "T2")]
+    with (out / "markers.csv").open("w", newline="") as f:
+        csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
+    return sim, out
+
+
+def test_bodies_alone_are_calibrated_from_motion_as_points_and_read_back(bodies_only, tmp_path, capsys):
+    sim, folder = bodies_only
+    session = load_session(folder)
+    assert session.marker_names == [] and session.body_names == ["T1", "T2"]
+    out = tmp_path / "cal"
+    capsys.readouterr()
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--response-kind", "first-order",
+                 "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    report = json.loads((out / "report.json").read_text())
+    points = report["motion"]["bodies_as_points"]
+    assert points["points"] == ["T1.o", "T1.x", "T1.y", "T2.o", "T2.x", "T2.y"]
+    assert points["noise_source"] == "measured"
+    # the points' noise measured on the moving stream: origins 0.2 mm, tips sqrt(0.2^2 + 2/3 0.2^2) mm
+    assert 0.18e-3 < points["point_sigma_m"]["T1.o"] < 0.26e-3 and 0.23e-3 < points["point_sigma_m"]["T1.x"] < 0.32e-3
+    bodies = report["motion"]["samples"]["rigid_bodies"]
+    assert bodies["n_used"] > 0.9 * bodies["n_samples"]
+    assert "no markers: rigid bodies T1, T2 read as 6 points" in said.out  # the summary line
+    assert f"rigid bodies T1, T2 from {bodies['n_used']} of {bodies['n_samples']} samples" in said.out
+    assert any(w.startswith("no markers: rigid bodies T1, T2 read as 6 points") for w in report["warnings"])
+    cal = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert not cal.get("markers")  # the points are not written as markers
+    truth = yaml.safe_load((sim / "truth.yaml").read_text())
+
+    def relative(b1, b2, scale):
+        R1, R2 = matrix_from_rotvec(np.array(b1["rotation_vector"])), matrix_from_rotvec(np.array(b2["rotation_vector"]))
+        return R1.T @ (np.array(b2["position"]) - np.array(b1["position"])) * scale, R1.T @ R2
+
+    fitted = cal["rigid_bodies"]["bodies"]
+    p_fit, R_fit = relative(fitted["T1"], fitted["T2"], 1.0)  # mm
+    p_true, R_true = relative(truth["rigid_bodies"]["T1"], truth["rigid_bodies"]["T2"], 1e3)
+    n = min(bodies["per_body"][b]["n_used"] for b in ("T1", "T2"))
+    r = float(np.linalg.norm(p_true))
+    tol_p = 3.0 * (np.sqrt(6.0) * SIGMA_P_MM + np.sqrt(2.0) * SIGMA_R_RAD * r) / np.sqrt(n)
+    tol_r = 3.0 * np.sqrt(6.0) * SIGMA_R_RAD / np.sqrt(n)
+    assert np.linalg.norm(p_fit - p_true) < tol_p, (p_fit, p_true, tol_p)
+    assert np.linalg.norm(rotvec_from_matrix(R_true.T @ R_fit)) < tol_r
+    # the std read back: the origin's per axis, the rotation's from the tips over the lever, both finite
+    std = np.array(fitted["T1"]["std_position"] + fitted["T1"]["std_rotation_vector"], float)
+    assert np.all(np.isfinite(std)) and np.all(std > 0)
+
+
+def test_one_body_alone_is_judged_against_its_points_noise_not_their_distances(bodies_only):
+    _, folder = bodies_only
+    session = load_session(folder)
+    one = replace(session, body_names=["T1"], bodies=session.bodies[:, :1])
+    points = point_session(one)
+    with pytest.raises(BadSession) as err:  # the misfit rule against the pair distances' ~0 noise
+        calibrate_motion(points, one.spec, kind="first_order")
+    assert "times their own noise" in str(err.value)
+    cal, poses = calibrate_motion_bodies(one, one.spec, kind="first_order")
+    assert marker_noise_floor(poses) < 1e-9  # the points' distances: rigid by construction
+    floor = cal.motion["bodies_as_points"]["noise_floor_m"]
+    assert 0.2e-3 < floor < 0.3e-3 and cal.rms_after < 5.0 * np.sqrt(3) * floor
+    assert cal.body_names == ["T1"] and cal.marker_names == [] and np.isfinite(cal.body_rho)
