@@ -82,9 +82,13 @@ MISFIT_ABSOLUTE_M = 0.005
 
 def marker_noise_floor(poses: PoseSet) -> float:
     """The markers' own noise per axis (m), from the poses alone, without any model of the stand:
-    :func:`pair_noise` over every pair of markers (they ride one rigid part). Points computed from
-    one tracked rigid body give about 0."""
-    return pair_noise(poses.markers)
+    :func:`pair_noise` over the pairs of markers on one link (``poses.marker_links`` on a tree;
+    every pair where all ride one rigid part). On a tree a pair across two links changes its
+    distance with the pose, so its spread is motion, not noise. Points computed from one tracked
+    rigid body give about 0."""
+    if not poses.marker_links:
+        return pair_noise(poses.markers)
+    return pair_noise(poses.markers, [str(poses.marker_links.get(n)) for n in poses.marker_names])
 
 
 def pair_noise(Y: np.ndarray, links=None) -> float:
@@ -121,7 +125,7 @@ def fit_warnings(cal: Calibration, poses: PoseSet) -> list[str]:
     limit = max(MISFIT_RATIO * floor_3d, MISFIT_ABSOLUTE_M) if np.isfinite(floor_3d) else MISFIT_ABSOLUTE_M
     if np.isfinite(cal.rms_after) and cal.rms_after > limit:
         noise = (f"{cal.rms_after / floor_3d:.0f} times the markers' own noise, {floor_3d / s:.3g} {lu} RMS from how "
-                 "much the distances between markers vary over the poses" if limit > MISFIT_ABSOLUTE_M
+                 "much the distances between markers on one link vary over the poses" if limit > MISFIT_ABSOLUTE_M
                  else f"more than {MISFIT_ABSOLUTE_M / s:g} {lu}")
         out.append(f"rms_after {cal.rms_after / s:.4g} {lu} is far above any measurement noise ({noise}): the fit "
                    "stopped, but the model does not describe these data. Check that the session is for this stand "
