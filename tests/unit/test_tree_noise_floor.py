@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from platkit.calibrate.estimate import marker_noise_floor, pair_noise
+from platkit.calibrate.estimate import fit_warnings, marker_noise_floor, pair_noise
 from platkit.calibrate.motion import calibrate_motion
 from platkit.errors import BadSession
 from platkit.io.session import load_session
@@ -71,6 +71,10 @@ def test_a_tree_stream_against_another_recordings_log_is_refused(streams):
     floor = np.sqrt(3) * marker_noise_floor(poses)
     assert 0.5 * np.sqrt(3) * NOISE_M < floor < 2 * np.sqrt(3) * NOISE_M
     assert cal.rms_after < 3 * floor
+    # the misfit warning of estimate.fit_warnings reads the same floor: centimetres off are said
+    assert fit_warnings(cal, poses) == []
+    (warning,) = fit_warnings(dataclasses.replace(cal, rms_after=0.02), poses)
+    assert warning.startswith("rms_after 20 mm is far above any measurement noise (more than 5 mm)")
     other = streams[42]
     n = min(len(own.command_t), len(other.command_t))
     wrong = dataclasses.replace(own, command_t=own.command_t[:n], commands=other.commands[:n])
