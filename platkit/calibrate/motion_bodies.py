@@ -19,7 +19,8 @@ markers do (:func:`bodies_at_samples`):
 Nothing is dropped silently: :func:`body_samples_said` counts the body samples used and those not
 used, by cause, per body; the caller puts that in the report (``motion.samples.rigid_bodies``) and,
 where some are not used, in a warning (:func:`say_bodies`). A session with bodies and no markers is
-refused (:func:`platkit.calibrate.stream.check_motion_session`).
+refused here (:func:`platkit.calibrate.stream.check_motion_session`): it is calibrated with each body
+read as three points (:mod:`platkit.calibrate.motion_points`).
 """
 from __future__ import annotations
 
