@@ -99,6 +99,41 @@ def test_bodies_alone_are_calibrated_from_motion_as_points_and_read_back(bodies_
     # the std read back: the origin's per axis, the rotation's from the tips over the lever, both finite
     std = np.array(fitted["T1"]["std_position"] + fitted["T1"]["std_rotation_vector"], float)
     assert np.all(np.isfinite(std)) and np.all(std > 0)
+    # platkit predict reads the bodies: at the controls each command settled to (truth_settled.csv), the
+    # body's pose predicted against the true one (a development run: 0.06 mm and 0.3 mrad median; a tip
+    # read as the origin is 100 mm off, a rotation read transposed tens of mrad or more)
+    settled = np.genfromtxt(sim / "truth_settled.csv", delimiter=",", names=True)
+    controls = [f"L{k}" for k in range(1, 7)]
+    np.savetxt(tmp_path / "settled.csv", np.column_stack([settled[c] for c in controls]), delimiter=",",
+               header=",".join(controls), comments="")
+    pred = tmp_path / "pred.csv"
+    assert main(["predict", "--calibration", str(out / "calibration.yaml"), "--commands", str(tmp_path / "settled.csv"),
+                 "--out", str(pred)]) == 0
+    got = np.genfromtxt(pred, delimiter=",", names=True)
+    for b in ("T1", "T2"):
+        err = np.linalg.norm(np.column_stack([got[f"{b}_{c}"] - settled[f"{b}_{c}"] for c in "xyz"]), axis=1)
+        qp, qt = (np.column_stack([g[f"{b}_q{c}"] for c in "wxyz"]) for g in (got, settled))
+        turn = 2.0 * np.arccos(np.clip(np.abs(np.sum(qp * qt, axis=1)), 0.0, 1.0))
+        assert np.median(err) < 0.25 and np.median(turn) < 1.5e-3, (b, np.median(err), np.median(turn))
+
+
+def test_point_noise_declared_and_the_placement_read_back_exactly():
+    from platkit.bodies import body_frame_points, placement_from_point_fit
+    from platkit.calibrate.motion_points import point_sigmas
+    from platkit.geometry import quat_from_rotvec
+
+    s = type("S", (), {})()  # what point_sigmas reads of a session
+    s.body_names, s.body_noise, s.bodies = ["T1"], {"position_m": 1e-4, "rotation_rad": 2e-3}, None
+    sig, source = point_sigmas(s)
+    assert source == "declared" and sig["T1.o"] == pytest.approx(1e-4)
+    assert sig["T1.x"] == pytest.approx(np.sqrt(1e-8 + 2.0 / 3.0 * (2e-3 * 0.1) ** 2))
+    rv, o = np.array([0.3, -1.2, 2.0]), np.array([0.05, -0.02, 0.3])
+    pts = body_frame_points(np.concatenate([o, quat_from_rotvec(rv)])[None, None])[0]  # (3, 3)
+    tip = sig["T1.x"]
+    std = np.array([[1e-4] * 3, [tip] * 3, [tip] * 3])
+    p, r, sd = placement_from_point_fit(pts, std)
+    assert np.allclose(p, o) and np.allclose(r, rv)
+    assert np.allclose(sd, [1e-4, 1e-4, 1e-4, 2e-3, 2e-3, 2e-3])  # the declared noise comes back
 
 
 def test_one_body_alone_is_judged_against_its_points_noise_not_their_distances(bodies_only):
