@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -37,6 +39,41 @@ from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix
 from platkit.io.session import load_session
 
 SIGMA_P_MM, SIGMA_R_RAD = 0.2, 0.002
+TREE = Path(__file__).resolve().parents[1] / "data" / "trees" / "two_arm_torso.urdf"
+
+
+def _strip_markers(sim, out) -> None:
+    """The session ``sim`` as a stream of its rigid bodies alone in ``out``: markers.csv the time and
+    the bodies' columns, session.yaml no markers (on a tree, the bodies' links alone)."""
+    shutil.copytree(sim, out)  # the commands and the description as they are
+    y = yaml.safe_load((sim / "session.yaml").read_text())
+    y["markers"] = []
+    if isinstance(y.get("moving_link"), dict):
+        y["moving_link"] = {k: v for k, v in y["moving_link"].items() if k in y["rigid_bodies"]}
+    (out / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
+    rows = list(csv.reader((sim / "markers.csv").open()))
+    keep = [i for i, h in enumerate(rows[0]) if h == "t" or h.split("_")[0] in y["rigid_bodies"]]
+    with (out / "markers.csv").open("w", newline="") as f:
+        csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
+
+
+def _settled_errors(sim, cal_yaml, controls, tmp_path, bodies) -> dict[str, tuple[float, float]]:
+    """platkit predict of ``cal_yaml`` at the controls each command settled to (truth_settled.csv):
+    per body, the median error of its origin (mm) and of its orientation (rad) against the true pose."""
+    settled = np.genfromtxt(sim / "truth_settled.csv", delimiter=",", names=True)
+    np.savetxt(tmp_path / "settled.csv", np.column_stack([settled[c] for c in controls]), delimiter=",",
+               header=",".join(controls), comments="")
+    pred = tmp_path / "pred.csv"
+    assert main(["predict", "--calibration", str(cal_yaml), "--commands", str(tmp_path / "settled.csv"),
+                 "--out", str(pred)]) == 0
+    got = np.genfromtxt(pred, delimiter=",", names=True)
+    out = {}
+    for b in bodies:
+        err = np.linalg.norm(np.column_stack([got[f"{b}_{c}"] - settled[f"{b}_{c}"] for c in "xyz"]), axis=1)
+        qp, qt = (np.column_stack([g[f"{b}_q{c}"] for c in "wxyz"]) for g in (got, settled))
+        turn = 2.0 * np.arccos(np.clip(np.abs(np.sum(qp * qt, axis=1)), 0.0, 1.0))
+        out[b] = (float(np.median(err)), float(np.median(turn)))
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -46,17 +83,8 @@ def bodies_only(tmp_path_factory):
     assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10",
                  "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
                  "--out", str(sim)]) == 0
-    out = root / "bodies"
-    out.mkdir()
-    y = yaml.safe_load((sim / "session.yaml").read_text())
-    y["markers"] = []
-    (out / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
-    (out / "commands.csv").write_text((sim / "commands.csv").read_text())
-    rows = list(csv.reader((sim / "markers.csv").open()))
-    keep = [i for i, h in enumerate(rows[0]) if h == "t" or h.split("_")[0] in ("T1", "T2")]
-    with (out / "markers.csv").open("w", newline="") as f:
-        csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
-    return sim, out
+    _strip_markers(sim, root / "bodies")
+    return sim, root / "bodies"
 
 
 def test_bodies_alone_are_calibrated_from_motion_as_points_and_read_back(bodies_only, tmp_path, capsys):
@@ -102,19 +130,30 @@ def test_bodies_alone_are_calibrated_from_motion_as_points_and_read_back(bodies_
     # platkit predict reads the bodies: at the controls each command settled to (truth_settled.csv), the
     # body's pose predicted against the true one (a development run: 0.06 mm and 0.3 mrad median; a tip
     # read as the origin is 100 mm off, a rotation read transposed tens of mrad or more)
-    settled = np.genfromtxt(sim / "truth_settled.csv", delimiter=",", names=True)
-    controls = [f"L{k}" for k in range(1, 7)]
-    np.savetxt(tmp_path / "settled.csv", np.column_stack([settled[c] for c in controls]), delimiter=",",
-               header=",".join(controls), comments="")
-    pred = tmp_path / "pred.csv"
-    assert main(["predict", "--calibration", str(out / "calibration.yaml"), "--commands", str(tmp_path / "settled.csv"),
-                 "--out", str(pred)]) == 0
-    got = np.genfromtxt(pred, delimiter=",", names=True)
-    for b in ("T1", "T2"):
-        err = np.linalg.norm(np.column_stack([got[f"{b}_{c}"] - settled[f"{b}_{c}"] for c in "xyz"]), axis=1)
-        qp, qt = (np.column_stack([g[f"{b}_q{c}"] for c in "wxyz"]) for g in (got, settled))
-        turn = 2.0 * np.arccos(np.clip(np.abs(np.sum(qp * qt, axis=1)), 0.0, 1.0))
-        assert np.median(err) < 0.25 and np.median(turn) < 1.5e-3, (b, np.median(err), np.median(turn))
+    for b, (mm, rad) in _settled_errors(sim, out / "calibration.yaml", [f"L{k}" for k in range(1, 7)], tmp_path,
+                                        ("T1", "T2")).items():
+        assert mm < 0.25 and rad < 1.5e-3, (b, mm, rad)
+
+
+def test_a_tree_of_bodies_alone_keeps_each_body_on_its_link(tmp_path):
+    """A tree (tests/data/trees/two_arm_torso.urdf, both hands tracked, one body on each) streamed with
+    its bodies alone: each body's points ride its link, the body is written on it, and its poses are
+    predicted (a development run: 0.2 and 0.3 mm, 0.4 mrad median; a body on the other hand's link is
+    off by the distance between the hands)."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--platform", "urdf", "--description", str(TREE), "--moving-link", "right_tcp,left_tcp",
+                 "--physics", "--motion", "path", "--duration-s", "10", "--rate-hz", "40", "--noise-mm", "0.2",
+                 "--white-noise", "--rigid-bodies", "2", "--seed", "4112", "--out", str(sim)]) == 0
+    _strip_markers(sim, tmp_path / "bodies")
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(tmp_path / "bodies"), "--quiet", "--no-report", "--response-kind", "first-order",
+                 "--out", str(out)]) == 0
+    cal = yaml.safe_load((out / "calibration.yaml").read_text())
+    bodies = cal["rigid_bodies"]["bodies"]
+    assert {b: bodies[b]["link"] for b in bodies} == {"T1": "right_tcp", "T2": "left_tcp"}
+    controls = open(sim / "commands.csv").readline().strip().split(",")[1:]
+    for b, (mm, rad) in _settled_errors(sim, out / "calibration.yaml", controls, tmp_path, ("T1", "T2")).items():
+        assert mm < 1.0 and rad < 2e-3, (b, mm, rad)
 
 
 def test_point_noise_declared_and_the_placement_read_back_exactly():
