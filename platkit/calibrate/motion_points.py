@@ -72,20 +72,25 @@ def point_session(session: Session) -> Session:
                    bodies=None, body_names=[], body_noise={}, moving_link=link)
 
 
-def point_sigmas(session: Session) -> tuple[dict[str, float], str]:
+def point_sigmas(body_names: list[str], body_noise: dict,
+                 stream: np.ndarray | None = None) -> tuple[dict[str, float], str]:
     """{point: noise sigma per coordinate of one sample (m)} of the bodies' points and where it
-    comes from ('declared' or 'measured'): declared ``body_noise`` (the origin sigma_p, a tip
-    sqrt(sigma_p^2 + 2/3 (sigma_r L)^2)), else measured on the stream by
-    platkit.settle.estimate_noise (the origins, and the tips apart)."""
+    comes from: 'declared' from ``body_noise`` ({'position_m', 'rotation_rad'}: the origin sigma_p,
+    a tip sqrt(sigma_p^2 + 2/3 (sigma_r L)^2), a turn moving two of its three coordinates); else
+    'measured' on ``stream`` (K >= 3, B, 7), the body samples, by platkit.settle.estimate_noise (the
+    origins, and the tips apart); ({}, 'unknown') with neither. A caller that trusts the stream
+    over the declaration passes no ``body_noise`` where it has a stream."""
     out: dict[str, float] = {}
-    if session.body_noise:
-        sp, sr = float(session.body_noise["position_m"]), float(session.body_noise["rotation_rad"])
+    if body_noise:
+        sp, sr = float(body_noise["position_m"]), float(body_noise["rotation_rad"])
         tip = float(np.sqrt(sp ** 2 + 2.0 / 3.0 * (sr * AXIS_LENGTH_M) ** 2))
-        for b in session.body_names:
+        for b in body_names:
             out.update(zip(frame_point_names(b), (sp, tip, tip)))
         return out, "declared"
-    pts = body_frame_points(np.asarray(session.bodies, float))
-    for k, b in enumerate(session.body_names):
+    if stream is None or len(stream) < 3 or np.asarray(stream).shape[1] != len(body_names):
+        return out, "unknown"
+    pts = body_frame_points(np.asarray(stream, float))
+    for k, b in enumerate(body_names):
         o, tips = estimate_noise(pts[:, 3 * k:3 * k + 1]), estimate_noise(pts[:, 3 * k + 1:3 * k + 3])
         out.update(zip(frame_point_names(b), (o, tips, tips)))
     return out, "measured"
@@ -131,7 +136,7 @@ def calibrate_motion_bodies(session: Session, spec: PlatformSpec, **options) -> 
         raise BadSession(f"{session.folder / 'session.yaml'}: calibrating rigid bodies alone from motion needs a stream "
                          "of rigid bodies and no markers")
     points = point_session(session)
-    sigmas, source = point_sigmas(session)
+    sigmas, source = point_sigmas(session.body_names, session.body_noise, session.bodies)
     floor = float(np.sqrt(np.mean(np.square(list(sigmas.values())))))
     cal, poses = calibrate_motion(points, spec, noise_floor_m=floor, **options)
     transient = cal.motion["samples"].get("start_transient") or {}

@@ -49,10 +49,11 @@ def with_body_points(poses, folder, session=None):
     stream (``session``, the session as read) where it has one; said in one line."""
     if not poses.n_bodies:
         return poses
-    from platkit.diagnose.bodies import LEVER_M, as_points, point_names
+    from platkit.bodies import frame_point_names
+    from platkit.diagnose.bodies import LEVER_M, as_points
 
     stream = None if session is None or session.bodies is None or session.poses is not None else session.bodies
-    said = ", ".join(f"{b} as {'/'.join(point_names(b))}" for b in poses.body_names)
+    said = ", ".join(f"{b} as {'/'.join(frame_point_names(b))}" for b in poses.body_names)
     warn(f"{folder}: rigid bodies diagnosed as three points each, origin and axis tips at "
          f"{LEVER_M * 1e3:g} mm ({said})")
     return as_points(poses, stream, str(folder))

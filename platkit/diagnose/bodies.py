@@ -21,68 +21,46 @@ from dataclasses import replace
 
 import numpy as np
 
-from platkit.bodies import AXIS_LENGTH_M, body_frame_points, placement_from_frame_points
+from platkit.bodies import (
+    AXIS_LENGTH_M,
+    FRAME_POINT_SUFFIXES,
+    body_frame_points,
+    frame_point_names,
+    placement_from_point_fit,
+)
+from platkit.calibrate.motion_points import point_sigmas
 from platkit.errors import BadInput
-from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix
+from platkit.geometry import matrix_from_rotvec
 from platkit.io.calibration import Calibration
 from platkit.poses import PoseSet
-from platkit.settle import estimate_noise
 
 #: the lever (m) of a body's axis points: body_frame_points', so that a stream's settling noise is theirs
 LEVER_M = AXIS_LENGTH_M
-#: the suffixes of a body's points: its origin, the tips of its x and y axes (body_frame_points' order)
-SUFFIXES = ("o", "x", "y")
-#: the points in the body's frame (3, 3) m, in SUFFIXES' order
+#: the points in the body's frame (3, 3) m, in FRAME_POINT_SUFFIXES' order (platkit.bodies)
 _IN_BODY = np.array([[0.0, 0.0, 0.0], [LEVER_M, 0.0, 0.0], [0.0, LEVER_M, 0.0]])
-
-
-def point_names(body: str) -> list[str]:
-    """The names of ``body``'s three points: ``<body>.o``, ``<body>.x``, ``<body>.y``."""
-    return [f"{body}.{s}" for s in SUFFIXES]
 
 
 def on_bodies(findings, body_names: list[str]) -> None:
     """Each finding located at a body's point (``where['marker']``, e.g. ``T1.x``) also names the
     body (``where['rigid_body']``), in place."""
-    owner = {p: b for b in body_names for p in point_names(b)}
+    owner = {p: b for b in body_names for p in frame_point_names(b)}
     for f in findings:
         body = owner.get(f.where.get("marker"))
         if body is not None:
             f.where = {**f.where, "rigid_body": body}
 
 
-def point_sigmas(body_names: list[str], stream: np.ndarray | None, body_noise: dict) -> dict[str, float]:
-    """{point: noise sigma per coordinate of one sample (m)} of each body's points: from ``stream``
-    (K, B, 7), the recording's body samples, by the settling search's estimator
-    (platkit.settle.estimate_noise) on each body's origin and on its two tips apart; else from the
-    declared ``body_noise`` ({'position_m', 'rotation_rad'}): the origin sigma_p, a tip
-    sqrt(sigma_p^2 + 2/3 (sigma_r lever)^2); {} when neither is given."""
-    out: dict[str, float] = {}
-    if stream is not None and len(stream) >= 3 and np.asarray(stream).shape[1] == len(body_names):
-        pts = body_frame_points(np.asarray(stream, float))  # (K, 3 B, 3)
-        for b, body in enumerate(body_names):
-            o, tips = estimate_noise(pts[:, 3 * b:3 * b + 1]), estimate_noise(pts[:, 3 * b + 1:3 * b + 3])
-            out.update(zip(point_names(body), (o, tips, tips)))
-        return out
-    if body_noise:
-        sp, sr = float(body_noise["position_m"]), float(body_noise["rotation_rad"])
-        tip = float(np.sqrt(sp**2 + 2.0 / 3.0 * (sr * LEVER_M) ** 2))
-        for body in body_names:
-            out.update(zip(point_names(body), (sp, tip, tip)))
-    return out
-
-
 def as_points(poses: PoseSet, stream: np.ndarray | None = None, source: str = "") -> PoseSet:
     """``poses`` with each rigid body replaced by its three points (after the markers, body by
-    body, in SUFFIXES' order); ``poses`` itself when it has no body. Each point is seen where its
+    body, in FRAME_POINT_SUFFIXES' order); ``poses`` itself when it has no body. Each point is seen where its
     body was and averages its body's samples (n_samples: the markers' then the bodies' counts;
     None where either is unknown); on a tree it rides on its body's link. ``stream``: the
-    recording's body samples (K, B, 7) whose noise the points carry (:func:`point_sigmas`; NaN,
+    recording's body samples (K, B, 7) whose noise the points carry (:func:`platkit.calibrate.motion_points.point_sigmas`; NaN,
     unknown, without it and without declared noise), or None. A marker already named like a point
     is bad input (``source`` names the session)."""
     if not poses.n_bodies:
         return poses
-    names = [n for b in poses.body_names for n in point_names(b)]
+    names = [n for b in poses.body_names for n in frame_point_names(b)]
     clash = sorted(set(names) & set(poses.marker_names))
     if clash:
         raise BadInput(f"{source or poses.source}: marker {clash[0]!r} has the name diagnosis gives a point of "
@@ -91,7 +69,7 @@ def as_points(poses: PoseSet, stream: np.ndarray | None = None, source: str = ""
     N, M = poses.n_poses, poses.n_markers
     counts = None
     if poses.n_body_samples is not None and (M == 0 or poses.n_samples is not None):
-        nb = np.repeat(np.asarray(poses.n_body_samples, float), len(SUFFIXES), axis=1)
+        nb = np.repeat(np.asarray(poses.n_body_samples, float), len(FRAME_POINT_SUFFIXES), axis=1)
         counts = nb if M == 0 else np.concatenate([np.asarray(poses.n_samples, float), nb], axis=1)
     extras = dict(poses.extras)
     if "marker_std" in extras:  # the spread over each hold: a body's is not recorded
@@ -103,10 +81,13 @@ def as_points(poses: PoseSet, stream: np.ndarray | None = None, source: str = ""
     if links:
         for b in poses.body_names:
             if b in links:
-                links.update(dict.fromkeys(point_names(b), links[b]))
+                links.update(dict.fromkeys(frame_point_names(b), links[b]))
     settling = dict(poses.settling)
     # a body's noise neither measured nor declared is unknown (NaN: no noise floor), not the markers'
-    sig = point_sigmas(poses.body_names, stream, poses.body_noise) or dict.fromkeys(names, float("nan"))
+    # measured on the stream where there is one, else declared (the floor judges the data)
+    measured = stream is not None and len(stream) >= 3 and np.asarray(stream).shape[1] == poses.n_bodies
+    sig = point_sigmas(poses.body_names, {} if measured else poses.body_noise, stream)[0] or dict.fromkeys(
+        names, float("nan"))
     settling["point_sigma_m"] = {**settling.get("point_sigma_m", {}), **sig}
     return PoseSet(
         platform=poses.platform, controls=poses.controls, markers=np.concatenate([poses.markers, pts], axis=1),
@@ -128,11 +109,11 @@ def point_calibration(cal: Calibration) -> Calibration:
     sd = np.asarray(cal.body_std, float)
     tip = np.sqrt(sd[:, :3] ** 2 + (LEVER_M * sd[:, 3:]) ** 2)
     S = np.stack([sd[:, :3], tip, tip], axis=1)
-    names = [n for b in cal.body_names for n in point_names(b)]
+    names = [n for b in cal.body_names for n in frame_point_names(b)]
     links = dict(cal.marker_links)
     if links:
         for b in cal.body_names:
-            links.update(dict.fromkeys(point_names(b), links[b]))
+            links.update(dict.fromkeys(frame_point_names(b), links[b]))
     return replace(cal, marker_names=[*cal.marker_names, *names],
                    marker_positions=np.concatenate([np.asarray(cal.marker_positions, float).reshape(-1, 3),
                                                     P.reshape(-1, 3)]),
@@ -145,7 +126,7 @@ def body_calibration(fitted: Calibration, given: Calibration, start: Calibration
     """The calibration diagnosis writes for a session with rigid bodies: ``fitted`` (over the
     bodies' points) with each body of ``given`` (the calibration diagnosed) carried again, its
     placement read back from its three fitted points (origin; axes by Gram-Schmidt,
-    placement_from_frame_points), its position std the origin's and its rotation std the tips'
+    platkit.bodies.placement_from_point_fit), its position std the origin's and its rotation std the tips'
     beyond the origin's over the lever (one number for the three axes: the points are fitted as
     free points, their correlations not kept), its rotation weight (rho) ``given``'s; a body
     whose points ``fitted`` lacks keeps ``given``'s placement. ``given`` itself where ``fitted``
@@ -159,15 +140,11 @@ def body_calibration(fitted: Calibration, given: Calibration, start: Calibration
                      np.array(given.body_std, float))
     mpos, mstd = np.asarray(fitted.marker_positions, float), np.asarray(fitted.marker_std, float)
     for b, body in enumerate(given.body_names):
-        rows = [index.get(n) for n in point_names(body)]
+        rows = [index.get(n) for n in frame_point_names(body)]
         if any(r is None for r in rows):
             continue
-        o, Rb = placement_from_frame_points(mpos[rows][None])
-        pos[b], rot[b] = o[0], rotvec_from_matrix(Rb[0])
-        s = mstd[rows]
-        extra = max(float(np.mean(s[1:] ** 2) - np.mean(s[0] ** 2)), 0.0)
-        std[b] = np.concatenate([s[0], np.full(3, np.sqrt(1.5 * extra) / LEVER_M)])
-    points = {n for body in given.body_names for n in point_names(body)}
+        pos[b], rot[b], std[b] = placement_from_point_fit(mpos[rows], mstd[rows])
+    points = {n for body in given.body_names for n in frame_point_names(body)}
     keep = [k for k, n in enumerate(fitted.marker_names) if n not in points]
     links = dict(fitted.marker_links)
     if given.marker_links:

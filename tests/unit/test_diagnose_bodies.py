@@ -22,9 +22,10 @@ import yaml
 
 from platkit.bodies import body_frame_points
 from platkit.calibrate.estimate import calibrate, predict_markers, second_session_errors
+from platkit.calibrate.motion_points import point_sigmas
 from platkit.calibrate.predict import predict_bodies
 from platkit.cli import main
-from platkit.diagnose.bodies import LEVER_M, as_points, body_calibration, point_calibration, point_sigmas
+from platkit.diagnose.bodies import LEVER_M, as_points, body_calibration, point_calibration
 from platkit.diagnose.floor import noise_floor
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.calibration import read_calibration
@@ -182,8 +183,9 @@ def test_point_noise_declared_and_measured_agree_with_the_samples():
                             axis=1)[:, None, :]
     pts = body_frame_points(stream)
     sampled = np.sqrt(np.mean(np.var(pts, axis=0), axis=1))  # per point, per coordinate
-    declared = point_sigmas(["T1"], None, {"position_m": SP, "rotation_rad": SR})
-    measured = point_sigmas(["T1"], stream, {})
+    declared, said = point_sigmas(["T1"], {"position_m": SP, "rotation_rad": SR})
+    measured, measured_said = point_sigmas(["T1"], {}, stream)
+    assert (said, measured_said) == ("declared", "measured")
     assert list(declared) == ["T1.o", "T1.x", "T1.y"]
     for k, name in enumerate(declared):
         assert declared[name] == pytest.approx(sampled[k], rel=0.03)

@@ -161,9 +161,7 @@ def test_point_noise_declared_and_the_placement_read_back_exactly():
     from platkit.calibrate.motion_points import point_sigmas
     from platkit.geometry import quat_from_rotvec
 
-    s = type("S", (), {})()  # what point_sigmas reads of a session
-    s.body_names, s.body_noise, s.bodies = ["T1"], {"position_m": 1e-4, "rotation_rad": 2e-3}, None
-    sig, source = point_sigmas(s)
+    sig, source = point_sigmas(["T1"], {"position_m": 1e-4, "rotation_rad": 2e-3})
     assert source == "declared" and sig["T1.o"] == pytest.approx(1e-4)
     assert sig["T1.x"] == pytest.approx(np.sqrt(1e-8 + 2.0 / 3.0 * (2e-3 * 0.1) ** 2))
     rv, o = np.array([0.3, -1.2, 2.0]), np.array([0.05, -0.02, 0.3])
