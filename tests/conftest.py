@@ -46,10 +46,10 @@ def pytest_sessionstart(session):
         here = Path(__file__).resolve().parent
         names = ", ".join(f.resolve().relative_to(here).as_posix() for f in files[:3])
         more = f" and {len(files) - 3} more" if len(files) > 3 else ""
-        pytest.exit(f"the real data these tests read are missing: {SHARED_DATA} (TIAGo, BROAD) is not there; "
-                    f"{len(files)} test files need it ({names}{more}). It is the project's shared/ folder, laid "
-                    "beside the checkout as CI has it: clone or link it there (ln -s /path/to/shared "
-                    f"{SHARED})", returncode=4)
+        raise pytest.UsageError(  # exit 4, the line alone
+            f"the real data these tests read are missing: {SHARED_DATA} (TIAGo, BROAD) is not there; "
+            f"{len(files)} test files need it ({names}{more}). It is the project's shared/ folder, laid "
+            f"beside the checkout as CI has it: clone or link it there (ln -s /path/to/shared {SHARED})")
 
 
 @pytest.fixture

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 CONFTEST = Path(__file__).resolve().parents[1] / "conftest.py"
 
 #: the shared folder's name, never written in quotes here: this file reads no shared data, and the
@@ -39,9 +41,10 @@ def _pytest(root: Path, *args: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=120)
 
 
-def test_without_shared_one_line_says_what_is_missing(tmp_path):
+@pytest.mark.parametrize("split", [(), ("-n", "2", "--dist", "loadfile")], ids=["one process", "xdist"])
+def test_without_shared_one_line_says_what_is_missing(tmp_path, split):
     root = _checkout(tmp_path)
-    run = _pytest(root)
+    run = _pytest(root, *split)  # the README's command splits the run over processes: said once, before any starts
     assert run.returncode == 4, run.stdout + run.stderr
     out = run.stdout + run.stderr
     said = [line for line in out.splitlines() if "missing" in line]
