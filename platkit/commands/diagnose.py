@@ -90,8 +90,10 @@ def run(args) -> int:
 
     streamed = False  # the session read as a stream through its calibrated response
     try:
-        poses = poses_of(args.session)
-        for note in settling_notes(poses, args.session):  # dropped commands by reason, holds extrapolated to rest
+        poses = read_with_calibration(args.session, cal, args.calibration, args.quiet, read=sessions)[1]
+        notes = settling_notes(poses, args.session)  # dropped commands by reason, holds extrapolated to rest
+        poses = with_body_points(poses, args.session, sessions.get(args.session))  # said once settled, not before
+        for note in notes:
             warn(note)
     except (HoldsNeverSettle, NeverSettles) as exc:  # no settled holds: a calibration from motion reads the stream
         if not cal.motion:
@@ -143,15 +145,34 @@ def _motion_poses(folder, cal, sessions):
     calibrated response reached: platkit.calibrate.motion.motion_stream), said, and the calibration
     with that response as a term (platkit.calibrate.motion.LocalResponseTerm: its Jacobian reused
     while the response stays linear): every fit of the diagnosis frees it again with the geometry,
-    so that an effect and the response are told apart by the data."""
+    so that an effect and the response are told apart by the data. A stream of rigid bodies alone
+    is read as calibrate read it (platkit.calibrate.motion_points): each body as its three points,
+    the calibration's bodies as those points (platkit.diagnose.bodies.point_calibration), the
+    points' noise per coordinate (``settling['point_sigma_m']``, the noise floor's) declared, else
+    measured on the stream (point_sigmas); said once."""
     from dataclasses import replace
 
     import numpy as np
 
+    from platkit.bodies import AXIS_LENGTH_M, frame_point_names
     from platkit.calibrate.motion import motion_stream
+    from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
+    from platkit.diagnose.bodies import point_calibration
 
-    poses, term = motion_stream(sessions[folder], cal)
-    poses = with_body_points(poses, folder)  # the windows' bodies; their noise not measured on the stream
+    session = sessions[folder]
+    if bodies_alone(session):  # read as calibrate read them: each body as its three points, their noise its own
+        sig, source = point_sigmas(session.body_names, session.body_noise, session.bodies)
+        poses, term = motion_stream(point_session(session), point_calibration(cal))
+        poses.settling = {**(poses.settling or {}), "point_sigma_m": sig}
+        noise = (f"their noise {source} ({np.sqrt(np.mean(np.square(list(sig.values())))) * 1e3:.3g} mm per axis RMS)"
+                 if sig else "their noise unknown (neither declared nor measurable: no noise floor)")
+        warn(f"{folder}: no markers: rigid bodies {', '.join(session.body_names)} diagnosed as three points each "
+             f"({', '.join(f'{b} as ' + '/'.join(frame_point_names(b)) for b in session.body_names)}; origin and "
+             f"axis tips at {AXIS_LENGTH_M * 1e3:g} mm), the stream's windows read from them as calibrate read them; "
+             f"{noise}")
+    else:
+        poses, term = motion_stream(session, cal)
+        poses = with_body_points(poses, folder)  # the windows' bodies; their noise not measured on the stream
     left = (term.start_transient or {}).get("n_samples", 0)  # platkit.calibrate.motion_transient's rule
     warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
          "calibration's actuator response, fitted again with every effect tried"
