@@ -100,15 +100,20 @@ def as_points(poses: PoseSet, stream: np.ndarray | None = None, source: str = ""
 def point_calibration(cal: Calibration) -> Calibration:
     """``cal`` with each rigid body replaced by its three points, placed on its link where the
     body's placement puts them (position + R(rotation_vector) times the point in the body's frame),
-    their std from the body's (a tip: the origin's and the rotation's over the lever, per axis);
-    ``cal`` itself without bodies."""
+    their std from the body's (a tip per coordinate: the origin's, and the turns about the body's
+    two axes across it over the lever, their variance spread evenly over the three coordinates
+    since where it falls depends on the orientation: the rule
+    :func:`platkit.bodies.placement_from_point_fit` reads back, so a placement's std comes back as
+    it went); ``cal`` itself without bodies."""
     if not cal.body_names:
         return cal
     R = matrix_from_rotvec(np.asarray(cal.body_rotvecs, float))  # (B, 3, 3) body -> link
     P = np.asarray(cal.body_positions, float)[:, None, :] + np.einsum("bij,kj->bki", R, _IN_BODY)  # (B, 3, 3)
     sd = np.asarray(cal.body_std, float)
-    tip = np.sqrt(sd[:, :3] ** 2 + (LEVER_M * sd[:, 3:]) ** 2)
-    S = np.stack([sd[:, :3], tip, tip], axis=1)
+    lr2 = (LEVER_M * sd[:, 3:]) ** 2  # (B, 3): a turn about an axis moves a tip across it
+    tip_x = np.sqrt(sd[:, :3] ** 2 + (lr2[:, 1:2] + lr2[:, 2:3]) / 3.0)  # turns about y and z
+    tip_y = np.sqrt(sd[:, :3] ** 2 + (lr2[:, 0:1] + lr2[:, 2:3]) / 3.0)  # turns about x and z
+    S = np.stack([sd[:, :3], tip_x, tip_y], axis=1)
     names = [n for b in cal.body_names for n in frame_point_names(b)]
     links = dict(cal.marker_links)
     if links:

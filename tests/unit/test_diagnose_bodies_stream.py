@@ -68,6 +68,12 @@ def test_a_stream_of_bodies_alone_is_diagnosed_through_its_points(diagnosed, cap
     assert not cal.get("markers")  # the points are not written as markers
     assert sorted(cal["rigid_bodies"]["bodies"]) == ["T1", "T2"]
     assert "actuator_response" in cal  # the response back where calibrate wrote it
+    # nothing named: each placement and its std as calibrate wrote them (read as points and back: the points'
+    # std from the body's by the rule the read-back inverts; before, the rotation std grew by sqrt(1.5) a pass)
+    given = yaml.safe_load((root / "cal" / "calibration.yaml").read_text())["rigid_bodies"]["bodies"]
+    for b, body in cal["rigid_bodies"]["bodies"].items():
+        for key in ("position", "rotation_vector", "std_position", "std_rotation_vector"):
+            assert np.allclose(body[key], given[b][key], rtol=1e-9, atol=1e-12), (b, key, body[key], given[b][key])
 
 
 def test_predict_reads_the_bodies_diagnose_wrote(diagnosed, tmp_path):
