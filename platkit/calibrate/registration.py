@@ -70,9 +70,6 @@ def digest(*parts) -> bytes:
     return h.digest()
 
 
-_key = digest  # the registrations' key (a name kept for callers of the first version)
-
-
 def kept(kind: str, key: bytes, compute: Callable[[], T], copy: Callable[[T], T], keep: int = _KEEP) -> T:
     """``compute()``, or within :func:`kept_registrations` the result kept for ``key`` under
     ``kind`` where there is one: ``copy`` of it, so that no caller writes into what is kept. The
