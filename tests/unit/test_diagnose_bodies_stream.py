@@ -10,29 +10,14 @@ bodies again in calibration.yaml, which `platkit predict` reads.
 """
 from __future__ import annotations
 
-import csv
 import json
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from bodies_alone import strip_markers
 
 from platkit.cli import main
-
-
-def _strip_markers(sim: Path, out: Path) -> None:
-    """The session ``sim`` as a stream of its rigid bodies alone in ``out`` (markers.csv the time and
-    the bodies' columns, session.yaml no markers)."""
-    shutil.copytree(sim, out)
-    y = yaml.safe_load((sim / "session.yaml").read_text())
-    y["markers"] = []
-    (out / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
-    rows = list(csv.reader((sim / "markers.csv").open()))
-    keep = [i for i, h in enumerate(rows[0]) if h == "t" or h.split("_")[0] in y["rigid_bodies"]]
-    with (out / "markers.csv").open("w", newline="") as f:
-        csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +27,7 @@ def diagnosed(tmp_path_factory):
     assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10",
                  "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
                  "--out", str(sim)]) == 0
-    _strip_markers(sim, root / "bodies")
+    strip_markers(sim, root / "bodies")
     assert main(["calibrate", str(root / "bodies"), "--quiet", "--no-report", "--response-kind", "first-order",
                  "--out", str(root / "cal")]) == 0
     return sim, root
@@ -107,7 +92,7 @@ def test_a_play_is_named_from_the_bodies_alone(tmp_path):
     assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "multisine", "--duration-s", "20",
                  "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
                  "--effect", "backlash:1.0", "--out", str(sim)]) == 0
-    _strip_markers(sim, tmp_path / "bodies")
+    strip_markers(sim, tmp_path / "bodies")
     assert main(["calibrate", str(tmp_path / "bodies"), "--quiet", "--no-report", "--response-kind", "first-order",
                  "--out", str(tmp_path / "cal")]) == 0
     assert main(["diagnose", str(tmp_path / "bodies"), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),

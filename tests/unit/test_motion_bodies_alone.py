@@ -20,15 +20,14 @@ own noise (measured on the stream) the fit is kept.
 """
 from __future__ import annotations
 
-import csv
 import json
-import shutil
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from bodies_alone import strip_markers
 
 from platkit.calibrate.estimate import marker_noise_floor
 from platkit.calibrate.motion import calibrate_motion
@@ -40,21 +39,6 @@ from platkit.io.session import load_session
 
 SIGMA_P_MM, SIGMA_R_RAD = 0.2, 0.002
 TREE = Path(__file__).resolve().parents[1] / "data" / "trees" / "two_arm_torso.urdf"
-
-
-def _strip_markers(sim, out) -> None:
-    """The session ``sim`` as a stream of its rigid bodies alone in ``out``: markers.csv the time and
-    the bodies' columns, session.yaml no markers (on a tree, the bodies' links alone)."""
-    shutil.copytree(sim, out)  # the commands and the description as they are
-    y = yaml.safe_load((sim / "session.yaml").read_text())
-    y["markers"] = []
-    if isinstance(y.get("moving_link"), dict):
-        y["moving_link"] = {k: v for k, v in y["moving_link"].items() if k in y["rigid_bodies"]}
-    (out / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
-    rows = list(csv.reader((sim / "markers.csv").open()))
-    keep = [i for i, h in enumerate(rows[0]) if h == "t" or h.split("_")[0] in y["rigid_bodies"]]
-    with (out / "markers.csv").open("w", newline="") as f:
-        csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
 
 
 def _settled_errors(sim, cal_yaml, controls, tmp_path, bodies) -> dict[str, tuple[float, float]]:
@@ -83,7 +67,7 @@ def bodies_only(tmp_path_factory):
     assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10",
                  "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
                  "--out", str(sim)]) == 0
-    _strip_markers(sim, root / "bodies")
+    strip_markers(sim, root / "bodies")
     return sim, root / "bodies"
 
 
@@ -144,7 +128,7 @@ def test_a_tree_of_bodies_alone_keeps_each_body_on_its_link(tmp_path):
     assert main(["simulate", "--platform", "urdf", "--description", str(TREE), "--moving-link", "right_tcp,left_tcp",
                  "--physics", "--motion", "path", "--duration-s", "10", "--rate-hz", "40", "--noise-mm", "0.2",
                  "--white-noise", "--rigid-bodies", "2", "--seed", "4112", "--out", str(sim)]) == 0
-    _strip_markers(sim, tmp_path / "bodies")
+    strip_markers(sim, tmp_path / "bodies")
     out = tmp_path / "cal"
     assert main(["calibrate", str(tmp_path / "bodies"), "--quiet", "--no-report", "--response-kind", "first-order",
                  "--out", str(out)]) == 0

@@ -5,31 +5,16 @@ would read a fraction of the nominal error and call a good fit worse than its st
 from __future__ import annotations
 
 import contextlib
-import csv
 import io
 
 import numpy as np
 import pytest
 import yaml
+from bodies_alone import strip_markers
 
 from platkit.calibrate.estimate import calibrate
 from platkit.cli import main
 from platkit.commands.calibrate import load_for_calibration
-
-
-def _body_only(src, dst):
-    """``src``'s session with its markers' columns taken out: the rigid body alone."""
-    meta = yaml.safe_load((src / "session.yaml").read_text())
-    rows = list(csv.reader((src / "markers.csv").open()))
-    drop = {c for c in rows[0] if any(c.startswith(n + "_") for n in meta["markers"])}
-    meta["markers"] = []
-    dst.mkdir()
-    keep = [i for i, c in enumerate(rows[0]) if c not in drop]
-    with (dst / "markers.csv").open("w", newline="") as fh:
-        csv.writer(fh).writerows([r[i] for i in keep] for r in rows)
-    (dst / "commands.csv").write_text((src / "commands.csv").read_text())
-    (dst / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
-    return dst
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +23,7 @@ def body_session(tmp_path_factory):
     with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
         assert main(["simulate", "--platform", "stewart", "--out", str(root / "s"), "--seed", "202", "--poses", "40",
                      "--plan", "random", "--rigid-bodies", "1", "--effect", "backlash:1.0"]) == 0
-    return _body_only(root / "s", root / "b")
+    return strip_markers(root / "s", root / "b")
 
 
 def test_rms_before_runs_over_the_observations_the_fit_kept(body_session):
