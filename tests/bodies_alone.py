@@ -8,6 +8,8 @@ from pathlib import Path
 
 import yaml
 
+from platkit.cli import main
+
 
 def strip_markers(sim: Path, out: Path) -> Path:
     """The session ``sim`` as a session of its rigid bodies alone in ``out``: markers.csv the time
@@ -24,3 +26,17 @@ def strip_markers(sim: Path, out: Path) -> Path:
     with (out / "markers.csv").open("w", newline="") as f:
         csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
     return out
+
+
+#: the streamed session the tests of bodies alone share: a Stewart of the physical simulator on a
+#: 10 s path at 40 Hz, two rigid bodies beside the markers, white noise of 0.2 mm
+STEWART_STREAM = ["--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10", "--rate-hz", "40",
+                  "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111"]
+
+
+def stewart_bodies_stream(root: Path) -> tuple[Path, Path]:
+    """:data:`STEWART_STREAM` simulated into ``root / 'sim'`` and its bodies alone in ``root /
+    'bodies'``: (sim, bodies)."""
+    sim = root / "sim"
+    assert main(["simulate", *STEWART_STREAM, "--out", str(sim)]) == 0
+    return sim, strip_markers(sim, root / "bodies")

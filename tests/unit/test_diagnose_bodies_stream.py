@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from bodies_alone import strip_markers
+from bodies_alone import stewart_bodies_stream, strip_markers
 
 from platkit.cli import main
 
@@ -23,11 +23,7 @@ from platkit.cli import main
 @pytest.fixture(scope="module")
 def diagnosed(tmp_path_factory):
     root = tmp_path_factory.mktemp("bodies_stream")
-    sim = root / "sim"
-    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10",
-                 "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
-                 "--out", str(sim)]) == 0
-    strip_markers(sim, root / "bodies")
+    sim, _ = stewart_bodies_stream(root)
     assert main(["calibrate", str(root / "bodies"), "--quiet", "--no-report", "--response-kind", "first-order",
                  "--out", str(root / "cal")]) == 0
     return sim, root

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from bodies_alone import strip_markers
+from bodies_alone import stewart_bodies_stream, strip_markers
 
 from platkit.calibrate.estimate import marker_noise_floor
 from platkit.calibrate.motion import calibrate_motion
@@ -63,12 +63,7 @@ def _settled_errors(sim, cal_yaml, controls, tmp_path, bodies) -> dict[str, tupl
 @pytest.fixture(scope="module")
 def bodies_only(tmp_path_factory):
     root = tmp_path_factory.mktemp("alone")
-    sim = root / "sim"
-    assert main(["simulate", "--platform", "stewart", "--physics", "--motion", "path", "--duration-s", "10",
-                 "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--rigid-bodies", "2", "--seed", "4111",
-                 "--out", str(sim)]) == 0
-    strip_markers(sim, root / "bodies")
-    return sim, root / "bodies"
+    return stewart_bodies_stream(root)
 
 
 def test_bodies_alone_are_calibrated_from_motion_as_points_and_read_back(bodies_only, tmp_path, capsys):
