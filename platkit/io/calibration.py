@@ -350,7 +350,9 @@ def read_calibration(path: str | Path, options: dict | None = None) -> Calibrati
     prediction; the parameters are the calibration's).
 
     Model terms are rebuilt by the diagnosis effect library when one is installed
-    (``platkit.plugins.term_from_dict``); BadInput names the file and field otherwise.
+    (``platkit.plugins.term_from_dict``); BadInput names the file and field otherwise. The residual
+    block (counts, noise) and the warnings are read back too, so that a calibration written again
+    unchanged (``platkit diagnose`` naming nothing) says what the file said.
     """
 
     path = Path(path)
@@ -453,6 +455,9 @@ def read_calibration(path: str | Path, options: dict | None = None) -> Calibrati
         length_unit=lu, platform_options=dict(options), method=str(data.get("method", "lsq")),
         converged=bool(data.get("converged", True)), iterations=int(data.get("iterations", 0)),
         n_poses=int(res.get("n_poses", 0)), n_markers=len(names),
+        n_observations=int(res.get("n_observations", 0) or 0), n_rejected=int(res.get("n_rejected_as_outliers", 0) or 0),
+        noise_sigma=float(res.get("noise_sigma_per_axis", np.nan) or np.nan) * s,
+        warnings=[str(w) for w in data.get("warnings") or []],
         identifiability=data.get("identifiability") or {}, terms=terms, theta=theta, theta_std=theta_std,
         heldout={},  # written for people in the file's unit; not read back
         imu=dict(imu), motion=dict(motion), body_names=body_names, body_positions=b_pos, body_rotvecs=b_rot, body_std=b_std,
