@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from platkit.errors import BadInput
@@ -78,6 +79,7 @@ def run(args) -> int:
     if not Path(args.calibration).is_file():
         raise BadInput(f"{args.calibration}: calibration file not found")
     cal = read_calibration(args.calibration)
+    as_read = cal  # written again as it is where the diagnosis changes nothing in the model
 
     sessions = {}  # folder -> the session as read: its streams are read once
 
@@ -111,6 +113,7 @@ def run(args) -> int:
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects,
                                          reopen_geometry=not args.keep_geometry),
                  heldout=heldout, progress=say, start=cal)
+    unchanged = d.calibration is cal  # nothing named and no geometry chosen again: the start itself
     if streamed:
         from platkit.calibrate.motion import without_response  # the response back into actuator_response
 
@@ -124,7 +127,9 @@ def run(args) -> int:
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
                                                  read=sessions[args.session])
-    d.calibration = body_calibration(d.calibration, given, cal)  # the bodies again, placed from their points
+    # the file's calibration as read where nothing changed the model (a stream's response, a body's
+    # placement and their std as calibrate wrote them); else the bodies again, placed from their points
+    d.calibration = replace(as_read, imu=d.calibration.imu) if unchanged else body_calibration(d.calibration, given)
     on_bodies(d.findings, given.body_names)  # a finding at a body's point names the body too
     written = write_outputs(d, args.out, with_html=not args.no_report)
     s = length_scale(d.unit)
@@ -150,8 +155,6 @@ def _motion_poses(folder, cal, sessions):
     the calibration's bodies as those points (platkit.diagnose.bodies.point_calibration), the
     points' noise per coordinate (``settling['point_sigma_m']``, the noise floor's) declared, else
     measured on the stream (point_sigmas); said once."""
-    from dataclasses import replace
-
     import numpy as np
 
     from platkit.bodies import AXIS_LENGTH_M, frame_point_names

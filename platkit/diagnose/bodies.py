@@ -127,19 +127,17 @@ def point_calibration(cal: Calibration) -> Calibration:
                    body_rotvecs=np.zeros((0, 3)), body_std=np.zeros((0, 6)), marker_links=links)
 
 
-def body_calibration(fitted: Calibration, given: Calibration, start: Calibration | None = None) -> Calibration:
+def body_calibration(fitted: Calibration, given: Calibration) -> Calibration:
     """The calibration diagnosis writes for a session with rigid bodies: ``fitted`` (over the
     bodies' points) with each body of ``given`` (the calibration diagnosed) carried again, its
     placement read back from its three fitted points (origin; axes by Gram-Schmidt,
     platkit.bodies.placement_from_point_fit), its position std the origin's and its rotation std the tips'
     beyond the origin's over the lever (one number for the three axes: the points are fitted as
     free points, their correlations not kept), its rotation weight (rho) ``given``'s; a body
-    whose points ``fitted`` lacks keeps ``given``'s placement. ``given`` itself where ``fitted``
-    is ``start`` (its point calibration, written unchanged: nothing changed the model)."""
+    whose points ``fitted`` lacks keeps ``given``'s placement (where nothing changed the model,
+    platkit diagnose writes the calibration given as it was read, not this)."""
     if not given.body_names:
         return fitted
-    if start is not None and fitted is start:
-        return replace(given, imu=fitted.imu)
     index = {n: k for k, n in enumerate(fitted.marker_names)}
     pos, rot, std = (np.array(given.body_positions, float), np.array(given.body_rotvecs, float),
                      np.array(given.body_std, float))

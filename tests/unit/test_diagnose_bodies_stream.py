@@ -51,10 +51,15 @@ def test_a_stream_of_bodies_alone_is_diagnosed_through_its_points(diagnosed, cap
     assert "actuator_response" in cal  # the response back where calibrate wrote it
     # nothing named: each placement and its std as calibrate wrote them (read as points and back: the points'
     # std from the body's by the rule the read-back inverts; before, the rotation std grew by sqrt(1.5) a pass)
-    given = yaml.safe_load((root / "cal" / "calibration.yaml").read_text())["rigid_bodies"]["bodies"]
+    given = yaml.safe_load((root / "cal" / "calibration.yaml").read_text())
     for b, body in cal["rigid_bodies"]["bodies"].items():
         for key in ("position", "rotation_vector", "std_position", "std_rotation_vector"):
-            assert np.allclose(body[key], given[b][key], rtol=1e-9, atol=1e-12), (b, key, body[key], given[b][key])
+            want = given["rigid_bodies"]["bodies"][b][key]
+            assert np.allclose(body[key], want, rtol=1e-9, atol=1e-12), (b, key, body[key], want)
+    # and the rest as calibrate wrote it: the response with its std, the residual block, the warnings
+    for key in ("actuator_response", "residual", "parameters", "mocap_from_base"):
+        assert cal[key] == given[key], key
+    assert cal.get("warnings") == given.get("warnings")
 
 
 def test_predict_reads_the_bodies_diagnose_wrote(diagnosed, tmp_path):
