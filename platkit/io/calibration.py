@@ -351,8 +351,7 @@ def read_calibration(path: str | Path, options: dict | None = None) -> Calibrati
 
     Model terms are rebuilt by the diagnosis effect library when one is installed
     (``platkit.plugins.term_from_dict``); BadInput names the file and field otherwise. The residual
-    block (counts, noise) and the warnings are read back too, so that a calibration written again
-    unchanged (``platkit diagnose`` naming nothing) says what the file said.
+    block and the warnings too: a calibration written again unchanged says what its file said.
     """
 
     path = Path(path)
