@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from platkit.geometry import matrix_from_quat, quat_from_matrix, rotvec_from_matrix, skew
+from platkit.io.calibration import Calibration
 from platkit.io.session import Session
 from platkit.poses import PoseSet
 
@@ -152,6 +153,46 @@ def placement_from_point_fit(points: np.ndarray, std: np.ndarray) -> tuple[np.nd
     s = np.asarray(std, float)
     extra = max(float(np.mean(s[1:] ** 2) - np.mean(s[0] ** 2)), 0.0)
     return o[0], rotvec_from_matrix(R[0]), np.concatenate([s[0], np.full(3, np.sqrt(1.5 * extra) / AXIS_LENGTH_M)])
+
+
+def bodies_from_points(fitted: Calibration, body_names: list[str], rho: float, rho_source: str,
+                       given: Calibration | None = None) -> Calibration:
+    """``fitted`` (a fit over each body's three frame points as markers) with the bodies
+    ``body_names`` carried again and their points out of the markers: each placement read back from
+    its three fitted points (:func:`placement_from_point_fit`), each body on the link its origin
+    point rides on (else ``given``'s link for it), the rotation weight ``rho`` with its source
+    ('declared' or 'estimated'). A body whose three points ``fitted`` lacks keeps ``given``'s
+    placement and std; without ``given`` that is a ValueError (a caller's mistake, not bad input)."""
+    index = {n: k for k, n in enumerate(fitted.marker_names)}
+    mpos, mstd = np.asarray(fitted.marker_positions, float), np.asarray(fitted.marker_std, float)
+    B = len(body_names)
+    if given is None:
+        pos, rot, std = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 6))
+    else:
+        at = [given.body_names.index(b) for b in body_names]
+        pos, rot, std = (np.array(given.body_positions, float)[at], np.array(given.body_rotvecs, float)[at],
+                         np.array(given.body_std, float)[at])
+    links = dict(fitted.marker_links)
+    body_links = {}
+    for b, body in enumerate(body_names):
+        names = frame_point_names(body)
+        rows = [index.get(n) for n in names]
+        if any(r is None for r in rows):
+            if given is None:
+                raise ValueError(f"the fit has no point {names[rows.index(None)]!r} of rigid body {body!r}")
+        else:
+            pos[b], rot[b], std[b] = placement_from_point_fit(mpos[rows], mstd[rows])
+        link = links.get(names[0]) or (given.marker_links.get(body) if given is not None else None)
+        if link is not None:
+            body_links[body] = link
+    points = {n for body in body_names for n in frame_point_names(body)}
+    keep = [k for k, n in enumerate(fitted.marker_names) if n not in points]
+    links = {k: v for k, v in links.items() if k not in points}
+    links.update(body_links)
+    return replace(fitted, marker_names=[fitted.marker_names[k] for k in keep],
+                   marker_positions=mpos[keep].reshape(-1, 3), marker_std=mstd[keep].reshape(-1, 3),
+                   n_markers=len(keep), body_names=list(body_names), body_positions=pos, body_rotvecs=rot,
+                   body_std=std, body_rho=rho, body_rho_source=rho_source, marker_links=links)
 
 
 # ---------------------------------------------------------------------------- settled poses

@@ -29,7 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from platkit.bodies import AXIS_LENGTH_M, body_frame_points, frame_point_names, placement_from_point_fit
+from platkit.bodies import AXIS_LENGTH_M, bodies_from_points, body_frame_points, frame_point_names
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.motion_bodies import say_bodies
 from platkit.calibrate.stream import NODES, RAW_SAMPLES, WINDOW_S, stream_windows
@@ -96,35 +96,14 @@ def point_sigmas(body_names: list[str], body_noise: dict,
     return out, "measured"
 
 
-def _with_bodies(cal: Calibration, session: Session, sigmas: dict[str, float], source: str) -> Calibration:
-    """``cal`` (fitted over the bodies' points) with each body carried again, its placement read
-    back from its three fitted points (:func:`platkit.bodies.placement_from_point_fit`), and the
-    points out of the markers; rho declared, else the origins' noise over the tips' rotation noise."""
-    index = {n: k for k, n in enumerate(cal.marker_names)}
-    mpos, mstd = np.asarray(cal.marker_positions, float), np.asarray(cal.marker_std, float)
-    B = len(session.body_names)
-    pos, rot, std = np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 6))
-    for b, body in enumerate(session.body_names):
-        rows = [index[n] for n in frame_point_names(body)]
-        pos[b], rot[b], std[b] = placement_from_point_fit(mpos[rows], mstd[rows])
-    sp = np.array([sigmas[frame_point_names(b)[0]] for b in session.body_names])
-    st = np.array([sigmas[frame_point_names(b)[1]] for b in session.body_names])
+def _rho(body_names: list[str], sigmas: dict[str, float]) -> float:
+    """The bodies' rotation weight (m/rad) from their points' noise: the origins' over the tips'
+    rotation noise (the tip's variance beyond the origin's, a turn moving two of its three
+    coordinates, over the lever), the median over the bodies; NaN where a tip is no noisier."""
+    sp = np.array([sigmas[frame_point_names(b)[0]] for b in body_names])
+    st = np.array([sigmas[frame_point_names(b)[1]] for b in body_names])
     sr = np.sqrt(np.maximum(1.5 * (st ** 2 - sp ** 2), 0.0)) / AXIS_LENGTH_M
-    rho = float(np.median(sp / sr)) if np.all(sr > 0) else float("nan")
-    links = dict(cal.marker_links)
-    body_links = {}
-    for body in session.body_names:
-        link = links.get(frame_point_names(body)[0])
-        if link is not None:
-            body_links[body] = link
-    points = set(index)
-    keep = [k for k, n in enumerate(cal.marker_names) if n not in points]
-    links = {k: v for k, v in links.items() if k not in points}
-    links.update(body_links)
-    return replace(cal, marker_names=[cal.marker_names[k] for k in keep], marker_positions=mpos[keep].reshape(-1, 3),
-                   marker_std=mstd[keep].reshape(-1, 3), n_markers=len(keep), body_names=list(session.body_names),
-                   body_positions=pos, body_rotvecs=rot, body_std=std, body_rho=rho,
-                   body_rho_source="declared" if source == "declared" else "estimated", marker_links=links)
+    return float(np.median(sp / sr)) if np.all(sr > 0) else float("nan")
 
 
 def calibrate_motion_bodies(session: Session, spec: PlatformSpec, **options) -> tuple[Calibration, PoseSet]:
@@ -143,7 +122,8 @@ def calibrate_motion_bodies(session: Session, spec: PlatformSpec, **options) -> 
     win = stream_windows(points, options.get("window_s", WINDOW_S), options.get("nodes", NODES),
                          options.get("raw_samples", RAW_SAMPLES),
                          start_t=transient.get("until_s") if transient.get("n_samples") else None)
-    cal = _with_bodies(cal, session, sigmas, source)
+    cal = bodies_from_points(cal, session.body_names, _rho(session.body_names, sigmas),
+                             "declared" if source == "declared" else "estimated")
     say_bodies(session, win, cal)  # the body samples used, and the others, per body and cause
     names = [n for b in session.body_names for n in frame_point_names(b)]
     cal.motion["bodies_as_points"] = {

@@ -24,9 +24,9 @@ import numpy as np
 from platkit.bodies import (
     AXIS_LENGTH_M,
     FRAME_POINT_SUFFIXES,
+    bodies_from_points,
     body_frame_points,
     frame_point_names,
-    placement_from_point_fit,
 )
 from platkit.calibrate.motion_points import point_sigmas
 from platkit.errors import BadInput
@@ -130,29 +130,10 @@ def point_calibration(cal: Calibration) -> Calibration:
 def body_calibration(fitted: Calibration, given: Calibration) -> Calibration:
     """The calibration diagnosis writes for a session with rigid bodies: ``fitted`` (over the
     bodies' points) with each body of ``given`` (the calibration diagnosed) carried again, its
-    placement read back from its three fitted points (origin; axes by Gram-Schmidt,
-    platkit.bodies.placement_from_point_fit), its position std the origin's and its rotation std the tips'
-    beyond the origin's over the lever (one number for the three axes: the points are fitted as
-    free points, their correlations not kept), its rotation weight (rho) ``given``'s; a body
-    whose points ``fitted`` lacks keeps ``given``'s placement (where nothing changed the model,
-    platkit diagnose writes the calibration given as it was read, not this)."""
+    placement read back from its three fitted points
+    (:func:`platkit.bodies.bodies_from_points`), its rotation weight (rho) ``given``'s; a body whose
+    points ``fitted`` lacks keeps ``given``'s placement (where nothing changed the model, platkit
+    diagnose writes the calibration given as it was read, not this)."""
     if not given.body_names:
         return fitted
-    index = {n: k for k, n in enumerate(fitted.marker_names)}
-    pos, rot, std = (np.array(given.body_positions, float), np.array(given.body_rotvecs, float),
-                     np.array(given.body_std, float))
-    mpos, mstd = np.asarray(fitted.marker_positions, float), np.asarray(fitted.marker_std, float)
-    for b, body in enumerate(given.body_names):
-        rows = [index.get(n) for n in frame_point_names(body)]
-        if any(r is None for r in rows):
-            continue
-        pos[b], rot[b], std[b] = placement_from_point_fit(mpos[rows], mstd[rows])
-    points = {n for body in given.body_names for n in frame_point_names(body)}
-    keep = [k for k, n in enumerate(fitted.marker_names) if n not in points]
-    links = dict(fitted.marker_links)
-    if given.marker_links:
-        links.update({b: given.marker_links[b] for b in given.body_names if b in given.marker_links})
-    return replace(fitted, marker_names=[fitted.marker_names[k] for k in keep],
-                   marker_positions=mpos[keep].reshape(-1, 3), marker_std=mstd[keep].reshape(-1, 3),
-                   n_markers=len(keep), body_names=list(given.body_names), body_positions=pos, body_rotvecs=rot,
-                   body_std=std, body_rho=given.body_rho, body_rho_source=given.body_rho_source, marker_links=links)
+    return bodies_from_points(fitted, list(given.body_names), given.body_rho, given.body_rho_source, given=given)
