@@ -13,6 +13,7 @@ silently.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -52,13 +53,26 @@ class HeldParameter:
 
 @dataclass
 class Identifiability:
-    """Result of :func:`select_identifiable`."""
+    """Result of :func:`select_identifiable`. Its figures, ``singular_values`` (of the scaled
+    Jacobian of all candidate columns, descending) and ``condition_number`` (of the chosen columns,
+    scaled), are computed from ``scaled`` when first read: the choice never reads them, nor do the
+    gauge analysis and a model selection's scored candidates (:func:`platkit.calibrate.stages.scored_only`)."""
 
     chosen: list[int]  # column indices estimated, in the order chosen
     held: list[HeldParameter]
-    singular_values: np.ndarray  # of the scaled Jacobian of all candidate columns, descending
-    condition_number: float  # of the chosen columns (scaled)
     names: list[str]
+    scaled: np.ndarray = field(repr=False)  # the scaled Jacobian's R factor (or itself), which the choice was made on
+
+    @cached_property
+    def singular_values(self) -> np.ndarray:
+        return singular_values(self.scaled) if self.scaled.shape[1] else np.zeros(0)
+
+    @cached_property
+    def condition_number(self) -> float:
+        if not self.chosen:
+            return float("nan")
+        s_chosen = singular_values(self.scaled[:, self.chosen])
+        return float(s_chosen[0] / s_chosen[-1]) if s_chosen[-1] > 0 else float("inf")
 
     def to_dict(self) -> dict:
         return {
@@ -128,13 +142,7 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
                     if abs(coef[k]) >= 0.05 * max(1e-300, np.max(np.abs(coef))):
                         combo[names[chosen[k]]] = -float(coef[k])
             held.append(HeldParameter(names[j], reason, combo, remaining))
-    sv = singular_values(Js) if n else np.zeros(0)
-    if chosen:
-        s_chosen = singular_values(Js[:, chosen])
-        cond = float(s_chosen[0] / s_chosen[-1]) if s_chosen[-1] > 0 else float("inf")
-    else:
-        cond = float("nan")
-    return Identifiability(chosen, held, sv, cond, list(names))
+    return Identifiability(chosen, held, list(names), Js)
 
 
 def _dots(R: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -257,7 +265,8 @@ class Gauge:
     held_names: list[str]
     ref_idx: np.ndarray
     J_ref: np.ndarray
-    rank_ref: int
+    tiers_ref: list[int]  # the tiers of ``ref_idx``, for rank_ref
+    rel_tol: float
     shift: np.ndarray
     U_ref: np.ndarray  # (N, n_u) the reference poses' controls
     P_ref: np.ndarray  # (N, n_p) and poses
@@ -266,6 +275,13 @@ class Gauge:
     n_not_excited: int = 0
     labels: dict[str, str] = field(default_factory=dict)
     unclassified: str = ""  # why nothing was classified (no reference poses), or ''
+
+    @cached_property
+    def rank_ref(self) -> int:
+        """The rank of the reference poses' Jacobian J_ref (:func:`select_identifiable` at ``rel_tol``),
+        computed when first read: only the classification of the held parameters reads it."""
+        names = [str(i) for i in self.ref_idx]
+        return len(select_identifiable(self.J_ref, names, np.ones(len(names)), self.tiers_ref, self.rel_tol).chosen)
 
     def to_dict(self) -> dict:
         if self.unclassified:
@@ -405,7 +421,6 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
     cols = [at[names[i]] for i in ref_idx]
     J_ref = _compress(st.J[st.converged][..., cols].reshape(-1, len(cols)) * problem.scale[ref_idx][None, :])
     tiers_ref = problem.tiers[ref_idx].tolist()
-    rank_ref = len(select_identifiable(J_ref, [names[i] for i in ref_idx], np.ones(len(ref_idx)), tiers_ref, rel_tol).chosen)
     if len(U_ref):
         q_ref, _, _, ok = problem.kinematics(z[problem.i_td], U_ref, P_ref)
         R = matrix_from_quat(q_ref[ok])
@@ -436,7 +451,7 @@ def nuisance_gauge(problem, z, candidates: np.ndarray, nuisance: np.ndarray, ref
             f"the poses cannot fix {', '.join(names[i] for i in what)}: the stand's reach would, these poses do not "
             "(turn or move the platform more, and see each marker in several poses)")
     held = [int(nuis_idx[k]) for k in range(len(nuis_idx)) if k not in chosen]
-    gauge = Gauge(held, [names[i] for i in held], ref_idx, J_ref, rank_ref, shift, U_ref, P_ref)
+    gauge = Gauge(held, [names[i] for i in held], ref_idx, J_ref, tiers_ref, rel_tol, shift, U_ref, P_ref)
     if lacking:
         gauge.unclassified = (f"fewer than {MIN_REFERENCE_POSES} of the stand's random reference commands are "
                               "reachable: what the data cannot fix is held, not classified as gauge or not excited")

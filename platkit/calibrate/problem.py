@@ -357,7 +357,8 @@ class CalibrationProblem:
                 d_m = (term.marker_offset(thp, poses) - base[2]) / h
                 if B:
                     d_m = np.concatenate([d_m, np.zeros((N, B, 3))], axis=1)
-                cols.append((d_u, d_pose, d_m.reshape(N, -1)))
+                d_m = d_m.reshape(N, -1)
+                cols.append((d_u, d_pose, d_m, tuple(_support(d) for d in (d_u, d_pose, d_m))))
             out.append(("columns", K, cols))
         return out
 
@@ -394,6 +395,7 @@ class CalibrationProblem:
             J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
             J[:, :, self.i_body_rot] = 0.0  # the terms' columns: each term's below
         k = self.i_theta.start
+        finite = None  # whether the function's Jacobian is finite (a product with a zero is then a zero)
         for jac in jacs:
             K = jac[1]
             if jac[0] == "known":
@@ -413,9 +415,11 @@ class CalibrationProblem:
                     col[...] = 0.0
                 k += K
                 continue
-            for d_u, d_pose, d_m in jac[2]:
-                J[:, :, k] = (np.einsum("nak,nk->na", Y_u, d_u[rows]) + np.einsum("nak,nk->na", Y_dpose, d_pose[rows])
-                              + np.einsum("nak,nk->na", Y_m, d_m[rows]))
+            if finite is None:
+                finite = bool(np.isfinite(J_offsets).all() and np.isfinite(Y_m).all())
+            for d_u, d_pose, d_m, supports in jac[2]:
+                J[:, :, k] = _offset_column(((Y_u, d_u[rows]), (Y_dpose, d_pose[rows]), (Y_m, d_m[rows])),
+                                            supports if finite else None)
                 k += 1
         J_pts = J[:, :nP3].reshape(n, M + B, 3, self.n_z)
         if B:
@@ -514,6 +518,31 @@ def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
     q_all = np.asarray(q_all).T.reshape(N, L, 4)
     X_all = np.asarray(X_all).T.reshape(N, L, 3)
     return matrix_from_quat(q_all), X_all
+
+
+def _support(d: np.ndarray) -> np.ndarray:
+    """The columns of a term's offset derivative d (N, k) nonzero (or not finite) at some pose."""
+    return np.flatnonzero(d.any(axis=0))  # NaN counts as nonzero
+
+
+def _offset_column(parts, supports) -> np.ndarray:
+    """One term parameter's Jacobian column (n, rows): the sum over ``parts`` ((Y (n, rows, k), d (n, k))) of
+    ``np.einsum("nak,nk->na", Y, d)`` in the parts' order. With ``supports`` (each d's columns nonzero
+    at some pose, :func:`_support`; given only where every Y is finite) a part whose d is zero is left
+    out (its sum is +0 everywhere; x + 0 is x), one with a single such column is that column's product
+    plus +0 (the one product the sum adds to zeros, a zero of either sign +0): the same bits, without
+    the products by zeros (a screened control offset moves one control)."""
+    total = None
+    for (Y, d), s in zip(parts, supports if supports is not None else (None,) * len(parts)):
+        if s is not None and s.size == 0:
+            continue
+        if s is not None and s.size == 1:
+            c = int(s[0])
+            term = Y[:, :, c] * d[:, c, None] + 0.0
+        else:
+            term = np.einsum("nak,nk->na", Y, d)
+        total = term if total is None else total + term
+    return np.zeros(parts[0][0].shape[:2]) if total is None else total
 
 
 def _one_row_columns(d: np.ndarray) -> list[tuple[int, np.ndarray]] | None:

@@ -21,6 +21,9 @@ what a user wants from a calibration, prediction of poses it was not fitted on:
    least supported;
 3. the chosen groups are fitted once more on the whole session with the user's loss.
 
+The candidates of 2. are scored, never written: their fits leave out what only a written calibration
+reports (:func:`~platkit.calibrate.stages.scored_only`).
+
 Model terms (physics a diagnosis accepted) may be fitted with every candidate
 (:func:`reselect_geometry`): the geometry is then chosen beside the physics, and a group that only
 stood in for it (a torso joint's scale for gravity sag) is held.
@@ -49,6 +52,7 @@ from platkit.calibrate.identifiability import keep_one_side_of_a_lost_marker
 from platkit.calibrate.problem import Progress
 from platkit.calibrate.registration import kept_registrations
 from platkit.calibrate.solve import blas_threads
+from platkit.calibrate.stages import scored_only
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec, length_scale
 from platkit.poses import PoseSet
@@ -304,8 +308,9 @@ def _select_model(poses: PoseSet, spec: PlatformSpec, robust: bool, progress: Pr
         trials = []
         for g in current:
             trial = tuple(x for x in current if x != g)
-            if trial not in scores:
-                cal = calibrate(clean, spec, free=_names(groups, trial), robust=False, **common)
+            if trial not in scores:  # scored, never written: without what only a written calibration reports
+                with scored_only():
+                    cal = calibrate(clean, spec, free=_names(groups, trial), robust=False, **common)
                 fits[trial], scores[trial] = cal, _score(cal, trial)
                 note(f"without {g}: held-out median {scores[trial].heldout_median / s:.4g} {unit}, "
                      f"RMS {scores[trial].heldout_rms / s:.4g} {unit}")

@@ -23,12 +23,16 @@ selection's candidates start from the same poses at the same z, and stage 1 fits
 transform and markers, so a candidate whose start another has computed takes a copy of it, bit
 for bit what computing it again gives. Not where a fit reports its progress (its lines are
 told), nor on a stand solved by Newton's method (its solutions start from its last ones).
+Within :func:`scored_only` (a selection's scored candidates) what only a written calibration
+reports is not computed.
 """
 from __future__ import annotations
 
 import copy
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -89,23 +93,43 @@ class CalibrationOptions:
     row_block: int | None = None
 
 
+_SCORED = threading.local()
+
+
+@contextmanager
+def scored_only() -> Iterator[None]:
+    """Within this block (in this thread), :func:`fit_calibration` leaves out what only a written
+    calibration reports and a model selection's scoring of a candidate never reads: the singular
+    values (at the start and at the estimate), the chosen columns' condition number, and the
+    classification of the held parameters (gauge or not excited) with the gauge's counts; its
+    ``identifiability`` says so under ``not_computed``. The fit, its active unknowns, weights,
+    noise and the names held are a full calibration's, bit for bit."""
+    before = getattr(_SCORED, "on", False)
+    _SCORED.on = True
+    try:
+        yield
+    finally:
+        _SCORED.on = before
+
+
 def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm],
                     opt: CalibrationOptions) -> Calibration:
     """The procedure of the module docstring, one stage a line (no warnings: see
     :func:`platkit.calibrate.estimate.calibrate`)."""
     t0 = time.perf_counter()
+    report = not getattr(_SCORED, "on", False)  # the figures only a written calibration reports
     start = _start(poses, spec, terms, opt)
     problem = start.problem
     # stage 1: registration only (td held at its nominal), robustly
     reg = _registration_only(start, opt)
     residuals_before = reg.state.r.copy()
     # stage 2: identifiability at the registered start
-    ident, active = _identifiable(problem, reg.z, start, opt)
+    ident, active = _identifiable(problem, reg.z, start, opt, report)
     # stage 3: the full robust fit
     fit = robust_fit(problem, reg.z, active, opt.robust, opt.max_iter, opt.progress, "iteration")
     fit = refit_body_rho(problem, fit, active, opt.robust, opt.max_iter, opt.progress)
     # stage 4: the uncertainty of the estimate, in the stated gauge
-    est = _uncertainty(problem, fit, active, start.gauge)
+    est = _uncertainty(problem, fit, active, start.gauge, report)
     rms_before = _rms(reg.state, est.weights)  # over the observations the fit kept (module docstring, 1.)
     cal = _calibration(poses, spec, terms, problem, ident, start.gauge, est, rms_before, opt)
     cal.fit = FitRecord(residuals_before=residuals_before, residuals_after=est.state.r.copy(),
@@ -193,10 +217,11 @@ def _registration_only(start: _Start, opt: CalibrationOptions) -> LMResult:
 
 
 def _identifiable(problem: CalibrationProblem, z: np.ndarray, start: _Start,
-                  opt: CalibrationOptions) -> tuple[Identifiability, np.ndarray]:
+                  opt: CalibrationOptions, classify: bool = True) -> tuple[Identifiability, np.ndarray]:
     """Stage 2: which candidates the poses fix, by pivoted orthogonalisation of the scaled Jacobian
-    at ``z`` (the registered start); returns the analysis and the active unknowns (n_z,) bool.
-    NotIdentifiable where not even the transform and the markers are fixed."""
+    at ``z`` (the registered start); returns the analysis and the active unknowns (n_z,) bool, the
+    held parameters classified with ``classify``. NotIdentifiable where not even the transform and
+    the markers are fixed."""
     st = problem.evaluate(z, with_jac=problem.row_block is None)
     cand_idx = np.nonzero(start.candidates)[0]
     # seen and solved; what the registration rejected counts too: the model terms may be what
@@ -216,7 +241,8 @@ def _identifiable(problem: CalibrationProblem, z: np.ndarray, start: _Start,
     if lost_nuisance:
         raise NotIdentifiable(f"the poses cannot fix {', '.join(lost_nuisance)}: the platform must rotate about "
                               "two axes or translate, and each marker be seen in several poses")
-    classify_held(ident, start.gauge, cand_idx, problem, opt.rel_tol)
+    if classify:
+        classify_held(ident, start.gauge, cand_idx, problem, opt.rel_tol)
     if opt.progress is not None:
         opt.progress("identifiability", {"n_identifiable": len(chosen), "held": [h.name for h in ident.held]})
     active = np.zeros(problem.n_z, bool)
@@ -243,13 +269,13 @@ class _Estimate:
     s2: float
     cov: np.ndarray
     std: np.ndarray
-    singular_values: np.ndarray
+    singular_values: np.ndarray | None
 
 
-def _uncertainty(problem: CalibrationProblem, fit, active: np.ndarray, gauge: Gauge) -> _Estimate:
+def _uncertainty(problem: CalibrationProblem, fit, active: np.ndarray, gauge: Gauge, report: bool = True) -> _Estimate:
     """Stage 4: sigma^2 (J^T W J)^-1 over the active unknowns (the prior rows counted as data:
     the posterior covariance), then the gauge's convention applied to z and carried into the
-    covariance."""
+    covariance; the singular values (reported only) with ``report``, else None."""
     n_z = problem.n_z
     z = fit.z
     st = problem.evaluate(z, with_jac=problem.row_block is None)
@@ -282,7 +308,7 @@ def _uncertainty(problem: CalibrationProblem, fit, active: np.ndarray, gauge: Ga
         cov = cov_full[np.ix_(active, active)]
         moved = active | np.any(gauge_map != np.eye(n_z), axis=1)
         std_full[moved] = np.sqrt(np.clip(np.diag(cov_full)[moved], 0, None))
-    sv = singular_values(Jw * problem.scale[active][None, :], blocked=True)  # reported only
+    sv = singular_values(Jw * problem.scale[active][None, :], blocked=True) if report else None  # reported only
     return _Estimate(z, active, bool(fit.converged), int(fit.iterations), st, weights, keep, rms_after, s2, cov,
                      std_full, sv)
 
@@ -329,6 +355,11 @@ def _identifiability_report(problem: CalibrationProblem, ident: Identifiability,
     the parameters weakly identified (std above 10 typical corrections) and those at the edge of
     their plausible range, the tolerance and the gauge."""
     active, std_full = est.active, est.std
+    if est.singular_values is None:  # a selection's scored candidate (scored_only)
+        return {"n_candidates": len(ident.names), "n_identifiable": len(ident.chosen),
+                "held_at_nominal": [h.to_dict() for h in ident.held], "rel_tol": opt.rel_tol,
+                "not_computed": "a model selection's scored candidate: the singular values, the condition number "
+                                "and the classification of what is held, which only a written calibration reports"}
     weak = [problem.names[i] for i in np.nonzero(active)[0]
             if i < problem.spec.n_td and std_full[i] > 10 * problem.scale[i]]
     identifiability = ident.to_dict()
