@@ -83,37 +83,58 @@ def run(args) -> int:
 
     sessions = {}  # folder -> the session as read: its streams are read once
 
-    def poses_of(folder):
-        poses = read_with_calibration(folder, cal, args.calibration, args.quiet, read=sessions)[1]
-        return with_body_points(poses, folder, sessions.get(folder))
-
     from platkit.commands.calibrate import settling_notes
+    from platkit.diagnose.stream import heldout_stream, read_through, training_stream
     from platkit.settle import HoldsNeverSettle, NeverSettles
+
+    def settled(folder):
+        """The session's settled poses, its bodies as points, what settling dropped said; raises
+        HoldsNeverSettle / NeverSettles where its holds do not settle (fewer than half the commands)."""
+        poses = read_with_calibration(folder, cal, args.calibration, args.quiet, read=sessions)[1]
+        notes = settling_notes(poses, folder)  # dropped commands by reason, holds extrapolated to rest
+        poses = with_body_points(poses, folder, sessions.get(folder))  # said once settled, not before
+        for note in notes:
+            warn(note)
+        return poses
 
     streamed = False  # the session read as a stream through its calibrated response
     try:
-        poses = read_with_calibration(args.session, cal, args.calibration, args.quiet, read=sessions)[1]
-        notes = settling_notes(poses, args.session)  # dropped commands by reason, holds extrapolated to rest
-        poses = with_body_points(poses, args.session, sessions.get(args.session))  # said once settled, not before
-        for note in notes:
-            warn(note)
+        poses = settled(args.session)
     except (HoldsNeverSettle, NeverSettles) as exc:  # no settled holds: a calibration from motion reads the stream
         if not cal.motion:
             raise type(exc)(f"{exc}; a stream without settled holds is diagnosed with its calibration from motion "
                             "(platkit calibrate on it)") from exc
-        poses, cal = _motion_poses(args.session, cal, sessions)
+        poses, cal = training_stream(args.session, sessions[args.session], cal)
         streamed = True
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
-    heldout = poses_of(args.heldout) if args.heldout else None
+    heldout, held_stream = None, None
+    if args.heldout:
+        try:
+            heldout = settled(args.heldout)
+        except (HoldsNeverSettle, NeverSettles) as exc:  # a held-out stream: read through the response
+            if not as_read.motion:
+                raise type(exc)(f"{exc}; a held-out stream without settled holds is read through the actuator "
+                                f"response of a calibration from motion, and {args.calibration} has none") from exc
+            held_stream = heldout_stream(args.heldout, sessions[args.heldout], as_read)
+            heldout = read_through(held_stream, as_read, as_read.spec)  # at the given response, without nodes
     given, cal = cal, point_calibration(cal)  # the bodies' points placed where the bodies' placements put them
     if args.heldout_register is not None or args.register_markers or args.register_spread:
         _check_register(args, cal, heldout)
     say = None if args.quiet else (lambda line: print(f"diagnose: {line}", file=sys.stderr, flush=True))
     d = diagnose(cal.spec, poses, Options(alpha=args.alpha, folds=args.folds, max_effects=args.max_effects,
                                          reopen_geometry=not args.keep_geometry),
-                 heldout=heldout, progress=say, start=cal)
+                 heldout=None if held_stream is not None else heldout, progress=say, start=cal)
     unchanged = d.calibration is cal  # nothing named and no geometry chosen again: the start itself
+    held_after = heldout  # the held-out poses as the diagnosed model reads them
+    if held_stream is not None:  # each model reads the held-out stream through its own response
+        from platkit.diagnose.stream import score_heldout_stream
+        from platkit.diagnose.verdict import verdict
+
+        d.heldout_session = score_heldout_stream(d.base, d.calibration, held_stream, cal.spec, d.findings)
+        d.verdict = verdict(d)
+        heldout, held_after = read_through(held_stream, d.base, cal.spec), read_through(held_stream, d.calibration,
+                                                                                        cal.spec)
     if streamed:
         from platkit.calibrate.motion import without_response  # the response back into actuator_response
 
@@ -122,7 +143,8 @@ def run(args) -> int:
         from platkit.diagnose.registered import registered_heldout
 
         d.heldout_session["registered"] = registered_heldout(d.base, d.calibration, heldout, args.heldout_register,
-                                                             args.register_markers, spread=args.register_spread)
+                                                             args.register_markers, spread=args.register_spread,
+                                                             heldout_after=held_after)
     if (Path(args.session) / "imu.csv").is_file():
         # the parameters held at nominal are the given calibration's (the diagnosis refits with them fixed)
         d.imu, d.calibration.imu = _diagnose_imu(args.session, d.calibration, say, cal.td_status,
@@ -142,47 +164,6 @@ def run(args) -> int:
               f"re-registered on {r['k']} {'spread ' if r['spread'] else ''}poses at a time: "
               f"{r['rms_before'] / s:.4g} -> {r['rms_after'] / s:.4g} {d.unit} (paired p = {r['p_improvement']:.2g})")
     return 0
-
-
-def _motion_poses(folder, cal, sessions):
-    """The stream of ``folder`` (``sessions[folder]``: the session as read before its settling
-    failed) as the poses its calibration from motion saw (the windows' nodes at the controls the
-    calibrated response reached: platkit.calibrate.motion.motion_stream), said, and the calibration
-    with that response as a term (platkit.calibrate.motion.LocalResponseTerm: its Jacobian reused
-    while the response stays linear): every fit of the diagnosis frees it again with the geometry,
-    so that an effect and the response are told apart by the data. A stream of rigid bodies alone
-    is read as calibrate read it (platkit.calibrate.motion_points): each body as its three points,
-    the calibration's bodies as those points (platkit.diagnose.bodies.point_calibration), the
-    points' noise per coordinate (``settling['point_sigma_m']``, the noise floor's) declared, else
-    measured on the stream (point_sigmas); said once."""
-    import numpy as np
-
-    from platkit.bodies import AXIS_LENGTH_M, frame_point_names
-    from platkit.calibrate.motion import motion_stream
-    from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
-    from platkit.diagnose.bodies import point_calibration
-
-    session = sessions[folder]
-    if bodies_alone(session):  # read as calibrate read them: each body as its three points, their noise its own
-        sig, source = point_sigmas(session.body_names, session.body_noise, session.bodies)
-        poses, term = motion_stream(point_session(session), point_calibration(cal))
-        poses.settling = {**(poses.settling or {}), "point_sigma_m": sig}
-        noise = (f"their noise {source} ({np.sqrt(np.mean(np.square(list(sig.values())))) * 1e3:.3g} mm per axis RMS)"
-                 if sig else "their noise unknown (neither declared nor measurable: no noise floor)")
-        warn(f"{folder}: no markers: rigid bodies {', '.join(session.body_names)} diagnosed as three points each "
-             f"({', '.join(f'{b} as ' + '/'.join(frame_point_names(b)) for b in session.body_names)}; origin and "
-             f"axis tips at {AXIS_LENGTH_M * 1e3:g} mm), the stream's windows read from them as calibrate read them; "
-             f"{noise}")
-    else:
-        poses, term = motion_stream(session, cal)
-        poses = with_body_points(poses, folder)  # the windows' bodies; their noise not measured on the stream
-    left = (term.start_transient or {}).get("n_samples", 0)  # platkit.calibrate.motion_transient's rule
-    warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
-         "calibration's actuator response, fitted again with every effect tried"
-         + (f"; {left} samples of the first command's transient left out (the stand's state before the first "
-            "command is not logged)" if left else ""))
-    return poses, replace(cal, terms=[*cal.terms, term], theta=[*cal.theta, term.initial.copy()],
-                          theta_std=[*cal.theta_std, np.full(len(term.initial), np.nan)])
 
 
 def _check_register(args, cal, heldout) -> None:

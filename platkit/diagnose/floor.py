@@ -29,6 +29,13 @@ def noise_floor(poses: PoseSet, n_params: int) -> float | None:
     return float(np.sqrt(ms * (1.0 + n_params / (3.0 * seen.sum()))))
 
 
+def pose_words(poses: PoseSet) -> str:
+    """What the poses are, said in a sentence: 'windowed poses' for a stream without holds read
+    through its response (its nodes in ``extras['node']``: platkit.calibrate.motion.motion_stream),
+    else 'settled poses'."""
+    return "windowed poses" if "node" in poses.extras else "settled poses"
+
+
 def worst_marker(residuals: np.ndarray, poses: PoseSet) -> str | None:
     """The marker whose fit residuals (N, M, 3) are largest (RMS over the poses that saw it), when
     it stands out (1.5 times the median marker's): a marker moving against the others; else None."""

@@ -11,16 +11,26 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from platkit.diagnose.fitting import ROUND_NEIGHBOURS, Finding, Fit, Options, _fmt_rms, body_residuals, extrapolated
-from platkit.diagnose.floor import worst_marker
+from platkit.diagnose.floor import pose_words, worst_marker
 from platkit.diagnose.locate import along_main_direction, neighbour_tests
 from platkit.poses import PoseSet
+
+
+def _response_clause(poses: PoseSet) -> str:
+    """On a stream's windowed poses, what else the excess over the floor can be: the controls at
+    the nodes are the calibrated response's, not measured, so its own misfit is in the residuals."""
+    if "node" not in poses.extras:
+        return ""
+    return ("; on a stream the controls at the windows' nodes are the calibrated actuator response's, so its own "
+            "misfit shows here too: a response of another kind may take it (platkit calibrate --response-kind, "
+            "--response)")
 
 
 def lack_of_fit(cur: Fit, poses: PoseSet, floor: float, held: float, opt: Options,
                 say: Callable[[str], None]) -> tuple[Finding | None, dict | None]:
     """(the ``unexplained`` finding or None, the round of neighbour tests or None) for a search
     that named nothing: ``cur`` the geometric model, ``held`` its held-out RMS on the settled
-    poses, ``floor`` the noise floor of held-out prediction."""
+    (or a stream's windowed) poses, ``floor`` the noise floor of held-out prediction."""
     unit = poses.length_unit
     ratio = held / floor
     if held > opt.lack_of_fit_factor * floor:
@@ -31,9 +41,9 @@ def lack_of_fit(cur: Fit, poses: PoseSet, floor: float, held: float, opt: Option
             effect="unexplained", where={"fit": "every pose", **({"marker": worst} if worst else {})}, parameters={},
             heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
             evidence=(f"the geometric model predicts held-out poses at {_fmt_rms(held, unit)}, {ratio:.1f} times "
-                      f"the noise floor of these settled poses ({_fmt_rms(floor, unit)}), and no effect in the library "
+                      f"the noise floor of these {pose_words(poses)} ({_fmt_rms(floor, unit)}), and no effect in the library "
                       "predicts them better: the stand does something the library does not hold"
-                      + (f" (the largest residuals on marker {worst})" if worst else ""))), None
+                      + (f" (the largest residuals on marker {worst})" if worst else "") + _response_clause(poses))), None
     if not held <= opt.lack_of_fit_factor * floor or extrapolated(poses).any():
         return None, None
     # Not in a session whose holds were extrapolated to rest: the approach's remnant reaches the
@@ -58,10 +68,10 @@ def lack_of_fit(cur: Fit, poses: PoseSet, floor: float, held: float, opt: Option
         effect="unexplained", where={"fit": "every pose", **top.where, **({"marker": worst} if worst else {})},
         parameters={}, heldout_rms_before=cur.cv_rms, heldout_rms_after=cur.cv_rms,
         regressor=x_pose, signature_before=x_neighbour,
-        regressor_label="error at a settled pose, along the residuals' main direction",
+        regressor_label=f"error at a {pose_words(poses)[:-1]}, along the residuals' main direction",
         evidence=(f"the geometric model's residuals are alike at {top.where['alike']} in the "
                   f"{top.where['frame']} frame (correlation {top.statistic:.2f}, permutation p = {top.p:.2g}, "
                   f"{top.p_adjusted:.2g} adjusted for {len(near)} tests), though it predicts held-out poses at "
                   f"{_fmt_rms(held, unit)}, only {ratio:.1f} times the noise floor; no effect in the library predicts "
-                  "them better: a weak effect of a shape the library does not hold"),
+                  "them better: a weak effect of a shape the library does not hold" + _response_clause(poses)),
         p_screen=float(top.p_adjusted)), tests

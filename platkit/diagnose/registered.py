@@ -22,14 +22,19 @@ from platkit.poses import PoseSet
 
 
 def registered_heldout(base: Calibration, final: Calibration, heldout: PoseSet, k: int, markers: bool = False,
-                       robust: bool = True, spread: bool = False) -> dict[str, Any]:
-    """{'k', 'marker_places_refitted', 'n_registrations', 'rms_before', 'rms_after' (m),
+                       robust: bool = True, spread: bool = False,
+                       heldout_after: PoseSet | None = None) -> dict[str, Any]:
+    """``heldout`` as ``base`` reads it and ``heldout_after`` as ``final`` does (the same poses and
+    markers; a held-out stream's controls through each model's own response,
+    platkit.diagnose.stream.read_through; None: ``heldout``) scored as the module says:
+    {'k', 'marker_places_refitted', 'n_registrations', 'rms_before', 'rms_after' (m),
     'per_marker' {name: (before, after) m}, 'p_improvement', 'turn_rad' and 'move' (m): the
     median over the registrations of how far the diagnosed model's transform moved from its own,
     'n_rejected' points left out as outliers over them, 'spread' whether a block's poses lie across
     the recording}."""
     before = rotated_scores(base, heldout, k, markers, robust=robust, spread=spread)
-    after = rotated_scores(final, heldout, k, markers, robust=robust, spread=spread)
+    after = rotated_scores(final, heldout if heldout_after is None else heldout_after, k, markers, robust=robust,
+                           spread=spread)
     shifts = np.array([r.shift(final) for r in after.registrations])
     return {"k": int(k), "marker_places_refitted": bool(markers), "spread": bool(spread),
             "n_registrations": len(after.blocks),

@@ -13,6 +13,7 @@ from platkit.diagnose.fitting import (
     _fmt_rms,
     _where_text,
 )
+from platkit.diagnose.floor import pose_words
 from platkit.diagnose.locate import located
 
 
@@ -92,7 +93,9 @@ def verdict(d: Diagnosis) -> str:
     parts += _not_separable(d)
     if d.heldout_session is not None:
         h = d.heldout_session
-        parts.append(f"On the separate held-out recording ({h['n_poses']} poses) the point RMS goes from "
+        parts.append(f"On the separate held-out recording ({h['n_poses']} "
+                     + ("windowed poses, each model reading its stream through its own actuator response"
+                        if h.get("windowed") else "poses") + ") the point RMS goes from "
                      f"{_fmt_rms(h['rms_before'], unit)} to {_fmt_rms(h['rms_after'], unit)}.")
     return " ".join(parts)
 
@@ -103,7 +106,7 @@ def _nothing_found(d: Diagnosis) -> list[str]:
     parts: list[str] = []
     if not d.findings and d.at_noise_floor:
         parts.append(f"The motion capture shows no hidden effect: the geometric model predicts held-out poses at "
-                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these settled poses "
+                     f"{_fmt_rms(d.heldout_geometric, unit)}, the noise floor of these {pose_words(d.poses)} "
                      f"({_fmt_rms(d.noise_floor, unit)} from the marker noise and the samples averaged), so no "
                      "effect can predict them better; an effect the geometry absorbs on this plan would not show.")
     elif not d.findings and not d.too_few_settled:
@@ -121,10 +124,11 @@ def _nothing_found(d: Diagnosis) -> list[str]:
                      f"(adjusted p = {min(t['p_adjusted'] for t in tests):.2g}), as a drift, a sway or a bend would "
                      "leave them" if tests else "")
             parts.append(f"Yet the geometric model predicts held-out poses at {_fmt_rms(d.heldout_geometric, unit)}, "
-                         f"{ratio:.2g} times the noise floor of these settled poses ({_fmt_rms(d.noise_floor, unit)}): "
+                         f"{ratio:.2g} times the noise floor of these {pose_words(d.poses)} ({_fmt_rms(d.noise_floor, unit)}): "
                          "sessions with no hidden effect reach up to about twice the floor, and a weak effect of a "
                          f"shape the library does not hold sits there too{alike}. So the two cannot be told apart on "
-                         "this session; more poses, or longer holds, would.")
+                         "this session; more poses, or " + ("a longer stream" if "node" in d.poses.extras else "longer holds")
+                         + ", would.")
     return parts
 
 

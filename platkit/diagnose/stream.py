@@ -1,0 +1,184 @@
+"""Streams without holds in a diagnosis: the windowed poses a calibration from motion sees in a
+stream (:func:`platkit.calibrate.motion.motion_stream`), for the session diagnosed and for a
+held-out one, with the noise their floor needs.
+
+- The session diagnosed (:func:`training_stream`): its windows' nodes at the controls the
+  calibrated response reaches there, the calibration carrying that response as a term
+  (:class:`platkit.calibrate.motion.LocalResponseTerm`) that every fit of the diagnosis frees again.
+- A held-out stream (:func:`heldout_stream`, :func:`score_heldout_stream`): its windows cut once,
+  by the calibration given (fitted on the other session: nothing of the held-out stream is fitted),
+  and each model scored reads the held-out controls through its own response (the geometric
+  model's, refitted with the geometry; the diagnosed model's, refitted with its effects), so an
+  effect that changes the fitted response is judged with it, as it would predict a new recording;
+  where a model carries no response (a session with holds diagnosed), the calibration's.
+- The noise of each channel per coordinate (``settling['point_sigma_m']``, read by
+  :func:`platkit.diagnose.floor.noise_floor`): a marker's measured on the stream
+  (platkit.settle.estimate_noise, marker by marker: session.yaml declares no marker noise); a rigid
+  body's points declared (``rigid_body_noise``) first, else measured on the body stream, as
+  calibrate from motion reads them (:func:`platkit.calibrate.motion_points.point_sigmas`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from platkit.bodies import AXIS_LENGTH_M, frame_point_names
+from platkit.calibrate.estimate import point_errors
+from platkit.calibrate.motion import LocalResponseTerm, ResponseTerm, motion_stream
+from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
+from platkit.diagnose.bodies import as_points, point_calibration
+from platkit.diagnose.stats import paired_improvement
+from platkit.effects import with_history
+from platkit.io.calibration import Calibration
+from platkit.io.session import Session
+from platkit.model import PlatformSpec
+from platkit.notices import warn
+from platkit.poses import PoseSet
+from platkit.settle import estimate_noise
+
+__all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "read_through", "score_heldout_stream",
+           "stream_poses", "training_stream"]
+
+
+def marker_sigmas(session: Session) -> dict[str, float]:
+    """{marker: noise sigma per coordinate of one sample (m)} measured on ``session``'s marker
+    stream (K, M, 3), each marker apart (platkit.settle.estimate_noise: the median absolute second
+    difference); {} with under three samples."""
+    Y = None if session.markers is None else np.asarray(session.markers, float)
+    if Y is None or len(Y) < 3:
+        return {}
+    return {n: float(estimate_noise(Y[:, m:m + 1])) for m, n in enumerate(session.marker_names)}
+
+
+def _rms_mm(sig: dict[str, float]) -> str:
+    return f"{np.sqrt(np.mean(np.square(list(sig.values())))) * 1e3:.3g} mm per axis RMS"
+
+
+def stream_poses(folder, session: Session, cal: Calibration) -> tuple[PoseSet, LocalResponseTerm, str]:
+    """``session``'s stream as the windowed poses ``cal``'s response reads (motion_stream), each
+    channel's noise in ``settling['point_sigma_m']`` (module docstring), the response as a term at
+    ``cal``'s values, and the clause that says where the noise came from. A stream of rigid bodies
+    alone is read as calibrate read it: each body as its three points, ``cal``'s bodies as those
+    points; beside markers, a body's three points follow the markers."""
+    if bodies_alone(session):
+        sig, source = point_sigmas(session.body_names, session.body_noise, session.bodies)
+        poses, term = motion_stream(point_session(session), point_calibration(cal))
+        noise = (f"the points' noise {source} ({_rms_mm(sig)})" if sig
+                 else "the points' noise unknown (neither declared nor measurable: no noise floor)")
+    else:
+        sig = marker_sigmas(session)
+        poses, term = motion_stream(session, cal)
+        noise = f"the markers' noise measured on the stream ({_rms_mm(sig)})" if sig else "the markers' noise unknown"
+        if poses.n_bodies:  # declared first, else measured on the body stream (point_sigmas' rule)
+            declared = bool(session.body_noise)
+            poses = as_points(poses, None if declared else session.bodies, str(folder))
+            noise += f", the bodies' points' {'declared' if declared else 'measured on the stream'}"
+    poses.settling = {**(poses.settling or {}),
+                      "point_sigma_m": {**sig, **((poses.settling or {}).get("point_sigma_m") or {})}}
+    return poses, term, noise
+
+
+def _say_bodies(folder, session: Session) -> None:
+    """The one line that says a stream's rigid bodies were read as three points each."""
+    if not session.body_names:
+        return
+    said = ", ".join(f"{b} as " + "/".join(frame_point_names(b)) for b in session.body_names)
+    if bodies_alone(session):
+        warn(f"{folder}: no markers: rigid bodies {', '.join(session.body_names)} diagnosed as three points each "
+             f"({said}; origin and axis tips at {AXIS_LENGTH_M * 1e3:g} mm), the stream's windows read from them as "
+             "calibrate read them")
+    else:
+        warn(f"{folder}: rigid bodies diagnosed as three points each, origin and axis tips at "
+             f"{AXIS_LENGTH_M * 1e3:g} mm ({said})")
+
+
+def _transient(term: LocalResponseTerm) -> str:
+    left = (term.start_transient or {}).get("n_samples", 0)  # platkit.calibrate.motion_transient's rule
+    return (f"; {left} samples of the first command's transient left out (the stand's state before the first "
+            "command is not logged)" if left else "")
+
+
+def training_stream(folder, session: Session, cal: Calibration) -> tuple[PoseSet, Calibration]:
+    """The stream of the session diagnosed (``session``: as read before its settling failed) as
+    :func:`stream_poses` reads it, said, and ``cal`` with the response as a term
+    (:class:`LocalResponseTerm`: its Jacobian reused while the response stays linear): every fit of
+    the diagnosis frees it again with the geometry, so that an effect and the response are told
+    apart by the data."""
+    poses, term, noise = stream_poses(folder, session, cal)
+    _say_bodies(folder, session)
+    warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
+         f"calibration's actuator response, fitted again with every effect tried; {noise}" + _transient(term))
+    return poses, replace(cal, terms=[*cal.terms, term], theta=[*cal.theta, term.initial.copy()],
+                          theta_std=[*cal.theta_std, np.full(len(term.initial), np.nan)])
+
+
+@dataclass
+class HeldoutStream:
+    """A held-out stream's windowed poses (``poses``: at the controls the calibration given
+    reaches, its nodes in ``extras['node']``) and the response over its own command log
+    (``term``), through which each model scored reads the controls (:func:`read_through`)."""
+
+    poses: PoseSet
+    term: LocalResponseTerm
+
+
+def heldout_stream(folder, session: Session, cal: Calibration) -> HeldoutStream:
+    """The held-out ``session`` (a stream without settled holds) cut into windows by ``cal``, the
+    calibration given (its response, geometry, frame and markers: the windows, the first command's
+    transient and the curvature correction, the same for every model scored), said in one line."""
+    poses, term, noise = stream_poses(folder, session, cal)
+    _say_bodies(folder, session)
+    warn(f"{folder}: no settled holds: the held-out stream scored on its {poses.n_poses} windowed poses, cut by "
+         "the calibration given, each model reading the controls through its own actuator response (the geometric "
+         f"and the diagnosed model's, each refitted on the session diagnosed; nothing fitted here); {noise}"
+         + _transient(term))
+    return HeldoutStream(poses, term)
+
+
+def _response_theta(model: Calibration, held: HeldoutStream) -> np.ndarray:
+    """The response parameters ``model`` carries (its ResponseTerm's), else the calibration's."""
+    for term, theta in zip(model.terms, model.theta):
+        if isinstance(term, ResponseTerm) and len(theta) == len(held.term.initial):
+            return np.asarray(theta, float)
+    return np.asarray(held.term.initial, float)
+
+
+def read_through(held: HeldoutStream, model: Calibration, spec: PlatformSpec | None = None) -> PoseSet:
+    """The held-out windowed poses at the controls ``model``'s response reaches at their nodes,
+    without the nodes (a term of the session diagnosed adds no offset to another recording) and
+    with the history of these controls (platkit.effects.with_history)."""
+    p = held.poses
+    controls = held.term.reached(_response_theta(model, held), p)
+    out = p.subset(np.arange(p.n_poses))
+    out.controls = np.array(controls, float)
+    out.extras = {k: v for k, v in p.extras.items() if k != "node"}
+    out.dropped = list(p.dropped)
+    return with_history(out, spec)
+
+
+def _finite_mean(a: np.ndarray, axis: int | None = None):
+    ok = np.isfinite(a)
+    n = ok.sum(axis=axis)
+    total = np.where(ok, a, 0.0).sum(axis=axis)
+    if axis is None:
+        return float(total / n) if n else float("nan")
+    return np.divide(total, n, out=np.full(np.shape(n), np.nan), where=n > 0)
+
+
+def score_heldout_stream(base: Calibration, final: Calibration, held: HeldoutStream, spec: PlatformSpec,
+                         findings) -> dict:
+    """diagnosis.json's ``heldout_session`` of a held-out stream: the point RMS (m) of the
+    geometric model ``base`` and the diagnosed ``final``, each reading the controls through its
+    own response (:func:`read_through`), per marker, the paired one-sided p over the windows,
+    and ``n_poses``; each finding's ``heldout_session_rms_before/after`` set, as for settled poses."""
+    e0 = point_errors(base, read_through(held, base, spec))
+    e1 = point_errors(final, read_through(held, final, spec))
+    before, after = float(np.sqrt(_finite_mean(e0 ** 2))), float(np.sqrt(_finite_mean(e1 ** 2)))
+    for f in findings:
+        f.heldout_session_rms_before, f.heldout_session_rms_after = before, after
+    return {"rms_before": before, "rms_after": after,
+            "per_marker": {n: (float(np.sqrt(_finite_mean(e0[:, m] ** 2))), float(np.sqrt(_finite_mean(e1[:, m] ** 2))))
+                           for m, n in enumerate(base.marker_names)},
+            "p_improvement": paired_improvement(_finite_mean(e0 ** 2, axis=1), _finite_mean(e1 ** 2, axis=1)),
+            "n_poses": held.poses.n_poses, "windowed": True}

@@ -1,0 +1,34 @@
+"""A streamed session cut in time into two sessions of the same stand: the training part (the
+commands and motion-capture samples before the cut) and the held-out part (those from it on), each
+with the session's session.yaml and files beside (shared by the tests and benchmarks of held-out
+streams: the two parts share the stand's truth, not its samples)."""
+from __future__ import annotations
+
+import csv
+import shutil
+from pathlib import Path
+
+
+def split_stream(src: Path, out: Path, share: float, lead_s: float = 2.0) -> tuple[Path, Path]:
+    """``src`` cut at ``share`` of its command log's span into ``out / 'train'`` (before the cut)
+    and ``out / 'heldout'`` (from the cut on): markers.csv and commands.csv split by their time
+    column, every other file copied; the held-out command log starts ``lead_s`` before its first
+    marker sample (a log that began before the recording: the response model starts the actuators
+    at rest on the first command, and the stand, cut from a stream, is moving at the cut). Returns
+    (train, heldout)."""
+    rows = list(csv.reader((src / "markers.csv").open()))
+    cmds = list(csv.reader((src / "commands.csv").open()))
+    t0, t1 = float(cmds[1][0]), float(cmds[-1][0])
+    cut = t0 + share * (t1 - t0)
+    parts = []
+    for part, keep, keep_cmd in (("train", lambda t: t < cut, lambda t: t < cut),
+                                 ("heldout", lambda t: t >= cut, lambda t: t >= cut - lead_s)):
+        dst = out / part
+        shutil.copytree(src, dst)
+        for name, table, rule in (("markers.csv", rows, keep), ("commands.csv", cmds, keep_cmd)):
+            with (dst / name).open("w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow(table[0])
+                w.writerows(r for r in table[1:] if rule(float(r[0])))
+        parts.append(dst)
+    return parts[0], parts[1]
