@@ -101,9 +101,10 @@ def scored_only() -> Iterator[None]:
     """Within this block (in this thread), :func:`fit_calibration` leaves out what only a written
     calibration reports and a model selection's scoring of a candidate never reads: the singular
     values (at the start and at the estimate), the chosen columns' condition number, and the
-    classification of the held parameters (gauge or not excited) with the gauge's counts; its
+    classification of the held parameters (gauge or not excited) with the gauge's counts and the
+    stand parameters' columns on the reference poses, which serve only that (:func:`_start`); its
     ``identifiability`` says so under ``not_computed``. The fit, its active unknowns, weights,
-    noise and the names held are a full calibration's, bit for bit."""
+    noise and the names held are a full calibration's."""
     before = getattr(_SCORED, "on", False)
     _SCORED.on = True
     try:
@@ -118,7 +119,7 @@ def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTer
     :func:`platkit.calibrate.estimate.calibrate`)."""
     t0 = time.perf_counter()
     report = not getattr(_SCORED, "on", False)  # the figures only a written calibration reports
-    start = _start(poses, spec, terms, opt)
+    start = _start(poses, spec, terms, opt, report)
     problem = start.problem
     # stage 1: registration only (td held at its nominal), robustly
     reg = _registration_only(start, opt)
@@ -158,11 +159,15 @@ class _Start:
     gauge: Gauge
 
 
-def _start(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm], opt: CalibrationOptions) -> _Start:
+def _start(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm], opt: CalibrationOptions,
+           report: bool = True) -> _Start:
     """Stage 0: the problem, its start by rigid registration, its priors, and the gauge freedoms
     (what no set of poses fixes, told apart from what these poses do not excite on the stand's
     reference poses): the transform and marker coordinates that are gauges are held, and fixed by
-    the stated convention after the fit. NoConvergence where forward kinematics fails on most poses."""
+    the stated convention after the fit. Without ``report`` (:func:`scored_only`) the gauge is
+    analysed on the transform and marker columns alone, which decide what it holds (the other
+    candidates' columns serve only to classify what is held): one analysis for every candidate
+    set. NoConvergence where forward kinematics fails on most poses."""
     free_td = free_mask(spec, opt.free)  # bad names are bad input before any work
     problem = CalibrationProblem(spec, poses, terms)
     problem.row_block = opt.row_block
@@ -183,11 +188,12 @@ def _start(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm], opt: 
     candidates[problem.i_theta] = True
     reference = reference_poses_for(spec, problem.model)
     key = problem_digest(problem, z)
+    analysed = candidates if report else nuisance.copy()  # the columns the gauge analysis reads
     if key is None:
-        gauge = nuisance_gauge(problem, z, candidates, nuisance, reference, opt.rel_tol)
+        gauge = nuisance_gauge(problem, z, analysed, nuisance, reference, opt.rel_tol)
     else:
-        gauge = kept("gauge", digest(key, candidates, nuisance, *reference, opt.rel_tol),
-                     lambda: (spec, tuple(terms), nuisance_gauge(problem, z, candidates, nuisance, reference, opt.rel_tol)),
+        gauge = kept("gauge", digest(key, analysed, nuisance, *reference, opt.rel_tol),
+                     lambda: (spec, tuple(terms), nuisance_gauge(problem, z, analysed, nuisance, reference, opt.rel_tol)),
                      lambda got: (got[0], got[1], copy.deepcopy(got[2])))[2]
     nuisance[gauge.held] = False
     candidates[gauge.held] = False

@@ -9,6 +9,7 @@ The urdf stand's default arm (closed-form forward kinematics: fast), simulated w
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -166,3 +167,35 @@ def test_a_selection_scores_its_candidates_only_and_writes_the_full_chosen_one(a
     gauge = identifiability.Gauge([], [], np.arange(3), np.eye(3), [0, 0, 0], 1e-6, np.zeros((3, 0)),
                                   np.zeros((0, 6)), np.zeros((0, 6)))
     assert "rank_ref" not in gauge.__dict__ and gauge.rank_ref == 3
+
+
+TURNTABLE = """<?xml version="1.0"?>
+<robot name="turntable">
+  <link name="base"/><link name="table"/>
+  <joint name="spin" type="revolute"><parent link="base"/><child link="table"/>
+    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+</robot>
+"""
+
+
+def test_a_scored_candidate_holds_the_gauges_a_full_calibration_holds(tmp_path, monkeypatch):
+    from test_estimate import Truth
+
+    turntable = tmp_path / "turntable.urdf"
+    turntable.write_text(TURNTABLE, encoding="utf-8")
+    gantry = Path(__file__).resolve().parents[2] / "descriptions" / "gantry_xyz.urdf"
+    analysed = []
+    real = stages.nuisance_gauge
+    monkeypatch.setattr(stages, "nuisance_gauge", lambda *a, **k: analysed.append(int(a[2].sum())) or real(*a, **k))
+    for path, seed, n in ((gantry, 3, 50), (turntable, 8, 30)):
+        spec = get_platform("urdf", path)
+        poses = Truth(spec, seed=seed, n_markers=4, marker_spread=0.05).poses(n, 1e-4, spread=0.45)
+        full = calibrate(poses, spec)
+        with stages.scored_only():
+            scored = calibrate(poses, spec)
+        assert full.identifiability["gauge"]["held_during_the_fit"]  # gauges held: the case that matters
+        assert analysed[-1] == 6 + 3 * 4 < analysed[-2]  # the transform's and markers' columns alone
+        for a, b in ((full.fit.z, scored.fit.z), (full.fit.active, scored.fit.active), (full.td, scored.td),
+                     (full.marker_positions, scored.marker_positions), (full.fit.weights, scored.fit.weights)):
+            assert np.array_equal(a, b, equal_nan=True)
+        assert (full.td_status, full.rms_after) == (scored.td_status, scored.rms_after)
