@@ -1,0 +1,110 @@
+"""Diagnosis of a stream without holds against a held-out stream of the same stand.
+
+Each seed simulates one Stewart stream of the physical simulator (platkit simulate --physics
+--motion KIND --duration-s D --rate-hz 40 --noise-mm 0.2 --white-noise), clean or with a hidden
+effect; the stream is cut in time (tests/stream_split.py) into a training session (the first 70 %
+of the command log's span) and a held-out session (the rest): the same stand, not the same
+samples. The training session is calibrated from motion (platkit calibrate, its response kind
+chosen by BIC unless --response-kind) and diagnosed with --heldout the held-out stream.
+
+    .venv/bin/python benchmarks/diagnose_stream_heldout.py [--seeds 5201 5202 5203] \
+        [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30]
+
+Prints one row per seed, motion and effect: what diagnosis names (the truth's effect and place
+beside it), the held-out stream's point RMS before -> after (each model reading it through its own
+response), the noise floor of the training stream's windowed poses and the geometric model's
+K-fold held-out RMS, and, against the truth, the markers predicted at the held-out part's commands
+(truth_settled.csv: where the stand settles at each command, in the log's order) with calibrate's
+and with diagnose's calibration.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import io
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from stream_split import split_stream  # noqa: E402
+
+from platkit.cli import main  # noqa: E402
+
+TRAIN_SHARE = 0.7
+
+
+def truth_rms(sim: Path, cal: Path, t_cut: float, work: Path) -> float:
+    """RMS (mm, 3-D) of the markers ``cal`` predicts at the held-out part's commands against where
+    the true stand settles there (truth_settled.csv)."""
+    rows = list(csv.DictReader((sim / "truth_settled.csv").open()))
+    rows = [r for r in rows if float(r["t"]) >= t_cut]
+    controls = [f"L{k}" for k in range(1, 7)]
+    cmd = work / "held_commands.csv"
+    with cmd.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", *controls])
+        w.writerows([r["t"], *(r[c] for c in controls)] for r in rows)
+    out = work / "pred.csv"
+    assert main(["predict", "--calibration", str(cal), "--commands", str(cmd), "--out", str(out)]) == 0
+    got = list(csv.DictReader(out.open()))
+    markers = [f"M{k}" for k in range(1, 6)]
+    e = [[float(g[f"{m}_{c}"]) - float(r[f"{m}_{c}"]) for c in "xyz"] for g, r in zip(got, rows) for m in markers]
+    return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
+
+
+def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: str | None) -> dict:
+    src = root / f"s{seed}_{motion}_{effect.split(':')[0]}"
+    args = ["simulate", "--platform", "stewart", "--physics", "--motion", motion, "--duration-s", str(duration),
+            "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--seed", str(seed), "--out", str(src / "sim")]
+    assert main(args + ([] if effect == "none" else ["--effect", effect])) == 0
+    truth = yaml.safe_load((src / "sim" / "truth.yaml").read_text()).get("effects") or []
+    train, held = split_stream(src / "sim", src, TRAIN_SHARE)
+    t_cut = float(next(csv.reader((held / "commands.csv").open().readlines()[1:2]))[0])
+    rc = main(["calibrate", str(train), "--quiet", "--no-report", "--out", str(src / "cal")]
+              + ([] if kind is None else ["--response-kind", kind]))
+    assert rc == 0 or (src / "cal" / "calibration.yaml").is_file()
+    assert main(["diagnose", str(train), "--calibration", str(src / "cal" / "calibration.yaml"), "--heldout",
+                 str(held), "--out", str(src / "diag"), "--quiet", "--no-report"]) == 0
+    d = json.loads((src / "diag" / "diagnosis.json").read_text())
+    response = yaml.safe_load((src / "cal" / "calibration.yaml").read_text())["actuator_response"]["response"]["kind"]
+    return {"truth": [e["effect"] + f" {(e.get('physics') or {}).get('actuator', '')}".rstrip() for e in truth],
+            "named": [f["effect"] + f" {f['where'].get('actuator', '')}".rstrip() for f in d["findings"]],
+            "heldout": d["heldout_session"], "floor": d["noise_floor"], "cv": d["heldout_rms_geometric"],
+            "response": response, "calibrate_rc": rc,
+            "truth_rms": (truth_rms(src / "sim", src / "cal" / "calibration.yaml", t_cut, src),
+                          truth_rms(src / "sim", src / "diag" / "calibration.yaml", t_cut, src))}
+
+
+def main_() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, nargs="+", default=[5201, 5202, 5203])
+    ap.add_argument("--effects", nargs="+", default=["none", "backlash:1.0"])
+    ap.add_argument("--motion", nargs="+", default=["path", "multisine"])
+    ap.add_argument("--duration-s", type=float, default=30.0)
+    ap.add_argument("--response-kind", default=None, help="calibrate's --response-kind (default: its own choice)")
+    a = ap.parse_args()
+    print("seed motion effect (truth) | response | named | held-out stream rms mm before -> after (windows) | "
+          "floor mm | geometric K-fold mm (x floor) | held-out commands vs truth mm: calibrate -> diagnose")
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in a.seeds:
+            for motion in a.motion:
+                for effect in a.effects:
+                    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                        r = run(Path(tmp), seed, motion, effect, a.duration_s, a.response_kind)
+                    h, fl = r["heldout"], r["floor"]
+                    ratio = f"{r['cv'] / fl:.2g}" if fl else "-"
+                    print(f"{seed} {motion} {effect} ({', '.join(r['truth']) or 'none'}) | {r['response']}"
+                          + (f" (calibrate exit {r['calibrate_rc']})" if r["calibrate_rc"] else "")
+                          + f" | {', '.join(r['named']) or 'nothing'} | {h['rms_before']:.4g} -> {h['rms_after']:.4g}"
+                          f" ({h['n_poses']}) | {fl if fl is None else format(fl, '.3g')} | {r['cv']:.3g} ({ratio}) | "
+                          f"{r['truth_rms'][0]:.4g} -> {r['truth_rms'][1]:.4g}", flush=True)
+
+
+if __name__ == "__main__":
+    main_()
