@@ -11,9 +11,11 @@ chosen by BIC unless --response-kind) and diagnosed with --heldout the held-out 
         [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30]
 
 Prints one row per seed, motion and effect: what diagnosis names (the truth's effect and place
-beside it), the held-out stream's point RMS before -> after (each model reading it through its own
-response), the noise floor of the training stream's windowed poses and the geometric model's
-K-fold held-out RMS, and, against the truth, the markers predicted at the held-out part's commands
+beside it), the held-out stream's point RMS before -> after as diagnosis.json gives it (the
+diagnosis's geometric model and the diagnosed one, each reading it through its own response), the
+noise floor of the training stream's windowed poses and the geometric model's K-fold held-out RMS,
+the held-out stream's RMS with calibrate's calibration.yaml and with diagnose's, each file read as
+written (its windows and response), and, against the truth, the markers predicted at the held-out part's commands
 (truth_settled.csv: where the stand settles at each command, in the log's order) with calibrate's
 and with diagnose's calibration.
 """
@@ -34,7 +36,11 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from stream_split import split_stream  # noqa: E402
 
+from platkit.calibrate.estimate import point_errors  # noqa: E402
 from platkit.cli import main  # noqa: E402
+from platkit.diagnose.stream import heldout_stream, read_through  # noqa: E402
+from platkit.io.calibration import read_calibration  # noqa: E402
+from platkit.io.session import load_session  # noqa: E402
 
 TRAIN_SHARE = 0.7
 
@@ -58,6 +64,15 @@ def truth_rms(sim: Path, cal: Path, t_cut: float, work: Path) -> float:
     return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
 
 
+def stream_rms(cal_path: Path, held: Path) -> float:
+    """RMS (mm, 3-D) of the held-out stream's windowed poses predicted by the calibration file
+    ``cal_path`` as written (its windows, its response: platkit.diagnose.stream)."""
+    cal = read_calibration(str(cal_path))
+    h = heldout_stream(held, load_session(held, spec=cal.spec, quiet=True), cal)
+    e = point_errors(cal, read_through(h, cal, cal.spec))
+    return float(np.sqrt(np.nanmean(e ** 2)) * 1e3)
+
+
 def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: str | None) -> dict:
     src = root / f"s{seed}_{motion}_{effect.split(':')[0]}"
     args = ["simulate", "--platform", "stewart", "--physics", "--motion", motion, "--duration-s", str(duration),
@@ -77,6 +92,8 @@ def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: 
             "named": [f["effect"] + f" {f['where'].get('actuator', '')}".rstrip() for f in d["findings"]],
             "heldout": d["heldout_session"], "floor": d["noise_floor"], "cv": d["heldout_rms_geometric"],
             "response": response, "calibrate_rc": rc,
+            "files": (stream_rms(src / "cal" / "calibration.yaml", held),
+                      stream_rms(src / "diag" / "calibration.yaml", held)),
             "truth_rms": (truth_rms(src / "sim", src / "cal" / "calibration.yaml", t_cut, src),
                           truth_rms(src / "sim", src / "diag" / "calibration.yaml", t_cut, src))}
 
@@ -90,7 +107,8 @@ def main_() -> None:
     ap.add_argument("--response-kind", default=None, help="calibrate's --response-kind (default: its own choice)")
     a = ap.parse_args()
     print("seed motion effect (truth) | response | named | held-out stream rms mm before -> after (windows) | "
-          "floor mm | geometric K-fold mm (x floor) | held-out commands vs truth mm: calibrate -> diagnose")
+          "floor mm | geometric K-fold mm (x floor) | held-out stream mm, the files: calibrate -> diagnose | "
+          "held-out commands vs truth mm: calibrate -> diagnose")
     with tempfile.TemporaryDirectory() as tmp:
         for seed in a.seeds:
             for motion in a.motion:
@@ -103,6 +121,7 @@ def main_() -> None:
                           + (f" (calibrate exit {r['calibrate_rc']})" if r["calibrate_rc"] else "")
                           + f" | {', '.join(r['named']) or 'nothing'} | {h['rms_before']:.4g} -> {h['rms_after']:.4g}"
                           f" ({h['n_poses']}) | {fl if fl is None else format(fl, '.3g')} | {r['cv']:.3g} ({ratio}) | "
+                          f"{r['files'][0]:.4g} -> {r['files'][1]:.4g} | "
                           f"{r['truth_rms'][0]:.4g} -> {r['truth_rms'][1]:.4g}", flush=True)
 
 
