@@ -49,36 +49,15 @@ from typing import Any, Callable
 import numpy as np
 
 from platkit.calibrate.estimate import calibrate
-from platkit.diagnose.fitting import (
-    FROM_NO_MARKER,
-    FROM_SLOW_APPROACH,
-    ROUND_BESIDE_PROBE,
-    ROUND_BESIDE_TIME,
-    ROUND_WEAK_NAMES,
-    Diagnosis,
-    Finding,
-    Fit,
-    Options,
-    _cv,
-    _fit,
-    _fmt_rms,
-    _rms,
-    _where_text,
-    body_residuals,
-    extrapolated,
-)
+from platkit.diagnose.fitting import FROM_NO_MARKER, FROM_SLOW_APPROACH, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME
+from platkit.diagnose.fitting import ROUND_WEAK_NAMES, Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _rms
+from platkit.diagnose.fitting import _where_text, body_residuals, extrapolated
 from platkit.diagnose.floor import noise_floor
 from platkit.diagnose.lack_of_fit import lack_of_fit
 from platkit.diagnose.locate import locate, located
-from platkit.diagnose.naming import (
-    _best_probe,
-    _probe_beats,
-    _take_back,
-    _unproven_beside_probe,
-    _unproven_beside_time,
-    _weak_beside_lack_of_fit,
-    _without,
-)
+from platkit.diagnose.naming import _best_probe, _probe_beats, _take_back, _unproven_beside_probe
+from platkit.diagnose.naming import _unproven_beside_time, _weak_beside_lack_of_fit, _without
+from platkit.diagnose.response_kind import response_again
 from platkit.diagnose.recording import (
     _settling_finding,
     _slip_not_kept,
@@ -168,6 +147,16 @@ class Search:
         cur = _fit(spec, poses, self.prior, self.base_cal.fit.z, self.base_cal.fit.active, self.weights,
                    opt.lm_iterations, opt.robust)
         cur.cv = _cv(cur, spec, poses, opt.folds, opt.lm_iterations)
+        # a stream's response in the first order leaves a second-order drive's motion in the residuals,
+        # which a term along an actuator's travel takes a slice of: the response is chosen again first
+        again = response_again(spec, poses, self.prior, cur, self.free, self.td_start, self.platform_options,
+                               self.weights, opt)
+        self.response_note, self.given_terms = (None, {}) if again is None else (again[3], {})
+        if again is not None and again[1] is not None:  # judged beside it; written with the response as given
+            self.given_terms = {id(t): g for t, g in zip(again[0], self.prior) if t is not g}
+            self.prior, cur = list(again[0]), again[2]
+        if self.response_note is not None:
+            self.say(self.response_note["text"])
         self.cur = cur
         self.say(f"geometric model: fit RMS {_fmt_rms(np.sqrt(cur.rss * 3 / cur.n_obs), self.unit)}, "
                  f"held-out RMS {_fmt_rms(cur.cv_rms, self.unit)}")
@@ -204,9 +193,12 @@ class Search:
         """The estimator's full fit (robust weights, covariance) of ``terms`` with the current free
         set, and whether it is the model as given (no term added, the free set unchanged: then
         the geometric fit itself). The geometry freed again counts as a change of the model, with
-        or without a term beside it (its note in the rounds says calibration.yaml estimates it)."""
+        or without a term beside it (its note in the rounds says calibration.yaml estimates it). A
+        stream's response chosen again for the search (response_kind.response_again) is fitted
+        of the kind the calibration gave: the names were judged beside it, the kind is calibrate's."""
         if len(terms) == len(self.prior) and self.free == self.free_given:
             return self.base_cal, True
+        terms = [self.given_terms.get(id(t), t) for t in terms]  # the stream's response of the kind given
         return calibrate(self.poses, self.spec, terms=terms, free=self.free, td_start=self.td_start,
                          robust=self.opt.robust, platform_options=self.platform_options), False
 
@@ -517,7 +509,9 @@ class Search:
             finding.signature_after = _signature(info["J"], self.final_cal.fit.residuals_after, theta,
                                                  _offset_sign(finding.term, theta, info["fit"], self.poses))
             finding.evidence = _evidence(finding, self.poses, self.unit, folds=self.opt.folds)
-        self.locations = locate(self.final_cal.fit.residuals_after, self.poses, self.spec, None, self.opt.alpha)
+        # what is left is judged in the model the names were judged in (a stream's response chosen again)
+        self.locations = locate(self.cur.r, self.poses, self.spec, self.weights, self.opt.alpha) if self.given_terms \
+            else locate(self.final_cal.fit.residuals_after, self.poses, self.spec, None, self.opt.alpha)
 
     def structure_left(self) -> None:
         """What the final model leaves: the probe that beat it (``unexplained``), structure the
@@ -583,6 +577,8 @@ class Search:
         """The :class:`Diagnosis` whose calibration is ``stand``, ``heldout`` (another recording)
         scored before and after, and its verdict."""
         library = self.library
+        if self.response_note is not None:  # chosen before the search's rounds, recorded beside them
+            self.rounds.append(self.response_note)
         heldout_info = None
         if heldout is not None:
             heldout_info = _score_heldout(self.base_cal, stand, heldout, self.spec, self.findings)
