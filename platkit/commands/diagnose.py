@@ -16,7 +16,9 @@ def add_parser(sub):
     p.add_argument("--calibration", required=True, help="calibration.yaml to diagnose (from `platkit calibrate`)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--heldout", default=None, help="another session of the same stand and mocap frame, scored "
-                                                   "before and after (never used to choose)")
+                                                   "before and after (never used to choose); a stream without "
+                                                   "holds is scored on its windows, each model reading them "
+                                                   "through its own actuator response")
     p.add_argument("--heldout-register", type=int, default=None, metavar="K",
                    help="the --heldout session was recorded in a motion-capture set-up of its own (another day: the "
                         "cameras calibrated again, the robot moved): score it also with each model re-registered to "
