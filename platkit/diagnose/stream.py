@@ -14,8 +14,9 @@ held-out one, with the noise their floor needs.
 - The noise of each channel per coordinate (``settling['point_sigma_m']``, read by
   :func:`platkit.diagnose.floor.noise_floor`): a marker's measured on the stream
   (platkit.settle.estimate_noise, marker by marker: session.yaml declares no marker noise); a rigid
-  body's points declared (``rigid_body_noise``) first, else measured on the body stream, as
-  calibrate from motion reads them (:func:`platkit.calibrate.motion_points.point_sigmas`).
+  body's points measured on the body stream (:func:`platkit.calibrate.motion_points.point_sigmas`),
+  else declared (``rigid_body_noise``): the floor judges the data, as for settled poses
+  (:func:`platkit.diagnose.bodies.as_points`); calibrate weighs by the declared noise first.
 """
 from __future__ import annotations
 
@@ -61,8 +62,10 @@ def stream_poses(folder, session: Session, cal: Calibration) -> tuple[PoseSet, L
     ``cal``'s values, and the clause that says where the noise came from. A stream of rigid bodies
     alone is read as calibrate read it: each body as its three points, ``cal``'s bodies as those
     points; beside markers, a body's three points follow the markers."""
-    if bodies_alone(session):
-        sig, source = point_sigmas(session.body_names, session.body_noise, session.bodies)
+    if bodies_alone(session):  # measured on the stream first: the floor judges the data
+        sig, source = point_sigmas(session.body_names, {}, session.bodies)
+        if not sig:
+            sig, source = point_sigmas(session.body_names, session.body_noise)
         poses, term = motion_stream(point_session(session), point_calibration(cal))
         noise = (f"the points' noise {source} ({_rms_mm(sig)})" if sig
                  else "the points' noise unknown (neither declared nor measurable: no noise floor)")
@@ -70,10 +73,10 @@ def stream_poses(folder, session: Session, cal: Calibration) -> tuple[PoseSet, L
         sig = marker_sigmas(session)
         poses, term = motion_stream(session, cal)
         noise = f"the markers' noise measured on the stream ({_rms_mm(sig)})" if sig else "the markers' noise unknown"
-        if poses.n_bodies:  # declared first, else measured on the body stream (point_sigmas' rule)
-            declared = bool(session.body_noise)
-            poses = as_points(poses, None if declared else session.bodies, str(folder))
-            noise += f", the bodies' points' {'declared' if declared else 'measured on the stream'}"
+        if poses.n_bodies:  # measured on the body stream, else declared (as_points' rule)
+            measured = session.bodies is not None and len(session.bodies) >= 3
+            poses = as_points(poses, session.bodies, str(folder))
+            noise += f", the bodies' points' {'measured on the stream' if measured else 'declared'}"
     poses.settling = {**(poses.settling or {}),
                       "point_sigma_m": {**sig, **((poses.settling or {}).get("point_sigma_m") or {})}}
     return poses, term, noise

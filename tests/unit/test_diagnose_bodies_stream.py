@@ -104,3 +104,28 @@ def test_a_play_is_named_from_the_bodies_alone(tmp_path):
     assert d["noise_floor"] is not None
     cal = yaml.safe_load((tmp_path / "diag" / "calibration.yaml").read_text())
     assert sorted(cal["rigid_bodies"]["bodies"]) == ["T1", "T2"] and not cal.get("markers")
+
+
+def test_the_floor_takes_the_points_noise_measured_on_the_stream_over_the_declared(diagnosed, tmp_path):
+    """The noise floor judges the data: where the body stream can be measured, a declared
+    ``rigid_body_noise`` ten times too large does not set the points' noise (the declaration serves
+    calibrate's weights); without the stream's measure the points take the declared noise."""
+    import shutil
+
+    from platkit.diagnose.stream import stream_poses
+    from platkit.io.calibration import read_calibration
+    from platkit.io.session import load_session
+
+    _, root = diagnosed
+    folder = tmp_path / "declared"
+    shutil.copytree(root / "bodies", folder)
+    y = yaml.safe_load((folder / "session.yaml").read_text())
+    y["rigid_body_noise"] = {"position_mm": 2.0, "rotation_deg": 1.0}  # about ten times the stream's noise
+    (folder / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
+    cal = read_calibration(str(root / "cal" / "calibration.yaml"))
+    session = load_session(folder, spec=cal.spec, quiet=True)
+    poses, _, noise = stream_poses(folder, session, cal)
+    sig = poses.settling["point_sigma_m"]
+    assert sorted(sig) == ["T1.o", "T1.x", "T1.y", "T2.o", "T2.x", "T2.y"]
+    assert all(0.05e-3 < s < 0.6e-3 for s in sig.values()), sig  # measured (0.2 mm white), not 2 mm declared
+    assert "measured" in noise, noise
