@@ -113,6 +113,13 @@ class Effect:
         that offset's (3,) standard deviation, NaN where unknown); None when it moves no marker."""
         return None
 
+    def moved_markers(self, term: ModelTerm, theta: np.ndarray,
+                      std: np.ndarray | None) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Every marker a recording artefact moved, each as :meth:`moved_marker` gives one (a rigid
+        body's three points move together); default: :meth:`moved_marker`'s, if any."""
+        moved = self.moved_marker(term, theta, std)
+        return [] if moved is None else [moved]
+
     def correction(self, where: dict[str, Any], unwritten: str | None = None) -> str:
         """For a recording artefact: how its accepted term at ``where`` is corrected, a sentence
         for the finding's ``corrected``. ``unwritten``: for a term with an :meth:`onset` whose

@@ -36,7 +36,7 @@ def stand_calibration(cal: Calibration, library: Mapping[str, Effect] | None = N
     """The calibration of the stand from one fitted with recording artefacts (the terms whose
     effect in ``library``, default every installed effect, has ``recording`` True): their terms
     left out (the stand is predicted where it settles), a marker one of them moved placed where it
-    moved to (``Effect.moved_marker``: its offset added to its position, the stds combined).
+    moved to (``Effect.moved_markers``: each offset added to its position, the stds combined).
     Other terms stay."""
     library = effect_library() if library is None else library
     artefact = [t.effect in library and library[t.effect].recording for t in cal.terms]
@@ -44,9 +44,7 @@ def stand_calibration(cal: Calibration, library: Mapping[str, Effect] | None = N
     markers = np.array(cal.marker_positions, float, copy=True)
     mstd = np.array(cal.marker_std, float, copy=True)
     for t, theta, std, a in zip(cal.terms, cal.theta, cal.theta_std, artefact):
-        moved = library[t.effect].moved_marker(t, theta, std) if a else None
-        if moved is not None:
-            m, offset, sd = moved
+        for m, offset, sd in (library[t.effect].moved_markers(t, theta, std) if a else []):
             markers[m] = markers[m] + offset
             mstd[m] = np.sqrt(mstd[m] ** 2 + sd**2)
     if len(keep) == len(cal.terms):
