@@ -15,7 +15,7 @@ rad, deg or counts otherwise). Time is measured from the session's first command
 | cyclic_error | u_i + a sin(2 pi u_i / P) + b cos(2 pi u_i / P), P from a short list per unit | a, b |
 | scale_nonlinearity | u_i + a P2(s) + b P3(s), s = travel scaled to [-1, 1] over the stroke (Legendre) | a, b |
 | settling_lag | u - l (u_k - u_k-1): short of the command by a fraction of the last step (one term) | l |
-| marker_slip | marker m moved by d (moving frame) from time t_s on (t_s: the marker's change point) | d (3) |
+| marker_slip | marker m moved by d (moving frame) from time t_s on (t_s: the marker's change point); a rigid body's three points each by its own step from one t_s (body_slip.py) | d (3); a body's 9 |
 | base_tilt | the pose turned about the base x and y axes: X + w x X, R' = exp(w) R (one term) | w_x, w_y |
 
 ``where`` of every term holds what ``from_dict`` needs to rebuild it without the spec
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from platkit.hookspecs import hookimpl
 from platkit_effects.base_tilt import BaseTilt, BaseTiltTerm
+from platkit_effects.body_slip import BodySlipTerm, MarkerOrBodySlip
 from platkit_effects.compliance import (
     Compliance,
     ComplianceTerm,
@@ -58,14 +59,14 @@ from platkit_effects.tree_compliance import JointRotationTerm, MassMomentTerm
 #: every name imported from platkit_effects (the effects live in one module per family: drive,
 #: compliance, thermal, recording, base_tilt; their shared helpers in common)
 __all__ = [
-    "Backlash", "BacklashTerm", "BaseTilt", "BaseTiltTerm", "COOLING_TAUS_S", "Compliance", "ComplianceTerm",
-    "CyclicError", "CyclicTerm", "EFFECTS", "JointRotationTerm", "LinkBending", "MassMomentTerm", "MarkerSlip", "MarkerSlipTerm", "PERIODS", "SLIP_DOMINANCE",
+    "Backlash", "BacklashTerm", "BaseTilt", "BaseTiltTerm", "BodySlipTerm", "COOLING_TAUS_S", "Compliance", "ComplianceTerm",
+    "CyclicError", "CyclicTerm", "EFFECTS", "JointRotationTerm", "LinkBending", "MassMomentTerm", "MarkerOrBodySlip", "MarkerSlip", "MarkerSlipTerm", "PERIODS", "SLIP_DOMINANCE",
     "ScaleNonlinearity", "ScaleTerm", "SettlingLag", "SettlingTerm", "ThermalDrift", "ThermalDriftTerm",
     "ThermalExpansionTerm", "actuator_loads", "cached_loads", "change_point", "motion_heat", "one_marker_steps",
     "parallel_actuator_forces", "platkit_register_effects", "remember_heat", "serial_gravity_torques",
 ]
 
-EFFECTS = [Backlash(), Compliance(), ThermalDrift(), CyclicError(), ScaleNonlinearity(), SettlingLag(), MarkerSlip(),
+EFFECTS = [Backlash(), Compliance(), ThermalDrift(), CyclicError(), ScaleNonlinearity(), SettlingLag(), MarkerOrBodySlip(),
            BaseTilt(), LinkBending()]
 
 
