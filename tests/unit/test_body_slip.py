@@ -1,0 +1,95 @@
+"""`marker_slip` at a rigid body (plugins/platkit_effects/body_slip.py): a body knocked on the stand
+halfway through a session moves its three points together; diagnosis names the slip at the body
+and writes the body's placement after it.
+
+End to end on a simulated Stewart session (platkit simulate, settled, 40 random poses, one body, the
+markers stripped: tests/bodies_alone.py), T1 moved on its link at the 21st command by 3 mm and 1
+degree in its own frame (platkit.simulate.body_slip). benchmarks/diagnose_body_slip.py runs the
+same on other seeds (docs/effects-body-slip.md).
+"""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from bodies_alone import strip_markers
+
+from platkit.cli import main
+from platkit.errors import BadInput
+from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix
+from platkit.plugins import effect_library
+from platkit.simulate.body_slip import slip_body
+from platkit_effects.body_slip import BodySlipTerm, body_points
+
+
+def placement_error(written: dict, truth: dict) -> tuple[float, float]:
+    """(position error mm, rotation error deg) of calibration.yaml's body (position in mm) against
+    truth.yaml's placement (SI)."""
+    dp = np.linalg.norm(np.asarray(written["position"]) * 1e-3 - np.asarray(truth["position"])) * 1e3
+    R = matrix_from_rotvec(np.asarray(truth["rotation_vector"])).T @ matrix_from_rotvec(
+        np.asarray(written["rotation_vector"]))
+    return float(dp), float(np.degrees(np.linalg.norm(rotvec_from_matrix(R))))
+
+
+@pytest.fixture(scope="module")
+def slipped(tmp_path_factory):
+    root = tmp_path_factory.mktemp("body_slip")
+    sim = root / "sim"
+    assert main(["simulate", "--platform", "stewart", "--out", str(sim), "--seed", "3", "--poses", "40",
+                 "--plan", "random", "--rigid-bodies", "1"]) == 0
+    bodies = strip_markers(sim, root / "b")
+    t_slip = float(list(csv.reader((bodies / "commands.csv").open()))[21][0])
+    slip_body(bodies, "T1", t_slip, [0.002, -0.002, 0.001], np.radians([0.6, 0.5, -0.6]))
+    for verb, out in (("calibrate", "cal"), ("diagnose", "diag")):
+        extra = [] if verb == "calibrate" else ["--calibration", str(root / "cal" / "calibration.yaml")]
+        assert main([verb, str(bodies), *extra, "--out", str(root / out), "--quiet", "--no-report"]) == 0
+    return root, bodies
+
+
+def test_the_slip_is_named_at_the_body(slipped):
+    root, bodies = slipped
+    d = json.loads((root / "diag" / "diagnosis.json").read_text())
+    first = d["findings"][0]
+    assert first["effect"] == "marker_slip"
+    assert first["where"]["rigid_body"] == "T1" and "marker" not in first["where"]  # the body, not one point
+    truth = yaml.safe_load((bodies / "truth.yaml").read_text())["rigid_bodies"]["T1"]["after_slip"]
+    t_cmd = [float(r[0]) for r in list(csv.reader((bodies / "commands.csv").open()))[1:]]
+    # between the last pose before the slip and the first after it
+    assert t_cmd[19] - t_cmd[0] < first["where"]["from_time_s"] <= truth["from_time_s"]
+    assert "rigid body T1 is fitted at both placements" in first["corrected"]
+    assert "placement after the slip" in first["corrected"]
+    assert not any(f["effect"] == "marker_slip" and "marker" in f["where"] for f in d["findings"])
+
+
+def test_the_written_body_is_placed_after_the_slip(slipped):
+    root, bodies = slipped
+    truth = yaml.safe_load((bodies / "truth.yaml").read_text())["rigid_bodies"]["T1"]["after_slip"]
+    err = {k: placement_error(yaml.safe_load((root / k / "calibration.yaml").read_text())["rigid_bodies"]["bodies"]["T1"],
+                              truth) for k in ("cal", "diag")}
+    assert err["diag"][0] < 1.0 and err["diag"][1] < 0.3  # mm, deg
+    assert err["diag"][0] < 0.5 * err["cal"][0] and err["diag"][1] < 0.5 * err["cal"][1]
+
+
+def test_a_body_slip_term_round_trips_and_names_bad_input():
+    effect = effect_library()["marker_slip"]
+    assert body_points(["M1", "T1.o", "T1.x", "T1.y", "T2.o", "T2.x"]) == {"T1": [1, 2, 3]}  # T2 lacks its y tip
+    term = effect.body_term("T1", [1, 2, 3], 12.5)
+    theta = np.arange(9) * 1e-4
+    back = effect.from_dict(term.to_dict(theta, np.abs(theta)))
+    assert isinstance(back, BodySlipTerm) and back.points == [1, 2, 3] and back.t_slip == 12.5
+    moved = effect.moved_markers(term, theta, np.abs(theta))
+    assert [m for m, _, _ in moved] == [1, 2, 3] and np.allclose(moved[2][1], theta[6:])
+    bad = term.to_dict(theta)
+    bad["where"]["point_indices"] = [1, 2]
+    with pytest.raises(BadInput, match="point_indices"):
+        effect.from_dict(bad)
+
+
+def test_slip_body_refuses_a_body_the_session_lacks(tmp_path: Path):
+    (tmp_path / "session.yaml").write_text(yaml.safe_dump({"units": {"length": "mm"}, "rigid_bodies": ["T1"]}))
+    with pytest.raises(BadInput, match="T9"):
+        slip_body(tmp_path, "T9", 1.0, np.zeros(3), np.zeros(3))
