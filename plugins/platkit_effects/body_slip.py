@@ -7,8 +7,8 @@ They are the body's own report, not markers of their own: a body knocked on the 
 three by one rotation and translation, and one of them cannot move alone. So on a body's points
 the slip is the body's (:class:`BodySlipTerm`): the three points each stepped from one time t_s on,
 the time where their residuals, stacked, change together (the same change-point statistic as one
-marker's, :func:`platkit_effects.recording.change_point`), and no slip of one point is offered
-there. The term gives each point its own step (9 parameters): a term sees the session and its own
+marker's, :func:`platkit_effects.recording.change_point`, beyond :func:`step_level`), and no slip
+of one point is offered there. The term gives each point its own step (9 parameters): a term sees the session and its own
 theta, not the fitted places of the points, so the lever from the origin to the tips in the moving
 frame, which a rotation about the origin needs, is not available to it; a rigid motion's steps
 (6 numbers) lie within the 9, and the placement after the slip is read back rigidly from the three
@@ -27,7 +27,7 @@ from platkit.errors import BadInput
 from platkit.terms import ModelTerm
 from platkit_effects.recording import SLIP_DOMINANCE, MarkerSlip, change_point
 
-__all__ = ["BodySlipTerm", "MarkerOrBodySlip", "body_points", "body_steps"]
+__all__ = ["SPLIT_LEVEL", "BodySlipTerm", "MarkerOrBodySlip", "body_points", "body_steps", "step_level"]
 
 
 def body_points(marker_names: list[str]) -> dict[str, list[int]]:
@@ -55,6 +55,21 @@ def body_steps(residuals: np.ndarray, k: int, points: list[int], dominance: floa
     others = np.delete(step, points)
     others = others[np.isfinite(others)]
     return bool(np.all(np.isfinite(own)) and (others.size == 0 or np.max(own) >= dominance * np.max(others)))
+
+
+#: a body's step is a candidate where its change point's F is beyond this level, the splits counted
+SPLIT_LEVEL = 0.01
+
+
+def step_level(n: int, d: int = 9, level: float = SPLIT_LEVEL, min_segment: int = 3) -> float:
+    """The F a step of a body's ``d`` residual coordinates over ``n`` poses in time order must reach
+    at its best split (:func:`platkit_effects.recording.change_point`) to be a slip's candidate: the
+    F quantile at ``level`` over the number of splits tried (Bonferroni). A body's three points carry
+    nine coordinates, so whatever the stand leaves in them (a play in a joint) steps somewhere;
+    only a step that stands out of them is a slip."""
+    from scipy.stats import f  # here, not at the top: every stand lookup loads this plugin
+
+    return float(f.ppf(1.0 - level / max(n - 2 * min_segment, 1), d, max(n - 2 * d, 1)))
 
 
 @dataclass
@@ -117,8 +132,8 @@ class MarkerOrBodySlip(MarkerSlip):
         order = np.argsort(t, kind="stable")
         ts, r = t[order], residuals[order]
         for body, pts in bodies.items():
-            k, _ = change_point(r[:, pts, :].reshape(len(ts), -1))
-            if k <= 0 or not body_steps(r, k, pts):
+            k, F = change_point(r[:, pts, :].reshape(len(ts), -1))
+            if k <= 0 or F < step_level(len(ts)) or not body_steps(r, k, pts):
                 continue
             # as a marker's: the geometry absorbs part of the step, so the neighbouring rows compete
             for j in (k - 1, k, k + 1):
