@@ -277,7 +277,7 @@ def _fmt_rms(x: float, unit: str) -> str:
     return f"{x / length_scale(unit):.3g} {unit}"
 
 def _where_text(where: dict) -> str:
-    keys = ("actuator", "joint", "marker", "time", "region", "frame", "period", "from_time_s")
+    keys = ("actuator", "joint", "marker", "rigid_body", "time", "region", "frame", "period", "from_time_s")
     parts = [f"{k} {where[k]}" for k in keys if k in where]
     return ", ".join(parts) or "the whole model"
 
