@@ -56,10 +56,10 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
     return out
 
 def place(term: ModelTerm) -> tuple:
-    """(effect, actuator or joint, marker): terms of one kind at one place compete, never add up."""
+    """(effect, actuator or joint, marker or rigid body): terms of one kind at one place compete, never add up."""
     w = term.where
     actuator = str(w.get("actuator", w.get("joint", "")))
-    return term.effect, "" if actuator == "all" else actuator, str(w.get("marker", ""))
+    return term.effect, "" if actuator == "all" else actuator, str(w.get("marker", w.get("rigid_body", "")))
 
 def best_variant(i0: int, cands: list, scr: list, cur: Fit, spec: PlatformSpec, poses: PoseSet,
                   weights: np.ndarray, opt: Options) -> tuple[int, Fit]:
