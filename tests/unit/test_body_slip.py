@@ -63,6 +63,8 @@ def test_the_slip_is_named_at_the_body(slipped):
     assert "rigid body T1 is fitted at both placements" in first["corrected"]
     assert "placement after the slip" in first["corrected"]
     assert not any(f["effect"] == "marker_slip" and "marker" in f["where"] for f in d["findings"])
+    screened = [t["where"] for r in d["rounds"] for t in r.get("top", []) if t["effect"] == "marker_slip"]
+    assert screened and all(w.startswith("rigid_body T1, from_time_s") for w in screened)
 
 
 def test_the_written_body_is_placed_after_the_slip(slipped):
