@@ -57,19 +57,21 @@ def body_steps(residuals: np.ndarray, k: int, points: list[int], dominance: floa
     return bool(np.all(np.isfinite(own)) and (others.size == 0 or np.max(own) >= dominance * np.max(others)))
 
 
-#: a body's step is a candidate where its change point's F is beyond this level, the splits counted
+#: a body's step is a candidate where its change point's F is beyond this level
 SPLIT_LEVEL = 0.01
 
 
-def step_level(n: int, d: int = 9, level: float = SPLIT_LEVEL, min_segment: int = 3) -> float:
+def step_level(n: int, d: int = 9, level: float = SPLIT_LEVEL) -> float:
     """The F a step of a body's ``d`` residual coordinates over ``n`` poses in time order must reach
     at its best split (:func:`platkit_effects.recording.change_point`) to be a slip's candidate: the
-    F quantile at ``level`` over the number of splits tried (Bonferroni). A body's three points carry
-    nine coordinates, so whatever the stand leaves in them (a play in a joint) steps somewhere;
-    only a step that stands out of them is a slip."""
+    F quantile at ``level``. A body's three points carry nine coordinates, so whatever the stand
+    leaves in them (a play in a joint) steps somewhere; only a step that stands out of them is a
+    slip. The splits tried are not counted: the geometry fitted before the slip is named absorbs
+    part of every step, which leaves the statistic well under its F distribution where nothing
+    slipped (docs/effects-body-slip.md)."""
     from scipy.stats import f  # here, not at the top: every stand lookup loads this plugin
 
-    return float(f.ppf(1.0 - level / max(n - 2 * min_segment, 1), d, max(n - 2 * d, 1)))
+    return float(f.ppf(1.0 - level, d, max(n - 2 * d, 1)))
 
 
 @dataclass
