@@ -1,0 +1,139 @@
+"""A rigid body knocked on the stand mid-session: what diagnosis names, and where the calibration it
+writes places the body, against calibrate's.
+
+Each seed simulates one Stewart session (platkit simulate, settled, ``--poses`` random poses, one
+rigid body T1, the markers stripped: tests/bodies_alone.py) and moves T1 on its link at command
+``--slip-at`` by ``--shift-mm`` and ``--turn-deg`` in random directions of its own frame
+(platkit.simulate.body_slip). The session is cut in time: the commands before ``--train`` are
+calibrated (platkit calibrate) and diagnosed (platkit diagnose --heldout the rest, recorded after
+the slip). The same seed without the slip is diagnosed too (a clean session must stay clean).
+
+    .venv/bin/python benchmarks/diagnose_body_slip.py [--seeds 501 502 ...]
+
+Prints one row per seed: what diagnosis names on the slipped session (right: the first finding is
+marker_slip at rigid body T1, splitting the settled poses where the true slip does), the
+held-out session's RMS with calibrate's and diagnose's calibration (diagnosis.json's
+heldout_session), T1's placement error against the truth after the slip (position mm, rotation deg)
+with calibrate's and diagnose's calibration.yaml, their ratio, and what diagnosis names on the clean
+session with its placement error (the gauge's floor: the placement is fitted with the geometry).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import io
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from bodies_alone import strip_markers  # noqa: E402
+
+from platkit.cli import main  # noqa: E402
+from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix  # noqa: E402
+from platkit.settle import load_poses  # noqa: E402
+from platkit.simulate.body_slip import slip_body  # noqa: E402
+
+
+def _quiet(argv: list[str]) -> int:
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return main(argv)
+
+
+def cut(src: Path, dst: Path, t_cut: float, later: bool) -> Path:
+    """``src`` with the commands and samples before ``t_cut`` (``later`` False) or from it on."""
+    dst.mkdir()
+    for f in src.iterdir():
+        if f.name not in ("markers.csv", "commands.csv"):
+            (dst / f.name).write_bytes(f.read_bytes())
+    for name in ("markers.csv", "commands.csv"):
+        rows = list(csv.reader((src / name).open()))
+        with (dst / name).open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(rows[0])
+            w.writerows(r for r in rows[1:] if (float(r[0]) >= t_cut) == later)
+    return dst
+
+
+def placement_error(cal: Path, truth: dict) -> tuple[float, float]:
+    """(mm, deg): calibration.yaml's T1 (mm) against a placement of truth.yaml (SI)."""
+    c = yaml.safe_load(cal.read_text())["rigid_bodies"]["bodies"]["T1"]
+    dp = np.linalg.norm(np.asarray(c["position"]) * 1e-3 - np.asarray(truth["position"])) * 1e3
+    R = matrix_from_rotvec(np.asarray(truth["rotation_vector"])).T @ matrix_from_rotvec(np.asarray(c["rotation_vector"]))
+    return float(dp), float(np.degrees(np.linalg.norm(rotvec_from_matrix(R))))
+
+
+def same_split(session: Path, located_s: float, true_s: float) -> bool:
+    """Whether a slip located at ``located_s`` puts the same settled poses of ``session`` after it as
+    the true one (times since the first command): a pose that never settled leaves a wider gap."""
+    t = np.asarray(load_poses(str(session)).extras["elapsed"], float)
+    return bool(np.array_equal(t >= located_s, t >= true_s))
+
+
+def run(seed: int, root: Path, args, slip: bool) -> dict:
+    sim = root / f"sim{int(slip)}"
+    assert _quiet(["simulate", "--platform", "stewart", "--out", str(sim), "--seed", str(seed), "--poses",
+                   str(args.poses), "--plan", "random", "--rigid-bodies", "1"]) == 0
+    whole = strip_markers(sim, root / f"b{int(slip)}")
+    t_cmd = [float(r[0]) for r in list(csv.reader((whole / "commands.csv").open()))[1:]]
+    if slip:
+        rng = np.random.default_rng(seed + 7919)
+        d, w = rng.normal(size=3), rng.normal(size=3)
+        slip_body(whole, "T1", t_cmd[args.slip_at], d * args.shift_mm * 1e-3 / np.linalg.norm(d),
+                  w * np.radians(args.turn_deg) / np.linalg.norm(w))
+    train = cut(whole, root / f"train{int(slip)}", t_cmd[args.train], False)
+    held = cut(whole, root / f"held{int(slip)}", t_cmd[args.train], True)
+    cal, diag = root / f"cal{int(slip)}", root / f"diag{int(slip)}"
+    rc = _quiet(["calibrate", str(train), "--out", str(cal), "--quiet", "--no-report"])
+    assert rc in (0, 3), f"seed {seed}: calibrate exit {rc}"
+    assert _quiet(["diagnose", str(train), "--calibration", str(cal / "calibration.yaml"), "--heldout", str(held),
+                   "--out", str(diag), "--quiet", "--no-report"]) == 0
+    d = json.loads((diag / "diagnosis.json").read_text())
+    truth = yaml.safe_load((whole / "truth.yaml").read_text())["rigid_bodies"]["T1"]
+    ref = truth.get("after_slip", truth)
+    names = [f["effect"] + (f" {f['where'].get('rigid_body') or f['where'].get('marker') or ''}".rstrip())
+             for f in d["findings"]]
+    first = d["findings"][0] if d["findings"] else None
+    right = (first is not None and first["effect"] == "marker_slip" and first["where"].get("rigid_body") == "T1"
+             and "marker" not in first["where"]
+             and same_split(train, first["where"]["from_time_s"], ref.get("from_time_s", np.nan)))
+    h = d.get("heldout_session") or {}
+    return {"names": names, "right": right, "held": (h.get("rms_before"), h.get("rms_after")),
+            "cal": placement_error(cal / "calibration.yaml", ref), "diag": placement_error(diag / "calibration.yaml", ref)}
+
+
+def main_(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[501, 502, 503, 504, 505, 506, 507, 508])
+    ap.add_argument("--poses", type=int, default=60)
+    ap.add_argument("--slip-at", type=int, default=25, help="the command at which T1 slips")
+    ap.add_argument("--train", type=int, default=40, help="the commands before this one are diagnosed")
+    ap.add_argument("--shift-mm", type=float, default=3.0)
+    ap.add_argument("--turn-deg", type=float, default=1.0)
+    args = ap.parse_args(argv)
+    print("seed | named (slipped) | right | held-out mm cal -> diag | T1 after slip: cal mm/deg | diag mm/deg | "
+          "ratio diag/cal mm, deg | clean: named | clean diag mm/deg")
+    n_right = n_clean = 0
+    for seed in args.seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            s = run(seed, Path(tmp), args, True)
+            c = run(seed, Path(tmp), args, False)
+        n_right += s["right"]
+        n_clean += not c["names"]
+        hb, ha = s["held"]
+        held = f"{hb:.3f} -> {ha:.3f}" if hb is not None and ha is not None else "n/a"
+        print(f"{seed} | {', '.join(s['names']) or 'nothing'} | {'yes' if s['right'] else 'NO'} | {held} | "
+              f"{s['cal'][0]:.3f} / {s['cal'][1]:.3f} | {s['diag'][0]:.3f} / {s['diag'][1]:.3f} | "
+              f"{s['diag'][0] / s['cal'][0]:.2f}, {s['diag'][1] / s['cal'][1]:.2f} | "
+              f"{', '.join(c['names']) or 'nothing'} | {c['diag'][0]:.3f} / {c['diag'][1]:.3f}")
+    print(f"named right {n_right}/{len(args.seeds)}; clean sessions with nothing named {n_clean}/{len(args.seeds)}")
+
+
+if __name__ == "__main__":
+    main_()
