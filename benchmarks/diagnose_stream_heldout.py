@@ -8,7 +8,7 @@ samples. The training session is calibrated from motion (platkit calibrate, its 
 chosen by BIC unless --response-kind) and diagnosed with --heldout the held-out stream.
 
     .venv/bin/python benchmarks/diagnose_stream_heldout.py [--seeds 5201 5202 5203] \
-        [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30]
+        [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30] [--keep DIR]
 
 Prints one row per seed, motion and effect: what diagnosis names (the truth's effect and place
 beside it), the held-out stream's point RMS before -> after as diagnosis.json gives it (the
@@ -105,11 +105,14 @@ def main_() -> None:
     ap.add_argument("--motion", nargs="+", default=["path", "multisine"])
     ap.add_argument("--duration-s", type=float, default=30.0)
     ap.add_argument("--response-kind", default=None, help="calibrate's --response-kind (default: its own choice)")
+    ap.add_argument("--keep", type=Path, default=None, help="keep every seed's folders (sim, train, held, cal, diag) "
+                    "under this folder (default: a temporary one)")
     a = ap.parse_args()
     print("seed motion effect (truth) | response | named | held-out stream rms mm before -> after (windows) | "
           "floor mm | geometric K-fold mm (x floor) | held-out stream mm, the files: calibrate -> diagnose | "
           "held-out commands vs truth mm: calibrate -> diagnose")
-    with tempfile.TemporaryDirectory() as tmp:
+    with contextlib.ExitStack() as stack:
+        tmp = a.keep or stack.enter_context(tempfile.TemporaryDirectory())
         for seed in a.seeds:
             for motion in a.motion:
                 for effect in a.effects:

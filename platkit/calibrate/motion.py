@@ -50,7 +50,12 @@ Procedure (:func:`calibrate_motion`):
 6. the response's kind (unless the caller names it): 3-5 run with the first order, the second
    order tried from that fit and kept per actuator where the data determine it and at all where
    the information criterion says so (:mod:`platkit.calibrate.motion_kind`); an actuator whose
-   fitted response is degenerate is said (report and warning).
+   fitted response is degenerate is said (report and warning). The second order is fitted from
+   two starts that keep the first order's lag, the fit of lower information criterion kept: its
+   time constants halved at the first order's shift, and the shift and time constants taken again
+   from the actuators' travel at the first order's fit (:func:`~platkit.calibrate.motion_start.travel_start`):
+   a first order's shift takes the second order's apparent dead time, and from the first start
+   alone the fit can stop at an overdamped optimum that keeps it.
 """
 from __future__ import annotations
 
@@ -74,7 +79,7 @@ from platkit.calibrate.motion_kind import (
     second_order_kept,
     theta_by_name,
 )
-from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start
+from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start, travel_start
 from platkit.calibrate.motion_transient import say_transient, start_transient
 from platkit.calibrate.problem import CalibrationProblem, Progress
 from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions
@@ -427,10 +432,14 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
     def at(cal):
         return (*kin, cal.td, matrix_from_rotvec(cal.mocap_rotvec), cal.mocap_translation, cal.marker_positions)
 
-    cal2, poses2 = _fit_stream(session, spec, second, win, th2, start, at(cal1), opts, td_start=cal1.td)
+    n_ref = 3 * int(cal1.n_observations)
+    # two starts of the first order's lag (its shift kept, or taken again from the travel at its fit):
+    # the second order's fit is not convex in the shift's share of the lag; the lower BIC kept
+    th2t = travel_start(session, spec, second, th2, (*at(cal1), first, np.asarray(cal1.theta[0], float)), win, start)
+    cal2, poses2 = min((_fit_stream(session, spec, second, win, th, start, at(cal1), opts, td_start=cal1.td)
+                        for th in (th2, th2t)), key=lambda fit: information(fit[0], n_ref))
     moved = np.ptp(session.commands, axis=0) > 0
     keep, why = second_order_kept(second, spec, cal2, sample_dt, moved)
-    n_ref = 3 * int(cal1.n_observations)
     bic1 = information(cal1, n_ref)
     choice: dict = {"asked": "auto", "first_order_actuators": why,
                     "rule": (f"first order fitted; second order tried from it and kept for an actuator whose time "

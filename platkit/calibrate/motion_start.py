@@ -9,7 +9,12 @@ Rules:
   TRAVEL_MISS_M is left out (NaN), and so is a joint that moves no marker;
 - the response: the common shift by a grid (each actuator's best, their median), then each
   actuator's least squares (soft L1) with a shift of its own, the shift at the median of theirs,
-  and each actuator's again with it held.
+  and each actuator's again with it held;
+- a second kind's start from a fit (:func:`travel_start`): the same, the travel by inverse
+  kinematics at the fit's geometry, frame and markers and the samples' controls at the fit's
+  response (a first order's shift takes the second order's apparent dead time: the second order
+  started from it with its time constants halved can stop at an overdamped optimum whose shift
+  is still that of the first order).
 """
 from __future__ import annotations
 
@@ -28,7 +33,7 @@ from platkit.poses import PoseSet
 
 __all__ = ["ACCEL_TIME_S", "DELAY_MAX_S", "PRE_SAMPLES", "RATE_FREE_FACTOR", "SHIFT_GRID_S", "START_ROUNDS",
            "START_SAMPLES", "STROKE_TIME_S", "TAU0_S", "ZETA0", "actuator_travel", "command_speed", "fd_steps",
-           "marker_points", "response_from_travel", "response_start", "starting_theta"]
+           "marker_points", "response_from_travel", "response_start", "starting_theta", "travel_start"]
 
 #: samples that start the response; rounds of the start; samples before the first command that
 #: say where a profile's actuators rest
@@ -253,6 +258,24 @@ def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, 
                 start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
         theta_start = response_from_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
     return theta_start, start, (problem.model, links, spec.nominal_td(), A, tr, mk)
+
+
+def travel_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, theta0: np.ndarray, fitted,
+                 win: StreamWindows, start=None) -> np.ndarray:
+    """``rmodel``'s response started from the actuators' travel at a fit (:func:`response_from_travel`
+    from ``theta0``, each damping held at its start): ``fitted`` = (kinematic model, each marker's
+    link, td, A, b, markers, the fit's response model, its theta) gives the geometry the travel is
+    taken at (inverse kinematics of START_SAMPLES samples of the stream) and the controls its
+    inverse kinematics starts from."""
+    model, links, td, A, b, mk, fit_model, fit_theta = fitted
+    T, U = session.command_t, session.commands
+    seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
+    cand = win.first + np.nonzero(seen[win.first:])[0]
+    sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
+    t = session.marker_t[sub]
+    guess = actuator_positions(fit_model, fit_theta, T, U, t, start=start)
+    travel = actuator_travel(spec, model, td, A, b, mk, session.markers[sub], guess, links)
+    return response_from_travel(rmodel, theta0, T, U, t, travel, fd_steps(rmodel, theta0), start)
 
 
 def fd_steps(rmodel: ResponseModel, theta: np.ndarray) -> np.ndarray:
