@@ -12,8 +12,10 @@ the slip). The same seed without the slip is diagnosed too (a clean session must
 
 Prints one row per seed: what diagnosis names on the slipped session (right: the first finding is
 marker_slip at rigid body T1, splitting the settled poses where the true slip does), the
-held-out session's RMS with calibrate's and diagnose's calibration (diagnosis.json's
-heldout_session), T1's placement error against the truth after the slip (position mm, rotation deg)
+held-out session's RMS before and after (diagnosis.json's heldout_session: the diagnosis's
+geometric refit, then the diagnosed model), T1 predicted on the held-out session (origin RMS mm,
+rotation RMS deg: platkit.calibrate.estimate.second_session_errors) with calibrate's and diagnose's
+calibration, T1's placement error against the truth after the slip (position mm, rotation deg)
 with calibrate's and diagnose's calibration.yaml, their ratio, and what diagnosis names on the clean
 session with its placement error (the gauge's floor: the placement is fitted with the geometry).
 """
@@ -35,8 +37,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from bodies_alone import strip_markers  # noqa: E402
 
+from platkit.calibrate.estimate import second_session_errors  # noqa: E402
 from platkit.cli import main  # noqa: E402
 from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix  # noqa: E402
+from platkit.io.calibration import read_calibration  # noqa: E402
 from platkit.settle import load_poses  # noqa: E402
 from platkit.simulate.body_slip import slip_body  # noqa: E402
 
@@ -104,7 +108,12 @@ def run(seed: int, root: Path, args, slip: bool) -> dict:
              and "marker" not in first["where"]
              and same_split(train, first["where"]["from_time_s"], ref.get("from_time_s", np.nan)))
     h = d.get("heldout_session") or {}
-    return {"names": names, "right": right, "held": (h.get("rms_before"), h.get("rms_after")),
+    held_poses = load_poses(str(held))
+    body = {}  # T1 on the held-out session (after the slip): origin RMS mm, rotation RMS deg
+    for k, folder in (("cal", cal), ("diag", diag)):
+        e = second_session_errors(read_calibration(str(folder / "calibration.yaml")), held_poses)
+        body[k] = (1e3 * e["rms_per_body"]["T1"], float(np.degrees(e["rotation_rms_per_body_rad"]["T1"])))
+    return {"names": names, "right": right, "held": (h.get("rms_before"), h.get("rms_after")), "body": body,
             "cal": placement_error(cal / "calibration.yaml", ref), "diag": placement_error(diag / "calibration.yaml", ref)}
 
 
@@ -117,7 +126,8 @@ def main_(argv: list[str] | None = None) -> None:
     ap.add_argument("--shift-mm", type=float, default=3.0)
     ap.add_argument("--turn-deg", type=float, default=1.0)
     args = ap.parse_args(argv)
-    print("seed | named (slipped) | right | held-out mm cal -> diag | T1 after slip: cal mm/deg | diag mm/deg | "
+    print("seed | named (slipped) | right | held-out session mm before -> after | "
+          "T1 held out: cal mm/deg -> diag mm/deg | T1 after slip: cal mm/deg | diag mm/deg | "
           "ratio diag/cal mm, deg | clean: named | clean diag mm/deg")
     n_right = n_clean = 0
     for seed in args.seeds:
@@ -129,6 +139,8 @@ def main_(argv: list[str] | None = None) -> None:
         hb, ha = s["held"]
         held = f"{hb:.3f} -> {ha:.3f}" if hb is not None and ha is not None else "n/a"
         print(f"{seed} | {', '.join(s['names']) or 'nothing'} | {'yes' if s['right'] else 'NO'} | {held} | "
+              f"{s['body']['cal'][0]:.3f} / {s['body']['cal'][1]:.3f} -> "
+              f"{s['body']['diag'][0]:.3f} / {s['body']['diag'][1]:.3f} | "
               f"{s['cal'][0]:.3f} / {s['cal'][1]:.3f} | {s['diag'][0]:.3f} / {s['diag'][1]:.3f} | "
               f"{s['diag'][0] / s['cal'][0]:.2f}, {s['diag'][1] / s['cal'][1]:.2f} | "
               f"{', '.join(c['names']) or 'nothing'} | {c['diag'][0]:.3f} / {c['diag'][1]:.3f}")
