@@ -8,7 +8,8 @@ polynomial in time). A body sample (origin and orientation, :mod:`platkit.bodies
 markers do (:func:`bodies_at_samples`):
 - in a window kept as samples, at its row (a marker seen there): its link's pose at that sample;
 - in a window reduced to nodes, where the body is seen in at least MIN_SEEN_SHARE of the window's
-  samples (and 2 ``nodes``), as the body's pose at the window's nodes: its origin fitted by the
+  samples (and 2 ``nodes``) and on both sides of every node
+  (:func:`platkit.calibrate.stream.seen_around_nodes`), as the body's pose at the window's nodes: its origin fitted by the
   markers' polynomial in time (:func:`platkit.calibrate.stream.window_fit` from the samples where
   it is seen), its orientation as the mean rotation of those samples (scipy's
   ``Rotation.mean``, the chordal L2 mean) times the same polynomial fit of each sample's rotation
@@ -27,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from platkit.calibrate.stream import MIN_SEEN_SHARE, StreamWindows, window_fit
+from platkit.calibrate.stream import MIN_SEEN_SHARE, StreamWindows, seen_around_nodes, window_fit
 from platkit.io.calibration import Calibration
 from platkit.io.session import Session
 
@@ -36,8 +37,8 @@ __all__ = ["bodies_at_samples", "body_samples_said", "say_bodies"]
 #: which body samples serve (said in the report)
 RULE = ("a body sample (origin and orientation) serves as the markers' samples do: in a window kept as samples, at "
         "its row (a marker seen there), as its link's pose at the controls the response reached then; in a window "
-        "reduced to nodes where the body is seen in at least "
-        f"{MIN_SEEN_SHARE:.0%} of the samples, as the body's pose at the nodes: its origin by the markers' "
+        f"reduced to nodes where the body is seen in at least {MIN_SEEN_SHARE:.0%} of the samples and on both sides "
+        "of every node, as the body's pose at the nodes: its origin by the markers' "
         "polynomial in time, its orientation as the samples' mean rotation times the same polynomial fit of each "
         "sample's rotation vector from it, each node weighted by the samples it stands for; not used: those before "
         "the second command (the stand's place is not logged there), in the first command's transient, in windows "
@@ -83,7 +84,7 @@ def _reduced(session: Session, win: StreamWindows) -> tuple[np.ndarray, np.ndarr
             continue
         for j in range(B):
             k = np.nonzero(seen[a:a + n, j])[0]
-            if len(k) < max(2 * win.nodes, MIN_SEEN_SHARE * n):
+            if not seen_around_nodes(session.marker_t[a:a + n], k, win.nodes):
                 masks["n_seen_too_little"][a + k, j] = True
                 continue
             bodies[p:p + win.nodes, j], counts[p:p + win.nodes, j] = _node_pose(
