@@ -1,6 +1,6 @@
 """The geometry chosen again during the search: the groups a calibration held freed again before a
 term mostly inside the geometry is named (:func:`_reopened`), and the model selection made again
-beside an accepted effect of the stand (:func:`_reselected`)."""
+beside an accepted effect, the stand's or a recording artefact's (:func:`_reselected`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -51,16 +51,17 @@ def _reopened(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] 
 
 def _reselected(spec: PlatformSpec, poses: PoseSet, cur: Fit, free: Sequence[str] | None, judged: np.ndarray,
                 opt: Options, platform_options: dict | None, after: str) -> tuple[Fit | None, list[str], dict] | None:
-    """After an effect of the stand (``after``, as the note names it) is accepted, the geometry's
-    model selection made again beside the accepted terms
+    """After an effect (``after``, as the note names it) is accepted, the stand's or a recording
+    artefact corrected in the data, the geometry's model selection made again beside the accepted terms
     (platkit.calibrate.selection.reselect_geometry), as (fit, free names, note), when it chooses
     another free set that predicts the held-out ``judged`` poses no worse than ``cur``, in all and
     on every tracked link; (None, ``free``, note) when it predicts a tracked link worse (the free
     set in force kept); else None. A group chosen with the physics still in the residual
     may stand in for it (a torso joint's scale for its gravity sag): beside the physics it no longer
-    earns its place. But a group shared by the branches may stand in for physics the accepted terms
-    do not model (the torso's sag seen from the other arm): holding it then predicts that branch's
-    link worse, and the new free set is not taken."""
+    earns its place. A group held while an artefact's residual swamped it (a rigid body's slip of
+    millimetres) is freed beside the artefact's term. But a group shared by the branches may stand
+    in for physics the accepted terms do not model (the torso's sag seen from the other arm):
+    holding it then predicts that branch's link worse, and the new free set is not taken."""
     if free is None:
         return None
     cal = reselect_geometry(poses, spec, cur.terms, robust=opt.robust, platform_options=platform_options)

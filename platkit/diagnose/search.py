@@ -357,7 +357,9 @@ class Search:
 
     def accept(self, i: int, cands: list, scr: list, p_adj: np.ndarray, trials: list, best: Fit, ph: float) -> None:
         """Name candidate ``i`` (its fit ``best``, held-out p ``ph``): its finding, then the
-        geometry chosen again beside the physics."""
+        geometry chosen again beside the accepted terms, a recording artefact's as a physics' (the
+        calibration chose it with the artefact in the data; fitted, it no longer hides what a held
+        group explains)."""
         opt, cur = self.opt, self.cur
         eff, term = cands[i]
         F, p_s, sep, Jc = scr[i]
@@ -382,7 +384,7 @@ class Search:
         self.tell_apart(finding, cur)
         sel = (self.start.identifiability.get("model_selection") or {}) if self.start is not None else {}
         chosen_free = bool(sel) and not str(sel.get("reason", "")).startswith("no selection")  # not the user's --free
-        if opt.reopen_geometry and chosen_free and not eff.recording:  # the geometry chosen again beside the physics
+        if opt.reopen_geometry and chosen_free:  # the geometry chosen again beside the accepted terms
             again = _reselected(self.spec, self.poses, self.cur, self.free, self.judged, opt, self.platform_options,
                                 f"{eff.name} ({_where_text(term.where)})")
             if again is not None:

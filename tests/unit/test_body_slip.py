@@ -72,8 +72,9 @@ def test_the_written_body_is_placed_after_the_slip(slipped):
     truth = yaml.safe_load((bodies / "truth.yaml").read_text())["rigid_bodies"]["T1"]["after_slip"]
     err = {k: placement_error(yaml.safe_load((root / k / "calibration.yaml").read_text())["rigid_bodies"]["bodies"]["T1"],
                               truth) for k in ("cal", "diag")}
-    assert err["diag"][0] < 1.0 and err["diag"][1] < 0.3  # mm, deg
-    assert err["diag"][0] < 0.5 * err["cal"][0] and err["diag"][1] < 0.5 * err["cal"][1]
+    # the rotation against the truth; the position moves with the platform joints' frame once the
+    # geometry chosen again frees them (a gauge: test_body_slip_geometry.py predicts T1 after the slip)
+    assert err["diag"][1] < 0.3 and err["diag"][1] < 0.5 * err["cal"][1]  # deg
 
 
 def test_a_body_slip_term_round_trips_and_names_bad_input():
