@@ -125,6 +125,7 @@ def main_(argv: list[str] | None = None) -> None:
     ap.add_argument("--train", type=int, default=40, help="the commands before this one are diagnosed")
     ap.add_argument("--shift-mm", type=float, default=3.0)
     ap.add_argument("--turn-deg", type=float, default=1.0)
+    ap.add_argument("--keep", type=Path, help="keep each seed's folders under KEEP/SEED (default: deleted)")
     args = ap.parse_args(argv)
     print("seed | named (slipped) | right | held-out session mm before -> after | "
           "T1 held out: cal mm/deg -> diag mm/deg | T1 after slip: cal mm/deg | diag mm/deg | "
@@ -132,8 +133,10 @@ def main_(argv: list[str] | None = None) -> None:
     n_right = n_clean = 0
     for seed in args.seeds:
         with tempfile.TemporaryDirectory() as tmp:
-            s = run(seed, Path(tmp), args, True)
-            c = run(seed, Path(tmp), args, False)
+            root = Path(tmp) if args.keep is None else args.keep / str(seed)
+            root.mkdir(parents=True, exist_ok=True)
+            s = run(seed, root, args, True)
+            c = run(seed, root, args, False)
         n_right += s["right"]
         n_clean += not c["names"]
         hb, ha = s["held"]
