@@ -139,8 +139,14 @@ def run(args) -> int:
                                                                                         cal.spec)
     if streamed:
         from platkit.calibrate.motion import without_response  # the response back into actuator_response
+        from platkit.diagnose.response_kind import ROUND_RESPONSE
 
         d.calibration = without_response(d.calibration, sessions[args.session])
+        again = next((r for r in d.rounds if r.get("round") == ROUND_RESPONSE and r.get("kept")), None)
+        if again is not None:  # the response's kind chosen again by diagnosis: said in calibration.yaml
+            motion = d.calibration.motion
+            motion["why"] = (f"{motion.get('why', '')}; the response chosen again by platkit diagnose: "
+                             f"{again['tried']} (diagnosis.json, rounds)")
     if args.heldout_register is not None and d.heldout_session is not None:
         from platkit.diagnose.registered import registered_heldout
 

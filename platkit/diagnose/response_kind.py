@@ -15,11 +15,11 @@ start for the second order, platkit.calibrate.motion_kind), beside the geometry 
 calibration carries; it replaces the first order where it lowers the BIC and predicts the
 windowed poses held out significantly better (one-sided paired Wilcoxon at ``alpha_heldout``).
 The effects are then tried and proven beside the response the stream supports (the
-findings' held-out figures are that model's), as the geometry is chosen again beside them; the
-calibration diagnosis writes keeps the response of the kind calibrate gave (the kind is
-calibrate's choice: ``platkit calibrate`` without ``--response-kind`` makes it from the data), refitted
-with the accepted effects. A response already second order everywhere, or a session that is not a
-stream, is left as it is.
+findings' held-out figures are that model's), as the geometry is chosen again beside them, and
+the calibration diagnosis writes carries it (calibration.yaml's ``actuator_response`` of the second
+order, its ``choice`` saying that diagnosis chose it again), with or without an effect named: the
+model the findings were judged in is the model written, as for the geometry chosen again. A
+response already second order everywhere, or a session that is not a stream, is left as it is.
 """
 from __future__ import annotations
 
@@ -96,6 +96,5 @@ def response_again(spec: PlatformSpec, poses: PoseSet, prior: list[ModelTerm], c
                        f"{'replaces' if kept else 'does not replace'} the calibration's first order: held-out "
                        f"{_fmt_rms(cur.cv_rms, unit)} -> {_fmt_rms(f.cv_rms, unit)} (paired p = {p:.2g}), "
                        f"BIC {f.bic - cur.bic:+.1f}"
-                       + ("; effects are judged beside it (calibration.yaml keeps the calibration's kind; platkit "
-                          "calibrate without --response-kind chooses the kind from the data)" if kept else ""))}
+                       + ("; effects are judged beside it, and calibration.yaml carries it" if kept else ""))}
     return (terms, cal, f, record) if kept else (prior, None, None, record)

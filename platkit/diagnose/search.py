@@ -151,10 +151,10 @@ class Search:
         # which a term along an actuator's travel takes a slice of: the response is chosen again first
         again = response_again(spec, poses, self.prior, cur, self.free, self.td_start, self.platform_options,
                                self.weights, opt)
-        self.response_note, self.given_terms = (None, {}) if again is None else (again[3], {})
-        if again is not None and again[1] is not None:  # judged beside it; written with the response as given
-            self.given_terms = {id(t): g for t, g in zip(again[0], self.prior) if t is not g}
-            self.prior, cur = list(again[0]), again[2]
+        self.response_note = None if again is None else again[3]
+        self.response_cal: Calibration | None = None  # the estimator's fit with the response chosen again
+        if again is not None and again[1] is not None:  # the model judged, named beside and written
+            self.prior, self.response_cal, cur = list(again[0]), again[1], again[2]
         if self.response_note is not None:
             self.say(self.response_note["text"])
         self.cur = cur
@@ -193,12 +193,11 @@ class Search:
         """The estimator's full fit (robust weights, covariance) of ``terms`` with the current free
         set, and whether it is the model as given (no term added, the free set unchanged: then
         the geometric fit itself). The geometry freed again counts as a change of the model, with
-        or without a term beside it (its note in the rounds says calibration.yaml estimates it). A
-        stream's response chosen again for the search (response_kind.response_again) is fitted
-        of the kind the calibration gave: the names were judged beside it, the kind is calibrate's."""
+        or without a term beside it (its note in the rounds says calibration.yaml estimates it), and
+        so does a stream's response chosen again (response_kind.response_again): the model the names
+        were judged in is the model written."""
         if len(terms) == len(self.prior) and self.free == self.free_given:
-            return self.base_cal, True
-        terms = [self.given_terms.get(id(t), t) for t in terms]  # the stream's response of the kind given
+            return (self.base_cal, True) if self.response_cal is None else (self.response_cal, False)
         return calibrate(self.poses, self.spec, terms=terms, free=self.free, td_start=self.td_start,
                          robust=self.opt.robust, platform_options=self.platform_options), False
 
@@ -511,9 +510,7 @@ class Search:
             finding.signature_after = _signature(info["J"], self.final_cal.fit.residuals_after, theta,
                                                  _offset_sign(finding.term, theta, info["fit"], self.poses))
             finding.evidence = _evidence(finding, self.poses, self.unit, folds=self.opt.folds)
-        # what is left is judged in the model the names were judged in (a stream's response chosen again)
-        self.locations = locate(self.cur.r, self.poses, self.spec, self.weights, self.opt.alpha) if self.given_terms \
-            else locate(self.final_cal.fit.residuals_after, self.poses, self.spec, None, self.opt.alpha)
+        self.locations = locate(self.final_cal.fit.residuals_after, self.poses, self.spec, None, self.opt.alpha)
 
     def structure_left(self) -> None:
         """What the final model leaves: the probe that beat it (``unexplained``), structure the

@@ -46,11 +46,15 @@ def test_a_clean_stream_calibrated_in_the_first_order_names_nothing(clean_first_
     assert d["findings"] == [], [(f["effect"], f["where"]) for f in d["findings"]]
     (response,) = [r for r in d["rounds"] if r.get("round") == ROUND_RESPONSE]
     assert response["kept"] and response["heldout_rms_after"] < response["heldout_rms_before"]
-    # nothing named: the calibration given, its response of the kind calibrate gave
+    # nothing named, but the model changed: calibration.yaml carries the response the findings were judged
+    # in (before: the first order as given, which predicted the windows worse than the model diagnosed)
     cal = yaml.safe_load((root / "diag" / "calibration.yaml").read_text())
     given = yaml.safe_load((root / "cal" / "calibration.yaml").read_text())
-    assert cal["actuator_response"] == given["actuator_response"]
-    assert cal["actuator_response"]["response"]["kind"] == "first_order"
+    assert given["actuator_response"]["response"]["kind"] == "first_order"
+    assert cal["actuator_response"]["response"]["kind"] == "second_order"
+    assert cal["actuator_response"]["why"].endswith("the response chosen again by platkit diagnose: second order at "
+                                                    "every actuator (diagnosis.json, rounds)")
+    assert "calibration.yaml carries it" in response["text"]
 
 
 def test_the_second_order_starts_at_the_first_orders_lag():
