@@ -71,10 +71,14 @@ def _finite_mean(a: np.ndarray, axis: int | None = None):
 
 
 def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec: PlatformSpec,
-                   findings: list[Finding]) -> dict[str, float]:
-    ho = with_history(heldout, spec)
-    e0 = point_errors(base, ho)
-    e1 = point_errors(final, ho)
+                   findings: list[Finding], heldout_final: PoseSet | None = None) -> dict[str, Any]:
+    """diagnosis.json's ``heldout_session``: the point RMS (m) of the geometric model ``base`` and
+    the diagnosed ``final`` on another recording, per marker, the paired one-sided p over its
+    poses and ``n_poses``; each finding's ``heldout_session_rms_before/after`` set.
+    ``heldout_final``: the recording as ``final`` reads it where that differs from ``heldout``
+    (a stream's windows, each model's controls its own response's: platkit.diagnose.stream)."""
+    e0 = point_errors(base, with_history(heldout, spec))
+    e1 = point_errors(final, with_history(heldout if heldout_final is None else heldout_final, spec))
     before = float(np.sqrt(_finite_mean(e0**2)))
     after = float(np.sqrt(_finite_mean(e1**2)))
     for f in findings:

@@ -25,11 +25,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from platkit.bodies import AXIS_LENGTH_M, frame_point_names
-from platkit.calibrate.estimate import point_errors
 from platkit.calibrate.motion import LocalResponseTerm, ResponseTerm, motion_stream
 from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
 from platkit.diagnose.bodies import as_points, point_calibration
-from platkit.diagnose.stats import paired_improvement
+from platkit.diagnose.evidence import _score_heldout
 from platkit.effects import with_history
 from platkit.io.calibration import Calibration
 from platkit.io.session import Session
@@ -160,28 +159,12 @@ def read_through(held: HeldoutStream, model: Calibration, spec: PlatformSpec | N
     return with_history(out, spec)
 
 
-def _finite_mean(a: np.ndarray, axis: int | None = None):
-    ok = np.isfinite(a)
-    n = ok.sum(axis=axis)
-    total = np.where(ok, a, 0.0).sum(axis=axis)
-    if axis is None:
-        return float(total / n) if n else float("nan")
-    return np.divide(total, n, out=np.full(np.shape(n), np.nan), where=n > 0)
-
-
 def score_heldout_stream(base: Calibration, final: Calibration, held: HeldoutStream, spec: PlatformSpec,
                          findings) -> dict:
     """diagnosis.json's ``heldout_session`` of a held-out stream: the point RMS (m) of the
     geometric model ``base`` and the diagnosed ``final``, each reading the controls through its
     own response (:func:`read_through`), per marker, the paired one-sided p over the windows,
     and ``n_poses``; each finding's ``heldout_session_rms_before/after`` set, as for settled poses."""
-    e0 = point_errors(base, read_through(held, base, spec))
-    e1 = point_errors(final, read_through(held, final, spec))
-    before, after = float(np.sqrt(_finite_mean(e0 ** 2))), float(np.sqrt(_finite_mean(e1 ** 2)))
-    for f in findings:
-        f.heldout_session_rms_before, f.heldout_session_rms_after = before, after
-    return {"rms_before": before, "rms_after": after,
-            "per_marker": {n: (float(np.sqrt(_finite_mean(e0[:, m] ** 2))), float(np.sqrt(_finite_mean(e1[:, m] ** 2))))
-                           for m, n in enumerate(base.marker_names)},
-            "p_improvement": paired_improvement(_finite_mean(e0 ** 2, axis=1), _finite_mean(e1 ** 2, axis=1)),
-            "n_poses": held.poses.n_poses, "windowed": True}
+    out = _score_heldout(base, final, read_through(held, base, spec), spec, findings,
+                         heldout_final=read_through(held, final, spec))
+    return {**out, "windowed": True}
