@@ -305,11 +305,10 @@ def _check_term(effect: Effect, term: ModelTerm, spec: PlatformSpec, poses: Pose
     if effect.recording:
         onset = effect.onset(term)
         assert onset is None or np.isfinite(float(onset)), f"{label}: onset must be a time in s or None"
-        moved = effect.moved_marker(term, theta, np.abs(theta))
-        if moved is not None:
+        for moved in effect.moved_markers(term, theta, np.abs(theta)):  # moved_marker's by default
             m, offset, sd = moved
-            assert isinstance(m, (int, np.integer)) and 0 <= m < M, f"{label}: moved_marker's index {m!r} is no marker"
-            assert np.shape(offset) == (3,) and np.shape(sd) == (3,), f"{label}: moved_marker's offset and std are (3,)"
+            assert isinstance(m, (int, np.integer)) and 0 <= m < M, f"{label}: moved_markers' index {m!r} is no marker"
+            assert np.shape(offset) == (3,) and np.shape(sd) == (3,), f"{label}: moved_markers' offset and std are (3,)"
         for unwritten in (None, "0.1 mm against 0.1 mm (paired p = 0.5), not 2% better"):
             text = effect.correction(term.where, unwritten)
             assert isinstance(text, str) and text, f"{label}: correction must be a sentence"

@@ -82,3 +82,16 @@ def test_flags_and_the_lag_being_a_recording_artefact_are_checked():
 
     with pytest.raises(AssertionError, match="direction must be True or False"):
         check_effect(NotBool(), get_platform("stewart"))
+
+
+def test_a_recording_artefact_that_moves_no_marker_of_the_stand_is_caught(builtins):
+    """Every marker an artefact says it moved (``moved_markers``: a rigid body's three points, by
+    default ``moved_marker``'s one) must be a marker of the poses."""
+    slip = type(builtins["marker_slip"])
+
+    class FarSlip(slip):
+        def moved_markers(self, term, theta, std):
+            return [*super().moved_markers(term, theta, std), (10_000, np.zeros(3), np.zeros(3))]
+
+    with pytest.raises(AssertionError, match="moved_markers' index 10000 is no marker"):
+        check_effect(FarSlip(), get_platform("stewart"))
