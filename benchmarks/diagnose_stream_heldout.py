@@ -9,6 +9,7 @@ chosen by BIC unless --response-kind) and diagnosed with --heldout the held-out 
 
     .venv/bin/python benchmarks/diagnose_stream_heldout.py [--seeds 5201 5202 5203] \
         [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30] [--keep DIR]
+        [--compare-kinds [auto first-order second-order]] [--first-order-drives]
 
 Prints one row per seed, motion and effect: what diagnosis names (the truth's effect and place
 beside it), the held-out stream's point RMS before -> after as diagnosis.json gives it (the
@@ -18,6 +19,12 @@ the held-out stream's RMS with calibrate's calibration.yaml and with diagnose's,
 written (its windows and response), and, against the truth, the markers predicted at the held-out part's commands
 (truth_settled.csv: where the stand settles at each command, in the log's order) with calibrate's
 and with diagnose's calibration.
+
+``--compare-kinds``: no diagnosis; per seed calibrate's own choice of the response's kind (auto:
+the kind, the whole fits' BICs, the second order's fast content against the first's) and the
+held-out stream's RMS and the truth's with the kind chosen and with each kind named.
+``--first-order-drives``: the simulated drives follow first orders of the drawn second order's
+lag (2 zeta tau) instead of the drawn second orders (a truth where the second order is false).
 """
 from __future__ import annotations
 
@@ -32,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy import signal
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from stream_split import split_stream  # noqa: E402
@@ -41,8 +49,10 @@ from platkit.cli import main  # noqa: E402
 from platkit.diagnose.stream import heldout_stream, read_through  # noqa: E402
 from platkit.io.calibration import read_calibration  # noqa: E402
 from platkit.io.session import load_session  # noqa: E402
+from platkit.simulate import actuator  # noqa: E402
 
 TRAIN_SHARE = 0.7
+KINDS = ("auto", "first-order", "second-order")
 
 
 def truth_rms(sim: Path, cal: Path, t_cut: float, work: Path) -> float:
@@ -73,7 +83,34 @@ def stream_rms(cal_path: Path, held: Path) -> float:
     return float(np.sqrt(np.nanmean(e ** 2)) * 1e3)
 
 
-def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: str | None) -> dict:
+def first_order_follow(reference: np.ndarray, dt: float, tau_s: np.ndarray, damping: np.ndarray) -> np.ndarray:
+    """(K, n_u) each actuator following ``reference`` as a first order of time constant 2 zeta tau
+    (the drawn second order's lag at low frequency), exact for a reference held over each step:
+    the truth of --first-order-drives."""
+    out = np.empty_like(reference)
+    for j in range(reference.shape[1]):
+        a = float(np.exp(-dt / (2.0 * float(damping[j]) * float(tau_s[j]))))
+        x0 = reference[0, j]
+        out[:, j] = x0 + signal.lfilter([0.0, 1.0 - a], [1.0, -a], reference[:, j] - x0)
+    return out
+
+
+def compare_kinds(src: Path, train: Path, held: Path, t_cut: float, kinds=KINDS) -> dict:
+    """calibrate's choice (--response-kind auto: the kind and the report's choice) and the held-out
+    stream's RMS and the truth's with the kind chosen and with each kind named."""
+    out: dict = {}
+    for kind in kinds:
+        cal = src / f"cal_{kind}"
+        rc = main(["calibrate", str(train), "--quiet", "--no-report", "--out", str(cal), "--response-kind", kind])
+        assert rc == 0 or (cal / "calibration.yaml").is_file()
+        doc = yaml.safe_load((cal / "calibration.yaml").read_text())["actuator_response"]["response"]
+        out[kind] = {"kind": doc["kind"], "choice": doc.get("choice"), "stream": stream_rms(cal / "calibration.yaml", held),
+                     "truth": truth_rms(src / "sim", cal / "calibration.yaml", t_cut, src)}
+    return out
+
+
+def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: str | None,
+        compare: tuple = ()) -> dict:
     src = root / f"s{seed}_{motion}_{effect.split(':')[0]}"
     args = ["simulate", "--platform", "stewart", "--physics", "--motion", motion, "--duration-s", str(duration),
             "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--seed", str(seed), "--out", str(src / "sim")]
@@ -81,6 +118,8 @@ def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: 
     truth = yaml.safe_load((src / "sim" / "truth.yaml").read_text()).get("effects") or []
     train, held = split_stream(src / "sim", src, TRAIN_SHARE)
     t_cut = float(next(csv.reader((held / "commands.csv").open().readlines()[1:2]))[0])
+    if compare:
+        return {"truth": truth, "kinds": compare_kinds(src, train, held, t_cut, compare)}
     rc = main(["calibrate", str(train), "--quiet", "--no-report", "--out", str(src / "cal")]
               + ([] if kind is None else ["--response-kind", kind]))
     assert rc == 0 or (src / "cal" / "calibration.yaml").is_file()
@@ -107,7 +146,16 @@ def main_() -> None:
     ap.add_argument("--response-kind", default=None, help="calibrate's --response-kind (default: its own choice)")
     ap.add_argument("--keep", type=Path, default=None, help="keep every seed's folders (sim, train, held, cal, diag) "
                     "under this folder (default: a temporary one)")
+    ap.add_argument("--first-order-drives", action="store_true", help="the simulated drives follow as first "
+                    "orders of the drawn second order's lag (2 zeta tau), not as the drawn second orders")
+    ap.add_argument("--compare-kinds", nargs="*", default=None, choices=KINDS, help="no diagnosis: calibrate's "
+                    "choice (auto) and the held-out stream's RMS (and the truth's) with the kind chosen, first-order "
+                    "and second-order named (default all three)")
     a = ap.parse_args()
+    if a.first_order_drives:
+        actuator.follow = first_order_follow  # actuator_motion's follow: the truth's drives
+    if a.compare_kinds is not None:
+        return compare_rows(a, tuple(a.compare_kinds) or KINDS)
     print("seed motion effect (truth) | response | named | held-out stream rms mm before -> after (windows) | "
           "floor mm | geometric K-fold mm (x floor) | held-out stream mm, the files: calibrate -> diagnose | "
           "held-out commands vs truth mm: calibrate -> diagnose")
@@ -126,6 +174,29 @@ def main_() -> None:
                           f" ({h['n_poses']}) | {fl if fl is None else format(fl, '.3g')} | {r['cv']:.3g} ({ratio}) | "
                           f"{r['files'][0]:.4g} -> {r['files'][1]:.4g} | "
                           f"{r['truth_rms'][0]:.4g} -> {r['truth_rms'][1]:.4g}", flush=True)
+
+
+def compare_rows(a, kinds: tuple) -> None:
+    """--compare-kinds: one row per seed, motion and effect."""
+    print(f"seed motion effect | auto: kind (whole fit's BIC first vs second; the second's fast content worse than "
+          f"the first's, noise variances) | "
+          f"held-out stream mm {' / '.join(kinds)} | held-out commands vs truth mm {' / '.join(kinds)}")
+    with contextlib.ExitStack() as stack:
+        tmp = a.keep or stack.enter_context(tempfile.TemporaryDirectory())
+        for seed in a.seeds:
+            for motion in a.motion:
+                for effect in a.effects:
+                    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                        r = run(Path(tmp), seed, motion, effect, a.duration_s, None, compare=kinds)
+                    k = r["kinds"]
+                    ch = (k.get("auto") or {}).get("choice") or {}
+                    fast = ch.get("fast_content") or {}
+                    figs = " vs ".join(f"{v:.1f}" for v in (ch.get("bic") or {}).values()) + (
+                        f"; fast content worse by {fast['worse_in_noise_variances']:.1f}, {fast['allowed']} allowed"
+                        if fast else "")
+                    print(f"{seed} {motion} {effect} | {(k.get('auto') or {}).get('kind')} ({figs}) | "
+                          + " / ".join(f"{k[x]['stream']:.4g}" for x in k) + " | "
+                          + " / ".join(f"{k[x]['truth']:.4g}" for x in k), flush=True)
 
 
 if __name__ == "__main__":

@@ -49,12 +49,13 @@ Procedure (:func:`calibrate_motion`):
    the start's, which on a fast stream exceeds the nodes' noise;
 6. the response's kind (unless the caller names it): 3-5 run with the first order, the second
    order tried from that fit and kept per actuator where the data determine it and at all where
-   the information criterion says so (:mod:`platkit.calibrate.motion_kind`); an actuator whose
-   fitted response is degenerate is said (report and warning). The second order is fitted from
-   two starts that keep the first order's lag, the fit of lower information criterion kept: its
-   time constants halved at the first order's shift, and the shift and time constants taken again
-   from the actuators' travel at the first order's fit (:func:`~platkit.calibrate.motion_start.travel_start`):
-   a first order's shift takes the second order's apparent dead time, and from the first start
+   the whole fit's information criterion says so and the fast content is not lost
+   (:mod:`platkit.calibrate.motion_kind`); an actuator whose fitted response is degenerate is
+   said (report and warning). The second order is fitted from two starts that keep the first
+   order's lag, the fit of lower information criterion kept: its time constants halved at the
+   first order's shift, and the shift and time constants taken again from the actuators' travel
+   at the first order's fit (:func:`~platkit.calibrate.motion_start.travel_start`): a first
+   order's shift takes the second order's apparent dead time, and from the first start
    alone the fit can stop at an overdamped optimum that keeps it.
 """
 from __future__ import annotations
@@ -70,10 +71,10 @@ from platkit.calibrate.motion_bodies import bodies_at_samples, say_bodies
 from platkit.calibrate.motion_kind import (
     DAMPING_MAX,
     Z_DETERMINED,
-    bic,
     fast_content,
     held_names,
     information,
+    kind_verdict,
     response_from_report,
     response_report,
     second_order_kept,
@@ -419,8 +420,8 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
                  poses1: PoseSet, start, kin, opts: _FitOptions, sample_dt: float):
     """The response's kind chosen from the data (platkit.calibrate.motion_kind's rules), from the
     first-order fit ``cal1``: the second order tried from it, kept per actuator where determined,
-    and kept at all only where better by the information criterion. Returns the model, the
-    calibration and poses kept, and the report's ``choice``."""
+    and kept at all only where better by the whole fit's information criterion without losing the
+    fast content. Returns the model, the calibration and poses kept, and the report's ``choice``."""
     names = list(spec.control_names)
     v1 = dict(zip(first.names(names), np.asarray(cal1.theta[0], float)))
     second = ResponseModel("second_order", first.reference, spec.n_u, first.delays, first.rate_limit)
@@ -444,9 +445,9 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
     choice: dict = {"asked": "auto", "first_order_actuators": why,
                     "rule": (f"first order fitted; second order tried from it and kept for an actuator whose time "
                              f"constant and damping are each determined (over {Z_DETERMINED:g} standard deviations) and "
-                             f"physical (damping at most {DAMPING_MAX:g}), and at all only where the information "
-                             "criterion (BIC) is lower than the first order's on the stream's fast content (what the "
-                             "response alone shapes)"),
+                             f"physical (damping at most {DAMPING_MAX:g}), and at all only where the whole fit's "
+                             "information criterion (BIC) is lower than the first order's and the fit leaves the "
+                             "stream's fast content no worse (what a smooth static effect left out cannot buy)"),
                     "bic": {"first_order": bic1}}
     if not keep[moved].any():
         choice["why"] = "first order: no actuator's second-order response is determined by the stream"
@@ -460,27 +461,18 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
         th = theta_by_name(rmodel, names, own, v2)
         cal, poses = _fit_stream(session, spec, rmodel, win, th, start, at(cal2), opts, td_start=cal2.td)
     label = "second_order" if keep[moved].all() else "per_actuator"
-    held = held_names(cal)
-    added = sum(1 for j, c in enumerate(names) if rmodel.has("damping", j)
-                and f"term.actuator_response.damping.{c}" not in held)
-    (rss1, rss2), n_fast = fast_content([cal1, cal], win)
-    if n_fast > added:  # judged on the fast content, where a static effect left out has little power
-        bic1, bic2 = bic(n_fast, rss1 / n_fast, 0), bic(n_fast, rss2 / n_fast, added)
-        choice["criterion"] = (f"BIC of the residuals' fast content ({n_fast} coordinates of the windows kept as "
-                               "samples, each marker coordinate less its polynomial in time per window), the "
-                               f"second order charged its {added} dampings")
-        choice["bic"] = {"first_order": bic1}
-    else:
-        bic2 = information(cal, n_ref)
-        choice["criterion"] = "BIC of the whole fit (no window kept as samples)"
+    bic2 = information(cal, n_ref)
     choice["bic"][label] = bic2
-    if not bic2 < bic1:
+    added = sum(1 for j, c in enumerate(names) if rmodel.has("damping", j)
+                and f"term.actuator_response.damping.{c}" not in held_names(cal))
+    better, figures, said = kind_verdict(fast_content([cal1, cal], win), added, (bic1, bic2), label)
+    choice.update(said)
+    if not better:
         choice["why"] = (f"first order: the second order for {', '.join(c for j, c in enumerate(names) if keep[j])} "
-                         f"is determined but not better by BIC ({bic2:.1f} against {bic1:.1f})")
+                         f"is determined but not better ({figures})")
         return first, cal1, poses1, choice
     choice["why"] = (f"{label.replace('_', ' ')}: second order for "
-                     f"{', '.join(c for j, c in enumerate(names) if keep[j] and moved[j])}, better by BIC "
-                     f"({bic2:.1f} against {bic1:.1f})")
+                     f"{', '.join(c for j, c in enumerate(names) if keep[j] and moved[j])}, better ({figures})")
     cal.rms_before = cal1.rms_before  # at the start's geometry, as the first fit said it
     return rmodel, cal, poses, choice
 

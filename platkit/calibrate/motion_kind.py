@@ -9,13 +9,19 @@ Rules:
   time constant and damping are each determined (estimated, both at least Z_DETERMINED standard
   deviations from zero) and physical (:func:`not_determined`); the others follow the first order
   within it (refitted so, where some keep it and some do not). The model with second-order
-  actuators is kept only where it is also better by the Bayesian information criterion
-  (:func:`information`), otherwise the first order. A kind the caller names is fitted as named;
+  actuators is kept only where its whole fit's Bayesian information criterion (:func:`information`)
+  is lower than the first order's and its fit leaves the stream's fast content (:func:`fast_content`)
+  no worse than the first order's but for one noise variance per damping it adds
+  (:func:`kind_verdict`): the second order holds the first within it, so a drive that is second
+  order is fitted at least as well there, and a second order that wins the whole fit while losing
+  the fast content took a smooth misfit (a static effect left out); otherwise the first order.
+  A kind the caller names is fitted as named;
 - a response not determined (:func:`not_determined`): a time constant at or under the response's
   floor (TAU_MIN_S) or under TAU_SAMPLE_SHARE of the motion capture's sample interval (faster
   than the samples can show), a damping at or under its floor (ZETA_MIN) or above DAMPING_MAX
   (no drive is that overdamped: a second order that far overdamped is a first order, of lag
-  2 zeta tau, whose fast pole the data do not see). Said per actuator in the report and as a
+  2 zeta tau, whose fast pole the data do not see), or an overdamped one whose fast pole's time
+  constant, tau (zeta - sqrt(zeta^2 - 1)), is under the same floor as a time constant's. Said per actuator in the report and as a
   warning; a slow stream, which fixes each actuator's lag alone, leaves the second order's time
   constant and damping free along that lag, and a fit walks to these floors.
 """
@@ -28,8 +34,8 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec
 
 __all__ = ["DAMPING_MAX", "TAU_SAMPLE_SHARE", "Z_DETERMINED", "bic", "fast_content", "held_names", "information",
-           "not_determined",
-           "response_from_report", "response_report", "second_order_kept", "theta_by_name"]
+           "kind_verdict", "not_determined", "response_from_report", "response_report", "second_order_kept",
+           "theta_by_name"]
 
 #: a damping above this is no drive's (a first order's lag taken by a second order far overdamped)
 DAMPING_MAX = 10.0
@@ -80,8 +86,13 @@ def not_determined(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration, 
                        f"or {TAU_SAMPLE_SHARE:g} of the {1e3 * sample_dt:.3g} ms sample interval)")
         if rmodel.has("damping", j) and f"term.actuator_response.damping.{c}" not in held:
             zeta = float(par["damping"][j])
+            fast = tau * (zeta - np.sqrt(zeta * zeta - 1.0)) if zeta > 1.0 else tau
             if zeta <= ZETA_MIN or zeta > DAMPING_MAX:
                 why.append(f"damping {zeta:.3g} outside ({ZETA_MIN:g}, {DAMPING_MAX:g}]")
+            elif fast <= tau_floor:
+                why.append(f"overdamped (damping {zeta:.3g}): its fast pole's time constant {1e3 * fast:.3g} ms at or "
+                           f"under {1e3 * tau_floor:.3g} ms, faster than the samples show (a first order of lag "
+                           f"{1e3 * 2 * zeta * tau:.3g} ms)")
         if why:
             out[c] = "; ".join(why)
     return out
@@ -232,3 +243,26 @@ def fast_content(cals: list[Calibration], win) -> tuple[list[float], int]:
                 e = y - Q @ (Q.T @ y)
                 rss[i] += float(np.sum(e ** 2))
     return rss, n
+
+
+def kind_verdict(fast: tuple[list[float], int], added: int, bics: tuple[float, float],
+                 label: str) -> tuple[bool, str, dict]:
+    """Whether the second order (``label``: second_order or per_actuator) is kept over the first
+    (module docstring): ``fast`` :func:`fast_content`'s sums of squares of the two fits (first,
+    second) and its count, ``added`` the dampings the second estimates, ``bics`` the whole fits'
+    (first, second) :func:`information`. Without fast content (no window kept as samples) the
+    whole fit's criterion alone. Returns the verdict, its figures in words, and the report's
+    ``criterion`` with the fast content's figures."""
+    (rss1, rss2), n_fast = fast
+    words = f"BIC of the whole fit {bics[1]:.1f} against {bics[0]:.1f}"
+    if not (n_fast and rss1 > 0 and rss2 > 0):
+        return bics[1] < bics[0], words, {"criterion": "BIC of the whole fit (no window kept as samples: no fast "
+                                                       "content to judge a static effect by)"}
+    worse = float(n_fast * np.log(rss2 / rss1))
+    out = {"criterion": ("BIC of the whole fit (every unknown charged), and the fit's fast content (the windows kept as "
+                         "samples, each marker coordinate less its polynomial in time per window) no worse than the "
+                         f"first order's but for one noise variance per damping added ({added})"),
+           "fast_content": {"n": int(n_fast), "first_order_rss_m2": rss1, f"{label}_rss_m2": rss2,
+                            "worse_in_noise_variances": worse, "allowed": added}}
+    words += f"; fast content {'worse' if worse > 0 else 'better'} by {abs(worse):.3g} noise variances, {added} allowed"
+    return bics[1] < bics[0] and worse <= added, words, out
