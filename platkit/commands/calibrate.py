@@ -363,11 +363,11 @@ def _kind_said(r: dict) -> str:
     bic = choice.get("bic") or {}
     if r["kind"] == "first_order":
         tried = [k for k in bic if k != "first_order"]
-        return ("chosen: second order not better by BIC" if tried
+        return ("chosen: second order not better (whole BIC, fast content)" if tried
                 else "chosen: no actuator's second order determined")
     seen = [e for e in r["actuators"].values() if e["tau_s"]["status"] == "estimated"]
     n2 = sum(1 for e in seen if e.get("kind") == "second_order")
-    return f"chosen: second order for {n2} of the {len(seen)} actuators seen, lower BIC"
+    return f"chosen: second order for {n2} of the {len(seen)} actuators seen, lower BIC, fast content kept"
 
 
 #: a second session this many times worse than the fit is most likely in another mocap frame
