@@ -14,6 +14,10 @@ Each point's noise per coordinate enters the noise floor (:func:`platkit.diagnos
 stream's points, an origin and the tips apart), else from the declared ``body_noise`` (the origin:
 the position noise; a tip: that and the rotation noise over the lever, two of its three coordinates
 moved by a turn); each settled point averages its body's ``n_body_samples``.
+
+The three points are one 6-DOF measurement, their errors correlated: the score test that screens
+candidate terms reads each body at each pose as its position and turn (:func:`screen_system`), not
+as nine independent coordinates.
 """
 from __future__ import annotations
 
@@ -38,6 +42,10 @@ from platkit.poses import PoseSet
 LEVER_M = AXIS_LENGTH_M
 #: the points in the body's frame (3, 3) m, in FRAME_POINT_SUFFIXES' order (platkit.bodies)
 _IN_BODY = np.array([[0.0, 0.0, 0.0], [LEVER_M, 0.0, 0.0], [0.0, LEVER_M, 0.0]])
+#: the Levi-Civita symbol: (w x v)_i = eps_ijk w_j v_k, so w x v is the matrix eps_ijk v_k acting on w
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _LEVI_CIVITA[_i, _j, _k], _LEVI_CIVITA[_i, _k, _j] = 1.0, -1.0
 
 
 def on_bodies(findings, body_names: list[str]) -> None:
@@ -137,3 +145,62 @@ def body_calibration(fitted: Calibration, given: Calibration) -> Calibration:
     if not given.body_names:
         return fitted
     return bodies_from_points(fitted, list(given.body_names), given.body_rho, given.body_rho_source, given=given)
+
+
+def _body_triples(poses: PoseSet) -> list[tuple[int, int, int, float, float]]:
+    """(index of T.o, T.x, T.y among the markers, sigma_p m, sigma_r rad) of each body read as its
+    three points (:func:`as_points`) whose noise is known: sigma_p the origin's per coordinate,
+    sigma_r from a tip's excess over it (a turn moves two of its three coordinates, over the lever:
+    the rule of :func:`platkit.calibrate.motion_points.point_sigmas`)."""
+    own = (poses.settling or {}).get("point_sigma_m") or {}
+    index = {n: k for k, n in enumerate(poses.marker_names)}
+    out = []
+    for name in poses.marker_names:
+        if not name.endswith("." + FRAME_POINT_SUFFIXES[0]):
+            continue
+        pts = frame_point_names(name[:-len(FRAME_POINT_SUFFIXES[0]) - 1])
+        if not all(p in index and p in own for p in pts):
+            continue
+        sp, st = float(own[pts[0]]), float(np.sqrt(0.5 * (own[pts[1]] ** 2 + own[pts[2]] ** 2)))
+        sr = float(np.sqrt(max(1.5 * (st ** 2 - sp ** 2), 0.0))) / LEVER_M
+        if np.isfinite(sp) and np.isfinite(sr) and sp > 0 and sr > 0:
+            out.append((index[pts[0]], index[pts[1]], index[pts[2]], sp, sr))
+    return out
+
+
+def screen_system(poses: PoseSet, weights: np.ndarray, r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of a least-squares system over seen observations with independent errors of one
+    variance: (r (n,), J (n, P)) from residuals ``r`` (N, M, 3) m and their Jacobian ``J`` (N, M, 3, P),
+    each marker's three coordinates weighted by sqrt(``weights``) (N, M), where seen.
+
+    A body's three points (:func:`as_points`) are one 6-DOF measurement, not three markers: their
+    errors are e_o = d, e_x = d + L w x u_x, e_y = d + L w x u_y (d the position noise, sigma_p per
+    coordinate; w the turn, sigma_r per axis; u the body's axes seen at the pose), correlated and
+    of rank 6. So at each pose where all three are seen their 9 coordinates become the 6 of the
+    measurement, least squares through that map, the turn scaled by sigma_p / sigma_r (m): six
+    rows of independent errors of variance sigma_p^2, each weighted by the origin's weight. A body
+    whose noise is unknown keeps its three points' rows."""
+    keep = (weights > 0) & np.all(np.isfinite(r), axis=2)
+    sw = np.sqrt(np.where(keep, weights, 0.0))[:, :, None]
+    rw, Jw = np.nan_to_num(r) * sw, np.nan_to_num(J) * sw[..., None]
+    rows_r, rows_J = [], []
+    own = np.zeros(r.shape[1], bool)
+    for io, ix, iy, sp, sr in _body_triples(poses):
+        own[[io, ix, iy]] = True
+        whole = keep[:, io] & keep[:, ix] & keep[:, iy]
+        pts = np.asarray(poses.markers, float)[whole][:, [io, ix, iy]]  # (n, 3, 3)
+        lever = [pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]]
+        A = np.zeros((len(pts), 9, 6))
+        A[:, :, :3] = np.tile(np.eye(3), (3, 1))
+        for k, v in enumerate(lever, start=1):  # w x v, a matrix acting on w
+            A[:, 3 * k:3 * k + 3, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, v)
+        W = np.linalg.pinv(A)  # (n, 6, 9)
+        W[:, 3:] *= sp / sr
+        rows_r.append(np.einsum("nij,nj->ni", W, rw[whole][:, [io, ix, iy]].reshape(-1, 9)).reshape(-1))
+        rows_J.append(np.einsum("nij,njp->nip", W, Jw[whole][:, [io, ix, iy]].reshape(len(pts), 9, -1))
+                      .reshape(-1, J.shape[-1]))
+    rest = keep & ~own[None, :]
+    rows = np.repeat(rest.reshape(-1), 3)
+    r_all = np.concatenate([rw.reshape(-1)[rows], *rows_r])
+    J_all = np.concatenate([Jw.reshape(-1, J.shape[-1])[rows], *rows_J])
+    return r_all, J_all
