@@ -12,7 +12,8 @@ import numpy as np
 
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.solve import blas_threads
-from platkit.diagnose.fitting import Fit, Options, _fit, _later, _obs, _rms, _where_text
+from platkit.diagnose.bodies import screen_system
+from platkit.diagnose.fitting import Fit, Options, _fit, _later, _rms, _where_text
 from platkit.diagnose.stats import column_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -20,14 +21,6 @@ from platkit.terms import ModelTerm
 
 __all__ = ["screen", "place", "best_variant", "confirm", "equally_good", "not_accepted"]
 
-
-def _weighted_system(fit: Fit, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    keep = _obs(fit.weights, fit.r)
-    sw = np.sqrt(fit.weights)[:, :, None] * keep[:, :, None]
-    r = (np.nan_to_num(fit.r) * sw).reshape(-1)
-    Jw = (np.nan_to_num(J) * sw[..., None]).reshape(-1, J.shape[-1])
-    rows = np.repeat(keep.reshape(-1), 3)
-    return r[rows], Jw[rows]
 
 def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
            candidates: list[ModelTerm]) -> list[tuple[float, float, float, np.ndarray]]:
@@ -43,7 +36,7 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
     with blas_threads(1):
         st = problem.evaluate(z, with_jac=True)
         n_base = len(fit.z)
-        r, J = _weighted_system(fit, st.J)
+        r, J = screen_system(poses, fit.weights, fit.r, st.J)
         Jb = J[:, :n_base][:, fit.active]
         dof = len(r) - int(fit.active.sum())
         basis = column_basis(Jb)
