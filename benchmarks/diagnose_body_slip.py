@@ -35,7 +35,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from bodies_alone import strip_markers  # noqa: E402
+from bodies_alone import cut_in_time, strip_markers  # noqa: E402
 
 from platkit.calibrate.estimate import second_session_errors  # noqa: E402
 from platkit.cli import main  # noqa: E402
@@ -48,21 +48,6 @@ from platkit.simulate.body_slip import slip_body  # noqa: E402
 def _quiet(argv: list[str]) -> int:
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         return main(argv)
-
-
-def cut(src: Path, dst: Path, t_cut: float, later: bool) -> Path:
-    """``src`` with the commands and samples before ``t_cut`` (``later`` False) or from it on."""
-    dst.mkdir()
-    for f in src.iterdir():
-        if f.name not in ("markers.csv", "commands.csv"):
-            (dst / f.name).write_bytes(f.read_bytes())
-    for name in ("markers.csv", "commands.csv"):
-        rows = list(csv.reader((src / name).open()))
-        with (dst / name).open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(rows[0])
-            w.writerows(r for r in rows[1:] if (float(r[0]) >= t_cut) == later)
-    return dst
 
 
 def placement_error(cal: Path, truth: dict) -> tuple[float, float]:
@@ -91,8 +76,8 @@ def run(seed: int, root: Path, args, slip: bool) -> dict:
         d, w = rng.normal(size=3), rng.normal(size=3)
         slip_body(whole, "T1", t_cmd[args.slip_at], d * args.shift_mm * 1e-3 / np.linalg.norm(d),
                   w * np.radians(args.turn_deg) / np.linalg.norm(w))
-    train = cut(whole, root / f"train{int(slip)}", t_cmd[args.train], False)
-    held = cut(whole, root / f"held{int(slip)}", t_cmd[args.train], True)
+    train = cut_in_time(whole, root / f"train{int(slip)}", t_cmd[args.train], False)
+    held = cut_in_time(whole, root / f"held{int(slip)}", t_cmd[args.train], True)
     cal, diag = root / f"cal{int(slip)}", root / f"diag{int(slip)}"
     rc = _quiet(["calibrate", str(train), "--out", str(cal), "--quiet", "--no-report"])
     assert rc in (0, 3), f"seed {seed}: calibrate exit {rc}"

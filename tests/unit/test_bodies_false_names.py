@@ -10,28 +10,14 @@ from __future__ import annotations
 
 import csv
 import json
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from bodies_alone import strip_markers
+from bodies_alone import cut_in_time, strip_markers
 
 from platkit.cli import main
 from platkit.diagnose.bodies import screen_system
 from platkit.diagnose.stats import score_test
-
-
-def _cut(src: Path, dst: Path, t_cut: float) -> Path:
-    """``src`` with the commands and samples before ``t_cut`` alone."""
-    dst.mkdir()
-    for f in src.iterdir():
-        if f.name not in ("markers.csv", "commands.csv"):
-            (dst / f.name).write_bytes(f.read_bytes())
-    for name in ("markers.csv", "commands.csv"):
-        rows = list(csv.reader((src / name).open()))
-        with (dst / name).open("w", newline="") as fh:
-            csv.writer(fh).writerows([rows[0]] + [r for r in rows[1:] if float(r[0]) < t_cut])
-    return dst
 
 
 def test_a_clean_session_of_a_body_alone_names_nothing(tmp_path):
@@ -44,7 +30,7 @@ def test_a_clean_session_of_a_body_alone_names_nothing(tmp_path):
                  "--plan", "random", "--rigid-bodies", "1"]) == 0
     whole = strip_markers(tmp_path / "sim", tmp_path / "b")
     t_cmd = [float(r[0]) for r in list(csv.reader((whole / "commands.csv").open()))[1:]]
-    train = _cut(whole, tmp_path / "train", t_cmd[40])
+    train = cut_in_time(whole, tmp_path / "train", t_cmd[40])
     assert main(["calibrate", str(train), "--out", str(tmp_path / "cal"), "--quiet", "--no-report"]) in (0, 3)
     assert main(["diagnose", str(train), "--calibration", str(tmp_path / "cal" / "calibration.yaml"),
                  "--out", str(tmp_path / "diag"), "--quiet", "--no-report"]) == 0

@@ -16,9 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from bodies_alone import strip_markers
+from bodies_alone import slipped_stewart_body
 
-from platkit.cli import main
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix
 from platkit.plugins import effect_library
@@ -38,16 +37,7 @@ def placement_error(written: dict, truth: dict) -> tuple[float, float]:
 @pytest.fixture(scope="module")
 def slipped(tmp_path_factory):
     root = tmp_path_factory.mktemp("body_slip")
-    sim = root / "sim"
-    assert main(["simulate", "--platform", "stewart", "--out", str(sim), "--seed", "3", "--poses", "40",
-                 "--plan", "random", "--rigid-bodies", "1"]) == 0
-    bodies = strip_markers(sim, root / "b")
-    t_slip = float(list(csv.reader((bodies / "commands.csv").open()))[21][0])
-    slip_body(bodies, "T1", t_slip, [0.002, -0.002, 0.001], np.radians([0.6, 0.5, -0.6]))
-    for verb, out in (("calibrate", "cal"), ("diagnose", "diag")):
-        extra = [] if verb == "calibrate" else ["--calibration", str(root / "cal" / "calibration.yaml")]
-        assert main([verb, str(bodies), *extra, "--out", str(root / out), "--quiet", "--no-report"]) == 0
-    return root, bodies
+    return root, slipped_stewart_body(root)
 
 
 def test_the_slip_is_named_at_the_body(slipped):

@@ -12,34 +12,22 @@ T1 moved on its link at the 21st command by 3 mm and 1 degree (the session of te
 """
 from __future__ import annotations
 
-import csv
 import json
 
 import numpy as np
 import pytest
 import yaml
-from bodies_alone import strip_markers
+from bodies_alone import slipped_stewart_body
 
 from platkit.calibrate.estimate import second_session_errors
-from platkit.cli import main
 from platkit.io.calibration import read_calibration
 from platkit.settle import load_poses
-from platkit.simulate.body_slip import slip_body
 
 
 @pytest.fixture(scope="module")
 def slipped(tmp_path_factory):
     root = tmp_path_factory.mktemp("body_slip_geometry")
-    sim = root / "sim"
-    assert main(["simulate", "--platform", "stewart", "--out", str(sim), "--seed", "3", "--poses", "40",
-                 "--plan", "random", "--rigid-bodies", "1"]) == 0
-    bodies = strip_markers(sim, root / "b")
-    t_slip = float(list(csv.reader((bodies / "commands.csv").open()))[21][0])
-    slip_body(bodies, "T1", t_slip, [0.002, -0.002, 0.001], np.radians([0.6, 0.5, -0.6]))
-    assert main(["calibrate", str(bodies), "--out", str(root / "cal"), "--quiet", "--no-report"]) == 0
-    assert main(["diagnose", str(bodies), "--calibration", str(root / "cal" / "calibration.yaml"),
-                 "--out", str(root / "diag"), "--quiet", "--no-report"]) == 0
-    return root, bodies
+    return root, slipped_stewart_body(root)
 
 
 def test_the_geometry_is_chosen_again_beside_the_slip(slipped):
