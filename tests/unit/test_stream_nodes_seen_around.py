@@ -55,7 +55,7 @@ def test_the_rule_on_one_window():
 def test_a_marker_seen_in_part_of_a_window_has_no_node_there(occluded):
     s, hid, hidden = occluded
     win = stream_windows(hid, raw_samples=0)
-    for p, a, n, cut in hidden:
+    for p, *_ in hidden:
         assert np.isnan(win.Y[p:p + win.nodes, 0]).all(), (p, win.Y[p:p + win.nodes, 0])
         assert np.isfinite(win.Y[p:p + win.nodes, 1]).all()  # the others as before
     seen = np.isfinite(hid.markers[:, 0]).all(axis=1)
@@ -66,7 +66,7 @@ def test_a_body_seen_in_part_of_a_window_has_no_node_there(occluded):
     s, hid, hidden = occluded
     win = stream_windows(hid, raw_samples=0)
     got = bodies_at_samples(hid, win)["bodies"]
-    for p, a, n, cut in hidden:
+    for p, *_ in hidden:
         assert np.isnan(got[p:p + win.nodes, 0]).all()
         assert np.isfinite(got[p:p + win.nodes, 1]).all()  # T2, seen throughout
     said = body_samples_said(hid, win)
