@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from simulated_arm import TURNTABLE
 from test_estimate import Truth, prediction_error
 
 from platkit.calibrate.estimate import calibrate
@@ -26,13 +27,6 @@ from platkit.poses import PoseSet
 
 REPO = Path(__file__).resolve().parents[2]
 GANTRY = REPO / "descriptions" / "gantry_xyz.urdf"
-TURNTABLE = """<?xml version="1.0"?>
-<robot name="turntable">
-  <link name="base"/><link name="table"/>
-  <joint name="spin" type="revolute"><parent link="base"/><child link="table"/>
-    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
-</robot>
-"""
 
 
 def test_the_fixed_directions_of_a_set_of_rotations():

@@ -12,14 +12,12 @@ import copy
 
 import numpy as np
 import pytest
+from simulated_arm import arm_poses
 
 from platkit.calibrate import identifiability, registration, stages
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.stages import CalibrationOptions, _registration_only, _start
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec
-from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
-from platkit.poses import PoseSet
 
 
 @pytest.fixture(scope="module")
@@ -29,18 +27,7 @@ def arm():
 
 @pytest.fixture(scope="module")
 def poses(arm):
-    rng = np.random.default_rng(7)
-    td = arm.nominal_td().copy()
-    for i, p in enumerate(arm.parameters):
-        if p.group in ("offset", "origin"):
-            td[i] += 1e-3 * rng.normal()
-    lo, hi = arm.control_bounds()
-    U = rng.uniform(0.6 * lo, 0.6 * hi, (60, arm.n_u))
-    fb = PlatformModel(arm).forward_batch(U, td, strict=False)
-    m = rng.normal(0, 0.15, (3, 3))
-    Y = (fb.X[:, None] + np.einsum("nab,mb->nma", matrix_from_quat(fb.q), m)) @ matrix_from_rotvec([0.3, -0.2, 1.0]).T
-    Y = Y + [0.2, -0.4, 1.0] + rng.normal(0, 2e-4, Y.shape)
-    return PoseSet(arm.name, U, Y, ["M1", "M2", "M3"], length_unit="mm", source="simulated")
+    return arm_poses(arm, 7, 60)
 
 
 def _names(arm, groups):

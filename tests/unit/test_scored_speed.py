@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from simulated_arm import TURNTABLE, arm_poses
 
 from platkit.calibrate import identifiability, stages
 from platkit.calibrate import problem as problem_module
@@ -20,10 +21,7 @@ from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.identifiability import select_identifiable, singular_values
 from platkit.calibrate.problem import CalibrationProblem, _offset_column, _support
 from platkit.calibrate.selection import select_model
-from platkit.geometry import matrix_from_quat, matrix_from_rotvec
-from platkit.kinematics import PlatformModel
 from platkit.plugins import get_platform
-from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
 
@@ -34,18 +32,7 @@ def arm():
 
 @pytest.fixture(scope="module")
 def poses(arm):
-    rng = np.random.default_rng(11)
-    td = arm.nominal_td().copy()
-    for i, p in enumerate(arm.parameters):
-        if p.group in ("offset", "origin"):
-            td[i] += 1e-3 * rng.normal()
-    lo, hi = arm.control_bounds()
-    U = rng.uniform(0.6 * lo, 0.6 * hi, (48, arm.n_u))
-    fb = PlatformModel(arm).forward_batch(U, td, strict=False)
-    m = rng.normal(0, 0.15, (3, 3))
-    Y = (fb.X[:, None] + np.einsum("nab,mb->nma", matrix_from_quat(fb.q), m)) @ matrix_from_rotvec([0.3, -0.2, 1.0]).T
-    Y = Y + [0.2, -0.4, 1.0] + rng.normal(0, 2e-4, Y.shape)
-    return PoseSet(arm.name, U, Y, ["M1", "M2", "M3"], length_unit="mm", source="simulated")
+    return arm_poses(arm, 11, 48)
 
 
 @dataclass
@@ -169,13 +156,6 @@ def test_a_selection_scores_its_candidates_only_and_writes_the_full_chosen_one(a
     assert "rank_ref" not in gauge.__dict__ and gauge.rank_ref == 3
 
 
-TURNTABLE = """<?xml version="1.0"?>
-<robot name="turntable">
-  <link name="base"/><link name="table"/>
-  <joint name="spin" type="revolute"><parent link="base"/><child link="table"/>
-    <origin xyz="0 0 0.1" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
-</robot>
-"""
 
 
 def test_a_scored_candidate_holds_the_gauges_a_full_calibration_holds(tmp_path, monkeypatch):
