@@ -159,21 +159,28 @@ def main_() -> None:
     print("seed motion effect (truth) | response | named | held-out stream rms mm before -> after (windows) | "
           "floor mm | geometric K-fold mm (x floor) | held-out stream mm, the files: calibrate -> diagnose | "
           "held-out commands vs truth mm: calibrate -> diagnose")
+    for seed, motion, effect, r in cases(a, a.response_kind):
+        h, fl = r["heldout"], r["floor"]
+        ratio = f"{r['cv'] / fl:.2g}" if fl else "-"
+        print(f"{seed} {motion} {effect} ({', '.join(r['truth']) or 'none'}) | {r['response']}"
+              + (f" (calibrate exit {r['calibrate_rc']})" if r["calibrate_rc"] else "")
+              + f" | {', '.join(r['named']) or 'nothing'} | {h['rms_before']:.4g} -> {h['rms_after']:.4g}"
+              f" ({h['n_poses']}) | {fl if fl is None else format(fl, '.3g')} | {r['cv']:.3g} ({ratio}) | "
+              f"{r['files'][0]:.4g} -> {r['files'][1]:.4g} | "
+              f"{r['truth_rms'][0]:.4g} -> {r['truth_rms'][1]:.4g}", flush=True)
+
+
+def cases(a, response_kind, **kw):
+    """(seed, motion, effect, run's figures) for every seed, motion and effect asked, each run
+    quiet, its folders under --keep or a temporary folder."""
     with contextlib.ExitStack() as stack:
         tmp = a.keep or stack.enter_context(tempfile.TemporaryDirectory())
         for seed in a.seeds:
             for motion in a.motion:
                 for effect in a.effects:
                     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                        r = run(Path(tmp), seed, motion, effect, a.duration_s, a.response_kind)
-                    h, fl = r["heldout"], r["floor"]
-                    ratio = f"{r['cv'] / fl:.2g}" if fl else "-"
-                    print(f"{seed} {motion} {effect} ({', '.join(r['truth']) or 'none'}) | {r['response']}"
-                          + (f" (calibrate exit {r['calibrate_rc']})" if r["calibrate_rc"] else "")
-                          + f" | {', '.join(r['named']) or 'nothing'} | {h['rms_before']:.4g} -> {h['rms_after']:.4g}"
-                          f" ({h['n_poses']}) | {fl if fl is None else format(fl, '.3g')} | {r['cv']:.3g} ({ratio}) | "
-                          f"{r['files'][0]:.4g} -> {r['files'][1]:.4g} | "
-                          f"{r['truth_rms'][0]:.4g} -> {r['truth_rms'][1]:.4g}", flush=True)
+                        r = run(Path(tmp), seed, motion, effect, a.duration_s, response_kind, **kw)
+                    yield seed, motion, effect, r
 
 
 def compare_rows(a, kinds: tuple) -> None:
@@ -181,22 +188,16 @@ def compare_rows(a, kinds: tuple) -> None:
     print(f"seed motion effect | auto: kind (whole fit's BIC first vs second; the second's fast content worse than "
           f"the first's, noise variances) | "
           f"held-out stream mm {' / '.join(kinds)} | held-out commands vs truth mm {' / '.join(kinds)}")
-    with contextlib.ExitStack() as stack:
-        tmp = a.keep or stack.enter_context(tempfile.TemporaryDirectory())
-        for seed in a.seeds:
-            for motion in a.motion:
-                for effect in a.effects:
-                    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                        r = run(Path(tmp), seed, motion, effect, a.duration_s, None, compare=kinds)
-                    k = r["kinds"]
-                    ch = (k.get("auto") or {}).get("choice") or {}
-                    fast = ch.get("fast_content") or {}
-                    figs = " vs ".join(f"{v:.1f}" for v in (ch.get("bic") or {}).values()) + (
-                        f"; fast content worse by {fast['worse_in_noise_variances']:.1f}, {fast['allowed']} allowed"
-                        if fast else "")
-                    print(f"{seed} {motion} {effect} | {(k.get('auto') or {}).get('kind')} ({figs}) | "
-                          + " / ".join(f"{k[x]['stream']:.4g}" for x in k) + " | "
-                          + " / ".join(f"{k[x]['truth']:.4g}" for x in k), flush=True)
+    for seed, motion, effect, r in cases(a, None, compare=kinds):
+        k = r["kinds"]
+        ch = (k.get("auto") or {}).get("choice") or {}
+        fast = ch.get("fast_content") or {}
+        figs = " vs ".join(f"{v:.1f}" for v in (ch.get("bic") or {}).values()) + (
+            f"; fast content worse by {fast['worse_in_noise_variances']:.1f}, {fast['allowed']} allowed"
+            if fast else "")
+        print(f"{seed} {motion} {effect} | {(k.get('auto') or {}).get('kind')} ({figs}) | "
+              + " / ".join(f"{k[x]['stream']:.4g}" for x in k) + " | "
+              + " / ".join(f"{k[x]['truth']:.4g}" for x in k), flush=True)
 
 
 if __name__ == "__main__":
