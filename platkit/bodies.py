@@ -142,6 +142,30 @@ def frame_point_names(body: str) -> list[str]:
     return [f"{body}.{s}" for s in FRAME_POINT_SUFFIXES]
 
 
+def frame_point_indices(marker_names: list[str]) -> dict[str, list[int]]:
+    """Body name -> the indices of its three frame points ``<body>.o``, ``<body>.x``, ``<body>.y``
+    (:func:`frame_point_names`, in that order) among ``marker_names``, for each body whose three
+    points are all there, in first-seen order."""
+    index = {n: i for i, n in enumerate(marker_names)}
+    out: dict[str, list[int]] = {}
+    for n in marker_names:
+        body, dot, suffix = n.rpartition(".")
+        if dot and suffix == FRAME_POINT_SUFFIXES[0] and body not in out:
+            names = frame_point_names(body)
+            if all(p in index for p in names):
+                out[body] = [index[p] for p in names]
+    return out
+
+
+def rotation_sigma(sigma_origin, sigma_tip):
+    """A body's rotation noise per axis (rad) from its frame points' noise per coordinate (m): the
+    tips' variance beyond the origin's, a turn about an axis moving two of a tip's three
+    coordinates (1.5 times that variance), over the lever :data:`AXIS_LENGTH_M`; 0 where a tip is
+    no noisier than the origin. Arrays broadcast."""
+    extra = np.maximum(np.square(sigma_tip) - np.square(sigma_origin), 0.0)
+    return np.sqrt(1.5 * extra) / AXIS_LENGTH_M
+
+
 def placement_from_point_fit(points: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A body's placement read back from its three frame points fitted as free points (3, 3) m and
     their std (3, 3) m: origin (3,), rotation vector (3,) (:func:`placement_from_frame_points`) and
@@ -151,8 +175,8 @@ def placement_from_point_fit(points: np.ndarray, std: np.ndarray) -> tuple[np.nd
     correlations are not kept)."""
     o, R = placement_from_frame_points(np.asarray(points, float)[None])
     s = np.asarray(std, float)
-    extra = max(float(np.mean(s[1:] ** 2) - np.mean(s[0] ** 2)), 0.0)
-    return o[0], rotvec_from_matrix(R[0]), np.concatenate([s[0], np.full(3, np.sqrt(1.5 * extra) / AXIS_LENGTH_M)])
+    turn = rotation_sigma(np.sqrt(np.mean(s[0] ** 2)), np.sqrt(np.mean(s[1:] ** 2)))
+    return o[0], rotvec_from_matrix(R[0]), np.concatenate([s[0], np.full(3, float(turn))])
 
 
 def bodies_from_points(fitted: Calibration, body_names: list[str], rho: float, rho_source: str,

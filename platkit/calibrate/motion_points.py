@@ -29,7 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from platkit.bodies import AXIS_LENGTH_M, bodies_from_points, body_frame_points, frame_point_names
+from platkit.bodies import AXIS_LENGTH_M, bodies_from_points, body_frame_points, frame_point_names, rotation_sigma
 from platkit.calibrate.motion import calibrate_motion
 from platkit.calibrate.motion_bodies import say_bodies
 from platkit.calibrate.stream import NODES, RAW_SAMPLES, WINDOW_S, stream_windows
@@ -102,7 +102,7 @@ def _rho(body_names: list[str], sigmas: dict[str, float]) -> float:
     coordinates, over the lever), the median over the bodies; NaN where a tip is no noisier."""
     sp = np.array([sigmas[frame_point_names(b)[0]] for b in body_names])
     st = np.array([sigmas[frame_point_names(b)[1]] for b in body_names])
-    sr = np.sqrt(np.maximum(1.5 * (st ** 2 - sp ** 2), 0.0)) / AXIS_LENGTH_M
+    sr = rotation_sigma(sp, st)
     return float(np.median(sp / sr)) if np.all(sr > 0) else float("nan")
 
 

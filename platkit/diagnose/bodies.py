@@ -30,7 +30,9 @@ from platkit.bodies import (
     FRAME_POINT_SUFFIXES,
     bodies_from_points,
     body_frame_points,
+    frame_point_indices,
     frame_point_names,
+    rotation_sigma,
 )
 from platkit.calibrate.motion_points import point_sigmas
 from platkit.errors import BadInput
@@ -153,18 +155,15 @@ def _body_triples(poses: PoseSet) -> list[tuple[int, int, int, float, float]]:
     sigma_r from a tip's excess over it (a turn moves two of its three coordinates, over the lever:
     the rule of :func:`platkit.calibrate.motion_points.point_sigmas`)."""
     own = (poses.settling or {}).get("point_sigma_m") or {}
-    index = {n: k for k, n in enumerate(poses.marker_names)}
     out = []
-    for name in poses.marker_names:
-        if not name.endswith("." + FRAME_POINT_SUFFIXES[0]):
-            continue
-        pts = frame_point_names(name[:-len(FRAME_POINT_SUFFIXES[0]) - 1])
-        if not all(p in index and p in own for p in pts):
+    for body, (io, ix, iy) in frame_point_indices(list(poses.marker_names)).items():
+        pts = frame_point_names(body)
+        if not all(p in own for p in pts):
             continue
         sp, st = float(own[pts[0]]), float(np.sqrt(0.5 * (own[pts[1]] ** 2 + own[pts[2]] ** 2)))
-        sr = float(np.sqrt(max(1.5 * (st ** 2 - sp ** 2), 0.0))) / LEVER_M
+        sr = float(rotation_sigma(sp, st))
         if np.isfinite(sp) and np.isfinite(sr) and sp > 0 and sr > 0:
-            out.append((index[pts[0]], index[pts[1]], index[pts[2]], sp, sr))
+            out.append((io, ix, iy, sp, sr))
     return out
 
 

@@ -21,27 +21,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.bodies import FRAME_POINT_SUFFIXES, frame_point_names
+from platkit.bodies import FRAME_POINT_SUFFIXES, frame_point_indices
 from platkit.effects import history, stored_number, stored_where
 from platkit.errors import BadInput
 from platkit.terms import ModelTerm
 from platkit_effects.recording import SLIP_DOMINANCE, MarkerSlip, change_point
 
-__all__ = ["SPLIT_LEVEL", "BodySlipTerm", "MarkerOrBodySlip", "body_points", "body_steps", "step_level"]
-
-
-def body_points(marker_names: list[str]) -> dict[str, list[int]]:
-    """Body name -> the indices of its three points ``B.o``, ``B.x``, ``B.y`` (in that order) among
-    ``marker_names``, for each body whose three points are all there (in first-seen order)."""
-    index = {n: i for i, n in enumerate(marker_names)}
-    out: dict[str, list[int]] = {}
-    for n in marker_names:
-        body, dot, suffix = n.rpartition(".")
-        if dot and suffix == FRAME_POINT_SUFFIXES[0] and body not in out:
-            names = frame_point_names(body)
-            if all(p in index for p in names):
-                out[body] = [index[p] for p in names]
-    return out
+__all__ = ["SPLIT_LEVEL", "BodySlipTerm", "MarkerOrBodySlip", "body_steps", "step_level"]
 
 
 def body_steps(residuals: np.ndarray, k: int, points: list[int], dominance: float = SLIP_DOMINANCE) -> bool:
@@ -125,7 +111,7 @@ class MarkerOrBodySlip(MarkerSlip):
                             points=[int(p) for p in points], t_slip=float(t_slip))
 
     def candidates(self, spec, poses, residuals=None):
-        bodies = body_points(list(poses.marker_names))
+        bodies = frame_point_indices(list(poses.marker_names))
         on_body = {poses.marker_names[i] for pts in bodies.values() for i in pts}
         out = [t for t in super().candidates(spec, poses, residuals) if t.where.get("marker") not in on_body]
         if residuals is None:

@@ -30,6 +30,7 @@ import pytest
 import yaml
 from bodies_alone import slipped_stewart_body
 
+from platkit.bodies import frame_point_indices
 from platkit.calibrate.estimate import second_session_errors
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix
@@ -37,7 +38,7 @@ from platkit.io.calibration import read_calibration
 from platkit.plugins import effect_library
 from platkit.settle import load_poses
 from platkit.simulate.body_slip import slip_body
-from platkit_effects.body_slip import BodySlipTerm, body_points
+from platkit_effects.body_slip import BodySlipTerm
 
 
 def placement_error(written: dict, truth: dict) -> tuple[float, float]:
@@ -84,7 +85,7 @@ def test_the_written_body_is_placed_after_the_slip(slipped):
 
 def test_a_body_slip_term_round_trips_and_names_bad_input():
     effect = effect_library()["marker_slip"]
-    assert body_points(["M1", "T1.o", "T1.x", "T1.y", "T2.o", "T2.x"]) == {"T1": [1, 2, 3]}  # T2 lacks its y tip
+    assert frame_point_indices(["M1", "T1.o", "T1.x", "T1.y", "T2.o", "T2.x"]) == {"T1": [1, 2, 3]}  # T2 lacks its y tip
     term = effect.body_term("T1", [1, 2, 3], 12.5)
     theta = np.arange(9) * 1e-4
     back = effect.from_dict(term.to_dict(theta, np.abs(theta)))
