@@ -142,7 +142,7 @@ def run(args) -> int:
         from platkit.diagnose.response_kind import ROUND_RESPONSE
 
         d.calibration = without_response(d.calibration, sessions[args.session])
-        again = next((r for r in d.rounds if r.get("round") == ROUND_RESPONSE and r.get("kept")), None)
+        again = next((r for r in reversed(d.rounds) if r.get("round") == ROUND_RESPONSE and r.get("kept")), None)
         if again is not None:  # the response's kind chosen again by diagnosis: said in calibration.yaml
             motion = d.calibration.motion
             motion["why"] = (f"{motion.get('why', '')}; the response chosen again by platkit diagnose: "

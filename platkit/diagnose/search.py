@@ -57,7 +57,7 @@ from platkit.diagnose.lack_of_fit import lack_of_fit
 from platkit.diagnose.locate import locate, located
 from platkit.diagnose.naming import _best_probe, _probe_beats, _take_back, _unproven_beside_probe
 from platkit.diagnose.naming import _unproven_beside_time, _weak_beside_lack_of_fit, _without
-from platkit.diagnose.response_kind import response_again
+from platkit.diagnose.response_kind import again_after, response_again
 from platkit.diagnose.recording import (
     _settling_finding,
     _slip_not_kept,
@@ -153,6 +153,7 @@ class Search:
                                self.weights, opt)
         self.response_note = None if again is None else again[3]
         self.response_cal: Calibration | None = None  # the estimator's fit with the response chosen again
+        self.response_after: list[dict] = []  # the response's kind chosen again beside an effect (kept)
         if again is not None and again[1] is not None:  # the model judged, named beside and written
             self.prior, self.response_cal, cur = list(again[0]), again[1], again[2]
         if self.response_note is not None:
@@ -381,6 +382,7 @@ class Search:
         self.say(f"accepted {eff.name} ({_where_text(term.where)})")
         self.cur = best
         self.tell_apart(finding, cur)
+        again_after(self, f"{eff.name} ({_where_text(term.where)})")  # the response's kind chosen again beside it
         sel = (self.start.identifiability.get("model_selection") or {}) if self.start is not None else {}
         chosen_free = bool(sel) and not str(sel.get("reason", "")).startswith("no selection")  # not the user's --free
         if opt.reopen_geometry and chosen_free:  # the geometry chosen again beside the accepted terms
@@ -578,6 +580,7 @@ class Search:
         library = self.library
         if self.response_note is not None:  # chosen before the search's rounds, recorded beside them
             self.rounds.append(self.response_note)
+        self.rounds.extend(self.response_after)
         heldout_info = None
         if heldout is not None:
             heldout_info = _score_heldout(self.base_cal, stand, heldout, self.spec, self.findings)
