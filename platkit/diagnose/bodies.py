@@ -13,7 +13,9 @@ Each point's noise per coordinate enters the noise floor (:func:`platkit.diagnos
 ``settling['point_sigma_m']``): measured on the stream (the settling search's estimator on the
 stream's points, an origin and the tips apart), else from the declared ``body_noise`` (the origin:
 the position noise; a tip: that and the rotation noise over the lever, two of its three coordinates
-moved by a turn); each settled point averages its body's ``n_body_samples``.
+moved by a turn); each settled point averages its body's ``n_body_samples``. The floor reads the
+three as the one 6-DOF measurement they are: a body pose counts 6 observations, and its points'
+errors are correlated (platkit.diagnose.floor.pose_noise).
 
 The three points are one 6-DOF measurement, their errors correlated: the score test that screens
 candidate terms reads each body at each pose as its position and turn (:func:`screen_system`), not
@@ -147,6 +149,16 @@ def body_calibration(fitted: Calibration, given: Calibration) -> Calibration:
     if not given.body_names:
         return fitted
     return bodies_from_points(fitted, list(given.body_names), given.body_rho, given.body_rho_source, given=given)
+
+
+def n_measured(marker_names: list[str], seen: np.ndarray) -> int:
+    """How many numbers the seen points ``seen`` (N, M) measure: 3 a marker; 6 a rigid body's three
+    points (:func:`as_points`) seen together at a pose, its position and turn (:func:`screen_system`),
+    not their 9 coordinates, which are correlated and of rank 6."""
+    n = 3 * int(np.sum(seen))
+    for io, ix, iy in frame_point_indices(list(marker_names)).values():
+        n -= 3 * int(np.sum(seen[:, io] & seen[:, ix] & seen[:, iy]))
+    return n
 
 
 def _body_triples(poses: PoseSet) -> list[tuple[int, int, int, float, float]]:

@@ -11,6 +11,7 @@ import numpy as np
 
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.solve import levenberg_marquardt, robust_fit
+from platkit.diagnose.bodies import n_measured
 from platkit.diagnose.locate import Location
 from platkit.diagnose.stats import bic
 from platkit.effects import history
@@ -118,10 +119,13 @@ class Fit:
     #: what :func:`_cv` computed cv from: (poses, folds, iterations, the cv it returned, its (N, C)
     #: channels); :func:`_cv_channels_of` returns the channels again while cv is still that array
     cv_from: tuple | None = field(default=None, repr=False, compare=False)
+    #: the numbers the kept observations measure, what the BIC counts: a rigid body's three points
+    #: at a pose 6 (its position and turn), not 9 (platkit.diagnose.bodies.n_measured); None: n_obs
+    n_measured: int | None = None
 
     @property
     def bic(self) -> float:
-        return bic(self.rss, self.n_obs, self.n_params)
+        return bic(self.rss, self.n_obs if self.n_measured is None else self.n_measured, self.n_params)
 
     @property
     def cv_rms(self) -> float:
@@ -209,7 +213,7 @@ def _fit(spec: PlatformSpec, poses: PoseSet, terms: list[ModelTerm], z0: np.ndar
     keep = _obs(weights, res.state.r)
     rss = float(np.sum(np.nan_to_num(res.state.r) ** 2 * keep[:, :, None]))
     return Fit(list(terms), problem, res.z, active, weights, res.state.r, rss, 3 * int(keep.sum()), int(active.sum()),
-               fit_weights=res.weights)
+               fit_weights=res.weights, n_measured=n_measured(poses.marker_names, keep))
 
 def _cv(fit: Fit, spec: PlatformSpec, poses: PoseSet, folds: int, iterations: int) -> np.ndarray:
     """(N,) held-out mean squared marker error per pose (m^2) from K interleaved folds; the

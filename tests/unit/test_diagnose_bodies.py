@@ -201,7 +201,7 @@ def test_the_noise_floor_takes_each_points_own_noise(stewart):
     assert pts.marker_names == ["M1", "T1.o", "T1.x", "T1.y"]
     s = pts.settling["point_sigma_m"]
     ms = np.mean([3 * 2e-4**2 / 20, 3 * s["T1.o"] ** 2 / 50, 3 * s["T1.x"] ** 2 / 50, 3 * s["T1.y"] ** 2 / 50])
-    assert noise_floor(pts, 6) == pytest.approx(np.sqrt(ms * (1 + 6 / (3 * 40))))
+    assert noise_floor(pts, 6) == pytest.approx(np.sqrt(ms * (1 + 6 / (3 * 10 + 6 * 10))))  # a body pose: 6 numbers
     # a body whose noise is neither declared nor measured leaves the floor unknown
     marker.body_noise = {}
     assert noise_floor(as_points(marker), 6) is None
