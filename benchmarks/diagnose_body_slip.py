@@ -8,7 +8,7 @@ rigid body T1, the markers stripped: tests/bodies_alone.py) and moves T1 on its 
 calibrated (platkit calibrate) and diagnosed (platkit diagnose --heldout the rest, recorded after
 the slip). The same seed without the slip is diagnosed too (a clean session must stay clean).
 
-    .venv/bin/python benchmarks/diagnose_body_slip.py [--seeds 501 502 ...]
+    .venv/bin/python benchmarks/diagnose_body_slip.py [--seeds 501 502 ...] [--floors]
 
 Prints one row per seed: what diagnosis names on the slipped session (right: the first finding is
 marker_slip at rigid body T1, splitting the settled poses where the true slip does), the
@@ -18,6 +18,12 @@ rotation RMS deg: platkit.calibrate.estimate.second_session_errors) with calibra
 calibration, T1's placement error against the truth after the slip (position mm, rotation deg)
 with calibrate's and diagnose's calibration.yaml, their ratio, and what diagnosis names on the clean
 session with its placement error (the gauge's floor: the placement is fitted with the geometry).
+
+``--floors``: the clean session of each seed only, read twice from the same stream, as its body
+alone and as its five markers alone (rigid bodies stripped): what diagnosis names from the body
+and whether it stopped at the noise floor, and for each reading the geometric model's K-fold
+held-out RMS against the noise floor (platkit.diagnose.floor.noise_floor) as diagnosis computes
+it, and against the floor from the geometric fit's own K-fold design (``kfold_refit``).
 """
 from __future__ import annotations
 
@@ -39,6 +45,12 @@ from bodies_alone import cut_in_time, strip_markers  # noqa: E402
 
 from platkit.calibrate.estimate import second_session_errors  # noqa: E402
 from platkit.cli import main  # noqa: E402
+from platkit.commands.common import read_with_calibration  # noqa: E402
+from platkit.commands.diagnose import with_body_points  # noqa: E402
+from platkit.diagnose import Options  # noqa: E402
+from platkit.diagnose.bodies import point_calibration  # noqa: E402
+from platkit.diagnose.floor import kfold_refit, noise_floor  # noqa: E402
+from platkit.diagnose.search import Search  # noqa: E402
 from platkit.geometry import matrix_from_rotvec, rotvec_from_matrix  # noqa: E402
 from platkit.io.calibration import read_calibration  # noqa: E402
 from platkit.settle import load_poses  # noqa: E402
@@ -102,6 +114,53 @@ def run(seed: int, root: Path, args, slip: bool) -> dict:
             "cal": placement_error(cal / "calibration.yaml", ref), "diag": placement_error(diag / "calibration.yaml", ref)}
 
 
+def strip_bodies(sim: Path, out: Path) -> Path:
+    """The session ``sim`` as a session of its markers alone in ``out`` (no rigid body). Returns ``out``."""
+    out.mkdir()
+    for f in sim.iterdir():
+        if f.name not in ("markers.csv", "session.yaml"):
+            (out / f.name).write_bytes(f.read_bytes())
+    y = yaml.safe_load((sim / "session.yaml").read_text())
+    bodies = set(y.pop("rigid_bodies", None) or [])
+    y.pop("rigid_body_noise", None)
+    (out / "session.yaml").write_text(yaml.safe_dump(y, sort_keys=False))
+    rows = list(csv.reader((sim / "markers.csv").open()))
+    keep = [i for i, h in enumerate(rows[0]) if h.split("_")[0] not in bodies]
+    with (out / "markers.csv").open("w", newline="") as f:
+        csv.writer(f).writerows([[r[i] for i in keep] for r in rows])
+    return out
+
+
+def geometric_floors(train: Path, cal: Path) -> dict:
+    """The geometric model of ``train`` as platkit diagnose starts it from ``cal`` (calibration.yaml):
+    its K-fold held-out RMS (m), the noise floor diagnosis compares it with, and the floor from
+    the fit's own K-fold design (platkit.diagnose.floor.kfold_refit)."""
+    given = read_calibration(str(cal))
+    read: dict = {}
+    with contextlib.redirect_stderr(io.StringIO()):
+        poses = with_body_points(read_with_calibration(train, given, str(cal), True, read=read)[1], train, read[train])
+    opt = Options()
+    s = Search(given.spec, poses, opt, start=point_calibration(given))
+    n = int(s.cur.active.sum())
+    return {"cv": s.first_cv, "floor": s.floor, "design": noise_floor(s.poses, n, kfold_refit(s.cur, opt.folds))}
+
+
+def floors_row(seed: int, root: Path, args) -> str:
+    """``--floors``' row of ``seed`` (module docstring)."""
+    c = run(seed, root, args, False)  # the body alone, diagnosed
+    d = json.loads((root / "diag0" / "diagnosis.json").read_text())
+    t_cmd = [float(r[0]) for r in list(csv.reader((root / "sim0" / "commands.csv").open()))[1:]]
+    markers = cut_in_time(strip_bodies(root / "sim0", root / "m0"), root / "train_m0", t_cmd[args.train], False)
+    assert _quiet(["calibrate", str(markers), "--out", str(root / "cal_m0"), "--quiet", "--no-report"]) in (0, 3)
+    cells = []
+    for train, cal in ((root / "train0", root / "cal0"), (markers, root / "cal_m0")):
+        g = geometric_floors(train, cal / "calibration.yaml")
+        cells.append(f"{1e3 * g['cv']:.4f} | {1e3 * g['floor']:.4f} ({g['cv'] / g['floor']:.2f}) | "
+                     f"{1e3 * g['design']:.4f} ({g['cv'] / g['design']:.2f})")
+    return f"{seed} | {', '.join(c['names']) or 'nothing'} | {'yes' if d.get('at_noise_floor') else 'no'} | " + \
+        " | ".join(cells)
+
+
 def main_(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[501, 502, 503, 504, 505, 506, 507, 508])
@@ -111,7 +170,21 @@ def main_(argv: list[str] | None = None) -> None:
     ap.add_argument("--shift-mm", type=float, default=3.0)
     ap.add_argument("--turn-deg", type=float, default=1.0)
     ap.add_argument("--keep", type=Path, help="keep each seed's folders under KEEP/SEED (default: deleted)")
+    ap.add_argument("--floors", action="store_true", help="the clean sessions' K-fold against the noise floor "
+                    "(module docstring)")
     args = ap.parse_args(argv)
+    if args.floors:
+        print("seed | clean, body alone: named | at noise floor | body: K-fold mm | floor mm (K-fold/floor) | "
+              "design floor mm (K-fold/it) | markers alone: K-fold mm | floor mm (ratio) | design floor mm (ratio)")
+        for seed in args.seeds:
+            with tempfile.TemporaryDirectory() as tmp:
+                root = Path(tmp) if args.keep is None else args.keep / str(seed)
+                root.mkdir(parents=True, exist_ok=True)
+                try:
+                    print(floors_row(seed, root, args), flush=True)
+                except AssertionError as exc:  # e.g. a held-out part whose holds never settle
+                    print(f"{seed} | not run: {exc or 'a command failed'}", flush=True)
+        return
     print("seed | named (slipped) | right | held-out session mm before -> after | "
           "T1 held out: cal mm/deg -> diag mm/deg | T1 after slip: cal mm/deg | diag mm/deg | "
           "ratio diag/cal mm, deg | clean: named | clean diag mm/deg")

@@ -16,10 +16,9 @@ gives: each point's own noise, and the error the refit on the other folds makes 
 - The refit: given the geometric fit and its folds (:func:`kfold_refit`), its own error to first
   order, fold by fold: cov(theta) = H^+ (sum_i J_i' W_i C_i W_i J_i) H^+ over the training poses
   (H = sum_i J_i' W_i J_i, W the folds' fit weights, C_i the pose's noise covariance), and each
-  held-out point's expected 3-D squared error its noise plus tr(J_m cov J_m'). Without them, about
-  n_params / n_observations of the noise: low where the parameters are many against the training
-  folds' observations, or the observations correlated (a body's points: about 1.6 times the noise
-  where the K-fold's refit is 0.65 of it, docs/effects-body-slip.md).
+  held-out point's expected 3-D squared error its noise plus tr(J_m cov J_m'). Without them,
+  n_params / n_observations of the noise, an underestimate where the parameters are many against
+  the training folds' observations or the observations correlated (a body's points).
 """
 from __future__ import annotations
 
