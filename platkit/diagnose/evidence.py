@@ -71,12 +71,14 @@ def _finite_mean(a: np.ndarray, axis: int | None = None):
 
 
 def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec: PlatformSpec,
-                   findings: list[Finding], heldout_final: PoseSet | None = None) -> dict[str, Any]:
+                   findings: list[Finding], heldout_final: PoseSet | None = None,
+                   windows: np.ndarray | None = None) -> dict[str, Any]:
     """diagnosis.json's ``heldout_session``: the point RMS (m) of the geometric model ``base`` and
     the diagnosed ``final`` on another recording, per marker, the paired one-sided p over its
     poses and ``n_poses``; each finding's ``heldout_session_rms_before/after`` set.
     ``heldout_final``: the recording as ``final`` reads it where that differs from ``heldout``
-    (a stream's windows, each model's controls its own response's: platkit.diagnose.stream)."""
+    (a stream's windows, each model's controls its own response's: platkit.diagnose.stream);
+    ``windows``: each pose's window of a stream, for the paired test (stats.paired_improvement)."""
     e0 = point_errors(base, with_history(heldout, spec))
     e1 = point_errors(final, with_history(heldout if heldout_final is None else heldout_final, spec))
     before = float(np.sqrt(_finite_mean(e0**2)))
@@ -86,5 +88,6 @@ def _score_heldout(base: Calibration, final: Calibration, heldout: PoseSet, spec
     per_marker = {n: (float(np.sqrt(_finite_mean(e0[:, m] ** 2))), float(np.sqrt(_finite_mean(e1[:, m] ** 2))))
                   for m, n in enumerate(base.marker_names)}
     return {"rms_before": before, "rms_after": after, "per_marker": per_marker,
-            "p_improvement": paired_improvement(_finite_mean(e0**2, axis=1), _finite_mean(e1**2, axis=1)),
+            "p_improvement": paired_improvement(_finite_mean(e0**2, axis=1), _finite_mean(e1**2, axis=1),
+                                                windows),
             "n_poses": heldout.n_poses}

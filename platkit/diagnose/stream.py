@@ -27,6 +27,7 @@ import numpy as np
 from platkit.bodies import AXIS_LENGTH_M, frame_point_names
 from platkit.calibrate.motion import LocalResponseTerm, ResponseTerm, motion_stream
 from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
+from platkit.calibrate.stream import NODES
 from platkit.diagnose.bodies import as_points, point_calibration
 from platkit.diagnose.evidence import _score_heldout
 from platkit.effects import with_history
@@ -38,7 +39,7 @@ from platkit.poses import PoseSet
 from platkit.settle import estimate_noise
 
 __all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "read_through", "score_heldout_stream",
-           "stream_poses", "training_stream"]
+           "stream_poses", "training_stream", "windows_of"]
 
 
 def marker_sigmas(session: Session) -> dict[str, float]:
@@ -159,12 +160,23 @@ def read_through(held: HeldoutStream, model: Calibration, spec: PlatformSpec | N
     return with_history(out, spec)
 
 
+def windows_of(poses: PoseSet) -> np.ndarray:
+    """(N,) each windowed pose's window, numbered in time order: motion_stream keeps every window
+    of the stream as its NODES nodes, one after another (platkit.calibrate.stream.stream_windows
+    with no raw samples)."""
+    return np.asarray(poses.extras["node"], int) // NODES
+
+
 def score_heldout_stream(base: Calibration, final: Calibration, held: HeldoutStream, spec: PlatformSpec,
                          findings) -> dict:
     """diagnosis.json's ``heldout_session`` of a held-out stream: the point RMS (m) of the
     geometric model ``base`` and the diagnosed ``final``, each reading the controls through its
-    own response (:func:`read_through`), per marker, the paired one-sided p over the windows,
-    and ``n_poses``; each finding's ``heldout_session_rms_before/after`` set, as for settled poses."""
+    own response (:func:`read_through`), per marker, the paired one-sided p over the windowed
+    poses, and ``n_poses``; each finding's ``heldout_session_rms_before/after`` set, as for settled
+    poses. The paired test is given the poses' windows (:func:`windows_of`): a model's errors at
+    neighbouring windows of one stream are correlated (platkit.diagnose.stats.serial_signed_rank),
+    where the K-fold comparisons on the stream diagnosed are not (interleaved folds put neighbours
+    in different folds: docs/diagnosis-stream-tests.md)."""
     out = _score_heldout(base, final, read_through(held, base, spec), spec, findings,
-                         heldout_final=read_through(held, final, spec))
+                         heldout_final=read_through(held, final, spec), windows=windows_of(held.poses))
     return {**out, "windowed": True}
