@@ -103,19 +103,21 @@ def noise_floor(poses: PoseSet, n_params: int,
     J = np.nan_to_num(J) * seen[:, :, None, None]  # (N, M, 3, P)
     WJ = J * np.where(seen, trained, 0.0)[:, :, None, None]
     keep = seen & (scored > 0)
+    P = J.shape[-1]
     fold = np.arange(N) % folds
     per_pose = np.full(N, np.nan)
     for k in range(folds):
         train, test = fold != k, fold == k
-        H_inv = np.linalg.pinv(np.einsum("nmap,nmaq->pq", WJ[train], J[train]))
-        mid = np.einsum("nmap,nma,nmaq->pq", WJ[train], var[train], WJ[train])
+        X = WJ[train].reshape(-1, P)  # the training rows, weighted
+        H_inv = np.linalg.pinv(X.T @ J[train].reshape(-1, P))
+        mid = (X * var[train].reshape(-1, 1)).T @ X
         for rows, whole, cov in bodies:  # a body's correlations beside its points' variances
             at = train[whole]
-            B = WJ[whole[at]][:, rows].reshape(int(at.sum()), 9, -1)
-            off = cov[at] - np.einsum("nij,ij->nij", cov[at], np.eye(9))
-            mid += np.einsum("nap,nab,nbq->pq", B, off, B)
-        cov_theta = H_inv @ mid @ H_inv
-        err = own[test] + np.einsum("nmap,pq,nmaq->nm", J[test], cov_theta, J[test])
+            B = WJ[whole[at]][:, rows].reshape(int(at.sum()), 9, P)
+            off = cov[at] * (1.0 - np.eye(9))
+            mid += np.einsum("nap,nab,nbq->pq", B, off, B, optimize=True)
+        Jt = J[test].reshape(-1, P)
+        err = own[test] + np.sum((Jt @ (H_inv @ mid @ H_inv)) * Jt, axis=1).reshape(int(test.sum()), -1, 3).sum(axis=2)
         ok = keep[test]
         per_pose[test] = np.where(ok.any(axis=1), np.sum(np.where(ok, err, 0.0), axis=1) / np.maximum(ok.sum(axis=1), 1),
                                   np.nan)
