@@ -139,12 +139,17 @@ def heldout_stream(folder, session: Session, cal: Calibration) -> HeldoutStream:
     return HeldoutStream(poses, term)
 
 
-def _response_theta(model: Calibration, held: HeldoutStream) -> np.ndarray:
-    """The response parameters ``model`` carries (its ResponseTerm's), else the calibration's."""
+def _response_theta(model: Calibration, held: HeldoutStream) -> tuple[LocalResponseTerm, np.ndarray]:
+    """The held-out log's response in the kind ``model`` carries (its ResponseTerm's: a diagnosis may
+    choose another kind than the calibration given's) and its parameters, else the calibration's."""
     for term, theta in zip(model.terms, model.theta):
-        if isinstance(term, ResponseTerm) and len(theta) == len(held.term.initial):
-            return np.asarray(theta, float)
-    return np.asarray(held.term.initial, float)
+        if isinstance(term, ResponseTerm):
+            h = held.term
+            own = h if term.model == h.model else LocalResponseTerm(
+                term.model, h.T, h.U, list(model.spec.control_names), theta, np.zeros(len(theta)), h.start, h.proj,
+                h.sample_t)
+            return own, np.asarray(theta, float)
+    return held.term, np.asarray(held.term.initial, float)
 
 
 def read_through(held: HeldoutStream, model: Calibration, spec: PlatformSpec | None = None) -> PoseSet:
@@ -152,7 +157,8 @@ def read_through(held: HeldoutStream, model: Calibration, spec: PlatformSpec | N
     without the nodes (a term of the session diagnosed adds no offset to another recording) and
     with the history of these controls (platkit.effects.with_history)."""
     p = held.poses
-    controls = held.term.reached(_response_theta(model, held), p)
+    term, theta = _response_theta(model, held)
+    controls = term.reached(theta, p)
     out = p.subset(np.arange(p.n_poses))
     out.controls = np.array(controls, float)
     out.extras = {k: v for k, v in p.extras.items() if k != "node"}
