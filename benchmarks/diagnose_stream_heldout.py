@@ -11,9 +11,10 @@ chosen by BIC unless --response-kind) and diagnosed with --heldout the held-out 
         [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30] [--keep DIR]
         [--compare-kinds [auto first-order second-order]] [--first-order-drives]
 
-Prints one row per seed, motion and effect: what diagnosis names (the truth's effect and place
-beside it), the held-out stream's point RMS before -> after as diagnosis.json gives it (the
-diagnosis's geometric model and the diagnosed one, each reading it through its own response), the
+Prints one row per seed, motion and effect: the response's kind (calibrate's, and diagnose's
+where it chose another), what diagnosis names (the truth's effect and place beside it), the
+held-out stream's point RMS before -> after as diagnosis.json gives it (the diagnosis's geometric
+model and the diagnosed one, each reading it through its own response), the
 noise floor of the training stream's windowed poses and the geometric model's K-fold held-out RMS,
 the held-out stream's RMS with calibrate's calibration.yaml and with diagnose's, each file read as
 written (its windows and response), and, against the truth, the markers predicted at the held-out part's commands
@@ -126,7 +127,9 @@ def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: 
     assert main(["diagnose", str(train), "--calibration", str(src / "cal" / "calibration.yaml"), "--heldout",
                  str(held), "--out", str(src / "diag"), "--quiet", "--no-report"]) == 0
     d = json.loads((src / "diag" / "diagnosis.json").read_text())
-    response = yaml.safe_load((src / "cal" / "calibration.yaml").read_text())["actuator_response"]["response"]["kind"]
+    response = " -> ".join(dict.fromkeys(  # calibrate's kind, and diagnose's where it chose another
+        yaml.safe_load((src / f / "calibration.yaml").read_text())["actuator_response"]["response"]["kind"]
+        for f in ("cal", "diag")))
     return {"truth": [e["effect"] + f" {(e.get('physics') or {}).get('actuator', '')}".rstrip() for e in truth],
             "named": [f["effect"] + f" {f['where'].get('actuator', '')}".rstrip() for f in d["findings"]],
             "heldout": d["heldout_session"], "floor": d["noise_floor"], "cv": d["heldout_rms_geometric"],
@@ -156,7 +159,8 @@ def main_() -> None:
         actuator.follow = first_order_follow  # actuator_motion's follow: the truth's drives
     if a.compare_kinds is not None:
         return compare_rows(a, tuple(a.compare_kinds) or KINDS)
-    print("seed motion effect (truth) | response | named | held-out stream rms mm before -> after (windows) | "
+    print("seed motion effect (truth) | response (calibrate's -> diagnose's) | named | "
+          "held-out stream rms mm before -> after (windows) | "
           "floor mm | geometric K-fold mm (x floor) | held-out stream mm, the files: calibrate -> diagnose | "
           "held-out commands vs truth mm: calibrate -> diagnose")
     for seed, motion, effect, r in cases(a, a.response_kind):
