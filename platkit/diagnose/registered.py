@@ -17,6 +17,7 @@ import numpy as np
 
 from platkit.calibrate.reregister import rotated_scores
 from platkit.diagnose.stats import paired_improvement
+from platkit.diagnose.stream import windows_of
 from platkit.io.calibration import Calibration
 from platkit.poses import PoseSet
 
@@ -28,7 +29,8 @@ def registered_heldout(base: Calibration, final: Calibration, heldout: PoseSet, 
     markers; a held-out stream's controls through each model's own response,
     platkit.diagnose.stream.read_through; None: ``heldout``) scored as the module says:
     {'k', 'marker_places_refitted', 'n_registrations', 'rms_before', 'rms_after' (m),
-    'per_marker' {name: (before, after) m}, 'p_improvement', 'turn_rad' and 'move' (m): the
+    'per_marker' {name: (before, after) m}, 'p_improvement' (over a stream's windows where
+    ``heldout`` is windowed poses: platkit.diagnose.stream.windows_of), 'turn_rad' and 'move' (m): the
     median over the registrations of how far the diagnosed model's transform moved from its own,
     'n_rejected' points left out as outliers over them, 'spread' whether a block's poses lie across
     the recording}."""
@@ -40,7 +42,8 @@ def registered_heldout(base: Calibration, final: Calibration, heldout: PoseSet, 
             "n_registrations": len(after.blocks),
             "rms_before": before.rms, "rms_after": after.rms,
             "per_marker": {n: (before.rms_of(n), after.rms_of(n)) for n in after.names},
-            "p_improvement": paired_improvement(before.per_pose(), after.per_pose()),
+            "p_improvement": paired_improvement(before.per_pose(), after.per_pose(),
+                                                windows_of(heldout) if "node" in heldout.extras else None),
             "turn_rad": float(np.median(shifts[:, 0])), "move": float(np.median(shifts[:, 1])),
             "n_rejected": int(sum(r.n_rejected for r in after.registrations))}
 
