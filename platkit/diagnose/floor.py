@@ -18,7 +18,9 @@ gives: each point's own noise, and the error the refit on the other folds makes 
   (H = sum_i J_i' W_i J_i, W the folds' fit weights, C_i the pose's noise covariance), and each
   held-out point's expected 3-D squared error its noise plus tr(J_m cov J_m'). Without them,
   n_params / n_observations of the noise, an underestimate where the parameters are many against
-  the training folds' observations or the observations correlated (a body's points).
+  the training folds' observations or the observations correlated (a body's points). Diagnosis's
+  search (platkit.diagnose.search) passes no refit: its floor, and the thresholds set against it
+  (Options.noise_floor_factor, lack_of_fit_factor, noted_lack_of_fit), are the count rule's.
 """
 from __future__ import annotations
 
