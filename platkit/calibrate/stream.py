@@ -10,7 +10,9 @@ checks, and its reduction to nodes that keep what it says of the geometry.
   about RAW_SAMPLES samples in all, kept as their samples (the response's timing shows in the
   fast content the windows' fit leaves out);
 - :func:`projected_positions`: the same projection of the controls reached at every sample,
-  evaluated a block of nodes at a time, so that no array over every sample is made.
+  evaluated a block of nodes at a time, so that no array over every sample is made;
+- :func:`commanded_direction`: the direction of each actuator's last move at the nodes, read from
+  the command log through the actuator's response lag (a history effect's 'direction').
 """
 from __future__ import annotations
 
@@ -19,12 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from platkit.calibrate.response import ResponseModel, actuator_positions
+from platkit.calibrate.response import ResponseModel, actuator_positions, lags
 from platkit.errors import BadSession
 from platkit.io.session import Session
 
-__all__ = ["StreamWindows", "check_motion_session", "projected_positions", "stream_windows", "window_fit",
-           "STREAMED_MAX_S"]
+__all__ = ["StreamWindows", "check_motion_session", "commanded_direction", "projected_positions", "response_lag",
+           "stream_windows", "window_fit", "STREAMED_MAX_S", "DIRECTION_TRAVEL"]
 
 #: a command log whose median interval is at most this (s) is streamed (step reference); longer
 #: intervals are point-to-point moves between holds (profile reference)
@@ -43,6 +45,50 @@ OVERLAP_SHARE = 0.5
 #: the controls reached at the samples are evaluated about PROJ_SAMPLES samples at a time
 #: (:func:`projected_positions`)
 PROJ_SAMPLES = 16384
+#: a command counts as a move of its actuator where it has travelled more than this share of the
+#: actuator's stroke from the last turning point (:func:`commanded_direction`)
+DIRECTION_TRAVEL = 1e-3
+
+
+def response_lag(model: ResponseModel, theta) -> np.ndarray:
+    """(n_u,) the time (s) by which each actuator's position follows its command log at low
+    frequency: its whole time lag (:func:`platkit.calibrate.response.lags`: the shift and its
+    delay) and its linear response's delay on a ramp (tau_j first order, 2 zeta_j tau_j second
+    order). The sum is what the markers fix; the shift alone trades with the time constants."""
+    par = model.split(theta)
+    tau = np.asarray(par["tau_s"], float)
+    zeta = np.asarray(par["damping"], float) if "damping" in par else np.ones(model.n_u)
+    ramp = [2.0 * zeta[j] * tau[j] if model.is_second(j) else tau[j] for j in range(model.n_u)]
+    return lags(model, theta) + np.asarray(ramp, float)
+
+
+def commanded_direction(T: np.ndarray, U: np.ndarray, t: np.ndarray, lag: np.ndarray,
+                        stroke: np.ndarray) -> np.ndarray:
+    """(K, n_u) the sign of each actuator's last move at the motion-capture times ``t`` (K,), 0
+    before its first: read from the command log (``T`` (N,) s on the commands clock, ``U`` (N,
+    n_u)), never from the controls a response fitted there (a fitted overshoot after the last
+    command, or the markers' noise, does not turn it). The rule: actuator j at time t reads the
+    commands up to t - ``lag[j]`` (:func:`response_lag`); its direction turns where the commands
+    have travelled more than DIRECTION_TRAVEL of its ``stroke`` (n_u,) back from the last turning
+    point (the furthest command since the last turn), and holds between."""
+    U = np.atleast_2d(np.asarray(U, float))
+    t = np.asarray(t, float)
+    N, n_u = U.shape
+    out = np.zeros((len(t), n_u))
+    for j in range(n_u):
+        tol = DIRECTION_TRAVEL * float(stroke[j])
+        d = np.zeros(N)
+        sign, turn = 0.0, float(U[0, j])
+        for i in range(1, N):
+            x = float(U[i, j])
+            if sign * (x - turn) > 0.0:  # further the same way: the turning point moves with it
+                turn = x
+            elif abs(x - turn) > tol:  # back (or, at first, away) from it by more than the travel
+                sign, turn = float(np.sign(x - turn)), x
+            d[i] = sign
+        read = np.searchsorted(T, t - float(lag[j]), side="right") - 1  # the last command read at each time
+        out[:, j] = np.where(read >= 0, d[np.maximum(read, 0)], 0.0)
+    return out
 
 
 def projected_positions(proj: sparse.csr_matrix, model: ResponseModel, theta, T: np.ndarray, U: np.ndarray,

@@ -11,6 +11,9 @@ held-out one, with the noise their floor needs.
   model's, refitted with the geometry; the diagnosed model's, refitted with its effects), so an
   effect that changes the fitted response is judged with it, as it would predict a new recording;
   where a model carries no response (a session with holds diagnosed), the calibration's.
+- The direction of each actuator's last move at each windowed pose (``extras['direction']``, what
+  a history effect such as backlash reads; :func:`stream_direction`): from the command log through
+  the actuator's response lag, the same rule for both streams, never from the fitted controls.
 - The noise of each channel per coordinate (``settling['point_sigma_m']``, read by
   :func:`platkit.diagnose.floor.noise_floor`): a marker's measured on the stream
   (platkit.settle.estimate_noise, marker by marker: session.yaml declares no marker noise); a rigid
@@ -27,7 +30,7 @@ import numpy as np
 from platkit.bodies import AXIS_LENGTH_M, frame_point_names
 from platkit.calibrate.motion import LocalResponseTerm, ResponseTerm, motion_stream
 from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
-from platkit.calibrate.stream import NODES
+from platkit.calibrate.stream import NODES, commanded_direction, response_lag
 from platkit.diagnose.bodies import as_points, point_calibration
 from platkit.diagnose.evidence import _score_heldout
 from platkit.effects import with_history
@@ -39,7 +42,7 @@ from platkit.poses import PoseSet
 from platkit.settle import estimate_noise
 
 __all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "read_through", "score_heldout_stream",
-           "stream_poses", "training_stream", "windows_of"]
+           "stream_direction", "stream_poses", "training_stream", "windows_of"]
 
 
 def marker_sigmas(session: Session) -> dict[str, float]:
@@ -79,7 +82,25 @@ def stream_poses(folder, session: Session, cal: Calibration) -> tuple[PoseSet, L
             noise += f", the bodies' points' {'measured on the stream' if measured else 'declared'}"
     poses.settling = {**(poses.settling or {}),
                       "point_sigma_m": {**sig, **((poses.settling or {}).get("point_sigma_m") or {})}}
+    poses.extras = {**poses.extras, "direction": stream_direction(session, term, cal.spec, np.asarray(poses.t, float))}
     return poses, term, noise
+
+
+def stream_direction(session: Session, term: LocalResponseTerm, spec: PlatformSpec, t: np.ndarray) -> np.ndarray:
+    """(N, n_u) a history effect's 'direction' at a stream's windowed poses (times ``t``, the
+    motion-capture clock): each actuator's last move read from ``session``'s command log through its
+    response lag (platkit.calibrate.stream.response_lag: its time lag and its response's delay on a
+    ramp) at the response ``term`` carries (the calibration given's, for every model scored), a
+    move counting where the commands travel more than platkit.calibrate.stream.DIRECTION_TRAVEL of
+    the actuator's stroke (the log's span where the spec gives none) from the last turning point
+    (:func:`platkit.calibrate.stream.commanded_direction`); not from the controls the response
+    reaches at the windows (whose overshoot after the last command would turn it). The same rule
+    for the stream diagnosed and a held-out one."""
+    U = np.asarray(session.commands, float)
+    lo, hi = spec.control_bounds()
+    stroke = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, np.ptp(U, axis=0) + 1e-300)
+    return commanded_direction(np.asarray(session.command_t, float), U, t, response_lag(term.model, term.initial),
+                               stroke)
 
 
 def _say_bodies(folder, session: Session) -> None:
@@ -155,7 +176,8 @@ def _response_theta(model: Calibration, held: HeldoutStream) -> tuple[LocalRespo
 def read_through(held: HeldoutStream, model: Calibration, spec: PlatformSpec | None = None) -> PoseSet:
     """The held-out windowed poses at the controls ``model``'s response reaches at their nodes,
     without the nodes (a term of the session diagnosed adds no offset to another recording) and
-    with the history of these controls (platkit.effects.with_history)."""
+    with the history of these controls (platkit.effects.with_history), the direction of motion
+    kept as the held-out stream's command log gives it (:func:`stream_direction`)."""
     p = held.poses
     term, theta = _response_theta(model, held)
     controls = term.reached(theta, p)
