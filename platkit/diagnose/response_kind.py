@@ -116,8 +116,7 @@ def response_again(spec: PlatformSpec, poses: PoseSet, prior: list[ModelTerm], c
                     platform_options=platform_options)
     f = _fit(spec, poses, terms, cal.fit.z, cal.fit.active, weights, opt.lm_iterations, opt.robust)
     f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
-    p = paired_improvement(cur.cv, f.cv)
-    kept = bool(f.bic < cur.bic and p < opt.alpha_heldout and f.cv_rms < cur.cv_rms)
+    kept, p = kind_kept(f, cur, np.ones(len(cur.cv), bool), opt, simpler=False)
     unit = poses.length_unit
     record = {"round": ROUND_RESPONSE, "tried": "second order at every actuator", "kept": kept,
               "heldout_rms_before": cur.cv_rms, "heldout_rms_after": f.cv_rms, "paired_p": float(p),
