@@ -151,6 +151,17 @@ def body_calibration(fitted: Calibration, given: Calibration) -> Calibration:
     return bodies_from_points(fitted, list(given.body_names), given.body_rho, given.body_rho_source, given=given)
 
 
+def point_map(pts: np.ndarray) -> np.ndarray:
+    """(n, 9, 6) the map from a rigid body's small move (its position p and turn w) to the errors
+    of its three points ``pts`` (n, 3, 3: origin, x tip, y tip at each pose): p at every point, and
+    w x v at a tip, v its lever from the origin."""
+    A = np.zeros((len(pts), 9, 6))
+    A[:, :, :3] = np.tile(np.eye(3), (3, 1))
+    for k in (1, 2):  # w x v, a matrix acting on w
+        A[:, 3 * k:3 * k + 3, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, pts[:, k] - pts[:, 0])
+    return A
+
+
 def n_measured(marker_names: list[str], seen: np.ndarray) -> int:
     """How many numbers the seen points ``seen`` (N, M) measure: 3 a marker; 6 a rigid body's three
     points (:func:`as_points`) seen together at a pose, its position and turn (:func:`screen_system`),
@@ -200,12 +211,7 @@ def screen_system(poses: PoseSet, weights: np.ndarray, r: np.ndarray, J: np.ndar
         own[[io, ix, iy]] = True
         whole = keep[:, io] & keep[:, ix] & keep[:, iy]
         pts = np.asarray(poses.markers, float)[whole][:, [io, ix, iy]]  # (n, 3, 3)
-        lever = [pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]]
-        A = np.zeros((len(pts), 9, 6))
-        A[:, :, :3] = np.tile(np.eye(3), (3, 1))
-        for k, v in enumerate(lever, start=1):  # w x v, a matrix acting on w
-            A[:, 3 * k:3 * k + 3, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, v)
-        W = np.linalg.pinv(A)  # (n, 6, 9)
+        W = np.linalg.pinv(point_map(pts))  # (n, 6, 9)
         W[:, 3:] *= sp / sr
         rows_r.append(np.einsum("nij,nj->ni", W, rw[whole][:, [io, ix, iy]].reshape(-1, 9)).reshape(-1))
         rows_J.append(np.einsum("nij,njp->nip", W, Jw[whole][:, [io, ix, iy]].reshape(len(pts), 9, -1))

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from platkit.diagnose.bodies import _LEVI_CIVITA, _body_triples, n_measured
+from platkit.diagnose.bodies import _body_triples, n_measured, point_map
 from platkit.poses import PoseSet
 
 if TYPE_CHECKING:
@@ -71,10 +71,7 @@ def pose_noise(poses: PoseSet) -> tuple[np.ndarray, list[tuple[list[int], np.nda
     bodies = []
     for io, ix, iy, sp, sr in _body_triples(poses):
         whole = np.flatnonzero(seen[:, io] & seen[:, ix] & seen[:, iy])
-        A = np.zeros((len(whole), 9, 6))
-        A[:, :, :3] = np.tile(np.eye(3), (3, 1))
-        for k, i in ((1, ix), (2, iy)):  # w x v, a matrix acting on w (screen_system's map)
-            A[:, 3 * k:3 * k + 3, 3:] = np.einsum("ijk,nk->nij", _LEVI_CIVITA, pts[whole, i] - pts[whole, io])
+        A = point_map(pts[whole][:, [io, ix, iy]])  # screen_system's map
         S = infl * np.array([sp ** 2] * 3 + [sr ** 2] * 3)
         cov = np.einsum("nia,a,nja->nij", A, S, A) / n[whole, io][:, None, None]
         var[whole[:, None], [io, ix, iy]] = np.einsum("nii->ni", cov).reshape(-1, 3, 3)
