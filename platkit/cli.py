@@ -30,6 +30,7 @@ import os  # noqa: E402
 import re  # noqa: E402
 
 from platkit import __version__  # noqa: E402
+from platkit._threads import blas_threads  # noqa: E402
 from platkit.errors import PlatkitError  # noqa: E402
 from platkit.notices import collecting, units_checked  # noqa: E402
 
@@ -150,9 +151,10 @@ def main(argv: list[str] | None = None) -> int:
         except SystemExit as exc:  # argparse already printed one line; bad usage is bad input
             return 2 if exc.code not in (0, None) else 0
         debug = getattr(args, "debug", False)
-        with collecting(), units_checked(getattr(args, "units_checked", False)):
+        with collecting(), units_checked(getattr(args, "units_checked", False)), blas_threads(1):
             # each warning printed once on stderr and kept for the verb's report; --units-checked
-            # answers the plausibility checks of units
+            # answers the plausibility checks of units; the verb on one BLAS thread unless the user
+            # chose otherwise (platkit._threads: PLATKIT_BLAS_THREADS, OPENBLAS_NUM_THREADS, ...)
             return int(args._run(args) or 0)
     except PlatkitError as exc:
         if debug:

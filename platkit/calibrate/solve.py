@@ -14,33 +14,14 @@ arithmetic is the whole Jacobian's, in its order.
 """
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
+from platkit._threads import blas_threads  # every LM run enters it; estimators import it from here
 from platkit.calibrate.problem import CalibrationProblem, FitState, Progress
 from platkit.calibrate.robust import HUBER_K, MAXWELL_MEDIAN, REJECT_K, robust_sigma
 from platkit.errors import BadInput
-
-_controller: list[ThreadpoolController] = []
-
-
-@contextlib.contextmanager
-def blas_threads(n: int = 1):
-    """Limit the BLAS threads (OpenBLAS, MKL, BLIS) to ``n`` inside the block (restored after).
-
-    The estimator's matrices are small (thousands by tens); on a shared machine BLAS worker
-    threads spin against other processes and make each product ten times slower (a 444 x 120
-    Gram matrix: 5.7 ms with the default threads, 0.45 ms with one, on the 2-core machine). The
-    libraries are found once per process (0.7 ms a block otherwise): every Levenberg-Marquardt
-    run enters such a block, whoever calls it (a diagnosis refits a hundred times).
-    """
-    if not _controller:
-        _controller.append(ThreadpoolController())
-    with _controller[0].limit(limits=n, user_api="blas"):
-        yield
 
 
 @dataclass

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from platkit._threads import blas_threads
 from platkit.diagnose.bodies import _body_triples, n_measured, point_map
 from platkit.poses import PoseSet
 
@@ -91,14 +92,23 @@ def noise_floor(poses: PoseSet, n_params: int,
     if noise is None:
         return None
     var, bodies = noise
-    N = poses.n_poses
     seen = np.all(np.isfinite(poses.markers), axis=2) & (np.asarray(poses.n_samples, float) > 0)
     if not seen.any():
         return None
     own = var.sum(axis=2)  # (N, M) each point's 3-D variance
     if refit is None:
         return float(np.sqrt(np.mean(own[seen]) * (1.0 + n_params / n_measured(poses.marker_names, seen))))
+    with blas_threads(1):  # products of thousands by tens: worker threads only spin (platkit._threads)
+        per_pose = _refit_floor(var, bodies, own, seen, refit)
+    return float(np.sqrt(np.nanmean(per_pose))) if np.isfinite(per_pose).any() else None
+
+
+def _refit_floor(var: np.ndarray, bodies: list, own: np.ndarray, seen: np.ndarray,
+                 refit: tuple[np.ndarray, np.ndarray, np.ndarray, int]) -> np.ndarray:
+    """Each pose's expected held-out 3-D squared error (N,) under the K-fold refit (module
+    docstring), NaN where no scored point is seen; ``own`` (N, M) each point's 3-D variance."""
     J, trained, scored, folds = refit
+    N = len(seen)
     J = np.nan_to_num(J) * seen[:, :, None, None]  # (N, M, 3, P)
     WJ = J * np.where(seen, trained, 0.0)[:, :, None, None]
     keep = seen & (scored > 0)
@@ -120,7 +130,7 @@ def noise_floor(poses: PoseSet, n_params: int,
         ok = keep[test]
         per_pose[test] = np.where(ok.any(axis=1), np.sum(np.where(ok, err, 0.0), axis=1) / np.maximum(ok.sum(axis=1), 1),
                                   np.nan)
-    return float(np.sqrt(np.nanmean(per_pose))) if np.isfinite(per_pose).any() else None
+    return per_pose
 
 
 def pose_words(poses: PoseSet) -> str:

@@ -13,15 +13,14 @@ search is the data's sum of squares less what the Cholesky factor of those equat
 """
 from __future__ import annotations
 
-import contextlib
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import chdtrc, gammaincinv
-from threadpoolctl import ThreadpoolController
 
+from platkit._threads import blas_threads
 from platkit.settle._approach import Approach
 from platkit.settle._native import Kernels, Packed, fits_function
 
@@ -40,21 +39,6 @@ BATCH_ELEMENTS = 1 << 18
 
 #: stretches prepared and searched together
 CHUNK = 512
-
-_controller: list[ThreadpoolController] = []
-
-
-@contextlib.contextmanager
-def _one_blas_thread():
-    """BLAS (OpenBLAS, MKL, BLIS) limited to one thread inside the block, restored after: an
-    approach fit's products are a few hundred by tens, where worker threads only wake and spin
-    (on a shared machine they make each product up to eighty times slower); the results are
-    the same, each product's sums being split over rows and columns, not over the samples."""
-    if not _controller:
-        _controller.append(ThreadpoolController())
-    with _controller[0].limit(limits=1, user_api="blas"):
-        yield
-
 
 @dataclass
 class _Hold:
@@ -415,7 +399,7 @@ def fit_approaches(stretches: Sequence[tuple], compiled: bool = True) -> list[Ap
     ``compiled`` is true, else numpy's; the two agree to rounding."""
     out: list[Approach | None] = []
     kernels = fits_function() if compiled else "not asked for"
-    with _one_blas_thread():
+    with blas_threads(1):  # products of a few hundred by tens: worker threads only spin
         for c in range(0, len(stretches), CHUNK):
             chunk = [(tuple(x) + (None, None))[:5] for x in stretches[c:c + CHUNK]]
             if isinstance(kernels, str):
