@@ -79,6 +79,52 @@ def progress_printer(unit: str, stream=None):
     return show
 
 
+#: the actuators' response of a calibration from motion, as a progress line names it
+KIND_WORDS = {"first_order": "first-order response", "second_order": "second-order response",
+              "per_actuator": "second-order response for some actuators"}
+
+
+def motion_progress_printer(unit: str, kind: str, n_u: int, stream=None):
+    """:func:`progress_printer` for a calibration from motion (platkit.calibrate.motion), which fits
+    the stream several times: a first line says so, and each fit is numbered and said with the
+    response's kind it fits, its "rms a -> b" from that fit's own start (a later fit may start worse
+    than an earlier one ended). ``kind``: as asked ('auto', 'first_order', 'second_order'). Under
+    'auto' a fit's kind is read from its unknowns (identifiable and held, its identifiability
+    event): the first fit is the first order's (the motion model fits it first and tries the second
+    order from it); a fit with ``n_u`` more (a damping per actuator) is the second order's, one with
+    fewer more the second order's for some actuators."""
+    show = progress_printer(unit, stream)
+    s = length_scale(unit)
+    state: dict = {"fit": 0, "label": KIND_WORDS.get(kind, kind), "first": None}
+    plan = ("first order, then second order tried from it (from more than one start; kept by BIC where "
+            "determined: report motion.response.choice)" if kind == "auto" else KIND_WORDS.get(kind, kind))
+
+    def show_motion(stage: str, info: dict) -> None:
+        out = stream if stream is not None else sys.stderr
+        if state["fit"] == 0:
+            print(f"calibrate: from motion: the actuators' response fitted {plan}; each fit numbered below, its rms "
+                  "from its own start", file=out, flush=True)
+            state["fit"] = 1
+        if stage == "identifiability":
+            unknowns = int(info["n_identifiable"]) + len(info.get("held") or [])
+            if kind == "auto":
+                first = state["first"] = unknowns if state["first"] is None else state["first"]
+                state["label"] = KIND_WORDS["first_order" if unknowns <= first else
+                                            "second_order" if unknowns - first >= n_u else "per_actuator"]
+            held = info.get("held") or []
+            print(f"calibrate: fit {state['fit']} ({state['label']}): {info['n_identifiable']} unknowns identifiable; "
+                  f"held at nominal: {', '.join(held) if held else 'none'}", file=out, flush=True)
+        elif stage == "done":
+            print(f"calibrate: fit {state['fit']} ({state['label']}) rms {info['rms_before'] / s:.4g} -> "
+                  f"{info['rms_after'] / s:.4g} {unit} from its own start, in {info['time_s']:.2f} s",
+                  file=out, flush=True)
+            state["fit"] += 1
+        else:
+            show(stage, info)
+
+    return show_motion
+
+
 def load_for_calibration(session: str | None, platform: str | None, description: str | None, quiet: bool = False,
                          notes: list[str] | None = None):
     """(poses, spec, platform_options) of a session folder, or of the stand's example session.
@@ -115,9 +161,14 @@ def settling_notes(poses, folder) -> list[str]:
         # holds that did not settle: the motion model may serve (platkit calibrate); commands without
         # samples: no model does
         unsampled = sum(1 for _, why in poses.dropped if str(why).startswith("no motion-capture samples"))
-        refusal = ComputationFailed if unsampled >= 0.5 * len(poses.dropped) else HoldsNeverSettle
-        raise refusal(f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant "
-                                "of the session: see the reasons (platkit calibrate counts them) and record again")
+        text = (f"{folder}: {said}; a calibration from the {poses.n_poses} left would fit a remnant of the "
+                "session: see the reasons (platkit calibrate counts them) and record again")
+        if unsampled >= 0.5 * len(poses.dropped):
+            raise ComputationFailed(text)
+        n_settled = poses.n_poses - int(info.get("n_extrapolated", 0))
+        raise HoldsNeverSettle(text, {"reason": f"only {poses.n_poses} of {n_commands} commands gave a pose, under "
+                                                f"half ({said})", "unsettled": dict(info.get("unsettled") or {}),
+                                      "n_commands": n_commands, "n_settled": n_settled})
     out = [said] if said else []
     un = info.get("unsettled") or {}
     if info.get("n_extrapolated"):
@@ -155,7 +206,7 @@ def run(args) -> int:
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        return run_motion(args, str(exc), notes)
+        return run_motion(args, str(exc), notes, exc.settling.get("reason"))
     kind = getattr(args, "response_kind", "auto")
     for flag, value in (("--response", response), ("--response-kind", None if kind == "auto" else kind)):
         if value is not None:  # the holds settled: no response is fitted, said
@@ -281,10 +332,12 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def run_motion(args, why: str, notes: list[str]) -> int:
+def run_motion(args, why: str, notes: list[str], reason: str | None = None) -> int:
     """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
     markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
-    with the stand's default free parameters (``--free`` as given)."""
+    with the stand's default free parameters (``--free`` as given). ``why``: the settling search's
+    refusal (the report's); ``reason``: its clause with the counts (HoldsNeverSettle.settling),
+    said in the one-line warning."""
     from platkit.calibrate.estimate import second_session_errors
     from platkit.calibrate.motion import calibrate_motion
     from platkit.calibrate.motion_points import bodies_alone, calibrate_motion_bodies
@@ -301,13 +354,13 @@ def run_motion(args, why: str, notes: list[str]) -> int:
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, s.spec.name, args.description, quiet=args.quiet)
     reason = f"settling: {why}"
-    note = ("the holds do not settle or there are none: calibrated from the whole stream through the actuators' "
-            "fitted response instead (report: motion)")
+    note = fallback_note(reason)
     warn(note)
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
     fit = calibrate_motion_bodies if bodies_alone(s) else calibrate_motion  # bodies alone: as points
     cal, poses = fit(s, s.spec, free=free, robust=not args.no_robust,
-                     progress=None if args.quiet else progress_printer(s.length_unit),
+                     progress=None if args.quiet else motion_progress_printer(
+                         s.length_unit, getattr(args, "response_kind", "auto").replace("-", "_"), getattr(s.spec, "n_u", 0)),
                      platform_options=options, ridge_m=ridge_m, reason=reason,
                      kind=getattr(args, "response_kind", "auto").replace("-", "_"),
                      **response_parts(getattr(args, "response", None)))
@@ -343,6 +396,13 @@ def run_motion(args, why: str, notes: list[str]) -> int:
         line += f"; second session ({second['n_poses']} poses) rms {second['rms'] / sc:.4g} {cal.length_unit}"
     print(f"{line}; wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def fallback_note(reason: str | None) -> str:
+    """The one-line warning of a calibration from motion in place of one from settled holds, with
+    why (``reason``: the settling search's, HoldsNeverSettle.settling['reason'], with its counts)."""
+    return ((f"too few holds settle: {reason}" if reason else "the holds do not settle or there are none")
+            + ": calibrated from the whole stream through the actuators' fitted response instead (report: motion)")
 
 
 def _observed(cal) -> str:

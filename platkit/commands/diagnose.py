@@ -86,7 +86,7 @@ def run(args) -> int:
     sessions = {}  # folder -> the session as read: its streams are read once
 
     from platkit.commands.calibrate import settling_notes
-    from platkit.diagnose.stream import heldout_stream, read_through, training_stream
+    from platkit.diagnose.stream import heldout_stream, read_through, stream_why, training_stream
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
     def settled(folder):
@@ -100,13 +100,15 @@ def run(args) -> int:
         return poses
 
     streamed = False  # the session read as a stream through its calibrated response
+    refused: dict = {}  # the settle search's refusal of the session's holds (HoldsNeverSettle.settling)
     try:
         poses = settled(args.session)
-    except (HoldsNeverSettle, NeverSettles) as exc:  # no settled holds: a calibration from motion reads the stream
+    except (HoldsNeverSettle, NeverSettles) as exc:  # too few settled holds: a calibration from motion reads the stream
         if not cal.motion:
             raise type(exc)(f"{exc}; a stream without settled holds is diagnosed with its calibration from motion "
                             "(platkit calibrate on it)") from exc
-        poses, cal = training_stream(args.session, sessions[args.session], cal)
+        refused = dict(exc.settling)
+        poses, cal = training_stream(args.session, sessions[args.session], cal, stream_why(refused))
         streamed = True
     if poses.n_poses < 2 * args.folds:
         raise BadInput(f"{args.session}: {poses.n_poses} poses are too few for {args.folds}-fold held-out tests")
@@ -118,7 +120,7 @@ def run(args) -> int:
             if not as_read.motion:
                 raise type(exc)(f"{exc}; a held-out stream without settled holds is read through the actuator "
                                 f"response of a calibration from motion, and {args.calibration} has none") from exc
-            held_stream = heldout_stream(args.heldout, sessions[args.heldout], as_read)
+            held_stream = heldout_stream(args.heldout, sessions[args.heldout], as_read, stream_why(exc.settling))
             heldout = read_through(held_stream, as_read, as_read.spec)  # at the given response, without nodes
     given, cal = cal, point_calibration(cal)  # the bodies' points placed where the bodies' placements put them
     if args.heldout_register is not None or args.register_markers or args.register_spread:
@@ -147,6 +149,7 @@ def run(args) -> int:
             motion = d.calibration.motion
             motion["why"] = (f"{motion.get('why', '')}; the response chosen again by platkit diagnose: "
                              f"{again['tried']} (diagnosis.json, rounds)")
+        named_from_settle_summary(d, refused, as_read, say)
     if args.heldout_register is not None and d.heldout_session is not None:
         from platkit.diagnose.registered import registered_heldout
 
@@ -172,6 +175,46 @@ def run(args) -> int:
               f"re-registered on {r['k']} {'spread ' if r['spread'] else ''}poses at a time: "
               f"{r['rms_before'] / s:.4g} -> {r['rms_after'] / s:.4g} {d.unit} (paired p = {r['p_improvement']:.2g})")
     return 0
+
+
+#: the round of diagnosis.json that says what the settle summary of a motion-calibrated session named
+ROUND_SETTLE_SUMMARY = "settle summary"
+
+
+def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
+    """On a session calibrated from motion because its holds never settled (``refused``: the
+    settle search's HoldsNeverSettle.settling; ``cal`` the calibration given): the slow actuator
+    its summary names, as the first finding (platkit.diagnose.recording.lag_from_settle_summary's
+    rule), the round that says where it came from (diagnosis.json ``rounds``), and the verdict
+    said again. A lack of fit the stream's search reported (``unexplained``) stays beside it: the
+    lag changes nothing in the model, so that misfit is still there, and the finding says the two
+    are not told apart here."""
+    from platkit.diagnose.recording import FROM_SETTLE_SUMMARY, lag_from_settle_summary, unsettled_effect
+    from platkit.diagnose.verdict import verdict
+    from platkit.plugins import effect_library
+    from platkit.settle import SettleOptions
+
+    effect = unsettled_effect(effect_library())
+    if not refused or effect is None:
+        return
+    held = d.heldout_geometric if d.heldout_geometric is not None else d.base.rms_after
+    f = lag_from_settle_summary(refused, (cal.motion or {}).get("response"), held, effect.name,
+                                SettleOptions().max_unsettled_fraction)
+    d.rounds.append({"round": ROUND_SETTLE_SUMMARY, "from": FROM_SETTLE_SUMMARY, "reason": refused.get("reason"),
+                     "named": [] if f is None else [f.effect],
+                     "rule": "named where the session has holds (some settled), more than the settle search's "
+                             "max_unsettled_fraction never settled, and the search named the actuators still moving "
+                             "and fitted their time constant"})
+    if f is None:
+        return
+    if any(x.effect == "unexplained" for x in d.findings):
+        f.warnings.append("the stream's lack of fit (unexplained) stays beside it: the calibration from motion reads "
+                          "each actuator through one response, and what it misses of this lag's would show there; "
+                          "the two are not told apart on this session")
+    d.findings.insert(0, f)
+    if say:
+        say(f"{f.effect} (from the {FROM_SETTLE_SUMMARY}): {f.evidence}")
+    d.verdict = verdict(d)
 
 
 def _check_register(args, cal, heldout) -> None:

@@ -156,7 +156,7 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
         rms = float(np.sqrt(np.nanmean(cur.cv)))
         say(f"{name} (from the stream): {un['sentence']}; only {int((~ex).sum())} settled poses, too few to "
             "test the extrapolation on held-out ones: the stream's evidence stands alone")
-        return _settling_lag(name, un, info, poses, rms, rms, float("nan"),
+        return _settling_lag(name, un, int(info.get("n_commands", poses.n_poses)), rms, rms, float("nan"),
                              f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their "
                              f"fitted approach (only {int((~ex).sum())} holds settled: too few to test the "
                              "extrapolation on held-out settled poses)")
@@ -179,7 +179,7 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
     worse = after > before and p_worse < opt.alpha_heldout
     if not better and not (named and not worse):
         return None
-    return _settling_lag(name, un, info, poses, before, after, float(p),
+    return _settling_lag(name, un, int(info.get("n_commands", poses.n_poses)), before, after, float(p),
                          f"{un['sentence']}; the {int(info['n_extrapolated'])} extrapolated to rest from their fitted "
                          f"approach, instead of taken where the stream was at the end of the hold, predict the "
                          f"{int((~ex).sum())} held-out settled poses at {_fmt_rms(after, unit)} against "
@@ -187,14 +187,14 @@ def _settling_finding(spec: PlatformSpec, poses: PoseSet, cur: Fit, weights: np.
                          + (")" if better else f"; no better, not significantly worse, p = {p_worse:.2g}: the actuators named "
                             "from the stream)"))
 
-def _settling_lag(name: str, un: dict, info: dict, poses: PoseSet, before: float, after: float, p: float,
+def _settling_lag(name: str, un: dict, n_commands: int, before: float, after: float, p: float,
                   evidence: str) -> Finding:
-    """The finding ``name`` of the settling search's ``unsettled`` summary ``un``."""
+    """The finding ``name`` of the settling search's ``unsettled`` summary ``un`` (of ``n_commands``)."""
     tau = un.get("time_constant_s")
     q = un.get("time_constant_quartiles_s") or [np.nan, np.nan]
     spread = (q[1] - q[0]) / 1.349 if np.all(np.isfinite(q)) else None
     where = {"actuator": ", ".join(un.get("actuators") or []) or "all", "markers": list(un.get("markers") or []),
-             "holds": int(un.get("n", 0)), "of_commands": int(info.get("n_commands", poses.n_poses))}
+             "holds": int(un.get("n", 0)), "of_commands": int(n_commands)}
     return Finding(
         effect=name, where=where,
         parameters={"time_constant": {"value": tau, "std": spread, "unit": "s"},
@@ -202,6 +202,56 @@ def _settling_lag(name: str, un: dict, info: dict, poses: PoseSet, before: float
         heldout_rms_before=before, heldout_rms_after=after, p_heldout=p, evidence=evidence,
         corrected=("in the data: those holds enter as the rest position of their approach, weighted by its "
                    "uncertainty; calibration.yaml predicts where the stand settles"))
+
+
+#: where a ``settling_lag`` finding read from a refusal's settle summary comes from (its ``where['from']``)
+FROM_SETTLE_SUMMARY = "settle summary of a session calibrated from motion"
+
+
+def _response_said(response: Mapping | None, named: list[str]) -> str:
+    """'; the calibration from motion's fitted response agrees: B tau 0.65 s, the slowest (A 0.1 s,
+    ...)' or the clause that says it does not; '' without a response."""
+    acts = (response or {}).get("actuators") or {}
+    taus = {c: float(e["tau_s"]["value"]) for c, e in acts.items()
+            if (e.get("tau_s") or {}).get("value") is not None and e["tau_s"].get("status") == "estimated"}
+    if not taus:
+        return ""
+    slow = max(taus, key=lambda c: taus[c])
+    each = ", ".join(f"{c} {taus[c]:.3g} s" for c in taus)
+    agrees = "agrees" if slow in named else "reads another actuator as the slowest"
+    return f"; the calibration from motion's fitted response {agrees}: slowest {slow} (time constants {each})"
+
+
+def lag_from_settle_summary(settling: Mapping, response: Mapping | None, heldout_rms: float, name: str,
+                            max_unsettled_fraction: float) -> Finding | None:
+    """The finding ``name`` (the ``unsettled_holds`` effect's) of a session calibrated from motion
+    because its holds never settled, read from the settling search's own summary (``settling``:
+    platkit.settle.HoldsNeverSettle's), or None.
+
+    The summary is evidence of a slow actuator where the session has holds (some settled), more
+    than ``max_unsettled_fraction`` of its commands never settled, and the search named the
+    actuators still moving (their markers' late motion along the actuators' own Jacobian columns,
+    or a contrast with the holds that settled) and fitted their time constant: the finding carries
+    those actuators (where) and that time constant (size), as :func:`_settling_finding` does for
+    holds extrapolated to rest. A stream without holds (none settled), or a summary that names no
+    actuator, names nothing. Nothing is fitted or changed: the calibration from motion carries the
+    actuators' response, the lag's correction, so ``heldout_rms`` (the geometric model's on the
+    stream) is the finding's before and after. ``response`` (the calibration's ``motion.response``):
+    its fitted time constants are said beside the summary's, a second reading from the whole stream."""
+    un = dict(settling.get("unsettled") or {})
+    n_commands = int(settling.get("n_commands") or un.get("n_commands") or 0)
+    named = [str(a) for a in (un.get("actuators") or []) if str(a).strip()]
+    tau = un.get("time_constant_s")
+    if (not settling.get("n_settled") or not named or tau is None or not np.isfinite(float(tau))
+            or n_commands <= 0 or int(un.get("n", 0)) <= max_unsettled_fraction * n_commands):
+        return None
+    f = _settling_lag(name, un, n_commands, heldout_rms, heldout_rms, float("nan"),
+                      f"from the {FROM_SETTLE_SUMMARY}: {un['sentence']}; {settling.get('reason', 'refused')}, so the "
+                      "session was calibrated from its stream" + _response_said(response, named))
+    f.where["from"] = FROM_SETTLE_SUMMARY
+    f.corrected = ("by the calibration from motion: its fitted actuator response carries the lag, and calibration.yaml "
+                   "predicts where the stand settles")
+    return f
 
 
 def _slip_not_kept(spec: PlatformSpec, poses: PoseSet, cur: Fit, k: int, effect: Effect, onset: float,

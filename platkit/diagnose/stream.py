@@ -42,7 +42,7 @@ from platkit.poses import PoseSet
 from platkit.settle import estimate_noise
 
 __all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "read_through", "score_heldout_stream",
-           "stream_direction", "stream_poses", "training_stream", "windows_of"]
+           "stream_direction", "stream_poses", "stream_why", "training_stream", "windows_of"]
 
 
 def marker_sigmas(session: Session) -> dict[str, float]:
@@ -123,15 +123,28 @@ def _transient(term: LocalResponseTerm) -> str:
             "command is not logged)" if left else "")
 
 
-def training_stream(folder, session: Session, cal: Calibration) -> tuple[PoseSet, Calibration]:
+def stream_why(settling: dict | None) -> str:
+    """Why a session is read as a stream, in words that are true of it, from the settle search's
+    refusal (platkit.settle.HoldsNeverSettle.settling): 'no settled holds' where at most one
+    settled (a stream, whose last command's hold alone may settle), else 'too few settled holds: '
+    and the refusal's reason (e.g. '53 of 120 holds settled; 43 never did (actuator B still moving,
+    ...), and only 34 of those extrapolate to rest (80% needed)')."""
+    s = settling or {}
+    if int(s.get("n_settled") or 0) <= 1:
+        return "no settled holds"
+    return "too few settled holds: " + str(s.get("reason") or f"{int(s['n_settled'])} of {s.get('n_commands')} settled")
+
+
+def training_stream(folder, session: Session, cal: Calibration,
+                    why: str = "no settled holds") -> tuple[PoseSet, Calibration]:
     """The stream of the session diagnosed (``session``: as read before its settling failed) as
-    :func:`stream_poses` reads it, said, and ``cal`` with the response as a term
+    :func:`stream_poses` reads it, said (``why``: why the stream, :func:`stream_why`), and ``cal`` with the response as a term
     (:class:`LocalResponseTerm`: its Jacobian reused while the response stays linear): every fit of
     the diagnosis frees it again with the geometry, so that an effect and the response are told
     apart by the data."""
     poses, term, noise = stream_poses(folder, session, cal)
     _say_bodies(folder, session)
-    warn(f"{folder}: no settled holds: diagnosed on the stream's {poses.n_poses} windowed poses through the "
+    warn(f"{folder}: {why}: diagnosed on the stream's {poses.n_poses} windowed poses through the "
          f"calibration's actuator response, fitted again with every effect tried; {noise}" + _transient(term))
     return poses, replace(cal, terms=[*cal.terms, term], theta=[*cal.theta, term.initial.copy()],
                           theta_std=[*cal.theta_std, np.full(len(term.initial), np.nan)])
@@ -147,13 +160,14 @@ class HeldoutStream:
     term: LocalResponseTerm
 
 
-def heldout_stream(folder, session: Session, cal: Calibration) -> HeldoutStream:
-    """The held-out ``session`` (a stream without settled holds) cut into windows by ``cal``, the
+def heldout_stream(folder, session: Session, cal: Calibration, why: str = "no settled holds") -> HeldoutStream:
+    """The held-out ``session`` (a stream with too few settled holds) cut into windows by ``cal``, the
     calibration given (its response, geometry, frame and markers: the windows, the first command's
-    transient and the curvature correction, the same for every model scored), said in one line."""
+    transient and the curvature correction, the same for every model scored), said in one line
+    (``why``: why the stream, :func:`stream_why`)."""
     poses, term, noise = stream_poses(folder, session, cal)
     _say_bodies(folder, session)
-    warn(f"{folder}: no settled holds: the held-out stream scored on its {poses.n_poses} windowed poses, cut by "
+    warn(f"{folder}: {why}: the held-out stream scored on its {poses.n_poses} windowed poses, cut by "
          "the calibration given, each model reading the controls through its own actuator response (the geometric "
          f"and the diagnosed model's, each refitted on the session diagnosed; nothing fitted here); {noise}"
          + _transient(term))

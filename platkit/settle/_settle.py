@@ -72,17 +72,38 @@ from platkit.settle._still import (
     trend_test,
 )
 from platkit.settle._tail import profile_start, shared_tail
-from platkit.settle._unsettled import _unsettled_summary
+from platkit.settle._unsettled import _unsettled_summary, _who, refusal
 
 
 class HoldsNeverSettle(ComputationFailed):
     """So many holds never settled that the poses left would be a remnant: the stream itself is
-    the data (``platkit calibrate`` then fits the motion model, platkit.calibrate.motion)."""
+    the data (``platkit calibrate`` then fits the motion model, platkit.calibrate.motion).
+
+    ``settling``: what the search found, for the caller that reads the stream instead (see
+    :func:`refusal`): ``reason`` (one clause: why the holds were refused, with the counts),
+    ``unsettled`` (the summary of the holds that never settled, ``_unsettled_summary``; {} when
+    none), ``n_commands``, ``n_settled`` (holds that gave a still window) and, where too few
+    extrapolate, ``n_extrapolable`` and ``extrapolable_share`` (the share of the unsettled holds
+    needed)."""
+
+    def __init__(self, message: str, settling: dict | None = None):
+        super().__init__(message)
+        self.settling = dict(settling or {})
 
 
 class NeverSettles(BadSession):
     """No command gave a still window: a session without holds (``platkit calibrate`` then fits
-    the motion model, platkit.calibrate.motion)."""
+    the motion model, platkit.calibrate.motion). ``settling`` as :class:`HoldsNeverSettle`'s
+    (``n_settled`` 0)."""
+
+    def __init__(self, message: str, settling: dict | None = None):
+        super().__init__(message)
+        self.settling = dict(settling or {})
+
+
+#: where more than ``max_unsettled_fraction`` of the holds never settle, at least this share of
+#: them must extrapolate to rest (``extrapolate='auto'``); else the session is refused
+MIN_EXTRAPOLABLE_SHARE = 0.8
 
 
 #: the time scale (s) of the slow noise that trend, decay and window-mean tests are judged against
@@ -392,21 +413,28 @@ def _extrapolate(session: Session, st: _Stream, found: _Search, summary: dict) -
         moved = np.linalg.norm(np.diff(found.held_at, axis=0), axis=2)  # (N - 1, M)
         step_m = np.concatenate([[0.0], np.where(np.isfinite(moved).any(axis=1),
                                                  np.nanmax(np.where(np.isfinite(moved), moved, -np.inf), axis=1), 0.0)])
+    n_settled = len(found_r)
     if not (unsettled and (opt.extrapolate == "always" or (opt.extrapolate == "auto" and many))):
         if many and len(unsettled) > 0.5 * N and found_r:
             raise HoldsNeverSettle(
                 f"{session.markers_source}: {summary['sentence']}; calibrating from the {N - len(found.dropped)} that "
-                "did would fit a remnant: record longer holds, or settle with extrapolation to rest")
+                "did would fit a remnant: record longer holds, or settle with extrapolation to rest",
+                refusal(f"{n_settled} of {N} holds settled; {len(unsettled)} never did{_who(summary)}, over half, and "
+                        "extrapolation to rest is off", summary, N, n_settled))
         return 0
     good = [i for i in unsettled if i in fits and fits[i].good
             and float(np.nanmax(fits[i].remaining_m)) <= max(opt.max_extrapolation_m,
                                                              opt.max_extrapolation_share * step_m[i])
             and extrapolation_checked(*segments[i], fits[i], segments[i][1].shape[0], st.sig_slow)]
-    if opt.extrapolate == "auto" and len(good) < 0.8 * len(unsettled):
+    if opt.extrapolate == "auto" and len(good) < MIN_EXTRAPOLABLE_SHARE * len(unsettled):
         if found_r:
+            need = f"{100 * MIN_EXTRAPOLABLE_SHARE:g}% needed"
             raise HoldsNeverSettle(
                 f"{session.markers_source}: {summary['sentence']}; the approach of only {len(good)} of them "
-                "fits the stream well enough to extrapolate to rest: record longer holds (or a slower plan)")
+                f"fits the stream well enough to extrapolate to rest ({need}): record longer holds (or a slower plan)",
+                refusal(f"{n_settled} of {N} holds settled; {len(unsettled)} never did{_who(summary)}, and only "
+                        f"{len(good)} of those extrapolate to rest ({need})", summary, N, n_settled,
+                        n_extrapolable=len(good), extrapolable_share=MIN_EXTRAPOLABLE_SHARE))
         good = []  # nothing settled and little extrapolates: the recording never settles (settle says it)
     for i in good:
         f = fits[i]
@@ -434,8 +462,8 @@ def _pose_set(session: Session, st: _Stream, found: _Search, n_extrapolated: int
         raise NeverSettles(
             f"{session.markers_source}: the recording never settles: none of {N} commands gave a still window "
             f"(first: row {dropped_list[0][0] + 1 if dropped_list else 0}: {reason})"
-            + (f"; {summary['sentence']}" if summary else "")
-        )
+            + (f"; {summary['sentence']}" if summary else ""),
+            refusal(f"none of {N} commands gave a still window", summary, N, 0))
     kept_a = np.array(kept)
     col = lambda key: np.array([results[i][key] for i in kept])  # noqa: E731
     base = None

@@ -94,3 +94,20 @@ def _unsettled_summary(rows: list[int], fits: dict[int, Approach], U: np.ndarray
             "hold_s": float(np.median(hold_s)), "moved_late_along_actuator_m": left_by,
             "remaining_m": float(np.nanmedian(np.nanmax(rem, axis=1))) if rem.size else float("nan"),
             "sentence": sentence}
+
+
+def refusal(reason: str, summary: dict, n_commands: int, n_settled: int, **counts) -> dict:
+    """The ``settling`` a refusal (platkit.settle.HoldsNeverSettle, NeverSettles) carries: ``reason``
+    (one clause, with the counts), the summary of the holds that never settled, the commands, the
+    holds that settled, and ``counts`` (keyword: the numbers the rule that refused read)."""
+    return {"reason": reason, "unsettled": dict(summary or {}), "n_commands": int(n_commands),
+            "n_settled": int(n_settled), **counts}
+
+
+def _who(summary: dict) -> str:
+    """' (actuator B still moving, time constant 0.801 s)': the summary's where and size, '' without."""
+    acts = summary.get("actuators") or []
+    tau = summary.get("time_constant_s")
+    parts = ([f"actuator{'s' if len(acts) > 1 else ''} {', '.join(acts)} still moving"] if acts else []) + (
+        [f"time constant {tau:.3g} s"] if tau is not None and np.isfinite(tau) else [])
+    return f" ({', '.join(parts)})" if parts else ""
