@@ -413,6 +413,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
         poses = replace(poses, controls=X2, markers=win.Y - correction)
         cal = calibrate(poses, spec, terms=[term], td_start=cal.td, **opts)
         cal.rms_before = rms_before
+    cal.theta[0] = rmodel.positive(cal.theta[0])  # the same response, each time constant positive
     return cal, poses
 
 

@@ -32,8 +32,9 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 
 __all__ = ["ACCEL_TIME_S", "DELAY_MAX_S", "PRE_SAMPLES", "RATE_FREE_FACTOR", "SHIFT_GRID_S", "START_ROUNDS",
-           "START_SAMPLES", "STROKE_TIME_S", "TAU0_S", "ZETA0", "actuator_travel", "command_speed", "fd_steps",
-           "marker_points", "response_from_travel", "response_start", "starting_theta", "travel_start"]
+           "START_SAMPLES", "STILL_MIN_WINDOWS", "STILL_SHARE", "STROKE_TIME_S", "TAU0_S", "ZETA0",
+           "actuator_travel", "command_speed", "fd_steps", "marker_points", "response_from_travel", "response_start",
+           "slowest_rows", "starting_theta", "travel_start", "window_speeds"]
 
 #: samples that start the response; rounds of the start; samples before the first command that
 #: say where a profile's actuators rest
@@ -41,6 +42,10 @@ START_SAMPLES, START_ROUNDS, PRE_SAMPLES = 600, 2, 50
 #: starting response: time constant (s), damping; a profile's rate and acceleration from the
 #: stroke (a full stroke in STROKE_TIME_S, the rate reached in ACCEL_TIME_S)
 TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
+
+#: the registration at a starting response is taken on the slowest STILL_SHARE of the stream's
+#: windows (at least STILL_MIN_WINDOWS of them; all windows where the stream has fewer)
+STILL_SHARE, STILL_MIN_WINDOWS = 0.25, 8
 
 #: the shifts (s) tried to start the response
 SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
@@ -218,6 +223,54 @@ def command_speed(T: np.ndarray, U: np.ndarray) -> np.ndarray:
     return np.max(np.abs(np.diff(U, axis=0)), axis=0) / float(np.median(np.diff(T)))
 
 
+def window_speeds(win: StreamWindows) -> np.ndarray:
+    """(windows,) how fast the markers move in each window of ``win`` (m/s): each marker
+    coordinate fitted by a polynomial of the windows' degree (nodes - 1) in time over the window's
+    rows (its nodes, or its samples where kept raw; each row weighted by the samples it stands
+    for), the fit's span over the rows' times divided by their duration, the largest over the
+    markers and coordinates; NaN where no marker is fitted."""
+    out = np.full(len(win.blocks), np.nan)
+    ends = [b[0] for b in win.blocks[1:]] + [len(win.t)]
+    for w, ((p, _, _, _), end) in enumerate(zip(win.blocks, ends)):
+        t = win.t[p:end]
+        if end - p < win.nodes or not float(t[-1] - t[0]) > 0:
+            continue
+        x = 2.0 * (t - t[0]) / float(t[-1] - t[0]) - 1.0
+        V = np.vander(x, win.nodes)
+        spans = []
+        for m in range(win.Y.shape[1]):
+            y = win.Y[p:end, m]
+            k = np.nonzero(np.isfinite(y).all(axis=1) & (win.n_eff[p:end, m] > 0))[0]
+            if len(k) < win.nodes:
+                continue
+            sw = np.sqrt(win.n_eff[p + k, m])[:, None]
+            coef = np.linalg.lstsq(V[k] * sw, y[k] * sw, rcond=None)[0]
+            fit = V[k] @ coef
+            spans.append(float(np.max(np.ptp(fit, axis=0))))
+        if spans:
+            out[w] = max(spans) / float(t[-1] - t[0])
+    return out
+
+
+def slowest_rows(win: StreamWindows) -> np.ndarray:
+    """(P,) bool: the rows of ``win`` in its slowest windows (:func:`window_speeds`): those at or
+    under the STILL_SHARE quantile of the windows' speeds, all rows where fewer than
+    STILL_MIN_WINDOWS windows would serve. Where the stand stands still the controls it reached are
+    the command in force whatever its response; where it moves fast a response's error (its timing,
+    an actuator's lag) is a control error in proportion to the speed: the registration of the
+    markers at a starting response is taken where that response matters least."""
+    speed = window_speeds(win)
+    ok = np.isfinite(speed)
+    if ok.sum() < STILL_MIN_WINDOWS / STILL_SHARE:
+        return np.ones(len(win.t), bool)
+    slow = ok & (speed <= np.quantile(speed[ok], STILL_SHARE))
+    rows = np.zeros(len(win.t), bool)
+    ends = [b[0] for b in win.blocks[1:]] + [len(win.t)]
+    for w in np.nonzero(slow)[0]:
+        rows[win.blocks[w][0]:ends[w]] = True
+    return rows
+
+
 def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows):
     """Step 3: the response's start from the actuators' travel at the nominal geometry, twice (the
     second registration at the controls the first response gives), on START_SAMPLES samples of
@@ -238,11 +291,12 @@ def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, 
     cand = win.first + np.nonzero(seen[win.first:])[0]
     sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
     pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
+    still = slowest_rows(win)
     for _ in range(START_ROUNDS):
         X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
-        poses0 = PoseSet(platform=spec.name, controls=X0, markers=win.Y, marker_names=names, t=win.t,
-                         n_samples=win.n_eff, length_unit=session.length_unit, source=str(session.folder),
-                         moving_link=session.moving_link)
+        poses0 = PoseSet(platform=spec.name, controls=X0[still], markers=win.Y[still], marker_names=names,
+                         t=win.t[still], n_samples=win.n_eff[still], length_unit=session.length_unit,
+                         source=str(session.folder), moving_link=session.moving_link)
         problem = CalibrationProblem(spec, poses0)
         links = problem.point_links  # a tree: each marker's tracked link
         z = problem.initial_registration(spec.nominal_td())

@@ -53,7 +53,8 @@ KINDS = ("first_order", "second_order")
 FINE_STEP_S = 2e-3
 #: command intervals equal to this (s) are one steady rate (the files keep microseconds)
 STEADY_TOL_S = 2e-6
-#: the smallest time constant and damping the response takes (a parameter pushed below is clipped)
+#: the smallest time constant and damping the response takes (a parameter pushed below is clipped;
+#: a time constant enters as its magnitude, :meth:`ResponseModel.positive`)
 TAU_MIN_S, ZETA_MIN = 1e-3, 0.05
 
 
@@ -129,7 +130,8 @@ class ResponseModel:
 
     def split(self, theta) -> dict[str, np.ndarray]:
         """{'shift_s': float array (), block: (n_u,)} of theta; a first-order actuator's damping
-        is NaN."""
+        is NaN; each time constant as its magnitude (a time constant enters the response as
+        |tau|: :meth:`positive`)."""
         theta = np.asarray(theta, float)
         out = {"shift_s": theta[0]}
         for b in self.blocks:
@@ -137,7 +139,19 @@ class ResponseModel:
             for j in range(self.n_u):
                 if (b, j) in self._where:
                     v[j] = theta[self._where[(b, j)]]
-            out[b] = v
+            out[b] = np.abs(v) if b == "tau_s" else v
+        return out
+
+    def positive(self, theta) -> np.ndarray:
+        """``theta`` with each time constant as its magnitude: the same response. A time constant
+        enters the response as |tau| (floored at TAU_MIN_S), so the response is even in it and a
+        fit without bounds that steps past zero finds the same response on the positive side
+        (where it entered clipped, the response was flat below the floor: a step past zero
+        stopped there, at a negative time constant); a fit's result is written with its
+        magnitude."""
+        out = np.asarray(theta, float).copy()
+        k = [self._where[("tau_s", j)] for j in range(self.n_u)]
+        out[k] = np.abs(out[k])
         return out
 
     def index(self, block: str, j: int) -> int:
@@ -418,7 +432,7 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
     out = []
     for j in cols:
         s = t - float(lag[j])
-        tau = max(float(par["tau_s"][j]), TAU_MIN_S)
+        tau = max(float(par["tau_s"][j]), TAU_MIN_S)  # its magnitude (split), floored
         zeta = max(float(par["damping"][j]), ZETA_MIN) if model.is_second(j) else None
         if model.reference == "step" and not model.slewed:
             out.append(_step_one(s, T, U[:, j], tau, zeta, _segments(cache, T, s, float(lag[j]))))
