@@ -202,15 +202,18 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
                                 SettleOptions().max_unsettled_fraction)
     d.rounds.append({"round": ROUND_SETTLE_SUMMARY, "from": FROM_SETTLE_SUMMARY, "reason": refused.get("reason"),
                      "named": [] if f is None else [f.effect],
-                     "rule": "named where the session has holds (some settled), more than the settle search's "
+                     "rule": "named where the session has holds (more than one settled), more than the settle search's "
                              "max_unsettled_fraction never settled, and the search named the actuators still moving "
                              "and fitted their time constant"})
     if f is None:
         return
-    if any(x.effect == "unexplained" for x in d.findings):
-        f.warnings.append("the stream's lack of fit (unexplained) stays beside it: the calibration from motion reads "
-                          "each actuator through one response, and what it misses of this lag's would show there; "
-                          "the two are not told apart on this session")
+    for x in (x for x in d.findings if x.effect == "unexplained"):
+        marker = x.where.get("marker")
+        at = (f" at marker {marker}, {'one' if marker in f.where['markers'] else 'none'} of the markers the slow "
+              f"actuator still moved ({', '.join(f.where['markers'])})" if marker else "")
+        f.warnings.append(f"the stream's lack of fit (unexplained{at}) stays beside it: the calibration from motion "
+                          "reads each actuator through one response, and what it misses of this lag's would show "
+                          "there; the two are not told apart on this session")
     d.findings.insert(0, f)
     if say:
         say(f"{f.effect} (from the {FROM_SETTLE_SUMMARY}): {f.evidence}")

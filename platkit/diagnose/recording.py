@@ -228,12 +228,13 @@ def lag_from_settle_summary(settling: Mapping, response: Mapping | None, heldout
     because its holds never settled, read from the settling search's own summary (``settling``:
     platkit.settle.HoldsNeverSettle's), or None.
 
-    The summary is evidence of a slow actuator where the session has holds (some settled), more
+    The summary is evidence of a slow actuator where the session has holds (more than one settled:
+    a stream's last command's hold alone may settle), more
     than ``max_unsettled_fraction`` of its commands never settled, and the search named the
     actuators still moving (their markers' late motion along the actuators' own Jacobian columns,
     or a contrast with the holds that settled) and fitted their time constant: the finding carries
     those actuators (where) and that time constant (size), as :func:`_settling_finding` does for
-    holds extrapolated to rest. A stream without holds (none settled), or a summary that names no
+    holds extrapolated to rest. A stream without holds, or a summary that names no
     actuator, names nothing. Nothing is fitted or changed: the calibration from motion carries the
     actuators' response, the lag's correction, so ``heldout_rms`` (the geometric model's on the
     stream) is the finding's before and after. ``response`` (the calibration's ``motion.response``):
@@ -242,7 +243,7 @@ def lag_from_settle_summary(settling: Mapping, response: Mapping | None, heldout
     n_commands = int(settling.get("n_commands") or un.get("n_commands") or 0)
     named = [str(a) for a in (un.get("actuators") or []) if str(a).strip()]
     tau = un.get("time_constant_s")
-    if (not settling.get("n_settled") or not named or tau is None or not np.isfinite(float(tau))
+    if (int(settling.get("n_settled") or 0) <= 1 or not named or tau is None or not np.isfinite(float(tau))
             or n_commands <= 0 or int(un.get("n", 0)) <= max_unsettled_fraction * n_commands):
         return None
     f = _settling_lag(name, un, n_commands, heldout_rms, heldout_rms, float("nan"),
