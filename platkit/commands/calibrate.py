@@ -206,7 +206,7 @@ def run(args) -> int:
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        return run_motion(args, str(exc), notes, exc.settling.get("reason"))
+        return run_motion(args, str(exc), notes, exc.settling.get("reason"))  # the report's why, the warning's
     kind = getattr(args, "response_kind", "auto")
     for flag, value in (("--response", response), ("--response-kind", None if kind == "auto" else kind)):
         if value is not None:  # the holds settled: no response is fitted, said
@@ -332,11 +332,11 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def run_motion(args, why: str, notes: list[str], reason: str | None = None) -> int:
+def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None) -> int:
     """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
     markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
     with the stand's default free parameters (``--free`` as given). ``why``: the settling search's
-    refusal (the report's); ``reason``: its clause with the counts (HoldsNeverSettle.settling),
+    refusal (the report's); ``settle_reason``: its clause with the counts (HoldsNeverSettle.settling['reason']),
     said in the one-line warning."""
     from platkit.calibrate.estimate import second_session_errors
     from platkit.calibrate.motion import calibrate_motion
@@ -354,7 +354,7 @@ def run_motion(args, why: str, notes: list[str], reason: str | None = None) -> i
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, s.spec.name, args.description, quiet=args.quiet)
     reason = f"settling: {why}"
-    note = fallback_note(reason)
+    note = fallback_note(settle_reason)
     warn(note)
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
     fit = calibrate_motion_bodies if bodies_alone(s) else calibrate_motion  # bodies alone: as points

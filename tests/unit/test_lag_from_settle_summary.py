@@ -38,11 +38,11 @@ def refused_981060(tmp_path_factory):
     blank_held_out(folder, sim, held_out_rows(len(sim.commands)))
     with pytest.raises(HoldsNeverSettle) as refused:
         load_poses(folder)
-    return refused.value.settling, [p.actuator for _, p in sim.physics]
+    return refused.value.settling, [p.actuator for _, p in sim.physics], folder
 
 
 def test_the_refusal_carries_the_settle_summary_and_says_why(refused_981060):
-    settling, slow = refused_981060
+    settling, slow, _ = refused_981060
     assert slow == ["B"]
     assert (settling["n_commands"], settling["n_settled"], settling["n_extrapolable"]) == (120, 53, 34)
     assert settling["unsettled"]["actuators"] == ["B"] and settling["unsettled"]["n"] == 43
@@ -64,7 +64,7 @@ def _stream_diagnosis(findings: list[Finding]) -> Diagnosis:
 
 def test_a_motion_calibrated_session_names_the_slow_actuator_beside_the_lack_of_fit(refused_981060):
     """Before: diagnose called the session 'unexplained' only (the stream's lack of fit)."""
-    settling, _ = refused_981060
+    settling, _, _ = refused_981060
     unexplained = Finding(effect="unexplained", where={"marker": "M3", "axis": "z"}, parameters={},
                           heldout_rms_before=1.26e-3, heldout_rms_after=1.26e-3, evidence="lack of fit")
     d = _stream_diagnosis([unexplained])
@@ -89,7 +89,7 @@ def test_a_motion_calibrated_session_names_the_slow_actuator_beside_the_lack_of_
 
 
 def test_a_summary_naming_no_actuator_or_with_no_holds_settled_names_nothing(refused_981060):
-    settling, _ = refused_981060
+    settling, _, _ = refused_981060
     anonymous = {**settling, "unsettled": {**settling["unsettled"], "actuators": []}}
     assert lag_from_settle_summary(anonymous, MOTION_RESPONSE, 1e-3, "settling_lag", 0.1) is None
     none_settled = {**settling, "n_settled": 1}  # a stream: its last hold alone settles
@@ -123,7 +123,7 @@ def test_calibrate_says_why_it_falls_back_and_which_response_each_fit_fits(refus
 
     from platkit.commands.calibrate import fallback_note, motion_progress_printer
 
-    settling, _ = refused_981060
+    settling, _, _ = refused_981060
     note = fallback_note(settling["reason"])
     assert note.startswith("too few holds settle: 53 of 120 holds settled; 43 never did (actuator B")
     assert "(80% needed): calibrated from the whole stream" in note
@@ -142,3 +142,21 @@ def test_calibrate_says_why_it_falls_back_and_which_response_each_fit_fits(refus
                     "calibrate: fit 3 (second-order response) rms 22.09 -> 1.027 mm from its own start, in 1.00 s",
                     "calibrate: fit 4 (second-order response for some actuators) rms 1.2 -> 0.62 mm from its own "
                     "start, in 1.00 s"]
+
+
+def test_calibrate_warns_with_the_reason_before_fitting_the_motion(refused_981060, tmp_path, monkeypatch, capsys):
+    """platkit calibrate on 981060: the one-line warning of the fallback carries the settle search's
+    reason (the fit itself stopped at once here)."""
+    import platkit.calibrate.motion as motion
+    from platkit.cli import main
+    from platkit.errors import ComputationFailed
+
+    def stop(*args, **kwargs):
+        raise ComputationFailed("stopped by the test")
+
+    monkeypatch.setattr(motion, "calibrate_motion", stop)
+    _, _, folder = refused_981060
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(tmp_path / "cal")]) == 1
+    err = capsys.readouterr().err
+    assert ("too few holds settle: 53 of 120 holds settled; 43 never did (actuator B still moving, time constant "
+            "0.801 s), and only 34 of those extrapolate to rest (80% needed): calibrated from the whole stream") in err
