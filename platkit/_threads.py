@@ -3,16 +3,18 @@ that holds it there (:func:`blas_threads`).
 
 The rule. platkit's matrices are small (thousands of rows by tens to hundreds of columns); BLAS's
 worker threads, one per core by default, only wake and spin on them, and on a machine shared with
-other work (a laptop, a fleet of several processes per machine) they make each product up to
-eighty times slower. So platkit runs its estimation on one BLAS thread unless the user says
-otherwise:
+other work (a laptop, a fleet of several processes per machine) they make each product many times
+slower (docs/performance.md). So platkit computes on one BLAS thread unless its user says otherwise:
 
 - ``PLATKIT_BLAS_THREADS=N`` (a whole number >= 1): N threads wherever platkit holds BLAS;
   ``PLATKIT_BLAS_THREADS=0``: platkit holds nothing (BLAS's own count);
-- else, where one of :data:`BLAS_VARIABLES` (OPENBLAS_NUM_THREADS, OMP_NUM_THREADS, ...) is set,
-  platkit holds nothing: the BLAS library read it when it loaded, and what the user (or the
-  scheduler that started the process) set stands;
 - else the count the caller names (1 in every block platkit enters).
+
+OPENBLAS_NUM_THREADS, OMP_NUM_THREADS and the like are not read: they set the process's BLAS when
+it loads (a scheduler or a cluster may set them for other programs), and platkit's blocks hold
+its own work to one thread whatever they say; outside the blocks their count stands. One
+thread also keeps the results from depending on the machine: with another count the rounding of
+a rank-revealing QR can hold a different one of two aliased parameters (docs/performance.md).
 
 Each ``platkit`` command line runs its verb inside such a block (platkit.cli), as do the
 estimators' own entry points (every Levenberg-Marquardt run, the approach fits of settling, the
@@ -28,14 +30,10 @@ from typing import Any
 
 from platkit.errors import BadInput
 
-__all__ = ["BLAS_VARIABLES", "ENV", "blas_threads", "blas_thread_count"]
+__all__ = ["ENV", "blas_threads", "blas_thread_count"]
 
 #: the environment variable that sets platkit's BLAS threads
 ENV = "PLATKIT_BLAS_THREADS"
-
-#: the variables BLAS libraries read when they load; one set means the user has chosen
-BLAS_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
-                  "BLIS_NUM_THREADS")
 
 # the controller (threadpoolctl's) and the number of imported modules it was made at: it knows the
 # libraries loaded then (a search of 0.7 ms), so it is made again only after an import may have
@@ -52,8 +50,6 @@ def blas_thread_count(asked: int = 1) -> int | None:
         if not given.isdigit():
             raise BadInput(f"{ENV}: {given!r} is not a whole number of threads >= 1 (0: BLAS's own count)")
         return int(given) or None
-    if any(os.environ.get(name, "").strip() for name in BLAS_VARIABLES):
-        return None
     return asked
 
 
@@ -70,9 +66,7 @@ def _blas_controller() -> Any:
 @contextlib.contextmanager
 def blas_threads(n: int = 1) -> Iterator[None]:
     """BLAS limited inside the block to ``n`` threads, or to what the user chose
-    (:func:`blas_thread_count`); each library's count restored after. The results do not depend
-    on it beyond rounding (a product's sums are split over rows and columns, not reordered,
-    in the measured cases: docs/performance.md)."""
+    (:func:`blas_thread_count`); each library's count restored after."""
     count = blas_thread_count(n)
     if count is None or "numpy" not in sys.modules:  # BLAS comes with numpy (scipy needs it): none loaded
         yield
