@@ -32,14 +32,15 @@ Procedure (:func:`calibrate_motion`):
    whole windows, evenly spread, about RAW_SAMPLES samples in all (all of a short stream), are
    kept as their samples;
 3. the response's start (:mod:`platkit.calibrate.motion_start`): the markers registered at the
-   commanded controls (rigid alignment),
-   each sample's pose by Kabsch, the actuators' travel by inverse kinematics at the nominal
-   geometry, and the response fitted to that travel alone (a grid over the shift, then
-   least squares): an actuator that moved too little to show its response keeps the start; then
-   the first command's transient left out (:mod:`platkit.calibrate.motion_transient`: the
-   stand's state before the first command is not logged, so the samples from the second command
-   on whose residuals are gross at the start, and those after until that bound has decayed to the
-   markers' noise at the slowest response, do not drive the fit; counted and said);
+   starting response's controls (rigid alignment) on the stream's slowest windows (there the
+   controls reached are the command in force whatever the response), each sample's pose by
+   Kabsch, the actuators' travel by inverse kinematics at the nominal geometry, and the response
+   fitted to that travel alone (a grid over the shift, then least squares): an actuator that
+   moved too little to show its response keeps the start; then the first command's transient
+   left out (:mod:`platkit.calibrate.motion_transient`: the stand's state before the first
+   command is not logged, so the samples from the second command on whose residuals are gross
+   at the start, and those after until that bound has decayed to the markers' noise at the
+   slowest response, do not drive the fit; counted and said);
 4. the full fit with :func:`calibrate` and the response as a term; the term leaves the
    calibration afterwards (calibration.yaml keeps it as ``actuator_response``; prediction of
    settled poses needs no response);

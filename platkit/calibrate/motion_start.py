@@ -3,6 +3,12 @@ motion (platkit.calibrate.motion, step 3): each sample's controls by inverse kin
 markers at the nominal geometry (the actuators' travel), and the response fitted to that travel.
 
 Rules:
+- the registration (frame and markers by rigid alignment at the nominal geometry and the starting
+  response's controls) is taken on the slowest STILL_SHARE of the stream's windows
+  (:func:`slowest_rows`): where the stand stands still the controls it reached are the command
+  in force whatever its response; where it moves, the starting response's error is a control
+  error in proportion to the speed, and on a stream that is mostly motion (point-to-point moves
+  between holds) it turned the frame's rotation by up to 140 degrees;
 - a moving frame's travel: the sample's pose by Kabsch of the marker layout, then the stand's
   inverse kinematics; a tree's (each marker on its tracked link): damped Gauss-Newton over the
   controls; a sample with fewer than three markers seen, out of reach or missed by more than
