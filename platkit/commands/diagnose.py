@@ -186,9 +186,10 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
     settle search's HoldsNeverSettle.settling; ``cal`` the calibration given): the slow actuator
     its summary names, as the first finding (platkit.diagnose.recording.lag_from_settle_summary's
     rule), the round that says where it came from (diagnosis.json ``rounds``), and the verdict
-    said again. A lack of fit the stream's search reported (``unexplained``) stays beside it: the
-    lag changes nothing in the model, so that misfit is still there, and the finding says the two
-    are not told apart here."""
+    said again; where the search named that effect itself (a term on the stream), its finding says
+    the summary's reading instead of a second one. A lack of fit the stream's search reported
+    (``unexplained``) stays beside it: the lag changes nothing in the model, so that misfit is
+    still there, and the finding says the two are not told apart here."""
     from platkit.diagnose.recording import FROM_SETTLE_SUMMARY, lag_from_settle_summary, unsettled_effect
     from platkit.diagnose.verdict import verdict
     from platkit.plugins import effect_library
@@ -200,12 +201,19 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
     held = d.heldout_geometric if d.heldout_geometric is not None else d.base.rms_after
     f = lag_from_settle_summary(refused, (cal.motion or {}).get("response"), held, effect.name,
                                 SettleOptions().max_unsettled_fraction)
+    same = None if f is None else next((x for x in d.findings if x.effect == f.effect), None)
+    if f is not None and same is not None:  # the search named it from the stream itself: one name, both readings
+        same.evidence += (f"; the {FROM_SETTLE_SUMMARY} names it too, on actuator {f.where['actuator']} "
+                          f"({f.where['holds']} of {f.where['of_commands']} holds never settled, time constant "
+                          f"{f.parameters['time_constant']['value']:.3g} s)")
     d.rounds.append({"round": ROUND_SETTLE_SUMMARY, "from": FROM_SETTLE_SUMMARY, "reason": refused.get("reason"),
-                     "named": [] if f is None else [f.effect],
+                     "named": [] if f is None or same is not None else [f.effect],
+                     **({"already_named": f.effect} if same is not None else {}),
                      "rule": "named where the session has holds (more than one settled), more than the settle search's "
                              "max_unsettled_fraction never settled, and the search named the actuators still moving "
                              "and fitted their time constant"})
-    if f is None:
+    if f is None or same is not None:
+        d.verdict = verdict(d)
         return
     for x in (x for x in d.findings if x.effect == "unexplained"):
         marker = x.where.get("marker")

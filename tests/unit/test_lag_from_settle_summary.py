@@ -160,3 +160,16 @@ def test_calibrate_warns_with_the_reason_before_fitting_the_motion(refused_98106
     err = capsys.readouterr().err
     assert ("too few holds settle: 53 of 120 holds settled; 43 never did (actuator B still moving, time constant "
             "0.801 s), and only 34 of those extrapolate to rest (80% needed): calibrated from the whole stream") in err
+
+
+def test_a_lag_the_stream_search_named_itself_is_not_named_twice(refused_981060):
+    """Where diagnosis of the stream named the lag as a term of its own (unseen seed 1621060's search
+    tried settling_lag on every actuator), the settle summary's reading goes into that finding."""
+    settling, _, _ = refused_981060
+    term = Finding(effect="settling_lag", where={"actuator": "all"}, parameters={}, heldout_rms_before=1.38e-3,
+                   heldout_rms_after=1.37e-3, evidence="a lag along every actuator's last move")
+    d = _stream_diagnosis([term])
+    named_from_settle_summary(d, settling, type("Cal", (), {"motion": {"response": MOTION_RESPONSE}})())
+    assert d.findings == [term] and d.rounds[-1]["named"] == [] and d.rounds[-1]["already_named"] == "settling_lag"
+    assert term.evidence.endswith("; the settle summary of a session calibrated from motion names it too, on actuator "
+                                  "B (43 of 120 holds never settled, time constant 0.801 s)")
