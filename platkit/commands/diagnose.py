@@ -201,14 +201,15 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
     held = d.heldout_geometric if d.heldout_geometric is not None else d.base.rms_after
     f = lag_from_settle_summary(refused, (cal.motion or {}).get("response"), held, effect.name,
                                 SettleOptions().max_unsettled_fraction)
-    same = None if f is None else next((x for x in d.findings if x.effect == f.effect), None)
+    name = None if f is None else f.effect
+    same = None if name is None else next((x for x in d.findings if x.effect == name), None)
     if f is not None and same is not None:  # the search named it from the stream itself: one name, both readings
         same.evidence += (f"; the {FROM_SETTLE_SUMMARY} names it too, on actuator {f.where['actuator']} "
                           f"({f.where['holds']} of {f.where['of_commands']} holds never settled, time constant "
                           f"{f.parameters['time_constant']['value']:.3g} s)")
     d.rounds.append({"round": ROUND_SETTLE_SUMMARY, "from": FROM_SETTLE_SUMMARY, "reason": refused.get("reason"),
                      "named": [] if f is None or same is not None else [f.effect],
-                     **({"already_named": f.effect} if same is not None else {}),
+                     **({"already_named": name} if same is not None else {}),
                      "rule": "named where the session has holds (more than one settled), more than the settle search's "
                              "max_unsettled_fraction never settled, and the search named the actuators still moving "
                              "and fitted their time constant"})
