@@ -225,7 +225,7 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
                           "there; the two are not told apart on this session")
     d.findings.insert(0, f)
     if say:
-        say(f"{f.effect} (from the {FROM_SETTLE_SUMMARY}): {f.evidence}")
+        say(f"{f.effect}: {f.evidence}")
     d.verdict = verdict(d)
 
 
