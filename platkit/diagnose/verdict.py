@@ -53,7 +53,10 @@ def verdict(d: Diagnosis) -> str:
                          f"{', '.join(note['chosen']) or 'no group'} and hold {', '.join(note['held']) or 'none'}, but it "
                          f"predicts {', '.join(w['link'] for w in note['links_worse'])} worse held out: the free "
                          "set in force is kept.")
-    corrected = [f for f in named if f.corrected]
+    own = [f for f in named if f.corrected.startswith("by ")]  # corrected elsewhere than in the data: its own words
+    for f in own:
+        parts.append(f"{f.effect} describes the recording, not the stand: corrected {f.corrected}.")
+    corrected = [f for f in named if f.corrected and f not in own]
     if corrected:
         parts.append(f"{' and '.join(sorted({f.effect for f in corrected}))} describe{'s' if len(corrected) == 1 else ''} "
                      "the recording, not the stand: corrected in the data, and calibration.yaml predicts where the "

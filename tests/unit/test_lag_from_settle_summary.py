@@ -86,6 +86,7 @@ def test_a_motion_calibrated_session_names_the_slow_actuator_beside_the_lack_of_
     said = next(r for r in d.rounds if r["round"] == ROUND_SETTLE_SUMMARY)
     assert said["named"] == ["settling_lag"] and said["from"] == FROM_SETTLE_SUMMARY
     assert "settling_lag (actuator B)" in d.verdict
+    assert "corrected by the calibration from motion" in d.verdict and "corrected in the data" not in d.verdict
 
 
 def test_a_summary_naming_no_actuator_or_with_no_holds_settled_names_nothing(refused_981060):
