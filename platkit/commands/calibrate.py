@@ -152,7 +152,7 @@ def settling_notes(poses, folder) -> list[str]:
     """What settling dropped (counted by reason) and extrapolated, one line each; ComputationFailed
     when fewer than half the commands gave a pose (a fit to the remnant would look converged)."""
     from platkit.errors import ComputationFailed
-    from platkit.settle import HoldsNeverSettle, dropped_sentence
+    from platkit.settle import HoldsNeverSettle, dropped_sentence, refusal
 
     info = poses.settling or {}
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
@@ -166,9 +166,8 @@ def settling_notes(poses, folder) -> list[str]:
         if unsampled >= 0.5 * len(poses.dropped):
             raise ComputationFailed(text)
         n_settled = poses.n_poses - int(info.get("n_extrapolated", 0))
-        raise HoldsNeverSettle(text, {"reason": f"only {poses.n_poses} of {n_commands} commands gave a pose, under "
-                                                f"half ({said})", "unsettled": dict(info.get("unsettled") or {}),
-                                      "n_commands": n_commands, "n_settled": n_settled})
+        raise HoldsNeverSettle(text, refusal(f"only {poses.n_poses} of {n_commands} commands gave a pose, under half "
+                                             f"({said})", info.get("unsettled") or {}, n_commands, n_settled))
     out = [said] if said else []
     un = info.get("unsettled") or {}
     if info.get("n_extrapolated"):

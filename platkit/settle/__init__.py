@@ -20,10 +20,11 @@ from platkit.settle._report import (
 )
 from platkit.settle._settle import SLOW_SCALE_S, HoldsNeverSettle, NeverSettles, load_poses, poses_from_table, settle
 from platkit.settle._still import direction_of_last_motion, estimate_noise, last_step, still_mask, trend_test
+from platkit.settle._unsettled import refusal
 
 __all__ = [
     "DROP_CATEGORIES", "SLOW_SCALE_S", "Approach", "HoldsNeverSettle", "NeverSettles", "SettleOptions", "SettleReport",
     "attribute_actuators",
     "direction_of_last_motion", "dropped_by_reason", "dropped_sentence", "estimate_noise", "fit_approach",
-    "last_step", "load_poses", "poses_from_table", "settle", "settling_summary", "still_mask", "trend_test",
+    "last_step", "load_poses", "poses_from_table", "refusal", "settle", "settling_summary", "still_mask", "trend_test",
 ]

@@ -75,30 +75,27 @@ from platkit.settle._tail import profile_start, shared_tail
 from platkit.settle._unsettled import _unsettled_summary, _who, refusal
 
 
-class HoldsNeverSettle(ComputationFailed):
+class _Refused(Exception):
+    """A refusal of the holds that carries what the search found (``settling``), for the caller
+    that reads the stream instead (see :func:`refusal`): ``reason`` (one clause: why the holds were
+    refused, with the counts), ``unsettled`` (the summary of the holds that never settled,
+    ``_unsettled_summary``; {} when none), ``n_commands``, ``n_settled`` (holds that gave a still
+    window) and, where too few extrapolate, ``n_extrapolable`` and ``extrapolable_share`` (the
+    share of the unsettled holds needed)."""
+
+    def __init__(self, message: str, settling: dict | None = None):
+        super().__init__(message)
+        self.settling = dict(settling or {})
+
+
+class HoldsNeverSettle(_Refused, ComputationFailed):
     """So many holds never settled that the poses left would be a remnant: the stream itself is
-    the data (``platkit calibrate`` then fits the motion model, platkit.calibrate.motion).
-
-    ``settling``: what the search found, for the caller that reads the stream instead (see
-    :func:`refusal`): ``reason`` (one clause: why the holds were refused, with the counts),
-    ``unsettled`` (the summary of the holds that never settled, ``_unsettled_summary``; {} when
-    none), ``n_commands``, ``n_settled`` (holds that gave a still window) and, where too few
-    extrapolate, ``n_extrapolable`` and ``extrapolable_share`` (the share of the unsettled holds
-    needed)."""
-
-    def __init__(self, message: str, settling: dict | None = None):
-        super().__init__(message)
-        self.settling = dict(settling or {})
+    the data (``platkit calibrate`` then fits the motion model, platkit.calibrate.motion)."""
 
 
-class NeverSettles(BadSession):
+class NeverSettles(_Refused, BadSession):
     """No command gave a still window: a session without holds (``platkit calibrate`` then fits
-    the motion model, platkit.calibrate.motion). ``settling`` as :class:`HoldsNeverSettle`'s
-    (``n_settled`` 0)."""
-
-    def __init__(self, message: str, settling: dict | None = None):
-        super().__init__(message)
-        self.settling = dict(settling or {})
+    the motion model, platkit.calibrate.motion); ``settling['n_settled']`` 0."""
 
 
 #: where more than ``max_unsettled_fraction`` of the holds never settle, at least this share of
