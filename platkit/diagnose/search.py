@@ -48,6 +48,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from platkit._threads import blas_threads
 from platkit.calibrate.estimate import calibrate
 from platkit.diagnose.fitting import FROM_NO_MARKER, FROM_SLOW_APPROACH, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME
 from platkit.diagnose.fitting import ROUND_WEAK_NAMES, Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _rms
@@ -103,15 +104,16 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     (:meth:`Search.final_model`), what structure is left (:meth:`Search.structure_left`) and what
     is written (:meth:`Search.written`, :meth:`Search.diagnosis`).
     """
-    search = Search(spec, poses, options, library, progress, start)
-    search.settling()
-    search.select()
-    search.take_back_weak()
-    search.take_back_beside_probe()
-    search.take_back_beside_time()
-    search.final_model()
-    search.structure_left()
-    return search.diagnosis(search.written(), heldout)
+    with blas_threads(1):  # a library call computes on one BLAS thread, as every verb does (platkit._threads)
+        search = Search(spec, poses, options, library, progress, start)
+        search.settling()
+        search.select()
+        search.take_back_weak()
+        search.take_back_beside_probe()
+        search.take_back_beside_time()
+        search.final_model()
+        search.structure_left()
+        return search.diagnosis(search.written(), heldout)
 
 
 class Search:

@@ -104,6 +104,27 @@ def test_the_design_floor_runs_on_one_blas_thread(env):
     assert seen and set(seen) == {1}
 
 
+def test_diagnose_called_as_a_library_runs_on_one_blas_thread(env):
+    """platkit.diagnose.search.diagnose, called without the command line, holds BLAS itself."""
+    from platkit.diagnose import search
+
+    seen: list[int] = []
+
+    class Stop(Exception):
+        pass
+
+    class Probe:
+        def __init__(self, *args, **kwargs):
+            seen.extend(_blas_counts())
+            raise Stop  # the probe's end: nothing of the search runs
+
+    env.setattr(search, "Search", Probe)
+    with pytest.raises(Stop):
+        search.diagnose(None, None)
+    assert seen and set(seen) == {1}
+    assert set(_blas_counts()) == {START}
+
+
 def test_the_estimators_share_one_block():
     from platkit.calibrate import solve
     from platkit.settle import _fits
