@@ -9,9 +9,14 @@ Rules:
   semantics), so its load is the load at the place it really is. Joints not given sit at zero.
 - ``loads(Q)``: for each configuration, the spatial force each joint transmits to its subtree
   (pinocchio's rnea at zero velocity and acceleration, ``data.f``; pinocchio's gravity, 9.81 m/s^2), in the joint's own frame:
-  ``moment`` (3,) N m about the joint's origin, ``force`` (3,) N, and ``torque`` = its component
+  ``moment`` (3,) N m about the joint's pivot, ``force`` (3,) N, and ``torque`` = its component
   along the joint's motion (N m about a revolute axis, N along a prismatic one). This is what a
   motor or brake must hold; a joint's elastic deflection follows it.
+- A joint's **pivot** is where it is held on its parent: its placement there (pinocchio's joint
+  placement), where the links it carries turn when the link before it bends. For a revolute
+  joint it is the joint frame's origin; a prismatic joint's frame slides along its axis with its
+  value, its pivot stays where the slide is guided (a lift's column bends there, not at the
+  height the lift has reached). The torque along the axis is the same about either point.
 - ``generalized(torque)``: the torques of the joints that have a value of their own (the recorded
   joints), a mimic joint's torque folded into its master's by the chain rule
   (``tau_master += multiplier * tau_mimic``): pinocchio's computeGeneralizedGravity of a model
@@ -111,14 +116,17 @@ def payload_option(payload: tuple[Payload, ...]) -> list[dict]:
 class Loads:
     """Gravity loads at N configurations over the tree's joints (``TreeLoads.joints`` order):
     ``torque`` (N, J) about (along) each joint's axis; ``moment`` (N, J, 3) N m and ``force``
-    (N, J, 3) N in each joint's frame; ``origin`` (N, J, 3) m and ``rotation`` (N, J, 3, 3) each
-    joint frame's placement in the root frame."""
+    (N, J, 3) N in each joint's frame, the moment about its pivot; ``origin`` (N, J, 3) m and
+    ``rotation`` (N, J, 3, 3) each joint frame's placement in the root frame; ``pivot`` (N, J, 3) m
+    each joint's pivot in the root frame (its origin, but a prismatic joint's: see the module
+    docstring)."""
 
     torque: np.ndarray
     moment: np.ndarray
     force: np.ndarray
     origin: np.ndarray
     rotation: np.ndarray
+    pivot: np.ndarray
 
 
 class TreeLoads:
@@ -267,6 +275,8 @@ class TreeLoads:
         zero = np.zeros(model.nv)
         moment, force = np.zeros((N, J, 3)), np.zeros((N, J, 3))
         origin, rotation = np.zeros((N, J, 3)), np.zeros((N, J, 3, 3))
+        slides = np.nonzero(self.prismatic)[0]
+        guide = np.zeros((N, len(slides), 3))  # the prismatic joints' pivots
         for k in range(N):
             q = self.pinocchio_q(Q[k])
             pin.rnea(model, data, q, zero, zero)
@@ -276,9 +286,16 @@ class TreeLoads:
                 moment[k, j], force[k, j] = f.angular, f.linear
                 M = data.oMi[j + 1]
                 origin[k, j], rotation[k, j] = M.translation, M.rotation
+            for i, j in enumerate(slides.tolist()):  # the slide's guide: the placement on the parent
+                guide[k, i] = (data.oMi[model.parents[j + 1]] * model.jointPlacements[j + 1]).translation
+                moment[k, j] += np.cross(rotation[k, j].T @ (origin[k, j] - guide[k, i]), force[k, j])
+        pivot = origin  # a revolute joint's pivot is its origin
+        if len(slides):
+            pivot = origin.copy()
+            pivot[:, slides] = guide
         torque = np.where(self.prismatic[None], np.einsum("njk,jk->nj", force, self.axes),
                           np.einsum("njk,jk->nj", moment, self.axes))
-        return Loads(torque, moment, force, origin, rotation)
+        return Loads(torque, moment, force, origin, rotation, pivot)
 
     def slopes(self, Q: np.ndarray) -> np.ndarray:
         """(N, J) each joint's gravity torque's slope in its own value, the others held (mimic
@@ -359,10 +376,10 @@ class TreeLoads:
         g = np.array(self.model.gravity.linear, float)
         out = np.zeros((N, J, 3, J, 4))
         for k in range(N):
-            O, R = L.origin[k], L.rotation[k]
+            O, R, P = L.origin[k], L.rotation[k], L.pivot[k]
             for j in range(J):
                 bodies = np.nonzero(self.subtree[j])[0]
-                lever = O[bodies] - O[j]                                     # (B, 3) world
+                lever = O[bodies] - P[j]                                     # (B, 3) world: about the pivot
                 # held moment = -sum (r_b - o_j) x m_b g, with m_b r_b = m_b p_b + R_b h_b
                 d_m = -np.cross(lever, g)                                    # (B, 3) per unit mass
                 d_h = -np.cross(np.transpose(R[bodies], (0, 2, 1)), g)      # (B, 3 (h comp), 3) world

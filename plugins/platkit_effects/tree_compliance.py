@@ -259,12 +259,13 @@ def across_axes(axis: np.ndarray) -> np.ndarray:
 
 
 def _rotation_offset(S: LoadState, j: int, w_local: np.ndarray, fk_X: np.ndarray) -> np.ndarray:
-    """(N, 6) the moving frame turned by ``w_local`` (N, 3) rad about joint j's origin, in the base
-    frame: (w x (X - o), w)."""
+    """(N, 6) the moving frame turned by ``w_local`` (N, 3) rad about joint j's pivot (its origin;
+    a prismatic joint's placement on its parent: platkit.tree_loads), in the base frame:
+    (w x (X - o), w)."""
     L = S.loads
     w_root = np.einsum("nab,nb->na", L.rotation[:, j], w_local)
     w = np.einsum("nba,nb->na", S.base_rotation, w_root)
-    o = np.einsum("nba,nb->na", S.base_rotation, L.origin[:, j] - S.base_origin)
+    o = np.einsum("nba,nb->na", S.base_rotation, L.pivot[:, j] - S.base_origin)
     return np.hstack([np.cross(w, np.asarray(fk_X, float) - o), w])
 
 
@@ -356,11 +357,11 @@ class JointRotationTerm(ModelTerm):
 
     def _carried_markers(self, stand: TreeStand, S: LoadState, j: int, w_local: np.ndarray, poses) -> np.ndarray:
         """(N, M, 3): each marker on a link the joint carries turned by ``w_local`` (N, 3) about the
-        joint's origin, ``R_k^T (w x (X_k + R_k m - o))`` in its link's frame; the others still."""
+        joint's pivot, ``R_k^T (w x (X_k + R_k m - o))`` in its link's frame; the others still."""
         out = np.zeros((poses.n_poses, poses.n_markers, 3))
         carried = set(stand.carried(self.joint))
         w = np.einsum("nba,nb->na", S.base_rotation, np.einsum("nab,nb->na", S.loads.rotation[:, j], w_local))
-        o = np.einsum("nba,nb->na", S.base_rotation, S.loads.origin[:, j] - S.base_origin)
+        o = np.einsum("nba,nb->na", S.base_rotation, S.loads.pivot[:, j] - S.base_origin)
         for m, name in enumerate(poses.marker_names):
             link = poses.marker_links.get(name, stand.tracked[0] if stand.tracked else None)
             if link not in carried:

@@ -493,7 +493,7 @@ def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m:
     a, b = T.index[joint], T.index[parent]
     axis_j = np.einsum("nab,b->na", S.loads.rotation[:, a], T.axes[a])
     axis_p = np.einsum("nab,b->na", S.loads.rotation[:, b], T.axes[b])
-    if np.abs(S.loads.origin[:, a] - S.loads.origin[:, b]).max() > tol_m \
+    if np.abs(S.loads.pivot[:, a] - S.loads.pivot[:, b]).max() > tol_m \
             or np.abs(np.sum(axis_j * axis_p, axis=1)).max() > across_tol:
         return None
     across = S.loads.moment[:, b] @ across_axes(T.axes[b]).T

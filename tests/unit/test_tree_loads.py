@@ -137,16 +137,25 @@ def test_bad_input_names_the_field(tmp_path):
 
 
 def test_the_moment_is_the_subtrees_weight_about_the_joint(tmp_path):
+    """About its pivot: a revolute joint's origin; the prismatic r1's placement on its parent,
+    where its frame sits at zero travel (where the slide is guided), not where it has slid to."""
     T = TreeLoads(_tree(tmp_path))
     Q = T.configuration(NAMES, CONFIGS)
     L = T.loads(Q)
+    r1 = T.index["r1"]
+    at_zero = Q.copy()
+    at_zero[:, r1] = 0.0
+    assert np.allclose(L.pivot[:, r1], T.loads(at_zero).origin[:, r1], atol=1e-12)
+    assert np.abs(L.pivot[:, r1] - L.origin[:, r1]).max() > 0.1  # it slid 0.2 m
+    others = [j for j in range(len(T.joints)) if j != r1]
+    assert np.array_equal(L.pivot[:, others], L.origin[:, others])
     data = T.model.createData()
     g = T.model.gravity.linear
     for k, q in enumerate(Q):
         pin.centerOfMass(T.model, data, q, True)  # data.com[j], data.mass[j]: the subtree below joint j
         for j in range(len(T.joints)):
             com = data.oMi[j + 1].act(data.com[j + 1])  # pinocchio keeps a subtree's CoM in its joint's frame
-            held = -np.cross(com - L.origin[k, j], data.mass[j + 1] * g)
+            held = -np.cross(com - L.pivot[k, j], data.mass[j + 1] * g)
             assert np.allclose(L.rotation[k, j] @ L.moment[k, j], held, atol=1e-9)
 
 
