@@ -52,6 +52,7 @@ from platkit.simulate.elastic_tree import (  # noqa: E402
     simulate_elastic_tree,
     write_elastic_session,
 )
+from platkit.urdf import read_urdf  # noqa: E402
 
 ROBOTS = Path(metadata.distribution("example-robot-data").locate_file("cmeel.prefix/share/example-robot-data")) / "robots"
 
@@ -63,8 +64,8 @@ class Robot:
     their nominal compliance (rad/(N m); drawn per seed within 0.5-1.5 of it), the bent links (at
     these joints, nominal bending compliance; drawn within 0.3-1.0 of it), the subtrees removed (at
     these joints: the legs), the trunk's joints (commanded over 35 % of their range, the arms 60 %),
-    link bending that names the same place as another joint (same_place), and the coupled joint
-    added as a URDF mimic joint, if any."""
+    link bending that names the same place as another joint (same_place), the coupled joint
+    added as a URDF mimic joint, if any, and the prefixes of the joints fixed (grippers, hands)."""
 
     name: str
     urdf: str
@@ -76,6 +77,7 @@ class Robot:
     trunk: tuple[str, ...]
     same_place: dict[str, set[str]] = field(default_factory=dict)
     coupled: Callable[[ET.Element], None] | None = None
+    fixed: tuple[str, ...] = ("gripper_",)
 
 
 def talos_torso_3(robot: ET.Element) -> None:
@@ -124,6 +126,25 @@ ROBOTS_TABLE = {
          **{f"{s}_{j}": 1e-3 for s in "lr" for j in ("shoulder_pitch", "shoulder_roll", "elbow")}},
         {"l_shoulder_pitch": 1e-3, "r_shoulder_pitch": 1e-3},
         ("l_hip_pitch", "r_hip_pitch"), ("torso",)),
+    # PAL's TIAGo++ (tiago_dual.urdf, 98 kg with its base): two 7-joint arms and the head on one
+    # prismatic torso lift (0-0.35 m) above a fixed column on the mobile base; the base's wheels,
+    # suspension and casters removed, the hands' fingers fixed, a marker triad on each palm. The
+    # lift's own compliance is left out of the truth: its load (the weight of all above it, along
+    # its vertical axis) never changes, so its give is one constant offset, which no session can
+    # see. Elastic: each arm's shoulder and elbow joints that hold the arm's weight (arm_2, arm_3,
+    # arm_4: harmonic drives, 2e-4 rad/(N m) nominal; arm_1 turns about the vertical and holds
+    # none); bent: the lift's telescoping column under the moment of both arms and the head (at
+    # torso_lift_joint, 5e-5 nominal), and each shoulder's first link, a 12.5 cm bracket the arm
+    # hangs on (at arm_2, 2e-4).
+    "tiago_dual": Robot(
+        "tiago_dual", "tiago_description/robots/tiago_dual.urdf",
+        {"left": "hand_left_palm_link", "right": "hand_right_palm_link"},
+        ["torso_lift_joint", "head_1_joint", "head_2_joint", *_TALOS_ARMS],
+        {f"arm_{s}_{i}_joint": 2e-4 for s in ("left", "right") for i in (2, 3, 4)},
+        {"torso_lift_joint": 5e-5, "arm_left_2_joint": 2e-4, "arm_right_2_joint": 2e-4},
+        ("suspension_right_joint", "suspension_left_joint", "caster_front_right_1_joint",
+         "caster_front_left_1_joint", "caster_back_right_1_joint", "caster_back_left_1_joint"),
+        ("torso", "head"), fixed=("gripper_", "hand_")),
 }
 #: the robot of this run (``--robot``)
 ROBOT = ROBOTS_TABLE["talos"]
@@ -131,7 +152,7 @@ ROBOT = ROBOTS_TABLE["talos"]
 
 def upper_body(out: Path, bare: bool = False, robot: Robot | None = None) -> Path:
     """The robot's upper body (see :class:`Robot`): transmissions, gazebo tags, the description's
-    own mimic tags, visuals and collisions dropped, grippers fixed, the removed subtrees gone, the
+    own mimic tags, visuals and collisions dropped, grippers (hands) fixed, the removed subtrees gone, the
     coupled joint added (``bare``: every inertia stripped too)."""
     robot = robot or ROBOT
     tree = ET.parse(ROBOTS / robot.urdf)
@@ -142,7 +163,7 @@ def upper_body(out: Path, bare: bool = False, robot: Robot | None = None) -> Pat
     for j in root.findall("joint"):
         for m in j.findall("mimic"):
             j.remove(m)
-        if j.get("name").startswith("gripper_") and j.get("type") != "fixed":
+        if j.get("name").startswith(robot.fixed) and j.get("type") != "fixed":
             j.set("type", "fixed")
     children: dict[str, list[ET.Element]] = {}
     for j in root.findall("joint"):
@@ -173,10 +194,11 @@ def upper_body(out: Path, bare: bool = False, robot: Robot | None = None) -> Pat
 
 
 def limits(path: Path) -> dict[str, tuple[float, float]]:
+    """The limits of every revolute and prismatic joint (rad, m), in the URDF's order."""
     out = {}
     for j in ET.parse(path).getroot().findall("joint"):
         lim = j.find("limit")
-        if lim is not None and j.get("type") == "revolute":
+        if lim is not None and j.get("type") in ("revolute", "prismatic"):
             out[j.get("name")] = (float(lim.get("lower")), float(lim.get("upper")))
     return out
 
@@ -212,6 +234,10 @@ def commands(rng: np.random.Generator, lim: dict[str, tuple[float, float]], n: i
 
 
 def predicted(cal: Path, commands: np.ndarray, names: list[str], work: Path) -> dict[str, np.ndarray]:
+    """The markers ``predict`` puts at ``commands`` (a prismatic joint's in m, written in the
+    session's mm as the simulator's sessions have them)."""
+    joints = read_urdf(work / f"{ROBOT.name}_upper.urdf").joints
+    commands = commands * np.array([1e3 if joints[j].type == "prismatic" else 1.0 for j in ROBOT.recorded])
     csv = work / "commands.csv"
     csv.write_text("\n".join([",".join(["t", *ROBOT.recorded])] + [",".join([f"{k}.0", *(f"{v:.10g}" for v in row)])
                                                             for k, row in enumerate(commands)]) + "\n")
