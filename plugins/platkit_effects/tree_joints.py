@@ -7,9 +7,12 @@ Rules:
   poses and that moves a tracked link, fitted together (:class:`JointsComplianceTerm`): a
   humanoid's torso and arms give at many joints at once, and each joint named alone would take one
   of diagnosis's few rounds.
-- A joint that sits at its parent joint's origin with its axis across the parent's turns the
-  links it carries, to first order, as the parent's link bending does about that axis; the bending
-  also turns them about the third axis. The term offers, as its ``alternatives``, the joint's
+- A joint whose axis passes through its parent joint's pivot across the parent's axis (the joint
+  at the parent's origin, a shoulder's roll at its pitch, or out along its own axis from it, TIAGo's
+  upper-arm roll 9 cm down the link from the shoulder: a rotation about a line is the same wherever
+  along it it is taken; within ``SAME_LINE_M``) turns the links it carries, to first order, as
+  the parent's link bending does about that axis; the bending also turns them about the third
+  axis. The term offers, as its ``alternatives``, the joint's
   compliance replaced by that bending (one compliance across, or one per axis across), and
   diagnosis keeps a form whose BIC is lower (platkit.diagnose.search, ``tell_apart``).
 - A joint that drives mimic joints (a coupled joint) gives, in the control's compliance, with
@@ -86,6 +89,10 @@ MASS_STEPS = (4, 8, 16)
 #: does not say its own: 0, no prior rows (with 0.1 mm, a motion-capture system's typical noise,
 #: the rows predicted Talos's unseen seed 24803 0.05 mm worse per hand than without them)
 MASS_PRIOR_NOISE_M = 0.0
+#: how far (m) a joint's axis may pass from its parent's pivot and still turn the links as the
+#: parent's bending does about that axis: the two differ by the turn times the distance (2 mm at
+#: 5 mrad: 10 um, a tenth of a motion-capture system's typical noise)
+SAME_LINE_M = 2e-3
 #: a combination whose posterior standard deviation is below this share of its prior's is
 #: determined by the data (their information exceeds the prior's)
 DETERMINED = 1.0 / np.sqrt(2.0)
@@ -313,7 +320,7 @@ class JointsComplianceTerm(ModelTerm):
 
     def _given_back(self, stand, poses, start: np.ndarray) -> list[tuple[str, ModelTerm]]:
         """This term with the compliance of a joint it lacks given back beside the bending of that
-        joint's parent, for each joint that sits at the origin of a parent this term bends
+        joint's parent, for each joint whose axis passes through the pivot of a parent this term bends
         (:func:`same_place_parent`) and holds a load that changes over the poses: a joint and the
         link before it may both give (a compliance told apart as the bending took the joint's
         place; the two differ once the parent turns). Its start: the fitted values, the joint's
@@ -339,9 +346,9 @@ class JointsComplianceTerm(ModelTerm):
 
     def alternatives(self, theta, poses, others) -> list[tuple[str, ModelTerm]]:
         """This term with one joint's compliance replaced by its parent joint's link bending, for each
-        joint that sits at its parent's origin with its axis across the parent's (to first order the
-        two turn the links the joint carries about the same axis at the same point under nearly the
-        same load; the bending turns them about the third axis too), in two forms: one compliance
+        joint whose axis passes through its parent's pivot across the parent's axis (to first order the
+        two turn the links the joint carries about the same line under nearly the same load; the
+        bending turns them about the third axis too), in two forms: one compliance
         across (as many parameters), one per axis across (a link stiffer one way than the other:
         one more). As (what changed, the term), its start the fitted values, the bending's from the
         compliance. Not where ``others`` (the model's other terms) bend there already, or where
@@ -474,11 +481,13 @@ def partial_bending_ok(poses) -> bool:
     return bool(poses.marker_links) and not poses.n_bodies
 
 
-def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m: float = 1e-3,
+def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m: float = SAME_LINE_M,
                       across_tol: float = 0.1) -> str | None:
-    """The moving joint before ``joint`` on its way to the root when ``joint`` sits at its origin
-    (within ``tol_m``) with its axis across the parent's (|cos| below ``across_tol``) and the
-    parent's moment across its axis changes over ``controls``; else None."""
+    """The moving joint before ``joint`` on its way to the root when ``joint``'s axis passes through
+    the parent's pivot (the line within ``tol_m``; the joint at the parent's origin, or out along
+    its own axis from it: a rotation about that line is the same wherever along it it is taken)
+    with its axis across the parent's (|cos| below ``across_tol``) and the parent's moment across
+    its axis changes over ``controls``; else None."""
     T = stand.loads
     link, parent = T.tree.joints[joint].parent, None
     while link in T.tree.parent_joint:
@@ -493,8 +502,11 @@ def same_place_parent(stand: TreeStand, controls: np.ndarray, joint: str, tol_m:
     a, b = T.index[joint], T.index[parent]
     axis_j = np.einsum("nab,b->na", S.loads.rotation[:, a], T.axes[a])
     axis_p = np.einsum("nab,b->na", S.loads.rotation[:, b], T.axes[b])
-    if np.abs(S.loads.pivot[:, a] - S.loads.pivot[:, b]).max() > tol_m \
-            or np.abs(np.sum(axis_j * axis_p, axis=1)).max() > across_tol:
+    axis_j /= np.linalg.norm(axis_j, axis=1, keepdims=True)
+    d = S.loads.pivot[:, a] - S.loads.pivot[:, b]
+    off_line = d - np.sum(d * axis_j, axis=1, keepdims=True) * axis_j
+    if np.linalg.norm(off_line, axis=1).max() > tol_m \
+            or np.abs(np.sum(axis_j * axis_p, axis=1)).max() / np.linalg.norm(T.axes[b]) > across_tol:
         return None
     across = S.loads.moment[:, b] @ across_axes(T.axes[b]).T
     return parent if np.max(np.ptp(across, axis=0)) > 1e-6 else None

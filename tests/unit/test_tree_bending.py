@@ -14,7 +14,7 @@ from platkit.poses import PoseSet
 from platkit.simulate.elastic_tree import ElasticTruth, simulate_elastic_tree
 from platkit_effects import Compliance
 from platkit_effects.tree_compliance import tree_stand
-from platkit_effects.tree_joints import JointsComplianceTerm
+from platkit_effects.tree_joints import JointsComplianceTerm, same_place_parent
 
 INERTIA = '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>'
 JOINTS = ["t1", "l1", "l2", "l3", "r1", "r2", "r3"]
@@ -111,6 +111,31 @@ def test_the_compliance_of_a_joint_at_its_parents_origin_has_the_parents_bending
     assert np.allclose(two.marker_offset(theta2, poses), bend)  # equal compliances: the same bend
     back2 = Compliance().from_dict(two.to_dict(theta2))
     assert back2.bends[0].about == "across2" and np.allclose(back2.marker_offset(theta2, poses), bend, atol=1e-11)
+
+
+def test_a_joint_out_along_its_own_axis_from_its_parent_has_the_parents_bending_as_alternative(tmp_path):
+    """TIAGo's upper-arm roll sits 9 cm down the link from the shoulder joint, its axis along the
+    link through the shoulder's origin (1.5 mm off it in the URDF): turning about that line is
+    turning about it at the shoulder. Here l2 sits 9 cm out along its axis (1.5 mm off the line),
+    r2 9 cm out and 4 mm off it: l2 is offered as the bending at l1, r2 not."""
+    path = _body(tmp_path)
+    text = path.read_text()
+    for s, xyz in (("l", "0.09 0 -0.0015"), ("r", "0.09 0.004 0")):
+        at = f'<child link="{s}_upper"/><origin xyz="0 0 0"'
+        assert at in text
+        text = text.replace(at, f'<child link="{s}_upper"/><origin xyz="{xyz}"')
+    path.write_text(text)
+    spec = get_platform("urdf", path, moving_link=LINKS)
+    C = np.random.default_rng(11).uniform(-1.2, 1.2, size=(30, len(JOINTS)))
+    sim = simulate_elastic_tree(path, ElasticTruth(), C, JOINTS, LINKS, seed=11, noise_mm=0.02, workdir=tmp_path)
+    poses = PoseSet(spec.name, C, sim.markers, list(LINKS), length_unit="m", moving_link=LINKS)
+    stand = tree_stand(spec)
+    assert same_place_parent(stand, C, "l2") == "l1" and same_place_parent(stand, C, "r2") is None
+    term = _every_joint(spec, poses)
+    alts = term.alternatives(np.arange(1.0, len(term.joints) + 1), poses, [])
+    assert [w for w, _ in alts] == ["l2's compliance told apart as link bending at l1",
+                                    "l2's compliance told apart as link bending at l1, stiffer one way than the other",
+                                    "link bending at l1 beside l2's compliance"]
 
 
 @pytest.mark.parametrize("bent", [True, False])
