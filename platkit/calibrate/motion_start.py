@@ -93,12 +93,15 @@ def marker_points(spec: PlatformSpec, model: PlatformModel, td, mk, links, U: np
     return pts
 
 
-def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray) -> np.ndarray:
-    """A tree's actuators' travel (K, n_u): at each sample the controls whose markers (each on its
-    tracked link) come nearest the sample's in the base frame ``Yb`` (K, M, 3), by damped
+def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray,
+                 model: PlatformModel | None = None) -> np.ndarray:
+    """The actuators' travel (K, n_u) by least squares over the controls: at each sample the
+    controls whose markers (each on its tracked link, ``links``; on the moving frame of ``model``
+    where ``links`` is None) come nearest the sample's in the base frame ``Yb`` (K, M, 3), by damped
     Gauss-Newton from ``guess_u`` (forward differences over the controls, every sample at once); NaN
-    rows where fewer than three markers are seen or the markers stay off by more than TRAVEL_MISS_M,
-    and a NaN column for a joint that moves no marker (its travel is not seen)."""
+    rows where fewer than three markers are seen, the kinematics fails or the markers stay off by
+    more than TRAVEL_MISS_M, and a NaN column for a joint that moves no marker (its travel is not
+    seen)."""
     seen = np.isfinite(Yb).all(axis=2)
     y = np.where(seen[..., None], Yb, 0.0)
     u = np.array(guess_u, float)
@@ -106,7 +109,7 @@ def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.
     lo, hi = spec.control_bounds()
 
     def resid(U):
-        return np.where(seen[..., None], marker_points(spec, None, td, mk, links, U) - y, 0.0).reshape(K, -1)
+        return np.where(seen[..., None], marker_points(spec, model, td, mk, links, U) - y, 0.0).reshape(K, -1)
 
     r = resid(u)
     unseen = np.zeros(n_u, bool)
@@ -116,7 +119,7 @@ def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.
             up = u.copy()
             up[:, j] += TRAVEL_STEP
             J[:, :, j] = (resid(up) - r) / TRAVEL_STEP
-        unseen = ~(np.abs(J).max(axis=(0, 1)) > 0)
+        unseen = ~(np.where(np.isfinite(J), np.abs(J), 0.0).max(axis=(0, 1)) > 0)  # a failed sample moves none
         JtJ = np.einsum("kij,kil->kjl", J, J)
         damp = 1e-6 * np.maximum(np.trace(JtJ, axis1=1, axis2=2), 1e-12)[:, None, None] * np.eye(n_u)
         du = -np.linalg.solve(JtJ + damp, np.einsum("kij,ki->kj", J, r)[..., None])[..., 0]
@@ -131,13 +134,17 @@ def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.
 def actuator_travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarray, guess_u: np.ndarray, links=None):
     """The actuators' travel (K, n_u) at each sample by inverse kinematics of the pose the markers
     give (Kabsch of the marker layout ``mk`` onto the sample, in the base frame; on a tree, with
-    ``links`` each marker's tracked link, :func:`_tree_travel`); NaN rows where fewer than three
-    markers are seen or the pose is out of reach."""
+    ``links`` each marker's tracked link, :func:`_tree_travel`); a sample whose pose the inverse
+    cannot reach exactly takes the controls whose markers come nearest (:func:`_tree_travel` on the
+    moving frame): a stand of fewer than six degrees of freedom never reaches the pose of noisy
+    markers exactly, and without it would have no travel at all; NaN rows where fewer than three
+    markers are seen, or that sample misses too (an out-of-reach pose)."""
     K = len(Y)
     out = np.full((K, spec.n_u), np.nan)
     Yb = (Y - b) @ A  # base frame: A^T (y - b)
     if links is not None:
         return _tree_travel(spec, td, mk, links, Yb, guess_u)
+    missed = []
     for k in range(K):
         vis = np.isfinite(Yb[k]).all(axis=1)
         if vis.sum() < 3:
@@ -145,8 +152,10 @@ def actuator_travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: n
         R, X = rigid_fit(mk[vis], Yb[k, vis])
         try:
             out[k] = model.inverse(quat_from_matrix(R), X, td, strict=False, guess=guess_u[k])
-        except ComputationFailed:  # a pose out of reach is left out (NaN)
-            continue
+        except ComputationFailed:  # not reached exactly: the controls nearest, below
+            missed.append(k)
+    if missed:
+        out[missed] = _tree_travel(spec, td, mk, None, Yb[missed], np.asarray(guess_u, float)[missed], model)
     return out
 
 
