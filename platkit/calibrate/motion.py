@@ -104,8 +104,8 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["LocalResponseTerm", "ResponseTerm", "calibrate_motion", "motion_poses", "motion_stream",
-           "without_response"]
+__all__ = ["LocalResponseTerm", "ResponseTerm", "calibrate_motion", "fit_progress", "fitted_kind", "motion_poses",
+           "motion_stream", "without_response"]
 
 #: windows per block of the curvature correction
 CORRECTION_BLOCK = 32
@@ -385,6 +385,7 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
     the fit repeated from there. The calibration keeps the response as its term."""
     T, U = session.command_t, session.commands
     model, links, td0, A, tr, mk = geom
+    opts = {**opts, "progress": fit_progress(opts.get("progress"), rmodel)}
     X1 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
     correction = _curvature_correction(spec, model, td0, A, tr, mk, win, X1, lambda a, b: (
         actuator_positions(rmodel, theta_start, T, U, win.sample_t[a:b], start=start)), links)
@@ -416,6 +417,25 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
         cal.rms_before = rms_before
     cal.theta[0] = rmodel.positive(cal.theta[0])  # the same response, each time constant positive
     return cal, poses
+
+
+def fitted_kind(rmodel: ResponseModel) -> str:
+    """The kind of response ``rmodel`` fits, as a fit's progress names it: 'first_order',
+    'second_order', or 'per_actuator' (a second order with some actuators first order in it)."""
+    return "per_actuator" if rmodel.kind == "second_order" and rmodel.first else rmodel.kind
+
+
+def fit_progress(progress: Progress | None, rmodel: ResponseModel) -> Progress | None:
+    """``progress`` for one fit of the stream: every event's info says the response's kind that fit
+    fits (``response_kind``, :func:`fitted_kind`), so that a reader need not infer it."""
+    if progress is None:
+        return None
+    kind = fitted_kind(rmodel)
+
+    def told(stage: str, info: dict) -> None:
+        progress(stage, {**info, "response_kind": kind})
+
+    return told
 
 
 def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win: StreamWindows, cal1: Calibration,

@@ -84,18 +84,17 @@ KIND_WORDS = {"first_order": "first-order response", "second_order": "second-ord
               "per_actuator": "second-order response for some actuators"}
 
 
-def motion_progress_printer(unit: str, kind: str, n_u: int, stream=None):
+def motion_progress_printer(unit: str, kind: str, stream=None):
     """:func:`progress_printer` for a calibration from motion (platkit.calibrate.motion), which fits
     the stream several times: a first line says so, and each fit is numbered and said with the
     response's kind it fits, its "rms a -> b" from that fit's own start (a later fit may start worse
-    than an earlier one ended). ``kind``: as asked ('auto', 'first_order', 'second_order'). Under
-    'auto' a fit's kind is read from its unknowns (identifiable and held, its identifiability
-    event): the first fit is the first order's (the motion model fits it first and tries the second
-    order from it); a fit with ``n_u`` more (a damping per actuator) is the second order's, one with
-    fewer more the second order's for some actuators."""
+    than an earlier one ended). ``kind``: as asked ('auto', 'first_order', 'second_order'), said in
+    the first line; each fit's own kind is the one its events say (``response_kind``, as
+    :func:`platkit.calibrate.motion.fit_progress` tells it: 'first_order', 'second_order' or
+    'per_actuator'), the kind asked where an event says none."""
     show = progress_printer(unit, stream)
     s = length_scale(unit)
-    state: dict = {"fit": 0, "label": KIND_WORDS.get(kind, kind), "first": None}
+    state: dict = {"fit": 0, "label": KIND_WORDS.get(kind, kind)}
     plan = ("first order, then second order tried from it (from more than one start; kept by BIC where "
             "determined: report motion.response.choice)" if kind == "auto" else KIND_WORDS.get(kind, kind))
 
@@ -106,11 +105,8 @@ def motion_progress_printer(unit: str, kind: str, n_u: int, stream=None):
                   "from its own start", file=out, flush=True)
             state["fit"] = 1
         if stage == "identifiability":
-            unknowns = int(info["n_identifiable"]) + len(info.get("held") or [])
-            if kind == "auto":
-                first = state["first"] = unknowns if state["first"] is None else state["first"]
-                state["label"] = KIND_WORDS["first_order" if unknowns <= first else
-                                            "second_order" if unknowns - first >= n_u else "per_actuator"]
+            said = info.get("response_kind", kind)
+            state["label"] = KIND_WORDS.get(said, said)
             held = info.get("held") or []
             print(f"calibrate: fit {state['fit']} ({state['label']}): {info['n_identifiable']} unknowns identifiable; "
                   f"held at nominal: {', '.join(held) if held else 'none'}", file=out, flush=True)
@@ -359,7 +355,7 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
     fit = calibrate_motion_bodies if bodies_alone(s) else calibrate_motion  # bodies alone: as points
     cal, poses = fit(s, s.spec, free=free, robust=not args.no_robust,
                      progress=None if args.quiet else motion_progress_printer(
-                         s.length_unit, getattr(args, "response_kind", "auto").replace("-", "_"), getattr(s.spec, "n_u", 0)),
+                         s.length_unit, getattr(args, "response_kind", "auto").replace("-", "_")),
                      platform_options=options, ridge_m=ridge_m, reason=reason,
                      kind=getattr(args, "response_kind", "auto").replace("-", "_"),
                      **response_parts(getattr(args, "response", None)))

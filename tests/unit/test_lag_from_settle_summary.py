@@ -129,11 +129,11 @@ def test_calibrate_says_why_it_falls_back_and_which_response_each_fit_fits(refus
     assert note.startswith("too few holds settle: 53 of 120 holds settled; 43 never did (actuator B")
     assert "(80% needed): calibrated from the whole stream" in note
     out = io.StringIO()
-    show = motion_progress_printer("mm", "auto", 3, out)
-    for n, held, before, after in ((51, 6, 28.91, 24.51), (53, 7, 13.85, 15.37), (56, 4, 22.09, 1.027),
-                                   (55, 3, 1.2, 0.62)):
+    show = motion_progress_printer("mm", "auto", out)
+    for n, held, before, after, kind in ((51, 6, 28.91, 24.51, "first_order"), (53, 7, 13.85, 15.37, "second_order"),
+                                         (56, 4, 22.09, 1.027, "second_order"), (55, 3, 1.2, 0.62, "per_actuator")):
         show("iteration", {"iteration": 1, "rms": before * 1e-3})
-        show("identifiability", {"n_identifiable": n, "held": [f"p{k}" for k in range(held)]})
+        show("identifiability", {"n_identifiable": n, "held": [f"p{k}" for k in range(held)], "response_kind": kind})
         show("done", {"rms_before": before * 1e-3, "rms_after": after * 1e-3, "time_s": 1.0})
     lines = out.getvalue().splitlines()
     assert lines[0].startswith("calibrate: from motion: the actuators' response fitted first order, then second")
