@@ -1,12 +1,13 @@
 """A humanoid upper body that bends under its own weight: default `platkit calibrate`, then
 `platkit diagnose`, on settled poses from the elastic tree simulator (platkit.simulate.elastic_tree).
 
-    .venv/bin/python benchmarks/trees_humanoid.py [--robot talos|icub] [--seeds 1] [--poses 300 --heldout 200]
-        [--bare] [--later N] [--compliance-scale F]
+    .venv/bin/python benchmarks/trees_humanoid.py [--robot talos|icub|tiago_dual|g1] [--seeds 1]
+        [--poses 300 --heldout 200] [--bare] [--later N] [--compliance-scale F]
 
-The robot (``--robot``, each a :class:`Robot` in ROBOTS_TABLE; IIT's iCub the other, from the same
-package): by default PAL's Talos (example-robot-data's talos_reduced.urdf, with its inertias: a public
-description not written here), legs removed, grippers fixed, both 7-joint arms and the head on a
+The robot (``--robot``, each a :class:`Robot` in ROBOTS_TABLE; IIT's iCub, PAL's TIAGo++ on its
+torso lift and Unitree's G1 the others, from the same package): by default PAL's Talos
+(example-robot-data's talos_reduced.urdf, with its inertias: a public description not written
+here), legs removed, grippers fixed, both 7-joint arms and the head on a
 torso whose last joint is coupled to the one before it as a URDF mimic joint (torso_3_joint, half
 of torso_2_joint's pitch, 10 cm above it). The true robot, drawn per seed: origin errors (0.5 mm,
 1 mrad RMS), zero offsets (2 mrad RMS), elastic torso and shoulder/elbow joints (the coupled one
@@ -145,6 +146,22 @@ ROBOTS_TABLE = {
         ("suspension_right_joint", "suspension_left_joint", "caster_front_right_1_joint",
          "caster_front_left_1_joint", "caster_back_right_1_joint", "caster_back_left_1_joint"),
         ("torso", "head"), fixed=("gripper_", "hand_")),
+    # Unitree's G1 (g1_29dof_rev_1_0.urdf, 35 kg): a three-joint waist (yaw about the vertical,
+    # then roll and pitch at one point: pitch at roll's origin, across it) carrying the torso, the
+    # head (fixed) and two 7-joint arms with three-joint wrists; the legs removed, markers on the
+    # rubber hands. Elastic: the waist's roll and pitch, which hold the whole upper body (its yaw
+    # turns about the vertical and holds none), 1e-4 rad/(N m) nominal, and each arm's shoulder
+    # pitch and roll and elbow (low-ratio drives under position control: 5e-4); bent: the torso
+    # where each shoulder hangs on it (at *_shoulder_pitch_joint, 5e-4).
+    "g1": Robot(
+        "g1", "g1_description/urdf/g1_29dof_rev_1_0.urdf", {"left": "left_rubber_hand", "right": "right_rubber_hand"},
+        ["waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint",
+         *[f"{s}_{j}_joint" for s in ("left", "right") for j in ("shoulder_pitch", "shoulder_roll", "shoulder_yaw",
+                                                                  "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")]],
+        {"waist_roll_joint": 1e-4, "waist_pitch_joint": 1e-4,
+         **{f"{s}_{j}_joint": 5e-4 for s in ("left", "right") for j in ("shoulder_pitch", "shoulder_roll", "elbow")}},
+        {"left_shoulder_pitch_joint": 5e-4, "right_shoulder_pitch_joint": 5e-4},
+        ("left_hip_pitch_joint", "right_hip_pitch_joint"), ("waist",)),
 }
 #: the robot of this run (``--robot``)
 ROBOT = ROBOTS_TABLE["talos"]
