@@ -4,7 +4,9 @@ With nothing found, a geometric model that still predicts held-out poses at more
 ``lack_of_fit_factor`` times the noise floor is a lack of fit the library has no name for
 (``unexplained``). Within that factor, held-out prediction cannot tell a weak lack of fit from
 noise; the neighbour tests (locate.neighbour_tests) can, where it is smooth in time or over the
-commands: residuals alike at poses next in time or with near commands are ``unexplained`` too.
+commands: residuals alike at poses next in time or with near commands are ``unexplained`` too; not
+on a stream's windowed poses, whose neighbouring nodes share the markers' coloured noise
+(platkit.diagnose.stream.nodes_share_noise).
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from collections.abc import Callable
 from platkit.diagnose.fitting import ROUND_NEIGHBOURS, Finding, Fit, Options, _fmt_rms, body_residuals, extrapolated
 from platkit.diagnose.floor import pose_words, worst_marker
 from platkit.diagnose.locate import along_main_direction, neighbour_tests
+from platkit.diagnose.stream import nodes_share_noise
 from platkit.poses import PoseSet
 
 
@@ -45,6 +48,11 @@ def lack_of_fit(cur: Fit, poses: PoseSet, floor: float, held: float, opt: Option
                       "predicts them better: the stand does something the library does not hold"
                       + (f" (the largest residuals on marker {worst})" if worst else "") + _response_clause(poses))), None
     if not held <= opt.lack_of_fit_factor * floor or extrapolated(poses).any():
+        return None, None
+    if nodes_share_noise(poses):  # neighbouring nodes share coloured noise: alike in time whatever the model
+        say(f"held-out {_fmt_rms(held, unit)} is {ratio:.1f} times the noise floor, within "
+            f"{opt.lack_of_fit_factor:g}: the neighbour tests are not run on windowed poses (neighbouring nodes share "
+            "the markers' coloured noise)")
         return None, None
     # Not in a session whose holds were extrapolated to rest: the approach's remnant reaches the
     # settled poses too. In the room's frame (a drift of the

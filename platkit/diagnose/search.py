@@ -59,6 +59,7 @@ from platkit.diagnose.locate import locate, located
 from platkit.diagnose.naming import _best_probe, _probe_beats, _take_back, _unproven_beside_probe
 from platkit.diagnose.naming import _unproven_beside_time, _weak_beside_lack_of_fit, _without
 from platkit.diagnose.response_kind import again_after, response_again
+from platkit.diagnose.stream import nodes_share_noise
 from platkit.diagnose.recording import (
     _settling_finding,
     _slip_not_kept,
@@ -529,10 +530,10 @@ class Search:
         held = _rms(self.cur.cv, self.judged) if self.cur.cv is not None else float("nan")
         if not self.stop:
             left = located(self.locations, opt.alpha * 0.1) if self.stop_unexplained is None else []
-            if left and self.modelled and self.floor is not None and held <= opt.lack_of_fit_factor * self.floor:
-                # beside a modelled effect, structure the location tests still see but held-out
-                # prediction does not (within the factor clean sessions reach of the noise floor) is
-                # what the effect's model leaves of its physics, not another effect: said, not named
+            if left and (self.modelled or nodes_share_noise(self.poses)) and self.floor is not None \
+                    and held <= opt.lack_of_fit_factor * self.floor:
+                # beside a modelled effect, or on a stream's windowed poses (their nodes share coloured noise), structure the
+                # tests still see but held-out prediction does not (within the factor) is a remnant or noise: said, not named
                 self.say(f"structure remains ({left[0].test}, adjusted p = {left[0].p_adjusted:.2g}) but the model "
                          f"predicts held-out poses at {_fmt_rms(held, unit)}, within {opt.lack_of_fit_factor:g} times "
                          "the noise floor: not reported as unexplained")

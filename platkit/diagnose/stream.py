@@ -20,6 +20,9 @@ held-out one, with the noise their floor needs.
   body's points measured on the body stream (:func:`platkit.calibrate.motion_points.point_sigmas`),
   else declared (``rigid_body_noise``): the floor judges the data, as for settled poses
   (:func:`platkit.diagnose.bodies.as_points`); calibrate weighs by the declared noise first.
+- What the location tests can say of windowed poses (:func:`nodes_share_noise`): neighbouring nodes
+  share the motion capture's coloured noise, so structure in time or over near commands is evidence
+  of a lack of fit only where held-out prediction sees it too.
 """
 from __future__ import annotations
 
@@ -41,7 +44,7 @@ from platkit.notices import warn
 from platkit.poses import PoseSet
 from platkit.settle import estimate_noise
 
-__all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "read_through", "score_heldout_stream",
+__all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "nodes_share_noise", "read_through", "score_heldout_stream",
            "stream_direction", "stream_poses", "stream_why", "training_stream", "windows_of"]
 
 
@@ -53,6 +56,21 @@ def marker_sigmas(session: Session) -> dict[str, float]:
     if Y is None or len(Y) < 3:
         return {}
     return {n: float(estimate_noise(Y[:, m:m + 1])) for m, n in enumerate(session.marker_names)}
+
+
+def nodes_share_noise(poses: PoseSet) -> bool:
+    """True for a stream's windowed poses (their nodes in ``extras['node']``, as
+    :func:`platkit.calibrate.motion.motion_stream` makes them): three nodes per window of about a
+    second share the motion capture's coloured noise (a part correlated over tenths of a second,
+    which a window's fit does not average as it averages white noise, and which the sample-to-sample
+    noise the floor is built from does not see), so the location tests in time and over near
+    commands (Ljung-Box, runs, the neighbour tests) find structure in the residuals of a model that
+    is right. On such poses, structure the tests find is a lack of fit only where the geometric
+    model predicts held-out poses beyond ``lack_of_fit_factor`` times the noise floor, as beside a
+    modelled effect (platkit.diagnose.search.Search.structure_left, platkit.diagnose.lack_of_fit).
+    False for settled poses: each hold's own samples, seconds apart, and the tests read them as
+    they are."""
+    return "node" in poses.extras
 
 
 def _rms_mm(sig: dict[str, float]) -> str:
