@@ -8,11 +8,17 @@ Rules:
   (:func:`slowest_rows`): where the stand stands still the controls it reached are the command
   in force whatever its response; where it moves, the starting response's error is a control
   error in proportion to the speed, and on a stream that is mostly motion (point-to-point moves
-  between holds) it turned the frame's rotation by up to 140 degrees;
+  between holds) it turned the frame's rotation by up to 140 degrees; where the travel at that
+  registration reaches under REACHED_SHARE of the samples (a frame registered wrong, which a stand
+  of fewer than six degrees of freedom shows: no pose it reaches comes near the markers), the
+  start is taken again on the slowest share of each of OTHER_SHARES in turn, the first whose travel
+  reaches REACHED_SHARE kept, else the one that reached most;
 - a moving frame's travel: the sample's pose by Kabsch of the marker layout, then the stand's
-  inverse kinematics; a tree's (each marker on its tracked link): damped Gauss-Newton over the
-  controls; a sample with fewer than three markers seen, out of reach or missed by more than
-  TRAVEL_MISS_M is left out (NaN), and so is a joint that moves no marker;
+  inverse kinematics, and where that pose is not reached exactly (a stand of fewer than six degrees
+  of freedom never reaches the pose of noisy markers) the controls whose markers come nearest; a
+  tree's (each marker on its tracked link): those, by damped Gauss-Newton over the controls; a
+  sample with fewer than three markers seen, out of reach or missed by more than TRAVEL_MISS_M is
+  left out (NaN), and so is a joint that moves no marker;
 - the response: the common shift by a grid (each actuator's best, their median), then each
   actuator's least squares (soft L1) with a shift of its own, the shift at the median of theirs,
   and each actuator's again with it held;
@@ -37,10 +43,10 @@ from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 
-__all__ = ["ACCEL_TIME_S", "DELAY_MAX_S", "PRE_SAMPLES", "RATE_FREE_FACTOR", "SHIFT_GRID_S", "START_ROUNDS",
-           "START_SAMPLES", "STILL_MIN_WINDOWS", "STILL_SHARE", "STROKE_TIME_S", "TAU0_S", "ZETA0",
-           "actuator_travel", "command_speed", "fd_steps", "marker_points", "response_from_travel", "response_start",
-           "slowest_rows", "starting_theta", "travel_start", "window_speeds"]
+__all__ = ["ACCEL_TIME_S", "DELAY_MAX_S", "OTHER_SHARES", "PRE_SAMPLES", "RATE_FREE_FACTOR", "REACHED_SHARE",
+           "SHIFT_GRID_S", "START_ROUNDS", "START_SAMPLES", "STILL_MIN_WINDOWS", "STILL_SHARE", "STROKE_TIME_S",
+           "TAU0_S", "ZETA0", "actuator_travel", "command_speed", "fd_steps", "marker_points", "response_from_travel",
+           "response_start", "slowest_rows", "starting_theta", "travel_start", "window_speeds"]
 
 #: samples that start the response; rounds of the start; samples before the first command that
 #: say where a profile's actuators rest
@@ -52,6 +58,12 @@ TAU0_S, ZETA0, STROKE_TIME_S, ACCEL_TIME_S = 0.05, 1.0, 4.0, 0.25
 #: the registration at a starting response is taken on the slowest STILL_SHARE of the stream's
 #: windows (at least STILL_MIN_WINDOWS of them; all windows where the stream has fewer)
 STILL_SHARE, STILL_MIN_WINDOWS = 0.25, 8
+#: where the start's travel (its last round's) reaches under REACHED_SHARE of its samples (the
+#: markers more than TRAVEL_MISS_M from every pose the stand reaches at that frame: a frame registered
+#: wrong, which a stand of fewer than six degrees of freedom shows so), the start is taken again with
+#: the registration on the slowest share of the windows of each of OTHER_SHARES in turn (the same
+#: rows once), and the first whose travel reaches REACHED_SHARE kept, else the one that reached most
+REACHED_SHARE, OTHER_SHARES = 0.5, (0.125, 0.5, 1.0)
 
 #: the shifts (s) tried to start the response
 SHIFT_GRID_S = np.arange(-0.5, 0.5001, 0.01)
@@ -267,18 +279,18 @@ def window_speeds(win: StreamWindows) -> np.ndarray:
     return out
 
 
-def slowest_rows(win: StreamWindows) -> np.ndarray:
+def slowest_rows(win: StreamWindows, share: float = STILL_SHARE) -> np.ndarray:
     """(P,) bool: the rows of ``win`` in its slowest windows (:func:`window_speeds`): those at or
-    under the STILL_SHARE quantile of the windows' speeds, all rows where fewer than
+    under the ``share`` quantile of the windows' speeds, all rows where fewer than
     STILL_MIN_WINDOWS windows would serve. Where the stand stands still the controls it reached are
     the command in force whatever its response; where it moves fast a response's error (its timing,
     an actuator's lag) is a control error in proportion to the speed: the registration of the
     markers at a starting response is taken where that response matters least."""
     speed = window_speeds(win)
     ok = np.isfinite(speed)
-    if ok.sum() < STILL_MIN_WINDOWS / STILL_SHARE:
+    if ok.sum() < STILL_MIN_WINDOWS / share:
         return np.ones(len(win.t), bool)
-    slow = ok & (speed <= np.quantile(speed[ok], STILL_SHARE))
+    slow = ok & (speed <= np.quantile(speed[ok], share))
     rows = np.zeros(len(win.t), bool)
     ends = [b[0] for b in win.blocks[1:]] + [len(win.t)]
     for w in np.nonzero(slow)[0]:
@@ -290,23 +302,43 @@ def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, 
     """Step 3: the response's start from the actuators' travel at the nominal geometry, twice (the
     second registration at the controls the first response gives), on START_SAMPLES samples of
     the stream; a profile's actuators rest before the first command where the samples before it
-    put them. Returns the start, the profile's rest (None: on the first command) and the
-    geometry the curvature correction is first taken at: (kinematic model, each marker's link,
-    td, A, b, markers)."""
+    put them. The registration is taken on the slowest STILL_SHARE of the windows, and on others
+    where the travel there reaches too few samples (REACHED_SHARE, OTHER_SHARES). Returns the
+    start, the profile's rest (None: on the first command) and the geometry the curvature
+    correction is first taken at: (kinematic model, each marker's link, td, A, b, markers)."""
     T, U = session.command_t, session.commands
     theta0 = starting_theta(rmodel, spec)
     if rmodel.slewed:
         speed = command_speed(T, U)
         theta0[[rmodel.index("rate", j) for j in range(spec.n_u)]] = np.where(speed > 0, speed, theta0[
             [rmodel.index("rate", j) for j in range(spec.n_u)]])
-    steps = fd_steps(rmodel, theta0)
-    names = list(session.marker_names)
-    theta_start, start = theta0, None
     seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
     cand = win.first + np.nonzero(seen[win.first:])[0]
     sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
     pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
-    still = slowest_rows(win)
+    best, tried = None, []
+    for share in (STILL_SHARE,) + OTHER_SHARES:
+        still = slowest_rows(win, share)
+        if any(np.array_equal(still, rows) for rows in tried):
+            continue
+        tried.append(still)
+        got = _start_on(session, spec, rmodel, win, still, theta0, sub, pre)
+        if best is None or got[3] > best[3]:
+            best = got
+        if best[3] >= REACHED_SHARE:
+            break
+    return best[:3]
+
+
+def _start_on(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win: StreamWindows, still: np.ndarray,
+              theta0: np.ndarray, sub: np.ndarray, pre: np.ndarray):
+    """:func:`response_start`'s rounds with the registration on the rows ``still`` of ``win``, the
+    travel on the samples ``sub`` (a profile's rest from the samples ``pre``): the start, the rest,
+    the geometry, and the share of ``sub`` its last travel reaches (every actuator seen)."""
+    T, U = session.command_t, session.commands
+    steps = fd_steps(rmodel, theta0)
+    names = list(session.marker_names)
+    theta_start, start = theta0, None
     for _ in range(START_ROUNDS):
         X0 = projected_positions(win.proj, rmodel, theta_start, T, U, win.sample_t, start=start)
         poses0 = PoseSet(platform=spec.name, controls=X0[still], markers=win.Y[still], marker_names=names,
@@ -326,7 +358,9 @@ def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, 
             if cols.any() and np.isfinite(before[:, cols]).all(axis=1).any():
                 start = np.where(cols, np.nanmedian(np.where(cols, before, 0.0), axis=0), U[0])
         theta_start = response_from_travel(rmodel, theta_start, T, U, session.marker_t[sub], travel, steps, start)
-    return theta_start, start, (problem.model, links, spec.nominal_td(), A, tr, mk)
+    cols = np.isfinite(travel).any(axis=0)
+    reached = float(np.mean(np.isfinite(travel[:, cols]).all(axis=1))) if cols.any() and len(travel) else 0.0
+    return theta_start, start, (problem.model, links, spec.nominal_td(), A, tr, mk), reached
 
 
 def travel_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, theta0: np.ndarray, fitted,

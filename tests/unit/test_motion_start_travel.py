@@ -56,3 +56,36 @@ def test_the_start_fits_the_response_of_a_two_joint_stand(tmp_path):
     drawn = np.array([truth["nuisances"]["actuators"][c]["rate_per_s"] for c in spec.control_names])
     assert np.all(np.abs(rates / drawn - 1) < 0.02)
     assert abs(theta[0] - truth["nuisances"]["markers_time_minus_exposure_time_s"]) < 0.05
+
+
+def test_a_start_whose_travel_reaches_too_few_samples_is_registered_again(tmp_path, monkeypatch):
+    """The registration on the slowest quarter can turn a two-joint stand's frame (rotary
+    3510060: 133 degrees off, no sample's travel reached, the start the starting response); the
+    start is then taken with the registration on the slowest eighth, half and every window in
+    turn, the first whose travel reaches half its samples kept (there: the eighth, 0.2 degrees).
+    Here the rounds are replaced by a record of the rows each is given and a reach per share."""
+    import platkit.calibrate.motion_start as ms
+
+    spec = get_platform("rotary")
+    sim = simulate_physics(spec, seed=1, n_poses=20, plan="random")
+    write_physical_session(sim, tmp_path / "session")
+    session = load_session(tmp_path / "session", quiet=True)
+    win = stream_windows(session)
+    shares = {int(ms.slowest_rows(win, s).sum()): s for s in (ms.STILL_SHARE,) + ms.OTHER_SHARES}
+    assert len(shares) == 4  # four different sets of rows
+    rmodel = ResponseModel("first_order", "profile", spec.n_u)
+
+    def run(reach):
+        calls = []
+
+        def rounds(session, spec, rmodel, win, still, *args):
+            share = shares[int(still.sum())]
+            calls.append(share)
+            return share, None, None, reach[share]
+
+        monkeypatch.setattr(ms, "_start_on", rounds)
+        return ms.response_start(session, spec, rmodel, win)[0], calls
+
+    assert run({0.25: 0.9, 0.125: 1.0, 0.5: 1.0, 1.0: 1.0}) == (0.25, [0.25])
+    assert run({0.25: 0.0, 0.125: 0.3, 0.5: 0.6, 1.0: 1.0}) == (0.5, [0.25, 0.125, 0.5])
+    assert run({0.25: 0.1, 0.125: 0.0, 0.5: 0.3, 1.0: 0.2}) == (0.5, [0.25, 0.125, 0.5, 1.0])
