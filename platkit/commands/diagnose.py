@@ -189,7 +189,7 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
     said again; where the search named that effect itself (a term on the stream), its finding says
     the summary's reading instead of a second one. A lack of fit the stream's search reported
     (``unexplained``) stays beside it: the lag changes nothing in the model, so that misfit is
-    still there, and the finding says the two are not told apart here."""
+    still there, and the finding says the two are not told apart here and what could read so."""
     from platkit.diagnose.recording import FROM_SETTLE_SUMMARY, lag_from_settle_summary, unsettled_effect
     from platkit.diagnose.verdict import verdict
     from platkit.plugins import effect_library
@@ -220,9 +220,10 @@ def named_from_settle_summary(d, refused: dict, cal, say=None) -> None:
         marker = x.where.get("marker")
         at = (f" at marker {marker}, {'one' if marker in f.where['markers'] else 'none'} of the markers the slow "
               f"actuator still moved ({', '.join(f.where['markers'])})" if marker else "")
-        f.warnings.append(f"the stream's lack of fit (unexplained{at}) stays beside it: the calibration from motion "
-                          "reads each actuator through one response, and what it misses of this lag's would show "
-                          "there; the two are not told apart on this session")
+        f.warnings.append(f"the stream's lack of fit (unexplained{at}) stays beside it: naming the lag changes nothing "
+                          "in the model, so the two are not told apart on this session (a response that does not "
+                          "follow this lag, or marker noise correlated over the windows beyond what the noise floor "
+                          "counts, would read so)")
     d.findings.insert(0, f)
     if say:
         say(f"{f.effect}: {f.evidence}")

@@ -81,8 +81,9 @@ def test_a_motion_calibrated_session_names_the_slow_actuator_beside_the_lack_of_
     assert "fitted response agrees: slowest B" in lag.evidence
     assert lag.warnings == [
         "the stream's lack of fit (unexplained at marker M3, one of the markers the slow actuator still moved "
-        "(M3, M2, M4, M1)) stays beside it: the calibration from motion reads each actuator through one response, "
-        "and what it misses of this lag's would show there; the two are not told apart on this session"]
+        "(M3, M2, M4, M1)) stays beside it: naming the lag changes nothing in the model, so the two are not told "
+        "apart on this session (a response that does not follow this lag, or marker noise correlated over the "
+        "windows beyond what the noise floor counts, would read so)"]
     said = next(r for r in d.rounds if r["round"] == ROUND_SETTLE_SUMMARY)
     assert said["named"] == ["settling_lag"] and said["from"] == FROM_SETTLE_SUMMARY
     assert "settling_lag (actuator B)" in d.verdict
