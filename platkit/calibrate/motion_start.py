@@ -41,6 +41,7 @@ from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_mat
 from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.notices import warn
 from platkit.poses import PoseSet
 
 __all__ = ["ACCEL_TIME_S", "DELAY_MAX_S", "OTHER_SHARES", "PRE_SAMPLES", "RATE_FREE_FACTOR", "REACHED_SHARE",
@@ -327,6 +328,12 @@ def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, 
             best = got
         if best[3] >= REACHED_SHARE:
             break
+    if best[3] < REACHED_SHARE:
+        warn(f"calibration from motion: the response's start read the actuators' travel on {best[3]:.0%} of its "
+             f"{len(sub)} samples (under {REACHED_SHARE:.0%} at each of {len(tried)} registrations tried: the markers "
+             "far from every pose the stand reaches); the fit starts from "
+             + ("that reading" if best[3] > 0 else "the starting response (no shift, time constants "
+                f"{TAU0_S * 1e3:g} ms)"))
     return best[:3]
 
 

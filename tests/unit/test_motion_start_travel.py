@@ -8,6 +8,8 @@ stroke in 4 s) without a word. Rotary 2722060 (settling_lag, calibrated from mot
 its fit 28-95 mm off, and whether the fit's own registration found the frame was chance."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import yaml
 
@@ -89,3 +91,27 @@ def test_a_start_whose_travel_reaches_too_few_samples_is_registered_again(tmp_pa
     assert run({0.25: 0.9, 0.125: 1.0, 0.5: 1.0, 1.0: 1.0}) == (0.25, [0.25])
     assert run({0.25: 0.0, 0.125: 0.3, 0.5: 0.6, 1.0: 1.0}) == (0.5, [0.25, 0.125, 0.5])
     assert run({0.25: 0.1, 0.125: 0.0, 0.5: 0.3, 1.0: 0.2}) == (0.5, [0.25, 0.125, 0.5, 1.0])
+
+
+def test_a_start_that_reaches_too_few_samples_at_every_registration_says_so(tmp_path, monkeypatch):
+    """Where no registration's travel reaches half its samples, the start is kept (the one that
+    reached most) and a warning says on how many it read the travel; a start that reaches half
+    says nothing."""
+    import platkit.calibrate.motion_start as ms
+
+    spec = get_platform("rotary")
+    sim = simulate_physics(spec, seed=1, n_poses=20, plan="random")
+    write_physical_session(sim, tmp_path / "session")
+    session = load_session(tmp_path / "session", quiet=True)
+    win = stream_windows(session)
+    rmodel = ResponseModel("first_order", "profile", spec.n_u)
+    for reach, said in ((0.0, "the starting response"), (0.3, "30% of its"), (0.9, None)):
+        monkeypatch.setattr(ms, "_start_on", lambda *args, r=reach: ("theta", None, None, r))
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            ms.response_start(session, spec, rmodel, win)
+        texts = [str(w.message) for w in got if "response's start" in str(w.message)]
+        if said is None:
+            assert texts == []
+        else:
+            assert len(texts) == 1 and said in texts[0] and "4 registrations tried" in texts[0]
