@@ -106,8 +106,8 @@ def marker_points(spec: PlatformSpec, model: PlatformModel, td, mk, links, U: np
     return pts
 
 
-def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray,
-                 model: PlatformModel | None = None) -> np.ndarray:
+def _nearest_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.ndarray,
+                    model: PlatformModel | None = None) -> np.ndarray:
     """The actuators' travel (K, n_u) by least squares over the controls: at each sample the
     controls whose markers (each on its tracked link, ``links``; on the moving frame of ``model``
     where ``links`` is None) come nearest the sample's in the base frame ``Yb`` (K, M, 3), by damped
@@ -147,8 +147,8 @@ def _tree_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: np.
 def actuator_travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: np.ndarray, guess_u: np.ndarray, links=None):
     """The actuators' travel (K, n_u) at each sample by inverse kinematics of the pose the markers
     give (Kabsch of the marker layout ``mk`` onto the sample, in the base frame; on a tree, with
-    ``links`` each marker's tracked link, :func:`_tree_travel`); a sample whose pose the inverse
-    cannot reach exactly takes the controls whose markers come nearest (:func:`_tree_travel` on the
+    ``links`` each marker's tracked link, :func:`_nearest_travel`); a sample whose pose the inverse
+    cannot reach exactly takes the controls whose markers come nearest (:func:`_nearest_travel` on the
     moving frame): a stand of fewer than six degrees of freedom never reaches the pose of noisy
     markers exactly, and without it would have no travel at all; NaN rows where fewer than three
     markers are seen, or that sample misses too (an out-of-reach pose)."""
@@ -156,7 +156,7 @@ def actuator_travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: n
     out = np.full((K, spec.n_u), np.nan)
     Yb = (Y - b) @ A  # base frame: A^T (y - b)
     if links is not None:
-        return _tree_travel(spec, td, mk, links, Yb, guess_u)
+        return _nearest_travel(spec, td, mk, links, Yb, guess_u)
     missed = []
     for k in range(K):
         vis = np.isfinite(Yb[k]).all(axis=1)
@@ -168,7 +168,7 @@ def actuator_travel(spec: PlatformSpec, model: PlatformModel, td, A, b, mk, Y: n
         except ComputationFailed:  # not reached exactly: the controls nearest, below
             missed.append(k)
     if missed:
-        out[missed] = _tree_travel(spec, td, mk, None, Yb[missed], np.asarray(guess_u, float)[missed], model)
+        out[missed] = _nearest_travel(spec, td, mk, None, Yb[missed], np.asarray(guess_u, float)[missed], model)
     return out
 
 
