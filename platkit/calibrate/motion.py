@@ -421,8 +421,9 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
 
 def fitted_kind(rmodel: ResponseModel) -> str:
     """The kind of response ``rmodel`` fits, as a fit's progress names it: 'first_order',
-    'second_order', or 'per_actuator' (a second order with some actuators first order in it)."""
-    return "per_actuator" if rmodel.kind == "second_order" and rmodel.first else rmodel.kind
+    'second_order', or 'per_actuator' (a second order with some actuators first order in it), as
+    the report names it (:attr:`ResponseModel.kind_label`)."""
+    return rmodel.kind_label
 
 
 def fit_progress(progress: Progress | None, rmodel: ResponseModel) -> Progress | None:

@@ -184,8 +184,7 @@ def response_report(rmodel: ResponseModel, spec: PlatformSpec, cal: Calibration,
     shift = {"value": float(par["shift_s"]), "std": None if shift_held or not np.isfinite(sd["shift_s"])
              else float(sd["shift_s"]), "status": "held_at_start" if shift_held else "estimated",
              "note": "the motion capture's clock minus the commands', with the stand's common delay"}
-    kinds = set(rmodel.kinds)
-    return {"kind": kinds.pop() if len(kinds) == 1 else "per_actuator", "reference": rmodel.reference,
+    return {"kind": rmodel.kind_label, "reference": rmodel.reference,
             "units": "s for times; controls' internal units (m for length controls) per s for rates",
             "delays": bool(rmodel.delays), "rate_limit": bool(rmodel.reference == "profile" or rmodel.slewed),
             "shift_s": shift, "actuators": per, "not_determined": bad}

@@ -100,6 +100,13 @@ class ResponseModel:
         return ["second_order" if self.is_second(j) else "first_order" for j in range(self.n_u)]
 
     @property
+    def kind_label(self) -> str:
+        """The response's kind in one word: the actuators' kind where they share one
+        ('first_order', 'second_order'), 'per_actuator' where they differ."""
+        kinds = set(self.kinds)
+        return kinds.pop() if len(kinds) == 1 else "per_actuator"
+
+    @property
     def blocks(self) -> list[str]:
         out = ["tau_s"]
         if self.kind == "second_order":
