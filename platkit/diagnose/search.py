@@ -44,20 +44,20 @@ rules are in lack_of_fit.py.
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from platkit._threads import blas_threads
 from platkit.calibrate.estimate import calibrate
-from platkit.diagnose.fitting import FROM_NO_MARKER, FROM_SLOW_APPROACH, ROUND_BESIDE_PROBE, ROUND_BESIDE_TIME
-from platkit.diagnose.fitting import ROUND_WEAK_NAMES, Diagnosis, Finding, Fit, Options, _cv, _fit, _fmt_rms, _rms
+from platkit.diagnose.fitting import FROM_NO_MARKER, FROM_SLOW_APPROACH, Diagnosis, Finding, Fit, Options, _cv, _fit
+from platkit.diagnose.fitting import _fmt_rms, _rms
 from platkit.diagnose.fitting import _where_text, body_residuals, extrapolated
 from platkit.diagnose.floor import noise_floor
 from platkit.diagnose.lack_of_fit import lack_of_fit
 from platkit.diagnose.locate import locate, located
-from platkit.diagnose.naming import _best_probe, _probe_beats, _take_back, _unproven_beside_probe
-from platkit.diagnose.naming import _unproven_beside_time, _weak_beside_lack_of_fit, _without
+from platkit.diagnose.forms import tell_apart
+from platkit.diagnose.naming import _probe_beats
 from platkit.diagnose.response_kind import again_after, response_again
 from platkit.diagnose.stream import nodes_share_noise
 from platkit.diagnose.recording import (
@@ -72,6 +72,7 @@ from platkit.diagnose.rounds import best_variant, confirm, equally_good, not_acc
 from platkit.diagnose.stats import holm, paired_improvement
 from platkit.diagnose.evidence import _evidence, _offset_sign, _params, _score_heldout, _signature
 from platkit.diagnose.geometry import _reopened, _reselected
+from platkit.diagnose.taking_back import take_back_beside_probe, take_back_beside_time, take_back_weak
 from platkit.diagnose.verdict import verdict
 from platkit.effects import Effect, with_history
 from platkit.io.calibration import Calibration
@@ -81,10 +82,6 @@ from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
 __all__ = ["diagnose", "Search"]
-
-#: a form of an accepted term is kept where its BIC is lower by this much (a tie is chance)
-FORM_BIC_MARGIN = 2.0
-
 
 # ---------------------------------------------------------------------------- the search
 def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
@@ -100,8 +97,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
 
     The stages, each a method of :class:`Search`: the geometric model and its noise floor
     (``Search(...)``), the finding the stream shows (:meth:`Search.settling`), the rounds of
-    forward selection (:meth:`Search.select`), the take-back steps (:meth:`Search.take_back_weak`,
-    :meth:`Search.take_back_beside_probe`, :meth:`Search.take_back_beside_time`), the final model
+    forward selection (:meth:`Search.select`, each accepted term's forms told apart in forms.py), the
+    take-back steps (taking_back.py: take_back_weak, take_back_beside_probe, take_back_beside_time), the final model
     (:meth:`Search.final_model`), what structure is left (:meth:`Search.structure_left`) and what
     is written (:meth:`Search.written`, :meth:`Search.diagnosis`).
     """
@@ -109,9 +106,9 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         search = Search(spec, poses, options, library, progress, start)
         search.settling()
         search.select()
-        search.take_back_weak()
-        search.take_back_beside_probe()
-        search.take_back_beside_time()
+        take_back_weak(search)
+        take_back_beside_probe(search)
+        take_back_beside_time(search)
         search.final_model()
         search.structure_left()
         return search.diagnosis(search.written(), heldout)
@@ -384,7 +381,7 @@ class Search:
         self.accepted.append({"fit": best, "J": Jc})
         self.say(f"accepted {eff.name} ({_where_text(term.where)})")
         self.cur = best
-        self.tell_apart(finding, cur)
+        tell_apart(self, finding, cur)
         again_after(self, f"{eff.name} ({_where_text(term.where)})")  # the response's kind chosen again beside it
         sel = (self.start.identifiability.get("model_selection") or {}) if self.start is not None else {}
         chosen_free = bool(sel) and not str(sel.get("reason", "")).startswith("no selection")  # not the user's --free
@@ -399,96 +396,6 @@ class Search:
                 # the final refit starts where the selection left the geometry: a group it holds is
                 # held at nominal, not at the value it took standing in for the physics
                 self.td_start = self.cur.problem.split(self.cur.z)[0].copy()
-
-    def tell_apart(self, finding: Finding, before: Fit) -> None:
-        """The term just accepted fitted in each other form of its physics it offers (a term's
-        ``alternatives(theta, poses, others)``: a joint's compliance or the bending of the link
-        before it, as many parameters), one at a time, each tried once; a form whose BIC is lower by
-        FORM_BIC_MARGIN is kept (a tie would trade a place for one the data do not tell from it).
-        ``before``: the model without it (the finding's signature columns are taken again there)."""
-        opt, k = self.opt, len(self.cur.terms) - 1
-        term = self.cur.terms[k]
-        offered = getattr(term, "alternatives", None)
-        tried: set[str] = set()
-        notes: list[dict] = []
-        while offered is not None:
-            theta = self.cur.theta(k)
-            forms = [(what, t) for what, t in offered(theta, self.poses, self.cur.terms[:k]) if what not in tried]
-            if not forms:
-                break
-            what, alt = forms[0]
-            tried.add(what)
-            K = len(theta)
-            f = _fit(self.spec, self.poses, self.cur.terms[:k] + [alt], self.cur.z[:-K], self.cur.active[:-K],
-                     self.weights, opt.lm_iterations, opt.robust)
-            kept = bool(f.bic < self.cur.bic - FORM_BIC_MARGIN)
-            notes.append({"change": what, "bic_change": float(f.bic - self.cur.bic), "kept": kept})
-            self.say(f"  {what}: BIC {f.bic - self.cur.bic:+.1f}{', kept' if kept else ''}")
-            if kept:
-                self.cur, term, offered = f, alt, getattr(alt, "alternatives", None)
-        if notes:
-            self.rounds[-1]["told_apart"] = notes
-        if term is finding.term:
-            return
-        self.cur.cv = _cv(self.cur, self.spec, self.poses, opt.folds, opt.lm_iterations)
-        finding.term, finding.where = term, dict(term.where)
-        finding.heldout_rms_after = self.cur.cv_rms
-        finding.bic_change = float(self.cur.bic - before.bic)
-        self.accepted[-1] = {"fit": self.cur, "J": screen(before, self.spec, self.poses, [term])[0][3]}
-
-    # ------------------------------------------------------------------------ the take-back steps
-    def take_back(self, taken: dict[int, float | None], round_name: str, about: dict[str, Any],
-                  why: Callable[[float | None], str]) -> None:
-        """Take back the names of ``cur.terms[k]`` for k in ``taken`` (:func:`_take_back`)."""
-        self.findings, self.accepted = _take_back(self.cur, taken, round_name, about, why, self.findings,
-                                                  self.accepted, self.rounds, self.say)
-
-    def take_back_weak(self) -> None:
-        """Weakly proven names beside a lack of fit the model still leaves (naming._weak_beside_lack_of_fit)."""
-        opt = self.opt
-        if not self.naming or self.floor is None or len(self.cur.terms) <= len(self.prior):
-            return
-        weak = _weak_beside_lack_of_fit(self.cur, self.poses, self.spec, self.findings, self.floor, self.judged,
-                                        self.weights, len(self.prior), opt)
-        if weak:
-            self.take_back(dict.fromkeys(weak), ROUND_WEAK_NAMES, {}, lambda p: (
-                f"proven only weakly, and the model still predicts held-out poses at more than "
-                f"{opt.lack_of_fit_factor:g} times the noise floor with structure located"))
-            self.cur = _without(self.spec, self.poses, self.cur, weak, self.opt)
-
-    def take_back_beside_probe(self) -> None:
-        """Structure a generic probe still predicts better at the end: a named term that no longer
-        proves itself beside the probe was a slice of that structure (tested before the final fit)."""
-        opt = self.opt
-        self.end_probe = _best_probe(self.spec, self.poses, self.cur, None, opt) if self.naming and opt.probes \
-            else None
-        if self.end_probe is None or len(self.cur.terms) <= len(self.prior):
-            return
-        loose = _unproven_beside_probe(self.spec, self.poses, self.end_probe[1], len(self.prior), len(self.cur.terms),
-                                       self.judged, opt)
-        reduced = _without(self.spec, self.poses, self.cur, set(loose), opt) if loose else None
-        again = _best_probe(self.spec, self.poses, reduced, None, opt) if reduced is not None else None
-        if again is not None:
-            self.take_back(loose, ROUND_BESIDE_PROBE, {}, lambda p: (
-                f"no longer predicts held-out poses better beside the generic model that still beats the named "
-                f"ones (paired p = {p:.2g})"))
-            self.cur, self.end_probe = reduced, again
-
-    def take_back_beside_time(self) -> None:
-        """No probe beats the named model, but the location tests still find structure in time
-        beside a lack of fit: each name is tested beside a model of it."""
-        opt = self.opt
-        if self.end_probe is not None or not self.naming or not opt.probes or self.floor is None \
-                or len(self.cur.terms) <= len(self.prior):
-            return
-        loose, about = _unproven_beside_time(self.spec, self.poses, self.cur, len(self.prior), self.floor,
-                                             self.judged, self.weights, opt)
-        if loose:
-            self.take_back(loose, ROUND_BESIDE_TIME, about, lambda p: (
-                f"no longer predicts held-out poses better (paired p = {p:.2g}) beside a model of the structure "
-                f"in time the location tests still find ({about['located']})"))
-            self.cur = _without(self.spec, self.poses, self.cur, set(loose), opt)
-            self.end_probe = _best_probe(self.spec, self.poses, self.cur, None, opt)
 
     # ------------------------------------------------------------------------ the final model
     def final_model(self) -> None:

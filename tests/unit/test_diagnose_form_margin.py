@@ -1,6 +1,6 @@
 """Diagnosis keeps another form of an accepted term (a joint's compliance told apart as its
 parent's bending, and back) only where its BIC is lower by FORM_BIC_MARGIN
-(platkit/diagnose/search.py: Search.tell_apart): a tie is chance, and on a humanoid's spherical
+(platkit/diagnose/forms.py: tell_apart): a tie is chance, and on a humanoid's spherical
 shoulder (iCub) a tie kept swapped the shoulder's named compliances for a bend the data could not
 tell from them."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import platkit.diagnose.search as search
+import platkit.diagnose.forms as forms
 
 
 class _Term:
@@ -27,13 +27,13 @@ def _told(monkeypatch, bic_change: float):
     cur = SimpleNamespace(terms=[term], theta=lambda k: np.zeros(2), z=np.zeros(5), active=np.ones(5, bool),
                           bic=100.0, cv_rms=1.0)
     fit = SimpleNamespace(terms=[alt], bic=100.0 + bic_change, cv_rms=0.9)
-    monkeypatch.setattr(search, "_fit", lambda *a, **k: fit)
-    monkeypatch.setattr(search, "_cv", lambda *a, **k: None)
-    monkeypatch.setattr(search, "screen", lambda *a, **k: [(0.0, 1.0, 1.0, "J")])
+    monkeypatch.setattr(forms, "_fit", lambda *a, **k: fit)
+    monkeypatch.setattr(forms, "_cv", lambda *a, **k: None)
+    monkeypatch.setattr(forms, "screen", lambda *a, **k: [(0.0, 1.0, 1.0, "J")])
     me = SimpleNamespace(opt=SimpleNamespace(lm_iterations=1, robust=False, folds=2), cur=cur, poses=None, spec=None,
                          weights=None, say=lambda m: None, rounds=[{}], accepted=[None])
     finding = SimpleNamespace(term=term, where=dict(term.where), heldout_rms_after=1.0, bic_change=0.0)
-    search.Search.tell_apart(me, finding, cur)
+    forms.tell_apart(me, finding, cur)
     return me, finding, fit, alt
 
 
