@@ -14,7 +14,7 @@ Rules:
   the parent's link bending does about that axis; the bending also turns them about the third
   axis. The term offers, as its ``alternatives``, the joint's
   compliance replaced by that bending (one compliance across, or one per axis across), and
-  diagnosis keeps a form whose BIC is lower (platkit.diagnose.search, ``tell_apart``).
+  diagnosis keeps a form whose BIC is lower (platkit.diagnose.forms, ``tell_apart``).
 - A joint that drives mimic joints (a coupled joint) gives, in the control's compliance, with
   its mimic joints following (an elastic drive ahead of the coupling); the term also offers, as a
   form, its own joint giving alone, the mimic joints held where commanded (``where['alone']``;
