@@ -1,11 +1,13 @@
 """One round of the diagnosis search, step by step: the score test that screens every candidate
 term (:func:`screen`), the fit of the best variant of a kind and place (:func:`best_variant`), the
+variants of terms accepted earlier chosen again beside a later one (:func:`variants_again`), the
 held-out confirmation that accepts one (:func:`confirm`), the effects said beside it
 (:func:`equally_good`) and why none was accepted (:func:`not_accepted`). The search that runs
 the rounds is platkit.diagnose.search."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -13,13 +15,13 @@ import numpy as np
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.solve import blas_threads
 from platkit.diagnose.bodies import screen_system
-from platkit.diagnose.fitting import Fit, Options, _fit, _later, _rms, _where_text
+from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _later, _rms, _where_text, body_residuals
 from platkit.diagnose.stats import column_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["screen", "place", "best_variant", "confirm", "equally_good", "not_accepted"]
+__all__ = ["screen", "place", "best_variant", "variants_again", "confirm", "equally_good", "not_accepted"]
 
 
 def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
@@ -88,18 +90,87 @@ def _lowest_bic(i0: int, same: list[int], cands: list, cur: Fit, spec: PlatformS
                 weights: np.ndarray, opt: Options) -> tuple[int, Fit]:
     """Of the candidates ``same`` (``i0`` among them), the one of lowest BIC: spread fits, then
     the neighbours of the lowest until it is a minimum (see :func:`best_variant`)."""
-    pick = {int(same[int(round(x))]) for x in np.linspace(0, len(same) - 1, max(1, min(opt.max_variants, len(same))))}
+    return _descend(i0, same, lambda j: _fit(spec, poses, cur.terms + [cands[j][1]], cur.z, cur.active, weights,
+                                             opt.lm_iterations, opt.robust), opt.max_variants, {})
+
+
+def _descend(i0: int, same: list[int], fit_one, max_variants: int, fits: dict[int, Fit]) -> tuple[int, Fit]:
+    """Of ``same`` (``i0`` among them, in the library's order), the one of lowest BIC: ``max_variants``
+    spread over them and ``i0`` fitted (``fit_one(j)``, unless in ``fits`` already), then the
+    neighbours of the lowest until it is a minimum."""
+    pick = {int(same[int(round(x))]) for x in np.linspace(0, len(same) - 1, max(1, min(max_variants, len(same))))}
     pick.add(i0)
-    fits: dict[int, Fit] = {}
+    fits = dict(fits)
     while True:
         for j in pick - set(fits):
-            fits[j] = _fit(spec, poses, cur.terms + [cands[j][1]], cur.z, cur.active, weights, opt.lm_iterations,
-                           opt.robust)
+            fits[j] = fit_one(j)
         best = min(fits, key=lambda j: fits[j].bic)
         b = same.index(best)
         pick = {same[k] for k in (b - 1, b + 1) if 0 <= k < len(same)} - set(fits)
         if not pick:
             return best, fits[best]
+
+
+def variants_again(cur: Fit, first: int, library: dict, spec: PlatformSpec, poses: PoseSet, weights: np.ndarray,
+                   judged: np.ndarray, opt: Options, margin: float) -> tuple[Fit, list[dict[str, Any]]]:
+    """The variant (a cooling time constant, a period, a slip's row) of each term accepted before
+    the last one, ``cur.terms[first:-1]``, chosen again beside the terms accepted after it. A
+    term's variant was chosen in its own round (:func:`best_variant`), with the effects named
+    later still in the residual, which can pull it far from where the data put it once they are
+    modelled. Each term's variants of its kind, place and form (the library's candidates, at the
+    current fit) are fitted in its place, every other term kept, spread then the neighbours of the
+    lowest BIC (as best_variant); the lowest replaces the term where its BIC is lower by ``margin``
+    (a tie would trade a variant for one the data do not tell from it) and its K-fold held-out
+    errors on the ``judged`` poses are not worse than the model's (paired Wilcoxon at
+    ``alpha_heldout``: held-out prediction decides). A term whose own variant is not among the
+    candidates (a form told apart since) is left as it is.
+
+    Returns the model (``cur`` itself where nothing changed; the new model with its ``cv``) and,
+    per term replaced, {"term": its index, "before", "after": the two terms, "bic_change",
+    "heldout_rms_before", "heldout_rms_after", "p_worse", "J": the new term's Jacobian columns
+    (N, M, 3, K) at the new fit}."""
+    notes: list[dict[str, Any]] = []
+    for k in range(first, len(cur.terms) - 1):
+        term = cur.terms[k]
+        eff = library.get(term.effect)
+        if eff is None:
+            continue
+        variants = [c for c in eff.candidates(spec, poses, body_residuals(cur, poses))
+                    if place(c) == place(term) and c.where.get("form") == term.where.get("form")]
+        own = [j for j, c in enumerate(variants) if repr(c.where) == repr(term.where)]  # arrays in a where
+        if len(variants) < 2 or not own:
+            continue
+        fit_one = partial(_in_place, cur, k, variants, spec, poses, weights, opt)
+        j, f = _descend(own[0], list(range(len(variants))), fit_one, opt.max_variants, {own[0]: cur})
+        if j == own[0] or f.bic >= cur.bic - margin:
+            continue
+        if cur.cv is None:
+            cur.cv = _cv(cur, spec, poses, opt.folds, opt.lm_iterations)
+        f.cv = _cv(f, spec, poses, opt.folds, opt.lm_iterations)
+        p_worse = paired_improvement(f.cv[judged], cur.cv[judged])
+        if p_worse < opt.alpha_heldout:
+            continue
+        start = cur.problem.i_theta.start + int(sum(cur.problem.theta_sizes[:k]))
+        J = f.problem.evaluate(f.z, with_jac=True).J
+        assert J is not None
+        notes.append({"term": k, "before": term, "after": variants[j], "bic_change": float(f.bic - cur.bic),
+                      "heldout_rms_before": cur.cv_rms, "heldout_rms_after": f.cv_rms, "p_worse": float(p_worse),
+                      "J": J[..., start:start + len(variants[j].initial)]})
+        cur = f
+    return cur, notes
+
+
+def _in_place(cur: Fit, k: int, variants: list[ModelTerm], spec: PlatformSpec, poses: PoseSet, weights: np.ndarray,
+              opt: Options, j: int) -> Fit:
+    """``cur`` refitted with ``variants[j]`` in place of its term ``k`` (that term's parameters
+    started from the variant's initial values, every other unknown from ``cur``)."""
+    start = cur.problem.i_theta.start + int(sum(cur.problem.theta_sizes[:k]))
+    stop = start + cur.problem.theta_sizes[k]
+    v = np.asarray(variants[j].initial, float)
+    return _fit(spec, poses, cur.terms[:k] + [variants[j]] + cur.terms[k + 1:],
+                np.concatenate([cur.z[:start], v, cur.z[stop:]]),
+                np.concatenate([cur.active[:start], np.ones(len(v), bool), cur.active[stop:]]),
+                weights, opt.lm_iterations, opt.robust)
 
 def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float], cur: Fit, judged: np.ndarray,
             opt: Options) -> tuple[int, Fit, float] | None:
