@@ -1,11 +1,12 @@
 """A humanoid upper body that bends under its own weight: default `platkit calibrate`, then
 `platkit diagnose`, on settled poses from the elastic tree simulator (platkit.simulate.elastic_tree).
 
-    .venv/bin/python benchmarks/trees_humanoid.py [--robot talos|icub|tiago_dual|g1] [--seeds 1]
+    .venv/bin/python benchmarks/trees_humanoid.py [--robot talos|icub|tiago_dual|g1|pr2|baxter] [--seeds 1]
         [--poses 300 --heldout 200] [--bare] [--later N] [--compliance-scale F]
 
 The robot (``--robot``, each a :class:`Robot` in ROBOTS_TABLE; IIT's iCub, PAL's TIAGo++ on its
-torso lift and Unitree's G1 the others, from the same package): by default PAL's Talos
+torso lift, Unitree's G1, Willow Garage's PR2 on its torso lift and Rethink's Baxter (two arms on a
+fixed torso) the others, from the same package): by default PAL's Talos
 (example-robot-data's talos_reduced.urdf, with its inertias: a public description not written
 here), legs removed, grippers fixed, both 7-joint arms and the head on a
 torso whose last joint is coupled to the one before it as a URDF mimic joint (torso_3_joint, half
@@ -162,6 +163,39 @@ ROBOTS_TABLE = {
          **{f"{s}_{j}_joint": 5e-4 for s in ("left", "right") for j in ("shoulder_pitch", "shoulder_roll", "elbow")}},
         {"left_shoulder_pitch_joint": 5e-4, "right_shoulder_pitch_joint": 5e-4},
         ("left_hip_pitch_joint", "right_hip_pitch_joint"), ("waist",)),
+    # Willow Garage's PR2 (pr2.urdf, 257 kg with its base): two 7-joint arms (shoulder pan, lift,
+    # upper-arm roll, elbow flex, forearm roll, wrist flex, wrist roll: the two rolls continuous,
+    # commanded over 60 % of -pi..pi) and the head on a prismatic torso lift (0-0.31 m) on the
+    # fixed base; the laser's tilt and the grippers fixed, a marker triad on each gripper's palm.
+    # The lift's own give is left out as on TIAGo++ (its load never changes). Elastic: each arm's
+    # shoulder lift, upper-arm roll and elbow flex (the joints that hold the arm's weight; the
+    # description carries no counterbalance spring, so the truth's torques are the bare arm's:
+    # 1e-4 rad/(N m) nominal); bent: the lift's column under both arms and the head (at
+    # torso_lift_joint, 5e-5) and each shoulder's pan link, the 10 cm bracket the arm hangs on (at
+    # *_shoulder_lift_joint, 1e-4; the upper-arm roll's axis passes through its pivot).
+    "pr2": Robot(
+        "pr2", "pr2_description/urdf/pr2.urdf", {"left": "l_gripper_palm_link", "right": "r_gripper_palm_link"},
+        ["torso_lift_joint", "head_pan_joint", "head_tilt_joint",
+         *[f"{s}_{j}_joint" for s in "lr" for j in ("shoulder_pan", "shoulder_lift", "upper_arm_roll", "elbow_flex",
+                                                     "forearm_roll", "wrist_flex", "wrist_roll")]],
+        {f"{s}_{j}_joint": 1e-4 for s in "lr" for j in ("shoulder_lift", "upper_arm_roll", "elbow_flex")},
+        {"torso_lift_joint": 5e-5, "l_shoulder_lift_joint": 1e-4, "r_shoulder_lift_joint": 1e-4},
+        (), ("torso", "head"), fixed=("l_gripper_", "r_gripper_", "laser_tilt_")),
+    # Rethink's Baxter (baxter.urdf, 137 kg with its pedestal): two 7-joint arms (s0 about the
+    # vertical, s1 pitch, e0 roll, e1 pitch, w0 roll, w1 pitch, w2 roll) and the head's pan on a
+    # fixed torso; the grippers' fingers fixed, a marker triad on each gripper's base. Its joints
+    # are series elastic, but the output encoders see the springs' give and the servo takes it out:
+    # what is left is the give of the drive trains and bearings, as on the others. Elastic: each
+    # arm's s1, e0 and e1 (the shoulder pitch, the roll along the upper arm and the elbow pitch that
+    # hold the arm's weight: 2e-4 rad/(N m) nominal); bent: the torso's arm mount where each arm
+    # hangs on it (at *_s0, 1e-4) and the upper shoulder, the 27 cm bracket from s0 to s1 (at *_s1,
+    # 2e-4; e0's axis passes through s1's pivot, as TIAGo++'s arm_3 through arm_2's).
+    "baxter": Robot(
+        "baxter", "baxter_description/urdf/baxter.urdf", {"left": "left_gripper_base_link", "right": "right_gripper_base_link"},
+        ["head_pan", *[f"{s}_{j}" for s in ("left", "right") for j in ("s0", "s1", "e0", "e1", "w0", "w1", "w2")]],
+        {f"{s}_{j}": 2e-4 for s in ("left", "right") for j in ("s1", "e0", "e1")},
+        {"left_s0": 1e-4, "right_s0": 1e-4, "left_s1": 2e-4, "right_s1": 2e-4},
+        (), ("head",), fixed=("l_gripper_", "r_gripper_")),
 }
 #: the robot of this run (``--robot``)
 ROBOT = ROBOTS_TABLE["talos"]
@@ -211,11 +245,14 @@ def upper_body(out: Path, bare: bool = False, robot: Robot | None = None) -> Pat
 
 
 def limits(path: Path) -> dict[str, tuple[float, float]]:
-    """The limits of every revolute and prismatic joint (rad, m), in the URDF's order."""
+    """The limits of every revolute and prismatic joint (rad, m), in the URDF's order; a continuous
+    joint's -pi..pi."""
     out = {}
     for j in ET.parse(path).getroot().findall("joint"):
         lim = j.find("limit")
-        if lim is not None and j.get("type") in ("revolute", "prismatic"):
+        if j.get("type") == "continuous":  # no limits: a turn either way
+            out[j.get("name")] = (-np.pi, np.pi)
+        elif lim is not None and j.get("type") in ("revolute", "prismatic"):
             out[j.get("name")] = (float(lim.get("lower")), float(lim.get("upper")))
     return out
 
