@@ -172,6 +172,7 @@ def _in_place(cur: Fit, k: int, variants: list[ModelTerm], spec: PlatformSpec, p
                 np.concatenate([cur.active[:start], np.ones(len(v), bool), cur.active[stop:]]),
                 weights, opt.lm_iterations, opt.robust)
 
+
 def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float], cur: Fit, judged: np.ndarray,
             opt: Options) -> tuple[int, Fit, float] | None:
     """The candidate a round accepts, as (index, fit, held-out p), or None. ``trials``: (candidate

@@ -56,7 +56,7 @@ from platkit.diagnose.fitting import _where_text, body_residuals, extrapolated
 from platkit.diagnose.floor import noise_floor
 from platkit.diagnose.lack_of_fit import lack_of_fit
 from platkit.diagnose.locate import locate, located
-from platkit.diagnose.forms import tell_apart
+from platkit.diagnose.forms import FORM_BIC_MARGIN, tell_apart
 from platkit.diagnose.naming import _probe_beats
 from platkit.diagnose.response_kind import again_after, response_again
 from platkit.diagnose.stream import nodes_share_noise
@@ -68,7 +68,7 @@ from platkit.diagnose.recording import (
     unsettled_effect,
     weak_beside_the_recording,
 )
-from platkit.diagnose.rounds import best_variant, confirm, equally_good, not_accepted, place, screen
+from platkit.diagnose.rounds import best_variant, confirm, equally_good, not_accepted, place, screen, variants_again
 from platkit.diagnose.stats import holm, paired_improvement
 from platkit.diagnose.evidence import _evidence, _offset_sign, _params, _score_heldout, _signature
 from platkit.diagnose.geometry import _reopened, _reselected
@@ -396,6 +396,31 @@ class Search:
                 # the final refit starts where the selection left the geometry: a group it holds is
                 # held at nominal, not at the value it took standing in for the physics
                 self.td_start = self.cur.problem.split(self.cur.z)[0].copy()
+        self.variants_again()
+
+    def variants_again(self) -> None:
+        """The variants of the terms accepted before the last chosen again beside it
+        (rounds.variants_again): each finding keeps its place and takes the new variant."""
+        cur, notes = variants_again(self.cur, len(self.prior), self.library, self.spec, self.poses, self.weights,
+                                    self.judged, self.opt, FORM_BIC_MARGIN)
+        if not notes:
+            return
+        self.cur = cur
+        for note in notes:
+            finding = next(f for f in self.findings if f.term is note["before"])
+            eff, term = self.library[note["after"].effect], note["after"]
+            finding.term, finding.where = term, dict(term.where)
+            finding.regressor, finding.regressor_label = eff.regressor(term, self.spec, self.poses), \
+                eff.regressor_label(term)
+            self.accepted[note["term"] - len(self.prior)] = {"fit": cur, "J": note["J"]}
+            self.say(f"{eff.name} ({_where_text(term.where)}): its variant chosen again beside the later terms, "
+                     f"BIC {note['bic_change']:+.1f}")
+        self.rounds[-1]["variants_again"] = [
+            {"effect": n["after"].effect, "where": _where_text(n["after"].where), "bic_change": n["bic_change"],
+             "heldout_rms_before": n["heldout_rms_before"], "heldout_rms_after": n["heldout_rms_after"],
+             "p_worse": n["p_worse"],
+             "changed": {k: [n["before"].where.get(k), v] for k, v in n["after"].where.items()
+                         if repr(v) != repr(n["before"].where.get(k))}} for n in notes]
 
     # ------------------------------------------------------------------------ the final model
     def final_model(self) -> None:
