@@ -122,10 +122,11 @@ def motion_progress_printer(unit: str, kind: str, stream=None):
 
 
 def load_for_calibration(session: str | None, platform: str | None, description: str | None, quiet: bool = False,
-                         notes: list[str] | None = None):
+                         notes: list[str] | None = None, stream_if_few_settled: bool = False):
     """(poses, spec, platform_options) of a session folder, or of the stand's example session.
     The folder's streams are read once; ``quiet``: no reading progress on stderr. What the reading
-    kept with a warning is said on stderr and appended to ``notes``."""
+    kept with a warning is said on stderr and appended to ``notes``. ``stream_if_few_settled``:
+    HoldsNeverSettle where too few holds settled to diagnose on (:func:`few_settled`)."""
     from platkit.io.session import example_session, load_session
     from platkit.settle import load_poses
 
@@ -137,7 +138,10 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     s = load_session(folder, platform=platform, description=description, quiet=quiet)
     poses = load_poses(folder, spec=s.spec, session=s)
     options = {"moving_link": s.moving_link} if s.moving_link else {}
-    for note in s.extras.get("control_notes", []) + settling_notes(poses, folder):  # kept with a warning
+    found = settling_notes(poses, folder)
+    if stream_if_few_settled:
+        few_settled(poses, folder)
+    for note in s.extras.get("control_notes", []) + found:  # kept with a warning
         warn(note)
         if notes is not None:
             notes.append(note)
@@ -174,6 +178,28 @@ def settling_notes(poses, folder) -> list[str]:
     return out
 
 
+def few_settled(poses, folder) -> None:
+    """HoldsNeverSettle where holds were extrapolated to rest and those that settled are fewer than
+    diagnosis needs to judge the stand's physics on (platkit.diagnose.search.settled_needed at its
+    default folds): the raw stream is there, so it is the data (a calibration from motion,
+    diagnosed on the stream's windows) rather than poses diagnosis could prove nothing of the
+    stand on."""
+    from platkit.diagnose.search import settled_needed
+    from platkit.settle import HoldsNeverSettle, refusal
+
+    info = poses.settling or {}
+    n_extrapolated = int(info.get("n_extrapolated", 0))
+    n_settled = poses.n_poses - n_extrapolated
+    need = settled_needed()
+    if not n_extrapolated or n_settled >= need:
+        return
+    n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
+    reason = (f"{n_settled} of {n_commands} holds settled, {n_extrapolated} extrapolated to rest: under the {need} "
+              "settled poses diagnosis judges the stand's physics on")
+    raise HoldsNeverSettle(f"{folder}: {reason}", refusal(reason, info.get("unsettled") or {}, n_commands, n_settled,
+                                                         n_extrapolated=n_extrapolated, settled_needed=need))
+
+
 def run(args) -> int:
     from platkit.calibrate.report import write_outputs
 
@@ -197,7 +223,7 @@ def run(args) -> int:
 
     try:
         poses, spec, options = load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet,
-                                                    notes=notes)
+                                                    notes=notes, stream_if_few_settled=args.method != "paper")
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise

@@ -81,7 +81,17 @@ from platkit.plugins import effect_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["diagnose", "Search"]
+__all__ = ["diagnose", "Search", "SETTLED_PER_FOLD", "settled_needed"]
+
+#: the stand's physics is proven on settled poses, at least this many per fold of the held-out
+#: test; with fewer (the rest extrapolated to rest), nothing of the stand is named
+SETTLED_PER_FOLD = 4
+
+
+def settled_needed(folds: int | None = None) -> int:
+    """The settled poses the search needs to judge the stand's physics on, with ``folds`` folds
+    (default: the CLI's, Options().folds)."""
+    return SETTLED_PER_FOLD * (Options().folds if folds is None else folds)
 
 # ---------------------------------------------------------------------------- the search
 def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
@@ -214,10 +224,10 @@ class Search:
         if self.settled is not None:
             self.findings.append(self.settled)
         judged = ~extrapolated(self.poses)
-        self.too_few_settled = bool(judged.sum() < 4 * self.opt.folds and not judged.all())
+        self.too_few_settled = bool(judged.sum() < SETTLED_PER_FOLD * self.opt.folds and not judged.all())
         if self.too_few_settled:
             self.say(f"only {int(judged.sum())} holds settled: too few to prove an effect of the stand on")
-        if judged.sum() < 4 * self.opt.folds:
+        if judged.sum() < SETTLED_PER_FOLD * self.opt.folds:
             judged = np.ones(self.poses.n_poses, bool)
         self.judged = judged
         self.stop = self.at_floor or self.too_few_settled
