@@ -93,6 +93,7 @@ def settled_needed(folds: int | None = None) -> int:
     (default: the CLI's, Options().folds)."""
     return SETTLED_PER_FOLD * (Options().folds if folds is None else folds)
 
+
 # ---------------------------------------------------------------------------- the search
 def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
              library: dict[str, Effect] | None = None, heldout: PoseSet | None = None,
