@@ -134,6 +134,12 @@ class Fit:
     def theta(self, k: int) -> np.ndarray:
         return self.problem.split(self.z)[4][k]
 
+    def term_columns(self, k: int) -> slice:
+        """The columns of term ``k``'s parameters among the fit's unknowns ``z``."""
+        sizes = self.problem.theta_sizes
+        start = self.problem.i_theta.start + int(sum(sizes[:k]))
+        return slice(start, start + int(sizes[k]))
+
 @dataclass
 class Finding:
     """One result of diagnosis (the fields of diagnosis.json's findings, plus what the report plots)."""
@@ -293,3 +299,12 @@ def body_residuals(fit: Fit, poses: PoseSet) -> np.ndarray:
     R = matrix_from_quat(q)  # (N, 3, 3) moving -> base
     A = matrix_from_rotvec(w)  # base -> mocap
     return np.einsum("nji,kj,nmk->nmi", R, A, fit.r)
+
+
+def _swapped(cur: Fit, k: int, term: ModelTerm) -> tuple[list[ModelTerm], np.ndarray, np.ndarray]:
+    """``cur``'s terms, unknowns and active set with term ``k`` replaced by ``term`` at its start
+    (its initial values), every other unknown where ``cur`` left it."""
+    cols = cur.term_columns(k)
+    z = np.concatenate([cur.z[:cols.start], np.asarray(term.initial, float), cur.z[cols.stop:]])
+    active = np.concatenate([cur.active[:cols.start], np.ones(len(term.initial), bool), cur.active[cols.stop:]])
+    return [*cur.terms[:k], term, *cur.terms[k + 1:]], z, active

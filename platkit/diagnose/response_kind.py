@@ -45,7 +45,7 @@ from platkit.calibrate.motion import LocalResponseTerm
 from platkit.calibrate.motion_kind import theta_by_name
 from platkit.calibrate.motion_start import fd_steps
 from platkit.calibrate.response import ResponseModel
-from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _fmt_rms, _rms
+from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _fmt_rms, _rms, _swapped
 from platkit.diagnose.stats import paired_improvement
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec
@@ -127,17 +127,6 @@ def response_again(spec: PlatformSpec, poses: PoseSet, prior: list[ModelTerm], c
                        f"BIC {f.bic - cur.bic:+.1f}"
                        + ("; effects are judged beside it, and calibration.yaml carries it" if kept else ""))}
     return (terms, cal, f, record) if kept else (prior, None, None, record)
-
-
-def _swapped(cur: Fit, k: int, term: LocalResponseTerm) -> tuple[list[ModelTerm], np.ndarray, np.ndarray]:
-    """``cur``'s terms, unknowns and active set with term ``k`` (the response) replaced by ``term``
-    at its start, every other unknown where ``cur`` left it."""
-    sizes = cur.problem.theta_sizes
-    a = cur.problem.i_theta.start + int(sum(sizes[:k]))
-    b = a + int(sizes[k])
-    z = np.concatenate([cur.z[:a], np.asarray(term.initial, float), cur.z[b:]])
-    active = np.concatenate([cur.active[:a], np.ones(len(term.initial), bool), cur.active[b:]])
-    return [*cur.terms[:k], term, *cur.terms[k + 1:]], z, active
 
 
 def kind_kept(f: Fit, cur: Fit, judged: np.ndarray, opt: Options, simpler: bool) -> tuple[bool, float]:

@@ -15,7 +15,7 @@ import numpy as np
 from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.solve import blas_threads
 from platkit.diagnose.bodies import screen_system
-from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _later, _rms, _where_text, body_residuals
+from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _later, _rms, _swapped, _where_text, body_residuals
 from platkit.diagnose.stats import column_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -150,12 +150,11 @@ def variants_again(cur: Fit, first: int, library: dict, spec: PlatformSpec, pose
         p_worse = paired_improvement(f.cv[judged], cur.cv[judged])
         if p_worse < opt.alpha_heldout:
             continue
-        start = cur.problem.i_theta.start + int(sum(cur.problem.theta_sizes[:k]))
         J = f.problem.evaluate(f.z, with_jac=True).J
         assert J is not None
         notes.append({"term": k, "before": term, "after": variants[j], "bic_change": float(f.bic - cur.bic),
                       "heldout_rms_before": cur.cv_rms, "heldout_rms_after": f.cv_rms, "p_worse": float(p_worse),
-                      "J": J[..., start:start + len(variants[j].initial)]})
+                      "J": J[..., f.term_columns(k)]})
         cur = f
     return cur, notes
 
@@ -164,13 +163,8 @@ def _in_place(cur: Fit, k: int, variants: list[ModelTerm], spec: PlatformSpec, p
               opt: Options, j: int) -> Fit:
     """``cur`` refitted with ``variants[j]`` in place of its term ``k`` (that term's parameters
     started from the variant's initial values, every other unknown from ``cur``)."""
-    start = cur.problem.i_theta.start + int(sum(cur.problem.theta_sizes[:k]))
-    stop = start + cur.problem.theta_sizes[k]
-    v = np.asarray(variants[j].initial, float)
-    return _fit(spec, poses, cur.terms[:k] + [variants[j]] + cur.terms[k + 1:],
-                np.concatenate([cur.z[:start], v, cur.z[stop:]]),
-                np.concatenate([cur.active[:start], np.ones(len(v), bool), cur.active[stop:]]),
-                weights, opt.lm_iterations, opt.robust)
+    terms, z, active = _swapped(cur, k, variants[j])
+    return _fit(spec, poses, terms, z, active, weights, opt.lm_iterations, opt.robust)
 
 
 def confirm(trials: list[tuple[int, Fit, float]], separability: Sequence[float], cur: Fit, judged: np.ndarray,

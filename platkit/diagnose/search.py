@@ -225,10 +225,11 @@ class Search:
         if self.settled is not None:
             self.findings.append(self.settled)
         judged = ~extrapolated(self.poses)
-        self.too_few_settled = bool(judged.sum() < SETTLED_PER_FOLD * self.opt.folds and not judged.all())
+        need = settled_needed(self.opt.folds)
+        self.too_few_settled = bool(judged.sum() < need and not judged.all())
         if self.too_few_settled:
             self.say(f"only {int(judged.sum())} holds settled: too few to prove an effect of the stand on")
-        if judged.sum() < SETTLED_PER_FOLD * self.opt.folds:
+        if judged.sum() < need:
             judged = np.ones(self.poses.n_poses, bool)
         self.judged = judged
         self.stop = self.at_floor or self.too_few_settled
