@@ -144,14 +144,21 @@ def run_verb(verb: str, options: dict, session: str, name: str, scratch: str | N
 
 def select_groups(options: dict, session: str, name: str) -> dict:
     """The groups held-out selection chooses for one session (on a worker), as ``platkit
-    calibrate`` would choose them: {"chosen": [group, ...]}."""
+    calibrate`` would choose them: {"chosen": [group, ...]}. A session calibrate fits from motion
+    (its holds never settle, too few settled, or it has none) chooses none, as calibrate's motion
+    path does not: {"chosen": None, "motion": why}."""
     from platkit.calibrate.selection import select_model
     from platkit.commands.calibrate import load_for_calibration
     from platkit.model import length_scale
+    from platkit.settle import HoldsNeverSettle, NeverSettles
 
     opts = session_options(options, session, name)
-    with contextlib.redirect_stderr(io.StringIO()):
-        poses, spec, popts = load_for_calibration(session, opts.get("platform"), opts.get("description"), quiet=True)
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            poses, spec, popts = load_for_calibration(session, opts.get("platform"), opts.get("description"),
+                                                      quiet=True, stream_if_few_settled=opts.get("method") != "paper")
+    except (HoldsNeverSettle, NeverSettles) as exc:
+        return {"chosen": None, "motion": exc.settling.get("reason") or str(exc)}
     ridge = 0.0 if opts.get("prior_strength") is None else opts["prior_strength"] * length_scale(poses.length_unit)
     cal = select_model(poses, spec, robust=not opts.get("no_robust"), platform_options=popts, ridge_m=ridge)
     return {"chosen": list(cal.identifiability["model_selection"]["chosen"])}
@@ -196,7 +203,6 @@ def _parameterisation(args, options: dict, sessions, batch, client_for, say):
     from platkit.batch.engine import Task, run_tasks
     from platkit.batch.gauge import common_parameterisation, reference_free
     from platkit.batch.store import fingerprint
-    from platkit.calibrate.selection import parameter_groups
     from platkit.errors import PlatkitError
     from platkit.io.atomic import atomic_write_text
     from platkit.io.jsonout import dumps
@@ -240,18 +246,13 @@ def _parameterisation(args, options: dict, sessions, batch, client_for, say):
                     f"{bad[0].key}: {bad[0].error})")
             for o in outcomes:
                 if o.ok:
-                    cache[o.key] = {"fingerprint": prints[o.key], "chosen": o.value["chosen"]}
+                    cache[o.key] = {"fingerprint": prints[o.key], **o.value}
             if not any(r.name in cache for r in sessions):
                 raise BadInput(f"held-out selection failed in every session (first: {bad[0].key}: {bad[0].error}); "
                                "choose the groups with --free or --reference")
             batch.start()
             atomic_write_text(cache_path, dumps(cache, indent=2) + "\n")
-        groups = list(parameter_groups(spec))
-        chosen = {g for r in sessions if r.name in cache for g in cache[r.name]["chosen"]}
-        free = [g for g in groups if g in chosen]
-        counts = {g: sum(g in cache[r.name]["chosen"] for r in sessions if r.name in cache) for g in free}
-        how = ("the union of the groups held-out selection chose in each session (" +
-               ", ".join(f"{g} in {c} of {len(sessions)}" for g, c in counts.items()) + ")")
+        free, how = _union_of_chosen(spec, sessions, cache, say)
     param = common_parameterisation(spec, free, how)
     batch.start()
     atomic_write_text(batch.out / "parameterisation.json", dumps(param.to_dict(), indent=2) + "\n")
@@ -259,6 +260,31 @@ def _parameterisation(args, options: dict, sessions, batch, client_for, say):
         + (f"; {len(param.gauge)} held at nominal in every session, a gauge: {', '.join(param.gauge)}"
            if param.gauge else ""))
     return {**options, "free": ",".join(param.free) if param.free else "none", "no_selection": False}, param
+
+
+def _union_of_chosen(spec, sessions, cache: dict, say) -> tuple[list[str] | None, str]:
+    """The free groups of a batch's parameterisation, and how they were chosen: the union of the
+    groups held-out selection chose in the sessions ``cache`` holds. Sessions calibrated from motion
+    choose none (said, counted) and take the others' choice; where every session is, the stand's
+    default free parameters (what ``platkit calibrate``'s motion path frees)."""
+    from platkit.calibrate.selection import parameter_groups
+
+    known = [r for r in sessions if r.name in cache]
+    motion = [r for r in known if cache[r.name].get("chosen") is None]
+    choosers = [r for r in known if cache[r.name].get("chosen") is not None]
+    if motion:
+        say(f"{len(motion)} of {len(sessions)} sessions are calibrated from motion, which chooses no groups "
+            f"(first: {motion[0].name}: {cache[motion[0].name].get('motion')})"
+            + ("; they take the others' choice" if choosers else ""))
+    if not choosers:
+        return None, (f"the stand's default free parameters: all {len(motion)} sessions are calibrated from motion, "
+                      "which chooses no groups")
+    groups = list(parameter_groups(spec))
+    chosen = {g for r in choosers for g in cache[r.name]["chosen"]}
+    free = [g for g in groups if g in chosen]
+    counts = {g: sum(g in cache[r.name]["chosen"] for r in choosers) for g in free}
+    return free, ("the union of the groups held-out selection chose in each session (" +
+                  ", ".join(f"{g} in {c} of {len(sessions)}" for g, c in counts.items()) + ")")
 
 
 def run(args) -> int:
