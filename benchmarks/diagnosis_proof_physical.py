@@ -28,7 +28,9 @@ averaging noise of one settled pose), with the t statistic, beside a reference t
 settling (the mean of the last second of each hold, timed by the truth).
 
 Seeds: ``--seed-base`` (default 880000, a range no development run used); session k of a cell
-has seed base + 1000 * stand index + 10 * cell index + k.
+has seed base + 1000 * stand index + 10 * cell index + k, the indices those of the plan the
+options make (``--stands``, ``--kinds``, ``--effects``): each session's line prints its seed, and
+``--seeds`` with the same options runs those sessions alone.
 
 Every session is one task of platkit's batch engine (platkit.batch, Dask): an embedded local
 cluster of ``--jobs`` workers (default one per core), or an existing one (``--scheduler ADDRESS``
@@ -389,6 +391,10 @@ def main(argv=None) -> int:
                     help="cells: clean, clear, weak, pair, outside (physics the effect library does not hold, at a "
                          "clear and a weak size: right when said 'unexplained' and nothing else)")
     ap.add_argument("--effects", default=None, help="only cells with these effects (comma-separated)")
+    ap.add_argument("--seeds", default=None,
+                    help="only the sessions with these seeds (comma-separated) of the plan the other options make: "
+                         "a session's seed is its place in that plan, so give the --stands, --kinds, --effects and "
+                         "--seed-base of the run that printed it")
     ap.add_argument("--smoke", action="store_true",
                     help="a smoke run: one session per cell, 40 commands, the clean and the clear backlash cell of "
                          "every stand")
@@ -408,17 +414,31 @@ def main(argv=None) -> int:
     only = set(args.effects.split(",")) if args.effects else None
     cases = plan_cases(args.stands.split(","), args.sessions_per_cell, args.seed_base, args.commands,
                        set(args.kinds.split(",")), only, coloured=not args.white_noise)
+    if args.seeds:
+        try:
+            wanted = {int(x) for x in args.seeds.split(",") if x.strip()}
+        except ValueError:
+            print(f"diagnosis_proof_physical: --seeds {args.seeds}: give whole numbers, comma-separated", file=sys.stderr)
+            return 2
+        missing = sorted(wanted - {c["seed"] for c in cases})
+        if missing:
+            print(f"diagnosis_proof_physical: --seeds: {', '.join(map(str, missing))} not in the plan of these "
+                  f"--stands, --kinds, --effects and --seed-base", file=sys.stderr)
+            return 2
+        cases = [c for c in cases if c["seed"] in wanted]
     print(f"{len(cases)} sessions, seeds from {args.seed_base}, {args.commands} commands each", flush=True)
 
     def show(r):
         if r.get("not_applicable"):
-            print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} not applicable: {r['not_applicable'][:120]}")
+            print(f"  {r['stand']:8s} {r['seed']} {r['truth']:34s} {r['kind']:6s} not applicable: "
+                  f"{r['not_applicable'][:120]}")
             return
         if r.get("error"):
-            print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} ERROR {r['error'][:160]}", flush=True)
+            print(f"  {r['stand']:8s} {r['seed']} {r['truth']:34s} {r['kind']:6s} ERROR {r['error'][:160]}", flush=True)
             return
         s = r.get("settle", {})
-        print(f"  {r['stand']:8s} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':28s} held-out "
+        print(f"  {r['stand']:8s} {r['seed']} {r['truth']:34s} {r['kind']:6s} -> {'+'.join(r['named']) or 'none':28s} "
+              f"held-out "
               f"{r['heldout_truth_rms_before_mm']:.3f} -> {r['heldout_truth_rms_after_mm']:.3f} mm; settle bias "
               f"{s.get('in_noise_units', float('nan')):+.2f} noise ({r['time_s']:.0f} s)", flush=True)
 
