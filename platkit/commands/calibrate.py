@@ -181,9 +181,10 @@ def settling_notes(poses, folder) -> list[str]:
 def few_settled(poses, folder) -> None:
     """HoldsNeverSettle where holds were extrapolated to rest and those that settled are fewer than
     diagnosis needs to judge the stand's physics on (platkit.diagnose.search.settled_needed at its
-    default folds): the raw stream is there, so it is the data (a calibration from motion,
-    diagnosed on the stream's windows) rather than poses diagnosis could prove nothing of the
-    stand on."""
+    default folds) or fewer than the extrapolated ones: the raw stream is there, so it is the data
+    (a calibration from motion, diagnosed on the stream's windows) rather than poses most of which
+    carry what the approach model missed along the slow actuator's last move, and whose settled
+    minority diagnosis judges the stand on."""
     from platkit.diagnose.search import settled_needed
     from platkit.settle import HoldsNeverSettle, refusal
 
@@ -191,11 +192,12 @@ def few_settled(poses, folder) -> None:
     n_extrapolated = int(info.get("n_extrapolated", 0))
     n_settled = poses.n_poses - n_extrapolated
     need = settled_needed()
-    if not n_extrapolated or n_settled >= need:
+    if not n_extrapolated or n_settled >= max(need, n_extrapolated):
         return
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
-    reason = (f"{n_settled} of {n_commands} holds settled, {n_extrapolated} extrapolated to rest: under the {need} "
-              "settled poses diagnosis judges the stand's physics on")
+    under = (f"under the {need} settled poses diagnosis judges the stand's physics on" if n_settled < need
+             else "fewer settled than extrapolated, the settled a minority of the poses diagnosis judges the stand on")
+    reason = f"{n_settled} of {n_commands} holds settled, {n_extrapolated} extrapolated to rest: {under}"
     raise HoldsNeverSettle(f"{folder}: {reason}", refusal(reason, info.get("unsettled") or {}, n_commands, n_settled,
                                                          n_extrapolated=n_extrapolated, settled_needed=need))
 

@@ -26,9 +26,21 @@ def test_too_few_settled_beside_extrapolated_holds_is_refused_as_a_stream():
     assert exc.value.settling["unsettled"]["actuators"] == ["B"]  # the summary diagnosis names the lag from
 
 
-def test_enough_settled_or_nothing_extrapolated_stays_poses():
+def test_settled_fewer_than_extrapolated_is_refused_as_a_stream():
+    """Enough settled holds to judge on, but fewer than those extrapolated to rest (the benchmark's
+    rotary 5212100: 32 settled beside 53): the stream is the data."""
     need = settled_needed()
-    few_settled(_poses(need + 80, 80), "s")  # enough settled: the poses serve
+    for n_settled, n_extrapolated in ((need, 80), (32, 53)):
+        with pytest.raises(HoldsNeverSettle) as exc:
+            few_settled(_poses(n_settled + n_extrapolated, n_extrapolated), "s")
+        assert exc.value.settling["n_settled"] == n_settled
+        assert "fewer settled than extrapolated" in exc.value.settling["reason"]
+
+
+def test_enough_settled_and_not_fewer_than_extrapolated_or_nothing_extrapolated_stays_poses():
+    need = settled_needed()
+    few_settled(_poses(need + need, need), "s")  # as many settled as extrapolated, and enough: the poses serve
+    few_settled(_poses(60 + 35, 35), "s")  # most holds settled
     few_settled(_poses(10, 0, 12), "s")  # nothing extrapolated: no stream beyond the holds to read
 
 
