@@ -63,42 +63,32 @@ def response_lag(model: ResponseModel, theta) -> np.ndarray:
 
 
 def commanded_direction(T: np.ndarray, U: np.ndarray, t: np.ndarray, lag: np.ndarray,
-                        stroke: np.ndarray, runs: bool = False):
+                        stroke: np.ndarray) -> np.ndarray:
     """(K, n_u) the sign of each actuator's last move at the motion-capture times ``t`` (K,), 0
     before its first: read from the command log (``T`` (N,) s on the commands clock, ``U`` (N,
     n_u)), never from the controls a response fitted there (a fitted overshoot after the last
     command, or the markers' noise, does not turn it). The rule: actuator j at time t reads the
     commands up to t - ``lag[j]`` (:func:`response_lag`); its direction turns where the commands
     have travelled more than DIRECTION_TRAVEL of its ``stroke`` (n_u,) back from the last turning
-    point (the furthest command since the last turn), and holds between.
-
-    ``runs``: also (K, n_u, 2) where the move read began (the turning point before it) and how far
-    it has reached (the furthest command since), each less the command read, 0 before the first
-    move: what a play (a deadband) needs to place its output within the move
-    (platkit_effects.drive.play_offset), returned as (direction, runs)."""
+    point (the furthest command since the last turn), and holds between."""
     U = np.atleast_2d(np.asarray(U, float))
     t = np.asarray(t, float)
     N, n_u = U.shape
     out = np.zeros((len(t), n_u))
-    run = np.zeros((len(t), n_u, 2))
     for j in range(n_u):
         tol = DIRECTION_TRAVEL * float(stroke[j])
-        d, began, far = np.zeros(N), np.full(N, float(U[0, j])), np.full(N, float(U[0, j]))
-        sign, turn, start = 0.0, float(U[0, j]), float(U[0, j])
+        d = np.zeros(N)
+        sign, turn = 0.0, float(U[0, j])
         for i in range(1, N):
             x = float(U[i, j])
             if sign * (x - turn) > 0.0:  # further the same way: the turning point moves with it
                 turn = x
             elif abs(x - turn) > tol:  # back (or, at first, away) from it by more than the travel
-                sign, start, turn = float(np.sign(x - turn)), turn, x
-            d[i], began[i], far[i] = sign, start, turn
+                sign, turn = float(np.sign(x - turn)), x
+            d[i] = sign
         read = np.searchsorted(T, t - float(lag[j]), side="right") - 1  # the last command read at each time
-        k = np.maximum(read, 0)
-        out[:, j] = np.where(read >= 0, d[k], 0.0)
-        moved = (read >= 0) & (d[k] != 0)
-        run[:, j, 0] = np.where(moved, began[k] - U[k, j], 0.0)
-        run[:, j, 1] = np.where(moved, far[k] - U[k, j], 0.0)
-    return (out, run) if runs else out
+        out[:, j] = np.where(read >= 0, d[np.maximum(read, 0)], 0.0)
+    return out
 
 
 def projected_positions(proj: sparse.csr_matrix, model: ResponseModel, theta, T: np.ndarray, U: np.ndarray,

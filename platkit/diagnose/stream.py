@@ -100,12 +100,11 @@ def stream_poses(folder, session: Session, cal: Calibration) -> tuple[PoseSet, L
             noise += f", the bodies' points' {'measured on the stream' if measured else 'declared'}"
     poses.settling = {**(poses.settling or {}),
                       "point_sigma_m": {**sig, **((poses.settling or {}).get("point_sigma_m") or {})}}
-    direction, run = stream_direction(session, term, cal.spec, np.asarray(poses.t, float), runs=True)
-    poses.extras = {**poses.extras, "direction": direction, "run": run}
+    poses.extras = {**poses.extras, "direction": stream_direction(session, term, cal.spec, np.asarray(poses.t, float))}
     return poses, term, noise
 
 
-def stream_direction(session: Session, term: LocalResponseTerm, spec: PlatformSpec, t: np.ndarray, runs: bool = False):
+def stream_direction(session: Session, term: LocalResponseTerm, spec: PlatformSpec, t: np.ndarray) -> np.ndarray:
     """(N, n_u) a history effect's 'direction' at a stream's windowed poses (times ``t``, the
     motion-capture clock): each actuator's last move read from ``session``'s command log through its
     response lag (platkit.calibrate.stream.response_lag: its time lag and its response's delay on a
@@ -114,14 +113,12 @@ def stream_direction(session: Session, term: LocalResponseTerm, spec: PlatformSp
     the actuator's stroke (the log's span where the spec gives none) from the last turning point
     (:func:`platkit.calibrate.stream.commanded_direction`); not from the controls the response
     reaches at the windows (whose overshoot after the last command would turn it). The same rule
-    for the stream diagnosed and a held-out one. ``runs``: also each move's turning point and reach
-    (commanded_direction's ``runs``, ``extras['run']``), where a play places its output within a
-    move (platkit_effects.drive.play_offset): returned as (direction, runs)."""
+    for the stream diagnosed and a held-out one."""
     U = np.asarray(session.commands, float)
     lo, hi = spec.control_bounds()
     stroke = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, np.ptp(U, axis=0) + 1e-300)
     return commanded_direction(np.asarray(session.command_t, float), U, t, response_lag(term.model, term.initial),
-                               stroke, runs=runs)
+                               stroke)
 
 
 def _say_bodies(folder, session: Session) -> None:

@@ -23,38 +23,13 @@ from platkit.terms import ModelTerm
 from platkit_effects.physics import BacklashPhysics, CyclicPhysics, ScalePhysics
 
 
-def play_offset(half_play: float, direction: np.ndarray, run: np.ndarray) -> np.ndarray:
-    """(N,) a play's output less its input (the control) at poses within a move: ``direction``
-    (N,) the move's sign (0: none yet), ``run`` (N, 2) where the move began (the turning point) and
-    the furthest it reached, each less the control. The play, of width 2 |half_play|, was taken up
-    the other way at the turning point; its output stays there until the input has travelled the
-    width back, then trails it by |half_play| (platkit_effects.physics.play_operator), and stays
-    where the input backs off from its furthest. A negative ``half_play`` is that play (the output
-    trailing its input), a positive one its mirror; half_play * direction where the move has
-    travelled beyond the width, and at 0 its limit (the derivative is direction there too)."""
-    h = abs(float(half_play))
-    a, b = run[:, 0], run[:, 1]
-    up = np.minimum(np.maximum(a + h, b - h), h)
-    down = np.maximum(np.minimum(a - h, b + h), -h)
-    d = np.asarray(direction, float)
-    return -np.sign(half_play) * np.where(d > 0, up, np.where(d < 0, down, 0.0))
-
-
 @dataclass
 class BacklashTerm(ModelTerm):
-    """An actuator's control offset by half_play * the direction of its last move; at poses that
-    carry each move's turning point and reach (``extras['run']``: a stream's windowed poses,
-    platkit.diagnose.stream), the play's output within the move (:func:`play_offset`): the move
-    just after a turn is still taking up the play, as the drive's deadband does."""
-
     index: int = 0
 
     def control_offset(self, theta, poses, n_u):
         out = np.zeros((poses.n_poses, n_u))
-        d = history(poses, "direction")[:, self.index]
-        run = poses.extras.get("run")
-        out[:, self.index] = (theta[0] * d if run is None
-                              else play_offset(float(theta[0]), d, np.asarray(run, float)[:, self.index]))
+        out[:, self.index] = theta[0] * history(poses, "direction")[:, self.index]
         return out
 
 
