@@ -146,7 +146,8 @@ def select_groups(options: dict, session: str, name: str) -> dict:
     """The groups held-out selection chooses for one session (on a worker), as ``platkit
     calibrate`` would choose them: {"chosen": [group, ...]}. A session calibrate fits from motion
     (its holds never settle, fewer settled than it needs or than were extrapolated to rest, or
-    none) chooses none, as calibrate's motion path does not: {"chosen": None, "motion": why}."""
+    none) chooses none, as calibrate's motion path does not: {"chosen": None, "motion": why}. Run
+    for ``--method lsq`` only (the paper's method has no selection and no motion path)."""
     from platkit.calibrate.selection import select_model
     from platkit.commands.calibrate import load_for_calibration
     from platkit.model import length_scale
@@ -156,7 +157,7 @@ def select_groups(options: dict, session: str, name: str) -> dict:
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             poses, spec, popts = load_for_calibration(session, opts.get("platform"), opts.get("description"),
-                                                      quiet=True, stream_if_few_settled=opts.get("method") != "paper")
+                                                      quiet=True, stream_if_few_settled=True)
     except (HoldsNeverSettle, NeverSettles) as exc:
         return {"chosen": None, "motion": exc.settling.get("reason") or str(exc)}
     ridge = 0.0 if opts.get("prior_strength") is None else opts["prior_strength"] * length_scale(poses.length_unit)
