@@ -358,9 +358,11 @@ def response_parts(text: str | None) -> dict[str, bool]:
 def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None) -> int:
     """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
     markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
-    with the stand's default free parameters (``--free`` as given). ``why``: the settling search's
-    refusal (the report's); ``settle_reason``: its clause with the counts (HoldsNeverSettle.settling['reason']),
-    said in the one-line warning."""
+    with the stand's default free parameters (``--free`` as given). What the reading kept with a
+    warning (a control past its limit within the recording tolerance, an imported file's summary) is
+    said and reported as on the settled path. ``why``: the settling search's refusal (the report's);
+    ``settle_reason``: its clause with the counts (HoldsNeverSettle.settling['reason']), said in the
+    one-line warning."""
     from platkit.calibrate.estimate import second_session_errors
     from platkit.calibrate.motion import calibrate_motion
     from platkit.calibrate.motion_points import bodies_alone, calibrate_motion_bodies
@@ -369,6 +371,10 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
 
     folder = Path(args.session) if args.session is not None else Path(example_session(args.platform))
     s = load_session(folder, platform=args.platform, description=args.description, quiet=True)
+    for kept in s.extras.get("control_notes", []):  # the reading's warnings, as the settled path says them
+        if kept not in notes:
+            warn(kept)
+            notes.append(kept)
     options = {"moving_link": s.moving_link} if s.moving_link else {}
     free = None
     if args.free is not None:

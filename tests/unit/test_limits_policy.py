@@ -165,3 +165,25 @@ def test_simulate_says_a_plan_row_past_a_limit_once(tmp_path, capsys, physics):
     assert len(said) == 1 and "plan.csv row 2 (line 3) column 'A': 2850 is past the limit" in said[0], said
     notes = yaml.safe_load((out / "session.yaml").read_text())["notes"]
     assert "warning: " + said[0].removeprefix("platkit: warning: ") in notes
+
+
+def test_calibrate_from_motion_says_the_reading_and_reports_it(tmp_path, capsys):
+    """A stream without holds goes to the calibration from motion: the reading's warning (a control
+    just past its limit) is said and reported there as on the settled path."""
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    sim = simulate_physics(get_platform("rotary"), seed=4101, motion="multisine", duration_s=6.5, mocap_rate_hz=40.0)
+    folder = write_physical_session(sim, tmp_path / "s")
+    lines = (folder / "commands.csv").read_text().splitlines()
+    cells = lines[5].split(",")
+    cells[2] = "90.5"  # u2's stroke is [-90, 90] deg: 0.5 deg past, within the 1.8 deg tolerance
+    lines[5] = ",".join(cells)
+    (folder / "commands.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "o"
+    assert main(["calibrate", str(folder), "--free", "none", "--response-kind", "first-order", "--out", str(out),
+                 "--quiet", "--no-report"]) == 0
+    said = (f"{folder / 'commands.csv'} row 5 (line 6) column 'u2': 90.5 is past the limit 90 deg by 0.5 deg; "
+            "kept as recorded")
+    err = capsys.readouterr().err
+    assert f"platkit: warning: {said}" in err and "calibrated from the whole stream" in err
+    assert sum(w.startswith(said) for w in json.loads((out / "report.json").read_text())["warnings"]) == 1
