@@ -4,7 +4,6 @@ control's joint at its command, mimic joints following their masters: see tree_c
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -38,18 +37,9 @@ from platkit_effects.tree_compliance import (
     mass_moment_term,
     tree_stand,
     untried_compliance,
+    urdf_of,
 )
 from platkit_effects.tree_joints import JointsComplianceTerm, joints_compliance_from_dict, joints_compliance_term
-
-
-def _urdf_of(spec: PlatformSpec) -> str | None:
-    p = spec.extras.get("urdf_path")
-    if p is not None and Path(p).is_file():
-        return str(p)
-    p = spec.description_path
-    if p is not None and Path(p).suffix.lower() == ".urdf":
-        return str(p)
-    return None
 
 
 def serial_gravity_torques(urdf: str, joints: tuple[str, ...], q: np.ndarray) -> np.ndarray:
@@ -238,7 +228,7 @@ class Compliance(Effect):
     def simulation_term(self, spec, size, rng, commands):
         """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
         loads = cached_loads(spec, commands.controls)
-        if _urdf_of(spec) is None:
+        if urdf_of(spec) is None:
             term = self.term(spec, None)
             j = int(np.argmax(np.max(np.abs(loads), axis=0)))
         else:
@@ -254,7 +244,7 @@ class Compliance(Effect):
         """``size``: the largest deflection of an actuator over the commands (mm for lengths)."""
         loads = cached_loads(spec, plan.commands)
         start = actuator_loads(spec, plan.start[None])[0]
-        if _urdf_of(spec) is None:
+        if urdf_of(spec) is None:
             j, index, where = int(np.argmax(np.max(np.abs(loads), axis=0))), None, {"actuator": "all"}
         else:
             span = np.ptp(loads, axis=0)
