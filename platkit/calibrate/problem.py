@@ -40,9 +40,10 @@ from platkit.bodies import (
     right_jacobian_inv,
 )
 from platkit.calibrate.observation import observation_for
-from platkit.calibrate.registration import registered
+from platkit.calibrate.registration import digest, kept, registered
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
+from platkit.kinematics.forward import link_frames  # noqa: F401 - callers import it from here too
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
@@ -483,7 +484,10 @@ class CalibrationProblem:
             R, X = R[:, None], X[:, None]  # one frame for every point
         else:  # each point on its link's frame; the rotation from the link that carries the most points
             links = np.array(list(self.point_links[:M]) + [k for k in self.point_links[M:] for _ in range(3)])
-            R_all, X_all = self.link_frames(td, poses.controls)
+            # the frames at td, within a selection kept for its candidates (the same td and controls)
+            R_all, X_all = kept("link_frames", digest(id(self.spec), np.asarray(td, float), poses.controls),
+                                lambda: (self.spec, *self.link_frames(td, poses.controls)),
+                                lambda got: (got[0], got[1].copy(), got[2].copy()))[1:]
             R, X = R_all[:, links], X_all[:, links]
             best = int(np.argmax(np.bincount(links, weights=vis.sum(axis=0))))
             on = links == best
@@ -507,17 +511,6 @@ class CalibrationProblem:
     def link_frames(self, td, U) -> tuple[np.ndarray, np.ndarray]:
         """:func:`link_frames` of this problem's stand."""
         return link_frames(self.spec, td, U)
-
-
-def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
-    """Every tracked link's rotation (N, L, 3, 3) and position (N, L, 3) m in the base frame of a
-    tree stand (``spec.link_poses``), for controls U (N, n_u) and parameters td (n_td,)."""
-    U = np.atleast_2d(np.asarray(U, float))
-    N, L = len(U), len(spec.tracked_links)
-    q_all, X_all = spec.link_poses.map(N)(U.T, np.asarray(td, float))
-    q_all = np.asarray(q_all).T.reshape(N, L, 4)
-    X_all = np.asarray(X_all).T.reshape(N, L, 3)
-    return matrix_from_quat(q_all), X_all
 
 
 def _support(d: np.ndarray) -> np.ndarray:

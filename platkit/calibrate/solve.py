@@ -124,8 +124,9 @@ def _gram_by_point(state: FitState, weights, active):
     # column's nonzeros), found on the Jacobian's zero pattern; only they are gathered and weighted
     supports = []
     for p in range(P):
-        nonzero = J[:, p][sw[:, p] != 0] != 0  # (rows weighed, 3, n_z)
-        supports.append(np.flatnonzero(np.any(nonzero, axis=(0, 1))[cols]))
+        seen = sw[:, p] != 0
+        Jp = J[:, p] if seen.all() else J[:, p][seen]  # (rows weighed, 3, n_z)
+        supports.append(np.flatnonzero(Jp.any(axis=(0, 1))[cols]))  # a float is true where != 0 (NaN too)
     if sum(s.size ** 2 for s in supports) > 0.5 * P * n * n:
         return None
     H, g = np.zeros((n, n)), np.zeros(n)

@@ -190,6 +190,16 @@ def _body_triples(poses: PoseSet) -> list[tuple[int, int, int, float, float]]:
     return out
 
 
+def _weighted_rows(J: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``nan_to_num(J) * w[:, None]`` written into ``J`` (rows (n, P) gathered for the purpose, a
+    copy owned by the caller), element by element the same numbers as the expression, without its
+    two temporaries as large as J (a tree's screen: 5,400 x 607)."""
+    if not np.isfinite(J).all():
+        np.nan_to_num(J, copy=False)
+    J *= w[:, None]
+    return J
+
+
 def screen_system(poses: PoseSet, weights: np.ndarray, r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rows of a least-squares system over seen observations with independent errors of one
     variance: (r (n,), J (n, P)) from residuals ``r`` (N, M, 3) m and their Jacobian ``J`` (N, M, 3, P),
@@ -204,7 +214,8 @@ def screen_system(poses: PoseSet, weights: np.ndarray, r: np.ndarray, J: np.ndar
     whose noise is unknown keeps its three points' rows."""
     keep = (weights > 0) & np.all(np.isfinite(r), axis=2)
     sw = np.sqrt(np.where(keep, weights, 0.0))[:, :, None]
-    rw, Jw = np.nan_to_num(r) * sw, np.nan_to_num(J) * sw[..., None]
+    rw = np.nan_to_num(r) * sw
+    P = J.shape[-1]
     rows_r, rows_J = [], []
     own = np.zeros(r.shape[1], bool)
     for io, ix, iy, sp, sr in _body_triples(poses):
@@ -214,10 +225,12 @@ def screen_system(poses: PoseSet, weights: np.ndarray, r: np.ndarray, J: np.ndar
         W = np.linalg.pinv(point_map(pts))  # (n, 6, 9)
         W[:, 3:] *= sp / sr
         rows_r.append(np.einsum("nij,nj->ni", W, rw[whole][:, [io, ix, iy]].reshape(-1, 9)).reshape(-1))
-        rows_J.append(np.einsum("nij,njp->nip", W, Jw[whole][:, [io, ix, iy]].reshape(len(pts), 9, -1))
-                      .reshape(-1, J.shape[-1]))
+        Jp = _weighted_rows(J[whole][:, [io, ix, iy]].reshape(-1, P), np.repeat(sw[whole][:, [io, ix, iy]].reshape(-1), 3))
+        rows_J.append(np.einsum("nij,njp->nip", W, Jp.reshape(len(pts), 9, -1)).reshape(-1, P))
     rest = keep & ~own[None, :]
     rows = np.repeat(rest.reshape(-1), 3)
     r_all = np.concatenate([rw.reshape(-1)[rows], *rows_r])
-    J_all = np.concatenate([Jw.reshape(-1, J.shape[-1])[rows], *rows_J])
+    J_all = _weighted_rows(J.reshape(-1, P)[rows], np.repeat(sw.reshape(-1)[rest.reshape(-1)], 3))
+    if rows_J:
+        J_all = np.concatenate([J_all, *rows_J])
     return r_all, J_all

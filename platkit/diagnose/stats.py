@@ -8,7 +8,7 @@ is given their windows (:func:`serial_signed_rank`): neighbouring windows' error
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 
 def holm(p: np.ndarray) -> np.ndarray:
@@ -50,7 +50,7 @@ def runs_test(x: np.ndarray) -> tuple[float, float]:
     mu = 2.0 * n1 * n2 / n + 1
     var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n**2 * (n - 1))
     z = (runs - mu) / np.sqrt(max(var, 1e-300))
-    return float(z), float(stats.norm.cdf(z))
+    return float(z), float(special.ndtr(z))  # stats.norm.cdf's own function, without its checks
 
 
 def ljung_box(x: np.ndarray, lags: int | None = None) -> tuple[float, float]:
@@ -67,7 +67,7 @@ def ljung_box(x: np.ndarray, lags: int | None = None) -> tuple[float, float]:
         return 0.0, 1.0
     rho = np.array([float(x[k:] @ x[:-k]) / n / c0 for k in range(1, h + 1)])
     Q = n * (n + 2) * float(np.sum(rho**2 / (n - np.arange(1, h + 1))))
-    return Q, float(stats.chi2.sf(Q, h))
+    return Q, float(special.chdtrc(h, Q))  # stats.chi2.sf's own function (Q >= 0 finite)
 
 
 def paired_improvement(before: np.ndarray, after: np.ndarray, windows: np.ndarray | None = None) -> float:
@@ -169,6 +169,8 @@ def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int,
     J_new's size outside J_base's column space (near 0: the term cannot be told apart from the
     geometry on this design).
     """
+    if not J_new.any():  # every entry 0 (none NaN): no test, separability 0, as the products below give
+        return 0.0, 1.0, 0.0
     U = column_basis(J_base) if basis is None else basis
     Jp = J_new - U @ (U.T @ J_new)
     size = np.linalg.norm(J_new, axis=0)
@@ -183,7 +185,8 @@ def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int,
     k = Q.shape[1]
     explained = float(np.sum((Q.T @ r) ** 2))
     F = (explained / k) / max((float(r @ r) - explained) / max(dof - k, 1), 1e-300)
-    return F, float(stats.f.sf(F, k, max(dof - k, 1))), sep
+    d = max(dof - k, 1)  # stats.f.sf's own function, without its checks, where F is a number >= 0
+    return F, float(special.fdtrc(k, d, F) if np.isfinite(F) and F >= 0 else stats.f.sf(F, k, d)), sep
 
 
 def bic(rss: float, n_obs: int, n_params: int) -> float:

@@ -20,10 +20,11 @@ import operator
 import numpy as np
 
 from platkit.errors import BadInput, NoConvergence, OutOfWorkspace, PlatkitError, WrongBranch
-from platkit.geometry import quat_normalize
+from platkit.geometry import matrix_from_quat, quat_normalize
 from platkit.kinematics.newton import NewtonSolver
 from platkit.kinematics.results import ForwardBatch, ForwardResult
 from platkit.kinematics.sampling import library_poses
+from platkit.model import PlatformSpec
 from platkit.native import CONVERGED, MAX_ITERATIONS, NOT_FINITE, SINGULAR
 
 #: starts of the library tried, nearest the controls first, after the first start fails
@@ -428,3 +429,29 @@ class ForwardSolver(NewtonSolver):
     @functools.lru_cache(maxsize=16)  # noqa: B019 - kept with the long-lived model, one per batch size
     def _coordinates_map(self, n: int):
         return self.spec.coordinates_from_pose.map(n)
+
+
+#: CasADi maps of a tree's link poses, by (function, batch size)
+_LINK_MAPS: dict = {}
+
+
+def _link_map(f, n: int):
+    """``f.map(n)``, built once per function and batch size and kept (the link frames of one pose
+    set are asked for again and again: each candidate of a model selection, each fit's start)."""
+    hit = _LINK_MAPS.get((id(f), n))
+    if hit is None or hit[0] is not f:
+        if len(_LINK_MAPS) > 32:
+            _LINK_MAPS.clear()
+        hit = _LINK_MAPS[(id(f), n)] = (f, f.map(n))
+    return hit[1]
+
+
+def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
+    """Every tracked link's rotation (N, L, 3, 3) and position (N, L, 3) m in the base frame of a
+    tree stand (``spec.link_poses``), for controls U (N, n_u) and parameters td (n_td,)."""
+    U = np.atleast_2d(np.asarray(U, float))
+    N, L = len(U), len(spec.tracked_links)
+    q_all, X_all = _link_map(spec.link_poses, N)(U.T, np.asarray(td, float))
+    q_all = np.asarray(q_all).T.reshape(N, L, 4)
+    X_all = np.asarray(X_all).T.reshape(N, L, 3)
+    return matrix_from_quat(q_all), X_all
