@@ -145,9 +145,9 @@ def run_verb(verb: str, options: dict, session: str, name: str, scratch: str | N
 def select_groups(options: dict, session: str, name: str) -> dict:
     """The groups held-out selection chooses for one session (on a worker), as ``platkit
     calibrate`` would choose them: {"chosen": [group, ...]}. A session calibrate fits from motion
-    (its holds never settle, fewer settled than it needs or than were extrapolated to rest, or
-    none) chooses none, as calibrate's motion path does not: {"chosen": None, "motion": why}. Run
-    for ``--method lsq`` only (the paper's method has no selection and no motion path)."""
+    (its holds never settle, any was extrapolated to rest, or it has none) chooses none, as
+    calibrate's motion path does not: {"chosen": None, "motion": why}. Run for ``--method lsq``
+    only (the paper's method has no selection and no motion path)."""
     from platkit.calibrate.selection import select_model
     from platkit.commands.calibrate import load_for_calibration
     from platkit.model import length_scale

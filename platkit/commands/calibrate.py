@@ -126,7 +126,7 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     """(poses, spec, platform_options) of a session folder, or of the stand's example session.
     The folder's streams are read once; ``quiet``: no reading progress on stderr. What the reading
     kept with a warning is said on stderr and appended to ``notes``. ``stream_if_few_settled``:
-    HoldsNeverSettle where too few holds settled to diagnose on (:func:`few_settled`)."""
+    HoldsNeverSettle where holds were extrapolated to rest (:func:`few_settled`)."""
     from platkit.io.session import example_session, load_session
     from platkit.settle import load_poses
 
@@ -179,24 +179,24 @@ def settling_notes(poses, folder) -> list[str]:
 
 
 def few_settled(poses, folder) -> None:
-    """HoldsNeverSettle where holds were extrapolated to rest and those that settled are fewer than
-    diagnosis needs to judge the stand's physics on (platkit.diagnose.search.settled_needed at its
-    default folds) or fewer than the extrapolated ones: the raw stream is there, so it is the data
-    (a calibration from motion, diagnosed on the stream's windows) rather than poses most of which
-    carry what the approach model missed along the slow actuator's last move, and whose settled
-    minority diagnosis judges the stand on."""
+    """HoldsNeverSettle wherever a hold was extrapolated to rest, however many settled: the raw
+    stream is there, so it is the data (a calibration from motion, diagnosed on the stream's
+    windows) rather than poses of which the extrapolated carry what the approach model missed
+    along the slow actuator's last move. A session none of whose holds was extrapolated keeps its
+    poses. The reason says whether the settled were under what diagnosis needs to judge the stand's
+    physics on (platkit.diagnose.search.settled_needed at its default folds)."""
     from platkit.diagnose.search import settled_needed
     from platkit.settle import HoldsNeverSettle, refusal
 
     info = poses.settling or {}
     n_extrapolated = int(info.get("n_extrapolated", 0))
+    if not n_extrapolated:
+        return
     n_settled = poses.n_poses - n_extrapolated
     need = settled_needed()
-    if not n_extrapolated or n_settled >= max(need, n_extrapolated):
-        return
     n_commands = int(info.get("n_commands", poses.n_poses + len(poses.dropped)))
     under = (f"under the {need} settled poses diagnosis judges the stand's physics on" if n_settled < need
-             else "fewer settled than extrapolated, the settled a minority of the poses diagnosis judges the stand on")
+             else "the extrapolated poses carry what the approach model missed: the stream is the data")
     reason = f"{n_settled} of {n_commands} holds settled, {n_extrapolated} extrapolated to rest: {under}"
     raise HoldsNeverSettle(f"{folder}: {reason}", refusal(reason, info.get("unsettled") or {}, n_commands, n_settled,
                                                          n_extrapolated=n_extrapolated, settled_needed=need))

@@ -92,7 +92,7 @@ def run(args) -> int:
     def settled(folder, stream_if_few_settled=False):
         """The session's settled poses, its bodies as points, what settling dropped said; raises
         HoldsNeverSettle / NeverSettles where its holds do not settle (fewer than half the commands),
-        and with ``stream_if_few_settled`` where too few settled to judge on (calibrate.few_settled)."""
+        and with ``stream_if_few_settled`` where holds were extrapolated to rest (calibrate.few_settled)."""
         poses = read_with_calibration(folder, cal, args.calibration, args.quiet, read=sessions)[1]
         notes = settling_notes(poses, folder)  # dropped commands by reason, holds extrapolated to rest
         if stream_if_few_settled:

@@ -103,9 +103,9 @@ def test_a_sway_of_the_mount_on_a_turning_stand_is_seen_in_the_moving_frame(proo
 def test_no_neighbour_test_where_holds_were_extrapolated(proof_session, calibrate_and_diagnose, monkeypatch):
     # proof seed 1101122 (of 0af382d's proof): a weak slow psvr actuator B, read from the stream;
     # the settled poses carry its approach's remnant, alike over near commands (p = 0.001), and an
-    # `unexplained` was said beside the lag. Its 20 settled holds are fewer than its 28 extrapolated,
-    # so calibrate would read it as a stream (commands.calibrate.few_settled); that rule is held off
-    # here so that the session is diagnosed on its poses, as one with as many settled as extrapolated is
+    # `unexplained` was said beside the lag. Its holds extrapolated to rest (28, beside 20 settled) make
+    # calibrate read it as a stream (commands.calibrate.few_settled); that rule is held off here so
+    # that the session is diagnosed on its poses, the path under test
     import platkit.commands.calibrate as calibrate_command
 
     monkeypatch.setattr(calibrate_command, "few_settled", lambda poses, folder: None)
