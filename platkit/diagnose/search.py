@@ -19,7 +19,9 @@ One round (repeated until nothing passes or ``max_effects`` are in):
    is not named (naming._unproven_beside_probe; the other checks on a name live there too); where
    none does but the model is left above twice the noise floor with its residuals structured in
    time, each is tested beside a time probe fine enough to follow that structure
-   (naming._unproven_beside_time).
+   (naming._unproven_beside_time). Before those, with two or more named, each is tested again by
+   removal: the model without it must predict the held-out settled poses worse, or the later names
+   describe what it took, and it is not named (removal.take_back_unneeded).
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
@@ -68,6 +70,7 @@ from platkit.diagnose.recording import (
     unsettled_effect,
     weak_beside_the_recording,
 )
+from platkit.diagnose.removal import take_back_unneeded
 from platkit.diagnose.rounds import best_variant, confirm, equally_good, not_accepted, place, screen, variants_again
 from platkit.diagnose.stats import holm, paired_improvement
 from platkit.diagnose.evidence import _evidence, _offset_sign, _params, _score_heldout, _signature
@@ -108,8 +111,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
 
     The stages, each a method of :class:`Search`: the geometric model and its noise floor
     (``Search(...)``), the finding the stream shows (:meth:`Search.settling`), the rounds of
-    forward selection (:meth:`Search.select`, each accepted term's forms told apart in forms.py), the
-    take-back steps (taking_back.py: take_back_weak, take_back_beside_probe, take_back_beside_time), the final model
+    forward selection (:meth:`Search.select`, each accepted term's forms told apart in forms.py), each
+    name tested again by removal beside the others (removal.take_back_unneeded), the take-back steps (taking_back.py: take_back_weak, take_back_beside_probe, take_back_beside_time), the final model
     (:meth:`Search.final_model`), what structure is left (:meth:`Search.structure_left`) and what
     is written (:meth:`Search.written`, :meth:`Search.diagnosis`).
     """
@@ -117,6 +120,7 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
         search = Search(spec, poses, options, library, progress, start)
         search.settling()
         search.select()
+        take_back_unneeded(search)
         take_back_weak(search)
         take_back_beside_probe(search)
         take_back_beside_time(search)

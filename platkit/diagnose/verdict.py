@@ -15,6 +15,7 @@ from platkit.diagnose.fitting import (
 )
 from platkit.diagnose.floor import pose_words
 from platkit.diagnose.locate import located
+from platkit.diagnose.removal import ROUND_BY_REMOVAL
 
 
 def verdict(d: Diagnosis) -> str:
@@ -148,6 +149,11 @@ def _taken_back(d: Diagnosis) -> list[str]:
                          f"model of the structure in time that the residuals still hold ({r['located']}; a time "
                          f"probe of {r['time_bins']} bins): a slice of that structure, reported as unexplained, "
                          "not named.")
+        elif r.get("not_named") and r.get("round") == ROUND_BY_REMOVAL:
+            parts.append(f"{', '.join(r['not_named'])} predicted held-out poses better when named, but the model "
+                         "without it predicts them as well beside the other effects named (paired p = "
+                         f"{', '.join(f'{p:.2g}' for p in r['paired_p'].values())}): what it took is theirs, "
+                         "so its name is taken back.")
         elif r.get("not_named") and r.get("round") == ROUND_WEAK_NAMES:
             parts.append(f"{', '.join(r['not_named'])} passed the held-out test only weakly, and the model with "
                          f"{'it' if len(r['not_named']) == 1 else 'them'} still left held-out poses at more than "
