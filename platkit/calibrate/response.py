@@ -207,15 +207,7 @@ def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float
     cut; before T_0 it rests at ``start`` (default u_0). ``seg``: the command in force at each of
     ``s`` (searchsorted of T, right, minus 1), when the caller has it."""
     v, a = max(float(rate), 1e-12), max(float(accel), 1e-12)
-    N = len(T)
-    origin = np.empty(N)
-    pos = float(u[0]) if start is None else float(start)
-    span = np.diff(T)
-    for i in range(N):  # where each profile starts (a few hundred holds: a plain loop)
-        origin[i] = pos
-        if i + 1 < N:
-            d = float(u[i] - pos)
-            pos = pos + float(np.sign(d)) * _covered_one(float(span[i]), abs(d), v, a)
+    origin = _profile_origins(T, u, v, a, start)
     if seg is None:
         seg = np.searchsorted(T, s, side="right") - 1
     out = np.where(seg < 0, origin[0], u[np.maximum(seg, 0)]).astype(float)
@@ -226,6 +218,83 @@ def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float
     i = seg[k]
     d = u[i] - origin[i]
     out[k] = origin[i] + np.sign(d) * _covered(s[k] - T[i], np.abs(d), v, a)
+    return out
+
+
+def _profile_origins(T: np.ndarray, u: np.ndarray, v: float, a: float, start: float | None) -> np.ndarray:
+    """Where each command's trapezoidal profile starts: where the last one stood when it was cut
+    (a few hundred holds: a plain loop)."""
+    N = len(T)
+    origin = np.empty(N)
+    pos = float(u[0]) if start is None else float(start)
+    span = np.diff(T)
+    for i in range(N):
+        origin[i] = pos
+        if i + 1 < N:
+            d = float(u[i] - pos)
+            pos = pos + float(np.sign(d)) * _covered_one(float(span[i]), abs(d), v, a)
+    return origin
+
+
+@dataclass
+class _Grid:
+    """A fine grid's times ``s`` (increasing) and what every reference on it reads: ``seg`` the
+    command in force at each time (searchsorted of T, right, minus 1), ``bounds`` (N + 2,) where
+    each command's run of times begins (command i's times are ``bounds[i + 1]:bounds[i + 2]``,
+    those before T_0 ``:bounds[1]``), and ``since`` each time minus its command's T (T_0's before T_0)."""
+
+    s: np.ndarray
+    seg: np.ndarray
+    bounds: np.ndarray
+    since: np.ndarray
+
+    @classmethod
+    def of(cls, s: np.ndarray, T: np.ndarray) -> _Grid:
+        seg = np.searchsorted(T, s, side="right") - 1
+        bounds = np.searchsorted(seg, np.arange(-1, len(T) + 1), side="left")
+        return cls(s, seg, bounds, s - T[np.maximum(seg, 0)])
+
+
+def _trapezoid_on_grid(g: _Grid, T: np.ndarray, u: np.ndarray, rate: float, accel: float,
+                       start: float | None = None) -> np.ndarray:
+    """``trapezoid_reference(g.s, T, u, rate, accel, start, g.seg)``, the same numbers, read by
+    runs: the times of one command are one run (s increasing), the profile's move its first
+    times (those under the move's length), the rest of the run its command."""
+    v, a = max(float(rate), 1e-12), max(float(accel), 1e-12)
+    origin = _profile_origins(T, u, v, a, start)
+    b = g.bounds
+    out = np.empty(len(g.s))
+    out[:b[1]] = origin[0]
+    out[b[1]:] = np.repeat(np.asarray(u, float), np.diff(b[1:]))
+    d_all = np.abs(u - origin)
+    length = np.where(d_all < v * v / a, 2.0 * np.sqrt(d_all / a), d_all / v + v / a)
+    since = g.since
+    moving = np.array([0 if np.isnan(length[i]) else np.searchsorted(since[b[i + 1]:b[i + 2]], length[i], side="left")
+                       for i in range(len(T))], dtype=np.intp)
+    i = np.repeat(np.arange(len(T)), moving)
+    k = np.repeat(b[1:-1] - np.concatenate([[0], np.cumsum(moving)[:-1]]), moving) + np.arange(len(i))
+    d = u - origin
+    out[k] = origin[i] + np.sign(d)[i] * _covered_by(since[k], i, np.abs(d), v, a)
+    return out
+
+
+def _covered_by(s: np.ndarray, i: np.ndarray, d: np.ndarray, v: float, a: float) -> np.ndarray:
+    """``_covered(s, d[i], v, a)``, the same numbers, for times s >= 0 of commands ``i`` over
+    distances ``d`` (one per command): the profile's phases per command, each time's expression
+    evaluated for its own phase alone."""
+    tri = d < v * v / a
+    ta = np.where(tri, np.sqrt(d / a), v / a)
+    end = np.where(tri, 2 * ta, d / v + v / a)
+    ta_k, end_k = ta[i], end[i]
+    out = d[i]
+    rising = s <= ta_k
+    cruise = ~rising & (s <= end_k - ta_k)
+    falling = ~rising & ~cruise & (s < end_k)
+    out[rising] = 0.5 * a * s[rising] ** 2
+    t, c = ta_k[cruise], a * ta_k[cruise]
+    out[cruise] = 0.5 * a * t ** 2 + c * (s[cruise] - t)
+    r = np.maximum(end_k[falling] - s[falling], 0.0)
+    out[falling] = out[falling] - 0.5 * a * r ** 2
     return out
 
 
@@ -372,19 +441,18 @@ def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: 
     h = FINE_STEP_S
     t_end = float(np.ceil(max(float(t.max()), float(T[-1])) - float(T[0]) + 2 * h)) + float(T[0])
     n = int(np.ceil((t_end - T[0]) / h)) + 1
-    grid = T[0] + h * np.arange(n)
+    g = None if cache is None else cache.get(("seg", n))  # the grid and its commands, kept with the cache
+    if g is None:
+        g = _Grid.of(T[0] + h * np.arange(n), T)
+        _keep(cache, ("seg", n), g)
     rkey = ("ref", key, rate, accel, start, n)
     xkey = ("x", key, rate, accel, start, n, tau, zeta)
     x = None if cache is None else cache.get(xkey)
     if x is None:
         r = None if cache is None else cache.get(rkey)
         if r is None:
-            seg = None if cache is None else cache.get(("seg", n))
-            if seg is None:
-                seg = np.searchsorted(T, grid, side="right") - 1
-                _keep(cache, ("seg", n), seg)
-            r = (slew_reference(grid, T, u, rate, start, seg) if accel is None
-                 else trapezoid_reference(grid, T, u, rate, accel, start, seg)) - start
+            r = (slew_reference(g.s, T, u, rate, start, g.seg) if accel is None
+                 else _trapezoid_on_grid(g, T, u, rate, accel, start)) - start
             _keep(cache, rkey, r)
         fkey = ("foh", tau, zeta)
         filt = None if cache is None else cache.get(fkey)
@@ -394,7 +462,7 @@ def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: 
         num, den = filt
         x = signal.lfilter(num, den, r) + start
         _keep(cache, xkey, x)
-    return np.interp(t, grid, x, left=float(start))
+    return np.interp(t, g.s, x, left=float(start))
 
 
 def _segments(cache: dict | None, T: np.ndarray, s: np.ndarray, shift: float) -> np.ndarray | None:
