@@ -23,10 +23,12 @@ from platkit.terms import ModelTerm
 
 #: the "round" of diagnosis.json's rounds that un-name terms after the search (a search round is
 #: numbered): weakly proven names beside a lack of fit, names unproven beside the final probe,
-#: names unproven beside a model of the structure in time the location tests still find
+#: names unproven beside a model of the structure in time the location tests still find, names the
+#: final model does not need (tested again by removal)
 ROUND_WEAK_NAMES = "weak names"
 ROUND_BESIDE_PROBE = "beside the probe"
 ROUND_BESIDE_TIME = "beside the structure in time"
+ROUND_BY_REMOVAL = "by removal"
 #: the round of diagnosis.json that holds the neighbour tests of the geometric model's residuals
 #: (locate.neighbour_tests), run when nothing was named and held-out prediction is near the floor
 ROUND_NEIGHBOURS = "neighbours"

@@ -156,11 +156,13 @@ def _weak_beside_lack_of_fit(cur: Fit, poses: PoseSet, spec: PlatformSpec, findi
 
 def _take_back(cur: Fit, taken: dict[int, float | None], round_name: str, about: dict[str, Any],
                why: Callable[[float | None], str], findings: list[Finding], accepted_info: list[dict],
-               rounds: list[dict], say: Callable[[str], None]) -> tuple[list[Finding], list[dict]]:
+               rounds: list[dict], say: Callable[[str], None],
+               tail: str = "a slice of physics the library does not hold") -> tuple[list[Finding], list[dict]]:
     """Takes back the names of the terms ``cur.terms[k]`` for k in ``taken`` (k -> the paired p of
     the test that took it back, or None): a round ``round_name`` in ``rounds`` (their names, the
-    paired p-values if any, then ``about``), one progress line each (``why(p)``), and the findings
-    and fit records without them (the caller refits the model without the terms)."""
+    paired p-values if any, then ``about``), one progress line each (``why(p)``, then ``tail``: what
+    the term had taken), and the findings and fit records without them (the caller refits the model
+    without the terms)."""
     ks = sorted(taken)
     names = [f"{cur.terms[k].effect} ({_where_text(cur.terms[k].where)})" for k in ks]
     entry: dict[str, Any] = {"round": round_name, "not_named": names}
@@ -168,5 +170,5 @@ def _take_back(cur: Fit, taken: dict[int, float | None], round_name: str, about:
         entry["paired_p"] = {n: taken[k] for n, k in zip(names, ks)}
     rounds.append({**entry, **about})
     for n, k in zip(names, ks):
-        say(f"{n}: {why(taken[k])}: a slice of physics the library does not hold; not named")
+        say(f"{n}: {why(taken[k])}: {tail}; not named")
     return _unnamed(findings, accepted_info, {id(cur.terms[k]) for k in ks})

@@ -21,7 +21,7 @@ One round (repeated until nothing passes or ``max_effects`` are in):
    time, each is tested beside a time probe fine enough to follow that structure
    (naming._unproven_beside_time). Before those, with two or more named, each is tested again by
    removal: the model without it must predict the held-out settled poses worse, or the later names
-   describe what it took, and it is not named (removal.take_back_unneeded).
+   describe what it took, and it is not named (taking_back.take_back_unneeded).
 
 Held-out errors: poses are split into K interleaved folds (pose n in fold n mod K); each fold's
 poses are predicted from a refit on the others, started from the full fit.
@@ -70,12 +70,16 @@ from platkit.diagnose.recording import (
     unsettled_effect,
     weak_beside_the_recording,
 )
-from platkit.diagnose.removal import take_back_unneeded
 from platkit.diagnose.rounds import best_variant, confirm, equally_good, not_accepted, place, screen, variants_again
 from platkit.diagnose.stats import holm, paired_improvement
 from platkit.diagnose.evidence import _evidence, _offset_sign, _params, _score_heldout, _signature
 from platkit.diagnose.geometry import _reopened, _reselected
-from platkit.diagnose.taking_back import take_back_beside_probe, take_back_beside_time, take_back_weak
+from platkit.diagnose.taking_back import (
+    take_back_beside_probe,
+    take_back_beside_time,
+    take_back_unneeded,
+    take_back_weak,
+)
 from platkit.diagnose.verdict import verdict
 from platkit.effects import Effect, with_history
 from platkit.io.calibration import Calibration
@@ -112,7 +116,8 @@ def diagnose(spec: PlatformSpec, poses: PoseSet, options: Options | None = None,
     The stages, each a method of :class:`Search`: the geometric model and its noise floor
     (``Search(...)``), the finding the stream shows (:meth:`Search.settling`), the rounds of
     forward selection (:meth:`Search.select`, each accepted term's forms told apart in forms.py), each
-    name tested again by removal beside the others (removal.take_back_unneeded), the take-back steps (taking_back.py: take_back_weak, take_back_beside_probe, take_back_beside_time), the final model
+    name tested again by removal beside the others and the other take-back steps (taking_back.py:
+    take_back_unneeded, take_back_weak, take_back_beside_probe, take_back_beside_time), the final model
     (:meth:`Search.final_model`), what structure is left (:meth:`Search.structure_left`) and what
     is written (:meth:`Search.written`, :meth:`Search.diagnosis`).
     """

@@ -7,6 +7,7 @@ from platkit.diagnose.fitting import (
     FROM_SLOW_APPROACH,
     ROUND_BESIDE_PROBE,
     ROUND_BESIDE_TIME,
+    ROUND_BY_REMOVAL,
     ROUND_NEIGHBOURS,
     ROUND_WEAK_NAMES,
     Diagnosis,
@@ -15,7 +16,6 @@ from platkit.diagnose.fitting import (
 )
 from platkit.diagnose.floor import pose_words
 from platkit.diagnose.locate import located
-from platkit.diagnose.removal import ROUND_BY_REMOVAL
 
 
 def verdict(d: Diagnosis) -> str:

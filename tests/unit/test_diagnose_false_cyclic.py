@@ -1,9 +1,10 @@
-"""Each name is tested again by removal once the rounds are over (platkit.diagnose.removal): a
-term accepted in an early round was proven against the model of its round, with the effects named
-later still in the residual, and one of those can describe what it took. On the psvr a cyclic error
-of a period near an actuator's stroke takes a slice of a scale nonlinearity of that actuator (a
-P3 over the stroke is three quarters of such a sine, beyond offset and slope); named first, it
-stayed beside the scale nonlinearity named next (docs/diagnosis-false-cyclic.md)."""
+"""Each name is tested again by removal once the rounds are over
+(platkit.diagnose.taking_back.take_back_unneeded): a term accepted in an early round was proven
+against the model of its round, with the effects named later still in the residual, and one of those
+can describe what it took. On the psvr a cyclic error of a period near an actuator's stroke takes a
+slice of a scale nonlinearity of that actuator (a P3 over the stroke is three quarters of such a
+sine, beyond offset and slope); named first, it stayed beside the scale nonlinearity named next
+(docs/diagnosis-false-cyclic.md)."""
 from __future__ import annotations
 
 import numpy as np
