@@ -311,16 +311,10 @@ def _covered_one(s: float, d: float, v: float, a: float) -> float:
 
 
 def _covered(s, d, v, a):
-    """Distance covered after time s >= 0 by the trapezoid over distance d >= 0 (broadcast)."""
-    s, d = np.asarray(s, float), np.asarray(d, float)
-    tri = d < v * v / a
-    ta = np.where(tri, np.sqrt(d / a), v / a)
-    vp = a * ta
-    T = np.where(tri, 2 * ta, d / v + v / a)
-    s = np.clip(s, 0.0, None)
-    r = np.maximum(T - s, 0.0)
-    return np.where(s <= ta, 0.5 * a * s ** 2,
-                    np.where(s <= T - ta, 0.5 * a * ta ** 2 + vp * (s - ta), np.where(s < T, d - 0.5 * a * r ** 2, d)))
+    """Distance covered after time s >= 0 by the trapezoid over distance d >= 0 (broadcast; a time
+    below 0 counts as 0): :func:`_covered_by` element by element."""
+    s, d = np.broadcast_arrays(np.clip(np.asarray(s, float), 0.0, None), np.asarray(d, float))
+    return _covered_by(s.reshape(-1), np.arange(s.size), d.reshape(-1), v, a).reshape(s.shape)
 
 
 def _free(tau_s: np.ndarray, e0: np.ndarray, v0: np.ndarray, tau: float, zeta: float):
