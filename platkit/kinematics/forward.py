@@ -431,19 +431,12 @@ class ForwardSolver(NewtonSolver):
         return self.spec.coordinates_from_pose.map(n)
 
 
-#: CasADi maps of a tree's link poses, by (function, batch size)
-_LINK_MAPS: dict = {}
-
-
+@functools.lru_cache(maxsize=32)
 def _link_map(f, n: int):
-    """``f.map(n)``, built once per function and batch size and kept (the link frames of one pose
-    set are asked for again and again: each candidate of a model selection, each fit's start)."""
-    hit = _LINK_MAPS.get((id(f), n))
-    if hit is None or hit[0] is not f:
-        if len(_LINK_MAPS) > 32:
-            _LINK_MAPS.clear()
-        hit = _LINK_MAPS[(id(f), n)] = (f, f.map(n))
-    return hit[1]
+    """``f.map(n)`` (a CasADi function: hashed and compared by identity), built once per function
+    and batch size and kept (the link frames of one pose set are asked for again and again: each
+    candidate of a model selection, each fit's start)."""
+    return f.map(n)
 
 
 def link_frames(spec: PlatformSpec, td, U) -> tuple[np.ndarray, np.ndarray]:
