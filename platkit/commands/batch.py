@@ -157,7 +157,7 @@ def select_groups(options: dict, session: str, name: str) -> dict:
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             poses, spec, popts = load_for_calibration(session, opts.get("platform"), opts.get("description"),
-                                                      quiet=True, stream_if_few_settled=True)
+                                                      quiet=True, stream_if_extrapolated=True)
     except (HoldsNeverSettle, NeverSettles) as exc:
         return {"chosen": None, "motion": exc.settling.get("reason") or str(exc)}
     ridge = 0.0 if opts.get("prior_strength") is None else opts["prior_strength"] * length_scale(poses.length_unit)

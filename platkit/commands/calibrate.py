@@ -122,11 +122,11 @@ def motion_progress_printer(unit: str, kind: str, stream=None):
 
 
 def load_for_calibration(session: str | None, platform: str | None, description: str | None, quiet: bool = False,
-                         notes: list[str] | None = None, stream_if_few_settled: bool = False):
+                         notes: list[str] | None = None, stream_if_extrapolated: bool = False):
     """(poses, spec, platform_options) of a session folder, or of the stand's example session.
     The folder's streams are read once; ``quiet``: no reading progress on stderr. What the reading
-    kept with a warning is said on stderr and appended to ``notes``. ``stream_if_few_settled``:
-    HoldsNeverSettle where holds were extrapolated to rest (:func:`few_settled`)."""
+    kept with a warning is said on stderr and appended to ``notes``. ``stream_if_extrapolated``:
+    HoldsNeverSettle where holds were extrapolated to rest (:func:`refuse_extrapolated_holds`)."""
     from platkit.io.session import example_session, load_session
     from platkit.settle import load_poses
 
@@ -139,8 +139,8 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     poses = load_poses(folder, spec=s.spec, session=s)
     options = {"moving_link": s.moving_link} if s.moving_link else {}
     found = settling_notes(poses, folder)
-    if stream_if_few_settled:
-        few_settled(poses, folder)
+    if stream_if_extrapolated:
+        refuse_extrapolated_holds(poses, folder)
     for note in s.extras.get("control_notes", []) + found:  # kept with a warning
         warn(note)
         if notes is not None:
@@ -178,7 +178,7 @@ def settling_notes(poses, folder) -> list[str]:
     return out
 
 
-def few_settled(poses, folder) -> None:
+def refuse_extrapolated_holds(poses, folder) -> None:
     """HoldsNeverSettle wherever a hold was extrapolated to rest, however many settled: the raw
     stream is there, so it is the data (a calibration from motion, diagnosed on the stream's
     windows) rather than poses of which the extrapolated carry what the approach model missed
@@ -225,7 +225,7 @@ def run(args) -> int:
 
     try:
         poses, spec, options = load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet,
-                                                    notes=notes, stream_if_few_settled=args.method != "paper")
+                                                    notes=notes, stream_if_extrapolated=args.method != "paper")
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise

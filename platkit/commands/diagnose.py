@@ -85,18 +85,18 @@ def run(args) -> int:
 
     sessions = {}  # folder -> the session as read: its streams are read once
 
-    from platkit.commands.calibrate import few_settled, settling_notes
+    from platkit.commands.calibrate import refuse_extrapolated_holds, settling_notes
     from platkit.diagnose.stream import heldout_stream, read_through, stream_why, training_stream
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
-    def settled(folder, stream_if_few_settled=False):
+    def settled(folder, stream_if_extrapolated=False):
         """The session's settled poses, its bodies as points, what settling dropped said; raises
         HoldsNeverSettle / NeverSettles where its holds do not settle (fewer than half the commands),
-        and with ``stream_if_few_settled`` where holds were extrapolated to rest (calibrate.few_settled)."""
+        and with ``stream_if_extrapolated`` where holds were extrapolated to rest (calibrate.refuse_extrapolated_holds)."""
         poses = read_with_calibration(folder, cal, args.calibration, args.quiet, read=sessions)[1]
         notes = settling_notes(poses, folder)  # dropped commands by reason, holds extrapolated to rest
-        if stream_if_few_settled:
-            few_settled(poses, folder)
+        if stream_if_extrapolated:
+            refuse_extrapolated_holds(poses, folder)
         poses = with_body_points(poses, folder, sessions.get(folder))  # said once settled, not before
         for note in notes:
             warn(note)
@@ -105,9 +105,9 @@ def run(args) -> int:
     streamed = False  # the session read as a stream through its calibrated response
     refused: dict = {}  # the settle search's refusal of the session's holds (HoldsNeverSettle.settling)
     try:
-        # a calibration from motion (calibrate's rule for too few settled holds) reads the stream then too
-        poses = settled(args.session, stream_if_few_settled=bool(cal.motion))
-    except (HoldsNeverSettle, NeverSettles) as exc:  # too few settled holds: a calibration from motion reads the stream
+        # a calibration from motion (calibrate's rule for holds extrapolated to rest) reads the stream then too
+        poses = settled(args.session, stream_if_extrapolated=bool(cal.motion))
+    except (HoldsNeverSettle, NeverSettles) as exc:  # holds extrapolated or unsettled: a calibration from motion reads the stream
         if not cal.motion:
             raise type(exc)(f"{exc}; a stream without settled holds is diagnosed with its calibration from motion "
                             "(platkit calibrate on it)") from exc

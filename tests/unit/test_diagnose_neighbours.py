@@ -104,11 +104,11 @@ def test_no_neighbour_test_where_holds_were_extrapolated(proof_session, calibrat
     # proof seed 1101122 (of 0af382d's proof): a weak slow psvr actuator B, read from the stream;
     # the settled poses carry its approach's remnant, alike over near commands (p = 0.001), and an
     # `unexplained` was said beside the lag. Its holds extrapolated to rest (28, beside 20 settled) make
-    # calibrate read it as a stream (commands.calibrate.few_settled); that rule is held off here so
+    # calibrate read it as a stream (commands.calibrate.refuse_extrapolated_holds); that rule is held off here so
     # that the session is diagnosed on its poses, the path under test
     import platkit.commands.calibrate as calibrate_command
 
-    monkeypatch.setattr(calibrate_command, "few_settled", lambda poses, folder: None)
+    monkeypatch.setattr(calibrate_command, "refuse_extrapolated_holds", lambda poses, folder: None)
     session, sim = proof_session("psvr", 1101122, [("settling_lag", 0.1)])
     assert [p.actuator for _, p in sim.physics] == ["B"]
     d = calibrate_and_diagnose(session)

@@ -34,7 +34,7 @@ def test_too_few_holds_settled_beside_a_slow_actuator_is_read_from_the_stream_an
         tmp_path, calibrate_and_diagnose):
     # development seed 706190: 54 of 60 holds never settle (a slow u2), extrapolated to rest, 6 settled:
     # too few to judge the stand on, so calibrate fits the motion model and diagnose reads the stream
-    # (commands.calibrate.few_settled); the lag is named from the settle summary and the stand's own
+    # (commands.calibrate.refuse_extrapolated_holds); the lag is named from the settle summary and the stand's own
     # physics, a scale nonlinearity of u1, is tested on the stream's windows and named
     sim = simulate_physics(get_platform("rotary"), seed=706190, n_poses=60, plan="random",
                            effects=[("scale_nonlinearity", 0.3075), ("settling_lag", 0.15)], coloured=True)

@@ -9,11 +9,11 @@ import yaml
 
 def test_a_slow_actuator_named_from_the_stream_stands_when_not_significantly_worse(tmp_path, proof_session,
                                                                                      calibrate_and_diagnose, monkeypatch):
-    # calibrate reads a session with holds extrapolated to rest as a stream (commands.calibrate.few_settled);
+    # calibrate reads a session with holds extrapolated to rest as a stream (commands.calibrate.refuse_extrapolated_holds);
     # that rule is held off here so that the session is diagnosed on its poses, the path under test
     import platkit.commands.calibrate as calibrate_command
 
-    monkeypatch.setattr(calibrate_command, "few_settled", lambda poses, folder: None)
+    monkeypatch.setattr(calibrate_command, "refuse_extrapolated_holds", lambda poses, folder: None)
     session, sim = proof_session("psvr", 961120, [("settling_lag", 0.1)])
     assert [p.actuator for _, p in sim.physics] == ["C"]
     d = calibrate_and_diagnose(session)

@@ -23,11 +23,11 @@ def test_a_small_held_out_gain_must_prove_itself_strongly(proof_session, calibra
 
 def test_a_weak_term_on_another_actuator_than_the_slow_one_is_not_named(proof_session, calibrate_and_diagnose,
                                                                         monkeypatch):
-    # calibrate reads a session with holds extrapolated to rest as a stream (commands.calibrate.few_settled);
+    # calibrate reads a session with holds extrapolated to rest as a stream (commands.calibrate.refuse_extrapolated_holds);
     # that rule is held off here so that the session is diagnosed on its poses, the path under test
     import platkit.commands.calibrate as calibrate_command
 
-    monkeypatch.setattr(calibrate_command, "few_settled", lambda poses, folder: None)
+    monkeypatch.setattr(calibrate_command, "refuse_extrapolated_holds", lambda poses, folder: None)
     session, sim = proof_session("psvr", 1011112, [("settling_lag", 0.15)])
     assert [p.actuator for _, p in sim.physics] == ["A"]
     d = calibrate_and_diagnose(session)

@@ -1,0 +1,69 @@
+"""Holds extrapolated to rest: the stream is the data, however many settled
+(platkit.commands.calibrate.refuse_extrapolated_holds; docs/diagnosis.md, "Too few settled holds: the stream" and
+"Any hold extrapolated: the stream")."""
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pytest
+
+from platkit.commands.calibrate import refuse_extrapolated_holds
+from platkit.diagnose.search import settled_needed
+from platkit.settle import HoldsNeverSettle
+
+
+def _poses(n_poses: int, n_extrapolated: int, n_commands: int = 120) -> SimpleNamespace:
+    return SimpleNamespace(n_poses=n_poses, dropped=[], settling={
+        "n_commands": n_commands, "n_extrapolated": n_extrapolated,
+        "unsettled": {"n": n_extrapolated, "actuators": ["B"], "time_constant_s": 0.5, "sentence": "holds never settled"}})
+
+
+def test_too_few_settled_beside_extrapolated_holds_is_refused_as_a_stream():
+    need = settled_needed()
+    with pytest.raises(HoldsNeverSettle) as exc:
+        refuse_extrapolated_holds(_poses(need - 1 + 80, 80), "s")
+    assert exc.value.settling["n_settled"] == need - 1 and exc.value.settling["n_extrapolated"] == 80
+    assert exc.value.settling["unsettled"]["actuators"] == ["B"]  # the summary diagnosis names the lag from
+
+
+def test_any_hold_extrapolated_is_refused_as_a_stream_however_many_settled():
+    """Settled fewer than extrapolated (the benchmark's rotary 5212100: 32 beside 53), as many, or
+    the majority (psvr 5330110: 62 beside 34; 60 beside 35; 94 beside 1): the stream is the data."""
+    need = settled_needed()
+    for n_settled, n_extrapolated in ((62, 34), (60, 35), (94, 1), (need + need, need), (need, 80), (32, 53)):
+        with pytest.raises(HoldsNeverSettle) as exc:
+            refuse_extrapolated_holds(_poses(n_settled + n_extrapolated, n_extrapolated), "s")
+        assert exc.value.settling["n_settled"] == n_settled
+        assert exc.value.settling["n_extrapolated"] == n_extrapolated
+        assert "the extrapolated poses carry what the approach model missed" in exc.value.settling["reason"]
+
+
+def test_nothing_extrapolated_stays_poses():
+    refuse_extrapolated_holds(_poses(10, 0, 12), "s")  # no stream beyond the holds to read
+    refuse_extrapolated_holds(_poses(120, 0), "s")
+
+
+def test_calibrate_reads_the_stream_of_holds_extrapolated_with_too_few_settled(tmp_path):
+    """A rotary with a slow actuator (time constant 0.15 of the hold): 13 of 16 holds extrapolated
+    to rest, 2 settled: calibrate fits the motion model to the stream, not the 15 poses."""
+    from platkit.cli import main
+    from platkit.io.session import load_session
+    from platkit.plugins import get_platform
+    from platkit.settle import load_poses
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    sim = simulate_physics(get_platform("rotary"), seed=100, n_poses=16, plan="random",
+                           effects=[("settling_lag", 0.15)], mocap_rate_hz=50.0)
+    folder = write_physical_session(sim, tmp_path / "slow")
+    s = load_session(folder)
+    poses = load_poses(s.folder, spec=s.spec, session=s)
+    assert 0 < poses.n_poses - poses.settling["n_extrapolated"] < settled_needed()  # the case this rule is for
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(tmp_path / "cal")]) == 0
+    report = json.loads((tmp_path / "cal" / "report.json").read_text())
+    assert report.get("motion"), "calibrated from the extrapolated poses, not the stream"
+    # diagnose reads the stream through that calibration's response too, not the extrapolated poses
+    assert main(["diagnose", str(folder), "--calibration", str(tmp_path / "cal" / "calibration.yaml"), "--quiet",
+                 "--no-report", "--out", str(tmp_path / "diag")]) == 0
+    diag = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert any(r.get("round") == "settle summary" for r in diag["rounds"])
