@@ -148,8 +148,8 @@ class ResponseTerm(ModelTerm):
         self.model, self.T, self.U, self.steps, self.start = model, T, U, np.asarray(steps, float), start
         self.proj, self.sample_t = proj, sample_t
         self._cache: tuple | None = None
-        # actuator_positions' cache of this log: a profile's (or a slewed step's) reference and
-        # response on the fine grid; a plain step reference keeps none (what it would keep, each
+        # actuator_positions' cache of this log: a profile's (or a slewed step's) reference as
+        # pieces and the response's state at each; a plain step reference keeps none (what it would keep, each
         # sample's command, is an array over the samples per shift tried, quickly found again)
         self._positions: dict | None = {} if model.reference == "profile" or model.slewed else None
 

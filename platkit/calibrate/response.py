@@ -26,10 +26,12 @@ commands clock, values u_i), through a linear response that starts at rest:
 A step reference is integrated exactly at any time: the state at each command instant by the
 exact zero-order-hold recursion (a linear filter when the commands come at a steady rate), then
 the free response from there to each sample. A profile reference, and a rate-limited step
-reference (a slew: a profile of infinite acceleration), is integrated on a fine grid
-with a first-order hold (exact for a reference linear over each step; the profile is smooth to
-its acceleration), and the actuators' position interpolated linearly at the samples. Before the
-first command every actuator rests on it (a profile's: where the caller says it rests).
+reference (a slew: a profile of infinite acceleration), is a polynomial of degree at most two in
+time between its breakpoints (each command's rising, cruising and falling phases and its hold,
+cut by the next command): it is integrated exactly too, each piece's response its particular
+polynomial plus the free response from the state where the piece begins (the states carried
+from piece to piece, one step per piece), read at each sample. Before the first command every
+actuator rests on it (a profile's: where the caller says it rests).
 Internal units throughout (m for length controls).
 """
 from __future__ import annotations
@@ -47,10 +49,6 @@ __all__ = ["ResponseModel", "REFERENCES", "KINDS", "actuator_positions", "trapez
 
 REFERENCES = ("step", "profile")
 KINDS = ("first_order", "second_order")
-#: the fine grid of a profile reference (s): the first-order hold is exact for a reference linear
-#: over each step, whatever the time constant; the trapezoid's curvature costs accel h^2 / 8 (1.5 um
-#: at 3 m/s^2)
-FINE_STEP_S = 2e-3
 #: command intervals equal to this (s) are one steady rate (the files keep microseconds)
 STEADY_TOL_S = 2e-6
 #: the smallest time constant and damping the response takes (a parameter pushed below is clipped;
@@ -184,20 +182,27 @@ def slew_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, sta
     there once reached, until the next command; before T_0 it rests at ``start`` (default u_0).
     ``seg``: the command in force at each of ``s``, when the caller has it."""
     v = max(float(rate), 1e-12)
-    N = len(T)
-    origin = np.empty(N)
-    origin[0] = float(u[0]) if start is None else float(start)
-    span = np.diff(T)
-    for i in range(N - 1):  # where each slew starts: a plain loop over the commands
-        d = float(u[i] - origin[i])
-        step = v * float(span[i])
-        origin[i + 1] = u[i] if abs(d) <= step else origin[i] + math.copysign(step, d)
+    origin = _slew_origins(T, u, v, start)
     if seg is None:
         seg = np.searchsorted(T, s, side="right") - 1
     i = np.maximum(seg, 0)
     d = u[i] - origin[i]
     moved = np.minimum(np.abs(d), v * np.maximum(s - T[i], 0.0))
     return np.where(seg < 0, origin[0], origin[i] + np.sign(d) * moved)
+
+
+def _slew_origins(T: np.ndarray, u: np.ndarray, v: float, start: float | None) -> np.ndarray:
+    """Where each command's slew (at rate v) starts: where the last one stood when it was cut (a
+    plain loop over the commands)."""
+    N = len(T)
+    origin = np.empty(N)
+    origin[0] = float(u[0]) if start is None else float(start)
+    span = np.diff(T)
+    for i in range(N - 1):
+        d = float(u[i] - origin[i])
+        step = v * float(span[i])
+        origin[i + 1] = u[i] if abs(d) <= step else origin[i] + math.copysign(step, d)
+    return origin
 
 
 def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float, accel: float,
@@ -234,48 +239,6 @@ def _profile_origins(T: np.ndarray, u: np.ndarray, v: float, a: float, start: fl
             d = float(u[i] - pos)
             pos = pos + float(np.sign(d)) * _covered_one(float(span[i]), abs(d), v, a)
     return origin
-
-
-@dataclass
-class _Grid:
-    """A fine grid's times ``s`` (increasing) and what every reference on it reads: ``seg`` the
-    command in force at each time (searchsorted of T, right, minus 1), ``bounds`` (N + 2,) where
-    each command's run of times begins (command i's times are ``bounds[i + 1]:bounds[i + 2]``,
-    those before T_0 ``:bounds[1]``), and ``since`` each time minus its command's T (T_0's before T_0)."""
-
-    s: np.ndarray
-    seg: np.ndarray
-    bounds: np.ndarray
-    since: np.ndarray
-
-    @classmethod
-    def of(cls, s: np.ndarray, T: np.ndarray) -> _Grid:
-        seg = np.searchsorted(T, s, side="right") - 1
-        bounds = np.searchsorted(seg, np.arange(-1, len(T) + 1), side="left")
-        return cls(s, seg, bounds, s - T[np.maximum(seg, 0)])
-
-
-def _trapezoid_on_grid(g: _Grid, T: np.ndarray, u: np.ndarray, rate: float, accel: float,
-                       start: float | None = None) -> np.ndarray:
-    """``trapezoid_reference(g.s, T, u, rate, accel, start, g.seg)``, the same numbers, read by
-    runs: the times of one command are one run (s increasing), the profile's move its first
-    times (those under the move's length), the rest of the run its command."""
-    v, a = max(float(rate), 1e-12), max(float(accel), 1e-12)
-    origin = _profile_origins(T, u, v, a, start)
-    b = g.bounds
-    out = np.empty(len(g.s))
-    out[:b[1]] = origin[0]
-    out[b[1]:] = np.repeat(np.asarray(u, float), np.diff(b[1:]))
-    d_all = np.abs(u - origin)
-    length = np.where(d_all < v * v / a, 2.0 * np.sqrt(d_all / a), d_all / v + v / a)
-    since = g.since
-    moving = np.array([0 if np.isnan(length[i]) else np.searchsorted(since[b[i + 1]:b[i + 2]], length[i], side="left")
-                       for i in range(len(T))], dtype=np.intp)
-    i = np.repeat(np.arange(len(T)), moving)
-    k = np.repeat(b[1:-1] - np.concatenate([[0], np.cumsum(moving)[:-1]]), moving) + np.arange(len(i))
-    d = u - origin
-    out[k] = origin[i] + np.sign(d)[i] * _covered_by(since[k], i, np.abs(d), v, a)
-    return out
 
 
 def _covered_by(s: np.ndarray, i: np.ndarray, d: np.ndarray, v: float, a: float) -> np.ndarray:
@@ -385,78 +348,124 @@ def _step_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: flo
     return out
 
 
-def _foh_filter(tau: float, zeta: float | None, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """(num, den) of the response discretised with a first-order hold over steps of h (s): the
-    transfer function of the exact state update for a reference linear over each step (as
-    scipy.signal.cont2discrete(..., method='foh'), in closed form for one or two states)."""
+def _reference_pieces(T: np.ndarray, u: np.ndarray, rate: float, accel: float | None,
+                      start: float) -> tuple[np.ndarray, np.ndarray]:
+    """A profile reference (``accel`` None: a slew at ``rate`` alone) less ``start``, as pieces:
+    (b (M,), c (M, 3)), piece k from b[k] (b increasing, b[0] = T_0) to b[k + 1] (the last for
+    ever) reading r(b[k] + s) - start = c[k, 0] + c[k, 1] s + c[k, 2] s^2. The pieces are each
+    command's phases (a profile's rising, cruising, falling and hold; a slew's ramp and hold)
+    that last a while before the next command, as :func:`trapezoid_reference` and
+    :func:`slew_reference` read them (the same origins)."""
+    N, v = len(T), max(float(rate), 1e-12)
+    zero = np.zeros(N)
+    if accel is None:
+        o = _slew_origins(T, u, v, start)
+        sg, d = np.sign(u - o), np.abs(u - o)
+        begin = np.stack([zero, d / v], 1)
+        c = np.stack([np.stack([o, u], 1), np.stack([sg * v, zero], 1), np.zeros((N, 2))], 2)
+    else:
+        a = max(float(accel), 1e-12)
+        o = _profile_origins(T, u, v, a, start)
+        sg, d = np.sign(u - o), np.abs(u - o)
+        tri = d < v * v / a
+        ta = np.where(tri, np.sqrt(d / a), v / a)
+        end = np.where(tri, 2 * ta, d / v + v / a)
+        half, top = 0.5 * a * ta * ta, sg * a * ta
+        begin = np.stack([zero, ta, end - ta, end], 1)
+        c = np.stack([np.stack([o, o + sg * half, o + sg * (d - half), u], 1),
+                      np.stack([zero, top, top, zero], 1),
+                      np.stack([0.5 * a * sg, zero, -0.5 * a * sg, zero], 1)], 2)
+    until = np.minimum(np.append(begin[:, 1:], np.full((N, 1), np.inf), 1), np.append(np.diff(T), np.inf)[:, None])
+    keep = begin < until  # a phase that ends before it begins, or begins after the next command, is none
+    c[:, :, 0] -= start
+    return (T[:, None] + begin)[keep], c[keep]
+
+
+def _piece_states(b: np.ndarray, c: np.ndarray, tau: float, zeta: float | None):
+    """The response to :func:`_reference_pieces`' pieces from rest (at 0) at b[0]: (p (M, 3),
+    e (M,), ev (M,)). On piece k the response is x(b[k] + s) = p[k, 0] + p[k, 1] s + p[k, 2] s^2
+    (the particular response to the piece's polynomial: r - alpha r' + (alpha^2 - beta) r'' for
+    the response 1 + alpha D + beta D^2) plus the free response (:func:`_free`) from e[k] (and
+    rate ev[k], second order) at s = 0; each piece's state is the last one's at its end."""
+    alpha, beta = (tau, 0.0) if zeta is None else (2.0 * zeta * tau, tau * tau)
+    p = np.stack([c[:, 0] - alpha * c[:, 1] + 2.0 * (alpha * alpha - beta) * c[:, 2],
+                  c[:, 1] - 2.0 * alpha * c[:, 2], c[:, 2]], 1)
+    L = np.diff(b)
+    # where piece k's particular response ends less where piece k + 1's begins (position, rate)
+    jump = (p[:-1, 0] + L * (p[:-1, 1] + L * p[:-1, 2]) - p[1:, 0]).tolist()
+    e = [-float(p[0, 0])]
     if zeta is None:
-        A, B, C = np.array([[-1.0 / tau]]), np.array([[1.0 / tau]]), np.array([1.0])
-    else:
-        w = 1.0 / tau
-        A, B, C = np.array([[0.0, 1.0], [-w * w, -2 * zeta * w]]), np.array([[0.0], [w * w]]), np.array([1.0, 0.0])
-    n = A.shape[0]
-    # over one step from x0 with r(s) = r0 + (r1 - r0) s / h: x(h) = Phi x0 + G0 r0 + G1 (r1 - r0),
-    # Phi = exp(A h), G0 = A^-1 (Phi - I) B = sum_k A^k h^(k+1) / (k+1)! B,
-    # G1 = (A^-2 (Phi - I) / h - A^-1) B = sum_k A^k h^(k+1) / (k+2)! B
-    if zeta is None:
-        ad = np.array([[np.exp(-h / tau)]])
-    else:
-        pp, pv = _free(np.array(h), np.array(1.0), np.array(0.0), tau, zeta)
-        vp, vv = _free(np.array(h), np.array(0.0), np.array(1.0), tau, zeta)
-        ad = np.array([[float(pp), float(vp)], [float(pv), float(vv)]])
-    if np.abs(A).max() * h < 0.5:  # a step short beside the response: the series, free of cancellation
-        g0, g1, term = np.zeros((n, 1)), np.zeros((n, 1)), B * h
-        for k in range(1, 30):  # term = A^(k-1) h^k B / (k - 1)!
-            g0 += term / k
-            g1 += term / (k * (k + 1))
-            term = A @ term * (h / k)
-    else:
-        Ai = np.linalg.inv(A)
-        g0 = Ai @ (ad - np.eye(n)) @ B
-        g1 = (Ai @ Ai @ (ad - np.eye(n)) / h - Ai) @ B
-    # xi = x - G1 r: xi' = Phi xi + (G0 - G1 + Phi G1) r, x = xi + G1 r
-    bd = (g0 - g1 + ad @ g1)[:, 0]
-    dd = float(C @ g1[:, 0])
-    if n == 1:
-        den = np.array([1.0, -ad[0, 0]])
-        return dd * den + np.array([0.0, C[0] * bd[0]]), den
-    den = np.array([1.0, -np.trace(ad), np.linalg.det(ad)])
-    adj0 = np.array([[-ad[1, 1], ad[0, 1]], [ad[1, 0], -ad[0, 0]]])
-    return dd * den + np.array([0.0, C @ bd, C @ adj0 @ bd]), den
+        for q, j in zip(np.exp(-L / tau).tolist(), jump):  # the pieces' states: a plain loop over them
+            e.append(q * e[-1] + j)
+        return p, np.array(e), np.zeros(len(b))
+    jump_v = (p[:-1, 1] + 2.0 * L * p[:-1, 2] - p[1:, 1]).tolist()
+    pp, pv = _free(L, 1.0, 0.0, tau, zeta)
+    vp, vv = _free(L, 0.0, 1.0, tau, zeta)
+    ev = [-float(p[0, 1])]
+    for a11, a21, a12, a22, j, jv in zip(pp.tolist(), pv.tolist(), vp.tolist(), vv.tolist(), jump, jump_v):
+        x0, v0 = e[-1], ev[-1]
+        e.append(a11 * x0 + a12 * v0 + j)
+        ev.append(a21 * x0 + a22 * v0 + jv)
+    return p, np.array(e), np.array(ev)
 
 
 def _profile_one(t: np.ndarray, T: np.ndarray, u: np.ndarray, tau: float, zeta: float | None, rate: float,
                  accel: float | None, start: float, cache: dict | None = None, key=None) -> np.ndarray:
     """One actuator after a profile reference (``accel`` None: a slewed step reference, rate
-    limited alone), on a fine grid from T_0 (first-order hold), at t.
-    The grid runs to whole seconds past the last time (a small shift leaves it as it is); with
-    ``cache``, the reference and the response on the grid are kept under ``key`` (the actuator)
-    and their parameters, at most CACHE_ENTRIES of them."""
-    h = FINE_STEP_S
-    t_end = float(np.ceil(max(float(t.max()), float(T[-1])) - float(T[0]) + 2 * h)) + float(T[0])
-    n = int(np.ceil((t_end - T[0]) / h)) + 1
-    g = None if cache is None else cache.get(("seg", n))  # the grid and its commands, kept with the cache
-    if g is None:
-        g = _Grid.of(T[0] + h * np.arange(n), T)
-        _keep(cache, ("seg", n), g)
-    rkey = ("ref", key, rate, accel, start, n)
-    xkey = ("x", key, rate, accel, start, n, tau, zeta)
-    x = None if cache is None else cache.get(xkey)
-    if x is None:
-        r = None if cache is None else cache.get(rkey)
-        if r is None:
-            r = (slew_reference(g.s, T, u, rate, start, g.seg) if accel is None
-                 else _trapezoid_on_grid(g, T, u, rate, accel, start)) - start
-            _keep(cache, rkey, r)
-        fkey = ("foh", tau, zeta)
-        filt = None if cache is None else cache.get(fkey)
-        if filt is None:
-            filt = _foh_filter(tau, zeta, h)
-            _keep(cache, fkey, filt)
-        num, den = filt
-        x = signal.lfilter(num, den, r) + start
-        _keep(cache, xkey, x)
-    return np.interp(t, g.s, x, left=float(start))
+    limited alone), exactly, at t: the piece in force at each time, its particular polynomial
+    and the free response from its state (:func:`_piece_states`); at ``start`` before T_0. A
+    rate, acceleration, time constant or damping that is not finite gives NaN from T_0 on. With
+    ``cache``, the pieces and their states are kept under ``key`` (the actuator) and their
+    parameters, at most CACHE_ENTRIES of them."""
+    out = np.full(len(t), float(start))
+    if not all(math.isfinite(x) for x in (rate, tau, 0.0 if accel is None else accel, 0.0 if zeta is None else zeta)):
+        out[t >= T[0]] = np.nan
+        return out
+    skey = ("states", key, rate, accel, start, tau, zeta)
+    states = None if cache is None else cache.get(skey)
+    if states is None:
+        rkey = ("pieces", key, rate, accel, start)
+        pieces = None if cache is None else cache.get(rkey)
+        if pieces is None:
+            pieces = _reference_pieces(T, u, rate, accel, start)
+            _keep(cache, rkey, pieces)
+        p, e, ev = _piece_states(pieces[0], pieces[1], tau, zeta)
+        q = ev if zeta is None else ev + (zeta / tau) * e
+        states = (pieces[0], *np.ascontiguousarray(p.T), e, q)
+        _keep(cache, skey, states)
+    b, p0, p1, p2, e, q = states
+    k = _piece_of(b, t)
+    ok = k >= 0
+    i, s = (k, t - b[k]) if ok.all() else (k[ok], t[ok] - b[k[ok]])
+    x = p0[i] + s * (p1[i] + s * p2[i])
+    if zeta is None:
+        x += e[i] * np.exp(-s / tau)
+    else:  # the free response's position (_free's) from each piece's e and q = ev + zeta w e
+        w = 1.0 / tau
+        a, g = zeta * w, w * w * (zeta * zeta - 1.0)
+        if abs(g) < 1e-12 * w * w:  # critically damped
+            C = np.exp(-a * s)
+            S = C * s
+        elif g > 0:
+            r = math.sqrt(g)
+            e1, e2 = np.exp((r - a) * s), np.exp(-(a + r) * s)
+            C, S = 0.5 * (e1 + e2), (0.5 / r) * (e1 - e2)
+        else:
+            r = math.sqrt(-g)
+            ex = np.exp(-a * s)
+            C, S = ex * np.cos(r * s), ex * np.sin(r * s) / r
+        x += e[i] * C + q[i] * S
+    out[ok] = x + start
+    return out
+
+
+def _piece_of(b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The piece in force at each of the times t (searchsorted of b, right, minus 1: -1 before
+    b[0]); for times in increasing order, counted by runs from each piece's first time."""
+    if len(t) > 1 and bool((t[1:] >= t[:-1]).all()):
+        first = np.searchsorted(t, b, side="left")
+        return np.repeat(np.arange(-1, len(b)), np.diff(np.concatenate([[0], first, [len(t)]])))
+    return np.searchsorted(b, t, side="right") - 1
 
 
 def _segments(cache: dict | None, T: np.ndarray, s: np.ndarray, shift: float) -> np.ndarray | None:
@@ -480,8 +489,7 @@ def _keep(cache: dict | None, key, value) -> None:
     if cache is None:
         return
     if len(cache) >= CACHE_ENTRIES:
-        old = next((k for k in cache if k[0] != "seg"), next(iter(cache)))  # the oldest, the grids' last
-        cache.pop(old)
+        cache.pop(next(iter(cache)))  # the oldest
     cache[key] = value
 
 
@@ -492,7 +500,7 @@ def actuator_positions(model: ResponseModel, theta, T: np.ndarray, U: np.ndarray
     ``only``: that actuator's column alone, (K,). ``start`` (n_u,): where a profile's actuators
     rest before the first command (default: on it; a step reference always starts on it).
     ``cache``: a dict the caller keeps between calls on the same log (a profile's reference and
-    response on its fine grid are reused where only the shift, or only the response, changed).
+    pieces and their states are reused where only the shift changed, and the pieces where only the response did).
     Actuator j is seen at t - shift - delay_j (:func:`lags`)."""
     par = model.split(theta)
     lag = lags(model, theta)
