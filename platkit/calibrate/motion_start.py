@@ -133,10 +133,11 @@ def _nearest_travel(spec: PlatformSpec, td, mk, links, Yb: np.ndarray, guess_u: 
             up[:, j] += TRAVEL_STEP
             J[:, :, j] = (resid(up) - r) / TRAVEL_STEP
         unseen = ~(np.where(np.isfinite(J), np.abs(J), 0.0).max(axis=(0, 1)) > 0)  # a failed sample moves none
+        J = np.where(np.isfinite(J), J, 0.0)  # a control whose step fails the kinematics moves nothing
         JtJ = np.einsum("kij,kil->kjl", J, J)
         damp = 1e-6 * np.maximum(np.trace(JtJ, axis1=1, axis2=2), 1e-12)[:, None, None] * np.eye(n_u)
-        du = -np.linalg.solve(JtJ + damp, np.einsum("kij,ki->kj", J, r)[..., None])[..., 0]
-        u = np.clip(u + du, lo, hi)
+        du = -np.linalg.solve(JtJ + damp, np.einsum("kij,ki->kj", J, np.where(np.isfinite(r), r, 0.0))[..., None])[..., 0]
+        u = np.clip(u + np.where(np.isfinite(du), du, 0.0), lo, hi)  # a sample the kinematics fails stays put
         r = resid(u)
     miss = np.sqrt(np.sum(r ** 2, axis=1) / np.maximum(seen.sum(axis=1), 1))
     u[(seen.sum(axis=1) < 3) | ~(miss < TRAVEL_MISS_M)] = np.nan

@@ -115,3 +115,36 @@ def test_a_start_that_reaches_too_few_samples_at_every_registration_says_so(tmp_
             assert texts == []
         else:
             assert len(texts) == 1 and said in texts[0] and "4 registrations tried" in texts[0]
+
+
+def test_a_sample_whose_step_fails_the_kinematics_keeps_its_place(monkeypatch):
+    """Where a control's finite-difference step takes a sample out of the kinematics (NaN markers),
+    that sample's Gauss-Newton step moves nothing and the sample ends NaN or where it stood, and
+    the other samples' travel is found: before, the NaN column made the solve NaN, the next
+    evaluation raised BadInput ("control A is not a finite number") and calibration from motion
+    stopped (psvr 5470190)."""
+    import platkit.calibrate.motion_start as ms
+
+    spec = get_platform("rotary")
+    model = PlatformModel(spec)
+    rng = np.random.default_rng(5)
+    U = rng.uniform(-40.0, 40.0, size=(20, 2))
+    U[7, 0] = 59.0  # the sample whose first control's step fails
+    mk = rng.uniform(-0.15, 0.15, size=(5, 3))
+    td = spec.nominal_td()
+    b = np.zeros(3)
+    Y = marker_points(spec, model, td, mk, None, U) + rng.normal(scale=5e-5, size=(20, 5, 3))
+    guess = U.copy()
+    edge = U[7, 0] + 0.5 * ms.TRAVEL_STEP
+    real = ms.marker_points
+
+    def failing(spec_, model_, td_, mk_, links_, U_, guess=None):
+        pts = real(spec_, model_, td_, mk_, links_, U_, guess)
+        pts[np.asarray(U_)[:, 0] > edge] = np.nan
+        return pts
+
+    monkeypatch.setattr(ms, "marker_points", failing)
+    travel = actuator_travel(spec, model, td, np.eye(3), b, mk, Y, guess)
+    others = np.delete(np.arange(20), 7)
+    assert np.isfinite(travel[others]).all()
+    assert np.abs(travel[others] - U[others]).max() < 0.05
