@@ -16,8 +16,8 @@ Procedure (:func:`calibrate_motion`):
 1. checks: markers and at least three commands, on two clocks that overlap (BadSession naming
    commands.csv); after the fit kept (4.-6.), markers off by more than MISFIT_RATIO times their own
    noise (on a tree, and by more than MISFIT_ABSOLUTE_M) say that the log does not explain the
-   motion (commands missing: a log sparser than the motion, or another recording's), BadSession
-   naming commands.csv;
+   motion (commands missing: a log sparser than the motion, or another recording's),
+   MotionUnexplained (a BadSession) naming commands.csv;
 2. the samples: every sample from the second command on (the stand's place before the first is
    not logged), reduced without losing what they say of the geometry (:func:`stream_windows`):
    the stream is cut into windows of about WINDOW_S s; in each, every marker coordinate is fitted
@@ -104,8 +104,13 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["LocalResponseTerm", "ResponseTerm", "calibrate_motion", "fit_progress", "fitted_kind", "motion_poses",
-           "motion_stream", "without_response"]
+__all__ = ["LocalResponseTerm", "MotionUnexplained", "ResponseTerm", "calibrate_motion", "fit_progress", "fitted_kind",
+           "motion_poses", "motion_stream", "without_response"]
+
+
+class MotionUnexplained(BadSession):
+    """The fitted motion model leaves the markers off by more than the misfit rule allows: the
+    command log does not explain the stream (or the model did not find the stand)."""
 
 #: windows per block of the curvature correction
 CORRECTION_BLOCK = 32
@@ -337,7 +342,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
     if len(set(poses.marker_links.values())) > 1:
         limit = max(limit, MISFIT_ABSOLUTE_M)
     if np.isfinite(floor) and floor > 0 and cal.rms_after > limit:
-        raise BadSession(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "
+        raise MotionUnexplained(f"{session.folder / 'commands.csv'}: the command log does not explain the motion in "
                          f"{session.markers_source}: after the fit the markers are off by {1e3 * cal.rms_after:.3g} mm "
                          f"RMS, {cal.rms_after / floor:.0f} times their own noise: commands are missing (a log "
                          "sparser than the motion) or the log is another recording's")

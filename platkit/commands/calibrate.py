@@ -199,7 +199,8 @@ def refuse_extrapolated_holds(poses, folder) -> None:
              else "the extrapolated poses carry what the approach model missed: the stream is the data")
     reason = f"{n_settled} of {n_commands} holds settled, {n_extrapolated} extrapolated to rest: {under}"
     raise HoldsNeverSettle(f"{folder}: {reason}", refusal(reason, info.get("unsettled") or {}, n_commands, n_settled,
-                                                         n_extrapolated=n_extrapolated, settled_needed=need))
+                                                         n_extrapolated=n_extrapolated, settled_needed=need,
+                                                         poses_usable=True))
 
 
 def run(args) -> int:
@@ -229,7 +230,10 @@ def run(args) -> int:
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        return run_motion(args, str(exc), notes, exc.settling.get("reason"))  # the report's why, the warning's
+        loaded = from_poses_if_unexplained(args, exc, notes)
+        if loaded is None:  # calibrated from motion, its outputs written
+            return 0
+        poses, spec, options = loaded
     kind = getattr(args, "response_kind", "auto")
     for flag, value in (("--response", response), ("--response-kind", None if kind == "auto" else kind)):
         if value is not None:  # the holds settled: no response is fitted, said
@@ -353,6 +357,27 @@ def response_parts(text: str | None) -> dict[str, bool]:
     if unknown or (text is not None and not parts):
         raise BadInput(f"--response {text}: use {' and/or '.join(RESPONSE_PARTS)}, comma-separated")
     return {RESPONSE_PARTS[x]: True for x in parts}
+
+
+def from_poses_if_unexplained(args, refused, notes: list[str]):
+    """Calibration from motion of a session whose holds were refused (``refused``: HoldsNeverSettle
+    or NeverSettles): None when it ran (its outputs written). Where the refusal left the holds'
+    poses usable (every hold settled or extrapolated to rest, ``settling['poses_usable']``:
+    :func:`refuse_extrapolated_holds`) and the fitted motion model does not explain the stream
+    (platkit.calibrate.motion.MotionUnexplained), the session is calibrated from those poses
+    instead, said on stderr and in the report's warnings: (poses, spec, platform_options)."""
+    from platkit.calibrate.motion import MotionUnexplained
+
+    try:
+        run_motion(args, str(refused), notes, refused.settling.get("reason"))
+        return None
+    except MotionUnexplained as exc:
+        if not refused.settling.get("poses_usable"):
+            raise
+        note = f"{exc}; calibrated from the holds' poses instead (settled and extrapolated to rest)"
+    warn(note)
+    notes.append(note)
+    return load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet, notes=notes)
 
 
 def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None) -> int:

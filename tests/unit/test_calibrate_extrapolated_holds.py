@@ -67,3 +67,36 @@ def test_calibrate_reads_the_stream_of_holds_extrapolated_with_too_few_settled(t
                  "--no-report", "--out", str(tmp_path / "diag")]) == 0
     diag = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert any(r.get("round") == "settle summary" for r in diag["rounds"])
+
+
+def test_a_stream_the_motion_model_does_not_explain_is_calibrated_from_the_holds_poses(tmp_path, monkeypatch):
+    """Where every hold settled or was extrapolated to rest and the fitted motion model does not
+    explain the stream (psvr 5470190: 20.2 mm after the fit, 121 times the noise), calibrate uses
+    the holds' poses and says so, instead of refusing a session its poses calibrate."""
+    import platkit.calibrate.motion as motion
+    from platkit.cli import main
+    from platkit.plugins import get_platform
+    from platkit.simulate.physics import simulate_physics, write_physical_session
+
+    sim = simulate_physics(get_platform("rotary"), seed=100, n_poses=16, plan="random",
+                           effects=[("settling_lag", 0.15)], mocap_rate_hz=50.0)
+    folder = write_physical_session(sim, tmp_path / "slow")
+
+    def unexplained(session, *a, **k):
+        raise motion.MotionUnexplained(f"{session.folder / 'commands.csv'}: the command log does not explain the "
+                                       "motion (test)")
+
+    monkeypatch.setattr(motion, "calibrate_motion", unexplained)
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(tmp_path / "cal")]) == 0
+    report = json.loads((tmp_path / "cal" / "report.json").read_text())
+    assert not report.get("motion")
+    assert any("calibrated from the holds' poses instead" in w for w in report["warnings"])
+    # a refusal whose poses are not usable (under half the commands gave one) is still a refusal
+    from platkit.commands.calibrate import from_poses_if_unexplained
+    from platkit.errors import BadSession
+
+    refused = HoldsNeverSettle("s: under half", {"reason": "under half", "n_commands": 16, "n_settled": 2})
+    args = SimpleNamespace(session=str(folder), platform=None, description=None, quiet=True, free=None,
+                           validate=None, prior_strength=None, no_robust=False, out=str(tmp_path / "cal2"))
+    with pytest.raises(BadSession, match="does not explain"):
+        from_poses_if_unexplained(args, refused, [])
