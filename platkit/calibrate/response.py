@@ -217,8 +217,7 @@ def trapezoid_reference(s: np.ndarray, T: np.ndarray, u: np.ndarray, rate: float
         seg = np.searchsorted(T, s, side="right") - 1
     out = np.where(seg < 0, origin[0], u[np.maximum(seg, 0)]).astype(float)
     # a profile that has ended stands on its command: only the times within a move are computed
-    d_all = np.abs(u - origin)
-    length = np.where(d_all < v * v / a, 2.0 * np.sqrt(d_all / a), d_all / v + v / a)
+    length = _phases(np.abs(u - origin), v, a)[1]
     k = np.nonzero((seg >= 0) & (s - T[np.maximum(seg, 0)] < length[np.maximum(seg, 0)]))[0]
     i = seg[k]
     d = u[i] - origin[i]
@@ -241,24 +240,12 @@ def _profile_origins(T: np.ndarray, u: np.ndarray, v: float, a: float, start: fl
     return origin
 
 
-def _covered_by(s: np.ndarray, i: np.ndarray, d: np.ndarray, v: float, a: float) -> np.ndarray:
-    """``_covered(s, d[i], v, a)``, the same numbers, for times s >= 0 of commands ``i`` over
-    distances ``d`` (one per command): the profile's phases per command, each time's expression
-    evaluated for its own phase alone."""
+def _phases(d: np.ndarray, v: float, a: float) -> tuple[np.ndarray, np.ndarray]:
+    """The trapezoid over distances ``d`` >= 0 at rate v and acceleration a: (the time its rising
+    phase lasts, the time it ends); a triangle where d < v^2 / a (the rate never reached)."""
     tri = d < v * v / a
     ta = np.where(tri, np.sqrt(d / a), v / a)
-    end = np.where(tri, 2 * ta, d / v + v / a)
-    ta_k, end_k = ta[i], end[i]
-    out = d[i]
-    rising = s <= ta_k
-    cruise = ~rising & (s <= end_k - ta_k)
-    falling = ~rising & ~cruise & (s < end_k)
-    out[rising] = 0.5 * a * s[rising] ** 2
-    t, c = ta_k[cruise], a * ta_k[cruise]
-    out[cruise] = 0.5 * a * t ** 2 + c * (s[cruise] - t)
-    r = np.maximum(end_k[falling] - s[falling], 0.0)
-    out[falling] = out[falling] - 0.5 * a * r ** 2
-    return out
+    return ta, np.where(tri, 2 * ta, d / v + v / a)
 
 
 def _covered_one(s: float, d: float, v: float, a: float) -> float:
@@ -275,9 +262,20 @@ def _covered_one(s: float, d: float, v: float, a: float) -> float:
 
 def _covered(s, d, v, a):
     """Distance covered after time s >= 0 by the trapezoid over distance d >= 0 (broadcast; a time
-    below 0 counts as 0): :func:`_covered_by` element by element."""
+    below 0 counts as 0): each time's expression evaluated for its own phase alone."""
     s, d = np.broadcast_arrays(np.clip(np.asarray(s, float), 0.0, None), np.asarray(d, float))
-    return _covered_by(s.reshape(-1), np.arange(s.size), d.reshape(-1), v, a).reshape(s.shape)
+    shape, s, d = s.shape, s.reshape(-1), d.reshape(-1)
+    ta, end = _phases(d, v, a)
+    out = d.copy()
+    rising = s <= ta
+    cruise = ~rising & (s <= end - ta)
+    falling = ~rising & ~cruise & (s < end)
+    out[rising] = 0.5 * a * s[rising] ** 2
+    t, c = ta[cruise], a * ta[cruise]
+    out[cruise] = 0.5 * a * t ** 2 + c * (s[cruise] - t)
+    r = np.maximum(end[falling] - s[falling], 0.0)
+    out[falling] = out[falling] - 0.5 * a * r ** 2
+    return out.reshape(shape)
 
 
 def _free(tau_s: np.ndarray, e0: np.ndarray, v0: np.ndarray, tau: float, zeta: float):
@@ -367,9 +365,7 @@ def _reference_pieces(T: np.ndarray, u: np.ndarray, rate: float, accel: float | 
         a = max(float(accel), 1e-12)
         o = _profile_origins(T, u, v, a, start)
         sg, d = np.sign(u - o), np.abs(u - o)
-        tri = d < v * v / a
-        ta = np.where(tri, np.sqrt(d / a), v / a)
-        end = np.where(tri, 2 * ta, d / v + v / a)
+        ta, end = _phases(d, v, a)
         half, top = 0.5 * a * ta * ta, sg * a * ta
         begin = np.stack([zero, ta, end - ta, end], 1)
         c = np.stack([np.stack([o, o + sg * half, o + sg * (d - half), u], 1),
