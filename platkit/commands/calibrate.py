@@ -230,7 +230,7 @@ def run(args) -> int:
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        loaded = from_poses_if_unexplained(args, exc, notes)
+        loaded = motion_or_poses(args, exc, notes)
         if loaded is None:  # calibrated from motion, its outputs written
             return 0
         poses, spec, options = loaded
@@ -359,7 +359,7 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def from_poses_if_unexplained(args, refused, notes: list[str]):
+def motion_or_poses(args, refused, notes: list[str]):
     """Calibration from motion of a session whose holds were refused (``refused``: HoldsNeverSettle
     or NeverSettles): None when it ran (its outputs written). Where the refusal left the holds'
     poses usable (every hold settled or extrapolated to rest, ``settling['poses_usable']``:

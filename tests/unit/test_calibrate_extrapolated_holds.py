@@ -92,11 +92,11 @@ def test_a_stream_the_motion_model_does_not_explain_is_calibrated_from_the_holds
     assert not report.get("motion")
     assert any("calibrated from the holds' poses instead" in w for w in report["warnings"])
     # a refusal whose poses are not usable (under half the commands gave one) is still a refusal
-    from platkit.commands.calibrate import from_poses_if_unexplained
+    from platkit.commands.calibrate import motion_or_poses
     from platkit.errors import BadSession
 
     refused = HoldsNeverSettle("s: under half", {"reason": "under half", "n_commands": 16, "n_settled": 2})
     args = SimpleNamespace(session=str(folder), platform=None, description=None, quiet=True, free=None,
                            validate=None, prior_strength=None, no_robust=False, out=str(tmp_path / "cal2"))
     with pytest.raises(BadSession, match="does not explain"):
-        from_poses_if_unexplained(args, refused, [])
+        motion_or_poses(args, refused, [])
