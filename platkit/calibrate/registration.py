@@ -39,6 +39,9 @@ _KEEP = 4
 _LOCK = threading.Lock()
 _OPEN = [0]  # the kept_registrations contexts open (in any thread)
 T = TypeVar("T")
+#: a moving frame's path is a line where its second principal spread is under this share of its
+#: first; the rotation about the line is then tried in PATH_TURNS steps (:func:`initial_rotations`)
+PATH_LINE_SHARE, PATH_TURNS = 0.05, 24
 
 
 @contextmanager
@@ -102,7 +105,27 @@ def registered(R, X, Y, vis, rotation_from: tuple) -> tuple[np.ndarray, np.ndarr
     :func:`kept_registrations`, copies of a kept result where the same inputs were registered
     before (the module docstring)."""
     return kept("registration", digest(R, X, Y, vis, *rotation_from),
-                lambda: register(R, X, Y, vis, initial_rotation(*rotation_from)), _copies)
+                lambda: best_registration(R, X, Y, vis, initial_rotations(*rotation_from)), _copies)
+
+
+def best_registration(R, X, Y, vis, starts: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`register` from each rotation of ``starts`` (:func:`initial_rotations`), the one whose
+    points lie nearest their measurements (the median distance over the points seen): the data
+    choose between starts that the conditioning of the relative motions cannot. One start: its
+    registration."""
+    best, best_d = None, np.inf
+    for A0 in starts:
+        got = register(R, X, Y, vis, A0)
+        if len(starts) == 1:
+            return got
+        A, b, mk = got
+        pts = X + np.einsum("nmab,mb->nma", R, mk)
+        d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)[vis]
+        med = float(np.median(d)) if d.size else np.inf
+        if best is None or med < best_d:
+            best, best_d = got, med
+    assert best is not None
+    return best
 
 
 def register(R, X, Y, vis, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -123,12 +146,25 @@ def register(R, X, Y, vis, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def initial_rotation(R, X, Y, vis) -> np.ndarray:
-    """mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye, AX = XB).
+    """The first of :func:`initial_rotations`: the hand-eye rotation where the relative motions fix
+    it, else the one from the moving frame's path."""
+    return initial_rotations(R, X, Y, vis)[0]
 
-    Rm_n: the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
-    model's. A few references are tried and the one whose clouds fit best is kept, and pose
-    pairs whose clouds do not fit as a rigid body (a swapped or jumping marker) are left out.
-    """
+
+def initial_rotations(R, X, Y, vis) -> list[np.ndarray]:
+    """Starts for the mocap_from_base rotation A from relative motions: Rm_n A = A B_n (hand-eye,
+    AX = XB), Rm_n the marker cloud's rotation from a reference pose to pose n (Kabsch), B_n the
+    model's. A few references are tried and the one whose clouds fit best is kept, and pose pairs
+    whose clouds do not fit as a rigid body (a swapped or jumping marker) are left out.
+
+    Where the least singular value of the hand-eye system is under a tenth of the next, its null
+    vector alone is the start. Otherwise the rotation that aligns the moving frame's path with the
+    markers' centroid path is one start; where that path is a line (its second principal spread
+    under PATH_LINE_SHARE of its first) the rotation about the line is not fixed by it, and
+    the path's rotation turned about the line in PATH_TURNS steps are starts too; and the hand-eye
+    null vector, where the system has one (its next singular value over 1e-3), is a start beside
+    them: :func:`best_registration` keeps the registration that fits best. A stand that only tilts
+    and heaves (a crank-rod seat mover) has such a path and a hand-eye system near the threshold."""
     N = len(R)
     counts = vis.sum(axis=1)
     best_seen = np.nonzero(counts == counts.max())[0]
@@ -152,20 +188,33 @@ def initial_rotation(R, X, Y, vis) -> np.ndarray:
         good = misfit <= max(4.5 * med, 1e-12)
         if best is None or med < best[0]:
             best = (med, np.vstack([r for r, g in zip(rows, good) if g]))
+    starts = []
     if best is not None:
         _, s, Vt = np.linalg.svd(best[1])
-        if s[-2] > 10 * s[-1] and s[-2] > 1e-3:
+        if s[-2] > 1e-3:
             A = Vt[-1].reshape(3, 3, order="F")
             if np.linalg.det(A) < 0:
                 A = -A
             U_, _, Vt_ = np.linalg.svd(A)
-            return U_ @ np.diag([1, 1, np.linalg.det(U_ @ Vt_)]) @ Vt_
+            starts.append(U_ @ np.diag([1, 1, np.linalg.det(U_ @ Vt_)]) @ Vt_)
+            if s[-2] > 10 * s[-1]:
+                return starts
     # too little rotation: align the moving frame's path with the markers' centroid path
     full = vis.all(axis=1)
     if full.sum() >= 3:
         A, _ = rigid_fit(X[full], Y[full].mean(axis=1))
-        return A
-    return np.eye(3)
+        path = [A]
+        _, spread, Vp = np.linalg.svd(X[full] - X[full].mean(axis=0))
+        if spread[0] > 0 and spread[1] < PATH_LINE_SHARE * spread[0]:  # about the line: not fixed
+            path += [A @ _turn(Vp[0], 2 * np.pi * k / PATH_TURNS) for k in range(1, PATH_TURNS)]
+        return path + starts
+    return starts + [np.eye(3)]
+
+
+def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The rotation by ``angle`` (rad) about the unit ``axis`` (Rodrigues)."""
+    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
 
 
 def markers_given_rotation(A, R, X, Y, vis):
