@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from platkit.bodies import stream_for_settling, with_settled_bodies
+from platkit.effects import play_memory
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
 from platkit.poses import PoseSet
@@ -475,7 +476,7 @@ def _pose_set(session: Session, st: _Stream, found: _Search, n_extrapolated: int
         moving_link=session.moving_link, source=str(session.folder), dropped=dropped_list,
         extras={
             "row": kept_a, "direction": direction_of_last_motion(U)[kept_a], "last_step": last_step(U)[kept_a],
-            "elapsed": tc[kept_a] - tc[0], "settle_time": col("start") - tc[kept_a],
+            "play": play_memory(U, kept_a), "elapsed": tc[kept_a] - tc[0], "settle_time": col("start") - tc[kept_a],
             "window_start": col("start"), "window_end": col("end"), "marker_std": col("std"),
             "approach_tau_s": col("tau"), "remaining_m": col("remaining"), "extrapolated": col("extrapolated"),
             "held_markers": col("held"),
@@ -493,7 +494,9 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     0-based in commands.csv order, each reason ``category: detail`` with a category of
     DROP_CATEGORIES) and a SettleReport. ``extras``: 'row' (N,) command row,
     'direction' (N, n_u) sign of the last change of each control, 'last_step' (N, n_u) the command
-    step that led to the row (u_i - u_(i-1), internal units), 'elapsed' (N,) s since the first
+    step that led to the row (u_i - u_(i-1), internal units), 'play' a play's memory over every
+    command of the log up to the row, those that gave no pose included (platkit.effects.play_memory),
+    'elapsed' (N,) s since the first
     command, 'settle_time' (N,) s from the command to the start of the averaging window,
     'window_start'/'window_end' (N,) s, 'marker_std' (N, M) m spread of each marker over its
     window, 'approach_tau_s' (N,) the fitted approach's time constant (NaN: no approach seen),
