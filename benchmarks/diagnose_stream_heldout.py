@@ -43,7 +43,7 @@ import yaml
 from scipy import signal
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from stream_split import split_stream  # noqa: E402
+from stream_split import settled_commands, settled_error_mm, split_stream  # noqa: E402
 
 from platkit.calibrate.estimate import point_errors  # noqa: E402
 from platkit.cli import main  # noqa: E402
@@ -59,20 +59,10 @@ KINDS = ("auto", "first-order", "second-order")
 def truth_rms(sim: Path, cal: Path, t_cut: float, work: Path) -> float:
     """RMS (mm, 3-D) of the markers ``cal`` predicts at the held-out part's commands against where
     the true stand settles there (truth_settled.csv)."""
-    rows = list(csv.DictReader((sim / "truth_settled.csv").open()))
-    rows = [r for r in rows if float(r["t"]) >= t_cut]
-    controls = [f"L{k}" for k in range(1, 7)]
-    cmd = work / "held_commands.csv"
-    with cmd.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t", *controls])
-        w.writerows([r["t"], *(r[c] for c in controls)] for r in rows)
-    out = work / "pred.csv"
+    cmd, out = work / "held_commands.csv", work / "pred.csv"
+    rows = settled_commands(sim, [f"L{k}" for k in range(1, 7)], cmd, t_from=t_cut)
     assert main(["predict", "--calibration", str(cal), "--commands", str(cmd), "--out", str(out)]) == 0
-    got = list(csv.DictReader(out.open()))
-    markers = [f"M{k}" for k in range(1, 6)]
-    e = [[float(g[f"{m}_{c}"]) - float(r[f"{m}_{c}"]) for c in "xyz"] for g, r in zip(got, rows) for m in markers]
-    return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
+    return settled_error_mm(rows, out, [f"M{k}" for k in range(1, 6)])
 
 
 def stream_rms(cal_path: Path, held: Path) -> float:

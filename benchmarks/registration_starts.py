@@ -20,7 +20,6 @@ Both run in a clean environment (no BLAS variables) so that the two see the same
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import subprocess
@@ -28,9 +27,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from stream_split import settled_commands, settled_error_mm  # noqa: E402
+
 SPY = r"""
 import json, sys
 import numpy as np
@@ -68,22 +68,13 @@ def _run(code_dir: Path, args: list[str]) -> tuple[dict, str]:
 def truth_rms(code_dir: Path, session: Path, cal: Path, work: Path) -> float:
     """RMS (mm, 3-D) of the markers ``cal`` predicts at every command against where the true stand
     settles there (truth_settled.csv)."""
-    rows = list(csv.DictReader((session / "truth_settled.csv").open()))
-    controls = [c for c in ("A", "B", "C") if c in rows[0]]
-    cmd = work / "commands_settled.csv"
-    with cmd.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t", *controls])
-        w.writerows([r["t"], *(r[c] for c in controls)] for r in rows)
-    out = work / "predicted.csv"
+    cmd, out = work / "commands_settled.csv", work / "predicted.csv"
+    rows = settled_commands(session, ["A", "B", "C"], cmd)
     got, err = _run(code_dir, ["predict", "--calibration", str(cal / "calibration.yaml"), "--commands", str(cmd),
                                "--out", str(out)])
     if got.get("rc") != 0:
         raise SystemExit(f"predict failed: {err.strip().splitlines()[-1:]}")
-    pred = list(csv.DictReader(out.open()))
-    markers = sorted({k[:-2] for k in rows[0] if k.endswith("_x") and k[:-2] not in ("",)})
-    e = [[float(g[f"{m}_{c}"]) - float(r[f"{m}_{c}"]) for c in "xyz"] for g, r in zip(pred, rows) for m in markers]
-    return float(np.sqrt(np.mean(np.sum(np.square(e), axis=1))))
+    return settled_error_mm(rows, out, sorted({k[:-2] for k in rows[0] if k.endswith("_x")}))
 
 
 def one(code_dir: Path, session: Path, work: Path) -> dict:

@@ -32,3 +32,23 @@ def split_stream(src: Path, out: Path, share: float, lead_s: float = 2.0) -> tup
                 w.writerows(r for r in table[1:] if rule(float(r[0])))
         parts.append(dst)
     return parts[0], parts[1]
+
+
+def settled_commands(session: Path, controls: list[str], out: Path, t_from: float = float("-inf")) -> list[dict]:
+    """The commands of ``session``'s truth_settled.csv (each command where the true stand settles)
+    from time ``t_from`` on, written to ``out`` as a command log (t and ``controls``) that
+    ``platkit predict`` reads; returns those truth rows."""
+    rows = [r for r in csv.DictReader((session / "truth_settled.csv").open()) if float(r["t"]) >= t_from]
+    with out.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", *controls])
+        w.writerows([r["t"], *(r[c] for c in controls)] for r in rows)
+    return rows
+
+
+def settled_error_mm(rows: list[dict], predicted: Path, markers: list[str]) -> float:
+    """RMS (3-D, the file's length unit) of the markers ``predict`` wrote to ``predicted`` against
+    the true settled ones of ``rows`` (:func:`settled_commands`), row by row."""
+    got = list(csv.DictReader(predicted.open()))
+    e = [[float(g[f"{m}_{c}"]) - float(r[f"{m}_{c}"]) for c in "xyz"] for g, r in zip(got, rows) for m in markers]
+    return float(sum(sum(x * x for x in p) for p in e) / len(e)) ** 0.5
