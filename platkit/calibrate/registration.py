@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from platkit.calibrate.robust import REJECT_K, robust_sigma
-from platkit.geometry import rigid_fit
+from platkit.geometry import matrix_from_rotvec, rigid_fit
 
 #: the results kept while a selection runs, by (kind, their inputs' digest); registrations: its two
 #: pose sets (all poses, and the cleaned ones its candidates share), with room for a selection
@@ -119,8 +119,7 @@ def best_registration(R, X, Y, vis, starts: list[np.ndarray]) -> tuple[np.ndarra
         if len(starts) == 1:
             return got
         A, b, mk = got
-        pts = X + np.einsum("nmab,mb->nma", R, mk)
-        d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)[vis]
+        d = _distances(X + np.einsum("nmab,mb->nma", R, mk), A, b, Y, vis)[vis]
         med = float(np.median(d)) if d.size else np.inf
         if best is None or med < best_d:
             best, best_d = got, med
@@ -137,12 +136,18 @@ def register(R, X, Y, vis, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for _ in range(6):
         mk, b = markers_given_rotation(A, R, X, Y, keep)
         pts = X + np.einsum("nmab,mb->nma", R, mk)
-        d = np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
+        d = _distances(pts, A, b, Y, vis)
         sigma = robust_sigma(d[vis])
         keep = vis & (d <= max(REJECT_K * sigma, 1e-12))
         A, b = rigid_fit(pts[keep], Y[keep])
     mk, b = markers_given_rotation(A, R, X, Y, keep)
     return A, b, mk
+
+
+def _distances(pts, A, b, Y, vis) -> np.ndarray:
+    """(N, M) each point's distance from its measurement, the points ``pts`` (N, M, 3) in the base
+    frame carried by (A, b) into the mocap frame; 0-filled measurements where not seen."""
+    return np.linalg.norm(pts @ A.T + b - np.where(vis[..., None], Y, 0.0), axis=2)
 
 
 def initial_rotation(R, X, Y, vis) -> np.ndarray:
@@ -206,15 +211,9 @@ def initial_rotations(R, X, Y, vis) -> list[np.ndarray]:
         path = [A]
         _, spread, Vp = np.linalg.svd(X[full] - X[full].mean(axis=0))
         if spread[0] > 0 and spread[1] < PATH_LINE_SHARE * spread[0]:  # about the line: not fixed
-            path += [A @ _turn(Vp[0], 2 * np.pi * k / PATH_TURNS) for k in range(1, PATH_TURNS)]
+            path += [A @ matrix_from_rotvec(Vp[0] * (2 * np.pi * k / PATH_TURNS)) for k in range(1, PATH_TURNS)]
         return path + starts
     return starts + [np.eye(3)]
-
-
-def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
-    """The rotation by ``angle`` (rad) about the unit ``axis`` (Rodrigues)."""
-    K = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
 
 
 def markers_given_rotation(A, R, X, Y, vis):
