@@ -127,25 +127,47 @@ def load_for_calibration(session: str | None, platform: str | None, description:
     The folder's streams are read once; ``quiet``: no reading progress on stderr. What the reading
     kept with a warning is said on stderr and appended to ``notes``. ``stream_if_extrapolated``:
     HoldsNeverSettle where holds were extrapolated to rest (:func:`refuse_extrapolated_holds`)."""
+    s = read_session(session, platform, description, quiet)
+    poses, found = settled_poses(s)
+    if stream_if_extrapolated:
+        refuse_extrapolated_holds(poses, s.folder)
+    say_reading(s, found, notes)
+    return poses, s.spec, platform_options(s)
+
+
+def read_session(session: str | None, platform: str | None, description: str | None, quiet: bool = False):
+    """The session folder ``session`` read (platkit.io.session.Session), or the stand's example
+    session where none is given; ``quiet``: no reading progress on stderr."""
     from platkit.io.session import example_session, load_session
-    from platkit.settle import load_poses
 
     if session is None:
         if platform is None:
             raise BadInput("give a SESSION folder, or --platform NAME to run on that stand's example session")
         session = example_session(platform)
-    folder = Path(session)
-    s = load_session(folder, platform=platform, description=description, quiet=quiet)
-    poses = load_poses(folder, spec=s.spec, session=s)
-    options = {"moving_link": s.moving_link} if s.moving_link else {}
-    found = settling_notes(poses, folder)
-    if stream_if_extrapolated:
-        refuse_extrapolated_holds(poses, folder)
+    return load_session(Path(session), platform=platform, description=description, quiet=quiet)
+
+
+def settled_poses(s) -> tuple:
+    """(poses, notes) of the read session ``s``: its settled poses and what settling dropped and
+    extrapolated, one line each (:func:`settling_notes`, which refuses a remnant)."""
+    from platkit.settle import load_poses
+
+    poses = load_poses(s.folder, spec=s.spec, session=s)
+    return poses, settling_notes(poses, s.folder)
+
+
+def platform_options(s) -> dict:
+    """The stand's options a session carries (a tree's ``moving_link``)."""
+    return {"moving_link": s.moving_link} if s.moving_link else {}
+
+
+def say_reading(s, found: list[str], notes: list[str] | None) -> None:
+    """Say what the reading of ``s`` kept with a warning and what settling ``found``, each on
+    stderr and once in ``notes``."""
     for note in s.extras.get("control_notes", []) + found:  # kept with a warning
         warn(note)
-        if notes is not None:
+        if notes is not None and note not in notes:
             notes.append(note)
-    return poses, s.spec, options
 
 
 def settling_notes(poses, folder) -> list[str]:
@@ -224,16 +246,22 @@ def run(args) -> int:
     notes: list[str] = []
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
+    s = read_session(args.session, args.platform, args.description, quiet=args.quiet)  # read once, whatever follows
+    read = None
     try:
-        poses, spec, options = load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet,
-                                                    notes=notes, stream_if_extrapolated=args.method != "paper")
+        read = settled_poses(s)
+        if args.method != "paper":
+            refuse_extrapolated_holds(read[0], s.folder)
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        loaded = motion_or_poses(args, exc, notes)
-        if loaded is None:  # calibrated from motion, its outputs written
+        if motion_or_poses(args, exc, notes, s) is None:  # calibrated from motion, its outputs written
             return 0
-        poses, spec, options = loaded
+        if read is None:  # no poses were read to fall back on (never so: only a refusal after reading them allows it)
+            raise
+    poses, found = read
+    say_reading(s, found, notes)
+    spec, options = s.spec, platform_options(s)
     kind = getattr(args, "response_kind", "auto")
     for flag, value in (("--response", response), ("--response-kind", None if kind == "auto" else kind)):
         if value is not None:  # the holds settled: no response is fitted, said
@@ -359,43 +387,52 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def motion_or_poses(args, refused, notes: list[str]):
+def motion_or_poses(args, refused, notes: list[str], s=None):
     """Calibration from motion of a session whose holds were refused (``refused``: HoldsNeverSettle
-    or NeverSettles): None when it ran (its outputs written). Where the refusal left the holds'
-    poses usable (every hold settled or extrapolated to rest, ``settling['poses_usable']``:
-    :func:`refuse_extrapolated_holds`) and the fitted motion model does not explain the stream
-    (platkit.calibrate.motion.MotionUnexplained), the session is calibrated from those poses
-    instead, said on stderr and in the report's warnings: (poses, spec, platform_options)."""
+    or NeverSettles; ``s``: the session as read, read here where None): None when it ran (its
+    outputs written). Where the refusal left the holds' poses usable (every hold settled or
+    extrapolated to rest, ``settling['poses_usable']``: :func:`refuse_extrapolated_holds`) and the
+    fitted motion model does not explain the stream (platkit.calibrate.motion.MotionUnexplained),
+    the session is calibrated from those poses instead, said once on stderr and in the report's
+    warnings with both reasons: "not None" (the caller calibrates the poses it read). Any other
+    failure of the motion fit is raised after a warning that says the stream was tried and why."""
     from platkit.calibrate.motion import MotionUnexplained
+    from platkit.errors import PlatkitError
 
+    reason = refused.settling.get("reason")
     try:
-        run_motion(args, str(refused), notes, refused.settling.get("reason"))
+        run_motion(args, str(refused), notes, reason, s)
         return None
     except MotionUnexplained as exc:
         if not refused.settling.get("poses_usable"):
+            warn(f"{holds_refused(reason)}: the whole stream was tried through the actuators' fitted response instead")
             raise
-        note = f"{exc}; calibrated from the holds' poses instead (settled and extrapolated to rest)"
+        note = (f"{holds_refused(reason)}: the stream's motion model was tried and {exc}; calibrated from the holds' "
+                "poses instead (settled and extrapolated to rest)")
+    except PlatkitError:
+        warn(f"{holds_refused(reason)}: the whole stream was tried through the actuators' fitted response instead")
+        raise
     warn(note)
     notes.append(note)
-    return load_for_calibration(args.session, args.platform, args.description, quiet=args.quiet, notes=notes)
+    return True
 
 
-def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None) -> int:
+def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None, s=None) -> int:
     """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
     markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
     with the stand's default free parameters (``--free`` as given). What the reading kept with a
     warning (a control past its limit within the recording tolerance, an imported file's summary) is
     said and reported as on the settled path. ``why``: the settling search's refusal (the report's);
     ``settle_reason``: its clause with the counts (HoldsNeverSettle.settling['reason']), said in the
-    one-line warning."""
+    one-line warning, once the fit has ended (before the outputs are written); ``s``: the session
+    as read (read here where None)."""
     from platkit.calibrate.estimate import second_session_errors
     from platkit.calibrate.motion import calibrate_motion
     from platkit.calibrate.motion_points import bodies_alone, calibrate_motion_bodies
     from platkit.calibrate.report import write_outputs
-    from platkit.io.session import example_session, load_session
 
-    folder = Path(args.session) if args.session is not None else Path(example_session(args.platform))
-    s = load_session(folder, platform=args.platform, description=args.description, quiet=True)
+    if s is None:
+        s = read_session(args.session, args.platform, args.description, quiet=True)
     for kept in s.extras.get("control_notes", []):  # the reading's warnings, as the settled path says them
         if kept not in notes:
             warn(kept)
@@ -408,8 +445,6 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
     if args.validate is not None:
         other, _, _ = load_for_calibration(args.validate, s.spec.name, args.description, quiet=args.quiet)
     reason = f"settling: {why}"
-    note = fallback_note(settle_reason)
-    warn(note)
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
     fit = calibrate_motion_bodies if bodies_alone(s) else calibrate_motion  # bodies alone: as points
     cal, poses = fit(s, s.spec, free=free, robust=not args.no_robust,
@@ -420,6 +455,8 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
                      **response_parts(getattr(args, "response", None)))
     if other is not None:
         cal.heldout["second_session"] = second_session_errors(cal, other)
+    note = fallback_note(settle_reason)  # said once the stream has calibrated: it is the outcome
+    warn(note)
     fit_notes = list(cal.warnings)
     for w in fit_notes:
         warn(w)
@@ -455,8 +492,13 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
 def fallback_note(reason: str | None) -> str:
     """The one-line warning of a calibration from motion in place of one from settled holds, with
     why (``reason``: the settling search's, HoldsNeverSettle.settling['reason'], with its counts)."""
-    return ((f"too few holds settle: {reason}" if reason else "the holds do not settle or there are none")
-            + ": calibrated from the whole stream through the actuators' fitted response instead (report: motion)")
+    return f"{holds_refused(reason)}: calibrated from the whole stream through the actuators' fitted response instead " \
+           "(report: motion)"
+
+
+def holds_refused(reason: str | None) -> str:
+    """Why the holds were not calibrated from, in a few words (``reason`` as :func:`fallback_note`'s)."""
+    return f"too few holds settle: {reason}" if reason else "the holds do not settle or there are none"
 
 
 def _observed(cal) -> str:

@@ -146,9 +146,9 @@ def test_calibrate_says_why_it_falls_back_and_which_response_each_fit_fits(refus
                     "start, in 1.00 s"]
 
 
-def test_calibrate_warns_with_the_reason_before_fitting_the_motion(refused_981060, tmp_path, monkeypatch, capsys):
-    """platkit calibrate on 981060: the one-line warning of the fallback carries the settle search's
-    reason (the fit itself stopped at once here)."""
+def test_calibrate_warns_with_the_reason_where_the_motion_fit_fails(refused_981060, tmp_path, monkeypatch, capsys):
+    """platkit calibrate on 981060, the fit from motion stopped at once by the test: the one-line
+    warning carries the settle search's reason and says the stream was tried, not that it calibrated."""
     import platkit.calibrate.motion as motion
     from platkit.cli import main
     from platkit.errors import ComputationFailed
@@ -161,7 +161,8 @@ def test_calibrate_warns_with_the_reason_before_fitting_the_motion(refused_98106
     assert main(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(tmp_path / "cal")]) == 1
     err = capsys.readouterr().err
     assert ("too few holds settle: 53 of 120 holds settled; 43 never did (actuator B still moving, time constant "
-            "0.801 s), and only 34 of those extrapolate to rest (80% needed): calibrated from the whole stream") in err
+            "0.801 s), and only 34 of those extrapolate to rest (80% needed): the whole stream was tried") in err
+    assert "calibrated from the whole stream" not in err and "stopped by the test" in err
 
 
 def test_a_lag_the_stream_search_named_itself_is_not_named_twice(refused_981060):
