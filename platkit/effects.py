@@ -25,13 +25,12 @@ import numpy as np
 
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
+from platkit.play import play_memory
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
 #: relative size (of a control's stroke) below which a change of command is "no move"
 MOVE_TOLERANCE = 1e-6
-#: the most turning points of one actuator's commands a play remembers (:func:`play_memory`)
-PLAY_DEPTH = 200
 #: the unit of a simulated size on one actuator (:func:`control_size`), for :class:`SizeHelp`
 CONTROL_SIZE_UNIT = "mm for length controls, else the control's unit"
 
@@ -291,62 +290,13 @@ def command_order(poses: PoseSet) -> tuple[np.ndarray, np.ndarray]:
     return x, at
 
 
-def play_memory(x: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """(N, n_u, L, 3) what a play (deadband) of any half width h needs of the commands x (T, n_u)
-    up to each row's place ``at`` (N,) in them (:func:`play_offset` reads it): the play's turning
-    points z_0 (the row's command), z_1, ... back in time, alternating, each swing |z_l - z_(l-1)|
-    wider than the one after it (a command at or beyond z_(l+1) wipes out z_l and z_(l+1)). The
-    output is z_(l-1) + h sign(z_l - z_(l-1)) for the first swing wider than 2h; where none is, it
-    still holds the first command. Entries (swing, its sign, z_(l-1)), NaN swings unused; the last
-    (x_0, highest, lowest). At most PLAY_DEPTH are kept: the oldest then stands for all wider."""
-    x, at = np.atleast_2d(np.asarray(x, float)), np.asarray(at, int)
-    runs: list[list[np.ndarray]] = [[] for _ in range(x.shape[1])]
-    for i in range(x.shape[1]):
-        S: list[float] = []
-        lost = False
-        for v in x[:, i]:
-            if not S or v != S[-1]:
-                S.append(float(v))
-            while len(S) >= 3:
-                if (S[-2] - S[-3]) * (S[-1] - S[-2]) > 0:  # S[-2] on the way: no turning point
-                    del S[-2]
-                elif abs(S[-1] - S[-2]) >= abs(S[-2] - S[-3]):  # S[-3] wiped out, S[-2] with it if older remain
-                    del S[-3:-1 if len(S) >= 4 else -2]
-                else:
-                    break
-            lost = lost or len(S) > PLAY_DEPTH + 1
-            del S[:-PLAY_DEPTH - 1]
-            z = np.array(S[::-1])
-            runs[i].append(np.column_stack([np.abs(np.diff(z)), np.sign(np.diff(z)), z[:-1]]))
-            if lost and len(z) > 1:
-                runs[i][-1][-1, 0] = np.inf
-    L = max([1] + [len(r) for i in range(x.shape[1]) for r in (runs[i][k] for k in at)])
-    out = np.full((len(at), x.shape[1], L + 1, 3), np.nan)
-    for i in range(x.shape[1]):
-        for n, k in enumerate(at):
-            out[n, i, :len(runs[i][k])] = runs[i][k]
-        out[:, i, -1] = np.column_stack([np.full(len(at), x[0, i] if len(x) else np.nan),
-                                         np.maximum.accumulate(x[:, i])[at], np.minimum.accumulate(x[:, i])[at]])
-    return out
-
-
-def play_offset(memory: np.ndarray, controls: np.ndarray, h: float) -> np.ndarray:
-    """(N,) y_k - u_k of a play y_k = clamp(y_(k-1), u_k - h, u_k + h) over the session's commands (y
-    before the first = the first), half width ``h`` >= 0, from one actuator's ``memory`` (N, L, 3)
-    (:func:`play_memory`) at rows whose commands are ``controls`` (N,)."""
-    start = memory[:, -1]
-    found = np.nan_to_num(memory[:, :-1, 0], nan=-1.0) > 2 * h
-    first = np.argmax(found, axis=1)
-    pick = memory[np.arange(len(memory)), first]
-    held = np.where(start[:, 0] < start[:, 1] - h, start[:, 1] - h, np.minimum(start[:, 0], start[:, 2] + h))
-    return np.where(found.any(axis=1), pick[:, 2] + pick[:, 1] * h, held) - controls
-
-
 def with_history(poses: PoseSet, spec: PlatformSpec | None = None) -> PoseSet:
     """``poses`` with ``extras`` 'direction', 'last_step', 'elapsed', 'row' and 'play' filled in
     from the full session's row order (kept if the session reader already supplied them). 'play'
-    (:func:`play_memory` over :func:`command_order`) is NaN for a stream's windowed poses (extras
-    'node', or a 'direction' read from a command log the rows do not give): the direction alone."""
+    (platkit.play.play_memory over :func:`command_order`): a stream's windowed poses carry their
+    own (the drives' modelled positions, platkit.diagnose.stream.stream_play); windowed poses
+    without it (extras 'node', or a 'direction' read from a command log the rows do not give) get
+    a NaN memory: the direction alone."""
     extras = dict(poses.extras)
     if "play" not in extras or np.shape(extras["play"])[:2] != poses.controls.shape:
         if "node" in extras or ("direction" in extras and "row" not in extras):

@@ -14,6 +14,11 @@ held-out one, with the noise their floor needs.
 - The direction of each actuator's last move at each windowed pose (``extras['direction']``, what
   a history effect such as backlash reads; :func:`stream_direction`): from the command log through
   the actuator's response lag, the same rule for both streams, never from the fitted controls.
+- What a play (backlash) reads at each windowed pose (``extras['play']``, ``['play_path']``,
+  ``['play_weight']``; :func:`stream_play`): the play's memory of the drives' positions (the
+  response's, at the calibration's values: the drive the play sits in overshoots and lags its
+  commands) at the first sample the pose's window weighs, those positions at its samples and the
+  weights; the term carries the play through them and weighs it as the controls are.
 - The noise of each channel per coordinate (``settling['point_sigma_m']``, read by
   :func:`platkit.diagnose.floor.noise_floor`): a marker's measured on the stream
   (platkit.settle.estimate_noise, marker by marker: session.yaml declares no marker noise); a rigid
@@ -29,11 +34,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import sparse
 
 from platkit.bodies import AXIS_LENGTH_M, frame_point_names
 from platkit.calibrate.motion import LocalResponseTerm, ResponseTerm, motion_stream
 from platkit.calibrate.motion_points import bodies_alone, point_session, point_sigmas
-from platkit.calibrate.stream import NODES, commanded_direction, response_lag
+from platkit.calibrate.response import actuator_positions
+from platkit.calibrate.stream import NODES, PROJ_SAMPLES, commanded_direction, response_lag
 from platkit.diagnose.bodies import as_points, point_calibration
 from platkit.diagnose.evidence import _score_heldout
 from platkit.effects import with_history
@@ -41,11 +48,17 @@ from platkit.io.calibration import Calibration
 from platkit.io.session import Session
 from platkit.model import PlatformSpec
 from platkit.notices import warn
+from platkit.play import play_cut, play_memory
 from platkit.poses import PoseSet
 from platkit.settle import estimate_noise
 
 __all__ = ["HeldoutStream", "heldout_stream", "marker_sigmas", "nodes_share_noise", "read_through", "score_heldout_stream",
-           "stream_direction", "stream_poses", "stream_why", "training_stream", "windows_of"]
+           "stream_direction", "stream_play", "stream_poses", "stream_why", "training_stream", "windows_of",
+           "STREAM_PLAY_DEPTH"]
+
+#: the most turning points of a drive's positions a stream's play remembers at each pose
+#: (platkit.play.play_memory's depth; the poses where it bit are counted and said)
+STREAM_PLAY_DEPTH = 32
 
 
 def marker_sigmas(session: Session) -> dict[str, float]:
@@ -100,8 +113,41 @@ def stream_poses(folder, session: Session, cal: Calibration) -> tuple[PoseSet, L
             noise += f", the bodies' points' {'measured on the stream' if measured else 'declared'}"
     poses.settling = {**(poses.settling or {}),
                       "point_sigma_m": {**sig, **((poses.settling or {}).get("point_sigma_m") or {})}}
-    poses.extras = {**poses.extras, "direction": stream_direction(session, term, cal.spec, np.asarray(poses.t, float))}
+    memory, path, weight = stream_play(term, np.asarray(poses.extras["node"], int))
+    cut = play_cut(memory).any(axis=1)
+    if cut.any():
+        warn(f"{folder}: {int(cut.sum())} of {poses.n_poses} windowed poses carry more than {STREAM_PLAY_DEPTH} "
+             "nested reversals of a drive's positions: a play wider than the oldest kept swing reads that swing's turn")
+    poses.extras = {**poses.extras, "direction": stream_direction(session, term, cal.spec, np.asarray(poses.t, float)),
+                    "play": memory, "play_path": path, "play_weight": weight}
     return poses, term, noise
+
+
+def stream_play(term: LocalResponseTerm, node: np.ndarray,
+                depth: int = STREAM_PLAY_DEPTH) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a play (platkit.play.play_offset) reads at a stream's nodes ``node`` (P,), each as
+    its row of the response's projection (``term.proj``, the window's fit in time) weighs the
+    samples, from S the most samples a row spans: the play's memory of the drives' positions from
+    the stream's first sample to the row's first (platkit.play.play_memory, at most ``depth``
+    turning points) (P, n_u, L, 3), the positions at the row's samples (P, n_u, S) (past its last,
+    the last again) and their weights (P, S) (0 there). The positions are the response's at the
+    calibration's values (``term.initial``), evaluated PROJ_SAMPLES samples at a time."""
+    proj = sparse.csr_matrix(term.proj)[np.asarray(node, int)]
+    ip, ix = proj.indptr, proj.indices
+    rows = np.repeat(np.arange(proj.shape[0]), np.diff(ip))
+    c0 = np.full(proj.shape[0], ix.max(initial=0) if len(ix) else 0)
+    c1 = np.zeros(proj.shape[0], int)
+    np.minimum.at(c0, rows, ix)
+    np.maximum.at(c1, rows, ix)
+    c1 = np.maximum(c0, c1)
+    S = int((c1 - c0).max(initial=0)) + 1
+    sample_t = np.asarray(term.sample_t, float)[:int(c1.max(initial=0)) + 1]
+    X = np.concatenate([actuator_positions(term.model, term.initial, term.T, term.U, sample_t[a:a + PROJ_SAMPLES],
+                                           start=term.start) for a in range(0, len(sample_t), PROJ_SAMPLES)])
+    weight = np.zeros((proj.shape[0], S))
+    np.add.at(weight, (rows, ix - c0[rows]), proj.data)
+    at = np.minimum(c0[:, None] + np.arange(S)[None, :], c1[:, None])
+    return play_memory(X, c0, depth), np.moveaxis(X[at], 2, 1), weight
 
 
 def stream_direction(session: Session, term: LocalResponseTerm, spec: PlatformSpec, t: np.ndarray) -> np.ndarray:

@@ -49,9 +49,9 @@ from pathlib import Path
 import numpy as np
 
 from platkit.bodies import stream_for_settling, with_settled_bodies
-from platkit.effects import play_memory
 from platkit.errors import BadSession, ComputationFailed
 from platkit.io.session import Session, load_session
+from platkit.play import play_memory
 from platkit.poses import PoseSet
 from platkit.settle._approach import Approach, _window_result, tail_free_window, tail_regression, tail_scale
 from platkit.settle._fits import extrapolation_checked, fit_approaches, fit_tails
@@ -495,7 +495,7 @@ def settle(session: Session, options: SettleOptions | None = None) -> tuple[Pose
     DROP_CATEGORIES) and a SettleReport. ``extras``: 'row' (N,) command row,
     'direction' (N, n_u) sign of the last change of each control, 'last_step' (N, n_u) the command
     step that led to the row (u_i - u_(i-1), internal units), 'play' a play's memory over every
-    command of the log up to the row, those that gave no pose included (platkit.effects.play_memory),
+    command of the log up to the row, those that gave no pose included (platkit.play.play_memory),
     'elapsed' (N,) s since the first
     command, 'settle_time' (N,) s from the command to the start of the averaging window,
     'window_start'/'window_end' (N,) s, 'marker_std' (N, M) m spread of each marker over its

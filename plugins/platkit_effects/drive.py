@@ -13,12 +13,12 @@ from platkit.effects import (
     actuator_where,
     control_size,
     history,
-    play_offset,
     stored_actuator,
     stored_number,
     stored_where,
 )
 from platkit.errors import BadInput
+from platkit.play import play_offset
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 from platkit_effects.physics import BacklashPhysics, CyclicPhysics, ScalePhysics
@@ -28,16 +28,21 @@ from platkit_effects.physics import BacklashPhysics, CyclicPhysics, ScalePhysics
 class BacklashTerm(ModelTerm):
     """A play (deadband) of half width h = |half_play| in the drive of actuator ``index``: over
     the session's commands u_k in order, the output y_k = clamp(y_(k-1), u_k - h, u_k + h) (y before
-    the first command = the first command) and the offset y_k - u_k (platkit.effects.play_offset,
+    the first command = the first command) and the offset y_k - u_k (platkit.play.play_offset,
     from the history 'play' over the whole session: held-out rows and predict's own commands
     included). A true play has half_play < 0: after a move longer than the play the offset is
     half_play times the direction of that move (+1 up, -1 down), what this term's constant offset
     meant before it had a play; a reversal shorter than 2h leaves the output where it was. The play
     stands in for MOVE_TOLERANCE here: a move too small to turn the direction moves the output by
     no more than itself. half_play > 0 (the output ahead of its command) mirrors it: the offset is
-    odd in half_play, theta times the direction for long moves on either side of 0. Poses without a
-    play history (a stream's windows: platkit.effects.with_history) read the direction alone:
-    half_play times the direction. Nonlinear in half_play: the estimator differentiates it."""
+    odd in half_play, theta times the direction for long moves on either side of 0.
+
+    A stream's windowed poses (platkit.diagnose.stream.stream_play) carry the play's memory at the
+    first sample their window weighs, the drive's positions at its samples ('play_path' (N, n_u,
+    S)) and the weights ('play_weight' (N, S)): the same play over the positions, weighed as the
+    controls are. Poses with a NaN memory (windowed poses read without it:
+    platkit.effects.with_history) read the direction alone: half_play times the direction.
+    Nonlinear in half_play: the estimator differentiates it."""
 
     index: int = 0
 
@@ -46,9 +51,12 @@ class BacklashTerm(ModelTerm):
         memory = history(poses, "play")[:, self.index]
         if np.isnan(memory[:, -1, 0]).any():
             out[:, self.index] = theta[0] * history(poses, "direction")[:, self.index]
-        else:
-            sign = -1.0 if theta[0] > 0 else 1.0
-            out[:, self.index] = sign * play_offset(memory, poses.controls[:, self.index], abs(float(theta[0])))
+            return out
+        sign = -1.0 if theta[0] > 0 else 1.0
+        weight = poses.extras.get("play_weight")
+        inputs = (poses.controls[:, self.index] if weight is None
+                  else np.asarray(poses.extras["play_path"], float)[:, self.index])
+        out[:, self.index] = sign * play_offset(memory, inputs, abs(float(theta[0])), weight)
         return out
 
 
