@@ -41,6 +41,7 @@ from platkit.bodies import (
 )
 from platkit.calibrate.observation import observation_for
 from platkit.calibrate.registration import digest, kept, registered
+from platkit.effects import with_history
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
 from platkit.kinematics.forward import link_frames  # noqa: F401 - callers import it from here too
@@ -91,8 +92,10 @@ class CalibrationProblem:
             raise BadInput(f"{poses.source or 'poses'}: {poses.controls.shape[1]} control columns, the {spec.name} "
                            f"stand has {spec.n_u} ({', '.join(spec.control_names)})")
         self.spec = spec
-        self.poses = poses
         self.terms = list(terms)
+        # the history a term reads (the play's memory above all), built once here for callers who
+        # gave poses without it: a term would otherwise build it again at every evaluation
+        self.poses = poses = with_history(poses, spec) if self.terms else poses
         self.N, self.M = poses.n_poses, poses.n_markers
         self.B = poses.n_bodies
         rho = declared_rho(poses.body_noise)
@@ -276,7 +279,7 @@ class CalibrationProblem:
     def _evaluate(self, z, with_jac: bool, poses: PoseSet | None) -> FitState:
         own = poses is None
         poses = self.poses if own else poses
-        pre = self._prepare(z, poses, own)
+        pre = self._prepare(z, poses if own or not self.terms else with_history(poses, self.spec), own)
         return self._rows(pre, slice(0, poses.n_poses), with_jac, self._term_jacobians(pre) if with_jac else [])
 
     def evaluate_blocks(self, z, block: int):

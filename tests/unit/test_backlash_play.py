@@ -1,5 +1,5 @@
 """The backlash term is a play over the session's commands in order (platkit_effects.drive.BacklashTerm,
-platkit.effects.play_memory): a reversal shorter than the play leaves the output where it was, the
+platkit.play.play_memory): a reversal shorter than the play leaves the output where it was, the
 history is the whole session's (a subset of rows, a command that gave no pose), and the estimator fits
 the half play of a drive whose short reversals a sign of the last move cannot give."""
 from __future__ import annotations
@@ -10,6 +10,7 @@ import pytest
 from platkit.calibrate.estimate import calibrate
 from platkit.diagnose import effect_library
 from platkit.effects import with_history
+from platkit.play import play_memory as PLAY_MEMORY
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
 from platkit.simulate.physics import simulate_physics
@@ -80,3 +81,27 @@ def test_the_estimator_recovers_the_half_play_a_sign_cannot_give(short_reversals
     cal = calibrate(poses, spec, terms=[term])
     assert cal.theta[0][0] == pytest.approx(truth["model_half_play"], rel=0.01)
     assert cal.rms_after < 4e-5  # the noise (0.02 mm a coordinate: 0.035 mm a point); a sign of the last move leaves 0.25 mm
+
+
+def test_the_play_memory_is_built_once_for_poses_without_history(monkeypatch):
+    # a caller of the estimator that gives poses without with_history: the problem builds the
+    # history once, and every evaluation (the forward differences in half_play included) reads it
+    import platkit.effects as effects
+    from platkit.calibrate.problem import CalibrationProblem
+
+    spec = get_platform("psvr")
+    bare = _poses(spec, B_COMMANDS)
+    term = _backlash(spec, with_history(bare, spec))
+    built = []
+    monkeypatch.setattr(effects, "play_memory", lambda *a, **k: built.append(1) or PLAY_MEMORY(*a, **k))
+    problem = CalibrationProblem(spec, bare, [term])
+    z = problem.nominal.copy()
+    states = []
+    for h in (-2.0, -1.0, 3.0):
+        z[problem.i_theta] = h
+        states.append(problem.evaluate(z))
+    assert len(built) == 1
+    given = CalibrationProblem(spec, with_history(bare, spec), [term])
+    for h, state in zip((-2.0, -1.0, 3.0), states):
+        z[problem.i_theta] = h
+        np.testing.assert_array_equal(given.evaluate(z).r, state.r)
