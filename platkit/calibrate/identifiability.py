@@ -5,7 +5,9 @@ displacements. Each column is scaled by its parameter's typical size (1 mm, 1 mr
 columns compare. Parameters are taken in priority tiers (the base-to-mocap transform and the
 marker positions first: without them nothing is predicted; then model terms; then the stand's
 td). Within a tier, the column with the largest component outside the span of the columns
-already chosen is taken next (QR with column pivoting, as FIGAROH chooses base parameters); a
+already chosen is taken next (QR with column pivoting, as FIGAROH chooses base parameters); of
+columns whose remaining components agree with the largest to ``TIE_REL_TOL``, the first (lowest
+index) is taken, so that which parameter of an exact gauge is held does not follow rounding; a
 column whose remaining component is below ``rel_tol`` of its own norm is *held at nominal* and
 reported with the combination of chosen parameters it is aliased with. Nothing is absorbed
 silently.
@@ -25,6 +27,10 @@ from platkit.poses import PoseSet
 
 #: a column keeping less than this fraction of its norm outside the chosen span is not identifiable
 DEFAULT_REL_TOL = 1e-6
+#: remaining components within this fraction of the largest are equal, and of them the first is taken:
+#: far above their rounding (about 1e-15 of a column's norm, so under 1e-9 of a remainder that keeps
+#: ``DEFAULT_REL_TOL`` of it), below the differences data make (docs/performance.md, the ninth pass)
+TIE_REL_TOL = 1e-8
 
 
 @dataclass
@@ -91,6 +97,9 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
     J: (n_obs, n) identification Jacobian in SI; names: n parameter names; scale: (n,) typical
     size of each parameter (SI); tiers: (n,) priority, lower first. Returns an
     :class:`Identifiability` whose ``chosen`` columns are linearly independent to ``rel_tol``.
+    Each step takes, of the tier's columns whose component outside the chosen span is at least
+    ``1 - TIE_REL_TOL`` times the largest, the one of lowest index: the columns of an exact gauge
+    (equal but for rounding) are decided by their order, not by the last bits of their sums.
     """
     J = np.asarray(J, float)
     scale = np.asarray(scale, float)
@@ -110,11 +119,14 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
             rest -= _dots(rest, b)[:, None] * b[None, :]
         while pending:
             size = np.sqrt(_dots(rest, rest))
-            k = int(np.argmax(size))  # the largest; of equal ones the first, the lowest index
-            best = pending[k]
-            frac = size[k] / norms[best] if norms[best] > 0 else 0.0
-            if frac < rel_tol or norms[best] == 0:
+            nrm = norms[pending]
+            frac = np.divide(size, nrm, out=np.zeros_like(size), where=nrm > 0)
+            # the first of the largest that keeps rel_tol of its norm
+            fits = (size >= (1.0 - TIE_REL_TOL) * np.max(size)) & (frac >= rel_tol) & (size > 0)
+            if not fits.any():
                 break
+            k = int(np.argmax(fits))
+            best = pending[k]
             v = rest[k]
             # twice for numerical orthogonality
             for b in basis:
