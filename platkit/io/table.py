@@ -5,6 +5,7 @@ it stops or disagrees with the file's own count of lines and separators, the res
 by cell, and that reading names the file, row, line and column of the problem."""
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -331,29 +332,37 @@ def _parse_halves(path: Path, header: list[str], data: np.ndarray, progress: _Pr
                 counts[k] = done
                 progress.update(sum(counts))
 
-        counts[k] = _parse_fast(path, header, start, rows, progress, stop=stop, update=update)
+        counts[k] = _parse_fast(path, header, start, rows, progress, stop=stop, update=update, quiet_warnings=False)
 
     threads = [threading.Thread(target=read, args=(k,), daemon=True) for k in (0, 1)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    # the halves' warnings are left out here, once, by this thread: warnings.catch_warnings saves and
+    # restores the process's one filter list, so one entered in each thread (each restoring what the
+    # other had set) could leave 'ignore' in force after the read and every later warning unsaid
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a row with extra cells: the separator count finds it
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
     return len(data) if counts == [rows_first, len(data) - rows_first] else 0
 
 
 def _parse_fast(path: Path, header: list[str], body_start: int, data: np.ndarray, progress: _Progress,
-                stop: int | None = None, update=None) -> int:
+                stop: int | None = None, update=None, quiet_warnings: bool = True) -> int:
     """Fill ``data`` chunk by chunk with pandas' C reader, one row per line (a blank line is a
     row of NaN here, which the separator count catches); the number of rows filled before the
     first chunk it could not read (all of them: ``len(data)``). Blank lines after the last row
     are not rows. ``stop``: read the file only up to this byte offset; ``update(rows)``: the
-    progress callback (default ``progress.update``)."""
+    progress callback (default ``progress.update``). ``quiet_warnings``: pandas' warnings left
+    out here (False in a thread of :func:`_parse_halves`, which leaves them out for both)."""
     import pandas  # here, not at the top: a verb that reads no table (platkit orient) need not import it
 
     done = 0
     update = progress.update if update is None else update
-    with io.BufferedReader(_Range(path, body_start, stop), 1 << 20) as fh, warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a row with extra cells: the separator count finds it
+    with io.BufferedReader(_Range(path, body_start, stop), 1 << 20) as fh, contextlib.ExitStack() as quiet:
+        if quiet_warnings:
+            quiet.enter_context(warnings.catch_warnings())
+            warnings.simplefilter("ignore")  # a row with extra cells: the separator count finds it
         try:
             chunks = pandas.read_csv(
                 fh, header=None, names=header, index_col=False, dtype=np.float64, engine="c",
