@@ -28,7 +28,7 @@ from platkit.bodies import ROTATION_REJECTED_SHARE, log_so3, rotation_refusal
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL
 from platkit.calibrate.problem import PLAUSIBLE_RANGE, Progress, link_frames
 from platkit.calibrate.robust import REJECT_K
-from platkit.calibrate.solve import blas_threads
+from platkit.calibrate.solve import blas_threads, last_stop
 from platkit.calibrate.stages import CalibrationOptions, fit_calibration
 from platkit.errors import BadInput, BadSession
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
@@ -61,7 +61,10 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     it that many at a time (normal equations summed block by block: memory of one block whatever
     the poses, the sums in another order: the same fit to rounding).
     Raises NotIdentifiable when not even the transform and markers can be fixed, NoConvergence
-    when forward kinematics fails on most poses.
+    when forward kinematics fails on most poses. A final fit that met no per-step stopping rule
+    within ``max_iter`` iterations is judged on its last ones (:func:`platkit.calibrate.solve.judge_window`):
+    converged where its misfit has (``converged``), and either way its judgement, with the
+    parameters still moving and how, is one of ``warnings``.
     """
     opt = CalibrationOptions(free=free, robust=robust, folds=folds, rel_tol=rel_tol, max_iter=max_iter,
                              progress=progress, platform_options=platform_options, td_start=td_start, ridge_m=ridge_m,
@@ -69,6 +72,9 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     with blas_threads(1):
         cal = fit_calibration(poses, spec, terms, opt)
     cal.warnings = fit_warnings(cal, poses)
+    stop = last_stop(cal.fit.problem) if cal.fit is not None and cal.fit.problem is not None else None
+    if stop is not None:  # the final fit's last run met no per-step rule: its judgement said
+        cal.warnings.append(stop.sentence(cal.iterations))
     check_body_orientations(cal, poses)
     return cal
 

@@ -6,6 +6,13 @@ The problem (residuals, Jacobians, priors) is :class:`platkit.calibrate.problem.
   then outliers beyond REJECT_K sigma rejected outright and the fit repeated at full weight;
 - :func:`kfold`: K-fold held-out prediction error (refits on K-1 folds).
 
+A run stops where a step gains less than ``ftol`` of the cost or moves less than ``xtol``, or where
+no step descends. A run that meets none of these within its iterations is judged on its last
+WINDOW iterations (:func:`judge_window`): converged in the misfit where the cost left to gain,
+extrapolated from how the window's gains shrink, is what a move of SETTLED_SD standard deviations
+of the unknowns would gain (a flat valley, or steps that zig-zag across one); its record, with the
+unknowns still moving and how, is :func:`last_stop` of the problem.
+
 A problem with ``row_block`` set (a fit of thousands of poses from a motion stream) is solved
 from normal equations and R factors summed over blocks of that many poses
 (:meth:`CalibrationProblem.evaluate_blocks`, :func:`weighted_factor`): no Jacobian of every pose
@@ -14,6 +21,7 @@ arithmetic is the whole Jacobian's, in its order.
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +40,125 @@ class LMResult:
     iterations: int
     converged: bool
     cost: float
+    #: the judgement of a run that met no per-step rule within its iterations (:func:`judge_window`)
+    window: WindowJudgement | None = None
+
+
+#: iterations over which a run that met no per-step rule is judged (:func:`judge_window`)
+WINDOW = 10
+#: the misfit has converged where what is left to gain is what a move of this many standard
+#: deviations of the unknowns (jointly, in the metric of their covariance) would gain
+SETTLED_SD = 0.01
+#: an unknown whose steps over the window add up to this many times its net move zig-zags
+ZIGZAG_PATH = 3.0
+
+
+@dataclass(frozen=True)
+class Moving:
+    """One unknown over the window: its net move and the sum of its steps' sizes, both in its
+    standard deviations at the fit's end."""
+
+    name: str
+    net_sd: float
+    path_sd: float
+
+    @property
+    def how(self) -> str:
+        return "zig-zag" if self.path_sd >= ZIGZAG_PATH * abs(self.net_sd) else "drift"
+
+
+@dataclass(frozen=True)
+class WindowJudgement:
+    """A run judged on its last ``iterations`` (:func:`judge_window`). fall: the cost's fall over
+    them; left: the fall still to come (inf where the gains do not shrink); both relative to the
+    cost; left_sd: the move of the unknowns, in standard deviations, that would gain ``left``;
+    settled: left_sd <= SETTLED_SD; moving: the three unknowns whose steps added up to most of
+    their standard deviations, largest first."""
+
+    iterations: int
+    fall: float
+    left: float
+    left_sd: float
+    settled: bool
+    moving: tuple[Moving, ...]
+
+    def sentence(self, total_iterations: int | None = None) -> str:
+        """What a user reads: whether the misfit converged, and what still moves and how."""
+        ran = f"after {total_iterations} iterations " if total_iterations is not None else ""
+        moving = ", ".join(f"{m.name} {m.net_sd:+.2g} sd net ({m.how}, {m.path_sd:.2g} sd of steps)"
+                           for m in self.moving) or "nothing"
+        how = ("zig-zag: steps that reverse, overshooting across a valley; drift: steps one way along it. Large "
+               "residuals from an effect the model does not describe make both: run platkit diagnose on the outputs")
+        if self.settled:
+            return (f"the fit stopped {ran}with its misfit converged, not yet its parameters: over the last "
+                    f"{self.iterations} iterations the cost fell by {self.fall:.2g} of itself, and the gain left "
+                    f"({self.left:.2g}) is what a move of {self.left_sd:.2g} standard deviations of the parameters "
+                    f"would give, so the estimate is that close to the least-squares one; moving over them: {moving} "
+                    f"({how})")
+        left = "its gains not shrinking" if not np.isfinite(self.left) else f"{self.left:.2g} of the cost left to gain"
+        return (f"the fit stopped {ran}still descending, out of iterations: over the last {self.iterations} iterations "
+                f"the cost fell by {self.fall:.2g} of itself ({left}, a move of {self.left_sd:.2g} standard "
+                f"deviations of the parameters); moving over them: {moving} ({how})")
+
+
+def _inverse_diagonal(H: np.ndarray) -> np.ndarray:
+    """The diagonal of H^-1 for a symmetric positive semi-definite H, from the eigenvalues of H
+    scaled to a unit diagonal, each floored at 1e-15 of the largest: a direction H does not bound
+    (a flat valley) gives a large variance, never the zero that a truncated pseudo-inverse gives;
+    inf where H's diagonal is 0."""
+    d = np.diag(H).copy()
+    out = np.full(d.shape, np.inf)
+    on = d > 0
+    if not on.any():
+        return out
+    s = 1 / np.sqrt(d[on])
+    lam, V = np.linalg.eigh(H[np.ix_(on, on)] * s[:, None] * s[None, :])
+    lam = np.maximum(lam, 1e-15 * max(float(lam[-1]), 1e-300))
+    out[on] = (V * V) @ (1 / lam) * s * s
+    return out
+
+
+#: the judgement of each problem's last run that met no per-step rule (None after one that did)
+_LAST_STOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def last_stop(problem: CalibrationProblem) -> WindowJudgement | None:
+    """The window judgement of ``problem``'s last Levenberg-Marquardt run, or None where that run
+    stopped on a per-step rule (or none ran)."""
+    return _LAST_STOP.get(problem)
+
+
+def judge_window(costs, steps, H, dof: int, names) -> WindowJudgement:
+    """The judgement of a run from its last costs (W + 1 of them, the cost after each iteration),
+    its steps over the active unknowns (W, n), the last Gauss-Newton matrix H (n, n) of the weighted
+    problem the run formed, and the residual degrees of freedom.
+
+    The noise variance is s2 = 2 cost / dof; a move d of the unknowns gains d^T H d / 2, so one of
+    k standard deviations (jointly, in the metric of the covariance s2 H^-1) gains k^2 s2 / 2. The
+    gain left is the second half-window's gains times q / (1 - q), q the ratio of those gains to the
+    first half's (a geometric tail: Gauss-Newton's linear convergence where large residuals curve,
+    or steps that zig-zag across a valley), and never less than the second half's gains."""
+    costs = np.asarray(costs, float)
+    cost = max(float(costs[-1]), 1e-300)
+    gains = -np.diff(costs)
+    h = len(gains) // 2
+    first, last = float(np.sum(gains[-2 * h:-h])), float(np.sum(gains[-h:]))
+    if last <= 0:
+        left = 0.0
+    elif first > last:
+        q = last / first
+        left = max(last * q / (1 - q), last)  # never less than the last half-window gained
+    else:
+        left = np.inf
+    s2 = 2 * cost / max(dof, 1)
+    left_sd = float(np.sqrt(2 * left / s2)) if np.isfinite(left) else np.inf
+    sd = np.sqrt(s2 * _inverse_diagonal(H))
+    steps = np.asarray(steps, float)
+    net, path = steps.sum(axis=0) / sd, np.abs(steps).sum(axis=0) / sd
+    order = [int(k) for k in np.argsort(-path)[:3] if path[k] > 0]
+    moving = tuple(Moving(str(names[k]), float(net[k]), float(path[k])) for k in order)
+    return WindowJudgement(len(gains), float((costs[0] - costs[-1]) / cost), float(left / cost), left_sd,
+                           bool(left_sd <= SETTLED_SD), moving)
 
 
 def _weighted(state: FitState, weights, active, prior=None, scratch: dict | None = None):
@@ -233,6 +360,7 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
     lam = 1e-5
     converged = False
     it = 0
+    costs, steps = [cost], []  # for the window judgement of a run that meets no per-step rule
     for it in range(1, max_iter + 1):
         D = np.maximum(np.diag(H), 1e-12 * max(1.0, np.max(np.diag(H))))
         accepted = False
@@ -266,6 +394,7 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
         elif not done:
             rw_new, H, g = _normal_equations(st_new, weights, active, problem.prior_rows(z_new), scratch)
         z, st, rw, cost = z_new, st_new, rw_new, cost_new
+        costs, steps = costs[-WINDOW:] + [cost], steps[-(WINDOW - 1):] + [step]
         lam = max(lam / 10, 1e-12)
         if progress is not None:
             n_w = max(1.0, float(np.sum(weights * np.isfinite(st.r).all(axis=2))))
@@ -273,7 +402,14 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
         if small_step or small_gain:
             converged = True
             break
-    return LMResult(z, st, weights, it, converged, cost)
+    window = None
+    if not converged and len(steps) == WINDOW:  # the iterations ran out: judged on the last WINDOW
+        n_w = int(np.sum((weights > 0) & np.isfinite(st.r).all(axis=2)))
+        window = judge_window(costs, steps, H, 3 * n_w - int(np.sum(active)),
+                              [problem.names[k] for k in np.flatnonzero(active)])
+        converged = window.settled
+    _LAST_STOP[problem] = window
+    return LMResult(z, st, weights, it, converged, cost, window)
 
 
 def robust_fit(problem: CalibrationProblem, z0, active, robust: bool = True, max_iter: int = 60,
