@@ -19,6 +19,7 @@ from functools import cached_property
 
 import numpy as np
 
+from platkit.calibrate.factors import column_factor
 from platkit.calibrate.registration import digest, kept
 from platkit.calibrate.solve import weighted_factor
 from platkit.errors import NotIdentifiable
@@ -106,19 +107,19 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
     Js = _compress(J * scale[None, :])  # inner products, hence everything below, unchanged
     n = Js.shape[1]
     norms = np.linalg.norm(Js, axis=0)
-    basis: list[np.ndarray] = []  # orthonormal vectors spanning the chosen columns
+    basis = np.empty((min(Js.shape), Js.shape[0]))  # orthonormal rows spanning the chosen columns, in order
     chosen: list[int] = []
     held: list[HeldParameter] = []
     tiers = np.asarray(tiers)
     for tier in sorted(set(tiers.tolist())):
         pending = [j for j in range(n) if tiers[j] == tier]
-        # the remaining columns as the rows of one array, in pending's order, each re-orthogonalised
-        # against the basis built so far, one basis vector after the other
+        # the remaining columns as the rows of one array, in pending's order, outside the basis so far
         rest = np.ascontiguousarray(Js[:, pending].T)
-        for b in basis:
-            rest -= _dots(rest, b)[:, None] * b[None, :]
+        if chosen:
+            B = basis[:len(chosen)]
+            rest -= (rest @ B.T) @ B
         while pending:
-            size = np.sqrt(_dots(rest, rest))
+            size = np.sqrt(np.einsum("ij,ij->i", rest, rest))
             nrm = norms[pending]
             frac = np.divide(size, nrm, out=np.zeros_like(size), where=nrm > 0)
             # the first of the largest that keeps rel_tol of its norm
@@ -127,16 +128,14 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
                 break
             k = int(np.argmax(fits))
             best = pending[k]
-            v = rest[k]
-            # twice for numerical orthogonality
-            for b in basis:
-                v = v - b * (b @ v)
-            v = v / np.linalg.norm(v)
-            basis.append(v)
+            B = basis[:len(chosen)]
+            v = rest[k] - B.T @ (B @ rest[k])  # a second time, for numerical orthogonality
+            v /= np.linalg.norm(v)
+            basis[len(chosen)] = v
             chosen.append(best)
             del pending[k]
             rest = np.delete(rest, k, axis=0)
-            rest = rest - _dots(rest, v)[:, None] * v[None, :]
+            rest -= np.outer(rest @ v, v)
         if pending and chosen:
             C = Js[:, chosen]
             coefs = np.linalg.solve(C.T @ C, C.T @ Js[:, pending])  # (n_chosen, n_pending)
@@ -155,15 +154,6 @@ def select_identifiable(J: np.ndarray, names: list[str], scale: np.ndarray, tier
                         combo[names[chosen[k]]] = -float(coef[k])
             held.append(HeldParameter(names[j], reason, combo, remaining))
     return Identifiability(chosen, held, list(names), Js)
-
-
-def _dots(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Each row of R dotted with v (or, v 2-D, with its own row of v), each by one vector dot
-    product as ``R[j].dot(v)`` takes it (numpy's matmul of a stack of 1 x m rows by m x 1): the
-    same sums in the same order, where a matrix-vector product (BLAS gemv) may sum otherwise, and
-    a greedy choice between columns equal but for rounding would follow that rounding."""
-    other = v[:, :, None] if v.ndim == 2 else v[:, None]
-    return np.matmul(R[:, None, :], other)[:, 0, 0]
 
 
 def singular_values(A: np.ndarray, blocked: bool = False) -> np.ndarray:
@@ -324,9 +314,8 @@ def _weighted_jacobian(problem, z, idx) -> np.ndarray:
 
 
 def _compress(A: np.ndarray) -> np.ndarray:
-    """The R factor of a tall A (n, n): the same inner products between columns, so the same
-    span, ranks and pivoting, at a fraction of the rows."""
-    return np.linalg.qr(A, mode="r") if A.shape[0] > A.shape[1] else A
+    """The R factor of a tall A (:func:`column_factor`), A itself where it is not tall."""
+    return column_factor(A) if A.shape[0] > A.shape[1] else A
 
 
 _REFERENCE_PROBLEMS: dict = {}

@@ -34,8 +34,9 @@ _compile_lock = threading.Lock()
 #: pose evaluations of one function (in one process) after which its compiled library is looked
 #: for in the cache (before the call that would pass the count: a session of 300 poses looks
 #: before its first), and after which it is compiled there. Compiling costs about as much as
-#: interpreting some 35,000 pose evaluations (4.4 s for the TIAGo arm's 52,000 instructions, 120
-#: us a pose interpreted; 0.6 s for the stewart stand's 7,900), once per machine: a calibration
+#: interpreting some 35,000 pose evaluations at -O1 (4.4 s for the TIAGo arm's 52,000 instructions,
+#: 120 us a pose interpreted; 0.6 s for the stewart stand's 7,900), at -O2 (:data:`COMPILE_FLAGS`)
+#: up to three times that, once per machine: a calibration
 #: of 10,000 poses compiles at its first evaluation, a diagnosis of the 37 TIAGo postures
 #: (1,700 evaluations) after a fifth of its refits, and every later run finds the library; a
 #: test of 40 poses never waits for the compiler. The library is named by the function's
@@ -44,22 +45,22 @@ _compile_lock = threading.Lock()
 #: 82,000 instructions, 0.93 ms a pose interpreted; the C source's generation, written only to
 #: compile, 0.41-0.50 s)
 LOOK_AFTER, COMPILE_AFTER = 200, 10_000
-COMPILE_FLAGS = ["-O1", "-ffp-contract=off", "-fPIC", "-shared"]
-#: ... and for a function of at most SMALL_FUNCTION instructions: -O2, whose code gives the same
-#: numbers bit for bit (no contraction, no reassociation) and evaluates the stewart stand's
-#: Jacobians 1.6x as fast (22 against 36 ms for 10,000 poses), for a compile of 1.2 s instead of
-#: 0.7 s once per machine; the TIAGo arm's 52,000 instructions would take 16 s instead of 4.9 s
-#: (2026-11-25, 2-core machine at load 4), so larger functions keep -O1
-COMPILE_FLAGS_SMALL = ["-O2", "-ffp-contract=off", "-fPIC", "-shared"]
-SMALL_FUNCTION = 20_000
+#: compiler flags of every observation function: -O2, whose code gives the same numbers as -O1's
+#: and the interpreter's bit for bit (no contraction, no reassociation), and evaluates faster: the
+#: stewart stand's Jacobians 1.6x (22 against 36 ms for 10,000 poses), the Talos tree's 38,672
+#: instructions by a sixth (2.34 against 2.76 ms for 300 poses, best of 30), for a compile about
+#: twice as long once per machine (1.2 s instead of 0.7 s; the tree's 9.8 s instead of 4.8 s; the
+#: TIAGo arm's 52,000 instructions 16 s instead of 4.9 s): every later run of the stand on that
+#: machine finds the library and gains at each evaluation
+COMPILE_FLAGS = ["-O2", "-ffp-contract=off", "-fPIC", "-shared"]
 
 
 _compiler = c_compiler  # the one lookup (platkit.io.cache); a name here that tests may patch
 
 
 def compile_flags(f: ca.Function) -> list[str]:
-    """The compiler flags of ``f``: :data:`COMPILE_FLAGS_SMALL` up to SMALL_FUNCTION instructions."""
-    return COMPILE_FLAGS_SMALL if f.n_instructions() <= SMALL_FUNCTION else COMPILE_FLAGS
+    """The compiler flags of ``f``: :data:`COMPILE_FLAGS`, whatever its size."""
+    return COMPILE_FLAGS
 
 
 def _compiled(f: ca.Function, compile_now: bool) -> ca.Function | None:

@@ -16,7 +16,7 @@ from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.solve import blas_threads
 from platkit.diagnose.bodies import screen_system
 from platkit.diagnose.fitting import Fit, Options, _cv, _fit, _later, _rms, _swapped, _where_text, body_residuals
-from platkit.diagnose.stats import column_basis, paired_improvement, score_test
+from platkit.diagnose.stats import column_basis, outside_basis, paired_improvement, score_test
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
@@ -30,7 +30,9 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
 
     The decompositions run on one BLAS thread, as the estimator's products do
     (platkit.calibrate.solve.blas_threads): a hundred SVDs of thousands of rows by a few columns,
-    which worker threads only make spin."""
+    which worker threads only make spin. The candidates' columns are taken outside the base's
+    span (:func:`platkit.diagnose.stats.outside_basis`) SCREEN_COLUMNS at a time, consecutive
+    candidates together (a candidate wider than that alone), not candidate by candidate."""
     if not candidates:
         return []
     problem = CalibrationProblem(spec, poses, fit.terms + list(candidates))
@@ -43,12 +45,36 @@ def screen(fit: Fit, spec: PlatformSpec, poses: PoseSet,
         dof = len(r) - int(fit.active.sum())
         basis = column_basis(Jb)
         out, k = [], n_base
-        for c in candidates:
-            K = len(c.initial)
-            F, p, sep = score_test(r, Jb, J[:, k:k + K], dof, basis=basis)
-            out.append((F, p, sep, st.J[..., k:k + K]))
-            k += K
+        widths = [len(c.initial) for c in candidates]
+        for group in _groups(widths, SCREEN_COLUMNS):
+            k0 = k
+            projected = outside_basis(basis, J[:, k0:k0 + sum(widths[i] for i in group)])
+            for i in group:
+                K = widths[i]
+                F, p, sep = score_test(r, Jb, J[:, k:k + K], dof, basis=basis, projected=projected[:, k - k0:k - k0 + K])
+                out.append((F, p, sep, st.J[..., k:k + K]))
+                k += K
     return out
+
+
+#: candidates' columns taken outside the base's span together in :func:`screen` (5,400 rows x 64:
+#: 2.8 MB, the size of the tree's basis)
+SCREEN_COLUMNS = 64
+
+
+def _groups(widths: Sequence[int], most: int) -> list[list[int]]:
+    """The indices of ``widths`` in order, in runs whose widths sum to at most ``most`` (a width
+    over it alone)."""
+    groups: list[list[int]] = []
+    total = most + 1
+    for i, w in enumerate(widths):
+        if total + w > most:
+            groups.append([])
+            total = 0
+        groups[-1].append(i)
+        total += w
+    return groups
+
 
 def place(term: ModelTerm) -> tuple:
     """(effect, actuator or joint, marker or rigid body): terms of one kind at one place compete, never add up."""

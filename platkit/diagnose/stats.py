@@ -158,11 +158,21 @@ def column_basis(J: np.ndarray) -> np.ndarray:
     return U[:, sv > sv[0] * 1e-10] if sv.size else U
 
 
+def outside_basis(U: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """The part of the columns J (n, k) outside the span of the orthonormal U (n, p): J - U U^T J,
+    by two matrix products over all of J's columns at once (U, often beyond the processor's cache,
+    read twice however many columns; a column's numbers are those of its own products to
+    rounding, the sums running in the matrix product's order)."""
+    return J - U @ (U.T @ J)
+
+
 def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int,
-               basis: np.ndarray | None = None) -> tuple[float, float, float]:
+               basis: np.ndarray | None = None, projected: np.ndarray | None = None) -> tuple[float, float, float]:
     """Lagrange-multiplier test that columns ``J_new`` (n, k) would reduce the residual ``r``
     (n,) of a least-squares fit with Jacobian ``J_base`` (n, p) (all weighted alike).
-    ``basis``: column_basis(J_base), when many candidates are tested against one fit.
+    ``basis``: column_basis(J_base), when many candidates are tested against one fit;
+    ``projected``: J_new's part outside the basis (:func:`outside_basis`, computed for many
+    candidates' columns at once), else computed here.
 
     Returns (F, p, separability): F = (|P r|^2 / k') / ((|r|^2 - |P r|^2) / (dof - k')) with P
     the projection on the part of J_new orthogonal to J_base and k' its rank; separability is the fraction of
@@ -171,8 +181,9 @@ def score_test(r: np.ndarray, J_base: np.ndarray, J_new: np.ndarray, dof: int,
     """
     if not J_new.any():  # every entry 0 (none NaN): no test, separability 0, as the products below give
         return 0.0, 1.0, 0.0
-    U = column_basis(J_base) if basis is None else basis
-    Jp = J_new - U @ (U.T @ J_new)
+    if projected is None:
+        projected = outside_basis(column_basis(J_base) if basis is None else basis, J_new)
+    Jp = projected
     size = np.linalg.norm(J_new, axis=0)
     sep = float(np.min(np.linalg.norm(Jp, axis=0) / np.maximum(size, 1e-300))) if J_new.size else 0.0
     if sep < 1e-6:  # inside J_base's span, or no columns at all (a term no marker moves with): no test
