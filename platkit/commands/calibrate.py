@@ -357,8 +357,10 @@ def fit_failure(cal) -> str | None:
     rms = f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit}"
     steps = "evaluations" if cal.method == "paper" else "iterations"
     if not cal.converged:
+        still = [w for w in cal.warnings if w.startswith("the fit stopped ")]  # the last iterations judged (calibrate.solve)
         return (f"not converged: --method {cal.method} stopped after {cal.iterations} {steps} without meeting its "
-                f"tolerance ({rms})" + ("; raise --max-evaluations" if cal.method == "paper" else ""))
+                f"tolerance ({rms})" + ("; raise --max-evaluations" if cal.method == "paper" else "")
+                + ("; what still moves: the warning 'the fit stopped ...' above" if still else ""))
     if cal.rms_after > WORSE_THAN_START * cal.rms_before:
         return f"not converged to a better fit: --method {cal.method} ended worse than its start ({rms})"
     return None

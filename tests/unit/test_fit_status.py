@@ -115,7 +115,7 @@ def _with_markers(folder):
 
 
 def test_fit_failure_names_what_went_wrong():
-    cal = SimpleNamespace(length_unit="mm", rms_before=1.148e-3, rms_after=1.319e-3, method="paper", iterations=3201,
+    cal = SimpleNamespace(length_unit="mm", rms_before=1.148e-3, rms_after=1.319e-3, method="paper", iterations=3201, warnings=[],
                           converged=True)
     assert fit_failure(cal) == ("not converged to a better fit: --method paper ended worse than its start "
                                 "(rms 1.148 -> 1.319 mm)")

@@ -97,3 +97,18 @@ def test_calibrate_says_the_judgement_of_a_final_fit_that_ran_out(monkeypatch):
     assert stop is not None and stop.iterations == 2
     assert cal.converged == stop.settled
     assert stop.sentence(cal.iterations) in cal.warnings
+
+
+def test_the_exit_line_of_a_fit_that_ran_out_points_at_its_judgement(monkeypatch):
+    """calibrate's error line (commands.calibrate.fit_failure) of an lsq fit out of iterations
+    points at the warning that says what still moves."""
+    from platkit.commands.calibrate import fit_failure
+
+    spec = get_platform("stewart")
+    poses = with_history(simulate(spec, seed=5, n_poses=36, raw=False, plan="random").poses, spec)
+    monkeypatch.setattr(solve, "WINDOW", 2)
+    cal = calibrate(poses, spec, max_iter=2)
+    cal.converged = False  # as where the judgement found the run still descending
+    assert fit_failure(cal).endswith("; what still moves: the warning 'the fit stopped ...' above")
+    cal.warnings = [w for w in cal.warnings if not w.startswith("the fit stopped ")]
+    assert "what still moves" not in fit_failure(cal)
