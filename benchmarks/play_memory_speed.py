@@ -1,0 +1,171 @@
+"""platkit.play.play_memory against the walk over every sample it replaced (f34c969, kept here
+verbatim): CPU time as a ratio old / new, and whether the memories are the same to the bit.
+
+On a 10-minute 250 Hz stream (``--stream`` and ``--calibration``): the drives' modelled
+positions that platkit.diagnose.stream.stream_poses hands to play_memory (captured from one run),
+play_memory alone on them, and stream_poses' CPU with the old operator put in its place and with
+the new. On ``--random`` random sequences (plateaus, repeated values, random walks, smooth swings
+with noise, nested swings shrinking and growing; depths 1 to 200; rows asked in any order, with
+repeats): identity, and the total time as a ratio.
+
+The stream of docs/diagnosis-streams.md (seed 5609) and its calibration, from the repository:
+
+    platkit simulate --platform stewart --physics --motion multisine --duration-s 600 --rate-hz 250 \\
+        --noise-mm 0.2 --white-noise --seed 5609 --effect backlash:1.0 --out sim
+    (tests/stream_split.py) split_stream(Path("sim"), Path("part"), 0.1)
+    platkit calibrate part/train --quiet --no-report --out cal
+
+    .venv/bin/python benchmarks/play_memory_speed.py [--stream sim --calibration cal/calibration.yaml]
+        [--random 1000] [--seed 20000] [--repeat 3]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+import platkit.diagnose.stream as diagnose_stream
+from platkit.io.calibration import read_calibration
+from platkit.io.session import load_session
+from platkit.play import play_memory
+
+
+def old_play_memory(x: np.ndarray, at: np.ndarray, depth: int = 200) -> np.ndarray:
+    """play_memory as f34c969 wrote it: the stack walked over every sample."""
+    x, at = np.atleast_2d(np.asarray(x, float)), np.asarray(at, int)
+    want = np.zeros(len(x), bool)
+    want[at] = True
+    runs: list[dict[int, np.ndarray]] = [{} for _ in range(x.shape[1])]
+    for i in range(x.shape[1]):
+        S: list[float] = []
+        lost = False
+        for k, v in enumerate(x[:, i].tolist()):
+            if not S or v != S[-1]:
+                S.append(v)
+            while len(S) >= 3:
+                if (S[-2] - S[-3]) * (S[-1] - S[-2]) > 0:  # S[-2] on the way: no turning point
+                    del S[-2]
+                elif abs(S[-1] - S[-2]) >= abs(S[-2] - S[-3]):  # S[-3] wiped out, S[-2] with it if older remain
+                    del S[-3:-1 if len(S) >= 4 else -2]
+                else:
+                    break
+            lost = lost or len(S) > depth + 1
+            del S[:-depth - 1]
+            if not want[k]:
+                continue
+            z = np.array(S[::-1])
+            runs[i][k] = np.column_stack([np.abs(np.diff(z)), np.sign(np.diff(z)), z[:-1]])
+            if lost and len(z) > 1:
+                runs[i][k][-1, 0] = np.inf
+    L = max([1] + [len(r) for i in range(x.shape[1]) for r in (runs[i][k] for k in at)])
+    out = np.full((len(at), x.shape[1], L + 1, 3), np.nan)
+    for i in range(x.shape[1]):
+        for n, k in enumerate(at):
+            out[n, i, :len(runs[i][k])] = runs[i][k]
+        out[:, i, -1] = np.column_stack([np.full(len(at), x[0, i] if len(x) else np.nan),
+                                         np.maximum.accumulate(x[:, i])[at], np.minimum.accumulate(x[:, i])[at]])
+    return out
+
+
+def _column(rng: np.random.Generator, T: int) -> np.ndarray:
+    t = np.arange(T, dtype=float)
+    kind = rng.integers(7)
+    if kind == 0:
+        return rng.integers(-3, 4, T).astype(float)
+    if kind == 1:
+        return np.cumsum(rng.choice([-1.0, 0.0, 0.0, 1.0, 2.0], T)) * 0.25
+    if kind == 2:
+        return np.round(np.sin(rng.uniform(0.005, 0.3) * t) + rng.normal(0, 0.02, T), int(rng.integers(1, 5)))
+    if kind == 3:
+        return np.sin(rng.uniform(0.3, 1.5) * t) * np.exp(-t / rng.uniform(20, 400)) + rng.uniform(-1, 1)
+    if kind == 4:
+        return np.sin(rng.uniform(0.2, 1.0) * t) * (1 + t) ** rng.uniform(0.2, 1.0)
+    if kind == 5:
+        return np.repeat(rng.normal(0, 1, T // 3 + 1), 3)[:T]
+    return 4 + np.sin(rng.uniform(0.001, 0.02) * t) + rng.normal(0, rng.choice([0, 1e-6, 1e-3]), T)
+
+
+def _random_cases(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    rng = np.random.default_rng(seed)
+    cases = []
+    for _ in range(n):
+        T = int(rng.integers(1, 3000))
+        x = np.column_stack([_column(rng, T) for _ in range(int(rng.integers(1, 7)))])
+        at = rng.integers(0, T, int(rng.integers(0, 40)))
+        cases.append((x, at, int(rng.choice([1, 2, 3, 4, 6, 10, 32, 200]))))
+    return cases
+
+
+def _cpu(f, repeat: int) -> float:
+    """the least CPU seconds of ``repeat`` calls of f"""
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.process_time()
+        f()
+        best = min(best, time.process_time() - t0)
+    return best
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def stream(folder: Path, calibration: Path, repeat: int) -> None:
+    cal = read_calibration(str(calibration))
+    session = load_session(folder, spec=cal.spec, quiet=True)
+    seen: list[tuple[np.ndarray, np.ndarray, int]] = []
+
+    def capture(x, at, depth):
+        seen.append((x, at, depth))
+        return play_memory(x, at, depth)
+
+    diagnose_stream.play_memory = capture
+    diagnose_stream.stream_poses(folder, session, cal)
+    x, at, depth = seen[0]
+    print(f"stream {folder}: positions {x.shape[0]} samples x {x.shape[1]} drives, {len(at)} rows, depth {depth}")
+    same = _same(old_play_memory(x, at, depth), play_memory(x, at, depth))
+    t_old = _cpu(lambda: old_play_memory(x, at, depth), repeat)
+    t_new = _cpu(lambda: play_memory(x, at, depth), repeat)
+    print(f"  play_memory alone: old {t_old:.3f} s, new {t_new:.4f} s CPU: old / new {t_old / t_new:.1f}x; "
+          f"the same to the bit: {same}")
+    times = {"old": np.inf, "new": np.inf}
+    for _ in range(repeat):  # in turn, each at its least
+        for name, f in (("old", old_play_memory), ("new", play_memory)):
+            diagnose_stream.play_memory = f
+            times[name] = min(times[name], _cpu(lambda: diagnose_stream.stream_poses(folder, session, cal), 1))
+    diagnose_stream.play_memory = play_memory
+    print(f"  stream_poses: old {times['old']:.2f} s, new {times['new']:.2f} s CPU: old / new "
+          f"{times['old'] / times['new']:.2f}x")
+
+
+def random_sequences(n: int, seed: int) -> None:
+    cases = _random_cases(n, seed)
+    old = [old_play_memory(*c) for c in cases]
+    wrong = [k for k, (c, m) in enumerate(zip(cases, old)) if not _same(m, play_memory(*c))]
+    cut = sum(bool(np.isinf(m[..., 0]).any()) for m in old)
+    t_old = _cpu(lambda: [old_play_memory(*c) for c in cases], 1)
+    t_new = _cpu(lambda: [play_memory(*c) for c in cases], 1)
+    print(f"random sequences (seed {seed}): {n}, the depth cut in {cut}; different from the old: {len(wrong)}"
+          f"{' ' + str(wrong[:10]) if wrong else ''}; old / new {t_old / t_new:.1f}x ({t_old:.2f} / {t_new:.3f} s)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--stream", type=Path, help="a stream's session folder (with --calibration)")
+    ap.add_argument("--calibration", type=Path, help="its calibration.yaml")
+    ap.add_argument("--random", type=int, default=1000, help="random sequences (default 1000)")
+    ap.add_argument("--seed", type=int, default=20000, help="of the random sequences (default 20000)")
+    ap.add_argument("--repeat", type=int, default=3, help="timings, each the least of this many (default 3)")
+    a = ap.parse_args()
+    if a.stream is not None:
+        if a.calibration is None:
+            ap.error("--stream needs --calibration")
+        stream(a.stream, a.calibration, a.repeat)
+    if a.random:
+        random_sequences(a.random, a.seed)
+
+
+if __name__ == "__main__":
+    main()

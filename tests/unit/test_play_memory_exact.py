@@ -1,0 +1,124 @@
+"""platkit.play.play_memory walks the stack of turning points over fewer samples (runs of equal
+samples once, a monotone stretch's inside skipped) and gives the memory of the walk over every
+sample to the bit: the same turning points, the same depth cut and infinite swing, the same L. The
+reference is the walk over every sample as it was (f34c969), kept here verbatim."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from platkit.play import play_memory
+
+
+def _reference(x: np.ndarray, at: np.ndarray, depth: int) -> np.ndarray:
+    """play_memory as f34c969 wrote it: the stack walked over every sample."""
+    x, at = np.atleast_2d(np.asarray(x, float)), np.asarray(at, int)
+    want = np.zeros(len(x), bool)
+    want[at] = True
+    runs: list[dict[int, np.ndarray]] = [{} for _ in range(x.shape[1])]
+    for i in range(x.shape[1]):
+        S: list[float] = []
+        lost = False
+        for k, v in enumerate(x[:, i].tolist()):
+            if not S or v != S[-1]:
+                S.append(v)
+            while len(S) >= 3:
+                if (S[-2] - S[-3]) * (S[-1] - S[-2]) > 0:  # S[-2] on the way: no turning point
+                    del S[-2]
+                elif abs(S[-1] - S[-2]) >= abs(S[-2] - S[-3]):  # S[-3] wiped out, S[-2] with it if older remain
+                    del S[-3:-1 if len(S) >= 4 else -2]
+                else:
+                    break
+            lost = lost or len(S) > depth + 1
+            del S[:-depth - 1]
+            if not want[k]:
+                continue
+            z = np.array(S[::-1])
+            runs[i][k] = np.column_stack([np.abs(np.diff(z)), np.sign(np.diff(z)), z[:-1]])
+            if lost and len(z) > 1:
+                runs[i][k][-1, 0] = np.inf
+    L = max([1] + [len(r) for i in range(x.shape[1]) for r in (runs[i][k] for k in at)])
+    out = np.full((len(at), x.shape[1], L + 1, 3), np.nan)
+    for i in range(x.shape[1]):
+        for n, k in enumerate(at):
+            out[n, i, :len(runs[i][k])] = runs[i][k]
+        out[:, i, -1] = np.column_stack([np.full(len(at), x[0, i] if len(x) else np.nan),
+                                         np.maximum.accumulate(x[:, i])[at], np.minimum.accumulate(x[:, i])[at]])
+    return out
+
+
+def _column(rng: np.random.Generator, T: int) -> np.ndarray:
+    """One actuator's inputs of a random kind: plateaus and repeated values, random walks, smooth
+    swings with noise, nested swings that shrink (deep stacks) or grow, a few values in cents."""
+    t = np.arange(T, dtype=float)
+    kind = rng.integers(6)
+    if kind == 0:
+        return rng.integers(-3, 4, T).astype(float)
+    if kind == 1:
+        return np.cumsum(rng.choice([-1.0, 0.0, 0.0, 1.0, 2.0], T)) * 0.25
+    if kind == 2:
+        f = rng.uniform(0.01, 0.3)
+        return np.round(np.sin(f * t) + rng.normal(0, 0.02, T), int(rng.integers(1, 4)))
+    if kind == 3:
+        return np.sin(rng.uniform(0.3, 1.5) * t) * np.exp(-t / rng.uniform(20, 200)) + rng.uniform(-1, 1)
+    if kind == 4:
+        return np.sin(rng.uniform(0.2, 1.0) * t) * (1 + t) ** rng.uniform(0.2, 1.0)
+    return np.repeat(rng.normal(0, 1, T // 3 + 1), 3)[:T]
+
+
+def _case(seed: int) -> tuple[np.ndarray, np.ndarray, int]:
+    rng = np.random.default_rng(seed)
+    T = int(rng.integers(1, 400))
+    x = np.column_stack([_column(rng, T) for _ in range(int(rng.integers(1, 4)))])
+    at = rng.integers(0, T, int(rng.integers(0, 12)))  # any order, repeats
+    depth = int(rng.choice([1, 2, 3, 4, 6, 10, 200]))
+    return x, at, depth
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_the_memory_is_the_full_walks_to_the_bit_on_random_sequences():
+    cut = 0
+    for seed in range(1200):
+        x, at, depth = _case(seed)
+        want = _reference(x, at, depth)
+        assert _same(play_memory(x, at, depth), want), f"seed {seed}: depth {depth}, rows {at.tolist()}"
+        cut += bool(np.isinf(want[..., 0]).any())
+    assert cut > 200  # the depth cut bit in many of them
+
+
+def test_the_memory_is_the_full_walks_on_a_long_stream_at_small_depths():
+    # a stream's smooth positions with a few reversals a sample long, rows every 40 samples
+    rng = np.random.default_rng(5)
+    t = np.arange(20000) / 250
+    x = np.column_stack([np.sin(0.7 * t) + 0.3 * np.sin(2.9 * t) + 0.01 * np.sin(40 * t),
+                         np.cos(0.5 * t) * np.exp(-t / 60) + rng.normal(0, 1e-4, len(t))]) + 4.0
+    at = np.arange(0, len(t), 40)
+    for depth in (1, 2, 3, 5, 32):
+        assert _same(play_memory(x, at, depth), _reference(x, at, depth)), depth
+
+
+@pytest.mark.parametrize("special", [np.nan, np.inf, -np.inf, 1e-310, 2.0 ** -401, 2.0 ** 401])
+def test_a_column_with_values_whose_signs_may_round_is_walked_in_full(special):
+    rng = np.random.default_rng(7)
+    x = np.column_stack([np.sin(np.arange(300) * 0.3), np.cos(np.arange(300) * 0.2)])
+    x[[50, 51, 120], 0] = special
+    at = rng.integers(0, 300, 20)
+    for depth in (1, 3, 200):
+        assert _same(play_memory(x, at, depth), _reference(x, at, depth))
+
+
+def test_a_column_of_tiny_values_whose_products_underflow_is_walked_in_full():
+    # (S[-2] - S[-3]) * (S[-1] - S[-2]) is 0 here though both differences are not
+    rng = np.random.default_rng(8)
+    x = np.sin(np.arange(300) * 0.3)[:, None] * 1e-300 * rng.choice([1, 1e-8], (300, 1))
+    at = rng.integers(0, 300, 20)
+    for depth in (1, 3, 200):
+        assert _same(play_memory(x, at, depth), _reference(x, at, depth))
+
+
+def test_a_row_outside_the_commands_is_an_error():
+    with pytest.raises(IndexError, match="row 5 asked of 5 commands"):
+        play_memory(np.zeros((5, 2)), np.array([0, 5]))
