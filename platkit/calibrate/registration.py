@@ -100,8 +100,8 @@ def _copies(arrays: tuple) -> tuple:
 
 
 def registered(R, X, Y, vis, rotation_from: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`register` from :func:`initial_rotation` of ``rotation_from`` (its (R, X, Y, vis)),
-    each point on its frame (R (N, P, 3, 3), X (N, P, 3)): (A, b, m); within
+    """:func:`best_registration` from the :func:`initial_rotations` of ``rotation_from`` (its (R, X,
+    Y, vis)), each point on its frame (R (N, P, 3, 3), X (N, P, 3)): (A, b, m); within
     :func:`kept_registrations`, copies of a kept result where the same inputs were registered
     before (the module docstring)."""
     return kept("registration", digest(R, X, Y, vis, *rotation_from),
@@ -113,18 +113,24 @@ def best_registration(R, X, Y, vis, starts: list[np.ndarray]) -> tuple[np.ndarra
     points lie nearest their measurements (the median distance over the points seen): the data
     choose between starts that the conditioning of the relative motions cannot. One start: its
     registration."""
-    best, best_d = None, np.inf
-    for A0 in starts:
+    best = register(R, X, Y, vis, starts[0])
+    if len(starts) == 1:
+        return best
+    best_d = _median_distance(R, X, Y, vis, best)
+    for A0 in starts[1:]:  # the first of equally near ones kept
         got = register(R, X, Y, vis, A0)
-        if len(starts) == 1:
-            return got
-        A, b, mk = got
-        d = _distances(X + np.einsum("nmab,mb->nma", R, mk), A, b, Y, vis)[vis]
-        med = float(np.median(d)) if d.size else np.inf
-        if best is None or med < best_d:
+        med = _median_distance(R, X, Y, vis, got)
+        if med < best_d:
             best, best_d = got, med
-    assert best is not None
     return best
+
+
+def _median_distance(R, X, Y, vis, registration) -> float:
+    """The median distance of the points seen from their measurements under ``registration`` (A, b,
+    m), inf where none is seen."""
+    A, b, mk = registration
+    d = _distances(X + np.einsum("nmab,mb->nma", R, mk), A, b, Y, vis)[vis]
+    return float(np.median(d)) if d.size else np.inf
 
 
 def register(R, X, Y, vis, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
