@@ -255,7 +255,7 @@ def run(args) -> int:
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        if motion_or_poses(args, exc, notes, s) is None:  # calibrated from motion, its outputs written
+        if motion_or_poses(args, exc, notes, s):  # calibrated from motion, its outputs written
             return 0
         if read is None:  # no poses were read to fall back on (never so: only a refusal after reading them allows it)
             raise
@@ -389,14 +389,14 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def motion_or_poses(args, refused, notes: list[str], s=None):
+def motion_or_poses(args, refused, notes: list[str], s=None) -> bool:
     """Calibration from motion of a session whose holds were refused (``refused``: HoldsNeverSettle
-    or NeverSettles; ``s``: the session as read, read here where None): None when it ran (its
+    or NeverSettles; ``s``: the session as read, read here where None): True when it ran (its
     outputs written). Where the refusal left the holds' poses usable (every hold settled or
     extrapolated to rest, ``settling['poses_usable']``: :func:`refuse_extrapolated_holds`) and the
     fitted motion model does not explain the stream (platkit.calibrate.motion.MotionUnexplained),
     the session is calibrated from those poses instead, said once on stderr and in the report's
-    warnings with both reasons: "not None" (the caller calibrates the poses it read). Any other
+    warnings with both reasons: False (the caller calibrates the poses it read). Any other
     failure of the motion fit is raised after a warning that says the stream was tried and why."""
     from platkit.calibrate.motion import MotionUnexplained
     from platkit.errors import PlatkitError
@@ -404,19 +404,16 @@ def motion_or_poses(args, refused, notes: list[str], s=None):
     reason = refused.settling.get("reason")
     try:
         run_motion(args, str(refused), notes, reason, s)
-        return None
-    except MotionUnexplained as exc:
-        if not refused.settling.get("poses_usable"):
+        return True
+    except PlatkitError as exc:
+        if not (isinstance(exc, MotionUnexplained) and refused.settling.get("poses_usable")):
             warn(f"{holds_refused(reason)}: the whole stream was tried through the actuators' fitted response instead")
             raise
         note = (f"{holds_refused(reason)}: the stream's motion model was tried and {exc}; calibrated from the holds' "
                 "poses instead (settled and extrapolated to rest)")
-    except PlatkitError:
-        warn(f"{holds_refused(reason)}: the whole stream was tried through the actuators' fitted response instead")
-        raise
     warn(note)
     notes.append(note)
-    return True
+    return False
 
 
 def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None, s=None) -> int:
