@@ -97,6 +97,22 @@ def heldout_errors(cal: Calibration) -> np.ndarray:
         return _heldout_errors(cal)
 
 
+def _ill_conditioned(X: np.ndarray) -> np.ndarray:
+    """Where the 2-norm condition number of X[k] (K, m, m) exceeds WOODBURY_COND: decided by the
+    bound cond <= |X|_F |X^-1|_F (an LU each), and by singular values where the bound passes half
+    the limit (the computed inverse's rounding, at most cond * eps relative, stays far inside it)
+    or where a matrix is singular; the same decision as singular values alone."""
+    try:
+        inv = np.linalg.inv(X)
+        check = ~(np.linalg.norm(X, axis=(1, 2)) * np.linalg.norm(inv, axis=(1, 2)) <= WOODBURY_COND / 2)
+    except np.linalg.LinAlgError:
+        check = np.ones(len(X), bool)
+    ill = np.zeros(len(X), bool)
+    if check.any():
+        ill[check] = np.linalg.cond(X[check]) > WOODBURY_COND
+    return ill
+
+
 def _heldout_errors(cal: Calibration) -> np.ndarray:
     problem, z, active, weights = cal.fit.problem, cal.fit.z, cal.fit.active, cal.fit.weights
     st = problem.evaluate(z)
@@ -104,7 +120,8 @@ def _heldout_errors(cal: Calibration) -> np.ndarray:
     seen = np.isfinite(st.r).all(axis=2) & (weights > 0)
     w = np.where(seen, weights, 0.0)
     r = np.where(seen[..., None], st.r, 0.0)
-    J = np.where(seen[..., None, None], st.J[..., active], 0.0)  # (N, M, 3, n_a)
+    J = np.take(st.J, np.flatnonzero(active), axis=3)  # (N, M, 3, n_a)
+    J[~seen] = 0.0
     n_a = J.shape[-1]
     Jw = (J * np.sqrt(w)[:, :, None, None]).reshape(-1, n_a)
     A = Jw.T @ Jw
@@ -126,8 +143,9 @@ def _heldout_errors(cal: Calibration) -> np.ndarray:
     lstsq_poses = np.ones(N, bool) if A_inv is None else np.zeros(N, bool)
     for start in range(0, 0 if A_inv is None else N, CHUNK_POSES):
         k = slice(start, min(N, start + CHUNK_POSES))
-        I_P = np.eye(3 * M)[None] - (Jr[k] @ A_inv) @ np.swapaxes(Jr[k] * wr[k][:, :, None], 1, 2)
-        ill = np.linalg.cond(I_P) > WOODBURY_COND
+        JA = (Jr[k].reshape(-1, n_a) @ A_inv).reshape(-1, 3 * M, n_a)  # one product for the chunk
+        I_P = np.eye(3 * M)[None] - JA @ np.swapaxes(Jr[k] * wr[k][:, :, None], 1, 2)
+        ill = _ill_conditioned(I_P)
         I_P[ill] = np.eye(3 * M)
         E[k] = np.linalg.norm(np.linalg.solve(I_P, rr[k][:, :, None])[:, :, 0].reshape(-1, M, 3), axis=2)
         lstsq_poses[k] = ill

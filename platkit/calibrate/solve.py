@@ -265,11 +265,57 @@ def _gram_by_point(state: FitState, weights, active):
     return rw, H, g
 
 
+#: active unknowns from which :func:`_normal_equations` tries the sum by runs of points
+#: (:func:`_gram_by_runs`): below it the runs' gathers cost more than the flops they save
+GRAM_BY_RUNS_FROM = 64
+#: a run of points grows while the union of their columns widens the wider by at most this fraction
+RUN_WIDENS = 0.1
+
+
+def _gram_by_runs(state: FitState, weights, active):
+    """(rw, H, g) of :func:`_weighted`'s rows summed by runs of consecutive points that move on
+    nearly the same columns (a tree's hand: its markers move on its arm's and the trunk's columns,
+    not the other arm's), each run's rows on its own columns, one product each. A point's columns
+    have a nonzero (or NaN) entry on one of its rows; a run takes the next point while their union
+    is at most RUN_WIDENS wider than the wider of the two. None with fewer than GRAM_BY_RUNS_FROM
+    active unknowns, or where the runs' products cost more than half the whole one's flops. H and
+    g are the whole product's to rounding. Tried before :func:`_gram_by_point` (faster where both
+    apply: a point a run, 262 of 364 columns, 3.1 -> 2.6 ms)."""
+    J, cols = state.J, np.flatnonzero(active)
+    n = cols.size
+    if J is None or J.ndim != 4 or n < GRAM_BY_RUNS_FROM:
+        return None
+    N, P = J.shape[:2]
+    moves = (J != 0).any(axis=0).any(axis=1)[:, cols]  # (P, n)
+    runs: list[tuple[int, int, np.ndarray]] = []
+    for p in range(P):
+        s = np.flatnonzero(moves[p])
+        if runs and (u := np.union1d(runs[-1][2], s)).size <= (1 + RUN_WIDENS) * max(runs[-1][2].size, s.size):
+            runs[-1] = (runs[-1][0], p + 1, u)
+        else:
+            runs.append((p, p + 1, s))
+    if sum((p1 - p0) * s.size ** 2 for p0, p1, s in runs) > 0.5 * P * n * n:
+        return None
+    sw, rw = _weighted_residuals(state, weights)
+    r, H, g = rw.reshape(N, P, 3), np.zeros((n, n)), np.zeros(n)
+    for p0, p1, s in (run for run in runs if run[2].size):
+        k = 3 * (p1 - p0)
+        A = J[:, p0:p1][..., cols[s]].reshape(N * k, s.size)
+        A *= np.repeat(sw[:, p0:p1].ravel(), 3)[:, None]
+        H[np.ix_(s, s)] += A.T @ A
+        g[s] += A.T @ r[:, p0:p1].ravel()
+    return rw, H, g
+
+
 def _normal_equations(state: FitState, weights, active, prior=None, scratch: dict | None = None):
     """(rw, H = Jw^T Jw, g = Jw^T rw) of :func:`_weighted` without keeping Jw: the prior rows,
     one unknown each, are added to H's diagonal and g directly. ``scratch``: see :func:`_weighted`.
     A large model whose columns each move few points is summed point by point
-    (:func:`_gram_by_point`)."""
+    (:func:`_gram_by_point`); one whose runs of points move on few of its columns, run by run
+    (:func:`_gram_by_runs`)."""
+    by_runs = _gram_by_runs(state, weights, active)
+    if by_runs is not None:
+        return _with_prior(*by_runs, active, prior)
     by_point = _gram_by_point(state, weights, active)
     if by_point is not None:
         return _with_prior(*by_point, active, prior)
