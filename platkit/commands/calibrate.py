@@ -247,6 +247,7 @@ def run(args) -> int:
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
     s = read_session(args.session, args.platform, args.description, quiet=args.quiet)  # read once, whatever follows
+    other = second_session(args, s.spec.name)  # read once, before any work: a bad one is bad input, found at once
     read = None
     try:
         read = settled_poses(s)
@@ -255,7 +256,7 @@ def run(args) -> int:
     except (HoldsNeverSettle, NeverSettles) as exc:  # the holds do not settle, or there are none: the stream is the data
         if args.method == "paper":
             raise
-        if motion_or_poses(args, exc, notes, s):  # calibrated from motion, its outputs written
+        if motion_or_poses(args, exc, notes, s, other):  # calibrated from motion, its outputs written
             return 0
         if read is None:  # no poses were read to fall back on (never so: only a refusal after reading them allows it)
             raise
@@ -268,9 +269,6 @@ def run(args) -> int:
             note = f"{flag} {value}: the holds settled, so no actuator response is fitted (not used)"
             warn(note)
             notes.append(note)
-    other = None  # read before any work: a bad second session is bad input, found at once
-    if args.validate is not None:
-        other, _, _ = load_for_calibration(args.validate, spec.name, args.description, quiet=args.quiet)
     progress = None if args.quiet else progress_printer(poses.length_unit)
     free = None
     if args.free is not None:
@@ -389,9 +387,18 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def motion_or_poses(args, refused, notes: list[str], s=None) -> bool:
+def second_session(args, platform: str):
+    """The poses of ``--validate``'s session (None without it), read as calibrate's own session is,
+    for ``platform``."""
+    if args.validate is None:
+        return None
+    return load_for_calibration(args.validate, platform, args.description, quiet=args.quiet)[0]
+
+
+def motion_or_poses(args, refused, notes: list[str], s=None, other=None) -> bool:
     """Calibration from motion of a session whose holds were refused (``refused``: HoldsNeverSettle
-    or NeverSettles; ``s``: the session as read, read here where None): True when it ran (its
+    or NeverSettles; ``s``: the session as read, and ``other`` the ``--validate`` session's poses
+    (:func:`second_session`), both read here where ``s`` is None): True when it ran (its
     outputs written). Where the refusal left the holds' poses usable (every hold settled or
     extrapolated to rest, ``settling['poses_usable']``: :func:`refuse_extrapolated_holds`) and the
     fitted motion model does not explain the stream (platkit.calibrate.motion.MotionUnexplained),
@@ -403,7 +410,7 @@ def motion_or_poses(args, refused, notes: list[str], s=None) -> bool:
 
     reason = refused.settling.get("reason")
     try:
-        run_motion(args, str(refused), notes, reason, s)
+        run_motion(args, str(refused), notes, reason, s, other)
         return True
     except PlatkitError as exc:
         if not (isinstance(exc, MotionUnexplained) and refused.settling.get("poses_usable")):
@@ -416,7 +423,7 @@ def motion_or_poses(args, refused, notes: list[str], s=None) -> bool:
     return False
 
 
-def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None, s=None) -> int:
+def run_motion(args, why: str, notes: list[str], settle_reason: str | None = None, s=None, other=None) -> int:
     """``platkit calibrate`` on a session whose holds do not settle (or that has none): geometry,
     markers, frame and the actuators' response fitted to the whole stream (platkit.calibrate.motion),
     with the stand's default free parameters (``--free`` as given). What the reading kept with a
@@ -424,7 +431,7 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
     said and reported as on the settled path. ``why``: the settling search's refusal (the report's);
     ``settle_reason``: its clause with the counts (HoldsNeverSettle.settling['reason']), said in the
     one-line warning, once the fit has ended (before the outputs are written); ``s``: the session
-    as read (read here where None)."""
+    as read, and ``other`` the ``--validate`` session's poses (both read here where ``s`` is None)."""
     from platkit.calibrate.estimate import second_session_errors
     from platkit.calibrate.motion import calibrate_motion
     from platkit.calibrate.motion_points import bodies_alone, calibrate_motion_bodies
@@ -432,6 +439,7 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
 
     if s is None:
         s = read_session(args.session, args.platform, args.description, quiet=True)
+        other = second_session(args, s.spec.name)
     for kept in s.extras.get("control_notes", []):  # the reading's warnings, as the settled path says them
         if kept not in notes:
             warn(kept)
@@ -440,9 +448,6 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
     free = None
     if args.free is not None:
         free = [] if args.free.strip().lower() == "none" else [f.strip() for f in args.free.split(",") if f.strip()]
-    other = None
-    if args.validate is not None:
-        other, _, _ = load_for_calibration(args.validate, s.spec.name, args.description, quiet=args.quiet)
     reason = f"settling: {why}"
     ridge_m = 0.0 if args.prior_strength is None else args.prior_strength * length_scale(s.length_unit)
     fit = calibrate_motion_bodies if bodies_alone(s) else calibrate_motion  # bodies alone: as points

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -87,20 +88,28 @@ def test_a_stream_the_motion_model_does_not_explain_is_calibrated_from_the_holds
                                        "motion (test)")
 
     monkeypatch.setattr(motion, "calibrate_motion", unexplained)
+    import platkit.commands.calibrate as calibrate_command
     import platkit.io.session as session_module
+    from platkit.io.shipped import shipped_dir
 
-    reads = []
+    reads, second = [], []
     read = session_module.load_session
     monkeypatch.setattr(session_module, "load_session", lambda *a, **k: reads.append(a) or read(*a, **k))
-    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--out", str(tmp_path / "cal")]) == 0
+    load_other = calibrate_command.load_for_calibration
+    monkeypatch.setattr(calibrate_command, "load_for_calibration",
+                        lambda *a, **k: second.append(a) or load_other(*a, **k))
+    validate = shipped_dir("sessions") / "rotary"
+    assert main(["calibrate", str(folder), "--quiet", "--no-report", "--validate", str(validate),
+                 "--out", str(tmp_path / "cal")]) == 0
     report = json.loads((tmp_path / "cal" / "report.json").read_text())
     assert not report.get("motion")
+    assert len(second) == 1 and report["heldout"].get("second_session")  # --validate read once, and scored
     fell_back = [w for w in report["warnings"] if "calibrated from the holds' poses instead" in w]
     assert len(fell_back) == 1 and "too few holds settle: 2 of 16 holds settled" in fell_back[0]  # both reasons
     assert "does not explain the motion (test)" in fell_back[0]
     # what did not happen is not said: no calibration from the stream in a report without one
     assert not any("calibrated from the whole stream" in w for w in report["warnings"])
-    assert len(reads) == 1  # the session is read once, the fallback's poses those first read
+    assert sum(Path(a[0]) == folder for a in reads) == 1  # read once, the fallback's poses those first read
     # a refusal whose poses are not usable (under half the commands gave one) is still a refusal
     from platkit.commands.calibrate import motion_or_poses
     from platkit.errors import BadSession
