@@ -28,7 +28,7 @@ from platkit.bodies import ROTATION_REJECTED_SHARE, log_so3, rotation_refusal
 from platkit.calibrate.identifiability import DEFAULT_REL_TOL
 from platkit.calibrate.problem import PLAUSIBLE_RANGE, Progress, link_frames
 from platkit.calibrate.robust import REJECT_K
-from platkit.calibrate.solve import blas_threads, last_stop
+from platkit.calibrate.solve import blas_threads
 from platkit.calibrate.stages import CalibrationOptions, fit_calibration
 from platkit.errors import BadInput, BadSession
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix, quat_normalize
@@ -72,7 +72,7 @@ def calibrate(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTerm] = (
     with blas_threads(1):
         cal = fit_calibration(poses, spec, terms, opt)
     cal.warnings = fit_warnings(cal, poses)
-    stop = last_stop(cal.fit.problem) if cal.fit is not None and cal.fit.problem is not None else None
+    stop = cal.fit.stop if cal.fit is not None else None
     if stop is not None:  # the final fit's last run met no per-step rule: its judgement said
         cal.warnings.append(stop.sentence(cal.iterations))
     check_body_orientations(cal, poses)

@@ -11,7 +11,7 @@ no step descends. A run that meets none of these within its iterations is judged
 WINDOW iterations (:func:`judge_window`): converged in the misfit where the cost left to gain,
 extrapolated from how the window's gains shrink, is what a move of SETTLED_SD standard deviations
 of the unknowns would gain (a flat valley, or steps that zig-zag across one); its record, with the
-unknowns still moving and how, is :func:`last_stop` of the problem.
+unknowns still moving and how, is the run's ``LMResult.window`` (a robust fit's: its last run's).
 
 A problem with ``row_block`` set (a fit of thousands of poses from a motion stream) is solved
 from normal equations and R factors summed over blocks of that many poses
@@ -21,7 +21,6 @@ arithmetic is the whole Jacobian's, in its order.
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,16 +115,6 @@ def _inverse_diagonal(H: np.ndarray) -> np.ndarray:
     lam = np.maximum(lam, 1e-15 * max(float(lam[-1]), 1e-300))
     out[on] = (V * V) @ (1 / lam) * s * s
     return out
-
-
-#: the judgement of each problem's last run that met no per-step rule (None after one that did)
-_LAST_STOP: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def last_stop(problem: CalibrationProblem) -> WindowJudgement | None:
-    """The window judgement of ``problem``'s last Levenberg-Marquardt run, or None where that run
-    stopped on a per-step rule (or none ran)."""
-    return _LAST_STOP.get(problem)
 
 
 def judge_window(costs, steps, H, dof: int, names) -> WindowJudgement:
@@ -454,7 +443,6 @@ def _levenberg_marquardt(problem, z0, active, weights, max_iter, ftol, xtol, pro
         window = judge_window(costs, steps, H, 3 * n_w - int(np.sum(active)),
                               [problem.names[k] for k in np.flatnonzero(active)])
         converged = window.settled
-    _LAST_STOP[problem] = window
     return LMResult(z, st, weights, it, converged, cost, window)
 
 

@@ -135,7 +135,8 @@ def fit_calibration(poses: PoseSet, spec: PlatformSpec, terms: Sequence[ModelTer
     cal = _calibration(poses, spec, terms, problem, ident, start.gauge, est, rms_before, opt)
     cal.fit = FitRecord(residuals_before=residuals_before, residuals_after=est.state.r.copy(),
                         weights_before=reg.weights.copy(), weights=est.weights.copy(), controls=poses.controls.copy(),
-                        problem=problem, z=est.z.copy(), active=active, cov=est.cov, identifiability=ident)
+                        problem=problem, z=est.z.copy(), active=active, cov=est.cov, identifiability=ident,
+                        stop=fit.window)
     if problem.B:
         set_body_placements(cal, problem, est.z, est.std)
     if opt.folds and opt.folds > 1:

@@ -44,7 +44,8 @@ class FitRecord:
     above io); ``z`` (n_z,) its unknowns at the estimate; ``active`` (n_z,) bool, those estimated;
     ``cov`` (n_active, n_active) their covariance; ``identifiability``, the
     :class:`platkit.calibrate.identifiability.Identifiability` that ``Calibration.identifiability``
-    reports.
+    reports; ``stop``, the :class:`platkit.calibrate.solve.WindowJudgement` of the final fit's last
+    Levenberg-Marquardt run where it met no per-step rule within its iterations (None where it did).
     """
 
     residuals_before: np.ndarray
@@ -57,6 +58,7 @@ class FitRecord:
     active: np.ndarray | None = None
     cov: np.ndarray | None = None
     identifiability: Any = None
+    stop: Any = None
 
 
 @dataclass
