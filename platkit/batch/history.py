@@ -84,10 +84,7 @@ def session_when(folder: Path) -> dt.datetime | dt.date | None:
     """The ``date`` of a session's session.yaml: a date, a date-time (naive, UTC where a zone is
     given), or None. A value that is neither is a BadSession naming the file and the field."""
     path = Path(folder) / "session.yaml"
-    try:
-        data = load_yaml(path, error=BadSession)
-    except ValueError as exc:  # PyYAML builds dates itself: 2026-02-30 fails inside the parser
-        raise BadSession(f"{path}: field 'date': not a valid date ({exc})") from None
+    data = load_yaml(path, error=BadSession)  # a date YAML cannot build (2026-02-30) is refused there
     value = data.get("date") if isinstance(data, dict) else None
     return None if value is None else _when(value, path, "date")
 

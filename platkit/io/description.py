@@ -50,7 +50,7 @@ def dump_yaml(data, **options) -> str:
 
 def parse_yaml(text: str, path: Path, error=BadDescription) -> dict[str, Any]:
     """``text`` (the contents of ``path``) parsed safely; ``error`` (one line) when it is not a
-    YAML mapping or its aliases expand too far."""
+    YAML mapping, its aliases expand too far, or an unquoted date in it names no day."""
     import yaml  # here, not at the top: a cached parse needs no PyYAML
 
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
@@ -65,9 +65,38 @@ def parse_yaml(text: str, path: Path, error=BadDescription) -> dict[str, Any]:
         where = f" line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise error(f"{path}:{where} is not valid YAML ({problem})") from None
+    except ValueError as exc:  # PyYAML builds dates itself: 2026-02-30 fails inside the parser
+        raise error(invalid_date(text, path, exc)) from None
     if not isinstance(data, dict):
         raise error(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
     return data
+
+
+def invalid_date(text: str, path: Path, exc: ValueError) -> str:
+    """The one line for a YAML text whose date or date-time scalar (YAML reads ``2026-02-30``
+    unquoted as one) names no day or time: the file, the scalar's line and its mapping key."""
+    import yaml  # here, not at the top: as in parse_yaml, whose error path this is
+
+    def timestamps(node, key):
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                yield from timestamps(v, k.value if isinstance(k, yaml.ScalarNode) else key)
+        elif isinstance(node, yaml.SequenceNode):
+            for v in node.value:
+                yield from timestamps(v, key)
+        elif node is not None and node.tag == "tag:yaml.org,2002:timestamp":
+            yield node, key
+
+    constructor = yaml.SafeLoader("")
+    for node, key in timestamps(yaml.compose(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader)), None):
+        try:
+            constructor.construct_yaml_timestamp(node)
+        except ValueError as bad:
+            line = node.start_mark.line + 1
+            if key is None:
+                return f"{path}: line {line}: not a valid date ({node.value!r}: {bad})"
+            return f"{path}: field '{key}': not a valid date ({node.value!r} on line {line}: {bad})"
+    return f"{path}: not valid YAML ({exc})"
 
 
 MAX_YAML_NODES = 100_000

@@ -90,3 +90,18 @@ def test_simulate_into_a_file_is_refused(tmp_path, capsys):
     (tmp_path / "f").write_text("x")
     assert main(["simulate", "--platform", "psvr", "--out", str(tmp_path / "f"), "--poses", "5"]) == 2
     assert "is a file" in _error(capsys)
+
+
+@pytest.mark.parametrize("when", ["2026-02-30", "2026-03-01T25:00:00"])
+def test_a_date_that_names_no_day_is_one_line_naming_the_field(tmp_path, capsys, when):
+    """YAML builds an unquoted date itself: a day or hour that does not exist is bad input in every
+    verb (exit 2, one line with the file, line and field), not a failed computation."""
+    session = tmp_path / "s"
+    assert main(["simulate", "--platform", "stewart", "--out", str(session), "--poses", "6", "--poses-only"]) == 0
+    capsys.readouterr()
+    with open(session / "session.yaml", "a") as f:
+        f.write(f"date: {when}\n")
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "out"), "--no-report"]) == 2
+    line = _error(capsys)
+    assert "session.yaml: field 'date': not a valid date" in line and f"{when}' on line " in line
+    assert not (tmp_path / "out").exists()
