@@ -10,7 +10,7 @@ import numpy as np
 from platkit.errors import BadInput
 from platkit.geometry import quat_normalize
 
-#: a quaternion's norm must be within this of 1 to be taken (platkit.io.session.QUAT_NORM_TOL)
+#: a quaternion's norm must be within this of 1 to be taken (platkit.io.session_checks.QUAT_NORM_TOL)
 QUAT_NORM_TOL = 1e-3
 
 
