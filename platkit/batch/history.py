@@ -50,6 +50,7 @@ from platkit.io.atomic import atomic_output_dir
 from platkit.io.description import load_yaml
 from platkit.io.figures import png_base64
 from platkit.io.jsonout import dumps
+from platkit.io.session_yaml import iso_when
 
 __all__ = ["ALPHA", "session_date", "session_when", "history_order", "check_one_stand", "read_maintenance",
            "stand_history", "write_history", "MAINTENANCE_FILE"]
@@ -63,30 +64,13 @@ ALPHA = 0.01
 MAD_TO_SIGMA = 1.4826
 
 
-def _when(value, path: Path, field: str, error=BadSession) -> dt.datetime | dt.date:
-    """An ISO date or date-time from YAML (already a date or datetime, or text)."""
-    if isinstance(value, dt.datetime):
-        return value.replace(tzinfo=None) if value.tzinfo is None else value.astimezone(dt.UTC).replace(tzinfo=None)
-    if isinstance(value, dt.date):
-        return value
-    text = str(value).strip()
-    try:
-        if len(text) <= 10:
-            return dt.date.fromisoformat(text)
-        when = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
-        return when if when.tzinfo is None else when.astimezone(dt.UTC).replace(tzinfo=None)
-    except ValueError:
-        raise error(f"{path}: field '{field}': expected an ISO date or date-time such as 2026-03-01 or "
-                    f"2026-03-01T14:30, got {value!r}") from None
-
-
 def session_when(folder: Path) -> dt.datetime | dt.date | None:
     """The ``date`` of a session's session.yaml: a date, a date-time (naive, UTC where a zone is
     given), or None. A value that is neither is a BadSession naming the file and the field."""
     path = Path(folder) / "session.yaml"
     data = load_yaml(path, error=BadSession)  # a date YAML cannot build (2026-02-30) is refused there
     value = data.get("date") if isinstance(data, dict) else None
-    return None if value is None else _when(value, path, "date")
+    return None if value is None else iso_when(value, path, "date")
 
 
 def session_date(folder: Path) -> dt.date | None:
@@ -158,7 +142,7 @@ def read_maintenance(path: str | Path) -> list[dict]:
         unknown = sorted(set(e) - {"date", "note"})
         if unknown:
             raise BadInput(f"{p}: event {k}: unknown field {unknown[0]!r} (fields: date, note)")
-        when = _when(e["date"], p, f"date' of event '{k}", error=BadInput)
+        when = iso_when(e["date"], p, f"date' of event '{k}", error=BadInput)
         out.append({"date": when.isoformat(), "when": when, "note": str(e["note"]).strip()})
     return sorted(out, key=lambda e: _sort_key(e["when"], ""))
 

@@ -1,6 +1,7 @@
 """session.yaml: read and checked field by field (docs/session-format.md)."""
 from __future__ import annotations
 
+import datetime as dt
 import math
 from pathlib import Path
 
@@ -82,6 +83,24 @@ def _link_mapping(value: dict, markers: list[str], bodies: list[str], path: Path
         raise BadSession(f"{path}: field 'moving_link' maps markers to links but not {missing[0]!r}; on a tree every "
                          "marker and rigid body names its link")
     return {k: v.strip() for k, v in value.items()}
+
+
+def iso_when(value, path: Path, field: str, error=BadSession) -> dt.datetime | dt.date:
+    """An ISO date or date-time from YAML (already a date or datetime, or text; a date-time with a zone
+    in UTC, naive); anything else is ``error`` naming the file and the field."""
+    if isinstance(value, dt.datetime):
+        return value.replace(tzinfo=None) if value.tzinfo is None else value.astimezone(dt.UTC).replace(tzinfo=None)
+    if isinstance(value, dt.date):
+        return value
+    text = str(value).strip()
+    try:
+        if len(text) <= 10:
+            return dt.date.fromisoformat(text)
+        when = dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+        return when if when.tzinfo is None else when.astimezone(dt.UTC).replace(tzinfo=None)
+    except ValueError:
+        raise error(f"{path}: field '{field}': expected an ISO date or date-time such as 2026-03-01 or "
+                    f"2026-03-01T14:30, got {value!r}") from None
 
 
 def read_session_yaml(folder: Path) -> dict:
@@ -186,6 +205,8 @@ def read_session_yaml(folder: Path) -> dict:
         raise BadSession(f"{path}: field 'power_on_t' must be the time the stand was switched on, a number on the "
                          f"clock of t in the session's time unit (negative: before t = 0), or null; got {on!r}")
     out["power_on_t"] = None if on is None else float(on)
+    date = data.get("date")
+    out["date"] = None if date is None else iso_when(date, path, "date")
     return out
 
 

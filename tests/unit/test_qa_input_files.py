@@ -105,3 +105,15 @@ def test_a_date_that_names_no_day_is_one_line_naming_the_field(tmp_path, capsys,
     line = _error(capsys)
     assert "session.yaml: field 'date': not a valid date" in line and f"{when}' on line " in line
     assert not (tmp_path / "out").exists()
+
+
+def test_a_date_that_is_no_iso_date_is_refused_by_every_verb_not_only_by_batch(tmp_path, capsys):
+    """session.yaml's ``date`` is checked when the session is read, as every other field is."""
+    session = tmp_path / "s"
+    assert main(["simulate", "--platform", "stewart", "--out", str(session), "--poses", "6", "--poses-only"]) == 0
+    capsys.readouterr()
+    with open(session / "session.yaml", "a") as f:
+        f.write("date: March the first\n")
+    assert main(["calibrate", str(session), "--out", str(tmp_path / "out"), "--no-report"]) == 2
+    assert "session.yaml: field 'date': expected an ISO date or date-time" in _error(capsys)
+    assert not (tmp_path / "out").exists()
