@@ -36,7 +36,8 @@ except ImportError:  # pragma: no cover - exercised in environments without the 
     dask = Client = LocalCluster = as_completed = None
 
 __all__ = ["SCHEDULER_ENV", "INSTALL_HINT", "Task", "Outcome", "require_dask", "have_dask", "cluster", "guarded",
-           "run_tasks", "default_workers", "capped_workers", "TaskTimeout", "terminate_as_interrupt", "scratch_folder"]
+           "run_tasks", "default_workers", "capped_workers", "TaskTimeout", "forget_half_imports", "terminate_as_interrupt",
+           "scratch_folder"]
 
 #: environment variable naming an existing Dask scheduler (same as --scheduler ADDRESS)
 SCHEDULER_ENV = "PLATKIT_DASK_SCHEDULER"
@@ -208,7 +209,8 @@ def guarded(fn: Callable, *args, timeout: float | None = None) -> dict:
     its class and the last frame, so a person finds it without the worker's log. ``timeout``
     (s): past it the task is stopped (a :class:`TaskTimeout` raised in its thread, which takes
     effect at its next Python instruction: a single long call into compiled code ends first) and
-    is a failed outcome of kind 'timed out'; the worker goes on with the next task."""
+    is a failed outcome of kind 'timed out'; the worker goes on with the next task, the
+    submodules of an import the stop cut short forgotten (:func:`forget_half_imports`)."""
     import threading
 
     start = time.perf_counter()
@@ -227,6 +229,7 @@ def guarded(fn: Callable, *args, timeout: float | None = None) -> dict:
                 if timer is not None:
                     timer.cancel()
         except TaskTimeout:
+            forget_half_imports()
             return {"ok": False, "error": f"timed out: stopped after {timeout:g} s (--task-timeout)",
                     "kind": "timed out", "seconds": time.perf_counter() - start, "worker": where,
                     "warnings": _lines(caught)}
@@ -240,6 +243,18 @@ def guarded(fn: Callable, *args, timeout: float | None = None) -> dict:
                     "seconds": time.perf_counter() - start, "worker": where, "warnings": _lines(caught)}
     return {"ok": True, "value": value, "seconds": time.perf_counter() - start, "worker": where,
             "warnings": _lines(caught)}
+
+
+def forget_half_imports() -> None:
+    """Drop from ``sys.modules`` every module one of whose packages is not imported. A stop that
+    falls inside an import removes the package being imported but not the submodules it had
+    imported: they would keep the half-built package in their globals, and the next task on the
+    worker, importing the package again over them, would fail on it."""
+    names = set(sys.modules)
+    for name in [n for n in names if "." in n]:
+        parts = name.split(".")
+        if any(".".join(parts[:k]) not in names for k in range(1, len(parts))):
+            sys.modules.pop(name, None)
 
 
 def _lines(caught) -> list[str]:

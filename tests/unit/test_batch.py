@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sys
 import threading
 import time
 from pathlib import Path
@@ -133,6 +134,33 @@ def test_a_task_past_its_time_limit_is_stopped_and_the_worker_goes_on(client):
     assert outcomes["t0"].ok and outcomes["t2"].ok
     assert not outcomes["t1"].ok and outcomes["t1"].kind == "timed out" and outcomes["t1"].seconds < 10
     assert engine.run_tasks(client, slow, [engine.Task("again", (0,))])[0].ok
+
+
+def test_a_task_stopped_inside_an_import_leaves_the_worker_no_half_package(tmp_path, monkeypatch):
+    """The limit may fall while a task imports a package (matplotlib, the first report on a worker):
+    the package's submodules imported so far must not outlive it, or the next task on the worker
+    imports the package again over them and fails on the stale half (matplotlib: "module
+    'matplotlib' has no attribute 'get_data_path'")."""
+    package = tmp_path / "halfpkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("import os, time\nfrom halfpkg import part\n"
+                                         "while os.environ.get('HALFPKG_WAIT'):\n    time.sleep(0.001)\nanswer = 42\n")
+    (package / "part.py").write_text("import halfpkg\n\n\ndef answer():\n    return halfpkg.answer\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("HALFPKG_WAIT", "1")
+
+    def use():
+        import halfpkg.part
+        return halfpkg.part.answer()
+
+    try:
+        assert engine.guarded(use, timeout=0.3)["kind"] == "timed out"
+        monkeypatch.delenv("HALFPKG_WAIT")
+        again = engine.guarded(use)
+        assert again["ok"] and again["value"] == 42, again
+    finally:
+        for name in [n for n in sys.modules if n == "halfpkg" or n.startswith("halfpkg.")]:
+            del sys.modules[name]
 
 
 def test_workers_are_capped_at_the_cores_and_said():
