@@ -247,7 +247,9 @@ def run(args) -> int:
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
     s = read_session(args.session, args.platform, args.description, quiet=args.quiet)  # read once, whatever follows
-    other = second_session(args, s.spec.name)  # read once, before any work: a bad one is bad input, found at once
+    # read once, before any work: a bad one is bad input, found at once (an IMU-only session has no
+    # stand: settled_poses says so in one line)
+    other = second_session(args, None if s.spec is None else s.spec.name)
     read = None
     try:
         read = settled_poses(s)
@@ -387,9 +389,9 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def second_session(args, platform: str):
+def second_session(args, platform: str | None):
     """The poses of ``--validate``'s session (None without it), read as calibrate's own session is,
-    for ``platform``."""
+    for ``platform`` (None: the stand its session.yaml names)."""
     if args.validate is None:
         return None
     return load_for_calibration(args.validate, platform, args.description, quiet=args.quiet)[0]
