@@ -110,10 +110,12 @@ class ObservationFunctions:
     (without model terms or rigid bodies' rotations it is the problem's Jacobian as it is), then
     [dy/ddpose | dy/du] for the terms' offsets. Each function is interpreted by CasADi until it has
     been evaluated on LOOK_AFTER poses, then taken compiled from the cache if there, and
-    compiled after COMPILE_AFTER poses (:func:`_compiled`)."""
+    compiled after COMPILE_AFTER poses (:func:`_compiled`). ``structure``: which entries of J are
+    not structural zeros (:func:`structural_nonzeros`), or None."""
 
-    def __init__(self, G: ca.Function, Yonly: ca.Function, shared: list[int]):
+    def __init__(self, G: ca.Function, Yonly: ca.Function, shared: list[int], structure: np.ndarray | None = None):
         self.G, self.Yonly, self.shared = G, Yonly, shared
+        self.structure = structure  # (rows, cols) bool of J; False: written 0 at every pose
         self._maps: dict = {}
         self._native: dict = {}  # with_jac -> compiled function, or None once compiling was tried
         self._evaluated = {True: 0, False: 0}
@@ -285,12 +287,12 @@ def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
         (td, w, t, m) and in (dpose, u); ``Jz``: its Jacobian in (td, u) (:func:`_motion_jacobian`),
         the rest by CasADi's exact derivatives."""
         args = [u, td, w, t, m, dpose, dm]
+        J = ca.horzcat(Jz[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m))
         G = ca.Function(
             name, args,
-            [y.T, ca.densify(ca.horzcat(Jz[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-             ca.densify(ca.horzcat(ca.jacobian(y, dpose), Jz[:, spec.n_td:]).T)],
+            [y.T, ca.densify(J.T), ca.densify(ca.horzcat(ca.jacobian(y, dpose), Jz[:, spec.n_td:]).T)],
             ["u", "td", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
-        return ObservationFunctions(G, ca.Function(f"{name}_y", args, [y.T]), [1, 2, 3, 4])
+        return ObservationFunctions(G, ca.Function(f"{name}_y", args, [y.T]), [1, 2, 3, 4], structural_nonzeros(J))
 
     if spec.forward is not None and point_links is not None:
         L = len(spec.tracked_links)
@@ -321,13 +323,23 @@ def observation_functions(spec: PlatformSpec, M: int, with_bodies: bool,
     else:
         Z = ca.mtimes(ca.solve(ca.mtimes(F_p.T, F_p), Y_p.T).T, F_p.T)
     Y_rest = -ca.mtimes(Z, F_rest)
+    J = ca.horzcat(Y_rest[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m))
     G = ca.Function(
         "observe_ift", [u, td, p, w, t, m, dpose, dm],
-        [y.T, ca.densify(ca.horzcat(Y_rest[:, :spec.n_td], ca.jacobian(y, w), ca.jacobian(y, t), ca.jacobian(y, m)).T),
-         ca.densify(ca.horzcat(ca.jacobian(y, dpose), Y_rest[:, spec.n_td:]).T)],
+        [y.T, ca.densify(J.T), ca.densify(ca.horzcat(ca.jacobian(y, dpose), Y_rest[:, spec.n_td:]).T)],
         ["u", "td", "p", "w", "t", "m", "dpose", "dm"], ["y", "J", "J_offsets"])
     return ObservationFunctions(G, ca.Function("observe_ift_y", [u, td, p, w, t, m, dpose, dm], [y.T]),
-                                 [1, 3, 4, 5])
+                                 [1, 3, 4, 5], structural_nonzeros(J))
+
+
+def structural_nonzeros(expr) -> np.ndarray:
+    """(rows, cols) bool of a CasADi matrix expression: True where an entry is stored in its
+    sparsity. Every other entry is a structural zero: densified, it is written 0 whatever the
+    inputs (NaN and infinity included)."""
+    rows, cols = expr.sparsity().get_triplet()
+    out = np.zeros(expr.shape, bool)
+    out[np.asarray(rows, int), np.asarray(cols, int)] = True
+    return out
 
 
 def observation_for(spec: PlatformSpec, n_markers: int, n_bodies: int,

@@ -77,6 +77,7 @@ class FitState:
     r: np.ndarray
     J: np.ndarray | None
     converged: np.ndarray  # (N,) forward kinematics converged
+    structure: np.ndarray | None = None  # (C, k): False where J[:, c, :, j], j < k, is 0 at every pose; None: unknown
 
 
 class CalibrationProblem:
@@ -227,6 +228,8 @@ class CalibrationProblem:
         """This problem's observation functions and the stand's model, shared with every problem of
         the stand and point count in this thread (:func:`platkit.calibrate.observation.observation_for`)."""
         self._fns, self.model = observation_for(self.spec, self.M, self.B, self.point_links)
+        S = self._fns.structure  # each marker's columns of it not structural zeros: FitState.structure
+        self._structure = None if self.B or S is None else S[:3 * self.M].reshape(self.M, 3, -1).any(axis=1)
 
     # ------------------------------------------------------------------ pieces
     def split(self, z):
@@ -432,7 +435,7 @@ class CalibrationProblem:
             r = np.concatenate([r, self.body_rho * e], axis=1)
             J_pts = np.concatenate([J_pts, self.body_rho * J_rot], axis=1)
         r[~ok] = np.nan
-        return FitState(r, J_pts, ok)
+        return FitState(r, J_pts, ok, self._structure)
 
     def _Q_shape(self, N: int) -> tuple[int, ...]:
         """Shape of the bodies' mocap_from_link rotations in the observation: one (N, 3, 3) for

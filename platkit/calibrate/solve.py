@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from platkit._threads import blas_threads  # every LM run enters it; estimators import it from here
+from platkit.calibrate.point_columns import columns_by_structure, point_columns, runs_of_points
 from platkit.calibrate.problem import CalibrationProblem, FitState, Progress
 from platkit.calibrate.robust import HUBER_K, MAXWELL_MEDIAN, REJECT_K, robust_sigma
 from platkit.errors import BadInput
@@ -257,8 +258,6 @@ def _gram_by_point(state: FitState, weights, active):
 #: active unknowns from which :func:`_normal_equations` tries the sum by runs of points
 #: (:func:`_gram_by_runs`): below it the runs' gathers cost more than the flops they save
 GRAM_BY_RUNS_FROM = 64
-#: a run of points grows while the union of their columns widens the wider by at most this fraction
-RUN_WIDENS = 0.1
 
 
 def _gram_by_runs(state: FitState, weights, active):
@@ -269,20 +268,18 @@ def _gram_by_runs(state: FitState, weights, active):
     is at most RUN_WIDENS wider than the wider of the two. None with fewer than GRAM_BY_RUNS_FROM
     active unknowns, or where the runs' products cost more than half the whole one's flops. H and
     g are the whole product's to rounding. Tried before :func:`_gram_by_point` (faster where both
-    apply: a point a run, 262 of 364 columns, 3.1 -> 2.6 ms)."""
+    apply: a point a run, 262 of 364 columns, 3.1 -> 2.6 ms).
+
+    A point's columns are read off the whole Jacobian (:func:`point_columns`), or, where the state
+    knows its structure (FitState.structure), from the structure and the first pose
+    (:func:`columns_by_structure`)."""
     J, cols = state.J, np.flatnonzero(active)
     n = cols.size
     if J is None or J.ndim != 4 or n < GRAM_BY_RUNS_FROM:
         return None
     N, P = J.shape[:2]
-    moves = (J != 0).any(axis=0).any(axis=1)[:, cols]  # (P, n)
-    runs: list[tuple[int, int, np.ndarray]] = []
-    for p in range(P):
-        s = np.flatnonzero(moves[p])
-        if runs and (u := np.union1d(runs[-1][2], s)).size <= (1 + RUN_WIDENS) * max(runs[-1][2].size, s.size):
-            runs[-1] = (runs[-1][0], p + 1, u)
-        else:
-            runs.append((p, p + 1, s))
+    moves = columns_by_structure(J, cols, getattr(state, "structure", None))
+    runs = runs_of_points(point_columns(J, cols) if moves is None else moves)
     if sum((p1 - p0) * s.size ** 2 for p0, p1, s in runs) > 0.5 * P * n * n:
         return None
     sw, rw = _weighted_residuals(state, weights)

@@ -216,7 +216,7 @@ def _registration_only(start: _Start, opt: CalibrationOptions) -> LMResult:
     def copied(got: tuple) -> tuple:
         reg = got[2]
         state = FitState(reg.state.r.copy(), None if reg.state.J is None else reg.state.J.copy(),
-                         reg.state.converged.copy())
+                         reg.state.converged.copy(), reg.state.structure)
         return got[0], got[1], replace(reg, z=reg.z.copy(), state=state, weights=reg.weights.copy())
 
     return kept("registration_only", digest(key, start.nuisance, bool(opt.robust), int(opt.max_iter)),

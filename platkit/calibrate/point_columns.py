@@ -1,0 +1,54 @@
+"""Which columns of a Jacobian each point (marker) moves on, and the runs of consecutive points that
+move on nearly the same columns: what the normal equations are summed by (a tree's hand: its markers
+move on its arm's and the trunk's columns, not the other arm's; platkit.calibrate.solve)."""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["RUN_WIDENS", "columns_by_structure", "point_columns", "runs_of_points"]
+
+#: a run of points grows while the union of their columns widens the wider by at most this fraction
+RUN_WIDENS = 0.1
+
+
+def point_columns(J: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(P, len(cols)) bool: whether point p's rows of J (N, P, 3, n_z) have a nonzero (or NaN)
+    entry in column cols[j] at some pose."""
+    return (J != 0).any(axis=0).any(axis=1)[:, cols]
+
+
+def runs_of_points(moves: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """The runs of consecutive points the normal equations are summed by, from each point's columns
+    ``moves`` (P, n) bool: (first point, end, the indices of their columns' union); a run takes the
+    next point while their union is at most RUN_WIDENS wider than the wider of the two."""
+    runs: list[tuple[int, int, np.ndarray]] = []
+    for p in range(len(moves)):
+        s = np.flatnonzero(moves[p])
+        if runs and (u := np.union1d(runs[-1][2], s)).size <= (1 + RUN_WIDENS) * max(runs[-1][2].size, s.size):
+            runs[-1] = (runs[-1][0], p + 1, u)
+        else:
+            runs.append((p, p + 1, s))
+    return runs
+
+
+def columns_by_structure(J: np.ndarray, cols: np.ndarray, structure: np.ndarray | None) -> np.ndarray | None:
+    """:func:`point_columns` without a pass over every entry of J, where ``structure`` (P, k)
+    decides it: False where J[:, p, :, j] is zero at every pose, for J's first k columns. A point's
+    columns there lie between those nonzero at the first pose and the structure's; where the two
+    agree they are the structure's. The columns beyond k are read off J. None (read J whole)
+    without a structure, where the first pose leaves a structural column zero (a product with a
+    parameter that is 0, a pose where a column vanishes), or where more than a quarter of ``cols``
+    lie beyond k (reading those costs about as much as reading every column)."""
+    if structure is None or structure.shape[0] != J.shape[1] or structure.shape[1] > J.shape[3] or not len(J):
+        return None
+    k = structure.shape[1]
+    known = cols < k
+    if 4 * np.count_nonzero(~known) > cols.size:
+        return None
+    moves = np.empty((J.shape[1], cols.size), bool)
+    moves[:, known] = structure[:, cols[known]]
+    if not np.array_equal((J[0] != 0).any(axis=1)[:, cols[known]], moves[:, known]):
+        return None
+    if not known.all():
+        moves[:, ~known] = (J[..., k:] != 0).any(axis=0).any(axis=1)[:, cols[~known] - k]
+    return moves

@@ -1,0 +1,85 @@
+"""The points' columns of the normal equations' runs taken from the observation function's structure
+(columns_by_structure, FitState.structure, observation.structural_nonzeros)."""
+import casadi as ca
+import numpy as np
+
+from platkit.calibrate import solve
+from platkit.calibrate.observation import structural_nonzeros
+from platkit.calibrate.point_columns import columns_by_structure, point_columns
+from platkit.calibrate.problem import CalibrationProblem, FitState
+from platkit.plugins import get_platform
+from platkit.poses import PoseSet
+
+
+def _two_hands(rng, N=40, shared=30, own=60, terms=6):
+    # a tree's Jacobian: 6 markers, 3 on each hand; the trunk's columns move every marker, each
+    # arm's only its hand's; after them `terms` columns (a term's), each moving one marker
+    n = shared + 2 * own + terms
+    J = np.zeros((N, 6, 3, n))
+    J[..., :shared] = rng.normal(size=(N, 6, 3, shared))
+    for h in range(2):
+        J[:, 3 * h:3 * h + 3, :, shared + h * own:shared + (h + 1) * own] = rng.normal(size=(N, 3, 3, own))
+    for p in range(terms):
+        J[:, p % 6, :, shared + 2 * own + p] = rng.normal(size=(N, 3))
+    structure = (J[..., :shared + 2 * own] != 0).any(axis=(0, 2))
+    return J, structure
+
+
+def test_columns_by_structure_are_the_columns_read_off_the_jacobian():
+    rng = np.random.default_rng(21)
+    J, structure = _two_hands(rng)
+    cols = np.flatnonzero(np.arange(J.shape[3]) % 7 != 3)
+    got = columns_by_structure(J, cols, structure)
+    assert got is not None
+    np.testing.assert_array_equal(got, point_columns(J, cols))
+    # NaN is a nonzero, as read off J
+    J[5, 1, 0, -5] = np.nan
+    np.testing.assert_array_equal(columns_by_structure(J, cols, structure), point_columns(J, cols))
+    # a structural column zero at the first pose: read J whole
+    K = J.copy()
+    K[0, 2, :, 4] = 0.0
+    assert columns_by_structure(K, cols, structure) is None
+    # and zero at every pose: the structure would say more than J, so J is read
+    K[:, 2, :, 4] = 0.0
+    assert columns_by_structure(K, cols, structure) is None
+    # most columns beyond the structure, or none given: J read whole
+    assert columns_by_structure(J, cols, structure[:, :20]) is None
+    assert columns_by_structure(J, cols, None) is None
+
+
+def test_normal_equations_by_structure_equal_those_read_off_the_jacobian():
+    rng = np.random.default_rng(22)
+    J, structure = _two_hands(rng)
+    N, P, _, n = J.shape
+    r = rng.normal(size=(N, P, 3))
+    r[3, 4] = np.nan
+    weights = rng.uniform(0.5, 1.5, (N, P))
+    active = np.ones(n, bool)
+    active[[1, 50, 140, n - 2]] = False
+    plain = solve._gram_by_runs(FitState(r, J, np.ones(N, bool)), weights, active)
+    known = solve._gram_by_runs(FitState(r, J, np.ones(N, bool), structure), weights, active)
+    assert plain is not None and known is not None
+    for a, b in zip(plain, known):  # the same runs, the same sums: bit for bit
+        np.testing.assert_array_equal(a, b)
+
+
+def test_structural_nonzeros_and_the_problems_structure():
+    x = ca.SX.sym("x", 3)
+    e = ca.vertcat(x[0] * x[1], x[2], 0)
+    S = structural_nonzeros(ca.jacobian(e, x))
+    np.testing.assert_array_equal(S, [[True, True, False], [False, False, True], [False, False, False]])
+    # a stand's problem: its Jacobian is zero wherever the structure says so, at every pose
+    spec = get_platform("rotary")
+    rng = np.random.default_rng(23)
+    lo, hi = spec.control_bounds()
+    U = rng.uniform(lo, hi, size=(30, spec.n_u))
+    poses = PoseSet(spec.name, U, rng.normal(size=(30, 2, 3)), ["a", "b"])
+    problem = CalibrationProblem(spec, poses)
+    z = problem.initial_registration(spec.nominal_td())
+    st = problem.evaluate(z)
+    assert st.structure is not None and st.structure.shape == (2, problem.i_m.stop)
+    moves = (st.J != 0).any(axis=(0, 2))[:, :problem.i_m.stop]
+    assert not (moves & ~st.structure).any()
+    # each marker's own coordinates, not the other's
+    m0 = problem.i_m.start
+    assert st.structure[0, m0:m0 + 3].all() and not st.structure[0, m0 + 3:m0 + 6].any()
