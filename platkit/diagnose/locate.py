@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from platkit.diagnose.stats import benjamini_hochberg, centred_rows, holm, ljung_box, neighbour_similarity, runs_test
+from platkit.diagnose.stats import benjamini_hochberg, centred_rows, holm, ljung_box, neighbour_similarity, runs_test, runs_tests
 from platkit.effects import history
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
@@ -107,7 +107,8 @@ def locate(residuals: np.ndarray, poses: PoseSet, spec: PlatformSpec, weights: n
     order_t = np.argsort(t, kind="stable")
     tests: list[Location] = []
     names = poses.marker_names
-    orders = [np.argsort(poses.controls[:, i], kind="stable") for i in range(len(spec.controls))]
+    orders = np.array([np.argsort(poses.controls[:, i], kind="stable") for i in range(len(spec.controls))],
+                      int).reshape(len(spec.controls), N)
     quarters: list[dict] = [{} for _ in spec.controls]
     for m in range(M):
         for a in range(3):
@@ -120,8 +121,9 @@ def locate(residuals: np.ndarray, poses: PoseSet, spec: PlatformSpec, weights: n
                                   detail={"order": "time"}))
             z, p = runs_test(x[order_t])
             tests.append(Location("runs along time", dict(base), z, p, detail={"order": "time"}))
+            zs, ps = runs_tests(x, orders)  # along every control at once
             for i, c in enumerate(spec.controls):
-                z, p = runs_test(x[orders[i]])
+                z, p = float(zs[i]), float(ps[i])
                 where = dict(base, control=c.name, region=_region(poses.controls[:, i], x, kept=quarters[i]) + f" {c.unit}")
                 tests.append(Location(f"runs along {c.name}", where, z, p, detail={"order": c.name}))
     rng = np.random.default_rng(12345)

@@ -53,6 +53,31 @@ def runs_test(x: np.ndarray) -> tuple[float, float]:
     return float(z), float(special.ndtr(z))  # stats.norm.cdf's own function, without its checks
 
 
+def runs_tests(x: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`runs_test` of ``x`` (N,) in each order, the rows of ``orders`` (K, N) (permutations
+    of range(N)): (z (K,), p (K,)), the same numbers as ``runs_test(x[o])`` for each row o. The
+    median and the counts above and below it do not depend on the order; only the runs are
+    counted per order, all orders in one pass."""
+    x = np.asarray(x, float)
+    orders = np.asarray(orders, int)
+    finite = np.isfinite(x)
+    v = x[finite]
+    s = x > np.median(v) if v.size else np.zeros(x.shape, bool)
+    n1 = int(np.count_nonzero(s & finite))
+    n2 = v.size - n1
+    n = n1 + n2
+    if n1 == 0 or n2 == 0 or n < 4:
+        return np.zeros(len(orders)), np.ones(len(orders))
+    seq = s[orders]
+    if n < x.size:  # the finite entries of each order, in its order (each row keeps n of them)
+        seq = seq[finite[orders]].reshape(len(orders), n)
+    runs = 1 + np.count_nonzero(seq[:, 1:] != seq[:, :-1], axis=1)
+    mu = 2.0 * n1 * n2 / n + 1
+    var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n**2 * (n - 1))
+    z = (runs - mu) / np.sqrt(max(var, 1e-300))
+    return z, special.ndtr(z)
+
+
 def ljung_box(x: np.ndarray, lags: int | None = None) -> tuple[float, float]:
     """Ljung-Box portmanteau test of whiteness of ``x`` in the given order: (Q, p)."""
     x = np.asarray(x, float)
