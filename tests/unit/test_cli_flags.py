@@ -28,3 +28,19 @@ def test_the_library_names_the_parameter_and_the_cli_the_flag(tmp_path, capsys):
         calibrate(poses, spec, free=["nope"])
     assert main(["calibrate", "--platform", "stewart", "--free", "nope", "--out", str(tmp_path / "cal"), "--quiet"]) == 2
     assert "platkit: error: --free: nope is neither a parameter nor a group of the stewart stand" in capsys.readouterr().err
+
+
+def test_python_dash_m_platkit_is_the_command_line(tmp_path):
+    """``python -m platkit`` runs the same command line as the ``platkit`` script: its version, and
+    its exit status for bad input (2, one error line)."""
+    import subprocess
+    import sys
+
+    import platkit
+
+    run = [sys.executable, "-m", "platkit"]
+    out = subprocess.run([*run, "--version"], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert out.returncode == 0 and platkit.__version__ in out.stdout + out.stderr
+    bad = subprocess.run([*run, "fk", "--platform", "nosuch", "--u", "0"], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.count("platkit: error:") == 1 and "nosuch" in bad.stderr
