@@ -76,6 +76,7 @@ from platkit.calibrate.motion_kind import (
     held_names,
     information,
     kind_verdict,
+    known_samples,
     response_from_report,
     response_report,
     second_order_kept,
@@ -84,7 +85,7 @@ from platkit.calibrate.motion_kind import (
 from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start, travel_start
 from platkit.calibrate.motion_transient import say_transient, start_transient
 from platkit.calibrate.problem import CalibrationProblem, Progress
-from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions
+from platkit.calibrate.response import KINDS, TAU_MIN_S, ResponseModel, actuator_positions, lags
 from platkit.calibrate.stream import (
     MIN_SEEN_SHARE,
     NODES,
@@ -475,7 +476,8 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
                              f"constant and damping are each determined (over {Z_DETERMINED:g} standard deviations) and "
                              f"physical (damping at most {DAMPING_MAX:g}), and at all only where the whole fit's "
                              "information criterion (BIC) is lower than the first order's and the fit leaves the "
-                             "stream's fast content no worse (what a smooth static effect left out cannot buy)"),
+                             "stream's fast content no worse (what a smooth static effect left out cannot buy), on the "
+                             "samples whose commands the log holds"),
                     "bic": {"first_order": bic1}}
     if not keep[moved].any():
         choice["why"] = "first order: no actuator's second-order response is determined by the stream"
@@ -493,7 +495,12 @@ def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win
     choice["bic"][label] = bic2
     added = sum(1 for j, c in enumerate(names) if rmodel.has("damping", j)
                 and f"term.actuator_response.damping.{c}" not in held_names(cal))
-    better, figures, said = kind_verdict(fast_content([cal1, cal], win), added, (bic1, bic2), label)
+    known = np.ones(len(win.t), bool)
+    if first.reference == "step":  # a profile's last command is a hold's target: at rest
+        known = known_samples(win.t, session.command_t, session.commands, np.concatenate(
+            [lags(first, np.asarray(cal1.theta[0], float)), lags(rmodel, np.asarray(cal.theta[0], float))]))
+    unknown = int(np.sum(~known & np.all(win.n_eff <= 1.0, axis=1)))  # the samples kept as samples past the log
+    better, figures, said = kind_verdict(fast_content([cal1, cal], win, known), added, (bic1, bic2), label, unknown)
     choice.update(said)
     if not better:
         choice["why"] = (f"first order: the second order for {', '.join(c for j, c in enumerate(names) if keep[j])} "

@@ -15,7 +15,11 @@ Rules:
   (:func:`kind_verdict`): the second order holds the first within it, so a drive that is second
   order is fitted at least as well there, and a second order that wins the whole fit while losing
   the fast content took a smooth misfit (a static effect left out); otherwise the first order.
-  A kind the caller names is fitted as named;
+  The fast content is judged on the samples whose commands the log holds (:func:`known_samples`):
+  past a streamed log's last command both fits read that command held, which is what the stand
+  did where the log brought it to rest, and a guess where the log stops in motion (a log cut
+  short), whose later samples follow commands not logged: a fit whose lag reads further past the
+  log's end would be charged for the guess. A kind the caller names is fitted as named;
 - a response not determined (:func:`not_determined`): a time constant at or under the response's
   floor (TAU_MIN_S) or under TAU_SAMPLE_SHARE of the motion capture's sample interval (faster
   than the samples can show), a damping at or under its floor (ZETA_MIN) or above DAMPING_MAX
@@ -34,7 +38,7 @@ from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec
 
 __all__ = ["DAMPING_MAX", "TAU_SAMPLE_SHARE", "Z_DETERMINED", "bic", "fast_content", "held_names", "information",
-           "kind_verdict", "not_determined", "response_from_report", "response_report", "second_order_kept",
+           "kind_verdict", "known_samples", "not_determined", "response_from_report", "response_report", "second_order_kept",
            "theta_by_name"]
 
 #: a damping above this is no drive's (a first order's lag taken by a second order far overdamped)
@@ -45,6 +49,9 @@ TAU_SAMPLE_SHARE = 0.25
 #: an actuator keeps the second order where its time constant and damping are each this many
 #: standard deviations from zero
 Z_DETERMINED = 3.0
+#: a streamed log ends at rest where every actuator's last step is at most this share of its
+#: median step (the commands stopped, not cut in motion)
+REST_SHARE = 0.1
 
 
 def information(cal: Calibration, n_ref: int) -> float:
@@ -211,17 +218,39 @@ def response_from_report(r: dict, spec: PlatformSpec, where: str) -> tuple[Respo
     return rmodel, theta_by_name(rmodel, list(spec.control_names), values)
 
 
-def fast_content(cals: list[Calibration], win) -> tuple[list[float], int]:
+def known_samples(t: np.ndarray, T: np.ndarray, U: np.ndarray, lag_s: np.ndarray) -> np.ndarray:
+    """(N,) bool: the samples at times ``t`` (the motion capture's clock) whose commands the
+    streamed log (``T`` (K,), ``U`` (K, n_u)) holds under every lag in ``lag_s`` (s, each fit's
+    and actuator's: a sample at t reads the command of t - lag). Where the log ends at rest (no
+    actuator's last step over REST_SHARE of its median step) every sample: the last command held
+    is what the stand was told. Where it ends in motion, a sample whose latest reading,
+    t - min(lag_s), lies past the last command by more than the log's median interval follows
+    commands the log does not have: not known."""
+    t, T, U = np.asarray(t, float), np.asarray(T, float), np.asarray(U, float)
+    if len(T) < 2:
+        return np.ones(len(t), bool)
+    step = np.abs(np.diff(U, axis=0))
+    median = np.median(step, axis=0)
+    if not np.any((median > 0) & (step[-1] > REST_SHARE * median)):
+        return np.ones(len(t), bool)
+    end = float(T[-1] + np.median(np.diff(T)))
+    return t - float(np.min(lag_s)) <= end
+
+
+def fast_content(cals: list[Calibration], win, known: np.ndarray | None = None) -> tuple[list[float], int]:
     """The fits' residuals in the stream's fast content, on the same observations: in every window
     kept as its samples (``win``: :class:`platkit.calibrate.stream.StreamWindows`), each marker
     coordinate's residuals less their own polynomial in time of the windows' degree (nodes - 1),
-    the observations every fit kept (seen, not rejected). Returns each fit's sum of squares and
+    the observations every fit kept (seen, not rejected) at the samples ``known`` ((N,) bool,
+    default all; :func:`known_samples`). Returns each fit's sum of squares and
     the observations' count less the polynomials' coefficients. A static effect left out of the
     model (a sag, a geometry error: functions of the configuration, which a stream moves slowly)
     lies mostly in the polynomials; the response's order shapes what is left."""
     R = [c.fit.residuals_after for c in cals]
     W = [c.fit.weights for c in cals]
     used = np.all([np.isfinite(r).all(axis=2) & (w > 0) for r, w in zip(R, W)], axis=0)  # (N, C)
+    if known is not None:
+        used &= np.asarray(known, bool)[:, None]
     rss = [0.0] * len(cals)
     n = 0
     ends = [b[0] for b in win.blocks[1:]] + [len(win.t)]
@@ -245,10 +274,12 @@ def fast_content(cals: list[Calibration], win) -> tuple[list[float], int]:
 
 
 def kind_verdict(fast: tuple[list[float], int], added: int, bics: tuple[float, float],
-                 label: str) -> tuple[bool, str, dict]:
+                 label: str, unknown: int = 0) -> tuple[bool, str, dict]:
     """Whether the second order (``label``: second_order or per_actuator) is kept over the first
     (module docstring): ``fast`` :func:`fast_content`'s sums of squares of the two fits (first,
-    second) and its count, ``added`` the dampings the second estimates, ``bics`` the whole fits'
+    second) and its count on the samples whose commands the log holds (``unknown``: the samples
+    kept as samples left out, past the end of a log that stops in motion; :func:`known_samples`),
+    ``added`` the dampings the second estimates, ``bics`` the whole fits'
     (first, second) :func:`information`. Without fast content (no window kept as samples) the
     whole fit's criterion alone. Returns the verdict, its figures in words, and the report's
     ``criterion`` with the fast content's figures."""
@@ -260,8 +291,10 @@ def kind_verdict(fast: tuple[list[float], int], added: int, bics: tuple[float, f
     worse = float(n_fast * np.log(rss2 / rss1))
     out = {"criterion": ("BIC of the whole fit (every unknown charged), and the fit's fast content (the windows kept as "
                          "samples, each marker coordinate less its polynomial in time per window) no worse than the "
-                         f"first order's but for one noise variance per damping added ({added})"),
+                         f"first order's but for one noise variance per damping added ({added}), on the samples "
+                         "whose commands the log holds (not those past the end of a log that stops in motion)"),
            "fast_content": {"n": int(n_fast), "first_order_rss_m2": rss1, f"{label}_rss_m2": rss2,
-                            "worse_in_noise_variances": worse, "allowed": added}}
+                            "worse_in_noise_variances": worse, "allowed": added,
+                            "samples_past_the_log": int(unknown)}}
     words += f"; fast content {'worse' if worse > 0 else 'better'} by {abs(worse):.3g} noise variances, {added} allowed"
     return bics[1] < bics[0] and worse <= added, words, out

@@ -11,7 +11,7 @@ import pytest
 from stream_split import split_stream
 
 from platkit.calibrate.motion import calibrate_motion
-from platkit.calibrate.motion_kind import kind_verdict, not_determined, theta_by_name
+from platkit.calibrate.motion_kind import fast_content, kind_verdict, known_samples, not_determined, theta_by_name
 from platkit.calibrate.response import ResponseModel
 from platkit.io.session import load_session
 from platkit.plugins import get_platform
@@ -71,3 +71,32 @@ def test_an_overdamped_second_order_whose_fast_pole_the_samples_miss_is_not_dete
     bad = not_determined(rmodel, spec, cal(6.6), 0.025)
     assert sorted(bad) == sorted(names) and "fast pole" in bad[names[0]]
     assert not not_determined(rmodel, spec, cal(1.2), 0.025)
+
+
+def test_samples_past_the_end_of_a_log_cut_in_motion_do_not_judge_the_kind():
+    """A log streamed every 50 ms, cut while moving at 21.45 s, samples at 40 Hz to 21.458 s: a
+    sample read by the later lag (-66 ms) past 21.50 s (the last command and one interval) follows
+    a command the log does not have, and is left out of the fast content; the same log ended at
+    rest (its last commands repeated) leaves every sample in. A second order fitted better at every
+    sample but that one (where it reads the command held while the stand moved on) is refused on
+    all the samples and kept on the known ones."""
+    T = np.round(np.arange(0.5, 21.4501, 0.05), 6)
+    U = np.column_stack([np.sin(T), np.cos(0.7 * T)])
+    t = np.round(np.arange(20.483135, 21.46, 0.025), 6)  # one window kept as its samples
+    lag = np.array([-0.0286, -0.0661])
+    known = known_samples(t, T, U, lag)
+    assert np.array_equal(known, t + 0.0661 <= 21.5) and known[:-1].all() and not known[-1]
+    rest = U.copy()
+    rest[-3:] = rest[-4]
+    assert known_samples(t, T, rest, lag).all()
+    rng = np.random.default_rng(0)
+    r1 = 1.1 * rng.normal(0, 2e-4, (len(t), 5, 3))
+    r2 = rng.normal(0, 2e-4, (len(t), 5, 3))
+    r2[-1] += 4e-3  # 20 noise sigmas at the sample past the log
+    win = SimpleNamespace(t=t, blocks=[(0, 0, len(t), None)], nodes=3)
+    cals = [SimpleNamespace(fit=SimpleNamespace(residuals_after=r, weights=np.ones(r.shape[:2]))) for r in (r1, r2)]
+    bics = (-100.0, -200.0)
+    assert not kind_verdict(fast_content(cals, win), 6, bics, "second_order")[0]
+    kept, words, said = kind_verdict(fast_content(cals, win, known), 6, bics, "second_order", 1)
+    assert kept and said["fast_content"]["samples_past_the_log"] == 1
+    assert said["fast_content"]["worse_in_noise_variances"] < 0
