@@ -247,9 +247,9 @@ def run(args) -> int:
     from platkit.settle import HoldsNeverSettle, NeverSettles
 
     s = read_session(args.session, args.platform, args.description, quiet=args.quiet)  # read once, whatever follows
-    # read once, before any work: a bad one is bad input, found at once (an IMU-only session has no
-    # stand: settled_poses says so in one line)
-    other = second_session(args, None if s.spec is None else s.spec.name)
+    # read once, before any work: a bad one is bad input, found at once; none for an IMU-only session
+    # (no stand: settled_poses refuses it in one line)
+    other = None if s.spec is None else second_session(args, s.spec.name)
     read = None
     try:
         read = settled_poses(s)
@@ -389,9 +389,9 @@ def response_parts(text: str | None) -> dict[str, bool]:
     return {RESPONSE_PARTS[x]: True for x in parts}
 
 
-def second_session(args, platform: str | None):
+def second_session(args, platform: str):
     """The poses of ``--validate``'s session (None without it), read as calibrate's own session is,
-    for ``platform`` (None: the stand its session.yaml names)."""
+    for ``platform``."""
     if args.validate is None:
         return None
     return load_for_calibration(args.validate, platform, args.description, quiet=args.quiet)[0]

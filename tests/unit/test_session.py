@@ -538,6 +538,10 @@ def test_calibrate_an_imu_only_recording_says_calibration_needs_a_stand(session_
     assert main(["calibrate", str(folder), "--platform", "stewart", "--out", str(tmp_path / "cal")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "declares no platform" in err
+    # with --validate too: the refusal is the session's, the second session is not read
+    assert main(["calibrate", str(folder), "--validate", str(tmp_path / "absent"), "--out", str(tmp_path / "cal")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "calibration needs a stand" in err and "absent" not in err
     assert not (tmp_path / "cal").exists()
 
 
