@@ -37,7 +37,7 @@ from platkit.calibrate.problem import CalibrationProblem, Progress, parameter_sc
 from platkit.calibrate.registration import markers_given_rotation
 from platkit.calibrate.solve import _rms, blas_threads
 from platkit.calibrate.stages import free_mask
-from platkit.errors import BadInput, NotIdentifiable
+from platkit.errors import BadInput
 from platkit.geometry import (
     matrix_from_quat,
     quat_conjugate,
@@ -230,12 +230,13 @@ def calibrate_paper(poses: PoseSet, spec: PlatformSpec, free: Sequence[str] | No
 
 def _calibrate_paper(poses, spec, free, fit_base, max_evaluations, progress, platform_options) -> Calibration:
     t0 = time.perf_counter()
+    if poses.n_markers < 3:  # the option cannot serve the session: bad input, before any work
+        raise BadInput(f"{poses.source or 'poses'}: --method paper needs at least 3 markers (its marker frame, "
+                       f"step 1; it reads no rigid bodies), the session has {poses.n_markers}")
     full = np.isfinite(poses.markers).all(axis=(1, 2))
     if full.sum() < 3:
         raise BadInput(f"{poses.source or 'poses'}: the paper's method needs poses where every marker is seen; "
                        f"only {int(full.sum())} have all {poses.n_markers}")
-    if poses.n_markers < 3:
-        raise NotIdentifiable("the paper's marker frame (step 1) needs at least 3 markers")
     used = poses.subset(full)
     model = PlatformModel(spec)
     mask = free_mask(spec, free)

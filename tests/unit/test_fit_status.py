@@ -94,6 +94,20 @@ def test_a_warning_said_on_stderr_is_in_both_reports(stewart, tmp_path, capsys):
     assert said in (out2 / "report.html").read_text()
 
 
+def test_the_paper_method_refuses_a_session_of_rigid_bodies_alone_as_bad_input(stewart, tmp_path, capsys):
+    # it reads markers only and needs three for its marker frame: the option cannot serve the
+    # session, known before any work, so exit 2 with one line naming the session, nothing written
+    folder = _body_session(tmp_path / "s", stewart)
+    out = tmp_path / "o"
+    assert main(["calibrate", str(folder), "--method", "paper", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "rigid bodies T1 left out: --method paper reads the markers only" in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("platkit: error:")]
+    assert len(lines) == 1 and "--method paper needs at least 3 markers" in lines[0]
+    assert "the session has 0" in lines[0] and str(folder) in lines[0]
+    assert not out.exists()
+
+
 def _with_markers(folder):
     """Three markers on the body (0.1 m along each of its axes) added to the session's poses.csv."""
     lines = (folder / "poses.csv").read_text().splitlines()
