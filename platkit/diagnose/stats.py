@@ -37,27 +37,18 @@ def runs_test(x: np.ndarray) -> tuple[float, float]:
     """Wald-Wolfowitz runs test of the signs of ``x`` about its median, in the given order.
 
     Returns (z, p): z < 0 means fewer runs than chance (neighbours alike: structure); p is the
-    one-sided p-value of that. NaNs are dropped.
+    one-sided p-value of that. NaNs are dropped. :func:`runs_tests` in the one order given.
     """
     x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
-    s = x > np.median(x)
-    n1, n2 = int(s.sum()), int((~s).sum())
-    n = n1 + n2
-    if n1 == 0 or n2 == 0 or n < 4:
-        return 0.0, 1.0
-    runs = 1 + int(np.sum(s[1:] != s[:-1]))
-    mu = 2.0 * n1 * n2 / n + 1
-    var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n**2 * (n - 1))
-    z = (runs - mu) / np.sqrt(max(var, 1e-300))
-    return float(z), float(special.ndtr(z))  # stats.norm.cdf's own function, without its checks
+    z, p = runs_tests(x, np.arange(x.size)[None])
+    return float(z[0]), float(p[0])
 
 
 def runs_tests(x: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`runs_test` of ``x`` (N,) in each order, the rows of ``orders`` (K, N) (permutations
-    of range(N)): (z (K,), p (K,)), the same numbers as ``runs_test(x[o])`` for each row o. The
-    median and the counts above and below it do not depend on the order; only the runs are
-    counted per order, all orders in one pass."""
+    """The runs test (:func:`runs_test`) of ``x`` (N,) in each order, the rows of ``orders`` (K, N)
+    (permutations of range(N)): (z (K,), p (K,)), NaNs dropped from each order. The median and the
+    counts above and below it do not depend on the order; only the runs are counted per order, all
+    orders in one pass."""
     x = np.asarray(x, float)
     orders = np.asarray(orders, int)
     finite = np.isfinite(x)
