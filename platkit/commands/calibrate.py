@@ -316,9 +316,7 @@ def run(args) -> int:
     failure = fit_failure(cal)  # in the report as a warning; on stderr as the error line at the end
     cal.warnings = all_warnings(notes, fit_notes, [failure] if failure else [])
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
-    line = (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
-            f"({cal.n_poses} poses, {cal.n_markers} markers"
-            + (f", {len(cal.body_names)} rigid bodies (rho {cal.body_rho_source})" if cal.body_names else "") + ")")
+    line = _rms_line(cal, s)
     from platkit.calibrate.estimate import rejected_by_body, rejected_by_marker
 
     lost = rejected_by_marker(cal)
@@ -507,6 +505,17 @@ def holds_refused(reason: str | None) -> str:
     return f"too few holds settle: {reason}" if reason else "the holds do not settle or there are none"
 
 
+def _rms_line(cal, s: float) -> str:
+    """The summary line's start: the rms before and after, and what it was measured on (poses,
+    markers, rigid bodies, each counted in the number's grammar)."""
+    n_bodies = len(cal.body_names)
+    return (f"rms {cal.rms_before / s:.4g} -> {cal.rms_after / s:.4g} {cal.length_unit} "
+            f"({cal.n_poses} pose{'s' if cal.n_poses != 1 else ''}, "
+            f"{cal.n_markers} marker{'s' if cal.n_markers != 1 else ''}"
+            + (f", {n_bodies} rigid bod{'ies' if n_bodies != 1 else 'y'} (rho {cal.body_rho_source})"
+               if n_bodies else "") + ")")
+
+
 def _observed(cal) -> str:
     """What the fit observed, in a few words: its markers, or the rigid bodies read as points
     (platkit.calibrate.motion_points)."""
@@ -514,7 +523,7 @@ def _observed(cal) -> str:
     if points:
         return (f"no markers: rigid bodies {', '.join(points['bodies'])} read as {len(points['points'])} points, "
                 f"placements read back")
-    return f"{cal.n_markers} markers"
+    return f"{cal.n_markers} marker{'s' if cal.n_markers != 1 else ''}"
 
 
 def _kind_said(r: dict) -> str:

@@ -60,6 +60,7 @@ def test_rejected_body_observations_are_counted_and_warned(stewart, tmp_path, ca
     assert main(["calibrate", str(folder), "--quiet", "--no-selection", "--out", str(out)]) == 0
     captured = capsys.readouterr()
     assert "7 rigid-body observations rejected as outliers (T1 7 of 30)" in captured.out
+    assert "(30 poses, 0 markers, 1 rigid body (rho " in captured.out  # one body said in the singular
     said = "rigid body T1: 7 of its 30 observations rejected as outliers"
     assert f"platkit: warning: {said}" in captured.err
     rep = json.loads((out / "report.json").read_text())
