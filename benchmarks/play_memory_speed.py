@@ -34,24 +34,7 @@ from platkit.play import play_memory
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from play_reference import full_walk as old_play_memory  # noqa: E402
-
-
-def _column(rng: np.random.Generator, T: int) -> np.ndarray:
-    t = np.arange(T, dtype=float)
-    kind = rng.integers(7)
-    if kind == 0:
-        return rng.integers(-3, 4, T).astype(float)
-    if kind == 1:
-        return np.cumsum(rng.choice([-1.0, 0.0, 0.0, 1.0, 2.0], T)) * 0.25
-    if kind == 2:
-        return np.round(np.sin(rng.uniform(0.005, 0.3) * t) + rng.normal(0, 0.02, T), int(rng.integers(1, 5)))
-    if kind == 3:
-        return np.sin(rng.uniform(0.3, 1.5) * t) * np.exp(-t / rng.uniform(20, 400)) + rng.uniform(-1, 1)
-    if kind == 4:
-        return np.sin(rng.uniform(0.2, 1.0) * t) * (1 + t) ** rng.uniform(0.2, 1.0)
-    if kind == 5:
-        return np.repeat(rng.normal(0, 1, T // 3 + 1), 3)[:T]
-    return 4 + np.sin(rng.uniform(0.001, 0.02) * t) + rng.normal(0, rng.choice([0, 1e-6, 1e-3]), T)
+from play_reference import random_column, same_bits  # noqa: E402
 
 
 def _random_cases(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, int]]:
@@ -59,7 +42,7 @@ def _random_cases(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, int]]
     cases = []
     for _ in range(n):
         T = int(rng.integers(1, 3000))
-        x = np.column_stack([_column(rng, T) for _ in range(int(rng.integers(1, 7)))])
+        x = np.column_stack([random_column(rng, T) for _ in range(int(rng.integers(1, 7)))])
         at = rng.integers(0, T, int(rng.integers(0, 40)))
         cases.append((x, at, int(rng.choice([1, 2, 3, 4, 6, 10, 32, 200]))))
     return cases
@@ -75,10 +58,6 @@ def _cpu(f, repeat: int) -> float:
     return best
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    return a.shape == b.shape and a.tobytes() == b.tobytes()
-
-
 def stream(folder: Path, calibration: Path, repeat: int) -> None:
     cal = read_calibration(str(calibration))
     session = load_session(folder, spec=cal.spec, quiet=True)
@@ -92,7 +71,7 @@ def stream(folder: Path, calibration: Path, repeat: int) -> None:
     diagnose_stream.stream_poses(folder, session, cal)
     x, at, depth = seen[0]
     print(f"stream {folder}: positions {x.shape[0]} samples x {x.shape[1]} drives, {len(at)} rows, depth {depth}")
-    same = _same(old_play_memory(x, at, depth), play_memory(x, at, depth))
+    same = same_bits(old_play_memory(x, at, depth), play_memory(x, at, depth))
     t_old = _cpu(lambda: old_play_memory(x, at, depth), repeat)
     t_new = _cpu(lambda: play_memory(x, at, depth), repeat)
     print(f"  play_memory alone: old {t_old:.3f} s, new {t_new:.4f} s CPU: old / new {t_old / t_new:.1f}x; "
@@ -110,7 +89,7 @@ def stream(folder: Path, calibration: Path, repeat: int) -> None:
 def random_sequences(n: int, seed: int) -> None:
     cases = _random_cases(n, seed)
     old = [old_play_memory(*c) for c in cases]
-    wrong = [k for k, (c, m) in enumerate(zip(cases, old)) if not _same(m, play_memory(*c))]
+    wrong = [k for k, (c, m) in enumerate(zip(cases, old)) if not same_bits(m, play_memory(*c))]
     cut = sum(bool(np.isinf(m[..., 0]).any()) for m in old)
     t_old = _cpu(lambda: [old_play_memory(*c) for c in cases], 1)
     t_new = _cpu(lambda: [play_memory(*c) for c in cases], 1)

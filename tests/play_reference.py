@@ -1,6 +1,7 @@
 """platkit.play.play_memory as f34c969 wrote it, the stack of turning points walked over every
 sample: the reference the faster walk (3b34037) is held to, to the bit (shared by
-tests/unit/test_play_memory_exact.py and benchmarks/play_memory_speed.py)."""
+tests/unit/test_play_memory_exact.py and benchmarks/play_memory_speed.py), with the random
+sequences both walk it on."""
 from __future__ import annotations
 
 import numpy as np
@@ -41,3 +42,29 @@ def full_walk(x: np.ndarray, at: np.ndarray, depth: int = 200) -> np.ndarray:
         out[:, i, -1] = np.column_stack([np.full(len(at), x[0, i] if len(x) else np.nan),
                                          np.maximum.accumulate(x[:, i])[at], np.minimum.accumulate(x[:, i])[at]])
     return out
+
+
+def random_column(rng: np.random.Generator, T: int) -> np.ndarray:
+    """One actuator's T inputs of a random kind: plateaus and repeated values, random walks, smooth
+    swings with noise rounded to a few places, nested swings that shrink (deep stacks) or grow,
+    values repeated three times, a slow drift with noise of 0, 1e-6 or 1e-3."""
+    t = np.arange(T, dtype=float)
+    kind = rng.integers(7)
+    if kind == 0:
+        return rng.integers(-3, 4, T).astype(float)
+    if kind == 1:
+        return np.cumsum(rng.choice([-1.0, 0.0, 0.0, 1.0, 2.0], T)) * 0.25
+    if kind == 2:
+        return np.round(np.sin(rng.uniform(0.005, 0.3) * t) + rng.normal(0, 0.02, T), int(rng.integers(1, 5)))
+    if kind == 3:
+        return np.sin(rng.uniform(0.3, 1.5) * t) * np.exp(-t / rng.uniform(20, 400)) + rng.uniform(-1, 1)
+    if kind == 4:
+        return np.sin(rng.uniform(0.2, 1.0) * t) * (1 + t) ** rng.uniform(0.2, 1.0)
+    if kind == 5:
+        return np.repeat(rng.normal(0, 1, T // 3 + 1), 3)[:T]
+    return 4 + np.sin(rng.uniform(0.001, 0.02) * t) + rng.normal(0, rng.choice([0, 1e-6, 1e-3]), T)
+
+
+def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two arrays have the same shape and the same bytes (NaN equal to the same NaN)."""
+    return a.shape == b.shape and a.tobytes() == b.tobytes()

@@ -7,40 +7,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from play_reference import full_walk as _reference
+from play_reference import random_column, same_bits
 
 from platkit.play import play_memory
-
-
-def _column(rng: np.random.Generator, T: int) -> np.ndarray:
-    """One actuator's inputs of a random kind: plateaus and repeated values, random walks, smooth
-    swings with noise, nested swings that shrink (deep stacks) or grow, a few values in cents."""
-    t = np.arange(T, dtype=float)
-    kind = rng.integers(6)
-    if kind == 0:
-        return rng.integers(-3, 4, T).astype(float)
-    if kind == 1:
-        return np.cumsum(rng.choice([-1.0, 0.0, 0.0, 1.0, 2.0], T)) * 0.25
-    if kind == 2:
-        f = rng.uniform(0.01, 0.3)
-        return np.round(np.sin(f * t) + rng.normal(0, 0.02, T), int(rng.integers(1, 4)))
-    if kind == 3:
-        return np.sin(rng.uniform(0.3, 1.5) * t) * np.exp(-t / rng.uniform(20, 200)) + rng.uniform(-1, 1)
-    if kind == 4:
-        return np.sin(rng.uniform(0.2, 1.0) * t) * (1 + t) ** rng.uniform(0.2, 1.0)
-    return np.repeat(rng.normal(0, 1, T // 3 + 1), 3)[:T]
 
 
 def _case(seed: int) -> tuple[np.ndarray, np.ndarray, int]:
     rng = np.random.default_rng(seed)
     T = int(rng.integers(1, 400))
-    x = np.column_stack([_column(rng, T) for _ in range(int(rng.integers(1, 4)))])
+    x = np.column_stack([random_column(rng, T) for _ in range(int(rng.integers(1, 4)))])
     at = rng.integers(0, T, int(rng.integers(0, 12)))  # any order, repeats
     depth = int(rng.choice([1, 2, 3, 4, 6, 10, 200]))
     return x, at, depth
-
-
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
 def test_the_memory_is_the_full_walks_to_the_bit_on_random_sequences():
@@ -48,7 +26,7 @@ def test_the_memory_is_the_full_walks_to_the_bit_on_random_sequences():
     for seed in range(1200):
         x, at, depth = _case(seed)
         want = _reference(x, at, depth)
-        assert _same(play_memory(x, at, depth), want), f"seed {seed}: depth {depth}, rows {at.tolist()}"
+        assert same_bits(play_memory(x, at, depth), want), f"seed {seed}: depth {depth}, rows {at.tolist()}"
         cut += bool(np.isinf(want[..., 0]).any())
     assert cut > 200  # the depth cut bit in many of them
 
@@ -61,7 +39,7 @@ def test_the_memory_is_the_full_walks_on_a_long_stream_at_small_depths():
                          np.cos(0.5 * t) * np.exp(-t / 60) + rng.normal(0, 1e-4, len(t))]) + 4.0
     at = np.arange(0, len(t), 40)
     for depth in (1, 2, 3, 5, 32):
-        assert _same(play_memory(x, at, depth), _reference(x, at, depth)), depth
+        assert same_bits(play_memory(x, at, depth), _reference(x, at, depth)), depth
 
 
 @pytest.mark.parametrize("special", [np.nan, np.inf, -np.inf, 1e-310, 2.0 ** -401, 2.0 ** 401])
@@ -71,7 +49,7 @@ def test_a_column_with_values_whose_signs_may_round_is_walked_in_full(special):
     x[[50, 51, 120], 0] = special
     at = rng.integers(0, 300, 20)
     for depth in (1, 3, 200):
-        assert _same(play_memory(x, at, depth), _reference(x, at, depth))
+        assert same_bits(play_memory(x, at, depth), _reference(x, at, depth))
 
 
 def test_a_column_of_tiny_values_whose_products_underflow_is_walked_in_full():
@@ -80,7 +58,7 @@ def test_a_column_of_tiny_values_whose_products_underflow_is_walked_in_full():
     x = np.sin(np.arange(300) * 0.3)[:, None] * 1e-300 * rng.choice([1, 1e-8], (300, 1))
     at = rng.integers(0, 300, 20)
     for depth in (1, 3, 200):
-        assert _same(play_memory(x, at, depth), _reference(x, at, depth))
+        assert same_bits(play_memory(x, at, depth), _reference(x, at, depth))
 
 
 def test_a_row_outside_the_commands_is_an_error():
