@@ -44,7 +44,7 @@ def run(args) -> int:
         X = v[:3] * s
         _check_pose_is_the_stands(model, q, X, args.unit)
     u = _off_the_moving_link_at_neutral(spec, model.inverse(q, X))
-    if spec.n_u > spec.n_p:
+    if _controls_left_free(spec, model, u, q, X):
         warn(f"{spec.name}: {spec.n_u} controls for {spec.n_p} pose coordinates: these controls are one solution of "
              "many that give the pose")
     u_out = controls_from_si(spec, u, args.unit)
@@ -58,6 +58,19 @@ def run(args) -> int:
     for n, v, un in zip(names, u_out, units):
         print(f"{n:<{width}} {v:.6f} {un}")
     return 0
+
+
+def _controls_left_free(spec, model: PlatformModel, u: np.ndarray, q: np.ndarray, X: np.ndarray) -> bool:
+    """True when the pose leaves some control free: F_u, the residual's Jacobian in the controls at
+    the pose, has rank below n_u (a redundantly actuated stand, a joint that does not move the
+    tracked link). A stand with one row per control fixes every control, however many more controls
+    than pose coordinates it has (a cable robot: each cable's length is that of the pose)."""
+    if spec.n_u <= spec.n_p:
+        return False
+    if spec.coordinates_from_pose is None:
+        return True
+    J_u = np.asarray(model.F_jac(u, spec.nominal_td(), model.coordinates(q, X))[2], float)
+    return bool(np.linalg.matrix_rank(J_u) < spec.n_u)
 
 
 def _off_the_moving_link_at_neutral(spec, u: np.ndarray) -> np.ndarray:

@@ -220,3 +220,29 @@ def test_means_over_poses_the_model_could_not_predict_leak_no_numpy_warning():
         column, everything, nothing = _finite_mean(a[:, 0]), _finite_mean(a), _finite_mean(a[:1])
     assert np.isnan(rows[0]) and rows[1] == 2.0 and np.isnan(per_pose[0]) and per_pose[1] == 2.0
     assert column == 1.0 and everything == 2.0 and np.isnan(nothing)
+
+
+def slider_pair() -> PlatformSpec:
+    """Two sliders in series move one carriage: x = u1 + u2, one row, two controls for one coordinate."""
+    u, td, q, X = ca.SX.sym("u", 2), ca.SX.sym("td", 1), ca.SX.sym("q", 4), ca.SX.sym("X", 3)
+    residual = ca.Function("F", [u, td, q, X], [u[0] + u[1] + td[0] - X[0]], ["u", "td", "q", "X"], ["r"])
+    p = ca.SX.sym("p", 1)
+    pose = ca.Function("pose", [p], [ca.DM([1.0, 0, 0, 0]), ca.vertcat(p, 0, 0)], ["p"], ["q", "X"])
+    from_pose = ca.Function("coordinates_from_pose", [q, X], [X[0]], ["q", "X"], ["p"])
+    return PlatformSpec("slider2", "two sliders in series", [Control(f"s{i}", "m", -1.0, 1.0, 0.0) for i in (1, 2)],
+                        [Parameter("offset", "m", 0.0)], [Coordinate("x", "m", 0.0, -1.0, 1.0)], residual, pose,
+                        coordinates_from_pose=from_pose)
+
+
+@pytest.mark.parametrize("stand, free", [(point_stand, False), (slider_pair, True)])
+def test_ik_says_the_controls_are_one_of_many_only_where_the_pose_leaves_some_free(capsys, monkeypatch, stand, free):
+    # the point on four cables has more controls than coordinates, yet each cable's length is the
+    # pose's: F_u has full rank. Two sliders in series leave their sum only.
+    import platkit.commands.ik as ik
+    from platkit.cli import main
+
+    monkeypatch.setattr(ik, "platform_from_args", lambda args: stand())
+    pose = "100,-50,1100" if stand is point_stand else "300"
+    assert main(["ik", "--platform", "any", "--pose", pose, "--coordinates"]) == 0
+    err = capsys.readouterr().err
+    assert ("one solution of many" in err) == free, err
