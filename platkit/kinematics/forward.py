@@ -6,10 +6,12 @@ Square stands (as many residual rows as pose coordinates) solve F = 0 by Newton'
 with more rows than coordinates (cable robots, redundantly actuated mechanisms) take the
 weighted least-squares pose (Levenberg-Marquardt, rows weighted by their plausible misfit) and
 report the rows' misfit beside it. A solution is accepted only when it converged, lies on the
-stand's branch and misfits no row beyond its plausible misfit. When the first start (the
-neutral pose) does not give one, the solve starts again from the poses of a start library (a
-coarse sample of the stand's free space, with its nominal inverse kinematics) nearest the
-controls, nearest first.
+stand's branch, misfits no row beyond its plausible misfit and lies within the coordinates'
+bounds. When the first start (the neutral pose) does not give one, the solve starts again from
+the poses of a start library (a coarse sample of the stand's free space, with its nominal inverse
+kinematics) nearest the controls, nearest first; a pose on the branch beyond the bounds is kept
+only when no start gives one within them (Newton from the neutral pose may jump to another
+solution of F = 0 that the stand's pose map also holds, a gimbal turned over).
 """
 from __future__ import annotations
 
@@ -162,7 +164,8 @@ class ForwardSolver(NewtonSolver):
         """Pose from controls ``u`` (n_u,). ``guess``: starting p (default: the neutral pose).
 
         ``restarts`` (default: when no guess is given): when the first start does not reach the
-        stand's own assembly (no convergence, a mirror pose, a misfit beyond the plausible), the
+        stand's own assembly (no convergence, a mirror pose, a misfit beyond the plausible, a pose
+        beyond the coordinates' bounds, kept when no restart lands within them), the
         solve starts again from the nearest poses of the start library; an explicit guess is
         honoured alone unless ``restarts`` is True.
 
@@ -214,8 +217,7 @@ class ForwardSolver(NewtonSolver):
         if out is None:
             out = self._solve_one(u, td, p0)
         verdict, r = self._verdict(out, u, td)
-        if verdict == "ok" or (verdict == "outside" and p0 is None):
-            # from the neutral start, a pose beyond the coordinates' bounds is the stand's own
+        if verdict == "ok" or (verdict == "outside" and p0 is None and not again):
             return self._result(out, r)
         first = (out, verdict, r)
         mirror = (out, r) if verdict == "mirror" else None
@@ -374,7 +376,8 @@ class ForwardSolver(NewtonSolver):
         on = out[:, -1] > 0.5
         if restarts:
             retry = ~(converged & on)
-            if self._bounds and guess is not None:  # from a guess, a pose beyond the bounds may be another assembly
+            outside = np.zeros(N, bool)
+            if self._bounds:
                 rows = np.nonzero(~retry)[0]
                 P = out[rows, :n_p].copy()
                 idx = self._angle_index
@@ -383,9 +386,12 @@ class ForwardSolver(NewtonSolver):
                         i = rows[j]
                         P[j] = self._wrapped(out[i, :n_p], out[i, n_p:n_p + 4], out[i, n_p + 4:n_p + 7])
                 k, lo, hi = self._bounds_arrays
-                retry[rows[~np.all((P[:, k] >= lo) & (P[:, k] <= hi), axis=1)]] = True
+                outside[rows[~np.all((P[:, k] >= lo) & (P[:, k] <= hi), axis=1)]] = True
+                retry |= outside
             for i in np.nonzero(retry)[0]:
-                again = self._batch_restart(U[i], td, None if guess is None else P0[i if stride else 0])
+                from_neutral = guess is None
+                again = self._batch_restart(U[i], td, None if from_neutral else P0[i if stride else 0],
+                                            keep_outside=not (from_neutral and outside[i]))
                 if again is not None:
                     out[i], r = again
                     converged[i], on[i] = True, True
@@ -399,9 +405,10 @@ class ForwardSolver(NewtonSolver):
         return ForwardBatch(P, out[:, n_p:n_p + 4], out[:, n_p + 4:n_p + 7], out[:, -4].astype(int),
                             out[:, -3].copy(), converged, on, R)
 
-    def _batch_restart(self, u, td, p0) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """(out row, rows' residual) of the first restart accepted (else the first on the branch
-        beyond the coordinates' bounds), or None. ``p0``: the row's guess, None for the neutral."""
+    def _batch_restart(self, u, td, p0, keep_outside: bool = True) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """(out row, rows' residual) of the first restart accepted (else, with ``keep_outside``, the
+        first on the branch beyond the coordinates' bounds), or None. ``p0``: the row's guess, None
+        for the neutral; ``keep_outside`` False where the row's own solve is already such a pose."""
         try:
             starts = self._restart_poses(u, td, p0)
         except PlatkitError:
@@ -412,7 +419,7 @@ class ForwardSolver(NewtonSolver):
             v, r = self._verdict(o, u, td)
             if v == "ok" or (v == "outside" and p0 is not None and j == 0):  # j = 0: the neutral start
                 return o, r
-            if v == "outside" and outside is None:
+            if v == "outside" and outside is None and keep_outside:
                 outside = (o, r)
         return outside
 
