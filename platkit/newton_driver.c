@@ -78,7 +78,8 @@ static double pk_norm(const double* r) {
 /* More rows than pose coordinates: Levenberg-Marquardt on the (weighted) rows r(p), the
    least-squares pose. Steps solve (J^T J + lam diag(J^T J)) dp = J^T r; a step is kept only when
    it lowers |r| (lam / 3), else lam x 4 and the step is tried again. Stops converged when
-   |r| <= tol (the rows close), when the step is below 1e-11 (1 + |p|_inf), or when no step
+   |r| <= tol (the rows close; one Gauss-Newton step then polishes the pose, kept only if it does
+   not raise |r|, as Newton's below), when the step is below 1e-11 (1 + |p|_inf), or when no step
    lowers |r| (a minimum to machine precision); status 1 after max_iter steps. out as pk_newton
    below. */
 CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const double* p0,
@@ -94,7 +95,15 @@ CASADI_SYMBOL_EXPORT void pk_newton(const double* u, const double* td, const dou
   for (k = 0;; ++k) {
     double scale = 0.0, step = 0.0, pmax = 0.0; int kept = 0;
     if (!isfinite(nrm)) { status = 3; break; }
-    if (nrm <= tol) { status = 0; break; }
+    if (nrm <= tol) {
+      if (nrm > 0.0 && !pk_step(J, r, A, b)) {
+        for (i = 0; i < PK_NP; ++i) pt[i] = p[i] - b[i];
+        pk_eval_rj(u, td, pt, rt, Jt);
+        nt = pk_norm(rt);
+        if (nt <= nrm) { memcpy(p, pt, sizeof(double) * PK_NP); nrm = nt; }
+      }
+      status = 0; break;
+    }
     if (k >= max_iter) { status = 1; break; }
     pk_normal(J, r, N, gr);
     for (i = 0; i < PK_NP * PK_NP; ++i) { double v = fabs(N[i]); if (v > scale) scale = v; }

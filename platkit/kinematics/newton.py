@@ -121,6 +121,15 @@ class NewtonSolver(ModelCore):
                 status = NOT_FINITE
                 break
             if nrm <= self.tol:
+                if nrm > 0:  # polish, as the C driver does
+                    try:
+                        b = np.linalg.solve(J.T @ J, J.T @ r)
+                        rt, _ = self._rj_one(u, td, p - b)
+                        nt = math.sqrt(float(rt @ rt))
+                        if nt <= nrm:
+                            p, nrm = p - b, nt
+                    except np.linalg.LinAlgError:
+                        pass
                 break
             if k >= self.max_iter:
                 status = MAX_ITERATIONS

@@ -246,3 +246,14 @@ def test_ik_says_the_controls_are_one_of_many_only_where_the_pose_leaves_some_fr
     assert main(["ik", "--platform", "any", "--pose", pose, "--coordinates"]) == 0
     err = capsys.readouterr().err
     assert ("one solution of many" in err) == free, err
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_consistent_controls_give_the_pose_to_rounding(compiled):
+    # once the rows close to the tolerance, one Gauss-Newton step polishes the pose, as Newton's
+    # does: finite differences of forward kinematics (check_platform's rates) divide its error by h^2
+    model = PlatformModel(point_stand(), compile=compiled)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        x = np.array([0.0, 0.0, 1.0]) + rng.uniform(-0.3, 0.3, 3)
+        np.testing.assert_allclose(model.forward(np.linalg.norm(ANCHORS - x, axis=1)).X, x, rtol=0, atol=1e-14)
