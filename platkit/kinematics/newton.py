@@ -20,6 +20,11 @@ from platkit.geometry import quat_normalize
 from platkit.kinematics.core import ModelCore
 from platkit.native import CONVERGED, MAX_ITERATIONS, NOT_FINITE, SINGULAR, NativeNewton, native_for, newton_functions
 
+#: a least-squares solve (more rows than pose coordinates) gets this many times Newton's iterations:
+#: Gauss-Newton on rows that do not close converges linearly, at a rate that nears 1 as the rows'
+#: misfit grows along a weakly held direction (a small plate's turn on long cables)
+LEAST_SQUARES_ITERATIONS = 10
+
 
 class NewtonSolver(ModelCore):
     """G(p) = F(u, td, pose(p)) = 0 solved for p: one problem or N, in C or in numpy; out rows
@@ -56,6 +61,12 @@ class NewtonSolver(ModelCore):
                 "td0": self._td0.copy(), "neutral": self._p0.copy(), "out": np.zeros(n_out)}
         return bufs, {k: v.ctypes.data for k, v in bufs.items()}
 
+    @property
+    def _iterations(self) -> int:
+        """The solve's iteration budget: ``max_iter``, times LEAST_SQUARES_ITERATIONS for a
+        least-squares solve."""
+        return self.max_iter * LEAST_SQUARES_ITERATIONS if self.n_r > self.spec.n_p else self.max_iter
+
     @functools.cached_property
     def _default_call(self):
         """(u buffer, out buffer, the compiled checked solve, its ctypes arguments, (tol,
@@ -69,7 +80,7 @@ class NewtonSolver(ModelCore):
         bounds = np.ascontiguousarray(np.stack([self._lo_tol, self._hi_tol]), dtype=float)
         args = (ctypes.c_void_p(addr["u"]), ctypes.c_void_p(bounds.ctypes.data),
                 ctypes.c_void_p(bounds.ctypes.data + bounds.strides[0]), ctypes.c_void_p(addr["td0"]),
-                ctypes.c_void_p(addr["neutral"]), ctypes.c_double(self.tol), ctypes.c_int(self.max_iter),
+                ctypes.c_void_p(addr["neutral"]), ctypes.c_double(self.tol), ctypes.c_int(self._iterations),
                 ctypes.c_void_p(addr["out"]))
         return bufs["u"], bufs["out"], nat.checked, args, (self.tol, self.max_iter), bounds
 
@@ -90,7 +101,7 @@ class NewtonSolver(ModelCore):
         else:
             bufs["p0"][:] = p0
             p0_addr = addr["p0"]
-        nat.single(addr["u"], td_addr, p0_addr, self.tol, self.max_iter, addr["out"])
+        nat.single(addr["u"], td_addr, p0_addr, self.tol, self._iterations, addr["out"])
         return bufs["out"].copy()
 
     def _solve(self, u: np.ndarray, td: np.ndarray, P0: np.ndarray, stride: int) -> np.ndarray:
@@ -103,7 +114,7 @@ class NewtonSolver(ModelCore):
             td = np.ascontiguousarray(td, dtype=float)
             P0 = np.ascontiguousarray(P0, dtype=float)
             out = np.empty((N, nat.n_out))
-            nat.batch(N, u.ctypes.data, td.ctypes.data, P0.ctypes.data, stride, self.tol, self.max_iter,
+            nat.batch(N, u.ctypes.data, td.ctypes.data, P0.ctypes.data, stride, self.tol, self._iterations,
                       out.ctypes.data)
             return out
         return self._solve_numpy(u, td, np.broadcast_to(P0, (N, self.spec.n_p)))
@@ -131,7 +142,7 @@ class NewtonSolver(ModelCore):
                     except np.linalg.LinAlgError:
                         pass
                 break
-            if k >= self.max_iter:
+            if k >= self._iterations:
                 status = MAX_ITERATIONS
                 break
             N, gr = J.T @ J, J.T @ r
