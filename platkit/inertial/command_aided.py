@@ -84,6 +84,9 @@ def estimate_timing(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, gyr_bi
     For each command whose predicted rotation exceeds ``min_angle``, the gyro's rotation angle
     accumulated between this command and the next is found (rate above three times its 20th
     percentile: the noise, if the platform holds a fifth of the time); onset = 5 %, end = 95 %.
+    The first command's move starts wherever the recording began, a pose no command gives: it is
+    timed where the gyro turned by ``min_angle`` after it, for that command alone (the medians are
+    the moves between commands).
     """
     b = np.zeros(3) if gyr_bias is None else np.asarray(gyr_bias, float)
     rate = np.linalg.norm(imu.gyr - b, axis=1)
@@ -96,8 +99,8 @@ def estimate_timing(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, gyr_bi
     lags, ends = [], []
     lag_k = np.full(len(t_cmd), np.nan)
     end_k = np.full(len(t_cmd), np.nan)
-    for k in range(1, len(t_cmd)):
-        if steps[k - 1] < min_angle:
+    for k in range(len(t_cmd)):
+        if k > 0 and steps[k - 1] < min_angle:
             continue
         t0 = t_cmd[k]
         t1 = t_cmd[k + 1] if k + 1 < len(t_cmd) else imu.t[-1]
@@ -106,11 +109,13 @@ def estimate_timing(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray, gyr_bi
             continue
         c = cum[i0:i1] - cum[i0]
         total = c[-1]
-        if total < 0.5 * steps[k - 1]:
+        if total < (0.5 * steps[k - 1] if k > 0 else min_angle):
             continue  # the gyro saw too little of this move (it ran into the next command)
-        lags.append(imu.t[i0 + np.searchsorted(c, 0.05 * total)] - t0)
-        ends.append(imu.t[min(i0 + np.searchsorted(c, 0.95 * total), i1 - 1)] - t0)
-        lag_k[k], end_k[k] = lags[-1], ends[-1]
+        lag_k[k] = imu.t[i0 + np.searchsorted(c, 0.05 * total)] - t0
+        end_k[k] = imu.t[min(i0 + np.searchsorted(c, 0.95 * total), i1 - 1)] - t0
+        if k > 0:
+            lags.append(lag_k[k])
+            ends.append(end_k[k])
     if not lags:
         raise NotIdentifiable("platform latency: no command turned the platform enough to time it "
                               f"(need steps above {math.degrees(min_angle):.2g} deg with the gyro recording)")
@@ -268,16 +273,20 @@ def estimate_command_aided(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray,
     held_l = held.tolist()
     kc = k_cmd.tolist()
     qc = [tuple(x) for x in q_cmd.tolist()]
-    q = qc[kc[0]]
+    # the estimate starts at the first held sample, at its command's pose: before the first
+    # command arrives the platform holds a pose no command gives (wherever the recording began);
+    # the samples before it are the gyro integrated back from there
+    first = int(np.argmax(held)) if held.any() else 0
+    q = qc[kc[first]]
     b = list(b0)
     n = imu.n
     out_q = np.empty((n, 4))
     out_b = np.empty((n, 3))
-    for i in range(n):
+    for i in range(first, n):
         g = gyr[i]
         ws = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
         wp = [Rt[r][0] * ws[0] + Rt[r][1] * ws[1] + Rt[r][2] * ws[2] for r in range(3)]
-        if i:
+        if i > first:
             q = Q.normalize(Q.mul(q, Q.from_rotvec(wp[0] * dt, wp[1] * dt, wp[2] * dt)))
         if held_l[i]:
             # error rotation in the platform frame: q_ref = q * exp(e)
@@ -293,6 +302,14 @@ def estimate_command_aided(imu: ImuStream, t_cmd: np.ndarray, q_cmd: np.ndarray,
             b = [b[r] - g_bias * es[r] / dt for r in range(3)]
         out_q[i] = q
         out_b[i] = b
+    q = tuple(out_q[first].tolist())
+    for i in range(first, 0, -1):  # q_(i-1) = q_i exp(-w_i dt), the forward step undone
+        g = gyr[i]
+        ws = (g[0] - b0[0], g[1] - b0[1], g[2] - b0[2])
+        wp = [Rt[r][0] * ws[0] + Rt[r][1] * ws[1] + Rt[r][2] * ws[2] for r in range(3)]
+        q = Q.normalize(Q.mul(q, Q.from_rotvec(-wp[0] * dt, -wp[1] * dt, -wp[2] * dt)))
+        out_q[i - 1] = q
+        out_b[i - 1] = b0
     out_q *= np.where(out_q[:, :1] < 0, -1.0, 1.0)
     info = {"method": "command-aided", "lag_s": timing.lag_s, "settle_s": timing.settle_s,
             "timed_moves": timing.n_moves, "held_fraction": float(held.mean()),
