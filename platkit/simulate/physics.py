@@ -41,7 +41,7 @@ import yaml
 from platkit.calibrate.plan import default_marker_layout, feasible, marker_link_indices, stand_length_scale
 from platkit.calibrate.problem import link_frames
 from platkit.effects import Effect, EffectPhysics, PhysicsPlan, PhysicsSeries
-from platkit.errors import BadInput, NoConvergence, NotIdentifiable
+from platkit.errors import BadInput, ComputationFailed, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, transform
 from platkit.inertial.simulate import imu_for_trajectory
 from platkit.io.atomic import atomic_output_dir
@@ -221,8 +221,9 @@ class _Stand:
         bad = ~(fb.converged & fb.on_branch)
         if np.any(bad):
             k = int(np.nonzero(bad)[0][0])
-            raise NoConvergence(f"{self.spec.name}: forward kinematics of the true stand failed at t={t[k]:.3f} s "
-                                f"(controls {np.round(u[k], 6).tolist()}): an effect or the plan leaves the workspace")
+            raise ComputationFailed(f"{self.spec.name}: forward kinematics of the true stand failed at t={t[k]:.3f} s "
+                                    f"(controls {np.round(u[k], 6).tolist()}): an effect or the plan leaves the "
+                                    "workspace")
         return fb.q, fb.X
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -292,3 +292,16 @@ def test_rows_that_miss_by_much_along_a_weak_turn_are_refused_as_a_misfit_not_as
     with pytest.raises(OutOfWorkspace, match=r"plausible misfit: cable C4 misses by 3\.669 mm \(plausible 3\), "
                                              r"cable C2 misses by 3\.566 mm"):
         model.forward(u)
+
+
+def test_a_physical_run_the_true_stand_cannot_follow_is_one_computation_failure():
+    # the physical simulator drives each actuator through its own response: between holds the
+    # cables of a pose-free stand disagree by more than their plausible misfit, and the run stops
+    # with one line naming the time and the controls (before: a TypeError from NoConvergence's
+    # arguments)
+    from platkit.simulate.physics import simulate_physics
+
+    U = np.array([np.linalg.norm(ANCHORS - x, axis=1) for x in ([0, 0, 1.0], [0.3, 0.3, 1.3], [-0.3, -0.3, 0.8])])
+    with pytest.raises(ComputationFailed, match=r"point4: forward kinematics of the true stand failed at t=\d+\.\d{3} s "
+                                                r"\(controls \[.*\]\): an effect or the plan leaves the workspace$"):
+        simulate_physics(point_stand(), seed=0, plan=U, perturbation=0.0)
