@@ -53,7 +53,11 @@ def run(args) -> int:
     print(f"position  x={out['x']:.4f} y={out['y']:.4f} z={out['z']:.4f} {args.unit}")
     print(f"rotation  roll={np.degrees(out['roll']):.5f} pitch={np.degrees(out['pitch']):.5f} yaw={np.degrees(out['yaw']):.5f} deg")
     print(f"quaternion w={out['qw']:.9f} x={out['qx']:.9f} y={out['qy']:.9f} z={out['qz']:.9f}")
-    print(f"newton iterations {res.iterations}, residual {res.residual:.2e}" + ("" if res.on_branch else "  MIRROR POSE (not on the stand's branch)"))
+    # a stand with more rows than coordinates solves by least squares, its residual the rows' norm
+    # each over its plausible misfit
+    solve = (f"least-squares iterations {res.iterations}, weighted misfit {res.residual:.2e}" if misfit is not None
+             else f"newton iterations {res.iterations}, residual {res.residual:.2e}")
+    print(solve + ("" if res.on_branch else "  MIRROR POSE (not on the stand's branch)"))
     if misfit is not None:
         print("misfit    " + ", ".join(f"{name} {row['value']:+.4g} {row['unit']}" for name, row in misfit.items())
               + f" (worst {res.misfit_ratio:.0%} of its plausible misfit)")

@@ -234,6 +234,17 @@ def slider_pair() -> PlatformSpec:
                         coordinates_from_pose=from_pose)
 
 
+def test_fk_says_a_least_squares_solve_and_its_weighted_misfit(capsys, monkeypatch):
+    import platkit.commands.fk as fk
+    from platkit.cli import main
+
+    monkeypatch.setattr(fk, "platform_from_args", lambda args: point_stand())
+    u = ",".join(f"{v * 1e3:.6f}" for v in np.linalg.norm(ANCHORS - [0.1, -0.2, 1.1], axis=1) + [1e-3, 0, 0, 0])
+    assert main(["fk", "--platform", "any", "--u", u]) == 0
+    out = capsys.readouterr().out
+    assert "least-squares iterations" in out and "weighted misfit" in out and "newton" not in out
+
+
 @pytest.mark.parametrize("stand, free", [(point_stand, False), (slider_pair, True)])
 def test_ik_says_the_controls_are_one_of_many_only_where_the_pose_leaves_some_free(capsys, monkeypatch, stand, free):
     # the point on four cables has more controls than coordinates, yet each cable's length is the
