@@ -226,12 +226,12 @@ class ForwardSolver(NewtonSolver):
             for j, start in enumerate(self._restart_poses(u, self._td(td), p0)):
                 o = self._solve_one(u, td, start)
                 v, rr = self._verdict(o, u, td)
-                if v == "ok" or (v == "outside" and p0 is not None and j == 0):  # j = 0: the neutral start
+                if v == "ok":
                     return self._result(o, rr)
                 if v == "mirror" and mirror is None:
                     mirror = (o, rr)
-                if v == "outside" and outside is None:
-                    outside = (o, rr)
+                if v == "outside" and (outside is None or (p0 is not None and j == 0)):
+                    outside = (o, rr)  # the neutral start's (j = 0 after a guess) before a guess's
         if outside is not None:  # on the branch, beyond the coordinates' bounds, and nothing better found
             return self._result(*outside)
         if allow_mirror and mirror is not None:
@@ -406,9 +406,10 @@ class ForwardSolver(NewtonSolver):
                             out[:, -3].copy(), converged, on, R)
 
     def _batch_restart(self, u, td, p0, keep_outside: bool = True) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """(out row, rows' residual) of the first restart accepted (else, with ``keep_outside``, the
-        first on the branch beyond the coordinates' bounds), or None. ``p0``: the row's guess, None
-        for the neutral; ``keep_outside`` False where the row's own solve is already such a pose."""
+        """(out row, rows' residual) of the first restart accepted (else, with ``keep_outside``, one
+        on the branch beyond the coordinates' bounds: the neutral start's where it gave one, else
+        the first), or None. ``p0``: the row's guess, None for the neutral; ``keep_outside`` False
+        where the row's own solve is already such a pose."""
         try:
             starts = self._restart_poses(u, td, p0)
         except PlatkitError:
@@ -417,10 +418,10 @@ class ForwardSolver(NewtonSolver):
         for j, start in enumerate(starts):
             o = self._solve_one(u, td, start)
             v, r = self._verdict(o, u, td)
-            if v == "ok" or (v == "outside" and p0 is not None and j == 0):  # j = 0: the neutral start
+            if v == "ok":
                 return o, r
-            if v == "outside" and outside is None and keep_outside:
-                outside = (o, r)
+            if v == "outside" and keep_outside and (outside is None or (p0 is not None and j == 0)):
+                outside = (o, r)  # the neutral start's before any other
         return outside
 
     @functools.lru_cache(maxsize=16)  # noqa: B019 - kept with the long-lived model, one per batch size

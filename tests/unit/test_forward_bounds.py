@@ -47,6 +47,10 @@ def test_forward_from_neutral_honours_the_bounds_and_keeps_a_pose_beyond_only_wh
     batch = model.forward_batch(np.array([u, -u, [0.3, 0.2]]))
     np.testing.assert_allclose(batch.p, [u, -u, [0.3, 0.2]], atol=1e-12)
     assert batch.converged.all() and batch.on_branch.all()
+    # from a guess at the neutral pose (calibration's first solve of every pose), with restarts
+    np.testing.assert_allclose(model.forward(u, guess=[0.0, 0.0], restarts=True).p, u, atol=1e-12)
+    batch = model.forward_batch(np.array([u, -u]), guess=np.zeros((2, 2)))
+    np.testing.assert_allclose(batch.p, [u, -u], atol=1e-12)
     # where no start gives a pose within the bounds, the one beyond them is kept
     model = PlatformModel(pan_tilt(pitch_max=0.5), compile=compiled)
     u = np.array([0.2, 0.8])  # tilt 0.8 rad: the head's own pose is beyond the pitch bound 0.5
