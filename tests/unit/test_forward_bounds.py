@@ -30,9 +30,9 @@ def pan_tilt(pitch_max=1.3) -> PlatformSpec:
     from_pose = ca.Function("coordinates_from_pose", [q, X],
                             [ca.vertcat(ca.atan2(d[1], d[0]), ca.atan2(-d[2], ca.sqrt(d[0] ** 2 + d[1] ** 2)))],
                             ["q", "X"], ["p"])
-    return PlatformSpec("pan-tilt", "a pan-tilt head", [Control("pan", "rad", -2.6, 2.6, 0.0), Control("tilt", "rad", -1.0, 1.0, 0.0)],
-                        [Parameter("o_pan", "rad", 0.0)],
-                        [Coordinate("yaw", "rad", 0.0, -2.8, 2.8), Coordinate("pitch", "rad", 0.0, -pitch_max, pitch_max)],
+    controls = [Control("pan", "rad", -2.6, 2.6, 0.0), Control("tilt", "rad", -1.0, 1.0, 0.0)]
+    coordinates = [Coordinate("yaw", "rad", 0.0, -2.8, 2.8), Coordinate("pitch", "rad", 0.0, -pitch_max, pitch_max)]
+    return PlatformSpec("pan-tilt", "a pan-tilt head", controls, [Parameter("o_pan", "rad", 0.0)], coordinates,
                         residual, pose, coordinates_from_pose=from_pose, branch=branch)
 
 

@@ -286,8 +286,8 @@ def plate_stand() -> PlatformSpec:
                        ["p"], ["q", "X"])
     from_pose = ca.Function("coordinates_from_pose", [q, X], [ca.vertcat(X[0], X[1], yaw)], ["q", "X"], ["p"])
     u0 = np.linalg.norm(A - b, axis=1)
-    return PlatformSpec("plate4", "a plate on four cables", [Control(f"C{i + 1}", "m", 0.1, 2.2, float(v)) for i, v in enumerate(u0)],
-                        [Parameter("o", "m", 0.0)],
+    controls = [Control(f"C{i + 1}", "m", 0.1, 2.2, float(v)) for i, v in enumerate(u0)]
+    return PlatformSpec("plate4", "a plate on four cables", controls, [Parameter("o", "m", 0.0)],
                         [Coordinate("x", "m", 0.0, -0.6, 0.6), Coordinate("y", "m", 0.0, -0.45, 0.45),
                          Coordinate("yaw", "rad", 0.0, -0.35, 0.35)],
                         residual, pose, coordinates_from_pose=from_pose,
