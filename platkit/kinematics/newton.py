@@ -132,15 +132,7 @@ class NewtonSolver(ModelCore):
                 status = NOT_FINITE
                 break
             if nrm <= self.tol:
-                if nrm > 0:  # polish, as the C driver does
-                    try:
-                        b = np.linalg.solve(J.T @ J, J.T @ r)
-                        rt, _ = self._rj_one(u, td, p - b)
-                        nt = math.sqrt(float(rt @ rt))
-                        if nt <= nrm:
-                            p, nrm = p - b, nt
-                    except np.linalg.LinAlgError:
-                        pass
+                p, nrm = self._polished(u, td, p, r, J, nrm)
                 break
             if k >= self._iterations:
                 status = MAX_ITERATIONS
@@ -176,6 +168,20 @@ class NewtonSolver(ModelCore):
         on = bool(np.all(g > 0))
         return np.concatenate([p[:n_p], q, X, g, [k, nrm, status, on]])
 
+    def _polished(self, u: np.ndarray, td: np.ndarray, p: np.ndarray, r: np.ndarray, J: np.ndarray,
+                  nrm: float) -> tuple[np.ndarray, float]:
+        """(p, |r|) after one more step once |r| <= tol (Newton's; Gauss-Newton's where rows
+        outnumber pose coordinates), kept only where it does not raise |r|: the C driver's polish."""
+        if not nrm > 0:
+            return p, nrm
+        try:
+            step = np.linalg.solve(J, r) if J.shape[0] == J.shape[1] else np.linalg.lstsq(J, r, rcond=None)[0]
+        except np.linalg.LinAlgError:
+            return p, nrm
+        rt, _ = self._rj_one(u, td, p - step)
+        nt = math.sqrt(float(rt @ rt))
+        return (p - step, nt) if nt <= nrm else (p, nrm)
+
     def _solve_numpy_one(self, u: np.ndarray, td: np.ndarray, p0: np.ndarray) -> np.ndarray:
         """One Newton solve with numpy over CasADi buffer evaluations; the C driver's out row."""
         if self.n_r > self.spec.n_p:
@@ -190,15 +196,7 @@ class NewtonSolver(ModelCore):
                 status = NOT_FINITE
                 break
             if nrm <= self.tol:
-                if nrm > 0:  # polish, as the C driver does
-                    try:
-                        step = np.linalg.solve(J, r) if square else np.linalg.lstsq(J, r, rcond=None)[0]
-                        rt, _ = self._rj_one(u, td, p - step)
-                        nt = math.sqrt(float(rt @ rt))
-                        if nt <= nrm:
-                            p, nrm = p - step, nt
-                    except np.linalg.LinAlgError:
-                        pass
+                p, nrm = self._polished(u, td, p, r, J, nrm)
                 break
             if k >= self.max_iter:
                 status = MAX_ITERATIONS
