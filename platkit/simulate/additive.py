@@ -24,6 +24,7 @@ from platkit.errors import BadInput, NotIdentifiable
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, quat_from_matrix
 from platkit.io.session import Session
 from platkit.kinematics import PlatformModel
+from platkit.kinematics.sampling import nominal_inverse
 from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.settle import direction_of_last_motion, last_step, settle
@@ -344,7 +345,7 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
     tau, freq, overshoot = 0.12, 3.0, 0.05
     # paths in the space the stand declares free: poses for a pose-free stand (its controls along a
     # straight control path fit no pose), controls otherwise
-    pose_path = spec.pose_free and spec.inverse is not None
+    pose_path = spec.pose_free
     prev_poses = np.vstack([spec.neutral_p()[None], stand.poses[:-1]])
 
     def state(t):
@@ -357,7 +358,7 @@ def true_trajectory(spec: PlatformSpec, model: PlatformModel, stand: TrueStand, 
         after = np.maximum(t - t_arrive[i], 0.0)
         wiggle = overshoot * np.exp(-after / tau) * np.sin(2 * np.pi * freq * after) * (t >= t_arrive[i])
         if pose_path:  # a pose-free stand moves along straight lines in its pose coordinates
-            u = _pose_path_controls(spec, prev_poses[i], stand.poses[i], prev_true[i], U_true[i], s + wiggle)
+            u = _pose_path_controls(model, prev_poses[i], stand.poses[i], prev_true[i], U_true[i], s + wiggle)
         else:
             u = prev_true[i] + (s + wiggle)[:, None] * delta
         moff = prev_moff[i] + s[:, None, None] * (m_off[i] - prev_moff[i])
@@ -404,19 +405,17 @@ def _offset_frames(frames, off):
     return (np.einsum("kab,klbc->klac", matrix_from_rotvec(off[:, 3:]), frames[0]), frames[1] + off[:, None, :3])
 
 
-def _pose_path_controls(spec: PlatformSpec, P0: np.ndarray, P1: np.ndarray, U0: np.ndarray, U1: np.ndarray,
+def _pose_path_controls(model: PlatformModel, P0: np.ndarray, P1: np.ndarray, U0: np.ndarray, U1: np.ndarray,
                         frac: np.ndarray) -> np.ndarray:
     """Controls (K, n_u) at fractions ``frac`` (K,) of straight moves in pose coordinates from P0 to
-    P1 (K, n_p each): the nominal closed-form inverse kinematics of the interpolated pose, plus
-    the endpoints' differences between the controls sent (U0, U1) and that inverse, interpolated
-    alike, so the path starts and ends on the controls sent."""
-    K = len(frac)
-    td0 = spec.nominal_td()
-    pose, inverse = spec.pose.map(K), spec.inverse.map(K)
+    P1 (K, n_p each): the nominal inverse kinematics of the interpolated pose (the stand's closed
+    form batched where it has one, else pose by pose), plus the endpoints' differences between the
+    controls sent (U0, U1) and that inverse, interpolated alike, so the path starts and ends on the
+    controls sent."""
+    td0 = model.spec.nominal_td()
 
     def ik(P):
-        q, X = pose(np.ascontiguousarray(P.T))
-        return np.asarray(inverse(td0, q, X)).T
+        return nominal_inverse(model, np.ascontiguousarray(P), td0)[0]
 
     f = np.asarray(frac, float)[:, None]
     return ik(P0 + f * (P1 - P0)) + (1 - f) * (U0 - ik(P0)) + f * (U1 - ik(P1))

@@ -316,3 +316,18 @@ def test_a_physical_run_the_true_stand_cannot_follow_is_one_computation_failure(
     with pytest.raises(ComputationFailed, match=r"point4: forward kinematics of the true stand failed at t=\d+\.\d{3} s "
                                                 r"\(controls \[.*\]\): an effect or the plan leaves the workspace$"):
         simulate_physics(point_stand(), seed=0, plan=U, perturbation=0.0)
+
+
+def test_a_pose_free_stand_without_a_closed_form_inverse_streams_along_straight_lines_in_pose():
+    # its path's controls come from the model's own inverse pose by pose (a straight line in cable
+    # lengths misses a pose by more than the cables' plausible 3 mm: the simulation stopped, 'forward
+    # kinematics failed along the path')
+    from platkit.simulate import simulate
+
+    traj = simulate(plate_stand(), seed=0, n_poses=6).trajectory
+    mid = traj.command_t + 0.5 * (traj.arrive_t - traj.command_t)
+    _, X, _ = traj.evaluate(mid)
+    ends = traj.evaluate(traj.arrive_t - 1e-9)[1]
+    starts = np.vstack([traj.evaluate(np.array([traj.command_t[0] - 1e-3]))[1], ends[:-1]])
+    assert np.max(np.linalg.norm(X - 0.5 * (starts + ends), axis=1)) < 1e-3
+
