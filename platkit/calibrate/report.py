@@ -17,7 +17,6 @@ import yaml
 from matplotlib.figure import Figure
 
 from platkit.errors import BadInput
-from platkit.geometry import rpy_from_quat
 from platkit.io import jsonout
 from platkit.io.atomic import atomic_output_dir
 from platkit.io.calibration import Calibration, heldout_in_unit, write_calibration_yaml
@@ -229,20 +228,15 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
         try:
 
             fb = PlatformModel(cal.calibrated_spec()).forward_batch(controls, cal.td, strict=False)
-            X = fb.X[fb.converged] / s
-
-            rpy = np.degrees(rpy_from_quat(fb.q[fb.converged]))
-            fig, axes = _subplots(1, 3, figsize=(11, 3.3), gap_in=0.9)
-            axes[0].plot(X[:, 0], X[:, 1], ".", ms=3)
-            axes[0].set_xlabel(f"x [{lu}]"), axes[0].set_ylabel(f"y [{lu}]")
-            axes[1].plot(X[:, 0], X[:, 2], ".", ms=3)
-            axes[1].set_xlabel(f"x [{lu}]"), axes[1].set_ylabel(f"z [{lu}]")
-            axes[2].plot(rpy[:, 0], rpy[:, 1], ".", ms=3)
-            axes[2].set_xlabel("roll [deg]"), axes[2].set_ylabel("pitch [deg]")
-            for a in axes:
+            P = fb.p[fb.converged]
+            panels = coverage_panels(cal.spec, lu)
+            fig, axes = _subplots(1, len(panels), figsize=(3.7 * len(panels), 3.3), squeeze=False, gap_in=0.9)
+            for a, ((i, xlabel, sx), (j, ylabel, sy)) in zip(axes[0], panels):
+                a.plot(P[:, i] * sx, P[:, j] * sy, ".", ms=3)
+                a.set_xlabel(xlabel), a.set_ylabel(ylabel)
                 a.set_aspect("auto")
-            out.append(("Coverage of the workspace", "Where the plan took the moving frame (base frame, "
-                        "calibrated model): positions and tilts.", _png(fig)))
+            out.append(("Coverage of the workspace", "Where the plan took the moving frame (calibrated model), in "
+                        "the stand's pose coordinates.", _png(fig)))
             lo, hi = cal.spec.control_bounds()
             span = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, np.ptp(controls, axis=0) + 1e-12)
             base = np.where(np.isfinite(lo), lo, controls.min(axis=0))
@@ -258,6 +252,26 @@ def _plots(cal: Calibration, poses: PoseSet | None) -> list[tuple[str, str, str]
         except Exception:  # a coverage plot must never stop the report from being written
             pass
     return out
+
+
+def coverage_panels(spec, length_unit: str) -> list[tuple[tuple[int, str, float], tuple[int, str, float]]]:
+    """The panels of the workspace coverage plot: the stand's pose coordinates in pairs (0, 1),
+    (2, 3), ..., an odd last one beside the first, each as (index, axis label, factor from SI to the
+    label's unit: lengths in ``length_unit``, angles in degrees); every coordinate in some panel
+    (a gimbal's yaw and pitch, a planar robot's x, y and yaw, a hexapod's six)."""
+    scale = length_scale(length_unit)
+
+    def axis(k: int) -> tuple[int, str, float]:
+        c = spec.coordinates[k]
+        if c.unit == "m":
+            return k, f"{c.name} [{length_unit}]", 1.0 / scale
+        if c.unit == "rad":
+            return k, f"{c.name} [deg]", 180.0 / np.pi
+        return k, f"{c.name} [{c.unit}]", 1.0
+
+    n = spec.n_p
+    pairs = [(k, k + 1) for k in range(0, n - 1, 2)] + ([(n - 1, 0)] if n % 2 else [])
+    return [(axis(i), axis(j)) for i, j in pairs]
 
 
 def _table(rows, header) -> str:

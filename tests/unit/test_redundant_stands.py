@@ -331,3 +331,21 @@ def test_a_pose_free_stand_without_a_closed_form_inverse_streams_along_straight_
     starts = np.vstack([traj.evaluate(np.array([traj.command_t[0] - 1e-3]))[1], ends[:-1]])
     assert np.max(np.linalg.norm(X - 0.5 * (starts + ends), axis=1)) < 1e-3
 
+
+def test_the_report_shows_coverage_in_the_stands_own_pose_coordinates(monkeypatch):
+    # the plate moves in x, y and yaw: the coverage plot's axes are those, every one of them (it
+    # drew x-y, x-z and roll-pitch, three of them constant, and no yaw)
+    import platkit.calibrate.report as report
+    from platkit.calibrate.estimate import calibrate
+    from platkit.simulate import simulate
+
+    spec = plate_stand()
+    sim = simulate(spec, seed=0, n_poses=12)
+    cal = calibrate(sim.poses, spec, free=["o"])
+    figures = []
+    monkeypatch.setattr(report, "_png", lambda fig: figures.append(fig) or "")
+    titles = [t for t, _, _ in report._plots(cal, sim.poses)]
+    fig = figures[titles.index("Coverage of the workspace")]
+    labels = [(a.get_xlabel(), a.get_ylabel()) for a in fig.axes]
+    assert labels == [("x [mm]", "y [mm]"), ("yaw [deg]", "x [mm]")]
+    assert 10 < np.ptp(fig.axes[1].lines[0].get_xdata()) < 41  # yaw within its +-20 deg box
