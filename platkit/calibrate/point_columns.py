@@ -22,12 +22,15 @@ def runs_of_points(moves: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
     ``moves`` (P, n) bool: (first point, end, the indices of their columns' union); a run takes the
     next point while their union is at most RUN_WIDENS wider than the wider of the two."""
     runs: list[tuple[int, int, np.ndarray]] = []
+    union = np.zeros(moves.shape[1:], bool)  # the last run's columns, as a mask
     for p in range(len(moves)):
-        s = np.flatnonzero(moves[p])
-        if runs and (u := np.union1d(runs[-1][2], s)).size <= (1 + RUN_WIDENS) * max(runs[-1][2].size, s.size):
-            runs[-1] = (runs[-1][0], p + 1, u)
+        widest = max(int(np.count_nonzero(union)), int(np.count_nonzero(moves[p])))
+        joined = union | moves[p]
+        if runs and np.count_nonzero(joined) <= (1 + RUN_WIDENS) * widest:
+            runs[-1], union = (runs[-1][0], p + 1, np.flatnonzero(joined)), joined
         else:
-            runs.append((p, p + 1, s))
+            runs.append((p, p + 1, np.flatnonzero(moves[p])))
+            union = moves[p].copy()
     return runs
 
 

@@ -41,6 +41,7 @@ from platkit.bodies import (
 )
 from platkit.calibrate.observation import observation_for
 from platkit.calibrate.registration import digest, kept, registered
+from platkit.calibrate.term_columns import by_rows, offset_column, one_row_columns, support
 from platkit.effects import with_history
 from platkit.errors import BadInput
 from platkit.geometry import matrix_from_quat, matrix_from_rotvec, rotvec_from_matrix
@@ -351,7 +352,7 @@ class CalibrationProblem:
                     if B:
                         d_mk = np.concatenate([d_mk, np.zeros((N, B, 3, K))], axis=1)
                     d_mk = d_mk.reshape(N, -1, K)
-                out.append(("known", K, d_u, d_pose, d_mk, None if d_mk is None else _one_row_columns(d_mk)))
+                out.append(("known", K, d_u, d_pose, d_mk, None if d_mk is None else one_row_columns(d_mk)))
                 continue
             base = (term.control_offset(th, poses, n_u), term.pose_offset(th, poses, q0, X0), term.marker_offset(th, poses))
             cols = []
@@ -365,7 +366,7 @@ class CalibrationProblem:
                 if B:
                     d_m = np.concatenate([d_m, np.zeros((N, B, 3))], axis=1)
                 d_m = d_m.reshape(N, -1)
-                cols.append((d_u, d_pose, d_m, tuple(_support(d) for d in (d_u, d_pose, d_m))))
+                cols.append((d_u, d_pose, d_m, tuple(support(d) for d in (d_u, d_pose, d_m))))
             out.append(("columns", K, cols))
         return out
 
@@ -403,29 +404,39 @@ class CalibrationProblem:
             J[:, :, self.i_body_rot] = 0.0  # the terms' columns: each term's below
         k = self.i_theta.start
         finite = None  # whether the function's Jacobian is finite (a product with a zero is then a zero)
+        # the structure of the leading terms' columns, point by point, while each is known: a term
+        # whose one part is written by rows (by_rows: the rows of each column), or that has none
+        beyond: list | None = [] if self._structure is not None and self._structure.shape[1] == k else None
         for jac in jacs:
             K = jac[1]
             if jac[0] == "known":
                 # each pose's block by a (BLAS) matrix product written in place; a part the term
                 # has no offset of (None) is skipped, not multiplied by zeros
-                col, first = J[:, :, k:k + K], True
+                col, parts, written = J[:, :, k:k + K], 0, None
                 for Y, d in ((Y_u, jac[2]), (Y_dpose, jac[3]), (Y_m, jac[4])):
-                    if d is not None:
-                        if d is jac[4] and jac[5] is not None and _by_rows(Y, d[rows], jac[5], col, first):
-                            pass
-                        elif first:
-                            np.matmul(Y, d[rows], out=col)
-                        else:
-                            col += np.matmul(Y, d[rows])
-                        first = False
-                if first:
+                    if d is None:
+                        continue
+                    written = None if d is not jac[4] or jac[5] is None else \
+                        by_rows(Y, d[rows], jac[5], col, parts == 0)
+                    if written is None and parts == 0:
+                        np.matmul(Y, d[rows], out=col)
+                    elif written is None:
+                        col += np.matmul(Y, d[rows])
+                    parts += 1
+                if parts == 0:
                     col[...] = 0.0
+                    written = np.zeros((nP3, K), bool)
+                elif parts > 1:
+                    written = None  # the rows of the sum's other parts are not known
+                if beyond is not None:
+                    beyond = None if written is None else beyond + [written.reshape(M, 3, K).any(axis=1)]
                 k += K
                 continue
+            beyond = None
             if finite is None:
                 finite = bool(np.isfinite(J_offsets).all() and np.isfinite(Y_m).all())
             for d_u, d_pose, d_m, supports in jac[2]:
-                J[:, :, k] = _offset_column(((Y_u, d_u[rows]), (Y_dpose, d_pose[rows]), (Y_m, d_m[rows])),
+                J[:, :, k] = offset_column(((Y_u, d_u[rows]), (Y_dpose, d_pose[rows]), (Y_m, d_m[rows])),
                                             supports if finite else None)
                 k += 1
         J_pts = J[:, :nP3].reshape(n, M + B, 3, self.n_z)
@@ -435,7 +446,8 @@ class CalibrationProblem:
             r = np.concatenate([r, self.body_rho * e], axis=1)
             J_pts = np.concatenate([J_pts, self.body_rho * J_rot], axis=1)
         r[~ok] = np.nan
-        return FitState(r, J_pts, ok, self._structure)
+        structure = self._structure if not beyond else np.concatenate([self._structure, *beyond], axis=1)
+        return FitState(r, J_pts, ok, structure)
 
     def _Q_shape(self, N: int) -> tuple[int, ...]:
         """Shape of the bodies' mocap_from_link rotations in the observation: one (N, 3, 3) for
@@ -517,80 +529,6 @@ class CalibrationProblem:
     def link_frames(self, td, U) -> tuple[np.ndarray, np.ndarray]:
         """:func:`link_frames` of this problem's stand."""
         return link_frames(self.spec, td, U)
-
-
-def _support(d: np.ndarray) -> np.ndarray:
-    """The columns of a term's offset derivative d (N, k) nonzero (or not finite) at some pose."""
-    return np.flatnonzero(d.any(axis=0))  # NaN counts as nonzero
-
-
-def _offset_column(parts, supports) -> np.ndarray:
-    """One term parameter's Jacobian column (n, rows): the sum over ``parts`` ((Y (n, rows, k), d (n, k))) of
-    ``np.einsum("nak,nk->na", Y, d)`` in the parts' order. With ``supports`` (each d's columns nonzero
-    at some pose, :func:`_support`; given only where every Y is finite) a part whose d is zero is left
-    out (its sum is +0 everywhere; x + 0 is x), one with a single such column is that column's product
-    plus +0 (the one product the sum adds to zeros, a zero of either sign +0): the same bits, without
-    the products by zeros (a screened control offset moves one control)."""
-    total = None
-    for (Y, d), s in zip(parts, supports if supports is not None else (None,) * len(parts)):
-        if s is not None and s.size == 0:
-            continue
-        if s is not None and s.size == 1:
-            c = int(s[0])
-            term = Y[:, :, c] * d[:, c, None] + 0.0
-        else:
-            term = np.einsum("nak,nk->na", Y, d)
-        total = term if total is None else total + term
-    return np.zeros(parts[0][0].shape[:2]) if total is None else total
-
-
-def _one_row_columns(d: np.ndarray) -> list[tuple[int, np.ndarray]] | None:
-    """Where every column of the term's marker offsets d (N, rows, K) is nonzero in at most one
-    row (the same for every pose): each such row's index with its columns, else None (and for
-    fewer than 8 columns, where a matrix product costs no more)."""
-    if d.shape[2] < 8:
-        return None
-    used = (d != 0).any(axis=0)  # (rows, K)
-    if used.sum(axis=0).max(initial=0) > 1:
-        return None
-    return [(int(b), _contiguous(np.flatnonzero(used[b]))) for b in np.flatnonzero(used.any(axis=1))]
-
-
-def _contiguous(idx: np.ndarray):
-    """``idx`` (sorted indices) as a slice where they are a contiguous run (a view, not a copy)."""
-    if len(idx) and idx[-1] - idx[0] == len(idx) - 1:
-        return slice(int(idx[0]), int(idx[-1]) + 1)
-    return idx
-
-
-def _by_rows(Y: np.ndarray, d: np.ndarray, pattern: list, out: np.ndarray, first: bool) -> bool:
-    """out = Y @ d (``first``) or out += Y @ d, (n, a, b) @ (n, b, K), where each column of d is
-    nonzero in one row b at most (``pattern``, :func:`_one_row_columns`): each column the product
-    of its one entry with Y's column b, written only into the rows where that column of Y is
-    nonzero. The same numbers as the matrix product (a sum of one product and exact zeros) but
-    the sign of some zeros; False (nothing written) where Y is not finite (0 * inf is NaN there)."""
-    if not np.isfinite(Y).all():
-        return False
-    Ynz = (Y != 0).any(axis=0)  # (a, b): the rows each column of Y reaches
-    if first:
-        out[...] = 0.0
-    for b, cols in pattern:
-        rows = _contiguous(np.flatnonzero(Ynz[:, b]))
-        if not isinstance(rows, slice) and len(rows) == 0:
-            continue
-        block = Y[:, rows, b][:, :, None] * d[:, b, cols][:, None, :]
-        ix = (slice(None), rows, cols) if isinstance(rows, slice) and isinstance(cols, slice) else \
-            np.ix_(np.arange(out.shape[0]), _indices(rows, out.shape[1]), _indices(cols, out.shape[2]))
-        if first:
-            out[ix] = block
-        else:
-            out[ix] += block
-    return True
-
-
-def _indices(idx, n: int) -> np.ndarray:
-    """A slice or index array of :func:`_contiguous` as an index array (for ``np.ix_``)."""
-    return np.arange(n)[idx] if isinstance(idx, slice) else idx
 
 
 def _bodies(poses: PoseSet) -> np.ndarray:

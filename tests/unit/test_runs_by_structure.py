@@ -1,5 +1,8 @@
 """The points' columns of the normal equations' runs taken from the observation function's structure
-(columns_by_structure, FitState.structure, observation.structural_nonzeros)."""
+(columns_by_structure, FitState.structure, observation.structural_nonzeros), and from the rows the
+marker probe's columns are written in."""
+from pathlib import Path
+
 import casadi as ca
 import numpy as np
 
@@ -7,6 +10,7 @@ from platkit.calibrate import solve
 from platkit.calibrate.observation import structural_nonzeros
 from platkit.calibrate.point_columns import columns_by_structure, point_columns
 from platkit.calibrate.problem import CalibrationProblem, FitState
+from platkit.diagnose.probes import marker_probe
 from platkit.plugins import get_platform
 from platkit.poses import PoseSet
 
@@ -83,3 +87,31 @@ def test_structural_nonzeros_and_the_problems_structure():
     # each marker's own coordinates, not the other's
     m0 = problem.i_m.start
     assert st.structure[0, m0:m0 + 3].all() and not st.structure[0, m0 + 3:m0 + 6].any()
+
+
+def test_the_marker_probes_columns_are_in_the_structure():
+    # a tree's probe (each marker's own controls), written row by row: the state's structure covers
+    # its columns, so the runs are read without a pass over the whole Jacobian, and are the same
+    urdf = Path(__file__).resolve().parents[1] / "data" / "trees" / "two_arm_torso.urdf"
+    mapping = {"R1": "right_tcp", "R2": "right_tcp", "L1": "left_tcp", "L2": "left_tcp", "L3": "left_tcp"}
+    spec = get_platform("urdf", urdf, moving_link=mapping)
+    rng = np.random.default_rng(24)
+    lo, hi = spec.control_bounds()
+    poses = PoseSet("urdf", rng.uniform(0.8 * lo, 0.8 * hi, (60, spec.n_u)), rng.normal(size=(60, 5, 3)),
+                    list(mapping), moving_link=mapping)
+    probe = marker_probe(poses, spec)
+    problem = CalibrationProblem(spec, poses, [probe])
+    z = problem.initial_registration(spec.nominal_td())
+    z[problem.i_theta] = rng.normal(0, 1e-3, len(probe.initial))
+    st = problem.evaluate(z)
+    assert st.structure is not None and st.structure.shape == (5, problem.n_z)
+    moves = (st.J != 0).any(axis=(0, 2))
+    assert not (moves & ~st.structure).any()
+    cols = np.flatnonzero(np.arange(problem.n_z) % 5 != 2)
+    got = columns_by_structure(st.J, cols, st.structure)
+    assert got is not None
+    np.testing.assert_array_equal(got, point_columns(st.J, cols))
+    # each marker's block of the probe (3 axes x 6 features) moves that marker only
+    for m in range(5):
+        block = slice(problem.i_theta.start + 18 * m, problem.i_theta.start + 18 * (m + 1))
+        assert st.structure[m, block].all() and not np.delete(st.structure, m, axis=0)[:, block].any()

@@ -19,8 +19,9 @@ from platkit.calibrate import identifiability, stages
 from platkit.calibrate import problem as problem_module
 from platkit.calibrate.estimate import calibrate
 from platkit.calibrate.identifiability import select_identifiable, singular_values
-from platkit.calibrate.problem import CalibrationProblem, _offset_column, _support
+from platkit.calibrate.problem import CalibrationProblem
 from platkit.calibrate.selection import select_model
+from platkit.calibrate.term_columns import offset_column, support
 from platkit.plugins import get_platform
 from platkit.terms import ModelTerm
 
@@ -84,9 +85,9 @@ def test_an_offset_column_is_the_sum_of_its_parts_bit_for_bit():
                 d[:, rng.choice(k, 3, replace=False)] = rng.normal(size=(5, 3))
             parts.append((Y, d))
         whole = sum((np.einsum("nak,nk->na", Y, d) for Y, d in parts[1:]), np.einsum("nak,nk->na", *parts[0]))
-        got = _offset_column(parts, tuple(_support(d) for _, d in parts))
+        got = offset_column(parts, tuple(support(d) for _, d in parts))
         assert np.array_equal(whole, got) and np.array_equal(np.signbit(whole), np.signbit(got))
-        assert np.array_equal(whole, _offset_column(parts, None))
+        assert np.array_equal(whole, offset_column(parts, None))
 
 
 def test_term_columns_by_differences_skip_the_products_by_zeros_and_give_the_same_jacobian(arm, poses, monkeypatch):
@@ -99,7 +100,7 @@ def test_term_columns_by_differences_skip_the_products_by_zeros_and_give_the_sam
     fast = CalibrationProblem(arm, poses, _terms()).evaluate(z)
     # one product for term b's two controls; none for a (one control), c (one marker column), none
     assert einsums.count("nak,nk->na") == 1
-    monkeypatch.setattr(problem_module, "_support", lambda d: np.arange(d.shape[1]))  # every column: every product
+    monkeypatch.setattr(problem_module, "support", lambda d: np.arange(d.shape[1]))  # every column: every product
     plain = CalibrationProblem(arm, poses, _terms()).evaluate(z)
     assert einsums.count("nak,nk->na") == 1 + 3 * 4
     assert np.array_equal(fast.J, plain.J) and np.array_equal(np.signbit(fast.J), np.signbit(plain.J))
