@@ -122,12 +122,18 @@ class MarkerProbe(ModelTerm):
 
     def marker_features(self, poses: PoseSet) -> list[np.ndarray]:
         """Each marker's features (N, F_m): :meth:`features` without ``movers``; with them, the
-        marker's own controls and the mean of their squares (none for a marker no control moves)."""
+        marker's own controls and the mean of their squares (none for a marker no control moves);
+        markers with the same controls (a hand's) share one array."""
         if self.movers is None:
             return [self.features(poses)] * self.n_markers
         u = (np.asarray(poses.controls, float) - self.mid) / self.half
-        return [np.hstack([u[:, c], np.mean(u[:, c] ** 2, axis=1, keepdims=True)]) if len(c)
-                else np.zeros((len(u), 0)) for c in self.movers]
+        made: dict[bytes, np.ndarray] = {}
+        for c in self.movers:
+            key = np.asarray(c, np.int64).tobytes()
+            if key not in made:
+                made[key] = np.hstack([u[:, c], np.mean(u[:, c] ** 2, axis=1, keepdims=True)]) if len(c) \
+                    else np.zeros((len(u), 0))
+        return [made[np.asarray(c, np.int64).tobytes()] for c in self.movers]
 
     def marker_offset(self, theta, poses):
         if self.movers is None:

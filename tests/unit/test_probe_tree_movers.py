@@ -130,3 +130,10 @@ def test_a_fits_held_out_channels_are_kept_only_while_its_held_out_errors_are_th
     assert fitting._kept_channels(fit, poses.subset(np.arange(4)), 5, 10) is None  # other poses
     fit.cv = fit.cv.copy()  # held-out errors set from elsewhere: the kept channels are not theirs
     assert fitting._kept_channels(fit, poses, 5, 10) is None
+
+
+def test_markers_on_one_link_share_their_features():
+    spec = get_platform("urdf", URDF, moving_link=MAPPING)
+    poses = _poses(spec, 60, MAPPING)
+    feats = marker_probe(poses, spec).marker_features(poses)  # R1, R2, L1, L2, L3
+    assert feats[0] is feats[1] and feats[2] is feats[3] is feats[4] and feats[0] is not feats[2]
