@@ -309,8 +309,11 @@ def _weighted_jacobian(problem, z, idx) -> np.ndarray:
             * problem.scale[idx][None, :]
     st = problem.evaluate(z)
     used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
-    J = (np.take(st.J, idx, axis=-1) * np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None])[used]
-    return J.reshape(-1, len(idx)) * problem.scale[idx][None, :]
+    J = np.take(st.J, idx, axis=-1)  # weighted and scaled in place; every row kept where every point is used
+    J *= np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None]
+    J = J.reshape(-1, len(idx)) if used.all() else J[used].reshape(-1, len(idx))
+    J *= problem.scale[idx][None, :]
+    return J
 
 
 def _compress(A: np.ndarray) -> np.ndarray:
