@@ -1,12 +1,13 @@
 """A humanoid upper body that bends under its own weight: default `platkit calibrate`, then
 `platkit diagnose`, on settled poses from the elastic tree simulator (platkit.simulate.elastic_tree).
 
-    .venv/bin/python benchmarks/trees_humanoid.py [--robot talos|icub|tiago_dual|g1|pr2|baxter] [--seeds 1]
-        [--poses 300 --heldout 200] [--bare] [--later N] [--compliance-scale F]
+    .venv/bin/python benchmarks/trees_humanoid.py [--robot talos|icub|tiago_dual|g1|pr2|baxter|romeo|centauro|alex]
+        [--seeds 1] [--poses 300 --heldout 200] [--bare] [--later N] [--compliance-scale F]
 
 The robot (``--robot``, each a :class:`Robot` in ROBOTS_TABLE; IIT's iCub, PAL's TIAGo++ on its
-torso lift, Unitree's G1, Willow Garage's PR2 on its torso lift and Rethink's Baxter (two arms on a
-fixed torso) the others, from the same package): by default PAL's Talos
+torso lift, Unitree's G1, Willow Garage's PR2 on its torso lift, Rethink's Baxter (two arms on a
+fixed torso), Aldebaran's Romeo, IIT's Centauro (two arms on a turning torso) and Boardwalk's Alex
+(a three-joint spine) the others, from the same package): by default PAL's Talos
 (example-robot-data's talos_reduced.urdf, with its inertias: a public description not written
 here), legs removed, grippers fixed, both 7-joint arms and the head on a
 torso whose last joint is coupled to the one before it as a URDF mimic joint (torso_3_joint, half
@@ -196,6 +197,54 @@ ROBOTS_TABLE = {
         {f"{s}_{j}": 2e-4 for s in ("left", "right") for j in ("s1", "e0", "e1")},
         {"left_s0": 1e-4, "right_s0": 1e-4, "left_s1": 2e-4, "right_s1": 2e-4},
         (), ("head",), fixed=("l_gripper_", "r_gripper_")),
+    # Aldebaran's Romeo (romeo.urdf, 40.5 kg; 17 kg above the hips): a trunk yaw about the vertical
+    # (TrunkYaw: holds no gravity torque), a four-joint neck and head, two 7-joint arms (shoulder
+    # pitch, shoulder yaw, elbow roll, elbow yaw, wrist roll, yaw, pitch; 2.4 kg each); the legs
+    # removed, the hands fixed (LHand, RHand and their 22 fingers, mimic joints of the hand's joint in
+    # the description, all massless), sensor frames kept, a marker triad on each wrist (l_wrist,
+    # r_wrist). Its light arms load their joints little (2 N m RMS at a shoulder pitch), so the
+    # truth's joints are soft (1e-3 rad/(N m) nominal, as iCub's tendons) at each arm's shoulder pitch
+    # and yaw and elbow roll; bent: the trunk's column at TrunkYaw (the moment of both arms and the
+    # head across it, 5e-4) and the shoulder mount at *ShoulderPitch (1e-3; the shoulder yaw's axis
+    # passes through its pivot).
+    "romeo": Robot(
+        "romeo", "romeo_description/urdf/romeo.urdf", {"left": "l_wrist", "right": "r_wrist"},
+        ["TrunkYaw", "NeckYaw", "NeckPitch", "HeadPitch", "HeadRoll",
+         *[f"{s}{j}" for s in "LR" for j in ("ShoulderPitch", "ShoulderYaw", "ElbowRoll", "ElbowYaw", "WristRoll",
+                                             "WristYaw", "WristPitch")]],
+        {f"{s}{j}": 1e-3 for s in "LR" for j in ("ShoulderPitch", "ShoulderYaw", "ElbowRoll")},
+        {"TrunkYaw": 5e-4, "LShoulderPitch": 1e-3, "RShoulderPitch": 1e-3},
+        ("LHipYaw", "RHipYaw"), ("Trunk", "Neck", "Head"),
+        fixed=("LHand", "RHand", "LFinger", "RFinger", "LThumb", "RThumb")),
+    # IIT's Centauro (centauro.urdf, 117 kg; 36 kg above the pelvis): a dual-arm torso on a yaw
+    # joint about the vertical (torso_yaw: holds no gravity torque) on the four-legged wheeled base
+    # (the legs and wheels removed; the wheels are revolute joints without limits in the
+    # description), two 6-joint arms of 10.7 kg each (j_armN_1 shoulder pitch, _2 roll, _3 yaw,
+    # _4 elbow, _5 and _6 the wrist), a fixed neck with two sensor tilts (velodyne, d435: one holds
+    # no load), a marker triad on each hand's ball (ball1, ball2). Elastic: each arm's _1, _2 and
+    # _4, which hold the arm's weight (2e-4 rad/(N m) nominal); bent: the torso's column under the
+    # moment of both arms at torso_yaw (43 N m RMS, 2e-5) and the shoulder mount at j_armN_1 (1e-4).
+    "centauro": Robot(
+        "centauro", "centauro_description/urdf/centauro.urdf", {"left": "ball1", "right": "ball2"},
+        ["torso_yaw", "velodyne_joint", "d435_head_joint", *[f"j_arm{a}_{i}" for a in (1, 2) for i in range(1, 7)]],
+        {f"j_arm{a}_{i}": 2e-4 for a in (1, 2) for i in (1, 2, 4)},
+        {"torso_yaw": 2e-5, "j_arm1_1": 1e-4, "j_arm2_1": 1e-4},
+        ("hip_yaw_1", "hip_yaw_2", "hip_yaw_3", "hip_yaw_4"), ("torso", "velodyne", "d435")),
+    # Boardwalk Robotics' Alex (alex_nub_hands.urdf, 47 kg, 43 kg above the fixed pelvis): a
+    # three-joint spine (yaw about the vertical, roll, pitch) under a 17.6 kg torso, a two-joint
+    # neck and two 7-joint arms of 10.1 kg each, a marker triad on each nub hand (leftNub,
+    # rightNub). Elastic: the spine's roll and pitch, which hold the whole upper body (40 N m RMS at
+    # the pitch; 1e-4 rad/(N m) nominal) and each arm's shoulder pitch and roll and elbow (2e-4);
+    # bent: the torso where each shoulder hangs on it (at *ShoulderPitch, 2e-4).
+    "alex": Robot(
+        "alex", "alex_description/urdf/alex_nub_hands.urdf", {"left": "leftNub", "right": "rightNub"},
+        ["SpineYaw", "SpineRoll", "SpinePitch", "NeckYaw", "NeckPitch",
+         *[f"{s}{j}" for s in ("Left", "Right") for j in ("ShoulderPitch", "ShoulderRoll", "ShoulderYaw", "ElbowPitch",
+                                                          "WristYaw", "WristRoll", "GripperYaw")]],
+        {"SpineRoll": 1e-4, "SpinePitch": 1e-4,
+         **{f"{s}{j}": 2e-4 for s in ("Left", "Right") for j in ("ShoulderPitch", "ShoulderRoll", "ElbowPitch")}},
+        {"LeftShoulderPitch": 2e-4, "RightShoulderPitch": 2e-4},
+        (), ("Spine", "Neck")),
 }
 #: the robot of this run (``--robot``)
 ROBOT = ROBOTS_TABLE["talos"]
@@ -246,14 +295,16 @@ def upper_body(out: Path, bare: bool = False, robot: Robot | None = None) -> Pat
 
 def limits(path: Path) -> dict[str, tuple[float, float]]:
     """The limits of every revolute and prismatic joint (rad, m), in the URDF's order; a continuous
-    joint's -pi..pi."""
+    joint's -pi..pi, and a revolute joint's whose limits are left out or equal (the URDF's 0..0,
+    which platkit.urdf reads as no limit: Centauro's wheels) too."""
     out = {}
     for j in ET.parse(path).getroot().findall("joint"):
-        lim = j.find("limit")
-        if j.get("type") == "continuous":  # no limits: a turn either way
+        kind, lim = j.get("type"), j.find("limit")
+        if kind == "continuous":  # no limits: a turn either way
             out[j.get("name")] = (-np.pi, np.pi)
-        elif lim is not None and j.get("type") in ("revolute", "prismatic"):
-            out[j.get("name")] = (float(lim.get("lower")), float(lim.get("upper")))
+        elif lim is not None and kind in ("revolute", "prismatic"):
+            lo, hi = (float(lim.get(end) or 0.0) for end in ("lower", "upper"))  # left out: the URDF's 0
+            out[j.get("name")] = (lo, hi) if lo < hi or kind == "prismatic" else (-np.pi, np.pi)
     return out
 
 
