@@ -9,7 +9,7 @@ chosen by BIC unless --response-kind) and diagnosed with --heldout the held-out 
 
     .venv/bin/python benchmarks/diagnose_stream_heldout.py [--seeds 5201 5202 5203] \
         [--effects none backlash:1.0] [--motion path multisine] [--duration-s 30] [--keep DIR]
-        [--compare-kinds [auto first-order second-order]] [--first-order-drives]
+        [--compare-kinds [auto first-order second-order]] [--first-order-drives] [--log-cut-s S]
 
 Prints one row per seed, motion and effect: the response's kind (calibrate's, and diagnose's
 where it chose another), what diagnosis names (the truth's effect and place beside it), the
@@ -26,6 +26,9 @@ the kind, the whole fits' BICs, the second order's fast content against the firs
 held-out stream's RMS and the truth's with the kind chosen and with each kind named.
 ``--first-order-drives``: the simulated drives follow first orders of the drawn second order's
 lag (2 zeta tau) instead of the drawn second orders (a truth where the second order is false).
+``--log-cut-s S``: the training session's command log ends S s before the cut, its markers running
+on to the cut (a log that stops while the stand moves: its last S s of samples follow commands the
+log does not have).
 """
 from __future__ import annotations
 
@@ -101,13 +104,13 @@ def compare_kinds(src: Path, train: Path, held: Path, t_cut: float, kinds=KINDS)
 
 
 def run(root: Path, seed: int, motion: str, effect: str, duration: float, kind: str | None,
-        compare: tuple = ()) -> dict:
+        compare: tuple = (), log_cut_s: float = 0.0) -> dict:
     src = root / f"s{seed}_{motion}_{effect.split(':')[0]}"
     args = ["simulate", "--platform", "stewart", "--physics", "--motion", motion, "--duration-s", str(duration),
             "--rate-hz", "40", "--noise-mm", "0.2", "--white-noise", "--seed", str(seed), "--out", str(src / "sim")]
     assert main(args + ([] if effect == "none" else ["--effect", effect])) == 0
     truth = yaml.safe_load((src / "sim" / "truth.yaml").read_text()).get("effects") or []
-    train, held = split_stream(src / "sim", src, TRAIN_SHARE)
+    train, held = split_stream(src / "sim", src, TRAIN_SHARE, log_cut_s=log_cut_s)
     t_cut = float(next(csv.reader((held / "commands.csv").open().readlines()[1:2]))[0])
     if compare:
         return {"truth": truth, "kinds": compare_kinds(src, train, held, t_cut, compare)}
@@ -144,6 +147,8 @@ def main_() -> None:
     ap.add_argument("--compare-kinds", nargs="*", default=None, choices=KINDS, help="no diagnosis: calibrate's "
                     "choice (auto) and the held-out stream's RMS (and the truth's) with the kind chosen, first-order "
                     "and second-order named (default all three)")
+    ap.add_argument("--log-cut-s", type=float, default=0.0, help="the training command log ends this long before "
+                    "the cut, its markers running on to it (a log that stops while the stand moves)")
     a = ap.parse_args()
     if a.first_order_drives:
         actuator.follow = first_order_follow  # actuator_motion's follow: the truth's drives
@@ -173,7 +178,7 @@ def cases(a, response_kind, **kw):
             for motion in a.motion:
                 for effect in a.effects:
                     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                        r = run(Path(tmp), seed, motion, effect, a.duration_s, response_kind, **kw)
+                        r = run(Path(tmp), seed, motion, effect, a.duration_s, response_kind, log_cut_s=a.log_cut_s, **kw)
                     yield seed, motion, effect, r
 
 

@@ -91,7 +91,8 @@ def run(stand: str, seed: int, args, folder: Path) -> None:
             motion.bodies_at_samples = original
         said = cal.motion["samples"]["rigid_bodies"]
         if label == "raw only":  # served: those at raw rows
-            win = stream_windows(session, start_t=cal.motion["samples"]["start_transient"].get("until_s"))
+            win = stream_windows(session, start_t=cal.motion["samples"]["start_transient"].get("until_s"),
+                                 end_t=cal.motion["samples"]["log_end_s"])
             seen = np.isfinite(session.bodies).all(axis=2)
             raw = np.zeros(len(seen), bool)
             for _, a, n, per in win.blocks:
@@ -102,7 +103,8 @@ def run(stand: str, seed: int, args, folder: Path) -> None:
         else:
             used = {b: said["per_body"][b]["n_used"] for b in session.body_names}
             assert said == body_samples_said(session, stream_windows(
-                session, start_t=cal.motion["samples"]["start_transient"].get("until_s")))
+                session, start_t=cal.motion["samples"]["start_transient"].get("until_s"),
+                end_t=cal.motion["samples"]["log_end_s"]))
         ratios = placement_ratios(cal, truth, session, noise, used)
         rows.append((label, used, said["per_body"], ratios))
     for label, used, per, ratios in rows:

@@ -19,7 +19,9 @@ Procedure (:func:`calibrate_motion`):
    motion (commands missing: a log sparser than the motion, or another recording's),
    MotionUnexplained (a BadSession) naming commands.csv;
 2. the samples: every sample from the second command on (the stand's place before the first is
-   not logged), reduced without losing what they say of the geometry (:func:`stream_windows`):
+   not logged) up to the end of a command log cut in motion, the set fixed at the response's
+   start (3.) (:mod:`platkit.calibrate.motion_log_end`), reduced without losing what they say of
+   the geometry (:func:`stream_windows`):
    the stream is cut into windows of about WINDOW_S s; in each, every marker coordinate is fitted
    by a polynomial of degree NODES - 1 in time and kept as its values at the window's NODES
    Gauss-Legendre nodes, each weighted by the samples it stands for (at those nodes the values
@@ -73,6 +75,7 @@ from platkit.calibrate.motion_kind import (
     DAMPING_MAX,
     Z_DETERMINED,
     fast_content,
+    fit_progress,
     held_names,
     information,
     kind_verdict,
@@ -82,6 +85,7 @@ from platkit.calibrate.motion_kind import (
     second_order_kept,
     theta_by_name,
 )
+from platkit.calibrate.motion_log_end import RULE, log_end_at, say_past_log
 from platkit.calibrate.motion_start import TAU0_S, ZETA0, fd_steps, marker_points, response_start, travel_start
 from platkit.calibrate.motion_transient import say_transient, start_transient
 from platkit.calibrate.problem import CalibrationProblem, Progress
@@ -105,7 +109,7 @@ from platkit.model import PlatformSpec
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["LocalResponseTerm", "MotionUnexplained", "ResponseTerm", "calibrate_motion", "fit_progress", "fitted_kind",
+__all__ = ["LocalResponseTerm", "MotionUnexplained", "ResponseTerm", "calibrate_motion",
            "motion_poses", "motion_stream", "without_response"]
 
 
@@ -229,6 +233,7 @@ class LocalResponseTerm(ResponseTerm):
         super().__init__(*args, **kwargs)
         self._jac: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (theta_J, X(theta_J), D)
         self.start_transient: dict | None = None  # motion_stream's: the first command's transient left out
+        self.past_the_log: dict | None = None  # motion_stream's: the samples past the end of a log cut in motion
 
     def _nodes(self, theta) -> np.ndarray:
         """The controls reached at every node under ``theta`` (P, n_u), the last kept."""
@@ -325,9 +330,12 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
                          "ridge_m": ridge_m, "row_block": ROW_BLOCK}
     rmodel = ResponseModel("first_order" if kind == "auto" else kind, reference, spec.n_u, delays, rate_limit)
     theta_start, start, geom = response_start(session, spec, rmodel, win)
-    transient = start_transient(session, spec, rmodel, theta_start, geom, win.first, start)
+    end_t = log_end_at(session, rmodel, theta_start)  # the samples past the end of a log cut in motion
+    if end_t is not None:
+        win = stream_windows(session, window_s, nodes, raw_samples, end_t=end_t)
+    transient = start_transient(session, spec, rmodel, theta_start, geom, win.first, start, win.end)
     if transient["n_samples"]:  # the first command's transient left out (its samples counted)
-        win = stream_windows(session, window_s, nodes, raw_samples, start_t=transient["until_s"])
+        win = stream_windows(session, window_s, nodes, raw_samples, start_t=transient["until_s"], end_t=end_t)
     cal, poses = _fit_stream(session, spec, rmodel, win, theta_start, start, geom, opts)
     sample_dt = float(np.median(np.diff(session.marker_t)))
     choice: dict = {"asked": kind, "rule": "named by the caller"}
@@ -356,12 +364,14 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
         "response": response,
         "samples": {"n_stream": win.n_stream, "n_used": win.n_used, "n_kept_raw": win.n_raw, "n_unseen": win.n_unseen,
                     "n_before_second_command": win.n_before, "n_in_start_transient": win.n_start_transient,
-                    "start_transient": transient, "n_in_short_windows": win.n_short,
+                    "start_transient": transient, "n_past_the_log": win.n_past_log, "log_end_s": end_t,
+                    "n_in_short_windows": win.n_short,
                     "n_marker_observations_left_out": win.n_left_out,
                     "n_windows": win.n_windows, "n_raw_windows": win.n_raw_windows, "window_s": win.window_s,
                     "n_fitted": int(len(win.t)), "n_fitted_rejected_as_outliers": int(cal.n_rejected),
                     "rule": f"every sample from the second command on (but the first command's transient: "
-                            f"start_transient), in windows of {win.window_s:.3g} s; in each, "
+                            f"start_transient) up to the end of a command log cut in motion (log_end_s, the motion "
+                            f"capture's clock, {RULE}), in windows of {win.window_s:.3g} s; in each, "
                             f"every marker coordinate fitted by a polynomial of degree {win.nodes - 1} in time and "
                             f"kept at {win.nodes} Gauss-Legendre nodes, weighted by the samples it stands for (a "
                             f"marker seen in under {MIN_SEEN_SHARE:.0%} of a window's samples left out there); "
@@ -371,6 +381,7 @@ def calibrate_motion(session: Session, spec: PlatformSpec, *, kind: str = "auto"
     }
     say_bodies(session, win, cal)  # nothing dropped silently: the body samples used, and the others
     say_transient(transient, cal)
+    say_past_log(session, win.n_past_log, end_t, cal)
     for c, why in response["not_determined"].items():
         cal.warnings.append(f"actuator {c}: its response is not determined by the stream ({why}); its lag is what "
                             "the data fix (report: motion.response)")
@@ -423,26 +434,6 @@ def _fit_stream(session: Session, spec: PlatformSpec, rmodel: ResponseModel, win
         cal.rms_before = rms_before
     cal.theta[0] = rmodel.positive(cal.theta[0])  # the same response, each time constant positive
     return cal, poses
-
-
-def fitted_kind(rmodel: ResponseModel) -> str:
-    """The kind of response ``rmodel`` fits, as a fit's progress names it: 'first_order',
-    'second_order', or 'per_actuator' (a second order with some actuators first order in it), as
-    the report names it (:attr:`ResponseModel.kind_label`)."""
-    return rmodel.kind_label
-
-
-def fit_progress(progress: Progress | None, rmodel: ResponseModel) -> Progress | None:
-    """``progress`` for one fit of the stream: every event's info says the response's kind that fit
-    fits (``response_kind``, :func:`fitted_kind`), so that a reader need not infer it."""
-    if progress is None:
-        return None
-    kind = fitted_kind(rmodel)
-
-    def told(stage: str, info: dict) -> None:
-        progress(stage, {**info, "response_kind": kind})
-
-    return told
 
 
 def _choose_kind(session: Session, spec: PlatformSpec, first: ResponseModel, win: StreamWindows, cal1: Calibration,
@@ -528,7 +519,8 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
     settled poses. A profile reference's actuators rest on the first command before it (the rest
     calibrate_motion read from the samples before it is not kept). The first command's transient
     is left out by calibrate_motion's rule at the calibration's geometry and response
-    (:mod:`platkit.calibrate.motion_transient`; the term's ``start_transient`` says what). Returns the poses and the
+    (:mod:`platkit.calibrate.motion_transient`; the term's ``start_transient`` says what), and so
+    are those past the end of a log cut in motion (:func:`log_end_at`, the term's ``past_the_log``). Returns the poses and the
     response as a term at the calibration's values (its control offset zero there), which a fit
     that carries it frees again, as calibrate_motion did (:class:`LocalResponseTerm`: the same
     response, its Jacobian reused while the response stays linear)."""
@@ -549,14 +541,15 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
                          "calibration's")
     T, U = session.command_t, session.commands
     A, b, mk = matrix_from_rotvec(cal.mocap_rotvec), cal.mocap_translation, cal.marker_positions[order]
-    win = stream_windows(session, raw_samples=0)
+    end_t = log_end_at(session, rmodel, theta)  # past a log cut in motion: left out
+    win = stream_windows(session, raw_samples=0, end_t=end_t)
     X, poses = _node_poses(session, spec, rmodel, theta, win)
     problem = CalibrationProblem(spec, poses)
     # the first command's transient left out as calibrate_motion leaves it, at the calibration
     transient = start_transient(session, spec, rmodel, theta, (problem.model, problem.point_links, cal.td, A, b, mk),
-                                win.first)
+                                win.first, end=win.end)
     if transient["n_samples"]:
-        win = stream_windows(session, raw_samples=0, start_t=transient["until_s"])
+        win = stream_windows(session, raw_samples=0, start_t=transient["until_s"], end_t=end_t)
         X, poses = _node_poses(session, spec, rmodel, theta, win)
     correction = _curvature_correction(spec, problem.model, cal.td, A, b, mk, win, X, lambda i, j: (
         actuator_positions(rmodel, theta, T, U, win.sample_t[i:j])), problem.point_links)
@@ -564,6 +557,7 @@ def motion_stream(session: Session, cal: Calibration) -> tuple[PoseSet, LocalRes
     term = LocalResponseTerm(rmodel, T, U, list(spec.control_names), theta, fd_steps(rmodel, theta), None, win.proj,
                              win.sample_t)
     term.start_transient = transient
+    term.past_the_log = {"n_samples": win.n_past_log, "log_end_s": end_t}
     return poses, term
 
 

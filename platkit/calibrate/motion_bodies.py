@@ -41,13 +41,14 @@ RULE = ("a body sample (origin and orientation) serves as the markers' samples d
         "of every node, as the body's pose at the nodes: its origin by the markers' "
         "polynomial in time, its orientation as the samples' mean rotation times the same polynomial fit of each "
         "sample's rotation vector from it, each node weighted by the samples it stands for; not used: those before "
-        "the second command (the stand's place is not logged there), in the first command's transient, in windows "
+        "the second command (the stand's place is not logged there), in the first command's transient, past the end "
+        "of a command log cut in motion (the commands the stand followed there are not logged), in windows "
         "left out (too short to fit, or kept raw with no marker seen), in windows where the body is seen too "
         "little, and in windows kept raw at samples with no marker seen")
 
 #: the causes a body sample is not used for (body_samples_said's keys)
-CAUSES = ("n_before_second_command", "n_in_start_transient", "n_in_windows_left_out", "n_seen_too_little",
-          "n_at_samples_with_no_marker")
+CAUSES = ("n_before_second_command", "n_in_start_transient", "n_past_the_log", "n_in_windows_left_out",
+          "n_seen_too_little", "n_at_samples_with_no_marker")
 
 
 def _node_pose(t: np.ndarray, k: np.ndarray, samples: np.ndarray, nodes: int) -> tuple[np.ndarray, np.ndarray]:
@@ -108,7 +109,8 @@ def body_samples_said(session: Session, win: StreamWindows) -> dict | None:
     """The session's body samples (a body seen at a sample: origin and orientation finite), per
     body and in all: ``n_samples`` in the stream, ``n_used`` (:func:`bodies_at_samples`), and those
     not used, by cause (CAUSES): before the second command, in the first command's transient (left
-    out of the stream), in windows left out (too short to fit, the stream's end, or kept raw with no
+    out of the stream), past the end of a command log cut in motion (left out of the stream:
+    :func:`platkit.calibrate.stream.past_log_end`), in windows left out (too short to fit, the stream's end, or kept raw with no
     marker seen), in windows reduced to nodes where the body is seen too little, and in windows
     kept raw at samples with no marker seen. The causes and ``n_used`` add up to ``n_samples``.
     None without bodies."""
@@ -118,12 +120,14 @@ def body_samples_said(session: Session, win: StreamWindows) -> dict | None:
     _, _, masks = _reduced(session, win)
     idx = np.arange(len(seen))
     second = win.second if win.second >= 0 else win.first
+    end = len(seen) if win.end is None else win.end
     in_block = np.zeros(len(seen), bool)
     for _, a, n, _ in win.blocks:
         in_block[a:a + n] = True
     parts = {"n_samples": seen, "n_used": masks["n_used"], "n_before_second_command": seen & (idx < second)[:, None],
              "n_in_start_transient": seen & ((idx >= second) & (idx < win.first))[:, None],
-             "n_in_windows_left_out": seen & ((idx >= win.first) & ~in_block)[:, None],
+             "n_past_the_log": seen & (idx >= end)[:, None],
+             "n_in_windows_left_out": seen & ((idx >= win.first) & (idx < end) & ~in_block)[:, None],
              "n_seen_too_little": masks["n_seen_too_little"],
              "n_at_samples_with_no_marker": masks["n_at_samples_with_no_marker"]}
     per_body = {str(b): {k: int(v[:, j].sum()) for k, v in parts.items()} for j, b in enumerate(session.body_names)}
@@ -144,7 +148,8 @@ def say_bodies(session: Session, win: StreamWindows, cal: Calibration) -> None:
         cal.warnings.append(
             f"rigid bodies {', '.join(said['bodies'])}: {said['n_used']} of {said['n_samples']} body samples used; "
             f"{left} not used ({said['n_before_second_command']} before the second command, "
-            f"{said['n_in_start_transient']} in the first command's transient, {said['n_in_windows_left_out']} in "
+            f"{said['n_in_start_transient']} in the first command's transient, {said['n_past_the_log']} past the end "
+            f"of the command log, {said['n_in_windows_left_out']} in "
             f"windows left out, {said['n_seen_too_little']} in windows where the body is seen too little, "
             f"{said['n_at_samples_with_no_marker']} at samples with no marker seen) "
             "(report: motion.samples.rigid_bodies)")

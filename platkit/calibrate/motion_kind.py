@@ -33,11 +33,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from platkit.calibrate.problem import Progress
 from platkit.calibrate.response import TAU_MIN_S, ZETA_MIN, ResponseModel, lags
+from platkit.calibrate.stream import log_end
 from platkit.io.calibration import Calibration
 from platkit.model import PlatformSpec
 
-__all__ = ["DAMPING_MAX", "TAU_SAMPLE_SHARE", "Z_DETERMINED", "bic", "fast_content", "held_names", "information",
+__all__ = ["DAMPING_MAX", "TAU_SAMPLE_SHARE", "Z_DETERMINED", "bic", "fast_content", "fit_progress", "fitted_kind",
+           "held_names", "information",
            "kind_verdict", "known_samples", "not_determined", "response_from_report", "response_report", "second_order_kept",
            "theta_by_name"]
 
@@ -49,9 +52,6 @@ TAU_SAMPLE_SHARE = 0.25
 #: an actuator keeps the second order where its time constant and damping are each this many
 #: standard deviations from zero
 Z_DETERMINED = 3.0
-#: a streamed log ends at rest where every actuator's last step is at most this share of its
-#: median step (the commands stopped, not cut in motion)
-REST_SHARE = 0.1
 
 
 def information(cal: Calibration, n_ref: int) -> float:
@@ -225,15 +225,11 @@ def known_samples(t: np.ndarray, T: np.ndarray, U: np.ndarray, lag_s: np.ndarray
     actuator's last step over REST_SHARE of its median step) every sample: the last command held
     is what the stand was told. Where it ends in motion, a sample whose latest reading,
     t - min(lag_s), lies past the last command by more than the log's median interval follows
-    commands the log does not have: not known."""
-    t, T, U = np.asarray(t, float), np.asarray(T, float), np.asarray(U, float)
-    if len(T) < 2:
+    commands the log does not have: not known (:func:`platkit.calibrate.stream.log_end`)."""
+    t = np.asarray(t, float)
+    end = log_end(T, U)
+    if end is None:
         return np.ones(len(t), bool)
-    step = np.abs(np.diff(U, axis=0))
-    median = np.median(step, axis=0)
-    if not np.any((median > 0) & (step[-1] > REST_SHARE * median)):
-        return np.ones(len(t), bool)
-    end = float(T[-1] + np.median(np.diff(T)))
     return t - float(np.min(lag_s)) <= end
 
 
@@ -298,3 +294,23 @@ def kind_verdict(fast: tuple[list[float], int], added: int, bics: tuple[float, f
                             "samples_past_the_log": int(unknown)}}
     words += f"; fast content {'worse' if worse > 0 else 'better'} by {abs(worse):.3g} noise variances, {added} allowed"
     return bics[1] < bics[0] and worse <= added, words, out
+
+
+def fitted_kind(rmodel: ResponseModel) -> str:
+    """The kind of response ``rmodel`` fits, as a fit's progress names it: 'first_order',
+    'second_order', or 'per_actuator' (a second order with some actuators first order in it), as
+    the report names it (:attr:`ResponseModel.kind_label`)."""
+    return rmodel.kind_label
+
+
+def fit_progress(progress: Progress | None, rmodel: ResponseModel) -> Progress | None:
+    """``progress`` for one fit of the stream: every event's info says the response's kind that fit
+    fits (``response_kind``, :func:`fitted_kind`), so that a reader need not infer it."""
+    if progress is None:
+        return None
+    kind = fitted_kind(rmodel)
+
+    def told(stage: str, info: dict) -> None:
+        progress(stage, {**info, "response_kind": kind})
+
+    return told

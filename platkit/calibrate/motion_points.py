@@ -121,7 +121,8 @@ def calibrate_motion_bodies(session: Session, spec: PlatformSpec, **options) -> 
     transient = cal.motion["samples"].get("start_transient") or {}
     win = stream_windows(points, options.get("window_s", WINDOW_S), options.get("nodes", NODES),
                          options.get("raw_samples", RAW_SAMPLES),
-                         start_t=transient.get("until_s") if transient.get("n_samples") else None)
+                         start_t=transient.get("until_s") if transient.get("n_samples") else None,
+                         end_t=cal.motion["samples"].get("log_end_s"))
     cal = bodies_from_points(cal, session.body_names, _rho(session.body_names, sigmas),
                              "declared" if source == "declared" else "estimated")
     say_bodies(session, win, cal)  # the body samples used, and the others, per body and cause

@@ -315,7 +315,7 @@ def response_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, 
         theta0[[rmodel.index("rate", j) for j in range(spec.n_u)]] = np.where(speed > 0, speed, theta0[
             [rmodel.index("rate", j) for j in range(spec.n_u)]])
     seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
-    cand = win.first + np.nonzero(seen[win.first:])[0]
+    cand = win.first + np.nonzero(seen[win.first:win.end])[0]  # not past the end of a log cut in motion
     sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
     pre = np.nonzero(seen & (session.marker_t < T[0]))[0][-PRE_SAMPLES:]
     best, tried = None, []
@@ -381,7 +381,7 @@ def travel_start(session: Session, spec: PlatformSpec, rmodel: ResponseModel, th
     model, links, td, A, b, mk, fit_model, fit_theta = fitted
     T, U = session.command_t, session.commands
     seen = np.isfinite(session.markers).all(axis=2).sum(axis=1) >= 3
-    cand = win.first + np.nonzero(seen[win.first:])[0]
+    cand = win.first + np.nonzero(seen[win.first:win.end])[0]  # not past the end of a log cut in motion
     sub = cand[np.unique(np.linspace(0, len(cand) - 1, min(len(cand), START_SAMPLES)).astype(int))]
     t = session.marker_t[sub]
     guess = actuator_positions(fit_model, fit_theta, T, U, t, start=start)

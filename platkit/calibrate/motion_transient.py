@@ -92,16 +92,18 @@ def _residuals(session: Session, spec: PlatformSpec, rmodel: ResponseModel, thet
 
 
 def start_transient(session: Session, spec: PlatformSpec, rmodel: ResponseModel, theta, geom, first: int,
-                    start=None) -> dict:
+                    start=None, end: int | None = None) -> dict:
     """The samples the first command's transient spans, from sample ``first`` (the first at or after
-    the second command) on (module docstring's rule), at the response ``theta`` and the geometry
+    the second command) on, before sample ``end`` (the first past the end of a log cut in motion,
+    :func:`platkit.calibrate.stream.past_log_end`; None: the stream's end) (module docstring's
+    rule), at the response ``theta`` and the geometry
     ``geom`` (kinematic model, each marker's link, td, A, b, markers). Returns the report's
     ``start_transient``: ``until_s`` (motion-capture clock; None: nothing left out), ``n_samples``
     left out (samples with a marker seen), the residual scale, the gross span's end and the tail
     (s), and the rule; ``said``: why nothing was left out where a gross start was not taken."""
     tm = session.marker_t
     seen = np.isfinite(session.markers).all(axis=2).any(axis=1)
-    cand = first + np.nonzero(seen[first:])[0]
+    cand = first + np.nonzero(seen[first:end])[0]
     out: dict = {"until_s": None, "n_samples": 0, "rule": _rule()}
     if len(cand) < 2 * RUN:
         return out

@@ -4,6 +4,9 @@ checks, and its reduction to nodes that keep what it says of the geometry.
 - :func:`check_motion_session`: markers and at least three commands, on two clocks that overlap,
   and a streamed log with no gap the markers move through (BadSession naming commands.csv);
   which reference the log calls for ('step': streamed, 'profile': holds);
+- :func:`past_log_end`: where a streamed log cut while the stand moves stops telling its
+  commands (the samples past it, read through the response's lag, are left out of the windows);
+  a log that ends at rest (its last steps, or the markers still after it) keeps every sample;
 - :func:`stream_windows`: the stream cut into windows of about WINDOW_S s, each marker
   coordinate fitted by a polynomial of degree NODES - 1 in time and kept at the window's NODES
   Gauss-Legendre nodes, weighted by the samples it stands for; whole windows, evenly spread,
@@ -25,8 +28,9 @@ from platkit.calibrate.response import ResponseModel, actuator_positions, lags
 from platkit.errors import BadSession
 from platkit.io.session import Session
 
-__all__ = ["StreamWindows", "check_motion_session", "commanded_direction", "projected_positions", "response_lag",
-           "stream_windows", "window_fit", "STREAMED_MAX_S", "DIRECTION_TRAVEL"]
+__all__ = ["StreamWindows", "check_motion_session", "commanded_direction", "log_end", "past_log_end",
+           "projected_positions", "response_lag", "still_after", "stream_windows", "window_fit", "STREAMED_MAX_S",
+           "DIRECTION_TRAVEL", "REST_SHARE", "TAIL_PARTS"]
 
 #: a command log whose median interval is at most this (s) is streamed (step reference); longer
 #: intervals are point-to-point moves between holds (profile reference)
@@ -48,6 +52,67 @@ PROJ_SAMPLES = 16384
 #: a command counts as a move of its actuator where it has travelled more than this share of the
 #: actuator's stroke from the last turning point (:func:`commanded_direction`)
 DIRECTION_TRAVEL = 1e-3
+#: a streamed log ends at rest where every actuator's last step is at most this share of its
+#: median step (the commands stopped, not cut in motion: :func:`log_end`)
+REST_SHARE = 0.1
+#: the markers after a log's end are judged still on TAIL_PARTS parts of the samples
+#: (:func:`still_after`)
+TAIL_PARTS = 5
+
+
+def log_end(T: np.ndarray, U: np.ndarray) -> float | None:
+    """Where a streamed command log (``T`` (N,) s on the commands' clock, ``U`` (N, n_u)) stops
+    telling the stand's commands: None where it ends at rest (no actuator's last step over
+    REST_SHARE of its median step: the last command held is what the stand was told, however
+    long after); where it ends in motion (cut while the stand moves), its last command's time
+    plus the log's median interval (the last command holds for one interval, as every other)."""
+    T, U = np.asarray(T, float), np.asarray(U, float)
+    if len(T) < 2:
+        return None
+    step = np.abs(np.diff(U, axis=0))
+    median = np.median(step, axis=0)
+    if not np.any((median > 0) & (step[-1] > REST_SHARE * median)):
+        return None
+    return float(T[-1] + np.median(np.diff(T)))
+
+
+def past_log_end(session: Session, reference: str, lag_s, settle_s: float) -> float | None:
+    """The motion-capture time (s) after which ``session``'s samples follow commands its log does
+    not have, under the response's time lags ``lag_s`` (s, per actuator: a sample at t reads the
+    commands of t - lag): :func:`log_end` plus the smallest lag (a sample is known where every
+    actuator's command is). None where the log ends at rest: by its commands (:func:`log_end`), or
+    by the markers, seen still from ``settle_s`` (s: the response's to the last command, settled)
+    after that time to the last sample (:func:`still_after`: a log that slows to its last
+    command, which the stand then holds); and for a ``reference`` 'profile' (its last command is a
+    hold's target: the stand comes to rest on it)."""
+    end = log_end(session.command_t, session.commands) if reference == "step" else None
+    if end is None:
+        return None
+    end += float(np.min(lag_s))
+    return None if still_after(session.marker_t, session.markers, end + settle_s) else end
+
+
+def still_after(tm: np.ndarray, Y: np.ndarray, t0: float) -> bool:
+    """Whether the markers ``Y`` (K, M, 3) at times ``tm`` (K,) are seen at rest after ``t0``: its
+    samples cut into TAIL_PARTS parts of equal samples, no marker seen in every part has means in
+    two parts more than GAP_MOVE_M apart. False where fewer than 2 TAIL_PARTS samples lie after
+    ``t0``, or no marker is seen in every part (nothing shows the stand at rest)."""
+    k = np.nonzero(tm > t0)[0]
+    if len(k) < 2 * TAIL_PARTS:
+        return False
+    means = []
+    for part in np.array_split(k, TAIL_PARTS):
+        seen = np.isfinite(Y[part]).all(axis=2)  # (len(part), M)
+        n = seen.sum(axis=0)
+        total = np.where(seen[:, :, None], Y[part], 0.0).sum(axis=0)
+        means.append(np.where((n > 0)[:, None], total / np.maximum(n, 1)[:, None], np.nan))
+    means = np.stack(means)  # (TAIL_PARTS, M, 3)
+    every = np.isfinite(means).all(axis=(0, 2))
+    if not every.any():
+        return False
+    m = means[:, every]
+    apart = np.linalg.norm(m[:, None] - m[None, :], axis=3)  # (parts, parts, markers)
+    return bool(apart.max() <= GAP_MOVE_M)
 
 
 def response_lag(model: ResponseModel, theta) -> np.ndarray:
@@ -188,7 +253,9 @@ class StreamWindows:
     end), and the marker observations left out (a marker seen too little in a window); with a
     start given, the samples from the second command to it (``n_start_transient``: the first
     command's transient, :mod:`platkit.calibrate.motion_transient`), and ``second``: the first
-    sample at or after the second command."""
+    sample at or after the second command; with an end given, the samples after it
+    (``n_past_log``: past the end of a log cut in motion, :func:`past_log_end`), and ``end``: the
+    first of them (None where none is left out: the stream's samples run to its last)."""
 
     t: np.ndarray
     Y: np.ndarray
@@ -210,6 +277,8 @@ class StreamWindows:
     nodes: int
     n_start_transient: int = 0
     second: int = -1
+    n_past_log: int = 0
+    end: int | None = None
 
 
 def _legendre(x: np.ndarray, n: int) -> np.ndarray:
@@ -257,9 +326,14 @@ def seen_around_nodes(t: np.ndarray, k: np.ndarray, nodes: int) -> bool:
 
 
 def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NODES,
-                   raw_samples: int = RAW_SAMPLES, start_t: float | None = None) -> StreamWindows:
+                   raw_samples: int = RAW_SAMPLES, start_t: float | None = None,
+                   end_t: float | None = None) -> StreamWindows:
     """The stream from the second command on (from ``start_t`` on, motion-capture clock, where that
-    is later: the samples between counted), cut into windows of equal length near ``window_s``
+    is later: the samples between counted) up to ``end_t`` (motion-capture clock; None: its last
+    sample; the samples after it counted: past the end of a log cut in motion,
+    :func:`past_log_end`; the windows are those of the stream to its last sample, the samples
+    after ``end_t`` left out of the windows they fall in, so that the others are not moved), cut
+    into windows of equal length near ``window_s``
     s, each reduced to ``nodes`` nodes (:class:`StreamWindows`), but one window in every so many
     (evenly, about ``raw_samples`` samples in all; every window of a short stream) kept as its
     samples. A marker seen in fewer than MIN_SEEN_SHARE of a window's samples (or fewer than 2
@@ -271,10 +345,12 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
     seen_any = np.isfinite(Y).all(axis=2).any(axis=1)
     second = int(np.searchsorted(tm, session.command_t[1], side="left"))
     a0 = second if start_t is None else max(second, int(np.searchsorted(tm, start_t, side="left")))
+    end = len(tm) if end_t is None else max(a0, int(np.searchsorted(tm, end_t, side="right")))
     span = float(tm[-1] - tm[a0]) if a0 < len(tm) else 0.0
     n_win = max(1, int(round(span / window_s)))
     edges = np.searchsorted(tm, tm[a0] + np.arange(n_win + 1) * (span / n_win), side="left")
     edges[-1] = len(tm)
+    edges = np.minimum(edges, end)  # past the log's end: a window shortened, or empty
     xg, _ = np.polynomial.legendre.leggauss(nodes)
     ts, Ys, ns, blocks = [], [], [], []
     rows, cols, vals = [], [], []
@@ -334,13 +410,14 @@ def stream_windows(session: Session, window_s: float = WINDOW_S, nodes: int = NO
         ns.append(n_eff)
         blocks.append((p, a, b - a, per))
         p += nodes
-    K = len(tm) - a0
+    K = end - a0
     if not ts:  # nothing to fit: the caller says so
         ts, Ys, ns = [np.zeros(0)], [np.zeros((0, M, 3))], [np.zeros((0, M))]
         rows, cols, vals = [np.zeros(0, int)], [np.zeros(0, int)], [np.zeros(0)]
     proj = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(p, K))
     n_unseen = int((~seen_any[a0:]).sum())
-    n_used = int(seen_any[a0:].sum()) - short
-    return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:], a0, blocks,
+    n_used = int(seen_any[a0:end].sum()) - short
+    return StreamWindows(np.concatenate(ts), np.concatenate(Ys), np.concatenate(ns), proj, tm[a0:end], a0, blocks,
                          len(tm), n_used, n_raw, n_unseen, int(seen_any[:second].sum()), short, left_out, len(blocks),
-                         int(raw.sum()), span / n_win, nodes, int(seen_any[second:a0].sum()), second)
+                         int(raw.sum()), span / n_win, nodes, int(seen_any[second:a0].sum()), second,
+                         int(seen_any[end:].sum()), None if end_t is None else end)

@@ -90,7 +90,7 @@ def motion_progress_printer(unit: str, kind: str, stream=None):
     response's kind it fits, its "rms a -> b" from that fit's own start (a later fit may start worse
     than an earlier one ended). ``kind``: as asked ('auto', 'first_order', 'second_order'), said in
     the first line; each fit's own kind is the one its events say (``response_kind``, as
-    :func:`platkit.calibrate.motion.fit_progress` tells it: 'first_order', 'second_order' or
+    :func:`platkit.calibrate.motion_kind.fit_progress` tells it: 'first_order', 'second_order' or
     'per_actuator'), the kind asked where an event says none."""
     show = progress_printer(unit, stream)
     s = length_scale(unit)
@@ -483,6 +483,9 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
     left = cal.motion["samples"].get("n_in_start_transient")
     if left:  # the first command's transient, left out of the fit (platkit.calibrate.motion_transient)
         line += f"; {left} samples of the first command's transient left out"
+    past = cal.motion["samples"].get("n_past_the_log")
+    if past:  # past the end of a log cut in motion, left out of the fit (platkit.calibrate.stream.past_log_end)
+        line += f"; {past} samples past the end of the command log left out"
     bodies = cal.motion["samples"].get("rigid_bodies")
     if bodies:  # the body samples of the windows kept as samples serve (platkit.calibrate.motion_bodies)
         line += f"; rigid bodies {', '.join(bodies['bodies'])} from {bodies['n_used']} of {bodies['n_samples']} samples"

@@ -11,6 +11,9 @@ held-out one, with the noise their floor needs.
   model's, refitted with the geometry; the diagnosed model's, refitted with its effects), so an
   effect that changes the fitted response is judged with it, as it would predict a new recording;
   where a model carries no response (a session with holds diagnosed), the calibration's.
+- The samples left out of both (motion_stream's rules, said in the line each stream's reading
+  warns): the first command's transient, and the samples past the end of a command log cut in
+  motion, read through the calibration's response (platkit.calibrate.stream.past_log_end).
 - The direction of each actuator's last move at each windowed pose (``extras['direction']``, what
   a history effect such as backlash reads; :func:`stream_direction`): from the command log through
   the actuator's response lag, the same rule for both streams, never from the fitted controls.
@@ -182,9 +185,14 @@ def _say_bodies(folder, session: Session) -> None:
 
 
 def _transient(term: LocalResponseTerm) -> str:
+    """The samples motion_stream left out, in a clause (empty where none): the first command's
+    transient, and those past the end of a log cut in motion."""
     left = (term.start_transient or {}).get("n_samples", 0)  # platkit.calibrate.motion_transient's rule
-    return (f"; {left} samples of the first command's transient left out (the stand's state before the first "
-            "command is not logged)" if left else "")
+    past = (term.past_the_log or {}).get("n_samples", 0)  # platkit.calibrate.stream.past_log_end's rule
+    return ((f"; {left} samples of the first command's transient left out (the stand's state before the first "
+             "command is not logged)" if left else "")
+            + (f"; {past} samples past the end of the command log left out (it ends in motion: the commands they "
+               "follow are not logged)" if past else ""))
 
 
 def stream_why(settling: dict | None) -> str:

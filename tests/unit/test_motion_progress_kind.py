@@ -1,12 +1,13 @@
 """Each fit of a calibration from motion tells its progress the response's kind it fits
-(platkit.calibrate.motion.fit_progress), and calibrate's progress lines say that kind
+(platkit.calibrate.motion_kind.fit_progress), and calibrate's progress lines say that kind
 (platkit.commands.calibrate.motion_progress_printer): before, the printer inferred it from the
 fit's count of unknowns."""
 from __future__ import annotations
 
 import io
 
-from platkit.calibrate.motion import calibrate_motion, fitted_kind
+from platkit.calibrate.motion import calibrate_motion
+from platkit.calibrate.motion_kind import fitted_kind
 from platkit.calibrate.response import ResponseModel
 from platkit.commands.calibrate import motion_progress_printer
 from platkit.io.session import load_session

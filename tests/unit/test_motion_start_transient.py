@@ -10,6 +10,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from stream_split import written_stream
 
 from platkit.calibrate.estimate import predict_markers
 from platkit.calibrate.motion import calibrate_motion, motion_stream
@@ -17,20 +18,13 @@ from platkit.calibrate.motion_start import response_start
 from platkit.calibrate.motion_transient import GROSS, noise_3d, settle_time_s, start_transient
 from platkit.calibrate.response import ResponseModel
 from platkit.calibrate.stream import stream_windows
-from platkit.io.session import load_session
-from platkit.plugins import get_platform
-from platkit.simulate.physics import simulate_physics, write_physical_session
 
 OFFSET_M = 0.08
 
 
 @pytest.fixture(scope="module")
 def streamed(tmp_path_factory):
-    spec = get_platform("stewart")
-    sim = simulate_physics(spec, seed=4101, motion="multisine", duration_s=12.0, mocap_rate_hz=50.0)
-    folder = tmp_path_factory.mktemp("transient") / "session"
-    write_physical_session(sim, folder)
-    session = load_session(folder)
+    sim, session = written_stream(tmp_path_factory.mktemp("transient") / "session", seed=4101, duration_s=12.0)
     U = session.commands.copy()
     U[0] += OFFSET_M  # the first command logged away from where the stand rests
     return sim, session, dataclasses.replace(session, commands=U)
