@@ -114,7 +114,7 @@ def _candidates(spec: PlatformSpec, limits: Limits, n: int, rng: np.random.Gener
     while sum(len(u) for u in U_out) < n:
         if drawn > 50 * n:
             raise NotIdentifiable(f"{spec.name}: fewer than {n} random commands inside the strokes less the margin "
-                                  "are reachable; a smaller margin")
+                                  "are reachable; try a smaller --margin")
         k = max(2 * n, 64)
         face = rng.uniform(size=k) < FACE_SHARE
         x = np.where(face[:, None], rng.beta(FACE_BETA, FACE_BETA, (k, spec.n_u)), rng.uniform(size=(k, spec.n_u)))
@@ -145,7 +145,7 @@ def _repair(spec: PlatformSpec, path: np.ndarray, limits: Limits, command_rate_h
             ok1, _ = feasible(spec, U1, td, model)
             if not ok1.all():
                 raise NotIdentifiable(f"{spec.name}: a move between via points leaves the reachable workspace, "
-                                      "through the neutral controls too; a larger margin")
+                                      "through the neutral controls too; try a larger --margin")
             out.append(u0)
             detours += 1
         out.append(b)

@@ -187,3 +187,10 @@ def test_plan_motion_family_bad_input_in_one_line(tmp_path, capsys, args, code, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and said in err[0]
     assert not out.exists()
+
+
+def test_no_reachable_candidate_says_which_option_to_change(stewart, limits, monkeypatch):
+    # nothing inside the strokes less the margin reachable: the refusal ends on what to try
+    monkeypatch.setattr(vp, "feasible", lambda spec, U, td, model: (np.zeros(len(U), bool), np.zeros((len(U), 6))))
+    with pytest.raises(NotIdentifiable, match=r"are reachable; try a smaller --margin$"):
+        vp._candidates(stewart, limits, 10, np.random.default_rng(0), None, None)
