@@ -307,13 +307,20 @@ def _weighted_jacobian(problem, z, idx) -> np.ndarray:
         order = np.argsort(np.argsort(idx))  # the factor's columns in idx's order
         return weighted_factor(problem, z, st, np.where(used, problem.base_weights, 0.0), mask)[:, order] \
             * problem.scale[idx][None, :]
-    st = problem.evaluate(z)
-    used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
-    J = np.take(st.J, idx, axis=-1)  # weighted and scaled in place; every row kept where every point is used
-    J *= np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None]
-    J = J.reshape(-1, len(idx)) if used.all() else J[used].reshape(-1, len(idx))
-    J *= problem.scale[idx][None, :]
+    J = weighted_rows(problem, problem.evaluate(z), idx)
+    J *= problem.scale[idx][None, :]  # scaled in place
     return J
+
+
+def weighted_rows(problem, st, idx) -> np.ndarray:
+    """The columns ``idx`` of the state ``st``'s Jacobian (rows, len(idx)), unscaled, at the
+    observations seen and solved (base weight > 0, residual finite), each weighted as the fit (the
+    square root of its base weight): np.take's copy weighted in place, every row kept where every
+    point is used."""
+    used = (problem.base_weights > 0) & np.isfinite(st.r).all(axis=2)
+    J = np.take(st.J, idx, axis=-1)
+    J *= np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None]
+    return J.reshape(-1, len(idx)) if used.all() else J[used].reshape(-1, len(idx))
 
 
 def _compress(A: np.ndarray) -> np.ndarray:

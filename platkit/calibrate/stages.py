@@ -48,6 +48,7 @@ from platkit.calibrate.identifiability import (
     problem_digest,
     select_identifiable,
     singular_values,
+    weighted_rows,
 )
 from platkit.calibrate.plan import reference_poses_for
 from platkit.calibrate.problem import PLAUSIBLE_RANGE, CalibrationProblem, FitState, Progress
@@ -238,9 +239,7 @@ def _identifiable(problem: CalibrationProblem, z: np.ndarray, start: _Start,
     if st.J is None:  # solved block by block: an R with the Jacobian's column inner products
         Jc = weighted_factor(problem, z, st, np.where(used, problem.base_weights, 0.0), start.candidates)
     else:
-        Jc = np.take(st.J, cand_idx, axis=-1)  # weighted in place; every row kept where every point is used
-        Jc *= np.sqrt(np.where(used, problem.base_weights, 0.0))[:, :, None, None]
-        Jc = Jc.reshape(-1, len(cand_idx)) if used.all() else Jc[used].reshape(-1, len(cand_idx))
+        Jc = weighted_rows(problem, st, cand_idx)
     ident = select_identifiable(Jc, [problem.names[i] for i in cand_idx], problem.scale[cand_idx],
                                 problem.tiers[cand_idx].tolist(), opt.rel_tol)
     chosen = cand_idx[ident.chosen]
