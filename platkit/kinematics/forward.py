@@ -291,6 +291,15 @@ class ForwardSolver(NewtonSolver):
         b = self._bounds
         return (np.array([x[0] for x in b], int), np.array([x[1] for x in b]), np.array([x[2] for x in b]))
 
+    def within_bounds(self, P: np.ndarray) -> np.ndarray:
+        """(N,) bool: which poses P (N, n_p), angles wrapped as forward kinematics gives them, lie
+        within the coordinates' bounds (those that restrict, ``_bounds``)."""
+        P = np.atleast_2d(P)
+        if not self._bounds:
+            return np.ones(len(P), bool)
+        k, lo, hi = self._bounds_arrays
+        return np.all((P[:, k] >= lo) & (P[:, k] <= hi), axis=1)
+
     def _result(self, out: np.ndarray, r: np.ndarray | None = None) -> ForwardResult:
         n_p = self.spec.n_p
         iterations, residual, _status, on = out[-4:].tolist()
@@ -385,8 +394,7 @@ class ForwardSolver(NewtonSolver):
                     for j in np.nonzero(np.any(np.abs(P[:, idx]) > _HALF_PI, axis=1))[0]:
                         i = rows[j]
                         P[j] = self._wrapped(out[i, :n_p], out[i, n_p:n_p + 4], out[i, n_p + 4:n_p + 7])
-                k, lo, hi = self._bounds_arrays
-                outside[rows[~np.all((P[:, k] >= lo) & (P[:, k] <= hi), axis=1)]] = True
+                outside[rows[~self.within_bounds(P)]] = True
                 retry |= outside
             for i in np.nonzero(retry)[0]:
                 from_neutral = guess is None

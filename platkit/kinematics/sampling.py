@@ -132,4 +132,32 @@ def library_poses(model, size: int) -> tuple[np.ndarray, np.ndarray]:
     U = np.array(list(itertools.product(*axes)), dtype=float)
     fb = model.forward_batch(U, restarts=False)
     keep = fb.converged & fb.on_branch & np.all(np.isfinite(fb.p), axis=1)
-    return fb.p[keep], U[keep]
+    P, U = fb.p[keep], U[keep]
+    return _within_from_neighbours(model, P, U, span), U
+
+
+#: most rounds of :func:`_within_from_neighbours` (each reaches one grid step further)
+NEIGHBOUR_ROUNDS = 8
+
+
+def _within_from_neighbours(model, P: np.ndarray, U: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """The start library's poses P (K, n_p) (controls U (K, n_u)) with each pose beyond the
+    coordinates' bounds solved again from the pose within them whose controls are nearest
+    (stroke-scaled), round after round while that brings more within: a pose beyond the bounds
+    (Newton from the neutral pose jumped to another solution the pose map holds, a gimbal turned
+    over) stays only where no start within them lands within them. A copy."""
+    P = P.copy()
+    inside = model.within_bounds(P)
+    for _ in range(NEIGHBOUR_ROUNDS):
+        far, near = np.nonzero(~inside)[0], np.nonzero(inside)[0]
+        if not far.size or not near.size:
+            break
+        d = np.sum(((U[far, None, :] - U[None, near, :]) / span) ** 2, axis=2)
+        fb = model.forward_batch(U[far], guess=P[near[np.argmin(d, axis=1)]], restarts=False)
+        ok = fb.converged & fb.on_branch & np.all(np.isfinite(fb.p), axis=1)
+        ok[ok] = model.within_bounds(fb.p[ok])
+        if not ok.any():
+            break
+        P[far[ok]] = fb.p[ok]
+        inside[far[ok]] = True
+    return P
