@@ -223,15 +223,10 @@ class ForwardSolver(NewtonSolver):
         mirror = (out, r) if verdict == "mirror" else None
         outside = (out, r) if verdict == "outside" else None
         if again:
-            for j, start in enumerate(self._restart_poses(u, self._td(td), p0)):
-                o = self._solve_one(u, td, start)
-                v, rr = self._verdict(o, u, td)
-                if v == "ok":
-                    return self._result(o, rr)
-                if v == "mirror" and mirror is None:
-                    mirror = (o, rr)
-                if v == "outside" and (outside is None or (p0 is not None and j == 0)):
-                    outside = (o, rr)  # the neutral start's (j = 0 after a guess) before a guess's
+            accepted, outside, mirror = self._from_starts(u, td, self._restart_poses(u, self._td(td), p0), p0,
+                                                          outside, mirror)
+            if accepted is not None:
+                return self._result(*accepted)
         if outside is not None:  # on the branch, beyond the coordinates' bounds, and nothing better found
             return self._result(*outside)
         if allow_mirror and mirror is not None:
@@ -422,15 +417,26 @@ class ForwardSolver(NewtonSolver):
             starts = self._restart_poses(u, td, p0)
         except PlatkitError:
             return None
-        outside = None
+        accepted, outside, _ = self._from_starts(u, td, starts, p0, keep_outside=keep_outside)
+        return outside if accepted is None else accepted
+
+    def _from_starts(self, u, td, starts, p0, outside=None, mirror=None, keep_outside: bool = True):
+        """A restart of the solve of ``u``: from each of ``starts`` in turn (:meth:`_restart_poses`
+        after the start ``p0``, None for the neutral one) until one is accepted. Returns
+        (accepted, outside, mirror), each an (out row, rows' residual) or None: the first solve
+        accepted; the pose on the branch beyond the coordinates' bounds kept, ``outside`` as given,
+        else the first such, replaced by the neutral start's after a guess (none with
+        ``keep_outside`` False); the first mirror pose, ``mirror`` as given."""
         for j, start in enumerate(starts):
             o = self._solve_one(u, td, start)
             v, r = self._verdict(o, u, td)
             if v == "ok":
-                return o, r
+                return (o, r), outside, mirror
+            if v == "mirror" and mirror is None:
+                mirror = (o, r)
             if v == "outside" and keep_outside and (outside is None or (p0 is not None and j == 0)):
-                outside = (o, r)  # the neutral start's before any other
-        return outside
+                outside = (o, r)  # the neutral start's (j = 0 after a guess) before any other
+        return None, outside, mirror
 
     @functools.lru_cache(maxsize=16)  # noqa: B019 - kept with the long-lived model, one per batch size
     def _F_map(self, n: int):
