@@ -4,7 +4,8 @@ from __future__ import annotations
 from platkit.commands.common import add_platform_options, add_unit_option, print_json, platform_from_args
 from platkit.io.atomic import check_output_dir
 from platkit.kinematics import PlatformModel
-from platkit.workspace import AXES, write_workspace
+from platkit.workspace import AXES
+from platkit.workspace.files import write_workspace
 
 
 def add_parser(sub):
