@@ -11,6 +11,9 @@
   stand's coordinate bounds (``orientation="free"``). Serial chains (closed-form forward) search
   over the controls; stands with a closed-form inverse over the pose coordinates; any other
   stand over both, u held to F(u, td, pose(p)) = 0.
+- :func:`coordinate_ranges`: the least and greatest value of each pose coordinate (an
+  orientation-only stand's angles, a hexapod's x ... yaw) over the same poses as the free
+  orientation's envelope, by the same optimisation with that coordinate as the objective.
 - :func:`platkit.workspace.files.write_workspace`: the figures as JSON and CSV, and plots, written
   atomically.
 
@@ -19,6 +22,7 @@ Lengths are metres inside; the writer converts to the requested unit.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -287,13 +291,14 @@ def _feasible_point(nlp: _EnvelopeProblem, G_of: ca.Function, xs) -> bool:
                                                  float(np.max(gv - nlp.ubg, initial=0.0))) <= 1e-7
 
 
-def _best_extreme(model: PlatformModel, nlp: _EnvelopeProblem, td, solver, G_of: ca.Function, X_of: ca.Function,
+def _best_extreme(model: PlatformModel, nlp: _EnvelopeProblem, td, solver, G_of: ca.Function, value_of: ca.Function,
                   start_points: list[np.ndarray], k: int, sign: float) -> tuple[float, np.ndarray] | None:
-    """(origin coordinate k, variables) of the best feasible candidate minimising ``sign`` times
-    origin coordinate ``k``: from each start that the stand can reach, IPOPT's local optimum and
-    the start itself; None where no candidate is feasible. ``G_of``, ``X_of``: the constraints
-    and the origin as functions of the variables."""
-    e = np.zeros(3)
+    """(entry k of ``value_of``, variables) of the best feasible candidate minimising ``sign`` times
+    entry ``k`` of ``value_of``: from each start that the stand can reach, IPOPT's local optimum and
+    the start itself; None where no candidate is feasible. ``G_of``, ``value_of``: the constraints
+    and the vector searched (the origin, or the pose coordinates) as functions of the variables;
+    ``solver`` minimises its parameter's sign times the direction's dot product with that vector."""
+    e = np.zeros(value_of.size1_out(0))
     e[k] = 1.0
     best = None
     for sp in start_points:
@@ -306,10 +311,42 @@ def _best_extreme(model: PlatformModel, nlp: _EnvelopeProblem, td, solver, G_of:
         for xs in (np.asarray(sol["x"]).ravel(), np.asarray(x0, float).ravel()):
             if not _feasible_point(nlp, G_of, xs):
                 continue
-            val = float(np.asarray(X_of(xs)).ravel()[k])
+            val = float(np.asarray(value_of(xs)).ravel()[k])
             if best is None or sign * val < sign * best[0]:
                 best = (val, xs)
     return best
+
+
+def _extremes(model: PlatformModel, nlp: _EnvelopeProblem, td, value: ca.SX, names: list[str],
+              starts: list[np.ndarray] | None, what: Callable[[str], str]) -> list[AxisExtreme]:
+    """The least then the greatest of each entry of ``value`` (the origin, or the pose coordinates,
+    as a function of the variables), named ``names``, over the poses ``nlp`` allows: from the
+    neutral pose and ``starts`` (:func:`_best_extreme`), each with its pose, controls and the
+    controls at a stroke end there. ComputationFailed naming ``what(name)`` where no start gives a
+    feasible optimum."""
+    spec = model.spec
+    sense_sym = ca.SX.sym("sense", 1 + value.shape[0])  # (sign, e): minimise sign * e . value
+    objective = sense_sym[0] * ca.dot(sense_sym[1:], value)
+    solver = ca.nlpsol("extremes", "ipopt", {"x": nlp.x, "p": sense_sym, "f": objective, "g": nlp.G},
+                       _ipopt_options())
+    u_of = ca.Function("u_of", [nlp.x], [nlp.u])
+    p_of = ca.Function("p_of", [nlp.x], [nlp.p])
+    G_of = ca.Function("G_of", [nlp.x], [nlp.G])
+    value_of = ca.Function("value_of", [nlp.x], [value])
+    start_points = [nlp.p0] + [np.asarray(s, float) for s in (starts or [])]
+    lo_u, hi_u = nlp.lo_u, nlp.hi_u
+    span = np.maximum(hi_u - lo_u, 1e-12)
+    extremes = []
+    for k, name in enumerate(names):
+        for sense, sign in (("min", 1.0), ("max", -1.0)):
+            best = _best_extreme(model, nlp, td, solver, G_of, value_of, start_points, k, sign)
+            if best is None:
+                raise ComputationFailed(f"{spec.name}: the {sense} of {what(name)} found no feasible optimum")
+            val, xs = best
+            uu = np.asarray(u_of(xs)).ravel()
+            active = [c.name for c, a, l, h, sp in zip(spec.controls, uu, lo_u, hi_u, span) if min(a - l, h - a) < 1e-6 * sp]
+            extremes.append(AxisExtreme(name, sense, val, np.asarray(p_of(xs)).ravel(), uu, active))
+    return extremes
 
 
 def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=None,
@@ -324,31 +361,40 @@ def translational_envelope(model: PlatformModel, orientation: str = "fixed", td=
     """
     if orientation not in ("fixed", "free"):
         raise BadInput(f"orientation must be 'fixed' or 'free', got {orientation!r}")
-    spec = model.spec
     td = model._td(td)
     nlp = _envelope_problem(model, orientation, td)
-    sense_sym = ca.SX.sym("sense", 4)  # (sign, e_x, e_y, e_z): minimise sign * e . X
-    objective = sense_sym[0] * ca.dot(sense_sym[1:], nlp.X)
-    solver = ca.nlpsol("envelope", "ipopt", {"x": nlp.x, "p": sense_sym, "f": objective, "g": nlp.G},
-                       _ipopt_options())
-    u_of = ca.Function("u_of", [nlp.x], [nlp.u])
-    p_of = ca.Function("p_of", [nlp.x], [nlp.p])
-    G_of = ca.Function("G_of", [nlp.x], [nlp.G])
-    X_of = ca.Function("X_of", [nlp.x], [nlp.X])
-    start_points = [nlp.p0] + [np.asarray(s, float) for s in (starts or [])]
-    lo_u, hi_u = nlp.lo_u, nlp.hi_u
-    extremes = []
-    for k, axis in enumerate(AXES):
-        for sense, sign in (("min", 1.0), ("max", -1.0)):
-            best = _best_extreme(model, nlp, td, solver, G_of, X_of, start_points, k, sign)
-            if best is None:
-                raise ComputationFailed(f"{spec.name}: the {sense} of {axis} ({orientation} orientation) found no feasible optimum")
-            val, xs = best
-            uu = np.asarray(u_of(xs)).ravel()
-            span = np.maximum(hi_u - lo_u, 1e-12)
-            active = [c.name for c, a, l, h, sp in zip(spec.controls, uu, lo_u, hi_u, span) if min(a - l, h - a) < 1e-6 * sp]
-            extremes.append(AxisExtreme(axis, sense, val, np.asarray(p_of(xs)).ravel(), uu, active))
+    extremes = _extremes(model, nlp, td, nlp.X, list(AXES), starts, lambda axis: f"{axis} ({orientation} orientation)")
     return TranslationalEnvelope(orientation, extremes, nlp.solver_name)
+
+
+@dataclass
+class CoordinateRange:
+    """One pose coordinate's least and greatest value over the poses the stand takes (SI: m or
+    rad), each with the pose that reaches it."""
+
+    name: str
+    unit: str  # 'm' or 'rad'
+    neutral: float
+    lower: AxisExtreme
+    upper: AxisExtreme
+
+
+def coordinate_ranges(model: PlatformModel, td=None, starts: list[np.ndarray] | None = None) -> list[CoordinateRange]:
+    """The range of every pose coordinate over the poses the stand takes with its controls inside
+    their strokes, on its branch and within the coordinates' bounds (the free orientation's
+    envelope problem, the coordinate itself the objective); each extreme from the neutral pose
+    and ``starts`` (a start that is itself feasible counts). Empty for a stand whose pose has no
+    coordinates to read (a chain without ``coordinates_from_pose``). ComputationFailed where no
+    start gives a feasible optimum."""
+    spec = model.spec
+    if spec.forward is not None and spec.coordinates_from_pose is None:
+        return []
+    td = model._td(td)
+    nlp = _envelope_problem(model, "free", td)
+    names = [c.name for c in spec.coordinates]
+    ends = _extremes(model, nlp, td, nlp.p, names, starts, lambda name: f"coordinate {name}")
+    return [CoordinateRange(c.name, c.unit, float(nlp.p0[k]), ends[2 * k], ends[2 * k + 1])
+            for k, c in enumerate(spec.coordinates)]
 
 
 def fixed_orientation_section(model: PlatformModel, plane: str, level: float, bounds_m: tuple, n: int = 81, td=None):
@@ -392,6 +438,7 @@ def workspace_figures(model: PlatformModel, td=None, conditioning_threshold: flo
     fixed = translational_envelope(model, "fixed", td, starts=_extreme_corner_starts(corners))
     free = translational_envelope(model, "free", td, starts=_extreme_corner_starts(corners))
     check_envelope(spec, corners, (fixed, free))
+    ranges = coordinate_ranges(model, td, starts=_extreme_corner_coordinates(corners))
     inv_cond = model.inverse_condition_numbers(corners.P[corners.converged], td, corners.U[corners.converged])
     neutral_cond = model.conditioning(spec.neutral_p(), td, spec.neutral_u())
 
@@ -428,7 +475,26 @@ def workspace_figures(model: PlatformModel, td=None, conditioning_threshold: flo
         entry["poses"] = {f"{e.axis}_{e.sense}": {"p": e.p.tolist(), "u": e.u.tolist(), "active_controls": e.active}
                           for e in env_obj.extremes}
         figures["true_envelope"][env_obj.orientation + "_orientation"] = entry
+    figures["coordinates"] = {
+        r.name: {"unit": r.unit, "neutral": r.neutral, "min": r.lower.value, "max": r.upper.value,
+                 "range": r.upper.value - r.lower.value,
+                 "poses": {e.sense: {"p": e.p.tolist(), "u": e.u.tolist(), "active_controls": e.active}
+                           for e in (r.lower, r.upper)}}
+        for r in ranges}
     return figures, corners, fixed, free
+
+
+def _extreme_corner_coordinates(corners: CornerEnvelope) -> list[np.ndarray]:
+    """Corner poses that hold the least or greatest value of some pose coordinate: good starts
+    for the coordinates' ranges."""
+    ok = np.nonzero(corners.converged & np.all(np.isfinite(corners.P), axis=1))[0]
+    if not ok.size:
+        return []
+    picks = set()
+    for k in range(corners.P.shape[1]):
+        picks.add(int(ok[np.argmin(corners.P[ok, k])]))
+        picks.add(int(ok[np.argmax(corners.P[ok, k])]))
+    return [corners.P[i] for i in sorted(picks)]
 
 
 def _extreme_corner_starts(corners: CornerEnvelope) -> list[np.ndarray]:

@@ -23,13 +23,28 @@ def _scale_lengths(obj, s: float, keys=("min", "max", "range", "larger_than_corn
 
 def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=None, plots: bool = True) -> dict:
     """Compute the workspace figures and write, atomically, into ``out``:
-    workspace.json (figures, lengths in ``unit``), corners.csv (controls and poses of every
-    corner), envelope.csv (one row per axis and envelope) and workspace.png / sections.png."""
+    workspace.json (figures, lengths in ``unit``, angles in rad), corners.csv (controls and poses
+    of every corner), envelope.csv (one row per axis and envelope), coordinates.csv (one row per
+    pose coordinate: its neutral value and range, in ``unit`` or rad) and workspace.png /
+    sections.png."""
 
     s = length_scale(unit)
     figures, corners, fixed, free = workspace_figures(model, td)
     spec = model.spec
-    shown = _scale_lengths(figures, s)
+    shown = _scale_lengths({k: v for k, v in figures.items() if k != "coordinates"}, s)
+    shown["coordinates"] = {}
+    for c in spec.coordinates:
+        if c.name not in figures["coordinates"]:
+            continue
+        entry = figures["coordinates"][c.name]
+        k = s if c.unit == "m" else 1.0
+        shown["coordinates"][c.name] = {
+            "unit": unit if c.unit == "m" else c.unit,
+            **{key: entry[key] / k for key in ("neutral", "min", "max", "range")},
+            "poses": {sense: {"p": [v / s if cc.unit == "m" else v for v, cc in zip(pose["p"], spec.coordinates)],
+                              "u": controls_from_si(spec, np.array(pose["u"]), unit).tolist(),
+                              "active_controls": pose["active_controls"]}
+                      for sense, pose in entry["poses"].items()}}
     shown["neutral_position"] = [v / s for v in figures["neutral_position"]]
     shown["conditioning"]["characteristic_length"] = figures["conditioning"]["characteristic_length"] / s
     neutral = shown["conditioning"]["neutral"]
@@ -59,6 +74,12 @@ def write_workspace(model: PlatformModel, out: str | Path, unit: str = "mm", td=
             for a in AXES:
                 w.writerow([name, a, f"{env[a]['min']:.4f}", f"{env[a]['max']:.4f}", f"{env[a]['range']:.4f}"])
         (tmp / "envelope.csv").write_text(buf.getvalue())
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["coordinate", "unit", "neutral", "min", "max", "range"])
+        for name, entry in shown["coordinates"].items():
+            w.writerow([name, entry["unit"]] + [f"{entry[key]:.6f}" for key in ("neutral", "min", "max", "range")])
+        (tmp / "coordinates.csv").write_text(buf.getvalue())
         if plots:
             _plot(model, corners, fixed, free, unit, tmp, td)
     return shown

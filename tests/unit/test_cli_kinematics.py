@@ -133,7 +133,8 @@ def test_workspace_writes_figures_and_plots(capsys, tmp_path):
     code, stdout, err = run(capsys, "workspace", "--platform", "stewart", "--out", str(out), "--json")
     assert code == 0, err
     obj = json.loads(stdout)
-    assert sorted(p.name for p in out.iterdir()) == ["corners.csv", "envelope.csv", "sections.png", "workspace.json", "workspace.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["coordinates.csv", "corners.csv", "envelope.csv", "sections.png",
+                                                    "workspace.json", "workspace.png"]
     saved = json.loads((out / "workspace.json").read_text())
     assert saved == obj
     rel = saved["corners"]["relative_to_neutral"]
@@ -142,6 +143,9 @@ def test_workspace_writes_figures_and_plots(capsys, tmp_path):
     fixed = saved["true_envelope"]["fixed_orientation"]
     assert fixed["y"]["range_ratio_to_corners"] < 0.9  # at the neutral orientation the reach in y is smaller
     assert len((out / "corners.csv").read_text().splitlines()) == 65
+    coordinates = saved["coordinates"]  # the six pose coordinates' ranges, x within the free envelope's
+    assert list(coordinates) == ["x", "y", "z", "roll", "pitch", "yaw"] and coordinates["yaw"]["unit"] == "rad"
+    assert abs(coordinates["x"]["min"] - (saved["neutral_position"][0] + saved["true_envelope"]["free_orientation"]["x"]["min"])) < 0.1
 
 
 def test_workspace_failure_writes_nothing(capsys, tmp_path):
