@@ -246,17 +246,17 @@ class ForwardSolver(NewtonSolver):
             why += f" (nor from {RESTARTS} other starts)"
         raise NoConvergence(f"{self.spec.name} forward kinematics", int(iterations), float(residual), why)
 
-    def _verdict(self, out: np.ndarray, u, td) -> tuple[str, np.ndarray | None]:
+    def _verdict(self, out: np.ndarray, u, td, refuse_misfit: bool = True) -> tuple[str, np.ndarray | None]:
         """'ok', 'failed' (no convergence), 'mirror' (off the branch), 'misfit' (rows beyond
-        their plausible misfit) or 'outside' (on the branch, outside the coordinates' bounds: a
-        solution the restarts try to better, kept when they do not) for one out row, with the
-        rows' residual of a redundant stand."""
+        their plausible misfit, where ``refuse_misfit``) or 'outside' (on the branch, outside the
+        coordinates' bounds: a solution the restarts try to better, kept when they do not) for one
+        out row, with the rows' residual of a redundant stand."""
         if out[-2] != CONVERGED:
             return "failed", None
         r = None
         if self._redundant:
             r = self._row_misfit(u, self._td(td), out[:self.spec.n_p])
-            if self._implausible(r):
+            if refuse_misfit and self._implausible(r):
                 return "misfit", r
         if not out[-1]:
             return "mirror", r
@@ -334,15 +334,18 @@ class ForwardSolver(NewtonSolver):
 
     # ------------------------------------------------------------------ batches
 
-    def forward_batch(self, U, td=None, guess=None, strict: bool = True, restarts: bool = True) -> ForwardBatch:
+    def forward_batch(self, U, td=None, guess=None, strict: bool = True, restarts: bool = True,
+                      refuse_misfit: bool = True) -> ForwardBatch:
         """Forward kinematics of many control vectors. ``U``: (N, n_u) -> ForwardBatch (N, ...).
         ``guess``: (n_p,) for all, or (N, n_p) (the last solution along a path, say).
 
         Poses that do not converge are flagged (``converged`` False), not raised; mirror poses
         are flagged by ``on_branch`` False; a redundant stand's rows missing by more than their
-        plausible misfit count as not converged (``misfit`` holds the rows' residual). Rows not
-        solved on the branch from their start are solved again from the neutral pose and the
-        start library (``restarts``).
+        plausible misfit count as not converged (``misfit`` holds the rows' residual) unless
+        ``refuse_misfit`` is False: then the weighted least-squares pose is the answer whatever
+        the rows' misfit (the physical simulator's true plate, held by its rows as by springs of
+        stiffness 1 / plausible misfit squared). Rows not solved on the branch from their start are
+        solved again from the neutral pose and the start library (``restarts``).
         """
         U = self.check_controls(np.atleast_2d(U), strict=strict)
         N = U.shape[0]
@@ -376,7 +379,8 @@ class ForwardSolver(NewtonSolver):
         converged = out[:, -2] == CONVERGED
         if self._redundant:
             R = np.asarray(self._F_map(N)(U.T, td, out[:, :n_p].T)).T
-            converged &= np.array([not self._implausible(r) for r in R], bool)
+            if refuse_misfit:
+                converged &= np.array([not self._implausible(r) for r in R], bool)
         on = out[:, -1] > 0.5
         if restarts:
             retry = ~(converged & on)
@@ -394,7 +398,7 @@ class ForwardSolver(NewtonSolver):
             for i in np.nonzero(retry)[0]:
                 from_neutral = guess is None
                 again = self._batch_restart(U[i], td, None if from_neutral else P0[i if stride else 0],
-                                            keep_outside=not (from_neutral and outside[i]))
+                                            keep_outside=not (from_neutral and outside[i]), refuse_misfit=refuse_misfit)
                 if again is not None:
                     out[i], r = again
                     converged[i], on[i] = True, True
@@ -408,28 +412,48 @@ class ForwardSolver(NewtonSolver):
         return ForwardBatch(P, out[:, n_p:n_p + 4], out[:, n_p + 4:n_p + 7], out[:, -4].astype(int),
                             out[:, -3].copy(), converged, on, R)
 
-    def _batch_restart(self, u, td, p0, keep_outside: bool = True) -> tuple[np.ndarray, np.ndarray | None] | None:
+    def least_squares_pose(self, u, td, p0) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool] | None:
+        """(p, q, X, on_branch) of one control vector ``u`` of a redundant stand: the rows' weighted
+        least-squares pose from ``p0`` by a trust-region solve (scipy's), for rows far apart, where
+        the Gauss-Newton steps of :meth:`forward_batch` converge only linearly along a weakly held
+        direction (a cable robot's turn); None where it does not converge."""
+        from scipy.optimize import least_squares
+
+        td = self._td(td)
+        u = np.asarray(u, float)
+        sol = least_squares(lambda p: self._rj_one(u, td, p)[0], np.asarray(p0, float),
+                            jac=lambda p: self._rj_one(u, td, p)[1], method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-12)
+        if sol.status <= 0 or not np.all(np.isfinite(sol.x)):
+            return None
+        q, X, g = self._post_one(u, td, sol.x)
+        return sol.x, quat_normalize(q), X, bool(np.all(g > 0))
+
+    def _batch_restart(self, u, td, p0, keep_outside: bool = True,
+                       refuse_misfit: bool = True) -> tuple[np.ndarray, np.ndarray | None] | None:
         """(out row, rows' residual) of the first restart accepted (else, with ``keep_outside``, one
         on the branch beyond the coordinates' bounds: the neutral start's where it gave one, else
         the first), or None. ``p0``: the row's guess, None for the neutral; ``keep_outside`` False
-        where the row's own solve is already such a pose."""
+        where the row's own solve is already such a pose; ``refuse_misfit`` as :meth:`forward_batch`'s."""
         try:
             starts = self._restart_poses(u, td, p0)
         except PlatkitError:
             return None
-        accepted, outside, _ = self._from_starts(u, td, starts, p0, keep_outside=keep_outside)
+        accepted, outside, _ = self._from_starts(u, td, starts, p0, keep_outside=keep_outside,
+                                                 refuse_misfit=refuse_misfit)
         return outside if accepted is None else accepted
 
-    def _from_starts(self, u, td, starts, p0, outside=None, mirror=None, keep_outside: bool = True):
+    def _from_starts(self, u, td, starts, p0, outside=None, mirror=None, keep_outside: bool = True,
+                     refuse_misfit: bool = True):
         """A restart of the solve of ``u``: from each of ``starts`` in turn (:meth:`_restart_poses`
         after the start ``p0``, None for the neutral one) until one is accepted. Returns
         (accepted, outside, mirror), each an (out row, rows' residual) or None: the first solve
         accepted; the pose on the branch beyond the coordinates' bounds kept, ``outside`` as given,
         else the first such, replaced by the neutral start's after a guess (none with
-        ``keep_outside`` False); the first mirror pose, ``mirror`` as given."""
+        ``keep_outside`` False); the first mirror pose, ``mirror`` as given. ``refuse_misfit`` as
+        :meth:`forward_batch`'s."""
         for j, start in enumerate(starts):
             o = self._solve_one(u, td, start)
-            v, r = self._verdict(o, u, td)
+            v, r = self._verdict(o, u, td, refuse_misfit)
             if v == "ok":
                 return (o, r), outside, mirror
             if v == "mirror" and mirror is None:

@@ -12,6 +12,13 @@ within LIMIT_SHARE of the drives' limits and every command reachable by the true
 whose neutral rests on a limit (a URDF joint's zero clipped into its limits) moves about the
 middle of its stroke instead, reached from its neutral along the same ramp (its rate and
 acceleration counted in the limits); the plan says which (``about_mid_stroke``).
+
+A stand whose pose space is free (``PlatformSpec.free_space == 'pose'``: a cable robot, whose
+commands must agree with a pose) takes the same shapes per pose coordinate instead, about its
+neutral pose, each of amplitude up to AMPLITUDE_SHARE of the coordinate's half-box, and its
+commands are their inverse kinematics at the plan's parameters; the amplitude is shrunk until
+every control's rate and acceleration stay within LIMIT_SHARE of its drive's and every command
+is reachable (the plan says ``space: pose`` and the amplitude per coordinate).
 """
 from __future__ import annotations
 
@@ -22,6 +29,7 @@ from platkit.calibrate.plan import feasible, read_plan_csv
 from platkit.calibrate.plan_information import homed_at_middle
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.io.table import read_table
+from platkit.kinematics.sampling import nominal_inverse
 
 __all__ = ["KINDS", "continuous_plan", "read_streamed_commands"]
 
@@ -81,6 +89,8 @@ def continuous_plan(spec, kind: str | np.ndarray, duration_s: float, rate_hz: fl
     if not 0 < rate_hz <= 1000:
         raise BadInput(f"continuous motion: a command rate of {rate_hz:g} per s is out of range (0, 1000]")
     t = np.arange(int(round(duration_s * rate_hz))) / rate_hz
+    if spec.pose_free:
+        return _pose_plan(spec, kind, t, duration_s, rate_hz, rng, model, td, rate, accel)
     shape = _shape(kind, t, spec.n_u, rate_hz, rng)
     lo = np.array([c.lower for c in spec.controls], float)
     hi = np.array([c.upper for c in spec.controls], float)
@@ -120,6 +130,40 @@ def continuous_plan(spec, kind: str | np.ndarray, duration_s: float, rate_hz: fl
             return U, info
         amp = 0.7 * amp
     raise NotIdentifiable(f"{spec.name}: no {kind} motion around the neutral pose stays reachable")
+
+
+#: a pose-space plan's amplitude is shrunk at most this many times (by the drives' limits, then by 0.7
+#: while a command is unreachable)
+POSE_ROUNDS = 12
+
+
+def _pose_plan(spec, kind: str, t: np.ndarray, duration_s: float, rate_hz: float, rng: np.random.Generator, model, td,
+               rate: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, dict]:
+    """A pose-free stand's plan (module docstring): the shape per pose coordinate about the neutral
+    pose through the raised-cosine ramp, mapped to commands by inverse kinematics at ``td``."""
+    shape = _shape(kind, t, spec.n_p, rate_hz, rng)
+    ramp = np.clip(np.minimum(t, t[-1] - t) / RAMP_S, 0, 1)
+    shape = shape * (0.5 - 0.5 * np.cos(np.pi * ramp))[:, None]
+    p0 = spec.neutral_p()
+    lo, hi = spec.coordinate_bounds()
+    half = np.minimum(hi - p0, p0 - lo)
+    amp = AMPLITUDE_SHARE * np.where(np.isfinite(half) & (half > 0), half, 0.0)
+    td = spec.nominal_td() if td is None else np.asarray(td, float)
+    for _ in range(POSE_ROUNDS):
+        U = nominal_inverse(model, p0 + shape * amp, td)[0]
+        if np.all(np.isfinite(U)):
+            v = np.abs(np.diff(U, axis=0)).max(axis=0) * rate_hz
+            a = np.abs(np.diff(U, 2, axis=0)).max(axis=0) * rate_hz ** 2
+            share = max(float(np.max(v / rate)), float(np.max(a / accel))) / LIMIT_SHARE
+            if share > 1:  # the controls' rates grow about in proportion to the amplitude
+                amp = amp / (1.02 * share)
+                continue
+            if feasible(spec, U, td, model)[0].all():
+                return U, {"kind": kind, "space": "pose", "duration_s": float(duration_s),
+                           "command_rate_hz": float(rate_hz), "amplitude": [float(x) for x in amp]}
+        amp = 0.7 * amp
+    raise NotIdentifiable(f"{spec.name}: no {kind} motion around the neutral pose stays reachable within the drives' "
+                          "limits")
 
 
 def _given(spec, U: np.ndarray, rate_hz: float, rate: np.ndarray, accel: np.ndarray) -> tuple[np.ndarray, dict]:

@@ -13,7 +13,8 @@ platkit's model terms did not make:
    travel the kinematics sees (play, gear errors, heat, load), the base against the level
    world, markers moving on the platform;
 4. forward kinematics of the true actuator positions with the true geometry
-   (PlatformModel.forward_batch), markers at their true places, through a true
+   (PlatformModel.forward_batch; a stand with more rows than pose coordinates, a cable robot, at
+   its rows' weighted least-squares pose whatever their misfit, see ``_Stand.pose``), markers at their true places, through a true
    mocap_from_base, sampled at the motion capture's rate with its latency and clock offset,
    white and correlated noise and bursts of occlusion (platkit.simulate.nuisance, drawn per
    session from the seed);
@@ -216,9 +217,20 @@ class _Stand:
         return link_frames(self.spec, self.td, u)
 
     def pose(self, u: np.ndarray, seg: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q, X) at true actuator travel u. A stand with more rows than pose coordinates (a cable
+        robot) sits at its rows' weighted least-squares pose whatever their misfit: the elastic
+        equilibrium of rows of stiffness 1 / plausible misfit squared, pulling and pushing alike
+        (no slack), so actuators that lag one another move the plate, never stop the run."""
         guess = np.where(seg[:, None] < 0, self.spec.neutral_p(), self.P_rest[np.maximum(seg, 0)])
-        fb = self.model.forward_batch(u, td=self.td, guess=guess, strict=False)
+        fb = self.model.forward_batch(u, td=self.td, guess=guess, strict=False, refuse_misfit=False)
         bad = ~(fb.converged & fb.on_branch)
+        if self.model.redundant:  # rows far apart, left unfinished by Gauss-Newton: a trust-region solve
+            for k in np.nonzero(bad)[0]:
+                start = fb.p[k] if np.all(np.isfinite(fb.p[k])) else guess[k]
+                got = self.model.least_squares_pose(u[k], self.td, start)
+                if got is not None and got[3]:
+                    fb.p[k], fb.q[k], fb.X[k] = got[:3]
+                    bad[k] = False
         if np.any(bad):
             k = int(np.nonzero(bad)[0][0])
             raise ComputationFailed(f"{self.spec.name}: forward kinematics of the true stand failed at t={t[k]:.3f} s "
