@@ -46,6 +46,10 @@ class ModelTerm:
     #: :meth:`offset_jacobians`); a term that never does sets False: the estimator then passes
     #: None for them and, where no term of a model reads them, does not compute them
     uses_kinematics = True  # a class attribute (not a field): no annotation
+    #: whether the term's control offsets are actuators moving apart in time (a stream's response):
+    #: a stand with more rows than pose coordinates then takes its rows' weighted least-squares pose
+    #: whatever their misfit (the physical plate, as the simulator's), not refused beyond the plausible
+    physical_misfit = False
 
     def control_offset(self, theta: np.ndarray, poses: PoseSet, n_u: int) -> np.ndarray:
         return np.zeros((poses.n_poses, n_u))

@@ -144,6 +144,7 @@ class ResponseTerm(ModelTerm):
     (settled poses, a held-out session): no offset there."""
 
     uses_kinematics = False  # its offsets read the controls and times alone
+    physical_misfit = True  # the actuators lag one another: a cable robot's rows miss while it moves
 
     def __init__(self, model: ResponseModel, T: np.ndarray, U: np.ndarray, control_names: list[str],
                  theta0: np.ndarray, steps: np.ndarray, start: np.ndarray | None = None,

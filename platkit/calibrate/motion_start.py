@@ -95,12 +95,15 @@ def _lower_upper(model: ResponseModel, theta0: np.ndarray) -> tuple[np.ndarray, 
 def marker_points(spec: PlatformSpec, model: PlatformModel, td, mk, links, U: np.ndarray, guess=None):
     """(K, M, 3) the markers ``mk`` (M, 3) in the base frame at controls U (K, n_u) and parameters
     td, each on its link: the moving frame, or on a tree (``links`` (M,) indices in
-    ``spec.tracked_links``) its tracked link; NaN where the kinematics fails."""
+    ``spec.tracked_links``) its tracked link; NaN where the kinematics fails. The actuators of a
+    stream move apart in time: a stand with more rows than pose coordinates (a cable robot) takes its
+    rows' weighted least-squares pose whatever their misfit, as the fit's model does
+    (:class:`~platkit.calibrate.motion.ResponseTerm`)."""
     if links is not None:
         R, X = link_frames(spec, td, U)
         k = np.asarray(links)
         return X[:, k] + np.einsum("kmab,mb->kma", R[:, k], mk)
-    fb = model.forward_batch(U, td, guess=guess, strict=False)
+    fb = model.forward_batch(U, td, guess=guess, strict=False, refuse_misfit=False)
     pts = fb.X[:, None, :] + np.einsum("kab,mb->kma", matrix_from_quat(fb.q), mk)
     pts[~(fb.converged & fb.on_branch)] = np.nan
     return pts

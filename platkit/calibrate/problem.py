@@ -95,6 +95,7 @@ class CalibrationProblem:
                            f"stand has {spec.n_u} ({', '.join(spec.control_names)})")
         self.spec = spec
         self.terms = list(terms)
+        self._physical_misfit = any(getattr(t, "physical_misfit", False) for t in self.terms)
         # the history a term reads (the play's memory above all), built once here for callers who
         # gave poses without it: a term would otherwise build it again at every evaluation
         self.poses = poses = with_history(poses, spec) if self.terms else poses
@@ -256,8 +257,10 @@ class CalibrationProblem:
         return du, dpose, dm
 
     def kinematics(self, td, U, guess=None):
-        """Forward kinematics (q (N,4), X (N,3), p (N,n_p), converged (N,)) of controls U (N, n_u)."""
-        fb = self.model.forward_batch(U, td, guess=guess, strict=False)
+        """Forward kinematics (q (N,4), X (N,3), p (N,n_p), converged (N,)) of controls U (N, n_u);
+        with a term whose actuators move apart in time (``ModelTerm.physical_misfit``), a stand with
+        more rows than pose coordinates at its rows' weighted least-squares pose whatever their misfit."""
+        fb = self.model.forward_batch(U, td, guess=guess, strict=False, refuse_misfit=not self._physical_misfit)
         return fb.q, fb.X, fb.p, fb.converged & fb.on_branch
 
     def evaluate(self, z, with_jac: bool = True, poses: PoseSet | None = None) -> FitState:

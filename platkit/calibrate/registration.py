@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from platkit.calibrate.robust import REJECT_K, robust_sigma
-from platkit.geometry import matrix_from_rotvec, rigid_fit
+from platkit.geometry import matrix_from_rotvec, rigid_fit, rotvec_from_matrix
 
 #: the results kept while a selection runs, by (kind, their inputs' digest); registrations: its two
 #: pose sets (all poses, and the cleaned ones its candidates share), with room for a selection
@@ -175,7 +175,11 @@ def initial_rotations(R, X, Y, vis) -> list[np.ndarray]:
     the path's rotation turned about the line in PATH_TURNS steps are starts too; and the hand-eye
     null vector, where the system has one (its next singular value over 1e-3), is a start beside
     them: :func:`best_registration` keeps the registration that fits best. A stand that only tilts
-    and heaves (a crank-rod seat mover) has such a path and a hand-eye system near the threshold."""
+    and heaves (a crank-rod seat mover) has such a path and a hand-eye system near the threshold.
+    Where the model's relative rotations all turn about one axis (a planar stand: x, y, yaw), the
+    hand-eye system fixes that axis but not the turn about it (noise can make its null vector look
+    unique): the hand-eye start turned about the axis in PATH_TURNS steps are starts, beside the
+    path's."""
     N = len(R)
     counts = vis.sum(axis=1)
     best_seen = np.nonzero(counts == counts.max())[0]
@@ -198,17 +202,20 @@ def initial_rotations(R, X, Y, vis) -> list[np.ndarray]:
         med = float(np.median(misfit))
         good = misfit <= max(4.5 * med, 1e-12)
         if best is None or med < best[0]:
-            best = (med, np.vstack([r for r, g in zip(rows, good) if g]))
+            best = (med, np.vstack([r for r, g in zip(rows, good) if g]), _single_axis(R, ref, sample))
     starts = []
     if best is not None:
         _, s, Vt = np.linalg.svd(best[1])
+        axis = best[2]
         if s[-2] > 1e-3:
             A = Vt[-1].reshape(3, 3, order="F")
             if np.linalg.det(A) < 0:
                 A = -A
             U_, _, Vt_ = np.linalg.svd(A)
             starts.append(U_ @ np.diag([1, 1, np.linalg.det(U_ @ Vt_)]) @ Vt_)
-            if s[-2] > 10 * s[-1]:
+            if axis is not None:  # the hand-eye fixes the axis, not the turn about it: every turn a start
+                starts += [starts[0] @ matrix_from_rotvec(axis * (2 * np.pi * k / PATH_TURNS)) for k in range(1, PATH_TURNS)]
+            elif s[-2] > 10 * s[-1]:
                 return starts
     # too little rotation: align the moving frame's path with the markers' centroid path
     full = vis.all(axis=1)
@@ -220,6 +227,18 @@ def initial_rotations(R, X, Y, vis) -> list[np.ndarray]:
             path += [A @ matrix_from_rotvec(Vp[0] * (2 * np.pi * k / PATH_TURNS)) for k in range(1, PATH_TURNS)]
         return path + starts
     return starts + [np.eye(3)]
+
+
+def _single_axis(R, ref: int, sample) -> np.ndarray | None:
+    """The unit axis (3,) in the moving frame's base coordinates about which every relative
+    rotation of the model from pose ``ref`` to the poses ``sample`` turns, where there is one (a
+    planar stand: x, y and a turn about z), else None."""
+    w = np.array([rotvec_from_matrix(R[n] @ R[ref].T) for n in sample if n != ref])
+    w = w[np.linalg.norm(w, axis=1) > 1e-9] if len(w) else w
+    if len(w) < 2:
+        return None
+    _, s, Vt = np.linalg.svd(w)
+    return Vt[0] if s[1] <= 1e-9 * s[0] else None
 
 
 def markers_given_rotation(A, R, X, Y, vis):
