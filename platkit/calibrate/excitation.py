@@ -16,6 +16,9 @@ difference) within ``accel``; every command is then checked reachable (forward k
 stand's branch, inside the coordinates' bounds) and all amplitudes shrink together until it is.
 The window lasts long enough for the limits to hold while it rises.
 
+A stand whose pose space is free (a cable robot) takes the family per pose coordinate about its
+neutral pose, the commands their inverse kinematics (:mod:`platkit.calibrate.trajectories`).
+
 The information is that of the model `platkit calibrate` fits to a stream
 (:mod:`platkit.calibrate.motion`): :class:`~platkit.calibrate.problem.CalibrationProblem` with
 the actuators' response as a :class:`~platkit.calibrate.motion.ResponseTerm` (a step reference,
@@ -315,7 +318,7 @@ def design_excitation(spec: PlatformSpec, family: FourierFamily, limits: Limits,
     def score(coef):
         A, _ = scaler.reachable_period(coef)
         peak = np.max(np.abs(family.raw(coef, scaler.t_period)), axis=0)
-        U = scaler.u0 + family.raw(coef, Tp) / peak * A
+        U = scaler.commands(family.raw(coef, Tp) / peak * A)
         info = information.per_sample(T, U, t)
         return information.criterion(info), info
 
@@ -424,7 +427,7 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
         raise BadInput(f"duration_s: must be a positive number of seconds, got {duration_s:g}")
     if duration_s is not None and duration_s > LONGEST_S:
         raise BadInput(f"duration_s: {duration_s:g} s, at most {LONGEST_S:g} s")
-    series = FourierFamily(period_s, harmonics, spec.n_u)
+    series = FourierFamily(period_s, harmonics, spec.n_u if limits.space is None else spec.n_p)
     if harmonics / period_s > 0.25 * command_rate_hz:
         raise BadInput(f"harmonics: {harmonics} of a {period_s:g} s period reach {harmonics / period_s:g} Hz, over a "
                        f"quarter of the command rate ({command_rate_hz:g} per s)")
@@ -454,7 +457,10 @@ def plan_excitation(spec: PlatformSpec, limits: Limits, *, period_s: float, harm
         "kind": "excitation",
         "family": {"name": "fourier", "period_s": float(period_s), "base_frequency_hz": 1.0 / period_s,
                    "harmonics": int(harmonics), "coefficients": np.asarray(design.coef).tolist(),
-                   "rule": "u_j(t) = u0_j + A_j w(t) s_j(t), s_j = sum_k a_jk sin(2 pi k t / period) + b_jk cos(...) "
+                   "rule": ("u_j(t) = u0_j + A_j w(t) s_j(t)" if limits.space is None else
+                            "p_k(t) = p0_k + A_k w(t) s_k(t) per pose coordinate about the neutral pose, the commands its "
+                            "inverse kinematics")
+                           + ", s_j = sum_k a_jk sin(2 pi k t / period) + b_jk cos(...) "
                            "scaled to unit peak; w a raised-cosine rise and fall of ramp_s"},
         "limits": {"lower": limits.lower.tolist(), "upper": limits.upper.tolist(), "rate": limits.rate.tolist(),
                    "accel": limits.accel.tolist(), "source": limits.source,

@@ -75,7 +75,7 @@ def design_sweep(spec: PlatformSpec, limits: Limits, information: MotionInformat
     error: NotIdentifiable | None = None
     for scale in VIA_SCALES:
         box = Limits(u0 - scale * (u0 - limits.lower), u0 + scale * (limits.upper - u0), limits.rate, limits.accel,
-                     limits.source, limits.home)
+                     limits.source, limits.home, None if limits.space is None else limits.space.scaled(scale))
         pair = []
         for choice in (True, False):
             try:
@@ -84,7 +84,7 @@ def design_sweep(spec: PlatformSpec, limits: Limits, information: MotionInformat
             except NotIdentifiable as exc:  # too short for this box: a smaller one may fit
                 error = exc
                 break
-            U, _ = via_trajectory(design.path, box, command_rate_hz)
+            U, _ = via_trajectory(design.path, box, command_rate_hz, information.model, information.td)
             actual = len(U) / command_rate_hz
             info, n_fit = trajectory_information(information, U, command_rate_hz, actual, mocap_rate_hz, seen)
             pair.append(Sweep(design, U, actual, info, n_fit, information.prediction(info, n_fit, sigma_m), scale))
@@ -170,8 +170,11 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
                            "length and limits predicts a smaller error, 90th percentile), visited in "
                            "nearest-neighbour order from the home controls (limits.home: neutral, or the box's middle for a "
                            "control whose neutral is on or past the box) and back, "
-                           "joined by straight moves in control space on one trapezoidal profile per move at the "
-                           "largest rate and acceleration every actuator's limits allow; no holds"},
+                           + ("joined by straight moves in control space on one trapezoidal profile per move at the "
+                              "largest rate and acceleration every actuator's limits allow; no holds" if limits.space is None
+                              else "drawn as poses in the pose box (a pose-free stand), joined by straight moves in "
+                              "pose space, the commands their inverse kinematics, on one trapezoidal profile per move "
+                              "within every actuator's limits along the line; no holds")},
         "limits": {"lower": limits.lower.tolist(), "upper": limits.upper.tolist(), "rate": limits.rate.tolist(),
                    "accel": limits.accel.tolist(), "source": limits.source,
                    "units": "controls' internal units (m for length controls), per s and per s^2"},

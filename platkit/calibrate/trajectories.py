@@ -6,7 +6,14 @@ every command (streamed at ``command_rate_hz``) inside the stroke box less ``mar
 (first differences) within ``rate`` and its acceleration (second differences) within ``accel``;
 every command is then checked reachable and the amplitudes shrink together until it is. The
 window lasts long enough for the limits to hold while it rises. Used by
-:mod:`platkit.calibrate.excitation`, which designs the coefficients."""
+:mod:`platkit.calibrate.excitation`, which designs the coefficients.
+
+A stand whose pose space is free (``PlatformSpec.free_space == 'pose'``: a cable robot, whose
+commands must agree with a pose) takes the family per pose coordinate instead: p_k(t) = p0_k +
+A_k w(t) s_k(t) about the neutral pose p0, A_k at most the coordinate's room in the pose box less
+``margin`` (:class:`PoseSpace`), the commands the inverse kinematics of p(t) at the plan's
+parameters; the amplitudes shrink together until the commands keep the box, rate and acceleration
+limits and are reachable."""
 from __future__ import annotations
 
 import math
@@ -18,9 +25,10 @@ import numpy as np
 from platkit.calibrate.plan import feasible, held_at_home, homed_at_middle, idle_controls
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
+from platkit.kinematics.sampling import nominal_inverse, pose_box
 from platkit.model import PlatformSpec
 
-__all__ = ["Limits", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S"]
+__all__ = ["Limits", "PoseSpace", "FourierFamily", "drive_limits", "limit_violations", "trajectory", "Scaler", "RAMP_S"]
 
 #: the window's shortest rise (s), doubled until the limits hold while it rises (at most one period)
 RAMP_S = 2.0
@@ -34,11 +42,31 @@ LIMIT_RTOL = 1e-9
 
 
 @dataclass
+class PoseSpace:
+    """Where a pose-free stand's motion plans are drawn: ``lower``/``upper`` (n_p,) the pose box less
+    the margin, ``home`` (n_p,) the neutral pose; commands are the inverse kinematics of poses."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    home: np.ndarray
+
+    def scaled(self, share: float) -> PoseSpace:
+        """The box scaled about the home pose by ``share``."""
+        return PoseSpace(self.home - share * (self.home - self.lower), self.home + share * (self.upper - self.home),
+                         self.home)
+
+    def controls(self, P: np.ndarray, model: PlatformModel, td: np.ndarray) -> np.ndarray:
+        """(N, n_u) the inverse kinematics of poses P (N, n_p) at td (NaN rows where none)."""
+        return nominal_inverse(model, np.ascontiguousarray(np.atleast_2d(P), dtype=float), np.asarray(td, float))[0]
+
+
+@dataclass
 class Limits:
     """What every command must keep (internal units): ``lower``/``upper`` (n_u,) the box, ``rate``
     (n_u,) per s and ``accel`` (n_u,) per s^2 the drives' limits; ``home`` (n_u,) the controls the
     session starts and ends at rest on and its excitation moves about (None: the stand's neutral
-    controls; :func:`drive_limits` says)."""
+    controls; :func:`drive_limits` says); ``space``: a pose-free stand's pose box (plans drawn in
+    poses), None for plans drawn in controls."""
 
     lower: np.ndarray
     upper: np.ndarray
@@ -46,6 +74,7 @@ class Limits:
     accel: np.ndarray
     source: dict = field(default_factory=dict)
     home: np.ndarray | None = None
+    space: PoseSpace | None = None
 
 
 def home_controls(spec: PlatformSpec, limits: Limits) -> np.ndarray:
@@ -133,7 +162,14 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
         lower, upper = np.where(idle, home, lower), np.where(idle, home, upper)
         source["held"] = ("at neutral (they move no tracked link): " + ", ".join(names[idle]) if moving is None
                           else "at home (not moved by the plan): " + ", ".join(names[idle]))
-    return Limits(lower, upper, rate, accel, source, home)
+    space = None
+    if spec.pose_free:  # its commands agree with a pose: drawn in the pose box less the margin
+        if moving is not None:
+            raise BadInput(f"{spec.name}: its pose space is free (commands from poses through inverse kinematics); a "
+                           "plan that holds some controls is not made for it")
+        space = PoseSpace(*pose_box(spec, margin), spec.neutral_p())
+        source["space"] = "pose: drawn in the pose box less the margin, commands by inverse kinematics"
+    return Limits(lower, upper, rate, accel, source, home, space)
 
 
 def _per_control(spec: PlatformSpec, value, option: str) -> np.ndarray | None:
@@ -184,6 +220,14 @@ class FourierFamily:
         return np.sin(arg) @ c[:, :, 0].T + np.cos(arg) @ c[:, :, 1].T
 
 
+def _periodic_rates(s: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """(largest rate, largest acceleration) per column of a period of values ``s`` (n, k) streamed
+    at ``rate_hz`` (periodic first and second differences)."""
+    v = np.max(np.abs(np.roll(s, -1, axis=0) - s), axis=0) * rate_hz
+    a = np.max(np.abs(np.roll(s, -1, axis=0) - 2 * s + np.roll(s, 1, axis=0)), axis=0) * rate_hz * rate_hz
+    return v, a
+
+
 def _window(t: np.ndarray, duration_s: float, ramp_s: float) -> np.ndarray:
     r = np.clip(np.minimum(t, duration_s - t) / ramp_s, 0, 1)
     return 0.5 - 0.5 * np.cos(np.pi * r)
@@ -216,36 +260,68 @@ class Scaler:
             raise BadInput(f"period_s: {family.period_s:g} s gives fewer than 8 commands per period at {command_rate_hz:g} "
                            "per s")
         self.t_period = np.arange(n) / command_rate_hz
-        self.u0 = home_controls(spec, limits)
-        self.half = np.minimum(limits.upper - self.u0, self.u0 - limits.lower)
+        self.space = limits.space
+        if self.space is None:
+            self.u0 = home_controls(spec, limits)
+            self.half = np.minimum(limits.upper - self.u0, self.u0 - limits.lower)
+        else:  # a pose-free stand: the series move its pose coordinates
+            self.u0 = self.space.home
+            self.half = np.minimum(self.space.upper - self.u0, self.u0 - self.space.lower)
+        self.names = spec.control_names if self.space is None else spec.coordinate_names
+
+    def commands(self, offsets: np.ndarray) -> np.ndarray:
+        """(K, n_u) the commands of the series' values ``offsets`` (K, n) about the home: the controls
+        themselves, or a pose-free stand's inverse kinematics of the poses."""
+        if self.space is None:
+            return self.u0 + offsets
+        return self.space.controls(self.u0 + offsets, self.model, self.td)
 
     def amplitudes(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(A (n_u,), shape over one period (n, n_u) of unit largest magnitude) within the box, rate
+        """(A (n,), shape over one period (n, n) of unit largest magnitude) within the box, rate
         and acceleration limits (periodic differences), before reachability."""
         s = self.family.raw(coef, self.t_period)
         peak = np.max(np.abs(s), axis=0)
         if np.any(peak <= 0):
             raise BadInput("excitation: an actuator's series is zero everywhere")
         s = s / peak
-        h = self.rate_hz
-        v = np.max(np.abs(np.roll(s, -1, axis=0) - s), axis=0) * h
-        a = np.max(np.abs(np.roll(s, -1, axis=0) - 2 * s + np.roll(s, 1, axis=0)), axis=0) * h * h
-        A = np.minimum(self.half, np.minimum(self.limits.rate / np.maximum(v, 1e-300),
-                                             self.limits.accel / np.maximum(a, 1e-300)))
+        if self.space is not None:
+            A = self._pose_amplitudes(s)
+        else:
+            v, a = _periodic_rates(s, self.rate_hz)
+            A = np.minimum(self.half, np.minimum(self.limits.rate / np.maximum(v, 1e-300),
+                                                 self.limits.accel / np.maximum(a, 1e-300)))
         small = A < MIN_AMPLITUDE_SHARE * self.half
         if np.any(small):
             j = int(np.argmax(small))
-            raise BadInput(f"{self.spec.name}: the rate and acceleration limits leave {self.spec.control_names[j]} "
+            raise BadInput(f"{self.spec.name}: the rate and acceleration limits leave {self.names[j]} "
                            f"{100 * A[j] / self.half[j]:.2g}% of its room around neutral over a {self.family.period_s:g} s "
                            "period: raise the rate or acceleration limits or lengthen the period")
         return A, s
+
+    def _pose_amplitudes(self, s: np.ndarray) -> np.ndarray:
+        """A pose-free stand's amplitudes (n_p,): the pose box's room, shrunk together until the
+        commands of a period (inverse kinematics) keep the control box, rate and acceleration."""
+        A = self.half.copy()
+        lim = self.limits
+        for _ in range(SHRINK_TRIES):
+            U = self.commands(s * A)
+            if np.all(np.isfinite(U)):
+                v, a = _periodic_rates(U, self.rate_hz)
+                share = max(float(np.max(v / lim.rate)), float(np.max(a / lim.accel)))
+                inside = bool(np.all((U >= lim.lower) & (U <= lim.upper)))
+                if share <= 1 and inside:
+                    return A
+                A = A * (min(SHRINK, 1 / (share * (1 + 1e-6))) if inside else SHRINK)
+            else:
+                A = A * SHRINK
+        return np.zeros_like(A)  # nothing within the limits: refused by the caller as too small
 
     def reachable_period(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(A, shape) with every command of a period reachable (amplitudes shrunk together);
         NotIdentifiable where no amplitude is."""
         A, s = self.amplitudes(coef)
         for _ in range(SHRINK_TRIES):
-            ok, _ = feasible(self.spec, self.u0 + s * A, self.td, self.model)
+            ok, _ = feasible(self.spec, self.commands(s * A), self.td, self.model)
             if ok.all():
                 return A, s
             A = A * SHRINK
@@ -273,7 +349,7 @@ def trajectory(spec: PlatformSpec, family: FourierFamily, coef: np.ndarray, limi
             raise NotIdentifiable(f"{spec.name}: the session cannot rise to its excitation and back within the rate "
                                   f"and acceleration limits in {duration_s:g} s (ramps up to {min(family.period_s, 0.5 * end):g} "
                                   "s each); a longer session")
-        U = scaler.u0 + _window(t, end, ramp)[:, None] * raw / peak * A
+        U = scaler.commands(_window(t, end, ramp)[:, None] * raw / peak * A)
         bad = limit_violations(U, command_rate_hz, limits)
         if not (bad["box"] or bad["rate"] or bad["accel"]):
             break
@@ -283,7 +359,7 @@ def trajectory(spec: PlatformSpec, family: FourierFamily, coef: np.ndarray, limi
         if ok.all():
             break
         A = A * SHRINK
-        U = scaler.u0 + _window(t, end, ramp)[:, None] * raw / peak * A
+        U = scaler.commands(_window(t, end, ramp)[:, None] * raw / peak * A)
     else:
         raise NotIdentifiable(f"{spec.name}: the excitation's commands do not all stay reachable")
     return U, {"ramp_s": float(ramp), "amplitude": [float(x) for x in A], **limit_violations(U, command_rate_hz, limits)}

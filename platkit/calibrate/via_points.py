@@ -20,6 +20,15 @@ back and forth over that tour (every move one of the tour's) while the next poin
 back to neutral fit. A move whose straight line leaves the reachable workspace goes through
 the neutral controls instead (counted); every command is checked reachable and within the box,
 rate and acceleration (:func:`platkit.calibrate.trajectories.limit_violations`).
+
+A stand whose pose space is free (a cable robot: ``Limits.space``) draws its candidates in the pose
+box less the margin (each pose coordinate as each control above), keeps those whose inverse
+kinematics lies inside the stroke box and is reachable, and joins the via points by straight lines
+in pose space, the commands their inverse kinematics: each move's one trapezoidal profile along the
+line has the largest rate v and acceleration a with every actuator's |du/ds| v within its rate
+and |du/ds| a + |d2u/ds2| v^2 within its acceleration (the line's largest slopes and curvatures,
+u(s) sampled at LINE_SAMPLES points and taken with a share POSE_LIMIT_SHARE of the limits for what
+the samples miss).
 """
 from __future__ import annotations
 
@@ -34,7 +43,7 @@ from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
 
-__all__ = ["ViaDesign", "design_via", "via_trajectory", "move_duration"]
+__all__ = ["ViaDesign", "design_via", "via_trajectory", "move_duration", "pose_move"]
 
 #: distinct via points at most (a longer session repeats the tour); candidates drawn per via point
 #: (at least MIN_CANDIDATES); share of the candidates drawn towards the box's faces (each control
@@ -42,6 +51,9 @@ __all__ = ["ViaDesign", "design_via", "via_trajectory", "move_duration"]
 MAX_VIAS, CANDIDATES_PER_VIA, MIN_CANDIDATES, FACE_SHARE, FACE_BETA = 60, 12, 400, 0.5, 0.3
 #: the fewest via points a sweep has
 MIN_VIAS = 2
+#: a pose-free stand's moves: points along each line where the commands' slopes are taken, and the share
+#: of the drives' limits its profile uses (what the points miss between them)
+LINE_SAMPLES, POSE_LIMIT_SHARE = 65, 0.9
 
 
 def move_duration(d: np.ndarray, rate: np.ndarray, accel: np.ndarray) -> tuple[float, float, float]:
@@ -70,15 +82,50 @@ def _covered(s: np.ndarray, T: float, v: float, a: float) -> np.ndarray:
     return np.where(s <= ta, acc, np.where(s <= T - ta, cruise, dec))
 
 
-def via_trajectory(path: np.ndarray, limits: Limits, command_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+def pose_move(a: np.ndarray, b: np.ndarray, limits: Limits, model, td) -> tuple[float, float, float]:
+    """(duration s, rate, acceleration) of a pose-free stand's move along the straight pose line
+    from ``a`` to ``b`` (n_p each; module docstring); inf where the line has no inverse somewhere."""
+    assert limits.space is not None
+    s = np.linspace(0.0, 1.0, LINE_SAMPLES)
+    U = limits.space.controls(a + s[:, None] * (b - a), model, td)
+    if not np.all(np.isfinite(U)):
+        return math.inf, 0.0, 0.0
+    h = s[1] - s[0]
+    d1 = np.abs(np.gradient(U, h, axis=0)).max(axis=0)
+    d2 = np.abs(np.diff(U, 2, axis=0)).max(axis=0) / h ** 2 if len(U) > 2 else np.zeros(U.shape[1])
+    moving = d1 > 0
+    if not moving.any():
+        return 0.0, math.inf, math.inf
+    rate, accel = POSE_LIMIT_SHARE * limits.rate, POSE_LIMIT_SHARE * limits.accel
+    v = float(np.min(rate[moving] / d1[moving]))
+    curved = d2 > 0
+    if curved.any():  # at most half of each acceleration limit goes to the line's curvature
+        v = min(v, float(np.min(np.sqrt(0.5 * accel[curved] / d2[curved]))))
+    a_ = float(np.min((accel[moving] - d2[moving] * v * v) / d1[moving]))
+    if v * v >= a_:
+        return 2.0 * math.sqrt(1.0 / a_), v, a_
+    return 1.0 / v + v / a_, v, a_
+
+
+def _move(a: np.ndarray, b: np.ndarray, limits: Limits, model, td) -> tuple[float, float, float]:
+    """The move from path point ``a`` to ``b``: synchronised in controls, or along a pose line."""
+    if limits.space is None:
+        return move_duration(b - a, limits.rate, limits.accel)
+    return pose_move(a, b, limits, model, td)
+
+
+def via_trajectory(path: np.ndarray, limits: Limits, command_rate_hz: float, model=None,
+                   td=None) -> tuple[np.ndarray, np.ndarray]:
     """(U (N, n_u) commands every 1/command_rate_hz s, knots (len(path),) s when each point is
     reached): the points ``path`` (P, n_u) joined by synchronised trapezoidal moves (module
-    docstring), the last command at rest on the last point."""
+    docstring), the last command at rest on the last point; a pose-free stand's (``limits.space``):
+    the poses ``path`` (P, n_p) joined along pose lines, the commands their inverse kinematics at
+    ``td`` of ``model``."""
     path = np.asarray(path, float)
     T = np.zeros(len(path))
     prof = []
     for i in range(1, len(path)):
-        dur, v, a = move_duration(path[i] - path[i - 1], limits.rate, limits.accel)
+        dur, v, a = _move(path[i - 1], path[i], limits, model, td)
         T[i] = T[i - 1] + dur
         prof.append((dur, v, a))
     n = int(math.ceil(T[-1] * command_rate_hz - 1e-9)) + 1
@@ -90,18 +137,21 @@ def via_trajectory(path: np.ndarray, limits: Limits, command_rate_hz: float) -> 
         dur, v, a = prof[i]
         if len(k) and dur > 0:
             U[k] = path[i] + _covered(t[k] - T[i], dur, v, a)[:, None] * (path[i + 1] - path[i])
+    if limits.space is not None:
+        U = limits.space.controls(U, model, td)
     return U, T
 
 
-def tour_duration(path: np.ndarray, limits: Limits) -> float:
-    return float(sum(move_duration(b - a, limits.rate, limits.accel)[0] for a, b in zip(path[:-1], path[1:])))
+def tour_duration(path: np.ndarray, limits: Limits, model=None, td=None) -> float:
+    return float(sum(_move(a, b, limits, model, td)[0] for a, b in zip(path[:-1], path[1:])))
 
 
 @dataclass
 class ViaDesign:
     """A via-point sweep: ``vias`` (K, n_u) the distinct points in tour order, ``path`` (P, n_u) every
     point the commands pass through (neutral first and last; repeats and detours included), what
-    the design counted (candidates, detours through neutral, tours)."""
+    the design counted (candidates, detours through neutral, tours). A pose-free stand's points are
+    poses (n_p each; ``info['space']`` 'pose')."""
 
     vias: np.ndarray
     path: np.ndarray
@@ -109,39 +159,60 @@ class ViaDesign:
 
 
 def _candidates(spec: PlatformSpec, limits: Limits, n: int, rng: np.random.Generator, model, td) -> tuple:
-    lo, hi = limits.lower, limits.upper
-    U_out, P_out, drawn = [], [], 0
+    """(U (n, n_u), P (n, n_p), drawn, points (n, n_u or n_p) in the plan's space: the controls, or a
+    pose-free stand's poses drawn)."""
+    space = limits.space
+    lo, hi = (limits.lower, limits.upper) if space is None else (space.lower, space.upper)
+    dim = len(lo)
+    U_out, P_out, X_out, drawn = [], [], [], 0
     while sum(len(u) for u in U_out) < n:
         if drawn > 50 * n:
-            raise NotIdentifiable(f"{spec.name}: fewer than {n} random commands inside the strokes less the margin "
-                                  "are reachable; try a smaller --margin")
+            raise NotIdentifiable(f"{spec.name}: fewer than {n} random " + ("commands inside the strokes" if space is None
+                                  else "poses inside the pose box") + " less the margin are reachable; try a smaller --margin")
         k = max(2 * n, 64)
         face = rng.uniform(size=k) < FACE_SHARE
-        x = np.where(face[:, None], rng.beta(FACE_BETA, FACE_BETA, (k, spec.n_u)), rng.uniform(size=(k, spec.n_u)))
-        U = lo + x * (hi - lo)
+        x = np.where(face[:, None], rng.beta(FACE_BETA, FACE_BETA, (k, dim)), rng.uniform(size=(k, dim)))
+        X = lo + x * (hi - lo)
         drawn += k
-        ok, P = feasible(spec, U, td, model)
+        if space is None:
+            U = X
+            ok, P = feasible(spec, U, td, model)
+        else:  # a pose-free stand: the poses' inverse kinematics, inside the stroke box and reachable
+            U = space.controls(X, model, td)
+            inside = np.all(np.isfinite(U), axis=1)
+            inside[inside] = np.all((U[inside] >= limits.lower) & (U[inside] <= limits.upper), axis=1)
+            ok = np.zeros(k, bool)
+            P = np.full((k, spec.n_p), np.nan)
+            if inside.any():
+                ok[inside], P[inside] = feasible(spec, U[inside], td, model)
         U_out.append(U[ok])
         P_out.append(P[ok])
-    return np.vstack(U_out)[:n], np.vstack(P_out)[:n], drawn
+        X_out.append(X[ok])
+    return np.vstack(U_out)[:n], np.vstack(P_out)[:n], drawn, np.vstack(X_out)[:n]
 
 
-def _tour(spec: PlatformSpec, vias: np.ndarray, u0: np.ndarray) -> np.ndarray:
-    order = nearest_neighbour_order(vias, spec, u0)
+def _tour(spec: PlatformSpec, vias: np.ndarray, u0: np.ndarray, limits: Limits, model, td) -> np.ndarray:
+    """Home, the via points in nearest-neighbour order of their commands, home (points in the plan's
+    space)."""
+    if limits.space is None:
+        order = nearest_neighbour_order(vias, spec, u0)
+    else:
+        order = nearest_neighbour_order(limits.space.controls(vias, model, td), spec,
+                                        limits.space.controls(u0, model, td)[0])
     return np.vstack([u0[None], vias[order], u0[None]])
 
 
 def _repair(spec: PlatformSpec, path: np.ndarray, limits: Limits, command_rate_hz: float, model, td,
             u0: np.ndarray) -> tuple[np.ndarray, int]:
     """The path with every move whose commands leave the reachable workspace replaced by two moves
-    through the neutral controls; (path, detours). NotIdentifiable where a detour fails too."""
+    through the home point; (path, detours). NotIdentifiable where a detour fails too."""
     out, detours = [path[0]], 0
     for b in path[1:]:
         a = out[-1]
-        U, _ = via_trajectory(np.vstack([a, b]), limits, command_rate_hz)
+        U, _ = via_trajectory(np.vstack([a, b]), limits, command_rate_hz, model, td)
         ok, _ = feasible(spec, U, td, model)
         if not ok.all():
-            U1, _ = via_trajectory(np.vstack([a, u0, b]), limits, command_rate_hz)
+            U1, _ = via_trajectory(np.vstack([a, u0, b]), limits, command_rate_hz, model, td)
             ok1, _ = feasible(spec, U1, td, model)
             if not ok1.all():
                 raise NotIdentifiable(f"{spec.name}: a move between via points leaves the reachable workspace, "
@@ -164,8 +235,8 @@ def _fill(spec: PlatformSpec, tour: np.ndarray, limits: Limits, duration_s: floa
     out, t, i = [u0], 0.0, 0
     while True:
         p = pts[order[i % len(order)]]
-        step = move_duration(p - out[-1], limits.rate, limits.accel)[0]
-        back = move_duration(u0 - p, limits.rate, limits.accel)[0]
+        step = _move(out[-1], p, limits, model, td)[0]
+        back = _move(p, u0, limits, model, td)[0]
         if t + step + back > duration_s:
             break
         out.append(p)
@@ -174,7 +245,7 @@ def _fill(spec: PlatformSpec, tour: np.ndarray, limits: Limits, duration_s: floa
     while True:
         last, detours = _repair(spec, np.vstack([out[-1], u0]), limits, command_rate_hz, model, td, u0)
         path = np.vstack(out[:-1] + list(last))
-        if tour_duration(path, limits) <= duration_s or len(out) <= 2:
+        if tour_duration(path, limits, model, td) <= duration_s or len(out) <= 2:
             return path, i / max(k, 1), detours
         out.pop()
         i -= 1
@@ -209,15 +280,20 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
     td = spec.nominal_td() if td is None else np.asarray(td, float)
     if not (duration_s > 0 and math.isfinite(duration_s)):
         raise BadInput(f"duration_s: must be a positive number of seconds, got {duration_s:g}")
-    u0 = home_controls(spec, limits)
+    u0 = home_controls(spec, limits) if limits.space is None else limits.space.home  # in the plan's space
     n_cand = max(MIN_CANDIDATES, CANDIDATES_PER_VIA * MAX_VIAS)
-    U_c, P_c, drawn = _candidates(spec, limits, n_cand, rng, model, td)
-    near = U_c[np.argsort([move_duration(u - u0, limits.rate, limits.accel)[0] for u in U_c])[:MIN_VIAS]]
-    shortest = _tour(spec, near, u0)
-    if tour_duration(shortest, limits) > duration_s:  # not even the candidates nearest neutral fit
+    U_c, P_c, drawn, X_c = _candidates(spec, limits, n_cand, rng, model, td)
+    if limits.space is None:
+        near = X_c[np.argsort([move_duration(u - u0, limits.rate, limits.accel)[0] for u in U_c])[:MIN_VIAS]]
+    else:  # by the commands' largest share of their strokes (the pose moves' own durations cost more)
+        span = limits.upper - limits.lower
+        home_u = limits.space.controls(u0, model, td)[0]
+        near = X_c[np.argsort(np.max(np.abs(U_c - home_u) / np.where(span > 0, span, 1.0), axis=1))[:MIN_VIAS]]
+    shortest = _tour(spec, near, u0, limits, model, td)
+    if tour_duration(shortest, limits, model, td) > duration_s:  # not even the candidates nearest neutral fit
         raise NotIdentifiable(f"{spec.name}: a sweep through {MIN_VIAS} via points and back takes at least "
-                              f"{tour_duration(shortest, limits):.1f} s within the rate and acceleration limits, over "
-                              f"the {duration_s:g} s session; a longer session")
+                              f"{tour_duration(shortest, limits, model, td):.1f} s within the rate and acceleration "
+                              f"limits, over the {duration_s:g} s session; a longer session")
     if d_optimal_choice:  # the D-optimal set of MAX_VIAS; a shorter sweep takes a D-optimal subset of it
         ranked, J_ranked = _ranked(spec, U_c, P_c, markers, td, model)
     else:
@@ -225,18 +301,19 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
 
     def choose(k: int) -> np.ndarray:
         if not d_optimal_choice or k == MAX_VIAS:
-            return U_c[ranked[:k]]
-        return U_c[ranked[d_optimal(J_ranked, k)]]
+            return X_c[ranked[:k]]
+        return X_c[ranked[d_optimal(J_ranked, k)]]
 
     def fits(k: int) -> tuple[bool, np.ndarray, int]:
-        path, detours = _repair(spec, _tour(spec, choose(k), u0), limits, command_rate_hz, model, td, u0)
-        return tour_duration(path, limits) <= duration_s, path, detours
+        path, detours = _repair(spec, _tour(spec, choose(k), u0, limits, model, td), limits, command_rate_hz, model,
+                                td, u0)
+        return tour_duration(path, limits, model, td) <= duration_s, path, detours
 
     ok, best, detours = fits(MIN_VIAS)
     if not ok:
         raise NotIdentifiable(f"{spec.name}: a sweep through {MIN_VIAS} via points and back takes "
-                              f"{tour_duration(best, limits):.1f} s within the rate and acceleration limits, over the "
-                              f"{duration_s:g} s session; a longer session")
+                              f"{tour_duration(best, limits, model, td):.1f} s within the rate and acceleration limits, "
+                              f"over the {duration_s:g} s session; a longer session")
     lo_k, hi_k = MIN_VIAS, MAX_VIAS + 1
     while hi_k - lo_k > 1:  # the most via points whose tour fits (its duration grows with them, nearly monotone)
         mid = (lo_k + hi_k) // 2
@@ -249,11 +326,12 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
     if lo_k == MAX_VIAS:  # a longer session goes back and forth over the tour
         path, tours, back = _fill(spec, best, limits, duration_s, command_rate_hz, model, td, u0)
         detours = int(round(detours * tours)) + back
-    U, _ = via_trajectory(path, limits, command_rate_hz)
+    U, _ = via_trajectory(path, limits, command_rate_hz, model, td)
     bad = limit_violations(U, command_rate_hz, limits)
     if bad["box"] or bad["rate"] or bad["accel"]:  # the profile keeps them by construction: a bug if not
         raise NotIdentifiable(f"{spec.name}: the via-point sweep breaks its limits ({bad})")
     vias = best[1:-1][np.any(best[1:-1] != u0, axis=1)]
     return ViaDesign(vias, path, {"candidates": int(len(U_c)), "candidates_drawn": int(drawn),
                                   "via_points": int(len(vias)), "tours": round(float(tours), 3), "detours": int(detours),
-                                  "choice": "d_optimal" if d_optimal_choice else "random"})
+                                  "choice": "d_optimal" if d_optimal_choice else "random",
+                                  **({} if limits.space is None else {"space": "pose"})})

@@ -411,3 +411,33 @@ def test_a_plate_on_cables_is_calibrated_from_its_stream(tmp_path):
     pred = predict_markers(cal, sim.commands)[0]
     truth = np.sqrt(np.nanmean(np.sum((pred - sim.settled_markers) ** 2, axis=2)))
     assert truth < 0.05e-3 < cal.rms_before
+
+
+@pytest.mark.parametrize("family", ["via", "fourier"])
+def test_motion_plans_of_a_pose_free_stand_are_drawn_in_pose(family):
+    # plan --motion: via points drawn as poses and joined along pose lines, or the Fourier series per
+    # pose coordinate; every command is the inverse kinematics of a pose, within the drives' limits,
+    # and the plate travels its box (before: drawn per cable, 'fewer than 720 random commands inside
+    # the strokes less the margin are reachable')
+    from platkit.calibrate import excitation as ex
+    from platkit.calibrate import sweeps as sw
+    from platkit.calibrate import trajectories as tr
+    from platkit.calibrate.plan import default_marker_layout
+    from tests.unit.test_plan_excitation import check_every_command
+
+    spec = point_stand()  # a closed-form inverse: the lines' commands in one batch each
+    limits = tr.drive_limits(spec, np.full(4, 0.2), np.full(4, 0.4), 0.1)
+    markers = default_marker_layout(spec, 5, np.random.default_rng(0))
+    common = dict(command_rate_hz=20.0, mocap_rate_hz=100.0, sigma_m=1e-4, markers=markers,
+                  rng=np.random.default_rng(1), duration_s=40.0, target_m=None)
+    if family == "via":
+        plan = sw.plan_sweep(spec, limits, seen=1.0, **common)
+    else:
+        plan = ex.plan_excitation(spec, limits, period_s=20.0, harmonics=3, evaluations=5, **common)
+    U = plan.controls
+    check_every_command(spec, U, limits)
+    fb = PlatformModel(spec).forward_batch(U)
+    assert np.max(np.abs(fb.misfit)) < 1e-9
+    lo, hi = spec.coordinate_bounds()
+    assert np.all(np.ptp(fb.p, axis=0) > 0.25 * (hi - lo))
+    assert plan.report["limits"]["source"]["space"].startswith("pose")
