@@ -112,6 +112,18 @@ def payload_option(payload: tuple[Payload, ...]) -> list[dict]:
     return [{"link": p.link, "mass_kg": p.mass, "com_m": list(p.com)} for p in payload]
 
 
+def _link_frame(model, link: str) -> int | None:
+    """Pinocchio's frame index of the link ``link`` (a BODY frame), or None where the URDF has no
+    such link. A link is looked up as a body: a URDF may give a joint and a link one name (Unitree's
+    Z1 arm: the fixed joint ``gripperStator`` and its child link ``gripperStator``), and pinocchio
+    then holds two frames of that name."""
+    import pinocchio as pin
+
+    if model.existFrame(link, pin.FrameType.BODY):
+        return int(model.getFrameId(link, pin.FrameType.BODY))
+    return None
+
+
 @dataclass
 class Loads:
     """Gravity loads at N configurations over the tree's joints (``TreeLoads.joints`` order):
@@ -197,12 +209,13 @@ class TreeLoads:
         for j in tree.joints.values():
             reach.setdefault(j.parent, []).append(np.asarray(j.origin, float)[:3, 3])
         for link in tree.links:
-            if not model.existFrame(link):
+            fid = _link_frame(model, link)
+            if fid is None:
                 continue
             ends = reach.get(link, [])
             middle = 0.5 * np.mean(ends, axis=0) if ends else np.zeros(3)
             mass = max(PRIOR_KG_PER_M * float(np.mean([np.linalg.norm(e) for e in ends])) if ends else 0.0, PRIOR_MIN_KG)
-            frame = model.frames[model.getFrameId(link)]
+            frame = model.frames[fid]
             jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
             if jid == 0:
                 continue
@@ -213,11 +226,12 @@ class TreeLoads:
     def _add_payload(self, model, payload: Payload) -> None:
         import pinocchio as pin
 
-        if not model.existFrame(payload.link):
+        fid = _link_frame(model, payload.link)
+        if fid is None:
             raise BadInput(f"payload: link {payload.link!r} is not in {self.path}")
         if not (np.isfinite(payload.mass) and 0 <= payload.mass <= MAX_LINK_MASS):
             raise BadInput(f"payload: mass {payload.mass} kg must lie in [0, {MAX_LINK_MASS:g}] kg")
-        frame = model.frames[model.getFrameId(payload.link)]
+        frame = model.frames[fid]
         body = pin.Inertia(float(payload.mass), np.asarray(payload.com, float), np.zeros((3, 3)))
         jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
         if jid == 0:
@@ -315,9 +329,9 @@ class TreeLoads:
         """(origin (N, 3), rotation (N, 3, 3)): ``link``'s frame in the root frame at ``Q`` (N, J)."""
         import pinocchio as pin
 
-        if not self.model.existFrame(link):
+        fid = _link_frame(self.model, link)
+        if fid is None:
             raise BadInput(f"tree loads: link {link!r} is not in {self.path}")
-        fid = self.model.getFrameId(link)
         Q = np.atleast_2d(np.asarray(Q, float))
         origin, rotation = np.zeros((len(Q), 3)), np.zeros((len(Q), 3, 3))
         for k, q in enumerate(Q):
@@ -361,7 +375,7 @@ class TreeLoads:
         """(J,) the payloads' mass on each body (kg)."""
         out = np.zeros(len(self.joints))
         for p in self.payloads:
-            frame = self.model.frames[self.model.getFrameId(p.link)]
+            frame = self.model.frames[_link_frame(self.model, p.link)]
             jid = frame.parentJoint if hasattr(frame, "parentJoint") else frame.parent
             if jid > 0:
                 out[jid - 1] += p.mass

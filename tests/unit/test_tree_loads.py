@@ -194,3 +194,24 @@ def test_each_joints_slope_is_its_torques_derivative_in_its_own_value(tmp_path):
         down[:, j] -= h
         assert np.allclose(S[:, j], (T.loads(up).torque[:, j] - T.loads(down).torque[:, j]) / (2 * h), atol=1e-6)
     assert np.abs(S).max() > 1.0
+
+
+def test_a_link_named_as_a_joint_is_found_as_the_link(tmp_path):
+    """Unitree's Z1 arm (example-robot-data's b1-z1.urdf) names a fixed joint and its child link
+    both 'gripperStator': pinocchio then holds two frames of that name, and the link is meant."""
+    text = _tree(tmp_path).read_text().replace(
+        "</robot>", '<link name="tool"/><joint name="tool" type="fixed"><parent link="l_lo"/><child link="tool"/>'
+                    '<origin xyz="0.2 0 0"/></joint></robot>')
+    path = tmp_path / "named.urdf"
+    path.write_text(text)
+    T = TreeLoads(path, payload=Payload("tool", 1.5, (0.0, 0.0, 0.1)))
+    Q = T.configuration(NAMES, CONFIGS)
+    origin, _ = T.link_placements(Q, "tool")
+    lo, lo_R = T.link_placements(Q, "l_lo")
+    assert np.allclose(origin, lo + lo_R @ np.array([0.2, 0.0, 0.0]))
+    assert T._payload_mass()[T.index["l2"]] == 1.5
+    bare = tmp_path / "named_bare.urdf"
+    bare.write_text(_tree(tmp_path, masses=False).read_text().replace(
+        "</robot>", '<link name="tool"/><joint name="tool" type="fixed"><parent link="l_lo"/><child link="tool"/>'
+                    '<origin xyz="0.2 0 0"/></joint></robot>'))
+    assert TreeLoads(bare, prior=True).prior
