@@ -50,13 +50,16 @@ from platkit.calibrate.plan_information import marker_link_indices as marker_lin
 from platkit.calibrate.plan_information import marker_links as marker_links
 from platkit.calibrate.plan_information import pin_held as pin_held
 from platkit.calibrate.plan_information import plan_uncertainty as plan_uncertainty
+from platkit.calibrate.plan_information import planning_bounds as planning_bounds
 from platkit.calibrate.plan_information import stand_length_scale as stand_length_scale
+from platkit.calibrate.plan_information import unbounded_controls as unbounded_controls
 from platkit.errors import BadInput, BadSession, NotIdentifiable
 from platkit.io.session_checks import check_controls
 from platkit.io.table import read_table
 from platkit.kinematics import PlatformModel
 from platkit.kinematics.sampling import controls_of_poses, pose_box, sample_poses
 from platkit.model import PlatformSpec, controls_from_si, length_scale
+from platkit.notices import warn
 
 
 @dataclass
@@ -73,11 +76,14 @@ class Plan:
 
 
 def control_box(spec: PlatformSpec, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """The control box [lo, hi] (n_u,) shrunk by ``margin`` of each stroke at both ends."""
-    lo, hi = spec.control_bounds()
-    if not np.all(np.isfinite(lo) & np.isfinite(hi)):
-        bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b))]
-        raise BadInput(f"{spec.name}: controls {bad} have no finite stroke; a grid needs one")
+    """The control box [lo, hi] (n_u,) shrunk by ``margin`` of each stroke at both ends, the
+    strokes :func:`planning_bounds`'s (a control without a finite stroke: one turn either way, said
+    as a warning)."""
+    lo, hi = planning_bounds(spec)
+    unbounded = unbounded_controls(spec)
+    if unbounded:
+        warn(f"{spec.name}: {', '.join(unbounded)}: no finite stroke in the description; planned over one turn "
+             "either way of neutral")
     span = hi - lo
     return lo + margin * span, hi - margin * span
 
@@ -271,10 +277,7 @@ def reference_poses_for(spec: PlatformSpec, model: PlatformModel | None = None) 
     hit = _REFERENCE_SAMPLED.get(id(spec))
     if hit is not None and hit[0] is spec:
         return hit[1], hit[2]
-    u0 = spec.neutral_u()
-    half = np.array([np.pi if c.unit == "rad" else 1.0 for c in spec.controls])
-    lo = np.where(np.isfinite(lo), lo, u0 - half)
-    hi = np.where(np.isfinite(hi), hi, u0 + half)
+    lo, hi = planning_bounds(spec)
     rng = np.random.default_rng(REFERENCE_SEED)
     U = lo + (0.1 + 0.8 * rng.uniform(size=(2 * REFERENCE_POSES, spec.n_u))) * (hi - lo)
     ok, P = feasible(spec, U, model=model)

@@ -81,6 +81,26 @@ def idle_controls(spec: PlatformSpec) -> np.ndarray:
     return ~moving
 
 
+def planning_bounds(spec: PlatformSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The strokes [lo, hi] (n_u,) a plan draws from: the controls' own, but a control without a
+    finite stroke (a URDF's continuous joint, a revolute joint whose limits are left out) over one
+    turn either way of its neutral (a control in radians), or +- 1 of its unit (any other)."""
+    lo, hi = spec.control_bounds()
+    unbounded = ~(np.isfinite(lo) & np.isfinite(hi) & (hi > lo))
+    if not np.any(unbounded):
+        return lo, hi
+    u0 = spec.neutral_u()
+    half = np.array([np.pi if c.unit == "rad" else 1.0 for c in spec.controls])
+    return np.where(unbounded, u0 - half, lo), np.where(unbounded, u0 + half, hi)
+
+
+def unbounded_controls(spec: PlatformSpec) -> list[str]:
+    """The names of the controls without a finite stroke, which :func:`planning_bounds` plans over
+    one turn either way."""
+    lo, hi = spec.control_bounds()
+    return [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and b > a)]
+
+
 def homed_at_middle(u0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """(n_u,) bool: the controls whose neutral ``u0`` lies on or outside their box (lower, upper)
     (a URDF joint whose zero is a limit: an elbow), which a motion takes about the box's middle
@@ -96,12 +116,11 @@ def held_at_home(spec: PlatformSpec, moving: np.ndarray, margin: float = 0.1) ->
     moving = np.asarray(moving, bool)
     if moving.shape != (spec.n_u,):
         raise BadInput(f"moving: expected {spec.n_u} flags (one per control), got {moving.shape}")
-    lo, hi = spec.control_bounds()
+    lo, hi = planning_bounds(spec)
     span = hi - lo
     lower, upper = lo + margin * span, hi - margin * span
     u0 = spec.neutral_u()
-    with np.errstate(invalid="ignore"):
-        home = np.where(homed_at_middle(u0, lower, upper), 0.5 * (lower + upper), u0)
+    home = np.where(homed_at_middle(u0, lower, upper), 0.5 * (lower + upper), u0)
     return ~moving, home
 
 

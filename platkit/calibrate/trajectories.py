@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from platkit.calibrate.plan import feasible, held_at_home, homed_at_middle, idle_controls
+from platkit.calibrate.plan import feasible, held_at_home, homed_at_middle, idle_controls, planning_bounds, unbounded_controls
 from platkit.errors import BadInput, NotIdentifiable
 from platkit.kinematics import PlatformModel
 from platkit.kinematics.sampling import nominal_inverse, pose_box
@@ -85,7 +85,7 @@ def home_controls(spec: PlatformSpec, limits: Limits) -> np.ndarray:
 def _declared_rates(spec: PlatformSpec) -> np.ndarray | None:
     """The controls' rate limits the stand's description declares, in the controls' units per s:
     a URDF's ``<limit velocity>`` (SI: rad/s, m/s) of the chain's movable joints, one per control
-    in order; None where any is missing."""
+    in order, NaN where a joint declares none; None where the description is no URDF's."""
     path, chain = spec.extras.get("urdf_path"), spec.extras.get("chain")
     if not path or chain is None:
         return None
@@ -106,12 +106,13 @@ def _declared_rates(spec: PlatformSpec) -> np.ndarray | None:
                 continue
     per_unit = {"deg": 180.0 / np.pi}  # the URDF's rad/s in a control counted in degrees
     out = np.array([rates.get(n, np.nan) * per_unit.get(c.unit, 1.0) for n, c in zip(movable, spec.controls)], float)
-    return out if np.all(np.isfinite(out) & (out > 0)) else None
+    return np.where(np.isfinite(out) & (out > 0), out, np.nan)
 
 
 def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.ndarray | None,
                  margin: float = 0.1, moving: np.ndarray | None = None) -> Limits:
-    """The limits of a plan: the strokes less ``margin`` of each at both ends, and the rate and
+    """The limits of a plan: the strokes (:func:`platkit.calibrate.plan.planning_bounds`: a control
+    without a finite stroke over one turn either way) less ``margin`` of each at both ends, and the rate and
     acceleration limits given (internal units, one number or one per control), else those the
     description declares (a URDF's joint ``velocity``); BadInput naming what is missing.
 
@@ -122,21 +123,23 @@ def drive_limits(spec: PlatformSpec, max_rate: np.ndarray | None, max_accel: np.
     point. ``moving`` (n_u,) bool, where given: the controls the session moves; every other is held
     at its home (:func:`platkit.calibrate.plan.held_at_home`: neutral, or the box's middle as
     above), its box that point (``source['held']`` names them)."""
-    lo, hi = spec.control_bounds()
-    if not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
-        bad = [c.name for c, a, b in zip(spec.controls, lo, hi) if not (np.isfinite(a) and np.isfinite(b) and b > a)]
-        raise BadInput(f"{spec.name}: controls {', '.join(bad)} have no finite stroke; an excitation trajectory "
-                       "needs one for every control")
+    lo, hi = planning_bounds(spec)
     if not 0 <= margin < 0.5:
         raise BadInput(f"margin: must be in [0, 0.5), got {margin}")
     span = hi - lo
     source = {}
+    unbounded = unbounded_controls(spec)
+    if unbounded:
+        source["stroke"] = ("one turn either way of neutral for " + ", ".join(unbounded)
+                            + " (no finite stroke in the description)")
     rate = _per_control(spec, max_rate, "max_rate")
     if rate is None:
         rate = _declared_rates(spec)
-        if rate is None:
-            raise BadInput(f"max_rate: the {spec.name} stand's description declares no rate limit for its controls "
-                           f"({', '.join(spec.control_names)}); give the drives' limit (one number, or one per control)")
+        if rate is None or not np.all(np.isfinite(rate)):
+            missing = spec.control_names if rate is None else [n for n, r in zip(spec.control_names, rate)
+                                                               if not np.isfinite(r)]
+            raise BadInput(f"max_rate: the {spec.name} stand's description declares no rate limit for "
+                           f"{', '.join(missing)}; give the drives' limit (one number, or one per control)")
         source["rate"] = "description (URDF joint velocity)"
     else:
         source["rate"] = "given (max_rate)"

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
+from platkit.calibrate.plan_information import planning_bounds
 from platkit.errors import BadInput
 from platkit.model import PlatformSpec
 from platkit.simulate.actuator import ActuatorResponse
@@ -104,8 +105,8 @@ def draw_nuisances(spec: PlatformSpec, rng: np.random.Generator, *, hold_s: floa
     :data:`RANGES`. ``overshoot``: damping drawn below 1 (the drives overshoot their commands);
     ``coloured``: False leaves only white noise."""
     n = spec.n_u
-    lo, hi = spec.control_bounds()
-    span = np.where(np.isfinite(hi - lo) & (hi > lo), hi - lo, 1.0)
+    lo, hi = planning_bounds(spec)  # a control without a finite stroke: one turn either way, as it is planned
+    span = hi - lo
     # every draw is made, fixed or not, so fixing one field leaves the others as they were
     draws = {k: rng.uniform(*RANGES[k], size=n) for k in ("tau_s", "stroke_time_s", "accel_time_s")}
     draws["damping"] = rng.uniform(*RANGES["damping_overshoot" if overshoot else "damping"], size=n)
