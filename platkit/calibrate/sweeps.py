@@ -153,7 +153,7 @@ def plan_sweep(spec: PlatformSpec, limits: Limits, *, command_rate_hz: float, mo
             length = None
     if not chosen.pred["identifiable"]:
         raise NotIdentifiable(f"{spec.name}: the via-point sweep does not identify the parameters (the information "
-                              "stays singular); a longer session")
+                              "stays singular); try a longer session (--duration-s)")
     design, U, actual, info, n_fit, pred = (chosen.design, chosen.U, chosen.duration_s, chosen.info, chosen.n_fit,
                                             chosen.pred)
     d_opt, rand = (chosen, other) if design.info["choice"] == "d_optimal" else (other, chosen)

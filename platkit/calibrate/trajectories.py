@@ -351,7 +351,7 @@ def trajectory(spec: PlatformSpec, family: FourierFamily, coef: np.ndarray, limi
         if ramp > min(family.period_s, 0.5 * end):
             raise NotIdentifiable(f"{spec.name}: the session cannot rise to its excitation and back within the rate "
                                   f"and acceleration limits in {duration_s:g} s (ramps up to {min(family.period_s, 0.5 * end):g} "
-                                  "s each); a longer session")
+                                  "s each); try a longer session (--duration-s)")
         U = scaler.commands(_window(t, end, ramp)[:, None] * raw / peak * A)
         bad = limit_violations(U, command_rate_hz, limits)
         if not (bad["box"] or bad["rate"] or bad["accel"]):

@@ -293,7 +293,8 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
     if tour_duration(shortest, limits, model, td) > duration_s:  # not even the candidates nearest neutral fit
         raise NotIdentifiable(f"{spec.name}: a sweep through {MIN_VIAS} via points and back takes at least "
                               f"{tour_duration(shortest, limits, model, td):.1f} s within the rate and acceleration "
-                              f"limits, over the {duration_s:g} s session; a longer session")
+                              f"limits, over the {duration_s:g} s session; try a longer session (--duration-s "
+                              f"{math.ceil(tour_duration(shortest, limits, model, td)):g} or more)")
     if d_optimal_choice:  # the D-optimal set of MAX_VIAS; a shorter sweep takes a D-optimal subset of it
         ranked, J_ranked = _ranked(spec, U_c, P_c, markers, td, model)
     else:
@@ -313,7 +314,8 @@ def design_via(spec: PlatformSpec, limits: Limits, markers: np.ndarray, duration
     if not ok:
         raise NotIdentifiable(f"{spec.name}: a sweep through {MIN_VIAS} via points and back takes "
                               f"{tour_duration(best, limits, model, td):.1f} s within the rate and acceleration limits, "
-                              f"over the {duration_s:g} s session; a longer session")
+                              f"over the {duration_s:g} s session; try a longer session (--duration-s "
+                              f"{math.ceil(tour_duration(best, limits, model, td)):g} or more)")
     lo_k, hi_k = MIN_VIAS, MAX_VIAS + 1
     while hi_k - lo_k > 1:  # the most via points whose tour fits (its duration grows with them, nearly monotone)
         mid = (lo_k + hi_k) // 2
