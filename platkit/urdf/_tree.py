@@ -112,6 +112,11 @@ def serial_chain(tree: UrdfTree, base_link: str | None = None, moving_link: str 
             )
         moving_link = leaves[0]
     if moving_link not in tree.links:
+        several = [n.strip() for n in moving_link.split(",")] if "," in moving_link else []
+        if several and all(n in tree.links for n in several):
+            raise BadInput(f"{path}: moving_link {moving_link!r} is not a link of the URDF; several tracked links (a "
+                           "tree) are a mapping from each marker (or each link) to its link, e.g. moving_link="
+                           + repr({n: n for n in several}) + " (the command line's --moving-link a,b is read so)")
         raise BadInput(f"{path}: moving_link {moving_link!r} is not a link of the URDF")
     if moving_link == base:
         raise BadInput(f"{path}: moving_link and base_link are the same link {base!r}")

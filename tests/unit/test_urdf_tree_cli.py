@@ -149,3 +149,12 @@ def test_simulate_a_tree_then_calibrate_it(tmp_path, capsys):
     truth = yaml.safe_load((folder / "truth.yaml").read_text())
     rms = yaml.safe_load((out / "calibration.yaml").read_text())["residual"]["rms_after"]
     assert rms < truth["marker_noise_m"] * 1e3  # below one sample's noise per axis: the settled poses average many
+
+
+def test_a_comma_list_of_links_from_python_says_a_tree_is_a_mapping():
+    """get_platform(..., moving_link='a,b') (the command line's form, given from Python) is one
+    line saying how a tree's tracked links are given, not only that 'a,b' is no link."""
+    from platkit.errors import BadInput
+
+    with pytest.raises(BadInput, match=r"a mapping .*moving_link=\{'right_tcp': 'right_tcp', 'left_tcp': 'left_tcp'\}"):
+        get_platform("urdf", URDF, moving_link="right_tcp, left_tcp")
