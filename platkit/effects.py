@@ -207,6 +207,34 @@ def stored_number(where: dict[str, Any], key: str, effect: str, positive: bool =
     return float(v)
 
 
+def seen_controls(spec: PlatformSpec) -> np.ndarray:
+    """(n_u,) bool: the controls that move a tracked link (structurally: the joints on a tracked
+    link's path and the masters of mimic joints there). Every control on a stand of one moving
+    frame; on a tree, not the joints no marker moves (a head, fingers, a leg that is not tracked)."""
+    if spec.link_poses is None or len(spec.tracked_links) < 2:
+        return np.ones(spec.n_u, bool)
+    import casadi as ca
+
+    u, t = ca.SX.sym("u", spec.n_u), ca.SX.sym("td", spec.n_td)
+    q, X = spec.link_poses(u, t)
+    return np.array(ca.which_depends(ca.vertcat(q, X), u, 1, False), bool)
+
+
+def planted(spec: PlatformSpec, rng: np.random.Generator, drawn: int, options: list[int], effect: str) -> int:
+    """The option (an index into ``options``, each a control) a simulated hidden effect is planted
+    at: ``drawn`` as drawn, or, where its control moves no tracked link (:func:`seen_controls`),
+    one drawn again among the options whose control moves one, so that a simulated session's
+    hidden effect is one its markers can show; BadInput (naming the effect) where none does."""
+    seen = seen_controls(spec)
+    if seen[options[drawn]]:
+        return drawn
+    ok = [k for k, i in enumerate(options) if seen[i]]
+    if not ok:
+        raise BadInput(f"effect {effect}: none of the controls it may act on moves a tracked link of {spec.name} "
+                       f"({', '.join(spec.control_names[i] for i in sorted(set(options)))})")
+    return ok[int(rng.integers(len(ok)))]
+
+
 def control_size(spec: PlatformSpec, i: int, size: float | None, default: float) -> float:
     """A simulated size on control ``i`` in SI: a given ``size`` in mm for a length control (-> m),
     else in the control's own unit (:data:`CONTROL_SIZE_UNIT`).

@@ -13,6 +13,7 @@ from platkit.effects import (
     SizeHelp,
     actuator_where,
     control_size,
+    seen_controls,
     stored_actuator,
     stored_where,
 )
@@ -232,8 +233,7 @@ class Compliance(Effect):
             term = self.term(spec, None)
             j = int(np.argmax(np.max(np.abs(loads), axis=0)))
         else:
-            span = np.ptp(loads, axis=0)
-            j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+            j = _loaded_control(spec, loads, rng)
             term = self.term(spec, j)
         peak = float(np.max(np.abs(loads[:, j])))
         if not peak > 0:
@@ -247,10 +247,25 @@ class Compliance(Effect):
         if urdf_of(spec) is None:
             j, index, where = int(np.argmax(np.max(np.abs(loads), axis=0))), None, {"actuator": "all"}
         else:
-            span = np.ptp(loads, axis=0)
-            j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+            j = _loaded_control(spec, loads, rng)
             index, where = j, {"actuator": spec.control_names[j]}
         peak = float(np.max(np.abs(loads[:, j])))
         if not peak > 0:
             raise BadInput(f"effect compliance: the {spec.name} stand carries no load on its actuators")
         return CompliancePhysics(control_size(spec, j, size, 1.0) / peak, loads, start, index, spec.controls[j].unit, where)
+
+
+def _loaded_control(spec: PlatformSpec, loads: np.ndarray, rng: np.random.Generator) -> int:
+    """The joint a simulated compliance is planted at: drawn among those whose load varies over the
+    commands at least half as much as the most varied one's; where the joint drawn moves no tracked
+    link (a tree's head or untracked leg: no marker could show its deflection), drawn again the
+    same way among the joints that move one."""
+    span = np.ptp(loads, axis=0)
+    j = int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))
+    seen = seen_controls(spec)
+    if seen[j]:
+        return j
+    if not np.any(seen & (span > 0)):
+        raise BadInput(f"effect compliance: no joint of {spec.name} that moves a tracked link carries a varying load")
+    span = np.where(seen, span, 0.0)
+    return int(rng.choice(np.nonzero(span >= 0.5 * span.max())[0]))

@@ -13,6 +13,7 @@ from platkit.effects import (
     actuator_where,
     control_size,
     history,
+    planted,
     stored_actuator,
     stored_number,
     stored_where,
@@ -86,11 +87,11 @@ class Backlash(Effect):
         return self.term(i, {"actuator": name, "actuator_index": i, "unit": unit})
 
     def simulation_term(self, spec, size, rng, commands):
-        i = int(rng.integers(spec.n_u))
+        i = planted(spec, rng, int(rng.integers(spec.n_u)), list(range(spec.n_u)), self.name)
         return self.term(i, actuator_where(spec, i)), np.array([0.5 * control_size(spec, i, size, 1.0)])
 
     def physics(self, spec, size, rng, plan):
-        i = int(rng.integers(spec.n_u))
+        i = planted(spec, rng, int(rng.integers(spec.n_u)), list(range(spec.n_u)), self.name)
         return BacklashPhysics(i, spec.control_names[i], control_size(spec, i, size, 1.0), spec.controls[i].unit)
 
 
@@ -124,7 +125,7 @@ def _draw_cyclic(spec, size, rng, controls: np.ndarray) -> tuple[int, float, flo
                if np.ptp(controls[:, i]) > P / 2]
     if not options:
         raise BadInput(f"effect cyclic_error: no actuator of {spec.name} spans half of a known period")
-    i, P = options[int(rng.integers(len(options)))]
+    i, P = options[planted(spec, rng, int(rng.integers(len(options))), [i for i, _ in options], "cyclic_error")]
     return i, P, control_size(spec, i, size, 0.3), rng.uniform(0, 2 * np.pi)
 
 class CyclicError(Effect):
@@ -224,13 +225,13 @@ class ScaleNonlinearity(Effect):
         terms = self.candidates(spec, commands)
         if not terms:
             raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
-        t = terms[int(rng.integers(len(terms)))]
+        t = terms[planted(spec, rng, int(rng.integers(len(terms))), [t.index for t in terms], self.name)]
         return t, np.array([control_size(spec, t.index, size, 1.0), 0.0])
 
     def physics(self, spec, size, rng, plan):
         terms = [t for t in self.candidates(spec, PoseSet(spec.name, plan.commands, np.zeros((len(plan.commands), 0, 3)), []))]
         if not terms:
             raise BadInput(f"effect scale_nonlinearity: the commands use too little of {spec.name}'s strokes")
-        t = terms[int(rng.integers(len(terms)))]
+        t = terms[planted(spec, rng, int(rng.integers(len(terms))), [t.index for t in terms], self.name)]
         return ScalePhysics(t.index, t.where["actuator"], t.lower, t.upper, control_size(spec, t.index, size, 1.0), 0.0,
                             t.where["unit"])

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from platkit.effects import Effect, SizeHelp, history, stored_number, stored_where
+from platkit.effects import Effect, SizeHelp, history, planted, stored_number, stored_where
 from platkit.errors import BadInput
 from platkit.terms import ModelTerm
 from platkit_effects.physics import MarkerSlipPhysics, SlowActuator
@@ -53,7 +53,7 @@ class SettlingLag(Effect):
         return self.term(), np.array([0.003 if size is None else float(size)])
 
     def physics(self, spec, size, rng, plan):
-        i = int(rng.integers(spec.n_u))
+        i = planted(spec, rng, int(rng.integers(spec.n_u)), list(range(spec.n_u)), self.name)
         share = 0.5 if size is None else float(size)
         if not share > 0:
             raise BadInput("effect settling_lag: the slow actuator's time constant must be a positive share of the hold")

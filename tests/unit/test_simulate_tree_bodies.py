@@ -46,3 +46,44 @@ def test_a_negative_body_count_is_refused_in_one_line(tmp_path, capsys):
     assert main(BASE + ["--physics", "--rigid-bodies", "-1", "--out", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--rigid-bodies must be 0 or more, got -1" in err[0]
+
+
+class _Drawn:
+    """A generator whose first draws are given (the joint a hidden effect was first drawn at)."""
+
+    def __init__(self, first, rng):
+        self.first, self.rng = list(first), rng
+
+    def integers(self, *args, **kwargs):
+        return self.first.pop(0) if self.first else self.rng.integers(*args, **kwargs)
+
+    def choice(self, options, *args, **kwargs):
+        return self.first.pop(0) if self.first else self.rng.choice(options, *args, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self.rng, name)
+
+
+def test_a_simulated_hidden_effect_is_planted_where_a_marker_can_show_it():
+    """On a tree, a hidden effect drawn at a joint that moves no tracked link (the head) is drawn
+    again among the joints that move one: the markers could never show it (hq found a simulated
+    compliance at an untracked leg of Unitree's B1). Drawn at a seen joint, it stays there."""
+    from platkit.effects import planted, seen_controls
+    from platkit.plugins import effect_library, get_platform
+    from platkit.poses import PoseSet
+
+    spec = get_platform("urdf", URDF, moving_link={"right_tcp": "right_tcp", "left_tcp": "left_tcp"})
+    head = spec.control_names.index("head_yaw")
+    seen = seen_controls(spec)
+    assert not seen[head] and seen.sum() == spec.n_u - 1
+    rng = np.random.default_rng(26200)
+    arm = spec.control_names.index("right_2_joint")
+    assert planted(spec, rng, arm, list(range(spec.n_u)), "backlash") == arm
+    assert seen[planted(spec, rng, head, list(range(spec.n_u)), "backlash")]
+    library = effect_library()
+    U = np.random.default_rng(26200).uniform(-0.5, 0.5, (20, spec.n_u))
+    commands = PoseSet(spec.name, U, np.zeros((20, 0, 3)), [])
+    term, _ = library["backlash"].simulation_term(spec, None, _Drawn([head], rng), commands)
+    assert term.where["actuator"] != "head_yaw"
+    loads_head = library["compliance"].simulation_term(spec, None, _Drawn([head], rng), commands)[0]
+    assert loads_head.where["actuator"] != "head_yaw"
