@@ -30,7 +30,10 @@ def add_parser(sub):
 
 def parse_payload_args(values: list[str]) -> list[dict]:
     """``--payload`` values (LINK:KG[:X,Y,Z], or none) as session.yaml's payload list; BadInput naming the value."""
+    import math
+
     from platkit.errors import BadInput
+    from platkit.tree_loads import MAX_LINK_MASS
 
     if values == ["none"]:
         return []
@@ -47,6 +50,10 @@ def parse_payload_args(values: list[str]) -> list[dict]:
         except ValueError:
             raise BadInput(f"--payload {v!r}: give LINK:KG or LINK:KG:X,Y,Z (kg, m in the link's frame), or none "
                            "alone") from None
+        if not (math.isfinite(out[-1]["mass_kg"]) and 0 <= out[-1]["mass_kg"] <= MAX_LINK_MASS) or not all(
+                math.isfinite(c) for c in out[-1]["com_m"]):
+            raise BadInput(f"--payload {v!r}: the mass must lie in [0, {MAX_LINK_MASS:g}] kg and the centre of mass "
+                           "be finite")
     return out
 
 

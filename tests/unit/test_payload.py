@@ -132,5 +132,7 @@ def test_predict_payload_errors_and_warnings(tmp_path, capsys):
             str(tmp_path / "p.csv")]
     assert main([*args, "--payload", "tool"]) == 2
     assert "--payload 'tool': give LINK:KG or LINK:KG:X,Y,Z" in capsys.readouterr().err
+    assert main([*args, "--payload", "tool:-1"]) == 2  # named as the option given, not a stand option
+    assert "--payload 'tool:-1': the mass must lie in [0, 10000] kg" in capsys.readouterr().err
     assert main([*args, "--payload", "tool:1"]) == 2
     assert "--payload: the stewart stand of" in capsys.readouterr().err
