@@ -14,7 +14,7 @@ from platkit.calibrate.report import per_link_rms
 from platkit.diagnose.fitting import Diagnosis, Finding
 from platkit.diagnose.registered import registered_in_unit
 from platkit.io.atomic import atomic_output_dir
-from platkit.io.calibration import write_calibration_yaml
+from platkit.io.calibration import portable_descriptions, with_portable_descriptions, write_calibration_yaml
 from platkit.io.figures import png_base64 as _png
 from platkit.io.jsonout import strict
 from platkit.model import length_scale
@@ -254,11 +254,14 @@ def write_outputs(d: Diagnosis, out_dir: str | Path, with_html: bool = True) -> 
     all or none (:func:`platkit.io.atomic.atomic_output_dir`). calibration.yaml is
     ``d.calibration``, the stand's: recording artefacts left out (``d.fitted`` holds the model
     fitted to the data), its description copied beside it unless shipped
-    (:func:`platkit.io.calibration.write_calibration_yaml`). Returns the paths written."""
+    (:func:`platkit.io.calibration.write_calibration_yaml`), and diagnosis.json names it as
+    calibration.yaml does. Returns the paths written."""
     names = ["diagnosis.json", "calibration.yaml"] + (["report.html"] if with_html else [])
     with atomic_output_dir(out_dir) as tmp:
-        (tmp / "diagnosis.json").write_text(json.dumps(diagnosis_dict(d), indent=2) + "\n", encoding="utf-8")
-        write_calibration_yaml(d.calibration, tmp)  # with its description beside it: the folder travels
+        renamed = portable_descriptions(d.calibration, tmp)  # its description beside it: the folder travels
+        (tmp / "diagnosis.json").write_text(json.dumps(with_portable_descriptions(diagnosis_dict(d), renamed), indent=2)
+                                            + "\n", encoding="utf-8")
+        write_calibration_yaml(d.calibration, tmp, renamed)
         if with_html:
             (tmp / "report.html").write_text(report_html(d), encoding="utf-8")
     return [Path(out_dir) / n for n in names]

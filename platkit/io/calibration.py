@@ -240,7 +240,7 @@ DESCRIPTION_DIR = "description"
 SHIPPED = "shipped:"
 
 
-def write_calibration_yaml(cal: Calibration, folder: str | Path) -> Path:
+def write_calibration_yaml(cal: Calibration, folder: str | Path, renamed: dict[str, str] | None = None) -> Path:
     """Write ``folder/calibration.yaml`` so that the folder travels: moved, or sent to a colleague,
     it still predicts.
 
@@ -248,10 +248,12 @@ def write_calibration_yaml(cal: Calibration, folder: str | Path) -> Path:
     shipped with platkit is written ``shipped:<name>``; any other is copied into
     ``folder/description/`` and written relative to calibration.yaml (a URDF-route stand built
     from a YAML that names a URDF: the URDF, as the stand's options keep the YAML's choices).
+    ``renamed``: :func:`portable_descriptions` of ``cal`` into ``folder``, where already made.
     """
     folder = Path(folder)
     data = cal.to_dict()
-    renamed = _portable_descriptions(cal, folder)
+    if renamed is None:
+        renamed = portable_descriptions(cal, folder)
     if data.get("description") in renamed:
         data["description"] = renamed[data["description"]]
     for term in data.get("terms") or []:
@@ -263,7 +265,19 @@ def write_calibration_yaml(cal: Calibration, folder: str | Path) -> Path:
     return path
 
 
-def _portable_descriptions(cal: Calibration, folder: Path) -> dict[str, str]:
+def with_portable_descriptions(data, renamed: dict[str, str]):
+    """``data`` (dicts and lists, e.g. diagnosis.json's) with every ``description`` value that
+    ``renamed`` holds written as calibration.yaml writes it (relative to the results folder, or
+    ``shipped:<name>``), so that a file beside calibration.yaml names the description it does."""
+    if isinstance(data, dict):
+        return {k: (renamed[v] if k == "description" and isinstance(v, str) and v in renamed
+                    else with_portable_descriptions(v, renamed)) for k, v in data.items()}
+    if isinstance(data, list):
+        return [with_portable_descriptions(v, renamed) for v in data]
+    return data
+
+
+def portable_descriptions(cal: Calibration, folder: Path) -> dict[str, str]:
     """{description as the calibration names it: as calibration.yaml writes it}, copying what
     must travel into ``folder/description/``."""
     if not cal.description:

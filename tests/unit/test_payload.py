@@ -90,8 +90,13 @@ def test_the_payload_is_predicted_through_the_compliance_diagnosis_fitted_withou
     assert main(["calibrate", str(train), "--out", str(tmp_path / "cal"), "--quiet", "--no-report"]) == 0
     assert main(["diagnose", str(train), "--calibration", str(tmp_path / "cal" / "calibration.yaml"), "--heldout",
                  str(test), "--out", str(tmp_path / "diag"), "--quiet"]) == 0
-    assert [f["effect"] for f in json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["findings"]] \
-        == ["compliance"]
+    findings = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["findings"]
+    assert [f["effect"] for f in findings] == ["compliance"]
+    # diagnosis.json names the description as calibration.yaml beside it does (relative to the
+    # folder, which travels), not as the calibration it started from was read
+    assert findings[0]["where"]["description"] == yaml.safe_load(
+        (tmp_path / "diag" / "calibration.yaml").read_text())["description"]
+    assert (tmp_path / "diag" / findings[0]["where"]["description"]).is_file()
     cal = tmp_path / "diag" / "calibration.yaml"
     # a session carrying another payload than the calibration's stand is refused, in one line
     assert main(["diagnose", str(later), "--calibration", str(cal), "--out", str(tmp_path / "no"), "--quiet"]) == 2
