@@ -233,6 +233,11 @@ def _calibrate_paper(poses, spec, free, fit_base, max_evaluations, progress, pla
     if poses.n_markers < 3:  # the option cannot serve the session: bad input, before any work
         raise BadInput(f"{poses.source or 'poses'}: --method paper needs at least 3 markers (its marker frame, "
                        f"step 1; it reads no rigid bodies), the session has {poses.n_markers}")
+    links = sorted({poses.marker_links.get(n, "") for n in poses.marker_names}) if poses.marker_links else []
+    if len(links) > 1:  # step 1's marker frame is one rigid body: markers on several links are none
+        raise BadInput(f"{poses.source or 'poses'}: --method paper fits one rigid frame to every marker (step 1), but "
+                       f"the markers of this tree session ride on {len(links)} links ({', '.join(links)}); --method "
+                       "lsq (the default) fits every branch in one fit")
     full = np.isfinite(poses.markers).all(axis=(1, 2))
     if full.sum() < 3:
         raise BadInput(f"{poses.source or 'poses'}: the paper's method needs poses where every marker is seen; "

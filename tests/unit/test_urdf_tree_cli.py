@@ -158,3 +158,17 @@ def test_a_comma_list_of_links_from_python_says_a_tree_is_a_mapping():
 
     with pytest.raises(BadInput, match=r"a mapping .*moving_link=\{'right_tcp': 'right_tcp', 'left_tcp': 'left_tcp'\}"):
         get_platform("urdf", URDF, moving_link="right_tcp, left_tcp")
+
+
+def test_the_papers_method_on_a_tree_is_refused_in_one_line(tmp_path, capsys):
+    """--method paper fits one rigid marker frame: on a tree its markers ride on several links, so
+    it is refused before any work (it ran its whole Nelder-Mead budget from a registration 0.68 m
+    off and said 'raise --max-evaluations')."""
+    spec = tree_spec()
+    rng = np.random.default_rng(26200)
+    U = commands(spec, 20, rng)
+    session = write_session(tmp_path / "session", spec, U, observe(spec, true_td(spec, rng), U, rng))
+    assert main(["calibrate", str(session), "--method", "paper", "--max-evaluations", "40", "--quiet",
+                 "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "--method paper fits one rigid frame to every marker" in err and "2 links (left_tcp, right_tcp)" in err
