@@ -207,19 +207,21 @@ def rejected_by_marker(cal: Calibration) -> dict[str, tuple[int, int]]:
 
 
 def predict_markers(cal: Calibration, controls: np.ndarray, poses: PoseSet | None = None):
-    """Model prediction for controls (N, n_u), SI: markers (N, M, 3) in the mocap frame, pose
-    (q (N, 4), X (N, 3)) in the base frame and a converged flag (N,).
+    """Model prediction for controls (N, n_u), SI: (markers (N, M, 3) in the mocap frame, q (N, 4)
+    and X (N, 3), the moving frame's pose in the base frame, converged (N,)).
 
-    ``poses`` supplies what history- or time-dependent terms need (t, row order, extras); by
-    default a PoseSet of the controls alone.
+    ``poses`` supplies what history- or time-dependent terms need (t, row order, extras) and, on a
+    tree, each marker's link; by default a PoseSet of the controls alone with the calibration's
+    marker-to-link mapping (as ``platkit predict`` reads it).
     """
     spec = cal.calibrated_spec()
     model = PlatformModel(spec)
     U = np.atleast_2d(np.asarray(controls, float))
     N, M = U.shape[0], len(cal.marker_names)
-    if poses is None:
+    if poses is None:  # on a tree, the terms move each marker with its own link
         poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((N, M, 3), np.nan),
-                        marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+                        marker_names=list(cal.marker_names), length_unit=cal.length_unit,
+                        marker_links=dict(cal.marker_links))
     R_all, X_all, dm, ok = _predicted_frames(cal, spec, model, U, poses)
     A = matrix_from_rotvec(cal.mocap_rotvec)
     k = np.array(calibration_links(cal)[:M], int)
@@ -236,9 +238,10 @@ def predict_links(cal: Calibration, controls: np.ndarray, poses: PoseSet | None 
     the base frame, for controls (N, n_u) SI; L = 1 (the moving frame) but on a tree."""
     spec = cal.calibrated_spec()
     U = np.atleast_2d(np.asarray(controls, float))
-    if poses is None:
+    if poses is None:  # on a tree, the terms move each marker with its own link
         poses = PoseSet(platform=cal.platform, controls=U, markers=np.full((len(U), len(cal.marker_names), 3), np.nan),
-                        marker_names=list(cal.marker_names), length_unit=cal.length_unit)
+                        marker_names=list(cal.marker_names), length_unit=cal.length_unit,
+                        marker_links=dict(cal.marker_links))
     R_all, X_all, _, ok = _predicted_frames(cal, spec, PlatformModel(spec), U, poses)
     q = quat_normalize(quat_from_matrix(R_all))
     q[~ok], X_all[~ok] = np.nan, np.nan
