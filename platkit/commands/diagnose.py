@@ -33,7 +33,9 @@ def add_parser(sub):
                         "as a registration set that spans the workspace, instead of K consecutive ones")
     p.add_argument("--folds", type=int, default=5, help="K of the K-fold held-out test (default 5)")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise level of the tests (default 0.01)")
-    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--max-effects", type=int, default=None, metavar="N",
+                   help="most effects to name (default: 3 on a stand or a chain, 3 for each tracked link of a tree); "
+                        "a search the cap ends, not a test, says 'stopped at the cap of N effects'")
     p.add_argument("--keep-geometry", action="store_true",
                    help="keep the calibration's free parameters (default: a parameter group it held is freed again "
                         "before a term mostly inside the geometry would be named, when that predicts held-out poses "
@@ -76,7 +78,7 @@ def run(args) -> int:
         raise BadInput(f"--folds {args.folds}: use 2 or more")
     if not 0 < args.alpha < 1:
         raise BadInput(f"--alpha {args.alpha}: must lie between 0 and 1")
-    if args.max_effects < 1:
+    if args.max_effects is not None and args.max_effects < 1:
         raise BadInput(f"--max-effects {args.max_effects}: must be 1 or more")
     if not Path(args.calibration).is_file():
         raise BadInput(f"{args.calibration}: calibration file not found")

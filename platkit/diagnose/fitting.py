@@ -55,7 +55,10 @@ class Options:
     alpha: float = 0.01  # family-wise level of the screening and location tests
     alpha_heldout: float = 0.05  # level of the held-out confirmation (one test per round)
     folds: int = 5
-    max_effects: int = 3
+    # the most effects the search names (its rounds end there: said in the rounds and the verdict);
+    # None: the model's own cap (search.effect_cap), three on a stand or a chain, three for each
+    # tracked link of a tree
+    max_effects: int | None = None
     max_refits: int = 3  # candidates refit per round (the best screened)
     # of one kind at one place (periods, time constants, rows): this many fitted, then the best's neighbours
     max_variants: int = 4

@@ -1,6 +1,8 @@
 """Forward selection of effects: screen, refit with the shared estimator, accept on held-out proof.
 
-One round (repeated until nothing passes or ``max_effects`` are in):
+One round (repeated until nothing passes or the cap on the effects named is reached,
+:func:`effect_cap`: ``max_effects`` where given, else three on a stand or a chain and three for
+each tracked link of a tree; a search the cap ended says so in its rounds and verdict):
 
 1. screen every candidate term of every effect (one per actuator, marker, period, ...) with a
    score test on the current fit's residuals: the part of the term's Jacobian columns outside
@@ -88,7 +90,21 @@ from platkit.plugins import effect_library
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
 
-__all__ = ["diagnose", "Search", "SETTLED_PER_FOLD", "settled_needed"]
+__all__ = ["diagnose", "Search", "SETTLED_PER_FOLD", "settled_needed", "effect_cap", "CHAIN_EFFECTS"]
+
+#: the cap on the effects named on a stand or a chain (one moving part), where none is given
+CHAIN_EFFECTS = 3
+
+
+def effect_cap(spec: PlatformSpec, given: int | None = None) -> int:
+    """The most effects the search names: ``given`` (``--max-effects``) where set; else
+    CHAIN_EFFECTS for each tracked link of a tree, CHAIN_EFFECTS on a stand or a chain (one moving
+    part). Each branch the markers follow can hold effects of its own (a bend where it hangs on
+    the trunk) beside those the branches share (the every-joint compliance, the trunk's bend): the
+    cap is a bound on a search the held-out tests end, not a guess at the truth's size."""
+    if given is not None:
+        return int(given)
+    return CHAIN_EFFECTS * max(len(spec.tracked_links), 1)
 
 #: the stand's physics is proven on settled poses, at least this many per fold of the held-out
 #: test; with fewer (the rest extrapolated to rest), nothing of the stand is named
@@ -147,6 +163,7 @@ class Search:
         estimated parameters free, its td the start, its terms kept), its K-fold held-out errors and
         the noise floor they are judged against."""
         self.opt = opt = options or Options()
+        self.cap = effect_cap(start.spec if start is not None else spec, opt.max_effects)
         self.library = effect_library() if library is None else library
         self.say = progress or (lambda s: None)
         self.poses = poses = with_history(poses, spec)
@@ -246,10 +263,21 @@ class Search:
     # ------------------------------------------------------------------------ the rounds
     def select(self) -> None:
         """Rounds of forward selection until one accepts nothing, a probe beats the named model,
-        ``max_effects`` are named, or the model named so far predicts held-out poses at the noise
-        floor (the geometric model's rule: what is left there is noise, or a remnant of the
-        physics named that any further term would only take a slice of)."""
-        while len(self.findings) < self.opt.max_effects and not self.stop:
+        the model named so far predicts held-out poses at the noise floor (the geometric model's
+        rule: what is left there is noise, or a remnant of the physics named that any further term
+        would only take a slice of), or the cap (:func:`effect_cap`) is reached: then the search
+        did not end at a test, and a round ``at_cap`` says so (the verdict too)."""
+        while not self.stop:
+            if len(self.findings) >= self.cap:
+                links = len(self.spec.tracked_links)
+                why = ("--max-effects" if self.opt.max_effects is not None else
+                       f"{CHAIN_EFFECTS} for each of the tree's {links} tracked links" if links > 1 else
+                       f"{CHAIN_EFFECTS} on one moving part")
+                text = (f"stopped at the cap of {self.cap} effect{'s' if self.cap != 1 else ''} ({why}), not at a "
+                        "test: a further effect was not tried")
+                self.rounds.append({"round": len(self.rounds) + 1, "at_cap": text, "cap": self.cap})
+                self.say(text)
+                break
             if not self.round():
                 break
             if self.floor is not None and self.findings and self.naming \

@@ -34,6 +34,9 @@ def verdict(d: Diagnosis) -> str:
                          f"brings the held-out RMS from {_fmt_rms(first_before, unit)} to {_fmt_rms(last_after, unit)}.")
         else:  # a slow actuator read from the stream, its holds already extrapolated by the settling search
             parts.append(f"The recording shows {names}; the held-out RMS stays {_fmt_rms(last_after, unit)}.")
+    capped = next((r for r in d.rounds if r.get("at_cap")), None)
+    if capped is not None:
+        parts.append(f"The search {capped['at_cap']}; more may be left to name (--max-effects sets the cap).")
     for r in d.rounds:
         note = r.get("geometry_reopened")
         if note:

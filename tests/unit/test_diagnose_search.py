@@ -33,6 +33,7 @@ def test_marker_slip_is_named_with_its_marker_and_time(spec):
     term, theta = sim.truth.terms[0]
     d = diagnose(spec, sim.poses, Options(max_effects=2))
     assert [f.effect for f in d.findings] == ["marker_slip"]
+    assert not any(r.get("at_cap") for r in d.rounds) and "stopped at the cap" not in d.verdict  # the tests ended the search
     f = d.findings[0]
     assert f.where["marker"] == term.where["marker"]
     t = sim.poses.extras["elapsed"]
