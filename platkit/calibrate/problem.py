@@ -26,7 +26,6 @@ J_r^-1(e) J_r(phi_b) for phi_b.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -69,16 +68,40 @@ def parameter_scale(unit: str, nominal: float) -> float:
     return 1e-3 * max(abs(nominal), 1e-6) if unit != "count" else 1.0
 
 
-@dataclass
 class FitState:
     """One evaluation: residuals (N, C, 3) m (predicted minus measured, NaN where unseen) and the
     Jacobian (N, C, 3, n_z) with respect to the full unknown vector. C = M + 2 B channels: the
-    markers, then each body's origin, then each body's scaled rotation error."""
+    markers, then each body's origin, then each body's scaled rotation error.
 
-    r: np.ndarray
-    J: np.ndarray | None
-    converged: np.ndarray  # (N,) forward kinematics converged
-    structure: np.ndarray | None = None  # (C, k): False where J[:, c, :, j], j < k, is 0 at every pose; None: unknown
+    The Jacobian may be held in ``parts``, arrays (N, C, 3, k_i) side by side along the unknowns
+    (:meth:`CalibrationProblem.evaluate` leaves the observation function's columns as the function
+    wrote them, the terms' beside them): ``J`` lays it out whole at its first read; the normal
+    equations take their columns from the parts (:func:`platkit.calibrate.point_columns.take`)."""
+
+    def __init__(self, r: np.ndarray, J: np.ndarray | None, converged: np.ndarray,
+                 structure: np.ndarray | None = None, parts: tuple[np.ndarray, ...] | None = None):
+        self.r = r
+        self.converged = converged  # (N,) forward kinematics converged
+        self.structure = structure  # (C, k): False where J[:, c, :, j], j < k, is 0 at every pose; None: unknown
+        self._J, self._parts = J, (None if J is not None else parts)
+
+    @property
+    def J(self) -> np.ndarray | None:
+        """The Jacobian (N, C, 3, n_z), laid out from its parts at the first read; None without one."""
+        if self._J is None and self._parts is not None:
+            self._J, self._parts = np.concatenate(self._parts, axis=-1), None
+        return self._J
+
+    @property
+    def parts(self) -> tuple[np.ndarray, ...] | None:
+        """The Jacobian as arrays side by side along the unknowns, without laying it out ((J,) once
+        whole); None without a Jacobian."""
+        return (self._J,) if self._J is not None else self._parts
+
+    @property
+    def has_jacobian(self) -> bool:
+        """Whether the evaluation has a Jacobian (whole or in parts)."""
+        return self._J is not None or self._parts is not None
 
 
 class CalibrationProblem:
@@ -271,7 +294,7 @@ class CalibrationProblem:
         it is returned as it was, not recomputed. Callers must not write into the returned arrays."""
         z = np.asarray(z, float)
         own = poses is None
-        if own and self._last is not None and (self._last[2].J is not None or not with_jac) \
+        if own and self._last is not None and (self._last[2].has_jacobian or not with_jac) \
                 and self._last[1] == self.body_rho and np.array_equal(self._last[0], z):
             return self._last[2]
         state = self._evaluate(z, with_jac, poses)
@@ -287,7 +310,8 @@ class CalibrationProblem:
         own = poses is None
         poses = self.poses if own else poses
         pre = self._prepare(z, poses if own or not self.terms else with_history(poses, self.spec), own)
-        return self._rows(pre, slice(0, poses.n_poses), with_jac, self._term_jacobians(pre) if with_jac else [])
+        return self._rows(pre, slice(0, poses.n_poses), with_jac, self._term_jacobians(pre) if with_jac else [],
+                          in_parts=True)
 
     def evaluate_blocks(self, z, block: int):
         """The residuals and Jacobian of the problem's own poses, ``block`` poses at a time: yields
@@ -373,9 +397,11 @@ class CalibrationProblem:
             out.append(("columns", K, cols))
         return out
 
-    def _rows(self, pre: dict, rows: slice, with_jac: bool, jacs: list) -> FitState:
+    def _rows(self, pre: dict, rows: slice, with_jac: bool, jacs: list, in_parts: bool = False) -> FitState:
         """Residuals (and the Jacobian) of the poses ``rows`` from :meth:`_prepare`'s ``pre`` and,
-        with the Jacobian, :meth:`_term_jacobians`' ``jacs``."""
+        with the Jacobian, :meth:`_term_jacobians`' ``jacs``. ``in_parts``: a Jacobian with terms'
+        columns and no rigid bodies is left in two parts (FitState.parts), the observation
+        function's columns as it wrote them and the terms' in an array of their own."""
         poses = pre["poses"]
         n, M, B = rows.stop - rows.start, self.M, self.B
         args = [pre["Uo"][rows], pre["td"]] + ([] if pre["P"] is None else [pre["P"][rows]]) + [
@@ -398,18 +424,23 @@ class CalibrationProblem:
         Y_m = J_main[:, :, self.i_m.start:]
         Y_dpose, Y_u = J_offsets[:, :, :6], J_offsets[:, :, 6:]
         r = y[:, :nP3].reshape(n, M + B, 3) - measured
+        # in parts: J holds the terms' columns only, from column k0, beside the function's own
+        whole = not (in_parts and B == 0 and J_main.shape[1:] == (nP3, self.i_theta.start))
+        k0 = 0 if whole else self.i_theta.start
         if self.n_z == J_main.shape[2]:  # td, w, t, markers only: the function's output as it is
             J = J_main
+        elif not whole:
+            J = np.empty((n, y.shape[1], self.n_z - k0))
         else:
             J = np.empty((n, y.shape[1], self.n_z))
             J[:, :, :self.i_m.stop] = J_main[:, :, :self.i_m.stop]  # td, w, t, markers: one block
             J[:, :, self.i_body_pos] = Y_m[:, :, 3 * M:]
             J[:, :, self.i_body_rot] = 0.0  # the terms' columns: each term's below
-        k = self.i_theta.start
+        k = self.i_theta.start - k0
         finite = None  # whether the function's Jacobian is finite (a product with a zero is then a zero)
         # the structure of the leading terms' columns, point by point, while each is known: a term
         # whose one part is written by rows (by_rows: the rows of each column), or that has none
-        beyond: list | None = [] if self._structure is not None and self._structure.shape[1] == k else None
+        beyond: list | None = [] if self._structure is not None and self._structure.shape[1] == k + k0 else None
         for jac in jacs:
             K = jac[1]
             if jac[0] == "known":
@@ -442,6 +473,10 @@ class CalibrationProblem:
                 J[:, :, k] = offset_column(((Y_u, d_u[rows]), (Y_dpose, d_pose[rows]), (Y_m, d_m[rows])),
                                             supports if finite else None)
                 k += 1
+        structure = self._structure if not beyond else np.concatenate([self._structure, *beyond], axis=1)
+        if J is not J_main and not whole:
+            r[~ok] = np.nan
+            return FitState(r, None, ok, structure, parts=(J_main.reshape(n, M, 3, k0), J.reshape(n, M, 3, -1)))
         J_pts = J[:, :nP3].reshape(n, M + B, 3, self.n_z)
         if B:
             e, J_rot = self._body_rotation_errors(y[:, nP3:].reshape(self._Q_shape(n)), pre["phi_body"], bodies,
@@ -449,7 +484,6 @@ class CalibrationProblem:
             r = np.concatenate([r, self.body_rho * e], axis=1)
             J_pts = np.concatenate([J_pts, self.body_rho * J_rot], axis=1)
         r[~ok] = np.nan
-        structure = self._structure if not beyond else np.concatenate([self._structure, *beyond], axis=1)
         return FitState(r, J_pts, ok, structure)
 
     def _Q_shape(self, N: int) -> tuple[int, ...]:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from platkit._threads import blas_threads  # every LM run enters it; estimators import it from here
-from platkit.calibrate.point_columns import columns_by_structure, point_columns, runs_of_points
+from platkit.calibrate.point_columns import columns_by_structure, point_columns, runs_of_points, take
 from platkit.calibrate.problem import CalibrationProblem, FitState, Progress
 from platkit.calibrate.robust import HUBER_K, MAXWELL_MEDIAN, REJECT_K, robust_sigma
 from platkit.errors import BadInput
@@ -159,19 +159,22 @@ def _weighted(state: FitState, weights, active, prior=None, scratch: dict | None
     :func:`_weighted_columns`); the array returned is overwritten by the next call with it."""
     sw, rw = _weighted_residuals(state, weights)
     Jw = None
-    if state.J is not None:
+    parts = state.parts
+    if parts is not None:
         # one pass over the rows in 2-D (the Jacobian is often a strided view of the observation
         # function's output): a column gather, then the weights in place (18 ms for 150,000 x 51
         # where a gather on the 4-D view took 120 ms)
-        J2 = state.J.reshape(-1, state.J.shape[-1])
         rows = np.repeat(sw.ravel(), 3)[:, None]
-        if scratch is not None and J2.flags.c_contiguous:
-            Jw = _weighted_columns(J2, rows, active, scratch)
-        elif active.all():
-            Jw = np.multiply(J2, rows)
+        flat = [p.reshape(-1, p.shape[-1]) for p in parts]
+        if scratch is not None and all(p.flags.c_contiguous for p in flat):
+            Jw = _weighted_columns(flat, rows, active, scratch)
         else:
-            Jw = J2[:, np.nonzero(active)[0]]
-            Jw *= rows
+            J2 = state.J.reshape(-1, state.J.shape[-1])  # laid out whole
+            if active.all():
+                Jw = np.multiply(J2, rows)
+            else:
+                Jw = J2[:, np.nonzero(active)[0]]
+                Jw *= rows
     if prior is not None:
         val, idx, slope = prior
         on = active[idx]  # a prior on a held unknown is a constant: no row
@@ -196,24 +199,30 @@ def _weighted_residuals(state: FitState, weights):
 GATHER_BLOCK = 1024
 
 
-def _weighted_columns(J2: np.ndarray, rows: np.ndarray, active: np.ndarray, scratch: dict) -> np.ndarray:
+def _weighted_columns(J2: list[np.ndarray], rows: np.ndarray, active: np.ndarray, scratch: dict) -> np.ndarray:
     """``J2[:, active] * rows`` into ``scratch``'s array, allocated once per Levenberg-Marquardt
     run (75 MB for 10,000 poses) rather than at every step, and laid out as the plain expression
     lays it out (column-major after a column gather, row-major without one): the products that
-    follow (H = Jw^T Jw) take the same BLAS path and give the same numbers bit for bit. The
-    gather goes in blocks of GATHER_BLOCK rows, which stay in the cache (16 -> 11 ms for
+    follow (H = Jw^T Jw) take the same BLAS path and give the same numbers bit for bit. ``J2``:
+    the 2-D Jacobian's parts side by side (FitState.parts), each part's columns written in place.
+    The gather goes in blocks of GATHER_BLOCK rows, which stay in the cache (16 -> 11 ms for
     150,000 x 60 of 63 columns, 2026-11-25)."""
     every = bool(active.all())
-    shape = (J2.shape[0], J2.shape[1] if every else int(np.count_nonzero(active)))
+    edges = np.cumsum([0] + [p.shape[1] for p in J2])
+    shape = (J2[0].shape[0], int(edges[-1]) if every else int(np.count_nonzero(active)))
     key = "Jw" if every else "Jw_columns"
     out = scratch.get(key)
     if out is None or out.shape != shape:
         out = scratch[key] = np.empty(shape, order="C" if every else "F")
     if every:
-        return np.multiply(J2, rows, out=out)
+        for part, lo, hi in zip(J2, edges[:-1], edges[1:]):
+            np.multiply(part, rows, out=out[:, lo:hi])
+        return out
     cols = np.nonzero(active)[0]
-    for k in range(0, J2.shape[0], GATHER_BLOCK):
-        out[k:k + GATHER_BLOCK] = J2[k:k + GATHER_BLOCK, cols]
+    at = np.searchsorted(cols, edges)  # cols[at[i]:at[i + 1]] lie in part i
+    for k in range(0, shape[0], GATHER_BLOCK):
+        for part, lo, a, b in zip(J2, edges, at[:-1], at[1:]):
+            out[k:k + GATHER_BLOCK, a:b] = part[k:k + GATHER_BLOCK, cols[a:b] - lo]
     out *= rows
     return out
 
@@ -230,11 +239,11 @@ def _gram_by_point(state: FitState, weights, active):
     markers, each moving one marker's rows). None with fewer than GRAM_BY_POINT_FROM active
     unknowns, or where the points' blocks would cost more than half the whole product. H and g
     are the whole product's to rounding (the sums run point by point)."""
-    J = state.J
     cols = np.flatnonzero(active)
     n = cols.size
-    if J is None or J.ndim != 4 or n < GRAM_BY_POINT_FROM:
+    if n < GRAM_BY_POINT_FROM or not state.has_jacobian or state.J.ndim != 4:
         return None
+    J = state.J
     N, P = J.shape[:2]
     sw, rw = _weighted_residuals(state, weights)
     # each point's columns: those with a nonzero entry on a row of nonzero weight (the weighted
@@ -272,21 +281,22 @@ def _gram_by_runs(state: FitState, weights, active):
 
     A point's columns are read off the whole Jacobian (:func:`point_columns`), or, where the state
     knows its structure (FitState.structure), from the structure and the first pose
-    (:func:`columns_by_structure`)."""
-    J, cols = state.J, np.flatnonzero(active)
+    (:func:`columns_by_structure`). The columns are taken from the Jacobian's parts
+    (FitState.parts), which are not laid out whole for it."""
+    parts, cols = state.parts, np.flatnonzero(active)
     n = cols.size
-    if J is None or J.ndim != 4 or n < GRAM_BY_RUNS_FROM:
+    if parts is None or parts[0].ndim != 4 or n < GRAM_BY_RUNS_FROM:
         return None
-    N, P = J.shape[:2]
-    moves = columns_by_structure(J, cols, getattr(state, "structure", None))
-    runs = runs_of_points(point_columns(J, cols) if moves is None else moves)
+    N, P = parts[0].shape[:2]
+    moves = columns_by_structure(parts, cols, state.structure)
+    runs = runs_of_points(point_columns(state.J, cols) if moves is None else moves)
     if sum((p1 - p0) * s.size ** 2 for p0, p1, s in runs) > 0.5 * P * n * n:
         return None
     sw, rw = _weighted_residuals(state, weights)
     r, H, g = rw.reshape(N, P, 3), np.zeros((n, n)), np.zeros(n)
     for p0, p1, s in (run for run in runs if run[2].size):
         k = 3 * (p1 - p0)
-        A = J[:, p0:p1][..., cols[s]].reshape(N * k, s.size)
+        A = take(parts, cols[s], points=slice(p0, p1)).reshape(N * k, s.size)
         A *= np.repeat(sw[:, p0:p1].ravel(), 3)[:, None]
         H[np.ix_(s, s)] += A.T @ A
         g[s] += A.T @ r[:, p0:p1].ravel()
@@ -509,8 +519,8 @@ def _recentred_markers(problem: CalibrationProblem, res: LMResult, keep: np.ndar
     REJECT_K sigma and rejection would leave it there, at neither place. From the median, the
     larger share of its observations is kept and the rest rejected (and counted)."""
     blocked = problem.row_block is not None  # a marker's columns then come block by block, if asked
-    state = res.state if res.state.J is not None or blocked else problem.evaluate(res.z, with_jac=True)
-    r, J = state.r, state.J
+    state = res.state if res.state.has_jacobian or blocked else problem.evaluate(res.z, with_jac=True)
+    r = state.r
     seen_all = problem.visible[:, :problem.M] & np.isfinite(r[:, :problem.M]).all(axis=2)
     z, moved = res.z.copy(), False
     for m in range(problem.M):
@@ -520,8 +530,8 @@ def _recentred_markers(problem: CalibrationProblem, res: LMResult, keep: np.ndar
         cols = np.arange(problem.i_m.start + 3 * m, problem.i_m.start + 3 * m + 3)
         if not active[cols].any():
             continue
-        if J is not None:
-            Jm = J[seen, m][:, :, cols]  # (n, 3, 3): the predicted marker against its place
+        if state.has_jacobian:
+            Jm = state.J[seen, m][:, :, cols]  # (n, 3, 3): the predicted marker against its place
         else:
             Jm = np.empty((problem.N, 3, 3))
             for rows, part in problem.evaluate_blocks(res.z, problem.row_block):

@@ -393,7 +393,7 @@ def refit_body_rho(problem: CalibrationProblem, fit, active, robust: bool, max_i
         return fit
     M, B = problem.M, problem.B
     for _ in range(2):
-        st = fit.state if fit.state.J is not None else problem.evaluate(fit.z)
+        st = fit.state if fit.state.has_jacobian else problem.evaluate(fit.z)
         keep = (fit.weights > 0) & np.isfinite(st.r).all(axis=2)
         _, Jw = _weighted(st, fit.weights, active)
         lev = np.einsum("ij,ij->i", Jw @ np.linalg.pinv(Jw.T @ Jw), Jw).reshape(st.r.shape).sum(axis=2)

@@ -89,20 +89,25 @@ def test_structural_nonzeros_and_the_problems_structure():
     assert st.structure[0, m0:m0 + 3].all() and not st.structure[0, m0 + 3:m0 + 6].any()
 
 
-def test_the_marker_probes_columns_are_in_the_structure():
-    # a tree's probe (each marker's own controls), written row by row: the state's structure covers
-    # its columns, so the runs are read without a pass over the whole Jacobian, and are the same
+def probe_problem(rng: np.random.Generator) -> tuple[CalibrationProblem, np.ndarray]:
+    """A two-armed tree's problem with the marker probe (each marker's own controls), 60 random
+    poses, and unknowns with the probe's parameters small and nonzero."""
     urdf = Path(__file__).resolve().parents[1] / "data" / "trees" / "two_arm_torso.urdf"
     mapping = {"R1": "right_tcp", "R2": "right_tcp", "L1": "left_tcp", "L2": "left_tcp", "L3": "left_tcp"}
     spec = get_platform("urdf", urdf, moving_link=mapping)
-    rng = np.random.default_rng(24)
     lo, hi = spec.control_bounds()
     poses = PoseSet("urdf", rng.uniform(0.8 * lo, 0.8 * hi, (60, spec.n_u)), rng.normal(size=(60, 5, 3)),
                     list(mapping), moving_link=mapping)
-    probe = marker_probe(poses, spec)
-    problem = CalibrationProblem(spec, poses, [probe])
+    problem = CalibrationProblem(spec, poses, [marker_probe(poses, spec)])
     z = problem.initial_registration(spec.nominal_td())
-    z[problem.i_theta] = rng.normal(0, 1e-3, len(probe.initial))
+    z[problem.i_theta] = rng.normal(0, 1e-3, problem.i_theta.stop - problem.i_theta.start)
+    return problem, z
+
+
+def test_the_marker_probes_columns_are_in_the_structure():
+    # a tree's probe (each marker's own controls), written row by row: the state's structure covers
+    # its columns, so the runs are read without a pass over the whole Jacobian, and are the same
+    problem, z = probe_problem(np.random.default_rng(24))
     st = problem.evaluate(z)
     assert st.structure is not None and st.structure.shape == (5, problem.n_z)
     moves = (st.J != 0).any(axis=(0, 2))
