@@ -417,7 +417,9 @@ def report_html(cal: Calibration, poses: PoseSet | None = None, description: str
 def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None = None, with_html: bool = True) -> list[Path]:
     """Write calibration.yaml, report.json, report.html (and calibrated.urdf for URDF stands) into
     ``out_dir`` atomically. Returns the paths written. ``with_html=False``: no report.html (its
-    figures take longer than a small calibration; ``platkit calibrate --no-report``)."""
+    figures take longer than a small calibration; ``platkit calibrate --no-report``). A URDF stand's
+    calibrated.urdf that cannot be written (a joint scale other than 1) is a warning of ``cal``
+    (appended, so calibration.yaml and the reports list it; the caller says it)."""
     out_dir = Path(out_dir)
     names = []
     with atomic_output_dir(out_dir) as tmp:
@@ -430,6 +432,7 @@ def write_outputs(cal: Calibration, out_dir: str | Path, poses: PoseSet | None =
                 urdf = "calibrated.urdf"
             except BadInput as exc:  # e.g. a joint scale other than 1 has no place in a URDF
                 urdf = f"not written: {exc}"
+                cal.warnings = [*cal.warnings, f"calibrated.urdf {urdf}"]  # said where the files list it
         write_calibration_yaml(cal, tmp)  # with its description beside it: the folder travels
         # the reports name the description as calibration.yaml does (relative to the folder, or shipped:);
         # read through libyaml's safe loader where PyYAML has it (a tree's 57 kB file: 0.7 s in Python's)

@@ -315,7 +315,10 @@ def run(args) -> int:
         warn(w)
     failure = fit_failure(cal)  # in the report as a warning; on stderr as the error line at the end
     cal.warnings = all_warnings(notes, fit_notes, [failure] if failure else [])
+    said_before = len(cal.warnings)
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
+    for w in cal.warnings[said_before:]:  # what writing found (a calibrated.urdf not written, and why)
+        warn(w)
     line = _rms_line(cal, s)
     from platkit.calibrate.estimate import rejected_by_body, rejected_by_marker
 
@@ -465,7 +468,10 @@ def run_motion(args, why: str, notes: list[str], settle_reason: str | None = Non
     for w in fit_notes:
         warn(w)
     cal.warnings = all_warnings(notes, [note], fit_notes)  # said before writing: the report lists them
+    said_before = len(cal.warnings)
     written = write_outputs(cal, args.out, poses, with_html=not args.no_report)
+    for w in cal.warnings[said_before:]:  # what writing found (a calibrated.urdf not written, and why)
+        warn(w)
     sc = length_scale(cal.length_unit)
     r = cal.motion["response"]
     # the slowest of the actuators whose response the markers saw (a tree's joint that moves no
