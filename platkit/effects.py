@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from platkit.errors import BadInput
-from platkit.model import PlatformSpec
+from platkit.model import PlatformSpec, controls_moving_links
 from platkit.play import play_memory
 from platkit.poses import PoseSet
 from platkit.terms import ModelTerm
@@ -209,15 +209,13 @@ def stored_number(where: dict[str, Any], key: str, effect: str, positive: bool =
 
 def seen_controls(spec: PlatformSpec) -> np.ndarray:
     """(n_u,) bool: the controls that move a tracked link (structurally: the joints on a tracked
-    link's path and the masters of mimic joints there). Every control on a stand of one moving
-    frame; on a tree, not the joints no marker moves (a head, fingers, a leg that is not tracked)."""
-    if spec.link_poses is None or len(spec.tracked_links) < 2:
-        return np.ones(spec.n_u, bool)
-    import casadi as ca
-
-    u, t = ca.SX.sym("u", spec.n_u), ca.SX.sym("td", spec.n_td)
-    q, X = spec.link_poses(u, t)
-    return np.array(ca.which_depends(ca.vertcat(q, X), u, 1, False), bool)
+    link's path and the masters of mimic joints there; :func:`platkit.model.controls_moving_links`).
+    Every control on a stand of one moving frame; on a tree, not the joints no marker moves (a head,
+    fingers, a leg that is not tracked)."""
+    seen = np.zeros(spec.n_u, bool)
+    for m in controls_moving_links(spec).values():
+        seen |= m
+    return seen
 
 
 def planted(spec: PlatformSpec, rng: np.random.Generator, drawn: int, options: list[int], effect: str) -> int:

@@ -367,3 +367,31 @@ def six_dof_pose(neutral_position_m, neutral_rpy=(0.0, 0.0, 0.0), position_min=N
     yaw = ca.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     from_pose = ca.Function("coordinates_from_pose", [q, X], [ca.vertcat(X, roll, pitch, yaw)], ["q", "X"], ["p"])
     return coords, pose, from_pose
+
+
+# the structural dependence of each tracked link on the controls, per spec (id and the spec itself)
+_LINK_CONTROLS: dict = {}
+
+
+def controls_moving_links(spec: PlatformSpec) -> dict[str, np.ndarray]:
+    """Per tracked link (a chain: its moving frame), which controls (n_u,) bool move it: its pose
+    depends on them (structurally: through the joints on its path, and a mimic joint's master)."""
+    if spec.link_poses is None or len(spec.tracked_links) < 2:
+        return {spec.moving_frame: np.ones(spec.n_u, bool)}
+    return link_controls(spec)
+
+
+def link_controls(spec: PlatformSpec) -> dict[str, np.ndarray]:
+    """Per tracked link of a stand with ``link_poses`` (a tree, one tracked link or more), which
+    controls (n_u,) bool its pose depends on, structurally (kept per spec)."""
+    hit = _LINK_CONTROLS.get(id(spec))
+    if hit is not None and hit[0] is spec:
+        return hit[1]
+    if spec.link_poses is None:
+        raise ValueError(f"{spec.name}: no link_poses (a stand of one moving frame): see controls_moving_links")
+    u, t = ca.SX.sym("u", spec.n_u), ca.SX.sym("td", spec.n_td)
+    q, X = spec.link_poses(u, t)
+    out = {link: np.array(ca.which_depends(ca.vertcat(q[4 * k:4 * k + 4], X[3 * k:3 * k + 3]), u, 1, False), bool)
+           for k, link in enumerate(spec.tracked_links)}
+    _LINK_CONTROLS[id(spec)] = (spec, out)
+    return out

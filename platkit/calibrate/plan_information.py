@@ -10,10 +10,13 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from platkit.effects import seen_controls
 from platkit.errors import BadInput
 from platkit.geometry import ca_matrix_from_quat, skew
 from platkit.kinematics import PlatformModel
 from platkit.model import PlatformSpec
+from platkit.model import controls_moving_links as controls_moving_links
+from platkit.model import link_controls as link_controls
 
 # ----------------------------------------------------------------------------- reach
 
@@ -49,36 +52,10 @@ def feasible(spec: PlatformSpec, U: np.ndarray, td=None, model: PlatformModel | 
 # ----------------------------------------------------------------------------- trees
 
 
-def controls_moving_links(spec: PlatformSpec) -> dict[str, np.ndarray]:
-    """Per tracked link (a chain: its moving frame), which controls (n_u,) bool move it: its pose
-    depends on them (structurally: through the joints on its path, and a mimic joint's master)."""
-    if spec.link_poses is None or len(spec.tracked_links) < 2:
-        return {spec.moving_frame: np.ones(spec.n_u, bool)}
-    return link_controls(spec)
-
-
-def link_controls(spec: PlatformSpec) -> dict[str, np.ndarray]:
-    """Per tracked link of a stand with ``link_poses`` (a tree, one tracked link or more), which
-    controls (n_u,) bool its pose depends on, structurally (kept per spec)."""
-    key = ("moving", id(spec))
-    hit = _MARKER_FUNCTIONS.get(key)
-    if hit is not None and hit[0] is spec:
-        return hit[1]
-    u, t = ca.SX.sym("u", spec.n_u), ca.SX.sym("td", spec.n_td)
-    q, X = spec.link_poses(u, t)
-    out = {link: np.array(ca.which_depends(ca.vertcat(q[4 * k:4 * k + 4], X[3 * k:3 * k + 3]), u, 1, False), bool)
-           for k, link in enumerate(spec.tracked_links)}
-    _MARKER_FUNCTIONS[key] = (spec, out)
-    return out
-
-
 def idle_controls(spec: PlatformSpec) -> np.ndarray:
     """(n_u,) bool: the controls that move no tracked link (a tree's joints off every tracked
     branch, recorded for the loads); none on a chain."""
-    moving = np.zeros(spec.n_u, bool)
-    for m in controls_moving_links(spec).values():
-        moving |= m
-    return ~moving
+    return ~seen_controls(spec)
 
 
 def planning_bounds(spec: PlatformSpec) -> tuple[np.ndarray, np.ndarray]:
